@@ -1,0 +1,23 @@
+"""nc_schema: the zenoh-nc wire contract (the ``schema/`` folder).
+
+The JSON files beside this module are the single source of truth
+(language-neutral: a C, Rust or TypeScript client reads the same files);
+this package builds the Python codec from them at import time.
+
+Imported as ``nc_schema`` (not ``schema``, which is an unrelated PyPI package).
+"""
+from .codec import (
+    BITSETS, DTYPES, ENUMS, FRAME_HEADER_DTYPE, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
+    PLCTONC_DTYPE, STAMP_DTYPE, STRUCTS, AxisState, CamCouplingState, CmdState, ControlDWord, CoupleState,
+    E_StartPosType, FrameFlags, HomingState, MC_AxisPara, MC_AxisStates, MC_BufferMode, MC_Direction,
+    MC_HomingMode, OpModeDWord, StateDWord, StateDWord2, StateDWord3, bit_names, decode, decode_frame,
+    decode_plc_frame, decode_stamp, encode_frame, encode_plc_frame, encode_stamp, to_dict,
+)
+from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
+from .messages import (
+    COMMANDS, MOTION_COMMANDS, PROTOCOL, Keys, check_client_id, make_reply, make_request, pack, parse_request,
+    unpack,
+)
+from .state import cmdno_newer, motion_state, motion_state_array, next_cmdno
+
+__all__ = [n for n in dir() if not n.startswith("_")]

@@ -1,0 +1,206 @@
+"""numpy dtypes and bit/enum helpers built from the JSON wire contract.
+
+Everything here is generated at import time from ``structs.json``, ``bits.json``
+and ``enums.json``; nothing about a layout is written down twice.
+"""
+from __future__ import annotations
+
+import json
+from enum import IntEnum, IntFlag
+from importlib import resources
+from typing import Any
+
+import numpy as np
+
+_TYPES: dict[str, str] = {
+    "BOOL": "u1", "BYTE": "u1", "USINT": "u1",
+    "WORD": "<u2", "UINT": "<u2",
+    "DWORD": "<u4", "UDINT": "<u4", "DINT": "<i4",
+    "ULINT": "<u8", "LREAL": "<f8",
+}
+
+
+def load_json(name: str) -> dict[str, Any]:
+    """Load one of the contract's JSON files shipped in this package."""
+    return json.loads(resources.files(__package__).joinpath(name).read_text(encoding="utf-8"))
+
+
+STRUCTS: dict[str, Any] = load_json("structs.json")["structs"]
+BITSETS: dict[str, dict[str, str]] = load_json("bits.json")["bitsets"]
+ENUMS: dict[str, Any] = load_json("enums.json")["enums"]
+
+
+def _build_dtype(name: str, built: dict[str, np.dtype]) -> np.dtype:
+    if name in built:
+        return built[name]
+    spec = STRUCTS[name]
+    names, formats, offsets = [], [], []
+    for f in spec["fields"]:
+        t = f["type"]
+        base = _build_dtype(t, built) if t in STRUCTS else np.dtype(_TYPES[t])
+        fmt = (base, (f["count"],)) if "count" in f else base
+        names.append(f["name"])
+        formats.append(fmt)
+        offsets.append(f["offset"])
+    dt = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": spec["size"]})
+    built[name] = dt
+    return dt
+
+
+DTYPES: dict[str, np.dtype] = {}
+for _n in STRUCTS:
+    _build_dtype(_n, DTYPES)
+
+NCTOPLC_DTYPE: np.dtype = DTYPES["NCTOPLC_AXIS_REF"]
+PLCTONC_DTYPE: np.dtype = DTYPES["PLCTONC_AXIS_REF"]
+FRAME_HEADER_DTYPE: np.dtype = DTYPES["FRAME_HEADER"]
+PLC_FRAME_HEADER_DTYPE: np.dtype = DTYPES["PLC_FRAME_HEADER"]
+PLC_AXIS_RECORD_DTYPE: np.dtype = DTYPES["PLC_AXIS_RECORD"]
+STAMP_DTYPE: np.dtype = DTYPES["STAMP"]
+
+FRAME_MAGIC = 0x314E435A  # b"ZCN1"
+PLC_FRAME_MAGIC = 0x31435050  # b"PPC1"
+WIRE_VERSION = 1
+
+
+def _flag(name: str) -> type[IntFlag]:
+    members = {v: 1 << int(k) for k, v in BITSETS[name].items()}
+    return IntFlag(name, members)  # type: ignore[return-value]
+
+
+def _enum(name: str) -> type[IntEnum]:
+    return IntEnum(name, ENUMS[name]["values"])  # type: ignore[return-value]
+
+
+StateDWord = _flag("NCTOPLC_AXIS_REF_STATE")
+StateDWord2 = _flag("NCTOPLC_AXIS_REF_STATE2")
+StateDWord3 = _flag("NCTOPLC_AXIS_REF_STATE3")
+OpModeDWord = _flag("NCTOPLC_AXIS_REF_OPMODE")
+CamCouplingState = _flag("NCTOPLC_AXIS_REF_CAMCOUPLINGSTATE")
+ControlDWord = _flag("PLCTONC_AXIS_REF_CTRL")
+FrameFlags = _flag("FRAME_FLAGS")
+
+AxisState = _enum("AxisState")
+HomingState = _enum("HomingState")
+CoupleState = _enum("CoupleState")
+CmdState = _enum("CmdState")
+MC_AxisStates = _enum("MC_AxisStates")
+MC_Direction = _enum("MC_Direction")
+MC_BufferMode = _enum("MC_BufferMode")
+MC_HomingMode = _enum("MC_HomingMode")
+E_StartPosType = _enum("E_StartPosType")
+MC_AxisPara = _enum("MC_AxisPara")
+
+
+def bit_names(bitset: str, value: int) -> list[str]:
+    """Names of the bits set in ``value`` for bit set ``bitset`` (bits.json)."""
+    return [n for k, n in BITSETS[bitset].items() if value >> int(k) & 1]
+
+
+def to_dict(record: np.void | np.ndarray) -> dict[str, Any]:
+    """One struct record as a plain dict (hidden/reserved members left out)."""
+    out: dict[str, Any] = {}
+    for name in record.dtype.names:
+        if name.startswith("_"):
+            continue
+        v = record[name]
+        if isinstance(v, np.void):
+            out[name] = to_dict(v)
+        elif isinstance(v, np.ndarray):
+            out[name] = v.tolist()
+        else:
+            out[name] = v.item()
+    return out
+
+
+def decode(struct: str, data: bytes | bytearray | memoryview) -> np.void:
+    """Decode exactly one record of ``struct``.
+
+    Raises:
+        ValueError: the buffer's length is not the struct's size.
+    """
+    dt = DTYPES[struct]
+    if len(data) != dt.itemsize:
+        raise ValueError(f"{struct} is {dt.itemsize} bytes, got {len(data)}")
+    return np.frombuffer(data, dtype=dt, count=1)[0]
+
+
+def encode_stamp(cycle: int, nc_time_ns: int) -> bytes:
+    """The 16-byte attachment of per-axis samples."""
+    s = np.zeros((), dtype=STAMP_DTYPE)
+    s["Cycle"] = cycle
+    s["NcTimeNs"] = nc_time_ns
+    return s.tobytes()
+
+
+def decode_stamp(data: bytes) -> tuple[int, int]:
+    """(cycle, nc_time_ns) from a per-axis sample's attachment."""
+    s = decode("STAMP", data)
+    return int(s["Cycle"]), int(s["NcTimeNs"])
+
+
+def encode_frame(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0) -> bytes:
+    """Batched NC status frame: FRAME_HEADER followed by NCTOPLC records."""
+    h = np.zeros((), dtype=FRAME_HEADER_DTYPE)
+    h["Magic"] = FRAME_MAGIC
+    h["Version"] = WIRE_VERSION
+    h["HeaderSize"] = FRAME_HEADER_DTYPE.itemsize
+    h["Cycle"] = cycle
+    h["NcTimeNs"] = nc_time_ns
+    h["AxisCount"] = len(records)
+    h["RecordSize"] = NCTOPLC_DTYPE.itemsize
+    h["Flags"] = flags
+    return h.tobytes() + records.tobytes()
+
+
+def decode_frame(data: bytes) -> tuple[np.void, np.ndarray]:
+    """Split a status frame into (header, NCTOPLC records).
+
+    Raises:
+        ValueError: wrong magic, version or sizes.
+    """
+    hs = FRAME_HEADER_DTYPE.itemsize
+    if len(data) < hs:
+        raise ValueError("frame shorter than its header")
+    h = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
+    if int(h["Magic"]) != FRAME_MAGIC or int(h["Version"]) != WIRE_VERSION:
+        raise ValueError("not a zenoh-nc v1 status frame")
+    n, rs = int(h["AxisCount"]), int(h["RecordSize"])
+    if rs != NCTOPLC_DTYPE.itemsize or len(data) != int(h["HeaderSize"]) + n * rs:
+        raise ValueError("status frame sizes do not add up")
+    recs = np.frombuffer(data, dtype=NCTOPLC_DTYPE, count=n, offset=int(h["HeaderSize"]))
+    return h, recs
+
+
+def encode_plc_frame(plc_cycle: int, axis_ids: list[int] | np.ndarray, plctonc: np.ndarray) -> bytes:
+    """PLC runtime frame: PLC_FRAME_HEADER followed by (AxisId, PLCTONC) records."""
+    n = len(axis_ids)
+    h = np.zeros((), dtype=PLC_FRAME_HEADER_DTYPE)
+    h["Magic"] = PLC_FRAME_MAGIC
+    h["Version"] = WIRE_VERSION
+    h["HeaderSize"] = PLC_FRAME_HEADER_DTYPE.itemsize
+    h["PlcCycle"] = plc_cycle
+    h["AxisCount"] = n
+    h["RecordSize"] = PLC_AXIS_RECORD_DTYPE.itemsize
+    recs = np.zeros(n, dtype=PLC_AXIS_RECORD_DTYPE)
+    recs["AxisId"] = axis_ids
+    recs["PlcToNc"] = plctonc
+    return h.tobytes() + recs.tobytes()
+
+
+def decode_plc_frame(data: bytes) -> tuple[np.void, np.ndarray]:
+    """Split a PLC frame into (header, PLC_AXIS_RECORD records).
+
+    Raises:
+        ValueError: wrong magic, version or sizes.
+    """
+    hs = PLC_FRAME_HEADER_DTYPE.itemsize
+    if len(data) < hs:
+        raise ValueError("PLC frame shorter than its header")
+    h = np.frombuffer(data, dtype=PLC_FRAME_HEADER_DTYPE, count=1)[0]
+    if int(h["Magic"]) != PLC_FRAME_MAGIC or int(h["Version"]) != WIRE_VERSION:
+        raise ValueError("not a zenoh-nc v1 PLC frame")
+    n, rs = int(h["AxisCount"]), int(h["RecordSize"])
+    if rs != PLC_AXIS_RECORD_DTYPE.itemsize or len(data) != int(h["HeaderSize"]) + n * rs:
+        raise ValueError("PLC frame sizes do not add up")
+    return h, np.frombuffer(data, dtype=PLC_AXIS_RECORD_DTYPE, count=n, offset=int(h["HeaderSize"]))

@@ -1,0 +1,48 @@
+"""Error codes of the wire contract (``errors.json``) and the exception that carries one."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .codec import load_json
+
+_ERRORS = load_json("errors.json")["errors"]
+
+#: code -> (name, class, text)
+ERRORS: dict[int, tuple[str, str, str]] = {e["code"]: (e["name"], e["class"], e["text"]) for e in _ERRORS}
+
+
+class ErrorCodes:
+    """Named error codes, e.g. ``ErrorCodes.NC_NO_ENABLE == 0x4223``."""
+
+
+for _code, (_name, _cls, _text) in ERRORS.items():
+    setattr(ErrorCodes, _name, _code)
+
+
+def error_name(code: int) -> str:
+    """The symbolic name of ``code`` (``"0x1234"`` if unknown)."""
+    e = ERRORS.get(code)
+    return e[0] if e else f"0x{code:04X}"
+
+
+def error_text(code: int) -> str:
+    """Beckhoff's (shortened) text for ``code``, or a generic one."""
+    e = ERRORS.get(code)
+    return e[2] if e else f"error 0x{code:04X}"
+
+
+@dataclass
+class NcError(Exception):
+    """A rejected request or an axis fault, with its TwinCAT error code.
+
+    Attributes:
+        code: the TwinCAT/ADS/zenoh-nc error code (errors.json).
+        detail: what exactly was wrong, for humans.
+    """
+
+    code: int
+    detail: str = ""
+
+    def __str__(self) -> str:
+        base = f"0x{self.code:04X} {error_name(self.code)}: {error_text(self.code)}"
+        return f"{base} ({self.detail})" if self.detail else base

@@ -1,0 +1,176 @@
+"""Key expressions and msgpack command/reply messages (``protocol.json``)."""
+from __future__ import annotations
+
+import math
+import re
+from typing import Any, Mapping
+
+import msgpack
+
+from .codec import load_json
+from .errors import ErrorCodes, NcError, error_text
+
+PROTOCOL: dict[str, Any] = load_json("protocol.json")
+COMMANDS: dict[str, Any] = PROTOCOL["commands"]
+MOTION_COMMANDS = frozenset(n for n, c in COMMANDS.items() if c.get("motion"))
+_ENVELOPE = frozenset(PROTOCOL["request"]["fields"])
+_CLIENT_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+class Keys:
+    """Key expressions of one NC (protocol.json ``keys``)."""
+
+    def __init__(self, nc: str) -> None:
+        if not _NAME_RE.match(nc):
+            raise ValueError(f"invalid NC name {nc!r}: use letters, digits, '_', '.', '-'")
+        self.nc = nc
+        self.prefix = f"nc/{nc}"
+        self.frame = f"{self.prefix}/frame"
+        self.stats = f"{self.prefix}/stats"
+        self.cmd = f"{self.prefix}/cmd"
+        self.cmd_any = f"{self.prefix}/**/cmd"
+        self.alive = f"{self.prefix}/alive"
+        self.client_alive_any = f"{self.prefix}/client/*"
+        self.plctonc_in_any = f"{self.prefix}/plctonc/*"
+
+    def axis_nctoplc(self, axis: int) -> str:
+        return f"{self.prefix}/axis/{int(axis)}/nctoplc"
+
+    def axis_plctonc(self, axis: int) -> str:
+        return f"{self.prefix}/axis/{int(axis)}/plctonc"
+
+    def axis_cmd(self, axis: int) -> str:
+        return f"{self.prefix}/axis/{int(axis)}/cmd"
+
+    def client_alive(self, client: str) -> str:
+        check_client_id(client)
+        return f"{self.prefix}/client/{client}"
+
+    def plctonc_in(self, client: str) -> str:
+        check_client_id(client)
+        return f"{self.prefix}/plctonc/{client}"
+
+    def parse_cmd_key(self, key: str) -> int | None:
+        """Axis id of an ``.../axis/<id>/cmd`` key, None for the NC-level key.
+
+        Raises:
+            NcError: 0x4012 for anything else below the prefix.
+        """
+        if key == self.cmd:
+            return None
+        m = re.fullmatch(re.escape(self.prefix) + r"/axis/([0-9]{1,9})/cmd", key)
+        if not m:
+            raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, f"no such command key {key!r}")
+        return int(m.group(1))
+
+
+def check_client_id(client: str) -> str:
+    """Raise ValueError unless ``client`` is a valid client id."""
+    if not isinstance(client, str) or not _CLIENT_RE.match(client):
+        raise ValueError(f"invalid client id {client!r}: 1-64 of letters, digits, '_', '.', '-'")
+    return client
+
+
+def pack(obj: Mapping[str, Any]) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+def unpack(data: bytes) -> Any:
+    return msgpack.unpackb(data, raw=False, strict_map_key=False)
+
+
+def _check_arg(cmd: str, name: str, spec: Mapping[str, Any], value: Any) -> Any:
+    t = spec["type"]
+    is_bool = isinstance(value, bool)
+    if t == "LREAL":
+        if is_bool or not isinstance(value, (int, float)):
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}.{name} must be a number, got {type(value).__name__}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}.{name} must be finite, got {value}")
+        return value
+    if t == "INT":
+        if is_bool or not isinstance(value, int):
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}.{name} must be an integer, got {value!r}")
+        if not -(2**31) <= value < 2**31:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}.{name} out of range: {value}")
+        return value
+    if t == "LREAL|BOOL":
+        if is_bool:
+            return value
+        return _check_arg(cmd, name, {"type": "LREAL"}, value)
+    raise AssertionError(f"unknown arg type {t}")  # contract bug, not input
+
+
+def parse_request(data: bytes) -> dict[str, Any]:
+    """Decode and validate a request against protocol.json.
+
+    Returns the request with defaults filled in: ``{"id", "client", "cmd", <args>}``.
+
+    Raises:
+        NcError: 0x706 malformed (not msgpack, not a map, bad types, unknown
+            fields, NaN/inf), 0x701 unknown command. ``NcError.request_id`` is
+            set when the id could be read, so the reply can carry it.
+    """
+    try:
+        msg = unpack(data)
+    except Exception as exc:  # msgpack raises many types
+        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"payload is not msgpack: {exc.__class__.__name__}") from None
+    if not isinstance(msg, dict):
+        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, "request must be a msgpack map")
+    rid = msg.get("id")
+    try:
+        if isinstance(rid, bool) or not isinstance(rid, (int, str)):
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, "request needs an 'id' (integer or string)")
+        if isinstance(rid, str) and len(rid) > 128:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, "request id longer than 128 characters")
+        client = msg.get("client", "")
+        if client != "":
+            try:
+                check_client_id(client)
+            except ValueError as exc:
+                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, str(exc)) from None
+        cmd = msg.get("cmd")
+        if not isinstance(cmd, str):
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, "request needs a 'cmd' string")
+        spec = COMMANDS.get(cmd)
+        if spec is None:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"unknown command {cmd[:64]!r}")
+        args = spec["args"]
+        unknown = [k for k in msg if k not in _ENVELOPE and k not in args]
+        if unknown:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}: unknown field(s) {sorted(map(str, unknown))[:5]}")
+        out: dict[str, Any] = {"id": rid, "client": client, "cmd": cmd}
+        for name, aspec in args.items():
+            if name in msg:
+                out[name] = _check_arg(cmd, name, aspec, msg[name])
+            elif aspec.get("required"):
+                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}: missing field {name!r}")
+            else:
+                out[name] = aspec.get("default")
+        return out
+    except NcError as err:
+        err.request_id = rid if isinstance(rid, (int, str)) and not isinstance(rid, bool) else None  # type: ignore[attr-defined]
+        raise
+
+
+def make_reply(request_id: Any, cmd: str | None, error: int = 0, text: str = "", cycle: int = 0,
+               cmd_no: int | None = None, value: Any = None) -> dict[str, Any]:
+    """A reply map (protocol.json ``reply``)."""
+    r: dict[str, Any] = {"id": request_id, "cmd": cmd, "error": int(error),
+                         "text": text if error == 0 or text else error_text(error), "cycle": int(cycle)}
+    if cmd_no is not None:
+        r["CmdNo"] = int(cmd_no)
+    if value is not None:
+        r["Value"] = value
+    return r
+
+
+def make_request(cmd: str, request_id: int | str, client: str = "", **args: Any) -> bytes:
+    """Encode a request (client side helper)."""
+    msg: dict[str, Any] = {"id": request_id, "cmd": cmd}
+    if client:
+        msg["client"] = client
+    msg.update(args)
+    return pack(msg)
