@@ -1,0 +1,196 @@
+"""Axis parameters with their TwinCAT names (MC_AxisPara), units and validation.
+
+Units are the axis's own (e.g. mm or degrees): velocities in units/s, accelerations
+in units/s^2, jerk in units/s^3, times in seconds.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Mapping
+
+from nc_schema import ErrorCodes, MC_AxisPara, NcError
+
+
+class ConfigError(ValueError):
+    """An invalid configuration value.
+
+    Attributes:
+        key: the offending key, e.g. ``axis[2].AxisVeloMax``.
+    """
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}")
+        self.key = key
+
+
+# name -> (kind, check) ; kinds: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite)
+_KIND: dict[str, str] = {}
+
+
+def _p(default: Any, kind: str, doc: str) -> Any:
+    return field(default=default, metadata={"kind": kind, "doc": doc})
+
+
+@dataclass
+class AxisParams:
+    """Parameters of one axis. Field names are the TwinCAT MC_AxisPara names."""
+
+    AxisVeloMax: float = _p(1000.0, "pos", "maximum permitted velocity [u/s]")
+    AxisAcc: float = _p(5000.0, "pos", "default acceleration [u/s^2]")
+    AxisDec: float = _p(5000.0, "pos", "default deceleration [u/s^2]")
+    AxisJerk: float = _p(50000.0, "pos", "default jerk [u/s^3]")
+    AxisRapidTraverseVelocity: float = _p(500.0, "pos", "rapid traverse velocity [u/s]")
+    AxisVeloManSlow: float = _p(50.0, "pos", "manual velocity slow (jog) [u/s]")
+    AxisVeloManFast: float = _p(250.0, "pos", "manual velocity fast (jog) [u/s]")
+    AxisCalibrationVelocityForward: float = _p(10.0, "pos", "homing velocity towards the cam [u/s]")
+    AxisCalibrationVelocityBackward: float = _p(5.0, "pos", "homing velocity off the cam [u/s]")
+    AxisJogIncrementForward: float = _p(1.0, "nonneg", "inching distance forward [u]")
+    AxisJogIncrementBackward: float = _p(1.0, "nonneg", "inching distance backward [u]")
+    AxisEnMinSoftPosLimit: bool = _p(False, "bool", "minimum software limit enabled")
+    AxisMinSoftPosLimit: float = _p(-1000.0, "real", "minimum software limit [u]")
+    AxisEnMaxSoftPosLimit: bool = _p(False, "bool", "maximum software limit enabled")
+    AxisMaxSoftPosLimit: float = _p(1000.0, "real", "maximum software limit [u]")
+    AxisEnPositionLagMonitoring: bool = _p(True, "bool", "following error (position lag) monitoring enabled")
+    AxisMaxPosLagValue: float = _p(5.0, "pos", "maximum position lag [u]")
+    AxisMaxPosLagFilterTime: float = _p(0.02, "nonneg", "time the lag may exceed the maximum before 0x4550 [s]")
+    AxisEnPositionRangeMonitoring: bool = _p(True, "bool", "position range monitoring enabled (InPositionArea)")
+    AxisPositionRangeWindow: float = _p(5.0, "pos", "position range window [u]")
+    AxisEnTargetPositionMonitoring: bool = _p(True, "bool", "target position monitoring enabled (InTargetPosition)")
+    AxisTargetPositionWindow: float = _p(0.02, "pos", "target position window [u]")
+    AxisTargetPositionMonitoringTime: float = _p(0.02, "nonneg", "time inside the window before InTargetPosition [s]")
+    AxisEnInTargetTimeout: bool = _p(False, "bool", "PEH time monitoring enabled (0x435C)")
+    AxisInTargetTimeout: float = _p(5.0, "pos", "PEH time: target window must be reached within [s]")
+    AxisEnMotionMonitoring: bool = _p(False, "bool", "motion monitoring enabled (stored; the simulation cannot stall)")
+    AxisMotionMonitoringWindow: float = _p(0.1, "pos", "motion monitoring window [u]")
+    AxisMotionMonitoringTime: float = _p(0.5, "pos", "motion monitoring time [s]")
+    AxisEncoderModuloValue: float = _p(360.0, "pos", "modulo factor (period) for Modulo* positions [u]")
+    AxisModuloToleranceWindow: float = _p(0.0, "nonneg", "modulo tolerance window (TcMC 3.5) [u]")
+    Modulo: bool = _p(False, "bool", "modulo axis (OpModeDWord.OpModeModulo, modulo display)")
+    AxisEncoderScalingFactor: float = _p(1.0, "pos", "encoder scaling (stored)")
+    AxisEncoderOffset: float = _p(0.0, "real", "encoder offset (stored)")
+    AxisEncoderDirectionInverse: bool = _p(False, "bool", "encoder direction inverted (stored)")
+    SimTimeConstant: float = _p(0.001, "nonneg", "simulated drive: first-order position lag [s]")
+    Homed: bool = _p(False, "bool", "axis starts referenced (StateDWord.Homed)")
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            setattr(self, f.name, _check(f.name, f.metadata["kind"], getattr(self, f.name), f.name))
+        if self.AxisEnMinSoftPosLimit and self.AxisEnMaxSoftPosLimit and self.AxisMinSoftPosLimit >= self.AxisMaxSoftPosLimit:
+            raise ConfigError("AxisMinSoftPosLimit", "must be below AxisMaxSoftPosLimit")
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], where: str = "axis") -> AxisParams:
+        """Build from a config table, naming the offending key on error.
+
+        Raises:
+            ConfigError: unknown key, wrong type or out-of-range value.
+        """
+        known = {f.name: f for f in fields(cls)}
+        kw: dict[str, Any] = {}
+        for k, v in data.items():
+            if k in ALIASES:
+                k = ALIASES[k]
+            if k not in known:
+                raise ConfigError(f"{where}.{k}", "unknown axis parameter")
+            kw[k] = _check(k, known[k].metadata["kind"], v, f"{where}.{k}")
+        try:
+            return cls(**kw)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.{exc.key}", str(exc).split(": ", 1)[-1]) from None
+
+    def with_value(self, name: str, value: Any) -> AxisParams:
+        """A copy with one parameter changed (validated; self stays untouched).
+
+        Raises:
+            ConfigError: invalid value.
+        """
+        return replace(self, **{name: value})
+
+    @staticmethod
+    def kind(name: str) -> str:
+        return _KINDS[name]
+
+
+def _check(name: str, kind: str, value: Any, key: str) -> Any:
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(key, f"must be true or false, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(key, f"must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ConfigError(key, f"must be finite, got {value}")
+    if kind == "pos" and value <= 0:
+        raise ConfigError(key, f"must be > 0, got {value}")
+    if kind == "nonneg" and value < 0:
+        raise ConfigError(key, f"must be >= 0, got {value}")
+    return value
+
+
+_KINDS: dict[str, str] = {f.name: f.metadata["kind"] for f in fields(AxisParams)}
+
+#: TwinCAT names that mean the same stored parameter.
+ALIASES: dict[str, str] = {
+    "AxisMaxVelocity": "AxisVeloMax",
+    "AxisManualVelocityFast": "AxisVeloManFast",
+    "AxisManualVelocitySlow": "AxisVeloManSlow",
+}
+
+#: PLCopen parameter numbers mapped onto the Beckhoff parameter they read/write.
+PLCOPEN_MAP: dict[int, str] = {
+    int(MC_AxisPara.SWLimitPos): "AxisMaxSoftPosLimit",
+    int(MC_AxisPara.SWLimitNeg): "AxisMinSoftPosLimit",
+    int(MC_AxisPara.EnableLimitPos): "AxisEnMaxSoftPosLimit",
+    int(MC_AxisPara.EnableLimitNeg): "AxisEnMinSoftPosLimit",
+    int(MC_AxisPara.EnablePosLagMonitoring): "AxisEnPositionLagMonitoring",
+    int(MC_AxisPara.MaxPositionLag): "AxisMaxPosLagValue",
+    int(MC_AxisPara.MaxVelocitySystem): "AxisVeloMax",
+    int(MC_AxisPara.MaxVelocityAppl): "AxisVeloMax",
+    int(MC_AxisPara.MaxAccelerationSystem): "AxisAcc",
+    int(MC_AxisPara.MaxAccelerationAppl): "AxisAcc",
+    int(MC_AxisPara.MaxDecelerationSystem): "AxisDec",
+    int(MC_AxisPara.MaxDecelerationAppl): "AxisDec",
+    int(MC_AxisPara.MaxJerk): "AxisJerk",
+}
+
+#: Read-only status parameters, answered from the live axis state by NcCore.
+STATUS_PARAMS = frozenset({
+    int(MC_AxisPara.CommandedPosition), int(MC_AxisPara.ActualVelocity), int(MC_AxisPara.CommandedVelocity),
+    int(MC_AxisPara.AxisId), int(MC_AxisPara.AxisTargetPosition), int(MC_AxisPara.AxisRemainingTimeToGo),
+    int(MC_AxisPara.AxisRemainingDistanceToGo), int(MC_AxisPara.AxisUnitInterpretation),
+})
+
+
+def param_name(number: int) -> str:
+    """The stored parameter a MC_AxisPara number reads/writes.
+
+    Raises:
+        NcError: 0x703 for a number that is not a stored parameter.
+    """
+    if number in PLCOPEN_MAP:
+        return PLCOPEN_MAP[number]
+    try:
+        name = MC_AxisPara(number).name
+    except ValueError:
+        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET, f"no MC_AxisPara number {number}") from None
+    name = ALIASES.get(name, name)
+    if name not in _KINDS:
+        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET, f"parameter {number} ({name}) is not supported")
+    return name
+
+
+@dataclass
+class AxisConfig:
+    """One configured axis."""
+
+    AxisId: int
+    Name: str = ""
+    params: AxisParams = field(default_factory=AxisParams)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.AxisId, bool) or not isinstance(self.AxisId, int) or not 1 <= self.AxisId <= 65535:
+            raise ConfigError("AxisId", f"must be an integer 1..65535, got {self.AxisId!r}")
+        if not self.Name:
+            self.Name = f"Axis{self.AxisId}"
