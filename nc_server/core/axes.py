@@ -1,0 +1,125 @@
+"""Struct-of-arrays state of all axes of one NC.
+
+Every per-cycle quantity is a numpy column indexed like ``NcCore.axis_ids``, so a
+cycle is a fixed number of vector operations regardless of the axis count. Axis
+parameters live in :class:`AxisParams` objects (the source of truth) and are
+mirrored into columns by :meth:`AxisTable.load_params`.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from nc_schema import OpModeDWord
+
+from .params import AxisParams
+from .profile import N_SEGMENTS
+
+# job kinds
+JOB_NONE = 0
+JOB_POSITION = 1  # MoveAbsolute/Relative/Modulo: discrete, ends at the target
+JOB_VELOCITY = 2  # MoveVelocity: continuous
+JOB_STOP = 3      # MC_Stop: ramp to zero, locks the axis
+JOB_HALT = 4      # MC_Halt: ramp to zero, discrete motion
+
+# why the set-point generator runs without a job
+RAMP_NONE = 0
+RAMP_FAULT = 1    # stop ramp after an axis error
+
+
+class AxisTable:
+    """All per-axis state, column-wise."""
+
+    def __init__(self, axis_ids: Sequence[int], params: Sequence[AxisParams]) -> None:
+        n = len(axis_ids)
+        self.n = n
+        self.ids = np.asarray(axis_ids, dtype=np.uint32)
+        f = lambda: np.zeros(n)  # noqa: E731
+        b = lambda: np.zeros(n, dtype=bool)  # noqa: E731
+        # parameter columns
+        self.vmax, self.acc, self.dec, self.jerk = f(), f(), f(), f()
+        self.en_min, self.en_max, self.min_lim, self.max_lim = b(), b(), f(), f()
+        self.lag_en, self.lag_max, self.lag_filter = b(), f(), f()
+        self.range_en, self.range_win = b(), f()
+        self.target_en, self.target_win, self.target_time = b(), f(), f()
+        self.peh_en, self.peh_time = b(), f()
+        self.modulo_factor = f()
+        self.opmode = np.zeros(n, dtype=np.uint32)
+        # set-point generator
+        self.set_pos, self.set_velo, self.set_acc, self.set_jerk = f(), f(), f(), f()
+        self.seg = np.zeros((5, n, N_SEGMENTS))
+        self.seg[0] = np.inf
+        self.traj_t, self.traj_dur = f(), f()
+        self.traj_on = b()           # the generator follows a profile
+        self.hold_zero = b()         # profile is an override-zero hold (job keeps going)
+        # job (the command numbered cmd_no)
+        self.job = np.zeros(n, dtype=np.int8)
+        self.ramp = np.zeros(n, dtype=np.int8)
+        self.goal_pos = f()          # position jobs: absolute target
+        self.goal_velo = f()         # velocity jobs: signed velocity at 100 % override
+        self.cmd_velo, self.cmd_acc, self.cmd_dec, self.cmd_jerk = f(), f(), f(), f()
+        self.planned_ov = np.ones(n)
+        self.limit_stop = np.zeros(n, dtype=np.int8)  # continuous move being stopped at soft limit -1/+1
+        self.cmd_no = np.zeros(n, dtype=np.uint16)
+        self.cmd_state = np.zeros(n, dtype=np.uint16)
+        self.target_pos = f()
+        # axis state
+        self.error = np.zeros(n, dtype=np.uint32)
+        self.locked = b()            # MC_Stop active (MotionCommandsLocked)
+        self.stopped = b()           # HasBeenStopped
+        self.enabled = b()           # controller enable in effect last cycle
+        self.hold_enable = b()       # keep the drive enabled until a fault ramp ends
+        self.homed = b()
+        self.override = np.ones(n)   # applied override 0..1
+        # monitoring
+        self.lag_timer = f()
+        self.window_timer = f()
+        self.since_end = np.full(n, -1.0)  # s since the logical end of a position job; -1: not watching
+        self.in_target, self.in_area = b(), b()
+        for i, p in enumerate(params):
+            self.load_params(i, p)
+            self.homed[i] = p.Homed
+
+    def load_params(self, i: int, p: AxisParams) -> None:
+        """Mirror one axis's parameters into the columns."""
+        self.vmax[i], self.acc[i], self.dec[i], self.jerk[i] = p.AxisVeloMax, p.AxisAcc, p.AxisDec, p.AxisJerk
+        self.en_min[i], self.min_lim[i] = p.AxisEnMinSoftPosLimit, p.AxisMinSoftPosLimit
+        self.en_max[i], self.max_lim[i] = p.AxisEnMaxSoftPosLimit, p.AxisMaxSoftPosLimit
+        self.lag_en[i], self.lag_max[i], self.lag_filter[i] = (
+            p.AxisEnPositionLagMonitoring, p.AxisMaxPosLagValue, p.AxisMaxPosLagFilterTime)
+        self.range_en[i], self.range_win[i] = p.AxisEnPositionRangeMonitoring, p.AxisPositionRangeWindow
+        self.target_en[i], self.target_win[i], self.target_time[i] = (
+            p.AxisEnTargetPositionMonitoring, p.AxisTargetPositionWindow, p.AxisTargetPositionMonitoringTime)
+        self.peh_en[i], self.peh_time[i] = p.AxisEnInTargetTimeout, p.AxisInTargetTimeout
+        self.modulo_factor[i] = p.AxisEncoderModuloValue
+        m = OpModeDWord(0)
+        flags = [
+            (p.AxisEnPositionRangeMonitoring, OpModeDWord.OpModePosAreaMonitoring),
+            (p.AxisEnTargetPositionMonitoring, OpModeDWord.OpModeTargetPosMonitoring),
+            (p.AxisEnMotionMonitoring, OpModeDWord.OpModeMotionMonitoring),
+            (p.AxisEnInTargetTimeout, OpModeDWord.OpModePEHTimeMonitoring),
+            (p.Modulo, OpModeDWord.OpModeModulo),
+            (p.AxisEnPositionLagMonitoring, OpModeDWord.OpModePosLagMonitoring),
+            (p.AxisEnMinSoftPosLimit, OpModeDWord.OpModeSoftLimitMinMonitoring),
+            (p.AxisEnMaxSoftPosLimit, OpModeDWord.OpModeSoftLimitMaxMonitoring),
+        ]
+        for on, bit in flags:
+            if on:
+                m |= bit
+        self.opmode[i] = int(m)
+
+    def set_segments(self, i: int, seg: np.ndarray, duration: float) -> None:
+        """Start following a new profile on axis ``i`` from the next cycle."""
+        self.seg[:, i, :] = seg
+        self.traj_t[i] = 0.0
+        self.traj_dur[i] = duration
+        self.traj_on[i] = True
+
+    def clear_profile(self, i: int | np.ndarray) -> None:
+        """Stop the set-point generator (the axis holds its set position)."""
+        self.traj_on[i] = False
+        self.hold_zero[i] = False
+        self.set_velo[i] = 0.0
+        self.set_acc[i] = 0.0
+        self.set_jerk[i] = 0.0

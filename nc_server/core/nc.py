@@ -1,0 +1,407 @@
+"""NcCore: the pure, cycle-stepped NC (no zenoh, no threads, no clock reads).
+
+A test (or the server) drives it cycle by cycle::
+
+    core = NcCore([AxisConfig(1, "X")], cycle_time=0.001)
+    core.set_plctonc(0, enabled_record)
+    reply = core.execute(parse_request(...), axis_id=1)
+    core.step()
+    core.nctoplc[0]["SetPos"]
+
+Cycle order: inputs (PLCTONC) -> enable/override handling -> set-points for all
+axes (vectorized profile evaluation) -> job ends -> soft-limit approach of
+continuous moves -> feed enables -> drive -> monitoring -> NCTOPLC.
+"""
+from __future__ import annotations
+
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from nc_schema import (
+    NCTOPLC_DTYPE, PLCTONC_DTYPE, AxisState, CmdState, ControlDWord, ErrorCodes, NcError, StateDWord, make_reply,
+    motion_state_array,
+)
+
+from ..drives.base import DriveABC
+from ..drives.sim import SimDrive
+from .axes import JOB_HALT, JOB_NONE, JOB_POSITION, JOB_STOP, JOB_VELOCITY, RAMP_FAULT, RAMP_NONE, AxisTable
+from .commands import CommandsMixin, fault_ramp
+from .monitoring import monitor
+from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
+from .profile import Limits, Planner, PlanningError, evaluate, stopping_distance
+
+_EPS_V = 1e-9
+_EN = int(ControlDWord.Enable)
+_FP = int(ControlDWord.FeedEnablePlus)
+_FM = int(ControlDWord.FeedEnableMinus)
+
+# StateDWord bits
+_B = {name: np.uint32(int(getattr(StateDWord, name))) for name in (
+    "Operational", "Homed", "NotMoving", "InPositionArea", "InTargetPosition", "HasBeenStopped", "HasJob",
+    "PositiveDirection", "NegativeDirection", "ConstantVelocity", "ContinuousMotion", "ControlLoopClosed",
+    "PTPmode", "SoftLimitMinExceeded", "SoftLimitMaxExceeded", "MotionCommandsLocked", "Error")}
+
+
+class NcCore(CommandsMixin):
+    """All axes of one NC, stepped one fixed cycle at a time.
+
+    Args:
+        axes: the configured axes (ids must be unique).
+        cycle_time: NC cycle time [s] (> 0).
+        drive: the drives of all axes; default: a :class:`SimDrive`.
+
+    Raises:
+        ConfigError: duplicate axis ids, no axes, bad cycle time.
+    """
+
+    def __init__(self, axes: Sequence[AxisConfig], cycle_time: float = 0.001, drive: DriveABC | None = None) -> None:
+        if not axes:
+            raise ConfigError("axis", "at least one axis is needed")
+        ids = [c.AxisId for c in axes]
+        if len(set(ids)) != len(ids):
+            raise ConfigError("axis.AxisId", f"duplicate axis ids in {ids}")
+        if not 0 < cycle_time <= 1.0:
+            raise ConfigError("cycle_time", f"must be in (0, 1] s, got {cycle_time}")
+        self.cycle_time = float(cycle_time)
+        self.configs = list(axes)
+        self.params: list[AxisParams] = [c.params for c in axes]
+        self.axes = AxisTable(ids, self.params)
+        self.axis_ids = self.axes.ids
+        self._index = {int(a): i for i, a in enumerate(ids)}
+        self.drive = drive if drive is not None else SimDrive(self.params, self.cycle_time)
+        self.planner = Planner()
+        self.cycle = 0
+        self.nc_time_ns = 0
+        n = len(ids)
+        self.plctonc = np.zeros(n, dtype=PLCTONC_DTYPE)
+        self.plctonc[:] = self.default_plctonc()
+        self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
+        self.nctoplc["AxisId"] = self.axis_ids
+        self.nctoplc["OpModeDWord"] = self.axes.opmode
+        self._fill_nctoplc(np.zeros(n, dtype=bool), np.zeros(n, dtype=bool))
+
+    # -- public API --------------------------------------------------------------------------
+    def index(self, axis_id: int) -> int:
+        """Row of ``axis_id``.
+
+        Raises:
+            NcError: 0x4012 unknown axis.
+        """
+        try:
+            return self._index[int(axis_id)]
+        except (KeyError, TypeError, ValueError):
+            raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, f"no axis {axis_id!r} on this NC") from None
+
+    @staticmethod
+    def default_plctonc() -> np.void:
+        """The PLCTONC applied when no client controls an axis: all enables off, override 100 %."""
+        r = np.zeros((), dtype=PLCTONC_DTYPE)
+        r["Override"] = 1_000_000
+        return r[()]
+
+    def set_plctonc(self, index: int, record: np.void | bytes | bytearray) -> None:
+        """Apply a PLCTONC to axis row ``index`` from the next step.
+
+        Raises:
+            ValueError: a bytes record that is not 128 bytes.
+        """
+        if isinstance(record, (bytes, bytearray, memoryview)):
+            if len(record) != PLCTONC_DTYPE.itemsize:
+                raise ValueError(f"PLCTONC is {PLCTONC_DTYPE.itemsize} bytes, got {len(record)}")
+            record = np.frombuffer(record, dtype=PLCTONC_DTYPE, count=1)[0]
+        self.plctonc[index] = record
+
+    def execute(self, request: dict[str, Any], axis_id: int | None) -> dict[str, Any]:
+        """Run one parsed request (``nc_schema.parse_request``) against an axis.
+
+        Returns a reply map; never raises for bad input. The command takes effect
+        in the next :meth:`step`, whose cycle number the reply carries.
+        """
+        cycle = self.cycle + 1
+        rid, cmd = request.get("id"), request.get("cmd")
+        try:
+            if axis_id is None:
+                raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} needs an axis key (nc/<nc>/axis/<id>/cmd)")
+            i = self.index(axis_id)
+            out = self._dispatch(i, request)
+        except NcError as err:
+            return make_reply(rid, cmd, err.code, str(err), cycle)
+        return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
+
+    def fault(self, index: int, code: int) -> None:
+        """Raise axis error ``code`` now and stop the axis with its deceleration.
+
+        The first error sticks (like TwinCAT); the drive stays enabled until the
+        stop ramp ends, whatever the PLCTONC says.
+        """
+        a = self.axes
+        if a.error[index]:
+            return
+        a.error[index] = code
+        self._end_job(index, CmdState.ERROR)
+        moving = bool(a.traj_on[index]) or abs(a.set_velo[index]) > 0
+        if moving:
+            fault_ramp(self, index)
+            a.hold_enable[index] = bool(a.enabled[index])
+        a.limit_stop[index] = 0
+
+    @property
+    def moving(self) -> np.ndarray:
+        """Axes with a job or a non-zero set velocity."""
+        return (self.axes.job != JOB_NONE) | (np.abs(self.axes.set_velo) > _EPS_V)
+
+    def info(self) -> dict[str, Any]:
+        return {"cycle_time": self.cycle_time,
+                "axes": [{"AxisId": c.AxisId, "Name": c.Name, "Modulo": c.params.Modulo,
+                          "ModuloFactor": c.params.AxisEncoderModuloValue} for c in self.configs]}
+
+    def read_parameter(self, i: int, number: int) -> float | bool:
+        """Value of MC_AxisPara ``number`` for axis row ``i``.
+
+        Raises:
+            NcError: 0x703 unknown parameter number.
+        """
+        if number in STATUS_PARAMS:
+            return self._status_param(i, number)
+        return getattr(self.params[i], param_name(number))
+
+    def write_parameter(self, i: int, number: int, value: float | bool) -> None:
+        """Write MC_AxisPara ``number``; validated, a rejected value changes nothing.
+
+        Raises:
+            NcError: 0x704 read-only, 0x703 unknown, 0x70B invalid value.
+        """
+        if number in STATUS_PARAMS:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDACCESS, f"parameter {number} is read-only")
+        name = param_name(number)
+        if AxisParams.kind(name) == "bool" and not isinstance(value, bool):
+            if value not in (0.0, 1.0):
+                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{name} is boolean: 0/1 or true/false, got {value}")
+            value = bool(value)
+        try:
+            new = self.params[i].with_value(name, value)
+        except ConfigError as exc:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, str(exc)) from None
+        self.params[i] = new
+        self.configs[i].params = new
+        self.axes.load_params(i, new)
+        self.drive.configure(i, new)
+
+    def step(self, nc_time_ns: int | None = None) -> None:
+        """Run one NC cycle of ``cycle_time`` seconds.
+
+        Args:
+            nc_time_ns: the NC time of this cycle [ns]; default: previous + cycle_time.
+        """
+        a = self.axes
+        dt = self.cycle_time
+        self.cycle += 1
+        self.nc_time_ns = int(nc_time_ns) if nc_time_ns is not None else self.nc_time_ns + int(round(dt * 1e9))
+        ctrl = self.plctonc["ControlDWord"]
+        enable_in = (ctrl & _EN) != 0
+        ov = np.clip(self.plctonc["Override"], 0, 1_000_000) / 1_000_000.0
+
+        # -- controller enable: PLCopen 'Enable FALSE -> Disabled' (the job is aborted)
+        enabled = enable_in | a.hold_enable
+        went_off = a.enabled & ~enabled
+        came_on = ~a.enabled & enabled
+        if went_off.any():
+            for i in np.flatnonzero(went_off):
+                self._end_job(int(i), CmdState.ABORTED)
+                a.ramp[i] = RAMP_NONE
+            a.clear_profile(went_off)
+        if came_on.any():
+            # controller activation: set position := actual position
+            a.set_pos[came_on] = self.drive.act_pos[came_on]
+            a.target_pos[came_on] = a.set_pos[came_on]
+        off = ~enabled
+        a.set_pos[off] = self.drive.act_pos[off]
+        a.enabled = enabled
+
+        # -- override changes re-plan running jobs from the current set state
+        changed = (ov != a.override)
+        a.override = ov
+        if changed.any():
+            for i in np.flatnonzero(changed & a.traj_on & ((a.job == JOB_POSITION) | (a.job == JOB_VELOCITY))
+                                    & (a.ramp == RAMP_NONE) & (a.limit_stop == 0)):
+                self._replan_override(int(i))
+
+        # -- set-points for all axes following a profile
+        on = np.flatnonzero(a.traj_on)
+        if on.size:
+            a.traj_t[on] += dt
+            p, v, acc, j = evaluate(a.seg, a.traj_t[on], on)
+            a.set_pos[on], a.set_velo[on], a.set_acc[on], a.set_jerk[on] = p, v, acc, j
+            finished = on[a.traj_t[on] >= a.traj_dur[on]]
+            if finished.size:
+                self._profile_ends(finished)
+
+        # -- continuous moves approaching an enabled software limit: stop at the limit
+        cont = np.flatnonzero((a.job == JOB_VELOCITY) & (a.limit_stop == 0) & ~a.hold_zero)
+        if cont.size:
+            d = stopping_distance(a.set_velo[cont], a.set_acc[cont], a.cmd_dec[cont], a.cmd_jerk[cont])
+            d += 2 * np.abs(a.set_velo[cont]) * dt
+            hit_max = a.en_max[cont] & (a.set_velo[cont] > 0) & (a.set_pos[cont] + d >= a.max_lim[cont])
+            hit_min = a.en_min[cont] & (a.set_velo[cont] < 0) & (a.set_pos[cont] - d <= a.min_lim[cont])
+            for i in cont[hit_max | hit_min]:
+                self._stop_at_limit(int(i))
+
+        # -- feed enables withdrawn in the direction of travel
+        moving_job = (a.job != JOB_NONE) & (a.job != JOB_STOP) & (a.job != JOB_HALT) & a.traj_on
+        no_plus = moving_job & (a.set_velo > _EPS_V) & ((ctrl & _FP) == 0)
+        no_minus = moving_job & (a.set_velo < -_EPS_V) & ((ctrl & _FM) == 0)
+        for i in np.flatnonzero(no_plus):
+            self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_PLUS)
+        for i in np.flatnonzero(no_minus):
+            self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_MINUS)
+
+        # -- drive
+        self.drive.step(enabled, a.set_pos, a.set_velo, a.set_acc)
+
+        # -- monitoring (lag, soft limits, windows): new faults stop their axes from the next cycle
+        faults = monitor(a, self.drive.act_pos, dt)
+        for i, code in faults:
+            self.fault(i, code)
+
+        min_ex = a.en_min & (self.drive.act_pos < a.min_lim)
+        max_ex = a.en_max & (self.drive.act_pos > a.max_lim)
+        self._fill_nctoplc(min_ex, max_ex)
+
+    # -- internals ---------------------------------------------------------------------------
+    def _enable_in(self, i: int) -> bool:
+        return bool(int(self.plctonc["ControlDWord"][i]) & _EN)
+
+    def _feed_in(self, i: int) -> tuple[bool, bool]:
+        c = int(self.plctonc["ControlDWord"][i])
+        return bool(c & _FP), bool(c & _FM)
+
+    def _profile_ends(self, rows: np.ndarray) -> None:
+        a = self.axes
+        for i in rows:
+            i = int(i)
+            job = int(a.job[i])
+            if a.hold_zero[i] or job == JOB_VELOCITY and a.limit_stop[i] == 0:
+                continue  # holding at override 0 / constant velocity: keeps running
+            if a.limit_stop[i]:
+                code = ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if a.limit_stop[i] > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING
+                a.limit_stop[i] = 0
+                a.clear_profile(i)
+                self.fault(i, code)
+                continue
+            if job == JOB_POSITION:
+                a.set_pos[i] = a.goal_pos[i]  # exact end
+                a.since_end[i] = 0.0
+            a.clear_profile(i)
+            if job != JOB_NONE:
+                a.cmd_state[i] = int(CmdState.DONE)
+                a.job[i] = JOB_NONE
+            if a.ramp[i] == RAMP_FAULT:
+                a.ramp[i] = RAMP_NONE
+                a.hold_enable[i] = False
+            a.target_pos[i] = a.set_pos[i] if job != JOB_POSITION else a.goal_pos[i]
+
+    def _replan_override(self, i: int) -> None:
+        a = self.axes
+        lim = Limits(a.cmd_velo[i], a.cmd_acc[i], a.cmd_dec[i], a.cmd_jerk[i])
+        ov = a.override[i]
+        try:
+            if a.job[i] == JOB_POSITION and ov > 0:
+                seg, dur, _, _ = self.planner.position(a.set_pos[i], a.set_velo[i], a.set_acc[i], a.goal_pos[i],
+                                                       Limits(lim.velocity * ov, lim.acceleration, lim.deceleration, lim.jerk))
+            else:
+                seg, dur = self.planner.velocity(a.set_pos[i], a.set_velo[i], a.set_acc[i],
+                                                 a.goal_velo[i] * ov if a.job[i] == JOB_VELOCITY else 0.0, lim)
+        except PlanningError:
+            return  # keep the current profile
+        a.set_segments(i, seg, dur)
+        a.hold_zero[i] = ov <= 0
+        a.planned_ov[i] = ov
+
+    def _stop_at_limit(self, i: int) -> None:
+        a = self.axes
+        v = a.set_velo[i]
+        target = a.max_lim[i] if v > 0 else a.min_lim[i]
+        lim = Limits(max(abs(v), a.cmd_velo[i] * a.override[i], 1e-9), a.cmd_acc[i], a.cmd_dec[i], a.cmd_jerk[i])
+        try:
+            seg, dur, _, _ = self.planner.position(a.set_pos[i], v, a.set_acc[i], target, lim)
+        except PlanningError:
+            self.fault(i, ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if v > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING)
+            return
+        a.set_segments(i, seg, dur)
+        a.limit_stop[i] = 1 if v > 0 else -1
+        a.target_pos[i] = target
+
+    def profile_end(self, i: int) -> float:
+        """Position where axis row ``i``'s current profile ends [u]."""
+        a = self.axes
+        if not a.traj_on[i]:
+            return float(a.set_pos[i])
+        p, _, _, _ = evaluate(a.seg, np.array([a.traj_dur[i]]), np.array([i]))
+        return float(p[0])
+
+    def _status_param(self, i: int, number: int) -> float:
+        a, r = self.axes, self.nctoplc[i]
+        names = {1: "SetPos", 10: "ActVelo", 11: "SetVelo"}
+        if number in names:
+            return float(r[names[number]])
+        if number == 1000:
+            return float(a.ids[i])
+        if number == 2000:
+            return float(a.target_pos[i])
+        if number == 2001:
+            return float(max(a.traj_dur[i] - a.traj_t[i], 0.0)) if a.job[i] == JOB_POSITION else 0.0
+        if number == 2002:
+            return float(abs(a.goal_pos[i] - a.set_pos[i])) if a.job[i] == JOB_POSITION else 0.0
+        return float(4 if self.params[i].Modulo else 0)  # AxisUnitInterpretation: bit 2 = modulo
+
+    def _fill_nctoplc(self, min_ex: np.ndarray, max_ex: np.ndarray) -> None:
+        a, d, out = self.axes, self.drive, self.nctoplc
+        job = a.job != JOB_NONE
+        err = a.error != 0
+        loop = a.enabled & d.ready
+        v, acc = a.set_velo, a.set_acc
+        moving_v = np.abs(v) > _EPS_V
+        sd = np.zeros(a.n, dtype=np.uint32)
+        for cond, bit in (
+            (loop & ~err, "Operational"), (a.homed, "Homed"), (~moving_v, "NotMoving"),
+            (a.in_area, "InPositionArea"), (a.in_target, "InTargetPosition"), (a.stopped, "HasBeenStopped"),
+            (job, "HasJob"), (v > _EPS_V, "PositiveDirection"), (v < -_EPS_V, "NegativeDirection"),
+            (job & moving_v & (np.abs(acc) < 1e-9) & ~a.hold_zero, "ConstantVelocity"),
+            (a.job == JOB_VELOCITY, "ContinuousMotion"), (loop, "ControlLoopClosed"),
+            (np.ones(a.n, dtype=bool), "PTPmode"), (min_ex, "SoftLimitMinExceeded"),
+            (max_ex, "SoftLimitMaxExceeded"), (a.locked, "MotionCommandsLocked"), (err, "Error"),
+        ):
+            sd |= np.where(cond, _B[bit], np.uint32(0))
+        out["StateDWord"] = sd
+        out["ErrorCode"] = a.error
+        axst = np.select(
+            [~a.traj_on, job & a.hold_zero, np.abs(acc) < 1e-9, acc * v > 0, acc * v < 0],
+            [int(AxisState.INACTIVE), int(AxisState.OVERRIDE_ZERO), int(AxisState.PHASE_VELOCONST),
+             int(AxisState.PHASE_ACCPOS), int(AxisState.PHASE_ACCNEG)],
+            default=int(AxisState.RUNNING))
+        out["AxisState"] = axst
+        out["SafEntries"] = job
+        out["OpModeDWord"] = a.opmode | (np.uint32(1 << 8) if d.simulated else np.uint32(0))
+        period = a.modulo_factor
+        out["ActPos"] = d.act_pos
+        out["ModuloActPos"] = np.mod(d.act_pos, period)
+        out["ModuloActTurns"] = np.floor_divide(d.act_pos, period).astype(np.int32)
+        out["ActVelo"] = d.act_velo
+        out["ActAcc"] = d.act_acc
+        out["PosDiff"] = a.set_pos - d.act_pos
+        out["SetPos"] = a.set_pos
+        out["SetVelo"] = v
+        out["SetAcc"] = acc
+        out["SetJerk"] = a.set_jerk
+        out["TargetPos"] = np.where(a.job == JOB_VELOCITY, a.set_pos, a.target_pos)
+        out["ModuloSetPos"] = np.mod(a.set_pos, period)
+        out["ModuloSetTurns"] = np.floor_divide(a.set_pos, period).astype(np.int32)
+        out["CmdNo"] = a.cmd_no
+        out["CmdState"] = a.cmd_state
+        out["ActPosWithoutPosCorrection"] = d.act_pos
+        out["DcTimeStamp"] = self.nc_time_ns & 0xFFFFFFFF
+
+    def motion_states(self) -> np.ndarray:
+        """PLCopen state of every axis (the shared mapping, nc_schema.motion_state_array)."""
+        return motion_state_array(self.nctoplc["StateDWord"], self.nctoplc["CoupleState"])

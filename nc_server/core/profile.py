@@ -1,0 +1,187 @@
+"""Jerk-limited set-point profiles: planned by ruckig, evaluated for all axes at once.
+
+ruckig computes a time-optimal third-order profile when a command arrives (a few
+microseconds, once). The profile is stored as a row of constant-jerk segments
+(ruckig's brake pre-profile, its 7 phases, an optional post-profile, then a tail
+that keeps the final velocity). Each NC cycle then evaluates every axis's row
+with a handful of numpy operations -- no per-axis Python loop, no per-axis
+ruckig call in the cycle.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Trajectory
+
+#: segments per axis: brake (2) + main (7) + post (2) + tail (1)
+N_SEGMENTS = 12
+
+
+class PlanningError(Exception):
+    """ruckig could not plan the requested motion."""
+
+
+@dataclass
+class Limits:
+    """Dynamic limits of one move (all > 0): [u/s], [u/s^2], [u/s^3]."""
+
+    velocity: float
+    acceleration: float
+    deceleration: float
+    jerk: float
+
+
+class Planner:
+    """Plans one axis at a time into a segment row (reuses its ruckig objects)."""
+
+    def __init__(self) -> None:
+        self._otg = Ruckig(1)
+        self._inp = InputParameter(1)
+        self._traj = Trajectory(1)
+
+    def _calc(self, p0: float, v0: float, a0: float, lim: Limits, sense: float) -> Trajectory:
+        inp = self._inp
+        inp.current_position = [p0]
+        inp.current_velocity = [v0]
+        inp.current_acceleration = [a0]
+        inp.max_velocity = [lim.velocity]
+        # Directional limits: in the direction of travel 'acceleration' speeds up, 'deceleration' slows down.
+        if sense >= 0:
+            inp.max_acceleration = [lim.acceleration]
+            inp.min_acceleration = [-lim.deceleration]
+        else:
+            inp.max_acceleration = [lim.deceleration]
+            inp.min_acceleration = [-lim.acceleration]
+        inp.max_jerk = [lim.jerk]
+        try:
+            return self._run()
+        except PlanningError:
+            # A new command may lower the limits below the current acceleration; ruckig can
+            # fail on such states, so retry with limits widened to cover it.
+            wide = max(lim.acceleration, lim.deceleration, abs(a0) * 1.01)
+            inp.max_acceleration = [wide]
+            inp.min_acceleration = [-wide]
+            return self._run()
+
+    def _run(self) -> Trajectory:
+        try:
+            res = self._otg.calculate(self._inp, self._traj)
+        except RuckigError as exc:
+            raise PlanningError(str(exc).strip().splitlines()[0]) from None
+        if res not in (Result.Working, Result.Finished):
+            raise PlanningError(f"ruckig result {res}")
+        return self._traj
+
+    def position(self, p0: float, v0: float, a0: float, target: float, lim: Limits) -> tuple[np.ndarray, float, float, float]:
+        """Plan a move to ``target`` ending at rest.
+
+        Returns:
+            (segments (5, N_SEGMENTS): t0, p, v, a, j), duration [s], min and max position on the way.
+
+        Raises:
+            PlanningError: ruckig failed.
+        """
+        inp = self._inp
+        inp.control_interface = ControlInterface.Position
+        inp.target_position = [target]
+        inp.target_velocity = [0.0]
+        inp.target_acceleration = [0.0]
+        traj = self._calc(p0, v0, a0, lim, math.copysign(1.0, target - p0) if target != p0 else math.copysign(1.0, v0 or 1.0))
+        ext = traj.position_extrema[0]
+        return _segments(traj, p0, v0, a0), traj.duration, ext.min, ext.max
+
+    def velocity(self, p0: float, v0: float, a0: float, target_velo: float, lim: Limits) -> tuple[np.ndarray, float]:
+        """Plan a change to ``target_velo``, which is then held.
+
+        Returns:
+            (segments, duration of the change [s]).
+
+        Raises:
+            PlanningError: ruckig failed.
+        """
+        inp = self._inp
+        inp.control_interface = ControlInterface.Velocity
+        inp.target_velocity = [target_velo]
+        inp.target_acceleration = [0.0]
+        sense = target_velo if target_velo != 0 else -v0
+        traj = self._calc(p0, v0, a0, lim, math.copysign(1.0, sense) if sense else 1.0)
+        return _segments(traj, p0, v0, a0), traj.duration
+
+
+def _segments(traj: Trajectory, p0: float, v0: float, a0: float) -> np.ndarray:
+    """Flatten a 1-DoF ruckig trajectory into constant-jerk segments."""
+    seg = np.zeros((5, N_SEGMENTS))
+    seg[0, :] = np.inf  # unused segments never start
+    prof = traj.profiles[0][0]
+    rows: list[tuple[float, float, float, float, float]] = []  # (duration, p, v, a, j)
+    b = prof.brake
+    if b.duration > 0:
+        for k in range(2):
+            rows.append((b.t[k], b.p[k], b.v[k], b.a[k], b.j[k]))
+    for k in range(7):
+        rows.append((prof.t[k], prof.p[k], prof.v[k], prof.a[k], prof.j[k]))
+    acc = prof.accel
+    if acc.duration > 0:
+        for k in range(2):
+            rows.append((acc.t[k], acc.p[k], acc.v[k], acc.a[k], acc.j[k]))
+    t = 0.0
+    for k, (dur, p, v, a, j) in enumerate(rows):
+        seg[:, k] = (t, p, v, a, j)
+        t += dur
+    # tail: hold the final velocity with zero jerk (and the final acceleration, 0 here)
+    k = len(rows)
+    seg[:, k] = (traj.duration, prof.p[7], prof.v[7], prof.a[7], 0.0)
+    if acc.duration > 0:
+        # after a post-profile the final state is the end of that profile
+        pe, ve, ae = _integrate(acc.t[1], acc.p[1], acc.v[1], acc.a[1], acc.j[1])
+        seg[:, k] = (traj.duration, pe, ve, ae, 0.0)
+    return seg
+
+
+def _integrate(t: float, p: float, v: float, a: float, j: float) -> tuple[float, float, float]:
+    return p + t * (v + t * (a / 2 + t * j / 6)), v + t * (a + t * j / 2), a + t * j
+
+
+def evaluate(seg: np.ndarray, t: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Evaluate the segment rows ``rows`` at their times ``t`` (vectorized).
+
+    Args:
+        seg: (5, N, N_SEGMENTS) table of all axes: t0, p, v, a, j.
+        t: time since the profile start [s], one per selected row.
+        rows: indices of the axes to evaluate.
+
+    Returns:
+        position, velocity, acceleration, jerk arrays.
+    """
+    t0 = seg[0, rows]
+    k = np.sum(t0 <= t[:, None], axis=1) - 1
+    np.maximum(k, 0, out=k)
+    tau = t - t0[np.arange(len(rows)), k]
+    p0 = seg[1, rows, k]
+    v0 = seg[2, rows, k]
+    a0 = seg[3, rows, k]
+    j = seg[4, rows, k]
+    pos = p0 + tau * (v0 + tau * (a0 * 0.5 + tau * j / 6.0))
+    velo = v0 + tau * (a0 + tau * j * 0.5)
+    acc = a0 + tau * j
+    return pos, velo, acc, j
+
+
+def stopping_distance(velo: np.ndarray, acc: np.ndarray, dec: np.ndarray, jerk: np.ndarray) -> np.ndarray:
+    """Upper bound of the distance a jerk-limited stop from (velo, acc) needs (>= 0).
+
+    Vectorized; used to stop continuous motion at a software limit in time.
+    """
+    v = np.abs(velo)
+    a = np.where(velo >= 0, acc, -acc)  # acceleration in the direction of travel
+    a_pos = np.maximum(a, 0.0)
+    # 1) bring a speeding-up acceleration to zero
+    t1 = a_pos / jerk
+    v1 = v + a_pos * a_pos / (2 * jerk)
+    d1 = v1 * t1
+    # 2) trapezoidal/triangular jerk-limited stop from v1 at zero acceleration
+    full = v1 >= dec * dec / jerk
+    d2 = np.where(full, 0.5 * v1 * (v1 / dec + dec / jerk), v1 * np.sqrt(np.maximum(v1, 0) / jerk))
+    return d1 + d2
