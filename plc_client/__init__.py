@@ -1,0 +1,29 @@
+"""zenoh-nc PLC client: AXIS_REF, the TcMC function blocks and the cyclic PLC runtime.
+
+Typical program (run with ``plc-run program.py``)::
+
+    from plc_client import AXIS_REF, MC_Power, MC_MoveAbsolute
+
+    X = AXIS_REF(nc="nc1", axis_id=1)
+    power, move = MC_Power(), MC_MoveAbsolute()
+
+    def cycle(plc):
+        power(Axis=X, Enable=True, Enable_Positive=True, Enable_Negative=True)
+        move(Axis=X, Execute=power.Status, Position=100.0, Velocity=50.0)
+"""
+from nc_schema import MC_AxisStates, MC_BufferMode, MC_Direction
+
+from .axis_ref import AXIS_REF, ST_AxisStatus
+from .fb import (
+    MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power, MC_ReadActualPosition,
+    MC_ReadAxisError, MC_ReadStatus, MC_Reset, MC_SetOverride, MC_Stop,
+)
+from .port import CommandPort, InProcessPort, PendingCommand
+from .task import InProcessPlc, PlcTask, current_task, run_cycles
+
+__all__ = [
+    "AXIS_REF", "ST_AxisStatus", "MC_Power", "MC_Reset", "MC_MoveAbsolute", "MC_MoveRelative", "MC_MoveModulo",
+    "MC_MoveVelocity", "MC_Halt", "MC_Stop", "MC_SetOverride", "MC_ReadActualPosition", "MC_ReadStatus",
+    "MC_ReadAxisError", "CommandPort", "InProcessPort", "PendingCommand", "PlcTask", "InProcessPlc", "run_cycles",
+    "current_task", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
+]

@@ -1,0 +1,17 @@
+"""TcMC function blocks as plain Python classes (see :mod:`plc_client.fb.base` for the call style
+and the PLCopen output rules, :mod:`plc_client.fb.motion` and :mod:`plc_client.fb.admin` for the
+choices made where the manual is silent)."""
+from .admin import (
+    MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset, MC_SetOverride, override_to_plctonc,
+)
+from .base import EnableBlock, ExecuteBlock, FunctionBlock
+from .motion import (
+    DONE_WINDOW_TIMEOUT, MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Stop,
+    MotionBlock,
+)
+
+__all__ = [
+    "MC_Power", "MC_Reset", "MC_MoveAbsolute", "MC_MoveRelative", "MC_MoveModulo", "MC_MoveVelocity", "MC_Halt",
+    "MC_Stop", "MC_SetOverride", "MC_ReadActualPosition", "MC_ReadStatus", "MC_ReadAxisError",
+    "FunctionBlock", "ExecuteBlock", "EnableBlock", "MotionBlock", "DONE_WINDOW_TIMEOUT", "override_to_plctonc",
+]

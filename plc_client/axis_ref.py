@@ -1,0 +1,245 @@
+"""AXIS_REF: the PLC's view of one NC axis (TwinCAT 3 Tc2_MC2 structure).
+
+An :class:`AXIS_REF` holds
+
+* ``NcToPlc``: a **read-only** snapshot (``numpy.void`` of ``NCTOPLC_DTYPE``) of the
+  axis's record in the newest NC status frame, taken once at the start of every PLC
+  cycle, so every function block in one cycle sees the same data;
+* ``PlcToNc``: a **writable** record (``numpy.void`` of ``PLCTONC_DTYPE``) that the
+  runtime publishes at the end of every PLC cycle for the axes it controls
+  (``Override`` starts at 1000000 = 100 %);
+* ``Status``: :class:`ST_AxisStatus`, refreshed from ``NcToPlc`` every PLC cycle (what
+  ``MC_ReadStatus`` / ``Axis.ReadStatus()`` do in TwinCAT), plus ``NcCycleCounter``
+  (the NC cycle that produced the snapshot), ``CycleCounter`` (the PLC cycle) and
+  ``Valid`` (False while the data is stale or missing).
+
+Binding: ``AXIS_REF(nc="nc1", axis_id=1)`` names the axis; it is bound to a PLC task
+(:class:`plc_client.task.PlcTask`) either explicitly (``task.axis(...)`` /
+``task.register(ax)``) or implicitly the first time a function block is called with it
+inside a running PLC cycle.
+
+Staleness (zenoh-nc choice; Tc2_MC2 raises 0x4B0F when its NC cycle counter stops):
+if the NC cycle of an axis's snapshot has not advanced for ``stale_cycles`` PLC cycles,
+or no frame has arrived yet, ``Status.Valid`` is False and function blocks report
+0x4B0F (MC_NO_NC_CYCLE_UPDATE) instead of acting on old data. A frame whose NC cycle
+is *lower* than the previous one means the NC restarted: the snapshot is taken, and
+``nc_epoch`` is incremented so that blocks following a command of the old NC instance
+stop following it (0x4B0F).
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, MC_AxisStates, StateDWord, motion_state
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .task import PlcTask
+
+_S = {name: int(getattr(StateDWord, name)) for name in StateDWord.__members__}
+
+#: ST_AxisStatus boolean members taken directly from one StateDWord bit.
+_BIT_FIELDS: dict[str, str] = {
+    "Operational": "Operational", "ControlLoopClosed": "ControlLoopClosed", "HasJob": "HasJob",
+    "HasBeenStopped": "HasBeenStopped", "NewTargetPosition": "NewTargetPos", "InPositionArea": "InPositionArea",
+    "InTargetPosition": "InTargetPosition", "ProtectedMode": "Protected", "Homed": "Homed",
+    "HomingBusy": "HomingBusy", "MotionCommandsLocked": "MotionCommandsLocked",
+    "SoftLimitMinExceeded": "SoftLimitMinExceeded", "SoftLimitMaxExceeded": "SoftLimitMaxExceeded",
+    "PositiveDirection": "PositiveDirection", "NegativeDirection": "NegativeDirection", "NotMoving": "NotMoving",
+    "Compensating": "Compensating", "ExtSetPointGenEnabled": "ExtSetPointGenEnabled",
+    "PhasingActive": "PhasingActive", "ExternalLatchValid": "ExternalLatchValid",
+    "CamDataQueued": "CamDataQueued", "CamTableQueued": "CamTableQueued", "CamScalingPending": "CamScalingPending",
+    "CmdBuffered": "CmdBuffered", "PTPmode": "PTPmode", "DriveDeviceError": "DriveDeviceError",
+    "IoDataInvalid": "IoDataInvalid", "ErrorPropagationDelayed": "ErrorPropagationDelayed",
+    "DriveLimitActive": "IsDriveLimitActive", "ConstantVelocity": "ConstantVelocity",
+}
+
+#: PLCopen state -> the ST_AxisStatus flag that is TRUE in it.
+_STATE_FLAGS: dict[int, str] = {
+    int(MC_AxisStates.MC_AXISSTATE_ERRORSTOP): "ErrorStop",
+    int(MC_AxisStates.MC_AXISSTATE_DISABLED): "Disabled",
+    int(MC_AxisStates.MC_AXISSTATE_STOPPING): "Stopping",
+    int(MC_AxisStates.MC_AXISSTATE_STANDSTILL): "StandStill",
+    int(MC_AxisStates.MC_AXISSTATE_DISCRETEMOTION): "DiscreteMotion",
+    int(MC_AxisStates.MC_AXISSTATE_CONTINOUSMOTION): "ContinuousMotion",
+    int(MC_AxisStates.MC_AXISSTATE_SYNCHRONIZEDMOTION): "SynchronizedMotion",
+    int(MC_AxisStates.MC_AXISSTATE_HOMING): "Homing",
+}
+
+#: |SetAcc| below this [u/s^2] counts as "not accelerating" (numerical noise of the profile).
+_ACC_EPS = 1e-9
+
+
+class ST_AxisStatus:
+    """Tc2_MC2 ST_AxisStatus: the axis state as plain attributes.
+
+    All members are False/0 until the first valid snapshot. ``MotionState`` is an
+    ``MC_AxisStates`` value computed by :func:`nc_schema.motion_state`; the PLCopen
+    flags (``ErrorStop`` ... ``Homing``) are derived from it, so exactly one is TRUE
+    while ``Valid``. ``Accelerating``/``Decelerating`` compare the signs of SetAcc and
+    SetVelo (|velocity| growing / shrinking); ``Moving`` is PositiveDirection or
+    NegativeDirection.
+    """
+
+    _FIELDS: tuple[str, ...] = (
+        "UpdateTaskIndex", "UpdateCycleTime", "CycleCounter", "NcCycleCounter", "MotionState", "Error", "ErrorId",
+        "ErrorStop", "Disabled", "Stopping", "StandStill", "DiscreteMotion", "ContinuousMotion",
+        "SynchronizedMotion", "Homing", "Accelerating", "Decelerating", "Moving", "Coupled", "Valid",
+        *_BIT_FIELDS,
+    )
+
+    def __init__(self) -> None:
+        self.UpdateTaskIndex: int = 0
+        self.UpdateCycleTime: float = 0.0
+        self.CycleCounter: int = 0
+        self.NcCycleCounter: int = 0
+        self.MotionState: MC_AxisStates = MC_AxisStates.MC_AXISSTATE_UNDEFINED
+        self.Error: bool = False
+        self.ErrorId: int = 0
+        self.Accelerating: bool = False
+        self.Decelerating: bool = False
+        self.Moving: bool = False
+        self.Coupled: bool = False
+        self.Valid: bool = False
+        for flag in _STATE_FLAGS.values():
+            setattr(self, flag, False)
+        for name in _BIT_FIELDS:
+            setattr(self, name, False)
+
+    def update(self, rec: np.void, nc_cycle: int, plc_cycle: int, cycle_time: float, valid: bool) -> None:
+        """Refresh every member from one NCTOPLC record (what MC_ReadStatus does)."""
+        s = int(rec["StateDWord"])
+        self.CycleCounter = plc_cycle
+        self.NcCycleCounter = nc_cycle
+        self.UpdateCycleTime = cycle_time
+        self.Valid = valid
+        state = motion_state(s, int(rec["CoupleState"]))
+        self.MotionState = state
+        for value, flag in _STATE_FLAGS.items():
+            setattr(self, flag, value == state)
+        self.Error = bool(s & _S["Error"])
+        self.ErrorId = int(rec["ErrorCode"])
+        for name, bit in _BIT_FIELDS.items():
+            setattr(self, name, bool(s & _S[bit]))
+        self.Moving = self.PositiveDirection or self.NegativeDirection
+        self.Coupled = int(rec["CoupleState"]) != 0
+        acc, vel = float(rec["SetAcc"]), float(rec["SetVelo"])
+        if abs(acc) <= _ACC_EPS:
+            self.Accelerating = self.Decelerating = False
+        elif vel == 0.0:
+            # starting from rest: any acceleration increases |v|
+            self.Accelerating, self.Decelerating = True, False
+        else:
+            self.Accelerating = (acc > 0) == (vel > 0)
+            self.Decelerating = not self.Accelerating
+
+    def copy(self) -> ST_AxisStatus:
+        """An independent copy (MC_ReadStatus output)."""
+        c = ST_AxisStatus()
+        c.__dict__.update(self.__dict__)
+        return c
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+    def __repr__(self) -> str:
+        flags = [n for n in ("Valid", "Error", "HasJob", "ControlLoopClosed", "InTargetPosition") if getattr(self, n)]
+        return f"ST_AxisStatus({self.MotionState.name}, nc_cycle={self.NcCycleCounter}, {'|'.join(flags)})"
+
+
+class AXIS_REF:
+    """Reference to one NC axis: ``AXIS_REF(nc="nc1", axis_id=1)``.
+
+    Attributes:
+        nc: NC name (``nc/<nc>/...`` keys).
+        axis_id: the axis's AxisId (1..65535).
+        NcToPlc: read-only NCTOPLC snapshot of this PLC cycle (``numpy.void``).
+        PlcToNc: writable PLCTONC record published for a controlled axis.
+        Status: :class:`ST_AxisStatus`, refreshed every PLC cycle.
+        nc_epoch: incremented each time the NC is seen to restart (its cycle went back).
+
+    Raises:
+        ValueError: an invalid NC name or axis id.
+    """
+
+    def __init__(self, nc: str = "nc1", axis_id: int = 1, name: str = "") -> None:
+        if isinstance(axis_id, bool) or not isinstance(axis_id, int) or not 1 <= axis_id <= 65535:
+            raise ValueError(f"axis_id must be an integer 1..65535, got {axis_id!r}")
+        if not isinstance(nc, str) or not nc:
+            raise ValueError(f"nc must be an NC name, got {nc!r}")
+        self.nc = nc
+        self.axis_id = axis_id
+        self.name = name or f"{nc}/{axis_id}"
+        empty = np.zeros(1, dtype=NCTOPLC_DTYPE)
+        empty.flags.writeable = False
+        self.NcToPlc: np.void = empty[0]
+        self._plctonc = np.zeros(1, dtype=PLCTONC_DTYPE)
+        self._plctonc["Override"] = 1_000_000
+        self.PlcToNc: np.void = self._plctonc[0]
+        self.Status = ST_AxisStatus()
+        self.nc_epoch = 0
+        #: True once frames arrived but this axis id was not in them (-> 0x4012).
+        self.missing = False
+        self._task: PlcTask | None = None
+        self._has_data = False
+        self._unchanged = 0  # PLC cycles without a newer NC cycle
+
+    # -- binding -----------------------------------------------------------------------
+    @property
+    def task(self) -> PlcTask | None:
+        """The PLC task this reference is bound to (None while unbound)."""
+        return self._task
+
+    @property
+    def controlled(self) -> bool:
+        """True once an MC_Power block has been used on this axis (its PLCTONC is published)."""
+        return self._task is not None and self._task.is_controlled(self)
+
+    # -- snapshot ----------------------------------------------------------------------
+    def _snapshot(self, rec: np.void | None, nc_cycle: int | None, plc_cycle: int, cycle_time: float,
+                  stale_cycles: int) -> None:
+        """Take this cycle's snapshot (called by the task at the start of each PLC cycle).
+
+        ``rec`` is this axis's record in the newest frame of its NC (None if the frame
+        does not contain the axis or no frame was received yet).
+        """
+        if rec is not None and nc_cycle is not None:
+            last = int(self.Status.NcCycleCounter)
+            if not self._has_data or nc_cycle > last:
+                self._unchanged = 0
+            elif nc_cycle < last:
+                self.nc_epoch += 1  # the NC restarted: its cycle counter went back
+                self._unchanged = 0
+            else:
+                self._unchanged += 1
+            arr = np.frombuffer(rec.tobytes(), dtype=NCTOPLC_DTYPE, count=1)  # read-only copy
+            self.NcToPlc = arr[0]
+            self._has_data = True
+            self.missing = False
+        else:
+            self._unchanged += 1
+            self.missing = nc_cycle is not None  # frames arrive, but without this axis
+            nc_cycle = int(self.Status.NcCycleCounter)
+        valid = self._has_data and not self.missing and self._unchanged < stale_cycles
+        self.Status.update(self.NcToPlc, int(nc_cycle), plc_cycle, cycle_time, valid)
+
+    @property
+    def valid(self) -> bool:
+        return self.Status.Valid
+
+    # -- convenience (TwinCAT-like) ------------------------------------------------------
+    def ReadStatus(self) -> ST_AxisStatus:
+        """Tc2_MC2 ``Axis.ReadStatus()``: the status is already refreshed every cycle."""
+        return self.Status
+
+    @property
+    def ActPos(self) -> float:
+        return float(self.NcToPlc["ActPos"])
+
+    @property
+    def ActVelo(self) -> float:
+        return float(self.NcToPlc["ActVelo"])
+
+    def __repr__(self) -> str:
+        return f"AXIS_REF(nc={self.nc!r}, axis_id={self.axis_id})"

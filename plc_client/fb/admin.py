@@ -1,0 +1,219 @@
+"""Administrative function blocks (TcMC manual 4.1-4.5, 4.14): MC_Power, MC_Reset,
+MC_SetOverride, MC_ReadActualPosition, MC_ReadStatus, MC_ReadAxisError.
+
+Choices where the manuals are silent (zenoh-nc):
+
+* MC_Power claims the axis for this PLC client on its first call (the NC applies only the
+  claim holder's PLCTONC); a refusal shows as Error with the NC's code (0x723 while another
+  client holds the axis) while Enable is TRUE, and is retried on Enable's rising edge and
+  every ``claim_retry`` seconds (task parameter, 1 s) while Enable stays TRUE.
+* MC_Power outputs: Busy = Enable; Active = Enable and the claim is held (the enables are in
+  effect); Status = Active and the NC reports ControlLoopClosed with no axis error on valid
+  data. Axis errors are not MC_Power errors (PLCopen: they are the axis's ErrorStop state;
+  read them with MC_ReadAxisError); MC_Power.Error is for its own failures: claim refused,
+  stale data (0x4B0F), Override outside 0..100 % (0x4B06), BufferMode other than
+  MC_Aborting (0x4B64; the block still acts as MC_Aborting).
+* Override: PlcToNc.Override = round(Override * 10000) (100 % = 1000000). MC_Power writes it
+  when its Override input changes (and on its first call), MC_SetOverride writes it on its
+  Execute edge: the last writer wins, so the two can be combined. An out-of-range Override
+  keeps the last valid value.
+* MC_SetOverride on an axis this task controls writes PlcToNc.Override and is Done in the
+  same cycle (the value goes out with this cycle's PLCTONC frame); on an axis it does not
+  control it sends the NC's SetOverride command and is Done on its acceptance.
+* MC_Reset is Done when the NC accepted the reset and the first frame of the reset's cycle
+  shows no axis error; if the error is still there (its cause persists): Error with the
+  axis ErrorCode.
+* MC_ReadAxisError: Tc2_MC2 outputs (Valid, Busy, Error, ErrorID for the block itself,
+  AxisErrorID for the axis) plus TcMC's Done (= Valid).
+* MC_ReadStatus: Tc2_MC2 ``Status`` (a copy of AXIS_REF.Status) plus the TcMC flat outputs
+  (Errorstop, Stopping, StandStill, ...).
+"""
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from nc_schema import ControlDWord, ErrorCodes, StateDWord
+
+from ..axis_ref import AXIS_REF, ST_AxisStatus
+from .base import EnableBlock, ExecuteBlock, FunctionBlock
+
+_EN = int(ControlDWord.Enable)
+_FP = int(ControlDWord.FeedEnablePlus)
+_FM = int(ControlDWord.FeedEnableMinus)
+_CLC = int(StateDWord.ControlLoopClosed)
+_ERR = int(StateDWord.Error)
+
+
+def override_to_plctonc(percent: float) -> int:
+    """Override in percent (0..100) -> PLCTONC Override (0..1000000)."""
+    return int(round(float(percent) * 10000.0))
+
+
+def _valid_override(v: Any) -> bool:
+    return FunctionBlock._is_real(v) and 0.0 <= float(v) <= 100.0
+
+
+class MC_Power(FunctionBlock):
+    """Software enables and override of an axis (TcMC 4.1, Tc2_MC2 MC_Power).
+
+    Inputs: Enable, Enable_Positive, Enable_Negative (feed enables, only with Enable),
+    Override [%] (0..100, default 100), BufferMode (only MC_Aborting).
+    Outputs: Status, Busy, Active, Error, ErrorID.
+    """
+
+    _INPUTS = {"Enable": False, "Enable_Positive": False, "Enable_Negative": False, "Override": 100.0,
+               "BufferMode": 0}
+    _OUTPUTS = {"Status": False, "Busy": False, "Active": False, "Error": False, "ErrorID": 0}
+
+    def __init__(self, timeout: float | None = None) -> None:
+        super().__init__(timeout)
+        self._prev_enable = False
+        self._written_override: Any = None
+
+    def _cycle(self) -> None:
+        en = bool(self.Enable)
+        rising = en and not self._prev_enable
+        self._prev_enable = en
+        task = self._task()
+        ax = self.Axis
+        if task is None or ax is None:
+            self._reset_outputs()
+            if en:
+                self.Error, self.ErrorID = True, ErrorCodes.MC_NO_NC_CYCLE_UPDATE
+            return
+        claim = task.control(ax, retry=rising)
+        # control word: written every cycle (the PLC owns these bits)
+        cdw = int(ax.PlcToNc["ControlDWord"]) & ~(_EN | _FP | _FM)
+        if en:
+            cdw |= _EN
+            if self.Enable_Positive:
+                cdw |= _FP
+            if self.Enable_Negative:
+                cdw |= _FM
+        ax.PlcToNc["ControlDWord"] = cdw
+        ov_ok = _valid_override(self.Override)
+        if ov_ok and self.Override != self._written_override:
+            ax.PlcToNc["Override"] = override_to_plctonc(self.Override)
+            self._written_override = self.Override
+        if not en:
+            self._reset_outputs()
+            return
+        self.Busy = True
+        held = claim.state == "held"
+        self.Active = held
+        code = 0
+        if claim.state == "refused":
+            code = claim.error
+        elif self._axis_problem():
+            code = self._axis_problem()
+        elif not ov_ok:
+            code = ErrorCodes.MC_PARAMETER_NOT_CORRECT
+        elif isinstance(self.BufferMode, bool) or not isinstance(self.BufferMode, int) or self.BufferMode != 0:
+            code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
+        self.Error, self.ErrorID = bool(code), int(code)
+        sdw = int(ax.NcToPlc["StateDWord"])
+        self.Status = held and ax.Status.Valid and bool(sdw & _CLC) and not sdw & _ERR
+
+
+class MC_Reset(ExecuteBlock):
+    """Axis reset (TcMC 4.2): clears the axis error. Outputs: Done, Busy, Error, ErrorID."""
+
+    _INPUTS = {"Execute": False}
+    _OUTPUTS = {"Done": False, "Busy": False, "Active": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
+
+    def __init__(self, timeout: float | None = None) -> None:
+        super().__init__(timeout)
+        self._cycle_no = 0
+
+    def _start(self) -> None:
+        self._cycle_no = 0
+        self._send("Reset")
+
+    def _progress(self) -> None:
+        code = self._axis_problem()
+        ax = self.Axis
+        if not code and ax is not None and ax.nc_epoch != self._epoch:
+            code = ErrorCodes.MC_NO_NC_CYCLE_UPDATE
+        if code:
+            self._finish("Error", code)
+            return
+        if not self._cycle_no:
+            reply = self._await_reply()
+            if reply is None:
+                return
+            self._cycle_no = max(1, int(reply.get("cycle", 0)))
+            self._pending = None
+        assert ax is not None
+        if ax.Status.NcCycleCounter < self._cycle_no:
+            return
+        if int(ax.NcToPlc["StateDWord"]) & _ERR:
+            self._finish("Error", int(ax.NcToPlc["ErrorCode"]) or ErrorCodes.MC_AXIS_NOT_READY)
+        else:
+            self._finish("Done")
+
+
+class MC_SetOverride(ExecuteBlock):
+    """Set the velocity override [%] (0..100) of an axis (TcMC 4.14). Outputs: Done, Busy, Error, ErrorID."""
+
+    _INPUTS = {"Execute": False, "Override": 100.0}
+    _OUTPUTS = {"Done": False, "Busy": False, "Active": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
+
+    def _start(self) -> None:
+        if not _valid_override(self.Override):
+            self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
+            return
+        code = self._axis_problem()
+        if code:
+            self._finish("Error", code)
+            return
+        ax = self.Axis
+        assert ax is not None
+        if ax.controlled:
+            ax.PlcToNc["Override"] = override_to_plctonc(self.Override)
+            self._finish("Done")
+        else:
+            self._send("SetOverride", Override=float(self.Override))
+
+    def _progress(self) -> None:
+        if self._await_reply() is not None:
+            self._finish("Done")
+
+
+class MC_ReadActualPosition(EnableBlock):
+    """Actual position (TcMC 4.3). Outputs: Valid, Done, Busy, Error, ErrorID, Position [u]."""
+
+    _OUTPUTS = {**EnableBlock._OUTPUTS, "Position": 0.0}
+
+    def _read(self, ax: AXIS_REF) -> None:
+        self.Position = float(ax.NcToPlc["ActPos"])
+
+
+class MC_ReadStatus(EnableBlock):
+    """Axis state (TcMC 4.4 / Tc2_MC2). Outputs: Valid, Done, Busy, Error, ErrorID, Status
+    (ST_AxisStatus copy), Errorstop, Stopping, StandStill, DiscreteMotion, ContinuousMotion,
+    SynchronizedMotion, Homing, ConstantVelocity, Accelerating, Decelerating.
+    """
+
+    _FLAT = {"Errorstop": "ErrorStop", "Stopping": "Stopping", "StandStill": "StandStill",
+             "DiscreteMotion": "DiscreteMotion", "ContinuousMotion": "ContinuousMotion",
+             "SynchronizedMotion": "SynchronizedMotion", "Homing": "Homing", "ConstantVelocity": "ConstantVelocity",
+             "Accelerating": "Accelerating", "Decelerating": "Decelerating"}
+    _OUTPUTS: ClassVar[dict[str, Any]] = {**EnableBlock._OUTPUTS, **{k: False for k in _FLAT}}
+
+    def __init__(self, timeout: float | None = None) -> None:
+        super().__init__(timeout)
+        self.Status = ST_AxisStatus()
+
+    def _read(self, ax: AXIS_REF) -> None:
+        self.Status = ax.Status.copy()
+        for out, field in self._FLAT.items():
+            setattr(self, out, bool(getattr(ax.Status, field)))
+
+
+class MC_ReadAxisError(EnableBlock):
+    """Axis error code (TcMC 4.5 / Tc2_MC2). Outputs: Valid, Done, Busy, Error, ErrorID, AxisErrorID."""
+
+    _OUTPUTS = {**EnableBlock._OUTPUTS, "AxisErrorID": 0}
+
+    def _read(self, ax: AXIS_REF) -> None:
+        self.AxisErrorID = int(ax.NcToPlc["ErrorCode"])

@@ -1,0 +1,234 @@
+"""Common machinery of the TcMC function blocks.
+
+Call style (IEC 61131-3 ST semantics): ``fb(Axis=ax, Execute=True, Position=10.0)``.
+Inputs not passed keep their last value; outputs are attributes; the call returns the
+block itself, so ``if mv(Axis=ax, Execute=True).Done:`` works. An unknown input name
+raises ``TypeError`` (it is a program bug, like a compile error); bad input *values* never
+raise: the block reports ``Error`` with a TwinCAT error code.
+
+Output rules (Tc2_MC2 "General rules for MC function blocks", TcMC appendix 7.1), for the
+Execute blocks:
+
+* the command starts on the rising edge of Execute; inputs are latched then;
+* Busy, Done, Error and CommandAborted are mutually exclusive; Active only while the
+  block's command is the axis's active command;
+* Done/Error/CommandAborted stay TRUE while Execute stays TRUE; if Execute fell before
+  the end, the output is TRUE for exactly one cycle;
+* a rising edge while Busy is ignored (no feedback, no second command);
+* the outputs are reset on Execute falling when the block is not Busy;
+* an axis whose data is stale (``AXIS_REF.Status.Valid`` False) makes a block that acts
+  on it report Error 0x4B0F (0x4012 if frames arrive without that axis).
+
+Timeouts: ``timeout`` (constructor argument, seconds, default the task's
+``command_timeout``, 1 s) bounds the wait for the NC's reply: no reply -> Error 0x745.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+from nc_schema import ErrorCodes
+
+from ..axis_ref import AXIS_REF
+from ..port import PendingCommand
+from ..task import PlcTask, current_task
+
+
+class FunctionBlock:
+    """Base of all blocks: input handling and the Axis binding.
+
+    Subclasses declare ``_INPUTS`` (name -> default) and ``_OUTPUTS`` (name -> reset value).
+    """
+
+    _INPUTS: ClassVar[dict[str, Any]] = {}
+    _OUTPUTS: ClassVar[dict[str, Any]] = {"Error": False, "ErrorID": 0}
+
+    def __init__(self, timeout: float | None = None) -> None:
+        if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
+            raise ValueError(f"timeout must be > 0 s, got {timeout!r}")
+        self.timeout = timeout
+        self.Axis: AXIS_REF | None = None
+        for k, v in self._INPUTS.items():
+            setattr(self, k, v)
+        self._reset_outputs()
+
+    def _reset_outputs(self) -> None:
+        for k, v in self._OUTPUTS.items():
+            setattr(self, k, v)
+
+    def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> FunctionBlock:
+        if Axis is not None:
+            if not isinstance(Axis, AXIS_REF):
+                raise TypeError(f"{type(self).__name__}: Axis must be an AXIS_REF, got {type(Axis).__name__}")
+            self.Axis = Axis
+        for k, v in inputs.items():
+            if k not in self._INPUTS:
+                raise TypeError(f"{type(self).__name__} has no input {k!r} (inputs: {', '.join(self._INPUTS)})")
+            setattr(self, k, v)
+        self._cycle()
+        return self
+
+    def _cycle(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # -- helpers ---------------------------------------------------------------------
+    def _task(self) -> PlcTask | None:
+        """The task of the Axis, binding it to the running task on first use."""
+        ax = self.Axis
+        if ax is None:
+            return None
+        if ax._task is None:
+            t = current_task()
+            if t is None:
+                return None
+            t.register(ax)
+        return ax._task
+
+    def _axis_problem(self) -> int:
+        """0 if the Axis has valid data, else the error code to report."""
+        ax = self.Axis
+        if ax is None or self._task() is None:
+            return ErrorCodes.MC_NO_NC_CYCLE_UPDATE
+        if ax.missing:
+            return ErrorCodes.NC_AXIS_ID_NOT_ALLOWED
+        if not ax.Status.Valid:
+            return ErrorCodes.MC_NO_NC_CYCLE_UPDATE
+        return 0
+
+    def _timeout(self) -> float:
+        if self.timeout is not None:
+            return float(self.timeout)
+        t = self.Axis._task if self.Axis is not None else None
+        return t.command_timeout if t is not None else 1.0
+
+    @staticmethod
+    def _is_real(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    def __repr__(self) -> str:
+        outs = ", ".join(f"{k}={getattr(self, k)!r}" for k in self._OUTPUTS if getattr(self, k))
+        return f"{type(self).__name__}({outs})"
+
+
+class ExecuteBlock(FunctionBlock):
+    """An Execute-triggered block (see the module docstring for the output rules).
+
+    Subclasses implement ``_start()`` (rising edge, not Busy: latch and send; may finish at
+    once) and ``_progress()`` (each cycle while Busy). They end with :meth:`_finish`.
+    """
+
+    _INPUTS: ClassVar[dict[str, Any]] = {"Execute": False}
+    _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Busy": False, "Active": False, "CommandAborted": False,
+                                          "Error": False, "ErrorID": 0}
+    #: the output that means success (InVelocity for MC_MoveVelocity)
+    _DONE: ClassVar[str] = "Done"
+
+    def __init__(self, timeout: float | None = None) -> None:
+        super().__init__(timeout)
+        self._prev_execute = False
+        self._pending: PendingCommand | None = None
+        self._epoch = 0
+
+    def _cycle(self) -> None:
+        ex = bool(self.Execute)
+        rising = ex and not self._prev_execute
+        falling = self._prev_execute and not ex
+        self._prev_execute = ex
+        if not self.Busy and (not ex or rising):
+            # falling edge (or a result shown for its one cycle) resets the outputs
+            self._reset_outputs()
+        if rising and not self.Busy:
+            self._reset_outputs()
+            self.Busy = True
+            self._start()
+        elif self.Busy:
+            if falling:
+                self._on_execute_fell()
+            self._progress()
+
+    def _start(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _progress(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _on_execute_fell(self) -> None:
+        """Execute fell while Busy: the command goes on (MC_Stop overrides)."""
+
+    def _finish(self, result: str, error_id: int = 0) -> None:
+        """End the command: result is the done output name, 'Error' or 'CommandAborted'."""
+        if self._pending is not None and not self._pending.done:
+            self._pending.abandon()
+        self._pending = None
+        self.Busy = False
+        self.Active = False
+        setattr(self, result, True)
+        if result == "Error":
+            self.ErrorID = int(error_id) or ErrorCodes.NC_INTERNAL
+
+    def _check_inputs(self, reals: tuple[str, ...] = (), buffer_mode: bool = True) -> bool:
+        """Validate latched inputs; finish with Error and return False if one is bad."""
+        for name in reals:
+            if not self._is_real(getattr(self, name)):
+                self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
+                return False
+        if buffer_mode:
+            bm = getattr(self, "BufferMode", 0)
+            if isinstance(bm, bool) or not isinstance(bm, int) or int(bm) != 0:
+                self._finish("Error", ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED)
+                return False
+        return True
+
+    def _send(self, cmd: str, **args: Any) -> bool:
+        """Send ``cmd`` for the Axis; finish with Error and return False if that is impossible."""
+        code = self._axis_problem()
+        if code:
+            self._finish("Error", code)
+            return False
+        task = self.Axis._task  # type: ignore[union-attr]
+        self._epoch = self.Axis.nc_epoch  # type: ignore[union-attr]
+        self._pending = task.send(self.Axis, cmd, **args)  # type: ignore[union-attr,arg-type]
+        return True
+
+    def _await_reply(self) -> dict[str, Any] | None:
+        """The reply once it arrived (error 0); finishes with Error on rejection/timeout."""
+        p = self._pending
+        if p is None:
+            return None
+        if p.done:
+            if p.reply is None:
+                self._finish("Error", p.failed)
+                return None
+            err = int(p.reply.get("error", 0))
+            if err:
+                self._finish("Error", err)
+                return None
+            return p.reply
+        if self.Axis is not None and self.Axis._task is not None and self.Axis._task.now - p.sent_at >= self._timeout():
+            self._finish("Error", ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)
+        return None
+
+
+class EnableBlock(FunctionBlock):
+    """An Enable-level block (MC_Read*): Valid/Done while Enable and the data is valid."""
+
+    _INPUTS: ClassVar[dict[str, Any]] = {"Enable": False}
+    _OUTPUTS: ClassVar[dict[str, Any]] = {"Valid": False, "Done": False, "Busy": False, "Error": False, "ErrorID": 0}
+
+    def _cycle(self) -> None:
+        if not self.Enable:
+            self.Valid = self.Done = self.Busy = self.Error = False
+            self.ErrorID = 0
+            return
+        self.Busy = True
+        code = self._axis_problem()
+        if code:
+            self.Valid = self.Done = False
+            self.Error, self.ErrorID = True, code
+            return
+        self.Error, self.ErrorID = False, 0
+        self._read(self.Axis)  # type: ignore[arg-type]
+        self.Valid = self.Done = True
+
+    def _read(self, ax: AXIS_REF) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError

@@ -1,0 +1,420 @@
+"""The cyclic PLC task, independent of the transport.
+
+:class:`PlcTask` does, once per PLC cycle (:meth:`PlcTask.step`):
+
+1. take the newest NC status frame of every NC and snapshot it into the bound
+   :class:`~plc_client.axis_ref.AXIS_REF` objects (by AxisId), marking stale data;
+2. drain the command port's replies (claims, late replies, detached commands);
+3. run the user program (``program(plc)``, or ``program.cycle(plc)`` / ``program.cycle()``)
+   with this task as the *current task*, so an AXIS_REF passed to a function block for the
+   first time is bound to it;
+4. publish one batched PLCTONC frame per NC for the axes this task controls.
+
+Transports subclass it (:class:`plc_client.runtime.PlcRuntime` over zenoh,
+:class:`InProcessPlc` against an in-process ``NcCore``).
+
+Claims: an axis becomes *controlled* the first time an ``MC_Power`` block is called on it;
+the task then sends ``Claim`` (the NC refuses with 0x723 while another live client holds the
+axis). A refused or timed-out claim is retried on MC_Power's Enable rising edge and every
+``claim_retry`` seconds while Enable stays TRUE. An NC restart (its cycle counter goes back,
+or its liveliness token reappears) forgets all claims on that NC; MC_Power claims again.
+
+Late replies (zenoh-nc choice, the manual is silent): a block that times out (0x745)
+abandons its request. If the NC accepted it anyway (late reply with error 0), the task
+checks the frames once they reach the reply's cycle: if that command is still the axis's
+active command (same CmdNo, CmdState ACTIVE) - i.e. the axis is moving for a command the
+PLC program believes failed - the task sends ``Halt`` (a normal stop, no lock) and logs a
+warning. A late ``Stop`` leaves the axis stopped and locked (safe; MC_Stop/MC_Reset unlock).
+A late ``Claim`` makes the claim held.
+"""
+from __future__ import annotations
+
+import inspect
+import logging
+import math
+import threading
+import time
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from nc_schema import MOTION_COMMANDS, CmdState, ErrorCodes, error_text
+
+from .axis_ref import AXIS_REF
+from .port import CommandPort, InProcessPort, PendingCommand
+
+log = logging.getLogger(__name__)
+
+_local = threading.local()
+
+#: Data older than this is stale when the task is built without ``stale_cycles`` [s].
+DEFAULT_STALE_TIME = 0.2
+
+
+def current_task() -> PlcTask | None:
+    """The task whose program is running in this thread (None outside a PLC cycle)."""
+    return getattr(_local, "task", None)
+
+
+class ClaimState:
+    """Claim of one axis by this task: ``state`` is 'none', 'pending', 'held' or 'refused'."""
+
+    __slots__ = ("state", "error", "pending", "since")
+
+    def __init__(self) -> None:
+        self.state = "none"
+        self.error = 0
+        self.pending: PendingCommand | None = None
+        self.since = 0.0
+
+    def __repr__(self) -> str:
+        return f"ClaimState({self.state}, error=0x{self.error:X})"
+
+
+def _program_caller(program: Any) -> Callable[[PlcTask], Any] | None:
+    """Normalize a program: a callable(plc), an object with cycle(plc) or cycle(), or None."""
+    if program is None:
+        return None
+    fn = getattr(program, "cycle", None)
+    if fn is None:
+        if not callable(program):
+            raise TypeError(f"program must be callable or have a cycle() method, got {program!r}")
+        fn = program
+    try:
+        n = len([p for p in inspect.signature(fn).parameters.values()
+                 if p.default is p.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)])
+    except (TypeError, ValueError):
+        n = 1
+    return (lambda plc: fn()) if n == 0 else fn
+
+
+class PlcTask:
+    """Transport-independent PLC task (see the module docstring).
+
+    Args:
+        program: called once per cycle (see :func:`_program_caller`); may be None.
+        cycle_time: nominal PLC cycle [s] (> 0).
+        client_id: this PLC's client id.
+        stale_cycles: PLC cycles without a newer NC frame after which axis data is invalid;
+            default: ``ceil(0.2 s / cycle_time)``, at least 3.
+        command_timeout: default Timeout of the function blocks [s].
+        claim_retry: seconds between claim retries while MC_Power.Enable stays TRUE.
+
+    Attributes:
+        cycle: PLC cycle counter (1 in the first cycle).
+        now: task time [s] at the start of the current cycle (what block timeouts use).
+
+    Raises:
+        ValueError: invalid cycle_time, stale_cycles or timeout.
+    """
+
+    def __init__(self, program: Any = None, *, cycle_time: float = 0.010, client_id: str = "plc",
+                 stale_cycles: int | None = None, command_timeout: float = 1.0, claim_retry: float = 1.0) -> None:
+        if not (isinstance(cycle_time, (int, float)) and math.isfinite(cycle_time) and cycle_time > 0):
+            raise ValueError(f"cycle_time must be > 0 s, got {cycle_time!r}")
+        if stale_cycles is None:
+            stale_cycles = max(3, math.ceil(DEFAULT_STALE_TIME / cycle_time))
+        if isinstance(stale_cycles, bool) or not isinstance(stale_cycles, int) or stale_cycles < 1:
+            raise ValueError(f"stale_cycles must be an integer >= 1, got {stale_cycles!r}")
+        if not (isinstance(command_timeout, (int, float)) and command_timeout > 0):
+            raise ValueError(f"command_timeout must be > 0 s, got {command_timeout!r}")
+        self._program: Any = None
+        self._call: Callable[[PlcTask], Any] | None = None
+        self.program = program
+        self.cycle_time = float(cycle_time)
+        self.client_id = client_id
+        self.stale_cycles = stale_cycles
+        self.command_timeout = float(command_timeout)
+        self.claim_retry = float(claim_retry)
+        self.cycle = 0
+        self.now = 0.0
+        self.port: CommandPort  # set by the subclass
+        self._refs: dict[tuple[str, int], list[AXIS_REF]] = {}
+        self._controlled: dict[tuple[str, int], AXIS_REF] = {}
+        self._claims: dict[tuple[str, int], ClaimState] = {}
+        self._orphans: list[tuple[AXIS_REF, int, int, int]] = []  # (axis, CmdNo, cycle, epoch)
+        self._detached: list[tuple[PendingCommand, str]] = []
+        self._epochs: dict[str, int] = {}
+        self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
+
+    @property
+    def program(self) -> Any:
+        """The user program (assignable between cycles)."""
+        return self._program
+
+    @program.setter
+    def program(self, program: Any) -> None:
+        self._call = _program_caller(program)
+        self._program = program
+
+    # -- clock -------------------------------------------------------------------------
+    def clock(self) -> float:
+        """Task time source [s]; the zenoh runtime uses time.monotonic()."""
+        return time.monotonic()
+
+    # -- axes --------------------------------------------------------------------------
+    def axis(self, nc: str, axis_id: int, name: str = "") -> AXIS_REF:
+        """A new AXIS_REF bound to this task."""
+        return self.register(AXIS_REF(nc=nc, axis_id=axis_id, name=name))
+
+    def register(self, ax: AXIS_REF) -> AXIS_REF:
+        """Bind ``ax`` to this task (idempotent) and give it the newest snapshot at once.
+
+        Raises:
+            TypeError: ``ax`` is not an AXIS_REF.
+            ValueError: ``ax`` is bound to another task.
+        """
+        if not isinstance(ax, AXIS_REF):
+            raise TypeError(f"expected an AXIS_REF, got {type(ax).__name__}")
+        if ax._task is self:
+            return ax
+        if ax._task is not None:
+            raise ValueError(f"{ax!r} is bound to another PLC task")
+        ax._task = self
+        self._refs.setdefault((ax.nc, ax.axis_id), []).append(ax)
+        self._on_new_axis(ax)
+        self._snapshot_one(ax)
+        return ax
+
+    def _on_new_axis(self, ax: AXIS_REF) -> None:
+        """Hook: a transport may subscribe to something for a new NC."""
+
+    @property
+    def axes(self) -> list[AXIS_REF]:
+        return [a for refs in self._refs.values() for a in refs]
+
+    def is_controlled(self, ax: AXIS_REF) -> bool:
+        return self._controlled.get((ax.nc, ax.axis_id)) is ax
+
+    # -- claims ------------------------------------------------------------------------
+    def control(self, ax: AXIS_REF, retry: bool = False) -> ClaimState:
+        """Mark ``ax`` controlled (its PLCTONC is published) and make sure it is claimed.
+
+        ``retry`` re-sends a refused claim (MC_Power: Enable rising edge, or claim_retry
+        elapsed while Enable is TRUE).
+        """
+        key = (ax.nc, ax.axis_id)
+        prev = self._controlled.get(key)
+        if prev is not ax:
+            if prev is not None:
+                log.warning("%r: a second AXIS_REF object controls the same axis; the newest one is published", ax)
+            self._controlled[key] = ax
+        c = self._claims.setdefault(key, ClaimState())
+        if c.state == "none" or (c.state == "refused" and (retry or self.now - c.since >= self.claim_retry)):
+            self._send_claim(ax, c)
+        return c
+
+    def claim_state(self, ax: AXIS_REF) -> ClaimState | None:
+        return self._claims.get((ax.nc, ax.axis_id))
+
+    def _send_claim(self, ax: AXIS_REF, c: ClaimState) -> None:
+        c.state, c.error, c.since = "pending", 0, self.now
+        c.pending = self.port.send(ax.nc, ax.axis_id, "Claim")
+        c.pending.owner = ax
+
+    def _update_claims(self, late: list[PendingCommand]) -> None:
+        for key, c in self._claims.items():
+            p = c.pending
+            if c.state != "pending" or p is None:
+                continue
+            if p.done:
+                err = p.error or 0
+                c.state, c.error, c.since, c.pending = ("held" if err == 0 else "refused"), err, self.now, None
+                if err:
+                    log.warning("claim of %s/%d refused: 0x%X %s", key[0], key[1], err, error_text(err))
+            elif self.now - p.sent_at > self.command_timeout:
+                p.abandon()
+                c.state, c.error, c.since = "refused", ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT, self.now
+        for p in late:
+            if p.cmd == "Claim" and (p.error or 0) == 0:
+                c = self._claims.get((p.nc, p.axis_id or 0))
+                if c is not None and c.state in ("refused", "none"):
+                    c.state, c.error, c.pending = "held", 0, None
+
+    def _forget_claims(self, nc: str) -> None:
+        for (n, _), c in self._claims.items():
+            if n == nc:
+                c.state, c.error, c.pending = "none", 0, None
+
+    # -- commands ----------------------------------------------------------------------
+    def send(self, ax: AXIS_REF, cmd: str, **args: Any) -> PendingCommand:
+        """Send ``cmd`` for ``ax`` through this task's port (non-blocking)."""
+        p = self.port.send(ax.nc, ax.axis_id, cmd, **args)
+        p.owner = ax
+        return p
+
+    def detach(self, p: PendingCommand, what: str = "") -> None:
+        """Fire and forget: log ``p``'s error if it fails (e.g. StopRelease)."""
+        self._detached.append((p, what or p.cmd))
+
+    def _handle_late(self, late: list[PendingCommand]) -> None:
+        for p in late:
+            err = p.error or 0
+            ax = p.owner if isinstance(p.owner, AXIS_REF) else None
+            if err or ax is None or p.cmd not in MOTION_COMMANDS or p.reply is None:
+                if p.cmd != "Claim":
+                    log.info("late reply to abandoned %s (axis %s): 0x%X", p.cmd, p.axis_id, err)
+                continue
+            cmdno = int(p.reply.get("CmdNo", 0))
+            if p.cmd in ("Stop", "Halt") or not cmdno:
+                log.warning("late acceptance of %s on %r (CmdNo %d): left as is", p.cmd, ax, cmdno)
+                continue
+            self._orphans.append((ax, cmdno, int(p.reply.get("cycle", 0)), ax.nc_epoch))
+
+    def _check_orphans(self) -> None:
+        keep = []
+        for ax, cmdno, cyc, epoch in self._orphans:
+            if ax.nc_epoch != epoch:
+                continue
+            if not ax.Status.Valid or ax.Status.NcCycleCounter < cyc:
+                keep.append((ax, cmdno, cyc, epoch))
+                continue
+            rec = ax.NcToPlc
+            if int(rec["CmdNo"]) == cmdno and int(rec["CmdState"]) == CmdState.ACTIVE:
+                log.warning("%r: command %d was accepted after its block timed out; halting the axis", ax, cmdno)
+                self.detach(self.send(ax, "Halt"), "Halt of a late-accepted command")
+        self._orphans = keep
+
+    def _check_detached(self) -> None:
+        keep = []
+        for p, what in self._detached:
+            if not p.done:
+                if self.now - p.sent_at <= max(self.command_timeout, 5.0):
+                    keep.append((p, what))
+                else:
+                    p.abandon()
+                    log.warning("%s: no reply", what)
+            elif p.error:
+                log.warning("%s failed: 0x%X %s", what, p.error, error_text(p.error))
+        self._detached = keep
+
+    # -- the cycle ---------------------------------------------------------------------
+    def step(self) -> None:
+        """Run one PLC cycle (see the module docstring). Exceptions of the program propagate."""
+        self.cycle += 1
+        self.now = self.clock()
+        self._take_frames()
+        self._snapshot_all()
+        late = self.port.poll()
+        self._update_claims(late)
+        self._handle_late(late)
+        self._check_orphans()
+        self._check_detached()
+        if self._call is not None:
+            prev = current_task()
+            _local.task = self
+            try:
+                self._call(self)
+            finally:
+                _local.task = prev
+        self._publish_all()
+
+    def _take_frames(self) -> None:
+        """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
+
+    def _set_frame(self, nc: str, cycle: int, records: np.ndarray) -> None:
+        ids = records["AxisId"]
+        self._frames[nc] = (int(cycle), records, {int(a): i for i, a in enumerate(ids.tolist())})
+
+    def _snapshot_all(self) -> None:
+        for refs in self._refs.values():
+            for ax in refs:
+                self._snapshot_one(ax)
+
+    def _snapshot_one(self, ax: AXIS_REF) -> None:
+        frame = self._frames.get(ax.nc)
+        epoch = ax.nc_epoch
+        if frame is None:
+            ax._snapshot(None, None, self.cycle, self.cycle_time, self.stale_cycles)
+        else:
+            cyc, recs, index = frame
+            i = index.get(ax.axis_id)
+            ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, self.stale_cycles)
+        if ax.nc_epoch != epoch:
+            self.nc_restarted(ax.nc, already=ax)
+
+    def nc_restarted(self, nc: str, already: AXIS_REF | None = None) -> None:
+        """The NC ``nc`` restarted: bump the epoch of its axes (once) and forget its claims."""
+        for (n, _), refs in self._refs.items():
+            if n == nc:
+                for ax in refs:
+                    if ax is not already:
+                        ax.nc_epoch += 1
+        self._forget_claims(nc)
+        log.warning("NC %s restarted: commands of the old instance are no longer followed", nc)
+
+    def _publish_all(self) -> None:
+        by_nc: dict[str, list[AXIS_REF]] = {}
+        for (nc, _), ax in self._controlled.items():
+            by_nc.setdefault(nc, []).append(ax)
+        for nc, axes in by_nc.items():
+            self._publish(nc, axes)
+
+    def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
+        """Send one PLCTONC frame for ``axes`` of ``nc`` (subclass)."""
+
+    def disable_all(self) -> None:
+        """Clear Enable/feed enables of every controlled axis (shutdown)."""
+        for ax in self._controlled.values():
+            ax.PlcToNc["ControlDWord"] = 0
+
+    def held_claims(self) -> Iterable[tuple[str, int]]:
+        return [k for k, c in self._claims.items() if c.state in ("held", "pending")]
+
+
+class InProcessPlc(PlcTask):
+    """A PLC task bound to an in-process ``NcCore`` (tests, simulations; no zenoh, no threads).
+
+    ``step()`` snapshots ``core.nctoplc`` (the frame of ``core.cycle``), runs the program
+    (commands go through :class:`~plc_client.port.InProcessPort`) and applies the PLCTONC of
+    the axes this client has claimed with ``core.set_plctonc``. It does **not** step the core:
+    call ``core.step()`` yourself (or use :func:`run_cycles`), so several PLC clients can share
+    one core. Time is virtual: ``now = cycle * cycle_time``, so timeouts need no sleeping.
+
+    Args:
+        core: the NcCore.
+        program: see :class:`PlcTask`.
+        nc: the NC name of this core (AXIS_REF.nc).
+        **kw: PlcTask arguments (cycle_time, client_id, stale_cycles, command_timeout, ...).
+    """
+
+    def __init__(self, core: Any, program: Any = None, *, nc: str = "nc1", client_id: str = "plc1",
+                 **kw: Any) -> None:
+        super().__init__(program, client_id=client_id, **kw)
+        self.core = core
+        self.nc = nc
+        self.port = InProcessPort(core, client_id=client_id, nc=nc)
+        self.port.clock = lambda: self.now
+
+    def clock(self) -> float:
+        return self.cycle * self.cycle_time
+
+    def _take_frames(self) -> None:
+        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc)
+
+    def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
+        if nc != self.nc:
+            return
+        port = self.port
+        assert isinstance(port, InProcessPort)
+        for ax in axes:
+            if port.holds_claim(ax.axis_id):
+                self.core.set_plctonc(self.core.index(ax.axis_id), ax.PlcToNc)
+
+
+def run_cycles(core: Any, plcs: PlcTask | list[PlcTask], cycles: int = 1, nc_steps: int = 1,
+               until: Callable[[], bool] | None = None) -> int:
+    """Run ``cycles`` PLC cycles of every task in ``plcs``, stepping ``core`` ``nc_steps`` times
+    after each PLC cycle. Stops early when ``until()`` becomes true (checked after each cycle).
+
+    Returns the number of cycles run.
+    """
+    tasks = plcs if isinstance(plcs, list) else [plcs]
+    for n in range(1, cycles + 1):
+        for t in tasks:
+            t.step()
+        for _ in range(nc_steps):
+            core.step()
+        if until is not None and until():
+            return n
+    return cycles

@@ -1,0 +1,195 @@
+"""MC_Power, MC_Reset, MC_SetOverride and the MC_Read* blocks against a real NcCore."""
+from __future__ import annotations
+
+import math
+
+from nc_schema import ControlDWord, ErrorCodes, MC_AxisStates
+from plc_client import (
+    MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset,
+    MC_SetOverride,
+)
+from plc_rig import Rig
+from test_fb_move import powered
+
+
+def test_power_on_and_off(rig: Rig) -> None:
+    plc = rig.plc()
+    ax = plc.axis("nc1", 1)
+    pw = MC_Power()
+    st = {"en": True, "pos": True, "neg": False}
+    plc.program = lambda p: pw(Axis=ax, Enable=st["en"], Enable_Positive=st["pos"], Enable_Negative=st["neg"])
+    rig.run(1)
+    assert pw.Busy and not pw.Status  # claim + enables go out at the end of this cycle
+    cdw = int(ax.PlcToNc["ControlDWord"])
+    assert cdw == int(ControlDWord.Enable | ControlDWord.FeedEnablePlus)
+    rig.run(1)
+    assert pw.Status and pw.Active and not pw.Error
+    assert ax.Status.StandStill and ax.Status.ControlLoopClosed and ax.Status.Operational
+    assert int(rig.core.plctonc["ControlDWord"][0]) == cdw, "the NC applies this client's PLCTONC"
+    assert ax.controlled
+    st["en"] = False
+    rig.run(2)
+    assert not pw.Status and not pw.Busy and not pw.Active
+    assert int(ax.PlcToNc["ControlDWord"]) == 0
+    assert ax.Status.Disabled and ax.Status.MotionState == MC_AxisStates.MC_AXISSTATE_DISABLED
+
+
+def test_power_override_mapping_and_range(rig: Rig) -> None:
+    plc = rig.plc()
+    ax = plc.axis("nc1", 1)
+    pw = MC_Power()
+    st = {"ov": 68.123}
+    plc.program = lambda p: pw(Axis=ax, Enable=True, Override=st["ov"])
+    rig.run(2)
+    assert int(ax.PlcToNc["Override"]) == 681230
+    assert int(rig.core.plctonc["Override"][0]) == 681230
+    st["ov"] = 150.0
+    rig.run(1)
+    assert pw.Error and pw.ErrorID == ErrorCodes.MC_PARAMETER_NOT_CORRECT == 0x4B06
+    assert int(ax.PlcToNc["Override"]) == 681230, "an invalid override keeps the last valid one"
+    st["ov"] = 0.0
+    rig.run(1)
+    assert not pw.Error and int(ax.PlcToNc["Override"]) == 0
+
+
+def test_power_buffer_mode(rig: Rig) -> None:
+    plc = rig.plc()
+    ax = plc.axis("nc1", 1)
+    pw = MC_Power()
+    plc.program = lambda p: pw(Axis=ax, Enable=True, BufferMode=1)
+    rig.run(2)
+    assert pw.Error and pw.ErrorID == 0x4B64
+    assert pw.Status  # still acts as MC_Aborting
+
+
+def test_claim_conflict_between_clients(rig: Rig) -> None:
+    ax1, pw1, _ = powered(rig, "plc1")
+    plc2 = rig.plc("plc2")
+    ax2 = plc2.axis("nc1", 1)
+    pw2 = MC_Power()
+    st = {"en": True}
+    plc2.program = lambda p: pw2(Axis=ax2, Enable=st["en"], Enable_Positive=True)
+    rig.run(3)
+    assert pw2.Error and pw2.ErrorID == ErrorCodes.ADSERR_DEVICE_ACCESSDENIED == 0x723
+    assert not pw2.Status and not pw2.Active
+    # plc2's enables must not reach the NC; plc1's do
+    rig.plcs["plc1"].program = lambda p: pw1(Axis=ax1, Enable=True, Enable_Positive=False, Enable_Negative=True)
+    rig.run(2)
+    assert int(rig.core.plctonc["ControlDWord"][0]) == int(ControlDWord.Enable | ControlDWord.FeedEnableMinus)
+    # plc1 gives the axis up; plc2 retries (every claim_retry s) and gets it
+    rig.plcs["plc1"].program = None
+    rig.plcs["plc1"].port.send("nc1", 1, "Release")
+    rig.run_until(lambda: pw2.Status, 150)
+    assert not pw2.Error
+    assert int(rig.core.plctonc["ControlDWord"][0]) == int(ControlDWord.Enable | ControlDWord.FeedEnablePlus)
+
+
+def test_reset_clears_an_axis_error(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    rst, err, mv = MC_Reset(), MC_ReadAxisError(), MC_MoveAbsolute()
+    rig.watch(rst, mv)
+    st = {"rst": False, "mv": False}
+
+    def body(p):
+        err(Axis=ax, Enable=True)
+        rst(Axis=ax, Execute=st["rst"])
+        mv(Axis=ax, Execute=st["mv"], Position=3.0, Velocity=10.0)
+
+    calls["body"] = body
+    rig.core.fault(0, ErrorCodes.NC_POSITION_LAG)
+    rig.run(2)
+    assert err.Valid and err.Done and err.AxisErrorID == ErrorCodes.NC_POSITION_LAG and not err.Error
+    assert ax.Status.ErrorStop and ax.Status.Error and ax.Status.ErrorId == 0x4550
+    st["mv"] = True
+    rig.run_until(lambda: not mv.Busy, 5)
+    assert mv.Error and mv.ErrorID == ErrorCodes.MC_AXIS_CANNOT_BE_STARTED
+    st["rst"] = True
+    rig.run(1)
+    assert rst.Busy
+    rig.run_until(lambda: rst.Done, 5)
+    assert err.AxisErrorID == 0 and ax.Status.StandStill
+    st["mv"] = False
+    rig.run(1)
+    st["mv"] = True
+    rig.run_until(lambda: mv.Done, 200)
+
+
+def test_set_override_on_a_controlled_axis(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv, so = MC_MoveVelocity(), MC_SetOverride()
+    rig.watch(mv, so)
+    st = {"so": False, "ov": 50.0}
+
+    def body(p):
+        mv(Axis=ax, Execute=True, Velocity=40.0)
+        so(Axis=ax, Execute=st["so"], Override=st["ov"])
+
+    calls["body"] = body
+    rig.run_until(lambda: mv.InVelocity, 100)
+    assert math.isclose(float(ax.NcToPlc["SetVelo"]), 40.0)
+    st["so"] = True
+    rig.run(1)
+    assert so.Done and not so.Busy, "written into this cycle's PLCTONC: Done at once"
+    assert int(ax.PlcToNc["Override"]) == 500000
+    rig.run(60)
+    assert math.isclose(float(ax.NcToPlc["SetVelo"]), 20.0, rel_tol=1e-6)
+    assert so.Done  # held
+    st["so"], st["ov"] = False, 101.0
+    rig.run(1)
+    st["so"] = True
+    rig.run(1)
+    assert so.Error and so.ErrorID == 0x4B06
+
+
+def test_set_override_on_an_axis_not_controlled(rig: Rig) -> None:
+    plc = rig.plc()
+    ax = plc.axis("nc1", 2)
+    so = MC_SetOverride()
+    rig.watch(so)
+    plc.program = lambda p: so(Axis=ax, Execute=True, Override=25.0)
+    rig.run(1)
+    assert so.Busy  # sent as an NC command
+    rig.run_until(lambda: so.Done, 3)
+    assert int(rig.core.plctonc["Override"][1]) == 250000
+
+
+def test_read_blocks(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    rp, rs, mv = MC_ReadActualPosition(), MC_ReadStatus(), MC_MoveAbsolute()
+    st = {"en": True}
+
+    def body(p):
+        mv(Axis=ax, Execute=True, Position=30.0, Velocity=60.0)
+        rp(Axis=ax, Enable=st["en"])
+        rs(Axis=ax, Enable=st["en"])
+
+    calls["body"] = body
+    rig.run(5)
+    assert rp.Valid and rp.Done and rp.Busy and not rp.Error
+    assert rp.Position == float(ax.NcToPlc["ActPos"]) and 0 < rp.Position < 30.0
+    assert rs.Valid and rs.DiscreteMotion and not rs.StandStill and rs.Accelerating and not rs.Decelerating
+    assert rs.Status.HasJob and rs.Status.MotionState == MC_AxisStates.MC_AXISSTATE_DISCRETEMOTION
+    rig.run_until(lambda: ax.Status.Decelerating, 100)
+    rig.run(1)
+    assert rs.Decelerating and not rs.Accelerating
+    rig.run_until(lambda: mv.Done, 200)
+    rig.run(1)
+    assert rs.StandStill and not rs.DiscreteMotion and not rs.ConstantVelocity
+    assert math.isclose(rp.Position, 30.0, abs_tol=0.02)
+    st["en"] = False
+    rig.run(1)
+    assert not rp.Valid and not rp.Busy and not rs.Valid
+
+
+def test_status_flags_follow_motion_state(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveVelocity()
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Velocity=10.0)
+    rig.run(10)
+    s = ax.Status
+    flags = [s.ErrorStop, s.Disabled, s.Stopping, s.StandStill, s.DiscreteMotion, s.ContinuousMotion,
+             s.SynchronizedMotion, s.Homing]
+    assert flags.count(True) == 1 and s.ContinuousMotion
+    assert s.Moving and s.PositiveDirection and not s.NegativeDirection and s.HasJob
+    # the snapshot of this PLC cycle was taken before the NC ran its 10 cycles
+    assert s.NcCycleCounter == rig.core.cycle - 10 and s.CycleCounter == ax.task.cycle and s.Valid

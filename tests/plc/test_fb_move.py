@@ -1,0 +1,278 @@
+"""MC_MoveAbsolute / MC_MoveRelative / MC_MoveVelocity / MC_Halt against a real NcCore, cycle by cycle."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from nc_schema import CmdState, ErrorCodes, StateDWord
+from plc_client import AXIS_REF, MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power
+from plc_client.fb import DONE_WINDOW_TIMEOUT
+from plc_rig import OffsetDrive, Rig
+
+
+def powered(rig: Rig, client: str = "plc1", axis_id: int = 1) -> tuple[AXIS_REF, MC_Power, dict]:
+    """A client whose program powers ``axis_id`` and runs ``calls['body'](plc)``."""
+    plc = rig.plc(client)
+    ax = plc.axis("nc1", axis_id)
+    pw = MC_Power()
+    calls: dict = {"body": lambda p: None}
+
+    def program(p):
+        pw(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
+        calls["body"](p)
+
+    plc.program = program
+    rig.run_until(lambda: pw.Status, 10)
+    return ax, pw, calls
+
+
+def test_move_absolute_done_held_while_execute_true(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveAbsolute()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=20.0, Velocity=100.0)
+    rig.run(1)
+    assert mv.Busy and not mv.Active  # reply not seen yet (it arrives with the next cycle)
+    rig.run(1)
+    assert mv.Busy and mv.Active
+    n = rig.run_until(lambda: mv.Done, 200)
+    assert n > 5
+    st = ax.Status
+    assert not st.HasJob and st.InTargetPosition and math.isclose(ax.ActPos, 20.0, abs_tol=0.02)
+    rig.run(20)  # Done is held while Execute stays TRUE
+    assert all(o["Done"] for o in rig.outputs(mv)[-20:])
+    assert not mv.Busy and not mv.Active
+    calls["body"] = lambda p: mv(Execute=False)
+    rig.run(1)
+    assert not any((mv.Done, mv.Busy, mv.Error, mv.CommandAborted))
+
+
+def test_done_is_a_one_cycle_pulse_when_execute_fell_early(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveRelative()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Distance=5.0, Velocity=100.0)
+    rig.run(1)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=False)
+    rig.run(1)
+    assert mv.Busy  # the command goes on after Execute fell
+    rig.run(150)
+    dones = [o["Done"] for o in rig.outputs(mv)]
+    assert dones.count(True) == 1, "Done must be TRUE for exactly one cycle"
+    i = dones.index(True)
+    assert not rig.outputs(mv)[i]["Busy"] and rig.outputs(mv)[i - 1]["Busy"]
+    assert math.isclose(ax.ActPos, 5.0, abs_tol=0.02)
+
+
+def test_inputs_latched_and_retrigger_ignored(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveAbsolute()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=10.0, Velocity=50.0)
+    rig.run(3)
+    cmdno = int(rig.rec()["CmdNo"])
+    # change an input while Busy: latched at the edge, so no effect
+    calls["body"] = lambda p: mv(Axis=ax, Position=-30.0)
+    rig.run(1)
+    # new rising edge while Busy, with another position: ignored
+    calls["body"] = lambda p: mv(Axis=ax, Execute=False)
+    rig.run(1)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=-50.0)
+    rig.run(1)
+    assert int(rig.rec()["CmdNo"]) == cmdno, "a retrigger while Busy must not send a command"
+    rig.run_until(lambda: mv.Done, 300)
+    assert math.isclose(ax.ActPos, 10.0, abs_tol=0.02)
+    assert int(rig.rec()["CmdNo"]) == cmdno
+    # after completion a new edge starts a new command with the current inputs
+    calls["body"] = lambda p: mv(Axis=ax, Execute=False)
+    rig.run(1)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True)
+    rig.run_until(lambda: mv.Done, 500)
+    assert math.isclose(ax.ActPos, -50.0, abs_tol=0.02)
+
+
+def test_second_block_aborts_first(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv1, mv2 = MC_MoveAbsolute(), MC_MoveAbsolute()
+    rig.watch(mv1, mv2)
+    state = {"go2": False}
+
+    def body(p):
+        mv1(Axis=ax, Execute=True, Position=100.0, Velocity=50.0)
+        mv2(Axis=ax, Execute=state["go2"], Position=-5.0, Velocity=50.0)
+
+    calls["body"] = body
+    rig.run_until(lambda: mv1.Active, 5)
+    state["go2"] = True
+    rig.run_until(lambda: mv1.CommandAborted, 5)
+    assert mv1.ErrorID == 0 and not mv1.Busy and not mv1.Active
+    rig.run_until(lambda: mv2.Done, 600)
+    assert mv1.CommandAborted  # held: Execute still TRUE
+    assert math.isclose(ax.ActPos, -5.0, abs_tol=0.02)
+
+
+def test_command_from_another_client_aborts(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveVelocity()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Velocity=20.0)
+    rig.run_until(lambda: mv.Active, 5)
+    other = rig.plc("plc2")
+    ax2 = other.axis("nc1", 1)
+    halt = MC_Halt()
+    other.program = lambda p: halt(Axis=ax2, Execute=True)
+    rig.run_until(lambda: mv.CommandAborted or mv.InVelocity, 10)
+    assert mv.CommandAborted
+    rig.run_until(lambda: halt.Done, 100)
+    assert ax.Status.StandStill
+
+
+def test_move_velocity_in_velocity_and_halt(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv, halt = MC_MoveVelocity(), MC_Halt()
+    rig.watch(mv, halt)
+    state = {"halt": False}
+
+    def body(p):
+        mv(Axis=ax, Execute=True, Velocity=30.0, Direction=3)
+        halt(Axis=ax, Execute=state["halt"])
+
+    calls["body"] = body
+    rig.run(2)
+    assert mv.Busy and mv.Active and not mv.InVelocity
+    rig.run_until(lambda: mv.InVelocity, 100)
+    # Tc2_MC2: finished at constant velocity, no further monitoring
+    assert not mv.Busy and not mv.Active
+    assert ax.Status.ConstantVelocity and ax.Status.ContinuousMotion
+    assert math.isclose(float(ax.NcToPlc["SetVelo"]), -30.0)
+    state["halt"] = True
+    rig.run_until(lambda: halt.Done, 100)
+    assert mv.InVelocity and not mv.CommandAborted  # a finished block is not aborted any more
+    assert ax.Status.StandStill and ax.Status.NotMoving
+
+
+def test_move_velocity_aborted_during_acceleration(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv, mv2 = MC_MoveVelocity(), MC_MoveAbsolute()
+    rig.watch(mv, mv2)
+    state = {"go": False}
+
+    def body(p):
+        mv(Axis=ax, Execute=True, Velocity=900.0, Acceleration=100.0, Jerk=1000.0)
+        mv2(Axis=ax, Execute=state["go"], Position=0.0, Velocity=50.0)
+
+    calls["body"] = body
+    rig.run_until(lambda: mv.Active, 5)
+    state["go"] = True
+    rig.run_until(lambda: mv.CommandAborted, 5)
+    assert not mv.InVelocity
+
+
+def test_buffer_mode_other_than_aborting(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveAbsolute()
+    rig.watch(mv)
+    before = int(rig.rec()["CmdNo"])
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=1.0, Velocity=1.0, BufferMode=1)
+    rig.run(1)
+    assert mv.Error and mv.ErrorID == ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED == 0x4B64
+    rig.run(3)
+    assert int(rig.rec()["CmdNo"]) == before, "no command may be sent"
+    assert mv.Error  # held while Execute
+
+
+@pytest.mark.parametrize("inputs, code", [
+    ({"Position": 1.0, "Velocity": -1.0}, ErrorCodes.NC_VELOCITY_NOT_ALLOWED),  # NC rejects: 0x4221
+    ({"Position": 1.0, "Velocity": 1e9}, ErrorCodes.NC_VELOCITY_NOT_ALLOWED),
+    ({"Position": 1.0, "Velocity": 1.0, "Acceleration": -1.0}, ErrorCodes.NC_ACCELERATION_NOT_ALLOWED),
+    ({"Position": float("nan"), "Velocity": 1.0}, ErrorCodes.MC_PARAMETER_NOT_CORRECT),  # caught locally
+    ({"Position": "ten", "Velocity": 1.0}, ErrorCodes.MC_PARAMETER_NOT_CORRECT),
+])
+def test_rejected_command_reports_the_code(rig: Rig, inputs: dict, code: int) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveAbsolute()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, **inputs)
+    rig.run_until(lambda: not mv.Busy, 5)
+    assert mv.Error and mv.ErrorID == code
+    calls["body"] = lambda p: mv(Axis=ax, Execute=False)
+    rig.run(1)
+    assert not mv.Error and mv.ErrorID == 0
+
+
+def test_move_without_enable_is_rejected_by_the_nc(rig: Rig) -> None:
+    plc = rig.plc()
+    ax = plc.axis("nc1", 1)
+    mv = MC_MoveAbsolute()
+    rig.watch(mv)
+    plc.program = lambda p: mv(Axis=ax, Execute=True, Position=1.0, Velocity=1.0)
+    rig.run(3)
+    assert mv.Error and mv.ErrorID == ErrorCodes.NC_NO_ENABLE
+
+
+def test_axis_fault_while_moving_is_a_block_error(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveAbsolute()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=50.0, Velocity=50.0)
+    rig.run_until(lambda: mv.Active, 5)
+    rig.core.fault(0, ErrorCodes.NC_POSITION_LAG)
+    rig.run(2)
+    assert mv.Error and mv.ErrorID == ErrorCodes.NC_POSITION_LAG
+    assert ax.Status.ErrorStop
+
+
+def test_disable_while_moving_aborts(rig: Rig) -> None:
+    plc = rig.plc()
+    ax = plc.axis("nc1", 1)
+    pw, mv = MC_Power(), MC_MoveAbsolute()
+    rig.watch(mv)
+    st = {"en": True}
+
+    def program(p):
+        pw(Axis=ax, Enable=st["en"], Enable_Positive=True, Enable_Negative=True)
+        mv(Axis=ax, Execute=pw.Status or mv.Busy, Position=80.0, Velocity=40.0)
+
+    plc.program = program
+    rig.run_until(lambda: mv.Active, 10)
+    st["en"] = False
+    rig.run_until(lambda: not mv.Busy, 5)
+    assert mv.CommandAborted
+    assert int(rig.rec()["CmdState"]) == CmdState.ABORTED
+
+
+@pytest.mark.parametrize("target_mon, area_mon, expect", [
+    (True, True, "timeout"),     # case 1: InTargetPosition never comes (0.5 u off, window 0.02)
+    (False, True, "done"),       # case 2: InPositionArea (window 5) is enough
+    (False, False, "done"),      # case 3: HasJob fell is enough
+])
+def test_done_rule_of_appendix_7_1(target_mon: bool, area_mon: bool, expect: str) -> None:
+    from nc_server.core import AxisParams
+    rig = Rig(n_axes=1, params=AxisParams(AxisEnTargetPositionMonitoring=target_mon,
+                                          AxisEnPositionRangeMonitoring=area_mon), drive_cls=OffsetDrive)
+    ax, _, calls = powered(rig)
+    mv = MC_MoveAbsolute()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=10.0, Velocity=100.0)
+    rig.run_until(lambda: mv.Active, 5)
+    rig.run_until(lambda: not ax.Status.HasJob, 100)
+    end = ax.task.now  # the logical end, as the PLC sees it
+    rig.run_until(lambda: not mv.Busy, 1000)
+    if expect == "done":
+        assert mv.Done
+        assert ax.task.now - end < 0.1
+    else:
+        assert mv.Error and mv.ErrorID == ErrorCodes.MC_TIMEOUT_AXIS_FB == 0x4B07
+        assert DONE_WINDOW_TIMEOUT - 0.05 <= ax.task.now - end <= DONE_WINDOW_TIMEOUT + 0.05
+        assert ax.Status.InPositionArea and not ax.Status.InTargetPosition
+
+
+def test_move_modulo(rig: Rig) -> None:
+    ax, _, calls = powered(rig)
+    mv = MC_MoveModulo()
+    rig.watch(mv)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=90.0, Velocity=500.0, Direction=1)
+    rig.run_until(lambda: mv.Done, 300)
+    assert math.isclose(ax.ActPos, 90.0, abs_tol=0.02)
+    assert int(ax.NcToPlc["StateDWord"]) & int(StateDWord.InTargetPosition)
