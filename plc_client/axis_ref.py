@@ -22,9 +22,9 @@ Staleness (zenoh-nc choice; Tc2_MC2 raises 0x4B0F when its NC cycle counter stop
 if the NC cycle of an axis's snapshot has not advanced for ``stale_cycles`` PLC cycles,
 or no frame has arrived yet, ``Status.Valid`` is False and function blocks report
 0x4B0F (MC_NO_NC_CYCLE_UPDATE) instead of acting on old data. A frame whose NC cycle
-is *lower* than the previous one means the NC restarted: the snapshot is taken, and
-``nc_epoch`` is incremented so that blocks following a command of the old NC instance
-stop following it (0x4B0F).
+is *lower* than the previous one (or the NC's liveliness token reappearing) means the NC
+restarted: the task increments ``nc_epoch`` so that blocks following a command of the old
+NC instance stop following it (0x4B0F).
 """
 from __future__ import annotations
 
@@ -205,12 +205,8 @@ class AXIS_REF:
         does not contain the axis or no frame was received yet).
         """
         if rec is not None and nc_cycle is not None:
-            last = int(self.Status.NcCycleCounter)
-            if not self._has_data or nc_cycle > last:
-                self._unchanged = 0
-            elif nc_cycle < last:
-                self.nc_epoch += 1  # the NC restarted: its cycle counter went back
-                self._unchanged = 0
+            if not self._has_data or nc_cycle != int(self.Status.NcCycleCounter):
+                self._unchanged = 0  # a newer frame (or a restarted NC's: the task bumps nc_epoch)
             else:
                 self._unchanged += 1
             arr = np.frombuffer(rec.tobytes(), dtype=NCTOPLC_DTYPE, count=1)  # read-only copy

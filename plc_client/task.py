@@ -26,6 +26,10 @@ active command (same CmdNo, CmdState ACTIVE) - i.e. the axis is moving for a com
 PLC program believes failed - the task sends ``Halt`` (a normal stop, no lock) and logs a
 warning. A late ``Stop`` leaves the axis stopped and locked (safe; MC_Stop/MC_Reset unlock).
 A late ``Claim`` makes the claim held.
+
+Claim loss: when an axis this task holds shows the NC's claim faults (0x8F01 client lost,
+0x8F02 PLCTONC timeout: the NC dropped the claim), the claim is requested again by MC_Power;
+the axis stays in ErrorStop until MC_Reset.
 """
 from __future__ import annotations
 
@@ -47,6 +51,9 @@ log = logging.getLogger(__name__)
 
 _local = threading.local()
 
+#: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
+_CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)})
+
 #: Data older than this is stale when the task is built without ``stale_cycles`` [s].
 DEFAULT_STALE_TIME = 0.2
 
@@ -59,9 +66,10 @@ def current_task() -> PlcTask | None:
 class ClaimState:
     """Claim of one axis by this task: ``state`` is 'none', 'pending', 'held' or 'refused'."""
 
-    __slots__ = ("state", "error", "pending", "since")
+    __slots__ = ("state", "error", "pending", "since", "fault_seen")
 
     def __init__(self) -> None:
+        self.fault_seen = False
         self.state = "none"
         self.error = 0
         self.pending: PendingCommand | None = None
@@ -200,9 +208,15 @@ class PlcTask:
                 log.warning("%r: a second AXIS_REF object controls the same axis; the newest one is published", ax)
             self._controlled[key] = ax
         c = self._claims.setdefault(key, ClaimState())
+        if not self.reachable(ax.nc):
+            return c  # claimed as soon as the NC can be reached
         if c.state == "none" or (c.state == "refused" and (retry or self.now - c.since >= self.claim_retry)):
             self._send_claim(ax, c)
         return c
+
+    def reachable(self, nc: str) -> bool:
+        """Whether requests to ``nc`` can be sent now (the zenoh runtime: session open)."""
+        return True
 
     def claim_state(self, ax: AXIS_REF) -> ClaimState | None:
         return self._claims.get((ax.nc, ax.axis_id))
@@ -225,6 +239,17 @@ class PlcTask:
             elif self.now - p.sent_at > self.command_timeout:
                 p.abandon()
                 c.state, c.error, c.since = "refused", ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT, self.now
+        # the NC drops a claim when it faults the axis for a lost client / PLCTONC timeout
+        for key, ax in self._controlled.items():
+            c = self._claims.get(key)
+            if c is None:
+                continue
+            code = int(ax.NcToPlc["ErrorCode"]) if ax.Status.Valid and ax.Status.Error else 0
+            lost = code in _CLAIM_FAULTS
+            if lost and not c.fault_seen and c.state == "held":
+                log.warning("%r: the NC dropped our claim (0x%X %s); claiming again", ax, code, error_text(code))
+                c.state, c.error, c.pending = "none", 0, None
+            c.fault_seen = lost
         for p in late:
             if p.cmd == "Claim" and (p.error or 0) == 0:
                 c = self._claims.get((p.nc, p.axis_id or 0))
@@ -313,6 +338,9 @@ class PlcTask:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
     def _set_frame(self, nc: str, cycle: int, records: np.ndarray) -> None:
+        prev = self._frames.get(nc)
+        if prev is not None and cycle < prev[0]:
+            self.nc_restarted(nc)  # the NC's cycle counter went back
         ids = records["AxisId"]
         self._frames[nc] = (int(cycle), records, {int(a): i for i, a in enumerate(ids.tolist())})
 
@@ -323,23 +351,19 @@ class PlcTask:
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
         frame = self._frames.get(ax.nc)
-        epoch = ax.nc_epoch
         if frame is None:
             ax._snapshot(None, None, self.cycle, self.cycle_time, self.stale_cycles)
         else:
             cyc, recs, index = frame
             i = index.get(ax.axis_id)
             ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, self.stale_cycles)
-        if ax.nc_epoch != epoch:
-            self.nc_restarted(ax.nc, already=ax)
 
-    def nc_restarted(self, nc: str, already: AXIS_REF | None = None) -> None:
-        """The NC ``nc`` restarted: bump the epoch of its axes (once) and forget its claims."""
+    def nc_restarted(self, nc: str) -> None:
+        """The NC ``nc`` restarted: bump the epoch of its axes and forget its claims."""
         for (n, _), refs in self._refs.items():
             if n == nc:
                 for ax in refs:
-                    if ax is not already:
-                        ax.nc_epoch += 1
+                    ax.nc_epoch += 1
         self._forget_claims(nc)
         log.warning("NC %s restarted: commands of the old instance are no longer followed", nc)
 

@@ -101,11 +101,11 @@ class MC_Power(FunctionBlock):
         self.Busy = True
         held = claim.state == "held"
         self.Active = held
-        code = 0
-        if claim.state == "refused":
+        code = self._axis_problem()
+        if code:
+            pass
+        elif claim.state == "refused":
             code = claim.error
-        elif self._axis_problem():
-            code = self._axis_problem()
         elif not ov_ok:
             code = ErrorCodes.MC_PARAMETER_NOT_CORRECT
         elif isinstance(self.BufferMode, bool) or not isinstance(self.BufferMode, int) or self.BufferMode != 0:

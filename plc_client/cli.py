@@ -1,0 +1,109 @@
+"""``plc-run``: run a PLC program file cyclically against one or more NC servers.
+
+    plc-run program.py [--nc nc1=tcp/127.0.0.1:7447] [--cycle-time 0.01] [--client-id ID] [--duration S]
+
+``program.py`` defines either ``def cycle(plc)`` (called once per PLC cycle with the
+:class:`~plc_client.runtime.PlcRuntime`), or a class ``Program`` (instantiated once without
+arguments; its ``cycle(plc)`` or ``cycle()`` method is called each cycle). AXIS_REFs in the
+program name their NC (``AXIS_REF(nc="nc1", axis_id=1)``); every NC used needs a ``--nc``
+(default: ``nc1=tcp/127.0.0.1:7447``).
+
+Exit codes: 0 after SIGINT/SIGTERM or ``--duration``; 1 when the program raised (the runtime
+then switched the enables off and released its claims); 2 for a bad command line or a program
+file that cannot be loaded. Prints one line on stdout once it runs; logs go to stderr.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="plc-run", description="Run a zenoh-nc PLC program (TcMC function blocks).")
+    p.add_argument("program", help="Python file defining cycle(plc) or a Program class")
+    p.add_argument("--nc", action="append", metavar="NAME=ENDPOINT",
+                   help="an NC and its server endpoint, e.g. nc1=tcp/127.0.0.1:7447 (repeatable)")
+    p.add_argument("--cycle-time", type=float, default=0.010, metavar="SECONDS", help="PLC cycle time [s] (0.01)")
+    p.add_argument("--client-id", help="client id (default plc-<host>-<pid>)")
+    p.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this many seconds")
+    p.add_argument("--stale-cycles", type=int, metavar="N",
+                   help="PLC cycles without a new NC frame before axis data is invalid (default: 0.2 s worth)")
+    p.add_argument("--timeout", type=float, default=1.0, metavar="SECONDS",
+                   help="function block command timeout [s] (1.0)")
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    return p
+
+
+def parse_ncs(items: Sequence[str] | None) -> dict[str, str]:
+    """``["nc1=tcp/127.0.0.1:7447", ...]`` -> ``{"nc1": "tcp/127.0.0.1:7447"}``.
+
+    Raises:
+        ValueError: an item without ``=`` or with an empty name/endpoint, or a repeated name.
+    """
+    out: dict[str, str] = {}
+    for item in items or ["nc1=tcp/127.0.0.1:7447"]:
+        name, sep, ep = item.partition("=")
+        if not sep or not name or not ep:
+            raise ValueError(f"--nc {item!r}: expected NAME=ENDPOINT, e.g. nc1=tcp/127.0.0.1:7447")
+        if name in out:
+            raise ValueError(f"--nc {name} given twice")
+        out[name] = ep
+    return out
+
+
+def load_program(path: str) -> Any:
+    """Import ``path`` and return what the runtime should call each cycle.
+
+    Raises:
+        ValueError: the file defines neither ``cycle`` nor ``Program``.
+        OSError, SyntaxError, Exception: the file cannot be imported.
+    """
+    p = Path(path)
+    spec = importlib.util.spec_from_file_location(p.stem.replace("-", "_") or "program", p)
+    if spec is None or spec.loader is None:
+        raise ValueError(f"{path}: not a Python file")
+    mod = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(p.resolve().parent))  # the program may import its neighbours
+    spec.loader.exec_module(mod)
+    if hasattr(mod, "Program"):
+        return mod.Program()
+    if callable(getattr(mod, "cycle", None)):
+        return mod.cycle
+    raise ValueError(f"{path}: define `def cycle(plc)` or a `Program` class with a cycle() method")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``plc-run``; returns the exit code."""
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="plc-run: %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("zenoh").setLevel(logging.WARNING)
+    try:
+        ncs = parse_ncs(args.nc)
+        program = load_program(args.program)
+    except Exception as exc:  # any import-time failure of the user's file
+        print(f"plc-run: {exc.__class__.__name__}: {exc}", file=sys.stderr, flush=True)
+        return 2
+
+    from .runtime import PlcRuntime
+
+    try:
+        rt = PlcRuntime(program, ncs, cycle_time=args.cycle_time, client_id=args.client_id,
+                        stale_cycles=args.stale_cycles, command_timeout=args.timeout)
+    except (ValueError, TypeError) as exc:
+        print(f"plc-run: {exc}", file=sys.stderr, flush=True)
+        return 2
+    rt.open(wait=2.0)
+    print(f"plc-run {rt.client_id} running {args.program}: cycle {rt.cycle_time * 1000:.1f} ms, "
+          f"NCs {', '.join(f'{k}={v}' for k, v in ncs.items())}", flush=True)
+    rc = rt.run(args.duration)
+    if rt.overruns:
+        logging.getLogger("plc_client").info("%d PLC cycle overruns", rt.overruns)
+    return rc
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,463 @@
+"""PlcRuntime: the cyclic PLC task over zenoh (one session per NC, client mode).
+
+Per NC (``ncs={"nc1": "tcp/127.0.0.1:7447"}``) the runtime opens one zenoh session with an
+explicit configuration - never zenoh's defaults:
+
+* ``mode: client``, ``connect/endpoints: [<the NC's endpoint>]``: a client is relayed by the
+  NC's router and needs no listen socket of its own;
+* multicast and gossip scouting off: only the configured endpoint is ever contacted;
+* ``transport/link/tx/lease: 1000`` ms (``lease_ms``): a frozen PLC (or NC) is noticed by the
+  other side within ~0.75 s instead of zenoh's default ~10 s.
+
+Declared on it: a subscriber on ``nc/<nc>/frame`` with a ``RingChannel(1)`` (only the newest
+status frame is kept; the cycle takes it with ``try_recv``, so no Python callback thread
+competes with the PLC cycle), a liveliness subscriber on ``nc/<nc>/alive`` (to notice NC
+restarts), the liveliness token ``nc/<nc>/client/<client_id>`` (the NC accepts claims only
+from live clients and drops them when the token disappears) and a publisher for
+``nc/<nc>/plctonc/<client_id>``.
+
+A zenoh client cannot open a session while its router is down, so a session that fails to
+open is retried every ``reconnect_period`` seconds by a background thread while the PLC keeps
+cycling (its axes stay invalid: blocks report 0x4B0F). An open session reconnects by itself
+when the NC restarts; the runtime then sees the NC's cycle counter go back (or its liveliness
+token reappear), stops following the old instance's commands and claims again.
+
+Commands (:class:`ZenohPort`) are ``session.get`` queries on ``nc/<nc>/axis/<id>/cmd`` with a
+``Callback(indirect=False)`` that only appends the reply to the port's queue (no thread per
+query); the zenoh query timeout (``query_timeout``, default 5 x command_timeout) is longer than
+the blocks' Timeout so that a late acceptance still reaches the task (see
+:mod:`plc_client.task`).
+
+Each cycle (``cycle_time``, default 10 ms): newest frame -> AXIS_REF snapshots, replies, the
+program, one batched PLCTONC frame per NC. Cycles are paced on ``time.monotonic``; a late
+cycle is counted in ``overruns`` and never replayed.
+
+Shutdown (:meth:`PlcRuntime.stop`, SIGINT/SIGTERM in :meth:`PlcRuntime.run`): the program is no
+longer called; frames with all enables off are sent for ``shutdown_cycles`` cycles, then the
+claims are released (waiting up to ``command_timeout`` for the replies), the tokens undeclared
+and the sessions closed.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import re
+import signal
+import socket
+import threading
+import time
+from typing import Any, Mapping
+
+import numpy as np
+import zenoh
+from zenoh.handlers import Callback, FifoChannel, RingChannel
+
+from nc_schema import ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_frame, unpack
+
+from .axis_ref import AXIS_REF
+from .port import CommandPort, PendingCommand
+from .task import PlcTask
+
+log = logging.getLogger(__name__)
+
+
+def default_client_id() -> str:
+    """``plc-<host>-<pid>``, restricted to the characters a client id may use."""
+    host = re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname())[:40] or "host"
+    return f"plc-{host}-{os.getpid()}"
+
+
+def client_config(endpoint: str, lease_ms: int = 1000) -> zenoh.Config:
+    """The explicit zenoh configuration of a PLC session (see the module docstring).
+
+    Raises:
+        zenoh.ZError: zenoh rejected the endpoint.
+    """
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("listen/endpoints", "[]")
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("scouting/gossip/enabled", "false")
+    c.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
+    return c
+
+
+class _NcLink:
+    """Session and declarations for one NC (created by :meth:`open`, possibly in a thread)."""
+
+    def __init__(self, nc: str, endpoint: str, client_id: str, lease_ms: int) -> None:
+        self.nc = nc
+        self.endpoint = endpoint
+        self.keys = Keys(nc)
+        self.client_id = client_id
+        self.lease_ms = lease_ms
+        self.session: zenoh.Session | None = None
+        self.frames: Any = None
+        self.alive_sub: Any = None
+        self.token: Any = None
+        self.pub: Any = None
+        self.ready = False
+        self.last_error = ""
+        self.nc_alive_seen = False
+        self.nc_gone = False
+
+    def open(self) -> bool:
+        """Open the session and declare everything; False (and ``last_error``) if the NC is unreachable."""
+        try:
+            s = zenoh.open(client_config(self.endpoint, self.lease_ms))
+        except Exception as exc:  # zenoh.ZError: nobody listens there (yet)
+            self.last_error = str(exc).split(" at ")[0]
+            return False
+        try:
+            self.frames = s.declare_subscriber(self.keys.frame, RingChannel(1))
+            self.alive_sub = s.liveliness().declare_subscriber(self.keys.alive, FifoChannel(64), history=True)
+            self.token = s.liveliness().declare_token(self.keys.client_alive(self.client_id))
+            self.pub = s.declare_publisher(self.keys.plctonc_in(self.client_id))
+        except Exception as exc:
+            self.last_error = str(exc)
+            try:
+                s.close()
+            except Exception:
+                pass
+            return False
+        self.session = s
+        self.ready = True
+        return True
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent, never raises)."""
+        self.ready = False
+        for d in (self.token, self.pub, self.alive_sub, self.frames):
+            if d is not None:
+                try:
+                    d.undeclare()
+                except Exception:
+                    pass
+        self.token = self.pub = self.alive_sub = self.frames = None
+        if self.session is not None:
+            try:
+                self.session.close()
+            except Exception:
+                pass
+            self.session = None
+
+
+class ZenohPort(CommandPort):
+    """Command port over zenoh queries (see the module docstring).
+
+    Args:
+        client_id: this client's id.
+        links: the NC links by name (shared with the runtime).
+        query_timeout: zenoh query timeout [s].
+    """
+
+    def __init__(self, client_id: str, links: Mapping[str, _NcLink], query_timeout: float = 5.0) -> None:
+        super().__init__(client_id)
+        self.links = links
+        self.query_timeout = float(query_timeout)
+
+    def _transmit(self, pending: PendingCommand, payload: bytes) -> None:
+        link = self.links.get(pending.nc)
+        if link is None or not link.ready or link.session is None:
+            self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_NOTREADY)
+            return
+        key = link.keys.cmd if pending.axis_id is None else link.keys.axis_cmd(pending.axis_id)
+        got = [False]
+
+        def on_reply(reply: Any) -> None:
+            if got[0]:
+                return
+            got[0] = True
+            ok = reply.ok
+            if ok is None:
+                self._deliver(pending, None, ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)
+                return
+            try:
+                msg = unpack(ok.payload.to_bytes())
+            except Exception:
+                msg = None
+            if isinstance(msg, dict):
+                self._deliver(pending, msg)
+            else:
+                self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_INVALIDDATA)
+
+        def on_done() -> None:
+            if not got[0]:  # the query ended without any reply (no NC matched)
+                got[0] = True
+                self._deliver(pending, None, ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)
+
+        try:
+            link.session.get(key, Callback(on_reply, on_done, indirect=False), payload=payload,
+                             timeout=self.query_timeout, consolidation=zenoh.ConsolidationMode.NONE)
+        except Exception as exc:  # session closing
+            log.debug("get on %s failed: %s", key, exc)
+            if not got[0]:
+                got[0] = True
+                self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_NOTREADY)
+
+
+class PlcRuntime(PlcTask):
+    """The PLC task over zenoh (see the module docstring).
+
+    Args:
+        program: a callable ``program(plc)``, or an object with ``cycle(plc)`` / ``cycle()``.
+        ncs: NC name -> zenoh endpoint of its server, e.g. ``{"nc1": "tcp/127.0.0.1:7447"}``.
+        cycle_time: PLC cycle [s].
+        client_id: this PLC's client id (default ``plc-<host>-<pid>``).
+        stale_cycles: see :class:`~plc_client.task.PlcTask`.
+        command_timeout: default function block Timeout [s].
+        query_timeout: zenoh query timeout [s] (default 5 x command_timeout).
+        lease_ms: zenoh transport lease [ms].
+        reconnect_period: retry period for an NC whose session could not be opened [s].
+        shutdown_cycles: cycles of enables-off frames sent before releasing the claims.
+
+    Attributes:
+        overruns: cycles that started later than one cycle_time after their deadline.
+        error: the exception that stopped the program, if any.
+
+    Raises:
+        ValueError: invalid client id, NC name or timing arguments.
+    """
+
+    def __init__(self, program: Any = None, ncs: Mapping[str, str] | None = None, *, cycle_time: float = 0.010,
+                 client_id: str | None = None, stale_cycles: int | None = None, command_timeout: float = 1.0,
+                 query_timeout: float | None = None, lease_ms: int = 1000, reconnect_period: float = 1.0,
+                 shutdown_cycles: int = 3, claim_retry: float = 1.0) -> None:
+        cid = check_client_id(client_id or default_client_id())
+        super().__init__(program, cycle_time=cycle_time, client_id=cid, stale_cycles=stale_cycles,
+                         command_timeout=command_timeout, claim_retry=claim_retry)
+        ncs = dict(ncs if ncs is not None else {"nc1": "tcp/127.0.0.1:7447"})
+        self.links: dict[str, _NcLink] = {nc: _NcLink(nc, ep, cid, lease_ms) for nc, ep in ncs.items()}
+        for nc in ncs:
+            Keys(nc)  # validates the name
+        self.port = ZenohPort(cid, self.links, query_timeout or 5.0 * command_timeout)
+        self.port.clock = lambda: self.now
+        self.reconnect_period = float(reconnect_period)
+        self.shutdown_cycles = int(shutdown_cycles)
+        self.overruns = 0
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._stopped = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._connector: threading.Thread | None = None
+        self._opened = False
+        self._closed = False
+        self._lock = threading.Lock()
+        self._warned: set[str] = set()
+
+    # -- sessions ----------------------------------------------------------------------
+    def open(self, wait: float = 0.0) -> bool:
+        """Open the sessions; NCs that are not reachable are retried in the background.
+
+        Args:
+            wait: seconds to wait for every NC's first status frame (0: do not wait).
+
+        Returns:
+            True if every NC is connected (and, with ``wait``, has sent a frame).
+        """
+        if self._opened:
+            return all(link.ready for link in self.links.values())
+        self._opened = True
+        missing = [link for link in self.links.values() if not link.open()]
+        for link in missing:
+            log.warning("NC %s at %s not reachable (%s); retrying every %.1f s", link.nc, link.endpoint,
+                        link.last_error, self.reconnect_period)
+        if missing:
+            self._connector = threading.Thread(target=self._reconnect, args=(missing,), name="plc-connect",
+                                               daemon=True)
+            self._connector.start()
+        if wait > 0:
+            deadline = time.monotonic() + wait
+            while time.monotonic() < deadline:
+                self._take_frames()
+                if all(nc in self._frames for nc in self.links):
+                    return True
+                time.sleep(0.005)
+            return False
+        return not missing
+
+    def _reconnect(self, links: list[_NcLink]) -> None:
+        todo = list(links)
+        while todo and not self._stop.wait(self.reconnect_period):
+            for link in list(todo):
+                if self._closed:
+                    return
+                if link.open():
+                    if self._closed:  # closed while we were opening
+                        link.close()
+                        return
+                    log.info("connected to NC %s at %s", link.nc, link.endpoint)
+                    todo.remove(link)
+
+    def reachable(self, nc: str) -> bool:
+        return self.connected(nc)
+
+    def connected(self, nc: str) -> bool:
+        link = self.links.get(nc)
+        return bool(link and link.ready)
+
+    def _on_new_axis(self, ax: AXIS_REF) -> None:
+        if ax.nc not in self.links and ax.nc not in self._warned:
+            self._warned.add(ax.nc)
+            log.warning("%r: NC %r is not configured (ncs=%s); its data stays invalid", ax, ax.nc, list(self.links))
+
+    # -- the cycle hooks -----------------------------------------------------------------
+    def _take_frames(self) -> None:
+        for nc, link in self.links.items():
+            if not link.ready:
+                continue
+            try:
+                self._liveliness(link)
+                sample = link.frames.try_recv()
+            except Exception:  # undeclared while closing
+                continue
+            if sample is None:
+                continue
+            try:
+                h, recs = decode_frame(sample.payload.to_bytes())
+            except ValueError as exc:
+                if f"bad-frame-{nc}" not in self._warned:
+                    self._warned.add(f"bad-frame-{nc}")
+                    log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
+                continue
+            self._set_frame(nc, int(h["Cycle"]), recs)
+
+    def _liveliness(self, link: _NcLink) -> None:
+        while True:
+            ev = link.alive_sub.try_recv()
+            if ev is None:
+                return
+            if ev.kind == zenoh.SampleKind.DELETE:
+                link.nc_gone = True
+                log.warning("NC %s is gone (liveliness token deleted)", link.nc)
+            else:
+                if link.nc_alive_seen and link.nc_gone:
+                    log.info("NC %s is back", link.nc)
+                    self.nc_restarted(link.nc)
+                link.nc_alive_seen, link.nc_gone = True, False
+
+    def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
+        link = self.links.get(nc)
+        if link is None or not link.ready:
+            return
+        ids = [ax.axis_id for ax in axes]
+        recs = np.concatenate([ax._plctonc for ax in axes])
+        try:
+            link.pub.put(encode_plc_frame(self.cycle, ids, recs))
+        except Exception as exc:  # session closing
+            log.debug("PLCTONC put failed: %s", exc)
+
+    # -- running ---------------------------------------------------------------------------
+    def step(self) -> None:
+        """One PLC cycle (opens the sessions on first use)."""
+        if not self._opened:
+            self.open()
+        with self._lock:
+            super().step()
+
+    def _loop(self, duration: float | None) -> None:
+        t0 = time.monotonic()
+        end = None if duration is None else t0 + duration
+        k = 0
+        try:
+            while not self._stop.is_set():
+                try:
+                    self.step()
+                except Exception as exc:  # the user program failed: stop safely
+                    log.exception("PLC program raised; stopping")
+                    self.error = exc
+                    break
+                k += 1
+                deadline = t0 + k * self.cycle_time
+                now = time.monotonic()
+                if end is not None and now >= end:
+                    break
+                if now > deadline + self.cycle_time:
+                    self.overruns += 1
+                    k = math.ceil((now - t0) / self.cycle_time)  # skip, never replay
+                    deadline = t0 + k * self.cycle_time
+                self._stop.wait(max(0.0, deadline - time.monotonic()))
+        finally:
+            self._shutdown()
+
+    def start(self) -> threading.Thread:
+        """Run the cycle in a background thread (returns it); stop with :meth:`stop`."""
+        if self._thread is not None:
+            raise RuntimeError("runtime already started")
+        self.open()
+        self._thread = threading.Thread(target=self._loop, args=(None,), name="plc-cycle", daemon=True)
+        self._thread.start()
+        return self._thread
+
+    def run_for(self, seconds: float) -> None:
+        """Run the cycle in the calling thread for ``seconds``, then shut down."""
+        self.open()
+        self._loop(float(seconds))
+
+    def run(self, duration: float | None = None) -> int:
+        """Run in the calling (main) thread until SIGINT/SIGTERM, :meth:`stop` or ``duration``.
+
+        Returns 0, or 1 if the program raised.
+        """
+        handlers = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                handlers[sig] = signal.signal(sig, lambda *_: self._stop.set())
+        try:
+            self.open()
+            self._loop(duration)
+        finally:
+            for sig, h in handlers.items():
+                signal.signal(sig, h)
+        return 1 if self.error is not None else 0
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the cycle and shut down cleanly (idempotent)."""
+        self._stop.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout)
+        elif t is None:
+            self._shutdown()
+
+    def _shutdown(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._stop.set()
+            self.program = None
+            try:
+                if self._opened:
+                    for _ in range(self.shutdown_cycles):
+                        self.disable_all()
+                        super().step()
+                        time.sleep(self.cycle_time)
+                    self._release_claims()
+            except Exception:
+                log.exception("error during shutdown")
+            finally:
+                self._closed = True
+                for link in self.links.values():
+                    link.close()
+                self._stopped.set()
+
+    def _release_claims(self) -> None:
+        pend = [self.port.send(nc, axis, "Release") for nc, axis in self.held_claims()
+                if self.connected(nc)]
+        deadline = time.monotonic() + self.command_timeout
+        while pend and time.monotonic() < deadline:
+            self.port.poll()
+            pend = [p for p in pend if not p.done]
+            time.sleep(0.002)
+        for p in pend:
+            log.warning("Release of %s/%s: no reply", p.nc, p.axis_id)
+
+    def __enter__(self) -> PlcRuntime:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()
