@@ -108,7 +108,7 @@ class CommandsMixin:
                           f"axis {int(a.ids[i])} is in ErrorStop ({error_name(int(a.error[i]))} 0x{int(a.error[i]):04X}); MC_Reset first")
         if a.locked[i]:
             raise NcError(ErrorCodes.NC_AXIS_LOCKED_BY_STOP, "MC_Stop is active; release it (Execute FALSE) or MC_Reset")
-        if not self._enable_in(i):
+        if not self._enabled_input(i):
             raise NcError(ErrorCodes.NC_NO_ENABLE, "controller enable is off (MC_Power)")
         if not self.drive.ready[i]:
             raise NcError(ErrorCodes.NC_DRIVE_NOT_READY_AT_START, "drive not ready")
@@ -117,7 +117,7 @@ class CommandsMixin:
                           f"BufferMode {req.get('BufferMode')}: only MC_Aborting (0) is supported")
 
     def _check_feed(self: NcCore, i: int, sense: float) -> None:
-        plus, minus = self._feed_in(i)
+        plus, minus = self._feed_input(i)
         if sense > 0 and not plus:
             raise NcError(ErrorCodes.NC_NO_ENABLE, "feed enable plus is off (MC_Power.Enable_Positive)")
         if sense < 0 and not minus:

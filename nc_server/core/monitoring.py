@@ -20,35 +20,50 @@ from nc_schema import ErrorCodes
 from .axes import JOB_NONE, AxisTable
 
 
-def monitor(a: AxisTable, act_pos: np.ndarray, dt: float) -> list[tuple[int, int]]:
-    """Update the monitoring state; return the new faults as (row, error code)."""
+def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
+            watch: tuple[np.ndarray, np.ndarray, bool]) -> list[tuple[int, int]]:
+    """Update the monitoring state; return the new faults as (row, error code).
+
+    Args:
+        watch: (lag monitoring active, logical standstill, any soft limit enabled), per axis
+            where arrays; derived by NcCore on events.
+    """
+    lag_on, standstill, limits = watch
     faults: list[tuple[int, int]] = []
-    ok = a.error == 0
-    lag = np.abs(a.set_pos - act_pos)
-    over = a.lag_en & a.enabled & (lag > a.lag_max)
-    a.lag_timer = np.where(over, a.lag_timer + dt, 0.0)
-    for i in np.flatnonzero(ok & over & (a.lag_timer > a.lag_filter)):
-        faults.append((int(i), ErrorCodes.NC_POSITION_LAG))
+    over = lag_on & (np.abs(a.set_pos - act_pos) > a.lag_max)
+    a.lag_timer += dt
+    a.lag_timer *= over  # reset where the lag is inside the window
+    for i in (over & (a.lag_timer > a.lag_filter)).nonzero()[0]:
+        if not a.error[i]:
+            faults.append((int(i), ErrorCodes.NC_POSITION_LAG))
 
-    moving = a.traj_on | (a.job != JOB_NONE)
-    beyond_max = a.en_max & moving & (act_pos > a.max_lim + a.lag_max) & (a.set_velo > 0)
-    beyond_min = a.en_min & moving & (act_pos < a.min_lim - a.lag_max) & (a.set_velo < 0)
-    for i in np.flatnonzero(ok & beyond_max):
-        faults.append((int(i), ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING))
-    for i in np.flatnonzero(ok & beyond_min):
-        faults.append((int(i), ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING))
+    if limits:
+        moving = ~standstill & a.enabled
+        beyond_max = a.en_max & moving & (act_pos > a.max_lim + a.lag_max) & (a.set_velo > 0)
+        beyond_min = a.en_min & moving & (act_pos < a.min_lim - a.lag_max) & (a.set_velo < 0)
+        for i in beyond_max.nonzero()[0]:
+            if not a.error[i]:
+                faults.append((int(i), ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING))
+        for i in beyond_min.nonzero()[0]:
+            if not a.error[i]:
+                faults.append((int(i), ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING))
 
-    standstill = (a.job == JOB_NONE) & ~a.traj_on & a.enabled
     dist = np.abs(act_pos - a.target_pos)
     inside = standstill & a.target_en & (dist <= a.target_win)
-    a.window_timer = np.where(inside, a.window_timer + dt, 0.0)
+    a.window_timer += dt
+    a.window_timer *= inside
     a.in_target = inside & (a.window_timer >= a.target_time - 1e-12)
     a.in_area = standstill & a.range_en & (dist <= a.range_win)
 
-    watching = a.since_end >= 0
-    a.since_end = np.where(watching & ~a.in_target & standstill, a.since_end + dt, np.where(a.in_target, -1.0, a.since_end))
-    late = ok & watching & a.peh_en & a.target_en & ~a.in_target & (a.since_end > a.peh_time)
-    for i in np.flatnonzero(late):
-        faults.append((int(i), ErrorCodes.NC_AXIS_PEH_TIMEOUT))
-        a.since_end[i] = -1.0
+    watching = (a.since_end >= 0).nonzero()[0]
+    if watching.size:
+        w = watching
+        reached = a.in_target[w]
+        a.since_end[w] += dt * standstill[w]
+        a.since_end[w[reached]] = -1.0
+        late = w[~reached & a.peh_en[w] & a.target_en[w] & (a.since_end[w] > a.peh_time[w])]
+        for i in late:
+            if not a.error[i]:
+                faults.append((int(i), ErrorCodes.NC_AXIS_PEH_TIMEOUT))
+            a.since_end[i] = -1.0
     return faults

@@ -43,6 +43,30 @@ _B = {name: np.uint32(int(getattr(StateDWord, name))) for name in (
     "PTPmode", "SoftLimitMinExceeded", "SoftLimitMaxExceeded", "MotionCommandsLocked", "Error")}
 
 
+def _axis_state_lut() -> np.ndarray:
+    """AxisState for index on + 2*hold + 4*const_a + 8*accelerating + 16*decelerating."""
+    lut = np.zeros(32, dtype=np.uint32)
+    for k in range(32):
+        on, hold, const, accel, decel = k & 1, k & 2, k & 4, k & 8, k & 16
+        if not on:
+            st = AxisState.INACTIVE
+        elif hold:
+            st = AxisState.OVERRIDE_ZERO
+        elif const:
+            st = AxisState.PHASE_VELOCONST
+        elif accel:
+            st = AxisState.PHASE_ACCPOS
+        elif decel:
+            st = AxisState.PHASE_ACCNEG
+        else:
+            st = AxisState.RUNNING
+        lut[k] = int(st)
+    return lut
+
+
+_AXIS_STATE_LUT = _axis_state_lut()
+
+
 class NcCore(CommandsMixin):
     """All axes of one NC, stepped one fixed cycle at a time.
 
@@ -76,10 +100,18 @@ class NcCore(CommandsMixin):
         n = len(ids)
         self.plctonc = np.zeros(n, dtype=PLCTONC_DTYPE)
         self.plctonc[:] = self.default_plctonc()
+        self._bits = np.zeros((n, 32), dtype=bool)
+        self._bits[:, 25] = True  # PTPmode: every axis is a PTP axis
+        self._opmode_sim = np.uint32(1 << 8) if self.drive.simulated else np.uint32(0)
         self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
         self.nctoplc["AxisId"] = self.axis_ids
         self.nctoplc["OpModeDWord"] = self.axes.opmode
-        self._fill_nctoplc(np.zeros(n, dtype=bool), np.zeros(n, dtype=bool))
+        self._dt_ns = int(round(self.cycle_time * 1e9))
+        self._in_dirty = True
+        self._state_dirty = True
+        self._apply_inputs()
+        self._derive_state()
+        self._fill_nctoplc()
 
     # -- public API --------------------------------------------------------------------------
     def index(self, axis_id: int) -> int:
@@ -110,7 +142,9 @@ class NcCore(CommandsMixin):
             if len(record) != PLCTONC_DTYPE.itemsize:
                 raise ValueError(f"PLCTONC is {PLCTONC_DTYPE.itemsize} bytes, got {len(record)}")
             record = np.frombuffer(record, dtype=PLCTONC_DTYPE, count=1)[0]
-        self.plctonc[index] = record
+        if self.plctonc[index] != record:
+            self.plctonc[index] = record
+            self._in_dirty = True
 
     def execute(self, request: dict[str, Any], axis_id: int | None) -> dict[str, Any]:
         """Run one parsed request (``nc_schema.parse_request``) against an axis.
@@ -120,6 +154,7 @@ class NcCore(CommandsMixin):
         """
         cycle = self.cycle + 1
         rid, cmd = request.get("id"), request.get("cmd")
+        self._state_dirty = True
         try:
             if axis_id is None:
                 raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} needs an axis key (nc/<nc>/axis/<id>/cmd)")
@@ -138,6 +173,7 @@ class NcCore(CommandsMixin):
         a = self.axes
         if a.error[index]:
             return
+        self._state_dirty = True
         a.error[index] = code
         self._end_job(index, CmdState.ERROR)
         moving = bool(a.traj_on[index]) or abs(a.set_velo[index]) > 0
@@ -187,6 +223,7 @@ class NcCore(CommandsMixin):
         self.configs[i].params = new
         self.axes.load_params(i, new)
         self.drive.configure(i, new)
+        self._state_dirty = True
 
     def step(self, nc_time_ns: int | None = None) -> None:
         """Run one NC cycle of ``cycle_time`` seconds.
@@ -197,82 +234,114 @@ class NcCore(CommandsMixin):
         a = self.axes
         dt = self.cycle_time
         self.cycle += 1
-        self.nc_time_ns = int(nc_time_ns) if nc_time_ns is not None else self.nc_time_ns + int(round(dt * 1e9))
-        ctrl = self.plctonc["ControlDWord"]
-        enable_in = (ctrl & _EN) != 0
-        ov = np.clip(self.plctonc["Override"], 0, 1_000_000) / 1_000_000.0
-
-        # -- controller enable: PLCopen 'Enable FALSE -> Disabled' (the job is aborted)
-        enabled = enable_in | a.hold_enable
-        went_off = a.enabled & ~enabled
-        came_on = ~a.enabled & enabled
-        if went_off.any():
-            for i in np.flatnonzero(went_off):
-                self._end_job(int(i), CmdState.ABORTED)
-                a.ramp[i] = RAMP_NONE
-            a.clear_profile(went_off)
-        if came_on.any():
-            # controller activation: set position := actual position
-            a.set_pos[came_on] = self.drive.act_pos[came_on]
-            a.target_pos[came_on] = a.set_pos[came_on]
-        off = ~enabled
-        a.set_pos[off] = self.drive.act_pos[off]
-        a.enabled = enabled
-
-        # -- override changes re-plan running jobs from the current set state
-        changed = (ov != a.override)
-        a.override = ov
-        if changed.any():
-            for i in np.flatnonzero(changed & a.traj_on & ((a.job == JOB_POSITION) | (a.job == JOB_VELOCITY))
-                                    & (a.ramp == RAMP_NONE) & (a.limit_stop == 0)):
-                self._replan_override(int(i))
+        self.nc_time_ns = int(nc_time_ns) if nc_time_ns is not None else self.nc_time_ns + self._dt_ns
+        if self._in_dirty:
+            self._apply_inputs()
+        if self._state_dirty:
+            self._derive_state()
+        if self._off_rows.size:  # disabled axes: the set position follows the actual position
+            a.set_pos[self._off_rows] = self.drive.act_pos[self._off_rows]
 
         # -- set-points for all axes following a profile
-        on = np.flatnonzero(a.traj_on)
-        if on.size:
+        on = self._on_rows
+        if on.size == a.n:  # all axes follow a profile: plain slices, no gathers
+            a.traj_t += dt
+            a.set_pos[:], a.set_velo[:], a.set_acc[:], a.set_jerk[:] = evaluate(a.seg, a.traj_t, None)
+            finished = (a.traj_t >= a.traj_dur).nonzero()[0]
+        elif on.size:
             a.traj_t[on] += dt
-            p, v, acc, j = evaluate(a.seg, a.traj_t[on], on)
-            a.set_pos[on], a.set_velo[on], a.set_acc[on], a.set_jerk[on] = p, v, acc, j
+            a.set_pos[on], a.set_velo[on], a.set_acc[on], a.set_jerk[on] = evaluate(a.seg, a.traj_t[on], on)
             finished = on[a.traj_t[on] >= a.traj_dur[on]]
+        if on.size:
             if finished.size:
                 self._profile_ends(finished)
+            vel = self._vel_rows
+            if vel.size:
+                a.target_pos[vel] = a.set_pos[vel]
+            cont = self._limit_rows  # continuous moves approaching an enabled software limit
+            if cont.size:
+                d = stopping_distance(a.set_velo[cont], a.set_acc[cont], a.cmd_dec[cont], a.cmd_jerk[cont])
+                d += 2 * np.abs(a.set_velo[cont]) * dt
+                hit = (a.en_max[cont] & (a.set_velo[cont] > 0) & (a.set_pos[cont] + d >= a.max_lim[cont])) | (
+                    a.en_min[cont] & (a.set_velo[cont] < 0) & (a.set_pos[cont] - d <= a.min_lim[cont]))
+                for i in cont[hit]:
+                    self._stop_at_limit(int(i))
+            feed = self._feed_rows  # moving axes with a feed enable missing in some direction
+            if feed.size:
+                plus, minus = self._feed_plus[feed], self._feed_minus[feed]
+                v = a.set_velo[feed]
+                for i in feed[~plus & (v > _EPS_V)]:
+                    self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_PLUS)
+                for i in feed[~minus & (v < -_EPS_V)]:
+                    self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_MINUS)
 
-        # -- continuous moves approaching an enabled software limit: stop at the limit
-        cont = np.flatnonzero((a.job == JOB_VELOCITY) & (a.limit_stop == 0) & ~a.hold_zero)
-        if cont.size:
-            d = stopping_distance(a.set_velo[cont], a.set_acc[cont], a.cmd_dec[cont], a.cmd_jerk[cont])
-            d += 2 * np.abs(a.set_velo[cont]) * dt
-            hit_max = a.en_max[cont] & (a.set_velo[cont] > 0) & (a.set_pos[cont] + d >= a.max_lim[cont])
-            hit_min = a.en_min[cont] & (a.set_velo[cont] < 0) & (a.set_pos[cont] - d <= a.min_lim[cont])
-            for i in cont[hit_max | hit_min]:
-                self._stop_at_limit(int(i))
+        self.drive.step(a.enabled, a.set_pos, a.set_velo, a.set_acc)
+        if self._state_dirty:  # a job ended this cycle: monitor it as standing already
+            self._derive_state()
 
-        # -- feed enables withdrawn in the direction of travel
-        moving_job = (a.job != JOB_NONE) & (a.job != JOB_STOP) & (a.job != JOB_HALT) & a.traj_on
-        no_plus = moving_job & (a.set_velo > _EPS_V) & ((ctrl & _FP) == 0)
-        no_minus = moving_job & (a.set_velo < -_EPS_V) & ((ctrl & _FM) == 0)
-        for i in np.flatnonzero(no_plus):
-            self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_PLUS)
-        for i in np.flatnonzero(no_minus):
-            self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_MINUS)
-
-        # -- drive
-        self.drive.step(enabled, a.set_pos, a.set_velo, a.set_acc)
-
-        # -- monitoring (lag, soft limits, windows): new faults stop their axes from the next cycle
-        faults = monitor(a, self.drive.act_pos, dt)
-        for i, code in faults:
+        # monitoring: new faults stop their axes from the next cycle
+        for i, code in monitor(a, self.drive.act_pos, dt, self._watch):
             self.fault(i, code)
-
-        min_ex = a.en_min & (self.drive.act_pos < a.min_lim)
-        max_ex = a.en_max & (self.drive.act_pos > a.max_lim)
-        self._fill_nctoplc(min_ex, max_ex)
+        if self._state_dirty:
+            self._derive_state()
+        self._fill_nctoplc()
 
     # -- internals ---------------------------------------------------------------------------
-    def _enable_in(self, i: int) -> bool:
+    def _apply_inputs(self) -> None:
+        """Decode the applied PLCTONC (only when it changed): enables, feed, override."""
+        a = self.axes
+        self._in_dirty = False
+        ctrl = self.plctonc["ControlDWord"]
+        self._enable_in = (ctrl & _EN) != 0
+        self._feed_plus = (ctrl & _FP) != 0
+        self._feed_minus = (ctrl & _FM) != 0
+        ov = np.minimum(self.plctonc["Override"], 1_000_000) / 1_000_000.0
+        changed = (ov != a.override).nonzero()[0]
+        a.override = ov
+        for i in changed:
+            if a.traj_on[i] and a.job[i] in (JOB_POSITION, JOB_VELOCITY) and a.ramp[i] == RAMP_NONE and not a.limit_stop[i]:
+                self._replan_override(int(i))
+        self._state_dirty = True
+
+    def _derive_state(self) -> None:
+        """Recompute what only changes on events (commands, inputs, faults, job ends)."""
+        self._state_dirty = False
+        a, bits = self.axes, self._bits
+        # PLCopen 'Enable FALSE -> Disabled': the job is aborted
+        enabled = self._enable_in | a.hold_enable
+        for i in (a.enabled & ~enabled).nonzero()[0]:
+            self._end_job(int(i), CmdState.ABORTED)
+            a.ramp[i] = RAMP_NONE
+            a.clear_profile(i)
+        came_on = ~a.enabled & enabled
+        if came_on.any():  # controller activation: set position := actual position
+            a.set_pos[came_on] = self.drive.act_pos[came_on]
+            a.target_pos[came_on] = a.set_pos[came_on]
+        a.enabled = enabled
+        self._off_rows = (~enabled).nonzero()[0]
+        job = a.job != JOB_NONE
+        self._on_rows = a.traj_on.nonzero()[0]
+        velocity_job = a.job == JOB_VELOCITY
+        self._vel_rows = velocity_job.nonzero()[0]
+        self._limit_rows = (velocity_job & (a.limit_stop == 0) & (a.en_max | a.en_min)).nonzero()[0]
+        driving = job & (a.job != JOB_STOP) & (a.job != JOB_HALT)
+        self._feed_rows = (driving & ~(self._feed_plus & self._feed_minus)).nonzero()[0]
+        self._watch = a.lag_en & enabled, ~(a.traj_on | job) & enabled, (a.en_max | a.en_min).any()
+        err = a.error != 0
+        self._err = err
+        bits[:, 1] = a.homed                          # Homed
+        bits[:, 7] = a.stopped                        # HasBeenStopped
+        bits[:, 8] = job                              # HasJob
+        bits[:, 19] = velocity_job                    # ContinuousMotion
+        bits[:, 29] = a.locked                        # MotionCommandsLocked
+        bits[:, 31] = err                             # Error
+        self._job = job
+        self._hold = job & a.hold_zero
+
+    def _enabled_input(self, i: int) -> bool:
         return bool(int(self.plctonc["ControlDWord"][i]) & _EN)
 
-    def _feed_in(self, i: int) -> tuple[bool, bool]:
+    def _feed_input(self, i: int) -> tuple[bool, bool]:
         c = int(self.plctonc["ControlDWord"][i])
         return bool(c & _FP), bool(c & _FM)
 
@@ -283,6 +352,7 @@ class NcCore(CommandsMixin):
             job = int(a.job[i])
             if a.hold_zero[i] or job == JOB_VELOCITY and a.limit_stop[i] == 0:
                 continue  # holding at override 0 / constant velocity: keeps running
+            self._state_dirty = True
             if a.limit_stop[i]:
                 code = ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if a.limit_stop[i] > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING
                 a.limit_stop[i] = 0
@@ -315,6 +385,7 @@ class NcCore(CommandsMixin):
         except PlanningError:
             return  # keep the current profile
         a.set_segments(i, seg, dur)
+        self._state_dirty = True
         a.hold_zero[i] = ov <= 0
         a.planned_ov[i] = ov
 
@@ -329,6 +400,7 @@ class NcCore(CommandsMixin):
             self.fault(i, ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if v > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING)
             return
         a.set_segments(i, seg, dur)
+        self._state_dirty = True
         a.limit_stop[i] = 1 if v > 0 else -1
         a.target_pos[i] = target
 
@@ -355,51 +427,52 @@ class NcCore(CommandsMixin):
             return float(abs(a.goal_pos[i] - a.set_pos[i])) if a.job[i] == JOB_POSITION else 0.0
         return float(4 if self.params[i].Modulo else 0)  # AxisUnitInterpretation: bit 2 = modulo
 
-    def _fill_nctoplc(self, min_ex: np.ndarray, max_ex: np.ndarray) -> None:
-        a, d, out = self.axes, self.drive, self.nctoplc
-        job = a.job != JOB_NONE
-        err = a.error != 0
+    def _fill_nctoplc(self) -> None:
+        a, d, out, bits = self.axes, self.drive, self.nctoplc, self._bits
+        v, acc, act = a.set_velo, a.set_acc, d.act_pos
+        pos_v = v > _EPS_V
+        neg_v = v < -_EPS_V
+        moving_v = pos_v | neg_v
+        const_a = np.abs(acc) < 1e-9
         loop = a.enabled & d.ready
-        v, acc = a.set_velo, a.set_acc
-        moving_v = np.abs(v) > _EPS_V
-        sd = np.zeros(a.n, dtype=np.uint32)
-        for cond, bit in (
-            (loop & ~err, "Operational"), (a.homed, "Homed"), (~moving_v, "NotMoving"),
-            (a.in_area, "InPositionArea"), (a.in_target, "InTargetPosition"), (a.stopped, "HasBeenStopped"),
-            (job, "HasJob"), (v > _EPS_V, "PositiveDirection"), (v < -_EPS_V, "NegativeDirection"),
-            (job & moving_v & (np.abs(acc) < 1e-9) & ~a.hold_zero, "ConstantVelocity"),
-            (a.job == JOB_VELOCITY, "ContinuousMotion"), (loop, "ControlLoopClosed"),
-            (np.ones(a.n, dtype=bool), "PTPmode"), (min_ex, "SoftLimitMinExceeded"),
-            (max_ex, "SoftLimitMaxExceeded"), (a.locked, "MotionCommandsLocked"), (err, "Error"),
-        ):
-            sd |= np.where(cond, _B[bit], np.uint32(0))
-        out["StateDWord"] = sd
+        # StateDWord: one bool row per bit, packed at once (np.where per bit costs ~5 us each);
+        # the event-driven rows are set by _derive_state
+        bits[:, 0] = loop & ~self._err                # Operational
+        bits[:, 2] = ~moving_v                        # NotMoving
+        bits[:, 3] = a.in_area                        # InPositionArea
+        bits[:, 4] = a.in_target                      # InTargetPosition
+        bits[:, 9] = pos_v                            # PositiveDirection
+        bits[:, 10] = neg_v                           # NegativeDirection
+        bits[:, 12] = self._job & moving_v & const_a & ~a.hold_zero  # ConstantVelocity
+        bits[:, 20] = loop                            # ControlLoopClosed
+        if self._watch[2]:
+            bits[:, 26] = a.en_min & (act < a.min_lim)  # SoftLimitMinExceeded
+            bits[:, 27] = a.en_max & (act > a.max_lim)  # SoftLimitMaxExceeded
+        out["StateDWord"] = np.packbits(bits, axis=1, bitorder="little").view(np.uint32)[:, 0]
         out["ErrorCode"] = a.error
-        axst = np.select(
-            [~a.traj_on, job & a.hold_zero, np.abs(acc) < 1e-9, acc * v > 0, acc * v < 0],
-            [int(AxisState.INACTIVE), int(AxisState.OVERRIDE_ZERO), int(AxisState.PHASE_VELOCONST),
-             int(AxisState.PHASE_ACCPOS), int(AxisState.PHASE_ACCNEG)],
-            default=int(AxisState.RUNNING))
-        out["AxisState"] = axst
-        out["SafEntries"] = job
-        out["OpModeDWord"] = a.opmode | (np.uint32(1 << 8) if d.simulated else np.uint32(0))
+        # AxisState by table lookup: index = on + 2*hold + 4*const_a + 8*accelerating + 16*decelerating
+        av = acc * v
+        idx = a.traj_on + 2 * self._hold + 4 * const_a + 8 * (av > 0) + 16 * (av < 0)
+        out["AxisState"] = _AXIS_STATE_LUT[idx]
+        out["SafEntries"] = self._job
+        out["OpModeDWord"] = a.opmode | self._opmode_sim
         period = a.modulo_factor
-        out["ActPos"] = d.act_pos
-        out["ModuloActPos"] = np.mod(d.act_pos, period)
-        out["ModuloActTurns"] = np.floor_divide(d.act_pos, period).astype(np.int32)
+        out["ActPos"] = act
+        out["ModuloActPos"] = act % period
+        out["ModuloActTurns"] = act // period
         out["ActVelo"] = d.act_velo
         out["ActAcc"] = d.act_acc
-        out["PosDiff"] = a.set_pos - d.act_pos
+        out["PosDiff"] = a.set_pos - act
         out["SetPos"] = a.set_pos
         out["SetVelo"] = v
         out["SetAcc"] = acc
         out["SetJerk"] = a.set_jerk
-        out["TargetPos"] = np.where(a.job == JOB_VELOCITY, a.set_pos, a.target_pos)
-        out["ModuloSetPos"] = np.mod(a.set_pos, period)
-        out["ModuloSetTurns"] = np.floor_divide(a.set_pos, period).astype(np.int32)
+        out["TargetPos"] = a.target_pos
+        out["ModuloSetPos"] = a.set_pos % period
+        out["ModuloSetTurns"] = a.set_pos // period
         out["CmdNo"] = a.cmd_no
         out["CmdState"] = a.cmd_state
-        out["ActPosWithoutPosCorrection"] = d.act_pos
+        out["ActPosWithoutPosCorrection"] = act
         out["DcTimeStamp"] = self.nc_time_ns & 0xFFFFFFFF
 
     def motion_states(self) -> np.ndarray:

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Trajectory
 
-#: segments per axis: brake (2) + main (7) + post (2) + tail (1)
-N_SEGMENTS = 12
+#: segments per axis: brake (2) + main (7) + post (2) + tail (1) + a sentinel that never starts
+N_SEGMENTS = 13
 
 
 class PlanningError(Exception):
@@ -47,13 +47,17 @@ class Planner:
         inp.current_velocity = [v0]
         inp.current_acceleration = [a0]
         inp.max_velocity = [lim.velocity]
-        # Directional limits: in the direction of travel 'acceleration' speeds up, 'deceleration' slows down.
+        # Directional limits: towards the goal ('sense') 'acceleration' speeds up and 'deceleration'
+        # slows down. A reversal first brakes the current motion and then speeds up the other way
+        # with the same sign of acceleration, so that side gets the smaller of the two.
+        up, down = lim.acceleration, lim.deceleration
+        reversing = v0 * sense < 0
         if sense >= 0:
-            inp.max_acceleration = [lim.acceleration]
-            inp.min_acceleration = [-lim.deceleration]
+            hi, lo = (min(up, down) if reversing else up), down
         else:
-            inp.max_acceleration = [lim.deceleration]
-            inp.min_acceleration = [-lim.acceleration]
+            hi, lo = down, (min(up, down) if reversing else up)
+        inp.max_acceleration = [hi]
+        inp.min_acceleration = [-lo]
         inp.max_jerk = [lim.jerk]
         try:
             return self._run()
@@ -105,7 +109,7 @@ class Planner:
         inp.control_interface = ControlInterface.Velocity
         inp.target_velocity = [target_velo]
         inp.target_acceleration = [0.0]
-        sense = target_velo if target_velo != 0 else -v0
+        sense = target_velo if target_velo != 0 else v0  # a stop brakes the current motion
         traj = self._calc(p0, v0, a0, lim, math.copysign(1.0, sense) if sense else 1.0)
         return _segments(traj, p0, v0, a0), traj.duration
 
@@ -144,26 +148,25 @@ def _integrate(t: float, p: float, v: float, a: float, j: float) -> tuple[float,
     return p + t * (v + t * (a / 2 + t * j / 6)), v + t * (a + t * j / 2), a + t * j
 
 
-def evaluate(seg: np.ndarray, t: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Evaluate the segment rows ``rows`` at their times ``t`` (vectorized).
+def evaluate(seg: np.ndarray, t: np.ndarray, rows: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Evaluate the segment rows ``rows`` (None: all) at their times ``t`` (vectorized).
 
     Args:
         seg: (5, N, N_SEGMENTS) table of all axes: t0, p, v, a, j.
         t: time since the profile start [s], one per selected row.
-        rows: indices of the axes to evaluate.
+        rows: indices of the axes to evaluate, or None for all axes.
 
     Returns:
         position, velocity, acceleration, jerk arrays.
     """
-    t0 = seg[0, rows]
-    k = np.sum(t0 <= t[:, None], axis=1) - 1
+    t0_all = seg[0] if rows is None else seg[0, rows]
+    # the segment in force is the one before the first that starts later (the sentinel never starts)
+    k = np.argmax(t0_all > t[:, None], axis=1) - 1
     np.maximum(k, 0, out=k)
-    tau = t - t0[np.arange(len(rows)), k]
-    p0 = seg[1, rows, k]
-    v0 = seg[2, rows, k]
-    a0 = seg[3, rows, k]
-    j = seg[4, rows, k]
-    pos = p0 + tau * (v0 + tau * (a0 * 0.5 + tau * j / 6.0))
+    flat = (np.arange(len(t)) if rows is None else rows) * N_SEGMENTS + k
+    t0, p0, v0, a0, j = seg.reshape(5, -1)[:, flat]  # one gather for all five columns
+    tau = t - t0
+    pos = p0 + tau * (v0 + tau * (a0 * 0.5 + tau * j * (1.0 / 6.0)))
     velo = v0 + tau * (a0 + tau * j * 0.5)
     acc = a0 + tau * j
     return pos, velo, acc, j

@@ -31,7 +31,7 @@ class SimDrive(DriveABC):
 
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         dt = self.cycle_time
-        new_pos = np.where(enabled, self.act_pos + self._alpha * (set_pos - self.act_pos), self.act_pos)
+        new_pos = self.act_pos + (self._alpha * enabled) * (set_pos - self.act_pos)  # disabled: hold
         new_velo = (new_pos - self.act_pos) / dt
         self.act_acc = (new_velo - self.act_velo) / dt
         self.act_velo = new_velo

@@ -1,0 +1,47 @@
+"""Helpers to drive an in-process NcCore cycle by cycle in tests."""
+from __future__ import annotations
+
+import itertools
+from typing import Any, Callable
+
+import numpy as np
+
+from nc_schema import ControlDWord, MC_AxisStates, make_request, motion_state, parse_request
+from nc_server.core import AxisConfig, AxisParams, NcCore
+
+ALL_ENABLES = int(ControlDWord.Enable | ControlDWord.FeedEnablePlus | ControlDWord.FeedEnableMinus)
+_ids = itertools.count(1)
+
+
+def make_core(n: int = 1, cycle_time: float = 0.001, **params: Any) -> NcCore:
+    return NcCore([AxisConfig(i + 1, f"A{i + 1}", AxisParams(**params)) for i in range(n)], cycle_time)
+
+
+def power(core: NcCore, i: int = 0, ctrl: int = ALL_ENABLES, override: int = 1_000_000) -> None:
+    rec = core.default_plctonc()
+    rec["ControlDWord"] = ctrl
+    rec["Override"] = override
+    core.set_plctonc(i, rec)
+
+
+def cmd(core: NcCore, name: str, axis: int = 1, **args: Any) -> dict[str, Any]:
+    return core.execute(parse_request(make_request(name, next(_ids), "test", **args)), axis)
+
+
+def state(core: NcCore, i: int = 0) -> MC_AxisStates:
+    r = core.nctoplc[i]
+    return motion_state(int(r["StateDWord"]), int(r["CoupleState"]))
+
+
+def run_until(core: NcCore, pred: Callable[[], bool], max_cycles: int = 100_000) -> int:
+    """Step until pred() is true; return the number of steps. Fails after max_cycles."""
+    for k in range(1, max_cycles + 1):
+        core.step()
+        if pred():
+            return k
+    raise AssertionError(f"condition not reached within {max_cycles} cycles")
+
+
+def snapshot(core: NcCore) -> bytes:
+    """Everything observable about the axes (to prove a rejected command changed nothing)."""
+    return core.nctoplc.tobytes() + core.plctonc.tobytes() + repr([vars(p) for p in core.params]).encode()

@@ -1,0 +1,110 @@
+"""Modulo starts (TcMC manual 3.5 tables) and monitoring (lag, limits, windows, PEH)."""
+import pytest
+
+from nc_schema import ErrorCodes as E, MC_AxisStates as S, StateDWord
+from nc_server.core.commands import modulo_target
+from tests.core.nc_helpers import cmd, make_core, power, run_until, state
+
+POS, SHORT, NEG = 1, 2, 3
+
+# (direction, start, modulo target, relative travel) from TcMC 3.5, tolerance window 1 where marked
+TABLE_NO_TW = [
+    (POS, 90.0, 0.0, 270.0), (POS, 90.0, 360.0, 630.0), (POS, 90.0, 720.0, 990.0),
+    (NEG, 90.0, 0.0, -90.0), (NEG, 90.0, 360.0, -450.0), (NEG, 90.0, 720.0, -810.0),
+    (SHORT, 90.0, 0.0, -90.0),
+]
+TABLE_TW1 = [
+    (POS, 90.00, 90.0, 0.00), (POS, 90.90, 90.0, -0.90), (POS, 91.10, 90.0, 358.90), (POS, 89.10, 90.0, 0.90),
+    (POS, 88.90, 90.0, 1.10), (POS, 90.00, 450.0, 360.00), (POS, 90.90, 450.0, 359.10), (POS, 91.10, 450.0, 718.90),
+    (POS, 89.10, 450.0, 360.90), (POS, 88.90, 450.0, 361.10), (POS, 90.00, 810.0, 720.00), (POS, 90.90, 810.0, 719.10),
+    (POS, 91.10, 810.0, 1078.90), (POS, 89.10, 810.0, 720.90), (POS, 88.90, 810.0, 721.10),
+    (NEG, 90.00, 90.0, 0.00), (NEG, 90.90, 90.0, -0.90), (NEG, 91.10, 90.0, -1.10), (NEG, 89.10, 90.0, 0.90),
+    (NEG, 88.90, 90.0, -358.90), (NEG, 90.00, 450.0, -360.00), (NEG, 90.90, 450.0, -360.90),
+    (NEG, 91.10, 450.0, -361.10), (NEG, 89.10, 450.0, -359.10), (NEG, 88.90, 450.0, -718.90),
+    (NEG, 90.00, 810.0, -720.00), (NEG, 90.90, 810.0, -720.90), (NEG, 91.10, 810.0, -721.10),
+    (NEG, 89.10, 810.0, -719.10), (NEG, 88.90, 810.0, -1078.90),
+]
+
+
+@pytest.mark.parametrize("direction,start,target,travel", TABLE_NO_TW)
+def test_modulo_table_without_window(direction, start, target, travel):
+    assert modulo_target(start, target, 360.0, 0.0, direction) - start == pytest.approx(travel, abs=1e-9)
+
+
+@pytest.mark.parametrize("direction,start,target,travel", TABLE_TW1)
+def test_modulo_table_with_tolerance_window(direction, start, target, travel):
+    assert modulo_target(start, target, 360.0, 1.0, direction) - start == pytest.approx(travel, abs=1e-9)
+
+
+def test_move_modulo_on_a_modulo_axis_turns():
+    core = make_core(Modulo=True, AxisVeloMax=720.0, AxisAcc=3600.0, AxisDec=3600.0, AxisJerk=36000.0)
+    power(core)
+    core.step()
+    assert core.nctoplc[0]["OpModeDWord"] & (1 << 7)  # OpModeModulo
+    rep = cmd(core, "MoveModulo", Position=810.0, Velocity=720.0, Direction=POS)
+    assert rep["error"] == 0
+    run_until(core, lambda: state(core) == S.MC_AXISSTATE_STANDSTILL, 10_000)
+    r = core.nctoplc[0]
+    assert r["SetPos"] == pytest.approx(810.0) and r["ModuloSetPos"] == pytest.approx(90.0) and r["ModuloSetTurns"] == 2
+
+
+def test_following_error():
+    core = make_core(SimTimeConstant=0.05, AxisMaxPosLagValue=1.0, AxisMaxPosLagFilterTime=0.01)
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)  # lag -> 100 * 0.05 = 5 > 1
+    run_until(core, lambda: core.nctoplc[0]["ErrorCode"] != 0, 3000)
+    r = core.nctoplc[0]
+    assert r["ErrorCode"] == E.NC_POSITION_LAG and r["PosDiff"] > 1.0
+    assert state(core) == S.MC_AXISSTATE_ERRORSTOP
+
+
+def test_no_following_error_when_monitoring_disabled():
+    core = make_core(SimTimeConstant=0.05, AxisMaxPosLagValue=1.0, AxisEnPositionLagMonitoring=False)
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)
+    for _ in range(1000):
+        core.step()
+    assert core.nctoplc[0]["ErrorCode"] == 0 and core.nctoplc[0]["PosDiff"] > 1.0
+
+
+def test_continuous_motion_stops_at_soft_limit_then_error():
+    core = make_core(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0)
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=800.0, Direction=1)
+    run_until(core, lambda: core.nctoplc[0]["ErrorCode"] != 0, 5000)
+    r = core.nctoplc[0]
+    assert r["ErrorCode"] == E.NC_SOFT_LIMIT_MAX_POSITIONING
+    assert r["SetPos"] == pytest.approx(100.0) and r["SetVelo"] == 0.0
+    for _ in range(200):  # let the drive settle: after Reset, SetPos := ActPos
+        core.step()
+        assert core.nctoplc[0]["ActPos"] <= 100.0 + 1e-9
+    cmd(core, "Reset")
+    core.step()
+    assert cmd(core, "MoveVelocity", Velocity=10.0, Direction=1)["error"] == E.NC_SOFT_LIMIT_MAX_START
+    assert cmd(core, "MoveVelocity", Velocity=10.0, Direction=3)["error"] == 0
+
+
+def test_target_window_and_position_area_timing():
+    core = make_core(SimTimeConstant=0.01, AxisTargetPositionWindow=0.01, AxisTargetPositionMonitoringTime=0.05,
+                     AxisPositionRangeWindow=1.0)
+    power(core)
+    core.step()
+    cmd(core, "MoveAbsolute", Position=10.0, Velocity=100.0)
+    run_until(core, lambda: not core.nctoplc[0]["StateDWord"] & StateDWord.HasJob)
+    sd = core.nctoplc[0]["StateDWord"]
+    assert sd & StateDWord.InPositionArea and not sd & StateDWord.InTargetPosition  # still lagging
+    n = run_until(core, lambda: core.nctoplc[0]["StateDWord"] & StateDWord.InTargetPosition)
+    assert n >= 50  # window reached, then held for the monitoring time
+
+
+def test_peh_timeout():
+    core = make_core(SimTimeConstant=0.5, AxisEnInTargetTimeout=True, AxisInTargetTimeout=0.1,
+                     AxisTargetPositionWindow=0.001, AxisEnPositionLagMonitoring=False)
+    power(core)
+    core.step()
+    cmd(core, "MoveAbsolute", Position=10.0, Velocity=100.0)
+    run_until(core, lambda: core.nctoplc[0]["ErrorCode"] != 0, 3000)
+    assert core.nctoplc[0]["ErrorCode"] == E.NC_AXIS_PEH_TIMEOUT

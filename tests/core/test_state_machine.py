@@ -1,0 +1,129 @@
+"""PLCopen state transitions as seen through the cyclic interface."""
+import pytest
+
+from nc_schema import CmdState, ControlDWord, ErrorCodes, MC_AxisStates as S, StateDWord
+from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, run_until, state
+
+
+def test_disabled_standstill_discrete_standstill():
+    core = make_core()
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_DISABLED
+    assert not core.nctoplc[0]["StateDWord"] & StateDWord.ControlLoopClosed
+    power(core)
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+    assert core.nctoplc[0]["StateDWord"] & StateDWord.Operational
+    cmd(core, "MoveRelative", Distance=10.0, Velocity=100.0)
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_DISCRETEMOTION
+    run_until(core, lambda: state(core) == S.MC_AXISSTATE_STANDSTILL)
+    assert core.nctoplc[0]["SetPos"] == 10.0
+
+
+def test_enable_off_while_moving_disables_and_aborts_the_job():
+    core = make_core()
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)
+    for _ in range(50):
+        core.step()
+    power(core, ctrl=0)
+    core.step()
+    r = core.nctoplc[0]
+    assert state(core) == S.MC_AXISSTATE_DISABLED
+    assert r["CmdState"] == CmdState.ABORTED and not r["StateDWord"] & StateDWord.HasJob
+    assert r["SetVelo"] == 0.0 and r["SetPos"] == r["ActPos"]
+
+
+def test_stop_locks_until_released_and_reset_also_releases():
+    core = make_core()
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=300.0, Direction=1)
+    for _ in range(100):
+        core.step()
+    rep = cmd(core, "Stop")
+    assert rep["error"] == 0 and rep["CmdNo"] == 2
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_STOPPING
+    run_until(core, lambda: core.nctoplc[0]["CmdState"] == CmdState.DONE)
+    r = core.nctoplc[0]
+    assert r["SetVelo"] == 0.0 and r["StateDWord"] & StateDWord.MotionCommandsLocked
+    assert state(core) == S.MC_AXISSTATE_STOPPING  # stays locked after standstill
+    assert cmd(core, "MoveAbsolute", Position=0.0, Velocity=10.0)["error"] == ErrorCodes.NC_AXIS_LOCKED_BY_STOP
+    assert cmd(core, "StopRelease")["error"] == 0
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+    cmd(core, "Stop")
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_STOPPING
+    assert core.nctoplc[0]["CmdState"] == CmdState.DONE  # stop at standstill completes at once
+    cmd(core, "Reset")
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+
+
+def test_halt_is_discrete_and_does_not_lock():
+    core = make_core()
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=300.0, Direction=1)
+    for _ in range(100):
+        core.step()
+    assert cmd(core, "Halt")["error"] == 0
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_DISCRETEMOTION
+    run_until(core, lambda: core.nctoplc[0]["CmdState"] == CmdState.DONE)
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+
+
+def test_fault_stops_with_deceleration_keeps_drive_enabled_and_reset_recovers():
+    core = make_core(AxisDec=1000.0, AxisAcc=1000.0)
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)
+    run_until(core, lambda: core.nctoplc[0]["StateDWord"] & StateDWord.ConstantVelocity)
+    core.fault(0, ErrorCodes.ZNC_CLIENT_LOST)
+    power(core, ctrl=0)  # the watchdog also drops the enables
+    core.step()
+    r = core.nctoplc[0]
+    assert state(core) == S.MC_AXISSTATE_ERRORSTOP and r["ErrorCode"] == ErrorCodes.ZNC_CLIENT_LOST
+    assert r["CmdState"] == CmdState.ERROR
+    assert r["StateDWord"] & StateDWord.ControlLoopClosed  # held enabled for the ramp
+    v_prev = r["SetVelo"]
+    n = run_until(core, lambda: core.nctoplc[0]["SetVelo"] == 0.0, 5000)
+    assert 0.45 < n * core.cycle_time < 0.65  # 500 u/s at 1000 u/s^2 (+ jerk phases)
+    assert v_prev > 0
+    core.step()
+    assert not core.nctoplc[0]["StateDWord"] & StateDWord.ControlLoopClosed  # released after the ramp
+    assert cmd(core, "MoveRelative", Distance=1.0, Velocity=1.0)["error"] == ErrorCodes.MC_AXIS_CANNOT_BE_STARTED
+    power(core)
+    cmd(core, "Reset")
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL and core.nctoplc[0]["ErrorCode"] == 0
+
+
+def test_feed_enable_withdrawn_in_travel_direction_is_an_error():
+    core = make_core()
+    power(core)
+    core.step()
+    cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)
+    for _ in range(20):
+        core.step()
+    power(core, ctrl=int(ControlDWord.Enable | ControlDWord.FeedEnableMinus))
+    core.step()
+    assert core.nctoplc[0]["ErrorCode"] == ErrorCodes.NC_AXIS_FEED_ENABLE_PLUS
+    assert state(core) == S.MC_AXISSTATE_ERRORSTOP
+    run_until(core, lambda: core.nctoplc[0]["SetVelo"] == 0.0, 2000)
+
+
+def test_superseded_command_shows_newer_cmdno():
+    core = make_core()
+    power(core)
+    core.step()
+    first = cmd(core, "MoveAbsolute", Position=100.0, Velocity=100.0)["CmdNo"]
+    core.step()
+    second = cmd(core, "MoveAbsolute", Position=50.0, Velocity=100.0)["CmdNo"]
+    core.step()
+    assert second == first + 1 and core.nctoplc[0]["CmdNo"] == second
