@@ -1,0 +1,73 @@
+"""The shared PLCopen state mapping, CmdNo arithmetic, request parsing."""
+import math
+
+import msgpack
+import numpy as np
+import pytest
+
+import nc_schema as s
+from nc_schema import MC_AxisStates as M, StateDWord as B
+
+CLC = int(B.ControlLoopClosed)
+
+
+@pytest.mark.parametrize("bits,couple,expected", [
+    (0, 0, M.MC_AXISSTATE_DISABLED),
+    (int(B.Error), 0, M.MC_AXISSTATE_ERRORSTOP),
+    (int(B.Error) | CLC | int(B.HasJob), 0, M.MC_AXISSTATE_ERRORSTOP),
+    (CLC, 0, M.MC_AXISSTATE_STANDSTILL),
+    (CLC | int(B.MotionCommandsLocked), 0, M.MC_AXISSTATE_STOPPING),
+    (CLC | int(B.HasBeenStopped) | int(B.HasJob), 0, M.MC_AXISSTATE_STOPPING),
+    (CLC | int(B.HasBeenStopped), 0, M.MC_AXISSTATE_STANDSTILL),
+    (CLC | int(B.HomingBusy) | int(B.HasJob), 0, M.MC_AXISSTATE_HOMING),
+    (CLC | int(B.HasJob), 3, M.MC_AXISSTATE_SYNCHRONIZEDMOTION),
+    (CLC | int(B.HasJob) | int(B.ContinuousMotion), 0, M.MC_AXISSTATE_CONTINOUSMOTION),
+    (CLC | int(B.HasJob), 0, M.MC_AXISSTATE_DISCRETEMOTION),
+])
+def test_motion_state_mapping_scalar_and_vector_agree(bits, couple, expected):
+    assert s.motion_state(bits, couple) == expected
+    assert s.motion_state_array(np.array([bits], np.uint32), np.array([couple]))[0] == int(expected)
+
+
+def test_cmdno_serial_arithmetic():
+    assert s.cmdno_newer(2, 1) and not s.cmdno_newer(1, 2) and not s.cmdno_newer(5, 5)
+    assert s.cmdno_newer(1, 65535) and s.cmdno_newer(3, 65000)
+    assert s.next_cmdno(65535) == 1 and s.next_cmdno(0) == 1
+
+
+def test_parse_request_fills_defaults():
+    r = s.parse_request(s.make_request("MoveVelocity", 7, "plc-1", Velocity=5))
+    assert r == {"id": 7, "client": "plc-1", "cmd": "MoveVelocity", "Velocity": 5.0, "Acceleration": 0.0,
+                 "Deceleration": 0.0, "Jerk": 0.0, "Direction": 1, "BufferMode": 0}
+
+
+@pytest.mark.parametrize("payload,code", [
+    (b"\xc1garbage", 0x706),
+    (msgpack.packb([1, 2]), 0x706),
+    (msgpack.packb({"cmd": "Reset"}), 0x706),
+    (msgpack.packb({"id": True, "cmd": "Reset"}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "Explode"}), 0x701),
+    (msgpack.packb({"id": 1, "cmd": 5}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "MoveAbsolute", "Velocity": 1.0}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "MoveAbsolute", "Position": math.nan, "Velocity": 1.0}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "MoveAbsolute", "Position": "1", "Velocity": 1.0}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "MoveAbsolute", "Position": 1.0, "Velocity": math.inf}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "MoveVelocity", "Velocity": 1.0, "Direction": 1.5}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "Reset", "Bogus": 1}), 0x706),
+    (msgpack.packb({"id": 1, "cmd": "Reset", "client": "bad client!"}), 0x706),
+    (msgpack.packb({"id": "x" * 200, "cmd": "Reset"}), 0x706),
+])
+def test_parse_request_rejects_bad_input_with_codes(payload, code):
+    with pytest.raises(s.NcError) as ei:
+        s.parse_request(payload)
+    assert ei.value.code == code and str(ei.value)
+
+
+def test_keys():
+    k = s.Keys("nc1")
+    assert k.axis_nctoplc(3) == "nc/nc1/axis/3/nctoplc" and k.frame == "nc/nc1/frame"
+    assert k.parse_cmd_key("nc/nc1/axis/12/cmd") == 12 and k.parse_cmd_key("nc/nc1/cmd") is None
+    with pytest.raises(s.NcError):
+        k.parse_cmd_key("nc/nc1/axis/x/cmd")
+    with pytest.raises(ValueError):
+        s.Keys("bad name")
