@@ -1,0 +1,179 @@
+"""``zenoh-nc-demo`` (``make demo``): the NC server plus a PLC program moving all axes.
+
+Starts ``nc-server`` with its embedded default configuration (NC ``nc1``, axes 1-4,
+router on tcp/127.0.0.1:7447), then ``plc-run plc_client/demo_program.py`` in another
+process, and shows a live table of the axes from ``nc/nc1/frame`` until Ctrl-C or the time
+limit. On a terminal the table is redrawn in place; without one (CI) it prints plain lines.
+At the end it checks that every axis moved without an error and the modulo axis turned
+several times, and exits 0 only then.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import zenoh
+
+from nc_schema import Keys, decode_frame, error_name, motion_state
+
+from . import demo_program
+
+STATE_SHORT = {1: "Disabled", 2: "StandStill", 3: "ErrorStop", 4: "Stopping", 5: "Homing", 6: "Discrete",
+               7: "Continuous", 8: "Synchronized"}
+
+
+def _bin(name: str) -> list[str]:
+    exe = Path(sys.executable).with_name(name)
+    return [str(exe)] if exe.exists() else [name]
+
+
+def _client_config(endpoint: str) -> zenoh.Config:
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("scouting/gossip/enabled", "false")
+    return c
+
+
+class Proc:
+    """A child process in its own process group, its output relayed with a prefix."""
+
+    def __init__(self, name: str, argv: list[str], out: IO[str]) -> None:
+        self.name = name
+        self.lines: list[str] = []
+        self.ready = threading.Event()
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     start_new_session=True, bufsize=1)
+        self._out = out
+        self.quiet = False
+        threading.Thread(target=self._relay, daemon=True).start()
+
+    def _relay(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            line = line.rstrip()
+            self.lines.append(line)
+            if "ready" in line:
+                self.ready.set()
+            if not self.quiet:
+                print(f"[{self.name}] {line}", file=self._out, flush=True)
+
+    def stop(self, timeout: float = 8.0) -> int | None:
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGTERM)
+                self.proc.wait(timeout)
+            except (ProcessLookupError, subprocess.TimeoutExpired):
+                try:
+                    os.killpg(self.proc.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                self.proc.wait()
+        return self.proc.returncode
+
+
+def _table(h: Any, recs: np.ndarray, names: dict[int, str]) -> list[str]:
+    rows = [f"NC cycle {int(h['Cycle']):>9}   {'axis':<6} {'position':>12} {'modulo':>9} {'velocity':>10}  "
+            f"{'PLCopen state':<13} error"]
+    for r in recs:
+        ax = int(r["AxisId"])
+        st = STATE_SHORT.get(int(motion_state(int(r["StateDWord"]), int(r["CoupleState"]))), "?")
+        err = int(r["ErrorCode"])
+        rows.append(f"{'':>19} {ax:>2} {names.get(ax, ''):<3} {r['ActPos']:>12.3f} {r['ModuloActPos']:>9.3f} "
+                    f"{r['ActVelo']:>10.2f}  {st:<13} {('0x%04X %s' % (err, error_name(err))) if err else '-'}")
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="zenoh-nc-demo", description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=None,
+                    help="stop after S seconds (default: until Ctrl-C on a terminal, 20 s otherwise)")
+    ap.add_argument("--port", type=int, default=None, help="listen on tcp/127.0.0.1:PORT instead of the default 7447")
+    args = ap.parse_args(argv)
+    tty = sys.stdout.isatty()
+    duration = args.duration if args.duration is not None else (None if tty else 20.0)
+    endpoint = f"tcp/127.0.0.1:{args.port or 7447}"
+    out = sys.stdout
+    server_argv = _bin("nc-server") + (["--listen", endpoint] if args.port else [])
+    nc = Proc("nc-server", server_argv, out)
+    plc: Proc | None = None
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    first: dict[int, tuple[float, int]] = {}
+    last: tuple[Any, np.ndarray] | None = None
+    moved_turns: dict[int, float] = {}
+    try:
+        if not nc.ready.wait(20.0):
+            print("zenoh-nc-demo: nc-server did not become ready (is port 7447 in use? try --port)", file=sys.stderr)
+            return 1
+        plc = Proc("plc", _bin("plc-run") + [demo_program.__file__, "--nc", f"nc1={endpoint}", "--client-id", "demo-plc"],
+                   out)
+        keys = Keys("nc1")
+        with zenoh.open(_client_config(endpoint)) as session:
+            sub = session.declare_subscriber(keys.frame, zenoh.handlers.RingChannel(1))
+            names = {1: "X", 2: "Y", 3: "Z", 4: "C"}
+            t0 = time.monotonic()
+            next_draw = 0.0
+            drawn = 0
+            while not stop.is_set():
+                now = time.monotonic() - t0
+                if duration is not None and now >= duration:
+                    break
+                if nc.proc.poll() is not None or plc.proc.poll() is not None:
+                    print("zenoh-nc-demo: a process ended unexpectedly", file=sys.stderr)
+                    return 1
+                sample = sub.try_recv()
+                if sample is not None:
+                    h, recs = decode_frame(sample.payload.to_bytes())
+                    last = (h, recs.copy())
+                    for r in recs:
+                        ax = int(r["AxisId"])
+                        first.setdefault(ax, (float(r["ActPos"]), int(r["ModuloActTurns"])))
+                        moved_turns[ax] = max(moved_turns.get(ax, 0.0), abs(float(r["ActPos"]) - first[ax][0]))
+                if last is not None and now >= next_draw:
+                    rows = _table(last[0], last[1], names)
+                    if tty:
+                        sys.stdout.write((f"\x1b[{drawn}F" if drawn else "") + "\n".join(r + "\x1b[K" for r in rows) + "\n")
+                        sys.stdout.flush()
+                        drawn = len(rows)
+                        next_draw = now + 0.1
+                    else:
+                        print(f"t={now:5.1f}s " + " | ".join(
+                            f"{int(r['AxisId'])}:{r['ActPos']:.2f}@{r['ActVelo']:.0f} "
+                            f"{STATE_SHORT.get(int(motion_state(int(r['StateDWord']))), '?')}"
+                            f"{' E%04X' % int(r['ErrorCode']) if int(r['ErrorCode']) else ''}" for r in last[1]),
+                            flush=True)
+                        next_draw = now + 1.0
+                time.sleep(0.01)
+            sub.undeclare()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if plc is not None:
+            plc.stop()
+        nc.stop()
+    if last is None:
+        print("zenoh-nc-demo: no status frame received", file=sys.stderr)
+        return 1
+    recs = last[1]
+    errors = {int(r["AxisId"]): int(r["ErrorCode"]) for r in recs if int(r["ErrorCode"])}
+    c_turns = moved_turns.get(4, 0.0) / 360.0
+    print(f"demo summary: travel per axis {', '.join(f'{a}: {d:.1f}' for a, d in sorted(moved_turns.items()))}; "
+          f"modulo axis 4 turned {c_turns:.1f} turns; errors {errors or 'none'}")
+    ok = not errors and all(moved_turns.get(a, 0.0) > 1.0 for a in (1, 2, 3, 4)) and c_turns >= 2.0
+    print("demo OK" if ok else "demo FAILED: not every axis moved, or an axis reported an error")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
