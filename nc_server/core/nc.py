@@ -351,7 +351,8 @@ class NcCore(CommandsMixin):
             i = int(i)
             job = int(a.job[i])
             if a.hold_zero[i] or job == JOB_VELOCITY and a.limit_stop[i] == 0:
-                continue  # holding at override 0 / constant velocity: keeps running
+                a.traj_dur[i] = np.inf  # steady tail (constant velocity / override-0 hold): not an end
+                continue
             self._state_dirty = True
             if a.limit_stop[i]:
                 code = ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if a.limit_stop[i] > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING
