@@ -1,0 +1,223 @@
+"""The NC server: one NcCore, driven by the cycle thread, connected through zenoh.
+
+Per cycle (:meth:`NcServer.cycle`): liveliness events -> claims; drain the command queryable
+(bounded); apply the newest PLCTONC frame of each claim holder; watchdog; ``core.step()``; hand
+(frame, per-axis samples for matched publishers, replies) to the I/O thread.
+"""
+from __future__ import annotations
+
+import gc
+import logging
+import time
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from nc_schema import FrameFlags, Keys, encode_frame
+
+from .claims import ClaimTable
+from .config import ServerConfig
+from .cycle import CycleLoop, configure_interpreter
+from .handler import CoreLike, RequestHandler
+from .transport import IoThread, Outgoing, Transport
+
+log = logging.getLogger("nc_server.server")
+
+#: Queries executed per cycle at most (the rest wait for the next cycle).
+MAX_QUERIES_PER_CYCLE = 32
+#: Liveliness events handled per cycle at most.
+MAX_LIVELINESS_PER_CYCLE = 64
+#: A gap between two cycle starts longer than this means the NC itself stalled [s]:
+#: nobody is blamed for PLCTONC that could not be processed meanwhile.
+STALL_GRACE = 0.05
+
+
+class NcServer:
+    """The NC process's parts, wired together.
+
+    Args:
+        config: the checked configuration.
+        core: an NcCore built from ``config.axes`` (the cycle thread owns it once started).
+    """
+
+    def __init__(self, config: ServerConfig, core: CoreLike) -> None:
+        self.config = config
+        self.core = core
+        self.keys = Keys(config.name)
+        self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
+        self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout)
+        self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority)
+        self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra)
+        self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
+        self.io = IoThread(self.transport, self.stats)
+        # AxisId -> index lookup for PLC frames (vectorized); -1 = not configured.
+        self._lut = np.full(max(self.axis_ids) + 1, -1, dtype=np.int64)
+        self._lut[self.axis_ids] = np.arange(len(self.axis_ids))
+        self._prev_start = 0.0
+        self._rt_offset = time.time_ns() - time.monotonic_ns()
+        self._claims_snapshot: dict[int, str] = {}
+        self._clients_snapshot: list[str] = []
+        self._claims_version = -1
+        self._clients_dirty = False
+        self.faults = 0
+        self.started = False
+
+    # ---- lifecycle --------------------------------------------------------------------------
+    def start(self) -> None:
+        """Open zenoh, start the I/O thread, then the cycle thread (SCHED_FIFO set inside it).
+
+        Raises:
+            zenoh.ZError: the session could not be opened (e.g. endpoint in use).
+            RealtimeError: ``realtime="fifo"`` and SCHED_FIFO was refused.
+        """
+        configure_interpreter()
+        self.transport.open()
+        self.io.start()
+        # Objects made so far live as long as the server: keep the collector off them.
+        gc.collect()
+        gc.freeze()
+        try:
+            self.loop.start()
+        except BaseException:
+            self.io.stop()
+            self.transport.close()
+            raise
+        self.started = True
+        log.info("cycle thread: %s", self.loop.stats.timing_detail)
+
+    def stop(self) -> None:
+        """Stop the cycle, publish a last frame flagged ShuttingDown, close zenoh (idempotent)."""
+        if not self.started:
+            return
+        self.started = False
+        self.loop.stop()
+        core = self.core
+        try:
+            frame = encode_frame(core.cycle, core.nc_time_ns, core.nctoplc,  # type: ignore[attr-defined]
+                                 flags=int(FrameFlags.ShuttingDown))
+            self.io.submit(Outgoing(core.cycle, core.nc_time_ns, frame))  # type: ignore[attr-defined]
+        except Exception as exc:
+            log.warning("final frame: %s", exc)
+        # Queries still queued get no execution; finalize them so queriers do not wait.
+        while True:
+            try:
+                q = self.transport.queryable.try_recv()
+            except Exception:
+                break
+            if q is None:
+                break
+            try:
+                q.drop()
+            except Exception:
+                pass
+        self.io.stop()
+        self.transport.close()
+        gc.unfreeze()  # let the collector free the server's cycles at exit (frozen objects never are)
+
+    @property
+    def timing(self) -> str:
+        return self.loop.stats.timing
+
+    # ---- per cycle (cycle thread) -----------------------------------------------------------
+    def cycle(self, deadline_ns: int) -> None:
+        """One NC cycle scheduled at ``deadline_ns`` (CLOCK_MONOTONIC)."""
+        t = self.transport
+        core = self.core
+        claims = self.claims
+        now = time.monotonic()
+        if self._prev_start and now - self._prev_start > STALL_GRACE:
+            claims.grace(now)
+        self._prev_start = now
+
+        # Liveliness: PUT = client present, DELETE = gone (its claims fault in check()).
+        for _ in range(MAX_LIVELINESS_PER_CYCLE):
+            s = t.liveliness_sub.try_recv()
+            if s is None:
+                break
+            self._clients_dirty = True
+            client = str(s.key_expr).rsplit("/", 1)[-1]
+            if s.kind == zenoh.SampleKind.DELETE:
+                claims.client_gone(client)
+                self.handler.cache.forget_client(client)
+                log.info("client %s gone", client)
+            else:
+                claims.client_alive(client)
+                log.info("client %s present", client)
+
+        # Commands (bounded per cycle; the rest stay queued for the next one).
+        replies: list[tuple[Any, bytes]] = []
+        for _ in range(MAX_QUERIES_PER_CYCLE):
+            q = t.queryable.try_recv()
+            if q is None:
+                break
+            p = q.payload
+            replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
+
+        # PLCTONC: the newest frame of each client, applied to the axes it holds.
+        for client, f in t.pop_plc_frames():
+            claims.plctonc_arrived(client, f.arrival)
+            ids = f.axis_ids.astype(np.int64)
+            ok = (ids >= 0) & (ids < len(self._lut))
+            idx = np.where(ok, self._lut[np.where(ok, ids, 0)], -1)
+            held = claims.held_mask(client)
+            sel = np.flatnonzero((idx >= 0) & held[np.maximum(idx, 0)])
+            if sel.size:
+                self._apply_plctonc(idx[sel], f.plctonc[sel])
+
+        # Watchdog: lost clients and stale PLCTONC.
+        for axis_id, code in claims.check(now):
+            i = core.index(axis_id)
+            core.fault(i, code)  # type: ignore[attr-defined]
+            core.set_plctonc(i, core.default_plctonc())
+            self.faults += 1
+            log.warning("axis %d: fault 0x%04X (claim released)", axis_id, code)
+
+        core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
+
+        frame = encode_frame(core.cycle, core.nc_time_ns, core.nctoplc)  # type: ignore[attr-defined]
+        out = Outgoing(core.cycle, core.nc_time_ns, frame, replies=replies)  # type: ignore[attr-defined]
+        if t.nc_matched.any():
+            out.nc_idx = np.flatnonzero(t.nc_matched)
+        if t.pc_matched.any():
+            out.pc_idx = np.flatnonzero(t.pc_matched)
+            out.plctonc = core.plctonc.tobytes()  # type: ignore[attr-defined]
+        self.io.submit(out)
+        if claims.version != self._claims_version:
+            self._claims_version = claims.version
+            self._claims_snapshot = claims.claims()
+        if self._clients_dirty:
+            self._clients_dirty = False
+            self._clients_snapshot = claims.clients()
+
+    def _apply_plctonc(self, idx: np.ndarray, records: np.ndarray) -> None:
+        core = self.core
+        many = getattr(core, "set_plctonc_many", None)
+        if many is not None:
+            many(idx, records)
+            return
+        for i, r in zip(idx.tolist(), records):
+            core.set_plctonc(i, r)
+
+    def _nc_time_ns(self, deadline_ns: int) -> int:
+        """CLOCK_REALTIME at the scheduled start of the cycle [ns]."""
+        return deadline_ns + self._rt_offset
+
+    # ---- stats / info (read from other threads) ----------------------------------------------
+    def _info_extra(self) -> dict[str, Any]:
+        return {"timing": self.loop.stats.timing, "watchdog_timeout": self.config.watchdog_timeout}
+
+    def stats(self) -> dict[str, Any]:
+        """The stats map published on ``nc/<nc>/stats`` (protocol.json ``stats``)."""
+        st = self.loop.stats
+        d: dict[str, Any] = {"cycle": int(self.core.cycle), "cycle_time": self.config.cycle_time,
+                             "missed_cycles": int(st.missed_cycles), "overruns": int(st.overruns),
+                             "timing": st.timing}
+        d.update(st.percentiles())
+        d["claims"] = dict(self._claims_snapshot)
+        d["clients"] = list(self._clients_snapshot)
+        d.update({"requests": self.handler.requests, "request_errors": self.handler.errors,
+                  "dedup_hits": self.handler.cache.hits, "faults": self.faults,
+                  "plctonc_frames": self.transport.plc_frames, "plctonc_malformed": self.transport.plc_malformed,
+                  "frames_dropped": self.io.frames_dropped, "reply_errors": self.io.reply_errors})
+        return d

@@ -1,0 +1,122 @@
+"""``nc-server``: run the NC.
+
+Exit codes: 0 after SIGINT/SIGTERM (clean shutdown), 2 for an invalid configuration or
+command line, 1 when the NC cannot start (e.g. the listen endpoint is in use) or dies.
+Prints one line on stdout once it serves (tests wait for it), logs go to stderr.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import logging.handlers
+import queue
+import signal
+import sys
+import threading
+from typing import Sequence
+
+from nc_server.core.params import ConfigError
+
+from .config import REALTIME_MODES, check_endpoint, load_config
+
+log = logging.getLogger("nc_server.server")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="nc-server", description="zenoh-nc NC server (TwinCAT-style NC over zenoh).")
+    p.add_argument("--config", metavar="FILE", help="TOML configuration replacing the embedded default")
+    p.add_argument("--listen", metavar="ENDPOINT", action="append",
+                   help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable; replaces zenoh.listen)")
+    p.add_argument("--name", help="NC name (key prefix nc/<name>)")
+    p.add_argument("--cycle-time", type=float, metavar="SECONDS", help="NC cycle time [s], e.g. 0.001")
+    p.add_argument("--watchdog-timeout", type=float, metavar="SECONDS",
+                   help="maximum age of a claim holder's PLCTONC [s]")
+    p.add_argument("--realtime", choices=REALTIME_MODES, help="cycle thread scheduling (default from config: auto)")
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    return p
+
+
+def _setup_logging(level: str) -> logging.handlers.QueueListener:
+    # The cycle thread logs too: route records through a queue so it never blocks on stderr.
+    q: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
+    h = logging.StreamHandler(sys.stderr)
+    h.setFormatter(logging.Formatter("nc-server: %(levelname)s %(message)s"))
+    listener = logging.handlers.QueueListener(q, h)
+    root = logging.getLogger()
+    root.handlers[:] = [logging.handlers.QueueHandler(q)]
+    root.setLevel(level)
+    logging.getLogger("zenoh").setLevel(logging.WARNING)
+    listener.start()
+    return listener
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``nc-server`` (returns the exit code; also calls sys.exit when run as a script)."""
+    args = _parser().parse_args(argv)
+    try:
+        for i, ep in enumerate(args.listen or []):
+            check_endpoint(ep, f"--listen[{i}]")
+        cfg = load_config(args.config, listen=args.listen, name=args.name, cycle_time=args.cycle_time,
+                          realtime=args.realtime, watchdog_timeout=args.watchdog_timeout)
+    except ConfigError as exc:
+        print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
+        return 2
+
+    listener = _setup_logging(args.log_level)
+    try:
+        return _run(cfg)
+    finally:
+        listener.stop()
+
+
+def _run(cfg: object) -> int:
+    # Imported here so that `nc-server --help` and config errors stay fast.
+    import zenoh
+
+    from nc_server.core import NcCore
+
+    from .app import NcServer
+    from .config import ServerConfig
+    from .cycle import RealtimeError
+
+    assert isinstance(cfg, ServerConfig)
+    try:
+        core = NcCore(list(cfg.axes), cycle_time=cfg.cycle_time)
+    except ConfigError as exc:
+        print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
+        return 2
+
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+    server = NcServer(cfg, core)
+    try:
+        server.start()
+    except zenoh.ZError as exc:
+        log.error("cannot open zenoh on %s: %s", ", ".join(cfg.zenoh.listen), exc)
+        return 1
+    except RealtimeError as exc:
+        log.error("%s (use realtime = \"auto\" or \"off\")", exc)
+        return 1
+    print(f"nc-server {cfg.name} ready: {len(cfg.axes)} axes, cycle {cfg.cycle_time * 1e3:.3f} ms, "
+          f"timing {server.timing}, listening {', '.join(cfg.zenoh.listen)}", flush=True)
+    rc = 0
+    try:
+        while not stop.wait(0.5):
+            if not server.loop.alive:  # the cycle died (a bug): stop and say so
+                log.error("cycle thread ended unexpectedly: %r", server.loop.error)
+                rc = 1
+                break
+    finally:
+        server.stop()
+    log.info("stopped after %d cycles", int(core.cycle))
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main())

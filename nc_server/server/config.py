@@ -1,0 +1,233 @@
+"""Server configuration: TOML file (or the embedded ``default.toml``) plus command-line overrides.
+
+A configuration is checked completely before anything starts; every problem is reported as a
+:class:`~nc_server.core.params.ConfigError` whose ``key`` names the offending entry, e.g.
+``nc.cycle_time`` or ``axis[2].AxisVeloMax``.
+"""
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from nc_schema import Keys
+from nc_server.core.params import AxisConfig, AxisParams, ConfigError
+
+__all__ = ["ConfigError", "ServerConfig", "ZenohSettings", "load_config", "parse_config", "default_config_text",
+           "check_endpoint", "REALTIME_MODES"]
+
+REALTIME_MODES = ("auto", "fifo", "off")
+ZENOH_MODES = ("router", "peer")
+
+# proto/address[?metadata][#config]; the address part is checked per protocol below.
+_ENDPOINT_RE = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^?#]+)(?P<rest>[?#].*)?$")
+_HOSTPORT_RE = re.compile(r"^(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(?P<port>[0-9]{1,5})$")
+_PROTOS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """The zenoh session of the NC.
+
+    Attributes:
+        mode: ``"router"`` or ``"peer"``.
+        listen: explicit listen endpoints (at least one).
+        connect: endpoints to connect to (usually none).
+        lease_ms: transport lease in milliseconds (also what clients are told to use for us).
+    """
+
+    mode: str = "router"
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    connect: tuple[str, ...] = ()
+    lease_ms: int = 1000
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    """A checked server configuration.
+
+    Attributes:
+        name: NC name (key prefix ``nc/<name>``).
+        cycle_time: NC cycle [s].
+        watchdog_timeout: maximum age of a claim holder's PLCTONC before 0x8F02 [s].
+        realtime: ``"auto"``, ``"fifo"`` or ``"off"``.
+        rt_priority: SCHED_FIFO priority (1..99) of the cycle thread.
+        zenoh: the session settings.
+        axes: the axes in configuration order.
+    """
+
+    name: str = "nc1"
+    cycle_time: float = 0.001
+    watchdog_timeout: float = 0.5
+    realtime: str = "auto"
+    rt_priority: int = 49
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    axes: tuple[AxisConfig, ...] = ()
+
+
+def default_config_text() -> str:
+    """The embedded default configuration (TOML text)."""
+    return resources.files(__package__).joinpath("default.toml").read_text(encoding="utf-8")
+
+
+def check_endpoint(ep: Any, key: str) -> str:
+    """Return ``ep`` if it is a plausible zenoh endpoint (``tcp/127.0.0.1:7447`` ...).
+
+    Raises:
+        ConfigError: not a string, unknown protocol, missing/invalid host:port.
+    """
+    if not isinstance(ep, str):
+        raise ConfigError(key, f"endpoint must be a string like 'tcp/127.0.0.1:7447', got {ep!r}")
+    m = _ENDPOINT_RE.match(ep)
+    if not m or m["proto"] not in _PROTOS:
+        raise ConfigError(key, f"invalid endpoint {ep!r}: expected <proto>/<address> with proto one of {', '.join(_PROTOS)}")
+    if m["proto"] == "unixsock-stream":
+        return ep
+    hp = _HOSTPORT_RE.match(m["addr"])
+    if not hp or not 0 <= int(hp["port"]) <= 65535:
+        raise ConfigError(key, f"invalid endpoint {ep!r}: expected <proto>/<host>:<port> with port 0..65535")
+    return ep
+
+
+def _table(data: Mapping[str, Any], name: str, allowed: set[str]) -> Mapping[str, Any]:
+    t = data.get(name, {})
+    if not isinstance(t, Mapping):
+        raise ConfigError(name, f"must be a table, got {type(t).__name__}")
+    for k in t:
+        if k not in allowed:
+            raise ConfigError(f"{name}.{k}", f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    return t
+
+
+def _number(v: Any, key: str, lo: float, hi: float) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ConfigError(key, f"must be a number, got {v!r}")
+    if not lo <= v <= hi:
+        raise ConfigError(key, f"must be within {lo:g}..{hi:g}, got {v!r}")
+    return float(v)
+
+
+def _integer(v: Any, key: str, lo: int, hi: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ConfigError(key, f"must be an integer, got {v!r}")
+    if not lo <= v <= hi:
+        raise ConfigError(key, f"must be within {lo}..{hi}, got {v!r}")
+    return v
+
+
+def _choice(v: Any, key: str, choices: Sequence[str]) -> str:
+    if v not in choices:
+        raise ConfigError(key, f"must be one of {', '.join(repr(c) for c in choices)}, got {v!r}")
+    return v
+
+
+def _endpoints(v: Any, key: str) -> tuple[str, ...]:
+    if not isinstance(v, list):
+        raise ConfigError(key, f"must be a list of endpoints, got {v!r}")
+    return tuple(check_endpoint(ep, f"{key}[{i}]") for i, ep in enumerate(v))
+
+
+def _axes(data: Mapping[str, Any]) -> tuple[AxisConfig, ...]:
+    tables = data.get("axis")
+    if not isinstance(tables, list) or not tables:
+        raise ConfigError("axis", "at least one [[axis]] table is required")
+    axes: list[AxisConfig] = []
+    ids: dict[int, int] = {}
+    names: dict[str, int] = {}
+    for i, t in enumerate(tables):
+        where = f"axis[{i}]"
+        if not isinstance(t, Mapping):
+            raise ConfigError(where, "must be a table")
+        t = dict(t)
+        if "AxisId" not in t:
+            raise ConfigError(f"{where}.AxisId", "missing")
+        axis_id = t.pop("AxisId")
+        name = t.pop("Name", "")
+        if not isinstance(name, str) or len(name) > 64:
+            raise ConfigError(f"{where}.Name", f"must be a string of at most 64 characters, got {name!r}")
+        params = AxisParams.from_mapping(t, where=where)
+        try:
+            ax = AxisConfig(AxisId=axis_id, Name=name, params=params)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.{exc.key}", str(exc).split(": ", 1)[-1]) from None
+        if ax.AxisId in ids:
+            raise ConfigError(f"{where}.AxisId", f"duplicate AxisId {ax.AxisId} (also axis[{ids[ax.AxisId]}])")
+        if ax.Name in names:
+            raise ConfigError(f"{where}.Name", f"duplicate Name {ax.Name!r} (also axis[{names[ax.Name]}])")
+        ids[ax.AxisId] = i
+        names[ax.Name] = i
+        axes.append(ax)
+    return tuple(axes)
+
+
+def parse_config(data: Mapping[str, Any]) -> ServerConfig:
+    """Check a parsed TOML document and build the configuration.
+
+    Raises:
+        ConfigError: the first problem found, with its key.
+    """
+    for k in data:
+        if k not in ("nc", "zenoh", "axis"):
+            raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis)")
+    nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority"})
+    zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease"})
+    name = nc.get("name", "nc1")
+    try:
+        Keys(name if isinstance(name, str) else "")
+    except ValueError as exc:
+        raise ConfigError("nc.name", str(exc)) from None
+    cycle_time = _number(nc.get("cycle_time", 0.001), "nc.cycle_time", 0.0001, 1.0)
+    watchdog = _number(nc.get("watchdog_timeout", 0.5), "nc.watchdog_timeout", 0.0, 3600.0)
+    if watchdog < 2 * cycle_time:
+        raise ConfigError("nc.watchdog_timeout", f"must be at least two cycles ({2 * cycle_time:g} s), got {watchdog:g}")
+    realtime = _choice(nc.get("realtime", "auto"), "nc.realtime", REALTIME_MODES)
+    rt_priority = _integer(nc.get("rt_priority", 49), "nc.rt_priority", 1, 99)
+    mode = _choice(zn.get("mode", "router"), "zenoh.mode", ZENOH_MODES)
+    listen = _endpoints(zn.get("listen", ["tcp/127.0.0.1:7447"]), "zenoh.listen")
+    if not listen:
+        raise ConfigError("zenoh.listen", "at least one listen endpoint is required")
+    connect = _endpoints(zn.get("connect", []), "zenoh.connect")
+    lease = _integer(zn.get("lease", 1000), "zenoh.lease", 100, 600_000)
+    return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
+                        rt_priority=rt_priority, zenoh=ZenohSettings(mode, listen, connect, lease), axes=_axes(data))
+
+
+def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None, name: str | None = None,
+                cycle_time: float | None = None, realtime: str | None = None,
+                watchdog_timeout: float | None = None) -> ServerConfig:
+    """Load ``path`` (TOML) or the embedded default, then apply the command-line overrides.
+
+    Args:
+        path: a TOML file replacing the default as a whole; None for the embedded default.
+        listen: replaces ``zenoh.listen`` when given (non-empty).
+        name, cycle_time, realtime, watchdog_timeout: replace ``nc.*`` when given.
+
+    Raises:
+        ConfigError: unreadable file (key ``--config``), TOML syntax error, or any invalid value.
+    """
+    if path is None:
+        text, origin = default_config_text(), "default.toml"
+    else:
+        try:
+            text, origin = Path(path).read_text(encoding="utf-8"), str(path)
+        except OSError as exc:
+            raise ConfigError("--config", f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("--config", f"{origin}: TOML syntax error: {exc}") from None
+    nc = data.setdefault("nc", {})
+    zn = data.setdefault("zenoh", {})
+    if not isinstance(nc, dict) or not isinstance(zn, dict):
+        return parse_config(data)  # reports the non-table
+    if listen:
+        zn["listen"] = list(listen)
+    for key, value in (("name", name), ("cycle_time", cycle_time), ("realtime", realtime),
+                       ("watchdog_timeout", watchdog_timeout)):
+        if value is not None:
+            nc[key] = value
+    return parse_config(data)

@@ -1,0 +1,224 @@
+"""The fixed-rate cycle loop: the best timing the OS allows, counted honestly.
+
+* Scheduling: ``SCHED_FIFO`` on the cycle thread only, set from inside that thread (Linux:
+  pid 0 = the calling thread) after every zenoh thread exists, so nothing inherits it. If it
+  is not permitted the loop runs with normal scheduling (``realtime="auto"``) or refuses to
+  start (``realtime="fifo"``).
+* Waiting: sleep until deadline - 200 us (GIL released), then spin on the clock. While more
+  than :data:`SPIN_YIELD_NS` remain the spin calls ``os.sched_yield()`` (releases the GIL and
+  lets other threads in); only the last few microseconds are a pure spin. A FIFO thread never
+  spins 100 % (RT throttling is 950 ms per 1 s): it sleeps for most of every cycle.
+* Lateness: a deadline passed by more than one period is *missed*: the loop skips ahead to the
+  newest due deadline (cycles are never replayed). A cycle whose work ends after the next
+  deadline is an *overrun*.
+
+All times are CLOCK_MONOTONIC nanoseconds (``time.monotonic_ns``) unless noted.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+log = logging.getLogger("nc_server.server")
+
+#: Wake this long before the deadline and spin the rest [ns].
+SPIN_NS = 200_000
+#: Below this remaining time the spin stops yielding the GIL [ns].
+SPIN_YIELD_NS = 20_000
+#: Cycles kept in the timing ring buffers (10 s at 1 kHz).
+RING = 10_000
+#: sys.setswitchinterval while the server runs [s] (CPython default 5 ms is long against 1 ms cycles).
+SWITCH_INTERVAL = 0.0005
+
+
+class RealtimeError(RuntimeError):
+    """``realtime="fifo"`` was required but SCHED_FIFO is not permitted."""
+
+
+def set_realtime(mode: str, priority: int) -> tuple[str, str]:
+    """Apply the scheduling policy to the calling thread.
+
+    Args:
+        mode: ``"auto"`` (FIFO if permitted), ``"fifo"`` (required) or ``"off"``.
+        priority: SCHED_FIFO priority 1..99.
+
+    Returns:
+        (timing, detail): timing is ``"SCHED_FIFO"`` or ``"SCHED_OTHER"``; detail says why.
+
+    Raises:
+        RealtimeError: mode is ``"fifo"`` and the OS refused.
+    """
+    if mode == "off":
+        return "SCHED_OTHER", "realtime disabled by configuration"
+    if not hasattr(os, "sched_setscheduler"):
+        if mode == "fifo":
+            raise RealtimeError("SCHED_FIFO is not available on this platform")
+        return "SCHED_OTHER", "SCHED_FIFO not available on this platform"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        if mode == "fifo":
+            raise RealtimeError(f"SCHED_FIFO not permitted: {exc.strerror or exc}") from None
+        return "SCHED_OTHER", f"SCHED_FIFO not permitted ({exc.strerror or exc}); normal scheduling"
+    return "SCHED_FIFO", f"SCHED_FIFO priority {priority} on the cycle thread"
+
+
+def _reduce_timer_slack() -> None:
+    """Ask for 1 us timer slack (default 50 us) so normal-priority sleeps end closer to the deadline."""
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(29, 1000, 0, 0, 0)  # PR_SET_TIMERSLACK, in ns; affects the calling thread only
+    except Exception:  # not Linux or no prctl: keep the default slack
+        pass
+
+
+@dataclass
+class CycleStats:
+    """Counters and the timing ring buffers of a :class:`CycleLoop`.
+
+    ``work_us`` and ``lateness_us`` hold the last :data:`RING` cycles; read them with
+    :meth:`percentiles` (safe from another thread: it copies first).
+    """
+
+    cycles: int = 0
+    missed_cycles: int = 0
+    overruns: int = 0
+    timing: str = "not started"
+    timing_detail: str = ""
+
+    def __post_init__(self) -> None:
+        self.work_us = np.zeros(RING, dtype=np.float64)
+        self.lateness_us = np.zeros(RING, dtype=np.float64)
+
+    def record(self, work_ns: int, lateness_ns: int) -> None:
+        k = self.cycles % RING
+        self.work_us[k] = work_ns * 1e-3
+        self.lateness_us[k] = lateness_ns * 1e-3
+        self.cycles += 1
+
+    def percentiles(self) -> dict[str, float]:
+        """p50/p99/max of work and start lateness over the ring [us] (zeros before the first cycle)."""
+        n = min(self.cycles, RING)
+        if n == 0:
+            return {k: 0.0 for k in ("work_us_p50", "work_us_p99", "work_us_max",
+                                     "lateness_us_p50", "lateness_us_p99", "lateness_us_max")}
+        w = self.work_us[:n].copy()
+        lt = self.lateness_us[:n].copy()
+        wp = np.percentile(w, (50, 99))
+        lp = np.percentile(lt, (50, 99))
+        return {"work_us_p50": round(float(wp[0]), 1), "work_us_p99": round(float(wp[1]), 1),
+                "work_us_max": round(float(w.max()), 1), "lateness_us_p50": round(float(lp[0]), 1),
+                "lateness_us_p99": round(float(lp[1]), 1), "lateness_us_max": round(float(lt.max()), 1)}
+
+
+class CycleLoop:
+    """Calls ``work(deadline_ns)`` once per period until stopped.
+
+    Args:
+        period_s: the cycle time [s].
+        work: the cycle body; receives the deadline (scheduled start) of this cycle [ns,
+            CLOCK_MONOTONIC]. Exceptions propagate and end the loop (the caller decides).
+        realtime: ``"auto"``, ``"fifo"`` or ``"off"`` (see :func:`set_realtime`).
+        rt_priority: SCHED_FIFO priority.
+    """
+
+    def __init__(self, period_s: float, work: Callable[[int], None], realtime: str = "auto",
+                 rt_priority: int = 49) -> None:
+        self.period_ns = int(round(period_s * 1e9))
+        self.work = work
+        self.realtime = realtime
+        self.rt_priority = rt_priority
+        self.stats = CycleStats()
+        self.stop_event = threading.Event()
+        self.started = threading.Event()
+        self.error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+
+    # ---- thread control ---------------------------------------------------------------------
+    def start(self, name: str = "nc-cycle", timeout: float = 10.0) -> None:
+        """Start the cycle thread; returns once its scheduling is set.
+
+        Raises:
+            RealtimeError: SCHED_FIFO required but refused.
+            RuntimeError: the thread did not start in time.
+        """
+        self._thread = threading.Thread(target=self._main, name=name, daemon=True)
+        self._thread.start()
+        if not self.started.wait(timeout):
+            raise RuntimeError("cycle thread did not start")
+        if self.error is not None:
+            raise self.error
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Ask the loop to end and wait for it (the current cycle completes)."""
+        self.stop_event.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _main(self) -> None:
+        try:
+            self.stats.timing, self.stats.timing_detail = set_realtime(self.realtime, self.rt_priority)
+        except RealtimeError as exc:
+            self.error = exc
+            self.started.set()
+            return
+        if self.stats.timing != "SCHED_FIFO":
+            _reduce_timer_slack()
+        self.started.set()
+        try:
+            self.run()
+        except BaseException as exc:  # reported by the owner (it watches .alive / .error)
+            self.error = exc
+            log.exception("cycle loop ended by an exception")
+
+    # ---- the loop ---------------------------------------------------------------------------
+    def run(self) -> None:
+        """Run in the calling thread until :attr:`stop_event` is set."""
+        period = self.period_ns
+        stats = self.stats
+        stop = self.stop_event
+        work = self.work
+        clock = time.monotonic_ns
+        sleep = time.sleep
+        yield_ = os.sched_yield if hasattr(os, "sched_yield") else (lambda: sleep(0))
+        deadline = clock() + period
+        while not stop.is_set():
+            # Wait: sleep most of it, spin the end (yielding the GIL while there is time).
+            remaining = deadline - clock()
+            if remaining > SPIN_NS:
+                sleep((remaining - SPIN_NS) * 1e-9)
+            now = clock()
+            while now < deadline:
+                if deadline - now > SPIN_YIELD_NS:
+                    yield_()
+                now = clock()
+            late = now - deadline
+            if late >= period:
+                # Deadlines passed entirely: skip to the newest due one, never replay.
+                skipped = late // period
+                stats.missed_cycles += skipped
+                deadline += skipped * period
+                late -= skipped * period
+            work(deadline)
+            end = clock()
+            if end > deadline + period:
+                stats.overruns += 1
+            stats.record(end - now, late)
+            deadline += period
+
+
+def configure_interpreter() -> None:
+    """Process-wide settings that help a 1 kHz loop (called once before the loop starts)."""
+    sys.setswitchinterval(SWITCH_INTERVAL)

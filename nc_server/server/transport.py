@@ -1,0 +1,311 @@
+"""The NC's zenoh side: session, declarations, PLCTONC inbox and the I/O thread.
+
+Threads (all created by the thread that calls :meth:`Transport.open`, before the cycle thread
+takes SCHED_FIFO, so none inherits it):
+
+* zenoh's own Rust threads; matching listeners run on them (``Callback(indirect=False)``),
+  they only flip a flag in a numpy array;
+* one Python thread for the PLCTONC subscriber callback: it decodes a frame and keeps only
+  the newest one per client (:attr:`Transport.plc_inbox`);
+* the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats.
+
+The cycle thread itself only calls ``try_recv`` (non-blocking) on the command queryable and the
+liveliness subscriber, and hands its output to the I/O thread through a ``SimpleQueue``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import zenoh
+from zenoh.handlers import Callback, FifoChannel
+
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame, encode_stamp, pack
+
+from .config import ZenohSettings
+
+log = logging.getLogger("nc_server.server")
+
+#: Pending queries the queryable buffers (the cycle drains a bounded number per cycle).
+QUERY_CHANNEL = 1024
+#: Pending liveliness events.
+LIVELINESS_CHANNEL = 256
+#: Stats period [s].
+STATS_PERIOD = 0.1
+
+_HEADER = 32  # FRAME_HEADER size: per-axis NCTOPLC records start here in a status frame
+_NREC = NCTOPLC_DTYPE.itemsize
+_PREC = PLCTONC_DTYPE.itemsize
+
+
+def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+    """An explicit zenoh config: mode, listen/connect endpoints, no multicast or gossip scouting, lease.
+
+    Raises:
+        zenoh.ZError: zenoh rejected a value.
+    """
+    c = zenoh.Config()
+    c.insert_json5("mode", json.dumps(settings.mode))
+    c.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    c.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("scouting/gossip/enabled", "false")
+    c.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
+    return c
+
+
+@dataclass
+class PlcFrame:
+    """The newest PLCTONC frame of one client.
+
+    Attributes:
+        arrival: monotonic arrival time [s].
+        plc_cycle: the PLC's cycle counter.
+        axis_ids: AxisId per record (uint32 array).
+        plctonc: PLCTONC_AXIS_REF records (array, same length).
+    """
+
+    arrival: float
+    plc_cycle: int
+    axis_ids: np.ndarray
+    plctonc: np.ndarray
+
+
+@dataclass
+class Outgoing:
+    """What one cycle hands to the I/O thread.
+
+    Attributes:
+        cycle, nc_time_ns: the frame's cycle and NC time.
+        frame: the status frame bytes (header + NCTOPLC records).
+        plctonc: the applied PLCTONC records' bytes, or None when no per-axis plctonc subscriber.
+        nc_idx, pc_idx: axis indices whose nctoplc / plctonc publisher has a subscriber (or None).
+        replies: (query, reply payload) pairs.
+    """
+
+    cycle: int
+    nc_time_ns: int
+    frame: bytes
+    plctonc: bytes | None = None
+    nc_idx: np.ndarray | None = None
+    pc_idx: np.ndarray | None = None
+    replies: list[tuple[Any, bytes]] = field(default_factory=list)
+
+
+_STOP = object()
+
+
+class Transport:
+    """Session and declarations of one NC.
+
+    Args:
+        settings: zenoh settings.
+        keys: the NC's key expressions.
+        axis_ids: configured axis ids (publishers are declared per axis, in this order).
+    """
+
+    def __init__(self, settings: ZenohSettings, keys: Keys, axis_ids: list[int]) -> None:
+        self.settings = settings
+        self.keys = keys
+        self.axis_ids = list(axis_ids)
+        n = len(self.axis_ids)
+        #: True where the axis's nctoplc / plctonc publisher has a matching subscriber.
+        self.nc_matched = np.zeros(n, dtype=bool)
+        self.pc_matched = np.zeros(n, dtype=bool)
+        #: client id -> newest decoded frame (written by the subscriber thread, popped by the cycle).
+        self.plc_inbox: dict[str, PlcFrame] = {}
+        self.plc_frames = 0
+        self.plc_malformed = 0
+        self.session: zenoh.Session | None = None
+        self._decl: list[Any] = []
+
+    # ---- setup / teardown -------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the session and declare everything.
+
+        Raises:
+            zenoh.ZError: e.g. the listen endpoint is in use.
+        """
+        self.session = s = zenoh.open(zenoh_config(self.settings))
+        k = self.keys
+        self.queryable = s.declare_queryable(k.cmd_any, FifoChannel(QUERY_CHANNEL), complete=True)
+        self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any, FifoChannel(LIVELINESS_CHANNEL),
+                                                                history=True)
+        self.plc_sub = s.declare_subscriber(k.plctonc_in_any, self._on_plctonc)
+        pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
+        self.frame_pub = s.declare_publisher(k.frame, **pub)
+        self.stats_pub = s.declare_publisher(k.stats, **pub)
+        self.nc_pubs = []
+        self.pc_pubs = []
+        for i, a in enumerate(self.axis_ids):
+            p = s.declare_publisher(k.axis_nctoplc(a), **pub)
+            self._decl.append(p.declare_matching_listener(Callback(self._matcher(self.nc_matched, i), indirect=False)))
+            self.nc_pubs.append(p)
+            p = s.declare_publisher(k.axis_plctonc(a), **pub)
+            self._decl.append(p.declare_matching_listener(Callback(self._matcher(self.pc_matched, i), indirect=False)))
+            self.pc_pubs.append(p)
+        self.token = s.liveliness().declare_token(k.alive)
+
+    @staticmethod
+    def _matcher(arr: np.ndarray, i: int) -> Callable[[Any], None]:
+        def on_matching(status: Any) -> None:
+            arr[i] = bool(status.matching)
+        return on_matching
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent, never raises)."""
+        if self.session is None:
+            return
+        s, self.session = self.session, None
+        items = [getattr(self, "token", None), *self._decl, getattr(self, "plc_sub", None),
+                 getattr(self, "liveliness_sub", None), getattr(self, "queryable", None)]
+        items += getattr(self, "nc_pubs", []) + getattr(self, "pc_pubs", [])
+        items += [getattr(self, "frame_pub", None), getattr(self, "stats_pub", None)]
+        for d in items:
+            if d is None:
+                continue
+            try:
+                d.undeclare()
+            except Exception:  # already undeclared or session closing: nothing to do
+                pass
+        self._decl.clear()
+        try:
+            s.close()
+        except Exception as exc:
+            log.warning("closing the zenoh session: %s", exc)
+
+    # ---- PLCTONC subscriber (its own Python thread) -------------------------------------------
+    def _on_plctonc(self, sample: zenoh.Sample) -> None:
+        now = time.monotonic()
+        try:
+            client = str(sample.key_expr).rsplit("/", 1)[-1]
+            h, recs = decode_plc_frame(sample.payload.to_bytes())
+            frame = PlcFrame(now, int(h["PlcCycle"]), recs["AxisId"].copy(), recs["PlcToNc"].copy())
+        except Exception:  # malformed: counted and dropped, never crash the subscriber
+            self.plc_malformed += 1
+            return
+        self.plc_frames += 1
+        self.plc_inbox[client] = frame  # newest wins
+
+    def pop_plc_frames(self) -> list[tuple[str, PlcFrame]]:
+        """Take the newest frame of each client that sent one since the last call (cycle thread)."""
+        box = self.plc_inbox
+        out = []
+        for client in list(box):
+            f = box.pop(client, None)  # atomic under the GIL: a frame stored meanwhile stays for next cycle
+            if f is not None:
+                out.append((client, f))
+        return out
+
+
+class IoThread:
+    """Publishes what the cycle produced; never lets the network block the cycle.
+
+    Replies are all sent (then the query is finalized); if it fell behind, only the newest frame
+    and per-axis samples are published and the older ones are counted in :attr:`frames_dropped`.
+
+    Args:
+        transport: the open transport.
+        stats_source: returns the stats map (published every :data:`STATS_PERIOD` s).
+    """
+
+    def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]]) -> None:
+        self.t = transport
+        self.stats_source = stats_source
+        self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.frames_sent = 0
+        self.frames_dropped = 0
+        self.replies_sent = 0
+        self.reply_errors = 0
+        self.put_errors = 0
+        self._thread = threading.Thread(target=self._main, name="nc-io", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def submit(self, out: Outgoing) -> None:
+        """Hand one cycle's output over (cycle thread; never blocks)."""
+        self.q.put(out)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Send what is queued, then end the thread."""
+        self.q.put(_STOP)
+        self._thread.join(timeout)
+
+    def _main(self) -> None:
+        next_stats = time.monotonic() + STATS_PERIOD
+        running = True
+        while running:
+            try:
+                first = self.q.get(timeout=STATS_PERIOD)
+                batch = [first]
+                while True:
+                    try:
+                        batch.append(self.q.get_nowait())
+                    except queue.Empty:
+                        break
+            except queue.Empty:
+                batch = []
+            newest: Outgoing | None = None
+            for item in batch:
+                if item is _STOP:
+                    running = False
+                    continue
+                for q, payload in item.replies:
+                    self._reply(q, payload)
+                if newest is not None:
+                    self.frames_dropped += 1
+                newest = item
+            if newest is not None:
+                self._publish(newest)
+            now = time.monotonic()
+            if now >= next_stats or not running:
+                next_stats = now + STATS_PERIOD
+                self._publish_stats()
+
+    def _reply(self, q: Any, payload: bytes) -> None:
+        try:
+            q.reply(q.key_expr, payload)
+            self.replies_sent += 1
+        except Exception as exc:  # e.g. the querier is gone; the NC keeps going
+            self.reply_errors += 1
+            log.debug("reply failed: %s", exc)
+        finally:
+            try:
+                q.drop()  # finalize: the querier gets its answer now, not at its timeout
+            except Exception:
+                pass
+
+    def _publish(self, out: Outgoing) -> None:
+        t = self.t
+        try:
+            t.frame_pub.put(out.frame)
+            self.frames_sent += 1
+            if out.nc_idx is not None or out.plctonc is not None:
+                stamp = encode_stamp(out.cycle, out.nc_time_ns)
+                if out.nc_idx is not None:
+                    f = out.frame
+                    for i in out.nc_idx.tolist():
+                        o = _HEADER + i * _NREC
+                        t.nc_pubs[i].put(f[o:o + _NREC], attachment=stamp)
+                if out.plctonc is not None and out.pc_idx is not None:
+                    p = out.plctonc
+                    for i in out.pc_idx.tolist():
+                        o = i * _PREC
+                        t.pc_pubs[i].put(p[o:o + _PREC], attachment=stamp)
+        except Exception as exc:  # session closing, etc.
+            self.put_errors += 1
+            log.debug("put failed: %s", exc)
+
+    def _publish_stats(self) -> None:
+        try:
+            self.t.stats_pub.put(pack(self.stats_source()))
+        except Exception as exc:
+            self.put_errors += 1
+            log.debug("stats put failed: %s", exc)

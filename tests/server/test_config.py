@@ -1,0 +1,121 @@
+"""Server configuration: the embedded default, overrides, and errors that name their key."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from nc_server.core.params import ConfigError
+from nc_server.server import cli
+from nc_server.server.config import default_config_text, load_config
+
+DEFAULT = default_config_text()
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "nc.toml"
+    p.write_text(text)
+    return p
+
+
+def test_default_config() -> None:
+    cfg = load_config()
+    assert cfg.name == "nc1"
+    assert cfg.cycle_time == 0.001
+    assert cfg.watchdog_timeout == 0.5
+    assert cfg.realtime == "auto"
+    assert cfg.zenoh.mode == "router"
+    assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",)
+    assert cfg.zenoh.lease_ms == 1000
+    assert [(a.AxisId, a.Name) for a in cfg.axes] == [(1, "X"), (2, "Y"), (3, "Z"), (4, "C")]
+    c = cfg.axes[3].params
+    assert c.Modulo and c.AxisEncoderModuloValue == 360.0
+    assert not any(a.params.Modulo for a in cfg.axes[:3])
+    assert any(a.params.AxisEnMinSoftPosLimit and a.params.AxisEnMaxSoftPosLimit for a in cfg.axes)
+
+
+def test_default_is_package_data() -> None:
+    # Shipped next to config.py and read through importlib.resources (works from a wheel too).
+    assert "[[axis]]" in DEFAULT and 'name = "nc1"' in DEFAULT
+
+
+def test_overrides(tmp_path: Path) -> None:
+    cfg = load_config(listen=["tcp/127.0.0.1:17000", "tcp/127.0.0.1:17001"], name="mill", cycle_time=0.002,
+                      realtime="off", watchdog_timeout=1.5)
+    assert cfg.zenoh.listen == ("tcp/127.0.0.1:17000", "tcp/127.0.0.1:17001")
+    assert (cfg.name, cfg.cycle_time, cfg.realtime, cfg.watchdog_timeout) == ("mill", 0.002, "off", 1.5)
+    # --config replaces the default as a whole
+    p = write(tmp_path, '[nc]\nname = "lathe"\n[[axis]]\nAxisId = 7\nName = "S"\n')
+    cfg = load_config(p)
+    assert cfg.name == "lathe" and [a.AxisId for a in cfg.axes] == [7]
+    assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",)
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[nc]\nname = 'x'\n[bogus]\n", "bogus"),
+    ("[nc]\ncylce_time = 0.001\n", "nc.cylce_time"),
+    ("[nc]\ncycle_time = 'fast'\n", "nc.cycle_time"),
+    ("[nc]\ncycle_time = 0.0\n", "nc.cycle_time"),
+    ("[nc]\nwatchdog_timeout = true\n", "nc.watchdog_timeout"),
+    ("[nc]\nrealtime = 'always'\n", "nc.realtime"),
+    ("[nc]\nrt_priority = 120\n", "nc.rt_priority"),
+    ("[nc]\nname = 'a/b'\n", "nc.name"),
+    ("[zenoh]\nlisten = ['127.0.0.1:7447']\n", "zenoh.listen[0]"),
+    ("[zenoh]\nlisten = ['tcp/127.0.0.1:99999']\n", "zenoh.listen[0]"),
+    ("[zenoh]\nlisten = 'tcp/127.0.0.1:7447'\n", "zenoh.listen"),
+    ("[zenoh]\nlisten = []\n", "zenoh.listen"),
+    ("[zenoh]\nconnect = ['foo/bar']\n", "zenoh.connect[0]"),
+    ("[zenoh]\nmode = 'client'\n", "zenoh.mode"),
+    ("[zenoh]\nlease = 1.5\n", "zenoh.lease"),
+    ("[zenoh]\nmulticast = true\n", "zenoh.multicast"),
+])
+def test_errors_name_the_key(tmp_path: Path, text: str, key: str) -> None:
+    text += "\n[[axis]]\nAxisId = 1\n"
+    with pytest.raises(ConfigError) as ei:
+        load_config(write(tmp_path, text))
+    assert ei.value.key == key, str(ei.value)
+    assert key in str(ei.value)
+
+
+@pytest.mark.parametrize("axes, key", [
+    ("", "axis"),
+    ("[[axis]]\nName = 'X'\n", "axis[0].AxisId"),
+    ("[[axis]]\nAxisId = 1\n[[axis]]\nAxisId = 1\n", "axis[1].AxisId"),
+    ("[[axis]]\nAxisId = 1\nName = 'X'\n[[axis]]\nAxisId = 2\nName = 'X'\n", "axis[1].Name"),
+    ("[[axis]]\nAxisId = 0\n", "axis[0].AxisId"),
+    ("[[axis]]\nAxisId = 'one'\n", "axis[0].AxisId"),
+    ("[[axis]]\nAxisId = 1\nAxisVeloMaxx = 5.0\n", "axis[0].AxisVeloMaxx"),
+    ("[[axis]]\nAxisId = 1\nAxisVeloMax = -5.0\n", "axis[0].AxisVeloMax"),
+    ("[[axis]]\nAxisId = 1\nModulo = 'yes'\n", "axis[0].Modulo"),
+    ("[[axis]]\nAxisId = 1\nAxisEnMinSoftPosLimit = true\nAxisEnMaxSoftPosLimit = true\n"
+     "AxisMinSoftPosLimit = 10.0\nAxisMaxSoftPosLimit = 0.0\n", "axis[0].AxisMinSoftPosLimit"),
+])
+def test_axis_errors_name_the_key(tmp_path: Path, axes: str, key: str) -> None:
+    with pytest.raises(ConfigError) as ei:
+        load_config(write(tmp_path, "[nc]\nname = 'nc1'\n" + axes))
+    assert ei.value.key == key, str(ei.value)
+
+
+def test_file_errors(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as ei:
+        load_config(tmp_path / "missing.toml")
+    assert ei.value.key == "--config"
+    with pytest.raises(ConfigError) as ei:
+        load_config(write(tmp_path, "[nc\nname = 1\n"))
+    assert ei.value.key == "--config" and "TOML" in str(ei.value)
+
+
+def test_cli_exits_2_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    p = write(tmp_path, DEFAULT.replace("AxisId = 3", "AxisId = 2"))
+    assert cli.main(["--config", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "axis[2].AxisId" in err and "duplicate" in err
+    assert err.count("\n") == 1  # one clear line, no traceback
+
+    assert cli.main(["--listen", "tcp/127.0.0.1:70000"]) == 2
+    assert "--listen[0]" in capsys.readouterr().err
+    assert cli.main(["--cycle-time", "-1"]) == 2
+    assert "nc.cycle_time" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as ei:
+        cli.main(["--realtime", "sometimes"])
+    assert ei.value.code == 2

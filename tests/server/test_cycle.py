@@ -1,0 +1,101 @@
+"""The cycle loop: fixed rate, missed cycles skipped (never replayed), scheduling fallback."""
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from nc_server.server import cycle as cycle_mod
+from nc_server.server.cycle import CycleLoop, CycleStats, RealtimeError, set_realtime
+
+
+def run_loop(period: float, n: int, slow_at: int | None = None, slow_s: float = 0.0) -> tuple[CycleLoop, list[int]]:
+    deadlines: list[int] = []
+    loop: CycleLoop
+
+    def work(deadline_ns: int) -> None:
+        deadlines.append(deadline_ns)
+        if len(deadlines) == slow_at:
+            time.sleep(slow_s)
+        if len(deadlines) >= n:
+            loop.stop_event.set()
+
+    loop = CycleLoop(period, work, realtime="off")
+    loop.start()
+    deadline = time.monotonic() + 60
+    while loop.alive and time.monotonic() < deadline:
+        time.sleep(0.01)
+    loop.stop()
+    assert loop.error is None
+    return loop, deadlines
+
+
+def test_deadlines_are_a_fixed_grid() -> None:
+    loop, d = run_loop(0.002, 50)
+    assert len(d) == 50
+    steps = {(b - a) % loop.period_ns for a, b in zip(d, d[1:])}
+    assert steps == {0}  # every deadline lies on the period grid
+    assert all(b > a for a, b in zip(d, d[1:]))
+    st = loop.stats
+    assert st.cycles == 50 and st.timing == "SCHED_OTHER"
+    # every cycle either ran on its own deadline or was counted as missed
+    assert (d[-1] - d[0]) // loop.period_ns == 49 + st.missed_cycles
+
+
+def test_missed_cycles_are_skipped_not_replayed() -> None:
+    period = 0.002
+    loop, d = run_loop(period, 20, slow_at=5, slow_s=10 * period)
+    st = loop.stats
+    assert st.overruns >= 1
+    assert st.missed_cycles >= 8  # ~10 periods lost in the slow cycle
+    gap = (d[5] - d[4]) // loop.period_ns
+    assert gap >= 9  # the loop jumped ahead instead of running the lost cycles back to back
+    assert (d[-1] - d[0]) // loop.period_ns == 19 + st.missed_cycles
+
+
+def test_stats_percentiles() -> None:
+    st = CycleStats()
+    assert st.percentiles()["work_us_p99"] == 0.0
+    for k in range(100):
+        st.record(work_ns=(k + 1) * 1000, lateness_ns=5000)
+    p = st.percentiles()
+    assert p["work_us_max"] == 100.0 and 49 <= p["work_us_p50"] <= 52 and p["lateness_us_p99"] == 5.0
+
+
+def test_realtime_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert set_realtime("off", 49)[0] == "SCHED_OTHER"
+
+    def refuse(*_a: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(cycle_mod.os, "sched_setscheduler", refuse)
+    timing, detail = set_realtime("auto", 49)
+    assert timing == "SCHED_OTHER" and "not permitted" in detail
+    with pytest.raises(RealtimeError):
+        set_realtime("fifo", 49)
+    loop = CycleLoop(0.001, lambda d: None, realtime="fifo")
+    with pytest.raises(RealtimeError):
+        loop.start()
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux only")
+def test_fifo_only_on_the_cycle_thread() -> None:
+    seen: list[int] = []
+    loop: CycleLoop
+
+    def work(_d: int) -> None:
+        seen.append(os.sched_getscheduler(0))
+        loop.stop_event.set()
+
+    loop = CycleLoop(0.001, work, realtime="auto")
+    loop.start()
+    deadline = time.monotonic() + 30
+    while loop.alive and time.monotonic() < deadline:
+        time.sleep(0.01)
+    loop.stop()
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the starting thread is untouched
+    if loop.stats.timing == "SCHED_FIFO":
+        assert seen == [os.SCHED_FIFO]
+    else:
+        assert seen == [os.SCHED_OTHER] and "not permitted" in loop.stats.timing_detail
