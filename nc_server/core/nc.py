@@ -14,7 +14,8 @@ continuous moves -> feed enables -> drive -> monitoring -> NCTOPLC.
 """
 from __future__ import annotations
 
-from typing import Any, Iterable, Sequence
+import logging
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -31,6 +32,7 @@ from .monitoring import monitor
 from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
 from .profile import Limits, Planner, PlanningError, evaluate, stopping_distance
 
+_log = logging.getLogger(__name__)
 _EPS_V = 1e-9
 _EN = int(ControlDWord.Enable)
 _FP = int(ControlDWord.FeedEnablePlus)
@@ -162,6 +164,9 @@ class NcCore(CommandsMixin):
             out = self._dispatch(i, request)
         except NcError as err:
             return make_reply(rid, cmd, err.code, str(err), cycle)
+        except Exception as exc:  # a bug must cost one command, never the NC cycle
+            _log.exception("command %r failed", cmd)
+            return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
         return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
 
     def fault(self, index: int, code: int) -> None:
