@@ -14,13 +14,13 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from nc_schema import FrameFlags, Keys, encode_frame
+from nc_schema import FrameFlags, Keys
 
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import CycleLoop, configure_interpreter
 from .handler import CoreLike, RequestHandler
-from .transport import IoThread, Outgoing, Transport
+from .transport import IoThread, Outgoing, Transport, encode_frame_fast
 
 log = logging.getLogger("nc_server.server")
 
@@ -60,6 +60,7 @@ class NcServer:
         self._clients_snapshot: list[str] = []
         self._claims_version = -1
         self._clients_dirty = False
+        self._matched: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
         self.faults = 0
         self.started = False
 
@@ -94,7 +95,7 @@ class NcServer:
         self.loop.stop()
         core = self.core
         try:
-            frame = encode_frame(core.cycle, core.nc_time_ns, core.nctoplc,  # type: ignore[attr-defined]
+            frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc,  # type: ignore[attr-defined]
                                  flags=int(FrameFlags.ShuttingDown))
             self.io.submit(Outgoing(core.cycle, core.nc_time_ns, frame))  # type: ignore[attr-defined]
         except Exception as exc:
@@ -175,12 +176,13 @@ class NcServer:
 
         core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
 
-        frame = encode_frame(core.cycle, core.nc_time_ns, core.nctoplc)  # type: ignore[attr-defined]
+        frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc)  # type: ignore[attr-defined]
         out = Outgoing(core.cycle, core.nc_time_ns, frame, replies=replies)  # type: ignore[attr-defined]
-        if t.nc_matched.any():
-            out.nc_idx = np.flatnonzero(t.nc_matched)
-        if t.pc_matched.any():
-            out.pc_idx = np.flatnonzero(t.pc_matched)
+        if t.match_version != self._matched[0]:
+            self._matched = t.matched()
+        out.nc_idx = self._matched[1]
+        if self._matched[2] is not None:
+            out.pc_idx = self._matched[2]
             out.plctonc = core.plctonc.tobytes()  # type: ignore[attr-defined]
         self.io.submit(out)
         if claims.version != self._claims_version:

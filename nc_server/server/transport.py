@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -26,7 +27,8 @@ import numpy as np
 import zenoh
 from zenoh.handlers import Callback, FifoChannel
 
-from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame, encode_stamp, pack
+from nc_schema import FRAME_HEADER_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame, encode_stamp, pack
+from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 
 from .config import ZenohSettings
 
@@ -42,6 +44,20 @@ STATS_PERIOD = 0.1
 _HEADER = 32  # FRAME_HEADER size: per-axis NCTOPLC records start here in a status frame
 _NREC = NCTOPLC_DTYPE.itemsize
 _PREC = PLCTONC_DTYPE.itemsize
+
+
+_FRAME_HEADER = struct.Struct("<IHHQQHHI")  # FRAME_HEADER (structs.json), little-endian, 32 bytes
+assert _FRAME_HEADER.size == FRAME_HEADER_DTYPE.itemsize == _HEADER
+
+
+def encode_frame_fast(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0) -> bytes:
+    """Byte-identical to ``nc_schema.encode_frame`` (a unit test checks it), for the cycle's hot path.
+
+    The header is one ``struct.pack`` instead of a numpy record filled field by field
+    (about 1 us instead of 10-20 us on the reference machine).
+    """
+    return _FRAME_HEADER.pack(FRAME_MAGIC, WIRE_VERSION, _HEADER, cycle, nc_time_ns, len(records), _NREC,
+                              flags) + records.tobytes()
 
 
 def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
@@ -118,6 +134,8 @@ class Transport:
         #: True where the axis's nctoplc / plctonc publisher has a matching subscriber.
         self.nc_matched = np.zeros(n, dtype=bool)
         self.pc_matched = np.zeros(n, dtype=bool)
+        #: Bumped by every matching change (lets the cycle cache the matched indices).
+        self.match_version = 0
         #: client id -> newest decoded frame (written by the subscriber thread, popped by the cycle).
         self.plc_inbox: dict[str, PlcFrame] = {}
         self.plc_frames = 0
@@ -152,11 +170,18 @@ class Transport:
             self.pc_pubs.append(p)
         self.token = s.liveliness().declare_token(k.alive)
 
-    @staticmethod
-    def _matcher(arr: np.ndarray, i: int) -> Callable[[Any], None]:
-        def on_matching(status: Any) -> None:
+    def _matcher(self, arr: np.ndarray, i: int) -> Callable[[Any], None]:
+        def on_matching(status: Any) -> None:  # runs on a zenoh thread (indirect=False): keep it tiny
             arr[i] = bool(status.matching)
+            self.match_version += 1
         return on_matching
+
+    def matched(self) -> tuple[int, np.ndarray | None, np.ndarray | None]:
+        """(match_version, nctoplc indices, plctonc indices) of the publishers with subscribers (None: none)."""
+        v = self.match_version
+        nc = np.flatnonzero(self.nc_matched)
+        pc = np.flatnonzero(self.pc_matched)
+        return v, (nc if nc.size else None), (pc if pc.size else None)
 
     def close(self) -> None:
         """Undeclare everything and close the session (idempotent, never raises)."""

@@ -1,0 +1,33 @@
+"""Pieces of the transport that need no network: frame encoding, zenoh config."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nc_schema import NCTOPLC_DTYPE, decode_frame, encode_frame
+from nc_server.server.config import ZenohSettings
+from nc_server.server.transport import encode_frame_fast, zenoh_config
+
+
+@pytest.mark.parametrize("n, flags", [(0, 0), (1, 1), (4, 0), (256, 1)])
+def test_fast_frame_is_byte_identical(n: int, flags: int) -> None:
+    rng = np.random.default_rng(n)
+    recs = np.frombuffer(rng.integers(0, 256, n * NCTOPLC_DTYPE.itemsize, dtype=np.uint8).tobytes(),
+                         dtype=NCTOPLC_DTYPE)
+    cycle, t = 2**40 + 17, 1_763_900_000_123_456_789
+    fast = encode_frame_fast(cycle, t, recs, flags)
+    assert fast == encode_frame(cycle, t, recs, flags)
+    h, out = decode_frame(fast)
+    assert int(h["Cycle"]) == cycle and int(h["AxisCount"]) == n and int(h["Flags"]) == flags
+    assert out.tobytes() == recs.tobytes()
+
+
+def test_zenoh_config_is_explicit() -> None:
+    c = zenoh_config(ZenohSettings("router", ("tcp/127.0.0.1:17447",), (), 750))
+    assert json.loads(c.get_json("mode")) == "router"
+    assert json.loads(c.get_json("listen/endpoints")) == ["tcp/127.0.0.1:17447"]
+    assert json.loads(c.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(c.get_json("scouting/gossip/enabled")) is False
+    assert json.loads(c.get_json("transport/link/tx/lease")) == 750
