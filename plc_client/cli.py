@@ -96,7 +96,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, TypeError) as exc:
         print(f"plc-run: {exc}", file=sys.stderr, flush=True)
         return 2
-    rt.open(wait=2.0)
+    try:
+        rt.open(wait=2.0)
+    except KeyboardInterrupt:
+        rt.stop()
+        return 0
     print(f"plc-run {rt.client_id} running {args.program}: cycle {rt.cycle_time * 1000:.1f} ms, "
           f"NCs {', '.join(f'{k}={v}' for k, v in ncs.items())}", flush=True)
     rc = rt.run(args.duration)

@@ -1,0 +1,167 @@
+"""Test-side control of PLC processes running ``plc_agent.py`` under ``plc-run``."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+AGENT = Path(__file__).with_name("plc_agent.py")
+
+
+class Rec:
+    """One output change of a block: PLC cycle ``c``, outputs ``o``, axis data ``a``."""
+
+    __slots__ = ("c", "o", "a", "t")
+
+    def __init__(self, c: int, o: dict[str, Any], a: dict[str, Any]) -> None:
+        self.c, self.o, self.a, self.t = c, o, a, time.monotonic()
+
+    def __repr__(self) -> str:
+        on = [k for k, v in self.o.items() if v is True]
+        return f"Rec(c={self.c}, {on}, ErrorID=0x{int(self.o.get('ErrorID', 0)):X}, {self.a})"
+
+
+class PlcProcess:
+    """A ``plc-run tests/integration/plc_agent.py`` process.
+
+    Args:
+        endpoint: the NC's zenoh endpoint.
+        client_id: the PLC's client id.
+        nc: NC name.
+        extra: more plc-run arguments.
+    """
+
+    def __init__(self, endpoint: str, client_id: str, nc: str = "nc1", extra: list[str] | None = None) -> None:
+        self.client_id = client_id
+        cmd = [sys.executable, "-m", "plc_client.cli", str(AGENT), "--nc", f"{nc}={endpoint}",
+               "--client-id", client_id, "--cycle-time", "0.01", *(extra or [])]
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, bufsize=1, env=env)
+        self.records: dict[str, list[Rec]] = {}
+        self.cycle = 0
+        self.lines: list[str] = []
+        self.err_lines: list[str] = []
+        self._cv = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+        threading.Thread(target=self._read_err, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            with self._cv:
+                self.lines.append(line)
+                try:
+                    m = json.loads(line)
+                except ValueError:
+                    self._cv.notify_all()
+                    continue
+                if "c" in m:
+                    self.cycle = max(self.cycle, int(m["c"]))
+                if "n" in m:
+                    self.records.setdefault(m["n"], []).append(Rec(m["c"], m["o"], m["a"]))
+                self._cv.notify_all()
+        with self._cv:
+            self._cv.notify_all()
+
+    def _read_err(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.err_lines.append(line)
+
+    # -- commands --------------------------------------------------------------------------
+    def set(self, name: str, fb: str | None = None, axis: int = 1, nc: str = "nc1",
+            init: dict[str, Any] | None = None, **inputs: Any) -> None:
+        """Create block ``name`` of type ``fb`` on ``axis`` (first time) and set its inputs."""
+        msg: dict[str, Any] = {"op": "set", "name": name, "axis": axis, "nc": nc, "inputs": inputs}
+        if fb:
+            msg["fb"] = fb
+        if init:
+            msg["init"] = init
+        self._send(msg)
+
+    def delete(self, name: str) -> None:
+        self._send({"op": "del", "name": name})
+
+    def _send(self, msg: dict[str, Any]) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(json.dumps(msg) + "\n")
+        self.proc.stdin.flush()
+
+    # -- observation -----------------------------------------------------------------------
+    def last(self, name: str) -> Rec | None:
+        with self._cv:
+            recs = self.records.get(name)
+            return recs[-1] if recs else None
+
+    def history(self, name: str) -> list[Rec]:
+        with self._cv:
+            return list(self.records.get(name, []))
+
+    def wait(self, name: str, pred: Callable[[Rec], bool], timeout: float = 10.0) -> Rec:
+        """Wait until block ``name`` is in a state satisfying ``pred``: its current state (newest
+        record) or any record that arrives while waiting (so one-cycle pulses are not missed).
+
+        Raises:
+            AssertionError: timeout or the process ended; the message shows the history.
+        """
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            start = max(0, len(self.records.get(name, [])) - 1)
+            while True:
+                recs = self.records.get(name)
+                if recs:
+                    for r in recs[start:]:
+                        if pred(r):
+                            return r
+                if self.proc.poll() is not None:
+                    raise AssertionError(f"PLC {self.client_id} exited rc={self.proc.returncode}: "
+                                         f"{''.join(self.err_lines[-20:])}")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"{self.client_id}/{name}: condition not met in {timeout} s; "
+                                         f"history: {recs[-8:] if recs else None}\n{''.join(self.err_lines[-10:])}")
+                self._cv.wait(min(left, 0.1))
+
+    def wait_cycles(self, n: int, timeout: float = 10.0) -> None:
+        """Wait until the PLC has run ``n`` more cycles (needs the 50-cycle ticks or records)."""
+        target = self.cycle + n
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while self.cycle < target:
+                left = deadline - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None:
+                    raise AssertionError(f"{self.client_id}: only at cycle {self.cycle}, wanted {target}")
+                self._cv.wait(min(left, 0.1))
+
+    def wait_started(self, timeout: float = 15.0) -> None:
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while not any(line.startswith("plc-run ") for line in self.lines):
+                left = deadline - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None:
+                    raise AssertionError(f"plc-run did not start: {''.join(self.err_lines[-20:])}")
+                self._cv.wait(min(left, 0.1))
+
+    # -- end -------------------------------------------------------------------------------
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGTERM and wait (the runtime releases its claims); kills after ``timeout``."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        return self.proc.returncode
+
+    def __enter__(self) -> PlcProcess:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()

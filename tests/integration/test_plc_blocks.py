@@ -1,0 +1,136 @@
+"""The TcMC blocks through the real distributed path: ``nc-server`` and ``plc-run`` processes on
+127.0.0.1, commands as zenoh queries, status as the NC's frames, PLCTONC as the PLC's frames.
+
+The PLC process runs ``plc_agent.py`` (blocks created and driven from the test over stdin,
+output changes reported per PLC cycle on stdout). Deadlines are generous (loaded 2-core VM).
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Iterator
+
+import pytest
+
+from plc_harness import PlcProcess, Rec
+from znc_testing import NcServerProcess
+
+T = 30.0
+#: the watchdog is not what these tests are about: tolerate PLC stalls of a loaded machine
+NC_ARGS = ("--watchdog-timeout", "3.0")
+
+
+@pytest.fixture
+def nc(start_nc: Callable[..., NcServerProcess]) -> NcServerProcess:
+    return start_nc(extra_args=NC_ARGS)
+
+
+@pytest.fixture
+def plc(nc: NcServerProcess) -> Iterator[PlcProcess]:
+    p = PlcProcess(nc.endpoint, "plc-a")
+    try:
+        p.wait_started()
+        yield p
+    finally:
+        p.stop()
+
+
+def power_on(p: PlcProcess, axis: int = 1, name: str = "pw") -> Rec:
+    p.set(name, "MC_Power", axis=axis, Enable=True, Enable_Positive=True, Enable_Negative=True)
+    return p.wait(name, lambda r: r.o["Status"], T)
+
+
+def exclusive(recs: list[Rec]) -> None:
+    for r in recs:
+        on = [k for k in ("Busy", "Done", "InVelocity", "Error", "CommandAborted") if r.o.get(k)]
+        assert len(on) <= 1 or set(on) == {"Busy", "Done"} and r.o.get("Active"), r
+
+
+def test_power_and_move_absolute_done_held(plc: PlcProcess) -> None:
+    r = power_on(plc)
+    assert r.o["Busy"] and r.o["Active"] and not r.o["Error"] and r.a["State"] == "STANDSTILL"
+    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=40.0, Velocity=200.0)
+    plc.wait("mv", lambda r: r.o["Active"], T)
+    done = plc.wait("mv", lambda r: r.o["Done"], T)
+    assert math.isclose(done.a["ActPos"], 40.0, abs_tol=0.02) and done.a["State"] == "STANDSTILL"
+    plc.wait_cycles(30)
+    assert plc.last("mv").o["Done"], "Done is held while Execute stays TRUE"
+    exclusive(plc.history("mv"))
+    plc.set("mv", Execute=False)
+    plc.wait("mv", lambda r: not r.o["Done"], T)
+
+
+def test_done_pulse_and_retrigger(plc: PlcProcess) -> None:
+    power_on(plc)
+    plc.set("mv", "MC_MoveRelative", Execute=True, Distance=30.0, Velocity=20.0)
+    plc.wait("mv", lambda r: r.o["Active"], T)
+    plc.set("mv", Execute=False)
+    plc.wait_cycles(3)
+    # a rising edge while Busy: ignored (no new command: the axis ends at 30, not 60)
+    plc.set("mv", Execute=True, Distance=100.0)
+    plc.wait_cycles(2)
+    plc.set("mv", Execute=False)
+    end = plc.wait("mv", lambda r: not r.o["Busy"], T)
+    assert end.o["Done"]
+    plc.wait_cycles(5)
+    hist = plc.history("mv")
+    i = next(k for k, r in enumerate(hist) if r.o["Done"])
+    assert hist[i + 1].c == hist[i].c + 1 and not hist[i + 1].o["Done"], "Done for exactly one cycle"
+    assert math.isclose(hist[i].a["ActPos"], 30.0, abs_tol=0.02)
+    exclusive(hist)
+
+
+def test_move_velocity_override_halt_and_reads(plc: PlcProcess) -> None:
+    power_on(plc, axis=2)
+    plc.set("rs", "MC_ReadStatus", axis=2, Enable=True)
+    plc.set("jog", "MC_MoveVelocity", axis=2, Execute=True, Velocity=40.0, Direction=1)
+    r = plc.wait("jog", lambda r: r.o["InVelocity"], T)
+    assert not r.o["Busy"] and r.a["State"] == "CONTINOUSMOTION"
+    plc.wait("rs", lambda r: r.o["ContinuousMotion"] and r.o["ConstantVelocity"], T)
+    plc.set("ov", "MC_SetOverride", axis=2, Execute=True, Override=50.0)
+    plc.wait("ov", lambda r: r.o["Done"], T)
+    plc.set("pos", "MC_ReadActualPosition", axis=2, Enable=True)
+    p1 = plc.wait("pos", lambda r: r.o["Valid"], T)
+    plc.wait_cycles(100)  # 1 s at 50 % of 40 u/s: about 20 u further
+    plc.delete("pos")
+    plc.set("pos2", "MC_ReadActualPosition", axis=2, Enable=True)
+    p2 = plc.wait("pos2", lambda r: r.o["Valid"], T)
+    rate = (p2.o["Position"] - p1.o["Position"]) / ((p2.c - p1.c) * 0.01)
+    assert 10.0 < rate < 30.0, rate  # 20 u/s (PLC cycles may stretch on a loaded machine)
+    plc.set("halt", "MC_Halt", axis=2, Execute=True)
+    plc.wait("halt", lambda r: r.o["Done"], T)
+    plc.wait("rs", lambda r: r.o["StandStill"] and not r.o["ContinuousMotion"], T)
+
+
+def test_errors_reset_and_rejections(plc: PlcProcess) -> None:
+    power_on(plc)
+    plc.set("bm", "MC_MoveAbsolute", Execute=True, Position=1.0, Velocity=1.0, BufferMode=1)
+    assert plc.wait("bm", lambda r: r.o["Error"], T).o["ErrorID"] == 0x4B64
+    plc.set("bad", "MC_MoveAbsolute", Execute=True, Position=1.0, Velocity=-5.0)
+    assert plc.wait("bad", lambda r: r.o["Error"], T).o["ErrorID"] == 0x4221
+    plc.set("far", "MC_MoveAbsolute", Execute=True, Position=5000.0, Velocity=10.0)
+    assert plc.wait("far", lambda r: r.o["Error"], T).o["ErrorID"] == 0x4222  # beyond the soft limit
+    # an axis error: feed enable plus withdrawn while moving in plus direction
+    plc.set("err", "MC_ReadAxisError", Enable=True)
+    plc.set("jog", "MC_MoveVelocity", Execute=True, Velocity=20.0)
+    plc.wait("jog", lambda r: r.o["InVelocity"], T)
+    plc.set("pw", Enable_Positive=False)
+    e = plc.wait("err", lambda r: r.o["AxisErrorID"] != 0, T)
+    assert e.o["AxisErrorID"] == 0x4358 and e.a["State"] == "ERRORSTOP"
+    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=0.0, Velocity=10.0)
+    assert plc.wait("mv", lambda r: r.o["Error"], T).o["ErrorID"] == 0x4B01
+    plc.set("rst", "MC_Reset", Execute=True)
+    plc.wait("rst", lambda r: r.o["Done"], T)
+    plc.wait("err", lambda r: r.o["AxisErrorID"] == 0 and r.a["State"] == "STANDSTILL", T)
+    plc.set("mv", Execute=False)
+    plc.wait("mv", lambda r: not r.o["Error"], T)
+    plc.set("mv", Execute=True)
+    plc.wait("mv", lambda r: r.o["Done"], T)
+
+
+def test_power_off_disables(plc: PlcProcess) -> None:
+    power_on(plc)
+    plc.set("mv", "MC_MoveVelocity", Execute=True, Velocity=10.0)
+    plc.wait("mv", lambda r: r.o["InVelocity"] or r.o["Active"], T)
+    plc.set("pw", Enable=False)
+    r = plc.wait("pw", lambda r: not r.o["Status"] and r.a["State"] == "DISABLED", T)
+    assert not r.o["Busy"] and not r.o["Error"]
