@@ -135,3 +135,15 @@ def test_power_off_disables(plc: PlcProcess) -> None:
     plc.set("pw", Enable=False)
     r = plc.wait("pw", lambda r: not r.o["Status"] and r.a["State"] == "DISABLED", T)
     assert not r.o["Busy"] and not r.o["Error"]
+
+
+def test_move_modulo_on_the_modulo_axis(plc: PlcProcess) -> None:
+    power_on(plc, axis=4)
+    plc.set("mm", "MC_MoveModulo", axis=4, Execute=True, Position=90.0, Velocity=360.0, Direction=1)
+    done = plc.wait("mm", lambda r: r.o["Done"], T)
+    assert abs(done.a["ActPos"] - 90.0) < 0.05
+    plc.set("mm", Execute=False)
+    plc.wait_cycles(2)
+    plc.set("mm", Execute=True, Position=45.0, Direction=1)  # positive direction: a full turn minus 45
+    done = plc.wait("mm", lambda r: r.o["Done"] and r.a["ActPos"] > 300.0, T)
+    assert abs(done.a["ActPos"] - 405.0) < 0.05
