@@ -12,7 +12,6 @@ import time
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from nc_schema import FrameFlags, Keys
 
@@ -26,8 +25,8 @@ log = logging.getLogger("nc_server.server")
 
 #: Queries executed per cycle at most (the rest wait for the next cycle).
 MAX_QUERIES_PER_CYCLE = 32
-#: Liveliness events handled per cycle at most.
-MAX_LIVELINESS_PER_CYCLE = 64
+#: ... and no new one once this much of the cycle went into requests [ns] (a flood cannot stall the NC).
+QUERY_BUDGET_NS = 250_000
 #: A gap between two cycle starts longer than this means the NC itself stalled [s]:
 #: nobody is blamed for PLCTONC that could not be processed meanwhile.
 STALL_GRACE = 0.05
@@ -132,28 +131,28 @@ class NcServer:
         self._prev_start = now
 
         # Liveliness: PUT = client present, DELETE = gone (its claims fault in check()).
-        for _ in range(MAX_LIVELINESS_PER_CYCLE):
-            s = t.liveliness_sub.try_recv()
-            if s is None:
-                break
+        if t.liveliness_events:
             self._clients_dirty = True
-            client = str(s.key_expr).rsplit("/", 1)[-1]
-            if s.kind == zenoh.SampleKind.DELETE:
-                claims.client_gone(client)
-                self.handler.cache.forget_client(client)
-                log.info("client %s gone", client)
-            else:
-                claims.client_alive(client)
-                log.info("client %s present", client)
+            for client, present in t.pop_liveliness():
+                if present:
+                    claims.client_alive(client)
+                    log.info("client %s present", client)
+                else:
+                    claims.client_gone(client)
+                    self.handler.cache.forget_client(client)
+                    log.info("client %s gone", client)
 
         # Commands (bounded per cycle; the rest stay queued for the next one).
         replies: list[tuple[Any, bytes]] = []
+        budget_end = time.monotonic_ns() + QUERY_BUDGET_NS
         for _ in range(MAX_QUERIES_PER_CYCLE):
             q = t.queryable.try_recv()
             if q is None:
                 break
             p = q.payload
             replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
+            if time.monotonic_ns() > budget_end:
+                break
 
         # PLCTONC: the newest frame of each client, applied to the axes it holds.
         for client, f in t.pop_plc_frames():

@@ -5,15 +5,17 @@ takes SCHED_FIFO, so none inherits it):
 
 * zenoh's own Rust threads; matching listeners run on them (``Callback(indirect=False)``),
   they only flip a flag in a numpy array;
+* liveliness events are queued by a callback on a zenoh thread (a deque append);
 * one Python thread for the PLCTONC subscriber callback: it decodes a frame and keeps only
   the newest one per client (:attr:`Transport.plc_inbox`);
 * the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats.
 
-The cycle thread itself only calls ``try_recv`` (non-blocking) on the command queryable and the
-liveliness subscriber, and hands its output to the I/O thread through a ``SimpleQueue``.
+The cycle thread itself only calls ``try_recv`` (non-blocking) on the command queryable, pops the
+liveliness and PLCTONC inboxes, and hands its output to the I/O thread through a ``SimpleQueue``.
 """
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import queue
@@ -36,8 +38,6 @@ log = logging.getLogger("nc_server.server")
 
 #: Pending queries the queryable buffers (the cycle drains a bounded number per cycle).
 QUERY_CHANNEL = 1024
-#: Pending liveliness events.
-LIVELINESS_CHANNEL = 256
 #: Stats period [s].
 STATS_PERIOD = 0.1
 
@@ -93,7 +93,7 @@ class PlcFrame:
     plctonc: np.ndarray
 
 
-@dataclass
+@dataclass(slots=True)
 class Outgoing:
     """What one cycle hands to the I/O thread.
 
@@ -138,6 +138,8 @@ class Transport:
         self.match_version = 0
         #: client id -> newest decoded frame (written by the subscriber thread, popped by the cycle).
         self.plc_inbox: dict[str, PlcFrame] = {}
+        #: (client id, present?) liveliness events in arrival order (appended by zenoh, popped by the cycle).
+        self.liveliness_events: collections.deque[tuple[str, bool]] = collections.deque()
         self.plc_frames = 0
         self.plc_malformed = 0
         self.session: zenoh.Session | None = None
@@ -153,7 +155,9 @@ class Transport:
         self.session = s = zenoh.open(zenoh_config(self.settings))
         k = self.keys
         self.queryable = s.declare_queryable(k.cmd_any, FifoChannel(QUERY_CHANNEL), complete=True)
-        self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any, FifoChannel(LIVELINESS_CHANNEL),
+        # Liveliness events are rare: a zenoh-thread callback queues them, so the cycle only tests a deque.
+        self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any,
+                                                                Callback(self._on_liveliness, indirect=False),
                                                                 history=True)
         self.plc_sub = s.declare_subscriber(k.plctonc_in_any, self._on_plctonc)
         pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
@@ -205,6 +209,19 @@ class Transport:
         except Exception as exc:
             log.warning("closing the zenoh session: %s", exc)
 
+    # ---- liveliness (zenoh thread) -------------------------------------------------------------
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        client = str(sample.key_expr).rsplit("/", 1)[-1]
+        self.liveliness_events.append((client, sample.kind != zenoh.SampleKind.DELETE))
+
+    def pop_liveliness(self) -> list[tuple[str, bool]]:
+        """Liveliness events since the last call: (client id, True = token present / False = gone)."""
+        ev = self.liveliness_events
+        out = []
+        while ev:
+            out.append(ev.popleft())
+        return out
+
     # ---- PLCTONC subscriber (its own Python thread) -------------------------------------------
     def _on_plctonc(self, sample: zenoh.Sample) -> None:
         now = time.monotonic()
@@ -221,6 +238,8 @@ class Transport:
     def pop_plc_frames(self) -> list[tuple[str, PlcFrame]]:
         """Take the newest frame of each client that sent one since the last call (cycle thread)."""
         box = self.plc_inbox
+        if not box:
+            return []
         out = []
         for client in list(box):
             f = box.pop(client, None)  # atomic under the GIL: a frame stored meanwhile stays for next cycle

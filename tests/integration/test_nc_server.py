@@ -287,3 +287,23 @@ def test_second_claimant_refused_and_duplicate_request_runs_once(
               "work_us_max", "lateness_us_p99", "clients"):
         assert k in stats
     assert stats["timing"] in ("SCHED_FIFO", "SCHED_OTHER") and stats["dedup_hits"] >= 1
+
+
+def test_request_burst_is_answered_completely(nc_server: NcServerProcess,
+                                              nc_client: Callable[..., NcTestClient]) -> None:
+    # 300 requests in flight at once: drained a bounded number per cycle, every one answered.
+    cl = nc_client(nc_server.port, "burst")
+    handlers = [cl.session.get("nc/nc1/axis/2/cmd", timeout=T,
+                               payload=msgpack.packb({"id": k, "client": "burst", "cmd": "ReadParameter",
+                                                      "ParameterNumber": 1003}))
+                for k in range(300)]
+    answers = {}
+    for h in handlers:
+        for r in h:
+            assert r.ok is not None
+            m = msgpack.unpackb(r.ok.payload.to_bytes(), strict_map_key=False)
+            answers[m["id"]] = m
+    assert sorted(answers) == list(range(300))
+    assert all(m["error"] == 0 and m["Value"] == 500.0 for m in answers.values())
+    cycles = sorted({m["cycle"] for m in answers.values()})
+    assert len(cycles) >= 300 // 32  # spread over several cycles, at most 32 per cycle
