@@ -144,8 +144,21 @@ class NcCore(CommandsMixin):
             if len(record) != PLCTONC_DTYPE.itemsize:
                 raise ValueError(f"PLCTONC is {PLCTONC_DTYPE.itemsize} bytes, got {len(record)}")
             record = np.frombuffer(record, dtype=PLCTONC_DTYPE, count=1)[0]
-        if self.plctonc[index] != record:
+        if self.plctonc[index].tobytes() != np.asarray(record, dtype=PLCTONC_DTYPE).tobytes():
             self.plctonc[index] = record
+            self._in_dirty = True
+
+    def set_plctonc_many(self, index: np.ndarray, records: np.ndarray) -> None:
+        """Apply PLCTONC records to several axis rows at once (vectorized :meth:`set_plctonc`).
+
+        Args:
+            index: axis rows (int array).
+            records: PLCTONC_DTYPE array of the same length.
+        """
+        new = np.ascontiguousarray(records, dtype=PLCTONC_DTYPE)
+        old = self.plctonc[index]
+        if old.tobytes() != new.tobytes():
+            self.plctonc[index] = new
             self._in_dirty = True
 
     def execute(self, request: dict[str, Any], axis_id: int | None) -> dict[str, Any]:

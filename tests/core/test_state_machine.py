@@ -1,4 +1,5 @@
 """PLCopen state transitions as seen through the cyclic interface."""
+import numpy as np
 import pytest
 
 from nc_schema import CmdState, ControlDWord, ErrorCodes, MC_AxisStates as S, StateDWord
@@ -127,3 +128,17 @@ def test_superseded_command_shows_newer_cmdno():
     second = cmd(core, "MoveAbsolute", Position=50.0, Velocity=100.0)["CmdNo"]
     core.step()
     assert second == first + 1 and core.nctoplc[0]["CmdNo"] == second
+
+
+def test_set_plctonc_many_applies_and_is_idempotent():
+    core = make_core(3)
+    core.step()
+    recs = np.zeros(2, dtype=core.plctonc.dtype)
+    recs["ControlDWord"] = ALL_ENABLES
+    recs["Override"] = 1_000_000
+    core.set_plctonc_many(np.array([0, 2]), recs)
+    core.step()
+    assert [state(core, i) for i in range(3)] == [S.MC_AXISSTATE_STANDSTILL, S.MC_AXISSTATE_DISABLED,
+                                                  S.MC_AXISSTATE_STANDSTILL]
+    core.set_plctonc_many(np.array([0, 2]), recs)  # unchanged frame: nothing to re-derive
+    assert not core._in_dirty
