@@ -7,9 +7,10 @@ What runs (per axis count, one after the other, in this process):
     subscribed axes;
   * a subscriber process (client mode) taking the frame and the per-axis samples of 4 axes,
     so the puts go to a real remote subscriber;
-  * every axis enabled (PLCTONC preset in the core: no claims) and moving: MoveAbsolute
-    back and forth between two targets, so the axes are always in a jerk-limited profile, with
-    ~10 % of them re-targeted every 50 ms through ``core.execute`` (between cycles, in the cycle thread).
+  * every axis enabled (PLCTONC preset in the core: no claims) and moving: long MoveAbsolute
+    profiles, plus one re-target per cycle (1000 commands/s, round robin) through
+    ``core.execute`` inside the cycle, as requests from clients would run (the command cost is
+    part of the measured work).
 
 Measured by the loop itself: work time per cycle (drain, PLCTONC, watchdog, core.step,
 encode_frame, hand-off) and start lateness (actual start - deadline), p50/p99/max in us over
@@ -81,23 +82,41 @@ def make_server(n_axes: int, port: int, realtime: str) -> tuple[NcServer, NcCore
 
 
 class Mover:
-    """Keeps every axis in a MoveAbsolute profile; runs inside the cycle (wraps NcServer.cycle)."""
+    """Keeps every axis moving; runs inside the cycle (wraps NcServer.cycle).
+
+    Every axis starts a long MoveAbsolute (targets +/-1000 at 100..400 units/s: several seconds);
+    then one re-target per cycle, round robin (1000 commands/s, each aborting and re-planning a
+    moving axis), as commands would arrive from PLC clients.
+    """
 
     def __init__(self, server: NcServer, core: NcCore) -> None:
         self.core = core
+        # Split of the work: time in core.step and in core.execute per cycle [ns] (ring, like the loop's).
+        self.step_ns = np.zeros(RING, dtype=np.int64)
+        self.exec_ns = np.zeros(RING, dtype=np.int64)
+        self.cycles = 0
+        step = core.step
+
+        def timed_step(nc_time_ns: int | None = None) -> None:
+            t0 = time.perf_counter_ns()
+            step(nc_time_ns)
+            self.step_ns[self.cycles % RING] = time.perf_counter_ns() - t0
+
+        core.step = timed_step  # type: ignore[method-assign]
         self.n = len(core.axis_ids)
+        self.ids = [int(a) for a in core.axis_ids]
         self.inner = server.cycle
         self.k = 0
         self.rejected = 0
-        self.rid = 0
+        self.sign = [1.0] * self.n
         server.loop.work = self.cycle
 
     def command(self, i: int) -> None:
-        self.rid += 1
-        target = 100.0 if float(self.core.nctoplc[i]["SetPos"]) < 50.0 else 0.0
-        r = self.core.execute({"id": self.rid, "client": "", "cmd": "MoveAbsolute", "Position": target,
-                               "Velocity": 200.0 + (i % 7) * 50.0, "Acceleration": 0.0, "Deceleration": 0.0,
-                               "Jerk": 0.0, "BufferMode": 0}, int(self.core.axis_ids[i]))
+        self.k += 1
+        self.sign[i] = -self.sign[i]
+        r = self.core.execute({"id": self.k, "client": "", "cmd": "MoveAbsolute", "Position": 1000.0 * self.sign[i],
+                               "Velocity": 100.0 + (i % 4) * 100.0, "Acceleration": 0.0, "Deceleration": 0.0,
+                               "Jerk": 0.0, "BufferMode": 0}, self.ids[i])
         if r["error"]:
             self.rejected += 1
 
@@ -106,16 +125,11 @@ class Mover:
             self.command(i)
 
     def cycle(self, deadline_ns: int) -> None:
-        self.k += 1
-        if self.k % 50 == 0:  # re-target ~10 % of the axes every 50 ms (commands as they arrive in a real NC)
-            for i in range((self.k // 50) % 10, self.n, 10):
-                self.command(i)
-        else:
-            # axes whose profile ended turn around (always moving)
-            done = np.flatnonzero(~self.core.moving)
-            for i in done[:4].tolist():
-                self.command(i)
+        t0 = time.perf_counter_ns()
+        self.command(self.k % self.n)
+        self.exec_ns[self.cycles % RING] = time.perf_counter_ns() - t0
         self.inner(deadline_ns)
+        self.cycles += 1
 
 
 def window(arr: np.ndarray, c0: int, c1: int) -> np.ndarray:
@@ -145,19 +159,21 @@ def run_one(n_axes: int, seconds: float, realtime: str) -> dict[str, Any]:
             raise RuntimeError("subscriber did not start")
         time.sleep(1.5)  # warm-up: connection, first puts of new publishers, matching
         st = server.loop.stats
-        c0, m0, o0, d0 = st.cycles, st.missed_cycles, st.overruns, server.io.frames_dropped
+        c0, m0, o0, d0, k0 = st.cycles, st.missed_cycles, st.overruns, server.io.frames_dropped, mover.cycles
         sub.stdin.write("go\n")
         sub.stdin.flush()
         time.sleep(seconds)
-        c1, m1, o1, d1 = st.cycles, st.missed_cycles, st.overruns, server.io.frames_dropped
+        c1, m1, o1, d1, k1 = st.cycles, st.missed_cycles, st.overruns, server.io.frames_dropped, mover.cycles
         sub.stdin.write("stop\n")
         sub.stdin.flush()
         got = json.loads(sub.stdout.readline())
         work = window(st.work_us, c0, c1)
+        step_us = window(mover.step_ns, k0, k1) / 1000.0
+        exec_us = window(mover.exec_ns, k0, k1) / 1000.0
         late = window(st.lateness_us, c0, c1)
         moving = int(np.count_nonzero(core.moving))
         return {"axes": n_axes, "timing": st.timing, "cycles": c1 - c0, "missed": m1 - m0, "overruns": o1 - o0,
-                "work": work.copy(), "late": late.copy(), "moving": moving, "frames_dropped": d1 - d0,
+                "work": work.copy(), "late": late.copy(), "step": step_us, "exec": exec_us, "moving": moving, "frames_dropped": d1 - d0,
                 "sub_frames": got["frame"], "sub_axis_samples": got["axis"], "rejected": mover.rejected}
     finally:
         server.stop()
@@ -188,6 +204,14 @@ def main() -> int:
         print(f"{r['axes']:>5} {r['timing']:>11} {r['cycles']:>7} | {pct(r['work']):>28} | {pct(r['late']):>28} | "
               f"{r['missed']:>6} {r['overruns']:>7} | {r['moving']:>3}/{r['axes']:<3}  {r['sub_frames']} / "
               f"{r['sub_axis_samples']}")
+    print()
+    print("where the work goes (p50 / p99 us): core.step | core.execute of the cycle's command | the rest "
+          "(server: drain, PLCTONC, watchdog, frame, hand-off; p50 of work minus the two)")
+    for r in rows:
+        s50, s99 = np.percentile(r["step"], (50, 99))
+        e50, e99 = np.percentile(r["exec"], (50, 99))
+        rest = float(np.percentile(r["work"], 50)) - s50 - e50
+        print(f"{r['axes']:>5}: step {s50:6.1f} / {s99:7.1f} | execute {e50:6.1f} / {e99:7.1f} | rest ~{rest:6.1f}")
     print()
     for r in rows:
         goal = GOALS.get(r["axes"])

@@ -27,6 +27,8 @@ log = logging.getLogger("nc_server.server")
 MAX_QUERIES_PER_CYCLE = 32
 #: ... and no new one once this much of the cycle went into requests [ns] (a flood cannot stall the NC).
 QUERY_BUDGET_NS = 250_000
+#: Hand replies to the I/O thread right after the requests ran (before core.step()).
+EARLY_REPLIES = True
 #: A gap between two cycle starts longer than this means the NC itself stalled [s]:
 #: nobody is blamed for PLCTONC that could not be processed meanwhile.
 STALL_GRACE = 0.05
@@ -153,6 +155,11 @@ class NcServer:
             replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
             if time.monotonic_ns() > budget_end:
                 break
+        if replies and EARLY_REPLIES:
+            # Answer now rather than after core.step(): the reply's cycle says from which frame on
+            # the command shows, so clients lose nothing and get their answer a step earlier.
+            self.io.submit_replies(replies)
+            replies = []
 
         # PLCTONC: the newest frame of each client, applied to the axes it holds.
         for client, f in t.pop_plc_frames():

@@ -277,6 +277,10 @@ class IoThread:
         """Hand one cycle's output over (cycle thread; never blocks)."""
         self.q.put(out)
 
+    def submit_replies(self, replies: list[tuple[Any, bytes]]) -> None:
+        """Hand replies over ahead of the cycle's frame (cycle thread; never blocks)."""
+        self.q.put(replies)
+
     def stop(self, timeout: float = 5.0) -> None:
         """Send what is queued, then end the thread."""
         self.q.put(_STOP)
@@ -300,6 +304,10 @@ class IoThread:
             for item in batch:
                 if item is _STOP:
                     running = False
+                    continue
+                if isinstance(item, list):  # replies handed over before the cycle's step
+                    for q, payload in item:
+                        self._reply(q, payload)
                     continue
                 for q, payload in item.replies:
                     self._reply(q, payload)
