@@ -26,7 +26,6 @@ import argparse
 import json
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -36,7 +35,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.znc_testing import free_port  # noqa: E402
 
-from nc_schema import make_reply  # noqa: E402
 from nc_server.core import AxisConfig, AxisParams, NcCore  # noqa: E402
 from nc_server.server.app import NcServer  # noqa: E402
 from nc_server.server.config import ServerConfig, ZenohSettings  # noqa: E402
@@ -173,7 +171,8 @@ def run_one(n_axes: int, seconds: float, realtime: str) -> dict[str, Any]:
         late = window(st.lateness_us, c0, c1)
         moving = int(np.count_nonzero(core.moving))
         return {"axes": n_axes, "timing": st.timing, "cycles": c1 - c0, "missed": m1 - m0, "overruns": o1 - o0,
-                "work": work.copy(), "late": late.copy(), "step": step_us, "exec": exec_us, "moving": moving, "frames_dropped": d1 - d0,
+                "work": work.copy(), "late": late.copy(), "step": step_us, "exec": exec_us, "moving": moving,
+                "frames_dropped": d1 - d0,
                 "sub_frames": got["frame"], "sub_axis_samples": got["axis"], "rejected": mover.rejected}
     finally:
         server.stop()
@@ -199,7 +198,8 @@ def main() -> int:
         rows.append(run_one(n, seconds, args.realtime))
     print()
     print(f"{'axes':>5} {'timing':>11} {'cycles':>7} | {'work us p50':>11} {'p99':>7} {'max':>8} | "
-          f"{'late us p50':>11} {'p99':>7} {'max':>8} | {'missed':>6} {'overrun':>7} | moving  sub frames / axis samples")
+          f"{'late us p50':>11} {'p99':>7} {'max':>8} | {'missed':>6} {'overrun':>7} | "
+          "moving  sub frames / axis samples")
     for r in rows:
         print(f"{r['axes']:>5} {r['timing']:>11} {r['cycles']:>7} | {pct(r['work']):>28} | {pct(r['late']):>28} | "
               f"{r['missed']:>6} {r['overruns']:>7} | {r['moving']:>3}/{r['axes']:<3}  {r['sub_frames']} / "

@@ -97,7 +97,7 @@ class NcServer:
         core = self.core
         try:
             frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc,  # type: ignore[attr-defined]
-                                 flags=int(FrameFlags.ShuttingDown))
+                                      flags=int(FrameFlags.ShuttingDown))
             self.io.submit(Outgoing(core.cycle, core.nc_time_ns, frame))  # type: ignore[attr-defined]
         except Exception as exc:
             log.warning("final frame: %s", exc)

@@ -84,7 +84,8 @@ def check_endpoint(ep: Any, key: str) -> str:
         raise ConfigError(key, f"endpoint must be a string like 'tcp/127.0.0.1:7447', got {ep!r}")
     m = _ENDPOINT_RE.match(ep)
     if not m or m["proto"] not in _PROTOS:
-        raise ConfigError(key, f"invalid endpoint {ep!r}: expected <proto>/<address> with proto one of {', '.join(_PROTOS)}")
+        raise ConfigError(key, f"invalid endpoint {ep!r}: expected <proto>/<address> with proto one of "
+                               f"{', '.join(_PROTOS)}")
     if m["proto"] == "unixsock-stream":
         return ep
     hp = _HOSTPORT_RE.match(m["addr"])
@@ -183,7 +184,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     cycle_time = _number(nc.get("cycle_time", 0.001), "nc.cycle_time", 0.0001, 1.0)
     watchdog = _number(nc.get("watchdog_timeout", 0.5), "nc.watchdog_timeout", 0.0, 3600.0)
     if watchdog < 2 * cycle_time:
-        raise ConfigError("nc.watchdog_timeout", f"must be at least two cycles ({2 * cycle_time:g} s), got {watchdog:g}")
+        raise ConfigError("nc.watchdog_timeout",
+                          f"must be at least two cycles ({2 * cycle_time:g} s), got {watchdog:g}")
     realtime = _choice(nc.get("realtime", "auto"), "nc.realtime", REALTIME_MODES)
     rt_priority = _integer(nc.get("rt_priority", 49), "nc.rt_priority", 1, 99)
     mode = _choice(zn.get("mode", "router"), "zenoh.mode", ZENOH_MODES)

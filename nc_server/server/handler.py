@@ -127,12 +127,13 @@ class RequestHandler:
 
     def _handle(self, key: str, payload: bytes, now: float) -> bytes:
         if len(payload) > MAX_REQUEST_BYTES:
-            return self._error(None, None, NcError(INVALID_DATA, f"request of {len(payload)} bytes exceeds {MAX_REQUEST_BYTES}"))
+            return self._error(None, None, NcError(INVALID_DATA, f"request of {len(payload)} bytes exceeds "
+                                                                 f"{MAX_REQUEST_BYTES}"))
         try:
             req = parse_request(payload)
         except NcError as err:
             return self._error(getattr(err, "request_id", None), None, err)
-        rid, client, cmd = req["id"], req["client"], req["cmd"]
+        rid, client = req["id"], req["client"]
         if client:
             cached = self.cache.get(client, rid)
             if cached is not None:
@@ -155,8 +156,8 @@ class RequestHandler:
                      "claims": self.claims.claims(), "clients": self.claims.clients()}
             return pack(make_reply(rid, cmd, 0, "", cycle=cycle, value=value))
         if scope == "axis" and axis_id is None:
-            return self._error(rid, cmd, NcError(AXIS_NOT_ALLOWED, f"{cmd} is an axis command: send it to "
-                                                                  f"{self.keys.prefix}/axis/<id>/cmd"))
+            where = f"{self.keys.prefix}/axis/<id>/cmd"
+            return self._error(rid, cmd, NcError(AXIS_NOT_ALLOWED, f"{cmd} is an axis command: send it to {where}"))
         assert axis_id is not None
         if cmd in ("Claim", "Release"):
             if not client:

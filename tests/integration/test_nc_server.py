@@ -105,9 +105,11 @@ GARBAGE: list[tuple[str, str, bytes, int]] = [
     ("missing id", "axis/1", msgpack.packb({"cmd": "Reset"}), 0x706),
     ("bool id", "axis/1", msgpack.packb({"id": True, "cmd": "Reset"}), 0x706),
     ("unknown cmd", "axis/1", msgpack.packb({"id": 1, "cmd": "SelfDestruct"}), 0x701),
-    ("NaN position", "axis/1", msgpack.packb({"id": 2, "cmd": "MoveAbsolute", "Position": math.nan, "Velocity": 1.0}), 0x706),
+    ("NaN position", "axis/1",
+     msgpack.packb({"id": 2, "cmd": "MoveAbsolute", "Position": math.nan, "Velocity": 1.0}), 0x706),
     ("inf velocity", "axis/1", msgpack.packb({"id": 3, "cmd": "MoveVelocity", "Velocity": math.inf}), 0x706),
-    ("string position", "axis/1", msgpack.packb({"id": 4, "cmd": "MoveAbsolute", "Position": "10", "Velocity": 1.0}), 0x706),
+    ("string position", "axis/1",
+     msgpack.packb({"id": 4, "cmd": "MoveAbsolute", "Position": "10", "Velocity": 1.0}), 0x706),
     ("bool velocity", "axis/1", msgpack.packb({"id": 5, "cmd": "MoveVelocity", "Velocity": True}), 0x706),
     ("missing field", "axis/1", msgpack.packb({"id": 6, "cmd": "MoveAbsolute", "Position": 1.0}), 0x706),
     ("unknown field", "axis/1", msgpack.packb({"id": 7, "cmd": "Reset", "Force": 1}), 0x706),
@@ -307,3 +309,41 @@ def test_request_burst_is_answered_completely(nc_server: NcServerProcess,
     assert all(m["error"] == 0 and m["Value"] == 500.0 for m in answers.values())
     cycles = sorted({m["cycle"] for m in answers.values()})
     assert len(cycles) >= 300 // 32  # spread over several cycles, at most 32 per cycle
+
+
+def test_config_file_and_overrides(start_nc: Callable[..., NcServerProcess],
+                                   nc_client: Callable[..., NcTestClient]) -> None:
+    cfg = """
+[nc]
+name = "mill"
+cycle_time = 0.002
+watchdog_timeout = 0.3
+[zenoh]
+listen = ["tcp/127.0.0.1:1"]   # replaced by --listen (start_nc passes a free port)
+[[axis]]
+AxisId = 10
+Name = "A"
+AxisVeloMax = 123.0
+[[axis]]
+AxisId = 20
+Name = "B"
+Modulo = true
+AxisEncoderModuloValue = 360.0
+"""
+    srv = start_nc(cfg, name="mill")
+    assert "nc-server mill ready: 2 axes, cycle 2.000 ms" in srv.ready_line()
+    cl = nc_client(srv.port, "cfg-test", nc="mill")
+    info = cl.request("Info")["Value"]
+    assert info["name"] == "mill" and info["cycle_time"] == 0.002 and info["watchdog_timeout"] == 0.3
+    assert [(a["AxisId"], a["Name"], a["Modulo"]) for a in info["axes"]] == [(10, "A", False), (20, "B", True)]
+    assert cl.request("ReadParameter", axis=10, ParameterNumber=1003)["Value"] == 123.0
+    assert cl.request("ReadParameter", axis=1, ParameterNumber=1003)["error"] == 0x4012
+    s = wait_until(lambda: cl.nctoplc(20), T, "nctoplc of axis 20")
+    assert int(s["AxisId"]) == 20
+
+
+def test_invalid_config_exits_2(start_nc: Callable[..., NcServerProcess]) -> None:
+    srv = start_nc("[[axis]]\nAxisId = 1\n[[axis]]\nAxisId = 1\n", wait=False)
+    assert srv.proc.wait(60) == 2
+    err = srv.stderr()
+    assert "axis[1].AxisId" in err and "Traceback" not in err

@@ -10,7 +10,7 @@ import pytest
 from nc_schema import PLCTONC_DTYPE, Keys, make_reply, make_request
 from nc_server.core import AxisConfig, NcCore
 from nc_server.server.claims import ClaimTable
-from nc_server.server.handler import MAX_REQUEST_BYTES, ReplyCache, RequestHandler
+from nc_server.server.handler import ReplyCache, RequestHandler
 
 KEY1 = "nc/nc1/axis/1/cmd"
 
