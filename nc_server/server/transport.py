@@ -143,6 +143,7 @@ class Transport:
         self.plc_frames = 0
         self.plc_malformed = 0
         self.session: zenoh.Session | None = None
+        self._zid = ""
         self._decl: list[Any] = []
 
     # ---- setup / teardown -------------------------------------------------------------------
@@ -153,6 +154,7 @@ class Transport:
             zenoh.ZError: e.g. the listen endpoint is in use.
         """
         self.session = s = zenoh.open(zenoh_config(self.settings))
+        self._zid = str(s.info.zid())
         k = self.keys
         self.queryable = s.declare_queryable(k.cmd_any, FifoChannel(QUERY_CHANNEL), complete=True)
         # Liveliness events are rare: a zenoh-thread callback queues them, so the cycle only tests a deque.
@@ -225,6 +227,14 @@ class Transport:
     # ---- PLCTONC subscriber (its own Python thread) -------------------------------------------
     def _on_plctonc(self, sample: zenoh.Sample) -> None:
         now = time.monotonic()
+        # The arrival time feeds the watchdog. Our router stamps every sample it receives (HLC,
+        # wall clock) on zenoh's own thread; that stamp is used when it is ours, so a late run of
+        # this Python thread (GIL, CPU load) cannot make a live client look silent.
+        ts = sample.timestamp
+        if ts is not None and str(ts.get_id()) == self._zid:
+            age = time.time() - ts.get_time_as_ntp64().as_secs_f64()
+            if 0.0 < age < 60.0:
+                now -= age
         try:
             client = str(sample.key_expr).rsplit("/", 1)[-1]
             h, recs = decode_plc_frame(sample.payload.to_bytes())
