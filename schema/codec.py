@@ -6,6 +6,7 @@ and ``enums.json``; nothing about a layout is written down twice.
 from __future__ import annotations
 
 import json
+import struct
 from enum import IntEnum, IntFlag
 from importlib import resources
 from typing import Any
@@ -139,18 +140,29 @@ def decode_stamp(data: bytes) -> tuple[int, int]:
     return int(s["Cycle"]), int(s["NcTimeNs"])
 
 
+def _struct_of(dt: np.dtype) -> struct.Struct:
+    """A struct.Struct for a packed dtype of scalar fields (the frame headers): one pack per frame
+    instead of filling a numpy record field by field (the NC does this every cycle)."""
+    codes = {("u", 1): "B", ("u", 2): "H", ("u", 4): "I", ("u", 8): "Q", ("i", 4): "i", ("f", 8): "d"}
+    fmt, end = "<", 0
+    for name in dt.names:
+        fdt, off = dt.fields[name][:2]
+        if off != end or fdt.shape:
+            raise ValueError(f"{name}: not a packed scalar layout")
+        fmt += codes[(fdt.kind, fdt.itemsize)]
+        end = off + fdt.itemsize
+    st = struct.Struct(fmt)
+    assert st.size == dt.itemsize
+    return st
+
+
+_FRAME_HEADER = _struct_of(FRAME_HEADER_DTYPE)
+
+
 def encode_frame(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0) -> bytes:
     """Batched NC status frame: FRAME_HEADER followed by NCTOPLC records."""
-    h = np.zeros((), dtype=FRAME_HEADER_DTYPE)
-    h["Magic"] = FRAME_MAGIC
-    h["Version"] = WIRE_VERSION
-    h["HeaderSize"] = FRAME_HEADER_DTYPE.itemsize
-    h["Cycle"] = cycle
-    h["NcTimeNs"] = nc_time_ns
-    h["AxisCount"] = len(records)
-    h["RecordSize"] = NCTOPLC_DTYPE.itemsize
-    h["Flags"] = flags
-    return h.tobytes() + records.tobytes()
+    return _FRAME_HEADER.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_DTYPE.itemsize, cycle, nc_time_ns,
+                              len(records), NCTOPLC_DTYPE.itemsize, flags) + records.tobytes()
 
 
 def decode_frame(data: bytes) -> tuple[np.void, np.ndarray]:

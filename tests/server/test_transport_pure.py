@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from nc_schema import NCTOPLC_DTYPE, decode_frame, encode_frame
+from nc_schema import FRAME_HEADER_DTYPE, NCTOPLC_DTYPE, decode_frame, encode_frame
 from nc_server.server.config import ZenohSettings
 from nc_server.server.transport import encode_frame_fast, zenoh_config
 
@@ -19,6 +19,11 @@ def test_fast_frame_is_byte_identical(n: int, flags: int) -> None:
     cycle, t = 2**40 + 17, 1_763_900_000_123_456_789
     fast = encode_frame_fast(cycle, t, recs, flags)
     assert fast == encode_frame(cycle, t, recs, flags)
+    # independent reference: the header filled field by field through the numpy dtype
+    ref = np.zeros((), dtype=FRAME_HEADER_DTYPE)
+    ref["Magic"], ref["Version"], ref["HeaderSize"] = 0x314E435A, 1, 32
+    ref["Cycle"], ref["NcTimeNs"], ref["AxisCount"], ref["RecordSize"], ref["Flags"] = cycle, t, n, 256, flags
+    assert fast[:32] == ref.tobytes()
     h, out = decode_frame(fast)
     assert int(h["Cycle"]) == cycle and int(h["AxisCount"]) == n and int(h["Flags"]) == flags
     assert out.tobytes() == recs.tobytes()
