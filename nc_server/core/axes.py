@@ -47,7 +47,9 @@ class AxisTable:
         self.modulo_factor = f()
         self.opmode = np.zeros(n, dtype=np.uint32)
         # set-point generator
-        self.set_pos, self.set_velo, self.set_acc, self.set_jerk = f(), f(), f(), f()
+        # set-points as rows of one matrix, so a cycle can copy all four in one operation
+        self.S = np.zeros((4, n))
+        self.set_pos, self.set_velo, self.set_acc, self.set_jerk = self.S
         self.seg = np.zeros((5, n, N_SEGMENTS))
         self.seg[0] = np.inf
         self.traj_t, self.traj_dur = f(), f()
@@ -77,6 +79,7 @@ class AxisTable:
         self.window_timer = f()
         self.since_end = np.full(n, -1.0)  # s since the logical end of a position job; -1: not watching
         self.in_target, self.in_area = b(), b()
+        self.mon_dw = np.zeros(n, dtype=np.uint32)  # StateDWord bits from monitoring (windows, soft limits)
         for i, p in enumerate(params):
             self.load_params(i, p)
             self.homed[i] = p.Homed

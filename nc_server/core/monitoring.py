@@ -20,27 +20,40 @@ from nc_schema import ErrorCodes
 from .axes import JOB_NONE, AxisTable
 
 
+_IN_AREA = np.uint32(1 << 3)
+_IN_TARGET = np.uint32(1 << 4)
+_SOFT_MIN = np.uint32(1 << 26)
+_SOFT_MAX = np.uint32(1 << 27)
+
+
 def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
-            watch: tuple[np.ndarray, np.ndarray, bool]) -> list[tuple[int, int]]:
-    """Update the monitoring state; return the new faults as (row, error code).
+            watch: tuple[np.ndarray, np.ndarray, bool, bool]) -> list[tuple[int, int]]:
+    """Update the monitoring state and ``a.mon_dw`` (its StateDWord bits); return new faults (row, code).
 
     Args:
-        watch: (lag monitoring active, logical standstill, any soft limit enabled), per axis
-            where arrays; derived by NcCore on events.
+        watch: (lag monitoring active, logical standstill, any soft limit enabled, any axis standing),
+            derived by NcCore on events.
     """
-    lag_on, standstill, limits = watch
+    lag_on, standstill, limits, any_standing = watch
     faults: list[tuple[int, int]] = []
-    over = lag_on & (np.abs(a.set_pos - act_pos) > a.lag_max)
+    over = np.abs(a.set_pos - act_pos) > a.lag_max
+    over &= lag_on
     a.lag_timer += dt
     a.lag_timer *= over  # reset where the lag is inside the window
-    for i in (over & (a.lag_timer > a.lag_filter)).nonzero()[0]:
+    for i in (a.lag_timer > a.lag_filter).nonzero()[0]:
         if not a.error[i]:
             faults.append((int(i), ErrorCodes.NC_POSITION_LAG))
 
+    mon = a.mon_dw
+    mon[:] = 0
     if limits:
+        min_ex = a.en_min & (act_pos < a.min_lim)
+        max_ex = a.en_max & (act_pos > a.max_lim)
+        mon |= min_ex * _SOFT_MIN
+        mon |= max_ex * _SOFT_MAX
         moving = ~standstill & a.enabled
-        beyond_max = a.en_max & moving & (act_pos > a.max_lim + a.lag_max) & (a.set_velo > 0)
-        beyond_min = a.en_min & moving & (act_pos < a.min_lim - a.lag_max) & (a.set_velo < 0)
+        beyond_max = max_ex & moving & (act_pos > a.max_lim + a.lag_max) & (a.set_velo > 0)
+        beyond_min = min_ex & moving & (act_pos < a.min_lim - a.lag_max) & (a.set_velo < 0)
         for i in beyond_max.nonzero()[0]:
             if not a.error[i]:
                 faults.append((int(i), ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING))
@@ -48,12 +61,19 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
             if not a.error[i]:
                 faults.append((int(i), ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING))
 
-    dist = np.abs(act_pos - a.target_pos)
-    inside = standstill & a.target_en & (dist <= a.target_win)
-    a.window_timer += dt
-    a.window_timer *= inside
-    a.in_target = inside & (a.window_timer >= a.target_time - 1e-12)
-    a.in_area = standstill & a.range_en & (dist <= a.range_win)
+    if any_standing:  # the windows only apply at logical standstill
+        dist = np.abs(act_pos - a.target_pos)
+        inside = standstill & a.target_en & (dist <= a.target_win)
+        a.window_timer += dt
+        a.window_timer *= inside
+        a.in_target = inside & (a.window_timer >= a.target_time - 1e-12)
+        a.in_area = standstill & a.range_en & (dist <= a.range_win)
+        mon |= a.in_area * _IN_AREA
+        mon |= a.in_target * _IN_TARGET
+    elif a.in_target.any() or a.in_area.any():
+        a.in_target[:] = False
+        a.in_area[:] = False
+        a.window_timer[:] = 0.0
 
     watching = (a.since_end >= 0).nonzero()[0]
     if watching.size:

@@ -33,6 +33,8 @@ from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_na
 from .profile import Limits, Planner, PlanningError, evaluate, stopping_distance
 
 _log = logging.getLogger(__name__)
+#: cycles of set-points evaluated at once; any event (command, input, fault, job end) refills earlier
+LOOKAHEAD = 16
 _EPS_V = 1e-9
 _EN = int(ControlDWord.Enable)
 _FP = int(ControlDWord.FeedEnablePlus)
@@ -102,8 +104,15 @@ class NcCore(CommandsMixin):
         n = len(ids)
         self.plctonc = np.zeros(n, dtype=PLCTONC_DTYPE)
         self.plctonc[:] = self.default_plctonc()
-        self._bits = np.zeros((n, 32), dtype=bool)
+        self._bits = np.zeros((n, 32), dtype=bool)  # event-driven StateDWord bits, packed in _derive_state
         self._bits[:, 25] = True  # PTPmode: every axis is a PTP axis
+        self._buf = np.zeros((4, n, LOOKAHEAD))        # set-points of the next LOOKAHEAD cycles
+        self._buf_dw = np.zeros((n, LOOKAHEAD), dtype=np.uint32)  # their StateDWord bits
+        self._buf_st = np.zeros((n, LOOKAHEAD), dtype=np.uint32)  # their AxisState
+        self._buf_k = LOOKAHEAD
+        self._lookahead_t = self.cycle_time * np.arange(1, LOOKAHEAD + 1)
+        self._sp_dw = np.zeros(n, dtype=np.uint32)
+        self._axis_state = np.zeros(n, dtype=np.uint32)
         self._opmode_sim = np.uint32(1 << 8) if self.drive.simulated else np.uint32(0)
         self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
         self.nctoplc["AxisId"] = self.axis_ids
@@ -260,17 +269,25 @@ class NcCore(CommandsMixin):
         if self._off_rows.size:  # disabled axes: the set position follows the actual position
             a.set_pos[self._off_rows] = self.drive.act_pos[self._off_rows]
 
-        # -- set-points for all axes following a profile
+        # -- set-points: one column of the lookahead buffer (refilled every LOOKAHEAD cycles or on events)
         on = self._on_rows
-        if on.size == a.n:  # all axes follow a profile: plain slices, no gathers
-            a.traj_t += dt
-            a.set_pos[:], a.set_velo[:], a.set_acc[:], a.set_jerk[:] = evaluate(a.seg, a.traj_t, None)
-            finished = (a.traj_t >= a.traj_dur).nonzero()[0]
-        elif on.size:
-            a.traj_t[on] += dt
-            a.set_pos[on], a.set_velo[on], a.set_acc[on], a.set_jerk[on] = evaluate(a.seg, a.traj_t[on], on)
-            finished = on[a.traj_t[on] >= a.traj_dur[on]]
         if on.size:
+            if self._buf_k >= LOOKAHEAD:
+                self._fill_buffer()
+            k = self._buf_k
+            self._buf_k = k + 1
+            if self._all_on:
+                a.traj_t += dt
+                a.S[:] = self._buf[:, :, k]
+                self._sp_dw[:] = self._buf_dw[:, k]
+                self._axis_state[:] = self._buf_st[:, k]
+                finished = (a.traj_t >= a.traj_dur).nonzero()[0]
+            else:
+                a.traj_t[on] += dt
+                a.S[:, on] = self._buf[:, on, k]
+                self._sp_dw[on] = self._buf_dw[on, k]
+                self._axis_state[on] = self._buf_st[on, k]
+                finished = on[a.traj_t[on] >= a.traj_dur[on]]
             if finished.size:
                 self._profile_ends(finished)
             vel = self._vel_rows
@@ -304,6 +321,31 @@ class NcCore(CommandsMixin):
             self._derive_state()
         self._fill_nctoplc()
 
+    def _fill_buffer(self) -> None:
+        """Evaluate the next LOOKAHEAD cycles of every profile at once (and their set-point bits)."""
+        a = self.axes
+        on = self._on_rows
+        m = on.size
+        t = (a.traj_t[on][:, None] + self._lookahead_t).ravel()
+        p, v, acc, j = evaluate(a.seg, t, np.repeat(on, LOOKAHEAD))
+        buf = self._buf
+        for r, x in enumerate((p, v, acc, j)):
+            buf[r, on] = x.reshape(m, LOOKAHEAD)
+        v = v.reshape(m, LOOKAHEAD)
+        acc = acc.reshape(m, LOOKAHEAD)
+        pos_v = v > _EPS_V
+        neg_v = v < -_EPS_V
+        moving_v = pos_v | neg_v
+        const_a = np.abs(acc) < 1e-9
+        steady = (self._job[on] & ~a.hold_zero[on])[:, None]
+        self._buf_dw[on] = ((~moving_v) * _B["NotMoving"] + pos_v * _B["PositiveDirection"]
+                            + neg_v * _B["NegativeDirection"]
+                            + (steady & moving_v & const_a) * _B["ConstantVelocity"]).astype(np.uint32)
+        av = acc * v
+        idx = 1 + 2 * self._hold[on][:, None] + 4 * const_a + 8 * (av > 0) + 16 * (av < 0)
+        self._buf_st[on] = _AXIS_STATE_LUT[idx]
+        self._buf_k = 0
+
     # -- internals ---------------------------------------------------------------------------
     def _apply_inputs(self) -> None:
         """Decode the applied PLCTONC (only when it changed): enables, feed, override."""
@@ -324,12 +366,15 @@ class NcCore(CommandsMixin):
     def _derive_state(self) -> None:
         """Recompute what only changes on events (commands, inputs, faults, job ends)."""
         self._state_dirty = False
-        a, bits = self.axes, self._bits
-        # PLCopen 'Enable FALSE -> Disabled': the job is aborted
-        enabled = self._enable_in | a.hold_enable
+        a, out = self.axes, self.nctoplc
+        # PLCopen 'Enable FALSE -> Disabled': the job is aborted, an MC_Stop lock goes with it;
+        # only a fault's stop ramp keeps the drive enabled until it ends
+        enabled = self._enable_in | (a.hold_enable & a.traj_on)
         for i in (a.enabled & ~enabled).nonzero()[0]:
             self._end_job(int(i), CmdState.ABORTED)
             a.ramp[i] = RAMP_NONE
+            a.locked[i] = False
+            a.hold_enable[i] = False
             a.clear_profile(i)
         came_on = ~a.enabled & enabled
         if came_on.any():  # controller activation: set position := actual position
@@ -338,23 +383,39 @@ class NcCore(CommandsMixin):
         a.enabled = enabled
         self._off_rows = (~enabled).nonzero()[0]
         job = a.job != JOB_NONE
+        self._job = job
+        self._hold = job & a.hold_zero
         self._on_rows = a.traj_on.nonzero()[0]
+        self._all_on = self._on_rows.size == a.n
+        self._buf_k = LOOKAHEAD  # profiles may have changed: refill before the next use
         velocity_job = a.job == JOB_VELOCITY
         self._vel_rows = velocity_job.nonzero()[0]
         self._limit_rows = (velocity_job & (a.limit_stop == 0) & (a.en_max | a.en_min)).nonzero()[0]
         driving = job & (a.job != JOB_STOP) & (a.job != JOB_HALT)
         self._feed_rows = (driving & ~(self._feed_plus & self._feed_minus)).nonzero()[0]
-        self._watch = a.lag_en & enabled, ~(a.traj_on | job) & enabled, (a.en_max | a.en_min).any()
+        standstill = ~(a.traj_on | job) & enabled
+        self._watch = a.lag_en & enabled, standstill, bool((a.en_max | a.en_min).any()), bool(standstill.any())
+        # axes without a profile: AxisState INACTIVE, NotMoving unless a set velocity remains
+        idle = ~a.traj_on
+        self._sp_dw[idle] = np.where(np.abs(a.set_velo[idle]) > _EPS_V, np.uint32(0), _B["NotMoving"])
+        self._axis_state[idle] = 0
         err = a.error != 0
-        self._err = err
-        bits[:, 1] = a.homed                          # Homed
-        bits[:, 7] = a.stopped                        # HasBeenStopped
-        bits[:, 8] = job                              # HasJob
-        bits[:, 19] = velocity_job                    # ContinuousMotion
-        bits[:, 29] = a.locked                        # MotionCommandsLocked
-        bits[:, 31] = err                             # Error
-        self._job = job
-        self._hold = job & a.hold_zero
+        ev = self._bits
+        ev[:, 1] = a.homed                          # Homed
+        ev[:, 7] = a.stopped                        # HasBeenStopped
+        ev[:, 8] = job                              # HasJob
+        ev[:, 19] = velocity_job                    # ContinuousMotion
+        ev[:, 29] = a.locked                        # MotionCommandsLocked
+        ev[:, 31] = err                             # Error
+        self._event_dw = np.packbits(ev, axis=1, bitorder="little").view(np.uint32)[:, 0].copy()
+        # ControlLoopClosed always, Operational only without an error (both need enable + drive ready)
+        self._loop_dw = np.where(err, _B["ControlLoopClosed"], _B["ControlLoopClosed"] | _B["Operational"])
+        out["ErrorCode"] = a.error
+        out["SafEntries"] = job
+        out["OpModeDWord"] = a.opmode | self._opmode_sim
+        out["CmdNo"] = a.cmd_no
+        out["CmdState"] = a.cmd_state
+        out["TargetPos"] = a.target_pos
 
     def _enabled_input(self, i: int) -> bool:
         return bool(int(self.plctonc["ControlDWord"][i]) & _EN)
@@ -447,34 +508,12 @@ class NcCore(CommandsMixin):
         return float(4 if self.params[i].Modulo else 0)  # AxisUnitInterpretation: bit 2 = modulo
 
     def _fill_nctoplc(self) -> None:
-        a, d, out, bits = self.axes, self.drive, self.nctoplc, self._bits
-        v, acc, act = a.set_velo, a.set_acc, d.act_pos
-        pos_v = v > _EPS_V
-        neg_v = v < -_EPS_V
-        moving_v = pos_v | neg_v
-        const_a = np.abs(acc) < 1e-9
-        loop = a.enabled & d.ready
-        # StateDWord: one bool row per bit, packed at once (np.where per bit costs ~5 us each);
-        # the event-driven rows are set by _derive_state
-        bits[:, 0] = loop & ~self._err                # Operational
-        bits[:, 2] = ~moving_v                        # NotMoving
-        bits[:, 3] = a.in_area                        # InPositionArea
-        bits[:, 4] = a.in_target                      # InTargetPosition
-        bits[:, 9] = pos_v                            # PositiveDirection
-        bits[:, 10] = neg_v                           # NegativeDirection
-        bits[:, 12] = self._job & moving_v & const_a & ~a.hold_zero  # ConstantVelocity
-        bits[:, 20] = loop                            # ControlLoopClosed
-        if self._watch[2]:
-            bits[:, 26] = a.en_min & (act < a.min_lim)  # SoftLimitMinExceeded
-            bits[:, 27] = a.en_max & (act > a.max_lim)  # SoftLimitMaxExceeded
-        out["StateDWord"] = np.packbits(bits, axis=1, bitorder="little").view(np.uint32)[:, 0]
-        out["ErrorCode"] = a.error
-        # AxisState by table lookup: index = on + 2*hold + 4*const_a + 8*accelerating + 16*decelerating
-        av = acc * v
-        idx = a.traj_on + 2 * self._hold + 4 * const_a + 8 * (av > 0) + 16 * (av < 0)
-        out["AxisState"] = _AXIS_STATE_LUT[idx]
-        out["SafEntries"] = self._job
-        out["OpModeDWord"] = a.opmode | self._opmode_sim
+        a, d, out = self.axes, self.drive, self.nctoplc
+        act = d.act_pos
+        sd = self._event_dw | self._sp_dw | a.mon_dw
+        sd |= (a.enabled & d.ready) * self._loop_dw
+        out["StateDWord"] = sd
+        out["AxisState"] = self._axis_state
         period = a.modulo_factor
         out["ActPos"] = act
         out["ModuloActPos"] = act % period
@@ -483,14 +522,13 @@ class NcCore(CommandsMixin):
         out["ActAcc"] = d.act_acc
         out["PosDiff"] = a.set_pos - act
         out["SetPos"] = a.set_pos
-        out["SetVelo"] = v
-        out["SetAcc"] = acc
+        out["SetVelo"] = a.set_velo
+        out["SetAcc"] = a.set_acc
         out["SetJerk"] = a.set_jerk
-        out["TargetPos"] = a.target_pos
+        if self._vel_rows.size:
+            out["TargetPos"] = a.target_pos
         out["ModuloSetPos"] = a.set_pos % period
         out["ModuloSetTurns"] = a.set_pos // period
-        out["CmdNo"] = a.cmd_no
-        out["CmdState"] = a.cmd_state
         out["ActPosWithoutPosCorrection"] = act
         out["DcTimeStamp"] = self.nc_time_ns & 0xFFFFFFFF
 
