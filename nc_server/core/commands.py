@@ -7,13 +7,17 @@ Choices where the manual is silent (documented here, see also schema/README.md):
 
 * An axis in ErrorStop rejects motion commands with 0x4B01 ("axis cannot be
   started"), the text naming the axis error. MC_Stop is accepted in every state.
-* MC_Reset clears the error and the MC_Stop lock; the set position becomes the
-  actual position when the axis stands. Reset of a moving axis without an error
-  changes nothing (and is not an error).
+* MC_Reset clears the error and the MC_Stop lock and makes the set position the
+  actual position. While a stop or fault ramp still runs it is refused (0x4220) and
+  changes nothing; a moving axis without an error is left alone (not an error).
+* Stopping an accelerating axis never uses a softer jerk than its running profile
+  (TcMC 3.15); a move whose new dynamics would overshoot both the new and the running
+  velocity is refused with 0x423A.
 * Acceleration/Deceleration/Jerk = 0 select the axis defaults (AxisAcc, AxisDec,
   AxisJerk); negative values are rejected (0x422F/0x4230/0x422E).
-* MC_Stop: Deceleration and Jerk must be given together (TcMC 3.15); a second
-  MC_Stop during a stop ramp never makes the ramp weaker.
+* MC_Stop: Deceleration and Jerk count only together (TcMC 3.15); a lone one is
+  ignored (the axis defaults are used: a stop is never refused); a second MC_Stop
+  during a stop ramp never makes the ramp weaker.
 * MoveVelocity towards an enabled software limit: the NC stops the axis exactly
   at the limit and then raises 0x4462/0x4463 (the commanded motion could not
   continue).
@@ -28,7 +32,7 @@ import numpy as np
 from nc_schema import CmdState, ErrorCodes, MC_Direction, NcError, error_name, next_cmdno
 
 from .axes import JOB_HALT, JOB_NONE, JOB_POSITION, JOB_STOP, JOB_VELOCITY, RAMP_FAULT, RAMP_NONE
-from .profile import Limits, PlanningError
+from .profile import Limits, PlanningError, peak_velocity
 
 if TYPE_CHECKING:
     from .nc import NcCore
@@ -93,11 +97,17 @@ class CommandsMixin:
             raise NcError(ErrorCodes.NC_DECELERATION_NOT_ALLOWED, f"Deceleration {dec} < 0")
         if jerk < 0:
             raise NcError(ErrorCodes.NC_JERK_NOT_ALLOWED, f"Jerk {jerk} < 0")
+        # outside these ranges ruckig's numerics fail; say which value instead of 'internal error'
+        for name, x, lo, hi, code in (("Acceleration", acc, 1e-6, 1e10, ErrorCodes.NC_ACCELERATION_NOT_ALLOWED),
+                                      ("Deceleration", dec, 1e-6, 1e10, ErrorCodes.NC_DECELERATION_NOT_ALLOWED),
+                                      ("Jerk", jerk, 1e-6, 1e12, ErrorCodes.NC_JERK_NOT_ALLOWED)):
+            if x and not lo <= x <= hi:
+                raise NcError(code, f"{name} {x:g} outside {lo:g}..{hi:g}")
         v = a.vmax[i] if velocity is None else velocity
         return Limits(v, acc or a.acc[i], dec or a.dec[i], jerk or a.jerk[i])
 
     def _check_velocity(self: NcCore, i: int, v: float) -> None:
-        if not v > 0 or v > self.axes.vmax[i] * (1 + 1e-12):
+        if not v >= 1e-9 or v > self.axes.vmax[i] * (1 + 1e-12):
             raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,
                           f"Velocity {v} must be > 0 and <= AxisVeloMax {self.axes.vmax[i]}")
 
@@ -139,6 +149,17 @@ class CommandsMixin:
         if a.en_min[i] and lo < min(a.min_lim[i], start) - 1e-9:
             raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"the move would overshoot AxisMinSoftPosLimit ({lo:.6g})")
 
+    def _check_overshoot(self: NcCore, i: int, seg: np.ndarray, v_new: float) -> None:
+        """Refuse (0x423A) a new profile that would exceed both the new and the running command's
+        velocity, or AxisVeloMax: it happens when weaker dynamics meet an accelerating axis."""
+        a = self.axes
+        running = a.cmd_velo[i] * a.override[i] if a.traj_on[i] else 0.0
+        cap = min(max(v_new, running, abs(a.set_velo[i])), a.vmax[i])
+        peak = peak_velocity(seg)
+        if peak > cap * (1 + 1e-6) + 1e-9:
+            raise NcError(ErrorCodes.NC_VELOCITY_OVERFLOW,
+                          f"the new dynamics would overshoot to {peak:.6g} u/s (limit {cap:.6g}); use a higher Jerk")
+
     def _start_job(self: NcCore, i: int, kind: int, seg: np.ndarray, duration: float, lim: Limits) -> int:
         """Make the planned profile the axis's job; returns its CmdNo."""
         a = self.axes
@@ -150,6 +171,8 @@ class CommandsMixin:
         a.limit_stop[i] = 0
         a.cmd_velo[i], a.cmd_acc[i], a.cmd_dec[i], a.cmd_jerk[i] = lim.velocity, lim.acceleration, lim.deceleration, lim.jerk
         a.planned_ov[i] = a.override[i]
+        if kind != JOB_STOP:
+            a.hold_enable[i] = False  # only a fault's (or a later MC_Stop's) stop ramp holds the drive
         a.cmd_no[i] = next_cmdno(int(a.cmd_no[i]))
         a.cmd_state[i] = int(CmdState.ACTIVE)
         a.stopped[i] = kind == JOB_STOP
@@ -198,6 +221,7 @@ class CommandsMixin:
         except PlanningError as exc:
             raise NcError(ErrorCodes.NC_INTERNAL, f"set-point generation failed: {exc}") from None
         self._check_limits(i, start, target, lo, hi)
+        self._check_overshoot(i, seg, lim.velocity * a.override[i])
         no = self._start_job(i, JOB_POSITION, seg, dur, lim)
         a.goal_pos[i] = target
         a.target_pos[i] = target
@@ -228,6 +252,7 @@ class CommandsMixin:
             seg, dur = self.planner.velocity(start, a.set_velo[i], a.set_acc[i], sense * v * a.override[i], lim)
         except PlanningError as exc:
             raise NcError(ErrorCodes.NC_INTERNAL, f"set-point generation failed: {exc}") from None
+        self._check_overshoot(i, seg, v * a.override[i])
         no = self._start_job(i, JOB_VELOCITY, seg, dur, lim)
         a.goal_velo[i] = sense * v
         a.target_pos[i] = start
@@ -237,8 +262,9 @@ class CommandsMixin:
     def _stop_limits(self: NcCore, i: int, req: dict[str, Any], kind: int) -> Limits:
         dec, jerk = req.get("Deceleration", 0.0), req.get("Jerk", 0.0)
         if kind == JOB_STOP and (dec > 0) != (jerk > 0):
-            code = ErrorCodes.NC_JERK_NOT_ALLOWED if dec > 0 else ErrorCodes.NC_DECELERATION_NOT_ALLOWED
-            raise NcError(code, "MC_Stop: give Deceleration and Jerk together, or neither")
+            # TcMC 3.15: a non-zero value "will only be accepted" together with the other; a stop
+            # must never be refused, so such a value is ignored and the axis defaults are used
+            dec = jerk = 0.0
         lim = self._dynamics(i, {"Deceleration": dec, "Jerk": jerk}, None)
         a = self.axes
         if a.job[i] == JOB_STOP or a.ramp[i] == RAMP_FAULT:
@@ -246,6 +272,7 @@ class CommandsMixin:
             lim.deceleration = max(lim.deceleration, a.cmd_dec[i])
             lim.jerk = max(lim.jerk, a.cmd_jerk[i])
         lim.acceleration = max(lim.acceleration, lim.deceleration)
+        lim.jerk = safe_stop_jerk(a, i, lim.jerk)
         return lim
 
     def _cmd_stop(self: NcCore, i: int, req: dict[str, Any], kind: int = JOB_STOP) -> dict[str, Any]:
@@ -274,16 +301,20 @@ class CommandsMixin:
 
     def _cmd_reset(self: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
         a = self.axes
+        if a.traj_on[i]:
+            if a.error[i] or a.locked[i]:
+                raise NcError(ErrorCodes.NC_GROUP_NOT_READY,
+                              "the axis is still stopping; MC_Reset once it stands still")
+            return {}  # a moving axis without an error: nothing to reset
         a.error[i] = 0
         a.locked[i] = False
         a.stopped[i] = False
         a.lag_timer[i] = 0.0
-        if not a.traj_on[i]:
-            # TwinCAT: after a reset the set position is the actual position
-            a.set_pos[i] = self.drive.act_pos[i]
-            a.target_pos[i] = a.set_pos[i]
-            a.ramp[i] = RAMP_NONE
-            a.hold_enable[i] = False
+        a.ramp[i] = RAMP_NONE
+        a.hold_enable[i] = False
+        # TwinCAT: after a reset the set position is the actual position
+        a.set_pos[i] = self.drive.act_pos[i]
+        a.target_pos[i] = a.set_pos[i]
         return {}
 
     def _cmd_set_override(self: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
@@ -291,6 +322,7 @@ class CommandsMixin:
         if not 0.0 <= ov <= 100.0:
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Override {ov} % outside 0..100")
         self.plctonc["Override"][i] = round(ov * 10000.0)
+        self._in_dirty = True
         return {}
 
     def _cmd_read_parameter(self: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
@@ -318,6 +350,18 @@ class CommandsMixin:
         return getattr(self, name)(i, req)
 
 
+def safe_stop_jerk(a: Any, i: int, jerk: float) -> float:
+    """A stop's jerk, raised so that stopping an accelerating axis cannot speed it up beyond
+    what the running profile would have reached (TcMC 3.15: weaker dynamics are not used then)."""
+    v0, a0 = a.set_velo[i], a.set_acc[i]
+    if a.traj_on[i] and v0 * a0 > 0:
+        jerk = max(jerk, a.cmd_jerk[i])
+        cap = max(a.cmd_velo[i] * a.override[i], abs(v0))
+        if cap > abs(v0):
+            jerk = max(jerk, a0 * a0 / (2 * (cap - abs(v0))))
+    return float(jerk)
+
+
 def fault_ramp(core: NcCore, i: int) -> None:
     """Stop axis ``i`` after an error with AxisDec/AxisJerk (never weaker than a running stop)."""
     a = core.axes
@@ -327,6 +371,7 @@ def fault_ramp(core: NcCore, i: int) -> None:
     if a.job[i] == JOB_STOP:
         lim.deceleration = max(lim.deceleration, a.cmd_dec[i])
         lim.jerk = max(lim.jerk, a.cmd_jerk[i])
+    lim.jerk = safe_stop_jerk(a, i, lim.jerk)
     try:
         seg, dur = core.planner.velocity(a.set_pos[i], a.set_velo[i], a.set_acc[i], 0.0, lim)
     except PlanningError:

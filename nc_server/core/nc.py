@@ -446,9 +446,8 @@ class NcCore(CommandsMixin):
             if job != JOB_NONE:
                 a.cmd_state[i] = int(CmdState.DONE)
                 a.job[i] = JOB_NONE
-            if a.ramp[i] == RAMP_FAULT:
-                a.ramp[i] = RAMP_NONE
-                a.hold_enable[i] = False
+            a.ramp[i] = RAMP_NONE
+            a.hold_enable[i] = False  # standstill: the PLCTONC enables apply again
             a.target_pos[i] = a.set_pos[i] if job != JOB_POSITION else a.goal_pos[i]
 
     def _replan_override(self, i: int) -> None:

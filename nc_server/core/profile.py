@@ -172,6 +172,21 @@ def evaluate(seg: np.ndarray, t: np.ndarray, rows: np.ndarray | None) -> tuple[n
     return pos, velo, acc, j
 
 
+def peak_velocity(seg: np.ndarray) -> float:
+    """Largest |velocity| of one axis's segment row (5, N_SEGMENTS) over the whole profile."""
+    t0, _, v, a, j = seg
+    used = np.isfinite(t0)
+    peak = float(np.max(np.abs(v[used])))
+    # inside a segment the velocity has an extremum where a + j*tau = 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dur = np.diff(t0, append=np.inf)  # unused segments: inf - inf = nan, masked out below
+        tau = -a / j
+    inner = used & (j != 0) & (tau > 0) & (tau < dur)
+    if inner.any():
+        peak = max(peak, float(np.max(np.abs(v[inner] - a[inner] ** 2 / (2 * j[inner])))))
+    return peak
+
+
 def stopping_distance(velo: np.ndarray, acc: np.ndarray, dec: np.ndarray, jerk: np.ndarray) -> np.ndarray:
     """Upper bound of the distance a jerk-limited stop from (velo, acc) needs (>= 0).
 

@@ -25,7 +25,10 @@ Timeouts: ``timeout`` (constructor argument, seconds, default the task's
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any, ClassVar
+
+import numpy as np
 
 from nc_schema import ErrorCodes
 
@@ -103,7 +106,8 @@ class FunctionBlock:
 
     @staticmethod
     def _is_real(v: Any) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        # numbers.Real also admits numpy scalars (np.float32 ...); BOOL is not a number here
+        return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v)
 
     def __repr__(self) -> str:
         outs = ", ".join(f"{k}={getattr(self, k)!r}" for k in self._OUTPUTS if getattr(self, k))
@@ -174,7 +178,7 @@ class ExecuteBlock(FunctionBlock):
                 return False
         if buffer_mode:
             bm = getattr(self, "BufferMode", 0)
-            if isinstance(bm, bool) or not isinstance(bm, int) or int(bm) != 0:
+            if isinstance(bm, (bool, np.bool_)) or not isinstance(bm, numbers.Integral) or int(bm) != 0:
                 self._finish("Error", ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED)
                 return False
         return True

@@ -276,3 +276,13 @@ def test_move_modulo(rig: Rig) -> None:
     rig.run_until(lambda: mv.Done, 300)
     assert math.isclose(ax.ActPos, 90.0, abs_tol=0.02)
     assert int(ax.NcToPlc["StateDWord"]) & int(StateDWord.InTargetPosition)
+
+
+def test_numpy_scalar_inputs_are_numbers() -> None:
+    """Inputs computed with numpy (np.float32/np.int64) are as good as Python numbers."""
+    import numpy as np
+
+    from plc_client.fb.base import FunctionBlock
+
+    assert FunctionBlock._is_real(np.float32(1.5)) and FunctionBlock._is_real(np.int64(3))
+    assert not FunctionBlock._is_real(np.bool_(True)) and not FunctionBlock._is_real(float("nan"))
