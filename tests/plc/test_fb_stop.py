@@ -96,10 +96,17 @@ def test_stop_at_standstill_and_second_stop(rig: Rig) -> None:
 
 
 def test_stop_rejected_dynamics(rig: Rig) -> None:
+    """Out-of-range stop dynamics are refused with their NC code; a lone Deceleration is not
+    (TcMC 3.15: it only counts together with Jerk, and a stop is never refused for that)."""
     ax, _, calls = powered(rig)
     stop = MC_Stop()
     rig.watch(stop)
-    calls["body"] = lambda p: stop(Axis=ax, Execute=True, Deceleration=100.0)  # Jerk missing
+    calls["body"] = lambda p: stop(Axis=ax, Execute=True, Deceleration=1e11, Jerk=1e13)
     rig.run_until(lambda: not stop.Busy, 5)
-    assert stop.Error and stop.ErrorID == ErrorCodes.NC_JERK_NOT_ALLOWED
+    assert stop.Error and stop.ErrorID == ErrorCodes.NC_DECELERATION_NOT_ALLOWED
     assert not ax.Status.MotionCommandsLocked
+    calls["body"] = lambda p: stop(Axis=ax, Execute=False)
+    rig.run(2)
+    calls["body"] = lambda p: stop(Axis=ax, Execute=True, Deceleration=100.0, Jerk=0.0)  # Jerk missing
+    rig.run_until(lambda: stop.Done or stop.Error, 20)
+    assert stop.Done and ax.Status.MotionCommandsLocked
