@@ -46,21 +46,22 @@ def _client_config(endpoint: str) -> zenoh.Config:
 
 
 class Proc:
-    """A child process in its own process group, its output relayed with a prefix."""
+    """A child process in its own process group, its output (stdout and stderr) relayed with a prefix."""
 
     def __init__(self, name: str, argv: list[str], out: IO[str]) -> None:
         self.name = name
         self.lines: list[str] = []
         self.ready = threading.Event()
-        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      start_new_session=True, bufsize=1)
         self._out = out
-        self.quiet = False
-        threading.Thread(target=self._relay, daemon=True).start()
+        self.quiet = False  # True while the live table owns the terminal; lines are still kept
+        for stream in (self.proc.stdout, self.proc.stderr):
+            threading.Thread(target=self._relay, args=(stream,), daemon=True).start()
 
-    def _relay(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
+    def _relay(self, stream: IO[str] | None) -> None:
+        assert stream is not None
+        for line in stream:
             line = line.rstrip()
             self.lines.append(line)
             if "ready" in line:
@@ -121,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
         keys = Keys("nc1")
         with zenoh.open(_client_config(endpoint)) as session:
             sub = session.declare_subscriber(keys.frame, zenoh.handlers.RingChannel(1))
+            nc.quiet = plc.quiet = tty  # the table redraws in place: no interleaved log lines
             names = {1: "X", 2: "Y", 3: "Z", 4: "C"}
             t0 = time.monotonic()
             next_draw = 0.0
@@ -130,6 +132,9 @@ def main(argv: list[str] | None = None) -> int:
                 if duration is not None and now >= duration:
                     break
                 if nc.proc.poll() is not None or plc.proc.poll() is not None:
+                    for p in (nc, plc):
+                        if p.quiet:
+                            print("\n".join(f"[{p.name}] {line}" for line in p.lines[-20:]), file=sys.stderr)
                     print("zenoh-nc-demo: a process ended unexpectedly", file=sys.stderr)
                     return 1
                 sample = sub.try_recv()
@@ -159,9 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        if plc is not None:
-            plc.stop()
-        nc.stop()
+        for p in (plc, nc):
+            if p is not None:
+                p.quiet = False
+                p.stop()
     if last is None:
         print("zenoh-nc-demo: no status frame received", file=sys.stderr)
         return 1
