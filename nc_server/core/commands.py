@@ -8,8 +8,9 @@ Choices where the manual is silent (documented here, see also schema/README.md):
 * An axis in ErrorStop rejects motion commands with 0x4B01 ("axis cannot be
   started"), the text naming the axis error. MC_Stop is accepted in every state.
 * MC_Reset clears the error and the MC_Stop lock and makes the set position the
-  actual position. While a stop or fault ramp still runs it is refused (0x4220) and
-  changes nothing; a moving axis without an error is left alone (not an error).
+  actual position. If a fault or MC_Stop ramp still runs, the ramp goes on as a
+  numbered stop job: the axis shows Stopping until it stands, then StandStill (never
+  StandStill while moving). A moving axis without an error is left alone.
 * Stopping an accelerating axis never uses a softer jerk than its running profile
   (TcMC 3.15); a move whose new dynamics would overshoot both the new and the running
   velocity is refused with 0x423A.
@@ -303,8 +304,17 @@ class CommandsMixin:
         a = self.axes
         if a.traj_on[i]:
             if a.error[i] or a.locked[i]:
-                raise NcError(ErrorCodes.NC_GROUP_NOT_READY,
-                              "the axis is still stopping; MC_Reset once it stands still")
+                # still braking: clear the error/lock now, but the ramp goes on as a numbered stop
+                # job, so the axis shows Stopping (HasJob + HasBeenStopped) until it stands
+                a.error[i] = 0
+                a.locked[i] = False
+                a.lag_timer[i] = 0.0
+                if a.job[i] != JOB_STOP:
+                    a.job[i] = JOB_STOP
+                    a.ramp[i] = RAMP_NONE
+                    a.stopped[i] = True
+                    a.cmd_no[i] = next_cmdno(int(a.cmd_no[i]))
+                    a.cmd_state[i] = int(CmdState.ACTIVE)
             return {}  # a moving axis without an error: nothing to reset
         a.error[i] = 0
         a.locked[i] = False

@@ -76,7 +76,7 @@ def test_enable_off_after_fault_and_stop_disables():
     assert state(core) == S.MC_AXISSTATE_DISABLED and core.nctoplc[0]["SetVelo"] == 0.0
 
 
-def test_reset_during_a_stop_ramp_is_refused_and_changes_nothing():
+def test_reset_during_a_fault_ramp_keeps_stopping_until_standstill():
     core = make_core()
     power(core)
     core.step()
@@ -85,13 +85,19 @@ def test_reset_during_a_stop_ramp_is_refused_and_changes_nothing():
     core.fault(0, E.NC_AXIS_FEED_ENABLE_PLUS)
     core.step()
     rep = cmd(core, "Reset")
-    assert rep["error"] == E.NC_GROUP_NOT_READY
+    assert rep["error"] == 0
     core.step()
-    assert state(core) == S.MC_AXISSTATE_ERRORSTOP and core.nctoplc[0]["ErrorCode"] == E.NC_AXIS_FEED_ENABLE_PLUS
-    run_until(core, lambda: not core.axes.traj_on[0], 5000)
-    assert cmd(core, "Reset")["error"] == 0
-    core.step()
-    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+    r = core.nctoplc[0]
+    assert r["ErrorCode"] == 0 and r["CmdNo"] == 2 and r["CmdState"] == CmdState.ACTIVE
+    assert state(core) == S.MC_AXISSTATE_STOPPING  # never StandStill while still braking
+    v_prev = abs(float(r["SetVelo"]))
+    while core.axes.traj_on[0]:
+        core.step()
+        v = abs(float(core.nctoplc[0]["SetVelo"]))
+        assert v <= v_prev + 1e-9  # the ramp goes on, it does not speed up
+        assert core.axes.traj_on[0] or state(core) == S.MC_AXISSTATE_STANDSTILL
+        v_prev = v
+    assert core.nctoplc[0]["CmdState"] == CmdState.DONE and state(core) == S.MC_AXISSTATE_STANDSTILL
 
 
 def test_enable_off_during_stop_releases_the_lock():
