@@ -18,9 +18,7 @@ after the request arrives, so about half a cycle of waiting is expected on top o
 from __future__ import annotations
 
 import argparse
-import os
-import signal
-import subprocess
+import contextlib
 import sys
 import tempfile
 import time
@@ -30,26 +28,11 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
 from tests.znc_testing import (  # noqa: E402
     BIT_CONTROL_LOOP_CLOSED, NcTestClient, free_port, start_nc_server, wait_until,
 )
 
-RAW_SERVER = r"""
-import json, sys, zenoh
-port = int(sys.argv[1])
-c = zenoh.Config()
-c.insert_json5("mode", '"router"')
-c.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-c.insert_json5("scouting/multicast/enabled", "false")
-c.insert_json5("scouting/gossip/enabled", "false")
-with zenoh.open(c) as s:
-    def on_query(q):
-        with q:
-            q.reply(q.key_expr, b"ok")
-    qbl = s.declare_queryable("bench/raw", on_query)
-    print("ready", flush=True)
-    sys.stdin.read()
-"""
 
 CYCLE_US = 1000.0
 
@@ -80,17 +63,14 @@ def main() -> int:
     n_block = max(1, args.n // args.blocks)
     deadline = time.monotonic() + 55  # the whole run stays under a minute
 
-    raw_port = free_port()
-    raw = subprocess.Popen([sys.executable, "-c", RAW_SERVER, str(raw_port)], stdin=subprocess.PIPE,
-                           stdout=subprocess.PIPE, text=True, start_new_session=True)
     tmp = Path(tempfile.mkdtemp(prefix="znc-rtt-"))
     nc = None
     clients: list[NcTestClient] = []
-    try:
-        assert raw.stdout is not None
-        if raw.stdout.readline().strip() != "ready":
-            raise RuntimeError("raw queryable did not start")
+    with contextlib.ExitStack() as stack:
+        raw_port = stack.enter_context(raw_queryable(free_port()))
+        stack.callback(lambda: [c.close() for c in clients])
         nc = start_nc_server(tmp)
+        stack.callback(nc.stop)
         print(nc.ready_line())
         raw_cl = NcTestClient(raw_port)
         cl = NcTestClient(nc.port, "bench-rtt")
@@ -121,25 +101,17 @@ def main() -> int:
                                    "Position": 10.0 + 10.0 * (k % 2), "Velocity": 100.0}) for k in range(n_block)]
 
         # warm-up (first queries, publisher and route setup)
-        rtt_us(raw_cl.session, "bench/raw", [b"x"] * 100, ok)
+        rtt_us(raw_cl.session, RAW_KEY, [b"x"] * 100, ok)
         rtt_us(cl.session, "nc/nc1/axis/1/cmd", read_param()[:100], no_error)
         res: dict[str, list[float]] = {"raw": [], "ReadParameter": [], "MoveAbsolute": []}
         for _ in range(args.blocks):
             if time.monotonic() > deadline - 5:
                 print("(stopping early to stay within the time bound)")
                 break
-            res["raw"] += rtt_us(raw_cl.session, "bench/raw", [b"x"] * n_block, ok)
+            res["raw"] += rtt_us(raw_cl.session, RAW_KEY, [b"x"] * n_block, ok)
             res["ReadParameter"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd", read_param(), no_error)
             res["MoveAbsolute"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd", moves(), no_error)
         stats = cl.stats() or {}
-    finally:
-        for c in clients:
-            c.close()
-        if nc is not None:
-            nc.stop()
-        if raw.poll() is None:
-            os.killpg(raw.pid, signal.SIGKILL)
-        raw.wait(10)
 
     a = {k: np.array(v) for k, v in res.items()}
     print()

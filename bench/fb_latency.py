@@ -14,8 +14,6 @@ round trip, HasJob seen within 1.5x raw + one NC cycle + one PLC cycle.
 from __future__ import annotations
 
 import argparse
-import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -24,28 +22,13 @@ from pathlib import Path
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
 from tests.znc_testing import free_port, start_nc_server, zenoh_client_config  # noqa: E402
 
 from nc_schema import StateDWord  # noqa: E402
 from plc_client import AXIS_REF, MC_MoveRelative, MC_Power  # noqa: E402
 from plc_client.runtime import PlcRuntime  # noqa: E402
 
-RAW_SERVER = r"""
-import json, sys, time, zenoh
-port = int(sys.argv[1])
-c = zenoh.Config()
-c.insert_json5("mode", '"router"')
-c.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-c.insert_json5("scouting/multicast/enabled", "false")
-c.insert_json5("scouting/gossip/enabled", "false")
-with zenoh.open(c) as s:
-    def on_query(q):
-        with q:
-            q.reply(q.key_expr, b"ok")
-    qbl = s.declare_queryable("bench/raw", on_query)
-    print("ready", flush=True)
-    sys.stdin.read()
-"""
 
 
 def pct(xs: list[float], p: float) -> float:
@@ -58,25 +41,17 @@ def fmt(xs: list[float]) -> str:
 
 
 def raw_rtt(n: int) -> list[float]:
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-c", RAW_SERVER, str(port)], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
-        out = []
-        with zenoh.open(zenoh_client_config(port)) as s:
-            for i in range(n + 20):
-                t = time.perf_counter()
-                replies = list(s.get("bench/raw", timeout=5.0))
-                dt = (time.perf_counter() - t) * 1e6
-                assert replies and replies[0].ok is not None
-                if i >= 20:  # warm-up
-                    out.append(dt)
-                time.sleep(0.01)
-        return out
-    finally:
-        proc.kill()
-        proc.wait()
+    out = []
+    with raw_queryable(free_port()) as port, zenoh.open(zenoh_client_config(port)) as s:
+        for i in range(n + 20):
+            t = time.perf_counter()
+            replies = list(s.get(RAW_KEY, timeout=5.0))
+            dt = (time.perf_counter() - t) * 1e6
+            assert replies and replies[0].ok is not None
+            if i >= 20:  # warm-up
+                out.append(dt)
+            time.sleep(0.01)
+    return out
 
 
 def fb_latency(trials: int, plc_cycle: float) -> tuple[list[float], list[float], float]:
@@ -143,7 +118,6 @@ def main() -> int:
     print(f"raw zenoh get RTT (client -> router queryable): {fmt(raw)}")
     print(f"Execute edge -> NC reply (accepted):           {fmt(accept)}")
     print(f"Execute edge -> block sees HasJob + its CmdNo:  {fmt(seen)}")
-    budget_accept = 1.5 * raw50
     budget_seen = 1.5 * raw50 + nc_cycle * 1e6 + args.plc_cycle * 1e6
     print(f"ratio accept p50 / raw p50: {pct(accept, 50) / raw50:5.2f}   (goal <= 1.5)")
     print(f"HasJob seen p50: {pct(seen, 50):.0f} us vs budget 1.5 x raw + NC cycle + PLC cycle = {budget_seen:.0f} us "

@@ -165,23 +165,26 @@ def encode_frame(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 
                               len(records), NCTOPLC_DTYPE.itemsize, flags) + records.tobytes()
 
 
+def _split_frame(data: bytes, header: np.dtype, magic: int, record: np.dtype, what: str) -> tuple[np.void, np.ndarray]:
+    """Check a frame's header (magic, version, sizes) and view its records."""
+    if len(data) < header.itemsize:
+        raise ValueError(f"{what} shorter than its header")
+    h = np.frombuffer(data, dtype=header, count=1)[0]
+    if int(h["Magic"]) != magic or int(h["Version"]) != WIRE_VERSION:
+        raise ValueError(f"not a zenoh-nc v{WIRE_VERSION} {what}")
+    n, rs = int(h["AxisCount"]), int(h["RecordSize"])
+    if rs != record.itemsize or len(data) != int(h["HeaderSize"]) + n * rs:
+        raise ValueError(f"{what} sizes do not add up")
+    return h, np.frombuffer(data, dtype=record, count=n, offset=int(h["HeaderSize"]))
+
+
 def decode_frame(data: bytes) -> tuple[np.void, np.ndarray]:
     """Split a status frame into (header, NCTOPLC records).
 
     Raises:
         ValueError: wrong magic, version or sizes.
     """
-    hs = FRAME_HEADER_DTYPE.itemsize
-    if len(data) < hs:
-        raise ValueError("frame shorter than its header")
-    h = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
-    if int(h["Magic"]) != FRAME_MAGIC or int(h["Version"]) != WIRE_VERSION:
-        raise ValueError("not a zenoh-nc v1 status frame")
-    n, rs = int(h["AxisCount"]), int(h["RecordSize"])
-    if rs != NCTOPLC_DTYPE.itemsize or len(data) != int(h["HeaderSize"]) + n * rs:
-        raise ValueError("status frame sizes do not add up")
-    recs = np.frombuffer(data, dtype=NCTOPLC_DTYPE, count=n, offset=int(h["HeaderSize"]))
-    return h, recs
+    return _split_frame(data, FRAME_HEADER_DTYPE, FRAME_MAGIC, NCTOPLC_DTYPE, "status frame")
 
 
 def encode_plc_frame(plc_cycle: int, axis_ids: list[int] | np.ndarray, plctonc: np.ndarray) -> bytes:
@@ -206,13 +209,4 @@ def decode_plc_frame(data: bytes) -> tuple[np.void, np.ndarray]:
     Raises:
         ValueError: wrong magic, version or sizes.
     """
-    hs = PLC_FRAME_HEADER_DTYPE.itemsize
-    if len(data) < hs:
-        raise ValueError("PLC frame shorter than its header")
-    h = np.frombuffer(data, dtype=PLC_FRAME_HEADER_DTYPE, count=1)[0]
-    if int(h["Magic"]) != PLC_FRAME_MAGIC or int(h["Version"]) != WIRE_VERSION:
-        raise ValueError("not a zenoh-nc v1 PLC frame")
-    n, rs = int(h["AxisCount"]), int(h["RecordSize"])
-    if rs != PLC_AXIS_RECORD_DTYPE.itemsize or len(data) != int(h["HeaderSize"]) + n * rs:
-        raise ValueError("PLC frame sizes do not add up")
-    return h, np.frombuffer(data, dtype=PLC_AXIS_RECORD_DTYPE, count=n, offset=int(h["HeaderSize"]))
+    return _split_frame(data, PLC_FRAME_HEADER_DTYPE, PLC_FRAME_MAGIC, PLC_AXIS_RECORD_DTYPE, "PLC frame")

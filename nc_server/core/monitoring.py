@@ -17,7 +17,7 @@ import numpy as np
 
 from nc_schema import ErrorCodes
 
-from .axes import JOB_NONE, AxisTable
+from .axes import AxisTable
 
 
 _IN_AREA = np.uint32(1 << 3)

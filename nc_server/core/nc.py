@@ -26,7 +26,7 @@ from nc_schema import (
 
 from ..drives.base import DriveABC
 from ..drives.sim import SimDrive
-from .axes import JOB_HALT, JOB_NONE, JOB_POSITION, JOB_STOP, JOB_VELOCITY, RAMP_FAULT, RAMP_NONE, AxisTable
+from .axes import JOB_HALT, JOB_NONE, JOB_POSITION, JOB_STOP, JOB_VELOCITY, RAMP_NONE, AxisTable
 from .commands import CommandsMixin, fault_ramp
 from .monitoring import monitor
 from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name

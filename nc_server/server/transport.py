@@ -19,7 +19,6 @@ import collections
 import json
 import logging
 import queue
-import struct
 import threading
 import time
 from dataclasses import dataclass, field

@@ -4,8 +4,6 @@ from __future__ import annotations
 import itertools
 from typing import Any, Callable
 
-import numpy as np
-
 from nc_schema import ControlDWord, MC_AxisStates, make_request, motion_state, parse_request
 from nc_server.core import AxisConfig, AxisParams, NcCore
 

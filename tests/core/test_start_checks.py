@@ -1,10 +1,8 @@
 """Every start check returns its TwinCAT code and changes nothing."""
-import math
-
 import pytest
 
 from nc_schema import ControlDWord, ErrorCodes as E
-from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, run_until, snapshot
+from tests.core.nc_helpers import cmd, make_core, power, run_until, snapshot
 
 
 @pytest.fixture

@@ -1,6 +1,5 @@
 """PLCopen state transitions as seen through the cyclic interface."""
 import numpy as np
-import pytest
 
 from nc_schema import CmdState, ControlDWord, ErrorCodes, MC_AxisStates as S, StateDWord
 from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, run_until, state
