@@ -77,7 +77,8 @@ class AxisTable:
         # monitoring
         self.lag_timer = f()
         self.window_timer = f()
-        self.since_end = np.full(n, -1.0)  # s since the logical end of a position job; -1: not watching
+        self.since_end = np.full(n, -1.0)
+        self.changed: list[int] = []  # rows whose profile/job changed since the NC last looked  # s since the logical end of a position job; -1: not watching
         self.in_target, self.in_area = b(), b()
         self.mon_dw = np.zeros(n, dtype=np.uint32)  # StateDWord bits from monitoring (windows, soft limits)
         for i, p in enumerate(params):
@@ -118,9 +119,11 @@ class AxisTable:
         self.traj_t[i] = 0.0
         self.traj_dur[i] = duration
         self.traj_on[i] = True
+        self.changed.append(i)
 
-    def clear_profile(self, i: int | np.ndarray) -> None:
+    def clear_profile(self, i: int) -> None:
         """Stop the set-point generator (the axis holds its set position)."""
+        self.changed.append(i)
         self.traj_on[i] = False
         self.hold_zero[i] = False
         self.set_velo[i] = 0.0

@@ -315,6 +315,7 @@ class CommandsMixin:
                     a.stopped[i] = True
                     a.cmd_no[i] = next_cmdno(int(a.cmd_no[i]))
                     a.cmd_state[i] = int(CmdState.ACTIVE)
+                    a.changed.append(i)
             return {}  # a moving axis without an error: nothing to reset
         a.error[i] = 0
         a.locked[i] = False

@@ -47,14 +47,17 @@ _B = {name: np.uint32(int(getattr(StateDWord, name))) for name in (
     "PTPmode", "SoftLimitMinExceeded", "SoftLimitMaxExceeded", "MotionCommandsLocked", "Error")}
 
 
-def _axis_state_lut() -> np.ndarray:
-    """AxisState for index on + 2*hold + 4*const_a + 8*accelerating + 16*decelerating."""
-    lut = np.zeros(32, dtype=np.uint32)
-    for k in range(32):
-        on, hold, const, accel, decel = k & 1, k & 2, k & 4, k & 8, k & 16
-        if not on:
-            st = AxisState.INACTIVE
-        elif hold:
+def _setpoint_luts() -> tuple[np.ndarray, np.ndarray]:
+    """AxisState and set-point StateDWord bits for a packed flag byte of an axis following a profile.
+
+    Flag bits: 0 hold (job waits at override 0), 1 constant acceleration (a == 0), 2 accelerating
+    (a*v > 0), 3 decelerating (a*v < 0), 4 v > 0, 5 v < 0, 6 steady job (job and not holding).
+    """
+    states = np.zeros(128, dtype=np.uint32)
+    dwords = np.zeros(128, dtype=np.uint32)
+    for k in range(128):
+        hold, const, accel, decel, pos, neg, steady = ((k >> b) & 1 for b in range(7))
+        if hold:
             st = AxisState.OVERRIDE_ZERO
         elif const:
             st = AxisState.PHASE_VELOCONST
@@ -64,11 +67,17 @@ def _axis_state_lut() -> np.ndarray:
             st = AxisState.PHASE_ACCNEG
         else:
             st = AxisState.RUNNING
-        lut[k] = int(st)
-    return lut
+        states[k] = int(st)
+        moving = pos or neg
+        dw = 0 if moving else int(_B["NotMoving"])
+        dw |= int(_B["PositiveDirection"]) if pos else 0
+        dw |= int(_B["NegativeDirection"]) if neg else 0
+        dw |= int(_B["ConstantVelocity"]) if steady and moving and const else 0
+        dwords[k] = dw
+    return states, dwords
 
 
-_AXIS_STATE_LUT = _axis_state_lut()
+_SP_STATE_LUT, _SP_DWORD_LUT = _setpoint_luts()
 
 
 class NcCore(CommandsMixin):
@@ -112,6 +121,7 @@ class NcCore(CommandsMixin):
         self._buf_k = LOOKAHEAD
         self._lookahead_t = self.cycle_time * np.arange(1, LOOKAHEAD + 1)
         self._sp_dw = np.zeros(n, dtype=np.uint32)
+        self._off_rows = np.arange(n)
         self._axis_state = np.zeros(n, dtype=np.uint32)
         self._opmode_sim = np.uint32(1 << 8) if self.drive.simulated else np.uint32(0)
         self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
@@ -323,28 +333,37 @@ class NcCore(CommandsMixin):
 
     def _fill_buffer(self) -> None:
         """Evaluate the next LOOKAHEAD cycles of every profile at once (and their set-point bits)."""
+        self._buf_k = 0
+        self._eval_into(self._on_rows)
+
+    def _eval_into(self, rows: np.ndarray) -> None:
+        """(Re)compute the buffer columns from ``_buf_k`` on for ``rows`` (their profiles changed)."""
         a = self.axes
-        on = self._on_rows
-        m = on.size
-        t = (a.traj_t[on][:, None] + self._lookahead_t).ravel()
-        p, v, acc, j = evaluate(a.seg, t, np.repeat(on, LOOKAHEAD))
+        k0 = self._buf_k
+        ncol = LOOKAHEAD - k0
+        m = rows.size
+        t = (a.traj_t[rows][:, None] + self._lookahead_t[:ncol]).ravel()
+        p, v, acc, j = evaluate(a.seg, t, np.repeat(rows, ncol))
+        # one row (a command): basic indexing stores much cheaper than fancy indexing
+        sel: int | np.ndarray = int(rows[0]) if m == 1 else rows
+        shape = (ncol,) if m == 1 else (m, ncol)
         buf = self._buf
         for r, x in enumerate((p, v, acc, j)):
-            buf[r, on] = x.reshape(m, LOOKAHEAD)
-        v = v.reshape(m, LOOKAHEAD)
-        acc = acc.reshape(m, LOOKAHEAD)
-        pos_v = v > _EPS_V
-        neg_v = v < -_EPS_V
-        moving_v = pos_v | neg_v
-        const_a = np.abs(acc) < 1e-9
-        steady = (self._job[on] & ~a.hold_zero[on])[:, None]
-        self._buf_dw[on] = ((~moving_v) * _B["NotMoving"] + pos_v * _B["PositiveDirection"]
-                            + neg_v * _B["NegativeDirection"]
-                            + (steady & moving_v & const_a) * _B["ConstantVelocity"]).astype(np.uint32)
-        av = acc * v
-        idx = 1 + 2 * self._hold[on][:, None] + 4 * const_a + 8 * (av > 0) + 16 * (av < 0)
-        self._buf_st[on] = _AXIS_STATE_LUT[idx]
-        self._buf_k = 0
+            buf[r, sel, k0:] = x.reshape(shape)
+        # set-point bits and AxisState: one packed flag byte per sample, two table lookups
+        flags = np.zeros((m, ncol, 8), dtype=bool)
+        flags[:, :, 0] = self._hold[rows][:, None]
+        flags[:, :, 1] = (np.abs(acc) < 1e-9).reshape(m, ncol)
+        av = (acc * v).reshape(m, ncol)
+        flags[:, :, 2] = av > 0
+        flags[:, :, 3] = av < 0
+        v = v.reshape(m, ncol)
+        flags[:, :, 4] = v > _EPS_V
+        flags[:, :, 5] = v < -_EPS_V
+        flags[:, :, 6] = (self._job[rows] & ~a.hold_zero[rows])[:, None]
+        code = np.packbits(flags, axis=2, bitorder="little")[:, :, 0]
+        self._buf_dw[sel, k0:] = _SP_DWORD_LUT[code].reshape(shape)
+        self._buf_st[sel, k0:] = _SP_STATE_LUT[code].reshape(shape)
 
     # -- internals ---------------------------------------------------------------------------
     def _apply_inputs(self) -> None:
@@ -370,24 +389,30 @@ class NcCore(CommandsMixin):
         # PLCopen 'Enable FALSE -> Disabled': the job is aborted, an MC_Stop lock goes with it;
         # only a fault's stop ramp keeps the drive enabled until it ends
         enabled = self._enable_in | (a.hold_enable & a.traj_on)
-        for i in (a.enabled & ~enabled).nonzero()[0]:
-            self._end_job(int(i), CmdState.ABORTED)
-            a.ramp[i] = RAMP_NONE
-            a.locked[i] = False
-            a.hold_enable[i] = False
-            a.clear_profile(i)
-        came_on = ~a.enabled & enabled
-        if came_on.any():  # controller activation: set position := actual position
-            a.set_pos[came_on] = self.drive.act_pos[came_on]
-            a.target_pos[came_on] = a.set_pos[came_on]
-        a.enabled = enabled
-        self._off_rows = (~enabled).nonzero()[0]
+        flips = (enabled != a.enabled).nonzero()[0]
+        if flips.size:
+            for i in flips.tolist():
+                if enabled[i]:  # controller activation: set position := actual position
+                    a.set_pos[i] = a.target_pos[i] = self.drive.act_pos[i]
+                else:
+                    self._end_job(i, CmdState.ABORTED)
+                    a.ramp[i] = RAMP_NONE
+                    a.locked[i] = False
+                    a.hold_enable[i] = False
+                    a.clear_profile(i)
+            a.enabled = enabled
+            self._off_rows = (~enabled).nonzero()[0]
         job = a.job != JOB_NONE
         self._job = job
         self._hold = job & a.hold_zero
         self._on_rows = a.traj_on.nonzero()[0]
         self._all_on = self._on_rows.size == a.n
-        self._buf_k = LOOKAHEAD  # profiles may have changed: refill before the next use
+        if a.changed:  # re-evaluate the rest of the buffer for the axes whose profile changed
+            rows = np.array(sorted(set(a.changed)), dtype=np.intp)
+            a.changed.clear()
+            rows = rows[a.traj_on[rows]]
+            if rows.size and self._buf_k < LOOKAHEAD:
+                self._eval_into(rows)
         velocity_job = a.job == JOB_VELOCITY
         self._vel_rows = velocity_job.nonzero()[0]
         self._limit_rows = (velocity_job & (a.limit_stop == 0) & (a.en_max | a.en_min)).nonzero()[0]
