@@ -33,8 +33,10 @@ from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_na
 from .profile import Limits, Planner, PlanningError, evaluate, stopping_distance
 
 _log = logging.getLogger(__name__)
-#: cycles of set-points evaluated at once; any event (command, input, fault, job end) refills earlier
-LOOKAHEAD = 16
+#: Cycles of set-points evaluated at once (NcCore(lookahead=...)); events refresh only the changed
+#: axes. Deeper buffers lower the mean cost but make every LOOKAHEAD-th cycle heavier; measured here
+#: (bench/nc_cycle.py) 16 suits up to ~64 axes and 4 beyond. None: chosen by axis count.
+LOOKAHEAD: int | None = None
 _EPS_V = 1e-9
 _EN = int(ControlDWord.Enable)
 _FP = int(ControlDWord.FeedEnablePlus)
@@ -92,7 +94,8 @@ class NcCore(CommandsMixin):
         ConfigError: duplicate axis ids, no axes, bad cycle time.
     """
 
-    def __init__(self, axes: Sequence[AxisConfig], cycle_time: float = 0.001, drive: DriveABC | None = None) -> None:
+    def __init__(self, axes: Sequence[AxisConfig], cycle_time: float = 0.001, drive: DriveABC | None = None,
+                 lookahead: int | None = LOOKAHEAD) -> None:
         if not axes:
             raise ConfigError("axis", "at least one axis is needed")
         ids = [c.AxisId for c in axes]
@@ -101,6 +104,9 @@ class NcCore(CommandsMixin):
         if not 0 < cycle_time <= 1.0:
             raise ConfigError("cycle_time", f"must be in (0, 1] s, got {cycle_time}")
         self.cycle_time = float(cycle_time)
+        if lookahead is None:
+            lookahead = 16 if len(axes) <= 64 else 4
+        self._lookahead = max(1, int(lookahead))
         self.configs = list(axes)
         self.params: list[AxisParams] = [c.params for c in axes]
         self.axes = AxisTable(ids, self.params)
@@ -115,13 +121,14 @@ class NcCore(CommandsMixin):
         self.plctonc[:] = self.default_plctonc()
         self._bits = np.zeros((n, 32), dtype=bool)  # event-driven StateDWord bits, packed in _derive_state
         self._bits[:, 25] = True  # PTPmode: every axis is a PTP axis
-        self._buf = np.zeros((4, n, LOOKAHEAD))        # set-points of the next LOOKAHEAD cycles
-        self._buf_dw = np.zeros((n, LOOKAHEAD), dtype=np.uint32)  # their StateDWord bits
-        self._buf_st = np.zeros((n, LOOKAHEAD), dtype=np.uint32)  # their AxisState
-        self._buf_k = LOOKAHEAD
-        self._lookahead_t = self.cycle_time * np.arange(1, LOOKAHEAD + 1)
+        self._buf = np.zeros((4, n, self._lookahead))        # set-points of the next self._lookahead cycles
+        self._buf_dw = np.zeros((n, self._lookahead), dtype=np.uint32)  # their StateDWord bits
+        self._buf_st = np.zeros((n, self._lookahead), dtype=np.uint32)  # their AxisState
+        self._buf_k = self._lookahead
+        self._lookahead_t = self.cycle_time * np.arange(1, self._lookahead + 1)
         self._sp_dw = np.zeros(n, dtype=np.uint32)
         self._off_rows = np.arange(n)
+        self._flags: dict[tuple[int, int], np.ndarray] = {}  # scratch for _eval_into, by shape
         self._axis_state = np.zeros(n, dtype=np.uint32)
         self._opmode_sim = np.uint32(1 << 8) if self.drive.simulated else np.uint32(0)
         self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
@@ -279,10 +286,10 @@ class NcCore(CommandsMixin):
         if self._off_rows.size:  # disabled axes: the set position follows the actual position
             a.set_pos[self._off_rows] = self.drive.act_pos[self._off_rows]
 
-        # -- set-points: one column of the lookahead buffer (refilled every LOOKAHEAD cycles or on events)
+        # -- set-points: one column of the lookahead buffer (refilled every self._lookahead cycles or on events)
         on = self._on_rows
         if on.size:
-            if self._buf_k >= LOOKAHEAD:
+            if self._buf_k >= self._lookahead:
                 self._fill_buffer()
             k = self._buf_k
             self._buf_k = k + 1
@@ -332,7 +339,7 @@ class NcCore(CommandsMixin):
         self._fill_nctoplc()
 
     def _fill_buffer(self) -> None:
-        """Evaluate the next LOOKAHEAD cycles of every profile at once (and their set-point bits)."""
+        """Evaluate the next self._lookahead cycles of every profile at once (and their set-point bits)."""
         self._buf_k = 0
         self._eval_into(self._on_rows)
 
@@ -340,18 +347,20 @@ class NcCore(CommandsMixin):
         """(Re)compute the buffer columns from ``_buf_k`` on for ``rows`` (their profiles changed)."""
         a = self.axes
         k0 = self._buf_k
-        ncol = LOOKAHEAD - k0
+        ncol = self._lookahead - k0
         m = rows.size
         t = (a.traj_t[rows][:, None] + self._lookahead_t[:ncol]).ravel()
         p, v, acc, j = evaluate(a.seg, t, np.repeat(rows, ncol))
-        # one row (a command): basic indexing stores much cheaper than fancy indexing
-        sel: int | np.ndarray = int(rows[0]) if m == 1 else rows
+        # one row (a command) or all rows: basic indexing, much cheaper than fancy indexing
+        sel: int | slice | np.ndarray = int(rows[0]) if m == 1 else (slice(None) if m == a.n else rows)
         shape = (ncol,) if m == 1 else (m, ncol)
         buf = self._buf
         for r, x in enumerate((p, v, acc, j)):
             buf[r, sel, k0:] = x.reshape(shape)
         # set-point bits and AxisState: one packed flag byte per sample, two table lookups
-        flags = np.zeros((m, ncol, 8), dtype=bool)
+        flags = self._flags.get((m, ncol))
+        if flags is None:
+            flags = self._flags[(m, ncol)] = np.zeros((m, ncol, 8), dtype=bool)
         flags[:, :, 0] = self._hold[rows][:, None]
         flags[:, :, 1] = (np.abs(acc) < 1e-9).reshape(m, ncol)
         av = (acc * v).reshape(m, ncol)
@@ -411,7 +420,7 @@ class NcCore(CommandsMixin):
             rows = np.array(sorted(set(a.changed)), dtype=np.intp)
             a.changed.clear()
             rows = rows[a.traj_on[rows]]
-            if rows.size and self._buf_k < LOOKAHEAD:
+            if rows.size and self._buf_k < self._lookahead:
                 self._eval_into(rows)
         velocity_job = a.job == JOB_VELOCITY
         self._vel_rows = velocity_job.nonzero()[0]
