@@ -15,6 +15,15 @@ def make_core(n: int = 1, cycle_time: float = 0.001, **params: Any) -> NcCore:
     return NcCore([AxisConfig(i + 1, f"A{i + 1}", AxisParams(**params)) for i in range(n)], cycle_time)
 
 
+def powered(n: int = 1, cycle_time: float = 0.001, **params: Any) -> NcCore:
+    """A core whose axes are all enabled (controller + both feeds) and stepped once: StandStill."""
+    core = make_core(n, cycle_time, **params)
+    for i in range(n):
+        power(core, i)
+    core.step()
+    return core
+
+
 def power(core: NcCore, i: int = 0, ctrl: int = ALL_ENABLES, override: int = 1_000_000) -> None:
     rec = core.default_plctonc()
     rec["ControlDWord"] = ctrl

@@ -3,7 +3,7 @@ import pytest
 
 from nc_schema import ErrorCodes as E, MC_AxisStates as S, StateDWord
 from nc_server.core.commands import modulo_target
-from tests.core.nc_helpers import cmd, make_core, power, run_until, state
+from tests.core.nc_helpers import cmd, make_core, power, powered, run_until, state
 
 POS, SHORT, NEG = 1, 2, 3
 
@@ -37,9 +37,7 @@ def test_modulo_table_with_tolerance_window(direction, start, target, travel):
 
 
 def test_move_modulo_on_a_modulo_axis_turns():
-    core = make_core(Modulo=True, AxisVeloMax=720.0, AxisAcc=3600.0, AxisDec=3600.0, AxisJerk=36000.0)
-    power(core)
-    core.step()
+    core = powered(Modulo=True, AxisVeloMax=720.0, AxisAcc=3600.0, AxisDec=3600.0, AxisJerk=36000.0)
     assert core.nctoplc[0]["OpModeDWord"] & (1 << 7)  # OpModeModulo
     rep = cmd(core, "MoveModulo", Position=810.0, Velocity=720.0, Direction=POS)
     assert rep["error"] == 0
@@ -49,9 +47,7 @@ def test_move_modulo_on_a_modulo_axis_turns():
 
 
 def test_following_error():
-    core = make_core(SimTimeConstant=0.05, AxisMaxPosLagValue=1.0, AxisMaxPosLagFilterTime=0.01)
-    power(core)
-    core.step()
+    core = powered(SimTimeConstant=0.05, AxisMaxPosLagValue=1.0, AxisMaxPosLagFilterTime=0.01)
     cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)  # lag -> 100 * 0.05 = 5 > 1
     run_until(core, lambda: core.nctoplc[0]["ErrorCode"] != 0, 3000)
     r = core.nctoplc[0]
@@ -60,9 +56,7 @@ def test_following_error():
 
 
 def test_no_following_error_when_monitoring_disabled():
-    core = make_core(SimTimeConstant=0.05, AxisMaxPosLagValue=1.0, AxisEnPositionLagMonitoring=False)
-    power(core)
-    core.step()
+    core = powered(SimTimeConstant=0.05, AxisMaxPosLagValue=1.0, AxisEnPositionLagMonitoring=False)
     cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)
     for _ in range(1000):
         core.step()
@@ -70,9 +64,7 @@ def test_no_following_error_when_monitoring_disabled():
 
 
 def test_continuous_motion_stops_at_soft_limit_then_error():
-    core = make_core(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0)
-    power(core)
-    core.step()
+    core = powered(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0)
     cmd(core, "MoveVelocity", Velocity=800.0, Direction=1)
     run_until(core, lambda: core.nctoplc[0]["ErrorCode"] != 0, 5000)
     r = core.nctoplc[0]

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from nc_schema import AxisState, CmdState, StateDWord
-from tests.core.nc_helpers import cmd, make_core, power, run_until, state
+from tests.core.nc_helpers import cmd, make_core, power, powered, run_until, state
 
 DT = 0.001
 
@@ -23,9 +23,7 @@ def trace(core, cycles, i=0):
     (0.3, 1000.0, 0.0, 0.0, 0.0),            # short move, velocity never reached
 ])
 def test_move_absolute_profile_within_limits_and_exact_end(target, velo, acc, dec, jerk):
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     rep = cmd(core, "MoveAbsolute", Position=target, Velocity=velo, Acceleration=acc, Deceleration=dec, Jerk=jerk)
     assert rep["error"] == 0 and rep["CmdNo"] == 1 and rep["cycle"] == core.cycle + 1
     tr = trace(core, 3000)
@@ -45,9 +43,7 @@ def test_move_absolute_profile_within_limits_and_exact_end(target, velo, acc, de
 
 
 def test_abort_running_move_is_continuous():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveAbsolute", Position=200.0, Velocity=800.0)
     before = trace(core, 150)
     rep = cmd(core, "MoveAbsolute", Position=-50.0, Velocity=300.0)
@@ -87,9 +83,7 @@ def test_many_axes_vectorized_equal_single_axis():
 
 
 def test_move_velocity_reaches_and_holds_velocity():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     rep = cmd(core, "MoveVelocity", Velocity=250.0, Direction=3)
     assert rep["error"] == 0
     n = run_until(core, lambda: core.nctoplc[0]["StateDWord"] & StateDWord.ConstantVelocity)
@@ -123,9 +117,7 @@ def test_override_scales_velocity_and_zero_holds_the_job():
 
 
 def test_override_zero_during_positioning_resumes_to_exact_target():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveAbsolute", Position=300.0, Velocity=400.0)
     for _ in range(200):
         core.step()
@@ -140,9 +132,7 @@ def test_override_zero_during_positioning_resumes_to_exact_target():
 
 
 def test_cmdno_wraps_to_one():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     core.axes.cmd_no[0] = 65535
     rep = cmd(core, "MoveRelative", Distance=1.0, Velocity=100.0)
     assert rep["CmdNo"] == 1

@@ -2,14 +2,12 @@
 import pytest
 
 from nc_schema import CmdState, ControlDWord, ErrorCodes as E, MC_AxisStates as S, StateDWord
-from tests.core.nc_helpers import cmd, make_core, power, run_until, state
+from tests.core.nc_helpers import cmd, power, powered, run_until, state
 
 
 def accelerating_axis():
     """An axis 8 ms into a MoveVelocity(100) with a very stiff profile: v ~32, a ~8000."""
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     assert cmd(core, "MoveVelocity", Velocity=100.0, Direction=1, Acceleration=20000.0, Jerk=1e6)["error"] == 0
     for _ in range(8):
         core.step()
@@ -51,9 +49,7 @@ def test_move_with_too_weak_dynamics_is_refused_and_changes_nothing():
 
 
 def test_enable_off_after_fault_and_stop_disables():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)
     for _ in range(100):
         core.step()
@@ -77,9 +73,7 @@ def test_enable_off_after_fault_and_stop_disables():
 
 
 def test_reset_during_a_fault_ramp_keeps_stopping_until_standstill():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=800.0, Direction=1)
     run_until(core, lambda: core.nctoplc[0]["StateDWord"] & StateDWord.ConstantVelocity)
     core.fault(0, E.NC_AXIS_FEED_ENABLE_PLUS)
@@ -101,9 +95,7 @@ def test_reset_during_a_fault_ramp_keeps_stopping_until_standstill():
 
 
 def test_enable_off_during_stop_releases_the_lock():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=300.0, Direction=1)
     for _ in range(100):
         core.step()
@@ -119,9 +111,7 @@ def test_enable_off_during_stop_releases_the_lock():
 
 
 def test_set_override_command_takes_effect():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)
     assert cmd(core, "SetOverride", Override=10.0)["error"] == 0
     run_until(core, lambda: core.nctoplc[0]["StateDWord"] & StateDWord.ConstantVelocity)
@@ -129,9 +119,7 @@ def test_set_override_command_takes_effect():
 
 
 def test_stop_with_a_lone_deceleration_still_stops():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)
     for _ in range(200):
         core.step()

@@ -2,7 +2,7 @@
 import pytest
 
 from nc_schema import ControlDWord, ErrorCodes as E
-from tests.core.nc_helpers import cmd, make_core, power, run_until, snapshot
+from tests.core.nc_helpers import cmd, make_core, power, powered, run_until, snapshot
 
 
 @pytest.fixture
@@ -77,9 +77,7 @@ def test_no_enable_and_no_feed_enable():
 
 
 def test_error_state_and_locked_state():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     core.fault(0, E.NC_POSITION_LAG)
     core.step()
     rep = cmd(core, "MoveAbsolute", Position=1.0, Velocity=1.0)
@@ -94,9 +92,7 @@ def test_error_state_and_locked_state():
 
 def test_overshoot_of_soft_limit_is_refused():
     """A weaker deceleration while running towards a limit would overshoot it: refused (ruckig ignores limits)."""
-    core = make_core(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0, AxisAcc=500.0, AxisDec=500.0)
-    power(core)
-    core.step()
+    core = powered(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0, AxisAcc=500.0, AxisDec=500.0)
     cmd(core, "MoveAbsolute", Position=99.0, Velocity=400.0)
     run_until(core, lambda: core.nctoplc[0]["SetPos"] > 45.0)
     assert core.nctoplc[0]["SetVelo"] > 150.0

@@ -2,7 +2,7 @@
 import numpy as np
 
 from nc_schema import CmdState, ControlDWord, ErrorCodes, MC_AxisStates as S, StateDWord
-from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, run_until, state
+from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, powered, run_until, state
 
 
 def test_disabled_standstill_discrete_standstill():
@@ -22,9 +22,7 @@ def test_disabled_standstill_discrete_standstill():
 
 
 def test_enable_off_while_moving_disables_and_aborts_the_job():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)
     for _ in range(50):
         core.step()
@@ -37,9 +35,7 @@ def test_enable_off_while_moving_disables_and_aborts_the_job():
 
 
 def test_stop_locks_until_released_and_reset_also_releases():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=300.0, Direction=1)
     for _ in range(100):
         core.step()
@@ -65,9 +61,7 @@ def test_stop_locks_until_released_and_reset_also_releases():
 
 
 def test_halt_is_discrete_and_does_not_lock():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=300.0, Direction=1)
     for _ in range(100):
         core.step()
@@ -79,9 +73,7 @@ def test_halt_is_discrete_and_does_not_lock():
 
 
 def test_fault_stops_with_deceleration_keeps_drive_enabled_and_reset_recovers():
-    core = make_core(AxisDec=1000.0, AxisAcc=1000.0)
-    power(core)
-    core.step()
+    core = powered(AxisDec=1000.0, AxisAcc=1000.0)
     cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)
     run_until(core, lambda: core.nctoplc[0]["StateDWord"] & StateDWord.ConstantVelocity)
     core.fault(0, ErrorCodes.ZNC_CLIENT_LOST)
@@ -105,9 +97,7 @@ def test_fault_stops_with_deceleration_keeps_drive_enabled_and_reset_recovers():
 
 
 def test_feed_enable_withdrawn_in_travel_direction_is_an_error():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)
     for _ in range(20):
         core.step()
@@ -119,9 +109,7 @@ def test_feed_enable_withdrawn_in_travel_direction_is_an_error():
 
 
 def test_superseded_command_shows_newer_cmdno():
-    core = make_core()
-    power(core)
-    core.step()
+    core = powered()
     first = cmd(core, "MoveAbsolute", Position=100.0, Velocity=100.0)["CmdNo"]
     core.step()
     second = cmd(core, "MoveAbsolute", Position=50.0, Velocity=100.0)["CmdNo"]
