@@ -61,7 +61,6 @@ class AxisTable:
         self.goal_pos = f()          # position jobs: absolute target
         self.goal_velo = f()         # velocity jobs: signed velocity at 100 % override
         self.cmd_velo, self.cmd_acc, self.cmd_dec, self.cmd_jerk = f(), f(), f(), f()
-        self.planned_ov = np.ones(n)
         self.limit_stop = np.zeros(n, dtype=np.int8)  # continuous move being stopped at soft limit -1/+1
         self.cmd_no = np.zeros(n, dtype=np.uint16)
         self.cmd_state = np.zeros(n, dtype=np.uint16)

@@ -171,7 +171,6 @@ class CommandsMixin:
         a.hold_zero[i] = False
         a.limit_stop[i] = 0
         a.cmd_velo[i], a.cmd_acc[i], a.cmd_dec[i], a.cmd_jerk[i] = lim.velocity, lim.acceleration, lim.deceleration, lim.jerk
-        a.planned_ov[i] = a.override[i]
         if kind != JOB_STOP:
             a.hold_enable[i] = False  # only a fault's (or a later MC_Stop's) stop ramp holds the drive
         a.cmd_no[i] = next_cmdno(int(a.cmd_no[i]))

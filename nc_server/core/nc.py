@@ -500,7 +500,6 @@ class NcCore(CommandsMixin):
         a.set_segments(i, seg, dur)
         self._state_dirty = True
         a.hold_zero[i] = ov <= 0
-        a.planned_ov[i] = ov
 
     def _stop_at_limit(self, i: int) -> None:
         a = self.axes

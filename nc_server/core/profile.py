@@ -94,7 +94,7 @@ class Planner:
         inp.target_acceleration = [0.0]
         traj = self._calc(p0, v0, a0, lim, math.copysign(1.0, target - p0) if target != p0 else math.copysign(1.0, v0 or 1.0))
         ext = traj.position_extrema[0]
-        return _segments(traj, p0, v0, a0), traj.duration, ext.min, ext.max
+        return _segments(traj), traj.duration, ext.min, ext.max
 
     def velocity(self, p0: float, v0: float, a0: float, target_velo: float, lim: Limits) -> tuple[np.ndarray, float]:
         """Plan a change to ``target_velo``, which is then held.
@@ -111,10 +111,10 @@ class Planner:
         inp.target_acceleration = [0.0]
         sense = target_velo if target_velo != 0 else v0  # a stop brakes the current motion
         traj = self._calc(p0, v0, a0, lim, math.copysign(1.0, sense) if sense else 1.0)
-        return _segments(traj, p0, v0, a0), traj.duration
+        return _segments(traj), traj.duration
 
 
-def _segments(traj: Trajectory, p0: float, v0: float, a0: float) -> np.ndarray:
+def _segments(traj: Trajectory) -> np.ndarray:
     """Flatten a 1-DoF ruckig trajectory into constant-jerk segments, shape (5, N_SEGMENTS)."""
     prof = traj.profiles[0][0]
     rows: list[tuple[float, float, float, float, float]] = []  # (duration, p, v, a, j)
