@@ -81,7 +81,7 @@ def main() -> int:
         wait_until(lambda: (s := cl.nctoplc(1)) is not None and int(s["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED,
                    30, "axis 1 enabled")
 
-        ids = iter(range(1, 10**9))
+        ids = iter(range(10**6, 10**9))  # request ids are unique per client: stay clear of the claim's
 
         def ok(b: bytes) -> None:
             if b != b"ok":

@@ -48,7 +48,7 @@ class NcServer:
         self.keys = Keys(config.name)
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
         self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout)
-        self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority)
+        self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra)
         self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
         self.io = IoThread(self.transport, self.stats)
@@ -132,29 +132,10 @@ class NcServer:
             claims.grace(now)
         self._prev_start = now
 
-        # Liveliness: PUT = client present, DELETE = gone (its claims fault in check()).
-        if t.liveliness_events:
-            self._clients_dirty = True
-            for client, present in t.pop_liveliness():
-                if present:
-                    claims.client_alive(client)
-                    log.info("client %s present", client)
-                else:
-                    claims.client_gone(client)
-                    self.handler.cache.forget_client(client)
-                    log.info("client %s gone", client)
+        self._take_liveliness()
 
         # Commands (bounded per cycle; the rest stay queued for the next one).
-        replies: list[tuple[Any, bytes]] = []
-        budget_end = time.monotonic_ns() + QUERY_BUDGET_NS
-        for _ in range(MAX_QUERIES_PER_CYCLE):
-            q = t.queryable.try_recv()
-            if q is None:
-                break
-            p = q.payload
-            replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
-            if time.monotonic_ns() > budget_end:
-                break
+        replies = self._drain_queries(now)
         if replies and EARLY_REPLIES:
             # Answer now rather than after core.step(): the reply's cycle says from which frame on
             # the command shows, so clients lose nothing and get their answer a step earlier.
@@ -197,6 +178,46 @@ class NcServer:
         if self._clients_dirty:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
+
+    def _drain_queries(self, now: float) -> list[tuple[Any, bytes]]:
+        """Run the queued requests (at most MAX_QUERIES_PER_CYCLE / QUERY_BUDGET_NS); their replies."""
+        t = self.transport
+        replies: list[tuple[Any, bytes]] = []
+        budget_end = time.monotonic_ns() + QUERY_BUDGET_NS
+        for _ in range(MAX_QUERIES_PER_CYCLE):
+            q = t.queryable.try_recv()
+            if q is None:
+                break
+            p = q.payload
+            replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
+            if time.monotonic_ns() > budget_end:
+                break
+        return replies
+
+    def _take_liveliness(self) -> None:
+        """Liveliness: PUT = client present, DELETE = gone (its claims fault in claims.check())."""
+        t = self.transport
+        if t.liveliness_events:
+            self._clients_dirty = True
+            for client, present in t.pop_liveliness():
+                if present:
+                    self.claims.client_alive(client)
+                    log.info("client %s present", client)
+                else:
+                    self.claims.client_gone(client)
+                    self.handler.cache.forget_client(client)
+                    log.info("client %s gone", client)
+
+    def idle(self) -> None:
+        """Between cycles (cycle thread): answer requests that arrived, instead of at the next cycle start.
+
+        They take effect at the next ``core.step()``, as their reply's ``cycle`` says. Liveliness
+        first: a client declares its token before it claims, and the NC must see them in that order.
+        """
+        self._take_liveliness()
+        replies = self._drain_queries(time.monotonic())
+        if replies:
+            self.io.submit_replies(replies)
 
     def _apply_plctonc(self, idx: np.ndarray, records: np.ndarray) -> None:
         core = self.core

@@ -32,6 +32,9 @@ log = logging.getLogger("nc_server.server")
 SPIN_NS = 200_000
 #: Below this remaining time the spin stops yielding the GIL [ns].
 SPIN_YIELD_NS = 20_000
+#: With an ``idle`` callback the sleep is cut into slices of this length, ``idle()`` between them [ns]:
+#: requests arriving mid-cycle are answered without waiting for the next cycle start.
+IDLE_SLICE_NS = 200_000
 #: Cycles kept in the timing ring buffers (10 s at 1 kHz).
 RING = 10_000
 #: sys.setswitchinterval while the server runs [s]. CPython's 5 ms default would let the cycle thread
@@ -129,14 +132,17 @@ class CycleLoop:
         period_s: the cycle time [s].
         work: the cycle body; receives the deadline (scheduled start) of this cycle [ns,
             CLOCK_MONOTONIC]. Exceptions propagate and end the loop (the caller decides).
+        idle: optional, called between sleep slices while waiting for the next deadline (must be
+            quick and non-blocking); its time is not counted as cycle work.
         realtime: ``"auto"``, ``"fifo"`` or ``"off"`` (see :func:`set_realtime`).
         rt_priority: SCHED_FIFO priority.
     """
 
     def __init__(self, period_s: float, work: Callable[[int], None], realtime: str = "auto",
-                 rt_priority: int = 49) -> None:
+                 rt_priority: int = 49, idle: Callable[[], None] | None = None) -> None:
         self.period_ns = int(round(period_s * 1e9))
         self.work = work
+        self.idle = idle
         self.realtime = realtime
         self.rt_priority = rt_priority
         self.stats = CycleStats()
@@ -196,10 +202,17 @@ class CycleLoop:
         clock = time.monotonic_ns
         sleep = time.sleep
         yield_ = os.sched_yield if hasattr(os, "sched_yield") else (lambda: sleep(0))
+        idle = self.idle
         deadline = clock() + period
         while not stop.is_set():
-            # Wait: sleep most of it, spin the end (yielding the GIL while there is time).
+            # Wait: sleep most of it (in slices with idle() between them), spin the end
+            # (yielding the GIL while there is time).
             remaining = deadline - clock()
+            if idle is not None:
+                while remaining > SPIN_NS + IDLE_SLICE_NS // 2:
+                    sleep(min(IDLE_SLICE_NS, remaining - SPIN_NS) * 1e-9)
+                    idle()
+                    remaining = deadline - clock()
             if remaining > SPIN_NS:
                 sleep((remaining - SPIN_NS) * 1e-9)
             now = clock()
