@@ -152,6 +152,8 @@ def parse_request(data: bytes) -> dict[str, Any]:
         return out
     except NcError as err:
         err.request_id = rid if isinstance(rid, (int, str)) and not isinstance(rid, bool) else None  # type: ignore[attr-defined]
+        cmd = msg.get("cmd")
+        err.cmd = cmd if isinstance(cmd, str) and cmd in COMMANDS else None  # type: ignore[attr-defined]
         raise
 
 

@@ -103,8 +103,11 @@ def _run(cfg: object) -> int:
     except RealtimeError as exc:
         log.error("%s (use realtime = \"auto\" or \"off\")", exc)
         return 1
-    print(f"nc-server {cfg.name} ready: {len(cfg.axes)} axes, cycle {cfg.cycle_time * 1e3:.3f} ms, "
-          f"timing {server.timing}, listening {', '.join(cfg.zenoh.listen)}", flush=True)
+    # one write: with PYTHONUNBUFFERED, print() would write text and newline separately and a log
+    # line on stderr could land between them when both streams go to one file
+    sys.stdout.write(f"nc-server {cfg.name} ready: {len(cfg.axes)} axes, cycle {cfg.cycle_time * 1e3:.3f} ms, "
+                     f"timing {server.timing}, listening {', '.join(cfg.zenoh.listen)}\n")
+    sys.stdout.flush()
     rc = 0
     try:
         while not stop.wait(0.5):

@@ -132,7 +132,7 @@ class RequestHandler:
         try:
             req = parse_request(payload)
         except NcError as err:
-            return self._error(getattr(err, "request_id", None), None, err)
+            return self._error(getattr(err, "request_id", None), getattr(err, "cmd", None), err)
         rid, client = req["id"], req["client"]
         if client:
             cached = self.cache.get(client, rid)

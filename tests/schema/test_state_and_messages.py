@@ -71,3 +71,12 @@ def test_keys():
         k.parse_cmd_key("nc/nc1/axis/x/cmd")
     with pytest.raises(ValueError):
         s.Keys("bad name")
+
+
+def test_parse_error_keeps_id_and_known_command():
+    with pytest.raises(s.NcError) as ei:
+        s.parse_request(msgpack.packb({"id": 7, "cmd": "MoveAbsolute", "Position": "x", "Velocity": 1.0}))
+    assert ei.value.request_id == 7 and ei.value.cmd == "MoveAbsolute"
+    with pytest.raises(s.NcError) as ei:
+        s.parse_request(msgpack.packb({"id": 8, "cmd": "Explode"}))
+    assert ei.value.cmd is None  # unknown commands are not echoed back
