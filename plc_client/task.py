@@ -42,7 +42,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from nc_schema import MOTION_COMMANDS, CmdState, ErrorCodes, error_text
+from nc_schema import MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, StateDWord, error_text
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, InProcessPort, PendingCommand
@@ -52,6 +52,9 @@ log = logging.getLogger(__name__)
 _local = threading.local()
 
 #: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
+_ENABLE = int(ControlDWord.Enable)
+_CLC = int(StateDWord.ControlLoopClosed)
+_ERROR = int(StateDWord.Error)
 _CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)})
 
 #: Data older than this is stale when the task is built without ``stale_cycles`` [s].
@@ -212,7 +215,19 @@ class PlcTask:
             return c  # claimed as soon as the NC can be reached
         if c.state == "none" or (c.state == "refused" and (retry or self.now - c.since >= self.claim_retry)):
             self._send_claim(ax, c)
+        elif c.state == "held" and (retry or self._claim_looks_lost(ax, c)):
+            # Claim is idempotent for the holder; re-sending it recovers a claim the NC dropped
+            # without our noticing (e.g. a watchdog release on an axis already in error).
+            self._send_claim(ax, c)
         return c
+
+    def _claim_looks_lost(self, ax: AXIS_REF, c: ClaimState) -> bool:
+        """We enable the axis, the NC shows it neither enabled nor in error, for claim_retry."""
+        if not ax.Status.Valid or self.now - c.since < self.claim_retry:
+            return False
+        sd = int(ax.NcToPlc["StateDWord"])
+        enabling = int(ax.PlcToNc["ControlDWord"]) & _ENABLE
+        return bool(enabling) and not sd & (_CLC | _ERROR)
 
     def reachable(self, nc: str) -> bool:
         """Whether requests to ``nc`` can be sent now (the zenoh runtime: session open)."""

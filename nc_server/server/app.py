@@ -18,7 +18,7 @@ from nc_schema import FrameFlags, Keys
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import CycleLoop, configure_interpreter
-from .handler import CoreLike, RequestHandler
+from .handler import MAX_REQUEST_BYTES, CoreLike, RequestHandler
 from .transport import IoThread, Outgoing, Transport, encode_frame_fast
 
 log = logging.getLogger("nc_server.server")
@@ -144,13 +144,13 @@ class NcServer:
 
         # PLCTONC: the newest frame of each client, applied to the axes it holds.
         for client, f in t.pop_plc_frames():
-            claims.plctonc_arrived(client, f.arrival)
+            since = claims.held_since(client)
             ids = f.axis_ids.astype(np.int64)
             ok = (ids >= 0) & (ids < len(self._lut))
             idx = np.where(ok, self._lut[np.where(ok, ids, 0)], -1)
-            held = claims.held_mask(client)
-            sel = np.flatnonzero((idx >= 0) & held[np.maximum(idx, 0)])
-            if sel.size:
+            sel = np.flatnonzero((idx >= 0) & (since[np.maximum(idx, 0)] <= f.arrival))
+            if sel.size:  # only frames that count for a claim feed the watchdog
+                claims.plctonc_arrived(client, f.arrival)
                 self._apply_plctonc(idx[sel], f.plctonc[sel])
 
         # Watchdog: lost clients and stale PLCTONC.
@@ -175,6 +175,7 @@ class NcServer:
         if claims.version != self._claims_version:
             self._claims_version = claims.version
             self._claims_snapshot = claims.claims()
+            t.holders = claims.holders()  # the subscriber drops frames of anybody else early
         if self._clients_dirty:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
@@ -189,7 +190,10 @@ class NcServer:
             if q is None:
                 break
             p = q.payload
-            replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
+            if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
+                replies.append((q, self.handler.too_large(len(p))))
+            else:
+                replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
             if time.monotonic_ns() > budget_end:
                 break
         return replies
@@ -248,5 +252,6 @@ class NcServer:
         d.update({"requests": self.handler.requests, "request_errors": self.handler.errors,
                   "dedup_hits": self.handler.cache.hits, "faults": self.faults,
                   "plctonc_frames": self.transport.plc_frames, "plctonc_malformed": self.transport.plc_malformed,
+                  "plctonc_ignored": self.transport.plc_ignored,
                   "frames_dropped": self.io.frames_dropped, "reply_errors": self.io.reply_errors})
         return d

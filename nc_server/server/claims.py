@@ -177,22 +177,28 @@ class ClaimTable:
             del self._clients[n]
         return gone
 
-    def held_mask(self, client: str) -> np.ndarray:
-        """Boolean per axis index (configuration order): True where ``client`` is the holder.
+    def held_since(self, client: str) -> np.ndarray:
+        """Per axis index (configuration order): the time ``client`` claimed it [s], +inf if not its holder.
 
-        Cached until the claims change; do not modify the returned array.
+        A PLCTONC frame applies only to axes claimed before it arrived (``since <= arrival``): an
+        older frame must not enable an axis, or the watchdog (armed by frames after the claim)
+        would never watch it. Cached until the claims change; do not modify the returned array.
         """
         if self._masks_version != self.version:
             self._masks.clear()
             self._masks_version = self.version
         m = self._masks.get(client)
         if m is None:
-            m = np.zeros(len(self.axis_ids), dtype=bool)
+            m = np.full(len(self.axis_ids), np.inf)
             for a, cl in self._claims.items():
                 if cl.client == client:
-                    m[self._index[a]] = True
+                    m[self._index[a]] = cl.since
             self._masks[client] = m
         return m
+
+    def holders(self) -> frozenset[str]:
+        """The clients holding at least one axis."""
+        return frozenset(cl.client for cl in self._claims.values())
 
     def clients(self) -> list[str]:
         """The clients whose liveliness token is present."""

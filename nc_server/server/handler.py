@@ -125,10 +125,13 @@ class RequestHandler:
         text = str(err)
         return pack(make_reply(rid, cmd, err.code, text[:512], cycle=self.core.cycle + 1))
 
+    def too_large(self, size: int) -> bytes:
+        """The reply to a request of ``size`` bytes over MAX_REQUEST_BYTES (0x706)."""
+        return self._error(None, None, NcError(INVALID_DATA, f"request of {size} bytes exceeds {MAX_REQUEST_BYTES}"))
+
     def _handle(self, key: str, payload: bytes, now: float) -> bytes:
         if len(payload) > MAX_REQUEST_BYTES:
-            return self._error(None, None, NcError(INVALID_DATA, f"request of {len(payload)} bytes exceeds "
-                                                                 f"{MAX_REQUEST_BYTES}"))
+            return self.too_large(len(payload))
         try:
             req = parse_request(payload)
         except NcError as err:

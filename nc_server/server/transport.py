@@ -28,7 +28,10 @@ import numpy as np
 import zenoh
 from zenoh.handlers import Callback, FifoChannel
 
-from nc_schema import FRAME_HEADER_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame, encode_stamp, pack
+from nc_schema import (
+    FRAME_HEADER_DTYPE, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame,
+    encode_stamp, pack,
+)
 from nc_schema import encode_frame as nc_schema_encode_frame
 
 from .config import ZenohSettings
@@ -37,6 +40,8 @@ log = logging.getLogger("nc_server.server")
 
 #: Pending queries the queryable buffers (the cycle drains a bounded number per cycle).
 QUERY_CHANNEL = 1024
+#: Largest message the NC's zenoh session accepts [bytes].
+MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 #: Stats period [s].
 STATS_PERIOD = 0.1
 
@@ -62,6 +67,8 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
+    # zenoh's default accepts 1 GiB messages; nothing legitimate comes near 4 MiB here
+    c.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
     return c
 
 
@@ -127,10 +134,15 @@ class Transport:
         self.match_version = 0
         #: client id -> newest decoded frame (written by the subscriber thread, popped by the cycle).
         self.plc_inbox: dict[str, PlcFrame] = {}
+        #: clients holding an axis (replaced by the cycle thread); frames of anybody else are dropped
+        #: before decoding, so a flood of frames cannot cost the NC more than a dict lookup each
+        self.holders: frozenset[str] = frozenset()
         #: (client id, present?) liveliness events in arrival order (appended by zenoh, popped by the cycle).
         self.liveliness_events: collections.deque[tuple[str, bool]] = collections.deque()
         self.plc_frames = 0
         self.plc_malformed = 0
+        self.plc_ignored = 0  # frames from clients that hold no axis
+        self._max_plc_frame = PLC_FRAME_HEADER_DTYPE.itemsize + len(self.axis_ids) * PLC_AXIS_RECORD_DTYPE.itemsize
         self.session: zenoh.Session | None = None
         self._zid = ""
         self._decl: list[Any] = []
@@ -215,6 +227,10 @@ class Transport:
 
     # ---- PLCTONC subscriber (its own Python thread) -------------------------------------------
     def _on_plctonc(self, sample: zenoh.Sample) -> None:
+        client = str(sample.key_expr).rsplit("/", 1)[-1]
+        if client not in self.holders:
+            self.plc_ignored += 1
+            return
         now = time.monotonic()
         # The arrival time feeds the watchdog. Our router stamps every sample it receives (HLC,
         # wall clock) on zenoh's own thread; that stamp is used when it is ours, so a late run of
@@ -225,9 +241,13 @@ class Transport:
             if 0.0 < age < 60.0:
                 now -= age
         try:
-            client = str(sample.key_expr).rsplit("/", 1)[-1]
+            if len(sample.payload) > self._max_plc_frame:
+                raise ValueError("more records than axes")
             h, recs = decode_plc_frame(sample.payload.to_bytes())
-            frame = PlcFrame(now, int(h["PlcCycle"]), recs["AxisId"].copy(), recs["PlcToNc"].copy())
+            ids = recs["AxisId"]
+            if len(np.unique(ids)) != len(ids):
+                raise ValueError("duplicate AxisId")
+            frame = PlcFrame(now, int(h["PlcCycle"]), ids.copy(), recs["PlcToNc"].copy())
         except Exception:  # malformed: counted and dropped, never crash the subscriber
             self.plc_malformed += 1
             return

@@ -152,10 +152,14 @@ def test_garbage_requests_get_error_codes(nc_server: NcServerProcess,
     r = cl.request("MoveAbsolute", axis=1, Position=5.0, Velocity=-10.0)
     assert r["error"] == 0x4221, r
 
-    # Malformed PLC frames on the PLCTONC key are dropped and counted.
+    # Malformed PLC frames on the PLCTONC key are dropped and counted: from a client that holds
+    # nothing before any decoding (ignored), from the holder after decoding (malformed).
     junk = cl.session.declare_publisher("nc/nc1/plctonc/junk")
+    own = cl.session.declare_publisher("nc/nc1/plctonc/fuzzer")
     for payload in (b"", b"garbage", b"\x50\x50\x43\x31" + bytes(40)):
         junk.put(payload)
+        own.put(payload)
+    wait_until(lambda: (s := cl.stats()) is not None and s["plctonc_ignored"] >= 3, T, "foreign frames ignored")
     wait_until(lambda: (s := cl.stats()) is not None and s["plctonc_malformed"] >= 3, T, "malformed frames counted")
 
     # Still cycling, and a valid command still works.

@@ -186,3 +186,22 @@ def test_task_argument_validation() -> None:
         PlcTask(stale_cycles=0)
     with pytest.raises(TypeError):
         PlcTask(program=42)
+
+
+def test_claim_dropped_silently_by_the_nc_is_claimed_again(rig: Rig) -> None:
+    """Review regression: the NC's watchdog may release the claim of an axis that already had an
+    error (its 0x8F0x never shows: the first error sticks). The task must not believe it still
+    holds the axis forever: MC_Power claims again and gets the axis back after MC_Reset."""
+    ax, pw, calls = powered(rig)
+    plc = ax.task
+    core = rig.core
+    i = core.index(1)
+    core.fault(i, ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING)  # an axis error first ...
+    plc.port.claims.pop(1)                                    # ... then the NC drops the claim
+    core.set_plctonc(i, core.default_plctonc())
+    rs = MC_Reset()
+    calls["body"] = lambda p: rs(Axis=ax, Execute=True)
+    rig.run_until(lambda: rs.Done, 20)
+    assert not plc.port.holds_claim(1)
+    n = rig.run_until(lambda: pw.Status, 300)  # within claim_retry (1 s = 100 PLC cycles) + a few
+    assert plc.port.holds_claim(1) and not pw.Error and n <= 150

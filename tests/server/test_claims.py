@@ -104,13 +104,14 @@ def test_override_permission(table: ClaimTable) -> None:
     assert ei.value.code == 0x723
 
 
-def test_held_mask_follows_changes(table: ClaimTable) -> None:
+def test_held_since_follows_changes(table: ClaimTable) -> None:
+    inf = float("inf")
     table.client_alive("a")
-    assert table.held_mask("a").tolist() == [False, False, False]
-    table.claim(2, "a", 0.0)
-    assert table.held_mask("a").tolist() == [False, True, False]
+    assert table.held_since("a").tolist() == [inf, inf, inf] and table.holders() == frozenset()
+    table.claim(2, "a", 5.0)
+    assert table.held_since("a").tolist() == [inf, 5.0, inf] and table.holders() == {"a"}
     table.release(2, "a")
-    assert table.held_mask("a").tolist() == [False, False, False]
+    assert table.held_since("a").tolist() == [inf, inf, inf] and table.holders() == frozenset()
 
 
 def test_frames_of_unknown_clients_are_ignored(table: ClaimTable) -> None:

@@ -1,0 +1,61 @@
+"""Server regressions found by review (each failed before its fix), through a real nc-server."""
+from __future__ import annotations
+
+import time
+
+import msgpack
+import numpy as np
+
+from nc_schema import PLCTONC_DTYPE, encode_plc_frame
+from znc_testing import BIT_CONTROL_LOOP_CLOSED, ENABLE_ALL, NcTestClient, wait_until
+
+BIT_ERROR = 1 << 31
+
+
+def _frame(ids: list[int], control: int = ENABLE_ALL) -> bytes:
+    recs = np.zeros(len(ids), dtype=PLCTONC_DTYPE)
+    recs["ControlDWord"] = control
+    recs["Override"] = 1_000_000
+    return encode_plc_frame(1, ids, recs)
+
+
+def test_frame_sent_before_the_claim_neither_enables_nor_escapes_the_watchdog(nc_server, nc_client) -> None:
+    cl: NcTestClient = nc_client(nc_server.port, "early")
+    cl.watch("nc/nc1/axis/1/nctoplc")
+    wait_until(lambda: cl.nctoplc(1) is not None, 20, "first sample")
+    # one enabling frame, then the claim right away, then silence (the token stays)
+    cl.session.put("nc/nc1/plctonc/early", _frame([1]))
+    cl.claim(1)
+    time.sleep(0.3)  # a fixed window on purpose: asserting something stays false
+    r = cl.nctoplc(1)
+    assert not int(r["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED  # the pre-claim frame did not apply
+    assert cl.request("MoveVelocity", axis=1, Velocity=50.0)["error"] == 0x4223
+    # a frame after the claim enables the axis and arms the watchdog: silence then faults it
+    cl.session.put("nc/nc1/plctonc/early", _frame([1]))
+    wait_until(lambda: int(cl.nctoplc(1)["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED, 20, "enabled by a post-claim frame")
+    assert cl.request("MoveVelocity", axis=1, Velocity=50.0)["error"] == 0
+    wait_until(lambda: int(cl.nctoplc(1)["ErrorCode"]) == 0x8F02, 30, "watchdog 0x8F02")
+    wait_until(lambda: float(cl.nctoplc(1)["SetVelo"]) == 0.0, 30, "axis stopped")
+
+
+def test_oversized_request_is_refused_and_the_cycle_goes_on(nc_server, nc_client) -> None:
+    cl: NcTestClient = nc_client(nc_server.port, "big")
+    cl.watch("nc/nc1/axis/1/nctoplc")
+    wait_until(lambda: cl.nctoplc(1) is not None, 20, "first sample")
+    payload = msgpack.packb({"id": 1, "cmd": "Info", "client": "big", "pad": "x" * (1 << 20)})
+    rep = cl.raw_request("nc/nc1/cmd", payload, timeout=20)
+    assert rep["error"] == 0x706 and "exceeds" in rep["text"]
+    c0 = int(cl.nctoplc(1)["DcTimeStamp"])
+    wait_until(lambda: int(cl.nctoplc(1)["DcTimeStamp"]) != c0, 20, "the NC keeps cycling")
+    assert cl.request("Info")["error"] == 0
+
+
+def test_plctonc_frame_with_duplicate_axis_ids_is_dropped(nc_server, nc_client) -> None:
+    cl: NcTestClient = nc_client(nc_server.port, "dup")
+    cl.watch("nc/nc1/axis/1/nctoplc")
+    cl.watch("nc/nc1/stats")
+    wait_until(lambda: cl.nctoplc(1) is not None and cl.stats() is not None, 20, "first samples")
+    cl.claim(1)
+    cl.session.put("nc/nc1/plctonc/dup", _frame([1, 1]))
+    wait_until(lambda: cl.stats()["plctonc_malformed"] >= 1, 20, "malformed frame counted")
+    assert not int(cl.nctoplc(1)["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED
