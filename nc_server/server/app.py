@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import gc
 import logging
+import threading
 import time
 from typing import Any
 
 import numpy as np
 
 from nc_schema import FrameFlags, Keys
+
+from ..core.axes import JOB_STOP
 
 from .claims import ClaimTable
 from .config import ServerConfig
@@ -29,6 +32,8 @@ MAX_QUERIES_PER_CYCLE = 32
 QUERY_BUDGET_NS = 250_000
 #: Hand replies to the I/O thread right after the requests ran (before core.step()).
 EARLY_REPLIES = True
+#: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
+SHUTDOWN_STOP_TIMEOUT = 5.0
 #: A gap between two cycle starts longer than this means the NC itself stalled [s]:
 #: nobody is blamed for PLCTONC that could not be processed meanwhile.
 STALL_GRACE = 0.05
@@ -64,6 +69,7 @@ class NcServer:
         self._matched: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
         self.faults = 0
         self.started = False
+        self._shutdown = threading.Event()  # set by stop(): the cycle stops every moving axis
 
     # ---- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
@@ -93,7 +99,17 @@ class NcServer:
         if not self.started:
             return
         self.started = False
+        # Never leave a drive moving: stop every moving axis with its stop ramp, wait (bounded)
+        # for standstill, then end the cycle and release the drive.
+        self._shutdown.set()
+        deadline = time.monotonic() + SHUTDOWN_STOP_TIMEOUT
+        while self.loop.alive and bool(np.asarray(self.core.moving).any()) and time.monotonic() < deadline:  # type: ignore[attr-defined]
+            time.sleep(0.01)
         self.loop.stop()
+        try:
+            self.core.drive.close()  # type: ignore[attr-defined]
+        except Exception as exc:
+            log.warning("drive close: %s", exc)
         core = self.core
         try:
             frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc,  # type: ignore[attr-defined]
@@ -161,6 +177,8 @@ class NcServer:
             self.faults += 1
             log.warning("axis %d: fault 0x%04X (claim released)", axis_id, code)
 
+        if self._shutdown.is_set():
+            self._stop_moving_axes()
         core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
 
         frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc)  # type: ignore[attr-defined]
@@ -179,6 +197,14 @@ class NcServer:
         if self._clients_dirty:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
+
+    def _stop_moving_axes(self) -> None:
+        """Shutdown: MC_Stop every moving axis that is not already stopping (cycle thread)."""
+        core = self.core
+        a = core.axes  # type: ignore[attr-defined]
+        for i in np.flatnonzero(core.moving & (a.job != JOB_STOP)).tolist():  # type: ignore[attr-defined]
+            core.execute({"id": None, "client": "", "cmd": "Stop", "Deceleration": 0.0, "Jerk": 0.0},  # type: ignore[attr-defined]
+                         int(self.axis_ids[i]))
 
     def _drain_queries(self, now: float) -> list[tuple[Any, bytes]]:
         """Run the queued requests (at most MAX_QUERIES_PER_CYCLE / QUERY_BUDGET_NS); their replies."""

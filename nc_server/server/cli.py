@@ -90,6 +90,8 @@ def _run(cfg: object) -> int:
 
     def on_signal(signum: int, _frame: object) -> None:
         stop.set()
+        if signum == signal.SIGTERM:  # one is enough: a repeated one must not cut the stop ramp short
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)

@@ -59,3 +59,34 @@ def test_plctonc_frame_with_duplicate_axis_ids_is_dropped(nc_server, nc_client) 
     cl.session.put("nc/nc1/plctonc/dup", _frame([1, 1]))
     wait_until(lambda: cl.stats()["plctonc_malformed"] >= 1, 20, "malformed frame counted")
     assert not int(cl.nctoplc(1)["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED
+
+
+def test_shutdown_stops_moving_axes_with_a_ramp(nc_server, nc_client) -> None:
+    import signal
+
+    from nc_schema import FrameFlags, decode_frame
+
+    cl: NcTestClient = nc_client(nc_server.port, "stopper")
+    frames: list[tuple[int, float]] = []  # (flags, SetVelo of axis 1) of every frame seen
+
+    def on_frame(sample) -> None:
+        h, recs = decode_frame(sample.payload.to_bytes())
+        frames.append((int(h["Flags"]), float(recs[0]["SetVelo"])))
+
+    sub = cl.session.declare_subscriber("nc/nc1/frame", on_frame)
+    try:
+        cl.claim(1)
+        cl.feed_plctonc([1])
+        wait_until(lambda: frames and cl.request("MoveVelocity", axis=1, Velocity=200.0)["error"] == 0, 20,
+                   "move started")
+        wait_until(lambda: frames and frames[-1][1] > 150.0, 20, "axis moving")
+        n0 = len(frames)
+        nc_server.send_signal(signal.SIGTERM)
+        wait_until(lambda: any(f & int(FrameFlags.ShuttingDown) for f, _ in frames[n0:]), 30, "the last frame")
+    finally:
+        sub.undeclare()
+    after = [v for _, v in frames[n0:]]
+    last_flags, last_velo = frames[-1]
+    assert last_flags & int(FrameFlags.ShuttingDown) and last_velo == 0.0
+    assert max(abs(a - b) for a, b in zip(after, after[1:])) < 50.0  # a ramp, not a jump to 0
+    assert nc_server.proc.wait(timeout=30) == 0  # exits by itself after the one SIGTERM
