@@ -54,7 +54,8 @@ class NcServer:
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
         self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout)
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle)
-        self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra)
+        self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
+                                      refresh_liveliness=self._take_liveliness)
         self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
         self.io = IoThread(self.transport, self.stats)
         # AxisId -> index lookup for PLC frames (vectorized); -1 = not configured.

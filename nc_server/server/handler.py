@@ -84,6 +84,7 @@ class RequestHandler:
         claims: the claim table.
         keys: the NC's key expressions.
         info_extra: returns extra Info fields (e.g. ``timing``) at call time.
+        refresh_liveliness: applies liveliness events that arrived meanwhile (see Claim).
         cache_size: reply cache entries.
 
     Dedup applies to requests that carry a client id: a repeated (client, id) gets the cached
@@ -92,11 +93,14 @@ class RequestHandler:
     """
 
     def __init__(self, core: CoreLike, claims: ClaimTable, keys: Keys,
-                 info_extra: Callable[[], dict[str, Any]] | None = None, cache_size: int = 4096) -> None:
+                 info_extra: Callable[[], dict[str, Any]] | None = None, cache_size: int = 4096,
+                 refresh_liveliness: Callable[[], None] | None = None) -> None:
         self.core = core
         self.claims = claims
         self.keys = keys
         self.info_extra = info_extra or (lambda: {})
+        #: applies pending liveliness events (the server's); called before refusing an unknown client
+        self.refresh_liveliness = refresh_liveliness or (lambda: None)
         self.cache = ReplyCache(cache_size)
         self.requests = 0
         self.errors = 0
@@ -168,6 +172,9 @@ class RequestHandler:
             try:
                 i = self.core.index(axis_id)
                 if cmd == "Claim":
+                    if not self.claims.is_alive(client):
+                        # its token event may have arrived a moment ago: take pending events first
+                        self.refresh_liveliness()
                     self.claims.claim(axis_id, client, now)
                     return pack(make_reply(rid, cmd, 0, "", cycle=cycle, value=client))
                 if self.claims.release(axis_id, client):

@@ -186,3 +186,19 @@ def test_with_the_real_core_duplicate_move_runs_once() -> None:
         core.step()
     assert abs(float(core.nctoplc[0]["SetPos"]) - 5.0) < 1e-9
     assert int(core.nctoplc[0]["CmdNo"]) == 1
+
+
+def test_claim_takes_pending_liveliness_events_before_refusing() -> None:
+    """A client's token event that arrived just before its Claim must not cause a 0x723."""
+    core = NcCore([AxisConfig(1)], 0.001)
+    claims = ClaimTable([1], 0.5)
+    pending = ["plc-a"]  # events the server has not applied yet
+
+    def refresh() -> None:
+        while pending:
+            claims.client_alive(pending.pop())
+
+    h = RequestHandler(core, claims, Keys("nc1"), refresh_liveliness=refresh)
+    rep = msgpack.unpackb(h.handle("nc/nc1/axis/1/cmd", msgpack.packb({"id": 1, "client": "plc-a", "cmd": "Claim"}),
+                                   0.0), strict_map_key=False)
+    assert rep["error"] == 0 and claims.holder(1) == "plc-a"
