@@ -74,8 +74,12 @@ class MotionBlock(ExecuteBlock):
         self._cmd_cycle = 0
         self._done_since: float | None = None
 
-    def _args(self) -> dict[str, Any]:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def _args(self) -> dict[str, Any]:
+        """The command's arguments: the latched real inputs, and Direction where the block has one."""
+        a: dict[str, Any] = {k: float(getattr(self, k)) for k in self._REALS}
+        if "Direction" in self._INPUTS:
+            a["Direction"] = _int_or_invalid(self.Direction)  # type: ignore[attr-defined]
+        return a
 
     def _start(self) -> None:
         self._cmdno, self._cmd_cycle, self._done_since = 0, 0, None
@@ -178,9 +182,6 @@ class MC_MoveAbsolute(MotionBlock):
     _INPUTS = {"Execute": False, "Position": 0.0, "Velocity": 0.0, **_DYN, "BufferMode": 0}
     _REALS = ("Position", "Velocity", "Acceleration", "Deceleration", "Jerk")
 
-    def _args(self) -> dict[str, Any]:
-        return {k: float(getattr(self, k)) for k in self._REALS}
-
 
 class MC_MoveRelative(MotionBlock):
     """Relative positioning by Distance [u] from the set position when it takes effect (TcMC 3.2)."""
@@ -188,9 +189,6 @@ class MC_MoveRelative(MotionBlock):
     CMD = "MoveRelative"
     _INPUTS = {"Execute": False, "Distance": 0.0, "Velocity": 0.0, **_DYN, "BufferMode": 0}
     _REALS = ("Distance", "Velocity", "Acceleration", "Deceleration", "Jerk")
-
-    def _args(self) -> dict[str, Any]:
-        return {k: float(getattr(self, k)) for k in self._REALS}
 
 
 class MC_MoveModulo(MotionBlock):
@@ -200,11 +198,6 @@ class MC_MoveModulo(MotionBlock):
     _INPUTS = {"Execute": False, "Position": 0.0, "Velocity": 0.0, **_DYN,
                "Direction": int(MC_Direction.MC_Positive_Direction), "BufferMode": 0}
     _REALS = ("Position", "Velocity", "Acceleration", "Deceleration", "Jerk")
-
-    def _args(self) -> dict[str, Any]:
-        a: dict[str, Any] = {k: float(getattr(self, k)) for k in self._REALS}
-        a["Direction"] = _int_or_invalid(self.Direction)
-        return a
 
 
 def _int_or_invalid(v: Any) -> int:
@@ -232,11 +225,6 @@ class MC_MoveVelocity(MotionBlock):
     _REALS = ("Velocity", "Acceleration", "Deceleration", "Jerk")
     _END = "velocity"
 
-    def _args(self) -> dict[str, Any]:
-        a: dict[str, Any] = {k: float(getattr(self, k)) for k in self._REALS}
-        a["Direction"] = _int_or_invalid(self.Direction)
-        return a
-
     def _on_active(self, sdw: int) -> None:
         if sdw & _CONSTV and sdw & _HASJOB:
             self._finish("InVelocity")
@@ -258,15 +246,12 @@ class MC_Halt(MotionBlock):
     _REALS = ("Deceleration", "Jerk")
     _END = "standstill"
 
-    def _args(self) -> dict[str, Any]:
-        return {k: float(getattr(self, k)) for k in self._REALS}
-
 
 class MC_Stop(MotionBlock):
     """Stop and lock the axis (TcMC 3.15; see the module docstring for the lock rules).
 
     Inputs: Execute, Deceleration [u/s^2], Jerk [u/s^3] (0 = axis default; a non-zero value
-    only together with the other).
+    counts only together with the other: a lone one is ignored and the axis defaults apply).
     Outputs: Done, Busy, Active, CommandAborted, Error, ErrorID.
     """
 
@@ -278,9 +263,6 @@ class MC_Stop(MotionBlock):
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
         self._release_at_end = False
-
-    def _args(self) -> dict[str, Any]:
-        return {k: float(getattr(self, k)) for k in self._REALS}
 
     def _start(self) -> None:
         self._release_at_end = False
