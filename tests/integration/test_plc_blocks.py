@@ -87,7 +87,11 @@ def test_move_velocity_override_halt_and_reads(plc: PlcProcess) -> None:
     assert not r.o["Busy"] and r.a["State"] == "CONTINOUSMOTION"
     plc.wait("rs", lambda r: r.o["ContinuousMotion"] and r.o["ConstantVelocity"], T)
     plc.set("ov", "MC_SetOverride", axis=2, Execute=True, Override=50.0)
-    plc.wait("ov", lambda r: r.o["Done"], T)
+    ov = plc.wait("ov", lambda r: r.o["Done"], T)
+    # measure once the override's deceleration ramp is over (a ramp inside the window would add to
+    # the rate): the first ConstantVelocity after the override was written (the ramp starts later)
+    c_ov = ov.a["NcCycle"]
+    plc.wait("rs", lambda r: r.a["NcCycle"] > c_ov and r.o["ConstantVelocity"], T)
     plc.set("pos", "MC_ReadActualPosition", axis=2, Enable=True)
     p1 = plc.wait("pos", lambda r: r.o["Valid"], T)
     plc.wait_cycles(100)
