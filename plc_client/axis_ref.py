@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, MC_AxisStates, StateDWord, motion_state
+from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, MC_AxisStates, StateDWord, motion_state
 
 if TYPE_CHECKING:  # pragma: no cover
     from .task import PlcTask
@@ -156,6 +156,8 @@ class AXIS_REF:
         axis_id: the axis's AxisId (1..65535).
         NcToPlc: read-only NCTOPLC snapshot of this PLC cycle (``numpy.void``).
         PlcToNc: writable PLCTONC record published for a controlled axis.
+        NcJobs: read-only NCJOBS_AXIS_REF snapshot (zenoh-nc): the axis's command queue and the
+            fates of its last ended commands, so a block sees how its own command ended.
         Status: :class:`ST_AxisStatus`, refreshed every PLC cycle.
         nc_epoch: incremented each time the NC is seen to restart (its cycle went back).
 
@@ -174,6 +176,9 @@ class AXIS_REF:
         empty = np.zeros(1, dtype=NCTOPLC_DTYPE)
         empty.flags.writeable = False
         self.NcToPlc: np.void = empty[0]
+        no_jobs = np.zeros(1, dtype=NCJOBS_DTYPE)
+        no_jobs.flags.writeable = False
+        self.NcJobs: np.void = no_jobs[0]
         self._plctonc = np.zeros(1, dtype=PLCTONC_DTYPE)
         self._plctonc["Override"] = 1_000_000
         self.PlcToNc: np.void = self._plctonc[0]
@@ -198,7 +203,7 @@ class AXIS_REF:
 
     # -- snapshot ----------------------------------------------------------------------
     def _snapshot(self, rec: np.void | None, nc_cycle: int | None, plc_cycle: int, cycle_time: float,
-                  stale_cycles: int) -> None:
+                  stale_cycles: int, jobs: np.void | None = None) -> None:
         """Take this cycle's snapshot (called by the task at the start of each PLC cycle).
 
         ``rec`` is this axis's record in the newest frame of its NC (None if the frame
@@ -211,6 +216,8 @@ class AXIS_REF:
                 self._unchanged += 1
             arr = np.frombuffer(rec.tobytes(), dtype=NCTOPLC_DTYPE, count=1)  # read-only copy
             self.NcToPlc = arr[0]
+            if jobs is not None:
+                self.NcJobs = np.frombuffer(jobs.tobytes(), dtype=NCJOBS_DTYPE, count=1)[0]
             self._has_data = True
             self.missing = False
         else:

@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
                     return 1
                 sample = sub.try_recv()
                 if sample is not None:
-                    h, recs = decode_frame(sample.payload.to_bytes())
+                    h, recs, _ = decode_frame(sample.payload.to_bytes())
                     last = (h, recs.copy())
                     for r in recs:
                         ax = int(r["AxisId"])

@@ -317,13 +317,13 @@ class PlcRuntime(PlcTask):
             if sample is None:
                 continue
             try:
-                h, recs = decode_frame(sample.payload.to_bytes())
+                h, recs, jobs = decode_frame(sample.payload.to_bytes())
             except ValueError as exc:
                 if f"bad-frame-{nc}" not in self._warned:
                     self._warned.add(f"bad-frame-{nc}")
                     log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
                 continue
-            self._set_frame(nc, int(h["Cycle"]), recs)
+            self._set_frame(nc, int(h["Cycle"]), recs, jobs)
 
     def _liveliness(self, link: _NcLink) -> None:
         while True:

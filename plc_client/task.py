@@ -352,12 +352,13 @@ class PlcTask:
     def _take_frames(self) -> None:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
-    def _set_frame(self, nc: str, cycle: int, records: np.ndarray) -> None:
+    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
+        """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent."""
         prev = self._frames.get(nc)
         if prev is not None and cycle < prev[0]:
             self.nc_restarted(nc)  # the NC's cycle counter went back
         ids = records["AxisId"]
-        self._frames[nc] = (int(cycle), records, {int(a): i for i, a in enumerate(ids.tolist())})
+        self._frames[nc] = (int(cycle), records, {int(a): i for i, a in enumerate(ids.tolist())}, jobs)
 
     def _snapshot_all(self) -> None:
         for refs in self._refs.values():
@@ -369,9 +370,10 @@ class PlcTask:
         if frame is None:
             ax._snapshot(None, None, self.cycle, self.cycle_time, self.stale_cycles)
         else:
-            cyc, recs, index = frame
+            cyc, recs, index, jobs = frame
             i = index.get(ax.axis_id)
-            ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, self.stale_cycles)
+            ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, self.stale_cycles,
+                         None if i is None or jobs is None else jobs[i])
 
     def nc_restarted(self, nc: str) -> None:
         """The NC ``nc`` restarted: bump the epoch of its axes and forget its claims."""
@@ -429,7 +431,7 @@ class InProcessPlc(PlcTask):
         return self.cycle * self.cycle_time
 
     def _take_frames(self) -> None:
-        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc)
+        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc, getattr(self.core, "ncjobs", None))
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         if nc != self.nc:

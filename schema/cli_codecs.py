@@ -32,8 +32,11 @@ def decode_plctonc(key: Any, value: bytes) -> str:
 
 
 def decode_frame(key: Any, value: bytes) -> str:
-    h, recs = _decode_frame(value)
-    return json.dumps({"header": to_dict(h), "axes": [_nctoplc(r) for r in recs]})
+    h, recs, jobs = _decode_frame(value)
+    out: dict[str, Any] = {"header": to_dict(h), "axes": [_nctoplc(r) for r in recs]}
+    if jobs is not None:
+        out["jobs"] = [to_dict(j) for j in jobs]
+    return json.dumps(out)
 
 
 def decode_msgpack(key: Any, value: bytes) -> str:

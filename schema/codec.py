@@ -58,6 +58,7 @@ FRAME_HEADER_DTYPE: np.dtype = DTYPES["FRAME_HEADER"]
 PLC_FRAME_HEADER_DTYPE: np.dtype = DTYPES["PLC_FRAME_HEADER"]
 PLC_AXIS_RECORD_DTYPE: np.dtype = DTYPES["PLC_AXIS_RECORD"]
 STAMP_DTYPE: np.dtype = DTYPES["STAMP"]
+NCJOBS_DTYPE: np.dtype = DTYPES["NCJOBS_AXIS_REF"]
 
 FRAME_MAGIC = 0x314E435A  # b"ZCN1"
 PLC_FRAME_MAGIC = 0x31435050  # b"PPC1"
@@ -90,6 +91,10 @@ MC_Direction = _enum("MC_Direction")
 MC_BufferMode = _enum("MC_BufferMode")
 MC_HomingMode = _enum("MC_HomingMode")
 E_StartPosType = _enum("E_StartPosType")
+E_JogMode = _enum("E_JogMode")
+E_CmdTypeNewTargPosAndVelo = _enum("E_CmdTypeNewTargPosAndVelo")
+#: MC_Home.Position value that selects the axis's calibration value (any Position >= it does)
+DEFAULT_HOME_POSITION = 1e300
 MC_AxisPara = _enum("MC_AxisPara")
 
 
@@ -159,32 +164,52 @@ def _struct_of(dt: np.dtype) -> struct.Struct:
 _FRAME_HEADER = _struct_of(FRAME_HEADER_DTYPE)
 
 
-def encode_frame(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0) -> bytes:
-    """Batched NC status frame: FRAME_HEADER followed by NCTOPLC records."""
-    return _FRAME_HEADER.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_DTYPE.itemsize, cycle, nc_time_ns,
-                              len(records), NCTOPLC_DTYPE.itemsize, flags) + records.tobytes()
+_JOB_RECORDS = 2  # FRAME_FLAGS.JobRecords
 
 
-def _split_frame(data: bytes, header: np.dtype, magic: int, record: np.dtype, what: str) -> tuple[np.void, np.ndarray]:
-    """Check a frame's header (magic, version, sizes) and view its records."""
+def encode_frame(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0,
+                 jobs: np.ndarray | None = None) -> bytes:
+    """Batched NC status frame: FRAME_HEADER, the NCTOPLC records, then (with ``jobs``, flag
+    JobRecords) one NCJOBS_AXIS_REF per axis in the same order."""
+    if jobs is None:
+        return _FRAME_HEADER.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_DTYPE.itemsize, cycle, nc_time_ns,
+                                  len(records), NCTOPLC_DTYPE.itemsize, flags & ~_JOB_RECORDS) + records.tobytes()
+    return b"".join((_FRAME_HEADER.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_DTYPE.itemsize, cycle, nc_time_ns,
+                                        len(records), NCTOPLC_DTYPE.itemsize, flags | _JOB_RECORDS),
+                     records.tobytes(), jobs.tobytes()))
+
+
+def _split_frame(data: bytes, header: np.dtype, magic: int, record: np.dtype, what: str,
+                 extra: int = 0) -> tuple[np.void, np.ndarray]:
+    """Check a frame's header (magic, version, sizes) and view its records (``extra``: bytes per
+    record that follow all records, e.g. the job records)."""
     if len(data) < header.itemsize:
         raise ValueError(f"{what} shorter than its header")
     h = np.frombuffer(data, dtype=header, count=1)[0]
     if int(h["Magic"]) != magic or int(h["Version"]) != WIRE_VERSION:
         raise ValueError(f"not a zenoh-nc v{WIRE_VERSION} {what}")
     n, rs = int(h["AxisCount"]), int(h["RecordSize"])
-    if rs != record.itemsize or len(data) != int(h["HeaderSize"]) + n * rs:
+    if rs != record.itemsize or len(data) != int(h["HeaderSize"]) + n * (rs + extra):
         raise ValueError(f"{what} sizes do not add up")
     return h, np.frombuffer(data, dtype=record, count=n, offset=int(h["HeaderSize"]))
 
 
-def decode_frame(data: bytes) -> tuple[np.void, np.ndarray]:
-    """Split a status frame into (header, NCTOPLC records).
+def decode_frame(data: bytes) -> tuple[np.void, np.ndarray, np.ndarray | None]:
+    """Split a status frame into (header, NCTOPLC records, NCJOBS records or None).
 
     Raises:
         ValueError: wrong magic, version or sizes.
     """
-    return _split_frame(data, FRAME_HEADER_DTYPE, FRAME_MAGIC, NCTOPLC_DTYPE, "status frame")
+    if len(data) >= FRAME_HEADER_DTYPE.itemsize:
+        flags = int(np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]["Flags"])
+    else:
+        flags = 0
+    if not flags & _JOB_RECORDS:
+        h, recs = _split_frame(data, FRAME_HEADER_DTYPE, FRAME_MAGIC, NCTOPLC_DTYPE, "status frame")
+        return h, recs, None
+    h, recs = _split_frame(data, FRAME_HEADER_DTYPE, FRAME_MAGIC, NCTOPLC_DTYPE, "status frame", NCJOBS_DTYPE.itemsize)
+    off = int(h["HeaderSize"]) + len(recs) * NCTOPLC_DTYPE.itemsize
+    return h, recs, np.frombuffer(data, dtype=NCJOBS_DTYPE, count=len(recs), offset=off)
 
 
 def encode_plc_frame(plc_cycle: int, axis_ids: list[int] | np.ndarray, plctonc: np.ndarray) -> bytes:

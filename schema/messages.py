@@ -96,6 +96,10 @@ def _check_arg(cmd: str, name: str, spec: Mapping[str, Any], value: Any) -> Any:
         if not -(2**31) <= value < 2**31:
             raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}.{name} out of range: {value}")
         return value
+    if t == "BOOL":
+        if not is_bool:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}.{name} must be true or false, got {value!r}")
+        return value
     if t == "LREAL|BOOL":
         if is_bool:
             return value

@@ -70,7 +70,7 @@ def test_shutdown_stops_moving_axes_with_a_ramp(nc_server, nc_client) -> None:
     frames: list[tuple[int, float]] = []  # (flags, SetVelo of axis 1) of every frame seen
 
     def on_frame(sample) -> None:
-        h, recs = decode_frame(sample.payload.to_bytes())
+        h, recs, _ = decode_frame(sample.payload.to_bytes())
         frames.append((int(h["Flags"]), float(recs[0]["SetVelo"])))
 
     sub = cl.session.declare_subscriber("nc/nc1/frame", on_frame)

@@ -110,7 +110,8 @@ def test_frames_round_trip():
     recs["SetPos"] = [1.5, -2.0, 3.25]
     data = s.encode_frame(42, 123456789, recs)
     assert len(data) == 32 + 3 * 256
-    h, back = s.decode_frame(data)
+    h, back, jobs = s.decode_frame(data)
+    assert jobs is None
     assert int(h["Cycle"]) == 42 and int(h["NcTimeNs"]) == 123456789
     assert back.tobytes() == recs.tobytes()
     with pytest.raises(ValueError):

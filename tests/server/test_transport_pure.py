@@ -24,7 +24,7 @@ def test_fast_frame_is_byte_identical(n: int, flags: int) -> None:
     ref["Magic"], ref["Version"], ref["HeaderSize"] = 0x314E435A, 1, 32
     ref["Cycle"], ref["NcTimeNs"], ref["AxisCount"], ref["RecordSize"], ref["Flags"] = cycle, t, n, 256, flags
     assert fast[:32] == ref.tobytes()
-    h, out = decode_frame(fast)
+    h, out, _ = decode_frame(fast)
     assert int(h["Cycle"]) == cycle and int(h["AxisCount"]) == n and int(h["Flags"]) == flags
     assert out.tobytes() == recs.tobytes()
 
