@@ -1,8 +1,9 @@
-"""nc_schema: the zenoh-nc wire contract (the ``schema/`` folder).
+"""nc_schema: the zenoh-nc wire contract.
 
-The JSON files beside this module are the single source of truth
-(language-neutral: a C, Rust or TypeScript client reads the same files);
-this package builds the Python codec from them at import time.
+The JSON files in the repository's ``schema/`` folder are the single source of truth
+(language-neutral: a C, Rust or TypeScript client reads the same files); this package builds
+the Python codec from them at import time. An installed wheel carries a copy of them in
+``nc_schema/contract/`` (see ``codec.CONTRACT_DIR``).
 
 Imported as ``nc_schema`` (not ``schema``, which is an unrelated PyPI package).
 """

@@ -9,6 +9,8 @@ import json
 import struct
 from enum import IntEnum, IntFlag
 from importlib import resources
+from importlib.resources.abc import Traversable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,9 +23,28 @@ _TYPES: dict[str, str] = {
 }
 
 
+def _contract_dir() -> Traversable:
+    """The folder holding the contract's JSON files.
+
+    An installed wheel ships them inside the package as ``nc_schema/contract/`` (pyproject.toml maps
+    the data-only package ``nc_schema.contract`` to ``schema/``); a source checkout or an editable
+    install has no such folder and reads the one source of truth, ``schema/`` beside the package.
+    """
+    shipped = resources.files(__package__).joinpath("contract")
+    if shipped.joinpath("structs.json").is_file():
+        return shipped
+    source = Path(__file__).resolve().parent.parent / "schema"
+    if (source / "structs.json").is_file():
+        return source
+    raise ImportError(f"nc_schema: contract JSON not found (neither {shipped} nor {source})")
+
+
+CONTRACT_DIR: Traversable = _contract_dir()
+
+
 def load_json(name: str) -> dict[str, Any]:
-    """Load one of the contract's JSON files shipped in this package."""
-    return json.loads(resources.files(__package__).joinpath(name).read_text(encoding="utf-8"))
+    """Load one of the contract's JSON files (``structs.json``, ... from :data:`CONTRACT_DIR`)."""
+    return json.loads(CONTRACT_DIR.joinpath(name).read_text(encoding="utf-8"))
 
 
 STRUCTS: dict[str, Any] = load_json("structs.json")["structs"]
