@@ -24,11 +24,8 @@ class ConfigError(ValueError):
         self.key = key
 
 
-# name -> (kind, check) ; kinds: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite)
-_KIND: dict[str, str] = {}
-
-
 def _p(default: Any, kind: str, doc: str) -> Any:
+    """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite)."""
     return field(default=default, metadata={"kind": kind, "doc": doc})
 
 
@@ -45,6 +42,11 @@ class AxisParams:
     AxisVeloManFast: float = _p(250.0, "pos", "manual velocity fast (jog) [u/s]")
     AxisCalibrationVelocityForward: float = _p(10.0, "pos", "homing velocity towards the cam [u/s]")
     AxisCalibrationVelocityBackward: float = _p(5.0, "pos", "homing velocity off the cam [u/s]")
+    AxisCalibrationValue: float = _p(0.0, "real", "reference position set by MC_Home when Position is DEFAULT_HOME_POSITION [u]")
+    AxisInvertCalibrationCamSearchDirection: bool = _p(
+        True, "bool", "TwinCAT 'Invert direction of calibration cam search': True = search the cam in negative direction")
+    AxisInvertSyncPulseSearchDirection: bool = _p(
+        False, "bool", "TwinCAT 'Invert direction towards sync impulse': False = leave the cam in positive direction")
     AxisJogIncrementForward: float = _p(1.0, "nonneg", "inching distance forward [u]")
     AxisJogIncrementBackward: float = _p(1.0, "nonneg", "inching distance backward [u]")
     AxisEnMinSoftPosLimit: bool = _p(False, "bool", "minimum software limit enabled")
@@ -71,6 +73,8 @@ class AxisParams:
     AxisEncoderOffset: float = _p(0.0, "real", "encoder offset (stored)")
     AxisEncoderDirectionInverse: bool = _p(False, "bool", "encoder direction inverted (stored)")
     SimTimeConstant: float = _p(0.001, "nonneg", "simulated drive: first-order position lag [s]")
+    SimSyncPulseSpacing: float = _p(1.0, "pos", "simulated encoder: distance between sync (zero) pulses [u]")
+    SimSyncPulseOffset: float = _p(0.0, "real", "simulated encoder: position of one sync pulse [u]")
     Homed: bool = _p(False, "bool", "axis starts referenced (StateDWord.Homed)")
 
     def __post_init__(self) -> None:
