@@ -6,18 +6,26 @@ from importlib.metadata import entry_points
 from .base import DriveABC
 from .sim import SimDrive
 
-__all__ = ["DriveABC", "SimDrive", "drive_class"]
+__all__ = ["DriveABC", "SimDrive", "drive_class", "drive_names"]
+
+#: The entry point group a drive backend registers in (``[project.entry-points."zenoh_nc.drives"]``).
+GROUP = "zenoh_nc.drives"
+
+
+def drive_names() -> list[str]:
+    """The names of the installed drive backends, sorted ("sim" always among them)."""
+    return sorted({ep.name for ep in entry_points(group=GROUP)} | {"sim"})
 
 
 def drive_class(name: str) -> type[DriveABC]:
-    """The drive class registered under ``name`` (e.g. ``"sim"``).
+    """The drive class registered under ``name`` (e.g. ``"sim"``; the server's ``[nc] drive``).
 
     Raises:
         ValueError: no such drive backend is installed.
     """
-    for ep in entry_points(group="zenoh_nc.drives"):
+    for ep in entry_points(group=GROUP):
         if ep.name == name:
             return ep.load()
     if name == "sim":  # works without installed metadata too
         return SimDrive
-    raise ValueError(f"unknown drive backend {name!r}")
+    raise ValueError(f"unknown drive backend {name!r} (installed: {', '.join(drive_names())})")

@@ -74,6 +74,7 @@ def _run(cfg: object) -> int:
     import zenoh
 
     from nc_server.core import NcCore
+    from nc_server.drives import drive_class
 
     from .app import NcServer
     from .config import ServerConfig
@@ -81,8 +82,18 @@ def _run(cfg: object) -> int:
 
     assert isinstance(cfg, ServerConfig)
     try:
-        core = NcCore(list(cfg.axes), cycle_time=cfg.cycle_time)
+        # [nc] drive names the backend (checked against the installed ones by the config)
+        drive = drive_class(cfg.drive)([a.params for a in cfg.axes], cfg.cycle_time)
     except ConfigError as exc:
+        print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    except Exception as exc:  # a backend that cannot load or open its hardware: a start failure
+        log.error("drive %r: %s: %s", cfg.drive, type(exc).__name__, exc)
+        return 1
+    try:
+        core = NcCore(list(cfg.axes), cycle_time=cfg.cycle_time, drive=drive)
+    except ConfigError as exc:
+        drive.close()
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2
 

@@ -16,6 +16,7 @@ from typing import Any, Mapping, Sequence
 
 from nc_schema import Keys
 from nc_server.core.params import AxisConfig, AxisParams, ConfigError
+from nc_server.drives import drive_names
 
 __all__ = ["ConfigError", "ServerConfig", "ZenohSettings", "load_config", "parse_config", "default_config_text",
            "check_endpoint", "REALTIME_MODES"]
@@ -56,6 +57,7 @@ class ServerConfig:
         watchdog_timeout: maximum age of a claim holder's PLCTONC before 0x8F02 [s].
         realtime: ``"auto"``, ``"fifo"`` or ``"off"``.
         rt_priority: SCHED_FIFO priority (1..99) of the cycle thread.
+        drive: name of the drive backend (an entry point of group ``zenoh_nc.drives``; ``"sim"``).
         zenoh: the session settings.
         axes: the axes in configuration order.
     """
@@ -65,6 +67,7 @@ class ServerConfig:
     watchdog_timeout: float = 0.5
     realtime: str = "auto"
     rt_priority: int = 49
+    drive: str = "sim"
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     axes: tuple[AxisConfig, ...] = ()
 
@@ -174,7 +177,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     for k in data:
         if k not in ("nc", "zenoh", "axis"):
             raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis)")
-    nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority"})
+    nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive"})
     zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease"})
     name = nc.get("name", "nc1")
     try:
@@ -188,6 +191,10 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
                           f"must be at least two cycles ({2 * cycle_time:g} s), got {watchdog:g}")
     realtime = _choice(nc.get("realtime", "auto"), "nc.realtime", REALTIME_MODES)
     rt_priority = _integer(nc.get("rt_priority", 49), "nc.rt_priority", 1, 99)
+    drive = nc.get("drive", "sim")
+    if drive not in (known := drive_names()):
+        raise ConfigError("nc.drive", f"unknown drive {drive!r} (installed drives: {', '.join(known)}; "
+                                      f"entry point group zenoh_nc.drives)")
     mode = _choice(zn.get("mode", "router"), "zenoh.mode", ZENOH_MODES)
     listen = _endpoints(zn.get("listen", ["tcp/127.0.0.1:7447"]), "zenoh.listen")
     if not listen:
@@ -195,7 +202,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     connect = _endpoints(zn.get("connect", []), "zenoh.connect")
     lease = _integer(zn.get("lease", 1000), "zenoh.lease", 100, 600_000)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
-                        rt_priority=rt_priority, zenoh=ZenohSettings(mode, listen, connect, lease), axes=_axes(data))
+                        rt_priority=rt_priority, drive=drive, zenoh=ZenohSettings(mode, listen, connect, lease),
+                        axes=_axes(data))
 
 
 def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None, name: str | None = None,

@@ -24,6 +24,7 @@ def test_default_config() -> None:
     assert cfg.cycle_time == 0.001
     assert cfg.watchdog_timeout == 0.5
     assert cfg.realtime == "auto"
+    assert cfg.drive == "sim"
     assert cfg.zenoh.mode == "router"
     assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",)
     assert cfg.zenoh.lease_ms == 1000
@@ -48,6 +49,7 @@ def test_overrides(tmp_path: Path) -> None:
     p = write(tmp_path, '[nc]\nname = "lathe"\n[[axis]]\nAxisId = 7\nName = "S"\n')
     cfg = load_config(p)
     assert cfg.name == "lathe" and [a.AxisId for a in cfg.axes] == [7]
+    assert cfg.drive == "sim"  # the default when [nc] has no drive
     assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",)
 
 
@@ -60,6 +62,8 @@ def test_overrides(tmp_path: Path) -> None:
     ("[nc]\nrealtime = 'always'\n", "nc.realtime"),
     ("[nc]\nrt_priority = 120\n", "nc.rt_priority"),
     ("[nc]\nname = 'a/b'\n", "nc.name"),
+    ("[nc]\ndrive = 'ethercat'\n", "nc.drive"),
+    ("[nc]\ndrive = 1\n", "nc.drive"),
     ("[zenoh]\nlisten = ['127.0.0.1:7447']\n", "zenoh.listen[0]"),
     ("[zenoh]\nlisten = ['tcp/127.0.0.1:99999']\n", "zenoh.listen[0]"),
     ("[zenoh]\nlisten = 'tcp/127.0.0.1:7447'\n", "zenoh.listen"),
@@ -119,3 +123,54 @@ def test_cli_exits_2_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixtur
     with pytest.raises(SystemExit) as ei:
         cli.main(["--realtime", "sometimes"])
     assert ei.value.code == 2
+
+
+class _FakeEntryPoint:
+    def __init__(self, name: str, obj: object) -> None:
+        self.name, self._obj = name, obj
+
+    def load(self) -> object:
+        return self._obj
+
+
+def _install_drive(monkeypatch: pytest.MonkeyPatch, name: str, cls: type) -> None:
+    import nc_server.drives as drives
+
+    real = drives.entry_points
+    monkeypatch.setattr(drives, "entry_points",
+                        lambda group: [*real(group=group), _FakeEntryPoint(name, cls)] if group == drives.GROUP else [])
+
+
+def test_unknown_drive_is_refused_naming_the_key_and_the_drives(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ConfigError) as ei:
+        load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "ethercat"')))
+    assert ei.value.key == "nc.drive"
+    assert "'ethercat'" in str(ei.value) and "sim" in str(ei.value)
+    assert cli.main(["--config", str(tmp_path / "nc.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "configuration error: nc.drive" in err and "sim" in err and err.count("\n") == 1
+
+
+def test_drive_is_chosen_by_the_config(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from nc_server.drives import SimDrive, drive_class, drive_names
+
+    built: list[tuple[int, float]] = []
+
+    class RefusingDrive(SimDrive):  # refuses its parameters: nc-server exits 2 before zenoh starts
+        def __init__(self, params, cycle_time):  # type: ignore[no-untyped-def]
+            built.append((len(params), cycle_time))
+            raise ConfigError("axis[0].AxisVeloMax", "above what this drive can do")
+
+    class MissingDrive(SimDrive):  # its hardware is absent: a start failure, exit 1
+        def __init__(self, params, cycle_time):  # type: ignore[no-untyped-def]
+            raise OSError("no EtherCAT master")
+
+    _install_drive(monkeypatch, "refusing", RefusingDrive)
+    assert drive_names() == ["refusing", "sim"] and drive_class("refusing") is RefusingDrive
+    cfg = load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "refusing"')))
+    assert cfg.drive == "refusing"
+    assert cli._run(cfg) == 2 and built == [(4, 0.001)]
+
+    _install_drive(monkeypatch, "missing", MissingDrive)
+    assert cli._run(load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "missing"')))) == 1
