@@ -78,13 +78,11 @@ class PlcFrame:
 
     Attributes:
         arrival: monotonic arrival time [s].
-        plc_cycle: the PLC's cycle counter.
         axis_ids: AxisId per record (uint32 array).
         plctonc: PLCTONC_AXIS_REF records (array, same length).
     """
 
     arrival: float
-    plc_cycle: int
     axis_ids: np.ndarray
     plctonc: np.ndarray
 
@@ -243,11 +241,12 @@ class Transport:
         try:
             if len(sample.payload) > self._max_plc_frame:
                 raise ValueError("more records than axes")
-            h, recs = decode_plc_frame(sample.payload.to_bytes())
+            # the header's PlcCycle is not used by the NC: the watchdog goes by arrival time
+            _, recs = decode_plc_frame(sample.payload.to_bytes())
             ids = recs["AxisId"]
             if len(np.unique(ids)) != len(ids):
                 raise ValueError("duplicate AxisId")
-            frame = PlcFrame(now, int(h["PlcCycle"]), ids.copy(), recs["PlcToNc"].copy())
+            frame = PlcFrame(now, ids.copy(), recs["PlcToNc"].copy())
         except Exception:  # malformed: counted and dropped, never crash the subscriber
             self.plc_malformed += 1
             return
