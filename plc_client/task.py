@@ -51,10 +51,10 @@ log = logging.getLogger(__name__)
 
 _local = threading.local()
 
-#: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
 _ENABLE = int(ControlDWord.Enable)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERROR = int(StateDWord.Error)
+#: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
 _CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)})
 
 #: Data older than this is stale when the task is built without ``stale_cycles`` [s].
@@ -355,8 +355,8 @@ class PlcTask:
     def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
         """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent."""
         prev = self._frames.get(nc)
-        if prev is not None and cycle < prev[0]:
-            self.nc_restarted(nc)  # the NC's cycle counter went back
+        if prev is not None and cycle < prev[0]:  # the NC's cycle counter went back
+            self.nc_restarted(nc)
         ids = records["AxisId"]
         self._frames[nc] = (int(cycle), records, {int(a): i for i, a in enumerate(ids.tolist())}, jobs)
 
