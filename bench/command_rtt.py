@@ -12,6 +12,8 @@ in interleaved blocks so machine noise hits both alike:
 
 Goal (not a test): NC p50 within 1.5 x raw p50 + one NC cycle. The NC answers in the cycle
 after the request arrives, so about half a cycle of waiting is expected on top of the raw trip.
+A same-run noise floor (bench/noise_floor.py: a fixed numpy workload in the NC cycle loop, before
+and after the round trips) says how loaded the machine was.
 
     .venv/bin/python bench/command_rtt.py [--n 1500]
 """
@@ -28,6 +30,7 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
 from tests.znc_testing import (  # noqa: E402
     BIT_CONTROL_LOOP_CLOSED, NcTestClient, free_port, start_nc_server, wait_until,
@@ -62,6 +65,7 @@ def main() -> int:
     args = ap.parse_args()
     n_block = max(1, args.n // args.blocks)
     deadline = time.monotonic() + 55  # the whole run stays under a minute
+    floor0, f0 = floor_line()
 
     tmp = Path(tempfile.mkdtemp(prefix="znc-rtt-"))
     nc = None
@@ -112,6 +116,7 @@ def main() -> int:
             res["ReadParameter"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd", read_param(), no_error)
             res["MoveAbsolute"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd", moves(), no_error)
         stats = cl.stats() or {}
+        floor1, f1 = floor_line()  # the NC still runs: the machine as the round trips saw it
 
     a = {k: np.array(v) for k, v in res.items()}
     print()
@@ -128,6 +133,11 @@ def main() -> int:
     if stats:
         print(f"NC during the run: timing {stats.get('timing')}, work p50/p99 {stats.get('work_us_p50')}/"
               f"{stats.get('work_us_p99')} us, missed {stats.get('missed_cycles')}, overruns {stats.get('overruns')}")
+    print(f"before: {floor0}")
+    print(f"after:  {floor1}")
+    fl50 = (f0["p50_us"] + f1["p50_us"]) / 2
+    print(f"in noise-floor units (p50 / floor p50 {fl50:.0f} us, comparable between runs): "
+          + ", ".join(f"{k} {float(np.percentile(v, 50)) / fl50:5.1f}" for k, v in a.items()))
     return 0
 
 
