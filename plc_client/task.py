@@ -45,7 +45,7 @@ import numpy as np
 from nc_schema import MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, StateDWord, error_text
 
 from .axis_ref import AXIS_REF
-from .port import CommandPort, InProcessPort, PendingCommand
+from .port import CommandPort, InProcessNc, InProcessPort, PendingCommand
 
 log = logging.getLogger(__name__)
 
@@ -407,13 +407,16 @@ class InProcessPlc(PlcTask):
     """A PLC task bound to an in-process ``NcCore`` (tests, simulations; no zenoh, no threads).
 
     ``step()`` snapshots ``core.nctoplc`` (the frame of ``core.cycle``), runs the program
-    (commands go through :class:`~plc_client.port.InProcessPort`) and applies the PLCTONC of
-    the axes this client has claimed with ``core.set_plctonc``. It does **not** step the core:
-    call ``core.step()`` yourself (or use :func:`run_cycles`), so several PLC clients can share
-    one core. Time is virtual: ``now = cycle * cycle_time``, so timeouts need no sleeping.
+    (commands go through :class:`~plc_client.port.InProcessPort`, i.e. nc-server's request
+    handler) and sends one PLCTONC frame through the server's per-cycle path
+    (:meth:`InProcessPort.publish_plctonc`): applied only to the axes this client holds, feeding
+    the watchdog, which runs right after it. It does **not** step the core: call ``core.step()``
+    yourself (or use :func:`run_cycles`), so several PLC clients can share one core. Time is
+    virtual: ``now = cycle * cycle_time``, so timeouts need no sleeping. :meth:`close` makes the
+    client disappear (its claimed axes fault with 0x8F01).
 
     Args:
-        core: the NcCore.
+        core: the NcCore, or its :class:`~plc_client.port.InProcessNc`.
         program: see :class:`PlcTask`.
         nc: the NC name of this core (AXIS_REF.nc).
         **kw: PlcTask arguments (cycle_time, client_id, stale_cycles, command_timeout, ...).
@@ -422,9 +425,9 @@ class InProcessPlc(PlcTask):
     def __init__(self, core: Any, program: Any = None, *, nc: str = "nc1", client_id: str = "plc1",
                  **kw: Any) -> None:
         super().__init__(program, client_id=client_id, **kw)
-        self.core = core
-        self.nc = nc
         self.port = InProcessPort(core, client_id=client_id, nc=nc)
+        self.core = self.port.core
+        self.nc = nc
         self.port.clock = lambda: self.now
 
     def clock(self) -> float:
@@ -438,15 +441,22 @@ class InProcessPlc(PlcTask):
             return
         port = self.port
         assert isinstance(port, InProcessPort)
-        for ax in axes:
-            if port.holds_claim(ax.axis_id):
-                self.core.set_plctonc(self.core.index(ax.axis_id), ax.PlcToNc)
+        # One frame, as PlcRuntime publishes it; the server side decides what it may enable.
+        ids = np.fromiter((ax.axis_id for ax in axes), dtype=np.int64, count=len(axes))
+        port.publish_plctonc(ids, np.concatenate([ax._plctonc for ax in axes]))
+
+    def close(self) -> None:
+        """The client disappears (idempotent): see :meth:`InProcessPort.close`."""
+        self.port.close()
 
 
 def run_cycles(core: Any, plcs: PlcTask | list[PlcTask], cycles: int = 1, nc_steps: int = 1,
                until: Callable[[], bool] | None = None) -> int:
     """Run ``cycles`` PLC cycles of every task in ``plcs``, stepping ``core`` ``nc_steps`` times
     after each PLC cycle. Stops early when ``until()`` becomes true (checked after each cycle).
+
+    Before each NC step the core's in-process watchdog runs (:meth:`InProcessNc.cycle`), as
+    nc-server checks it every cycle: a holder that stops sending PLCTONC faults with 0x8F02.
 
     Returns the number of cycles run.
     """
@@ -455,6 +465,9 @@ def run_cycles(core: Any, plcs: PlcTask | list[PlcTask], cycles: int = 1, nc_ste
         for t in tasks:
             t.step()
         for _ in range(nc_steps):
+            srv = InProcessNc.registered(core)
+            if srv is not None:
+                srv.cycle()
             core.step()
         if until is not None and until():
             return n

@@ -1,8 +1,9 @@
 """The NC server: one NcCore, driven by the cycle thread, connected through zenoh.
 
 Per cycle (:meth:`NcServer.cycle`): liveliness events -> claims; drain the command queryable
-(bounded); apply the newest PLCTONC frame of each claim holder; watchdog; ``core.step()``; hand
-(frame, per-axis samples for matched publishers, replies) to the I/O thread.
+(bounded); apply the newest PLCTONC frame of each claim holder and the watchdog
+(:class:`~nc_server.server.handler.CycleInputs`, shared with the in-process port);
+``core.step()``; hand (frame, per-axis samples for matched publishers, replies) to the I/O thread.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from ..core.axes import JOB_STOP
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import CycleLoop, configure_interpreter
-from .handler import MAX_REQUEST_BYTES, CoreLike, RequestHandler
+from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
 from .transport import IoThread, Outgoing, Transport, encode_frame_fast
 
 log = logging.getLogger("nc_server.server")
@@ -56,11 +57,9 @@ class NcServer:
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
                                       refresh_liveliness=self._take_liveliness)
+        self.inputs = CycleInputs(core, self.claims)  # type: ignore[arg-type]
         self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
         self.io = IoThread(self.transport, self.stats)
-        # AxisId -> index lookup for PLC frames (vectorized); -1 = not configured.
-        self._lut = np.full(max(self.axis_ids) + 1, -1, dtype=np.int64)
-        self._lut[self.axis_ids] = np.arange(len(self.axis_ids))
         self._prev_start = 0.0
         self._rt_offset = time.time_ns() - time.monotonic_ns()
         self._claims_snapshot: dict[int, str] = {}
@@ -68,7 +67,6 @@ class NcServer:
         self._claims_version = -1
         self._clients_dirty = False
         self._matched: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
-        self.faults = 0
         self.started = False
         self._shutdown = threading.Event()  # set by stop(): the cycle stops every moving axis
 
@@ -159,24 +157,9 @@ class NcServer:
             self.io.submit_replies(replies)
             replies = []
 
-        # PLCTONC: the newest frame of each client, applied to the axes it holds.
-        for client, f in t.pop_plc_frames():
-            since = claims.held_since(client)
-            ids = f.axis_ids.astype(np.int64)
-            ok = (ids >= 0) & (ids < len(self._lut))
-            idx = np.where(ok, self._lut[np.where(ok, ids, 0)], -1)
-            sel = np.flatnonzero((idx >= 0) & (since[np.maximum(idx, 0)] <= f.arrival))
-            if sel.size:  # only frames that count for a claim feed the watchdog
-                claims.plctonc_arrived(client, f.arrival)
-                self._apply_plctonc(idx[sel], f.plctonc[sel])
-
-        # Watchdog: lost clients and stale PLCTONC.
-        for axis_id, code in claims.check(now):
-            i = core.index(axis_id)
-            core.fault(i, code)  # type: ignore[attr-defined]
-            core.set_plctonc(i, core.default_plctonc())
-            self.faults += 1
-            log.warning("axis %d: fault 0x%04X (claim released)", axis_id, code)
+        # PLCTONC (the newest frame of each client, applied to the axes it holds), then the
+        # watchdog (lost clients, stale PLCTONC): the same code the in-process port runs.
+        self.inputs.apply(t.pop_plc_frames(), now)
 
         if self._shutdown.is_set():
             self._stop_moving_axes()
@@ -232,11 +215,10 @@ class NcServer:
             self._clients_dirty = True
             for client, present in t.pop_liveliness():
                 if present:
-                    self.claims.client_alive(client)
+                    self.handler.client_alive(client)
                     log.info("client %s present", client)
                 else:
-                    self.claims.client_gone(client)
-                    self.handler.cache.forget_client(client)
+                    self.handler.client_gone(client)
                     log.info("client %s gone", client)
 
     def idle(self) -> None:
@@ -249,15 +231,6 @@ class NcServer:
         replies = self._drain_queries(time.monotonic())
         if replies:
             self.io.submit_replies(replies)
-
-    def _apply_plctonc(self, idx: np.ndarray, records: np.ndarray) -> None:
-        core = self.core
-        many = getattr(core, "set_plctonc_many", None)
-        if many is not None:
-            many(idx, records)
-            return
-        for i, r in zip(idx.tolist(), records):
-            core.set_plctonc(i, r)
 
     def _nc_time_ns(self, deadline_ns: int) -> int:
         """CLOCK_REALTIME at the scheduled start of the cycle [ns]."""
@@ -277,7 +250,7 @@ class NcServer:
         d["claims"] = dict(self._claims_snapshot)
         d["clients"] = list(self._clients_snapshot)
         d.update({"requests": self.handler.requests, "request_errors": self.handler.errors,
-                  "dedup_hits": self.handler.cache.hits, "faults": self.faults,
+                  "dedup_hits": self.handler.cache.hits, "faults": self.inputs.faults,
                   "plctonc_frames": self.transport.plc_frames, "plctonc_malformed": self.transport.plc_malformed,
                   "plctonc_ignored": self.transport.plc_ignored,
                   "frames_dropped": self.io.frames_dropped, "reply_errors": self.io.reply_errors})

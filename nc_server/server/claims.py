@@ -116,8 +116,7 @@ class ClaimTable:
             raise NcError(ACCESS_DENIED, f"client {client!r} has no liveliness token nc/<nc>/client/{client} "
                                          "(declare it before claiming; it may not have been seen yet)")
         if cur is None:
-            self._claims[axis_id] = _Claim(client, now)
-            self._set_holder(axis_id, client)
+            self._set_holder(axis_id, client, now)
 
     def release(self, axis_id: int, client: str) -> bool:
         """Give up ``client``'s claim of ``axis_id``.
@@ -205,8 +204,10 @@ class ClaimTable:
         return sorted(n for n, c in self._clients.items() if c.alive)
 
     # ---- internals --------------------------------------------------------------------------
-    def _set_holder(self, axis_id: int, client: str) -> None:
-        self.version += 1
+    def _set_holder(self, axis_id: int, client: str, now: float) -> None:
+        """Record ``client`` as the holder of ``axis_id`` since ``now`` [s] (the one place claims are added)."""
+        self._claims[axis_id] = _Claim(client, now)
+        self.version += 1  # held_since() masks and the server's claim snapshot are rebuilt
 
     def _drop(self, axis_id: int) -> None:
         del self._claims[axis_id]

@@ -1,15 +1,26 @@
-"""Request handling of the NC server (pure: no zenoh, no clock reads; runs in the cycle thread).
+"""Request handling and per-cycle inputs of the NC (pure: no zenoh, no clock reads).
 
-:class:`RequestHandler` turns one query (key + payload bytes) into the msgpack reply bytes:
-parse (``nc_schema.parse_request``), dedup by (client, id), Claim/Release/Info here,
-SetOverride after a permission check, everything else through ``core.execute``. Nothing
-raises out of :meth:`RequestHandler.handle`: bad input becomes an error reply.
+This is the one implementation behind every door to an NC: nc-server's queryable
+(:mod:`nc_server.server.app`, cycle thread) and the in-process port
+(:class:`plc_client.port.InProcessPort`, tests and simulations) both feed it.
+
+* :class:`RequestHandler` turns one request (key + payload bytes) into the msgpack reply bytes:
+  parse (``nc_schema.parse_request``), dedup by (client, id), Claim/Release/Info here,
+  SetOverride after a permission check, everything else through ``core.execute`` (the request
+  carries ``client``: the core records which client commanded each motion job). Nothing raises
+  out of :meth:`RequestHandler.handle`: bad input becomes an error reply. Client liveliness
+  (:meth:`RequestHandler.client_alive` / :meth:`RequestHandler.client_gone`) goes through it too,
+  so a vanished client's claims fault and its reply-cache entries are dropped in one place.
+* :class:`CycleInputs` is what the NC does before each ``core.step()``: apply the newest PLCTONC
+  frame of each claim holder, then the watchdog (0x8F01 / 0x8F02 -> ``core.fault``, claim released).
 """
 from __future__ import annotations
 
 import logging
 from collections import OrderedDict
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Iterable, Protocol
+
+import numpy as np
 
 from nc_schema import COMMANDS, ErrorCodes, Keys, NcError, make_reply, pack, parse_request
 
@@ -35,6 +46,26 @@ class CoreLike(Protocol):
     def default_plctonc(self) -> Any: ...
     def set_plctonc(self, i: int, record: Any) -> None: ...
     def info(self) -> dict[str, Any]: ...
+
+
+class FaultingCore(CoreLike, Protocol):
+    """What :class:`CycleInputs` needs in addition: raising an axis error."""
+
+    def fault(self, i: int, code: int) -> None: ...
+
+
+class PlctoncFrame(Protocol):
+    """A client's PLCTONC frame (``transport.PlcFrame`` or the in-process task's).
+
+    Attributes:
+        arrival: when the NC received it [s], on the clock the claim table is fed with.
+        axis_ids: AxisId per record (integer array).
+        plctonc: PLCTONC_AXIS_REF records (array, same length).
+    """
+
+    arrival: float
+    axis_ids: np.ndarray
+    plctonc: np.ndarray
 
 
 class ReplyCache:
@@ -106,6 +137,19 @@ class RequestHandler:
         self.errors = 0
         self.internal_errors = 0
 
+    # ---- liveliness (the server's token events; an in-process port's creation / close) ------
+    def client_alive(self, client: str) -> None:
+        """``client``'s liveliness token appeared: it may claim."""
+        self.claims.client_alive(client)
+
+    def client_gone(self, client: str) -> None:
+        """``client``'s token disappeared: its claims fault at the next watchdog check
+        (:meth:`CycleInputs.watchdog`), and its cached replies are dropped (a restarted client
+        may reuse request ids)."""
+        self.claims.client_gone(client)
+        self.cache.forget_client(client)
+
+    # ---- requests ---------------------------------------------------------------------------
     def handle(self, key: str, payload: bytes, now: float) -> bytes:
         """Execute one request and return the packed reply (never raises).
 
@@ -189,7 +233,85 @@ class RequestHandler:
                 self.claims.may_override(axis_id, client)
             except NcError as err:
                 return self._error(rid, cmd, err)
+        # req["client"] ("" when anonymous) stays in the request: the core records it as the
+        # commander of the motion job it starts.
         reply = self.core.execute(req, axis_id)
         if reply.get("error"):
             self.errors += 1
         return pack(reply)
+
+
+class CycleInputs:
+    """The NC's inputs of one cycle, applied before ``core.step()`` (pure: times are passed in).
+
+    nc-server calls :meth:`apply` once per cycle with the newest frame of each client; the
+    in-process NC (:class:`plc_client.port.InProcessNc`) with each PLC task's frame as it is
+    published, and :meth:`watchdog` when a port closes.
+
+    Args:
+        core: the NcCore (owned by the calling thread).
+        claims: the claim table (its ``axis_ids`` are the core's, in configuration order).
+
+    Attributes:
+        faults: watchdog faults raised so far.
+    """
+
+    def __init__(self, core: FaultingCore, claims: ClaimTable) -> None:
+        self.core = core
+        self.claims = claims
+        ids = claims.axis_ids
+        # AxisId -> index lookup for PLC frames (vectorized); -1 = not configured.
+        self._lut = np.full(max(ids, default=0) + 1, -1, dtype=np.int64)
+        self._lut[ids] = np.arange(len(ids))
+        self.faults = 0
+
+    def apply(self, frames: Iterable[tuple[str, PlctoncFrame]], now: float) -> list[tuple[int, int]]:
+        """:meth:`apply_plctonc` then :meth:`watchdog`; returns the watchdog's faults."""
+        self.apply_plctonc(frames)
+        return self.watchdog(now)
+
+    def apply_plctonc(self, frames: Iterable[tuple[str, PlctoncFrame]]) -> None:
+        """Apply each (client, frame) to the axes the client holds.
+
+        A record counts only for an axis claimed before the frame arrived (see
+        ``ClaimTable.held_since``); records of other axes and unknown AxisIds are ignored.
+        Only frames that count for a claim feed (and arm) the watchdog.
+        """
+        claims, lut = self.claims, self._lut
+        for client, f in frames:
+            since = claims.held_since(client)
+            ids = np.asarray(f.axis_ids).astype(np.int64)
+            ok = (ids >= 0) & (ids < len(lut))
+            idx = np.where(ok, lut[np.where(ok, ids, 0)], -1)
+            sel = np.flatnonzero((idx >= 0) & (since[np.maximum(idx, 0)] <= f.arrival))
+            if sel.size:
+                claims.plctonc_arrived(client, f.arrival)
+                self._set_plctonc(idx[sel], f.plctonc[sel])
+
+    def watchdog(self, now: float) -> list[tuple[int, int]]:
+        """Fault the axes of lost clients (0x8F01) and stale PLCTONC (0x8F02) at ``now`` [s].
+
+        Each faulted axis stops with its deceleration, gets the default PLCTONC (nobody supplies
+        it any more) and its claim is released.
+
+        Returns:
+            The (axis_id, error code) pairs faulted now.
+        """
+        core = self.core
+        out = self.claims.check(now)
+        for axis_id, code in out:
+            i = core.index(axis_id)
+            core.fault(i, code)
+            core.set_plctonc(i, core.default_plctonc())
+            self.faults += 1
+            log.warning("axis %d: fault 0x%04X (claim released)", axis_id, code)
+        return out
+
+    def _set_plctonc(self, idx: np.ndarray, records: np.ndarray) -> None:
+        core = self.core
+        many = getattr(core, "set_plctonc_many", None)
+        if many is not None:
+            many(idx, records)
+            return
+        for i, r in zip(idx.tolist(), records):
+            core.set_plctonc(i, r)

@@ -135,10 +135,10 @@ def test_nc_restart_is_detected(rig: Rig) -> None:
     from nc_server.core import AxisConfig, NcCore
     new = NcCore([AxisConfig(AxisId=1), AxisConfig(AxisId=2)], cycle_time=0.001)
     plc = ax.task
+    from plc_client.port import InProcessPort
     plc.core = new
-    plc.port.core = new
-    from plc_client.port import _claims_of
-    plc.port.claims = _claims_of(new)
+    plc.port = InProcessPort(new, client_id=plc.client_id)  # the new instance's server side
+    plc.port.clock = lambda: plc.now
     rig.core = new
     rig.run(1)
     assert ax.nc_epoch == 1
@@ -197,7 +197,7 @@ def test_claim_dropped_silently_by_the_nc_is_claimed_again(rig: Rig) -> None:
     core = rig.core
     i = core.index(1)
     core.fault(i, ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING)  # an axis error first ...
-    plc.port.claims.pop(1)                                    # ... then the NC drops the claim
+    assert plc.port.claims.release(1, plc.client_id)           # ... then the NC drops the claim
     core.set_plctonc(i, core.default_plctonc())
     rs = MC_Reset()
     calls["body"] = lambda p: rs(Axis=ax, Execute=True)

@@ -117,3 +117,14 @@ def test_held_since_follows_changes(table: ClaimTable) -> None:
 def test_frames_of_unknown_clients_are_ignored(table: ClaimTable) -> None:
     table.plctonc_arrived("ghost", 1.0)
     assert table.clients() == []
+
+
+def test_claim_records_holder_time_and_version(table: ClaimTable) -> None:
+    """_set_holder stores the claimant and the claim time it is given (the watchdog arms from it)."""
+    table.client_alive("a")
+    v = table.version
+    table.claim(2, "a", 7.5)
+    assert table.version == v + 1 and table.holder(2) == "a"
+    assert table.held_since("a")[1] == 7.5
+    table.claim(2, "a", 9.0)  # idempotent for the holder: the original claim time stays
+    assert table.version == v + 1 and table.held_since("a")[1] == 7.5

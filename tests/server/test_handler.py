@@ -1,6 +1,7 @@
 """Request handling: parsing errors, dedup, Claim/Release/Info/SetOverride (no zenoh)."""
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 import msgpack
@@ -9,8 +10,8 @@ import pytest
 
 from nc_schema import PLCTONC_DTYPE, Keys, make_reply, make_request
 from nc_server.core import AxisConfig, NcCore
-from nc_server.server.claims import ClaimTable
-from nc_server.server.handler import ReplyCache, RequestHandler
+from nc_server.server.claims import ZNC_CLIENT_LOST, ZNC_PLCTONC_TIMEOUT, ClaimTable
+from nc_server.server.handler import CycleInputs, ReplyCache, RequestHandler
 
 KEY1 = "nc/nc1/axis/1/cmd"
 
@@ -202,3 +203,59 @@ def test_claim_takes_pending_liveliness_events_before_refusing() -> None:
     rep = msgpack.unpackb(h.handle("nc/nc1/axis/1/cmd", msgpack.packb({"id": 1, "client": "plc-a", "cmd": "Claim"}),
                                    0.0), strict_map_key=False)
     assert rep["error"] == 0 and claims.holder(1) == "plc-a"
+
+
+class FaultCore(FakeCore):
+    """FakeCore that also records fault() calls and the client of each executed request."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.faults: list[tuple[int, int]] = []
+        self.clients: list[str] = []
+
+    def fault(self, i: int, code: int) -> None:
+        self.faults.append((i, code))
+
+    def execute(self, request: dict[str, Any], axis_id: int) -> dict[str, Any]:
+        self.clients.append(request["client"])
+        return super().execute(request, axis_id)
+
+
+def frame(arrival: float, ids: list[int], control: int) -> Any:
+    recs = np.zeros(len(ids), dtype=PLCTONC_DTYPE)
+    recs["ControlDWord"] = control
+    return SimpleNamespace(arrival=arrival, axis_ids=np.array(ids, dtype=np.uint32), plctonc=recs)
+
+
+def test_core_execute_gets_the_requests_client() -> None:
+    core = FaultCore()
+    h = RequestHandler(core, ClaimTable([1, 2], 0.5), Keys("nc1"))
+    call(h, make_request("MoveVelocity", 1, client="plc1", Velocity=1.0))
+    call(h, make_request("Reset", 2))
+    assert core.clients == ["plc1", ""]
+
+
+def test_cycle_inputs_apply_holders_frames_then_watchdog() -> None:
+    core = FaultCore()
+    claims = ClaimTable([1, 2], 0.5)
+    h = RequestHandler(core, claims, Keys("nc1"))
+    inputs = CycleInputs(core, claims)
+    h.client_alive("a")
+    h.client_alive("b")
+    claims.claim(1, "a", 1.0)
+    # a frame older than the claim, a non-holder's frame, unknown ids: not applied, not armed
+    assert inputs.apply([("a", frame(0.5, [1], 7)), ("b", frame(1.1, [1, 2], 5)),
+                         ("a", frame(1.1, [0, 99], 5))], now=1.1) == []
+    assert core.plctonc["ControlDWord"].tolist() == [0, 0]
+    assert inputs.apply([("a", frame(1.2, [2, 1], 7))], now=1.2) == []  # only axis 1 is a's
+    assert core.plctonc["ControlDWord"].tolist() == [7, 0]
+    assert inputs.apply([], now=1.7) == [] and inputs.apply([], now=1.71) == [(1, ZNC_PLCTONC_TIMEOUT)]
+    assert core.faults == [(0, ZNC_PLCTONC_TIMEOUT)] and inputs.faults == 1
+    assert int(core.plctonc["ControlDWord"][0]) == 0 and claims.holder(1) is None
+    # client gone: 0x8F01 at the next watchdog, and its cached replies are dropped
+    claims.claim(2, "b", 2.0)
+    h.handle("nc/nc1/axis/2/cmd", make_request("Reset", 5, client="b"), 2.0)
+    assert len(h.cache) == 1
+    h.client_gone("b")
+    assert len(h.cache) == 0
+    assert inputs.watchdog(2.1) == [(2, ZNC_CLIENT_LOST)] and core.faults[-1] == (1, ZNC_CLIENT_LOST)
