@@ -15,8 +15,10 @@ from nc_schema import MC_AxisStates, MC_BufferMode, MC_Direction
 
 from .axis_ref import AXIS_REF, ST_AxisStatus
 from .fb import (
-    MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power, MC_ReadActualPosition,
-    MC_ReadAxisError, MC_ReadStatus, MC_Reset, MC_SetOverride, MC_Stop,
+    MC_ChangeDynParam, MC_Halt, MC_MoveAbsolute, MC_MoveAbsoluteOrRestart, MC_MoveAdditive, MC_MoveContinuousAbsolute,
+    MC_MoveContinuousRelative, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_NewPos, MC_NewPosAndVelo,
+    MC_OrientedStop, MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset, MC_SetOverride,
+    MC_Stop,
 )
 from .port import CommandPort, InProcessPort, PendingCommand
 from .task import InProcessPlc, PlcTask, current_task, run_cycles
@@ -26,4 +28,6 @@ __all__ = [
     "MC_MoveVelocity", "MC_Halt", "MC_Stop", "MC_SetOverride", "MC_ReadActualPosition", "MC_ReadStatus",
     "MC_ReadAxisError", "CommandPort", "InProcessPort", "PendingCommand", "PlcTask", "InProcessPlc", "run_cycles",
     "current_task", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
+    "MC_ChangeDynParam", "MC_MoveAbsoluteOrRestart", "MC_MoveAdditive", "MC_MoveContinuousAbsolute",
+    "MC_MoveContinuousRelative", "MC_NewPos", "MC_NewPosAndVelo", "MC_OrientedStop",
 ]

@@ -4,14 +4,18 @@ choices made where the manual is silent)."""
 from .admin import (
     MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset, MC_SetOverride, override_to_plctonc,
 )
+from .amend import MC_ChangeDynParam, MC_NewPos, MC_NewPosAndVelo
 from .base import EnableBlock, ExecuteBlock, FunctionBlock
 from .motion import (
-    DONE_WINDOW_TIMEOUT, MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Stop,
-    MotionBlock,
+    DONE_WINDOW_TIMEOUT, MC_Halt, MC_MoveAbsolute, MC_MoveAbsoluteOrRestart, MC_MoveAdditive,
+    MC_MoveContinuousAbsolute, MC_MoveContinuousRelative, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity,
+    MC_OrientedStop, MC_Stop, MotionBlock,
 )
 
 __all__ = [
     "MC_Power", "MC_Reset", "MC_MoveAbsolute", "MC_MoveRelative", "MC_MoveModulo", "MC_MoveVelocity", "MC_Halt",
     "MC_Stop", "MC_SetOverride", "MC_ReadActualPosition", "MC_ReadStatus", "MC_ReadAxisError",
+    "MC_ChangeDynParam", "MC_MoveAbsoluteOrRestart", "MC_MoveAdditive", "MC_MoveContinuousAbsolute",
+    "MC_MoveContinuousRelative", "MC_NewPos", "MC_NewPosAndVelo", "MC_OrientedStop",
     "FunctionBlock", "ExecuteBlock", "EnableBlock", "MotionBlock", "DONE_WINDOW_TIMEOUT", "override_to_plctonc",
 ]

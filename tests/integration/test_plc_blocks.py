@@ -108,7 +108,8 @@ def test_move_velocity_override_halt_and_reads(plc: PlcProcess) -> None:
 
 def test_errors_reset_and_rejections(plc: PlcProcess) -> None:
     power_on(plc)
-    plc.set("bm", "MC_MoveAbsolute", Execute=True, Position=1.0, Velocity=1.0, BufferMode=1)
+    # a BufferMode that is not an integer is refused by the block itself (integers go to the NC)
+    plc.set("bm", "MC_MoveAbsolute", Execute=True, Position=1.0, Velocity=1.0, BufferMode=1.5)
     assert plc.wait("bm", lambda r: r.o["Error"], T).o["ErrorID"] == 0x4B64
     plc.set("bad", "MC_MoveAbsolute", Execute=True, Position=1.0, Velocity=-5.0)
     assert plc.wait("bad", lambda r: r.o["Error"], T).o["ErrorID"] == 0x4221

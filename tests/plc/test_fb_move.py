@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
-from nc_schema import CmdState, ErrorCodes, StateDWord
+from nc_schema import CmdState, ErrorCodes, MC_BufferMode, StateDWord
 from plc_client import AXIS_REF, MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power
 from plc_client.fb import DONE_WINDOW_TIMEOUT
 from plc_rig import OffsetDrive, Rig
@@ -169,17 +170,45 @@ def test_move_velocity_aborted_during_acceleration(rig: Rig) -> None:
     assert not mv.InVelocity
 
 
-def test_buffer_mode_other_than_aborting(rig: Rig) -> None:
+@pytest.mark.parametrize("bm", [1.0, True, "1", None, 2**40])
+def test_buffer_mode_that_is_not_a_wire_integer_is_refused_locally(rig: Rig, bm) -> None:
     ax, _, calls = powered(rig)
     mv = MC_MoveAbsolute()
     rig.watch(mv)
     before = int(rig.rec()["CmdNo"])
-    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=1.0, Velocity=1.0, BufferMode=1)
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=1.0, Velocity=1.0, BufferMode=bm)
     rig.run(1)
     assert mv.Error and mv.ErrorID == ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED == 0x4B64
     rig.run(3)
     assert int(rig.rec()["CmdNo"]) == before, "no command may be sent"
     assert mv.Error  # held while Execute
+
+
+@pytest.mark.parametrize("cls, inputs", [
+    (MC_MoveAbsolute, {"Position": 1.0, "Velocity": 1.0}),
+    (MC_MoveRelative, {"Distance": 1.0, "Velocity": 1.0}),
+    (MC_MoveModulo, {"Position": 1.0, "Velocity": 1.0}),
+    (MC_MoveVelocity, {"Velocity": 1.0}),
+    (MC_Halt, {}),
+])
+@pytest.mark.parametrize("bm", [1, 18, 21, np.int64(19), MC_BufferMode.MC_BlendingNext, 7, -1])
+def test_integer_buffer_mode_is_passed_to_the_nc(rig: Rig, cls, inputs: dict, bm) -> None:
+    """The block no longer refuses non-zero modes: the integer goes out as it is (the NC checks it)."""
+    ax, _, calls = powered(rig)
+    fb = cls()
+    sent: list = []
+    port = ax.task.port
+    orig = port.send
+
+    def spy(nc, axis_id, cmd, **args):
+        sent.append((cmd, args))
+        return orig(nc, axis_id, cmd, **args)
+
+    port.send = spy  # type: ignore[method-assign]
+    calls["body"] = lambda p: fb(Axis=ax, Execute=True, BufferMode=bm, **inputs)
+    rig.run(2)
+    assert sent and sent[0][0] == cls.CMD
+    assert sent[0][1]["BufferMode"] == int(bm) and type(sent[0][1]["BufferMode"]) is int
 
 
 @pytest.mark.parametrize("inputs, code", [
