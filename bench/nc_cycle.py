@@ -198,7 +198,8 @@ def probe() -> dict[str, Any]:
             r0 = _run_request(core, reqs["retarget"][0][0], 1)
             for _ in range(20):
                 core.step()
-            r = _run_request(core, reqs[kind][0][1], 1) if kind != "retarget" else r0
+            # the kind as the stress sends it after that re-target (same direction: index 0)
+            r = _run_request(core, reqs[kind][0][0], 1) if kind != "retarget" else r0
             code = int(r.get("error", 0))
             res[kind] = {"code": code, "supported": code not in UNSUPPORTED,
                          "text": str(r.get("text", ""))[:160]}
@@ -211,6 +212,16 @@ def refill_hook(core):  # type: ignore[no-untyped-def]
     """A function returning the lookahead rows refilled by the last step (-1 unknown), and a label."""
     if hasattr(core, "refill_rows"):
         return (lambda: int(core.refill_rows)), "public refill_rows"
+    # a refill counter on the core or on one of its parts (e.g. a profile stage's ``refills``)
+    for name, obj in [("core", core), *sorted(vars(core).items())]:
+        if isinstance(getattr(obj, "refills", None), int) and not isinstance(getattr(obj, "refills"), bool):
+            last = [int(obj.refills)]
+
+            def counter(obj=obj, last=last) -> int:  # type: ignore[no-untyped-def]
+                now = int(obj.refills)
+                d, last[0] = now - last[0], now
+                return d
+            return counter, f"counter {name}.refills" if name != "core" else "counter core.refills"
     if hasattr(core, "_buf_k") and hasattr(core, "_lookahead"):
         n = len(core.axis_ids)
         if int(core._lookahead) <= 1:
