@@ -16,18 +16,6 @@ from nc_schema import OpModeDWord
 from .params import AxisParams
 from .profile import N_SEGMENTS
 
-# job kinds
-JOB_NONE = 0
-JOB_POSITION = 1  # MoveAbsolute/Relative/Modulo: discrete, ends at the target
-JOB_VELOCITY = 2  # MoveVelocity: continuous
-JOB_STOP = 3      # MC_Stop: ramp to zero, locks the axis
-JOB_HALT = 4      # MC_Halt: ramp to zero, discrete motion
-
-# why the set-point generator runs without a job
-RAMP_NONE = 0
-RAMP_FAULT = 1    # stop ramp after an axis error
-
-
 class AxisTable:
     """All per-axis state, column-wise."""
 
@@ -46,22 +34,27 @@ class AxisTable:
         self.peh_en, self.peh_time = b(), f()
         self.modulo_factor = f()
         self.opmode = np.zeros(n, dtype=np.uint32)
-        # set-point generator
-        # set-points as rows of one matrix, so a cycle can copy all four in one operation
+        # set-point generator (the profile stage): set-points as rows of one matrix, so a cycle can
+        # copy all four in one operation
         self.S = np.zeros((4, n))
         self.set_pos, self.set_velo, self.set_acc, self.set_jerk = self.S
         self.seg = np.zeros((5, n, N_SEGMENTS))
         self.seg[0] = np.inf
         self.traj_t, self.traj_dur = f(), f()
-        self.traj_on = b()           # the generator follows a profile
-        self.hold_zero = b()         # profile is an override-zero hold (job keeps going)
-        # job (the command numbered cmd_no)
-        self.job = np.zeros(n, dtype=np.int8)
-        self.ramp = np.zeros(n, dtype=np.int8)
-        self.goal_pos = f()          # position jobs: absolute target
-        self.goal_velo = f()         # velocity jobs: signed velocity at 100 % override
-        self.cmd_velo, self.cmd_acc, self.cmd_dec, self.cmd_jerk = f(), f(), f(), f()
-        self.limit_stop = np.zeros(n, dtype=np.int8)  # continuous move being stopped at soft limit -1/+1
+        self.traj_on = b()           # the generator follows a plan
+        self.origin = f()            # shift of the running plan since it was planned (SetActualPositionOnTheFly)
+        self.offset = f()            # NC position - drive position (MC_SetActualPosition)
+        # mirrored from the job queues on events (NcCore._sync)
+        self.has_job = b()           # a numbered job runs (HasJob)
+        self.continuous = b()        # ContinuousMotion
+        self.homing = b()            # HomingBusy
+        self.amended = b()           # NewTargetPos
+        self.buffered = b()          # CmdBuffered
+        self.hold_enable = b()       # the running job keeps the drive enabled (fault ramp)
+        self.driving = b()           # the running job is checked against the feed enables
+        self.held = b()              # the running job waits at override 0
+        self.watch_kind = np.full(n, -1, dtype=np.int16)  # job kind whose watch() sees this row, -1: none
+        self.homing_state = np.zeros(n, dtype=np.uint32)
         self.cmd_no = np.zeros(n, dtype=np.uint16)
         self.cmd_state = np.zeros(n, dtype=np.uint16)
         self.target_pos = f()
@@ -70,14 +63,13 @@ class AxisTable:
         self.locked = b()            # MC_Stop active (MotionCommandsLocked)
         self.stopped = b()           # HasBeenStopped
         self.enabled = b()           # controller enable in effect last cycle
-        self.hold_enable = b()       # keep the drive enabled until a fault ramp ends
         self.homed = b()
         self.override = np.ones(n)   # applied override 0..1
         # monitoring
         self.lag_timer = f()
         self.window_timer = f()
-        self.since_end = np.full(n, -1.0)
-        self.changed: list[int] = []  # rows whose profile/job changed since the NC last looked  # s since the logical end of a position job; -1: not watching
+        self.since_end = np.full(n, -1.0)  # s since the logical end of a position job; -1: not watching
+        self.changed: list[int] = []  # rows whose plan changed since the profile stage last looked
         self.in_target, self.in_area = b(), b()
         self.mon_dw = np.zeros(n, dtype=np.uint32)  # StateDWord bits from monitoring (windows, soft limits)
         for i, p in enumerate(params):
@@ -111,20 +103,3 @@ class AxisTable:
             if on:
                 m |= bit
         self.opmode[i] = int(m)
-
-    def set_segments(self, i: int, seg: np.ndarray, duration: float) -> None:
-        """Start following a new profile on axis ``i`` from the next cycle."""
-        self.seg[:, i, :] = seg
-        self.traj_t[i] = 0.0
-        self.traj_dur[i] = duration
-        self.traj_on[i] = True
-        self.changed.append(i)
-
-    def clear_profile(self, i: int) -> None:
-        """Stop the set-point generator (the axis holds its set position)."""
-        self.changed.append(i)
-        self.traj_on[i] = False
-        self.hold_zero[i] = False
-        self.set_velo[i] = 0.0
-        self.set_acc[i] = 0.0
-        self.set_jerk[i] = 0.0

@@ -8,81 +8,79 @@ A test (or the server) drives it cycle by cycle::
     core.step()
     core.nctoplc[0]["SetPos"]
 
-Cycle order: inputs (PLCTONC) -> enable/override handling -> set-points for all
-axes (vectorized profile evaluation) -> job ends -> soft-limit approach of
-continuous moves -> feed enables -> drive -> monitoring -> NCTOPLC.
+The motion engine: every motion command becomes a job (:mod:`.jobs`) in the axis's queue; the
+active job's plan (:mod:`.planning`) is evaluated by the set-point stages (:mod:`.stages`).
+
+Cycle order (``NcCore.STAGES``): inputs (PLCTONC: enables, override) -> set-point stages (the
+profile generator; coupling later) -> plan ends (jobs end, buffered jobs take over) -> job
+watches and limits (soft-limit approach, switching positions, homing, feed enables) -> drive
+-> monitoring -> NCTOPLC and job records.
+
+Positions: the NC's positions (set, actual, targets) are what the PLC sees. ``axes.offset`` is the
+difference NC - drive position at the drive boundary (MC_SetActualPosition), and ``axes.origin``
+the shift of a running plan since it was planned (MC_SetActualPositionOnTheFly): no absolute value
+is rewritten when the position is set.
 """
 from __future__ import annotations
 
 import logging
-from typing import Any, Sequence
+import math
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from nc_schema import (
-    NCTOPLC_DTYPE, PLCTONC_DTYPE, AxisState, CmdState, ControlDWord, ErrorCodes, NcError, StateDWord, make_reply,
-    motion_state_array,
+    NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, CmdState, ControlDWord, ErrorCodes, MC_AxisPara, NcError,
+    OpModeDWord, StateDWord, error_name, make_reply, next_cmdno,
 )
 
 from ..drives.base import DriveABC
 from ..drives.sim import SimDrive
-from .axes import JOB_HALT, JOB_NONE, JOB_POSITION, JOB_STOP, JOB_VELOCITY, RAMP_NONE, AxisTable
-from .commands import CommandsMixin, fault_ramp
+from .axes import AxisTable
+from .jobs import KINDS, Job, JobQueue
+from .jobs.base import ABORTING, BLENDING, ENDED_KEPT
+from .jobs.stop import FAULT_RAMP, HALT_RAMP, STOP
 from .monitoring import monitor
 from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
-from .profile import Limits, Planner, PlanningError, evaluate, stopping_distance
+from .planning import Dynamics, Plan, PlanningError, StartState, plan_position, plan_velocity
+from .profile import evaluate, peak_velocity, stopping_distance
+from .stages import ProfileStage
 
 _log = logging.getLogger(__name__)
 #: Cycles of set-points evaluated at once (NcCore(lookahead=...)); events refresh only the changed
 #: axes. Deeper buffers lower the mean cost but make every LOOKAHEAD-th cycle heavier; measured here
 #: (bench/nc_cycle.py) 16 suits up to ~64 axes and 4 beyond. None: chosen by axis count.
 LOOKAHEAD: int | None = None
+#: largest |position| the NC accepts as a target (ruckig's numeric range)
+MAX_POSITION = 1e9
 _EPS_V = 1e-9
 _EN = int(ControlDWord.Enable)
 _FP = int(ControlDWord.FeedEnablePlus)
 _FM = int(ControlDWord.FeedEnableMinus)
-
-# StateDWord bits
-_B = {name: np.uint32(int(getattr(StateDWord, name))) for name in (
-    "Operational", "Homed", "NotMoving", "InPositionArea", "InTargetPosition", "HasBeenStopped", "HasJob",
-    "PositiveDirection", "NegativeDirection", "ConstantVelocity", "ContinuousMotion", "ControlLoopClosed",
-    "PTPmode", "SoftLimitMinExceeded", "SoftLimitMaxExceeded", "MotionCommandsLocked", "Error")}
+_CAM = int(ControlDWord.HomingSensor)
+_OVERRIDE_MAX = 1_000_000
 
 
-def _setpoint_luts() -> tuple[np.ndarray, np.ndarray]:
-    """AxisState and set-point StateDWord bits for a packed flag byte of an axis following a profile.
-
-    Flag bits: 0 hold (job waits at override 0), 1 constant acceleration (a == 0), 2 accelerating
-    (a*v > 0), 3 decelerating (a*v < 0), 4 v > 0, 5 v < 0, 6 steady job (job and not holding).
-    """
-    states = np.zeros(128, dtype=np.uint32)
-    dwords = np.zeros(128, dtype=np.uint32)
-    for k in range(128):
-        hold, const, accel, decel, pos, neg, steady = ((k >> b) & 1 for b in range(7))
-        if hold:
-            st = AxisState.OVERRIDE_ZERO
-        elif const:
-            st = AxisState.PHASE_VELOCONST
-        elif accel:
-            st = AxisState.PHASE_ACCPOS
-        elif decel:
-            st = AxisState.PHASE_ACCNEG
-        else:
-            st = AxisState.RUNNING
-        states[k] = int(st)
-        moving = pos or neg
-        dw = 0 if moving else int(_B["NotMoving"])
-        dw |= int(_B["PositiveDirection"]) if pos else 0
-        dw |= int(_B["NegativeDirection"]) if neg else 0
-        dw |= int(_B["ConstantVelocity"]) if steady and moving and const else 0
-        dwords[k] = dw
-    return states, dwords
+def _bit(flag: StateDWord) -> int:
+    return int(flag).bit_length() - 1
 
 
-_SP_STATE_LUT, _SP_DWORD_LUT = _setpoint_luts()
+#: event-driven StateDWord bits: (bit number, AxisTable column)
+_EVENT_BITS = [(_bit(StateDWord.Homed), "homed"), (_bit(StateDWord.HasBeenStopped), "stopped"),
+               (_bit(StateDWord.HasJob), "has_job"), (_bit(StateDWord.HomingBusy), "homing"),
+               (_bit(StateDWord.NewTargetPos), "amended"), (_bit(StateDWord.ContinuousMotion), "continuous"),
+               (_bit(StateDWord.CmdBuffered), "buffered"), (_bit(StateDWord.MotionCommandsLocked), "locked")]
+_ERROR_BIT = _bit(StateDWord.Error)
+_PTP_BIT = _bit(StateDWord.PTPmode)
+_NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
+_LOOP = np.uint32(int(StateDWord.ControlLoopClosed))
+_OPERATIONAL = np.uint32(int(StateDWord.Operational))
+
+#: commands that change the running job instead of starting one
+AMENDMENTS = frozenset({"NewPos", "NewPosAndVelo", "ChangeDynParam"})
 
 
-class NcCore(CommandsMixin):
+class NcCore:
     """All axes of one NC, stepped one fixed cycle at a time.
 
     Args:
@@ -93,6 +91,9 @@ class NcCore(CommandsMixin):
     Raises:
         ConfigError: duplicate axis ids, no axes, bad cycle time.
     """
+
+    #: the stages of one cycle, in order (see the module docstring)
+    STAGES = ("inputs", "profile", "plan ends", "jobs", "drive", "monitoring", "output")
 
     def __init__(self, axes: Sequence[AxisConfig], cycle_time: float = 0.001, drive: DriveABC | None = None,
                  lookahead: int | None = LOOKAHEAD) -> None:
@@ -106,35 +107,38 @@ class NcCore(CommandsMixin):
         self.cycle_time = float(cycle_time)
         if lookahead is None:
             lookahead = 16 if len(axes) <= 64 else 4
-        self._lookahead = max(1, int(lookahead))
         self.configs = list(axes)
         self.params: list[AxisParams] = [c.params for c in axes]
         self.axes = AxisTable(ids, self.params)
         self.axis_ids = self.axes.ids
         self._index = {int(a): i for i, a in enumerate(ids)}
         self.drive = drive if drive is not None else SimDrive(self.params, self.cycle_time)
-        self.planner = Planner()
+        self.queues = [JobQueue() for _ in ids]
         self.cycle = 0
         self.nc_time_ns = 0
         n = len(ids)
         self.plctonc = np.zeros(n, dtype=PLCTONC_DTYPE)
         self.plctonc[:] = self.default_plctonc()
+        self.ncjobs = np.zeros(n, dtype=NCJOBS_DTYPE)
+        self.ncjobs["AxisId"] = self.axis_ids
         self._bits = np.zeros((n, 32), dtype=bool)  # event-driven StateDWord bits, packed in _derive_state
-        self._bits[:, 25] = True  # PTPmode: every axis is a PTP axis
-        self._buf = np.zeros((4, n, self._lookahead))        # set-points of the next self._lookahead cycles
-        self._buf_dw = np.zeros((n, self._lookahead), dtype=np.uint32)  # their StateDWord bits
-        self._buf_st = np.zeros((n, self._lookahead), dtype=np.uint32)  # their AxisState
-        self._buf_k = self._lookahead
-        self._lookahead_t = self.cycle_time * np.arange(1, self._lookahead + 1)
-        self._sp_dw = np.zeros(n, dtype=np.uint32)
+        self._bits[:, _PTP_BIT] = True  # every axis is a PTP axis
+        self.profile = ProfileStage(self, max(1, int(lookahead)))
+        self.sp_dw = np.zeros(n, dtype=np.uint32)
+        self.axis_state = np.zeros(n, dtype=np.uint32)
+        self.on_rows = np.zeros(0, dtype=np.intp)
+        self.all_on = False
+        self.has_origin = False
+        self._has_offset = False
         self._off_rows = np.arange(n)
-        self._flags: dict[tuple[int, int], np.ndarray] = {}  # scratch for _eval_into, by shape
-        self._axis_state = np.zeros(n, dtype=np.uint32)
-        self._opmode_sim = np.uint32(1 << 8) if self.drive.simulated else np.uint32(0)
+        self._watch_rows: list[tuple[Any, np.ndarray]] = []
+        self._opmode_sim = np.uint32(int(OpModeDWord.OpModeSimulationAxis) if self.drive.simulated else 0)
         self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
         self.nctoplc["AxisId"] = self.axis_ids
         self.nctoplc["OpModeDWord"] = self.axes.opmode
         self._dt_ns = int(round(self.cycle_time * 1e9))
+        self.act_pos = self.drive.act_pos.copy()
+        self.prev_act_pos = self.act_pos.copy()
         self._in_dirty = True
         self._state_dirty = True
         self._apply_inputs()
@@ -157,7 +161,7 @@ class NcCore(CommandsMixin):
     def default_plctonc() -> np.void:
         """The PLCTONC applied when no client controls an axis: all enables off, override 100 %."""
         r = np.zeros((), dtype=PLCTONC_DTYPE)
-        r["Override"] = 1_000_000
+        r["Override"] = _OVERRIDE_MAX
         return r[()]
 
     def set_plctonc(self, index: int, record: np.void | bytes | bytearray) -> None:
@@ -175,12 +179,7 @@ class NcCore(CommandsMixin):
             self._in_dirty = True
 
     def set_plctonc_many(self, index: np.ndarray, records: np.ndarray) -> None:
-        """Apply PLCTONC records to several axis rows at once (vectorized :meth:`set_plctonc`).
-
-        Args:
-            index: axis rows (int array).
-            records: PLCTONC_DTYPE array of the same length.
-        """
+        """Apply PLCTONC records to several axis rows at once (vectorized :meth:`set_plctonc`)."""
         new = np.ascontiguousarray(records, dtype=PLCTONC_DTYPE)
         old = self.plctonc[index]
         if old.tobytes() != new.tobytes():
@@ -208,28 +207,41 @@ class NcCore(CommandsMixin):
             return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
         return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
 
-    def fault(self, index: int, code: int) -> None:
+    def fault(self, i: int, code: int) -> None:
         """Raise axis error ``code`` now and stop the axis with its deceleration.
 
-        The first error sticks (like TwinCAT); the drive stays enabled until the
-        stop ramp ends, whatever the PLCTONC says.
+        The first error sticks (like TwinCAT); the running job ends ERROR, a waiting one ABORTED;
+        the drive stays enabled until the stop ramp ends, whatever the PLCTONC says.
         """
-        a = self.axes
-        if a.error[index]:
+        a, q = self.axes, self.queues[i]
+        if a.error[i]:
             return
         self._state_dirty = True
-        a.error[index] = code
-        self._end_job(index, CmdState.ERROR)
-        moving = bool(a.traj_on[index]) or abs(a.set_velo[index]) > 0
-        if moving:
-            fault_ramp(self, index)
-            a.hold_enable[index] = bool(a.enabled[index])
-        a.limit_stop[index] = 0
+        a.error[i] = code
+        running = q.active
+        if q.waiting is not None:
+            q.end(q.waiting, CmdState.ABORTED)
+        if running is not None:
+            q.end(running, CmdState.ERROR, code)
+        moving = bool(a.traj_on[i]) or abs(a.set_velo[i]) > 0
+        if moving and a.enabled[i]:
+            self._start_ramp(i, FAULT_RAMP, running)
+        else:
+            self.clear_profile(i)
+        self._sync(i)
 
     @property
     def moving(self) -> np.ndarray:
         """Axes with a job or a non-zero set velocity."""
-        return (self.axes.job != JOB_NONE) | (np.abs(self.axes.set_velo) > _EPS_V)
+        return self.axes.has_job | (np.abs(self.axes.set_velo) > _EPS_V) | self.axes.traj_on
+
+    @property
+    def stopping(self) -> np.ndarray:
+        """Axes whose running motion is a stop (MC_Stop or a stop ramp of the NC)."""
+        out = np.zeros(self.axes.n, dtype=bool)
+        for i, q in enumerate(self.queues):
+            out[i] = q.active is not None and q.active.kind.is_stop
+        return out
 
     def info(self) -> dict[str, Any]:
         return {"cycle_time": self.cycle_time,
@@ -269,6 +281,345 @@ class NcCore(CommandsMixin):
         self.drive.configure(i, new)
         self._state_dirty = True
 
+    # -- helpers for the job kinds -----------------------------------------------------------
+    def start_state(self, i: int) -> StartState:
+        """The set-point state a new plan starts from (NC position)."""
+        a = self.axes
+        return StartState(float(a.set_pos[i]), float(a.set_velo[i]), float(a.set_acc[i]))
+
+    def nc_set_pos(self, i: int) -> float:
+        return float(self.axes.set_pos[i])
+
+    def override(self, i: int) -> float:
+        return float(self.axes.override[i])
+
+    def dynamics(self, i: int, req: Mapping[str, Any], velocity: float | None) -> Dynamics:
+        """The dynamics of a command: its Acceleration/Deceleration/Jerk, 0 = the axis defaults.
+
+        Raises:
+            NcError: 0x422F/0x4230/0x422E for negative or unusable values.
+        """
+        a = self.axes
+        acc = req.get("Acceleration", 0.0) or 0.0
+        dec = req.get("Deceleration", 0.0) or 0.0
+        jerk = req.get("Jerk", 0.0) or 0.0
+        # outside these ranges ruckig's numerics fail; say which value instead of 'internal error'
+        for name, x, lo, hi, code in (("Acceleration", acc, 1e-6, 1e10, ErrorCodes.NC_ACCELERATION_NOT_ALLOWED),
+                                      ("Deceleration", dec, 1e-6, 1e10, ErrorCodes.NC_DECELERATION_NOT_ALLOWED),
+                                      ("Jerk", jerk, 1e-6, 1e12, ErrorCodes.NC_JERK_NOT_ALLOWED)):
+            if x < 0:
+                raise NcError(code, f"{name} {x} < 0")
+            if x and not lo <= x <= hi:
+                raise NcError(code, f"{name} {x:g} outside {lo:g}..{hi:g}")
+        v = float(a.vmax[i]) if velocity is None else velocity
+        return Dynamics(v, acc or float(a.acc[i]), dec or float(a.dec[i]), jerk or float(a.jerk[i]))
+
+    def check_velocity(self, i: int, v: float) -> None:
+        """Raises NcError 0x4221 unless 0 < v <= AxisVeloMax."""
+        if not v >= 1e-9 or v > self.axes.vmax[i] * (1 + 1e-12):
+            raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,
+                          f"Velocity {v} must be > 0 and <= AxisVeloMax {self.axes.vmax[i]}")
+
+    def check_startable(self, i: int) -> None:
+        """The axis accepts motion commands: no error, no MC_Stop lock, enabled, drive ready."""
+        a = self.axes
+        if a.error[i]:
+            raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED,
+                          f"axis {int(a.ids[i])} is in ErrorStop ({error_name(int(a.error[i]))} 0x{int(a.error[i]):04X}); MC_Reset first")
+        if a.locked[i]:
+            raise NcError(ErrorCodes.NC_AXIS_LOCKED_BY_STOP, "MC_Stop is active; release it (Execute FALSE) or MC_Reset")
+        if not int(self.plctonc["ControlDWord"][i]) & _EN:
+            raise NcError(ErrorCodes.NC_NO_ENABLE, "controller enable is off (MC_Power)")
+        if not self.drive.ready[i]:
+            raise NcError(ErrorCodes.NC_DRIVE_NOT_READY_AT_START, "drive not ready")
+
+    def check_feed(self, i: int, sense: float) -> None:
+        """Raises NcError 0x4223 if the feed enable of direction ``sense`` is off."""
+        c = int(self.plctonc["ControlDWord"][i])
+        if sense > 0 and not c & _FP:
+            raise NcError(ErrorCodes.NC_NO_ENABLE, "feed enable plus is off (MC_Power.Enable_Positive)")
+        if sense < 0 and not c & _FM:
+            raise NcError(ErrorCodes.NC_NO_ENABLE, "feed enable minus is off (MC_Power.Enable_Negative)")
+
+    def check_target(self, i: int, start: float, target: float, plan: Plan | None = None) -> None:
+        """Software limits for a move from ``start`` to ``target`` (and the plan's extrema).
+
+        Raises:
+            NcError: 0x4222 target beyond a limit (or the path would overshoot it), 0x4460/0x4461
+                when the axis already stands beyond the limit and the move goes further.
+        """
+        a = self.axes
+        if not abs(target) < MAX_POSITION:
+            raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"target {target} outside +/-{MAX_POSITION:g}")
+        if a.en_max[i] and target > a.max_lim[i]:
+            if start > a.max_lim[i] and target >= start:
+                raise NcError(ErrorCodes.NC_SOFT_LIMIT_MAX_START, f"axis at {start} is beyond AxisMaxSoftPosLimit {a.max_lim[i]}")
+            raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"target {target} > AxisMaxSoftPosLimit {a.max_lim[i]}")
+        if a.en_min[i] and target < a.min_lim[i]:
+            if start < a.min_lim[i] and target <= start:
+                raise NcError(ErrorCodes.NC_SOFT_LIMIT_MIN_START, f"axis at {start} is beyond AxisMinSoftPosLimit {a.min_lim[i]}")
+            raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"target {target} < AxisMinSoftPosLimit {a.min_lim[i]}")
+        if plan is None:
+            return
+        # the path may overshoot when the axis is moving (ruckig ignores position limits)
+        if a.en_max[i] and plan.p_max > max(a.max_lim[i], start) + 1e-9:
+            raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"the move would overshoot AxisMaxSoftPosLimit ({plan.p_max:.6g})")
+        if a.en_min[i] and plan.p_min < min(a.min_lim[i], start) - 1e-9:
+            raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"the move would overshoot AxisMinSoftPosLimit ({plan.p_min:.6g})")
+
+    def check_overshoot(self, i: int, plan: Plan, v_new: float) -> None:
+        """Refuse (0x423A) a plan that would exceed both the new and the running motion's velocity,
+        or AxisVeloMax: it happens when weaker dynamics meet an accelerating axis."""
+        a, job = self.axes, self.queues[i].active
+        running = job.dyn.velocity * a.override[i] if (job is not None and job.dyn is not None and a.traj_on[i]) else 0.0
+        cap = min(max(v_new, running, abs(a.set_velo[i])), a.vmax[i])
+        peak = peak_velocity(plan.seg)
+        if peak > cap * (1 + 1e-6) + 1e-9:
+            raise NcError(ErrorCodes.NC_VELOCITY_OVERFLOW,
+                          f"the new dynamics would overshoot to {peak:.6g} u/s (limit {cap:.6g}); use a higher Jerk")
+
+    def plan(self, fn: Any, *args: Any) -> Plan:
+        """Call a planning function; ruckig failures become NcError 0x4000."""
+        try:
+            return fn(*args)
+        except PlanningError as exc:
+            raise NcError(ErrorCodes.NC_INTERNAL, f"set-point generation failed: {exc}") from None
+
+    def stop_dynamics(self, i: int, dec: float = 0.0, jerk: float = 0.0, running: Job | None = None) -> Dynamics:
+        """Dynamics of a stop (0 = axis defaults), never weaker than a stop already running, and with
+        a jerk that cannot speed an accelerating axis up beyond its running motion (TcMC 3.15).
+
+        Args:
+            running: the motion being stopped (default: the axis's running job).
+        """
+        a = self.axes
+        job = running if running is not None else self.queues[i].active
+        d = self.dynamics(i, {"Deceleration": dec, "Jerk": jerk}, None)
+        dec_, jerk_ = d.deceleration, d.jerk
+        if job is not None and job.kind.is_stop and job.dyn is not None:
+            dec_, jerk_ = max(dec_, job.dyn.deceleration), max(jerk_, job.dyn.jerk)
+        v0, a0 = float(a.set_velo[i]), float(a.set_acc[i])
+        if a.traj_on[i] and v0 * a0 > 0 and job is not None and job.dyn is not None:
+            jerk_ = max(jerk_, job.dyn.jerk)
+            cap = max(job.dyn.velocity * a.override[i], abs(v0))
+            if cap > abs(v0):
+                jerk_ = max(jerk_, a0 * a0 / (2 * (cap - abs(v0))))
+        return Dynamics(float(a.vmax[i]), max(d.acceleration, dec_), dec_, jerk_)
+
+    def profile_end(self, i: int) -> float:
+        """Position where axis row ``i``'s current plan ends [u]."""
+        a = self.axes
+        if not a.traj_on[i]:
+            return float(a.set_pos[i])
+        p, _, _, _ = evaluate(a.seg, np.array([a.traj_dur[i]]), np.array([i]))
+        return float(p[0] + a.origin[i])
+
+    def cam(self, rows: np.ndarray) -> np.ndarray:
+        """The reference cam (PLCTONC ControlDWord.HomingSensor) of ``rows``."""
+        return (self.plctonc["ControlDWord"][rows] & _CAM) != 0
+
+    def shift_position(self, i: int, diff: float) -> None:
+        """Shift the NC positions of row ``i`` by ``diff`` [u]: the drive offset takes it, the set
+        position and the running plan (through ``origin``) and the job targets move with it."""
+        a, q = self.axes, self.queues[i]
+        a.offset[i] += diff
+        a.set_pos[i] += diff
+        a.target_pos[i] += diff
+        if a.traj_on[i]:
+            a.origin[i] += diff
+            a.changed.append(i)
+        for job in (q.active, q.waiting):
+            if job is not None and job.target is not None:
+                job.target += diff
+        self.act_pos = self.act_pos.copy()
+        self.act_pos[i] += diff
+        self._has_offset = True  # from this cycle's drive step on
+        self.has_origin = bool(a.origin.any())
+        self._state_dirty = True
+
+    # -- the queue ----------------------------------------------------------------------------
+    def set_plan(self, i: int, plan: Plan) -> None:
+        """Follow ``plan`` on row ``i`` from the next cycle (the running job keeps going)."""
+        a = self.axes
+        a.seg[:, i, :] = plan.seg
+        a.traj_t[i] = 0.0
+        a.traj_dur[i] = plan.duration
+        a.traj_on[i] = True
+        if a.origin[i]:
+            a.origin[i] = 0.0
+        a.changed.append(i)
+        self._state_dirty = True
+
+    def clear_profile(self, i: int) -> None:
+        """Stop the set-point generator (the axis holds its set position)."""
+        a = self.axes
+        a.changed.append(i)
+        if a.origin[i]:
+            a.set_pos[i] += 0.0  # set_pos already includes the origin
+            a.origin[i] = 0.0
+        a.traj_on[i] = False
+        a.set_velo[i] = 0.0
+        a.set_acc[i] = 0.0
+        a.set_jerk[i] = 0.0
+        self._state_dirty = True
+
+    def begin(self, i: int, job: Job, plan: Plan, abort_waiting: bool = True) -> None:
+        """Make ``job`` the running job with ``plan``: the running one ends ABORTED (and, unless
+        ``abort_waiting`` is False, the waiting one too). Numbers the job if it has no number."""
+        a, q = self.axes, self.queues[i]
+        if q.active is not None and q.active is not job:
+            q.end(q.active, CmdState.ABORTED)
+        if abort_waiting and q.waiting is not None and q.waiting is not job:
+            q.end(q.waiting, CmdState.ABORTED)
+        if q.waiting is job:
+            q.waiting = None
+        if not job.kind.internal and not job.numbered:
+            job.cmd_no = q.newest = next_cmdno(q.newest)
+        job.state = int(CmdState.ACTIVE)
+        q.active = job
+        if job.numbered:
+            q.shown = job
+            a.stopped[i] = job.kind.is_stop
+            if job.kind.locks:
+                a.locked[i] = True
+        self.set_plan(i, plan)
+        a.target_pos[i] = job.target if job.target is not None else plan.end.p
+        a.since_end[i] = -1.0
+        a.window_timer[i] = 0.0
+        a.in_target[i] = a.in_area[i] = False
+        self._sync(i)
+
+    def _start_ramp(self, i: int, kind: Any, running: Job | None) -> None:
+        """An internal stop ramp (no CmdNo) after an error or a job that could not take over."""
+        a = self.axes
+        if kind is FAULT_RAMP or running is None or running.dyn is None:
+            d = self.stop_dynamics(i, float(a.dec[i]), float(a.jerk[i]), running)
+        else:
+            d = self.stop_dynamics(i, running.dyn.deceleration, running.dyn.jerk, running)
+        try:
+            plan = plan_velocity(self.start_state(i), 0.0, d)
+        except PlanningError:
+            self.clear_profile(i)  # cannot plan: stop the set-point at once
+            return
+        self.begin(i, Job(kind, {}, dyn=d), plan, abort_waiting=False)
+
+    def _sync(self, i: int) -> None:
+        """Mirror row ``i``'s queue into the columns and its job record (on events only)."""
+        a, q = self.axes, self.queues[i]
+        j = q.active
+        numbered = j is not None and j.numbered
+        a.has_job[i] = numbered
+        a.continuous[i] = numbered and j.continuous  # type: ignore[union-attr]
+        a.homing[i] = numbered and j.kind.homing  # type: ignore[union-attr]
+        a.amended[i] = numbered and j.amended  # type: ignore[union-attr]
+        a.buffered[i] = q.waiting is not None
+        a.hold_enable[i] = j is not None and j.kind.holds_enable
+        a.driving[i] = numbered and j.kind.feed_checked and not j.held  # type: ignore[union-attr]
+        a.held[i] = j is not None and j.held
+        a.watch_kind[i] = KINDS_INDEX.get(j.kind.name, -1) if (j is not None and j.kind.wants_watch(j)) else -1
+        a.homing_state[i] = j.phase if numbered and j.kind.homing else 0  # type: ignore[union-attr]
+        shown = q.shown
+        a.cmd_no[i] = shown.cmd_no if shown is not None else 0
+        a.cmd_state[i] = shown.state if shown is not None else 0
+        r = self.ncjobs[i]
+        r["ActiveCmdNo"] = a.cmd_no[i]
+        r["ActiveState"] = a.cmd_state[i]
+        w = q.waiting
+        r["BufferedCmdNo"] = w.cmd_no if w is not None else 0
+        r["BufferedMode"] = w.buffer_mode if w is not None else 0
+        r["NewestCmdNo"] = q.newest
+        r["Flags"] = 1 if a.amended[i] else 0
+        ended = r["Ended"]
+        for k in range(ENDED_KEPT):
+            e = q.ended[k] if k < len(q.ended) else None
+            ended[k] = (e.cmd_no, e.state, e.error_id) if e is not None else (0, 0, 0)
+        self.ncjobs[i] = r
+        self._state_dirty = True
+
+    def finish(self, i: int, job: Job, state: CmdState = CmdState.DONE, error_id: int = 0) -> None:
+        """End the running ``job``; a waiting job takes over (or the generator stops)."""
+        q = self.queues[i]
+        q.end(job, state, error_id)
+        if q.waiting is not None:
+            self._advance(i)
+        else:
+            self.clear_profile(i)
+        self._sync(i)
+
+    def _advance(self, i: int) -> None:
+        """The waiting job takes over from the current set-point state (its exact cycle)."""
+        q = self.queues[i]
+        nxt = q.waiting
+        assert nxt is not None
+        prev = q.active
+        if prev is not None:
+            q.end(prev, CmdState.DONE)
+        try:
+            plan = nxt.kind.activate(self, i, nxt, self.start_state(i))
+        except NcError as err:
+            # it can no longer start: it ends ERROR with that check's code, the axis stops
+            q.end(nxt, CmdState.ERROR, err.code)
+            _log.info("axis %d: buffered command %d could not start: %s", int(self.axis_ids[i]), nxt.cmd_no, err)
+            if abs(self.axes.set_velo[i]) > _EPS_V:
+                self._start_ramp(i, HALT_RAMP, prev)
+            else:
+                self.clear_profile(i)
+            self._sync(i)
+            return
+        self.begin(i, nxt, plan, abort_waiting=False)
+
+    def blend(self, i: int) -> None:
+        """Re-plan the running job so that it passes its target with the blending velocity of the
+        waiting job's BufferMode (PLCopen Part 1: Low = the lower, Previous = the running job's,
+        Next = the waiting job's, High = the higher of both velocities). Opposite directions, or a
+        running job without a target (velocity, stop): no blending, the waiting job starts at the end
+        as with Buffered. The velocity is lowered where the running job could not reach it without
+        passing its target, or the waiting job could not stop within its own distance."""
+        q, a = self.queues[i], self.axes
+        prev, nxt = q.active, q.waiting
+        if prev is None or nxt is None or nxt.buffer_mode not in BLENDING:
+            return
+        bp = prev.kind.blend_point(prev)
+        if bp is None:
+            return
+        target, sense, v_prev = bp
+        ov = float(a.override[i])
+        if nxt.target is not None:
+            d_next = (nxt.target - target) * sense
+            v_next = nxt.dyn.velocity if nxt.dyn is not None else 0.0
+        else:
+            d_next = math.inf if nxt.velocity * sense > 0 else -1.0
+            v_next = abs(nxt.velocity)
+        if d_next <= 0:
+            v = 0.0
+        else:
+            mode = nxt.buffer_mode
+            if mode == 18:
+                v = min(v_prev, v_next)
+            elif mode == 19:
+                v = v_prev
+            elif mode == 20:
+                v = v_next
+            else:
+                v = max(v_prev, v_next)
+            v = min(v * ov, float(a.vmax[i]))
+            if math.isfinite(d_next) and nxt.dyn is not None and v > 0:
+                # the waiting job must be able to stop within its distance from the blending velocity
+                for _ in range(30):
+                    need = float(stopping_distance(np.array([v]), np.zeros(1), np.array([nxt.dyn.deceleration]),
+                                                   np.array([nxt.dyn.jerk]))[0])
+                    if need <= d_next:
+                        break
+                    v *= 0.8
+                else:
+                    v = 0.0
+        prev.end_velocity = sense * v
+        plan = prev.kind.replan(self, i, prev, self.start_state(i), ov)
+        if plan is not None:
+            self.set_plan(i, plan)
+        self._sync(i)
+
+    # -- step ---------------------------------------------------------------------------------
     def step(self, nc_time_ns: int | None = None) -> None:
         """Run one NC cycle of ``cycle_time`` seconds.
 
@@ -276,48 +627,24 @@ class NcCore(CommandsMixin):
             nc_time_ns: the NC time of this cycle [ns]; default: previous + cycle_time.
         """
         a = self.axes
-        dt = self.cycle_time
         self.cycle += 1
         self.nc_time_ns = int(nc_time_ns) if nc_time_ns is not None else self.nc_time_ns + self._dt_ns
+        # inputs
         if self._in_dirty:
             self._apply_inputs()
         if self._state_dirty:
             self._derive_state()
         if self._off_rows.size:  # disabled axes: the set position follows the actual position
-            a.set_pos[self._off_rows] = self.drive.act_pos[self._off_rows]
-
-        # -- set-points: one column of the lookahead buffer (refilled every self._lookahead cycles or on events)
-        on = self._on_rows
-        if on.size:
-            if self._buf_k >= self._lookahead:
-                self._fill_buffer()
-            k = self._buf_k
-            self._buf_k = k + 1
-            if self._all_on:
-                a.traj_t += dt
-                a.S[:] = self._buf[:, :, k]
-                self._sp_dw[:] = self._buf_dw[:, k]
-                self._axis_state[:] = self._buf_st[:, k]
-                finished = (a.traj_t >= a.traj_dur).nonzero()[0]
-            else:
-                a.traj_t[on] += dt
-                a.S[:, on] = self._buf[:, on, k]
-                self._sp_dw[on] = self._buf_dw[on, k]
-                self._axis_state[on] = self._buf_st[on, k]
-                finished = on[a.traj_t[on] >= a.traj_dur[on]]
-            if finished.size:
-                self._profile_ends(finished)
-            vel = self._vel_rows
-            if vel.size:
-                a.target_pos[vel] = a.set_pos[vel]
-            cont = self._limit_rows  # continuous moves approaching an enabled software limit
-            if cont.size:
-                d = stopping_distance(a.set_velo[cont], a.set_acc[cont], a.cmd_dec[cont], a.cmd_jerk[cont])
-                d += 2 * np.abs(a.set_velo[cont]) * dt
-                hit = (a.en_max[cont] & (a.set_velo[cont] > 0) & (a.set_pos[cont] + d >= a.max_lim[cont])) | (
-                    a.en_min[cont] & (a.set_velo[cont] < 0) & (a.set_pos[cont] - d <= a.min_lim[cont]))
-                for i in cont[hit]:
-                    self._stop_at_limit(int(i))
+            a.set_pos[self._off_rows] = self.act_pos[self._off_rows]
+        # set-point stages, then the ends of plans (jobs end, buffered jobs take over)
+        if self.on_rows.size:
+            ended = self.profile.run(self)
+            if ended.size:
+                self._plan_ends(ended)
+            # job watches and limits
+            if self._watch_rows:
+                for kind, rows in self._watch_rows:
+                    kind.watch(self, rows)
             feed = self._feed_rows  # moving axes with a feed enable missing in some direction
             if feed.size:
                 plus, minus = self._feed_plus[feed], self._feed_minus[feed]
@@ -326,53 +653,47 @@ class NcCore(CommandsMixin):
                     self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_PLUS)
                 for i in feed[~minus & (v < -_EPS_V)]:
                     self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_MINUS)
-
-        self.drive.step(a.enabled, a.set_pos, a.set_velo, a.set_acc)
+        # drive
+        self.prev_act_pos, prev = self.act_pos, self.act_pos
+        if self._has_offset:
+            self.drive.step(a.enabled, a.set_pos - a.offset, a.set_velo, a.set_acc)
+            self.act_pos = self.drive.act_pos + a.offset
+        else:
+            self.drive.step(a.enabled, a.set_pos, a.set_velo, a.set_acc)
+            self.act_pos = self.drive.act_pos
+        del prev
         if self._state_dirty:  # a job ended this cycle: monitor it as standing already
             self._derive_state()
-
         # monitoring: new faults stop their axes from the next cycle
-        for i, code in monitor(a, self.drive.act_pos, dt, self._watch):
+        for i, code in monitor(a, self.act_pos, self.cycle_time, self._watch):
             self.fault(i, code)
         if self._state_dirty:
             self._derive_state()
         self._fill_nctoplc()
 
-    def _fill_buffer(self) -> None:
-        """Evaluate the next self._lookahead cycles of every profile at once (and their set-point bits)."""
-        self._buf_k = 0
-        self._eval_into(self._on_rows)
-
-    def _eval_into(self, rows: np.ndarray) -> None:
-        """(Re)compute the buffer columns from ``_buf_k`` on for ``rows`` (their profiles changed)."""
+    def _plan_ends(self, rows: np.ndarray) -> None:
         a = self.axes
-        k0 = self._buf_k
-        ncol = self._lookahead - k0
-        m = rows.size
-        t = (a.traj_t[rows][:, None] + self._lookahead_t[:ncol]).ravel()
-        p, v, acc, j = evaluate(a.seg, t, np.repeat(rows, ncol))
-        # one row (a command) or all rows: basic indexing, much cheaper than fancy indexing
-        sel: int | slice | np.ndarray = int(rows[0]) if m == 1 else (slice(None) if m == a.n else rows)
-        shape = (ncol,) if m == 1 else (m, ncol)
-        buf = self._buf
-        for r, x in enumerate((p, v, acc, j)):
-            buf[r, sel, k0:] = x.reshape(shape)
-        # set-point bits and AxisState: one packed flag byte per sample, two table lookups
-        flags = self._flags.get((m, ncol))
-        if flags is None:
-            flags = self._flags[(m, ncol)] = np.zeros((m, ncol, 8), dtype=bool)
-        flags[:, :, 0] = self._hold[rows][:, None]
-        flags[:, :, 1] = (np.abs(acc) < 1e-9).reshape(m, ncol)
-        av = (acc * v).reshape(m, ncol)
-        flags[:, :, 2] = av > 0
-        flags[:, :, 3] = av < 0
-        v = v.reshape(m, ncol)
-        flags[:, :, 4] = v > _EPS_V
-        flags[:, :, 5] = v < -_EPS_V
-        flags[:, :, 6] = (self._job[rows] & ~a.hold_zero[rows])[:, None]
-        code = np.packbits(flags, axis=2, bitorder="little")[:, :, 0]
-        self._buf_dw[sel, k0:] = _SP_DWORD_LUT[code].reshape(shape)
-        self._buf_st[sel, k0:] = _SP_STATE_LUT[code].reshape(shape)
+        for i in rows.tolist():
+            q = self.queues[i]
+            job = q.active
+            if job is None:
+                self.clear_profile(i)
+                continue
+            res = job.kind.on_end(self, i, job)
+            if res == "steady":
+                a.traj_dur[i] = np.inf  # keep the end velocity: not an end
+                if q.waiting is not None and job.kind.successor_may_start(self, i, job):
+                    self._advance(i)
+                self._sync(i)
+            elif res == "done":
+                if q.waiting is None and job.target is not None and job.end_velocity == 0.0 and not job.kind.is_stop:
+                    a.set_pos[i] = job.target  # exact end
+                    a.target_pos[i] = job.target
+                    a.since_end[i] = 0.0
+                elif q.waiting is None:
+                    a.target_pos[i] = a.set_pos[i]
+                self.finish(i, job)
+            self._state_dirty = True
 
     # -- internals ---------------------------------------------------------------------------
     def _apply_inputs(self) -> None:
@@ -383,12 +704,25 @@ class NcCore(CommandsMixin):
         self._enable_in = (ctrl & _EN) != 0
         self._feed_plus = (ctrl & _FP) != 0
         self._feed_minus = (ctrl & _FM) != 0
-        ov = np.minimum(self.plctonc["Override"], 1_000_000) / 1_000_000.0
+        raw = self.plctonc["Override"]
+        too_high = (raw > _OVERRIDE_MAX).nonzero()[0]
+        for i in too_high.tolist():
+            # TwinCAT: 0x4238 'velocity override not allowed (> 100 %)' -- an axis error, never a
+            # silent clamp; the axis goes on with at most 100 % while it stops
+            if not a.error[i]:
+                _log.warning("axis %d: PLCTONC Override %d > 100 %%", int(a.ids[i]), int(raw[i]))
+                self.fault(i, ErrorCodes.NC_OVERRIDE_NOT_ALLOWED)
+        ov = np.minimum(raw, _OVERRIDE_MAX) / float(_OVERRIDE_MAX)
         changed = (ov != a.override).nonzero()[0]
         a.override = ov
-        for i in changed:
-            if a.traj_on[i] and a.job[i] in (JOB_POSITION, JOB_VELOCITY) and a.ramp[i] == RAMP_NONE and not a.limit_stop[i]:
-                self._replan_override(int(i))
+        for i in changed.tolist():
+            job = self.queues[i].active
+            if job is not None and job.numbered and job.kind.follows_override and a.traj_on[i]:
+                plan = job.kind.replan(self, i, job, self.start_state(i), float(ov[i]))
+                if plan is not None:
+                    self.set_plan(i, plan)
+                    job.held = ov[i] <= 0
+                    self._sync(i)
         self._state_dirty = True
 
     def _derive_state(self) -> None:
@@ -402,150 +736,81 @@ class NcCore(CommandsMixin):
         if flips.size:
             for i in flips.tolist():
                 if enabled[i]:  # controller activation: set position := actual position
-                    a.set_pos[i] = a.target_pos[i] = self.drive.act_pos[i]
+                    a.set_pos[i] = a.target_pos[i] = self.act_pos[i]
                 else:
-                    self._end_job(i, CmdState.ABORTED)
-                    a.ramp[i] = RAMP_NONE
+                    q = self.queues[i]
+                    if q.waiting is not None:
+                        q.end(q.waiting, CmdState.ABORTED)
+                    if q.active is not None:
+                        q.end(q.active, CmdState.ABORTED)
                     a.locked[i] = False
-                    a.hold_enable[i] = False
-                    a.clear_profile(i)
+                    self.clear_profile(i)
+                    self._sync(i)
             a.enabled = enabled
             self._off_rows = (~enabled).nonzero()[0]
-        job = a.job != JOB_NONE
-        self._job = job
-        self._hold = job & a.hold_zero
-        self._on_rows = a.traj_on.nonzero()[0]
-        self._all_on = self._on_rows.size == a.n
+            self._state_dirty = False
+        self.on_rows = a.traj_on.nonzero()[0]
+        self.all_on = self.on_rows.size == a.n
         if a.changed:  # re-evaluate the rest of the buffer for the axes whose profile changed
             rows = np.array(sorted(set(a.changed)), dtype=np.intp)
             a.changed.clear()
-            rows = rows[a.traj_on[rows]]
-            if rows.size and self._buf_k < self._lookahead:
-                self._eval_into(rows)
-        velocity_job = a.job == JOB_VELOCITY
-        self._vel_rows = velocity_job.nonzero()[0]
-        self._limit_rows = (velocity_job & (a.limit_stop == 0) & (a.en_max | a.en_min)).nonzero()[0]
-        driving = job & (a.job != JOB_STOP) & (a.job != JOB_HALT)
-        self._feed_rows = (driving & ~(self._feed_plus & self._feed_minus)).nonzero()[0]
+            self.profile.refresh(self, rows[a.traj_on[rows]])
+        job = a.has_job
+        watch = a.watch_kind
+        self._watch_rows = []
+        if (watch >= 0).any():
+            for k in np.unique(watch[watch >= 0]).tolist():
+                self._watch_rows.append((KINDS_LIST[k], (watch == k).nonzero()[0]))
+        self._feed_rows = (a.driving & ~(self._feed_plus & self._feed_minus)).nonzero()[0]
         standstill = ~(a.traj_on | job) & enabled
         self._watch = a.lag_en & enabled, standstill, bool((a.en_max | a.en_min).any()), bool(standstill.any())
         # axes without a profile: AxisState INACTIVE, NotMoving unless a set velocity remains
         idle = ~a.traj_on
-        self._sp_dw[idle] = np.where(np.abs(a.set_velo[idle]) > _EPS_V, np.uint32(0), _B["NotMoving"])
-        self._axis_state[idle] = 0
+        self.sp_dw[idle] = np.where(np.abs(a.set_velo[idle]) > _EPS_V, np.uint32(0), _NOT_MOVING)
+        self.axis_state[idle] = 0
         err = a.error != 0
         ev = self._bits
-        ev[:, 1] = a.homed                          # Homed
-        ev[:, 7] = a.stopped                        # HasBeenStopped
-        ev[:, 8] = job                              # HasJob
-        ev[:, 19] = velocity_job                    # ContinuousMotion
-        ev[:, 29] = a.locked                        # MotionCommandsLocked
-        ev[:, 31] = err                             # Error
+        for bit, col in _EVENT_BITS:
+            ev[:, bit] = getattr(a, col)
+        ev[:, _ERROR_BIT] = err
         self._event_dw = np.packbits(ev, axis=1, bitorder="little").view(np.uint32)[:, 0].copy()
         # ControlLoopClosed always, Operational only without an error (both need enable + drive ready)
-        self._loop_dw = np.where(err, _B["ControlLoopClosed"], _B["ControlLoopClosed"] | _B["Operational"])
+        self._loop_dw = np.where(err, _LOOP, _LOOP | _OPERATIONAL)
+        self._has_offset = bool(a.offset.any())
+        self.has_origin = bool(a.origin.any())
         out["ErrorCode"] = a.error
         out["SafEntries"] = job
         out["OpModeDWord"] = a.opmode | self._opmode_sim
         out["CmdNo"] = a.cmd_no
         out["CmdState"] = a.cmd_state
         out["TargetPos"] = a.target_pos
-
-    def _enabled_input(self, i: int) -> bool:
-        return bool(int(self.plctonc["ControlDWord"][i]) & _EN)
-
-    def _feed_input(self, i: int) -> tuple[bool, bool]:
-        c = int(self.plctonc["ControlDWord"][i])
-        return bool(c & _FP), bool(c & _FM)
-
-    def _profile_ends(self, rows: np.ndarray) -> None:
-        a = self.axes
-        for i in rows:
-            i = int(i)
-            job = int(a.job[i])
-            if a.hold_zero[i] or job == JOB_VELOCITY and a.limit_stop[i] == 0:
-                a.traj_dur[i] = np.inf  # steady tail (constant velocity / override-0 hold): not an end
-                continue
-            self._state_dirty = True
-            if a.limit_stop[i]:
-                code = ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if a.limit_stop[i] > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING
-                a.limit_stop[i] = 0
-                a.clear_profile(i)
-                self.fault(i, code)
-                continue
-            if job == JOB_POSITION:
-                a.set_pos[i] = a.goal_pos[i]  # exact end
-                a.since_end[i] = 0.0
-            a.clear_profile(i)
-            if job != JOB_NONE:
-                a.cmd_state[i] = int(CmdState.DONE)
-                a.job[i] = JOB_NONE
-            a.ramp[i] = RAMP_NONE
-            a.hold_enable[i] = False  # standstill: the PLCTONC enables apply again
-            a.target_pos[i] = a.set_pos[i] if job != JOB_POSITION else a.goal_pos[i]
-
-    def _replan_override(self, i: int) -> None:
-        a = self.axes
-        lim = Limits(a.cmd_velo[i], a.cmd_acc[i], a.cmd_dec[i], a.cmd_jerk[i])
-        ov = a.override[i]
-        try:
-            if a.job[i] == JOB_POSITION and ov > 0:
-                seg, dur, _, _ = self.planner.position(a.set_pos[i], a.set_velo[i], a.set_acc[i], a.goal_pos[i],
-                                                       Limits(lim.velocity * ov, lim.acceleration, lim.deceleration, lim.jerk))
-            else:
-                seg, dur = self.planner.velocity(a.set_pos[i], a.set_velo[i], a.set_acc[i],
-                                                 a.goal_velo[i] * ov if a.job[i] == JOB_VELOCITY else 0.0, lim)
-        except PlanningError:
-            return  # keep the current profile
-        a.set_segments(i, seg, dur)
-        self._state_dirty = True
-        a.hold_zero[i] = ov <= 0
-
-    def _stop_at_limit(self, i: int) -> None:
-        a = self.axes
-        v = a.set_velo[i]
-        target = a.max_lim[i] if v > 0 else a.min_lim[i]
-        lim = Limits(max(abs(v), a.cmd_velo[i] * a.override[i], 1e-9), a.cmd_acc[i], a.cmd_dec[i], a.cmd_jerk[i])
-        try:
-            seg, dur, _, _ = self.planner.position(a.set_pos[i], v, a.set_acc[i], target, lim)
-        except PlanningError:
-            self.fault(i, ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if v > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING)
-            return
-        a.set_segments(i, seg, dur)
-        self._state_dirty = True
-        a.limit_stop[i] = 1 if v > 0 else -1
-        a.target_pos[i] = target
-
-    def profile_end(self, i: int) -> float:
-        """Position where axis row ``i``'s current profile ends [u]."""
-        a = self.axes
-        if not a.traj_on[i]:
-            return float(a.set_pos[i])
-        p, _, _, _ = evaluate(a.seg, np.array([a.traj_dur[i]]), np.array([i]))
-        return float(p[0])
+        out["HomingState"] = a.homing_state
 
     def _status_param(self, i: int, number: int) -> float:
         a, r = self.axes, self.nctoplc[i]
-        names = {1: "SetPos", 10: "ActVelo", 11: "SetVelo"}
+        P = MC_AxisPara
+        names = {int(P.CommandedPosition): "SetPos", int(P.ActualVelocity): "ActVelo", int(P.CommandedVelocity): "SetVelo"}
         if number in names:
             return float(r[names[number]])
-        if number == 1000:
+        if number == int(P.AxisId):
             return float(a.ids[i])
-        if number == 2000:
+        if number == int(P.AxisTargetPosition):
             return float(a.target_pos[i])
-        if number == 2001:
-            return float(max(a.traj_dur[i] - a.traj_t[i], 0.0)) if a.job[i] == JOB_POSITION else 0.0
-        if number == 2002:
-            return float(abs(a.goal_pos[i] - a.set_pos[i])) if a.job[i] == JOB_POSITION else 0.0
+        job = self.queues[i].active
+        positioning = job is not None and job.numbered and job.target is not None and bool(a.traj_on[i])
+        if number == int(P.AxisRemainingTimeToGo):
+            return float(max(a.traj_dur[i] - a.traj_t[i], 0.0)) if positioning else 0.0
+        if number == int(P.AxisRemainingDistanceToGo):
+            return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr,operator]
         return float(4 if self.params[i].Modulo else 0)  # AxisUnitInterpretation: bit 2 = modulo
 
     def _fill_nctoplc(self) -> None:
         a, d, out = self.axes, self.drive, self.nctoplc
-        act = d.act_pos
-        sd = self._event_dw | self._sp_dw | a.mon_dw
+        act = self.act_pos
+        sd = self._event_dw | self.sp_dw | a.mon_dw
         sd |= (a.enabled & d.ready) * self._loop_dw
         out["StateDWord"] = sd
-        out["AxisState"] = self._axis_state
+        out["AxisState"] = self.axis_state
         period = a.modulo_factor
         out["ActPos"] = act
         out["ModuloActPos"] = act % period
@@ -557,13 +822,200 @@ class NcCore(CommandsMixin):
         out["SetVelo"] = a.set_velo
         out["SetAcc"] = a.set_acc
         out["SetJerk"] = a.set_jerk
-        if self._vel_rows.size:
+        if a.continuous.any():
+            cont = a.continuous
+            a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
             out["TargetPos"] = a.target_pos
         out["ModuloSetPos"] = a.set_pos % period
         out["ModuloSetTurns"] = a.set_pos // period
         out["ActPosWithoutPosCorrection"] = act
         out["DcTimeStamp"] = self.nc_time_ns & 0xFFFFFFFF
 
-    def motion_states(self) -> np.ndarray:
-        """PLCopen state of every axis (the shared mapping, nc_schema.motion_state_array)."""
-        return motion_state_array(self.nctoplc["StateDWord"], self.nctoplc["CoupleState"])
+    # -- commands ----------------------------------------------------------------------------
+    def _dispatch(self, i: int, req: dict[str, Any]) -> dict[str, Any]:
+        cmd = req["cmd"]
+        kind = KINDS.get(cmd)
+        if kind is not None:
+            return self._motion(i, kind, req)
+        if cmd in AMENDMENTS:
+            return self._amend(i, req)
+        handler = _ADMIN.get(cmd)
+        if handler is None:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} is not an axis command of the NC core")
+        return handler(self, i, req)
+
+    def _motion(self, i: int, kind: Any, req: dict[str, Any]) -> dict[str, Any]:
+        q = self.queues[i]
+        mode = req.get("BufferMode", ABORTING)
+        if mode not in kind.buffer_modes:
+            raise NcError(ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED, f"{req['cmd']}: BufferMode {mode} is not supported")
+        if not kind.always_allowed:
+            self.check_startable(i)
+        running = q.running_numbered
+        client = str(req.get("client") or "")
+        if mode != ABORTING and running is not None and running.state == int(CmdState.ACTIVE):
+            if q.waiting is not None:
+                raise NcError(ErrorCodes.NC_COMMAND_BUFFER_FULL,
+                              f"command {q.waiting.cmd_no} is already waiting (one buffered command per axis)")
+            job = kind.accept(self, i, req, running)
+            job.client, job.buffer_mode = client, mode
+            # validate from where it will start: the running job's target (at rest or passing it)
+            base = running.kind.next_base(running, self, i)
+            kind.activate(self, i, job, StartState(base))
+            job.cmd_no = q.newest = next_cmdno(q.newest)
+            job.state = int(CmdState.BUFFERED)
+            q.waiting = job
+            self._sync(i)
+            if mode in BLENDING:
+                self.blend(i)
+            if running.kind.successor_may_start(self, i, running):
+                self._advance(i)
+                self._sync(i)
+            return {"cmd_no": job.cmd_no}
+        job = kind.accept(self, i, req, running)
+        job.client, job.buffer_mode = client, mode
+        plan = kind.activate(self, i, job, self.start_state(i))
+        self.begin(i, job, plan)
+        return {"cmd_no": job.cmd_no}
+
+    def _amend(self, i: int, req: dict[str, Any]) -> dict[str, Any]:
+        q, a = self.queues[i], self.axes
+        job = q.running_numbered
+        if job is None or not (a.traj_on[i] or abs(a.set_velo[i]) > _EPS_V):
+            raise NcError(ErrorCodes.MC_AXIS_NOT_MOVING, f"{req['cmd']}: the axis has no moving command to change")
+        if req["cmd"] == "ChangeDynParam":
+            plan = self._change_dyn(i, job, req)
+        else:
+            plan = job.kind.amend(self, i, job, req)
+        job.amended = True
+        if plan is not None:
+            self.set_plan(i, plan)
+            if job.target is not None:
+                a.target_pos[i] = job.target
+        if q.waiting is not None and q.waiting.buffer_mode in BLENDING:
+            self.blend(i)
+        self._sync(i)
+        return {"cmd_no": job.cmd_no}
+
+    def _change_dyn(self, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
+        """MC_ChangeDynParam (TcMC 4.20): new dynamics for the running job, or a refusal that keeps
+        the current ones: 0x425D a stop runs, 0x427F the target would be passed, 0x423A the
+        velocity would overshoot, 0x4289 the direction would reverse."""
+        if job.kind.is_stop:
+            raise NcError(ErrorCodes.NC_ESTOP_ALREADY_ACTIVE, "a stop with its own dynamics is running")
+        old = job.dyn or self.dynamics(i, {}, None)
+        new = self.dynamics(i, req, old.velocity)
+        start = self.start_state(i)
+        trial = Job(job.kind, job.args, dyn=new, target=job.target, velocity=job.velocity,
+                    end_velocity=job.end_velocity, continuous=job.continuous, data=dict(job.data))
+        plan = job.kind.replan(self, i, trial, start, self.override(i))
+        if plan is None:
+            raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"a {job.kind.name} command has no dynamics to change")
+        if job.target is not None:
+            sense = 1.0 if job.target >= start.p else -1.0
+            beyond = plan.p_max - job.target if sense > 0 else job.target - plan.p_min
+            if beyond > 1e-9:
+                raise NcError(ErrorCodes.NC_NEW_TARGET_OVERRUN, "the target would be passed with these dynamics")
+            back = start.p - plan.p_min if sense > 0 else plan.p_max - start.p
+            if back > 1e-9:
+                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
+        self.check_overshoot(i, plan, old.velocity * self.override(i))
+        job.dyn = new
+        return plan
+
+
+def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    core.axes.locked[i] = False
+    core._state_dirty = True
+    return {}
+
+
+def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    a, q = core.axes, core.queues[i]
+    if a.traj_on[i]:
+        if a.error[i] or a.locked[i]:
+            # still braking: clear the error/lock now, but the ramp goes on as a numbered stop
+            # job, so the axis shows Stopping (HasJob + HasBeenStopped) until it stands
+            a.error[i] = 0
+            a.locked[i] = False
+            a.lag_timer[i] = 0.0
+            ramp = q.active
+            if ramp is None or not ramp.numbered:
+                job = Job(STOP, {}, dyn=ramp.dyn if ramp is not None else None)
+                job.cmd_no = q.newest = next_cmdno(q.newest)
+                job.state = int(CmdState.ACTIVE)
+                q.active = q.shown = job
+                a.stopped[i] = True
+            core._sync(i)
+        return {}  # a moving axis without an error: nothing to reset
+    a.error[i] = 0
+    a.locked[i] = False
+    a.stopped[i] = False
+    a.lag_timer[i] = 0.0
+    # TwinCAT: after a reset the set position is the actual position
+    a.set_pos[i] = core.act_pos[i]
+    a.target_pos[i] = a.set_pos[i]
+    core._sync(i)
+    return {}
+
+
+def _cmd_set_override(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    ov = req["Override"]
+    if not 0.0 <= ov <= 100.0:
+        raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Override {ov} % outside 0..100")
+    core.plctonc["Override"][i] = round(ov * 10000.0)
+    core._in_dirty = True
+    return {}
+
+
+def _cmd_read_parameter(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    return {"value": core.read_parameter(i, req["ParameterNumber"])}
+
+
+def _cmd_write_parameter(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    core.write_parameter(i, req["ParameterNumber"], req["Value"])
+    return {}
+
+
+def _cmd_set_actual_position(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """MC_SetActualPosition: at standstill only (0x4B01 while moving: that is
+    MC_SetActualPositionOnTheFly's job); actual and set position take the new value."""
+    a = core.axes
+    if a.traj_on[i] or a.has_job[i]:
+        raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the axis is moving: use MC_SetActualPositionOnTheFly")
+    pos = req["Position"]
+    if not abs(pos) < MAX_POSITION:
+        raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Position {pos} outside +/-{MAX_POSITION:g}")
+    core.shift_position(i, pos - float(core.act_pos[i]))
+    return {}
+
+
+def _cmd_set_actual_position_otf(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """MC_SetActualPositionOnTheFly: shift by ActualPosition - PreviousPosition, also while moving;
+    the running move covers the same distance (its target shifts with it)."""
+    diff = req["ActualPosition"] - req["PreviousPosition"]
+    if not abs(diff) < MAX_POSITION:
+        raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"shift {diff} outside +/-{MAX_POSITION:g}")
+    core.shift_position(i, diff)
+    job = core.queues[i].running_numbered
+    if job is not None:
+        job.amended = True
+        core._sync(i)
+        return {"cmd_no": job.cmd_no}
+    return {}
+
+
+def _cmd_set_reference_flag(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    core.axes.homed[i] = bool(req["ReferenceFlag"])
+    core._state_dirty = True
+    return {}
+
+
+_ADMIN = {
+    "Reset": _cmd_reset, "StopRelease": _cmd_stop_release, "SetOverride": _cmd_set_override,
+    "ReadParameter": _cmd_read_parameter, "WriteParameter": _cmd_write_parameter,
+    "SetActualPosition": _cmd_set_actual_position, "SetActualPositionOnTheFly": _cmd_set_actual_position_otf,
+    "SetReferenceFlag": _cmd_set_reference_flag,
+}
+KINDS_LIST = sorted({k for k in KINDS.values()}, key=lambda k: k.name)
+KINDS_INDEX = {k.name: n for n, k in enumerate(KINDS_LIST)}

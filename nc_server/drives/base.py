@@ -48,5 +48,18 @@ class DriveABC(ABC):
             set_pos, set_velo, set_acc: set-points of this cycle.
         """
 
+    def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
+        """The encoder's sync (zero) pulse latch, for homing.
+
+        Args:
+            rows: axes whose latch is armed.
+            prev_pos: their actual positions of the previous cycle [u].
+
+        Returns:
+            per row the exact position [u] of a sync pulse passed between ``prev_pos`` and the
+            current actual position, NaN where none was passed (default: no latch, all NaN).
+        """
+        return np.full(len(rows), np.nan)
+
     def close(self) -> None:
         """Release the hardware (no-op for simulations)."""

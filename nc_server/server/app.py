@@ -17,7 +17,6 @@ import numpy as np
 
 from nc_schema import FrameFlags, Keys
 
-from ..core.axes import JOB_STOP
 
 from .claims import ClaimTable
 from .config import ServerConfig
@@ -112,7 +111,7 @@ class NcServer:
         core = self.core
         try:
             frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc,  # type: ignore[attr-defined]
-                                      flags=int(FrameFlags.ShuttingDown))
+                                      flags=int(FrameFlags.ShuttingDown), jobs=core.ncjobs)  # type: ignore[attr-defined]
             self.io.submit(Outgoing(core.cycle, core.nc_time_ns, frame))  # type: ignore[attr-defined]
         except Exception as exc:
             log.warning("final frame: %s", exc)
@@ -165,7 +164,7 @@ class NcServer:
             self._stop_moving_axes()
         core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
 
-        frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc)  # type: ignore[attr-defined]
+        frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs)  # type: ignore[attr-defined]
         out = Outgoing(core.cycle, core.nc_time_ns, frame, replies=replies)  # type: ignore[attr-defined]
         if t.match_version != self._matched[0]:
             self._matched = t.matched()
@@ -185,8 +184,7 @@ class NcServer:
     def _stop_moving_axes(self) -> None:
         """Shutdown: MC_Stop every moving axis that is not already stopping (cycle thread)."""
         core = self.core
-        a = core.axes  # type: ignore[attr-defined]
-        for i in np.flatnonzero(core.moving & (a.job != JOB_STOP)).tolist():  # type: ignore[attr-defined]
+        for i in np.flatnonzero(core.moving & ~core.stopping).tolist():  # type: ignore[attr-defined]
             core.execute({"id": None, "client": "", "cmd": "Stop", "Deceleration": 0.0, "Jerk": 0.0},  # type: ignore[attr-defined]
                          int(self.axis_ids[i]))
 

@@ -28,7 +28,7 @@ def moving_core():
     ("MoveAbsolute", dict(Position=10.0, Velocity=10.0, Acceleration=-1.0), E.NC_ACCELERATION_NOT_ALLOWED),
     ("MoveAbsolute", dict(Position=10.0, Velocity=10.0, Deceleration=-1.0), E.NC_DECELERATION_NOT_ALLOWED),
     ("MoveAbsolute", dict(Position=10.0, Velocity=10.0, Jerk=-1.0), E.NC_JERK_NOT_ALLOWED),
-    ("MoveAbsolute", dict(Position=10.0, Velocity=10.0, BufferMode=1), E.MC_BUFFERMODE_NOT_SUPPORTED),
+    ("MoveAbsolute", dict(Position=10.0, Velocity=10.0, BufferMode=7), E.MC_BUFFERMODE_NOT_SUPPORTED),
     ("MoveVelocity", dict(Velocity=10.0, Direction=2), E.MC_COMMAND_NOT_PERMITTED),
     ("MoveVelocity", dict(Velocity=10.0, Direction=99), E.MC_COMMAND_NOT_PERMITTED),
     ("MoveVelocity", dict(Velocity=1000.0, Direction=1), E.NC_VELOCITY_NOT_ALLOWED),

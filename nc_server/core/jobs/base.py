@@ -1,0 +1,187 @@
+"""Jobs: the records of accepted motion commands, the per-axis queue, and the job-kind interface.
+
+A **job** is one accepted motion command (or an internal motion of the NC, e.g. the stop ramp after
+an error, which has CmdNo 0). Its lifecycle: BUFFERED (waiting behind the active job) -> ACTIVE
+(the set-point generator executes its plan; it may be *amended*: new target, velocity, dynamics)
+-> DONE / ABORTED / ERROR. Accepting and activating are separate steps: :meth:`JobKind.accept`
+checks the arguments and makes the record, :meth:`JobKind.activate` checks the axis state and
+plans from a frozen start state. Each kind (position, velocity, stop, homing, ...) is a small
+unit in its own module; the NC core knows kinds only through this interface.
+
+Queue depth: one job can wait behind the active one (TwinCAT has one command buffer per axis);
+a further buffered command is refused with 0x4292.
+"""
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping
+
+import numpy as np
+
+from nc_schema import CmdState, ErrorCodes, MC_BufferMode, NcError
+
+from ..planning import Dynamics, Plan, StartState
+
+if TYPE_CHECKING:
+    from ..nc import NcCore
+
+ABORTING = int(MC_BufferMode.MC_Aborting)
+BUFFERED = int(MC_BufferMode.MC_Buffered)
+BLENDING = frozenset({int(MC_BufferMode.MC_BlendingLow), int(MC_BufferMode.MC_BlendingPrevious),
+                      int(MC_BufferMode.MC_BlendingNext), int(MC_BufferMode.MC_BlendingHigh)})
+ALL_MODES = frozenset({ABORTING, BUFFERED}) | BLENDING
+#: ended jobs kept per axis for the wire (NCJOBS_AXIS_REF.Ended)
+ENDED_KEPT = 4
+
+
+@dataclass(eq=False, slots=True)
+class Job:
+    """One motion command (``cmd_no`` > 0) or an internal motion of the NC (``cmd_no`` == 0).
+
+    Positions are NC positions [u]; ``target`` of a waiting job is fixed when it is accepted
+    (relative/additive/modulo targets refer to the target of the job it follows).
+    """
+
+    kind: JobKind
+    args: Mapping[str, Any]
+    client: str = ""
+    cmd_no: int = 0
+    buffer_mode: int = ABORTING
+    state: int = int(CmdState.NONE)
+    error_id: int = 0
+    dyn: Dynamics | None = None       # the motion's dynamics (override replans, stops, blending)
+    target: float | None = None       # NC position where a discrete motion ends
+    velocity: float = 0.0             # signed velocity at 100 % override (velocity phases)
+    end_velocity: float = 0.0         # signed velocity at the target (blending, continuous moves)
+    held: bool = False                # waiting at override 0 (AxisState OVERRIDE_ZERO)
+    amended: bool = False             # NewPos/NewPosAndVelo/ChangeDynParam changed it (NewTargetPos)
+    continuous: bool = False          # ContinuousMotion: endless (velocity) or past its target at EndVelocity
+    phase: int = 0                    # kind-specific phase (homing state, limit stop, ...)
+    data: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def numbered(self) -> bool:
+        return self.cmd_no != 0
+
+    def __repr__(self) -> str:
+        return f"Job({self.kind.name} #{self.cmd_no} {CmdState(self.state).name})"
+
+
+class JobKind:
+    """One kind of job: its checks, its plan, its end condition. Subclasses override what they need.
+
+    Class attributes describe how the NC treats a running job of this kind.
+    """
+
+    name: ClassVar[str] = ""
+    #: request commands this kind accepts
+    commands: ClassVar[tuple[str, ...]] = ()
+    #: BufferModes accepted (others: 0x4B64)
+    buffer_modes: ClassVar[frozenset[int]] = frozenset({ABORTING})
+    #: a stop: sets HasBeenStopped; never made weaker by a later stop
+    is_stop: ClassVar[bool] = False
+    #: locks the axis for motion commands (MC_Stop)
+    locks: ClassVar[bool] = False
+    #: checked against the feed enables of its direction while it runs
+    feed_checked: ClassVar[bool] = True
+    #: keeps the drive enabled until it ends, whatever the PLCTONC says (fault ramps)
+    holds_enable: ClassVar[bool] = False
+    #: HomingBusy while it runs
+    homing: ClassVar[bool] = False
+    #: its plan follows the override (replanned on changes)
+    follows_override: ClassVar[bool] = True
+    #: has a per-cycle :meth:`watch` (rows of this kind are handed to it every cycle)
+    watches: ClassVar[bool] = False
+    #: may be started from an axis in ErrorStop / locked (stops)
+    always_allowed: ClassVar[bool] = False
+    #: the NC's own motion (a stop ramp), never numbered
+    internal: ClassVar[bool] = False
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        """Check the arguments and make the record (nothing is changed yet).
+
+        Args:
+            prev: the job this one will follow (the active one, or the waiting one it is queued
+                behind), or None when it starts from the axis's current state.
+
+        Raises:
+            NcError: the TwinCAT code of the first failed check.
+        """
+        raise NotImplementedError
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        """Check the axis state and plan the job from ``start`` (pure: changes nothing).
+
+        Raises:
+            NcError: the job cannot start here.
+        """
+        raise NotImplementedError
+
+    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        """The plan ended. Returns "done" (the job is finished), "steady" (keep the plan's end
+        velocity: the job goes on) or "continue" (the kind started a new plan itself)."""
+        return "done"
+
+    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+        """A new plan after an override change or a new end velocity (blending); None: keep."""
+        return None
+
+    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+        """Per-cycle checks of the running jobs of this kind in ``rows`` (after the set-points)."""
+
+    def wants_watch(self, job: Job) -> bool:
+        """Hand this job's row to :meth:`watch` every cycle (default: the class's ``watches``)."""
+        return self.watches
+
+    def successor_may_start(self, core: NcCore, i: int, job: Job) -> bool:
+        """A buffered job may take over now (e.g. a velocity job at its constant velocity)."""
+        return False
+
+    def amend(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
+        """Change the running job (NewPos, NewPosAndVelo, ChangeDynParam). Returns the new plan,
+        None to keep the current one (the change happens later, e.g. at a switching position).
+
+        Raises:
+            NcError: 0x4B05 this kind cannot be amended so.
+        """
+        raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"a {self.name} command cannot be changed so")
+
+    def blend_point(self, job: Job) -> tuple[float, float, float] | None:
+        """(target, direction of travel +-1, velocity at 100 %) of a job that a blending successor
+        can pass through, or None (a successor then waits for its end, as with Buffered)."""
+        return None
+
+    def next_base(self, job: Job, core: NcCore, i: int) -> float:
+        """The position a relative/additive successor refers to (NC position)."""
+        return job.target if job.target is not None else core.nc_set_pos(i)
+
+
+class JobQueue:
+    """The jobs of one axis: the running one, at most one waiting, and the last ended ones."""
+
+    __slots__ = ("active", "waiting", "shown", "ended", "newest")
+
+    def __init__(self) -> None:
+        self.active: Job | None = None     # what the set-point generator executes (may be internal)
+        self.waiting: Job | None = None    # the buffered job
+        self.shown: Job | None = None      # the last numbered job that became active (NCTOPLC.CmdNo)
+        self.ended: collections.deque[Job] = collections.deque(maxlen=ENDED_KEPT)
+        self.newest = 0                    # the newest CmdNo handed out
+
+    def end(self, job: Job, state: CmdState, error_id: int = 0) -> None:
+        """Give ``job`` its fate (once) and forget it as active/waiting."""
+        if job.state in (int(CmdState.ACTIVE), int(CmdState.BUFFERED)):
+            job.state = int(state)
+            job.error_id = int(error_id)
+            if job.numbered:
+                self.ended.appendleft(job)
+        if self.active is job:
+            self.active = None
+        if self.waiting is job:
+            self.waiting = None
+
+    @property
+    def running_numbered(self) -> Job | None:
+        j = self.active
+        return j if j is not None and j.numbered else None

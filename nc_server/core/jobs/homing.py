@@ -1,0 +1,168 @@
+"""MC_Home: the NC's calibration sequence (HomingState of NCTOPLC, spec 000), and the homing modes
+of Tc2_MC2 that need no motion.
+
+MC_DefaultHoming, with the reference cam from the PLC (PLCTONC ControlDWord.HomingSensor) and the
+drive's sync pulse latch (``DriveABC.latch_sync_pulse``):
+
+1 START_TOWARDS_CAM   start towards the cam (AxisCalibrationVelocityForward; negative direction
+                      unless AxisInvertCalibrationCamSearchDirection is False); cam already
+                      occupied: straight to 3
+2 WAIT_CAM_EDGE       wait for the rising cam edge, then stop
+3 WAIT_STOP_THEN_SYNC when stopped, start off the cam towards the sync pulse
+                      (AxisCalibrationVelocityBackward; positive unless
+                      AxisInvertSyncPulseSearchDirection)
+4 WAIT_CAM_FALLING    wait for the falling cam edge
+5 WAIT_LATCH          latch armed: wait for the sync pulse, then stop
+6 SET_POSITION        when stopped, set the actual position: the latched position becomes the
+                      reference position (MC_Home.Position, or AxisCalibrationValue for
+                      DEFAULT_HOME_POSITION), i.e. the axis stands at reference + braking distance
+0 READY               done; Homed is set (it is cleared when the sequence starts)
+
+Homing without a cam (TcMC 3.14): the PLC sets the cam first and clears it once HomingState >= 4.
+MC_Direct sets the actual position to Position; MC_ForceCalibration / MC_ResetCalibration set /
+clear Homed; the other MC_HomingMode values are not implemented (0x4B04), as in Tc2_MC2.
+Homing starts only from standstill: on a moving axis it is refused with 0x4B01 (buffer it instead).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, Mapping
+
+import numpy as np
+
+from nc_schema import DEFAULT_HOME_POSITION, ErrorCodes, HomingState, MC_BufferMode, MC_HomingMode, NcError
+
+from ..planning import Plan, StartState, hold, plan_velocity
+from .base import Job, JobKind
+
+if TYPE_CHECKING:
+    from ..nc import NcCore
+
+_DEFAULT = int(MC_HomingMode.MC_DefaultHoming)
+_DIRECT = int(MC_HomingMode.MC_Direct)
+_FORCE = int(MC_HomingMode.MC_ForceCalibration)
+_RESET = int(MC_HomingMode.MC_ResetCalibration)
+S1, S2, S3, S4, S5, S6 = (int(HomingState.START_TOWARDS_CAM), int(HomingState.WAIT_CAM_EDGE),
+                          int(HomingState.WAIT_STOP_THEN_SYNC), int(HomingState.WAIT_CAM_FALLING),
+                          int(HomingState.WAIT_LATCH), int(HomingState.SET_POSITION))
+
+
+class HomeKind(JobKind):
+    name = "Home"
+    commands = ("Home",)
+    buffer_modes = frozenset({int(MC_BufferMode.MC_Aborting), int(MC_BufferMode.MC_Buffered)})
+    homing = True
+    follows_override = False
+    watches = True
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        mode = req["HomingMode"]
+        if mode not in (_DEFAULT, _DIRECT, _FORCE, _RESET):
+            raise NcError(ErrorCodes.MC_INVALID_MODE, f"HomingMode {mode} is not implemented (as in Tc2_MC2)")
+        pos = req["Position"]
+        ref = core.params[i].AxisCalibrationValue if pos >= DEFAULT_HOME_POSITION else float(pos)
+        if not abs(ref) < 1e9:
+            raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Position {pos} outside +/-1e9")
+        return Job(self, dict(req), dyn=core.dynamics(i, {}, None), data={"mode": mode, "ref": ref})
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        if core.axes.traj_on[i] or abs(start.v) > 1e-9:
+            raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "homing starts only from standstill")
+        job.data.update(cleared=False, latched=None)
+        if job.data["mode"] != _DEFAULT:
+            job.phase = 0
+            return hold(start.p)  # takes effect in its first cycle (on_end)
+        if bool(core.cam(np.array([i]))[0]):
+            job.phase = S3  # cam already occupied: leave it towards the sync pulse
+            return hold(start.p)
+        # else the cam is read again one cycle later (watch): its PLCTONC may follow the command
+        p = core.params[i]
+        core.check_feed(i, -1.0 if p.AxisInvertCalibrationCamSearchDirection else 1.0)
+        job.phase = S1
+        return hold(start.p)
+
+    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        a = core.axes
+        mode = job.data["mode"]
+        if mode != _DEFAULT:
+            if mode == _DIRECT:
+                core.shift_position(i, job.data["ref"] - float(core.act_pos[i]))
+            a.homed[i] = mode != _RESET
+            return "done"
+        if job.phase in (S2, S4, S5):
+            return "steady"  # constant velocity, waiting for an edge
+        if job.phase == S1:
+            return "steady"  # at rest until watch() has seen the cam
+        if job.phase == S3:  # stopped: off the cam towards the sync pulse
+            self._leave_cam(core, i, job)
+            return "continue"
+        if job.phase == S6:  # stopped after the latch: the latched position is the reference position
+            latched = job.data["latched"]
+            core.shift_position(i, job.data["ref"] - latched)
+            a.homed[i] = True
+            return "done"
+        return "done"
+
+    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+        a = core.axes
+        cam = core.cam(rows)
+        for n, i in enumerate(rows.tolist()):
+            job = core.queues[i].active
+            if job is None or not job.numbered:
+                continue
+            if not job.data["cleared"] and job.data["mode"] == _DEFAULT:
+                job.data["cleared"] = True
+                a.homed[i] = False
+                core._state_dirty = True
+            ph = job.phase
+            if ph == S1:  # shown for one cycle, then: cam occupied -> leave it, else search it
+                if not job.data.get("s1_shown"):
+                    job.data["s1_shown"] = True
+                    continue
+                if cam[n]:
+                    self._leave_cam(core, i, job)
+                    continue
+                p = core.params[i]
+                sense = -1.0 if p.AxisInvertCalibrationCamSearchDirection else 1.0
+                v = p.AxisCalibrationVelocityForward
+                core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v,
+                                           job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
+                job.phase = S2
+                core._sync(i)
+                continue
+            if job.phase == S2 and cam[n]:
+                self._stop(core, i, job, S3)
+            elif ph == S4 and not cam[n]:
+                job.phase = S5
+                job.data["armed_at"] = float(core.act_pos[i])
+                core._sync(i)
+            elif ph == S5:
+                # the latch reports drive positions: compare in the drive's frame
+                off = float(a.offset[i])
+                got = core.drive.latch_sync_pulse(np.array([i]), np.array([core.prev_act_pos[i] - off]))[0]
+                if not math.isnan(got):
+                    job.data["latched"] = float(got) + off
+                    self._stop(core, i, job, S6)
+
+    def _leave_cam(self, core: NcCore, i: int, job: Job) -> None:
+        p = core.params[i]
+        sense = -1.0 if p.AxisInvertSyncPulseSearchDirection else 1.0
+        try:
+            core.check_feed(i, sense)
+        except NcError as err:
+            core.fault(i, err.code)
+            return
+        job.phase = S4
+        v = p.AxisCalibrationVelocityBackward
+        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
+        core._sync(i)
+
+    def _stop(self, core: NcCore, i: int, job: Job, phase: int) -> None:
+        job.phase = phase
+        d = core.stop_dynamics(i)
+        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), 0.0, d))
+        core._sync(i)
+
+
+def kinds() -> list[JobKind]:
+    return [HomeKind()]

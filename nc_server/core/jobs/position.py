@@ -1,0 +1,314 @@
+"""Discrete motion to a target: MoveAbsolute, MoveRelative, MoveAdditive, MoveModulo,
+MoveAbsoluteOrRestart, and the continuous moves MoveContinuousAbsolute/Relative that pass their
+target with an end velocity and keep it.
+
+Targets (NC positions) are fixed when the job is accepted: a relative, additive or modulo target
+of a job that waits behind another refers to that job's target (PLCopen: the target of the
+previous command), of an immediate job to the set position when it takes effect (MoveAdditive:
+to the target of the discrete motion it aborts).
+
+Amendments (NewPos, NewPosAndVelo): a new target and/or velocity, at once, at a switching
+position (the set position passes ActivationPos in the direction of travel), or "reach the new
+velocity at ActivationPos" (the change starts the braking/accelerating distance before it).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, Mapping
+
+import numpy as np
+
+from nc_schema import E_CmdTypeNewTargPosAndVelo as NPV
+from nc_schema import ErrorCodes, MC_Direction, NcError
+
+from ..planning import Dynamics, Plan, StartState, plan_position, plan_velocity
+from .base import ALL_MODES, Job, JobKind
+
+if TYPE_CHECKING:
+    from ..nc import NcCore
+
+_POS = int(MC_Direction.MC_Positive_Direction)
+_SHORT = int(MC_Direction.MC_Shortest_Way)
+_NEG = int(MC_Direction.MC_Negative_Direction)
+_CURRENT = int(MC_Direction.MC_Current_Direction)
+
+
+def modulo_target(set_pos: float, target: float, period: float, tolerance: float, direction: int,
+                  current_velo: float = 0.0) -> float:
+    """Absolute end position of a modulo start (TcMC manual 3.5, tables included).
+
+    Args:
+        set_pos: current set position [u] (modulo starts refer to the set position).
+        target: modulo target [u], >= 0; >= period adds full turns (not for the shortest way).
+        period: modulo period (AxisEncoderModuloValue) [u].
+        tolerance: modulo tolerance window (AxisModuloToleranceWindow) [u].
+        direction: MC_Direction value.
+        current_velo: current set velocity, for MC_Current_Direction.
+
+    Raises:
+        NcError: 0x4282 invalid modulo target, 0x4B04 invalid direction.
+    """
+    if direction not in (_POS, _SHORT, _NEG, _CURRENT):
+        raise NcError(ErrorCodes.MC_INVALID_MODE, f"Direction {direction} is not an MC_Direction")
+    if not 0.0 <= target < 1e9:
+        raise NcError(ErrorCodes.NC_MODULO_TARGET_INVALID, f"modulo target {target} must be >= 0")
+    if direction == _CURRENT:
+        direction = _NEG if current_velo < 0 else _POS
+    base = math.floor(set_pos / period) * period
+    if direction == _SHORT:
+        if target >= period:
+            raise NcError(ErrorCodes.NC_MODULO_TARGET_INVALID,
+                          f"modulo target {target} must be < {period} for MC_Shortest_Way")
+        diff = (base + target) - set_pos
+        diff = (diff + period / 2) % period - period / 2
+        return set_pos + diff
+    turns = math.floor(target / period)
+    rest = target - turns * period
+    end = base + rest
+    if direction == _POS:
+        if end < set_pos - tolerance:
+            end += period
+        return end + turns * period
+    if end > set_pos + tolerance:
+        end -= period
+    return end - turns * period
+
+
+class PositionKind(JobKind):
+    """Move to a target and end there at rest (or with the blending velocity of its successor)."""
+
+    buffer_modes = ALL_MODES
+    commands = ("MoveAbsolute",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name  # type: ignore[misc]
+        self.commands = (name,)  # type: ignore[misc]
+
+    # -- accept / activate -------------------------------------------------------------------
+    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+        return float(req["Position"])
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        v = req["Velocity"]
+        core.check_velocity(i, v)
+        dyn = core.dynamics(i, req, v)
+        queued = prev is not None and req.get("BufferMode", 0) != 0
+        base = prev.kind.next_base(prev, core, i) if queued else core.nc_set_pos(i)  # type: ignore[union-attr]
+        target = self.target_of(core, i, req, base, prev)
+        if not abs(target) < 1e9:
+            raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"target {target} outside +/-1e9")
+        return Job(self, dict(req), dyn=dyn, target=target, end_velocity=self.end_velocity_of(core, i, req, target, base))
+
+    def end_velocity_of(self, core: NcCore, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
+        return 0.0
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        assert job.target is not None and job.dyn is not None
+        sense = job.target - start.p
+        core.check_feed(i, sense if sense else job.end_velocity)
+        plan = self._plan(core, i, job, start, core.override(i))
+        core.check_target(i, start.p, job.target, plan)
+        core.check_overshoot(i, plan, job.dyn.velocity * core.override(i))
+        job.held = core.override(i) <= 0
+        job.data["start"] = start.p
+        return plan
+
+    def wants_watch(self, job: Job) -> bool:
+        return "switch" in job.data
+
+    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+        _switch_reached(core, rows)
+
+    def _plan(self, core: NcCore, i: int, job: Job, start: StartState, ov: float) -> Plan:
+        assert job.target is not None and job.dyn is not None
+        if ov <= 0:  # override 0: start as a hold, the job waits for override
+            return core.plan(plan_velocity, start, 0.0, job.dyn)
+        dyn = job.dyn.scaled(ov)
+        ve = job.end_velocity
+        if abs(ve) > dyn.velocity:
+            ve = math.copysign(dyn.velocity, ve)
+        plan = core.plan(plan_position, start, job.target, dyn, ve)
+        if ve and not job.continuous:
+            # blending: lower the end velocity until the path no longer passes the target
+            sense = 1.0 if ve > 0 else -1.0
+            for _ in range(8):
+                beyond = (plan.p_max - job.target) if sense > 0 else (job.target - plan.p_min)
+                if beyond <= 1e-9:
+                    break
+                ve *= 0.5
+                plan = core.plan(plan_position, start, job.target, dyn, ve)
+            else:
+                ve = 0.0
+                plan = core.plan(plan_position, start, job.target, dyn, 0.0)
+            job.end_velocity = ve
+        return plan
+
+    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+        if job.continuous:  # past the target: a velocity job now
+            return core.plan(plan_velocity, start, job.end_velocity * override, job.dyn)
+        return self._plan(core, i, job, start, override)
+
+    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        if job.held:
+            return "steady"  # override 0: waiting, not the end
+        if job.end_velocity and not core.queues[i].waiting:
+            return "steady"
+        return "done"
+
+    def blend_point(self, job: Job) -> tuple[float, float, float] | None:
+        if job.target is None or job.dyn is None or job.continuous:
+            return None
+        start = job.data.get("start", job.target)
+        sense = 1.0 if job.target >= start else -1.0
+        return job.target, sense, job.dyn.velocity
+
+    # -- amendments ----------------------------------------------------------------------------
+    def amend(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
+        if req["cmd"] == "NewPos":
+            mode, new_pos, new_velo, at = int(NPV.CHANGE_POS), req["NewPos"], 0.0, 0.0
+        else:
+            mode, new_pos, new_velo, at = req["Mode"], req["NewPos"], req["NewVelo"], req["ActivationPos"]
+        valid = {int(m) for m in NPV}
+        if mode not in valid:
+            raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_CmdTypeNewTargPosAndVelo")
+        base = mode & 3 if mode != int(NPV.REACH_VELO_AT_POS) else int(NPV.CHANGE_VELO)
+        if base & int(NPV.CHANGE_VELO):
+            core.check_velocity(i, new_velo)
+        if base & int(NPV.CHANGE_POS):
+            core.check_target(i, core.nc_set_pos(i), new_pos)
+        if mode in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
+            return self.apply_change(core, i, job, base, new_pos, new_velo)
+        # at a switching position: armed now, applied by watch()
+        job.data["switch"] = (mode, float(at), float(new_pos), float(new_velo))
+        return None
+
+    def apply_change(self, core: NcCore, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
+        """A new target and/or velocity from the current set-point state (the job keeps its CmdNo)."""
+        start = core.start_state(i)
+        trial = Job(job.kind, job.args, dyn=job.dyn, target=job.target, end_velocity=0.0 if job.continuous else job.end_velocity,
+                    data=dict(job.data))
+        if base & int(NPV.CHANGE_POS):
+            trial.target = float(new_pos)
+            trial.end_velocity = 0.0
+        if base & int(NPV.CHANGE_VELO):
+            assert trial.dyn is not None
+            trial.dyn = trial.dyn.with_(velocity=float(new_velo))
+        if trial.target is None:
+            trial.target = start.p
+        plan = self._plan(core, i, trial, start, core.override(i))
+        core.check_target(i, start.p, trial.target, plan)
+        core.check_feed(i, trial.target - start.p)
+        job.target, job.dyn, job.end_velocity = trial.target, trial.dyn, trial.end_velocity
+        job.continuous = False
+        job.data["start"] = start.p
+        return plan
+
+
+class RelativeKind(PositionKind):
+    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+        return base + float(req["Distance"])
+
+
+class AdditiveKind(PositionKind):
+    """MC_MoveAdditive: the distance is added to the target of the discrete motion it follows or
+    aborts; at rest or in continuous motion, to the set position (PLCopen Part 1)."""
+
+    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+        if prev is not None and prev.target is not None and not prev.continuous and not prev.kind.is_stop:
+            return prev.target + float(req["Distance"])
+        return base + float(req["Distance"])
+
+
+class ModuloKind(PositionKind):
+    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+        p = core.params[i]
+        velo = float(core.axes.set_velo[i]) if prev is None or base == core.nc_set_pos(i) else 0.0
+        return modulo_target(base, float(req["Position"]), p.AxisEncoderModuloValue, p.AxisModuloToleranceWindow,
+                             int(req["Direction"]), velo)
+
+
+class ContinuousKind(PositionKind):
+    """MC_MoveContinuousAbsolute/Relative (Tc2_MC2): reach the target with EndVelocity, then keep
+    that velocity as a continuous motion (ContinuousMotion from the target on: the block's
+    InEndVelocity) until another command takes over. EndVelocity 0 behaves like a discrete move
+    (ends at rest, Done)."""
+
+    def __init__(self, name: str, relative: bool) -> None:
+        super().__init__(name)
+        self.relative = relative
+
+    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+        return base + float(req["Distance"]) if self.relative else float(req["Position"])
+
+    def end_velocity_of(self, core: NcCore, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
+        ve = float(req["EndVelocity"])
+        if abs(ve) > core.axes.vmax[i] * (1 + 1e-12):
+            raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED, f"EndVelocity {ve} beyond AxisVeloMax {core.axes.vmax[i]}")
+        sense = 1.0 if target >= base else -1.0
+        return sense * abs(ve)
+
+    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        if job.held:
+            return "steady"
+        if job.end_velocity:
+            job.continuous = True  # past the target: endless at EndVelocity
+            return "steady"
+        return "done"
+
+    def successor_may_start(self, core: NcCore, i: int, job: Job) -> bool:
+        return job.continuous
+
+
+class RestartKind(PositionKind):
+    """MC_MoveAbsoluteOrRestart: on a moving axis the new target and velocity take over with the
+    running motion's dynamics (TcMC 3.6: Acceleration/Deceleration/Jerk only count from rest)."""
+
+    buffer_modes = frozenset({0})
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        job = super().accept(core, i, req, prev)
+        running = core.queues[i].running_numbered
+        if running is not None and running.dyn is not None and core.axes.traj_on[i] and not running.kind.is_stop:
+            assert job.dyn is not None
+            job.dyn = Dynamics(job.dyn.velocity, running.dyn.acceleration, running.dyn.deceleration, running.dyn.jerk)
+        return job
+
+
+def _switch_reached(core: NcCore, rows: np.ndarray) -> None:
+    """Apply NewPosAndVelo changes armed at a switching position (PositionKind.watch)."""
+    a = core.axes
+    for i in rows.tolist():
+        job = core.queues[i].active
+        if job is None or "switch" not in job.data:
+            continue
+        mode, at, new_pos, new_velo = job.data["switch"]
+        v = float(a.set_velo[i])
+        p = float(a.set_pos[i])
+        sense = 1.0 if v >= 0 else -1.0
+        if mode == int(NPV.REACH_VELO_AT_POS):
+            # start the change so that the new velocity is reached at ActivationPos
+            assert job.dyn is not None
+            need = core.plan(plan_velocity, StartState(0.0, v, float(a.set_acc[i])), sense * new_velo, job.dyn).end.p
+            due = (at - p) * sense <= abs(need) + abs(v) * core.cycle_time
+            base = int(NPV.CHANGE_VELO)
+        else:
+            due = (p - at) * sense >= 0
+            base = mode & 3
+        if due:
+            del job.data["switch"]
+            try:
+                plan = job.kind.apply_change(core, i, job, base, new_pos, new_velo)
+            except NcError as err:
+                core.fault(i, err.code)
+                continue
+            core.set_plan(i, plan)
+            if job.target is not None:
+                a.target_pos[i] = job.target
+            core._sync(i)
+
+
+def kinds() -> list[JobKind]:
+    out: list[JobKind] = [PositionKind("MoveAbsolute"), RelativeKind("MoveRelative"), AdditiveKind("MoveAdditive"),
+                          ModuloKind("MoveModulo"), ContinuousKind("MoveContinuousAbsolute", False),
+                          ContinuousKind("MoveContinuousRelative", True), RestartKind("MoveAbsoluteOrRestart")]
+    return out

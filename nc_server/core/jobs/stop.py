@@ -1,0 +1,132 @@
+"""Stops: MC_Stop (locks), MC_Halt (a normal discrete motion to rest), MC_OrientedStop (to the next
+reachable modulo position), and the NC's own ramps without a CmdNo (after an error; after a
+buffered job that could not start).
+
+MC_Stop (TcMC 3.15): accepted in every state; Deceleration and Jerk count only together (a lone
+one is ignored and the axis defaults apply: a stop is never refused); a stop is never weaker than
+a stop already running, and its jerk never lets an accelerating axis overshoot its velocity.
+On an axis at rest it ends DONE in its first cycle (and locks).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, Mapping
+
+from nc_schema import ErrorCodes, NcError
+
+from ..planning import Dynamics, Plan, StartState, hold, plan_position, plan_velocity
+from .base import ALL_MODES, Job, JobKind
+
+if TYPE_CHECKING:
+    from ..nc import NcCore
+
+_EPS_V = 1e-9
+
+
+def _stop_plan(core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    assert job.dyn is not None
+    if not core.axes.traj_on[i] and abs(start.v) <= _EPS_V:
+        return hold(start.p)  # standing: the stop is complete in its first cycle
+    return core.plan(plan_velocity, start, 0.0, job.dyn)
+
+
+class StopKind(JobKind):
+    name = "Stop"
+    commands = ("Stop",)
+    is_stop = True
+    locks = True
+    feed_checked = False
+    follows_override = False
+    always_allowed = True
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        dec, jerk = req.get("Deceleration", 0.0), req.get("Jerk", 0.0)
+        if (dec > 0) != (jerk > 0):
+            dec = jerk = 0.0  # TcMC 3.15: only together; a stop is never refused
+        if dec < 0 or jerk < 0:
+            dec = jerk = 0.0
+        return Job(self, dict(req), dyn=core.stop_dynamics(i, dec, jerk))
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        return _stop_plan(core, i, job, start)
+
+
+class HaltKind(JobKind):
+    """MC_Halt: a discrete motion to rest (no lock; Done at standstill; may be buffered)."""
+
+    name = "Halt"
+    commands = ("Halt",)
+    buffer_modes = ALL_MODES
+    feed_checked = False
+    follows_override = False
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        d = core.dynamics(i, {"Deceleration": req.get("Deceleration", 0.0), "Jerk": req.get("Jerk", 0.0)}, None)
+        return Job(self, dict(req), dyn=d)
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        assert job.dyn is not None
+        job.dyn = core.stop_dynamics(i, job.dyn.deceleration, job.dyn.jerk)
+        return _stop_plan(core, i, job, start)
+
+
+class OrientedStopKind(JobKind):
+    """MC_OrientedStop (TcMC 3.16): stop at the next position with modulo value Position that can
+    be reached with the running motion's deceleration (Deceleration/Jerk inputs are not supported,
+    as in TwinCAT). Position outside [0, period): 0x4281. An axis at rest: 0x4B03 (nothing to stop;
+    use MC_MoveModulo). A target beyond a software limit: 0x4222, the command is refused."""
+
+    name = "OrientedStop"
+    commands = ("OrientedStop",)
+    feed_checked = False
+    follows_override = False
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        period = core.params[i].AxisEncoderModuloValue
+        pos = req["Position"]
+        if not 0.0 <= pos < period:
+            raise NcError(ErrorCodes.NC_ORIENTED_STOP_NOT_ALLOWED, f"Position {pos} outside [0, {period})")
+        return Job(self, dict(req))
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        if abs(start.v) <= _EPS_V:
+            raise NcError(ErrorCodes.MC_AXIS_NOT_MOVING, "the axis is not moving: use MC_MoveModulo to position it")
+        running = core.queues[i].active
+        d = running.dyn if running is not None and running.dyn is not None else core.dynamics(i, {}, None)
+        sd = core.stop_dynamics(i, d.deceleration, d.jerk)
+        natural = core.plan(plan_velocity, start, 0.0, sd).end.p
+        period = core.params[i].AxisEncoderModuloValue
+        sense = 1.0 if start.v > 0 else -1.0
+        pos = float(job.args["Position"])
+        k = (natural - pos) / period
+        target = pos + (math.ceil(k - 1e-12) if sense > 0 else math.floor(k + 1e-12)) * period
+        dyn = Dynamics(abs(start.v), sd.acceleration, sd.deceleration, sd.jerk)
+        plan = core.plan(plan_position, start, target, dyn)
+        core.check_target(i, start.p, target, plan)
+        job.target, job.dyn = target, dyn
+        return plan
+
+
+class RampKind(JobKind):
+    """The NC's own stop ramps (CmdNo 0: nobody's command)."""
+
+    feed_checked = False
+    follows_override = False
+    always_allowed = True
+    internal = True
+
+    def __init__(self, name: str, holds_enable: bool) -> None:
+        self.name = name  # type: ignore[misc]
+        self.holds_enable = holds_enable  # type: ignore[misc]
+        self.is_stop = True  # type: ignore[misc]
+
+
+STOP = StopKind()
+#: after an axis error: AxisDec/AxisJerk, the drive stays enabled until standstill
+FAULT_RAMP = RampKind("FaultRamp", holds_enable=True)
+#: after a buffered job that could not start: the running job's dynamics
+HALT_RAMP = RampKind("HaltRamp", holds_enable=False)
+
+
+def kinds() -> list[JobKind]:
+    return [STOP, HaltKind(), OrientedStopKind()]

@@ -1,0 +1,206 @@
+"""Continuous motion: MoveVelocity, and MC_Jog (continuous modes at the manual velocities or the
+block's, inching by a distance, inching modulo to the next multiple of the distance).
+
+A velocity job reaches its velocity and keeps it (steady; a buffered successor starts then, as
+PLCopen starts a buffered command after MC_MoveVelocity's InVelocity). Towards an enabled
+software limit the NC stops it exactly at the limit and then raises 0x4462/0x4463 (the commanded
+motion could not continue).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, Mapping
+
+import numpy as np
+
+from nc_schema import E_JogMode, ErrorCodes, MC_Direction, NcError
+
+from ..planning import Dynamics, Plan, StartState, plan_position, plan_velocity
+from ..profile import stopping_distance
+from .base import ALL_MODES, Job, JobKind
+from .position import PositionKind
+
+if TYPE_CHECKING:
+    from ..nc import NcCore
+
+_POS = int(MC_Direction.MC_Positive_Direction)
+_NEG = int(MC_Direction.MC_Negative_Direction)
+#: Job.phase of a velocity job that is being stopped at a software limit
+LIMIT_MAX, LIMIT_MIN = 1, -1
+
+
+def direction_sense(d: int) -> float:
+    """+1/-1 for MC_Positive_Direction/MC_Negative_Direction.
+
+    Raises:
+        NcError: 0x4B05 for any other direction (continuous motion needs one).
+    """
+    if d == _POS:
+        return 1.0
+    if d == _NEG:
+        return -1.0
+    raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED,
+                  f"Direction {d}: continuous motion needs MC_Positive_Direction (1) or MC_Negative_Direction (3)")
+
+
+class VelocityKind(JobKind):
+    name = "MoveVelocity"
+    commands = ("MoveVelocity",)
+    buffer_modes = ALL_MODES
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        v = req["Velocity"]
+        core.check_velocity(i, v)
+        sense = direction_sense(req["Direction"])
+        return Job(self, dict(req), dyn=core.dynamics(i, req, v), velocity=sense * v, continuous=True)
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        return activate_velocity(core, i, job, start)
+
+    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+        if job.phase:
+            return None  # stopping at a limit: the stop does not follow the override
+        return core.plan(plan_velocity, start, job.velocity * override, job.dyn)
+
+    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        return end_velocity(core, i, job)
+
+    def successor_may_start(self, core: NcCore, i: int, job: Job) -> bool:
+        return bool(job.data.get("steady")) and not job.held
+
+    def wants_watch(self, job: Job) -> bool:
+        return bool(job.data.get("limits")) and not job.phase
+
+    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+        limit_approach(core, rows)
+
+
+def activate_velocity(core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    a = core.axes
+    sense = 1.0 if job.velocity > 0 else -1.0
+    core.check_feed(i, sense)
+    if sense > 0 and a.en_max[i] and start.p >= a.max_lim[i]:
+        raise NcError(ErrorCodes.NC_SOFT_LIMIT_MAX_START, f"axis at {start.p} is at/beyond AxisMaxSoftPosLimit {a.max_lim[i]}")
+    if sense < 0 and a.en_min[i] and start.p <= a.min_lim[i]:
+        raise NcError(ErrorCodes.NC_SOFT_LIMIT_MIN_START, f"axis at {start.p} is at/beyond AxisMinSoftPosLimit {a.min_lim[i]}")
+    ov = core.override(i)
+    plan = core.plan(plan_velocity, start, job.velocity * ov, job.dyn)
+    core.check_overshoot(i, plan, abs(job.velocity) * ov)
+    job.held = ov <= 0
+    job.phase = 0
+    job.data["steady"] = False
+    job.data["limits"] = bool(a.en_max[i] or a.en_min[i])
+    return plan
+
+
+def end_velocity(core: NcCore, i: int, job: Job) -> str:
+    if job.phase:  # stopped exactly at the limit: the commanded motion could not continue
+        code = ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if job.phase == LIMIT_MAX else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING
+        core.clear_profile(i)
+        core.fault(i, code)
+        return "continue"
+    job.data["steady"] = True
+    return "steady"
+
+
+def limit_approach(core: NcCore, rows: np.ndarray) -> None:
+    """Stop continuous moves exactly at an enabled software limit (vectorized check)."""
+    a = core.axes
+    v = a.set_velo[rows]
+    dec = np.empty(rows.size)
+    jerk = np.empty(rows.size)
+    for n, i in enumerate(rows.tolist()):
+        d = core.queues[i].active.dyn  # type: ignore[union-attr]
+        dec[n], jerk[n] = d.deceleration, d.jerk
+    d = stopping_distance(v, a.set_acc[rows], dec, jerk) + 2 * np.abs(v) * core.cycle_time
+    pos = a.set_pos[rows]
+    hit = (a.en_max[rows] & (v > 0) & (pos + d >= a.max_lim[rows])) | (a.en_min[rows] & (v < 0) & (pos - d <= a.min_lim[rows]))
+    for i in rows[hit].tolist():
+        job = core.queues[i].active
+        assert job is not None and job.dyn is not None
+        vi = float(a.set_velo[i])
+        target = float(a.max_lim[i] if vi > 0 else a.min_lim[i])
+        dyn = job.dyn.with_(velocity=max(abs(vi), job.dyn.velocity * core.override(i), 1e-9))
+        try:
+            plan = plan_position(core.start_state(i), target, dyn)
+        except Exception:
+            core.fault(i, ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if vi > 0 else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING)
+            continue
+        job.phase = LIMIT_MAX if vi > 0 else LIMIT_MIN
+        core.set_plan(i, plan)
+        a.target_pos[i] = target
+        core._sync(i)
+
+
+class JogKind(JobKind):
+    """MC_Jog's NC side. Modes (E_JogMode): STANDARD_SLOW/FAST: continuous at AxisVeloManSlow /
+    AxisVeloManFast with the axis dynamics (the block's values are ignored); CONTINOUS: continuous
+    with the block's Velocity and dynamics; INCHING: relative by Position (> 0) in Direction;
+    INCHING_MODULO (Tc2_MC2): relative, the end rounded to the next multiple of Position in the
+    direction of travel (from a multiple: exactly Position). Continuous jogs run until a Halt
+    (the block sends it when the key is released) or any other command."""
+
+    name = "Jog"
+    commands = ("Jog",)
+
+    def __init__(self) -> None:
+        self._pos = PositionKind("Jog")
+
+    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        mode = req["Mode"]
+        sense = direction_sense(req["Direction"])
+        p = core.params[i]
+        if mode in (int(E_JogMode.MC_JOGMODE_STANDARD_SLOW), int(E_JogMode.MC_JOGMODE_STANDARD_FAST)):
+            v = p.AxisVeloManSlow if mode == int(E_JogMode.MC_JOGMODE_STANDARD_SLOW) else p.AxisVeloManFast
+            v = min(v, float(core.axes.vmax[i]))
+            return Job(self, dict(req), dyn=core.dynamics(i, {}, v), velocity=sense * v, continuous=True,
+                       data={"via": "velocity"})
+        if mode not in (int(E_JogMode.MC_JOGMODE_CONTINOUS), int(E_JogMode.MC_JOGMODE_INCHING),
+                        int(E_JogMode.MC_JOGMODE_INCHING_MODULO)):
+            raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_JogMode")
+        v = req["Velocity"]
+        core.check_velocity(i, v)
+        dyn = core.dynamics(i, req, v)
+        if mode == int(E_JogMode.MC_JOGMODE_CONTINOUS):
+            return Job(self, dict(req), dyn=dyn, velocity=sense * v, continuous=True, data={"via": "velocity"})
+        step = req["Position"]
+        if not step > 0:
+            raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"inching distance Position {step} must be > 0")
+        start = core.nc_set_pos(i)
+        if mode == int(E_JogMode.MC_JOGMODE_INCHING):
+            target = start + sense * step
+        else:
+            k = start / step
+            target = (math.floor(k + 1e-9) + 1) * step if sense > 0 else (math.ceil(k - 1e-9) - 1) * step
+        return Job(self, dict(req), dyn=dyn, target=target, data={"via": "position"})
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        if job.data["via"] == "velocity":
+            return activate_velocity(core, i, job, start)
+        return self._pos.activate(core, i, job, start)
+
+    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+        if job.data["via"] == "velocity":
+            return None if job.phase else core.plan(plan_velocity, start, job.velocity * override, job.dyn)
+        return self._pos.replan(core, i, job, start, override)
+
+    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        if job.data["via"] == "velocity":
+            return end_velocity(core, i, job)
+        return self._pos.on_end(core, i, job)
+
+    def wants_watch(self, job: Job) -> bool:
+        return job.data["via"] == "velocity" and bool(job.data.get("limits")) and not job.phase
+
+    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+        limit_approach(core, rows)
+
+    def blend_point(self, job: Job) -> tuple[float, float, float] | None:
+        return None
+
+
+def kinds() -> list[JobKind]:
+    return [VelocityKind(), JogKind()]
+
+
+__all__ = ["VelocityKind", "JogKind", "kinds", "direction_sense", "Dynamics"]
