@@ -66,8 +66,7 @@ class ProfileStage:
 
     Set-points (and their StateDWord bits and AxisState) are evaluated ``lookahead`` cycles ahead
     for all axes at once; when a plan changes only that axis is re-evaluated (:meth:`refresh`).
-    Refills are staggered over the axes when there are many (``stagger``): each cycle refills
-    only the rows whose buffer runs out, so no cycle evaluates every axis at once.
+    Every ``lookahead``-th cycle refills all running rows at once (not staggered: see the note).
     """
 
     name = "profile"
