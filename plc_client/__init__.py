@@ -31,3 +31,11 @@ __all__ = [
     "MC_ChangeDynParam", "MC_MoveAbsoluteOrRestart", "MC_MoveAdditive", "MC_MoveContinuousAbsolute",
     "MC_MoveContinuousRelative", "MC_NewPos", "MC_NewPosAndVelo", "MC_OrientedStop",
 ]
+
+# homing, jogging, position administration, AXACT
+from .fb import (  # noqa: E402
+    AXACT, F_GetVersionTcMC, MC_Home, MC_Jog, MC_SetActualPosition, MC_SetActualPositionOnTheFly, MC_SetReferenceFlag,
+)
+
+__all__ += ["MC_Jog", "MC_Home", "MC_SetActualPosition", "MC_SetActualPositionOnTheFly", "MC_SetReferenceFlag",
+            "F_GetVersionTcMC", "AXACT"]

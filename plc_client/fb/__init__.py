@@ -19,3 +19,14 @@ __all__ = [
     "MC_MoveContinuousRelative", "MC_NewPos", "MC_NewPosAndVelo", "MC_OrientedStop",
     "FunctionBlock", "ExecuteBlock", "EnableBlock", "MotionBlock", "DONE_WINDOW_TIMEOUT", "override_to_plctonc",
 ]
+
+# homing, jogging, position administration, AXACT
+from .axact import AXACT  # noqa: E402
+from .home import MC_Home  # noqa: E402
+from .jog import MC_Jog  # noqa: E402
+from .position import (  # noqa: E402
+    F_GetVersionTcMC, MC_SetActualPosition, MC_SetActualPositionOnTheFly, MC_SetReferenceFlag,
+)
+
+__all__ += ["MC_Jog", "MC_Home", "MC_SetActualPosition", "MC_SetActualPositionOnTheFly", "MC_SetReferenceFlag",
+            "F_GetVersionTcMC", "AXACT"]
