@@ -614,7 +614,13 @@ class NcCore:
                 else:
                     v = 0.0
         prev.end_velocity = sense * v
-        plan = prev.kind.replan(self, i, prev, self.start_state(i), ov)
+        try:
+            plan = prev.kind.replan(self, i, prev, self.start_state(i), ov)
+        except NcError:
+            # ruckig could not blend from this state: the running plan stays (it ends at rest, the
+            # waiting job starts there, as Buffered) -- "blending as well as possible"
+            prev.end_velocity = 0.0
+            plan = None
         if plan is not None:
             self.set_plan(i, plan)
         self._sync(i)
