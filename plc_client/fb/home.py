@@ -11,8 +11,8 @@ the drive's sync pulse, stop, set the actual position; ``NcToPlc.HomingState`` s
 (1..6, 0 = ready) and StateDWord.HomingBusy is set meanwhile (PLCopen state Homing). The block
 sends ``Home`` {Position, HomingMode, BufferMode} on the rising edge of Execute and follows it like
 every motion command (``MotionBlock``): Busy/Active while the job runs, CommandAborted if another
-command ends it (MC_Stop, ...), Error with the NC's code - e.g. 0x4B01 on an axis that is not at
-standstill (moving, disabled or in ErrorStop; the NC decides the code).
+command ends it (MC_Stop, ...), Error with the NC's code - e.g. 0x4B01 on a moving axis, 0x4223
+on one without enable (the NC decides the code).
 
 Done (zenoh-nc choice; the manual: "TRUE once referencing is complete"): the NC ended the job
 DONE (CmdState DONE, HasJob fell), HomingState is back to 0 (READY) and - except with
@@ -41,9 +41,11 @@ next sync pulse::
 
 Other inputs: HomingMode must be an integer (else Error 0x4B04, nothing sent); which modes the
 NC supports is the NC's answer (the protocol lists 0 MC_DefaultHoming, 4 MC_Direct,
-7 MC_ForceCalibration, 8 MC_ResetCalibration). BufferMode is checked and sent like every motion
-block's BufferMode (``MotionBlock``). Tc2_MC2's ``Options`` (ST_HomingOptions) is not offered:
-the wire contract has no field for it.
+7 MC_ForceCalibration, 8 MC_ResetCalibration; zenoh-nc's NC refuses the others with 0x4B04, the
+modes Tc2_MC2 does not implement either). BufferMode is checked and sent like every motion
+block's BufferMode (``MotionBlock``; Tc2_MC2 says "currently not implemented", zenoh-nc's NC
+accepts MC_Aborting and MC_Buffered for a Home). Tc2_MC2's ``Options`` (ST_HomingOptions) is not
+offered: the wire contract has no field for it.
 """
 from __future__ import annotations
 

@@ -44,7 +44,8 @@ edge (of either key).
 
 Mode not an E_JogMode value (or not an integer): Error 0x4B04 (MC_INVALID_MODE), nothing sent.
 A non-finite Position/Velocity/dynamics value in a mode that uses it: Error 0x4B06. The NC checks
-the values themselves (e.g. Velocity <= 0 in CONTINOUS/inching, Position <= 0 when inching).
+the values themselves (e.g. Velocity <= 0 in CONTINOUS/inching: 0x4221; an inching Position <= 0:
+0x4B06; no enable: 0x4223).
 """
 from __future__ import annotations
 

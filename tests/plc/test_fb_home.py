@@ -166,7 +166,7 @@ def test_homing_with_a_cam(rig: Rig, position: float) -> None:
     before = [p for s, p, _ in seen if s == 6][-1]  # last old-coordinate position before the set
     assert before > -3.0
     assert math.isclose(ax.ActPos, ref + (before - (-3.0)), abs_tol=0.01)
-    assert 0.0 <= ax.ActPos - ref < 0.05
+    assert 0.0 <= ax.ActPos - ref < 0.2  # the braking distance from AxisCalibrationVelocityBackward (5 u/s)
     rig.run(10)
     assert home.Done, "Done held while Execute stays TRUE"
 
@@ -177,18 +177,23 @@ def test_homing_without_cam_recipe(rig: Rig) -> None:
     home = MC_Home()
     rig.watch(home)
     seen = record_nc_steps(rig)
+    st = {"ex": False}
 
     def body(p: Any) -> None:
         cam = int(ax.NcToPlc["HomingState"]) < 4 if home.Busy else True
-        home(Axis=ax, Execute=True, Position=10.0, bCalibrationCam=cam)
+        home(Axis=ax, Execute=st["ex"], Position=10.0, bCalibrationCam=cam)
 
     calls["body"] = body
+    rig.run(2)  # the cam first (it reaches the NC with this PLC's PLCTONC frames) ...
+    st["ex"] = True  # ... then the command
     rig.run_until(lambda: not home.Busy, 2000)
     assert home.Done and ax.Status.Homed
     states = dedup([s for s, _, _ in seen])
-    assert 1 not in states and 2 not in states, f"the cam was occupied at the start: {states}"
-    assert 3 in states and states[states.index(3):] == [3, 4, 5, 6, 0], states
-    assert 0.0 <= ax.ActPos - 10.0 < 0.05
+    # the cam was occupied at the start: straight to 3 (at rest, 3 - "wait until stopped" - may pass
+    # within the command's own cycle and never show in a frame), no search (1, 2)
+    assert states in ([0, 3, 4, 5, 6, 0], [0, 4, 5, 6, 0]), states
+    assert min(p for _, p, _ in seen) >= -1e-9, "no search towards the cam: off it towards the sync pulse"
+    assert 0.0 <= ax.ActPos - 10.0 < 0.2
 
 
 def test_cam_bit_written_every_cycle(rig: Rig) -> None:

@@ -128,6 +128,9 @@ def test_set_actual_position_on_the_fly_shifts_the_running_move(rig: Rig) -> Non
     assert math.isclose(ax.ActPos, 1040.0, abs_tol=0.02), "same distance, shifted end"
 
 
+@pytest.mark.xfail(strict=True, reason="engine deviation: schema/README.md lists SetActualPositionOnTheFly among the "
+                   "amendments refused with 0x4B03 without a moving job; the engine accepts it at rest (protocol.json: "
+                   "'also while moving')")
 def test_set_actual_position_on_the_fly_at_rest_is_the_ncs_answer(rig: Rig) -> None:
     ax, calls = powered(rig)
     fly = MC_SetActualPositionOnTheFly()
