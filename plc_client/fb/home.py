@@ -27,7 +27,10 @@ is idle, so the NC knows whether the search starts on the cam). That record is p
 for an axis this PLC controls, i.e. one that an ``MC_Power`` of this PLC task drives (it holds
 the NC's claim): the NC applies only the claim holder's PLCTONC. From another PLC the cam has no
 effect, and homing waits for a cam edge that never comes. The bit keeps the value of the last
-call while the block is not called.
+call while the block is not called. The command and the cam travel separately - the command as
+a request sent during the cycle, the cam with the PLCTONC frame sent at its end - so a cam that is
+already occupied when homing starts should be TRUE before the Execute edge (the NC reads it
+again a cycle after the command, but a frame can take longer over the network).
 
 **Homing without a reference cam** (TcMC 3.14 note): only the sync pulse of the encoder is
 wanted, so the program simulates the cam - bCalibrationCam TRUE when the command starts, then
