@@ -73,7 +73,8 @@ class HomeKind(JobKind):
             job.phase = 0
             return hold(start.p)  # takes effect in its first cycle (on_end)
         if bool(core.cam(np.array([i]))[0]):
-            job.phase = S3  # cam already occupied: leave it towards the sync pulse
+            job.phase = S3  # cam already occupied: leave it towards the sync pulse (S3 shown one cycle)
+            job.data["s3_at_rest"] = True
             return hold(start.p)
         # else the cam is read again one cycle later (watch): its PLCTONC may follow the command
         p = core.params[i]
@@ -94,6 +95,8 @@ class HomeKind(JobKind):
         if job.phase == S1:
             return "steady"  # at rest until watch() has seen the cam
         if job.phase == S3:  # stopped: off the cam towards the sync pulse
+            if job.data.pop("s3_at_rest", False):
+                return "steady"  # started on the cam: show state 3 for this cycle, leave it next (watch)
             self._leave_cam(core, i, job)
             return "continue"
         if job.phase == S6:  # stopped after the latch: the latched position is the reference position
@@ -129,6 +132,9 @@ class HomeKind(JobKind):
                                            job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
                 job.phase = S2
                 core._sync(i)
+                continue
+            if ph == S3 and a.traj_dur[i] == np.inf:  # started on the cam, state 3 shown: leave it
+                self._leave_cam(core, i, job)
                 continue
             if job.phase == S2 and cam[n]:
                 self._stop(core, i, job, S3)
