@@ -602,7 +602,7 @@ class NcCore:
                 v = v_next
             else:
                 v = max(v_prev, v_next)
-            v = min(v * ov, float(a.vmax[i]))
+            v = min(v, float(a.vmax[i]))  # at 100 %: the plan scales it with the override
             if math.isfinite(d_next) and nxt.dyn is not None and v > 0:
                 # the waiting job must be able to stop within its distance from the blending velocity
                 for _ in range(30):
@@ -867,6 +867,8 @@ class NcCore:
             job.client, job.buffer_mode = client, mode
             # validate from where it will start: the running job's target (at rest or passing it)
             base = running.kind.next_base(running, self, i)
+            if base is None:  # no target to refer to: checked from here, fixed where it starts
+                base = self.nc_set_pos(i)
             kind.activate(self, i, job, StartState(base))
             job.cmd_no = q.newest = next_cmdno(q.newest)
             job.state = int(CmdState.BUFFERED)

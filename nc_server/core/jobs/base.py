@@ -152,9 +152,11 @@ class JobKind:
         can pass through, or None (a successor then waits for its end, as with Buffered)."""
         return None
 
-    def next_base(self, job: Job, core: NcCore, i: int) -> float:
-        """The position a relative/additive successor refers to (NC position)."""
-        return job.target if job.target is not None else core.nc_set_pos(i)
+    def next_base(self, job: Job, core: NcCore, i: int) -> float | None:
+        """The position a relative/additive successor refers to (NC position): this job's target;
+        None for a job without one (velocity, halt, homing): the successor refers to the set position
+        where it starts."""
+        return job.target
 
 
 class JobQueue:

@@ -93,22 +93,31 @@ class PositionKind(JobKind):
         core.check_velocity(i, v)
         dyn = core.dynamics(i, req, v)
         queued = prev is not None and req.get("BufferMode", 0) != 0
-        base = prev.kind.next_base(prev, core, i) if queued else core.nc_set_pos(i)  # type: ignore[union-attr]
+        base = prev.kind.next_base(prev, core, i) if queued else None  # type: ignore[union-attr]
+        data: dict[str, Any] = {}
+        if base is None:
+            base = core.nc_set_pos(i)
+            if queued:  # behind a job without a target: relative to where this one starts
+                data["from_start"] = True
         target = self.target_of(core, i, req, base, prev)
         if not abs(target) < 1e9:
             raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED, f"target {target} outside +/-1e9")
-        return Job(self, dict(req), dyn=dyn, target=target, end_velocity=self.end_velocity_of(core, i, req, target, base))
+        return Job(self, dict(req), dyn=dyn, target=target, end_velocity=self.end_velocity_of(core, i, req, target, base),
+                   data=data)
 
     def end_velocity_of(self, core: NcCore, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
         return 0.0
 
     def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
         assert job.target is not None and job.dyn is not None
+        if job.data.get("from_start"):
+            job.target = self.target_of(core, i, job.args, start.p, None)
+            job.end_velocity = self.end_velocity_of(core, i, job.args, job.target, start.p)
         sense = job.target - start.p
         core.check_feed(i, sense if sense else job.end_velocity)
         plan = self._plan(core, i, job, start, core.override(i))
         core.check_target(i, start.p, job.target, plan)
-        core.check_overshoot(i, plan, job.dyn.velocity * core.override(i))
+        core.check_overshoot(i, plan, max(job.dyn.velocity, abs(job.end_velocity)) * core.override(i))
         job.held = core.override(i) <= 0
         job.data["start"] = start.p
         return plan
@@ -120,16 +129,32 @@ class PositionKind(JobKind):
         _switch_reached(core, rows)
 
     def _plan(self, core: NcCore, i: int, job: Job, start: StartState, ov: float) -> Plan:
+        """The plan to the target from ``start`` at override ``ov``. ``job.end_velocity`` (blending,
+        EndVelocity) is the velocity at the target at 100 % and scales with the override like the
+        travel velocity. An end velocity above the travel velocity (BlendingNext/High towards a faster
+        successor, an EndVelocity above Velocity) is reached by speeding up just before the target:
+        the plan runs to the point where that ramp starts and :meth:`on_end` plans the ramp
+        (``job.data["ramp"]``). Where the remaining distance is too short the end velocity is lowered
+        (never passing the target); the job keeps the requested one for later replans."""
         assert job.target is not None and job.dyn is not None
+        job.data.pop("ramp", None)
         if ov <= 0:  # override 0: start as a hold, the job waits for override
             return core.plan(plan_velocity, start, 0.0, job.dyn)
         dyn = job.dyn.scaled(ov)
-        ve = job.end_velocity
+        ve = job.end_velocity * ov
         if abs(ve) > dyn.velocity:
-            ve = math.copysign(dyn.velocity, ve)
+            sense = 1.0 if ve > 0 else -1.0
+            v_c = sense * dyn.velocity
+            d_ramp = abs(core.plan(plan_velocity, StartState(0.0, v_c), ve, dyn).end.p)
+            switch = job.target - sense * d_ramp
+            if (switch - start.p) * sense > 0:
+                plan = core.plan(plan_position, start, switch, dyn, v_c)
+                if (plan.p_max - switch if sense > 0 else switch - plan.p_min) <= 1e-9:
+                    job.data["ramp"] = ve
+                    return plan
         plan = core.plan(plan_position, start, job.target, dyn, ve)
         if ve and not job.continuous:
-            # blending: lower the end velocity until the path no longer passes the target
+            # lower the end velocity until the path no longer passes the target
             sense = 1.0 if ve > 0 else -1.0
             for _ in range(8):
                 beyond = (plan.p_max - job.target) if sense > 0 else (job.target - plan.p_min)
@@ -138,9 +163,7 @@ class PositionKind(JobKind):
                 ve *= 0.5
                 plan = core.plan(plan_position, start, job.target, dyn, ve)
             else:
-                ve = 0.0
                 plan = core.plan(plan_position, start, job.target, dyn, 0.0)
-            job.end_velocity = ve
         return plan
 
     def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
@@ -151,9 +174,22 @@ class PositionKind(JobKind):
     def on_end(self, core: NcCore, i: int, job: Job) -> str:
         if job.held:
             return "steady"  # override 0: waiting, not the end
+        if self.start_ramp(core, i, job):
+            return "continue"
         if job.end_velocity and not core.queues[i].waiting:
             return "steady"
         return "done"
+
+    def start_ramp(self, core: NcCore, i: int, job: Job) -> bool:
+        """At the end of the first part of a plan that speeds up to its end velocity just before the
+        target (:meth:`_plan`): plan the ramp, which ends at the target."""
+        ve = job.data.pop("ramp", None)
+        if ve is None:
+            return False
+        assert job.dyn is not None
+        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), ve, job.dyn.scaled(core.override(i))))
+        core._sync(i)
+        return True
 
     def blend_point(self, job: Job) -> tuple[float, float, float] | None:
         if job.target is None or job.dyn is None or job.continuous:
@@ -250,6 +286,8 @@ class ContinuousKind(PositionKind):
     def on_end(self, core: NcCore, i: int, job: Job) -> str:
         if job.held:
             return "steady"
+        if self.start_ramp(core, i, job):
+            return "continue"
         if job.end_velocity:
             job.continuous = True  # past the target: endless at EndVelocity
             return "steady"
