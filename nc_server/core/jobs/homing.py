@@ -133,8 +133,11 @@ class HomeKind(JobKind):
                 job.phase = S2
                 core._sync(i)
                 continue
-            if ph == S3 and a.traj_dur[i] == np.inf:  # started on the cam, state 3 shown: leave it
-                self._leave_cam(core, i, job)
+            if ph == S3 and a.traj_dur[i] == np.inf:  # started on the cam: show state 3, then leave it
+                if job.data.get("s3_shown"):
+                    self._leave_cam(core, i, job)
+                else:
+                    job.data["s3_shown"] = True
                 continue
             if job.phase == S2 and cam[n]:
                 self._stop(core, i, job, S3)
