@@ -43,7 +43,7 @@ from .jobs.stop import FAULT_RAMP, HALT_RAMP, STOP
 from .monitoring import monitor
 from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_position, plan_velocity
-from .profile import evaluate, peak_velocity, stopping_distance
+from .profile import evaluate, peak_velocity, stopping_distance, velocity_extrema
 from .stages import ProfileStage
 
 _log = logging.getLogger(__name__)
@@ -379,11 +379,13 @@ class NcCore:
                           f"the new dynamics would overshoot to {peak:.6g} u/s (limit {cap:.6g}); use a higher Jerk")
 
     def plan(self, fn: Any, *args: Any) -> Plan:
-        """Call a planning function; ruckig failures become NcError 0x4000."""
+        """Call a planning function; ruckig failures become NcError 0x427E (the motion cannot be
+        realized from this state with these dynamics; the command is refused, nothing changes)."""
         try:
             return fn(*args)
         except PlanningError as exc:
-            raise NcError(ErrorCodes.NC_INTERNAL, f"set-point generation failed: {exc}") from None
+            raise NcError(ErrorCodes.NC_MOTION_NOT_REALIZED,
+                          f"this motion cannot be planned from the current state with these dynamics ({exc})") from None
 
     def stop_dynamics(self, i: int, dec: float = 0.0, jerk: float = 0.0, running: Job | None = None) -> Dynamics:
         """Dynamics of a stop (0 = axis defaults), never weaker than a stop already running, and with
@@ -396,15 +398,40 @@ class NcCore:
         job = running if running is not None else self.queues[i].active
         d = self.dynamics(i, {"Deceleration": dec, "Jerk": jerk}, None)
         dec_, jerk_ = d.deceleration, d.jerk
-        if job is not None and job.kind.is_stop and job.dyn is not None:
+        if job is not None and job.kind.braking and job.dyn is not None:
+            # TcMC 3.15: a stop with more rigorous dynamics already runs (MC_Stop, MC_Halt, a ramp)
             dec_, jerk_ = max(dec_, job.dyn.deceleration), max(jerk_, job.dyn.jerk)
         v0, a0 = float(a.set_velo[i]), float(a.set_acc[i])
         if a.traj_on[i] and v0 * a0 > 0 and job is not None and job.dyn is not None:
+            # accelerating: the velocity must not exceed the running motion's (acceleration
+            # reduces too slowly with a weaker jerk)
             jerk_ = max(jerk_, job.dyn.jerk)
             cap = max(job.dyn.velocity * a.override[i], abs(v0))
             if cap > abs(v0):
                 jerk_ = max(jerk_, a0 * a0 / (2 * (cap - abs(v0))))
+        elif a.traj_on[i] and v0 * a0 < 0:
+            # braking: the direction must not reverse (the negative acceleration must reach 0
+            # before the velocity does), so never below the braking that already runs
+            dec_ = max(dec_, abs(a0))
+            jerk_ = max(jerk_, a0 * a0 / (2 * abs(v0)) * 1.01)
+            if job is not None and job.dyn is not None:
+                jerk_ = max(jerk_, job.dyn.jerk)
         return Dynamics(float(a.vmax[i]), max(d.acceleration, dec_), dec_, jerk_)
+
+    def stop_within(self, i: int, plan: Plan, running: Job | None) -> bool:
+        """The stop ``plan`` ends before the running job's target and an enabled soft limit
+        (TcMC 3.15: weaker stop dynamics are not used if the target would be exceeded)."""
+        a = self.axes
+        end = plan.end.p
+        v0 = float(a.set_velo[i])
+        if running is not None and running.target is not None and not running.continuous and v0:
+            if (end - running.target) * v0 > 1e-9:
+                return False
+        if a.en_max[i] and v0 > 0 and end > max(float(a.max_lim[i]), float(a.set_pos[i])) + 1e-9:
+            return False
+        if a.en_min[i] and v0 < 0 and end < min(float(a.min_lim[i]), float(a.set_pos[i])) - 1e-9:
+            return False
+        return True
 
     def profile_end(self, i: int) -> float:
         """Position where axis row ``i``'s current plan ends [u]."""
@@ -858,6 +885,9 @@ class NcCore:
         if not kind.always_allowed:
             self.check_startable(i)
         running = q.running_numbered
+        if (running is not None and running.kind.homing and mode == ABORTING and not kind.always_allowed
+                and running.state == int(CmdState.ACTIVE)):
+            raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the axis is homing (PLCopen: Homing accepts only MC_Stop)")
         client = str(req.get("client") or "")
         if mode != ABORTING and running is not None and running.state == int(CmdState.ACTIVE):
             if q.waiting is not None:
@@ -927,12 +957,23 @@ class NcCore:
             back = start.p - plan.p_min if sense > 0 else plan.p_max - start.p
             if back > 1e-9:
                 raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
+        elif start.v:
+            # a velocity job: braking towards a lower velocity of the same direction must not cross 0
+            lo, hi = velocity_extrema(plan.seg)
+            if (lo < -1e-9 if start.v > 0 else hi > 1e-9) and job.velocity * start.v > 0:
+                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
         self.check_overshoot(i, plan, old.velocity * self.override(i))
         job.dyn = new
         return plan
 
 
 def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """MC_Stop Execute fell: unlock -- but not during the stop ramp (PLCopen: Stopping until the axis
+    stands and Execute is FALSE); then the lock goes when the ramp ends."""
+    job = core.queues[i].active
+    if job is not None and job.kind.locks and core.axes.traj_on[i]:
+        job.data["release"] = True
+        return {}
     core.axes.locked[i] = False
     core._state_dirty = True
     return {}

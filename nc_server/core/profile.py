@@ -44,24 +44,31 @@ def evaluate(seg: np.ndarray, t: np.ndarray, rows: np.ndarray | None) -> tuple[n
     return pos, velo, acc, j
 
 
-def peak_velocity(seg: np.ndarray) -> float:
-    """Largest |velocity| of one axis's segment row (5, N_SEGMENTS) over the whole profile.
+def velocity_extrema(seg: np.ndarray) -> tuple[float, float]:
+    """(lowest, highest) signed velocity of one axis's segment row (5, N_SEGMENTS) over the whole profile.
 
     Plain Python: 13 segments are cheaper to walk than to hand to numpy.
     """
     t0, _, v, a, j = seg.tolist()
-    peak = 0.0
+    lo = hi = v[0]
     for k in range(N_SEGMENTS):
         if t0[k] == math.inf:
             break
-        peak = max(peak, abs(v[k]))
+        lo, hi = min(lo, v[k]), max(hi, v[k])
         jk = j[k]
         if jk:
             tau = -a[k] / jk  # velocity extremum inside the segment where a + j*tau = 0
             end = t0[k + 1] if k + 1 < N_SEGMENTS else math.inf
             if 0 < tau < end - t0[k]:
-                peak = max(peak, abs(v[k] - a[k] * a[k] / (2 * jk)))
-    return peak
+                ve = v[k] - a[k] * a[k] / (2 * jk)
+                lo, hi = min(lo, ve), max(hi, ve)
+    return lo, hi
+
+
+def peak_velocity(seg: np.ndarray) -> float:
+    """Largest |velocity| of one axis's segment row (5, N_SEGMENTS) over the whole profile."""
+    lo, hi = velocity_extrema(seg)
+    return max(abs(lo), abs(hi))
 
 
 def stopping_distance(velo: np.ndarray, acc: np.ndarray, dec: np.ndarray, jerk: np.ndarray) -> np.ndarray:

@@ -95,6 +95,8 @@ class JobKind:
     watches: ClassVar[bool] = False
     #: may be started from an axis in ErrorStop / locked (stops)
     always_allowed: ClassVar[bool] = False
+    #: brings the axis to rest: a later stop is never weaker than it (TcMC 3.15)
+    braking: ClassVar[bool] = False
     #: the NC's own motion (a stop ramp), never numbered
     internal: ClassVar[bool] = False
 

@@ -27,13 +27,25 @@ def _stop_plan(core: NcCore, i: int, job: Job, start: StartState) -> Plan:
     assert job.dyn is not None
     if not core.axes.traj_on[i] and abs(start.v) <= _EPS_V:
         return hold(start.p)  # standing: the stop is complete in its first cycle
-    return core.plan(plan_velocity, start, 0.0, job.dyn)
+    plan = core.plan(plan_velocity, start, 0.0, job.dyn)
+    running = core.queues[i].active
+    if not core.stop_within(i, plan, running):
+        # TcMC 3.15: weaker dynamics are not used if the target (or a soft limit) would be
+        # passed: stop with the running motion's (or the axis's) dynamics instead
+        a = core.axes
+        ref = running.dyn if running is not None and running.dyn is not None else None
+        dec = max(job.dyn.deceleration, ref.deceleration if ref else 0.0, float(a.dec[i]))
+        jerk = max(job.dyn.jerk, ref.jerk if ref else 0.0, float(a.jerk[i]))
+        job.dyn = core.stop_dynamics(i, dec, jerk, running)
+        plan = core.plan(plan_velocity, start, 0.0, job.dyn)
+    return plan
 
 
 class StopKind(JobKind):
     name = "Stop"
     commands = ("Stop",)
     is_stop = True
+    braking = True
     locks = True
     feed_checked = False
     follows_override = False
@@ -50,6 +62,11 @@ class StopKind(JobKind):
     def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
         return _stop_plan(core, i, job, start)
 
+    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        if job.data.get("release"):  # Execute fell during the ramp: unlock now that it stands
+            core.axes.locked[i] = False
+        return "done"
+
 
 class HaltKind(JobKind):
     """MC_Halt: a discrete motion to rest (no lock; Done at standstill; may be buffered)."""
@@ -59,6 +76,7 @@ class HaltKind(JobKind):
     buffer_modes = ALL_MODES
     feed_checked = False
     follows_override = False
+    braking = True
 
     def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         d = core.dynamics(i, {"Deceleration": req.get("Deceleration", 0.0), "Jerk": req.get("Jerk", 0.0)}, None)
@@ -78,6 +96,7 @@ class OrientedStopKind(JobKind):
 
     name = "OrientedStop"
     commands = ("OrientedStop",)
+    braking = True
     feed_checked = False
     follows_override = False
 
@@ -114,6 +133,7 @@ class RampKind(JobKind):
     follows_override = False
     always_allowed = True
     internal = True
+    braking = True
 
     def __init__(self, name: str, holds_enable: bool) -> None:
         self.name = name  # type: ignore[misc]
