@@ -209,6 +209,10 @@ def test_integer_buffer_mode_is_passed_to_the_nc(rig: Rig, cls, inputs: dict, bm
     rig.run(2)
     assert sent and sent[0][0] == cls.CMD
     assert sent[0][1]["BufferMode"] == int(bm) and type(sent[0][1]["BufferMode"]) is int
+    if int(bm) in (0, 1, 18, 19, 20, 21):
+        assert not fb.Error, hex(fb.ErrorID)  # on an axis at rest every valid mode starts at once
+    else:
+        assert fb.Error and fb.ErrorID == ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED, "the NC's 0x4B64"
 
 
 @pytest.mark.parametrize("inputs, code", [

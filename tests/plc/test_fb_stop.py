@@ -110,3 +110,29 @@ def test_stop_rejected_dynamics(rig: Rig) -> None:
     calls["body"] = lambda p: stop(Axis=ax, Execute=True, Deceleration=100.0, Jerk=0.0)  # Jerk missing
     rig.run_until(lambda: stop.Done or stop.Error, 20)
     assert stop.Done and ax.Status.MotionCommandsLocked
+
+
+def test_stop_clears_the_waiting_command(rig: Rig) -> None:
+    from plc_client import MC_MoveRelative
+
+    ax, _, calls = powered(rig)
+    mv1, mv2, stop = MC_MoveAbsolute(), MC_MoveRelative(), MC_Stop()
+    rig.watch(mv1, mv2, stop)
+    st = {"go2": False, "stop": False}
+
+    def body(p):
+        mv1(Axis=ax, Execute=True, Position=80.0, Velocity=50.0)
+        mv2(Axis=ax, Execute=st["go2"], Distance=10.0, Velocity=50.0, BufferMode=1)
+        stop(Axis=ax, Execute=st["stop"])
+
+    calls["body"] = body
+    rig.run_until(lambda: mv1.Active, 5)
+    st["go2"] = True
+    rig.run(3)
+    assert mv2.Busy and not mv2.Active
+    st["stop"] = True
+    rig.run_until(lambda: mv2.CommandAborted, 5)
+    assert mv1.CommandAborted and not mv2.Error
+    assert not ax.Status.CmdBuffered
+    rig.run_until(lambda: stop.Done, 200)
+    assert ax.Status.NotMoving and ax.ActPos < 80.0
