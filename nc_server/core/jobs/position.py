@@ -284,17 +284,40 @@ class ContinuousKind(PositionKind):
         return sense * abs(ve)
 
     def on_end(self, core: NcCore, i: int, job: Job) -> str:
+        if job.phase:  # stopped exactly at a software limit (as MoveVelocity): 0x4462/0x4463
+            from .velocity import end_velocity
+            return end_velocity(core, i, job)
         if job.held:
             return "steady"
         if self.start_ramp(core, i, job):
             return "continue"
         if job.end_velocity:
             job.continuous = True  # past the target: endless at EndVelocity
+            core._sync(i)
             return "steady"
         return "done"
 
     def successor_may_start(self, core: NcCore, i: int, job: Job) -> bool:
         return job.continuous
+
+    def wants_watch(self, job: Job) -> bool:
+        return "switch" in job.data or (bool(job.end_velocity) and job.data.get("limits", False) and not job.phase)
+
+    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+        from .velocity import limit_approach
+        switch = np.array([("switch" in core.queues[i].active.data) for i in rows.tolist()], dtype=bool)  # type: ignore[union-attr]
+        if switch.any():
+            _switch_reached(core, rows[switch])
+        rest = rows[~switch]
+        if rest.size:  # endless beyond the target: stop exactly at an enabled software limit
+            limit_approach(core, rest)
+
+    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+        plan = super().activate(core, i, job, start)
+        a = core.axes
+        job.data["limits"] = bool(a.en_max[i] or a.en_min[i])
+        job.phase = 0
+        return plan
 
 
 class RestartKind(PositionKind):

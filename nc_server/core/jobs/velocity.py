@@ -84,6 +84,15 @@ def activate_velocity(core: NcCore, i: int, job: Job, start: StartState) -> Plan
     if sense < 0 and a.en_min[i] and start.p <= a.min_lim[i]:
         raise NcError(ErrorCodes.NC_SOFT_LIMIT_MIN_START, f"axis at {start.p} is at/beyond AxisMinSoftPosLimit {a.min_lim[i]}")
     ov = core.override(i)
+    if start.v * sense > 0 and (a.en_max[i] if sense > 0 else a.en_min[i]):
+        # with these dynamics the axis must still be able to stop before the limit
+        assert job.dyn is not None
+        need = float(stopping_distance(np.array([start.v]), np.array([start.a]), np.array([job.dyn.deceleration]),
+                                       np.array([job.dyn.jerk]))[0])
+        room = (a.max_lim[i] - start.p) if sense > 0 else (start.p - a.min_lim[i])
+        if need > room:
+            raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED,
+                          f"with Deceleration {job.dyn.deceleration:g} the axis could not stop before the software limit")
     plan = core.plan(plan_velocity, start, job.velocity * ov, job.dyn)
     core.check_overshoot(i, plan, abs(job.velocity) * ov)
     job.held = ov <= 0
