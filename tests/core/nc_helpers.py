@@ -51,4 +51,5 @@ def run_until(core: NcCore, pred: Callable[[], bool], max_cycles: int = 100_000)
 
 def snapshot(core: NcCore) -> bytes:
     """Everything observable about the axes (to prove a rejected command changed nothing)."""
-    return core.nctoplc.tobytes() + core.plctonc.tobytes() + repr([vars(p) for p in core.params]).encode()
+    return (core.nctoplc.tobytes() + core.ncjobs.tobytes() + core.plctonc.tobytes()
+            + repr([vars(p) for p in core.params]).encode())
