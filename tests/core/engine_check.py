@@ -31,16 +31,23 @@ class Trace:
         vmax, amax, jerk: the limits (default: AxisVeloMax, max(AxisAcc, AxisDec), AxisJerk of the axis,
             read when the trace starts).
         check_jumps: check the velocity/acceleration steps (off for tests that change the dynamics).
+        before_step: called before every step (e.g. a cam simulated from the last sample's ActPos).
+        shift_ok: ``shift_ok(prev, sample)`` true where the position may be set (SetPos and ActPos jump
+            by the same amount: PosDiff stays continuous), e.g. at the end of homing.
     """
 
     def __init__(self, core: NcCore, i: int = 0, vmax: float | None = None, amax: float | None = None,
-                 jerk: float | None = None, check_jumps: bool = True) -> None:
+                 jerk: float | None = None, check_jumps: bool = True,
+                 before_step: Callable[[], Any] | None = None,
+                 shift_ok: Callable[[np.void, np.void], Any] | None = None) -> None:
         p = core.params[i]
         self.core, self.i = core, i
         self.vmax = p.AxisVeloMax if vmax is None else vmax
         self.amax = max(p.AxisAcc, p.AxisDec) if amax is None else amax
         self.jerk = p.AxisJerk if jerk is None else jerk
         self.check_jumps = check_jumps
+        self.before_step = before_step
+        self.shift_ok = shift_ok
         self.dt = core.cycle_time
         self.rows: list[np.void] = []    # NCTOPLC samples, one per cycle
         self.jobs: list[np.void] = []    # NCJOBS samples
@@ -57,6 +64,8 @@ class Trace:
 
     def step(self, n: int = 1) -> np.void:
         for _ in range(n):
+            if self.before_step is not None:
+                self.before_step()
             self.core.step()
             self._take()
         return self.rows[-1]
@@ -105,6 +114,10 @@ class Trace:
         assert abs(a) <= self.amax * (1 + 1e-9) + 1e-6, f"cycle {c}: |SetAcc| {a} > {self.amax}"
         assert abs(jk) <= self.jerk * (1 + 1e-9) + 1e-6, f"cycle {c}: |SetJerk| {jk} > {self.jerk}"
         enabled = bool(r["StateDWord"] & StateDWord.ControlLoopClosed) and bool(p["StateDWord"] & StateDWord.ControlLoopClosed)
+        if enabled and self.shift_ok is not None and self.shift_ok(p, r):
+            jump = float(r["ActPos"]) - float(p["ActPos"]) - (float(r["SetPos"]) - float(p["SetPos"]))
+            assert abs(jump) <= self.vmax * dt * 2, f"cycle {c}: a position set with a lag jump {jump}"
+            self._shift = float(r["SetPos"]) - float(p["SetPos"]) - 0.5 * (float(p["SetVelo"]) + v) * dt
         if enabled:
             dp = float(r["SetPos"]) - float(p["SetPos"]) - self._shift
             expect = 0.5 * (float(p["SetVelo"]) + v) * dt

@@ -59,6 +59,9 @@ class HomeKind(JobKind):
         mode = req["HomingMode"]
         if mode not in (_DEFAULT, _DIRECT, _FORCE, _RESET):
             raise NcError(ErrorCodes.MC_INVALID_MODE, f"HomingMode {mode} is not implemented (as in Tc2_MC2)")
+        if req.get("BufferMode", 0) == int(MC_BufferMode.MC_Aborting) and (prev is not None or core.axes.traj_on[i]):
+            # PLCopen: Homing only from StandStill -- also a job waiting at override 0 is a motion
+            raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "homing starts only from standstill (buffer it instead)")
         pos = req["Position"]
         ref = core.params[i].AxisCalibrationValue if pos >= DEFAULT_HOME_POSITION else float(pos)
         if not abs(ref) < 1e9:
