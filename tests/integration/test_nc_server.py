@@ -315,8 +315,7 @@ def test_request_burst_is_answered_completely(nc_server: NcServerProcess,
             answers[m["id"]] = m
     assert sorted(answers) == list(range(300))
     assert all(m["error"] == 0 and m["Value"] == 500.0 for m in answers.values())
-    cycles = sorted({m["cycle"] for m in answers.values()})
-    assert len(cycles) >= 300 // 32  # spread over several cycles, at most 32 per cycle
+    # (no bound on replies per cycle value: the NC also answers between cycles, under the same value)
 
 
 def test_config_file_and_overrides(start_nc: Callable[..., NcServerProcess],
