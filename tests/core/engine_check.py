@@ -18,10 +18,18 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nc_schema import CmdState, StateDWord
+from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE, CmdState, StateDWord
 from nc_server.core import NcCore
 
 _ENDED = {int(CmdState.DONE), int(CmdState.ABORTED), int(CmdState.ERROR)}
+_ACTIVE, _ERROR = int(CmdState.ACTIVE), int(CmdState.ERROR)
+_LOOP, _BUF, _HASJOB = int(StateDWord.ControlLoopClosed), int(StateDWord.CmdBuffered), int(StateDWord.HasJob)
+_JOB_BITS = _BUF | _HASJOB
+_F = NCTOPLC_DTYPE.names
+_P, _V, _A, _J, _AP, _SD, _NO, _ST = (_F.index(n) for n in (
+    "SetPos", "SetVelo", "SetAcc", "SetJerk", "ActPos", "StateDWord", "CmdNo", "CmdState"))
+assert NCJOBS_DTYPE.names[1:8] == ("ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo",
+                                   "Flags", "Ended")
 
 
 class Trace:
@@ -54,6 +62,7 @@ class Trace:
         self.cycles: list[int] = []
         self.fates: dict[int, tuple[int, int]] = {}
         self._shift = 0.0
+        self._job_key: tuple[Any, ...] | None = None
         self._prev = core.nctoplc[i].copy()
         self._prev_jobs = core.ncjobs[i].copy()
 
@@ -109,56 +118,60 @@ class Trace:
 
     def _check(self, p: np.void, r: np.void, j: np.void) -> None:
         dt, c = self.dt, self.core.cycle
-        v, a, jk = float(r["SetVelo"]), float(r["SetAcc"]), float(r["SetJerk"])
+        pt, rt = p.item(), r.item()
+        v, a, jk = rt[_V], rt[_A], rt[_J]
         assert abs(v) <= self.vmax * (1 + 1e-9) + 1e-9, f"cycle {c}: |SetVelo| {v} > {self.vmax}"
         assert abs(a) <= self.amax * (1 + 1e-9) + 1e-6, f"cycle {c}: |SetAcc| {a} > {self.amax}"
         assert abs(jk) <= self.jerk * (1 + 1e-9) + 1e-6, f"cycle {c}: |SetJerk| {jk} > {self.jerk}"
-        enabled = bool(r["StateDWord"] & StateDWord.ControlLoopClosed) and bool(p["StateDWord"] & StateDWord.ControlLoopClosed)
+        sd, psd = rt[_SD], pt[_SD]
+        enabled = bool(sd & _LOOP) and bool(psd & _LOOP)
         if enabled and self.shift_ok is not None and self.shift_ok(p, r):
-            jump = float(r["ActPos"]) - float(p["ActPos"]) - (float(r["SetPos"]) - float(p["SetPos"]))
+            jump = rt[_AP] - pt[_AP] - (rt[_P] - pt[_P])
             assert abs(jump) <= self.vmax * dt * 2, f"cycle {c}: a position set with a lag jump {jump}"
-            self._shift = float(r["SetPos"]) - float(p["SetPos"]) - 0.5 * (float(p["SetVelo"]) + v) * dt
+            self._shift = rt[_P] - pt[_P] - 0.5 * (pt[_V] + v) * dt
         if enabled:
-            dp = float(r["SetPos"]) - float(p["SetPos"]) - self._shift
-            expect = 0.5 * (float(p["SetVelo"]) + v) * dt
-            tol = self.jerk * dt ** 3 / 6 + 1e-9 * max(1.0, abs(float(r["SetPos"])))
+            dp = rt[_P] - pt[_P] - self._shift
+            expect = 0.5 * (pt[_V] + v) * dt
+            tol = self.jerk * dt ** 3 / 6 + 1e-9 * max(1.0, abs(rt[_P]))
             assert abs(dp - expect) <= tol, (
                 f"cycle {c}: SetPos jump: moved {dp}, the velocities say {expect} (tol {tol})")
             if self.check_jumps:
-                dv = v - float(p["SetVelo"])
+                dv = v - pt[_V]
                 assert abs(dv) <= self.amax * dt * (1 + 1e-6) + 1e-9, f"cycle {c}: SetVelo jump {dv}"
-                da = a - float(p["SetAcc"])
+                da = a - pt[_A]
                 assert abs(da) <= self.jerk * dt * (1 + 1e-6) + 1e-6, f"cycle {c}: SetAcc jump {da}"
         self._shift = 0.0
-        # job records against NCTOPLC
-        sd = int(r["StateDWord"])
-        assert int(j["ActiveCmdNo"]) == int(r["CmdNo"]) and int(j["ActiveState"]) == int(r["CmdState"]), (
-            f"cycle {c}: NCJOBS active {int(j['ActiveCmdNo'])}/{int(j['ActiveState'])} != "
-            f"NCTOPLC {int(r['CmdNo'])}/{int(r['CmdState'])}")
-        buffered = int(j["BufferedCmdNo"])
-        assert bool(buffered) == bool(sd & StateDWord.CmdBuffered), f"cycle {c}: CmdBuffered vs BufferedCmdNo {buffered}"
+        # job records against NCTOPLC (only when something of them changed)
+        key = (j.tobytes(), rt[_NO], rt[_ST], sd & _JOB_BITS)
+        if key == self._job_key:
+            return
+        self._job_key = key
+        jt = j.item()
+        no_r, st_r = rt[_NO], rt[_ST]
+        active, active_st, buffered, mode, newest = jt[1], jt[2], jt[3], jt[4], jt[5]
+        assert active == no_r and active_st == st_r, (
+            f"cycle {c}: NCJOBS active {active}/{active_st} != NCTOPLC {no_r}/{st_r}")
+        assert bool(buffered) == bool(sd & _BUF), f"cycle {c}: CmdBuffered vs BufferedCmdNo {buffered}"
         if buffered:
-            assert buffered == int(j["NewestCmdNo"]), f"cycle {c}: the waiting job {buffered} is not the newest"
-            assert buffered != int(j["ActiveCmdNo"])
+            assert buffered == newest, f"cycle {c}: the waiting job {buffered} is not the newest"
+            assert buffered != active
         else:
-            assert int(j["BufferedMode"]) == 0
-        if sd & StateDWord.HasJob:
-            assert int(r["CmdState"]) == int(CmdState.ACTIVE), f"cycle {c}: HasJob but CmdState {int(r['CmdState'])}"
-        if int(r["CmdState"]) == int(CmdState.ACTIVE):
-            assert sd & StateDWord.HasJob, f"cycle {c}: CmdState ACTIVE without HasJob"
-        old = int(p["CmdNo"])
-        new = int(r["CmdNo"])
-        if old and new != old:
-            assert 0 < (new - old) % 65536 < 32768, f"cycle {c}: CmdNo went back {old} -> {new}"
+            assert mode == 0
+        if sd & _HASJOB:
+            assert st_r == _ACTIVE, f"cycle {c}: HasJob but CmdState {st_r}"
+        if st_r == _ACTIVE:
+            assert sd & _HASJOB, f"cycle {c}: CmdState ACTIVE without HasJob"
+        old = pt[_NO]
+        if old and no_r != old:
+            assert 0 < (no_r - old) % 65536 < 32768, f"cycle {c}: CmdNo went back {old} -> {no_r}"
         seen = set()
-        for e in j["Ended"]:
-            no, st, err = int(e["CmdNo"]), int(e["CmdState"]), int(e["ErrorId"])
+        for no, st, err in jt[7].tolist():
             if not no:
                 continue
             assert no not in seen, f"cycle {c}: {no} twice in Ended"
             seen.add(no)
             assert st in _ENDED, f"cycle {c}: Ended {no} with state {st}"
-            assert err == 0 or st == int(CmdState.ERROR)
+            assert err == 0 or st == _ERROR
             assert no != buffered, f"cycle {c}: {no} both ended and waiting"
             if no in self.fates:
                 assert self.fates[no] == (st, err), f"cycle {c}: the fate of {no} changed {self.fates[no]} -> {(st, err)}"
