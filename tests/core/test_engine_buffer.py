@@ -295,3 +295,45 @@ def test_blending_into_move_velocity():
     assert tr.fate(n1) == (DONE, 0)
     tr.step(50)
     assert tr.rows[-1]["StateDWord"] & StateDWord.ContinuousMotion and tr.rows[-1]["SetVelo"] == pytest.approx(200.0)
+
+
+def test_relative_moves_buffered_refer_to_the_previous_target():
+    core = powered()
+    tr = Trace(core)
+    cmd(core, "MoveRelative", Distance=40.0, Velocity=100.0)
+    tr.step(50)
+    n2 = cmd(core, "MoveRelative", Distance=25.0, Velocity=100.0, BufferMode=LOW)["CmdNo"]
+    tr.settle()
+    assert tr.rows[-1]["SetPos"] == 65.0 and int(tr.rows[-1]["CmdNo"]) == n2
+
+
+def test_move_velocity_buffered_behind_move_velocity():
+    core = powered()
+    tr = Trace(core, vmax=200.0)
+    n1 = cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)["CmdNo"]
+    n2 = cmd(core, "MoveVelocity", Velocity=200.0, Direction=1, BufferMode=BUFFERED)["CmdNo"]
+    tr.until(lambda r: int(r["CmdNo"]) == n2)
+    k = len(tr.rows) - 1
+    assert float(tr.rows[k]["SetVelo"]) == pytest.approx(100.0, abs=1e-9) and ended(tr.jobs[k]) == (n1, DONE, 0)
+    tr.until(lambda r: abs(float(r["SetVelo"]) - 200.0) < 1e-9)
+    assert tr.rows[-1]["StateDWord"] & StateDWord.ContinuousMotion and int(tr.rows[-1]["CmdState"]) == int(CmdState.ACTIVE)
+
+
+def test_enable_off_aborts_the_active_and_the_waiting_job():
+    core, tr, n1, n2 = two_moves(LOW, 100.0, 200.0)
+    tr.step(50)
+    power(core, ctrl=0)
+    r = tr.step()
+    assert tr.fate(n1) == (ABORTED, 0) and tr.fate(n2) == (ABORTED, 0)
+    assert state(core) == S.MC_AXISSTATE_DISABLED and not r["StateDWord"] & StateDWord.CmdBuffered
+
+
+def test_cmdno_wraps_with_a_waiting_job():
+    core = powered()
+    core.queues[0].newest = 65534
+    tr = Trace(core)
+    n1 = cmd(core, "MoveAbsolute", Position=10.0, Velocity=100.0)["CmdNo"]
+    n2 = cmd(core, "MoveAbsolute", Position=20.0, Velocity=100.0, BufferMode=BUFFERED)["CmdNo"]
+    assert (n1, n2) == (65535, 1)
+    tr.settle()
+    assert tr.fate(65535) == (DONE, 0) and tr.fate(1) == (DONE, 0) and int(tr.rows[-1]["CmdNo"]) == 1

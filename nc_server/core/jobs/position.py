@@ -256,9 +256,16 @@ class AdditiveKind(PositionKind):
 
 
 class ModuloKind(PositionKind):
+    """MC_MoveModulo. MC_Current_Direction: the direction of the current motion -- of a job queued
+    behind another, the direction that job travels in (a blend then passes its target moving on)."""
+
     def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         p = core.params[i]
-        velo = float(core.axes.set_velo[i]) if prev is None or base == core.nc_set_pos(i) else 0.0
+        if prev is not None and req.get("BufferMode", 0) != 0:  # queued behind prev
+            start = prev.data.get("start", prev.target)
+            velo = prev.velocity or (prev.target - start if prev.target is not None and start is not None else 0.0)
+        else:
+            velo = float(core.axes.set_velo[i])
         return modulo_target(base, float(req["Position"]), p.AxisEncoderModuloValue, p.AxisModuloToleranceWindow,
                              int(req["Direction"]), velo)
 
