@@ -433,6 +433,24 @@ class NcCore:
             return False
         return True
 
+    def continue_plan(self, i: int, plan: Plan) -> None:
+        """At the end of row ``i``'s plan: follow ``plan``, which starts from that plan's exact end
+        state (:meth:`plan_end_state`), as if it had begun there. This cycle's set-point (not sent
+        yet) is re-evaluated on it, so the composed motion is sampled exactly (jerk-limited, no
+        lateness of up to a cycle)."""
+        a = self.axes
+        _, elapsed = self.plan_end_state(i)
+        self.set_plan(i, plan, elapsed)
+        p, v, acc, j = evaluate(a.seg, np.array([elapsed]), np.array([i]))
+        a.set_pos[i], a.set_velo[i], a.set_acc[i], a.set_jerk[i] = float(p[0]), float(v[0]), float(acc[0]), float(j[0])
+
+    def plan_end_state(self, i: int) -> tuple[StartState, float]:
+        """The exact end state of row ``i``'s current plan and the time since it (>= 0; the plan's
+        end is noticed in the first cycle at or after it)."""
+        a = self.axes
+        p, v, acc, _ = evaluate(a.seg, np.array([a.traj_dur[i]]), np.array([i]))
+        return StartState(float(p[0] + a.origin[i]), float(v[0]), float(acc[0])), max(float(a.traj_t[i] - a.traj_dur[i]), 0.0)
+
     def profile_end(self, i: int) -> float:
         """Position where axis row ``i``'s current plan ends [u]."""
         a = self.axes
@@ -465,11 +483,16 @@ class NcCore:
         self._state_dirty = True
 
     # -- the queue ----------------------------------------------------------------------------
-    def set_plan(self, i: int, plan: Plan) -> None:
-        """Follow ``plan`` on row ``i`` from the next cycle (the running job keeps going)."""
+    def set_plan(self, i: int, plan: Plan, elapsed: float = 0.0) -> None:
+        """Follow ``plan`` on row ``i`` from the next cycle (the running job keeps going).
+
+        Args:
+            elapsed: the time [s] of the plan already gone by at this cycle's set-point (a plan that
+                continues the previous one from its exact end, which lies up to a cycle back).
+        """
         a = self.axes
         a.seg[:, i, :] = plan.seg
-        a.traj_t[i] = 0.0
+        a.traj_t[i] = elapsed
         a.traj_dur[i] = plan.duration
         a.traj_on[i] = True
         if a.origin[i]:
@@ -964,6 +987,7 @@ class NcCore:
                 raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
         self.check_overshoot(i, plan, old.velocity * self.override(i))
         job.dyn = new
+        job.data = trial.data  # with the plan's own state (the ramp to the end velocity)
         return plan
 
 

@@ -90,6 +90,15 @@ def plan_position(start: StartState, target: float, dyn: Dynamics, end_velocity:
         sense = math.copysign(1.0, target - start.p)
     else:
         sense = math.copysign(1.0, start.v or end_velocity or 1.0)
+    if start.v * sense >= 0 and end_velocity * sense >= 0:
+        # heading for the target (or at rest): one way only. With symmetric velocity limits ruckig's
+        # brake pre-profile (the axis faster than the new velocity) may undershoot into the other
+        # direction and come back. Where one way is impossible (a target within the braking
+        # distance: past it and back) the symmetric limits are the answer.
+        try:
+            return _plan(start, dyn, sense, one_way=True)
+        except PlanningError:
+            pass
     return _plan(start, dyn, sense)
 
 
@@ -114,11 +123,17 @@ def hold(p: float) -> Plan:
     return Plan(seg, 0.0, p, p, StartState(p))
 
 
-def _plan(start: StartState, dyn: Dynamics, sense: float) -> Plan:
+def _plan(start: StartState, dyn: Dynamics, sense: float, one_way: bool = False) -> Plan:
     _inp.current_position = [start.p]
     _inp.current_velocity = [start.v]
     _inp.current_acceleration = [start.a]
-    _inp.max_velocity = [max(dyn.velocity, abs(_inp.target_velocity[0]), 1e-12)]
+    vmax = max(dyn.velocity, abs(_inp.target_velocity[0]), 1e-12)
+    if not one_way:
+        _inp.max_velocity, _inp.min_velocity = [vmax], [-vmax]
+    elif sense > 0:
+        _inp.max_velocity, _inp.min_velocity = [vmax], [0.0]
+    else:
+        _inp.max_velocity, _inp.min_velocity = [0.0], [-vmax]
     # Directional limits: towards the goal ('sense') 'acceleration' speeds up and 'deceleration'
     # slows down. A reversal first brakes the current motion and then speeds up the other way
     # with the same sign of acceleration, so that side gets the smaller of the two.
@@ -134,6 +149,8 @@ def _plan(start: StartState, dyn: Dynamics, sense: float) -> Plan:
     try:
         traj = _run()
     except PlanningError:
+        if one_way:  # not possible one way with these dynamics: the caller plans it two ways
+            raise
         # new dynamics may be below the current acceleration; ruckig can fail on such states,
         # so retry with limits widened to cover it
         wide = max(up, down, abs(start.a) * 1.01)

@@ -411,3 +411,101 @@ def test_set_actual_position_on_the_fly_keeps_a_velocity_job_going():
     r = tr.rows[-1]
     assert float(r["SetPos"]) == pytest.approx(10.0, abs=1e-6) and r["SetVelo"] == pytest.approx(100.0)
     assert int(r["CmdNo"]) == n and int(r["CmdState"]) == ACTIVE and math.isclose(float(r["TargetPos"]), float(r["SetPos"]))
+
+
+# -- amendments of moves with an end velocity ----------------------------------------------------
+def continuous_move(end_velo=150.0):
+    core = powered()
+    tr = Trace(core, vmax=200.0)
+    n = cmd(core, "MoveContinuousAbsolute", Position=200.0, Velocity=100.0, EndVelocity=end_velo)["CmdNo"]
+    return core, tr, n
+
+
+def test_new_pos_of_a_continuous_move_keeps_its_end_velocity():
+    core, tr, n = continuous_move()
+    tr.step(800)
+    assert cmd(core, "NewPos", NewPos=250.0)["error"] == 0
+    tr.until(lambda r: r["StateDWord"] & StateDWord.ContinuousMotion, 5000)
+    pos = tr.col("SetPos")
+    assert pos[-2] < 250.0 <= pos[-1] + 1e-9 and velocity_at(tr, 250.0) == pytest.approx(150.0, abs=5.0)
+    tr.step(100)
+    assert tr.rows[-1]["SetVelo"] == pytest.approx(150.0) and int(tr.rows[-1]["CmdNo"]) == n
+
+
+@pytest.mark.parametrize("at", [800, "ramp"])
+def test_new_velocity_of_a_continuous_move_before_its_target(at):
+    """Also during the speed-up ramp just before the target: the target is still passed at EndVelocity."""
+    core, tr, n = continuous_move()
+    if at == "ramp":
+        tr.until(lambda r: r["SetVelo"] > 110.0)
+    else:
+        tr.step(at)
+    assert cmd(core, "NewPosAndVelo", Mode=2, NewVelo=60.0)["error"] == 0
+    tr.until(lambda r: r["StateDWord"] & StateDWord.ContinuousMotion, 10_000)
+    pos = tr.col("SetPos")
+    assert pos[-2] < 200.0 <= pos[-1] + 1e-9 and velocity_at(tr, 200.0) == pytest.approx(150.0, abs=5.0)
+    assert (tr.col("SetVelo") >= 0).all()
+
+
+def test_new_velocity_of_a_continuous_move_past_its_target_is_its_endless_velocity():
+    core, tr, n = continuous_move()
+    tr.until(lambda r: r["StateDWord"] & StateDWord.ContinuousMotion, 5000)
+    assert cmd(core, "NewPosAndVelo", Mode=2, NewVelo=40.0)["error"] == 0
+    tr.step(300)
+    r = tr.rows[-1]
+    assert r["SetVelo"] == pytest.approx(40.0) and r["StateDWord"] & StateDWord.ContinuousMotion
+    assert (tr.col("SetVelo") >= 0).all() and int(r["CmdNo"]) == n and int(r["CmdState"]) == ACTIVE
+
+
+def test_change_dyn_param_before_a_blend_to_a_faster_successor_keeps_the_blend():
+    core = powered()
+    tr = Trace(core, vmax=200.0)
+    cmd(core, "MoveAbsolute", Position=200.0, Velocity=100.0)
+    n2 = cmd(core, "MoveAbsolute", Position=400.0, Velocity=200.0, BufferMode=20)["CmdNo"]
+    tr.step(500)
+    assert cmd(core, "ChangeDynParam", Acceleration=2000.0, Deceleration=2000.0, Jerk=50000.0)["error"] == 0
+    tr.until(lambda r: int(r["CmdNo"]) == n2)
+    assert velocity_at(tr, 200.0) == pytest.approx(200.0, abs=5.0)
+    tr.settle()
+    assert tr.rows[-1]["SetPos"] == 400.0
+
+
+# -- a slower motion never turns back ------------------------------------------------------------
+def slower(how):
+    core, tr, n = moving(target=300.0)
+    if how == "abort":
+        assert cmd(core, "MoveAbsolute", Position=300.0, Velocity=30.0)["error"] == 0
+    elif how == "new velocity":
+        assert cmd(core, "NewPosAndVelo", Mode=2, NewVelo=30.0)["error"] == 0
+    else:
+        from tests.core.nc_helpers import power
+        power(core, override=300_000)
+    return tr
+
+
+@pytest.mark.parametrize("how", ["abort", "new velocity", "override"])
+def test_slowing_down_never_turns_the_axis_back(how):
+    """ruckig's brake pre-profile (the axis faster than its new velocity) undershoots into the other
+    direction when planned with symmetric velocity limits: the NC plans one way."""
+    tr = slower(how)
+    tr.until(lambda r: abs(float(r["SetVelo"]) - 30.0) < 1e-9 and r["StateDWord"] & StateDWord.ConstantVelocity, 3000)
+    assert tr.col("SetVelo").min() >= 0.0
+    assert np.all(np.diff(tr.col("SetPos")) >= 0)
+
+
+@pytest.mark.parametrize("ov_from,ov_to", [(1.0, 0.5), (1.0, 0.3), (0.7, 1.0), (0.7, 0.5)])
+def test_override_change_while_speeding_up_to_a_blend_never_turns_back(ov_from, ov_to):
+    from tests.core.nc_helpers import power
+    core = powered()
+    power(core, override=round(ov_from * 1e6))
+    tr = Trace(core, vmax=200.0)
+    cmd(core, "MoveAbsolute", Position=100.0, Velocity=100.0)
+    n2 = cmd(core, "MoveAbsolute", Position=250.0, Velocity=200.0, BufferMode=20)["CmdNo"]
+    tr.until(lambda r: r["SetVelo"] > 100.0 * ov_from + 10.0)  # in the ramp up to the blending velocity
+    power(core, override=round(ov_to * 1e6))
+    tr.settle()
+    assert tr.col("SetVelo").min() >= 0.0 and np.all(np.diff(tr.col("SetPos")) >= -1e-12)
+    k = tr.first(lambda r, j: int(j["ActiveCmdNo"]) == n2)
+    assert tr.col("SetPos")[:k].max() <= 100.0 + 1e-9 and tr.rows[-1]["SetPos"] == 250.0
+    if ov_to < ov_from:  # the new blending velocity is reachable from here: at the rule times the override
+        assert velocity_at(tr, 100.0) == pytest.approx(200.0 * ov_to, abs=1.0)

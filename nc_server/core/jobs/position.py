@@ -22,6 +22,7 @@ from nc_schema import E_CmdTypeNewTargPosAndVelo as NPV
 from nc_schema import ErrorCodes, MC_Direction, NcError
 
 from ..planning import Dynamics, Plan, StartState, plan_position, plan_velocity
+from ..profile import velocity_extrema
 from .base import ALL_MODES, Job, JobKind
 
 if TYPE_CHECKING:
@@ -149,22 +150,52 @@ class PositionKind(JobKind):
             switch = job.target - sense * d_ramp
             if (switch - start.p) * sense > 0:
                 plan = core.plan(plan_position, start, switch, dyn, v_c)
-                if (plan.p_max - switch if sense > 0 else switch - plan.p_min) <= 1e-9:
+                beyond = plan.p_max - switch if sense > 0 else switch - plan.p_min
+                if beyond <= 1e-9 and not (start.v * sense >= 0 and _turns(plan, sense)):
                     job.data["ramp"] = ve
                     return plan
-        plan = core.plan(plan_position, start, job.target, dyn, ve)
-        if ve and not job.continuous:
-            # lower the end velocity until the path no longer passes the target
-            sense = 1.0 if ve > 0 else -1.0
-            for _ in range(8):
-                beyond = (plan.p_max - job.target) if sense > 0 else (job.target - plan.p_min)
-                if beyond <= 1e-9:
-                    break
-                ve *= 0.5
-                plan = core.plan(plan_position, start, job.target, dyn, ve)
-            else:
-                plan = core.plan(plan_position, start, job.target, dyn, 0.0)
-        return plan
+            elif start.v * sense > 0:
+                # within the ramp already (e.g. a new velocity or dynamics while speeding up to it):
+                # go on speeding up if that ends at the target (ruckig would pass it and come back)
+                plan = core.plan(plan_velocity, start, ve, dyn)
+                if abs(plan.end.p - job.target) <= 1e-6 * max(1.0, abs(ve)):
+                    return plan
+        return self._plan_to_target(core, job, start, dyn, ve)
+
+    @staticmethod
+    def _plan_to_target(core: NcCore, job: Job, start: StartState, dyn: Dynamics, ve: float) -> Plan:
+        """The first acceptable of: the plan with the end velocity ``ve``; the same without ruckig's
+        brake pre-profile (a travel velocity below the current one: an override cut or a slower new
+        velocity close to the target, where braking first to the new velocity leaves too little way and
+        ruckig turns back); lower end velocities; at rest. Acceptable: heading for the target it never
+        turns back on the way, and (with an end velocity) it does not pass the target."""
+        target = job.target
+        assert target is not None
+        sense = 1.0 if target > start.p else (-1.0 if target < start.p else (1.0 if ve >= 0 else -1.0))
+
+        def acceptable(plan: Plan, v_end: float) -> bool:
+            if start.v * sense >= 0 and _turns(plan, sense):
+                return False
+            beyond = (plan.p_max - target) if sense > 0 else (target - plan.p_min)
+            return not v_end or job.continuous or beyond <= 1e-9
+
+        dyns = [dyn]
+        a_ahead = max(start.a * sense, 0.0)
+        v_peak = abs(start.v) + a_ahead * a_ahead / (2 * dyn.jerk) if start.v * sense > 0 else 0.0
+        if v_peak > max(dyn.velocity, abs(ve)):
+            dyns.append(dyn.with_(velocity=v_peak * (1 + 1e-9)))
+        ends = [ve] + ([ve * 0.5 ** k for k in range(1, 9)] + [0.0] if ve and not job.continuous else [])
+        fallback = None
+        for v_end in ends:
+            for d in dyns:
+                plan = core.plan(plan_position, start, target, d, v_end)
+                if acceptable(plan, v_end):
+                    return plan
+                if d is dyn and not v_end:
+                    fallback = plan
+        # nothing better: to rest with the given dynamics, as planned (e.g. a target within the
+        # braking distance: past it and back)
+        return fallback if fallback is not None else core.plan(plan_position, start, target, dyn, 0.0)
 
     def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
         if job.continuous:  # past the target: a velocity job now
@@ -187,7 +218,9 @@ class PositionKind(JobKind):
         if ve is None:
             return False
         assert job.dyn is not None
-        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), ve, job.dyn.scaled(core.override(i))))
+        # from the first part's exact end (up to a cycle back), so that the ramp ends at the target
+        end, _ = core.plan_end_state(i)
+        core.continue_plan(i, core.plan(plan_velocity, end, ve, job.dyn.scaled(core.override(i))))
         core._sync(i)
         return True
 
@@ -221,11 +254,11 @@ class PositionKind(JobKind):
     def apply_change(self, core: NcCore, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
         """A new target and/or velocity from the current set-point state (the job keeps its CmdNo)."""
         start = core.start_state(i)
-        trial = Job(job.kind, job.args, dyn=job.dyn, target=job.target, end_velocity=0.0 if job.continuous else job.end_velocity,
+        trial = Job(job.kind, job.args, dyn=job.dyn, target=job.target, end_velocity=job.end_velocity,
                     data=dict(job.data))
         if base & int(NPV.CHANGE_POS):
             trial.target = float(new_pos)
-            trial.end_velocity = 0.0
+            trial.end_velocity = self.end_velocity_after_change(job, trial.target, start.p)
         if base & int(NPV.CHANGE_VELO):
             assert trial.dyn is not None
             trial.dyn = trial.dyn.with_(velocity=float(new_velo))
@@ -235,9 +268,14 @@ class PositionKind(JobKind):
         core.check_target(i, start.p, trial.target, plan)
         core.check_feed(i, trial.target - start.p)
         job.target, job.dyn, job.end_velocity = trial.target, trial.dyn, trial.end_velocity
+        job.data = trial.data  # with the plan's own state (the ramp to the end velocity)
         job.continuous = False
         job.data["start"] = start.p
         return plan
+
+    def end_velocity_after_change(self, job: Job, target: float, p: float) -> float:
+        """The end velocity after a new target: at rest (a blending successor blends again)."""
+        return 0.0
 
 
 class RelativeKind(PositionKind):
@@ -290,6 +328,22 @@ class ContinuousKind(PositionKind):
         sense = 1.0 if target >= base else -1.0
         return sense * abs(ve)
 
+    def end_velocity_after_change(self, job: Job, target: float, p: float) -> float:
+        """A new target is passed with EndVelocity as well (in the direction it lies in)."""
+        return math.copysign(abs(job.end_velocity), target - p) if job.end_velocity and target != p else 0.0
+
+    def apply_change(self, core: NcCore, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
+        if job.continuous and not base & int(NPV.CHANGE_POS):
+            # past the target, endless at EndVelocity: a new velocity is the new endless velocity
+            assert job.dyn is not None
+            sense = 1.0 if job.end_velocity > 0 else -1.0
+            core.check_feed(i, sense)
+            plan = core.plan(plan_velocity, core.start_state(i), sense * new_velo * core.override(i), job.dyn)
+            core.check_overshoot(i, plan, new_velo * core.override(i))
+            job.end_velocity = sense * new_velo
+            return plan
+        return super().apply_change(core, i, job, base, new_pos, new_velo)
+
     def on_end(self, core: NcCore, i: int, job: Job) -> str:
         if job.phase:  # stopped exactly at a software limit (as MoveVelocity): 0x4462/0x4463
             from .velocity import end_velocity
@@ -340,6 +394,12 @@ class RestartKind(PositionKind):
             assert job.dyn is not None
             job.dyn = Dynamics(job.dyn.velocity, running.dyn.acceleration, running.dyn.deceleration, running.dyn.jerk)
         return job
+
+
+def _turns(plan: Plan, sense: float) -> bool:
+    """The plan's velocity changes to the other direction somewhere (before or after the target)."""
+    lo, hi = velocity_extrema(plan.seg)
+    return lo < -1e-9 if sense > 0 else hi > 1e-9
 
 
 def _switch_reached(core: NcCore, rows: np.ndarray) -> None:
