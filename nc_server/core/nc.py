@@ -371,12 +371,29 @@ class NcCore:
         """Refuse (0x423A) a plan that would exceed both the new and the running motion's velocity,
         or AxisVeloMax: it happens when weaker dynamics meet an accelerating axis."""
         a, job = self.axes, self.queues[i].active
-        running = job.dyn.velocity * a.override[i] if (job is not None and job.dyn is not None and a.traj_on[i]) else 0.0
+        # (a stop's "velocity" is AxisVeloMax, not a velocity it runs at)
+        moving_job = job is not None and job.dyn is not None and a.traj_on[i] and not job.kind.braking
+        running = job.dyn.velocity * a.override[i] if moving_job else 0.0  # type: ignore[union-attr]
         cap = min(max(v_new, running, abs(a.set_velo[i])), a.vmax[i])
         peak = peak_velocity(plan.seg)
         if peak > cap * (1 + 1e-6) + 1e-9:
             raise NcError(ErrorCodes.NC_VELOCITY_OVERFLOW,
                           f"the new dynamics would overshoot to {peak:.6g} u/s (limit {cap:.6g}); use a higher Jerk")
+
+    def check_reversal(self, plan: Plan, start: StartState, sense: float, target: float | None = None) -> None:
+        """Refuse (0x4289) a plan that turns back on its way although the axis already heads that way
+        (``sense``): it happens when weaker dynamics (a lower jerk) meet a braking axis, whose
+        deceleration can then not be reduced in time. A plan that passes its ``target`` first and
+        comes back (a target within the braking distance) is not such a turn."""
+        if start.v * sense <= 0:
+            return
+        lo, hi = velocity_extrema(plan.seg)
+        if not (lo < -1e-9 if sense > 0 else hi > 1e-9):
+            return
+        if target is not None and ((plan.p_max - target) if sense > 0 else (target - plan.p_min)) > 1e-9:
+            return
+        raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL,
+                      "with these dynamics the braking axis would turn back on its way; use a higher Jerk")
 
     def plan(self, fn: Any, *args: Any) -> Plan:
         """Call a planning function; ruckig failures become NcError 0x427E (the motion cannot be
@@ -407,15 +424,19 @@ class NcCore:
             # reduces too slowly with a weaker jerk)
             jerk_ = max(jerk_, job.dyn.jerk)
             cap = max(job.dyn.velocity * a.override[i], abs(v0))
-            if cap > abs(v0):
-                jerk_ = max(jerk_, a0 * a0 / (2 * (cap - abs(v0))))
+            if cap > abs(v0):  # (not beyond the jerk of the axis or of the running motion)
+                jerk_ = max(jerk_, min(a0 * a0 / (2 * (cap - abs(v0))), max(jerk_, float(a.jerk[i]))))
         elif a.traj_on[i] and v0 * a0 < 0:
             # braking: the direction must not reverse (the negative acceleration must reach 0
             # before the velocity does), so never below the braking that already runs
             dec_ = max(dec_, abs(a0))
-            jerk_ = max(jerk_, a0 * a0 / (2 * abs(v0)) * 1.01)
             if job is not None and job.dyn is not None:
                 jerk_ = max(jerk_, job.dyn.jerk)
+            # ... but never beyond the jerk of the axis or of the running motion: a motion on its own
+            # braking curve needs exactly its jerk (no margin beyond rounding); one that cannot stop
+            # without turning even with its own jerk was turning anyway (a reversal under way)
+            cap = max(jerk_, float(a.jerk[i]))
+            jerk_ = max(jerk_, min(a0 * a0 / (2 * abs(v0)) * (1 + 1e-9), cap))
         return Dynamics(float(a.vmax[i]), max(d.acceleration, dec_), dec_, jerk_)
 
     def stop_within(self, i: int, plan: Plan, running: Job | None) -> bool:

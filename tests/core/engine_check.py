@@ -120,9 +120,10 @@ class Trace:
         dt, c = self.dt, self.core.cycle
         pt, rt = p.item(), r.item()
         v, a, jk = rt[_V], rt[_A], rt[_J]
+        # eps: rounding of the planner (relative 1e-6), never a real excess
         assert abs(v) <= self.vmax * (1 + 1e-9) + 1e-9, f"cycle {c}: |SetVelo| {v} > {self.vmax}"
-        assert abs(a) <= self.amax * (1 + 1e-9) + 1e-6, f"cycle {c}: |SetAcc| {a} > {self.amax}"
-        assert abs(jk) <= self.jerk * (1 + 1e-9) + 1e-6, f"cycle {c}: |SetJerk| {jk} > {self.jerk}"
+        assert abs(a) <= self.amax * (1 + 1e-6) + 1e-6, f"cycle {c}: |SetAcc| {a} > {self.amax}"
+        assert abs(jk) <= self.jerk * (1 + 1e-6) + 1e-6, f"cycle {c}: |SetJerk| {jk} > {self.jerk}"
         sd, psd = rt[_SD], pt[_SD]
         enabled = bool(sd & _LOOP) and bool(psd & _LOOP)
         if enabled and self.shift_ok is not None and self.shift_ok(p, r):

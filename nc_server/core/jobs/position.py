@@ -118,6 +118,8 @@ class PositionKind(JobKind):
         core.check_feed(i, sense if sense else job.end_velocity)
         plan = self._plan(core, i, job, start, core.override(i))
         core.check_target(i, start.p, job.target, plan)
+        if sense:
+            core.check_reversal(plan, start, 1.0 if sense > 0 else -1.0, job.target)
         core.check_overshoot(i, plan, max(job.dyn.velocity, abs(job.end_velocity)) * core.override(i))
         job.held = core.override(i) <= 0
         job.data["start"] = start.p

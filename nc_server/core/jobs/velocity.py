@@ -94,6 +94,7 @@ def activate_velocity(core: NcCore, i: int, job: Job, start: StartState) -> Plan
             raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED,
                           f"with Deceleration {job.dyn.deceleration:g} the axis could not stop before the software limit")
     plan = core.plan(plan_velocity, start, job.velocity * ov, job.dyn)
+    core.check_reversal(plan, start, sense)
     core.check_overshoot(i, plan, abs(job.velocity) * ov)
     job.held = ov <= 0
     job.phase = 0
