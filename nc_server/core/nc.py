@@ -721,6 +721,10 @@ class NcCore:
             # job watches and limits
             if self._watch_rows:
                 for kind, rows in self._watch_rows:
+                    if self._state_dirty:  # jobs ended or changed this cycle: only rows still watched
+                        rows = self._still_watched(kind, rows)
+                        if not rows.size:
+                            continue
                     kind.watch(self, rows)
             feed = self._feed_rows  # moving axes with a feed enable missing in some direction
             if feed.size:
@@ -747,6 +751,12 @@ class NcCore:
         if self._state_dirty:
             self._derive_state()
         self._fill_nctoplc()
+
+    def _still_watched(self, kind: Any, rows: np.ndarray) -> np.ndarray:
+        """The rows of ``rows`` whose running job is still one of ``kind`` that wants its watch."""
+        keep = [i for i in rows.tolist()
+                if (j := self.queues[i].active) is not None and j.kind is kind and j.kind.wants_watch(j)]
+        return np.array(keep, dtype=np.intp)
 
     def _plan_ends(self, rows: np.ndarray) -> None:
         a = self.axes

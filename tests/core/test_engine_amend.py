@@ -509,3 +509,16 @@ def test_override_change_while_speeding_up_to_a_blend_never_turns_back(ov_from, 
     assert tr.col("SetPos")[:k].max() <= 100.0 + 1e-9 and tr.rows[-1]["SetPos"] == 250.0
     if ov_to < ov_from:  # the new blending velocity is reachable from here: at the rule times the override
         assert velocity_at(tr, 100.0) == pytest.approx(200.0 * ov_to, abs=1.0)
+
+
+def test_a_job_with_an_armed_switching_position_that_ends_first():
+    """The switching position is never reached: the job ends at its target (the cycle in which it
+    ends must not hand the gone job to its kind's watch -- it raised AttributeError in the NC cycle)."""
+    for name, extra in (("MoveContinuousAbsolute", dict(EndVelocity=0.0)), ("MoveAbsolute", {})):
+        core = powered()
+        tr = Trace(core)
+        n = cmd(core, name, Position=10.0, Velocity=100.0, **extra)["CmdNo"]
+        tr.step(20)
+        assert cmd(core, "NewPosAndVelo", Mode=9, NewPos=30.0, ActivationPos=50.0)["error"] == 0
+        tr.settle()
+        assert tr.rows[-1]["SetPos"] == 10.0 and tr.fate(n) == (DONE, 0) and int(tr.rows[-1]["CmdState"]) == DONE
