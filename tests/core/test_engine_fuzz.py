@@ -1,12 +1,14 @@
 """Random command sequences (fixed seeds) against the per-cycle checks of engine_check.Trace: every
 cycle within the axis limits, no set-point jump, job records consistent with NCTOPLC, fates final --
-whatever the mix of buffered moves, amendments, stops, override changes and jogs."""
+whatever the mix of buffered moves, amendments, stops, override changes, jogs, feed enables, position
+shifts and soft limits."""
 import random
 
 import pytest
 
+from nc_schema import ControlDWord
 from tests.core.engine_check import Trace
-from tests.core.nc_helpers import cmd, power, powered
+from tests.core.nc_helpers import ALL_ENABLES, cmd, power, powered
 
 MODES = [0, 0, 1, 18, 19, 20, 21]
 
@@ -53,27 +55,45 @@ def random_command(rng: random.Random, core) -> tuple[str, dict]:
                               BufferMode=rng.choice(MODES))
 
 
-@pytest.mark.parametrize("seed", range(8))
-def test_random_sequences_keep_the_cycle_rules(seed):
+@pytest.mark.parametrize("limits", [False, True])
+@pytest.mark.parametrize("seed", range(6))
+def test_random_sequences_keep_the_cycle_rules(seed, limits):
     rng = random.Random(seed)
-    core = powered(AxisJerk=100000.0, AxisDec=8000.0)  # MC_Stop's dynamics below stay within the axis limits
+    params = dict(AxisJerk=100000.0, AxisDec=8000.0)  # MC_Stop's dynamics below stay within the axis limits
+    if limits:
+        params.update(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=250.0, AxisEnMinSoftPosLimit=True,
+                      AxisMinSoftPosLimit=-250.0)
+    core = powered(**params)
     tr = Trace(core)
     stopped_at = None
-    for _ in range(60):
-        name, args = random_command(rng, core)
-        if name == "override":
-            power(core, override=args["value"])
+    ctrl = ALL_ENABLES
+    for _ in range(70):
+        k = rng.randrange(20)
+        if k == 0:  # a feed enable withdrawn or given back
+            ctrl = rng.choice([ALL_ENABLES, ALL_ENABLES & ~int(ControlDWord.FeedEnablePlus),
+                               ALL_ENABLES & ~int(ControlDWord.FeedEnableMinus)])
+            power(core, ctrl=ctrl)
+        elif k == 1:
+            d = rng.uniform(-50, 50)
+            if cmd(core, "SetActualPositionOnTheFly", ActualPosition=d, PreviousPosition=0.0)["error"] == 0:
+                tr.shift(d)
         else:
-            rep = cmd(core, name, **args)
-            assert rep["error"] != 0x4000, rep  # never an internal error
-            if name == "Stop" and rep["error"] == 0:
-                stopped_at = len(tr.rows)
+            name, args = random_command(rng, core)
+            if name == "override":
+                power(core, ctrl=ctrl, override=args["value"])
+            else:
+                rep = cmd(core, name, **args)
+                assert rep["error"] != 0x4000, rep  # never an internal error
+                if name == "Stop" and rep["error"] == 0:
+                    stopped_at = len(tr.rows)
         tr.step(rng.choice([1, 2, 5, 20, 50, 120]))
         if stopped_at is not None and len(tr.rows) - stopped_at > 30:
             cmd(core, "StopRelease")
             stopped_at = None
         if core.nctoplc[0]["ErrorCode"]:
             tr.until(lambda r: r["SetVelo"] == 0.0 and not core.axes.traj_on[0], 5000)
+            ctrl = ALL_ENABLES
+            power(core)
             cmd(core, "Reset")
             tr.shift(float(tr.rows[-1]["ActPos"]) - float(tr.rows[-1]["SetPos"]))
     power(core)
