@@ -128,6 +128,10 @@ def _plan(start: StartState, dyn: Dynamics, sense: float, one_way: bool = False)
     _inp.current_velocity = [start.v]
     _inp.current_acceleration = [start.a]
     vmax = max(dyn.velocity, abs(_inp.target_velocity[0]), 1e-12)
+    if abs(start.v) <= vmax * (1 + 1e-9):
+        # a velocity at the limit within rounding is at the limit: no brake pre-profile for it
+        # (ruckig brakes first and plans a different motion for 1 ulp above the limit)
+        vmax = max(vmax, abs(start.v))
     if not one_way:
         _inp.max_velocity, _inp.min_velocity = [vmax], [-vmax]
     elif sense > 0:
@@ -183,10 +187,16 @@ def _segments(traj: Trajectory) -> tuple[np.ndarray, StartState]:
     pt, pp, pv, pa, pj = prof.t, prof.p, prof.v, prof.a, prof.j
     rows += [(pt[k], pp[k], pv[k], pa[k], pj[k]) for k in range(7)]
     acc = prof.accel
-    if acc.duration > 0:
+    post = acc.duration > 0
+    if post:
         at, ap, av, aa, aj = acc.t, acc.p, acc.v, acc.a, acc.j
         rows += [(at[k], ap[k], av[k], aa[k], aj[k]) for k in range(2)]
-        tail = integrate_segment(at[1], ap[1], av[1], aa[1], aj[1])  # the end of the post-profile
+    # Phases of zero duration are left out: ruckig reuses its profile objects, and an unused phase
+    # of the brake/post profiles keeps the values of an earlier calculation (a velocity of another
+    # motion, which the velocity checks would see; it made their answers depend on history).
+    rows = [r for r in rows if r[0] > 0]
+    if post and rows:
+        tail = integrate_segment(*rows[-1])  # the end of the post-profile
     else:
         tail = (pp[7], pv[7], pa[7])
     cols: list[list[float]] = []

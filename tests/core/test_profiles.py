@@ -138,3 +138,28 @@ def test_cmdno_wraps_to_one():
     assert rep["CmdNo"] == 1
     core.step()
     assert core.nctoplc[0]["CmdNo"] == 1
+
+
+def test_plans_do_not_depend_on_earlier_plans():
+    """ruckig reuses its profile objects: an unused brake/post phase keeps an earlier motion's values.
+    Such phases must not reach the segment table (the velocity checks read every segment: a command's
+    answer, 0 or 0x423A, depended on what had been planned before)."""
+    from nc_server.core.planning import Dynamics, StartState, plan_position, plan_velocity
+    from nc_server.core.profile import velocity_extrema
+
+    start = StartState(4.4729944805052675, -56.6064012359121, -2945.966692414831)
+    dyn = Dynamics(50.0, 5000.0, 8000.0, 100000.0)
+    first = plan_position(start, -318.4361482278317, dyn)
+    rng = np.random.default_rng(3)
+    for _ in range(200):  # motions with brake pre-profiles of one and two phases
+        v0 = float(rng.uniform(-400, 400))
+        s = StartState(float(rng.uniform(-200, 200)), v0, float(rng.uniform(-3000, 3000)))
+        d = Dynamics(float(rng.uniform(10, 100)), 5000.0, 8000.0, 100000.0)
+        plan_position(s, float(rng.uniform(-300, 300)), d)
+        plan_velocity(s, float(rng.uniform(-50, 50)), d)
+        again = plan_position(start, -318.4361482278317, dyn)
+        assert again.seg.tobytes() == first.seg.tobytes()
+    lo, hi = velocity_extrema(first.seg)
+    # from -56.6 u/s at -2946 u/s^2 the acceleration needs 2946^2 / 2e5 = 43.4 u/s to come to 0:
+    # -100 u/s at most, then down to -50; never positive
+    assert hi <= 1e-9 and lo == pytest.approx(-56.6064012359121 - 2945.966692414831 ** 2 / 2e5, abs=1e-6)

@@ -54,7 +54,7 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
     if not 0.0 <= target < 1e9:
         raise NcError(ErrorCodes.NC_MODULO_TARGET_INVALID, f"modulo target {target} must be >= 0")
     if direction == _CURRENT:
-        direction = _NEG if current_velo < 0 else _POS
+        direction = _NEG if current_velo < -1e-9 else _POS  # (at rest within rounding: positive)
     base = math.floor(set_pos / period) * period
     if direction == _SHORT:
         if target >= period:
@@ -414,7 +414,10 @@ def _switch_reached(core: NcCore, rows: np.ndarray) -> None:
         mode, at, new_pos, new_velo = job.data["switch"]
         v = float(a.set_velo[i])
         p = float(a.set_pos[i])
-        sense = 1.0 if v >= 0 else -1.0
+        if abs(v) > 1e-9:
+            sense = 1.0 if v > 0 else -1.0
+        else:  # (all but standing: the direction the job heads in)
+            sense = 1.0 if job.target is None or job.target >= p else -1.0
         if mode == int(NPV.REACH_VELO_AT_POS):
             # start the change so that the new velocity is reached at ActivationPos
             assert job.dyn is not None
