@@ -486,7 +486,8 @@ class NcCore:
 
     def shift_position(self, i: int, diff: float) -> None:
         """Shift the NC positions of row ``i`` by ``diff`` [u]: the drive offset takes it, the set
-        position and the running plan (through ``origin``) and the job targets move with it."""
+        position and the running plan (through ``origin``), the job targets and the other positions
+        the jobs keep (:meth:`JobKind.shift`) move with it."""
         a, q = self.axes, self.queues[i]
         a.offset[i] += diff
         a.set_pos[i] += diff
@@ -495,10 +496,14 @@ class NcCore:
             a.origin[i] += diff
             a.changed.append(i)
         for job in (q.active, q.waiting):
-            if job is not None and job.target is not None:
-                job.target += diff
+            if job is not None:
+                if job.target is not None:
+                    job.target += diff
+                job.kind.shift(job, diff)
         self.act_pos = self.act_pos.copy()
         self.act_pos[i] += diff
+        self.prev_act_pos = self.prev_act_pos.copy()  # (a latch compares the last two)
+        self.prev_act_pos[i] += diff
         self._has_offset = True  # from this cycle's drive step on
         self.has_origin = bool(a.origin.any())
         self._state_dirty = True

@@ -522,3 +522,16 @@ def test_a_job_with_an_armed_switching_position_that_ends_first():
         assert cmd(core, "NewPosAndVelo", Mode=9, NewPos=30.0, ActivationPos=50.0)["error"] == 0
         tr.settle()
         assert tr.rows[-1]["SetPos"] == 10.0 and tr.fate(n) == (DONE, 0) and int(tr.rows[-1]["CmdState"]) == DONE
+
+
+def test_set_actual_position_on_the_fly_moves_an_armed_switching_position_with_it():
+    core, tr, n = moving()
+    assert cmd(core, "NewPosAndVelo", Mode=10, NewVelo=30.0, ActivationPos=60.0)["error"] == 0
+    tr.until(lambda r: float(r["SetPos"]) > 40.0)
+    cmd(core, "SetActualPositionOnTheFly", ActualPosition=1040.0, PreviousPosition=40.0)
+    tr.shift(1000.0)
+    tr.settle()
+    pos, vel = tr.col("SetPos"), tr.col("SetVelo")
+    k = int((pos >= 1060.0).argmax())  # the same place on the axis: 60 before the shift
+    assert vel[k] == pytest.approx(100.0) and vel[k + 1] < 100.0 and (vel[:k] >= 100.0 - 1e-9)[300:].all()
+    assert pos[-1] == 1100.0 and int(tr.rows[-1]["CmdNo"]) == n

@@ -353,3 +353,19 @@ def test_plctonc_override_above_100_percent_at_rest():
     core.step()
     assert core.nctoplc[0]["ErrorCode"] == 0x4238 and state(core) == S.MC_AXISSTATE_ERRORSTOP
     assert core.nctoplc[0]["SetVelo"] == 0.0
+
+
+def test_set_actual_position_on_the_fly_before_the_homing_sets_the_position_changes_nothing():
+    """The latched pulse is an NC position like the others: shifted with them, the homing's result is
+    the same (it defines the positions)."""
+    ends = []
+    for shift in (0.0, 1000.0):
+        core, tr, _ = homing_core()
+        cmd(core, "Home", Position=500.0)
+        tr.until(lambda r: int(r["HomingState"]) == int(H.SET_POSITION))
+        if shift:
+            cmd(core, "SetActualPositionOnTheFly", ActualPosition=shift, PreviousPosition=0.0)
+            tr.shift(shift)
+        tr.settle()
+        ends.append(float(tr.rows[-1]["SetPos"]))
+    assert ends[1] == pytest.approx(ends[0], abs=1e-9)

@@ -154,6 +154,12 @@ class JobKind:
         can pass through, or None (a successor then waits for its end, as with Buffered)."""
         return None
 
+    def shift(self, job: Job, diff: float) -> None:
+        """The NC positions were shifted by ``diff`` (MC_SetActualPositionOnTheFly): move the positions
+        the job keeps besides its target (the NC has shifted ``target``)."""
+        if job.data.get("start") is not None:
+            job.data["start"] += diff
+
     def next_base(self, job: Job, core: NcCore, i: int) -> float | None:
         """The position a relative/additive successor refers to (NC position): this job's target;
         None for a job without one (velocity, halt, homing): the successor refers to the set position

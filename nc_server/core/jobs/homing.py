@@ -156,6 +156,12 @@ class HomeKind(JobKind):
                     job.data["latched"] = float(got) + off
                     self._stop(core, i, job, S6)
 
+    def shift(self, job: Job, diff: float) -> None:
+        super().shift(job, diff)
+        for key in ("latched", "armed_at"):  # NC positions of the sequence
+            if job.data.get(key) is not None:
+                job.data[key] += diff
+
     def _leave_cam(self, core: NcCore, i: int, job: Job) -> None:
         p = core.params[i]
         sense = -1.0 if p.AxisInvertSyncPulseSearchDirection else 1.0

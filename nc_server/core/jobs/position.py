@@ -226,6 +226,12 @@ class PositionKind(JobKind):
         core._sync(i)
         return True
 
+    def shift(self, job: Job, diff: float) -> None:
+        super().shift(job, diff)
+        if "switch" in job.data:  # the switching position and a new target move with the axis
+            mode, at, new_pos, new_velo = job.data["switch"]
+            job.data["switch"] = (mode, at + diff, new_pos + diff, new_velo)
+
     def blend_point(self, job: Job) -> tuple[float, float, float] | None:
         if job.target is None or job.dyn is None or job.continuous:
             return None
