@@ -1,12 +1,12 @@
 """Random command sequences (fixed seeds) against the per-cycle checks of engine_check.Trace: every
 cycle within the axis limits, no set-point jump, job records consistent with NCTOPLC, fates final --
 whatever the mix of buffered moves, amendments, stops, override changes, jogs, feed enables, position
-shifts and soft limits."""
+shifts, soft limits and homing."""
 import random
 
 import pytest
 
-from nc_schema import ControlDWord
+from nc_schema import ControlDWord, HomingState
 from tests.core.engine_check import Trace
 from tests.core.nc_helpers import ALL_ENABLES, cmd, power, powered
 
@@ -55,32 +55,48 @@ def random_command(rng: random.Random, core) -> tuple[str, dict]:
                               BufferMode=rng.choice(MODES))
 
 
-@pytest.mark.parametrize("limits", [False, True])
-@pytest.mark.parametrize("seed", range(6))
-def test_random_sequences_keep_the_cycle_rules(seed, limits):
+@pytest.mark.parametrize("variant", ["plain", "limits", "modulo+home"])
+@pytest.mark.parametrize("seed", range(5))
+def test_random_sequences_keep_the_cycle_rules(seed, variant):
     rng = random.Random(seed)
     params = dict(AxisJerk=100000.0, AxisDec=8000.0)  # MC_Stop's dynamics below stay within the axis limits
-    if limits:
+    if variant == "limits":
         params.update(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=250.0, AxisEnMinSoftPosLimit=True,
                       AxisMinSoftPosLimit=-250.0)
+    homing = variant == "modulo+home"
+    if homing:
+        params.update(Modulo=True, AxisCalibrationVelocityForward=100.0, AxisCalibrationVelocityBackward=20.0)
     core = powered(**params)
-    tr = Trace(core)
+    st = {"ctrl": ALL_ENABLES, "direct": False}
+
+    def cam():  # a reference cam every 200 u, seen by the PLC from ActPos
+        on = homing and 150.0 <= float(core.nctoplc[0]["ActPos"]) % 200.0 <= 170.0
+        power(core, ctrl=st["ctrl"] | (int(ControlDWord.HomingSensor) if on else 0),
+              override=int(core.plctonc[0]["Override"]))
+
+    def position_set(p, r):  # homing sets the position at its end, MC_Direct at once
+        direct, st["direct"] = st["direct"], False
+        return direct or (int(p["HomingState"]) == int(HomingState.SET_POSITION) and int(r["HomingState"]) != int(p["HomingState"]))
+
+    tr = Trace(core, before_step=cam, shift_ok=position_set)
     stopped_at = None
-    ctrl = ALL_ENABLES
     for _ in range(70):
         k = rng.randrange(20)
         if k == 0:  # a feed enable withdrawn or given back
-            ctrl = rng.choice([ALL_ENABLES, ALL_ENABLES & ~int(ControlDWord.FeedEnablePlus),
-                               ALL_ENABLES & ~int(ControlDWord.FeedEnableMinus)])
-            power(core, ctrl=ctrl)
+            st["ctrl"] = rng.choice([ALL_ENABLES, ALL_ENABLES & ~int(ControlDWord.FeedEnablePlus),
+                                     ALL_ENABLES & ~int(ControlDWord.FeedEnableMinus)])
         elif k == 1:
             d = rng.uniform(-50, 50)
             if cmd(core, "SetActualPositionOnTheFly", ActualPosition=d, PreviousPosition=0.0)["error"] == 0:
                 tr.shift(d)
+        elif k == 2 and homing:
+            cmd(core, "Home", Position=rng.uniform(-100, 100), BufferMode=rng.choice([0, 1]))
+        elif k == 3 and homing:
+            st["direct"] = cmd(core, "Home", HomingMode=4, Position=rng.uniform(-100, 100))["error"] == 0
         else:
             name, args = random_command(rng, core)
             if name == "override":
-                power(core, ctrl=ctrl, override=args["value"])
+                power(core, ctrl=st["ctrl"], override=args["value"])
             else:
                 rep = cmd(core, name, **args)
                 assert rep["error"] != 0x4000, rep  # never an internal error
@@ -92,11 +108,10 @@ def test_random_sequences_keep_the_cycle_rules(seed, limits):
             stopped_at = None
         if core.nctoplc[0]["ErrorCode"]:
             tr.until(lambda r: r["SetVelo"] == 0.0 and not core.axes.traj_on[0], 5000)
-            ctrl = ALL_ENABLES
-            power(core)
+            st["ctrl"] = ALL_ENABLES
             cmd(core, "Reset")
             tr.shift(float(tr.rows[-1]["ActPos"]) - float(tr.rows[-1]["SetPos"]))
-    power(core)
+    st["ctrl"] = ALL_ENABLES
     cmd(core, "StopRelease")
-    cmd(core, "Halt")
+    cmd(core, "Stop")
     tr.settle(20_000)
