@@ -24,7 +24,6 @@ is rewritten when the position is set.
 from __future__ import annotations
 
 import logging
-import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -42,8 +41,8 @@ from .jobs.base import ABORTING, BLENDING, ENDED_KEPT
 from .jobs.stop import FAULT_RAMP, HALT_RAMP, STOP
 from .monitoring import monitor
 from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
-from .planning import Dynamics, Plan, PlanningError, StartState, plan_position, plan_velocity
-from .profile import evaluate, peak_velocity, stopping_distance, velocity_extrema
+from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
+from .profile import evaluate, peak_velocity, velocity_extrema
 from .stages import ProfileStage
 
 _log = logging.getLogger(__name__)
@@ -646,49 +645,19 @@ class NcCore:
 
     def blend(self, i: int) -> None:
         """Re-plan the running job so that it passes its target with the blending velocity of the
-        waiting job's BufferMode (PLCopen Part 1: Low = the lower, Previous = the running job's,
-        Next = the waiting job's, High = the higher of both velocities). Opposite directions, or a
-        running job without a target (velocity, stop): no blending, the waiting job starts at the end
-        as with Buffered. The velocity is lowered where the running job could not reach it without
-        passing its target, or the waiting job could not stop within its own distance."""
-        q, a = self.queues[i], self.axes
+        waiting job's BufferMode (the rules: ``JobKind.blend_velocity``). A running job without a
+        target (velocity, stop): no blending, the waiting job starts at the end as with Buffered.
+        The plan lowers the velocity where the job could not reach it without passing its target."""
+        q = self.queues[i]
         prev, nxt = q.active, q.waiting
         if prev is None or nxt is None or nxt.buffer_mode not in BLENDING:
             return
         bp = prev.kind.blend_point(prev)
         if bp is None:
             return
-        target, sense, v_prev = bp
-        ov = float(a.override[i])
-        if nxt.target is not None:
-            d_next = (nxt.target - target) * sense
-            v_next = nxt.dyn.velocity if nxt.dyn is not None else 0.0
-        else:
-            d_next = math.inf if nxt.velocity * sense > 0 else -1.0
-            v_next = abs(nxt.velocity)
-        if d_next <= 0:
-            v = 0.0
-        else:
-            mode = nxt.buffer_mode
-            if mode == 18:
-                v = min(v_prev, v_next)
-            elif mode == 19:
-                v = v_prev
-            elif mode == 20:
-                v = v_next
-            else:
-                v = max(v_prev, v_next)
-            v = min(v, float(a.vmax[i]))  # at 100 %: the plan scales it with the override
-            if math.isfinite(d_next) and nxt.dyn is not None and v > 0:
-                # the waiting job must be able to stop within its distance from the blending velocity
-                for _ in range(30):
-                    need = float(stopping_distance(np.array([v]), np.zeros(1), np.array([nxt.dyn.deceleration]),
-                                                   np.array([nxt.dyn.jerk]))[0])
-                    if need <= d_next:
-                        break
-                    v *= 0.8
-                else:
-                    v = 0.0
+        _, sense, _ = bp
+        v = prev.kind.blend_velocity(self, i, prev, nxt)
+        ov = float(self.axes.override[i])
         prev.end_velocity = sense * v
         try:
             plan = prev.kind.replan(self, i, prev, self.start_state(i), ov)
@@ -958,7 +927,7 @@ class NcCore:
             base = running.kind.next_base(running, self, i)
             if base is None:  # no target to refer to: checked from here, fixed where it starts
                 base = self.nc_set_pos(i)
-            kind.activate(self, i, job, StartState(base))
+            kind.activate(self, i, job.trial(), StartState(base))  # a check only: the record stays as accepted
             job.cmd_no = q.newest = next_cmdno(q.newest)
             job.state = int(CmdState.BUFFERED)
             q.waiting = job
@@ -981,7 +950,7 @@ class NcCore:
         if job is None or not (a.traj_on[i] or abs(a.set_velo[i]) > _EPS_V):
             raise NcError(ErrorCodes.MC_AXIS_NOT_MOVING, f"{req['cmd']}: the axis has no moving command to change")
         if req["cmd"] == "ChangeDynParam":
-            plan = self._change_dyn(i, job, req)
+            plan = job.kind.change_dynamics(self, i, job, req)
         else:
             plan = job.kind.amend(self, i, job, req)
         job.amended = True
@@ -993,38 +962,6 @@ class NcCore:
             self.blend(i)
         self._sync(i)
         return {"cmd_no": job.cmd_no}
-
-    def _change_dyn(self, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
-        """MC_ChangeDynParam (TcMC 4.20): new dynamics for the running job, or a refusal that keeps
-        the current ones: 0x425D a stop runs, 0x427F the target would be passed, 0x423A the
-        velocity would overshoot, 0x4289 the direction would reverse."""
-        if job.kind.is_stop:
-            raise NcError(ErrorCodes.NC_ESTOP_ALREADY_ACTIVE, "a stop with its own dynamics is running")
-        old = job.dyn or self.dynamics(i, {}, None)
-        new = self.dynamics(i, req, old.velocity)
-        start = self.start_state(i)
-        trial = Job(job.kind, job.args, dyn=new, target=job.target, velocity=job.velocity,
-                    end_velocity=job.end_velocity, continuous=job.continuous, data=dict(job.data))
-        plan = job.kind.replan(self, i, trial, start, self.override(i))
-        if plan is None:
-            raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"a {job.kind.name} command has no dynamics to change")
-        if job.target is not None:
-            sense = 1.0 if job.target >= start.p else -1.0
-            beyond = plan.p_max - job.target if sense > 0 else job.target - plan.p_min
-            if beyond > 1e-9:
-                raise NcError(ErrorCodes.NC_NEW_TARGET_OVERRUN, "the target would be passed with these dynamics")
-            back = start.p - plan.p_min if sense > 0 else plan.p_max - start.p
-            if back > 1e-9:
-                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
-        elif start.v:
-            # a velocity job: braking towards a lower velocity of the same direction must not cross 0
-            lo, hi = velocity_extrema(plan.seg)
-            if (lo < -1e-9 if start.v > 0 else hi > 1e-9) and job.velocity * start.v > 0:
-                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
-        self.check_overshoot(i, plan, old.velocity * self.override(i))
-        job.dyn = new
-        job.data = trial.data  # with the plan's own state (the ramp to the end velocity)
-        return plan
 
 
 def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
@@ -1050,9 +987,8 @@ def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
             a.lag_timer[i] = 0.0
             ramp = q.active
             if ramp is None or not ramp.numbered:
-                job = Job(STOP, {}, dyn=ramp.dyn if ramp is not None else None)
-                job.cmd_no = q.newest = next_cmdno(q.newest)
-                job.state = int(CmdState.ACTIVE)
+                job = STOP.from_ramp(ramp, next_cmdno(q.newest))
+                q.newest = job.cmd_no
                 q.active = q.shown = job
                 a.stopped[i] = True
             core._sync(i)

@@ -14,7 +14,8 @@ a further buffered command is refused with 0x4292.
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping
 
 import numpy as np
@@ -22,6 +23,7 @@ import numpy as np
 from nc_schema import CmdState, ErrorCodes, MC_BufferMode, NcError
 
 from ..planning import Dynamics, Plan, StartState
+from ..profile import stopping_distance, velocity_extrema
 
 if TYPE_CHECKING:
     from ..nc import NcCore
@@ -63,6 +65,11 @@ class Job:
     @property
     def numbered(self) -> bool:
         return self.cmd_no != 0
+
+    def trial(self) -> Job:
+        """A copy to activate or re-plan on approval: the record itself changes only when the NC
+        adopts the result (a check, a refusal or a dry run leaves it as it was)."""
+        return replace(self, data=dict(self.data))
 
     def __repr__(self) -> str:
         return f"Job({self.kind.name} #{self.cmd_no} {CmdState(self.state).name})"
@@ -113,7 +120,11 @@ class JobKind:
         raise NotImplementedError
 
     def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
-        """Check the axis state and plan the job from ``start`` (pure: changes nothing).
+        """Check the axis state and plan the job from ``start``.
+
+        It changes nothing but ``job`` (what the plan needs to know later: phase, held, the start
+        of the move, ...). The NC checks a buffered job on ``job.trial()``, a copy, so a check
+        never changes the record; the planning itself (``planning``) is a pure function.
 
         Raises:
             NcError: the job cannot start here.
@@ -148,6 +159,81 @@ class JobKind:
             NcError: 0x4B05 this kind cannot be amended so.
         """
         raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"a {self.name} command cannot be changed so")
+
+    def change_dynamics(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
+        """MC_ChangeDynParam (TcMC 4.20): new dynamics for the running job, or a refusal that keeps
+        the current ones: 0x425D a stop runs, 0x427F the target would be passed, 0x423A the
+        velocity would overshoot, 0x4289 the direction would reverse. Generic: re-plans with
+        :meth:`replan` on a trial copy and adopts it only when every check passed.
+
+        Raises:
+            NcError: the TwinCAT code of the refusal.
+        """
+        if self.braking:
+            raise NcError(ErrorCodes.NC_ESTOP_ALREADY_ACTIVE, "a stop with its own dynamics is running")
+        old = job.dyn or core.dynamics(i, {}, None)
+        new = core.dynamics(i, req, old.velocity)
+        start = core.start_state(i)
+        trial = job.trial()
+        trial.dyn = new
+        plan = self.replan(core, i, trial, start, core.override(i))
+        if plan is None:
+            raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"a {self.name} command has no dynamics to change")
+        if job.target is not None:
+            sense = 1.0 if job.target >= start.p else -1.0
+            beyond = plan.p_max - job.target if sense > 0 else job.target - plan.p_min
+            if beyond > 1e-9:
+                raise NcError(ErrorCodes.NC_NEW_TARGET_OVERRUN, "the target would be passed with these dynamics")
+            back = start.p - plan.p_min if sense > 0 else plan.p_max - start.p
+            if back > 1e-9:
+                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
+        elif start.v:
+            # a velocity job: braking towards a lower velocity of the same direction must not cross 0
+            lo, hi = velocity_extrema(plan.seg)
+            if (lo < -1e-9 if start.v > 0 else hi > 1e-9) and job.velocity * start.v > 0:
+                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
+        core.check_overshoot(i, plan, old.velocity * core.override(i))
+        job.dyn = new
+        job.data = trial.data  # with the plan's own state (the ramp to the end velocity)
+        return plan
+
+    def blend_velocity(self, core: NcCore, i: int, job: Job, nxt: Job) -> float:
+        """The velocity [u/s, >= 0, at 100 % override] with which ``job`` passes its target when
+        ``nxt`` waits behind it with a Blending BufferMode (PLCopen Part 1: Low = the lower,
+        Previous = this job's, High = the higher of both, Next = the waiting job's velocity).
+        Opposite directions: 0. Lowered until ``nxt`` can still stop within its own distance.
+        Only called for jobs with a :meth:`blend_point`."""
+        bp = self.blend_point(job)
+        if bp is None:
+            return 0.0
+        target, sense, v_prev = bp
+        if nxt.target is not None:
+            d_next = (nxt.target - target) * sense
+            v_next = nxt.dyn.velocity if nxt.dyn is not None else 0.0
+        else:
+            d_next = math.inf if nxt.velocity * sense > 0 else -1.0
+            v_next = abs(nxt.velocity)
+        if d_next <= 0:
+            return 0.0
+        mode = nxt.buffer_mode
+        if mode == int(MC_BufferMode.MC_BlendingLow):
+            v = min(v_prev, v_next)
+        elif mode == int(MC_BufferMode.MC_BlendingPrevious):
+            v = v_prev
+        elif mode == int(MC_BufferMode.MC_BlendingNext):
+            v = v_next
+        else:
+            v = max(v_prev, v_next)
+        v = min(v, float(core.axes.vmax[i]))  # at 100 %: the plan scales it with the override
+        if math.isfinite(d_next) and nxt.dyn is not None and v > 0:
+            dec, jerk = np.array([nxt.dyn.deceleration]), np.array([nxt.dyn.jerk])
+            for _ in range(30):  # the waiting job must be able to stop within its distance
+                if float(stopping_distance(np.array([v]), np.zeros(1), dec, jerk)[0]) <= d_next:
+                    break
+                v *= 0.8
+            else:
+                v = 0.0
+        return v
 
     def blend_point(self, job: Job) -> tuple[float, float, float] | None:
         """(target, direction of travel +-1, velocity at 100 %) of a job that a blending successor

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, Mapping
 
-from nc_schema import ErrorCodes, NcError
+from nc_schema import CmdState, ErrorCodes, NcError
 
 from ..planning import Dynamics, Plan, StartState, hold, plan_position, plan_velocity
 from .base import ALL_MODES, Job, JobKind
@@ -61,6 +61,13 @@ class StopKind(JobKind):
 
     def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
         return _stop_plan(core, i, job, start)
+
+    def from_ramp(self, ramp: Job | None, cmd_no: int) -> Job:
+        """MC_Reset during an NC stop ramp: the ramp goes on as a numbered MC_Stop job (the axis shows
+        Stopping until it stands, never StandStill while moving)."""
+        job = Job(self, {}, dyn=ramp.dyn if ramp is not None else None, cmd_no=cmd_no)
+        job.state = int(CmdState.ACTIVE)
+        return job
 
     def on_end(self, core: NcCore, i: int, job: Job) -> str:
         if job.data.get("release"):  # Execute fell during the ramp: unlock now that it stands
