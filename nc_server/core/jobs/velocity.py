@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
+from nc_schema import E_CmdTypeNewTargPosAndVelo as NPV
 from nc_schema import E_JogMode, ErrorCodes, MC_Direction, NcError
 
 from ..planning import Dynamics, Plan, StartState, plan_position, plan_velocity
@@ -73,6 +74,50 @@ class VelocityKind(JobKind):
 
     def watch(self, core: NcCore, rows: np.ndarray) -> None:
         limit_approach(core, rows)
+
+    def amend(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
+        return amend_velocity(core, i, job, req)
+
+
+_TO_POSITION = PositionKind("MoveAbsolute")  # what an endless move becomes with a new target
+
+
+def amend_velocity(core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
+    """MC_NewPos / MC_NewPosAndVelo on an endless move (TcMC 3.7/3.8: "an axis in motion"):
+    CHANGE_VELO gives it a new velocity (same direction); NewPos, CHANGE_POS and CHANGE_POSANDVELO
+    turn it into a positioning to NewPos (same CmdNo, then Done there). The switching-position
+    modes (9, 10, 11, 14) need a target to switch on and are refused with 0x4B05 here."""
+    if req["cmd"] == "NewPos":
+        mode, new_pos, new_velo = int(NPV.CHANGE_POS), req["NewPos"], 0.0
+    else:
+        mode, new_pos, new_velo = req["Mode"], req["NewPos"], req["NewVelo"]
+    if mode not in {int(m) for m in NPV}:
+        raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_CmdTypeNewTargPosAndVelo")
+    if job.phase:
+        raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, "the axis is being stopped at a software limit")
+    if mode not in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
+        raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED,
+                      f"Mode {mode}: a switching position needs a target; an endless move has none")
+    assert job.dyn is not None
+    if mode == int(NPV.CHANGE_VELO):
+        core.check_velocity(i, new_velo)
+        sense = 1.0 if job.velocity > 0 else -1.0
+        dyn = job.dyn.with_(velocity=float(new_velo))
+        start = core.start_state(i)
+        plan = core.plan(plan_velocity, start, sense * new_velo * core.override(i), dyn)
+        core.check_overshoot(i, plan, new_velo * core.override(i))
+        job.velocity, job.dyn = sense * float(new_velo), dyn
+        job.data["steady"] = False
+        return plan
+    trial = job.trial()
+    trial.kind, trial.continuous, trial.velocity = _TO_POSITION, False, 0.0
+    if mode == int(NPV.CHANGE_POSANDVELO):
+        core.check_velocity(i, new_velo)
+    core.check_target(i, core.nc_set_pos(i), new_pos)
+    plan = _TO_POSITION.apply_change(core, i, trial, mode & 3, new_pos, new_velo)
+    for name in ("kind", "target", "dyn", "end_velocity", "continuous", "velocity", "data"):
+        setattr(job, name, getattr(trial, name))
+    return plan
 
 
 def activate_velocity(core: NcCore, i: int, job: Job, start: StartState) -> Plan:
