@@ -583,6 +583,9 @@ class NcCore:
         a, q = self.axes, self.queues[i]
         j = q.active
         numbered = j is not None and j.numbered
+        held = j is not None and j.held
+        if a.traj_on[i] and (a.has_job[i] != numbered or a.held[i] != held):
+            a.changed.append(i)  # the buffered set-point bits depend on both
         a.has_job[i] = numbered
         a.continuous[i] = numbered and j.continuous  # type: ignore[union-attr]
         a.homing[i] = numbered and j.kind.homing  # type: ignore[union-attr]
@@ -590,7 +593,7 @@ class NcCore:
         a.buffered[i] = q.waiting is not None
         a.hold_enable[i] = j is not None and j.kind.holds_enable
         a.driving[i] = numbered and j.kind.feed_checked and not j.held  # type: ignore[union-attr]
-        a.held[i] = j is not None and j.held
+        a.held[i] = held
         a.watch_kind[i] = KINDS_INDEX.get(j.kind.name, -1) if (j is not None and j.kind.wants_watch(j)) else -1
         a.homing_state[i] = j.phase if numbered and j.kind.homing else 0  # type: ignore[union-attr]
         shown = q.shown
@@ -812,10 +815,9 @@ class NcCore:
             self._state_dirty = False
         self.on_rows = a.traj_on.nonzero()[0]
         self.all_on = self.on_rows.size == a.n
-        if a.changed:  # re-evaluate the rest of the buffer for the axes whose profile changed
-            rows = np.array(sorted(set(a.changed)), dtype=np.intp)
+        if a.changed:  # the axes whose profile changed are evaluated afresh at the next profile run
+            self.profile.refresh(self, a.changed)
             a.changed.clear()
-            self.profile.refresh(self, rows[a.traj_on[rows]])
         job = a.has_job
         watch = a.watch_kind
         self._watch_rows = []

@@ -44,6 +44,42 @@ def evaluate(seg: np.ndarray, t: np.ndarray, rows: np.ndarray | None) -> tuple[n
     return pos, velo, acc, j
 
 
+def evaluate_block(seg: np.ndarray, t: np.ndarray, rows: np.ndarray | slice, base: np.ndarray,
+                   out: np.ndarray) -> None:
+    """Evaluate the segment rows ``rows`` at a block of times each, into ``out`` (the profile stage's refill).
+
+    The same arithmetic as :func:`evaluate` (bit for bit), shaped for many samples per row: the
+    segment search compares each row's segment starts once against all its sample times.
+
+    Args:
+        seg: (5, N, N_SEGMENTS) table of all axes: t0, p, v, a, j.
+        t: (m, ncol) times since the profile start [s] (> 0), one row per selected axis.
+        rows: the m selected axis rows (an index array or a slice).
+        base: ``rows * N_SEGMENTS`` as an (m, 1) array (the row offsets into the flat table).
+        out: (4, m, ncol) array receiving position, velocity, acceleration, jerk.
+    """
+    # the segment in force is the one before the first that starts later: with t0[0] = 0 <= t that
+    # is the first of t0[1:] that starts later (the sentinel never starts) -- evaluate()'s k exactly
+    k = np.argmax(seg[0, rows, 1:][:, None, :] > t[:, :, None], axis=2)
+    k += base
+    t0, p0, v0, a0, j = seg.reshape(5, -1)[:, k]  # one gather for all five columns, (m, ncol) each
+    tau = t - t0
+    tj = tau * j
+    pos, velo, acc, jerk = out
+    np.multiply(tj, 1.0 / 6.0, out=pos)  # p0 + tau * (v0 + tau * (a0 * 0.5 + tau * j * (1 / 6)))
+    pos += a0 * 0.5
+    pos *= tau
+    pos += v0
+    pos *= tau
+    pos += p0
+    np.multiply(tj, 0.5, out=velo)  # v0 + tau * (a0 + tau * j * 0.5)
+    velo += a0
+    velo *= tau
+    velo += v0
+    np.add(a0, tj, out=acc)
+    jerk[...] = j
+
+
 def velocity_extrema(seg: np.ndarray) -> tuple[float, float]:
     """(lowest, highest) signed velocity of one axis's segment row (5, N_SEGMENTS) over the whole profile.
 
