@@ -3,9 +3,17 @@ from __future__ import annotations
 
 import pytest
 
-from plc_rig import Rig
+from plc_rig import Rig, ScriptNc
 
 
 @pytest.fixture
 def rig() -> Rig:
     return Rig()
+
+
+@pytest.fixture
+def nc() -> ScriptNc:
+    """A scripted NC (one axis, id 1) after its first frame."""
+    t = ScriptNc()
+    t.cycle_once()
+    return t

@@ -8,8 +8,7 @@ from plc_client import (
     MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset,
     MC_SetOverride,
 )
-from plc_rig import Rig
-from test_fb_move import powered
+from plc_rig import Rig, powered
 
 
 def test_power_on_and_off(rig: Rig) -> None:
@@ -116,8 +115,7 @@ def test_reset_clears_an_axis_error(rig: Rig) -> None:
 
 def test_set_override_on_a_controlled_axis(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, so = MC_MoveVelocity(), MC_SetOverride()
-    rig.watch(mv, so)
+    mv, so = rig.watch(MC_MoveVelocity(), MC_SetOverride())
     st = {"so": False, "ov": 50.0}
 
     def body(p):
@@ -144,8 +142,7 @@ def test_set_override_on_a_controlled_axis(rig: Rig) -> None:
 def test_set_override_on_an_axis_not_controlled(rig: Rig) -> None:
     plc = rig.plc()
     ax = plc.axis("nc1", 2)
-    so = MC_SetOverride()
-    rig.watch(so)
+    so = rig.watch(MC_SetOverride())
     plc.program = lambda p: so(Axis=ax, Execute=True, Override=25.0)
     rig.run(1)
     assert so.Busy  # sent as an NC command

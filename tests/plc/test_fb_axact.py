@@ -10,9 +10,8 @@ import pytest
 
 from nc_schema import ErrorCodes, make_reply
 from nc_server.core import AxisParams
-from plc_client import AXACT, AXIS_REF, MC_Power
-from plc_rig import Rig
-from test_fb_buffer_contract import ScriptNc
+from plc_client import AXACT, AXIS_REF
+from plc_rig import Rig, ScriptNc, powered
 
 P = AxisParams()
 
@@ -139,21 +138,6 @@ def test_contract_read_error_and_bad_value() -> None:
 
 
 # ---- against the real NC ------------------------------------------------------------------------------
-def powered(rig: Rig, client: str = "plc1", axis_id: int = 1) -> tuple[AXIS_REF, dict]:
-    plc = rig.plc(client)
-    ax = plc.axis("nc1", axis_id)
-    pw = MC_Power()
-    calls: dict = {"body": lambda p: None}
-
-    def program(p: Any) -> None:
-        pw(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
-        calls["body"](p)
-
-    plc.program = program
-    rig.run_until(lambda: pw.Status, 10)
-    return ax, calls
-
-
 def check(fb: AXACT) -> None:
     if not fb.ERR:
         assert fb.ERRID == 0
@@ -182,7 +166,7 @@ def edge(rig: Rig, calls: dict, fb: AXACT, **inputs: Any) -> None:
 
 
 def test_mode_1_absolute_busy_until_accepted(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     calls["body"] = lambda p: fb(AXID=1, START=True, MODE=1, TARGPOS=30.0, VELOCITY=100.0)
     rig.run(1)
@@ -196,7 +180,7 @@ def test_mode_1_absolute_busy_until_accepted(rig: Rig) -> None:
 
 
 def test_modes_2_3_4_relative_and_continuous(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     edge(rig, calls, fb, AXID=1, START=True, MODE=2, TARGPOS=-5.0, VELOCITY=50.0)
     rig.run_until(lambda: not ax.Status.HasJob, 200)
@@ -228,7 +212,7 @@ def modulo_rig() -> Rig:
 ])
 def test_modulo_modes(mode: int, targ: float, end: float, direction: int) -> None:
     rig = modulo_rig()
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     edge(rig, calls, fb, AXID=1, START=True, MODE=1, TARGPOS=90.0, VELOCITY=500.0)
     rig.run_until(lambda: not ax.Status.HasJob and ax.Status.InTargetPosition, 300)
@@ -244,7 +228,7 @@ def test_modulo_modes(mode: int, targ: float, end: float, direction: int) -> Non
 
 def test_mode_1029_current_direction() -> None:
     rig = modulo_rig()
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     edge(rig, calls, fb, AXID=1, START=True, MODE=4, VELOCITY=30.0)  # moving negative
     rig.run(10)
@@ -258,7 +242,7 @@ def test_mode_1029_current_direction() -> None:
                                         (528, P.AxisVeloManFast), (529, -P.AxisVeloManFast),
                                         (784, P.AxisRapidTraverseVelocity), (785, -P.AxisRapidTraverseVelocity)])
 def test_manual_and_rapid_velocities(rig: Rig, mode: int, velo: float) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     edge(rig, calls, fb, AXID=1, START=True, MODE=mode, VELOCITY=float("nan"), TARGPOS=float("nan"))
     assert not fb.ERR, f"0x{fb.ERRID:X} (VELOCITY/TARGPOS are not used in this mode)"
@@ -272,7 +256,7 @@ def test_manual_and_rapid_velocities(rig: Rig, mode: int, velo: float) -> None:
                                         (801, -0.01), (1056, 0.1), (1057, -0.1), (1312, 1.0), (1313, -1.0)])
 def test_relative_steps(mode: int, dist: float) -> None:
     rig = Rig(params=AxisParams(AxisEncoderScalingFactor=0.25, AxisTargetPositionWindow=0.0001))
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     seen: list[float] = []
     edge(rig, calls, fb, AXID=1, START=True, MODE=mode)
@@ -286,7 +270,7 @@ def test_relative_steps(mode: int, dist: float) -> None:
 
 
 def test_reads_parameters_at_every_start(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     edge(rig, calls, fb, AXID=1, START=True, MODE=784)
     rig.run(30)
@@ -298,7 +282,7 @@ def test_reads_parameters_at_every_start(rig: Rig) -> None:
 
 
 def test_stop_wins_over_start(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     edge(rig, calls, fb, AXID=1, START=True, MODE=3, VELOCITY=40.0)
     rig.run(20)
@@ -312,7 +296,7 @@ def test_stop_wins_over_start(rig: Rig) -> None:
 
 
 def test_edges_while_busy_are_ignored(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     plc = rig.plcs["plc1"]
     plc.port.hold = True  # keep BUSY up: the replies are held back
@@ -334,7 +318,7 @@ def test_edges_while_busy_are_ignored(rig: Rig) -> None:
 
 
 def test_invalid_mode_and_reset_by_the_next_command(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     before = int(rig.rec()["CmdNo"])
     edge(rig, calls, fb, AXID=1, START=True, MODE=6, TARGPOS=1.0, VELOCITY=1.0)
@@ -357,7 +341,7 @@ def test_invalid_mode_and_reset_by_the_next_command(rig: Rig) -> None:
 
 
 def test_timeout_gives_745(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     fb = AXACT()
     plc = rig.plcs["plc1"]
     plc.port.hold = True  # the NC executes, its replies never arrive

@@ -17,8 +17,7 @@ from plc_client import (
     MC_MoveContinuousAbsolute, MC_MoveContinuousRelative, MC_MoveRelative, MC_MoveVelocity, MC_NewPos,
     MC_NewPosAndVelo, MC_OrientedStop,
 )
-from plc_rig import Rig
-from test_fb_move import powered
+from plc_rig import Rig, powered
 
 
 def first(trace: list[dict[str, Any]], output: str) -> int:
@@ -38,8 +37,7 @@ def velocity_at(log: list[tuple[float, float]], pos: float) -> float:
 def two_moves(rig: Rig, mode: int, log: list[tuple[float, float]] | None = None) -> tuple[Any, Any, Any]:
     """mv1 to 50 at 100 u/s, then (while it runs) mv2 to 120 at 200 u/s with ``mode``; until mv2 is Done."""
     ax, _, calls = powered(rig)
-    mv1, mv2 = MC_MoveAbsolute(), MC_MoveAbsolute()
-    rig.watch(mv1, mv2)
+    mv1, mv2 = rig.watch(MC_MoveAbsolute(), MC_MoveAbsolute())
     st = {"go2": False}
 
     def body(p):
@@ -86,8 +84,7 @@ def test_velocity_at_the_transition_point(rig: Rig, mode: int, lo: float, hi: fl
 
 def test_buffered_behind_a_velocity_move_starts_at_in_velocity(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, halt = MC_MoveVelocity(), MC_Halt()
-    rig.watch(mv, halt)
+    mv, halt = rig.watch(MC_MoveVelocity(), MC_Halt())
     calls["body"] = lambda p: (mv(Axis=ax, Execute=True, Velocity=100.0),
                                halt(Axis=ax, Execute=mv.Busy or halt.Busy or halt.Done, BufferMode=1))
     rig.run_until(lambda: halt.Done, 500)
@@ -98,8 +95,7 @@ def test_buffered_behind_a_velocity_move_starts_at_in_velocity(rig: Rig) -> None
 
 def test_second_buffered_command_is_refused(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv1, mv2, mv3 = MC_MoveAbsolute(), MC_MoveRelative(), MC_MoveRelative()
-    rig.watch(mv1, mv2, mv3)
+    mv1, mv2, mv3 = rig.watch(MC_MoveAbsolute(), MC_MoveRelative(), MC_MoveRelative())
     st = {"go": False}
 
     def body(p):
@@ -119,8 +115,7 @@ def test_second_buffered_command_is_refused(rig: Rig) -> None:
 
 def test_aborting_command_aborts_the_active_and_the_waiting_one(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv1, mv2, mv3 = MC_MoveAbsolute(), MC_MoveAbsolute(), MC_MoveAbsolute()
-    rig.watch(mv1, mv2, mv3)
+    mv1, mv2, mv3 = rig.watch(MC_MoveAbsolute(), MC_MoveAbsolute(), MC_MoveAbsolute())
     st = {"go2": False, "go3": False}
 
     def body(p):
@@ -144,8 +139,7 @@ def test_aborting_command_aborts_the_active_and_the_waiting_one(rig: Rig) -> Non
 @pytest.mark.parametrize("new_pos", [40.0, 90.0])
 def test_new_pos_ends_the_move_done_at_the_new_target(rig: Rig, new_pos: float) -> None:
     ax, _, calls = powered(rig)
-    mv, npos = MC_MoveAbsolute(), MC_NewPos()
-    rig.watch(mv, npos)
+    mv, npos = rig.watch(MC_MoveAbsolute(), MC_NewPos())
     st = {"go": False}
 
     def body(p):
@@ -168,8 +162,7 @@ def test_new_pos_ends_the_move_done_at_the_new_target(rig: Rig, new_pos: float) 
 
 def test_new_pos_on_an_axis_at_rest_is_refused(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    npos = MC_NewPos()
-    rig.watch(npos)
+    npos = rig.watch(MC_NewPos())
     calls["body"] = lambda p: npos(Axis=ax, Execute=True, NewPos=5.0)
     rig.run_until(lambda: not npos.Busy, 5)
     assert npos.Error and npos.ErrorID == ErrorCodes.MC_AXIS_NOT_MOVING == 0x4B03
@@ -177,8 +170,7 @@ def test_new_pos_on_an_axis_at_rest_is_refused(rig: Rig) -> None:
 
 def test_new_pos_and_velo(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, npv = MC_MoveAbsolute(), MC_NewPosAndVelo()
-    rig.watch(mv, npv)
+    mv, npv = rig.watch(MC_MoveAbsolute(), MC_NewPosAndVelo())
     st = {"go": False}
     log: list[tuple[float, float]] = []
 
@@ -198,8 +190,7 @@ def test_new_pos_and_velo(rig: Rig) -> None:
 
 def test_move_additive_adds_to_the_aborted_target(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, add = MC_MoveAbsolute(), MC_MoveAdditive()
-    rig.watch(mv, add)
+    mv, add = rig.watch(MC_MoveAbsolute(), MC_MoveAdditive())
     st = {"go": False}
 
     def body(p):
@@ -220,8 +211,7 @@ def test_move_additive_adds_to_the_aborted_target(rig: Rig) -> None:
 ])
 def test_move_continuous_in_end_velocity(rig: Rig, cls: Any, inputs: dict, target: float) -> None:
     ax, _, calls = powered(rig)
-    mc, halt = cls(), MC_Halt()
-    rig.watch(mc, halt)
+    mc, halt = rig.watch(cls(), MC_Halt())
     st = {"halt": False}
 
     def body(p):
@@ -246,8 +236,7 @@ def test_move_continuous_in_end_velocity(rig: Rig, cls: Any, inputs: dict, targe
 
 def test_move_absolute_or_restart(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveAbsoluteOrRestart()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsoluteOrRestart())
     st = {"ex": True, "pos": 100.0}
     calls["body"] = lambda p: mv(Axis=ax, Execute=st["ex"], Position=st["pos"], Velocity=50.0)
     rig.run_until(lambda: mv.Active and ax.ActPos > 20.0, 100)
@@ -265,8 +254,7 @@ def test_move_absolute_or_restart(rig: Rig) -> None:
 
 def test_change_dyn_param_done_at_the_destination(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, cd = MC_MoveAbsolute(), MC_ChangeDynParam()
-    rig.watch(mv, cd)
+    mv, cd = rig.watch(MC_MoveAbsolute(), MC_ChangeDynParam())
     st = {"go": False}
 
     def body(p):
@@ -286,8 +274,7 @@ def test_change_dyn_param_done_at_the_destination(rig: Rig) -> None:
 def test_oriented_stop() -> None:
     rig = Rig(n_axes=1, params=AxisParams(Modulo=True, AxisEncoderModuloValue=360.0))
     ax, _, calls = powered(rig)
-    mv, os_, bad = MC_MoveVelocity(), MC_OrientedStop(), MC_OrientedStop()
-    rig.watch(mv, os_, bad)
+    mv, os_, bad = rig.watch(MC_MoveVelocity(), MC_OrientedStop(), MC_OrientedStop())
     st = {"stop": False, "bad": False}
 
     def body(p):
@@ -313,8 +300,7 @@ def test_waiting_command_that_can_no_longer_start_is_an_error() -> None:
 
     rig = Rig(n_axes=1, params=AxisParams(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0))
     ax, _, calls = powered(rig)
-    mv1, mv2 = MC_MoveAbsolute(), MC_MoveRelative()
-    rig.watch(mv1, mv2)
+    mv1, mv2 = rig.watch(MC_MoveAbsolute(), MC_MoveRelative())
     st = {"go2": False}
 
     def body(p):

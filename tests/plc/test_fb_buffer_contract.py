@@ -6,143 +6,15 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import pytest
 
-from nc_schema import (
-    NCJOBS_DTYPE, NCTOPLC_DTYPE, CmdState, ErrorCodes, OpModeDWord, StateDWord, make_reply,
-)
+from nc_schema import ErrorCodes, OpModeDWord
 from plc_client import (
     MC_ChangeDynParam, MC_Halt, MC_MoveAbsolute, MC_MoveAbsoluteOrRestart, MC_MoveAdditive,
     MC_MoveContinuousAbsolute, MC_MoveContinuousRelative, MC_MoveRelative, MC_MoveVelocity, MC_NewPos,
-    MC_NewPosAndVelo, MC_OrientedStop, PlcTask,
+    MC_NewPosAndVelo, MC_OrientedStop,
 )
-from plc_client.port import CommandPort
-from plc_rig import check_exclusive
-
-ACTIVE, DONE, ABORTED, ERROR = CmdState.ACTIVE, CmdState.DONE, CmdState.ABORTED, CmdState.ERROR
-S = StateDWord
-MOVING = int(S.Operational | S.ControlLoopClosed | S.HasJob | S.PositiveDirection)
-IDLE = int(S.Operational | S.ControlLoopClosed | S.NotMoving | S.InTargetPosition | S.InPositionArea)
-
-
-class ScriptPort(CommandPort):
-    """Records requests; the test answers them with :meth:`answer` (delivered by the next poll)."""
-
-    def __init__(self) -> None:
-        super().__init__("plc1")
-        self.sent: list[Any] = []
-
-    def _transmit(self, pending: Any, payload: bytes) -> None:
-        self.sent.append(pending)
-
-    def answer(self, pending: Any, error: int = 0, cycle: int = 0, cmdno: int | None = None) -> None:
-        self._deliver(pending, make_reply(pending.id, pending.cmd, error, cycle=cycle, cmd_no=cmdno))
-
-
-class ScriptNc(PlcTask):
-    """A PLC task whose NC is the test: one axis (id 1); frames with job records unless ``jobs=False``."""
-
-    def __init__(self, jobs: bool = True) -> None:
-        super().__init__(self._run_calls, cycle_time=0.01, client_id="plc1")
-        #: the program: these callables, every cycle
-        self.calls: list[Any] = []
-        self.port: ScriptPort = ScriptPort()
-        self.port.clock = lambda: self.now
-        self.nc_cycle = 0
-        self.recs = np.zeros(1, dtype=NCTOPLC_DTYPE)
-        self.recs["AxisId"] = 1
-        self.recs["StateDWord"] = IDLE
-        self.jobs = np.zeros(1, dtype=NCJOBS_DTYPE) if jobs else None
-        if self.jobs is not None:
-            self.jobs["AxisId"] = 1
-        self.ax = self.axis("nc1", 1)
-        self.watched: list[Any] = []
-        self.trace: list[dict[int, dict[str, Any]]] = []
-
-    def _run_calls(self, plc: Any) -> None:
-        for c in list(self.calls):
-            c()
-
-    def clock(self) -> float:
-        return self.cycle * self.cycle_time
-
-    def _take_frames(self) -> None:
-        self._set_frame("nc1", self.nc_cycle, self.recs, self.jobs)
-
-    # -- the scripted NC ------------------------------------------------------------------
-    @property
-    def rec(self) -> np.void:
-        return self.recs[0]
-
-    def set_jobs(self, active: tuple[int, int] = (0, 0), buffered: int = 0, newest: int | None = None,
-                 ended: tuple[tuple[int, int, int], ...] = (), flags: int = 0) -> None:
-        """Job record (and NCTOPLC.CmdNo/CmdState = the active job, as the contract says)."""
-        assert self.jobs is not None
-        j = self.jobs[0]
-        j["ActiveCmdNo"], j["ActiveState"] = active
-        j["BufferedCmdNo"] = buffered
-        j["BufferedMode"] = 1 if buffered else 0
-        j["NewestCmdNo"] = newest if newest is not None else max([active[0], buffered] + [e[0] for e in ended])
-        j["Flags"] = flags
-        j["Ended"] = np.zeros(4, dtype=j["Ended"].dtype)
-        for k, e in enumerate(ended):
-            j["Ended"][k] = e
-        self.rec["CmdNo"], self.rec["CmdState"] = active
-        sdw = int(self.rec["StateDWord"]) & ~int(S.CmdBuffered)
-        self.rec["StateDWord"] = sdw | (int(S.CmdBuffered) if buffered else 0)
-
-    def state(self, sdw: int, **fields: Any) -> None:
-        waiting = self.jobs is not None and int(self.jobs[0]["BufferedCmdNo"])
-        keep = int(S.CmdBuffered) if waiting else 0
-        self.rec["StateDWord"] = sdw | keep
-        for k, v in fields.items():
-            self.rec[k] = v
-
-    def cycle_once(self, n: int = 1) -> None:
-        """n PLC cycles; the NC advances 10 cycles per PLC cycle; outputs checked every cycle."""
-        for _ in range(n):
-            self.step()
-            for fb in self.watched:
-                check_exclusive(fb)
-            self.trace.append({id(fb): {o: getattr(fb, o) for o in fb._OUTPUTS} for fb in self.watched})
-            self.nc_cycle += 10
-
-    def history(self, fb: Any, output: str) -> list[Any]:
-        """``output`` of ``fb`` after each cycle it was watched."""
-        return [t[id(fb)][output] for t in self.trace if id(fb) in t]
-
-    def last_sent(self, cmd: str) -> Any:
-        ps = [p for p in self.port.sent if p.cmd == cmd]
-        assert ps, f"no {cmd} sent"
-        return ps[-1]
-
-
-def started(nc: ScriptNc, fb: Any, cmdno: int, **inputs: Any) -> Any:
-    """Call fb with Execute=TRUE every cycle; answer its request with ``cmdno``; return its request."""
-    nc.calls.append(lambda: fb(Axis=nc.ax, Execute=True, **inputs))
-    nc.cycle_once()
-    p = nc.port.sent[-1]
-    nc.port.answer(p, cycle=nc.nc_cycle, cmdno=cmdno)  # its effect is in the next frame
-    return p
-
-
-@pytest.fixture
-def nc() -> ScriptNc:
-    t = ScriptNc()
-    t.cycle_once()  # first frame
-    return t
-
-
-def run_move(nc: ScriptNc, fb: Any, cmdno: int, **inputs: Any) -> None:
-    """fb started with ``cmdno``, shown active on the next frame."""
-    nc.watched.append(fb)
-    started(nc, fb, cmdno, **inputs)
-    nc.state(MOVING)
-    nc.set_jobs(active=(cmdno, ACTIVE))
-    nc.cycle_once()
-    assert fb.Busy and fb.Active
-
+from plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, MOVING, S, ScriptNc, run_move, started
 
 MOVE = {"Position": 100.0, "Velocity": 10.0}
 
@@ -273,8 +145,7 @@ def test_done_rule_on_the_idle_axis_waits_for_the_window(nc: ScriptNc) -> None:
     mv = MC_MoveAbsolute()
     nc.state(IDLE, OpModeDWord=int(OpModeDWord.OpModeTargetPosMonitoring | OpModeDWord.OpModePosAreaMonitoring))
     run_move(nc, mv, 5, **MOVE)
-    nc.state(int(S.Operational | S.ControlLoopClosed | S.NotMoving | S.InPositionArea))
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5, int(S.Operational | S.ControlLoopClosed | S.NotMoving | S.InPositionArea))
     nc.cycle_once(3)
     assert mv.Busy and mv.Active and not mv.Done, "DONE on an idle axis: wait for InTargetPosition"
     nc.state(IDLE)
@@ -287,8 +158,7 @@ def test_done_while_waiting_for_the_window_when_a_new_command_starts(nc: ScriptN
     mv = MC_MoveAbsolute()
     nc.state(IDLE, OpModeDWord=int(OpModeDWord.OpModeTargetPosMonitoring))
     run_move(nc, mv, 5, **MOVE)
-    nc.state(int(S.Operational | S.ControlLoopClosed | S.NotMoving))
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5, int(S.Operational | S.ControlLoopClosed | S.NotMoving))
     nc.cycle_once()
     assert mv.Busy
     nc.state(MOVING)
@@ -395,8 +265,7 @@ def test_continuous_move_aborted_before_the_target(nc: ScriptNc) -> None:
 def test_continuous_move_with_end_velocity_zero_ends_by_the_done_rule(nc: ScriptNc) -> None:
     fb = MC_MoveContinuousRelative()
     run_move(nc, fb, 5, Distance=50.0, Velocity=20.0, EndVelocity=0.0)
-    nc.state(IDLE, SetPos=50.0, SetVelo=0.0, TargetPos=50.0)
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5, SetPos=50.0, SetVelo=0.0, TargetPos=50.0)
     nc.cycle_once()
     assert fb.InEndVelocity
 
@@ -539,8 +408,7 @@ def test_change_dyn_param_done_at_the_destination(nc: ScriptNc) -> None:
     nc.cycle_once(3)
     assert cd.Busy and not cd.Done, "Done when the axis is at its destination, not on the reply"
     assert not hasattr(cd, "Active") or not cd.Active
-    nc.state(IDLE)
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5)
     nc.cycle_once()
     assert cd.Done and mv.Done
 

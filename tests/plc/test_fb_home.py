@@ -11,9 +11,8 @@ import pytest
 
 from nc_schema import DEFAULT_HOME_POSITION, ControlDWord, ErrorCodes, MC_HomingMode, StateDWord
 from nc_server.core import AxisParams
-from plc_client import AXIS_REF, MC_Home, MC_MoveVelocity, MC_Power, MC_Stop
-from plc_rig import Rig
-from test_fb_buffer_contract import ABORTED, ACTIVE, DONE, IDLE, MOVING, ScriptNc
+from plc_client import MC_Home, MC_MoveVelocity, MC_Stop
+from plc_rig import ABORTED, ACTIVE, DONE, IDLE, MOVING, Rig, ScriptNc, powered
 
 HOMED = int(StateDWord.Homed)
 _CAM_BIT = int(ControlDWord.HomingSensor)
@@ -21,13 +20,6 @@ HOMING = MOVING | int(StateDWord.HomingBusy)
 
 
 # ---- against the contract (scripted NC) -------------------------------------------------------------
-@pytest.fixture
-def nc() -> ScriptNc:
-    t = ScriptNc()
-    t.cycle_once()
-    return t
-
-
 def test_contract_request_cam_bit_and_done(nc: ScriptNc) -> None:
     home = MC_Home()
     nc.watched.append(home)
@@ -52,8 +44,7 @@ def test_contract_request_cam_bit_and_done(nc: ScriptNc) -> None:
     nc.cycle_once()
     assert int(nc.ax.PlcToNc["ControlDWord"]) & _CAM_BIT and home.Active
     # logical end, but HomingState not yet 0: wait
-    nc.state(IDLE, HomingState=6)
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5, HomingState=6)
     nc.cycle_once()
     assert home.Busy and not home.Done
     nc.state(IDLE | HOMED, HomingState=0)
@@ -69,8 +60,7 @@ def test_contract_done_without_homed_times_out(nc: ScriptNc) -> None:
     p = nc.last_sent("Home")
     assert p.args == {"Position": 3.0, "HomingMode": 4, "BufferMode": 0}
     nc.port.answer(p, cycle=nc.nc_cycle, cmdno=5)
-    nc.state(IDLE, HomingState=0)  # DONE, but the NC did not set Homed
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5, HomingState=0)  # DONE, but the NC did not set Homed
     nc.cycle_once(300)
     assert home.Busy
     nc.cycle_once(301)
@@ -85,8 +75,7 @@ def test_contract_reset_calibration_done_without_homed_and_aborted(nc: ScriptNc)
     p = nc.last_sent("Home")
     assert p.args["HomingMode"] == 8 and p.args["BufferMode"] == 1
     nc.port.answer(p, cycle=nc.nc_cycle, cmdno=5)
-    nc.state(IDLE, HomingState=0)
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5, HomingState=0)
     nc.cycle_once()
     assert home.Done
     nc.calls.append(lambda: other(Axis=nc.ax, Execute=True))
@@ -103,21 +92,6 @@ def test_contract_reset_calibration_done_without_homed_and_aborted(nc: ScriptNc)
 
 # ---- against the real NC ------------------------------------------------------------------------------
 CAM_AT = -3.5        #: the cam is occupied below this position (the search runs in negative direction)
-
-
-def powered(rig: Rig, client: str = "plc1", axis_id: int = 1) -> tuple[AXIS_REF, dict]:
-    plc = rig.plc(client)
-    ax = plc.axis("nc1", axis_id)
-    pw = MC_Power()
-    calls: dict = {"body": lambda p: None}
-
-    def program(p: Any) -> None:
-        pw(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
-        calls["body"](p)
-
-    plc.program = program
-    rig.run_until(lambda: pw.Status, 10)
-    return ax, calls
 
 
 def record_nc_steps(rig: Rig, axis_id: int = 1) -> list[tuple[int, float, bool]]:
@@ -144,9 +118,8 @@ def dedup(values: list[int]) -> list[int]:
 
 @pytest.mark.parametrize("position", [100.0, DEFAULT_HOME_POSITION])
 def test_homing_with_a_cam(rig: Rig, position: float) -> None:
-    ax, calls = powered(rig)
-    home = MC_Home()
-    rig.watch(home)
+    ax, _, calls = powered(rig)
+    home = rig.watch(MC_Home())
     seen = record_nc_steps(rig)
     calls["body"] = lambda p: home(Axis=ax, Execute=True, Position=position, bCalibrationCam=ax.ActPos < CAM_AT)
     rig.run(1)
@@ -173,9 +146,8 @@ def test_homing_with_a_cam(rig: Rig, position: float) -> None:
 
 def test_homing_without_cam_recipe(rig: Rig) -> None:
     """TcMC 3.14 note: cam TRUE first, FALSE once HomingState >= 4: homing on the sync pulse alone."""
-    ax, calls = powered(rig)
-    home = MC_Home()
-    rig.watch(home)
+    ax, _, calls = powered(rig)
+    home = rig.watch(MC_Home())
     seen = record_nc_steps(rig)
     st = {"ex": False}
 
@@ -197,7 +169,7 @@ def test_homing_without_cam_recipe(rig: Rig) -> None:
 
 
 def test_cam_bit_written_every_cycle(rig: Rig) -> None:
-    ax, calls = powered(rig)
+    ax, _, calls = powered(rig)
     home = MC_Home()
     st = {"cam": False}
     calls["body"] = lambda p: home(Axis=ax, Execute=False, bCalibrationCam=st["cam"])
@@ -220,9 +192,8 @@ def test_cam_bit_written_every_cycle(rig: Rig) -> None:
 ])
 def test_modes_without_motion(mode: int, homed_before: bool, homed_after: bool, pos_after: float) -> None:
     rig = Rig(params=AxisParams(Homed=homed_before))
-    ax, calls = powered(rig)
-    home = MC_Home()
-    rig.watch(home)
+    ax, _, calls = powered(rig)
+    home = rig.watch(MC_Home())
     calls["body"] = lambda p: home(Axis=ax, Execute=True, Position=42.0, HomingMode=int(mode))
     rig.run_until(lambda: not home.Busy, 50)
     assert home.Done, f"ErrorID 0x{home.ErrorID:X}"
@@ -232,9 +203,8 @@ def test_modes_without_motion(mode: int, homed_before: bool, homed_after: bool, 
 
 
 def test_home_refused_on_a_moving_axis(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    mv, home = MC_MoveVelocity(), MC_Home()
-    rig.watch(mv, home)
+    ax, _, calls = powered(rig)
+    mv, home = rig.watch(MC_MoveVelocity(), MC_Home())
     st = {"home": False}
 
     def body(p: Any) -> None:
@@ -253,8 +223,7 @@ def test_home_refused_on_a_disabled_axis() -> None:
     rig = Rig()
     plc = rig.plc("plc1")
     ax = plc.axis("nc1", 1)
-    home = MC_Home()
-    rig.watch(home)
+    home = rig.watch(MC_Home())
     plc.program = lambda p: home(Axis=ax, Execute=True)
     rig.run_until(lambda: not home.Busy, 5)
     assert home.Error and home.ErrorID in (ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, ErrorCodes.NC_NO_ENABLE)
@@ -262,9 +231,8 @@ def test_home_refused_on_a_disabled_axis() -> None:
 
 
 def test_stop_aborts_homing(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    home, stop = MC_Home(), MC_Stop()
-    rig.watch(home, stop)
+    ax, _, calls = powered(rig)
+    home, stop = rig.watch(MC_Home(), MC_Stop())
     st = {"stop": False}
 
     def body(p: Any) -> None:
@@ -282,9 +250,8 @@ def test_stop_aborts_homing(rig: Rig) -> None:
 
 
 def test_invalid_homing_mode_type(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    home = MC_Home()
-    rig.watch(home)
+    ax, _, calls = powered(rig)
+    home = rig.watch(MC_Home())
     before = int(rig.rec()["CmdNo"])
     calls["body"] = lambda p: home(Axis=ax, Execute=True, HomingMode="direct")
     rig.run(1)

@@ -11,21 +11,13 @@ import pytest
 
 from nc_schema import E_JogMode, ErrorCodes
 from nc_server.core import AxisParams
-from plc_client import AXIS_REF, MC_Jog, MC_MoveAbsolute, MC_Power
-from plc_rig import Rig
-from test_fb_buffer_contract import ABORTED, ACTIVE, DONE, IDLE, MOVING, ScriptNc
+from plc_client import AXIS_REF, MC_Jog, MC_MoveAbsolute
+from plc_rig import ABORTED, ACTIVE, DONE, IDLE, MOVING, Rig, ScriptNc, powered
 
 SLOW, FAST, CONT, INCH, INCH_MOD = (int(m) for m in E_JogMode)
 
 
 # ---- against the contract (scripted NC) -------------------------------------------------------------
-@pytest.fixture
-def nc() -> ScriptNc:
-    t = ScriptNc()
-    t.cycle_once()
-    return t
-
-
 def jog_on(nc: ScriptNc, jog: MC_Jog, st: dict, **inputs: Any) -> None:
     nc.watched.append(jog)
     nc.calls.append(lambda: jog(Axis=nc.ax, JogForward=st.get("f", False), JogBackwards=st.get("b", False),
@@ -36,6 +28,16 @@ def accept(nc: ScriptNc, cmd: str, cmdno: int) -> Any:
     p = nc.last_sent(cmd)
     nc.port.answer(p, cycle=nc.nc_cycle, cmdno=cmdno)
     return p
+
+
+def jog_moving(nc: ScriptNc, jog: MC_Jog, st: dict, **inputs: Any) -> None:
+    """``jog`` called every cycle with the keys in ``st``; its Jog accepted as CmdNo 5, then moving."""
+    jog_on(nc, jog, st, **inputs)
+    nc.cycle_once()
+    accept(nc, "Jog", 5)
+    nc.state(MOVING)
+    nc.set_jobs(active=(5, ACTIVE))
+    nc.cycle_once()
 
 
 @pytest.mark.parametrize("mode, args", [
@@ -87,12 +89,7 @@ def test_contract_release_sends_halt_after_acceptance_and_follows_it(nc: ScriptN
 def test_contract_standard_mode_halts_with_axis_defaults(nc: ScriptNc) -> None:
     jog = MC_Jog()
     st = {"f": True}
-    jog_on(nc, jog, st, Mode=SLOW, Deceleration=250.0, Jerk=9000.0)
-    nc.cycle_once()
-    accept(nc, "Jog", 5)
-    nc.state(MOVING)
-    nc.set_jobs(active=(5, ACTIVE))
-    nc.cycle_once()
+    jog_moving(nc, jog, st, Mode=SLOW, Deceleration=250.0, Jerk=9000.0)
     st["f"] = False
     nc.cycle_once()
     halt = nc.last_sent("Halt")
@@ -102,13 +99,8 @@ def test_contract_standard_mode_halts_with_axis_defaults(nc: ScriptNc) -> None:
 def test_contract_priority_locking_and_abort(nc: ScriptNc) -> None:
     jog = MC_Jog()
     st = {"f": True, "b": True}
-    jog_on(nc, jog, st, Mode=SLOW)
-    nc.cycle_once()
+    jog_moving(nc, jog, st, Mode=SLOW)
     assert nc.last_sent("Jog").args["Direction"] == 1, "JogForward wins simultaneous edges"
-    accept(nc, "Jog", 5)
-    nc.state(MOVING)
-    nc.set_jobs(active=(5, ACTIVE))
-    nc.cycle_once()
     st["b"] = False
     nc.cycle_once()
     st["b"] = True  # an edge of the other key while Busy: ignored
@@ -127,17 +119,11 @@ def test_contract_priority_locking_and_abort(nc: ScriptNc) -> None:
 def test_contract_inching_ignores_the_release_and_ends_by_the_window(nc: ScriptNc) -> None:
     jog = MC_Jog()
     st = {"f": True}
-    jog_on(nc, jog, st, Mode=INCH, Position=2.0, Velocity=10.0)
-    nc.cycle_once()
-    accept(nc, "Jog", 5)
-    nc.state(MOVING)
-    nc.set_jobs(active=(5, ACTIVE))
-    nc.cycle_once()
+    jog_moving(nc, jog, st, Mode=INCH, Position=2.0, Velocity=10.0)
     st["f"] = False
     nc.cycle_once()
     assert [p.cmd for p in nc.port.sent] == ["Jog"] and jog.Busy
-    nc.state(IDLE)
-    nc.set_jobs(active=(5, DONE), ended=((5, DONE, 0),))
+    nc.job_done(5)
     nc.cycle_once()
     assert jog.Done and not jog.Busy
 
@@ -157,22 +143,6 @@ def test_contract_invalid_mode(nc: ScriptNc) -> None:
 
 
 # ---- against the real NC ------------------------------------------------------------------------------
-def powered(rig: Rig, client: str = "plc1", axis_id: int = 1) -> tuple[AXIS_REF, dict]:
-    """A client whose program powers ``axis_id`` and then runs ``calls['body'](plc)``."""
-    plc = rig.plc(client)
-    ax = plc.axis("nc1", axis_id)
-    pw = MC_Power()
-    calls: dict = {"body": lambda p: None}
-
-    def program(p: Any) -> None:
-        pw(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
-        calls["body"](p)
-
-    plc.program = program
-    rig.run_until(lambda: pw.Status, 10)
-    return ax, calls
-
-
 def keys(jog: MC_Jog, ax: AXIS_REF, state: dict, **inputs: Any):
     """A program body calling ``jog`` with the keys in ``state`` and fixed ``inputs``."""
     return lambda p: jog(Axis=ax, JogForward=state.get("f", False), JogBackwards=state.get("b", False), **inputs)
@@ -183,9 +153,8 @@ def cmdno(rig: Rig) -> int:
 
 
 def test_standard_slow_runs_while_held_and_halts_on_release(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     st = {"f": True}
     calls["body"] = keys(jog, ax, st, Mode=SLOW, Velocity=999.0)  # Velocity has no effect in this mode
     rig.run(1)
@@ -209,9 +178,8 @@ def test_standard_slow_runs_while_held_and_halts_on_release(rig: Rig) -> None:
 
 
 def test_backwards_standard_fast(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     st = {"b": True}
     calls["body"] = keys(jog, ax, st, Mode=FAST)
     rig.run(40)
@@ -222,9 +190,8 @@ def test_backwards_standard_fast(rig: Rig) -> None:
 
 
 def test_continuous_uses_the_inputs_and_stops_with_the_jog_deceleration(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     st = {"f": True}
     calls["body"] = keys(jog, ax, st, Mode=CONT, Velocity=100.0, Acceleration=2000.0, Deceleration=400.0,
                          Jerk=100000.0)
@@ -237,9 +204,8 @@ def test_continuous_uses_the_inputs_and_stops_with_the_jog_deceleration(rig: Rig
 
 
 def test_key_tap_of_one_cycle_still_stops_the_axis(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     st = {"f": True}
     calls["body"] = keys(jog, ax, st, Mode=SLOW)
     rig.run(1)
@@ -251,9 +217,8 @@ def test_key_tap_of_one_cycle_still_stops_the_axis(rig: Rig) -> None:
 
 
 def test_forward_has_priority_on_simultaneous_edges(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     st = {"f": True, "b": True}
     calls["body"] = keys(jog, ax, st, Mode=SLOW)
     rig.run(30)
@@ -265,9 +230,8 @@ def test_forward_has_priority_on_simultaneous_edges(rig: Rig) -> None:
 
 
 def test_no_edge_accepted_while_moving(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     st = {"f": True}
     calls["body"] = keys(jog, ax, st, Mode=SLOW)
     rig.run_until(lambda: jog.Active, 5)
@@ -295,9 +259,8 @@ def test_no_edge_accepted_while_moving(rig: Rig) -> None:
 
 
 def test_inching_moves_by_position_per_press(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     st = {"f": True}
     calls["body"] = keys(jog, ax, st, Mode=INCH, Position=2.5, Velocity=20.0)
     rig.run_until(lambda: jog.Done, 200)
@@ -323,9 +286,8 @@ def test_inching_moves_by_position_per_press(rig: Rig) -> None:
 
 
 def test_inching_modulo_ends_on_multiples_of_position(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    mv, jog = MC_MoveAbsolute(), MC_Jog()
-    rig.watch(mv, jog)
+    ax, _, calls = powered(rig)
+    mv, jog = rig.watch(MC_MoveAbsolute(), MC_Jog())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=0.7, Velocity=50.0)
     rig.run_until(lambda: mv.Done, 200)
     st = {"f": True}
@@ -351,9 +313,8 @@ def test_inching_modulo_ends_on_multiples_of_position(rig: Rig) -> None:
 
 
 def test_another_command_aborts_the_jog_and_no_halt_follows(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog, mv = MC_Jog(), MC_MoveAbsolute()
-    rig.watch(jog, mv)
+    ax, _, calls = powered(rig)
+    jog, mv = rig.watch(MC_Jog(), MC_MoveAbsolute())
     st = {"f": True, "mv": False}
 
     def body(p: Any) -> None:
@@ -375,9 +336,8 @@ def test_another_command_aborts_the_jog_and_no_halt_follows(rig: Rig) -> None:
 
 
 def test_invalid_mode_and_rejected_jog(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    jog = MC_Jog()
-    rig.watch(jog)
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
     before = cmdno(rig)
     st = {"f": True}
     calls["body"] = keys(jog, ax, st, Mode=9)
@@ -405,8 +365,7 @@ def test_jog_without_power_reports_the_nc_code() -> None:
     rig = Rig()
     plc = rig.plc("plc1")
     ax = plc.axis("nc1", 1)
-    jog = MC_Jog()
-    rig.watch(jog)
+    jog = rig.watch(MC_Jog())
     plc.program = lambda p: jog(Axis=ax, JogForward=True, Mode=SLOW)
     rig.run_until(lambda: not jog.Busy, 5)
     assert jog.Error and jog.ErrorID == ErrorCodes.NC_NO_ENABLE

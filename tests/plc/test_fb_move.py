@@ -7,31 +7,14 @@ import numpy as np
 import pytest
 
 from nc_schema import CmdState, ErrorCodes, MC_BufferMode, StateDWord
-from plc_client import AXIS_REF, MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power
+from plc_client import MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power
 from plc_client.fb import DONE_WINDOW_TIMEOUT
-from plc_rig import OffsetDrive, Rig
-
-
-def powered(rig: Rig, client: str = "plc1", axis_id: int = 1) -> tuple[AXIS_REF, MC_Power, dict]:
-    """A client whose program powers ``axis_id`` and runs ``calls['body'](plc)``."""
-    plc = rig.plc(client)
-    ax = plc.axis("nc1", axis_id)
-    pw = MC_Power()
-    calls: dict = {"body": lambda p: None}
-
-    def program(p):
-        pw(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
-        calls["body"](p)
-
-    plc.program = program
-    rig.run_until(lambda: pw.Status, 10)
-    return ax, pw, calls
+from plc_rig import OffsetDrive, Rig, powered
 
 
 def test_move_absolute_done_held_while_execute_true(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveAbsolute()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsolute())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=20.0, Velocity=100.0)
     rig.run(1)
     assert mv.Busy and not mv.Active  # reply not seen yet (it arrives with the next cycle)
@@ -51,8 +34,7 @@ def test_move_absolute_done_held_while_execute_true(rig: Rig) -> None:
 
 def test_done_is_a_one_cycle_pulse_when_execute_fell_early(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveRelative()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveRelative())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Distance=5.0, Velocity=100.0)
     rig.run(1)
     calls["body"] = lambda p: mv(Axis=ax, Execute=False)
@@ -68,8 +50,7 @@ def test_done_is_a_one_cycle_pulse_when_execute_fell_early(rig: Rig) -> None:
 
 def test_inputs_latched_and_retrigger_ignored(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveAbsolute()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsolute())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=10.0, Velocity=50.0)
     rig.run(3)
     cmdno = int(rig.rec()["CmdNo"])
@@ -95,8 +76,7 @@ def test_inputs_latched_and_retrigger_ignored(rig: Rig) -> None:
 
 def test_second_block_aborts_first(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv1, mv2 = MC_MoveAbsolute(), MC_MoveAbsolute()
-    rig.watch(mv1, mv2)
+    mv1, mv2 = rig.watch(MC_MoveAbsolute(), MC_MoveAbsolute())
     state = {"go2": False}
 
     def body(p):
@@ -115,8 +95,7 @@ def test_second_block_aborts_first(rig: Rig) -> None:
 
 def test_command_from_another_client_aborts(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveVelocity()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveVelocity())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Velocity=20.0)
     rig.run_until(lambda: mv.Active, 5)
     other = rig.plc("plc2")
@@ -131,8 +110,7 @@ def test_command_from_another_client_aborts(rig: Rig) -> None:
 
 def test_move_velocity_in_velocity_and_halt(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, halt = MC_MoveVelocity(), MC_Halt()
-    rig.watch(mv, halt)
+    mv, halt = rig.watch(MC_MoveVelocity(), MC_Halt())
     state = {"halt": False}
 
     def body(p):
@@ -155,8 +133,7 @@ def test_move_velocity_in_velocity_and_halt(rig: Rig) -> None:
 
 def test_move_velocity_aborted_during_acceleration(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, mv2 = MC_MoveVelocity(), MC_MoveAbsolute()
-    rig.watch(mv, mv2)
+    mv, mv2 = rig.watch(MC_MoveVelocity(), MC_MoveAbsolute())
     state = {"go": False}
 
     def body(p):
@@ -173,8 +150,7 @@ def test_move_velocity_aborted_during_acceleration(rig: Rig) -> None:
 @pytest.mark.parametrize("bm", [1.0, True, "1", None, 2**40])
 def test_buffer_mode_that_is_not_a_wire_integer_is_refused_locally(rig: Rig, bm) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveAbsolute()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsolute())
     before = int(rig.rec()["CmdNo"])
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=1.0, Velocity=1.0, BufferMode=bm)
     rig.run(1)
@@ -224,8 +200,7 @@ def test_integer_buffer_mode_is_passed_to_the_nc(rig: Rig, cls, inputs: dict, bm
 ])
 def test_rejected_command_reports_the_code(rig: Rig, inputs: dict, code: int) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveAbsolute()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsolute())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, **inputs)
     rig.run_until(lambda: not mv.Busy, 5)
     assert mv.Error and mv.ErrorID == code
@@ -237,8 +212,7 @@ def test_rejected_command_reports_the_code(rig: Rig, inputs: dict, code: int) ->
 def test_move_without_enable_is_rejected_by_the_nc(rig: Rig) -> None:
     plc = rig.plc()
     ax = plc.axis("nc1", 1)
-    mv = MC_MoveAbsolute()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsolute())
     plc.program = lambda p: mv(Axis=ax, Execute=True, Position=1.0, Velocity=1.0)
     rig.run(3)
     assert mv.Error and mv.ErrorID == ErrorCodes.NC_NO_ENABLE
@@ -246,8 +220,7 @@ def test_move_without_enable_is_rejected_by_the_nc(rig: Rig) -> None:
 
 def test_axis_fault_while_moving_is_a_block_error(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveAbsolute()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsolute())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=50.0, Velocity=50.0)
     rig.run_until(lambda: mv.Active, 5)
     rig.core.fault(0, ErrorCodes.NC_POSITION_LAG)
@@ -285,8 +258,7 @@ def test_done_rule_of_appendix_7_1(target_mon: bool, area_mon: bool, expect: str
     rig = Rig(n_axes=1, params=AxisParams(AxisEnTargetPositionMonitoring=target_mon,
                                           AxisEnPositionRangeMonitoring=area_mon), drive_cls=OffsetDrive)
     ax, _, calls = powered(rig)
-    mv = MC_MoveAbsolute()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveAbsolute())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=10.0, Velocity=100.0)
     rig.run_until(lambda: mv.Active, 5)
     rig.run_until(lambda: not ax.Status.HasJob, 100)
@@ -303,8 +275,7 @@ def test_done_rule_of_appendix_7_1(target_mon: bool, area_mon: bool, expect: str
 
 def test_move_modulo(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv = MC_MoveModulo()
-    rig.watch(mv)
+    mv = rig.watch(MC_MoveModulo())
     calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=90.0, Velocity=500.0, Direction=1)
     rig.run_until(lambda: mv.Done, 300)
     assert math.isclose(ax.ActPos, 90.0, abs_tol=0.02)

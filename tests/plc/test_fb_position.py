@@ -11,11 +11,10 @@ import pytest
 
 from nc_schema import ErrorCodes
 from plc_client import (
-    AXIS_REF, F_GetVersionTcMC, MC_MoveRelative, MC_MoveVelocity, MC_Power, MC_SetActualPosition,
-    MC_SetActualPositionOnTheFly, MC_SetReferenceFlag,
+    F_GetVersionTcMC, MC_MoveRelative, MC_MoveVelocity, MC_SetActualPosition, MC_SetActualPositionOnTheFly,
+    MC_SetReferenceFlag,
 )
-from plc_rig import Rig
-from test_fb_buffer_contract import ScriptNc
+from plc_rig import Rig, ScriptNc, powered
 
 
 # ---- against the contract (scripted NC) -------------------------------------------------------------
@@ -51,25 +50,9 @@ def test_contract_request_and_done_with_the_replys_cycle(fb: type, inputs: dict,
 
 
 # ---- against the real NC ------------------------------------------------------------------------------
-def powered(rig: Rig, client: str = "plc1", axis_id: int = 1) -> tuple[AXIS_REF, dict]:
-    plc = rig.plc(client)
-    ax = plc.axis("nc1", axis_id)
-    pw = MC_Power()
-    calls: dict = {"body": lambda p: None}
-
-    def program(p: Any) -> None:
-        pw(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
-        calls["body"](p)
-
-    plc.program = program
-    rig.run_until(lambda: pw.Status, 10)
-    return ax, calls
-
-
 def test_set_actual_position_at_standstill(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    sp = MC_SetActualPosition()
-    rig.watch(sp)
+    ax, _, calls = powered(rig)
+    sp = rig.watch(MC_SetActualPosition())
     seen: dict = {}
 
     def body(p: Any) -> None:
@@ -91,9 +74,8 @@ def test_set_actual_position_at_standstill(rig: Rig) -> None:
 
 
 def test_set_actual_position_refused_while_moving(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    mv, sp = MC_MoveVelocity(), MC_SetActualPosition()
-    rig.watch(mv, sp)
+    ax, _, calls = powered(rig)
+    mv, sp = rig.watch(MC_MoveVelocity(), MC_SetActualPosition())
     st = {"sp": False}
 
     def body(p: Any) -> None:
@@ -108,9 +90,8 @@ def test_set_actual_position_refused_while_moving(rig: Rig) -> None:
 
 
 def test_set_actual_position_on_the_fly_shifts_the_running_move(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    mv, fly = MC_MoveRelative(), MC_SetActualPositionOnTheFly()
-    rig.watch(mv, fly)
+    ax, _, calls = powered(rig)
+    mv, fly = rig.watch(MC_MoveRelative(), MC_SetActualPositionOnTheFly())
     st = {"fly": False}
 
     def body(p: Any) -> None:
@@ -130,9 +111,8 @@ def test_set_actual_position_on_the_fly_shifts_the_running_move(rig: Rig) -> Non
 
 def test_set_actual_position_on_the_fly_at_rest_sets_the_position(rig: Rig) -> None:
     """schema/README.md: on an axis at rest SetActualPositionOnTheFly simply shifts the position."""
-    ax, calls = powered(rig)
-    fly = MC_SetActualPositionOnTheFly()
-    rig.watch(fly)
+    ax, _, calls = powered(rig)
+    fly = rig.watch(MC_SetActualPositionOnTheFly())
     before = ax.ActPos
     calls["body"] = lambda p: fly(Axis=ax, Execute=True, ActualPosition=5.0, PreviousPosition=0.0)
     rig.run_until(lambda: not fly.Busy, 5)
@@ -141,9 +121,8 @@ def test_set_actual_position_on_the_fly_at_rest_sets_the_position(rig: Rig) -> N
 
 
 def test_set_reference_flag(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    ref = MC_SetReferenceFlag()
-    rig.watch(ref)
+    ax, _, calls = powered(rig)
+    ref = rig.watch(MC_SetReferenceFlag())
     st = {"ex": True, "flag": True}
     calls["body"] = lambda p: ref(Axis=ax, Execute=st["ex"], ReferenceFlag=st["flag"])
     assert not ax.Status.Homed
@@ -162,9 +141,8 @@ def test_set_reference_flag(rig: Rig) -> None:
 
 
 def test_bad_values_and_timeout(rig: Rig) -> None:
-    ax, calls = powered(rig)
-    sp = MC_SetActualPosition()
-    rig.watch(sp)
+    ax, _, calls = powered(rig)
+    sp = rig.watch(MC_SetActualPosition())
     st = {"ex": True, "pos": float("nan")}
     calls["body"] = lambda p: sp(Axis=ax, Execute=st["ex"], Position=st["pos"])
     rig.run(1)

@@ -3,14 +3,12 @@ from __future__ import annotations
 
 from nc_schema import ErrorCodes
 from plc_client import MC_MoveAbsolute, MC_MoveVelocity, MC_Stop
-from plc_rig import Rig
-from test_fb_move import powered
+from plc_rig import Rig, powered
 
 
 def test_stop_locks_until_execute_falls(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, stop, mv2 = MC_MoveVelocity(), MC_Stop(), MC_MoveAbsolute()
-    rig.watch(mv, stop, mv2)
+    mv, stop, mv2 = rig.watch(MC_MoveVelocity(), MC_Stop(), MC_MoveAbsolute())
     st = {"stop": False, "mv2": False}
 
     def body(p):
@@ -46,8 +44,7 @@ def test_stop_locks_until_execute_falls(rig: Rig) -> None:
 
 def test_stop_execute_falls_during_the_ramp(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    mv, stop = MC_MoveVelocity(), MC_Stop()
-    rig.watch(mv, stop)
+    mv, stop = rig.watch(MC_MoveVelocity(), MC_Stop())
     st = {"stop": False}
 
     def body(p):
@@ -71,8 +68,7 @@ def test_stop_execute_falls_during_the_ramp(rig: Rig) -> None:
 
 def test_stop_at_standstill_and_second_stop(rig: Rig) -> None:
     ax, _, calls = powered(rig)
-    s1, s2 = MC_Stop(), MC_Stop()
-    rig.watch(s1, s2)
+    s1, s2 = rig.watch(MC_Stop(), MC_Stop())
     st = {"s2": False}
 
     def body(p):
@@ -99,8 +95,7 @@ def test_stop_rejected_dynamics(rig: Rig) -> None:
     """Out-of-range stop dynamics are refused with their NC code; a lone Deceleration is not
     (TcMC 3.15: it only counts together with Jerk, and a stop is never refused for that)."""
     ax, _, calls = powered(rig)
-    stop = MC_Stop()
-    rig.watch(stop)
+    stop = rig.watch(MC_Stop())
     calls["body"] = lambda p: stop(Axis=ax, Execute=True, Deceleration=1e11, Jerk=1e13)
     rig.run_until(lambda: not stop.Busy, 5)
     assert stop.Error and stop.ErrorID == ErrorCodes.NC_DECELERATION_NOT_ALLOWED
@@ -116,8 +111,7 @@ def test_stop_clears_the_waiting_command(rig: Rig) -> None:
     from plc_client import MC_MoveRelative
 
     ax, _, calls = powered(rig)
-    mv1, mv2, stop = MC_MoveAbsolute(), MC_MoveRelative(), MC_Stop()
-    rig.watch(mv1, mv2, stop)
+    mv1, mv2, stop = rig.watch(MC_MoveAbsolute(), MC_MoveRelative(), MC_Stop())
     st = {"go2": False, "stop": False}
 
     def body(p):

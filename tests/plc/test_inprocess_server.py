@@ -12,8 +12,7 @@ from nc_server.server.claims import ClaimTable
 from nc_server.server.handler import CycleInputs, RequestHandler
 from plc_client import MC_MoveVelocity, MC_Power, run_cycles
 from plc_client.port import InProcessNc, InProcessPort, PendingCommand
-from plc_rig import Rig
-from test_fb_move import powered
+from plc_rig import Rig, powered
 
 LOST = int(ErrorCodes.ZNC_CLIENT_LOST)
 TIMEOUT = int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)
@@ -27,6 +26,18 @@ def reply(port: InProcessPort, p: PendingCommand) -> dict[str, Any]:
     port.poll()
     assert p.done and p.reply is not None
     return p.reply
+
+
+def claimed(core: NcCore, client: str, override: int) -> tuple[InProcessPort, np.ndarray]:
+    """A port of ``client`` holding axis 1, having published a PLCTONC with ControlDWord 7 and
+    ``override``; returns the port and that record."""
+    port = InProcessPort(core, client)
+    assert reply(port, port.send("nc1", 1, "Claim"))["error"] == 0
+    rec = np.zeros(1, dtype=core.plctonc.dtype)
+    rec["ControlDWord"] = 7
+    rec["Override"] = override
+    port.publish_plctonc(np.array([1]), rec)
+    return port, rec
 
 
 def test_ports_of_one_core_share_the_servers_handler() -> None:
@@ -62,12 +73,7 @@ def test_second_claim_refused_naming_the_holder_and_override_refused() -> None:
 
 def test_release_resets_plctonc_to_default() -> None:
     core = core2()
-    a = InProcessPort(core, "a")
-    assert reply(a, a.send("nc1", 1, "Claim"))["error"] == 0
-    rec = np.zeros(1, dtype=core.plctonc.dtype)
-    rec["ControlDWord"] = 7
-    rec["Override"] = 500_000
-    a.publish_plctonc(np.array([1]), rec)
+    a, rec = claimed(core, "a", 500_000)
     assert int(core.plctonc["ControlDWord"][0]) == 7
     assert reply(a, a.send("nc1", 1, "Release"))["error"] == 0
     assert int(core.plctonc["ControlDWord"][0]) == 0 and int(core.plctonc["Override"][0]) == 1_000_000
@@ -77,12 +83,7 @@ def test_release_resets_plctonc_to_default() -> None:
 
 def test_repeated_client_and_id_runs_once() -> None:
     core = core2()
-    port = InProcessPort(core, "plc")
-    assert reply(port, port.send("nc1", 1, "Claim"))["error"] == 0
-    rec = np.zeros(1, dtype=core.plctonc.dtype)
-    rec["ControlDWord"] = 7
-    rec["Override"] = 1_000_000
-    port.publish_plctonc(np.array([1]), rec)
+    port, _ = claimed(core, "plc", 1_000_000)
     core.step()
     r1 = reply(port, port.send("nc1", 1, "MoveRelative", Distance=5.0, Velocity=100.0))
     port._next_id -= 1  # the same (client, id) again, as from a restarted PLC reusing ids

@@ -12,8 +12,7 @@ from plc_client import (
     run_cycles,
 )
 from plc_client.task import PlcTask
-from plc_rig import Rig
-from test_fb_move import powered
+from plc_rig import Rig, powered
 
 
 def test_stale_data_gives_4b0f(rig: Rig) -> None:
