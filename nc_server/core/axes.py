@@ -53,6 +53,7 @@ class AxisTable:
         self.hold_enable = b()       # the running job keeps the drive enabled (fault ramp)
         self.driving = b()           # the running job is checked against the feed enables
         self.held = b()              # the running job waits at override 0
+        self.sp_row = np.zeros(n, dtype=np.intp)  # set-point flag bits of the row: 1 held, 2 a job runs, not held
         self.watch_kind = np.full(n, -1, dtype=np.int16)  # job kind whose watch() sees this row, -1: none
         self.homing_state = np.zeros(n, dtype=np.uint32)
         self.cmd_no = np.zeros(n, dtype=np.uint16)

@@ -46,9 +46,8 @@ from .profile import evaluate, peak_velocity, velocity_extrema
 from .stages import ProfileStage
 
 _log = logging.getLogger(__name__)
-#: Cycles of set-points evaluated at once (NcCore(lookahead=...)); events refresh only the changed
-#: axes. Deeper buffers lower the mean cost but make every LOOKAHEAD-th cycle heavier; measured here
-#: (bench/nc_cycle.py) 16 suits up to ~64 axes and 4 beyond. None: chosen by axis count.
+#: Cycles of set-points evaluated ahead (NcCore(lookahead=...)); the refills are staggered over the
+#: cycles (stages.ProfileStage), events refresh only the changed axes. None: 16.
 LOOKAHEAD: int | None = None
 #: largest |position| the NC accepts as a target (ruckig's numeric range)
 MAX_POSITION = 1e9
@@ -105,7 +104,7 @@ class NcCore:
             raise ConfigError("cycle_time", f"must be in (0, 1] s, got {cycle_time}")
         self.cycle_time = float(cycle_time)
         if lookahead is None:
-            lookahead = 16 if len(axes) <= 64 else 4
+            lookahead = 16
         self.configs = list(axes)
         self.params: list[AxisParams] = [c.params for c in axes]
         self.axes = AxisTable(ids, self.params)
@@ -594,6 +593,7 @@ class NcCore:
         a.hold_enable[i] = j is not None and j.kind.holds_enable
         a.driving[i] = numbered and j.kind.feed_checked and not j.held  # type: ignore[union-attr]
         a.held[i] = held
+        a.sp_row[i] = 1 if held else (2 if numbered else 0)
         a.watch_kind[i] = KINDS_INDEX.get(j.kind.name, -1) if (j is not None and j.kind.wants_watch(j)) else -1
         a.homing_state[i] = j.phase if numbered and j.kind.homing else 0  # type: ignore[union-attr]
         shown = q.shown

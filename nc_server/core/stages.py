@@ -14,7 +14,7 @@ axes they own; their cost does not depend on how many job kinds exist.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Iterable
+from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 
@@ -63,6 +63,46 @@ SP_STATE_LUT, SP_DWORD_LUT = _setpoint_luts()
 #: byte b (0/1) lands on bit 56 + b, no two partial products overlap or carry
 _PACK = np.uint64(0x0102040810204080)
 _SHIFT = np.uint64(56)
+#: class boundaries for np.searchsorted(side="right"), the same tests as the flag bits:
+#: velocity 0: v < -eps, 1: neither, 2: v > eps; acceleration 1: |a| < 1e-9 (constant);
+#: a*v 0: < 0, 1: == 0, 2: > 0
+_V_EDGES = np.array([-_EPS_V, np.nextafter(_EPS_V, np.inf)])
+_A_EDGES = np.array([np.nextafter(-1e-9, np.inf), 1e-9])
+_AV_EDGES = np.array([0.0, np.nextafter(0.0, np.inf)])
+#: small blocks: fewer calls (searchsorted classes + one table) beat the flag bytes + packing
+_SMALL_BLOCK = 256
+
+
+def _class_codes() -> tuple[np.ndarray, np.ndarray]:
+    """Flag bytes by (row bits, velocity class, acceleration class, a*v class), and the row bits'
+    flag bits. Row bits (``AxisTable.sp_row``): 1 the job holds at override 0, 2 a job runs and
+    does not hold."""
+    codes = np.zeros((4, 3, 3, 3), dtype=np.uint8)
+    for rp in range(4):
+        for sv in range(3):
+            for sa in range(3):
+                for sav in range(3):
+                    codes[rp, sv, sa, sav] = ((rp & 1) | (sa == 1) << 1 | (sav == 2) << 2 | (sav == 0) << 3
+                                              | (sv == 2) << 4 | (sv == 0) << 5 | (rp >> 1) << 6)
+    row_bits = np.array([0, 1, 64, 65], dtype=np.uint64)
+    return codes, row_bits
+
+
+_CLASS_CODES, _ROW_BITS = _class_codes()
+
+
+#: Staggering: up to this many axes, one group of a quarter of them is refilled every 4th cycle (blocks of
+#: up to 1024 samples with a lookahead of 16: cheaper per sample, and 3 of 4 cycles refill nothing);
+#: above, one group every cycle (a block per cycle of about as many samples as there are axes).
+#: Measured with bench/nc_cycle.py (docs/ARCHITECTURE.md, "How the core keeps a cycle cheap").
+PERIOD_4_UP_TO = 256
+
+
+def default_groups(n: int, lookahead: int) -> int:
+    """Refill groups for ``n`` axes: ``lookahead // 4`` up to PERIOD_4_UP_TO axes, else ``lookahead``."""
+    if n <= PERIOD_4_UP_TO and lookahead % 4 == 0:
+        return lookahead // 4
+    return lookahead
 
 
 class ProfileStage:
@@ -86,19 +126,26 @@ class ProfileStage:
 
     def __init__(self, core: NcCore, lookahead: int, groups: int | None = None) -> None:
         n = core.axes.n
+        L = lookahead
         self.n = n
-        self.lookahead = lookahead
+        self.lookahead = L
         self.dt = core.cycle_time
-        self.buf = np.zeros((4, n, lookahead))        # set-points, column = stage cycle % lookahead
-        self.buf_code = np.zeros((n, lookahead), dtype=np.uint8)  # their flag bytes (SP_*_LUT index)
+        self.buf = np.zeros((4, n, L))        # set-points, column = stage cycle % lookahead
+        self.buf_code = np.zeros((n, L), dtype=np.uint8)  # their flag bytes (SP_*_LUT index)
         self.c = 0  # stage cycles run: the next run produces the set-points of stage cycle c
         self.pending: set[int] = set()  # rows to evaluate at the next run (plans changed)
         self.refills = 0  # runs that evaluated rows (groups or pending)
         self.refill_rows = 0  # rows evaluated by the last run
-        self._flags: dict[tuple[int, int], np.ndarray] = {}
+        # the segment table as evaluated: t0, p, v, j, a/2, a (copied from axes.seg when a plan changes)
+        self.seg = np.zeros((6, n, N_SEGMENTS))
+        self.seg[0] = np.inf
+        self._seg_flat = self.seg.reshape(6, -1)
+        self._times = np.full((n, L), self.dt)  # each sample one cycle time after the one before
+        self._res = np.empty((4, n, L))
+        self._flag_bytes = np.zeros((n, L, 8), dtype=bool)
         self._on_key: np.ndarray | None = None
         self._on_groups: list[np.ndarray] = []
-        self.set_groups(lookahead if groups is None else groups)
+        self.set_groups(default_groups(n, L) if groups is None else groups)
 
     def set_groups(self, groups: int) -> None:
         """Refill in ``groups`` staggered groups (a divisor of ``lookahead``; 1 = unstaggered).
@@ -138,17 +185,7 @@ class ProfileStage:
             else:
                 rows = self._group_rows(on, group)
         if self.pending:
-            traj_on = a.traj_on
-            G = self.groups
-            extra = [r for r in self.pending if traj_on[r] and r % G != group]
-            self.pending.clear()
-            if extra:
-                extra.sort()
-                if rows is None:
-                    rows = np.array(extra, dtype=np.intp)
-                else:
-                    grp = self._all_groups[group] if isinstance(rows, slice) else rows
-                    rows = np.concatenate((grp, np.array(extra, dtype=np.intp)))
+            rows = self._take_pending(a, rows, group)
         if rows is not None:
             self._eval(core, rows, col)
         dt = self.dt
@@ -170,6 +207,29 @@ class ProfileStage:
         """Rows whose plan (or whose job's hold/HasJob) changed: evaluated afresh at the next run."""
         self.pending.update(rows)
 
+    def _take_pending(self, a: Any, rows: np.ndarray | slice | None, group: int) -> np.ndarray | slice | None:
+        """Copy the changed plans of the pending rows that run; add those outside this cycle's group."""
+        traj_on = a.traj_on
+        todo = sorted(r for r in self.pending if traj_on[r])
+        self.pending.clear()
+        if not todo:
+            return rows
+        idx = np.array(todo, dtype=np.intp)
+        seg, src = self.seg, a.seg
+        seg[:3, idx] = src[:3, idx]   # t0, p, v
+        seg[3, idx] = src[4, idx]     # j
+        seg[5, idx] = src[3, idx]     # a
+        seg[4, idx] = src[3, idx] * 0.5  # a / 2 (exact: what evaluate() computes per sample)
+        G = self.groups
+        extra = [r for r in todo if r % G != group]
+        if not extra:
+            return rows
+        more = np.array(extra, dtype=np.intp) if len(extra) < len(todo) else idx
+        if rows is None:
+            return more
+        grp = self._all_groups[group] if isinstance(rows, slice) else rows
+        return np.concatenate((grp, more))
+
     def _group_rows(self, on: np.ndarray, group: int) -> np.ndarray:
         """The running rows of ``group`` (cached per ``core.on_rows``, which changes on events only)."""
         if on is not self._on_key:
@@ -179,55 +239,87 @@ class ProfileStage:
         return self._on_groups[group]
 
     def _eval(self, core: NcCore, rows: np.ndarray | slice, col: int) -> None:
-        """Evaluate ``rows`` for the stage cycles from this one on, into columns col, col+1, ... (mod L)."""
+        """Evaluate ``rows`` for the stage cycles from this one on, into columns col, col+1, ... (mod L).
+
+        The arithmetic of :func:`.profile.evaluate`, bit for bit, arranged for blocks of samples.
+        """
         a = core.axes
         L = self.lookahead
         if isinstance(rows, slice):
-            idx = self._all_groups[rows.start]
             base = self._bases[rows.start]
         else:
-            idx = rows
             base = (rows * N_SEGMENTS)[:, None]
-        m = idx.size
+        m = base.shape[0]
         if not m:
             return
         self.refills += 1
         self.refill_rows = m
+        seg = self.seg
         # plan times of the next L cycles: traj_t + dt, + dt, ... (the additions the cycle makes)
-        t = np.empty((m, L))
-        t[:, 0] = a.traj_t[rows]
-        t[:, 0] += self.dt
-        t[:, 1:] = self.dt
+        t = self._times[:m].copy()
+        t[:, 0] += a.traj_t[rows]
         np.add.accumulate(t, axis=1, out=t)
-        key = (m, L)
-        blk = self._flags.get(key)
-        if blk is None:
-            blk = self._flags[key] = (np.empty((4, m, L)), np.zeros((m, L, 8), dtype=bool))
-        res, flags = blk
-        evaluate_block(a.seg, t, rows, base, res)
+        # the segment in force is the one before the first that starts later: with t0[0] = 0 < t,
+        # the first of t0[1:] that starts later (the sentinel never starts) -- evaluate()'s k
+        starts = seg[0, rows, 1:]
+        if m * L <= _SMALL_BLOCK:
+            k = np.argmax(starts[:, None, :] > t[:, :, None], axis=2)
+            k += base
+        else:  # the first sample's segment; only rows reaching their next segment in the window look again
+            k = np.argmax(starts > t[:, :1], axis=1)[:, None]
+            k += base
+            cross = (t[:, -1:] >= self._seg_flat[0, k + 1]).nonzero()[0]
+            if cross.size:
+                k = np.repeat(k, L, axis=1)
+                kc = np.argmax(starts[cross][:, None, :] > t[cross][:, :, None], axis=2)
+                kc += base[cross]
+                k[cross] = kc
+        t0, p0, v0, j, ah, a0 = self._seg_flat[:, k]  # one gather, (m, L) or (m, 1) each
+        tau = np.subtract(t, t0, out=t)
+        tj = tau * j
+        res = self._res[:, :m]
+        pv = res[:2]
+        # position p0 + tau * (v0 + tau * (a0 / 2 + tau * j / 6)), velocity v0 + tau * (a0 + tau * j / 2)
+        np.multiply(tj, _SIXTH_HALF, out=pv)
+        pv[0] += ah
+        pv[1] += a0
+        pv *= tau
+        pv += v0
+        pos = res[0]
+        pos *= tau
+        pos += p0
+        np.add(a0, tj, out=res[2])
+        res[3] = j  # (broadcast when one segment serves all of a row's samples)
         if core.has_origin:
-            res[0] += a.origin[rows][:, None]
+            pos += a.origin[rows][:, None]
         # set-point bits and AxisState: one flag byte per sample (two table lookups when copied)
-        held = a.held[rows]
         v, acc = res[1], res[2]
-        flags[:, :, 0] = held[:, None]
-        np.less(np.abs(acc), 1e-9, out=flags[:, :, 1])
-        av = acc * v
-        np.greater(av, 0, out=flags[:, :, 2])
-        np.less(av, 0, out=flags[:, :, 3])
-        np.greater(v, _EPS_V, out=flags[:, :, 4])
-        np.less(v, -_EPS_V, out=flags[:, :, 5])
-        flags[:, :, 6] = (a.has_job[rows] > held)[:, None]  # a job and not holding
-        code = flags.view(np.uint64)[:, :, 0] * _PACK
-        code >>= _SHIFT
+        rp = a.sp_row[rows]
+        if m * L <= _SMALL_BLOCK:
+            code = _CLASS_CODES[rp[:, None], np.searchsorted(_V_EDGES, v, "right"),
+                                np.searchsorted(_A_EDGES, acc, "right"), np.searchsorted(_AV_EDGES, acc * v, "right")]
+        else:
+            flags = self._flag_bytes[:m]
+            np.less(np.abs(acc), 1e-9, out=flags[:, :, 1])
+            av = acc * v
+            np.greater(av, 0, out=flags[:, :, 2])
+            np.less(av, 0, out=flags[:, :, 3])
+            np.greater(v, _EPS_V, out=flags[:, :, 4])
+            np.less(v, -_EPS_V, out=flags[:, :, 5])
+            code = flags.view(np.uint64)[:, :, 0] * _PACK
+            code >>= _SHIFT
+            code |= _ROW_BITS[rp][:, None]
         # columns col.. L-1 take the first samples, 0 .. col-1 the rest
         buf, bc = self.buf, self.buf_code
-        n1 = L - col
         if col:
+            n1 = L - col
             buf[:, rows, col:] = res[:, :, :n1]
             buf[:, rows, :col] = res[:, :, n1:]
             bc[rows, col:] = code[:, :n1]
             bc[rows, :col] = code[:, n1:]
         else:
-            buf[:, rows, :] = res
-            bc[rows, :] = code
+            buf[:, rows] = res
+            bc[rows] = code
+
+
+_SIXTH_HALF = np.array([1.0 / 6.0, 0.5]).reshape(2, 1, 1)

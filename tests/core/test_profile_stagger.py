@@ -58,7 +58,7 @@ def _cores(n: int, variants: list[tuple[int, int | None]]) -> list[NcCore]:
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("n, variants", [
     (7, [(1, None), (16, None), (4, None), (16, 4), (16, 1)]),   # fewer axes than the lookahead
-    (37, [(1, None), (4, None), (16, None), (8, 2)]),            # uneven groups
+    (37, [(1, None), (4, None), (16, None), (8, 2), (16, 1)]),   # uneven groups; large blocks
 ])
 def test_staggered_lookahead_gives_the_set_points_of_lookahead_1(seed, n, variants):
     rng = random.Random(seed)
@@ -108,3 +108,27 @@ def test_staggered_lookahead_gives_the_set_points_of_lookahead_1(seed, n, varian
                             f"differs from lookahead 1 in {diff[:8]}")
             assert core.ncjobs.tobytes() == ref.ncjobs.tobytes(), cycle
     assert moving_seen > 700 * n // 4  # the sequence kept axes moving most of the time
+
+
+def test_staggered_lookahead_on_long_steady_motions():
+    """Large refill blocks where most rows stay in one segment for the whole window (the segment
+    search looks only at the rows that reach their next segment)."""
+    n = 40
+    cores = _cores(n, [(1, None), (16, 1), (16, 4), (4, 1)])
+    ids = iter(range(1, 10**6))
+    for core in cores:
+        for i in range(n):
+            rec = core.default_plctonc()
+            rec["ControlDWord"] = ALL_ENABLES
+            core.set_plctonc(i, rec)
+    ref = cores[0]
+    for cycle in range(450):
+        if cycle % 150 == 1:  # every axis (again) at its own velocity, then long stretches without commands
+            for i in range(n):
+                req = parse_request(make_request("MoveVelocity", next(ids), "test", Velocity=50.0 + 7.0 * i + cycle / 10,
+                                                 Direction=1 if (i + cycle) % 3 else 3))
+                assert len({repr(core.execute(dict(req), i + 1)) for core in cores}) == 1
+        for core in cores:
+            core.step()
+        for core in cores[1:]:
+            assert core.nctoplc.tobytes() == ref.nctoplc.tobytes(), (cycle, core.profile.lookahead, core.profile.groups)
