@@ -1,8 +1,13 @@
-"""Test-side control of PLC processes running ``plc_agent.py`` under ``plc-run``."""
+"""Test-side control of PLC processes running ``plc_agent.py`` under ``plc-run``, and the helpers
+the integration tests of the blocks share (deadline ``T``, the NC's arguments, power on, the
+output rules). The fixtures ``nc`` and ``plc`` are in this folder's conftest.py.
+"""
 from __future__ import annotations
 
+import itertools
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -11,6 +16,11 @@ from pathlib import Path
 from typing import Any, Callable
 
 AGENT = Path(__file__).with_name("plc_agent.py")
+
+#: deadline of every wait [s]: generous, a loaded 2-core machine
+T = 30.0
+#: the watchdog is not what these tests are about: tolerate PLC stalls of a loaded machine
+NC_ARGS = ("--watchdog-timeout", "3.0")
 
 
 class Rec:
@@ -42,8 +52,11 @@ class PlcProcess:
                "--client-id", client_id, "--cycle-time", "0.01", *(extra or [])]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True, bufsize=1, env=env)
+                                     text=True, bufsize=1, env=env, start_new_session=True)
         self.records: dict[str, list[Rec]] = {}
+        self.samples: dict[int, list[Rec]] = {}
+        self.synced: dict[int, int] = {}
+        self._ids = itertools.count(1)
         self.cycle = 0
         self.lines: list[str] = []
         self.err_lines: list[str] = []
@@ -65,6 +78,10 @@ class PlcProcess:
                     self.cycle = max(self.cycle, int(m["c"]))
                 if "n" in m:
                     self.records.setdefault(m["n"], []).append(Rec(m["c"], m["o"], m["a"]))
+                elif "tr" in m:
+                    self.samples.setdefault(int(m["tr"]), []).append(Rec(m["c"], {}, m["a"]))
+                elif "sync" in m:
+                    self.synced[int(m["sync"])] = int(m["c"])
                 self._cv.notify_all()
         with self._cv:
             self._cv.notify_all()
@@ -88,6 +105,37 @@ class PlcProcess:
     def delete(self, name: str) -> None:
         self._send({"op": "del", "name": name})
 
+    def sync(self, timeout: float = T) -> int:
+        """Wait until the PLC applied every message sent so far; returns the PLC cycle in which it
+        did (the blocks ran with those inputs in that cycle; later messages apply in later cycles)."""
+        k = next(self._ids)
+        self._send({"op": "sync", "id": k})
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while k not in self.synced:
+                left = deadline - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None:
+                    raise AssertionError(f"{self.client_id}: no sync {k} in {timeout} s (rc={self.proc.poll()}): "
+                                         f"{''.join(self.err_lines[-10:])}")
+                self._cv.wait(min(left, 0.1))
+            return self.synced[k]
+
+    def edge(self, name: str, input: str = "Execute", **inputs: Any) -> int:
+        """A rising edge of ``input`` of block ``name``: FALSE for at least one PLC cycle, then TRUE
+        together with ``inputs``. Returns the cycle with FALSE (the edge's records are later)."""
+        self.set(name, **{input: False})
+        c = self.sync()
+        self.set(name, **{input: True}, **inputs)
+        return c
+
+    def trace(self, axis: int = 1, on: bool = True, nc: str = "nc1") -> None:
+        """Record the axis's data every PLC cycle (in ``samples[axis]``) while ``on``."""
+        self._send({"op": "trace", "axis": axis, "nc": nc, "on": on})
+
+    def trace_of(self, axis: int = 1) -> list[Rec]:
+        with self._cv:
+            return list(self.samples.get(axis, []))
+
     def _send(self, msg: dict[str, Any]) -> None:
         assert self.proc.stdin is not None
         self.proc.stdin.write(json.dumps(msg) + "\n")
@@ -103,28 +151,37 @@ class PlcProcess:
         with self._cv:
             return list(self.records.get(name, []))
 
-    def wait(self, name: str, pred: Callable[[Rec], bool], timeout: float = 10.0) -> Rec:
+    def wait(self, name: str, pred: Callable[[Rec], bool], timeout: float = T) -> Rec:
         """Wait until block ``name`` is in a state satisfying ``pred``: its current state (newest
         record) or any record that arrives while waiting (so one-cycle pulses are not missed).
 
         Raises:
             AssertionError: timeout or the process ended; the message shows the history.
         """
+        return self._wait(lambda: self.records.get(name), name, pred, timeout)
+
+    def wait_trace(self, axis: int, pred: Callable[[Rec], bool], timeout: float = T) -> Rec:
+        """Like :meth:`wait` on the axis's samples (``trace`` must be on)."""
+        return self._wait(lambda: self.samples.get(axis), f"trace {axis}", pred, timeout)
+
+    def _wait(self, get: Callable[[], list[Rec] | None], what: str, pred: Callable[[Rec], bool],
+              timeout: float) -> Rec:
         deadline = time.monotonic() + timeout
         with self._cv:
-            start = max(0, len(self.records.get(name, [])) - 1)
+            start = max(0, len(get() or []) - 1)
             while True:
-                recs = self.records.get(name)
+                recs = get()
                 if recs:
                     for r in recs[start:]:
                         if pred(r):
                             return r
+                    start = len(recs)
                 if self.proc.poll() is not None:
                     raise AssertionError(f"PLC {self.client_id} exited rc={self.proc.returncode}: "
                                          f"{''.join(self.err_lines[-20:])}")
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise AssertionError(f"{self.client_id}/{name}: condition not met in {timeout} s; "
+                    raise AssertionError(f"{self.client_id}/{what}: condition not met in {timeout} s; "
                                          f"history: {recs[-8:] if recs else None}\n{''.join(self.err_lines[-10:])}")
                 self._cv.wait(min(left, 0.1))
 
@@ -150,14 +207,19 @@ class PlcProcess:
 
     # -- end -------------------------------------------------------------------------------
     def stop(self, timeout: float = 10.0) -> int:
-        """SIGTERM and wait (the runtime releases its claims); kills after ``timeout``."""
+        """SIGTERM and wait (the runtime releases its claims); after ``timeout`` SIGKILL; in the end
+        its whole process group is killed (it has its own session)."""
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
                 self.proc.wait(timeout)
             except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+                pass
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        self.proc.wait(5)
         return self.proc.returncode
 
     def __enter__(self) -> PlcProcess:
@@ -165,3 +227,30 @@ class PlcProcess:
 
     def __exit__(self, *exc: Any) -> None:
         self.stop()
+
+
+# ---- shared by the tests of the blocks -------------------------------------------------------
+def power_on(p: PlcProcess, axis: int = 1, name: str = "pw") -> Rec:
+    """MC_Power ``name`` on ``axis`` with both feed enables; returns its first record with Status."""
+    p.set(name, "MC_Power", axis=axis, Enable=True, Enable_Positive=True, Enable_Negative=True)
+    return p.wait(name, lambda r: r.o["Status"], T)
+
+
+def exclusive(recs: list[Rec]) -> None:
+    """PLCopen output rules: Busy/Done/InVelocity/InEndVelocity/Error/CommandAborted mutually
+    exclusive (MC_Stop's Busy+Active+Done while locked excepted), Active only with Busy."""
+    for r in recs:
+        on = [k for k in ("Busy", "Done", "InVelocity", "InEndVelocity", "Error", "CommandAborted") if r.o.get(k)]
+        locked_stop = set(on) == {"Busy", "Done"} and r.o.get("Active") and r.a.get("Locked")
+        assert len(on) <= 1 or locked_stop, r
+        assert not r.o.get("Active") or r.o.get("Busy"), r
+
+
+def first_cycle(recs: list[Rec], output: str) -> int:
+    """The PLC cycle of the first record in which ``output`` is TRUE."""
+    return next(r.c for r in recs if r.o.get(output))
+
+
+def ended(r: Rec) -> bool:
+    """The block has a result (whichever)."""
+    return any(r.o.get(k) for k in ("Done", "InVelocity", "InEndVelocity", "Error", "CommandAborted"))

@@ -7,42 +7,8 @@ output changes reported per PLC cycle on stdout). Deadlines are generous (loaded
 from __future__ import annotations
 
 import math
-from typing import Callable, Iterator
 
-import pytest
-
-from plc_harness import PlcProcess, Rec
-from znc_testing import NcServerProcess
-
-T = 30.0
-#: the watchdog is not what these tests are about: tolerate PLC stalls of a loaded machine
-NC_ARGS = ("--watchdog-timeout", "3.0")
-
-
-@pytest.fixture
-def nc(start_nc: Callable[..., NcServerProcess]) -> NcServerProcess:
-    return start_nc(extra_args=NC_ARGS)
-
-
-@pytest.fixture
-def plc(nc: NcServerProcess) -> Iterator[PlcProcess]:
-    p = PlcProcess(nc.endpoint, "plc-a")
-    try:
-        p.wait_started()
-        yield p
-    finally:
-        p.stop()
-
-
-def power_on(p: PlcProcess, axis: int = 1, name: str = "pw") -> Rec:
-    p.set(name, "MC_Power", axis=axis, Enable=True, Enable_Positive=True, Enable_Negative=True)
-    return p.wait(name, lambda r: r.o["Status"], T)
-
-
-def exclusive(recs: list[Rec]) -> None:
-    for r in recs:
-        on = [k for k in ("Busy", "Done", "InVelocity", "Error", "CommandAborted") if r.o.get(k)]
-        assert len(on) <= 1 or set(on) == {"Busy", "Done"} and r.o.get("Active"), r
+from plc_harness import T, PlcProcess, exclusive, power_on
 
 
 def test_power_and_move_absolute_done_held(plc: PlcProcess) -> None:
@@ -63,11 +29,9 @@ def test_done_pulse_and_retrigger(plc: PlcProcess) -> None:
     power_on(plc)
     plc.set("mv", "MC_MoveRelative", Execute=True, Distance=30.0, Velocity=20.0)
     plc.wait("mv", lambda r: r.o["Active"], T)
-    plc.set("mv", Execute=False)
-    plc.wait_cycles(3)
-    # a rising edge while Busy: ignored (no new command: the axis ends at 30, not 60)
-    plc.set("mv", Execute=True, Distance=100.0)
-    plc.wait_cycles(2)
+    # a rising edge while Busy: ignored (no new command: the axis ends at 30, not 100 further)
+    plc.edge("mv", Distance=100.0)
+    plc.sync()
     plc.set("mv", Execute=False)
     end = plc.wait("mv", lambda r: not r.o["Busy"], T)
     assert end.o["Done"]
@@ -147,8 +111,6 @@ def test_move_modulo_on_the_modulo_axis(plc: PlcProcess) -> None:
     plc.set("mm", "MC_MoveModulo", axis=4, Execute=True, Position=90.0, Velocity=360.0, Direction=1)
     done = plc.wait("mm", lambda r: r.o["Done"], T)
     assert abs(done.a["ActPos"] - 90.0) < 0.05
-    plc.set("mm", Execute=False)
-    plc.wait_cycles(2)
-    plc.set("mm", Execute=True, Position=45.0, Direction=1)  # positive direction: a full turn minus 45
+    plc.edge("mm", Position=45.0, Direction=1)  # positive direction: a full turn minus 45
     done = plc.wait("mm", lambda r: r.o["Done"] and r.a["ActPos"] > 300.0, T)
     assert abs(done.a["ActPos"] - 405.0) < 0.05

@@ -13,43 +13,11 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import Callable, Iterator
 
-import pytest
-
-from plc_harness import PlcProcess, Rec
+from plc_harness import T, PlcProcess, exclusive, power_on
 from znc_testing import NcServerProcess
 
-T = 30.0
-NC_ARGS = ("--watchdog-timeout", "3.0")  # tolerate PLC stalls of a loaded machine
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-
-@pytest.fixture
-def nc(start_nc: Callable[..., NcServerProcess]) -> NcServerProcess:
-    return start_nc(extra_args=NC_ARGS)
-
-
-@pytest.fixture
-def plc(nc: NcServerProcess) -> Iterator[PlcProcess]:
-    p = PlcProcess(nc.endpoint, "plc-jog")
-    try:
-        p.wait_started()
-        yield p
-    finally:
-        p.stop()
-
-
-def power_on(p: PlcProcess, axis: int = 1) -> Rec:
-    p.set("pw", "MC_Power", axis=axis, Enable=True, Enable_Positive=True, Enable_Negative=True)
-    return p.wait("pw", lambda r: r.o["Status"], T)
-
-
-def exclusive(recs: list[Rec]) -> None:
-    for r in recs:
-        on = [k for k in ("Busy", "Done", "Error", "CommandAborted") if r.o.get(k)]
-        assert len(on) <= 1, r
-        assert not r.o.get("Active") or r.o.get("Busy"), r
 
 
 def test_jog_continuous_and_inching(plc: PlcProcess) -> None:

@@ -10,46 +10,8 @@ PLC cycle, so the transitions can be checked cycle by cycle. Deadlines are gener
 from __future__ import annotations
 
 import math
-from typing import Callable, Iterator
 
-import pytest
-
-from plc_harness import PlcProcess, Rec
-from znc_testing import NcServerProcess
-
-T = 30.0
-NC_ARGS = ("--watchdog-timeout", "3.0")
-
-
-@pytest.fixture
-def nc(start_nc: Callable[..., NcServerProcess]) -> NcServerProcess:
-    return start_nc(extra_args=NC_ARGS)
-
-
-@pytest.fixture
-def plc(nc: NcServerProcess) -> Iterator[PlcProcess]:
-    p = PlcProcess(nc.endpoint, "plc-engine")
-    try:
-        p.wait_started()
-        yield p
-    finally:
-        p.stop()
-
-
-def power_on(p: PlcProcess, axis: int = 1) -> None:
-    p.set("pw", "MC_Power", axis=axis, Enable=True, Enable_Positive=True, Enable_Negative=True)
-    p.wait("pw", lambda r: r.o["Status"], T)
-
-
-def exclusive(recs: list[Rec]) -> None:
-    for r in recs:
-        on = [k for k in ("Busy", "Done", "InVelocity", "Error", "CommandAborted") if r.o.get(k)]
-        assert len(on) <= 1, r
-        assert not r.o.get("Active") or r.o.get("Busy"), r
-
-
-def first_cycle(recs: list[Rec], output: str) -> int:
-    return next(r.c for r in recs if r.o.get(output))
+from plc_harness import T, PlcProcess, ended, exclusive, first_cycle, power_on
 
 
 def test_buffered_sequence_of_three_blended_moves(plc: PlcProcess) -> None:
@@ -62,7 +24,7 @@ def test_buffered_sequence_of_three_blended_moves(plc: PlcProcess) -> None:
     plc.wait("m2", lambda r: r.o["Active"], T)
     plc.set("m3", "MC_MoveAbsolute", Execute=True, Position=300.0, Velocity=100.0, BufferMode=18)  # BlendingLow
     plc.wait("m3", lambda r: r.o["Busy"], T)
-    done = plc.wait("m3", lambda r: r.o["Done"] or r.o["Error"] or r.o["CommandAborted"], T)
+    done = plc.wait("m3", ended, T)
     assert done.o["Done"], done
     assert math.isclose(done.a["ActPos"], 300.0, abs_tol=0.02)
     plc.wait_cycles(5)
@@ -89,7 +51,7 @@ def test_new_pos_on_a_running_move(plc: PlcProcess) -> None:
     r = plc.wait("np", lambda r: r.o["Done"] or r.o["Error"], T)
     assert r.o["Done"], r
     assert plc.last("mv").o["Busy"], "the amended move goes on"
-    done = plc.wait("mv", lambda r: r.o["Done"] or r.o["Error"] or r.o["CommandAborted"], T)
+    done = plc.wait("mv", ended, T)
     assert done.o["Done"], done
     assert math.isclose(done.a["ActPos"], 150.0, abs_tol=0.02)
     exclusive(plc.history("mv"))

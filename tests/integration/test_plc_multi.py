@@ -5,8 +5,7 @@ from typing import Callable, Iterator
 
 import pytest
 
-from plc_harness import PlcProcess
-from test_plc_blocks import NC_ARGS, T, power_on
+from plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess
 
 

@@ -4,8 +4,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from plc_harness import PlcProcess
-from test_plc_blocks import NC_ARGS, T, power_on
+from plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess, free_port
 
 
