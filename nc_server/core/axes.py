@@ -11,10 +11,27 @@ from typing import Sequence
 
 import numpy as np
 
-from nc_schema import OpModeDWord
+from nc_schema import OpModeDWord, StateDWord
 
 from .params import AxisParams
 from .profile import N_SEGMENTS
+
+#: packs 8 bool bytes (viewed as one little-endian uint64) into one byte: byte b (0/1) lands on bit
+#: 56 + b of the product, no two partial products overlap or carry; then shift right by PACK_SHIFT
+PACK_BYTES = np.uint64(0x0102040810204080)
+PACK_SHIFT = np.uint64(56)
+#: the event-driven StateDWord flags: the columns of ``AxisTable.events``, in this order
+EVENT_FLAGS = (("homed", StateDWord.Homed), ("stopped", StateDWord.HasBeenStopped), ("has_job", StateDWord.HasJob),
+               ("homing", StateDWord.HomingBusy), ("amended", StateDWord.NewTargetPos),
+               ("continuous", StateDWord.ContinuousMotion), ("buffered", StateDWord.CmdBuffered),
+               ("locked", StateDWord.MotionCommandsLocked))
+#: StateDWord of a packed events byte (PTPmode always: every axis is a PTP axis)
+_EVENT_LUT = np.array([int(StateDWord.PTPmode) | sum(int(f) for b, (_, f) in enumerate(EVENT_FLAGS) if k >> b & 1)
+                       for k in range(256)], dtype=np.uint32)
+_ERROR = np.uint32(int(StateDWord.Error))
+assert [name for name, _ in EVENT_FLAGS] == ["homed", "stopped", "has_job", "homing", "amended", "continuous",
+                                             "buffered", "locked"]  # AxisTable.__init__ unpacks them so
+
 
 class AxisTable:
     """All per-axis state, column-wise."""
@@ -44,12 +61,14 @@ class AxisTable:
         self.traj_on = b()           # the generator follows a plan
         self.origin = f()            # shift of the running plan since it was planned (SetActualPositionOnTheFly)
         self.offset = f()            # NC position - drive position (MC_SetActualPosition)
+        # event-driven StateDWord flags: the columns of one (n, 8) bool matrix (packed in one
+        # operation, AxisTable.event_dwords), in the order of EVENT_FLAGS. has_job (a numbered job
+        # runs), homing, amended, continuous and buffered are mirrored from the job queues on events
+        # (NcCore._sync); locked: MC_Stop active
+        self.events = np.zeros((n, 8), dtype=bool)
+        (self.homed, self.stopped, self.has_job, self.homing, self.amended, self.continuous, self.buffered,
+         self.locked) = self.events.T
         # mirrored from the job queues on events (NcCore._sync)
-        self.has_job = b()           # a numbered job runs (HasJob)
-        self.continuous = b()        # ContinuousMotion
-        self.homing = b()            # HomingBusy
-        self.amended = b()           # NewTargetPos
-        self.buffered = b()          # CmdBuffered
         self.hold_enable = b()       # the running job keeps the drive enabled (fault ramp)
         self.driving = b()           # the running job is checked against the feed enables
         self.held = b()              # the running job waits at override 0
@@ -61,10 +80,7 @@ class AxisTable:
         self.target_pos = f()
         # axis state
         self.error = np.zeros(n, dtype=np.uint32)
-        self.locked = b()            # MC_Stop active (MotionCommandsLocked)
-        self.stopped = b()           # HasBeenStopped
         self.enabled = b()           # controller enable in effect last cycle
-        self.homed = b()
         self.override = np.ones(n)   # applied override 0..1
         # monitoring
         self.lag_timer = f()
@@ -76,6 +92,14 @@ class AxisTable:
         for i, p in enumerate(params):
             self.load_params(i, p)
             self.homed[i] = p.Homed
+
+    def event_dwords(self, err: np.ndarray) -> np.ndarray:
+        """The event-driven StateDWord bits of every axis (``err``: its error != 0)."""
+        code = self.events.view(np.uint64)[:, 0] * PACK_BYTES
+        code >>= PACK_SHIFT
+        dw = _EVENT_LUT[code]
+        dw |= err * _ERROR
+        return dw
 
     def load_params(self, i: int, p: AxisParams) -> None:
         """Mirror one axis's parameters into the columns."""

@@ -59,17 +59,6 @@ _CAM = int(ControlDWord.HomingSensor)
 _OVERRIDE_MAX = 1_000_000
 
 
-def _bit(flag: StateDWord) -> int:
-    return int(flag).bit_length() - 1
-
-
-#: event-driven StateDWord bits: (bit number, AxisTable column)
-_EVENT_BITS = [(_bit(StateDWord.Homed), "homed"), (_bit(StateDWord.HasBeenStopped), "stopped"),
-               (_bit(StateDWord.HasJob), "has_job"), (_bit(StateDWord.HomingBusy), "homing"),
-               (_bit(StateDWord.NewTargetPos), "amended"), (_bit(StateDWord.ContinuousMotion), "continuous"),
-               (_bit(StateDWord.CmdBuffered), "buffered"), (_bit(StateDWord.MotionCommandsLocked), "locked")]
-_ERROR_BIT = _bit(StateDWord.Error)
-_PTP_BIT = _bit(StateDWord.PTPmode)
 _NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
 _LOOP = np.uint32(int(StateDWord.ControlLoopClosed))
 _OPERATIONAL = np.uint32(int(StateDWord.Operational))
@@ -119,8 +108,8 @@ class NcCore:
         self.plctonc[:] = self.default_plctonc()
         self.ncjobs = np.zeros(n, dtype=NCJOBS_DTYPE)
         self.ncjobs["AxisId"] = self.axis_ids
-        self._bits = np.zeros((n, 32), dtype=bool)  # event-driven StateDWord bits, packed in _derive_state
-        self._bits[:, _PTP_BIT] = True  # every axis is a PTP axis
+        self._not_moving = np.array([_NOT_MOVING, 0], dtype=np.uint32)  # by |set velocity| > eps
+        self._loop_ok = np.array([_LOOP | _OPERATIONAL, _LOOP], dtype=np.uint32)  # by error
         self.profile = ProfileStage(self, max(1, int(lookahead)))
         self.sp_dw = np.zeros(n, dtype=np.uint32)
         self.axis_state = np.zeros(n, dtype=np.uint32)
@@ -134,6 +123,11 @@ class NcCore:
         self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
         self.nctoplc["AxisId"] = self.axis_ids
         self.nctoplc["OpModeDWord"] = self.axes.opmode
+        # views of the NCTOPLC fields the cycle writes (a field lookup per write costs more than the copy)
+        self._out = {name: self.nctoplc[name] for name in NCTOPLC_DTYPE.names}
+        f8 = NCTOPLC_DTYPE.fields
+        assert f8["SetVelo"][1] == f8["SetPos"][1] + 8 and f8["SetAcc"][1] == f8["SetPos"][1] + 16
+        self._out_sp = np.ndarray((n, 3), np.float64, self.nctoplc, f8["SetPos"][1], (NCTOPLC_DTYPE.itemsize, 8))
         self._dt_ns = int(round(self.cycle_time * 1e9))
         self.act_pos = self.drive.act_pos.copy()
         self.prev_act_pos = self.act_pos.copy()
@@ -821,26 +815,25 @@ class NcCore:
         job = a.has_job
         watch = a.watch_kind
         self._watch_rows = []
-        if (watch >= 0).any():
-            for k in np.unique(watch[watch >= 0]).tolist():
+        watched = watch >= 0
+        if np.count_nonzero(watched):  # (np.count_nonzero: far cheaper than ndarray.any here)
+            for k in np.unique(watch[watched]).tolist():
                 self._watch_rows.append((KINDS_LIST[k], (watch == k).nonzero()[0]))
         self._feed_rows = (a.driving & ~(self._feed_plus & self._feed_minus)).nonzero()[0]
-        standstill = ~(a.traj_on | job) & enabled
-        self._watch = a.lag_en & enabled, standstill, bool((a.en_max | a.en_min).any()), bool(standstill.any())
-        # axes without a profile: AxisState INACTIVE, NotMoving unless a set velocity remains
-        idle = ~a.traj_on
-        self.sp_dw[idle] = np.where(np.abs(a.set_velo[idle]) > _EPS_V, np.uint32(0), _NOT_MOVING)
-        self.axis_state[idle] = 0
+        standstill = ~(a.traj_on | job)
+        standstill &= enabled
+        self._watch = (a.lag_en & enabled, standstill, bool(np.count_nonzero(a.en_max) or np.count_nonzero(a.en_min)),
+                       bool(np.count_nonzero(standstill)))
+        if not self.all_on:  # axes without a profile: AxisState INACTIVE, NotMoving unless a set velocity remains
+            idle = ~a.traj_on
+            self.sp_dw[idle] = self._not_moving[(np.abs(a.set_velo[idle]) > _EPS_V).view(np.uint8)]
+            self.axis_state[idle] = 0
         err = a.error != 0
-        ev = self._bits
-        for bit, col in _EVENT_BITS:
-            ev[:, bit] = getattr(a, col)
-        ev[:, _ERROR_BIT] = err
-        self._event_dw = np.packbits(ev, axis=1, bitorder="little").view(np.uint32)[:, 0].copy()
+        self._event_dw = a.event_dwords(err)
         # ControlLoopClosed always, Operational only without an error (both need enable + drive ready)
-        self._loop_dw = np.where(err, _LOOP, _LOOP | _OPERATIONAL)
-        self._has_offset = bool(a.offset.any())
-        self.has_origin = bool(a.origin.any())
+        self._loop_dw = self._loop_ok[err.view(np.uint8)]
+        self._has_offset = bool(np.count_nonzero(a.offset))
+        self.has_origin = bool(np.count_nonzero(a.origin))
         out["ErrorCode"] = a.error
         out["SafEntries"] = job
         out["OpModeDWord"] = a.opmode | self._opmode_sim
@@ -868,31 +861,28 @@ class NcCore:
         return float(4 if self.params[i].Modulo else 0)  # AxisUnitInterpretation: bit 2 = modulo
 
     def _fill_nctoplc(self) -> None:
-        a, d, out = self.axes, self.drive, self.nctoplc
+        a, d, o = self.axes, self.drive, self._out
         act = self.act_pos
-        sd = self._event_dw | self.sp_dw | a.mon_dw
+        sd = self._event_dw | self.sp_dw
+        sd |= a.mon_dw
         sd |= (a.enabled & d.ready) * self._loop_dw
-        out["StateDWord"] = sd
-        out["AxisState"] = self.axis_state
+        o["StateDWord"][...] = sd
+        o["AxisState"][...] = self.axis_state
         period = a.modulo_factor
-        out["ActPos"] = act
-        out["ModuloActPos"] = act % period
-        out["ModuloActTurns"] = act // period
-        out["ActVelo"] = d.act_velo
-        out["ActAcc"] = d.act_acc
-        out["PosDiff"] = a.set_pos - act
-        out["SetPos"] = a.set_pos
-        out["SetVelo"] = a.set_velo
-        out["SetAcc"] = a.set_acc
-        out["SetJerk"] = a.set_jerk
-        if a.continuous.any():
+        o["ActPos"][...] = act
+        np.divmod(act, period, out=(o["ModuloActTurns"], o["ModuloActPos"]), casting="unsafe")  # // and %
+        o["ActVelo"][...] = d.act_velo
+        o["ActAcc"][...] = d.act_acc
+        np.subtract(a.set_pos, act, out=o["PosDiff"])
+        self._out_sp[...] = a.S[:3].T  # SetPos, SetVelo, SetAcc: adjacent fields, one copy
+        o["SetJerk"][...] = a.set_jerk
+        if np.count_nonzero(a.continuous):
             cont = a.continuous
             a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
-            out["TargetPos"] = a.target_pos
-        out["ModuloSetPos"] = a.set_pos % period
-        out["ModuloSetTurns"] = a.set_pos // period
-        out["ActPosWithoutPosCorrection"] = act
-        out["DcTimeStamp"] = self.nc_time_ns & 0xFFFFFFFF
+            o["TargetPos"][...] = a.target_pos
+        np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
+        o["ActPosWithoutPosCorrection"][...] = act
+        o["DcTimeStamp"][...] = self.nc_time_ns & 0xFFFFFFFF
 
     # -- commands ----------------------------------------------------------------------------
     def _dispatch(self, i: int, req: dict[str, Any]) -> dict[str, Any]:

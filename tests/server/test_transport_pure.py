@@ -29,6 +29,21 @@ def test_fast_frame_is_byte_identical(n: int, flags: int) -> None:
     assert out.tobytes() == recs.tobytes()
 
 
+@pytest.mark.parametrize("n", [0, 3, 1024])
+def test_fast_frame_with_job_records_is_byte_identical(n: int) -> None:
+    from nc_schema import NCJOBS_DTYPE
+    rng = np.random.default_rng(n)
+    recs = np.zeros(n, dtype=NCTOPLC_DTYPE)
+    jobs = np.zeros(n, dtype=NCJOBS_DTYPE)
+    for k in range(3):  # the same arrays again (their byte views are kept), changed in place meanwhile
+        recs.view(np.uint8)[:] = rng.integers(0, 256, recs.nbytes, dtype=np.uint8)
+        jobs.view(np.uint8)[:] = rng.integers(0, 256, jobs.nbytes, dtype=np.uint8)
+        assert encode_frame_fast(k, 10**18 + k, recs, 1, jobs) == encode_frame(k, 10**18 + k, recs, 1, jobs)
+        assert encode_frame_fast(k, k, recs, 3) == encode_frame(k, k, recs, 3)
+    part = np.zeros(2 * n, dtype=NCTOPLC_DTYPE)[::2]  # not contiguous
+    assert encode_frame_fast(1, 2, part, 0, jobs) == encode_frame(1, 2, part, 0, jobs)
+
+
 def test_zenoh_config_is_explicit() -> None:
     c = zenoh_config(ZenohSettings("router", ("tcp/127.0.0.1:17447",), (), 750))
     assert json.loads(c.get_json("mode")) == "router"
