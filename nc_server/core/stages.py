@@ -140,6 +140,7 @@ class ProfileStage:
         self.seg = np.zeros((6, n, N_SEGMENTS))
         self.seg[0] = np.inf
         self._seg_flat = self.seg.reshape(6, -1)
+        self._row_base = (np.arange(n) * N_SEGMENTS)[:, None]  # each row's offset into the flat table
         self._times = np.full((n, L), self.dt)  # each sample one cycle time after the one before
         self._res = np.empty((4, n, L))
         self._flag_bytes = np.zeros((n, L, 8), dtype=bool)
@@ -159,7 +160,7 @@ class ProfileStage:
         self.period = self.lookahead // groups
         n = self.n
         self._all_groups = [np.arange(g, n, groups) for g in range(groups)]
-        self._bases = [(r * N_SEGMENTS)[:, None] for r in self._all_groups]
+        self._bases = [self._row_base[g::groups] for g in range(groups)]
         self._on_key = None
         self.pending = set(range(n))  # every row from the next run on (whatever ran before)
 
@@ -174,20 +175,22 @@ class ProfileStage:
         self.c = c + 1
         L = self.lookahead
         col = c % L
-        rows: np.ndarray | slice | None = None
+        rows: np.ndarray | slice | None = None  # the rows to evaluate (basic indexing where possible)
+        base: np.ndarray | None = None  # and their offsets into the flat segment table, (m, 1)
         group = -1
         if c % self.period == 0:
             group = (c // self.period) % self.groups
             if core.all_on:
-                rows = self._all_groups[group]
-                if rows.size:
-                    rows = slice(group, None, self.groups)
+                if self._all_groups[group].size:
+                    rows, base = slice(group, None, self.groups), self._bases[group]
             else:
-                rows = self._group_rows(on, group)
+                idx = self._group_rows(on, group)
+                if idx.size:
+                    rows, base = idx, self._row_base[idx]
         if self.pending:
-            rows = self._take_pending(a, rows, group)
+            rows, base = self._take_pending(a, rows, base, group)
         if rows is not None:
-            self._eval(core, rows, col)
+            self._eval(core, rows, base, col)  # type: ignore[arg-type]
         dt = self.dt
         if core.all_on:
             a.traj_t += dt
@@ -207,15 +210,20 @@ class ProfileStage:
         """Rows whose plan (or whose job's hold/HasJob) changed: evaluated afresh at the next run."""
         self.pending.update(rows)
 
-    def _take_pending(self, a: Any, rows: np.ndarray | slice | None, group: int) -> np.ndarray | slice | None:
-        """Copy the changed plans of the pending rows that run; add those outside this cycle's group."""
+    def _take_pending(self, a: Any, rows: np.ndarray | slice | None, base: np.ndarray | None,
+                      group: int) -> tuple[np.ndarray | slice | None, np.ndarray | None]:
+        """Copy the changed plans of the pending rows that run; add those outside this cycle's group
+        to ``rows`` (and ``base``)."""
         traj_on = a.traj_on
         todo = sorted(r for r in self.pending if traj_on[r])
         self.pending.clear()
         if not todo:
-            return rows
-        idx = np.array(todo, dtype=np.intp)
+            return rows, base
         seg, src = self.seg, a.seg
+        if len(todo) == 1:  # (a command: basic indexing)
+            idx: int | np.ndarray = todo[0]
+        else:
+            idx = np.array(todo, dtype=np.intp)
         seg[:3, idx] = src[:3, idx]   # t0, p, v
         seg[3, idx] = src[4, idx]     # j
         seg[5, idx] = src[3, idx]     # a
@@ -223,12 +231,14 @@ class ProfileStage:
         G = self.groups
         extra = [r for r in todo if r % G != group]
         if not extra:
-            return rows
-        more = np.array(extra, dtype=np.intp) if len(extra) < len(todo) else idx
-        if rows is None:
-            return more
-        grp = self._all_groups[group] if isinstance(rows, slice) else rows
-        return np.concatenate((grp, more))
+            return rows, base
+        if rows is None and len(extra) == 1:  # (a command: basic indexing)
+            r = extra[0]
+            return slice(r, r + 1), self._row_base[r:r + 1]
+        more = np.array(extra, dtype=np.intp)
+        if rows is not None:
+            more = np.concatenate((self._all_groups[group] if isinstance(rows, slice) else rows, more))  # type: ignore[arg-type]
+        return more, self._row_base[more]
 
     def _group_rows(self, on: np.ndarray, group: int) -> np.ndarray:
         """The running rows of ``group`` (cached per ``core.on_rows``, which changes on events only)."""
@@ -238,20 +248,15 @@ class ProfileStage:
             self._on_groups = [on[g == k] for k in range(self.groups)]
         return self._on_groups[group]
 
-    def _eval(self, core: NcCore, rows: np.ndarray | slice, col: int) -> None:
-        """Evaluate ``rows`` for the stage cycles from this one on, into columns col, col+1, ... (mod L).
+    def _eval(self, core: NcCore, rows: np.ndarray | slice, base: np.ndarray, col: int) -> None:
+        """Evaluate ``rows`` (offsets ``base`` into the flat segment table, (m, 1)) for the stage
+        cycles from this one on, into columns col, col+1, ... (mod L).
 
         The arithmetic of :func:`.profile.evaluate`, bit for bit, arranged for blocks of samples.
         """
         a = core.axes
         L = self.lookahead
-        if isinstance(rows, slice):
-            base = self._bases[rows.start]
-        else:
-            base = (rows * N_SEGMENTS)[:, None]
         m = base.shape[0]
-        if not m:
-            return
         self.refills += 1
         self.refill_rows = m
         seg = self.seg
