@@ -228,7 +228,11 @@ class NcCore:
             q.end(running, CmdState.ERROR, code)
         moving = bool(a.traj_on[i]) or abs(a.set_velo[i]) > 0
         if moving and a.enabled[i]:
-            self._start_ramp(i, FAULT_RAMP, running)
+            try:
+                self._start_ramp(i, FAULT_RAMP, running)
+            except Exception:  # never leave an axis in error moving
+                _log.exception("axis %d: fault ramp failed; the set-point stops at once", int(a.ids[i]))
+                self.clear_profile(i)
         else:
             self.clear_profile(i)
         self._sync(i)
@@ -572,13 +576,16 @@ class NcCore:
         """An internal stop ramp (no CmdNo) after an error or a job that could not take over."""
         a = self.axes
         if kind is FAULT_RAMP or running is None or running.dyn is None:
-            d = self.stop_dynamics(i, float(a.dec[i]), float(a.jerk[i]), running)
+            dec, jerk = float(a.dec[i]), float(a.jerk[i])
         else:
-            d = self.stop_dynamics(i, running.dyn.deceleration, running.dyn.jerk, running)
+            dec, jerk = running.dyn.deceleration, running.dyn.jerk
+        # the NC's own ramp is never refused: values the planner cannot take are clamped into range
+        d = self.stop_dynamics(i, min(max(dec, 1e-6), 1e10), min(max(jerk, 1e-6), 1e12), running)
         try:
             plan = plan_velocity(self.start_state(i), 0.0, d)
         except PlanningError:
-            self.clear_profile(i)  # cannot plan: stop the set-point at once
+            _log.error("axis %d: no stop ramp could be planned; the set-point stops at once", int(a.ids[i]))
+            self.clear_profile(i)  # cannot plan: stop the set-point at once (never keep moving)
             return
         self.begin(i, Job(kind, {}, dyn=d), plan, abort_waiting=False)
 
@@ -707,7 +714,12 @@ class NcCore:
                         rows = self._still_watched(kind, rows)
                         if not rows.size:
                             continue
-                    kind.watch(self, rows)
+                    try:
+                        kind.watch(self, rows)
+                    except Exception:  # a bug must stop its axes, never the NC cycle
+                        _log.exception("job watch of %s failed", kind.name)
+                        for i in rows.tolist():
+                            self.fault(int(i), ErrorCodes.NC_INTERNAL)
             feed = self._feed_rows  # moving axes with a feed enable missing in some direction
             if feed.size:
                 plus, minus = self._feed_plus[feed], self._feed_minus[feed]
@@ -748,7 +760,15 @@ class NcCore:
             if job is None:
                 self.clear_profile(i)
                 continue
-            res = job.kind.on_end(self, i, job)
+            try:
+                res = job.kind.on_end(self, i, job)
+            except NcError as err:  # its next phase cannot be planned: the job ends with that error
+                self.fault(i, err.code)
+                continue
+            except Exception:  # a bug must stop its axis, never the NC cycle
+                _log.exception("end of %s failed", job.kind.name)
+                self.fault(i, ErrorCodes.NC_INTERNAL)
+                continue
             if res == "steady":
                 a.traj_dur[i] = np.inf  # keep the end velocity: not an end
                 if q.waiting is not None and job.kind.successor_may_start(self, i, job):
@@ -787,10 +807,20 @@ class NcCore:
         for i in changed.tolist():
             job = self.queues[i].active
             if job is not None and job.numbered and job.kind.follows_override and a.traj_on[i]:
-                plan = job.kind.replan(self, i, job, self.start_state(i), float(ov[i]))
+                held = ov[i] <= 0
+                try:
+                    plan = job.kind.replan(self, i, job, self.start_state(i), float(ov[i]))
+                except NcError:
+                    # not plannable at this override from here (e.g. a tiny override while fast):
+                    # the job waits at rest as at override 0 and is re-planned on the next change
+                    try:
+                        plan = plan_velocity(self.start_state(i), 0.0, job.dyn or self.stop_dynamics(i))
+                    except PlanningError:
+                        plan = None
+                    held = True
                 if plan is not None:
                     self.set_plan(i, plan)
-                    job.held = ov[i] <= 0
+                    job.held = held
                     self._sync(i)
         self._state_dirty = True
 

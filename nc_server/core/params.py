@@ -82,6 +82,11 @@ class AxisParams:
             setattr(self, f.name, _check(f.name, f.metadata["kind"], getattr(self, f.name), f.name))
         if self.AxisEnMinSoftPosLimit and self.AxisEnMaxSoftPosLimit and self.AxisMinSoftPosLimit >= self.AxisMaxSoftPosLimit:
             raise ConfigError("AxisMinSoftPosLimit", "must be below AxisMaxSoftPosLimit")
+        # the dynamics the planner can handle (the same ranges commands are checked against)
+        for name, hi in (("AxisAcc", 1e10), ("AxisDec", 1e10), ("AxisJerk", 1e12), ("AxisVeloMax", 1e9)):
+            v = getattr(self, name)
+            if not 1e-6 <= v <= hi:
+                raise ConfigError(name, f"must be in 1e-06..{hi:g}, got {v:g}")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "axis") -> AxisParams:
