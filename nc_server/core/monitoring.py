@@ -15,15 +15,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from nc_schema import ErrorCodes
+from nc_schema import ErrorCodes, StateDWord
 
 from .axes import AxisTable
 
 
-_IN_AREA = np.uint32(1 << 3)
-_IN_TARGET = np.uint32(1 << 4)
-_SOFT_MIN = np.uint32(1 << 26)
-_SOFT_MAX = np.uint32(1 << 27)
+_IN_AREA = np.uint32(int(StateDWord.InPositionArea))
+_IN_TARGET = np.uint32(int(StateDWord.InTargetPosition))
+_SOFT_MIN = np.uint32(int(StateDWord.SoftLimitMinExceeded))
+_SOFT_MAX = np.uint32(int(StateDWord.SoftLimitMaxExceeded))
 
 
 def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
