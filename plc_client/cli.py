@@ -11,12 +11,18 @@ program name their NC (``AXIS_REF(nc="nc1", axis_id=1)``); every NC used needs a
 Exit codes: 0 after SIGINT/SIGTERM or ``--duration``; 1 when the program raised (the runtime
 then switched the enables off and released its claims); 2 for a bad command line or a program
 file that cannot be loaded. Prints one line on stdout once it runs; logs go to stderr.
+
+The shutdown after SIGINT/SIGTERM is bounded (see :mod:`plc_client.runtime`), also when an NC is
+dead or frozen: 3 cycles of enables-off frames, at most ``--timeout`` for the Release replies and
+2 s for closing the zenoh sessions. If a session is still closing then, the process ends with
+``os._exit`` (nothing of the interpreter's clean-up waits for zenoh's threads).
 """
 from __future__ import annotations
 
 import argparse
 import importlib.util
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -106,6 +112,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     rc = rt.run(args.duration)
     if rt.overruns:
         logging.getLogger("plc_client").info("%d PLC cycle overruns", rt.overruns)
+    if rt.unclosed and argv is None:
+        # A zenoh session is still closing (its NC is frozen or unreachable, see PlcRuntime):
+        # do not let the interpreter's exit wait for zenoh's threads. Our token is undeclared;
+        # the NC drops the claims when the connection ends.
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
     return rc
 
 

@@ -34,8 +34,16 @@ cycle is counted in ``overruns`` and never replayed.
 
 Shutdown (:meth:`PlcRuntime.stop`, SIGINT/SIGTERM in :meth:`PlcRuntime.run`): the program is no
 longer called; frames with all enables off are sent for ``shutdown_cycles`` cycles, then the
-claims are released (waiting up to ``command_timeout`` for the replies), the tokens undeclared
-and the sessions closed.
+claims are released (waiting up to ``command_timeout`` for the replies; not sent to an NC whose
+liveliness token is gone), the tokens undeclared and the sessions closed. Every step has a
+deadline, so a dead or frozen NC cannot hold the PLC up: closing a zenoh session waits for the
+session's pending work, e.g. a reconnection handshake with an NC that accepted the TCP
+connection but does not answer (frozen, or a loaded machine), which zenoh ends only after its
+``open_timeout`` (10 s). So the sessions are closed in helper threads, waited for at most
+``close_timeout`` seconds; a session still closing then is left to the process exit (its
+liveliness token was undeclared first, and the NC drops the claims when the connection ends;
+``plc-run`` then ends with ``os._exit``). The SIGINT/SIGTERM handler only sets a flag (no lock
+is taken in a signal handler); the cycle sees it within one cycle time.
 """
 from __future__ import annotations
 
@@ -213,10 +221,13 @@ class PlcRuntime(PlcTask):
         lease_ms: zenoh transport lease [ms].
         reconnect_period: retry period for an NC whose session could not be opened [s].
         shutdown_cycles: cycles of enables-off frames sent before releasing the claims.
+        claim_retry: see :class:`~plc_client.task.PlcTask`.
+        close_timeout: how long the shutdown waits for the zenoh sessions to close [s].
 
     Attributes:
         overruns: cycles that started later than one cycle_time after their deadline.
         error: the exception that stopped the program, if any.
+        unclosed: NCs whose session had not finished closing within ``close_timeout`` at shutdown.
 
     Raises:
         ValueError: invalid client id, NC name or timing arguments.
@@ -225,7 +236,7 @@ class PlcRuntime(PlcTask):
     def __init__(self, program: Any = None, ncs: Mapping[str, str] | None = None, *, cycle_time: float = 0.010,
                  client_id: str | None = None, stale_cycles: int | None = None, command_timeout: float = 1.0,
                  query_timeout: float | None = None, lease_ms: int = 1000, reconnect_period: float = 1.0,
-                 shutdown_cycles: int = 3, claim_retry: float = 1.0) -> None:
+                 shutdown_cycles: int = 3, claim_retry: float = 1.0, close_timeout: float = 2.0) -> None:
         cid = check_client_id(client_id or default_client_id())
         super().__init__(program, cycle_time=cycle_time, client_id=cid, stale_cycles=stale_cycles,
                          command_timeout=command_timeout, claim_retry=claim_retry)
@@ -237,9 +248,12 @@ class PlcRuntime(PlcTask):
         self.port.clock = lambda: self.now
         self.reconnect_period = float(reconnect_period)
         self.shutdown_cycles = int(shutdown_cycles)
+        self.close_timeout = float(close_timeout)
         self.overruns = 0
         self.error: BaseException | None = None
+        self.unclosed: list[str] = []
         self._stop = threading.Event()
+        self._signalled = 0  # set by the SIGINT/SIGTERM handler of run() (a plain store: no lock)
         self._stopped = threading.Event()
         self._thread: threading.Thread | None = None
         self._connector: threading.Thread | None = None
@@ -363,7 +377,7 @@ class PlcRuntime(PlcTask):
         end = None if duration is None else t0 + duration
         k = 0
         try:
-            while not self._stop.is_set():
+            while not (self._stop.is_set() or self._signalled):
                 try:
                     self.step()
                 except Exception as exc:  # the user program failed: stop safely
@@ -405,7 +419,7 @@ class PlcRuntime(PlcTask):
         handlers = {}
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
-                handlers[sig] = signal.signal(sig, lambda *_: self._stop.set())
+                handlers[sig] = signal.signal(sig, self._on_signal)
         try:
             self.open()
             self._loop(duration)
@@ -413,6 +427,12 @@ class PlcRuntime(PlcTask):
             for sig, h in handlers.items():
                 signal.signal(sig, h)
         return 1 if self.error is not None else 0
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        # Runs in the main thread between two bytecodes, possibly while that thread holds the
+        # lock inside self._stop.wait(): Event.set() here could deadlock. A plain store cannot;
+        # the cycle sees the flag within one cycle time.
+        self._signalled = signum
 
     def stop(self, timeout: float = 5.0) -> None:
         """Stop the cycle and shut down cleanly (idempotent)."""
@@ -440,13 +460,28 @@ class PlcRuntime(PlcTask):
                 log.exception("error during shutdown")
             finally:
                 self._closed = True
-                for link in self.links.values():
-                    link.close()
+                self._close_links()
                 self._stopped.set()
+
+    def _close_links(self) -> None:
+        """Close every NC session, in parallel helper threads, waiting at most ``close_timeout``."""
+        threads = []
+        for link in self.links.values():
+            link.ready = False  # no more commands or frames through it
+            t = threading.Thread(target=link.close, name=f"plc-close-{link.nc}", daemon=True)
+            t.start()
+            threads.append((link, t))
+        deadline = time.monotonic() + self.close_timeout
+        for link, t in threads:
+            t.join(max(0.0, deadline - time.monotonic()))
+            if t.is_alive():
+                self.unclosed.append(link.nc)
+                log.warning("NC %s: the zenoh session did not close within %.1f s (NC frozen or unreachable?); "
+                            "left to the process exit", link.nc, self.close_timeout)
 
     def _release_claims(self) -> None:
         pend = [self.port.send(nc, axis, "Release") for nc, axis in self.held_claims()
-                if self.connected(nc)]
+                if self.connected(nc) and not self.links[nc].nc_gone]
         deadline = time.monotonic() + self.command_timeout
         while pend and time.monotonic() < deadline:
             self.port.poll()
