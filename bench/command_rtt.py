@@ -8,7 +8,9 @@ in interleaved blocks so machine noise hits both alike:
   * raw:           get on ``bench/raw``, reply b"ok" from a callback;
   * ReadParameter: AxisVeloMax of axis 1 (no motion);
   * MoveAbsolute:  re-targets of axis 1 (claimed, enabled by PLCTONC frames every 10 ms),
-                   alternating 10 / 20 mm, each one accepted and aborting the previous.
+                   alternating 500 / 600 mm (both ahead of the axis for the whole run), each one
+                   accepted and aborting the previous (targets behind a braking axis are refused
+                   at times with 0x4289: it would turn back on its way).
 
 Goal (not a test): NC p50 within 1.5 x raw p50 + one NC cycle. The NC answers in the cycle
 after the request arrives, so about half a cycle of waiting is expected on top of the raw trip.
@@ -102,7 +104,7 @@ def main() -> int:
 
         def moves() -> list[bytes]:
             return [msgpack.packb({"id": next(ids), "client": "bench-rtt", "cmd": "MoveAbsolute",
-                                   "Position": 10.0 + 10.0 * (k % 2), "Velocity": 100.0}) for k in range(n_block)]
+                                   "Position": 500.0 + 100.0 * (k % 2), "Velocity": 100.0}) for k in range(n_block)]
 
         # warm-up (first queries, publisher and route setup)
         rtt_us(raw_cl.session, RAW_KEY, [b"x"] * 100, ok)

@@ -53,11 +53,12 @@ class NcServer:
         self.keys = Keys(config.name)
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
         self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout)
-        self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle)
+        self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
+        self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle,
+                              wake=self.transport.query_event)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
                                       refresh_liveliness=self._take_liveliness)
         self.inputs = CycleInputs(core, self.claims)  # type: ignore[arg-type]
-        self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
         self.io = IoThread(self.transport, self.stats)
         self._prev_start = 0.0
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -117,10 +118,7 @@ class NcServer:
             log.warning("final frame: %s", exc)
         # Queries still queued get no execution; finalize them so queriers do not wait.
         while True:
-            try:
-                q = self.transport.queryable.try_recv()
-            except Exception:
-                break
+            q = self.transport.try_recv_query()
             if q is None:
                 break
             try:
@@ -194,7 +192,7 @@ class NcServer:
         replies: list[tuple[Any, bytes]] = []
         budget_end = time.monotonic_ns() + QUERY_BUDGET_NS
         for _ in range(MAX_QUERIES_PER_CYCLE):
-            q = t.queryable.try_recv()
+            q = t.try_recv_query()
             if q is None:
                 break
             p = q.payload

@@ -4,7 +4,9 @@
   pid 0 = the calling thread) after every zenoh thread exists, so nothing inherits it. If it
   is not permitted the loop runs with normal scheduling (``realtime="auto"``) or refuses to
   start (``realtime="fifo"``).
-* Waiting: sleep until deadline - 200 us (GIL released), then spin on the clock. While more
+* Waiting: sleep until deadline - 200 us (GIL released), then spin on the clock. With an ``idle``
+  callback the sleep is cut into slices with ``idle()`` between them, and with a ``wake`` event a
+  slice ends early when the event is set (a command arrived: answered at once). While more
   than :data:`SPIN_YIELD_NS` remain the spin calls ``os.sched_yield()`` (releases the GIL and
   lets other threads in); only the last few microseconds are a pure spin. A FIFO thread never
   spins 100 % (RT throttling is 950 ms per 1 s): it sleeps for most of every cycle.
@@ -35,6 +37,8 @@ SPIN_YIELD_NS = 20_000
 #: With an ``idle`` callback the sleep is cut into slices of this length, ``idle()`` between them [ns]:
 #: requests arriving mid-cycle are answered without waiting for the next cycle start.
 IDLE_SLICE_NS = 200_000
+#: Call ``idle()`` once right after the cycle's work too (before the first slice).
+IDLE_AFTER_WORK = True
 #: Cycles kept in the timing ring buffers (10 s at 1 kHz).
 RING = 10_000
 #: sys.setswitchinterval while the server runs [s]. CPython's 5 ms default would let the cycle thread
@@ -134,15 +138,19 @@ class CycleLoop:
             CLOCK_MONOTONIC]. Exceptions propagate and end the loop (the caller decides).
         idle: optional, called between sleep slices while waiting for the next deadline (must be
             quick and non-blocking); its time is not counted as cycle work.
+        wake: optional (with ``idle``): an event that ends the current slice early when set (cleared,
+            then ``idle()`` runs).
         realtime: ``"auto"``, ``"fifo"`` or ``"off"`` (see :func:`set_realtime`).
         rt_priority: SCHED_FIFO priority.
     """
 
     def __init__(self, period_s: float, work: Callable[[int], None], realtime: str = "auto",
-                 rt_priority: int = 49, idle: Callable[[], None] | None = None) -> None:
+                 rt_priority: int = 49, idle: Callable[[], None] | None = None,
+                 wake: threading.Event | None = None) -> None:
         self.period_ns = int(round(period_s * 1e9))
         self.work = work
         self.idle = idle
+        self.wake = wake
         self.realtime = realtime
         self.rt_priority = rt_priority
         self.stats = CycleStats()
@@ -203,14 +211,22 @@ class CycleLoop:
         sleep = time.sleep
         yield_ = os.sched_yield if hasattr(os, "sched_yield") else (lambda: sleep(0))
         idle = self.idle
+        wake = self.wake
         deadline = clock() + period
         while not stop.is_set():
             # Wait: sleep most of it (in slices with idle() between them), spin the end
             # (yielding the GIL while there is time).
             remaining = deadline - clock()
             if idle is not None:
+                if IDLE_AFTER_WORK and remaining > SPIN_NS + IDLE_SLICE_NS // 2:
+                    idle()  # what arrived during the work: answered now, not a slice later
+                    remaining = deadline - clock()
                 while remaining > SPIN_NS + IDLE_SLICE_NS // 2:
-                    sleep(min(IDLE_SLICE_NS, remaining - SPIN_NS) * 1e-9)
+                    if wake is not None:
+                        wake.wait(min(IDLE_SLICE_NS, remaining - SPIN_NS) * 1e-9)
+                        wake.clear()  # (before idle(): whatever arrives later sets it again)
+                    else:
+                        sleep(min(IDLE_SLICE_NS, remaining - SPIN_NS) * 1e-9)
                     idle()
                     remaining = deadline - clock()
             if remaining > SPIN_NS:

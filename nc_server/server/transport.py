@@ -5,13 +5,15 @@ takes SCHED_FIFO, so none inherits it):
 
 * zenoh's own Rust threads; matching listeners run on them (``Callback(indirect=False)``),
   they only flip a flag in a numpy array;
-* liveliness events are queued by a callback on a zenoh thread (a deque append);
+* liveliness events and command queries are queued by callbacks on zenoh threads (a deque
+  append; a query also sets :attr:`Transport.query_event`, which the cycle thread waits on between
+  cycles, so a command is taken up at once instead of at the next poll);
 * one Python thread for the PLCTONC subscriber callback: it decodes a frame and keeps only
   the newest one per client (:attr:`Transport.plc_inbox`);
 * the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats.
 
-The cycle thread itself only calls ``try_recv`` (non-blocking) on the command queryable, pops the
-liveliness and PLCTONC inboxes, and hands its output to the I/O thread through a ``SimpleQueue``.
+The cycle thread itself never calls into zenoh: it pops the query, liveliness and PLCTONC inboxes
+and hands its output to the I/O thread through a ``SimpleQueue``.
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 import zenoh
-from zenoh.handlers import Callback, FifoChannel
+from zenoh.handlers import Callback
 
 from nc_schema import (
     FRAME_HEADER_DTYPE, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame,
@@ -39,7 +41,8 @@ from .config import ZenohSettings
 
 log = logging.getLogger("nc_server.server")
 
-#: Pending queries the queryable buffers (the cycle drains a bounded number per cycle).
+#: Pending queries kept (the cycle drains a bounded number per cycle); beyond, a query is finalized
+#: at once without a reply (its querier sees no answer) and counted in Transport.queries_refused.
 QUERY_CHANNEL = 1024
 #: Largest message the NC's zenoh session accepts [bytes].
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
@@ -168,6 +171,11 @@ class Transport:
         self.holders: frozenset[str] = frozenset()
         #: (client id, present?) liveliness events in arrival order (appended by zenoh, popped by the cycle).
         self.liveliness_events: collections.deque[tuple[str, bool]] = collections.deque()
+        #: command queries in arrival order (appended by zenoh, popped by the cycle: try_recv_query)
+        self.queries: collections.deque[Any] = collections.deque()
+        #: set when a query arrives (the cycle loop waits on it between cycles)
+        self.query_event = threading.Event()
+        self.queries_refused = 0
         self.plc_frames = 0
         self.plc_malformed = 0
         self.plc_ignored = 0  # frames from clients that hold no axis
@@ -186,7 +194,7 @@ class Transport:
         self.session = s = zenoh.open(zenoh_config(self.settings))
         self._zid = str(s.info.zid())
         k = self.keys
-        self.queryable = s.declare_queryable(k.cmd_any, FifoChannel(QUERY_CHANNEL), complete=True)
+        self.queryable = s.declare_queryable(k.cmd_any, Callback(self._on_query, indirect=False), complete=True)
         # Liveliness events are rare: a zenoh-thread callback queues them, so the cycle only tests a deque.
         self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any,
                                                                 Callback(self._on_liveliness, indirect=False),
@@ -240,6 +248,26 @@ class Transport:
             s.close()
         except Exception as exc:
             log.warning("closing the zenoh session: %s", exc)
+
+    # ---- command queries (zenoh thread) ---------------------------------------------------------
+    def _on_query(self, query: zenoh.Query) -> None:
+        """Runs on a zenoh thread (indirect=False): queue the query, wake the cycle thread; nothing else."""
+        if len(self.queries) >= QUERY_CHANNEL:
+            self.queries_refused += 1
+            try:
+                query.drop()
+            except Exception:
+                pass
+            return
+        self.queries.append(query)
+        self.query_event.set()
+
+    def try_recv_query(self) -> Any:
+        """The oldest queued query, or None (cycle thread; never blocks)."""
+        try:
+            return self.queries.popleft()
+        except IndexError:
+            return None
 
     # ---- liveliness (zenoh thread) -------------------------------------------------------------
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
