@@ -121,31 +121,15 @@ class MC_Reset(ExecuteBlock):
     _INPUTS = {"Execute": False}
     _OUTPUTS = {"Done": False, "Busy": False, "Active": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
 
-    def __init__(self, timeout: float | None = None) -> None:
-        super().__init__(timeout)
-        self._cycle_no = 0
-
     def _start(self) -> None:
         self._cycle_no = 0
         self._send("Reset")
 
     def _progress(self) -> None:
-        code = self._axis_problem()
+        if not self._reply_shown():
+            return
         ax = self.Axis
-        if not code and ax is not None and ax.nc_epoch != self._epoch:
-            code = ErrorCodes.MC_NO_NC_CYCLE_UPDATE
-        if code:
-            self._finish("Error", code)
-            return
-        if not self._cycle_no:
-            reply = self._await_reply()
-            if reply is None:
-                return
-            self._cycle_no = max(1, int(reply.get("cycle", 0)))
-            self._pending = None
         assert ax is not None
-        if ax.Status.NcCycleCounter < self._cycle_no:
-            return
         if int(ax.NcToPlc["StateDWord"]) & _ERR:
             self._finish("Error", int(ax.NcToPlc["ErrorCode"]) or ErrorCodes.MC_AXIS_NOT_READY)
         else:

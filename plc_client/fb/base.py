@@ -132,6 +132,7 @@ class ExecuteBlock(FunctionBlock):
         self._prev_execute = False
         self._pending: PendingCommand | None = None
         self._epoch = 0
+        self._cycle_no = 0  # the reply's NC cycle (blocks that wait for their effect to show)
 
     def _cycle(self) -> None:
         ex = bool(self.Execute)
@@ -193,6 +194,31 @@ class ExecuteBlock(FunctionBlock):
         self._epoch = self.Axis.nc_epoch  # type: ignore[union-attr]
         self._pending = task.send(self.Axis, cmd, **args)  # type: ignore[union-attr,arg-type]
         return True
+
+    def _lost_axis(self) -> bool:
+        """Finish with Error if the axis data is stale/missing or the NC restarted since the send."""
+        ax = self.Axis
+        code = self._axis_problem()
+        if not code and ax is not None and ax.nc_epoch != self._epoch:
+            code = ErrorCodes.MC_NO_NC_CYCLE_UPDATE
+        if code:
+            self._finish("Error", code)
+            return True
+        return False
+
+    def _reply_shown(self) -> bool:
+        """True once the NC accepted the command and a frame of the reply's cycle (or later) is
+        here, so the effect is visible; finishes with Error on loss, rejection or timeout.
+        ``self._cycle_no`` (reset it in ``_start``) keeps the reply's cycle."""
+        if self._lost_axis():
+            return False
+        if not self._cycle_no:
+            reply = self._await_reply()
+            if reply is None:
+                return False
+            self._cycle_no = max(1, int(reply.get("cycle", 0)))
+            self._pending = None
+        return self.Axis is not None and self.Axis.Status.NcCycleCounter >= self._cycle_no
 
     def _await_reply(self) -> dict[str, Any] | None:
         """The reply once it arrived (error 0); finishes with Error on rejection/timeout."""

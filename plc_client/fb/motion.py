@@ -180,16 +180,6 @@ class MotionBlock(ExecuteBlock):
             self._pending = None
         self._follow()
 
-    def _lost_axis(self) -> bool:
-        """Finish with Error if the axis data is stale/missing or the NC restarted."""
-        ax = self.Axis
-        code = self._axis_problem()
-        if not code and ax is not None and ax.nc_epoch != self._epoch:
-            code = ErrorCodes.MC_NO_NC_CYCLE_UPDATE
-        if code:
-            self._finish("Error", code)
-            return True
-        return False
 
     def _set_active(self, active: bool) -> None:
         if "Active" in self._OUTPUTS:

@@ -66,21 +66,7 @@ class _AcceptedCommand(ExecuteBlock):
             self._send(self.CMD, **args)
 
     def _progress(self) -> None:
-        ax = self.Axis
-        code = self._axis_problem()
-        if not code and ax is not None and ax.nc_epoch != self._epoch:
-            code = ErrorCodes.MC_NO_NC_CYCLE_UPDATE
-        if code:
-            self._finish("Error", code)
-            return
-        if not self._cycle_no:
-            reply = self._await_reply()
-            if reply is None:
-                return
-            self._cycle_no = max(1, int(reply.get("cycle", 0)))
-            self._pending = None
-        assert ax is not None
-        if ax.Status.NcCycleCounter >= self._cycle_no:
+        if self._reply_shown():
             self._finish("Done")
 
 
