@@ -122,8 +122,9 @@ class NcCore:
         self._not_moving = np.array([_NOT_MOVING, 0], dtype=np.uint32)  # by |set velocity| > eps
         self._loop_ok = np.array([_LOOP | _OPERATIONAL, _LOOP], dtype=np.uint32)  # by error
         self.profile = ProfileStage(self, max(1, int(lookahead)))
-        self.sp_dw = np.zeros(n, dtype=np.uint32)
-        self.axis_state = np.zeros(n, dtype=np.uint32)
+        # the set-point StateDWord bits and AxisState, one array (the profile stage copies both at once)
+        self.sp_words = np.zeros((2, n), dtype=np.uint32)
+        self.sp_dw, self.axis_state = self.sp_words
         self.on_rows = np.zeros(0, dtype=np.intp)
         self.all_on = False
         self.has_origin = False

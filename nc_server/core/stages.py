@@ -59,6 +59,8 @@ def _setpoint_luts() -> tuple[np.ndarray, np.ndarray]:
 
 
 SP_STATE_LUT, SP_DWORD_LUT = _setpoint_luts()
+#: both by flag byte: [StateDWord bits, AxisState]
+_SP_WORDS = np.stack([SP_DWORD_LUT, SP_STATE_LUT])
 #: packs the 8 bool bytes of a flag row (viewed as one little-endian uint64) into its flag byte:
 #: byte b (0/1) lands on bit 56 + b, no two partial products overlap or carry
 _PACK = np.uint64(0x0102040810204080)
@@ -131,7 +133,7 @@ class ProfileStage:
         self.lookahead = L
         self.dt = core.cycle_time
         self.buf = np.zeros((4, n, L))        # set-points, column = stage cycle % lookahead
-        self.buf_code = np.zeros((n, L), dtype=np.uint8)  # their flag bytes (SP_*_LUT index)
+        self.buf_words = np.zeros((2, n, L), dtype=np.uint32)  # their StateDWord bits and AxisState
         self.c = 0  # stage cycles run: the next run produces the set-points of stage cycle c
         self.pending: set[int] = set()  # rows to evaluate at the next run (plans changed)
         self.refills = 0  # runs that evaluated rows (groups or pending)
@@ -198,15 +200,11 @@ class ProfileStage:
         if core.all_on:
             a.traj_t += dt
             a.S[:] = self.buf[:, :, col]
-            code = self.buf_code[:, col]
-            np.take(SP_DWORD_LUT, code, out=core.sp_dw)
-            np.take(SP_STATE_LUT, code, out=core.axis_state)
+            core.sp_words[:] = self.buf_words[:, :, col]  # (sp_dw, axis_state)
             return (a.traj_t >= a.traj_dur).nonzero()[0]
         a.traj_t[on] += dt
         a.S[:, on] = self.buf[:, on, col]
-        code = self.buf_code[on, col]
-        core.sp_dw[on] = SP_DWORD_LUT[code]
-        core.axis_state[on] = SP_STATE_LUT[code]
+        core.sp_words[:, on] = self.buf_words[:, on, col]
         return on[a.traj_t[on] >= a.traj_dur[on]]
 
     def refresh(self, core: NcCore, rows: Iterable[int]) -> None:
@@ -299,16 +297,17 @@ class ProfileStage:
         v, acc = res[1], res[2]
         code = _CLASS_CODES[a.sp_row[r], np.searchsorted(_V_EDGES, v, "right"),
                             np.searchsorted(_A_EDGES, acc, "right"), np.searchsorted(_AV_EDGES, acc * v, "right")]
-        buf, bc = self.buf, self.buf_code
+        words = _SP_WORDS[:, code]
+        buf, bw = self.buf, self.buf_words
         if col:
             n1 = L - col
             buf[:, r, col:] = res[:, :n1]
             buf[:, r, :col] = res[:, n1:]
-            bc[r, col:] = code[:n1]
-            bc[r, :col] = code[n1:]
+            bw[:, r, col:] = words[:, :n1]
+            bw[:, r, :col] = words[:, n1:]
         else:
             buf[:, r] = res
-            bc[r] = code
+            bw[:, r] = words
 
     def _eval(self, core: NcCore, rows: np.ndarray | slice, base: np.ndarray, col: int) -> None:
         """Evaluate ``rows`` (offsets ``base`` into the flat segment table, (m, 1)) for the stage
@@ -377,16 +376,17 @@ class ProfileStage:
             code >>= _SHIFT
             code |= _ROW_BITS[rp][:, None]
         # columns col.. L-1 take the first samples, 0 .. col-1 the rest
-        buf, bc = self.buf, self.buf_code
+        words = _SP_WORDS[:, code]
+        buf, bw = self.buf, self.buf_words
         if col:
             n1 = L - col
             buf[:, rows, col:] = res[:, :, :n1]
             buf[:, rows, :col] = res[:, :, n1:]
-            bc[rows, col:] = code[:, :n1]
-            bc[rows, :col] = code[:, n1:]
+            bw[:, rows, col:] = words[:, :, :n1]
+            bw[:, rows, :col] = words[:, :, n1:]
         else:
             buf[:, rows] = res
-            bc[rows] = code
+            bw[:, rows] = words
 
 
 _SIXTH_HALF = np.array([1.0 / 6.0, 0.5]).reshape(2, 1, 1)
