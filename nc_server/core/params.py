@@ -75,6 +75,14 @@ class AxisParams:
     SimTimeConstant: float = _p(0.001, "nonneg", "simulated drive: first-order position lag [s]")
     SimSyncPulseSpacing: float = _p(1.0, "pos", "simulated encoder: distance between sync (zero) pulses [u]")
     SimSyncPulseOffset: float = _p(0.0, "real", "simulated encoder: position of one sync pulse [u]")
+    SimProbePeriod: float = _p(
+        0.0, "nonneg", "simulated touch probe sensor (input 1): TRUE while ((drive position - SimProbeOffset) mod "
+        "SimProbePeriod) < SimProbeWidth, a pattern repeating every SimProbePeriod; 0 = no sensor, the input is "
+        "only set by simulated probe signals [u]")
+    SimProbeOffset: float = _p(0.0, "real", "simulated touch probe sensor: start of one TRUE window (drive position) [u]")
+    SimProbeWidth: float = _p(
+        0.0, "nonneg", "simulated touch probe sensor: length of each TRUE window (0: never TRUE, >= SimProbePeriod: "
+        "always TRUE) [u]")
     Homed: bool = _p(False, "bool", "axis starts referenced (StateDWord.Homed)")
 
     def __post_init__(self) -> None:

@@ -61,5 +61,56 @@ class DriveABC(ABC):
         """
         return np.full(len(rows), np.nan)
 
+    # -- touch probe (MC_TouchProbe, TcMC 4.21): input 1 of the drive's probe latch ----------------------------
+    # Real drives override these three with their latch hardware; the defaults describe a drive without one.
+
+    def probe_input(self) -> np.ndarray:
+        """The current level of touch probe input 1 per axis (StateDWord3.TouchProbe1InputState).
+
+        Returns:
+            bool array, one entry per axis: the level at the end of the last stepped cycle
+            (default: no probe input, all False).
+        """
+        return np.zeros(len(self.act_pos), dtype=bool)
+
+    def latch_probe(self, rows: np.ndarray, falling: np.ndarray,
+                    prev_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The touch probe latch: the first edge of input 1 during the cycle just stepped.
+
+        Called once per NC cycle after :meth:`step`, only for the axes whose latch is armed.
+
+        Args:
+            rows: axis indices whose latch is armed (int array of length m).
+            falling: per row, the edge to latch: True = falling edge, False = rising edge.
+            prev_pos: their actual drive positions before the :meth:`step` [u] (the drive's frame,
+                not the NC's: without the NC's position offset).
+
+        Returns:
+            (found, position, fraction), arrays of length m: ``found`` (bool) whether an edge of the
+            requested kind happened in the cycle (only the first such edge counts); ``position`` the
+            drive position at that event [u], interpolated within the cycle, NaN where none was found;
+            ``fraction`` in [0, 1] when within the cycle it happened (0 = at the start, where the axis
+            was at ``prev_pos``; 1 = at the end, at the current actual position), NaN where none.
+            Default: no latch hardware, nothing is ever found.
+        """
+        m = len(rows)
+        return np.zeros(m, dtype=bool), np.full(m, np.nan), np.full(m, np.nan)
+
+    def set_probe_signal(self, index: int, level: bool, offset: float) -> None:
+        """A simulated trigger event: input 1 of one axis takes ``level`` ``offset`` s into the next stepped cycle.
+
+        The level persists until changed; setting the level the input already has is no edge.
+
+        Args:
+            index: axis index.
+            level: the new input level.
+            offset: when within the next stepped cycle [s], 0 <= offset < cycle_time.
+
+        Raises:
+            NotImplementedError: the drive has no simulated probe input (default; the NC answers 0x4251).
+            ValueError: offset outside 0 <= offset < cycle_time (drives that implement it).
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no simulated probe input")
+
     def close(self) -> None:
         """Release the hardware (no-op for simulations)."""

@@ -4,6 +4,13 @@ The lag makes PosDiff realistic (about velocity x SimTimeConstant at constant
 velocity). Because the simulation advances by exactly one cycle_time per NC cycle
 (never by wall-clock time), a stalled process cannot produce a following error.
 A disabled drive holds its position (think: brake).
+
+Touch probe input 1 (MC_TouchProbe) is simulated in one of two ways per axis: a sensor pattern of
+the drive position (SimProbePeriod > 0: TRUE while ((position - SimProbeOffset) mod SimProbePeriod)
+< SimProbeWidth, e.g. marks on a conveyor), or, on axes without a pattern, levels commanded with
+:meth:`SimDrive.set_probe_signal` at a given instant of the next cycle. Within a cycle the drive is
+taken as moving linearly from the previous to the new actual position, so the latch reports the
+exact pattern edge (or the interpolated position at a commanded instant), as a hardware latch would.
 """
 from __future__ import annotations
 
@@ -21,9 +28,19 @@ class SimDrive(DriveABC):
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float) -> None:
         super().__init__(params, cycle_time)
-        self._alpha = np.ones(len(params))
-        self._pulse_spacing = np.ones(len(params))
-        self._pulse_offset = np.zeros(len(params))
+        n = len(params)
+        self._alpha = np.ones(n)
+        self._pulse_spacing = np.ones(n)
+        self._pulse_offset = np.zeros(n)
+        self._probe_period = np.zeros(n)
+        self._probe_offset = np.zeros(n)
+        self._probe_width = np.zeros(n)
+        self._probe_rows = np.zeros(0, dtype=np.intp)  # the axes with a sensor pattern
+        self._probe_level = np.zeros(n, dtype=bool)  # the commanded input of the axes without one
+        #: set_probe_signal events for the next step: axis -> [(offset [s], level)]
+        self._probe_pending: dict[int, list[tuple[float, bool]]] = {}
+        #: the commanded edges of the cycle just stepped: axis -> [(fraction, new level)], in time order
+        self._probe_edges: dict[int, list[tuple[float, bool]]] = {}
         for i, p in enumerate(params):
             self.configure(i, p)
 
@@ -32,6 +49,15 @@ class SimDrive(DriveABC):
         self._alpha[index] = 1.0 if t <= 0 else 1.0 - math.exp(-self.cycle_time / t)
         self._pulse_spacing[index] = getattr(params, "SimSyncPulseSpacing", 1.0)
         self._pulse_offset[index] = getattr(params, "SimSyncPulseOffset", 0.0)
+        period = float(getattr(params, "SimProbePeriod", 0.0))
+        self._probe_period[index] = period
+        self._probe_offset[index] = getattr(params, "SimProbeOffset", 0.0)
+        self._probe_width[index] = getattr(params, "SimProbeWidth", 0.0)
+        if period > 0:  # the pattern decides the level from now on: commanded signals are dropped
+            self._probe_level[index] = False
+            self._probe_pending.pop(index, None)
+            self._probe_edges.pop(index, None)
+        self._probe_rows = np.flatnonzero(self._probe_period > 0)
 
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         """Sync pulses at SimSyncPulseOffset + k * SimSyncPulseSpacing: the latch reports the exact
@@ -51,3 +77,107 @@ class SimDrive(DriveABC):
         self.act_acc = (new_velo - self.act_velo) / dt
         self.act_velo = new_velo
         self.act_pos = new_pos
+        if self._probe_pending or self._probe_edges:  # no work at all without commanded probe signals
+            self._probe_edges = self._apply_probe_signals()
+
+    # -- touch probe ---------------------------------------------------------------------------------------
+
+    def probe_input(self) -> np.ndarray:
+        """Input 1 per axis: the sensor pattern at the actual position, else the commanded level."""
+        level = self._probe_level.copy()
+        r = self._probe_rows
+        if len(r):
+            period, width = self._probe_period[r], self._probe_width[r]
+            phase = np.mod(self.act_pos[r] - self._probe_offset[r], period)
+            level[r] = (phase < width) | (width >= period)  # (np.mod may round up to period itself)
+        return level
+
+    def set_probe_signal(self, index: int, level: bool, offset: float) -> None:
+        """Command input 1 of an axis without a sensor pattern (SimProbePeriod == 0).
+
+        Several calls before one step make several events in that cycle; a second call for the same
+        offset replaces the first. The commanded level persists until changed.
+
+        Raises:
+            IndexError: no axis ``index``.
+            NotImplementedError: the axis has a sensor pattern (SimProbePeriod > 0), which alone
+                decides its input (the NC answers 0x4251).
+            ValueError: offset outside 0 <= offset < cycle_time [s].
+        """
+        index = int(index)
+        if not 0 <= index < len(self.act_pos):
+            raise IndexError(f"no axis index {index}")
+        if self._probe_period[index] > 0:
+            raise NotImplementedError(
+                f"axis index {index}: its simulated probe input follows the SimProbePeriod sensor pattern")
+        offset = float(offset)
+        if not 0.0 <= offset < self.cycle_time:  # (NaN fails too)
+            raise ValueError(f"probe signal offset must be in 0 <= offset < {self.cycle_time:g} s, got {offset:g}")
+        events = self._probe_pending.setdefault(index, [])
+        events[:] = [e for e in events if e[0] != offset]
+        events.append((offset, bool(level)))
+
+    def latch_probe(self, rows: np.ndarray, falling: np.ndarray,
+                    prev_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first edge of the requested kind in the cycle just stepped: a pattern edge at its exact
+        position, a commanded one at prev_pos + fraction * (act_pos - prev_pos)."""
+        rows = np.asarray(rows, dtype=np.intp)
+        falling = np.asarray(falling, dtype=bool)
+        a = np.asarray(prev_pos, dtype=float)
+        b = self.act_pos[rows]
+        m = len(rows)
+        found, pos, frac = np.zeros(m, dtype=bool), np.full(m, np.nan), np.full(m, np.nan)
+        # the sensor pattern has edges only for 0 < width < period, and only while the axis moves
+        period, width = self._probe_period[rows], self._probe_width[rows]
+        k = np.flatnonzero((width > 0) & (width < period) & (a != b))
+        if len(k):
+            x = self._first_pattern_edge(rows[k], falling[k], a[k], b[k])
+            hit = ~np.isnan(x)
+            k, x = k[hit], x[hit]
+            found[k], pos[k] = True, x
+            frac[k] = np.clip((x - a[k]) / (b[k] - a[k]), 0.0, 1.0)
+        if self._probe_edges:  # commanded signals (axes without a pattern, so no overlap with the above)
+            for j, i in enumerate(rows.tolist()):
+                for f, level in self._probe_edges.get(i, ()):
+                    if level != falling[j]:  # rising: to True; falling: to False
+                        found[j], frac[j], pos[j] = True, f, a[j] + f * (b[j] - a[j])
+                        break
+        return found, pos, frac
+
+    def _first_pattern_edge(self, rows: np.ndarray, falling: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The first pattern edge of the requested kind passed moving from a to b (a != b) [u], NaN if none.
+
+        The TRUE windows are [s, s + width) with s = SimProbeOffset + n * period. Moving positive the
+        input rises at s and falls at s + width; moving negative it rises at s + width (the window is
+        entered from above) and falls at s. An edge at x is passed if a < x <= b moving positive and
+        b < x <= a moving negative, which matches the half-open windows ``probe_input`` evaluates: an
+        edge reached exactly at the end of one cycle is reported then (fraction 1), not again in the next.
+        """
+        period, width = self._probe_period[rows], self._probe_width[rows]
+        neg = b < a
+        base = self._probe_offset[rows] + np.where(falling != neg, width, 0.0)
+        n = np.floor((a - base) / period)
+        x = base + np.where(neg, n, n + 1.0) * period  # the first such boundary beyond a in the direction of travel
+        # rounding of the division may pick the neighbouring boundary: enforce a < x <= a + period (positive),
+        # a - period < x <= a (negative)
+        up = ~neg
+        x = np.where(up & (x <= a), x + period, x)
+        x = np.where(up & (x - period > a), x - period, x)
+        x = np.where(neg & (x > a), x - period, x)
+        x = np.where(neg & (x + period <= a), x + period, x)
+        return np.where(np.where(neg, x > b, x <= b), x, np.nan)
+
+    def _apply_probe_signals(self) -> dict[int, list[tuple[float, bool]]]:
+        """Turn the pending set_probe_signal events into this cycle's edges; update the commanded levels."""
+        edges: dict[int, list[tuple[float, bool]]] = {}
+        for i, events in self._probe_pending.items():
+            level, changes = bool(self._probe_level[i]), []
+            for offset, new in sorted(events):  # (the offsets of one axis are distinct)
+                if new != level:  # the level the input already has is no edge
+                    changes.append((offset / self.cycle_time, new))
+                    level = new
+            self._probe_level[i] = level
+            if changes:
+                edges[i] = changes
+        self._probe_pending = {}
+        return edges
