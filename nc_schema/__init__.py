@@ -10,6 +10,7 @@ Imported as ``nc_schema`` (not ``schema``, which is an unrelated PyPI package).
 from .codec import (
     BITSETS, DTYPES, ENUMS, FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
     PLCTONC_DTYPE, STAMP_DTYPE, STRUCTS, AxisState, CamCouplingState, CmdState, ControlDWord, CoupleState, E_CmdTypeNewTargPosAndVelo, E_JogMode,
+    E_DecoupleMode, E_SignalEdge, E_SuperpositionMode, E_TargPosType, E_TouchProbe, E_TouchProbeState, NcJobsSyncFlags,
     DEFAULT_HOME_POSITION, E_StartPosType, FrameFlags, HomingState, MC_AxisPara, MC_AxisStates, MC_BufferMode, MC_Direction,
     MC_HomingMode, OpModeDWord, StateDWord, StateDWord2, StateDWord3, bit_names, decode, decode_frame,
     decode_plc_frame, decode_stamp, encode_frame, encode_plc_frame, encode_stamp, to_dict,

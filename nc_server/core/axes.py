@@ -123,6 +123,8 @@ class AxisTable:
             (p.AxisEnPositionLagMonitoring, OpModeDWord.OpModePosLagMonitoring),
             (p.AxisEnMinSoftPosLimit, OpModeDWord.OpModeSoftLimitMinMonitoring),
             (p.AxisEnMaxSoftPosLimit, OpModeDWord.OpModeSoftLimitMaxMonitoring),
+            (p.AxisAllowMotionCmdToSlave, OpModeDWord.OpModeAllowSlaveCommands),
+            (p.AxisAllowMotionCmdToExtSetAxis, OpModeDWord.OpModeAllowExtSetAxisCommands),
         ]
         for on, bit in flags:
             if on:

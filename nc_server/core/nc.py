@@ -11,10 +11,11 @@ A test (or the server) drives it cycle by cycle::
 The motion engine: every motion command becomes a job (:mod:`.jobs`) in the axis's queue; the
 active job's plan (:mod:`.planning`) is evaluated by the set-point stages (:mod:`.stages`).
 
-Cycle order (``NcCore.STAGES``): inputs (PLCTONC: enables, override) -> set-point stages (the
-profile generator; coupling later) -> plan ends (jobs end, buffered jobs take over) -> job
-watches and limits (soft-limit approach, switching positions, homing, feed enables) -> drive
--> monitoring -> NCTOPLC and job records.
+Cycle order (``NcCore.STAGES``, :mod:`.stages`): inputs (PLCTONC: enables, override) -> the
+profile stage -> plan ends (jobs end, buffered jobs take over) -> the external set-point
+generator -> superposition and coupling, level by level (masters before slaves) -> limits of
+slaves and superpositions -> job watches and limits (soft-limit approach, switching positions,
+homing, feed enables) -> drive -> touch probe latches -> monitoring -> NCTOPLC and job records.
 
 Positions: the NC's positions (set, actual, targets) are what the PLC sees. ``axes.offset`` is the
 difference NC - drive position at the drive boundary (MC_SetActualPosition), and ``axes.origin``
@@ -44,7 +45,11 @@ from .monitoring import monitor
 from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
 from .profile import evaluate, peak_velocity, velocity_extrema
-from .stages import ProfileStage
+from .jobs.external import ext_disable
+from .jobs.gearing import gear_out
+from .stages import CouplingStage, ExternalStage, ProbeStage, ProfileStage, SuperpositionStage
+from .stages.probe import cmd_abort_trigger, cmd_sim_probe_signal, cmd_touch_probe
+from .stages.superposition import cmd_abort_superposition, cmd_move_superimposed
 
 _log = logging.getLogger(__name__)
 #: Cycles of set-points evaluated ahead (NcCore(lookahead=...)); the refills are staggered over the
@@ -64,12 +69,24 @@ _NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
 _LOOP = np.uint32(int(StateDWord.ControlLoopClosed))
 _OPERATIONAL = np.uint32(int(StateDWord.Operational))
 
-#: one NCJOBS_AXIS_REF record: AxisId, ActiveCmdNo, ActiveState, BufferedCmdNo, BufferedMode, NewestCmdNo, Flags,
-#: then ENDED_KEPT x (CmdNo, CmdState, ErrorId)
+#: the queue part of an NCJOBS_AXIS_REF record: AxisId, ActiveCmdNo, ActiveState, BufferedCmdNo, BufferedMode,
+#: NewestCmdNo, Flags, then ENDED_KEPT x (CmdNo, CmdState, ErrorId)
 _NCJOBS_RECORD = struct.Struct("<IHHHHHH" + "HHI" * ENDED_KEPT)
+#: its slots part: MasterId, SyncFlags, GearRatio, SuperCmdNo, SuperState, SuperErrorId, SuperDistance,
+#: SuperVelocityDiff, SuperLength, ProbeCmdNo, ProbeState, ProbeCounter, RecordedPosition, RecordedTimeNs, Reserved
+_NCJOBS_SLOTS = struct.Struct("<IIdHHIdddHHIdQQ")
 _NCJOBS_SIZE = NCJOBS_DTYPE.itemsize
-assert _NCJOBS_RECORD.size == _NCJOBS_SIZE and NCJOBS_DTYPE.names == (
-    "AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo", "Flags", "Ended")
+assert _NCJOBS_RECORD.size + _NCJOBS_SLOTS.size == _NCJOBS_SIZE and NCJOBS_DTYPE.names == (
+    "AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo", "Flags", "Ended",
+    "MasterId", "SyncFlags", "GearRatio", "SuperCmdNo", "SuperState", "SuperErrorId", "SuperDistance",
+    "SuperVelocityDiff", "SuperLength", "ProbeCmdNo", "ProbeState", "ProbeCounter", "RecordedPosition",
+    "RecordedTimeNs", "Reserved")
+_SYNC_EXT_ENABLED, _SYNC_EXT_FOLLOWING, _SYNC_DYN, _SYNC_SYNCHRON = 1, 2, 4, 8
+_PROTECTED = np.uint32(int(StateDWord.Protected))
+_PTP = np.uint32(int(StateDWord.PTPmode))
+_COMPENSATING = np.uint32(int(StateDWord.Compensating))
+_EXT_ENABLED = np.uint32(int(StateDWord.ExtSetPointGenEnabled))
+_LATCH_VALID = np.uint32(int(StateDWord.ExternalLatchValid))
 _NO_ENDED = [0, 0, 0] * ENDED_KEPT
 
 #: commands that change the running job instead of starting one
@@ -89,7 +106,8 @@ class NcCore:
     """
 
     #: the stages of one cycle, in order (see the module docstring)
-    STAGES = ("inputs", "profile", "plan ends", "jobs", "drive", "monitoring", "output")
+    STAGES = ("inputs", "profile", "plan ends", "external", "superposition + coupling", "slave limits", "jobs",
+              "drive", "probe", "monitoring", "output")
 
     def __init__(self, axes: Sequence[AxisConfig], cycle_time: float = 0.001, drive: DriveABC | None = None,
                  lookahead: int | None = LOOKAHEAD) -> None:
@@ -122,6 +140,11 @@ class NcCore:
         self._not_moving = np.array([_NOT_MOVING, 0], dtype=np.uint32)  # by |set velocity| > eps
         self._loop_ok = np.array([_LOOP | _OPERATIONAL, _LOOP], dtype=np.uint32)  # by error
         self.profile = ProfileStage(self, max(1, int(lookahead)))
+        self.external = ExternalStage(n, self.cycle_time)
+        self.superposition = SuperpositionStage(n, self.cycle_time)
+        self.coupling = CouplingStage(n, self.cycle_time)
+        self.probe = ProbeStage(n)
+        self._slot_dw = np.zeros(n, dtype=np.uint32)  # StateDWord bits of the stages (event-driven)
         # the set-point StateDWord bits and AxisState, one array (the profile stage copies both at once)
         self.sp_words = np.zeros((2, n), dtype=np.uint32)
         self.sp_dw, self.axis_state = self.sp_words
@@ -209,6 +232,7 @@ class NcCore:
         except Exception as exc:  # a bug must cost one command, never the NC cycle
             _log.exception("command %r failed", cmd)
             return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
+        self._flush_slots()
         return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
 
     def fault(self, i: int, code: int) -> None:
@@ -222,6 +246,7 @@ class NcCore:
             return
         self._state_dirty = True
         a.error[i] = code
+        self.superposition.abort(self, i)  # the ramp brakes the total motion
         running = q.active
         if q.waiting is not None:
             q.end(q.waiting, CmdState.ABORTED)
@@ -290,10 +315,15 @@ class NcCore:
         self._state_dirty = True
 
     # -- helpers for the job kinds -----------------------------------------------------------
-    def start_state(self, i: int) -> StartState:
-        """The set-point state a new plan starts from (NC position)."""
+    def start_state(self, i: int, total: bool = False) -> StartState:
+        """The set-point state a new plan starts from (NC position): that of the basic motion, without
+        a running superposition (``total``: with it, for a plan that replaces both, e.g. a stop)."""
         a = self.axes
-        return StartState(float(a.set_pos[i]), float(a.set_velo[i]), float(a.set_acc[i]))
+        p, v, acc = float(a.set_pos[i]), float(a.set_velo[i]), float(a.set_acc[i])
+        if not total and self.superposition.on[i]:
+            sp, sv, sa, _ = self.superposition.applied[:, i]
+            p, v, acc = p - float(sp), v - float(sv), acc - float(sa)
+        return StartState(p, v, acc)
 
     def nc_set_pos(self, i: int) -> float:
         return float(self.axes.set_pos[i])
@@ -497,6 +527,9 @@ class NcCore:
         position and the running plan (through ``origin``), the job targets and the other positions
         the jobs keep (:meth:`JobKind.shift`) move with it."""
         a, q = self.axes, self.queues[i]
+        self.coupling.shift(i, diff)
+        if self.external.on[i]:
+            self.external.fold(i, diff)
         a.offset[i] += diff
         a.set_pos[i] += diff
         a.target_pos[i] += diff
@@ -534,22 +567,46 @@ class NcCore:
         a.changed.append(i)
         self._state_dirty = True
 
-    def clear_profile(self, i: int) -> None:
-        """Stop the set-point generator (the axis holds its set position)."""
+    def clear_profile(self, i: int, keep_velocity: bool = False) -> None:
+        """Stop the set-point generator (the axis holds its set position; ``keep_velocity``: a
+        set-point stage takes the row over from its state)."""
         a = self.axes
         a.changed.append(i)
         if a.origin[i]:
-            a.set_pos[i] += 0.0  # set_pos already includes the origin
-            a.origin[i] = 0.0
+            a.origin[i] = 0.0  # (set_pos already includes the origin)
         a.traj_on[i] = False
-        a.set_velo[i] = 0.0
-        a.set_acc[i] = 0.0
-        a.set_jerk[i] = 0.0
+        if not keep_velocity:
+            a.set_velo[i] = 0.0
+            a.set_acc[i] = 0.0
+            a.set_jerk[i] = 0.0
         self._state_dirty = True
 
-    def begin(self, i: int, job: Job, plan: Plan, abort_waiting: bool = True) -> None:
+    def fold_offset(self, i: int, offset: float) -> None:
+        """A finished superposition's ``offset`` becomes part of row ``i``'s basic motion (whatever
+        drives it: plan origin, coupling, fed positions; a standing axis holds it already)."""
+        if not offset:
+            return
+        a = self.axes
+        if self.coupling.is_slave(i):
+            self.coupling.fold(i, offset)
+        elif self.external.on[i]:
+            self.external.fold(i, offset)
+        elif a.traj_on[i]:
+            a.origin[i] += offset
+            a.changed.append(i)
+            self.has_origin = True
+        job = self.queues[i].active
+        if job is not None and job.target is not None:
+            job.target += offset
+            a.target_pos[i] = job.target
+        elif not a.traj_on[i]:
+            a.target_pos[i] = a.set_pos[i]
+        self._state_dirty = True
+
+    def begin(self, i: int, job: Job, plan: Plan | None, abort_waiting: bool = True) -> None:
         """Make ``job`` the running job with ``plan``: the running one ends ABORTED (and, unless
-        ``abort_waiting`` is False, the waiting one too). Numbers the job if it has no number."""
+        ``abort_waiting`` is False, the waiting one too). Numbers the job if it has no number.
+        ``plan`` None: a job of a set-point stage (``JobKind.source``), which takes the row."""
         a, q = self.axes, self.queues[i]
         if q.active is not None and q.active is not job:
             q.end(q.active, CmdState.ABORTED)
@@ -566,11 +623,19 @@ class NcCore:
             a.stopped[i] = job.kind.is_stop
             if job.kind.locks:
                 a.locked[i] = True
-        self.set_plan(i, plan)
-        a.target_pos[i] = job.target if job.target is not None else plan.end.p
+        if job.kind.braking:
+            self.superposition.abort(self, i)  # (planned from the total state)
+        if plan is None:
+            self.clear_profile(i, keep_velocity=True)
+            a.target_pos[i] = job.target if job.target is not None else a.set_pos[i]
+        else:
+            self.set_plan(i, plan)
+            a.target_pos[i] = job.target if job.target is not None else plan.end.p
         a.since_end[i] = -1.0
         a.window_timer[i] = 0.0
         a.in_target[i] = a.in_area[i] = False
+        self._sync(i)
+        job.kind.on_begin(self, i, job)
         self._sync(i)
 
     def _start_ramp(self, i: int, kind: Any, running: Job | None) -> None:
@@ -591,9 +656,15 @@ class NcCore:
         self.begin(i, Job(kind, {}, dyn=d), plan, abort_waiting=False)
 
     def _sync(self, i: int) -> None:
-        """Mirror row ``i``'s queue into the columns and its job record (on events only)."""
+        """Mirror row ``i``'s queue into the columns and its job record (on events only); a stage
+        that drives the row without its job running any more lets it go."""
         a, q = self.axes, self.queues[i]
         j = q.active
+        source = j.kind.source if j is not None else None
+        if source != "coupling" and self.coupling.is_slave(i):
+            self.coupling.release(i)
+        if source != "external" and self.external.on[i]:
+            self.external.release(i)
         numbered = j is not None and j.numbered
         held = j is not None and j.held
         row_bits = 1 if held else (2 if numbered else 0)
@@ -622,9 +693,22 @@ class NcCore:
         ended = [x for e in q.ended for x in (e.cmd_no, e.state, e.error_id)]
         ended += _NO_ENDED[len(ended):]
         o = i * _NCJOBS_SIZE
-        self._jobs_bytes[o:o + _NCJOBS_SIZE] = _NCJOBS_RECORD.pack(
+        self._jobs_bytes[o:o + _NCJOBS_RECORD.size] = _NCJOBS_RECORD.pack(
             self._axis_id_list[i], cmd_no, cmd_state, w.cmd_no if w is not None else 0,
             w.buffer_mode if w is not None else 0, q.newest, 1 if amended else 0, *ended)
+        self._sync_slots(i)
+
+    def _sync_slots(self, i: int) -> None:
+        """The coupling, superposition and touch probe part of row ``i``'s job record (on events)."""
+        c, sp, pr, ex = self.coupling, self.superposition, self.probe, self.external
+        m = int(c.master[i])
+        flags = ((_SYNC_EXT_ENABLED if ex.on[i] else 0) | (_SYNC_EXT_FOLLOWING if ex.following[i] else 0)
+                 | (_SYNC_DYN if c.dyn[i] else 0) | (_SYNC_SYNCHRON if m >= 0 and c.state[i] == 13 else 0))
+        o = i * _NCJOBS_SIZE + _NCJOBS_RECORD.size
+        self._jobs_bytes[o:o + _NCJOBS_SLOTS.size] = _NCJOBS_SLOTS.pack(
+            self._axis_id_list[m] if m >= 0 else 0, flags, float(c.ratio[i]) if m >= 0 else 0.0,
+            int(sp.cmd_no[i]), int(sp.state[i]), int(sp.error[i]), *(float(x) for x in sp.actual[:, i]),
+            int(pr.cmd_no[i]), int(pr.state[i]), int(pr.counter[i]), float(pr.recorded[i]), int(pr.recorded_ns[i]), 0)
         self._state_dirty = True
 
     def finish(self, i: int, job: Job, state: CmdState = CmdState.DONE, error_id: int = 0) -> None:
@@ -703,32 +787,37 @@ class NcCore:
             self._derive_state()
         if self._off_rows.size:  # disabled axes: the set position follows the actual position
             a.set_pos[self._off_rows] = self.act_pos[self._off_rows]
+        sup, cpl, ext = self.superposition, self.coupling, self.external
+        if sup.active:
+            sup.unapply(self)  # (the stages produce the basic motion; the offsets are added after it)
         # set-point stages, then the ends of plans (jobs end, buffered jobs take over)
         if self.on_rows.size:
             ended = self.profile.run(self)
             if ended.size:
                 self._plan_ends(ended)
-            # job watches and limits
-            if self._watch_rows:
-                for kind, rows in self._watch_rows:
-                    if self._state_dirty:  # jobs ended or changed this cycle: only rows still watched
-                        rows = self._still_watched(kind, rows)
-                        if not rows.size:
-                            continue
-                    try:
-                        kind.watch(self, rows)
-                    except Exception:  # a bug must stop its axes, never the NC cycle
-                        _log.exception("job watch of %s failed", kind.name)
-                        for i in rows.tolist():
-                            self.fault(int(i), ErrorCodes.NC_INTERNAL)
-            feed = self._feed_rows  # moving axes with a feed enable missing in some direction
-            if feed.size:
-                plus, minus = self._feed_plus[feed], self._feed_minus[feed]
-                v = a.set_velo[feed]
-                for i in feed[~plus & (v > _EPS_V)]:
-                    self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_PLUS)
-                for i in feed[~minus & (v < -_EPS_V)]:
-                    self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_MINUS)
+        if ext.active or sup.active or cpl.active:
+            self._stage_sync()
+        # job watches and limits
+        if self._watch_rows:
+            for kind, rows in self._watch_rows:
+                if self._state_dirty:  # jobs ended or changed this cycle: only rows still watched
+                    rows = self._still_watched(kind, rows)
+                    if not rows.size:
+                        continue
+                try:
+                    kind.watch(self, rows)
+                except Exception:  # a bug must stop its axes, never the NC cycle
+                    _log.exception("job watch of %s failed", kind.name)
+                    for i in rows.tolist():
+                        self.fault(int(i), ErrorCodes.NC_INTERNAL)
+        feed = self._feed_rows  # moving axes with a feed enable missing in some direction
+        if feed.size:
+            plus, minus = self._feed_plus[feed], self._feed_minus[feed]
+            v = a.set_velo[feed]
+            for i in feed[~plus & (v > _EPS_V)]:
+                self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_PLUS)
+            for i in feed[~minus & (v < -_EPS_V)]:
+                self.fault(int(i), ErrorCodes.NC_AXIS_FEED_ENABLE_MINUS)
         # drive
         self.prev_act_pos, prev = self.act_pos, self.act_pos
         if self._has_offset:
@@ -738,6 +827,9 @@ class NcCore:
             self.drive.step(a.enabled, a.set_pos, a.set_velo, a.set_acc)
             self.act_pos = self.drive.act_pos
         del prev
+        if self.probe.active:
+            self.probe.run(self)
+            self._flush_slots()
         if self._state_dirty:  # a job ended this cycle: monitor it as standing already
             self._derive_state()
         # monitoring: new faults stop their axes from the next cycle
@@ -746,6 +838,52 @@ class NcCore:
         if self._state_dirty:
             self._derive_state()
         self._fill_nctoplc()
+
+    def _flush_slots(self) -> None:
+        """Job records of the rows whose superposition or touch probe slot changed."""
+        for st in (self.superposition, self.probe):
+            if st.changed:
+                for i in set(st.changed):
+                    self._sync_slots(i)
+                st.changed.clear()
+
+    def _stage_sync(self) -> None:
+        """The external set-points, the superpositions and the couplings (level by level), then the
+        limits of the axes they drive: a violation is an axis error and a controlled stop."""
+        sup, cpl, ext = self.superposition, self.coupling, self.external
+        over: list[tuple[int, int]] = []
+        if ext.active:
+            over += [(i, ErrorCodes.NC_AXIS_SET_VELOCITY) for i in ext.run(self)]
+        if sup.active:
+            sup.evaluate()
+            if cpl.active:
+                free = sup.rows[cpl.master[sup.rows] < 0]
+                sup.apply(self, free)
+            else:
+                sup.apply(self, sup.rows)
+        if cpl.active:
+            for i in cpl.run(self, sup.apply if sup.active else _no_rows):
+                code = (ErrorCodes.NC_AXIS_SET_VELOCITY if abs(self.axes.set_velo[i]) > self.axes.vmax[i] * (1 + 1e-6)
+                        else ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)
+                over.append((i, code))
+            if cpl.changed:
+                cpl.changed = False
+                for i in cpl.slaves.tolist():
+                    self._sync_slots(i)
+                self._state_dirty = True
+        if sup.active:
+            over += [(i, ErrorCodes.NC_AXIS_SET_VELOCITY) for i in sup.limits(self)]
+            sup.ended(self)
+        self._flush_slots()
+        if ext.changed:
+            ext.changed = False
+            for i in ext.rows.tolist():
+                self._sync_slots(i)
+            self._state_dirty = True
+        for i, code in over:
+            if not self.axes.error[i]:
+                _log.warning("axis %d: set-point beyond its limits (0x%X): stopped", int(self.axis_ids[i]), int(code))
+            self.fault(i, code)
 
     def _still_watched(self, kind: Any, rows: np.ndarray) -> np.ndarray:
         """The rows of ``rows`` whose running job is still one of ``kind`` that wants its watch."""
@@ -844,6 +982,7 @@ class NcCore:
                     if q.active is not None:
                         q.end(q.active, CmdState.ABORTED)
                     a.locked[i] = False
+                    self.superposition.abort(self, i)
                     self.clear_profile(i)
                     self._sync(i)
             a.enabled = enabled
@@ -866,12 +1005,23 @@ class NcCore:
         standstill &= enabled
         self._watch = (a.lag_en & enabled, standstill, bool(np.count_nonzero(a.en_max) or np.count_nonzero(a.en_min)),
                        bool(np.count_nonzero(standstill)))
+        cpl, sup, ext, pr = self.coupling, self.superposition, self.external, self.probe
+        slaves = cpl.master >= 0
+        staged = slaves | ext.on | sup.on  # rows a set-point stage writes every cycle
         if not self.all_on:  # axes without a profile: AxisState INACTIVE, NotMoving unless a set velocity remains
-            idle = ~a.traj_on
+            idle = ~(a.traj_on | staged)
             self.sp_dw[idle] = self._not_moving[(np.abs(a.set_velo[idle]) > _EPS_V).view(np.uint8)]
             self.axis_state[idle] = 0
         err = a.error != 0
         self._event_dw = a.event_dwords(err)
+        if np.count_nonzero(staged) or np.count_nonzero(pr.valid):
+            # a slave is in protected mode and no PTP axis; Compensating, ExtSetPointGenEnabled,
+            # ExternalLatchValid from their stages
+            self._event_dw &= ~(slaves * _PTP)
+            self._event_dw |= (slaves * _PROTECTED) | (sup.on * _COMPENSATING) | (ext.on * _EXT_ENABLED) | (pr.valid * _LATCH_VALID)
+        out["CoupleState"] = cpl.couple_state
+        out["TouchProbeState"] = pr.touch_state()
+        out["TouchProbeCounter"] = pr.counter
         # ControlLoopClosed always, Operational only without an error (both need enable + drive ready)
         self._loop_dw = self._loop_ok[err.view(np.uint8)]
         self._has_offset = bool(np.count_nonzero(a.offset))
@@ -924,6 +1074,7 @@ class NcCore:
             o["TargetPos"][...] = a.target_pos
         np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
         o["ActPosWithoutPosCorrection"][...] = act
+        o["StateDWord3"][...] = self.drive.probe_input()  # bit 0: TouchProbe1InputState
         o["DcTimeStamp"][...] = self.nc_time_ns & 0xFFFFFFFF
 
     # -- commands ----------------------------------------------------------------------------
@@ -946,6 +1097,7 @@ class NcCore:
             raise NcError(ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED, f"{req['cmd']}: BufferMode {mode} is not supported")
         if not kind.always_allowed:
             self.check_startable(i)
+        self._check_source(i, kind, mode)
         running = q.running_numbered
         if (running is not None and running.kind.homing and mode == ABORTING and not kind.always_allowed
                 and running.state == int(CmdState.ACTIVE)):
@@ -974,9 +1126,31 @@ class NcCore:
             return {"cmd_no": job.cmd_no}
         job = kind.accept(self, i, req, running)
         job.client, job.buffer_mode = client, mode
-        plan = kind.activate(self, i, job, self.start_state(i))
+        # a stop brakes the total motion (a running superposition included)
+        plan = kind.activate(self, i, job, self.start_state(i, total=kind.braking))
         self.begin(i, job, plan)
         return {"cmd_no": job.cmd_no}
+
+    def _check_source(self, i: int, kind: Any, mode: int) -> None:
+        """Motion commands to an axis a coupling or the external generator drives (TcMC / Tc2_MC2):
+        refused unless its parameter allows them (then only Aborting: the command decouples /
+        disables and takes over); MC_Stop always takes over; a second coupling is refused."""
+        job = self.queues[i].active
+        source = job.kind.source if job is not None else None
+        if source is None or kind.always_allowed:
+            return
+        p = self.params[i]
+        if kind.source == "coupling" and source == "coupling":
+            raise NcError(ErrorCodes.MC_AXIS_PROTECTED, f"axis {int(self.axis_ids[i])} is already coupled (MC_GearOut first)")
+        if source == "coupling" and not p.AxisAllowMotionCmdToSlave:
+            raise NcError(ErrorCodes.NC_SLAVE_COMMAND_NOT_ALLOWED,
+                          f"axis {int(self.axis_ids[i])} is a coupled slave (AxisAllowMotionCmdToSlave is off)")
+        if source == "external" and not p.AxisAllowMotionCmdToExtSetAxis:
+            raise NcError(ErrorCodes.MC_AXIS_PROTECTED,
+                          f"axis {int(self.axis_ids[i])} follows the external set-point generator "
+                          "(AxisAllowMotionCmdToExtSetAxis is off; MC_ExtSetPointGenDisable first)")
+        if mode != ABORTING:
+            raise NcError(ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED, "a command to a coupled/external axis can only be Aborting")
 
     def _amend(self, i: int, req: dict[str, Any]) -> dict[str, Any]:
         q, a = self.queues[i], self.axes
@@ -1012,6 +1186,7 @@ def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, An
 
 def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     a, q = core.axes, core.queues[i]
+    core.probe.disarm_on_reset(i)
     if a.traj_on[i]:
         if a.error[i] or a.locked[i]:
             # still braking: clear the error/lock now, but the ramp goes on as a numbered stop
@@ -1095,6 +1270,13 @@ _ADMIN = {
     "ReadParameter": _cmd_read_parameter, "WriteParameter": _cmd_write_parameter,
     "SetActualPosition": _cmd_set_actual_position, "SetActualPositionOnTheFly": _cmd_set_actual_position_otf,
     "SetReferenceFlag": _cmd_set_reference_flag,
+    "GearOut": gear_out, "GearOutExt": gear_out, "ExtSetPointGenDisable": ext_disable,
+    "MoveSuperImposed": cmd_move_superimposed, "AbortSuperposition": cmd_abort_superposition,
+    "TouchProbe": cmd_touch_probe, "AbortTrigger": cmd_abort_trigger, "SimProbeSignal": cmd_sim_probe_signal,
 }
+def _no_rows(rows: np.ndarray) -> None:
+    return None
+
+
 KINDS_LIST = sorted({k for k in KINDS.values()}, key=lambda k: k.name)
 KINDS_INDEX = {k.name: n for n, k in enumerate(KINDS_LIST)}

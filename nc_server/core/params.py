@@ -69,6 +69,12 @@ class AxisParams:
     AxisEncoderModuloValue: float = _p(360.0, "pos", "modulo factor (period) for Modulo* positions [u]")
     AxisModuloToleranceWindow: float = _p(0.0, "nonneg", "modulo tolerance window (TcMC 3.5) [u]")
     Modulo: bool = _p(False, "bool", "modulo axis (OpModeDWord.OpModeModulo, modulo display)")
+    AxisAllowMotionCmdToSlave: bool = _p(
+        False, "bool", "TwinCAT 'Allow motion commands to slave axis' (OpModeDWord.OpModeAllowSlaveCommands): a motion "
+        "command to a coupled slave decouples it (Aborting only); off: refused with 0x4266")
+    AxisAllowMotionCmdToExtSetAxis: bool = _p(
+        False, "bool", "TwinCAT 'Allow motion commands to external setpoint axis' (OpModeDWord.OpModeAllowExtSetAxisCommands): "
+        "a motion command disables the external set-point generator; off: refused with 0x4B08")
     AxisEncoderScalingFactor: float = _p(1.0, "pos", "encoder scaling (stored)")
     AxisEncoderOffset: float = _p(0.0, "real", "encoder offset (stored)")
     AxisEncoderDirectionInverse: bool = _p(False, "bool", "encoder direction inverted (stored)")

@@ -106,6 +106,9 @@ class JobKind:
     braking: ClassVar[bool] = False
     #: the NC's own motion (a stop ramp), never numbered
     internal: ClassVar[bool] = False
+    #: the set-point stage that drives the axis while this job runs ("coupling", "external"); None:
+    #: its plan (the profile stage). The stage holds the row exactly while such a job is active.
+    source: ClassVar[str | None] = None
 
     def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         """Check the arguments and make the record (nothing is changed yet).
@@ -120,7 +123,8 @@ class JobKind:
         raise NotImplementedError
 
     def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
-        """Check the axis state and plan the job from ``start``.
+        """Check the axis state and plan the job from ``start`` (a job of a ``source`` stage: None,
+        it has no plan).
 
         It changes nothing but ``job`` (what the plan needs to know later: phase, held, the start
         of the move, ...). The NC checks a buffered job on ``job.trial()``, a copy, so a check
@@ -130,6 +134,9 @@ class JobKind:
             NcError: the job cannot start here.
         """
         raise NotImplementedError
+
+    def on_begin(self, core: NcCore, i: int, job: Job) -> None:
+        """The job became the running one (a job of a ``source`` stage hands the row to it here)."""
 
     def on_end(self, core: NcCore, i: int, job: Job) -> str:
         """The plan ended. Returns "done" (the job is finished), "steady" (keep the plan's end

@@ -1,16 +1,7 @@
-"""Set-point stages: what produces each axis's set-points in a cycle, in an explicit order.
+"""The profile stage: the set-points of the axes that follow a plan of their own (``axes.traj_on``).
 
-The NC cycle runs ``NcCore.stages`` in order; each stage owns some axes' set-points for that
-cycle and may read any axis's set-point that an earlier stage produced in the same cycle (the
-coupling stage of the next issue reads its masters' set-points). Stages are vectorized over the
-axes they own; their cost does not depend on how many job kinds exist.
-
-1. :class:`ProfileStage` -- the profile generator: evaluates every running plan (constant-jerk
-   segments) for its axes ``lookahead`` cycles ahead, a staggered group of axes per cycle.
-2. (coupling, superposition, external set-points: next issue)
-3. job watches and limits (``NcCore._stage_jobs``): soft-limit approach of continuous moves,
-   switching positions, homing cams/latches, feed enables.
-4. the drive, monitoring, NCTOPLC (``NcCore.step``).
+It evaluates every running plan (constant-jerk segments) ``lookahead`` cycles ahead, a staggered
+group of axes per cycle; the stages after it (:mod:`.`) read the set-points it produced.
 """
 from __future__ import annotations
 
@@ -20,10 +11,10 @@ import numpy as np
 
 from nc_schema import AxisState, StateDWord
 
-from .profile import N_SEGMENTS, evaluate_block
+from ..profile import N_SEGMENTS, evaluate_block
 
 if TYPE_CHECKING:
-    from .nc import NcCore
+    from ..nc import NcCore
 
 _EPS_V = 1e-9
 

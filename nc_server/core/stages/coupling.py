@@ -1,0 +1,274 @@
+"""The coupling stage: set-points of coupled slaves from their masters' (linear gearing, TcMC 3.17-3.21).
+
+A slave at gear ratio ``r`` follows ``SetPos = s_base + r * (master SetPos - m_base)``: the ratio
+times the master's travel since the coupling (or since the last ratio change of MC_GearInDyn),
+exact in floating point for a fixed ratio; velocity, acceleration and jerk are ``r`` times the
+master's. Chains (a slave that is the master of another) are evaluated level by level, masters
+before slaves, in the same cycle: no lag per link. Each level is one vector operation.
+
+Coupling happens with the slave at standstill (TcMC). When the master moves at that moment the
+slave first synchronizes (AxisState SLAVE_SYNCHRONIZING): it reaches ``r`` times the master's
+velocity and acceleration with its own AxisAcc/AxisDec/AxisJerk (ruckig, velocity interface, one
+cycle at a time), then locks in position (SLAVE_SYNCHRON; MC_GearIn InGear). TcMC only couples
+standing masters ("flying saw" is a separate product); synchronizing instead of jumping to the
+master's velocity is this NC's choice, so that no coupling can ever command a velocity step.
+
+MC_GearInDyn: the ratio follows PLCTONC.GearRatio1 of the slave every cycle, changing by at most
+``Acceleration / master AxisVeloMax`` per second (TcMC 3.19: "the maximum acceleration will be
+reached when the master is moving at its maximum velocity"). A non-finite GearRatio1 or one
+beyond +/-MAX_RATIO is ignored (the last ratio stays) and counted in ``ignored_ratios``.
+
+Which axes are coupled follows the jobs: a slave is coupled exactly while its running job is a
+coupling job (``NcCore._sync`` releases the row when another job takes over), so every way a
+coupling can end (MC_GearOut, a motion command with AxisAllowMotionCmdToSlave, MC_Stop, an error,
+Enable FALSE) goes through one place.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
+
+from nc_schema import AxisState, CoupleState, StateDWord
+
+if TYPE_CHECKING:
+    from ..nc import NcCore
+
+#: largest |gear ratio| accepted
+MAX_RATIO = 1e6
+_EPS_V = 1e-9
+SYNCHRONIZING = int(AxisState.SLAVE_SYNCHRONIZING)
+SYNCHRON = int(AxisState.SLAVE_SYNCHRON)
+_NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
+_POS = np.uint32(int(StateDWord.PositiveDirection))
+_NEG = np.uint32(int(StateDWord.NegativeDirection))
+_CONST = np.uint32(int(StateDWord.ConstantVelocity))
+
+
+class CouplingStage:
+    """The master/slave table of one NC and the per-cycle evaluation of its slaves.
+
+    Columns (one entry per axis row): ``master`` (row of the master, -1 = not a slave), ``ratio``
+    (applied), ``ratio_cmd`` (MC_GearInDyn: the ratio asked for), ``rate`` (MC_GearInDyn: the
+    largest ratio change per second), ``dyn``, ``s_base``/``m_base`` (slave and master position
+    where the current ratio took effect), ``state`` (AxisState of the slave: 12 or 13).
+    """
+
+    name = "coupling"
+
+    def __init__(self, n: int, cycle_time: float) -> None:
+        self.n = n
+        self.dt = cycle_time
+        self.master = np.full(n, -1, dtype=np.intp)
+        self.ratio = np.zeros(n)
+        self.ratio_cmd = np.zeros(n)
+        self.rate = np.zeros(n)
+        self.dyn = np.zeros(n, dtype=bool)
+        self.s_base = np.zeros(n)
+        self.m_base = np.zeros(n)
+        self.m_last = np.zeros(n)  # the master's set position the slave followed last cycle
+        self.state = np.zeros(n, dtype=np.uint32)
+        self.live = np.zeros(n, dtype=bool)  # MC_GearInDyn: GearRatio1 is the block's
+        self.gr_seen = np.full(n, math.nan)
+        self.couple_state = np.zeros(n, dtype=np.uint32)  # NCTOPLC.CoupleState
+        self.levels: list[tuple[np.ndarray, np.ndarray]] = []  # (slave rows, their master rows) per depth
+        self.slaves = np.zeros(0, dtype=np.intp)
+        self.ignored_ratios = 0
+        self.changed = False  # the table changed: NcCore refreshes what it derives from it
+        self._otg = Ruckig(1, cycle_time)
+        self._inp = InputParameter(1)
+        self._out = OutputParameter(1)
+        self._inp.control_interface = ControlInterface.Velocity
+
+    # -- the table ----------------------------------------------------------------------------
+    @property
+    def active(self) -> bool:
+        return bool(self.slaves.size)
+
+    def is_slave(self, i: int) -> bool:
+        return bool(self.master[i] >= 0)
+
+    def closes_cycle(self, slave: int, master: int) -> bool:
+        """Coupling ``slave`` to ``master`` would make an axis its own master (directly or through a chain)."""
+        m = master
+        for _ in range(self.n + 1):
+            if m == slave:
+                return True
+            if m < 0:
+                return False
+            m = int(self.master[m])
+        return True
+
+    def couple(self, core: NcCore, i: int, m: int, ratio: float, dyn: bool = False, rate: float = 0.0,
+               gear_ratio1: float = math.nan) -> None:
+        """Make row ``i`` a slave of row ``m`` from this cycle's set-points on (the caller checked
+        that it may: slave standing, no cycle). A moving master: synchronize first.
+
+        Args:
+            gear_ratio1: MC_GearInDyn: PLCTONC.GearRatio1 as the command found it. The ratio follows
+                GearRatio1 only once it equals ``ratio`` or changed from this value (the block's
+                PLCTONC frame may arrive after the command: an older GearRatio1 is not its ratio).
+        """
+        a = core.axes
+        self.master[i] = m
+        self.ratio[i] = self.ratio_cmd[i] = ratio
+        self.dyn[i] = dyn
+        self.rate[i] = rate
+        self.live[i] = not dyn
+        self.gr_seen[i] = gear_ratio1
+        moving = abs(float(a.set_velo[m])) > _EPS_V or abs(float(a.set_acc[m])) > 1e-9
+        self.state[i] = SYNCHRONIZING if moving else SYNCHRON
+        self.s_base[i] = float(a.set_pos[i])
+        self.m_base[i] = self.m_last[i] = float(a.set_pos[m])
+        self._rebuild()
+
+    def release(self, i: int) -> None:
+        """Row ``i`` is no slave any more; it keeps this cycle's set-point state (the job that took
+        over planned from it)."""
+        if self.master[i] < 0:
+            return
+        self.master[i] = -1
+        self.ratio[i] = self.ratio_cmd[i] = 0.0
+        self.dyn[i] = False
+        self.state[i] = 0
+        self._rebuild()
+
+    def shift(self, i: int, diff: float) -> None:
+        """The NC positions of row ``i`` moved by ``diff`` (MC_SetActualPosition*): no slave may jump."""
+        if self.master[i] >= 0:
+            self.s_base[i] += diff
+        of = self.master == i
+        self.m_base[of] += diff
+        self.m_last[of] += diff
+
+    def fold(self, i: int, diff: float) -> None:
+        """A superimposed distance ``diff`` of slave row ``i`` becomes part of its coupling."""
+        self.s_base[i] += diff
+
+    def _rebuild(self) -> None:
+        n = self.n
+        depth = np.zeros(n, dtype=np.intp)
+        for i in range(n):  # (couplings change on commands only)
+            d, m = 0, int(self.master[i])
+            while m >= 0 and d <= n:
+                d += 1
+                m = int(self.master[m])
+            depth[i] = d
+        self.levels = []
+        for d in range(1, int(depth.max(initial=0)) + 1):
+            rows = (depth == d).nonzero()[0]
+            self.levels.append((rows, self.master[rows].copy()))
+        self.slaves = (self.master >= 0).nonzero()[0]
+        is_master = np.zeros(n, dtype=bool)
+        is_master[self.master[self.slaves]] = True
+        slave = self.master >= 0
+        cs = np.full(n, int(CoupleState.SINGLE), dtype=np.uint32)
+        cs[is_master] = int(CoupleState.MASTER)
+        cs[slave] = int(CoupleState.SLAVE)
+        cs[slave & is_master] = int(CoupleState.MASTERSLAVE)
+        self.couple_state = cs
+        self.changed = True
+
+    # -- the cycle ----------------------------------------------------------------------------
+    def run(self, core: NcCore, after_level: Callable[[np.ndarray], None]) -> list[int]:
+        """Set-points of every slave, level by level; ``after_level(rows)`` runs after each level
+        (the superposition of those rows, before their own slaves read them). Returns the slave
+        rows that exceed their AxisVeloMax or acceleration limits (the NC faults them)."""
+        a, S = core.axes, core.axes.S
+        dt = self.dt
+        gr = core.plctonc["GearRatio1"]
+        for rows, masters in self.levels:
+            pm = S[0, masters]
+            sync = (self.state[rows] == SYNCHRONIZING).nonzero()[0]
+            prev = S[:3, rows[sync]].copy() if sync.size else None  # their set-point state of the last cycle
+            accel = self._dyn_ratios(core, rows, gr) if np.count_nonzero(self.dyn[rows]) else None
+            r = self.ratio[rows]
+            S[0, rows] = self.s_base[rows] + r * (pm - self.m_base[rows])
+            S[1, rows] = r * S[1, masters]
+            S[2, rows] = r * S[2, masters]
+            S[3, rows] = r * S[3, masters]
+            if accel is not None:  # ratio changes of this level (MC_GearInDyn)
+                S[2, rows] += accel
+            self.m_last[rows] = pm
+            for k, col in zip(sync.tolist(), range(sync.size)):
+                self._synchronize(core, int(rows[k]), int(masters[k]), prev[:, col])  # type: ignore[index]
+            v = S[1, rows]
+            dw = np.where(np.abs(v) > _EPS_V, np.where(v > 0, _POS, _NEG), _NOT_MOVING)
+            dw |= np.where((np.abs(S[2, rows]) < 1e-9) & (np.abs(v) > _EPS_V), _CONST, np.uint32(0))
+            core.sp_dw[rows] = dw
+            core.axis_state[rows] = self.state[rows]
+            after_level(rows)
+        s = self.slaves
+        tol = 1 + 1e-6
+        over = (np.abs(S[1, s]) > a.vmax[s] * tol + _EPS_V) | (
+            np.abs(S[2, s]) > np.maximum(a.acc[s], a.dec[s]) * tol + 1e-6)
+        if np.count_nonzero(self.dyn[s]):
+            core.ncjobs["GearRatio"][s] = self.ratio[s]
+        return s[over].tolist()
+
+    def _dyn_ratios(self, core: NcCore, rows: np.ndarray, gr: np.ndarray) -> np.ndarray | None:
+        """MC_GearInDyn rows of a level: the ratio moves towards PLCTONC.GearRatio1 within its rate;
+        where it changed, the coupling is re-based at last cycle's positions (so position stays
+        continuous) and the ratio change adds ``dr/dt * master velocity`` to the acceleration, which is
+        returned per row of ``rows`` (None: no ratio changed)."""
+        S = core.axes.S
+        d = rows[self.dyn[rows]]
+        want = gr[d]
+        stale = ~self.live[d]
+        if stale.any():
+            self.live[d] |= (want == self.ratio[d]) | (want != self.gr_seen[d])
+            d, want = d[self.live[d]], want[self.live[d]]
+        ok = np.isfinite(want) & (np.abs(want) <= MAX_RATIO)
+        if not ok.all():
+            self.ignored_ratios += int(np.count_nonzero(~ok))
+        self.ratio_cmd[d[ok]] = want[ok]
+        old = self.ratio[d]
+        step = self.rate[d] * self.dt
+        new = old + np.clip(self.ratio_cmd[d] - old, -step, step)
+        moved = new != old
+        if not moved.any():
+            return None
+        dm = d[moved]
+        self.s_base[dm] += old[moved] * (self.m_last[dm] - self.m_base[dm])
+        self.m_base[dm] = self.m_last[dm]
+        self.ratio[dm] = new[moved]
+        acc = np.zeros(rows.size)
+        acc[np.searchsorted(rows, dm)] = (new[moved] - old[moved]) / self.dt * S[1, self.master[dm]]  # (rows ascend)
+        return acc
+
+    def _synchronize(self, core: NcCore, i: int, m: int, prev: np.ndarray) -> None:
+        """One cycle of a synchronizing slave: towards ratio x the master's velocity and acceleration
+        with the slave's own dynamics; locked in position once it got there."""
+        a = core.axes
+        r = float(self.ratio[i])
+        inp, out = self._inp, self._out
+        inp.current_position = [float(prev[0])]
+        inp.current_velocity = [float(prev[1])]
+        inp.current_acceleration = [float(prev[2])]
+        acc_lim = float(max(a.acc[i], a.dec[i]))
+        inp.target_velocity = [r * float(a.set_velo[m])]
+        inp.target_acceleration = [max(-acc_lim, min(acc_lim, r * float(a.set_acc[m])))]
+        inp.max_velocity = [float(a.vmax[i])]
+        inp.max_acceleration = [acc_lim]
+        inp.max_jerk = [float(a.jerk[i])]
+        try:
+            res = self._otg.update(inp, out)
+        except Exception:  # (ruckig raises on inputs it cannot take)
+            res = Result.Error
+        if res not in (Result.Working, Result.Finished):
+            # cannot synchronize from here (e.g. the target acceleration is out of reach): lock now
+            res = Result.Finished
+            p, v, acc = float(prev[0]) + float(prev[1]) * self.dt, float(prev[1]), 0.0
+        else:
+            p, v, acc = out.new_position[0], out.new_velocity[0], out.new_acceleration[0]
+        a.set_pos[i], a.set_velo[i], a.set_acc[i] = p, v, acc
+        a.set_jerk[i] = (acc - float(prev[2])) / self.dt
+        if res == Result.Finished:
+            self.state[i] = SYNCHRON
+            self.s_base[i] = p
+            self.m_base[i] = self.m_last[i] = float(a.set_pos[m])
+            self.changed = True
+        if not math.isfinite(p):  # never hand a non-finite set-point on
+            a.set_pos[i], a.set_velo[i], a.set_acc[i] = float(prev[0]), 0.0, 0.0

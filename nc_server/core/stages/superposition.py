@@ -1,0 +1,216 @@
+"""The superposition stage: a relative motion added on top of an axis's set-points (TcMC 3.9-3.12).
+
+Whatever produces the axis's set-points (its own plan, a coupling, the external generator, or
+standstill) produces the *basic* motion; this stage adds the superimposed offset profile (a plan
+of :func:`..superposition.plan_superposition`, jerk-limited like every plan) after it, level by
+level with the couplings, so the slaves of an axis follow its total motion. Between cycles
+``axes.S`` holds the total; ``NcCore.start_state`` gives the basic motion's state (total minus the
+applied offset), so a command that replans the basic motion leaves the superposition running.
+
+Ends: DONE (or ERROR 0x4243 when only part of Distance fitted) when the offset profile ends: the
+final offset then becomes part of the basic motion (``NcCore.fold_offset``). MC_AbortSuperposition:
+the superposition ends ABORTED at once, its offset brakes to rest with its Deceleration and is
+folded. A stop of the axis, an error, Enable FALSE: ABORTED, and the stop plans from the total
+state (the offset is part of it from then on). A new superposition while one runs takes over from
+the running one's state (no jump; the old one ends ABORTED; what it had applied stays): this NC's
+answer where TcMC is silent on re-triggering.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from nc_schema import CmdState, ErrorCodes, StateDWord
+
+from ..planning import StartState, plan_velocity
+from ..profile import N_SEGMENTS, evaluate
+
+if TYPE_CHECKING:
+    from ..nc import NcCore
+    from ..planning import Plan
+
+_EPS_V = 1e-9
+_NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
+_POS = np.uint32(int(StateDWord.PositiveDirection))
+_NEG = np.uint32(int(StateDWord.NegativeDirection))
+_DIR_BITS = np.uint32(int(StateDWord.NotMoving) | int(StateDWord.PositiveDirection) | int(StateDWord.NegativeDirection)
+                      | int(StateDWord.ConstantVelocity))
+
+
+class SuperpositionStage:
+    """Per axis: the offset profile (``seg``, time ``t`` and ``dur``), the offset applied in this
+    cycle (``applied``: p, v, a, j), and the slot the wire shows (cmd_no, state, error, actual values)."""
+
+    name = "superposition"
+
+    def __init__(self, n: int, cycle_time: float) -> None:
+        self.dt = cycle_time
+        self.on = np.zeros(n, dtype=bool)          # an offset profile runs (numbered or braking)
+        self.seg = np.zeros((5, n, N_SEGMENTS))
+        self.seg[0] = np.inf
+        self.t = np.zeros(n)
+        self.dur = np.zeros(n)
+        self.applied = np.zeros((4, n))
+        self.cmd_no = np.zeros(n, dtype=np.uint16)
+        self.state = np.zeros(n, dtype=np.uint16)
+        self.error = np.zeros(n, dtype=np.uint32)
+        self.actual = np.zeros((3, n))              # ActualDistance, ActualVelocityDiff, ActualLength
+        self.end_error = np.zeros(n, dtype=np.uint32)  # the error the running one ends with (0x4243)
+        self.rows = np.zeros(0, dtype=np.intp)
+        self._values: np.ndarray | None = None     # this cycle's (4, len(rows)) offsets
+        self.changed: list[int] = []               # rows whose slot changed (job records)
+
+    @property
+    def active(self) -> bool:
+        return bool(self.rows.size)
+
+    def start(self, i: int, plan: Plan, cmd_no: int, actual: tuple[float, float, float], end_error: int) -> None:
+        """Run ``plan`` (from the current offset state) as superposition ``cmd_no`` of row ``i``."""
+        if self.on[i] and self.state[i] == int(CmdState.ACTIVE):
+            self.state[i] = int(CmdState.ABORTED)  # (a new one takes over)
+        self.seg[:, i, :] = plan.seg
+        self.t[i], self.dur[i] = 0.0, plan.duration
+        self.on[i] = True
+        self.cmd_no[i], self.state[i], self.error[i] = cmd_no, int(CmdState.ACTIVE), 0
+        self.actual[:, i] = actual
+        self.end_error[i] = end_error
+        self._rows()
+
+    def offset_state(self, i: int) -> StartState:
+        """The superimposed offset now (a new superposition starts from it)."""
+        p, v, a, _ = self.applied[:, i]
+        return StartState(float(p), float(v), float(a))
+
+    def brake(self, core: NcCore, i: int) -> None:
+        """MC_AbortSuperposition: the slot ends ABORTED now, the offset brakes to rest and is folded."""
+        if not self.on[i]:
+            return
+        if self.state[i] == int(CmdState.ACTIVE):
+            self.state[i] = int(CmdState.ABORTED)
+            self.changed.append(i)
+        a = core.axes
+        dyn = core.dynamics(i, {}, None)
+        try:
+            plan = plan_velocity(self.offset_state(i), 0.0, dyn.with_(velocity=float(a.vmax[i])))
+        except Exception:  # cannot plan a brake: fold what is applied now (the NC's stop rule: never keep moving)
+            self.abort(core, i)
+            return
+        self.seg[:, i, :] = plan.seg
+        self.t[i], self.dur[i] = 0.0, plan.duration
+        self.end_error[i] = 0
+
+    def abort(self, core: NcCore, i: int) -> None:
+        """End row ``i``'s superposition now: what it applied becomes part of the basic motion
+        (the caller plans from the total state, or the axis stands)."""
+        if not self.on[i] and not self.applied[:, i].any():
+            return
+        if self.state[i] == int(CmdState.ACTIVE):
+            self.state[i] = int(CmdState.ABORTED)
+        self.on[i] = False
+        self.applied[:, i] = 0.0
+        self._rows()
+        self.changed.append(i)
+
+    def _rows(self) -> None:
+        self.rows = self.on.nonzero()[0]
+
+    # -- the cycle ----------------------------------------------------------------------------
+    def unapply(self, core: NcCore) -> None:
+        """Cycle start: the set-points of the rows return to their basic motion."""
+        core.axes.S[:, self.rows] -= self.applied[:, self.rows]
+
+    def evaluate(self) -> None:
+        """This cycle's offsets of every running superposition."""
+        r = self.rows
+        self.t[r] += self.dt
+        t = np.minimum(self.t[r], self.dur[r])  # (at rest after its end)
+        p, v, a, j = evaluate(self.seg, t, r)
+        self._values = np.stack((p, v, a, np.broadcast_to(j, p.shape)))
+        self.applied[:, r] = self._values
+
+    def apply(self, core: NcCore, rows: np.ndarray) -> None:
+        """Add the offsets to those of ``rows`` that have a superposition (after their basic motion)."""
+        r = rows[self.on[rows]]
+        if not r.size:
+            return
+        S = core.axes.S
+        S[:, r] += self.applied[:, r]
+        v = S[1, r]
+        dw = core.sp_dw[r] & ~_DIR_BITS
+        dw |= np.where(np.abs(v) > _EPS_V, np.where(v > 0, _POS, _NEG), _NOT_MOVING)
+        core.sp_dw[r] = dw
+
+    def ended(self, core: NcCore) -> list[int]:
+        """Rows whose offset profile ended in this cycle: their slot ends (DONE, or ERROR with the
+        reduced-distance code) and the offset is folded into the basic motion."""
+        r = self.rows
+        done = r[self.t[r] >= self.dur[r]]
+        for i in done.tolist():
+            offset = float(self.applied[0, i])
+            if self.state[i] == int(CmdState.ACTIVE):
+                code = int(self.end_error[i])
+                self.state[i] = int(CmdState.ERROR if code else CmdState.DONE)
+                self.error[i] = code
+            self.on[i] = False
+            self.applied[:, i] = 0.0
+            core.fold_offset(i, offset)
+            self.changed.append(i)
+        if done.size:
+            self._rows()
+        return done.tolist()
+
+    def limits(self, core: NcCore) -> list[int]:
+        """Rows whose total velocity exceeds AxisVeloMax (the NC faults them with 0x4359)."""
+        r = self.rows
+        a = core.axes
+        return r[np.abs(a.S[1, r]) > a.vmax[r] * (1 + 1e-6) + _EPS_V].tolist()
+
+
+_INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
+
+
+def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
+    """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt): plan and start the offset
+    profile. The reference velocity for Length is |VelocityProcess|, or (0) the axis's basic set
+    velocity now, in the axis's direction of travel.
+
+    Raises:
+        NcError: the start checks of any motion; 0x4B04 unknown Mode; 0x4B06 Distance 0,
+            VelocityDiff or Length not > 0; 0x422F/0x4230/0x422E bad dynamics; 0x427E unplannable.
+    """
+    from ..superposition import plan_superposition  # (pure planning, like ..planning)
+
+    from nc_schema import NcError, next_cmdno
+
+    core.check_startable(i)
+    mode = req.get("Mode", 4)
+    if mode not in (1, 2, 3, 4):
+        raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_SuperpositionMode (1..4)")
+    dyn = core.dynamics(i, req, None)
+    base = core.start_state(i)
+    vp = abs(float(req.get("VelocityProcess", 0.0) or 0.0)) or abs(base.v)
+    v_ref = vp if base.v >= 0 else -vp
+    stage = core.superposition
+    start = stage.offset_state(i) if stage.on[i] else StartState(0.0)
+    try:
+        sp = plan_superposition(int(mode), float(req["Distance"]), abs(float(req["VelocityDiff"])), dyn.acceleration,
+                                dyn.deceleration, dyn.jerk, v_ref, float(req["Length"]), start)
+    except ValueError as exc:
+        raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, str(exc)) from None
+    except Exception as exc:  # (planning.PlanningError)
+        raise NcError(ErrorCodes.NC_MOTION_NOT_REALIZED, f"the superposition cannot be planned ({exc})") from None
+    q = core.queues[i]
+    cmd_no = q.newest = next_cmdno(q.newest)
+    stage.start(i, sp.plan, cmd_no, (sp.distance, sp.velocity_diff, sp.length), _INCOMPLETE if sp.incomplete else 0)
+    stage.changed.append(i)
+    core._state_dirty = True
+    return {"cmd_no": cmd_no, "value": {"ActualDistance": sp.distance, "ActualVelocityDiff": sp.velocity_diff,
+                                        "ActualLength": sp.length, "Incomplete": bool(sp.incomplete)}}
+
+
+def cmd_abort_superposition(core: NcCore, i: int, req: dict) -> dict:
+    """AbortSuperposition: see :meth:`SuperpositionStage.brake` (none running: nothing changes)."""
+    core.superposition.brake(core, i)
+    core._state_dirty = True
+    return {}
