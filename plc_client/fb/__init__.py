@@ -30,3 +30,20 @@ from .position import (  # noqa: E402
 
 __all__ += ["MC_Jog", "MC_Home", "MC_SetActualPosition", "MC_SetActualPositionOnTheFly", "MC_SetReferenceFlag",
             "F_GetVersionTcMC", "AXACT"]
+
+# coupling, superposition, external set-point generator, touch probe
+from .coupling import E_DecoupleMode, MC_GearIn, MC_GearInDyn, MC_GearInFloat, MC_GearOut, MC_GearOutExt  # noqa: E402
+from .external import (  # noqa: E402
+    E_TargPosType, MC_ExtSetPointGenDisable, MC_ExtSetPointGenEnable, MC_ExtSetPointGenFeed,
+)
+from .probe import E_SignalEdge, E_TouchProbe, E_TouchProbeState, MC_AbortTrigger, MC_InputRef, MC_TouchProbe  # noqa: E402
+from .superposition import (  # noqa: E402
+    E_SuperpositionMode, MC_AbortSuperposition, MC_MoveSuperImposed, MC_MoveSuperImposedExt,
+)
+
+__all__ += ["MC_GearIn", "MC_GearInFloat", "MC_GearInDyn", "MC_GearOut", "MC_GearOutExt",
+            "MC_MoveSuperImposed", "MC_MoveSuperImposedExt", "MC_AbortSuperposition",
+            "MC_ExtSetPointGenEnable", "MC_ExtSetPointGenDisable", "MC_ExtSetPointGenFeed",
+            "MC_InputRef", "MC_TouchProbe", "MC_AbortTrigger",
+            "E_DecoupleMode", "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe", "E_SignalEdge",
+            "E_TouchProbeState"]

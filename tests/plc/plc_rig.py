@@ -26,12 +26,15 @@ STEPS = round(PLC_CYCLE / NC_CYCLE)
 
 def check_exclusive(fb: Any) -> None:
     """PLCopen: Busy/Done/Error/CommandAborted mutually exclusive; Active only with Busy
-    (MC_Stop: Busy+Active+Done while locked is the documented exception)."""
-    names = [n for n in ("Busy", "Done", "InVelocity", "Error", "CommandAborted") if hasattr(fb, n)]
+    (MC_Stop: Busy+Active+Done while locked is the documented exception; MC_GearIn*: InGear
+    comes with Busy, the block stays responsible for the coupling)."""
+    names = [n for n in ("Busy", "Done", "InVelocity", "InGear", "Error", "CommandAborted") if hasattr(fb, n)]
     on = [n for n in names if getattr(fb, n)]
     if type(fb).__name__ == "MC_Stop" and set(on) == {"Busy", "Done"}:
         assert fb.Active
         return
+    if set(on) == {"Busy", "InGear"}:
+        on = ["InGear"]
     assert len(on) <= 1, f"{type(fb).__name__}: {on} TRUE together"
     if getattr(fb, "Active", False):
         assert fb.Busy, f"{type(fb).__name__}: Active without Busy"
@@ -137,26 +140,29 @@ class ScriptPort(CommandPort):
     def _transmit(self, pending: Any, payload: bytes) -> None:
         self.sent.append(pending)
 
-    def answer(self, pending: Any, error: int = 0, cycle: int = 0, cmdno: int | None = None) -> None:
-        self._deliver(pending, make_reply(pending.id, pending.cmd, error, cycle=cycle, cmd_no=cmdno))
+    def answer(self, pending: Any, error: int = 0, cycle: int = 0, cmdno: int | None = None,
+               value: Any = None) -> None:
+        self._deliver(pending, make_reply(pending.id, pending.cmd, error, cycle=cycle, cmd_no=cmdno, value=value))
 
 
 class ScriptNc(PlcTask):
-    """A PLC task whose NC is the test: one axis (id 1); frames with job records unless ``jobs=False``."""
+    """A PLC task whose NC is the test: axis 1 (``ax``; ``n_axes`` > 1 adds axes 2.. to the frames,
+    e.g. a master); frames with job records unless ``jobs=False``."""
 
-    def __init__(self, jobs: bool = True) -> None:
+    def __init__(self, jobs: bool = True, n_axes: int = 1) -> None:
         super().__init__(self._run_calls, cycle_time=0.01, client_id="plc1")
         #: the program: these callables, every cycle
         self.calls: list[Any] = []
         self.port: ScriptPort = ScriptPort()
         self.port.clock = lambda: self.now
         self.nc_cycle = 0
-        self.recs = np.zeros(1, dtype=NCTOPLC_DTYPE)
-        self.recs["AxisId"] = 1
+        ids = np.arange(1, n_axes + 1)
+        self.recs = np.zeros(n_axes, dtype=NCTOPLC_DTYPE)
+        self.recs["AxisId"] = ids
         self.recs["StateDWord"] = IDLE
-        self.jobs = np.zeros(1, dtype=NCJOBS_DTYPE) if jobs else None
+        self.jobs = np.zeros(n_axes, dtype=NCJOBS_DTYPE) if jobs else None
         if self.jobs is not None:
-            self.jobs["AxisId"] = 1
+            self.jobs["AxisId"] = ids
         self.ax = self.axis("nc1", 1)
         self.watched: list[Any] = []
         self.trace: list[dict[int, dict[str, Any]]] = []
