@@ -312,6 +312,7 @@ class NcCore:
         self.configs[i].params = new
         self.axes.load_params(i, new)
         self.drive.configure(i, new)
+        self.coupling.invalidate()  # (its copies of the limits)
         self._state_dirty = True
 
     # -- helpers for the job kinds -----------------------------------------------------------
@@ -862,7 +863,7 @@ class NcCore:
             else:
                 sup.apply(self, sup.rows)
         if cpl.active:
-            for i in cpl.run(self, sup.apply if sup.active else _no_rows):
+            for i in cpl.run(self, sup.apply if sup.active else None):
                 code = (ErrorCodes.NC_AXIS_SET_VELOCITY if abs(self.axes.set_velo[i]) > self.axes.vmax[i] * (1 + 1e-6)
                         else ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)
                 over.append((i, code))
@@ -1274,9 +1275,5 @@ _ADMIN = {
     "MoveSuperImposed": cmd_move_superimposed, "AbortSuperposition": cmd_abort_superposition,
     "TouchProbe": cmd_touch_probe, "AbortTrigger": cmd_abort_trigger, "SimProbeSignal": cmd_sim_probe_signal,
 }
-def _no_rows(rows: np.ndarray) -> None:
-    return None
-
-
 KINDS_LIST = sorted({k for k in KINDS.values()}, key=lambda k: k.name)
 KINDS_INDEX = {k.name: n for n, k in enumerate(KINDS_LIST)}

@@ -249,5 +249,6 @@ class NcServer:
                   "dedup_hits": self.handler.cache.hits, "faults": self.inputs.faults,
                   "plctonc_frames": self.transport.plc_frames, "plctonc_malformed": self.transport.plc_malformed,
                   "plctonc_ignored": self.transport.plc_ignored,
-                  "frames_dropped": self.io.frames_dropped, "reply_errors": self.io.reply_errors})
+                  "frames_dropped": self.io.frames_dropped, "reply_errors": self.io.reply_errors,
+                  "gear_ratios_ignored": int(self.core.coupling.ignored_ratios)})
         return d

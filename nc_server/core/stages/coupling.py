@@ -45,6 +45,10 @@ _NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
 _POS = np.uint32(int(StateDWord.PositiveDirection))
 _NEG = np.uint32(int(StateDWord.NegativeDirection))
 _CONST = np.uint32(int(StateDWord.ConstantVelocity))
+#: velocity classes for np.searchsorted(side="right"): 0 v < -eps, 1 standing, 2 v > eps
+_V_EDGES = np.array([-_EPS_V, np.nextafter(_EPS_V, np.inf)])
+#: set-point StateDWord bits by velocity class + 3 x (constant velocity: |a| < 1e-9)
+_DW_LUT = np.array([_NEG, _NOT_MOVING, _POS, _NEG | _CONST, _NOT_MOVING, _POS | _CONST], dtype=np.uint32)
 
 
 class CouplingStage:
@@ -77,6 +81,7 @@ class CouplingStage:
         self.slaves = np.zeros(0, dtype=np.intp)
         self.ignored_ratios = 0
         self.changed = False  # the table changed: NcCore refreshes what it derives from it
+        self._cache: tuple[list[tuple], np.ndarray, np.ndarray] | None = None
         self._otg = Ruckig(1, cycle_time)
         self._inp = InputParameter(1)
         self._out = OutputParameter(1)
@@ -142,10 +147,12 @@ class CouplingStage:
         of = self.master == i
         self.m_base[of] += diff
         self.m_last[of] += diff
+        self._cache = None
 
     def fold(self, i: int, diff: float) -> None:
         """A superimposed distance ``diff`` of slave row ``i`` becomes part of its coupling."""
         self.s_base[i] += diff
+        self._cache = None
 
     def _rebuild(self) -> None:
         n = self.n
@@ -170,43 +177,65 @@ class CouplingStage:
         cs[slave & is_master] = int(CoupleState.MASTERSLAVE)
         self.couple_state = cs
         self.changed = True
+        self._cache = None
 
     # -- the cycle ----------------------------------------------------------------------------
-    def run(self, core: NcCore, after_level: Callable[[np.ndarray], None]) -> list[int]:
+    def invalidate(self) -> None:
+        """A column changed: the per-level copies are made again at the next run."""
+        self._cache = None
+
+    def _levels(self, core: NcCore) -> tuple[list[tuple], np.ndarray, np.ndarray]:
+        """Per level: rows, masters, ratio, s_base, m_base, any dyn, any synchronizing, AxisState;
+        and the slaves' velocity and acceleration limits (copies: a cycle gathers less)."""
+        if self._cache is None:
+            a = core.axes
+            lv = []
+            for rows, masters in self.levels:
+                lv.append((rows, masters, self.ratio[rows], self.s_base[rows], self.m_base[rows],
+                           bool(self.dyn[rows].any()), bool((self.state[rows] == SYNCHRONIZING).any()), self.state[rows]))
+            s = self.slaves
+            lim = np.stack((a.vmax[s], np.maximum(a.acc[s], a.dec[s]))) * (1 + 1e-6)
+            lim += np.array([[_EPS_V], [1e-6]])
+            self._cache = (lv, s, lim)
+        return self._cache
+
+    def run(self, core: NcCore, after_level: Callable[[np.ndarray], None] | None) -> list[int]:
         """Set-points of every slave, level by level; ``after_level(rows)`` runs after each level
         (the superposition of those rows, before their own slaves read them). Returns the slave
         rows that exceed their AxisVeloMax or acceleration limits (the NC faults them)."""
-        a, S = core.axes, core.axes.S
-        dt = self.dt
-        gr = core.plctonc["GearRatio1"]
-        for rows, masters in self.levels:
+        S = core.axes.S
+        levels, s, lim = self._levels(core)
+        for rows, masters, r, sb, mb, dyn, syncing, state in levels:
             pm = S[0, masters]
-            sync = (self.state[rows] == SYNCHRONIZING).nonzero()[0]
-            prev = S[:3, rows[sync]].copy() if sync.size else None  # their set-point state of the last cycle
-            accel = self._dyn_ratios(core, rows, gr) if np.count_nonzero(self.dyn[rows]) else None
-            r = self.ratio[rows]
-            S[0, rows] = self.s_base[rows] + r * (pm - self.m_base[rows])
-            S[1, rows] = r * S[1, masters]
-            S[2, rows] = r * S[2, masters]
-            S[3, rows] = r * S[3, masters]
+            if syncing:
+                sync = (self.state[rows] == SYNCHRONIZING).nonzero()[0]
+                prev = S[:3, rows[sync]].copy()  # their set-point state of the last cycle
+            accel = None
+            if dyn:
+                accel = self._dyn_ratios(core, rows, core.plctonc["GearRatio1"])
+                if accel is not None:
+                    r, sb, mb = self.ratio[rows], self.s_base[rows], self.m_base[rows]
+                self.m_last[rows] = pm
+            S[0, rows] = sb + r * (pm - mb)
+            S[1:, rows] = r * S[1:, masters]
             if accel is not None:  # ratio changes of this level (MC_GearInDyn)
                 S[2, rows] += accel
-            self.m_last[rows] = pm
-            for k, col in zip(sync.tolist(), range(sync.size)):
-                self._synchronize(core, int(rows[k]), int(masters[k]), prev[:, col])  # type: ignore[index]
+            if syncing:
+                self.m_last[rows] = pm
+                for col, k in enumerate(sync.tolist()):
+                    self._synchronize(core, int(rows[k]), int(masters[k]), prev[:, col])
+                state = self.state[rows]
             v = S[1, rows]
-            dw = np.where(np.abs(v) > _EPS_V, np.where(v > 0, _POS, _NEG), _NOT_MOVING)
-            dw |= np.where((np.abs(S[2, rows]) < 1e-9) & (np.abs(v) > _EPS_V), _CONST, np.uint32(0))
-            core.sp_dw[rows] = dw
-            core.axis_state[rows] = self.state[rows]
-            after_level(rows)
-        s = self.slaves
-        tol = 1 + 1e-6
-        over = (np.abs(S[1, s]) > a.vmax[s] * tol + _EPS_V) | (
-            np.abs(S[2, s]) > np.maximum(a.acc[s], a.dec[s]) * tol + 1e-6)
-        if np.count_nonzero(self.dyn[s]):
-            core.ncjobs["GearRatio"][s] = self.ratio[s]
-        return s[over].tolist()
+            code = np.searchsorted(_V_EDGES, v, "right")
+            code += 3 * (np.abs(S[2, rows]) < 1e-9)
+            core.sp_dw[rows] = _DW_LUT[code]
+            core.axis_state[rows] = state
+            if after_level is not None:
+                after_level(rows)
+        over = (np.abs(S[1:3, s]) > lim).any(axis=0)
+        if np.count_nonzero(over):
+            return s[over].tolist()
+        return []
 
     def _dyn_ratios(self, core: NcCore, rows: np.ndarray, gr: np.ndarray) -> np.ndarray | None:
         """MC_GearInDyn rows of a level: the ratio moves towards PLCTONC.GearRatio1 within its rate;
@@ -234,6 +263,8 @@ class CouplingStage:
         self.s_base[dm] += old[moved] * (self.m_last[dm] - self.m_base[dm])
         self.m_base[dm] = self.m_last[dm]
         self.ratio[dm] = new[moved]
+        self._cache = None
+        core.ncjobs["GearRatio"][dm] = new[moved]
         acc = np.zeros(rows.size)
         acc[np.searchsorted(rows, dm)] = (new[moved] - old[moved]) / self.dt * S[1, self.master[dm]]  # (rows ascend)
         return acc
@@ -270,5 +301,6 @@ class CouplingStage:
             self.s_base[i] = p
             self.m_base[i] = self.m_last[i] = float(a.set_pos[m])
             self.changed = True
+            self._cache = None
         if not math.isfinite(p):  # never hand a non-finite set-point on
             a.set_pos[i], a.set_velo[i], a.set_acc[i] = float(prev[0]), 0.0, 0.0
