@@ -44,6 +44,11 @@ import numpy as np
 
 from nc_schema import MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, StateDWord, error_text
 
+#: late-accepted commands the task undoes with GearOut instead of Halt
+_COUPLINGS = frozenset({"GearIn", "GearInFloat", "GearInDyn"})
+#: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): nothing to undo by number
+_SLOT_COMMANDS = frozenset({"MoveSuperImposed"})
+
 from .axis_ref import AXIS_REF
 from .port import CommandPort, InProcessNc, InProcessPort, PendingCommand
 
@@ -143,7 +148,7 @@ class PlcTask:
         self._refs: dict[tuple[str, int], list[AXIS_REF]] = {}
         self._controlled: dict[tuple[str, int], AXIS_REF] = {}
         self._claims: dict[tuple[str, int], ClaimState] = {}
-        self._orphans: list[tuple[AXIS_REF, int, int, int]] = []  # (axis, CmdNo, cycle, epoch)
+        self._orphans: list[tuple[AXIS_REF, int, int, int, str]] = []  # (axis, CmdNo, cycle, epoch, cmd)
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
         self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
@@ -296,23 +301,26 @@ class PlcTask:
                     log.info("late reply to abandoned %s (axis %s): 0x%X", p.cmd, p.axis_id, err)
                 continue
             cmdno = int(p.reply.get("CmdNo", 0))
-            if p.cmd in ("Stop", "Halt") or not cmdno:
+            if p.cmd in ("Stop", "Halt") or not cmdno or p.cmd in _SLOT_COMMANDS:
                 log.warning("late acceptance of %s on %r (CmdNo %d): left as is", p.cmd, ax, cmdno)
                 continue
-            self._orphans.append((ax, cmdno, int(p.reply.get("cycle", 0)), ax.nc_epoch))
+            self._orphans.append((ax, cmdno, int(p.reply.get("cycle", 0)), ax.nc_epoch, p.cmd))
 
     def _check_orphans(self) -> None:
         keep = []
-        for ax, cmdno, cyc, epoch in self._orphans:
+        for ax, cmdno, cyc, epoch, cmd in self._orphans:
             if ax.nc_epoch != epoch:
                 continue
             if not ax.Status.Valid or ax.Status.NcCycleCounter < cyc:
-                keep.append((ax, cmdno, cyc, epoch))
+                keep.append((ax, cmdno, cyc, epoch, cmd))
                 continue
             rec = ax.NcToPlc
             if int(rec["CmdNo"]) == cmdno and int(rec["CmdState"]) == CmdState.ACTIVE:
-                log.warning("%r: command %d was accepted after its block timed out; halting the axis", ax, cmdno)
-                self.detach(self.send(ax, "Halt"), "Halt of a late-accepted command")
+                # a coupling nobody follows is ended by decoupling (a Halt to a slave is refused)
+                undo = "GearOut" if cmd in _COUPLINGS else "Halt"
+                log.warning("%r: command %d was accepted after its block timed out; %s", ax, cmdno,
+                            "decoupling the slave" if undo == "GearOut" else "halting the axis")
+                self.detach(self.send(ax, undo), f"{undo} of a late-accepted command")
         self._orphans = keep
 
     def _check_detached(self) -> None:

@@ -8,7 +8,7 @@ import pytest
 
 from nc_schema import CmdState, ErrorCodes, NCTOPLC_DTYPE, decode_plc_frame, encode_plc_frame
 from plc_client import (
-    AXIS_REF, InProcessPlc, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_Reset, MC_Stop,
+    AXIS_REF, InProcessPlc, MC_GearIn, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_Reset, MC_Stop,
     run_cycles,
 )
 from plc_client.task import PlcTask
@@ -66,6 +66,31 @@ def test_timeout_and_late_acceptance_halts_the_axis(rig: Rig) -> None:
     assert int(rig.rec()["CmdState"]) == CmdState.ACTIVE and ax.Status.DiscreteMotion  # Halt running
     rig.run_until(lambda: ax.Status.StandStill, 100)
     assert mv.Error and mv.ErrorID == 0x745  # the block's result does not change
+
+
+def test_late_acceptance_of_a_coupling_decouples_the_slave(rig: Rig) -> None:
+    """A late-accepted GearIn is undone with GearOut: a Halt to a coupled slave would be refused (0x4266)."""
+    ax, _, calls = powered(rig)
+    plc = ax.task
+    slave = plc.axis("nc1", 2)
+    gi, pw2 = MC_GearIn(timeout=0.3), MC_Power()
+    st = {"go": False}
+
+    def body(p):
+        pw2(Axis=slave, Enable=True, Enable_Positive=True, Enable_Negative=True)
+        gi(Master=ax, Slave=slave, Execute=st["go"], RatioNumerator=1, RatioDenominator=2)
+
+    calls["body"] = body
+    rig.run_until(lambda: pw2.Status, 10)
+    plc.port.hold = True
+    st["go"] = True
+    rig.run_until(lambda: gi.Error, 100)
+    assert gi.ErrorID == 0x745
+    assert int(rig.rec(2)["CoupleState"]) == 3, "the NC did couple the slave"
+    plc.port.hold = False
+    plc.port.release_held()
+    rig.run_until(lambda: int(rig.rec(2)["CoupleState"]) == 0, 20)
+    assert int(rig.rec(1)["CoupleState"]) == 0
 
 
 def test_late_reply_of_a_superseded_command_is_left_alone(rig: Rig) -> None:
