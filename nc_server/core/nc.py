@@ -649,7 +649,7 @@ class NcCore:
         # the NC's own ramp is never refused: values the planner cannot take are clamped into range
         d = self.stop_dynamics(i, min(max(dec, 1e-6), 1e10), min(max(jerk, 1e-6), 1e12), running)
         try:
-            plan = plan_velocity(self.start_state(i), 0.0, d)
+            plan = plan_velocity(self.start_state(i, total=True), 0.0, d)
         except PlanningError:
             _log.error("axis %d: no stop ramp could be planned; the set-point stops at once", int(a.ids[i]))
             self.clear_profile(i)  # cannot plan: stop the set-point at once (never keep moving)
@@ -731,7 +731,7 @@ class NcCore:
         if prev is not None:
             q.end(prev, CmdState.DONE)
         try:
-            plan = nxt.kind.activate(self, i, nxt, self.start_state(i))
+            plan = nxt.kind.activate(self, i, nxt, self.start_state(i, total=nxt.kind.braking))
         except NcError as err:
             # it can no longer start: it ends ERROR with that check's code, the axis stops
             q.end(nxt, CmdState.ERROR, err.code)

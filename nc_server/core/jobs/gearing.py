@@ -16,6 +16,7 @@ MC_GearOut: a moving slave reduces its acceleration to zero with its AxisJerk an
 velocity it then has (a numbered MoveVelocity job: ContinuousMotion, TcMC 3.20 "comparable to a
 move commanded by MC_MoveVelocity"). MC_GearOutExt continues with the command of its Mode from
 the slave's set-point state of this cycle (seamless; TcMC 3.21); at standstill both just decouple.
+A superposition running on the slave ends with the coupling (ABORTED; what it applied stays).
 """
 from __future__ import annotations
 
@@ -104,7 +105,7 @@ def gear_out(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
 
     job = _coupling_job(core, i)
     a = core.axes
-    start = core.start_state(i)
+    start = core.start_state(i, total=True)  # (a superposition of the slave ends with the coupling)
     mode = int(req.get("Mode", E_DecoupleMode.MC_DECOUPLEMODE_ENDLESS)) if req["cmd"] == "GearOutExt" else int(
         E_DecoupleMode.MC_DECOUPLEMODE_ENDLESS)
     if mode not in {int(x) for x in E_DecoupleMode}:
@@ -144,6 +145,7 @@ def gear_out(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     new.client = str(req.get("client") or "")
     plan = kind.activate(core, i, new, start)
     core.queues[i].end(job, CmdState.DONE)  # the coupling ended as commanded; the follow-on takes over
+    core.superposition.abort(core, i)
     core.begin(i, new, plan)
     return {"cmd_no": new.cmd_no}
 
