@@ -18,7 +18,7 @@ Both engines run this same file's measurement code:
     the real zenoh session (router on a free 127.0.0.1 port), the I/O thread publishing the
     batched frame every cycle and per-axis NCTOPLC samples for the subscribed axes;
   * a subscriber process (client mode) taking the frame and the per-axis samples of 4 axes;
-  * every axis enabled (PLCTONC preset in the core: no claims) and moving, under two loads:
+  * every axis enabled (PLCTONC preset in the core: no claims) and moving, under three loads:
     ``quiet``: continuous motion (MoveVelocity), no commands: the cycle itself;
     ``stress``: long MoveAbsolute profiles plus one command every cycle (1000 commands/s, round
     robin over the axes), each axis cycling through re-target (MoveAbsolute Aborting), MC_Buffered
@@ -29,22 +29,37 @@ Both engines run this same file's measurement code:
     accepts (0x4B64 BufferMode refused, 0x701/0x706 unknown command or field: not supported);
     unsupported kinds are replaced by re-targets (the load stays 1000 commands/s) and the report
     says which kinds each engine actually ran. When the engines differ, ``stress-common`` (only
-    the kinds both support) is measured too at 256 axes, for a like-for-like ratio.
+    the kinds both support) is measured too at 256 axes, for a like-for-like ratio;
+    ``coupled``: linear gearing, at ``--coupled-axes`` only (default 384; not at ``--axes``): with N
+    axes, P = N // 3 master/slave pairs (rows 2k master, 2k+1 slave, k < P) and the rows >= 2P
+    single axes. At standstill every slave is coupled (GearIn to its master's AxisId, sent to the
+    slave; ratio by k mod 4: 1/2, -1/1, 1/2, 3/2), then every master and single axis is started
+    with MoveVelocity as under ``quiet``; no commands during the window: the cycle with P slaves
+    following their masters (the coupling stage). At 384 axes: 128 pairs + 128 single axes. The
+    slaves stay within BENCH_PARAMS: |SetVelo| <= 1.5 x 102 = 153 < AxisVeloMax 1000, |SetAcc| <= 1.5 x
+    the masters' jerk-limited peak sqrt(v x AxisJerk) ~ 2.3e3 -> 3.4e3 < AxisAcc 5000. The worker's
+    probe also tries GearIn (a slave at 1/2 must follow its started master at half its velocity):
+    an engine without it (the baseline: no gearing) is not run at this point and the report says
+    so; the point is then new vs floor only.
 
 Runs are interleaved: round 1 runs every point as new, old, floor; round 2 as old, new, floor;
-figures are taken over all rounds of a point. The whole run is bounded by ``--budget``: a point
-that does not fit is skipped and listed.
+figures are taken over all rounds of a point (an engine a point does not apply to is left out of
+its order). The whole run is bounded by ``--budget``: a point that does not fit is skipped and listed.
 
 Measured by the loop itself: work time per cycle (drain, PLCTONC, watchdog, command, core.step,
 encode_frame, hand-off) and start lateness; p50/p99/max in us; missed cycles and overruns. If the
 engine shows its lookahead refills (a public ``refill_rows`` after each step, or the old engine's
 ``_buf_k``/``_lookahead``), refill cycles are counted and their p99 shown apart; always shown: the
-strongest period in the step times (a p99 driven by every L-th cycle).
+strongest period in the step times (a p99 driven by every L-th cycle). 'moving' counts the axes
+with |SetVelo| > 0 at the end of the window (coupled slaves included), 'start rejected' the start
+commands (MoveVelocity, GearIn, first re-target) an engine refused: a valid point has none.
 
 Goals (not tests): 64 moving axes p99 work < 250 us; 256 < 500 us, also under the stress;
-1024 < 1000 us.
+1024 < 1000 us; coupled 384 (128 pairs + 128 single axes) < 500 us. Each with its ratio to the
+same run's floor (new/fl).
 
     .venv/bin/python bench/nc_cycle.py [--seconds 1.5] [--rounds 2] [--axes 8 64 256 1024]
+                                       [--loads quiet stress coupled] [--coupled-axes 384]
                                        [--baseline 9ead11a | none] [--budget 200]
 """
 from __future__ import annotations
@@ -74,7 +89,13 @@ DEFAULT_BASELINE = "9ead11a"
 
 #: (load, axes) -> p99 work goal [us]
 GOALS = {("quiet", 64): 250.0, ("quiet", 256): 500.0, ("stress", 256): 500.0, ("stress-common", 256): 500.0,
-         ("quiet", 1024): 1000.0}
+         ("quiet", 1024): 1000.0, ("coupled", 384): 500.0}
+LOADS = ("quiet", "stress", "coupled")
+#: Engine features a load needs beyond the stress kinds (found by probe_features at worker start).
+LOAD_NEEDS = {"coupled": "gearin"}
+FEATURE_TEXT = {"gearin": "GearIn"}
+#: (RatioNumerator, RatioDenominator) of pair k under the coupled load: COUPLED_RATIOS[k % 4].
+COUPLED_RATIOS = ((1, 2), (-1, 1), (1, 2), (3, 2))
 KINDS = ("retarget", "buffered", "blending_next", "new_pos", "new_pos_velo")
 KIND_TEXT = {"retarget": "MoveAbsolute Aborting", "buffered": "MoveAbsolute MC_Buffered",
              "blending_next": "MoveAbsolute MC_BlendingNext", "new_pos": "NewPos", "new_pos_velo": "NewPosAndVelo"}
@@ -208,6 +229,42 @@ def probe() -> dict[str, Any]:
     return res
 
 
+def _velocity_request(i: int, req_id: int) -> bytes:
+    """The quiet load's MoveVelocity of axis row i (also the coupled load's masters and single axes)."""
+    from nc_schema import pack
+    return pack({"id": req_id, "cmd": "MoveVelocity", "Velocity": 100.0 + i % 4, "Acceleration": 0.0,
+                 "Deceleration": 0.0, "Jerk": 0.0, "Direction": 1 if i % 2 else 3, "BufferMode": 0})
+
+
+def _gear_in_request(master_id: int, num: int, den: int, req_id: int) -> bytes:
+    from nc_schema import pack
+    return pack({"id": req_id, "cmd": "GearIn", "Master": master_id, "RatioNumerator": num, "RatioDenominator": den})
+
+
+def probe_features() -> dict[str, Any]:
+    """Features a load needs (LOAD_NEEDS): 'gearin': axis 2 coupled to axis 1 at 1/2 at standstill, then axis 1
+    started as the coupled load starts a master; supported if GearIn is accepted and after 300 cycles the slave
+    moves at half the master's velocity."""
+    res: dict[str, Any] = {}
+    try:
+        _, core = _make_core(2)
+        r = _run_request(core, _gear_in_request(1, 1, 2, 1), 2)
+        code, text = int(r.get("error", 0)), str(r.get("text", ""))[:160]
+        ok = code == 0
+        if ok:
+            r = _run_request(core, _velocity_request(0, 2), 1)
+            for _ in range(300):
+                core.step()
+            vm, vs = (float(v) for v in np.asarray(core.axes.set_velo)[:2])
+            ok = int(r.get("error", 0)) == 0 and abs(vm) > 1.0 and abs(vs - 0.5 * vm) <= 1e-6 * abs(vm)
+            if not ok:
+                text = f"GearIn accepted but the slave does not follow: SetVelo master {vm:g}, slave {vs:g}"
+        res["gearin"] = {"code": code, "supported": ok, "text": text}
+    except Exception as exc:  # an engine without that path: not supported
+        res["gearin"] = {"code": -1, "supported": False, "text": f"{exc.__class__.__name__}: {exc}"[:160]}
+    return res
+
+
 def refill_hook(core):  # type: ignore[no-untyped-def]
     """A function returning the lookahead rows refilled by the last step (-1 unknown), and a label."""
     if hasattr(core, "refill_rows"):
@@ -238,7 +295,8 @@ class Mover:
         from nc_server.server.cycle import RING
         self.RING = RING
         self.core = core
-        self.stress = load != "quiet"
+        self.stress = load == "stress"
+        self.coupled = load == "coupled"
         self.n = len(core.axis_ids)
         self.ids = [int(a) for a in core.axis_ids]
         self.mix = [k if k in kinds else "retarget" for k in MIX]
@@ -255,6 +313,9 @@ class Mover:
         self.codes: Counter[str] = Counter()
         self.texts: dict[str, str] = {}  # the first reply text per rejection kind:code
         self.start_rejected = 0
+        self.start_codes: Counter[str] = Counter()  # refused start commands by "command:0xCODE"
+        self.start_texts: dict[str, str] = {}
+        self.pairs = self.n // 3 if self.coupled else 0
         probe_refill, self.refill_label = refill_hook(core)
         step = core.step
         ring_step, ring_refill = self.step_ns, self.refill
@@ -286,19 +347,30 @@ class Mover:
             self.codes[key] += 1
             self.texts.setdefault(key, str(r.get("text", ""))[:200])
 
+    def _start(self, what: str, payload: bytes, i: int) -> None:
+        r = _run_request(self.core, payload, self.ids[i])
+        if r["error"]:
+            self.start_rejected += 1
+            key = f"{what}:0x{int(r['error']):04X}"
+            self.start_codes[key] += 1
+            self.start_texts.setdefault(key, f"axis {self.ids[i]}: " + str(r.get("text", ""))[:200])
+
     def start_all(self) -> None:
-        from nc_schema import pack
+        # coupled: every slave (row 2k+1) geared to its master (row 2k) at standstill, before anything moves
+        for k in range(self.pairs):
+            num, den = COUPLED_RATIOS[k % len(COUPLED_RATIOS)]
+            self._start("GearIn", _gear_in_request(self.ids[2 * k], num, den, -self.n - k - 1), 2 * k + 1)
         for i in range(self.n):
             if self.stress:
                 self.sign[i] = -1  # the first re-target flips it to +1
                 self.count[i] = 0
                 self.command(i)
-            else:
-                p = pack({"id": -i - 1, "cmd": "MoveVelocity", "Velocity": 100.0 + i % 4, "Acceleration": 0.0,
-                          "Deceleration": 0.0, "Jerk": 0.0, "Direction": 1 if i % 2 else 3, "BufferMode": 0})
-                self.start_rejected += bool(_run_request(self.core, p, self.ids[i])["error"])
+            elif not (i < 2 * self.pairs and i % 2):  # quiet; coupled: the masters and the single axes
+                self._start("MoveVelocity", _velocity_request(i, -i - 1), i)
         if self.stress:
             self.start_rejected = sum(self.rejected.values())
+            self.start_codes.update(self.codes)
+            self.start_texts.update(self.texts)
         self.sent.clear()
         self.rejected.clear()
         self.codes.clear()
@@ -361,7 +433,16 @@ def run_engine(n_axes: int, load: str, seconds: float, warmup: float, realtime: 
             sub.stdin.write("stop\n")
             sub.stdin.flush()
             got = json.loads(sub.stdout.readline())
-            moving = int(np.count_nonzero(core.moving))
+            # moving: |SetVelo| > 0 (a coupled slave has a job but no plan: count what it does, not what it has)
+            set_velo = getattr(getattr(core, "axes", None), "set_velo", None)
+            moving = int(np.count_nonzero(np.abs(np.asarray(set_velo)) > 0)) if set_velo is not None else int(
+                np.count_nonzero(core.moving))
+            slaves = synchron = 0
+            if mover.coupled:
+                cpl = core.coupling
+                slaves = int(np.count_nonzero(np.asarray(cpl.master) >= 0))
+                from nc_schema import AxisState
+                synchron = int(np.count_nonzero(np.asarray(cpl.state) == int(AxisState.SLAVE_SYNCHRON)))
             out = {"axes": n_axes, "load": load, "timing": st.timing, "cycles": c1 - c0, "missed": m1 - m0,
                    "overruns": o1 - o0, "frames_dropped": d1 - d0, "moving": moving, "build_s": round(build_s, 3),
                    "work": _r1(_window(st.work_us, k0, k1, RING)), "late": _r1(_window(st.lateness_us, k0, k1, RING)),
@@ -370,7 +451,9 @@ def run_engine(n_axes: int, load: str, seconds: float, warmup: float, realtime: 
                    "core_cycle0": int(base_cycle) + k0 + 1,
                    "refill": _window(mover.refill, k0, k1, RING).tolist() if mover.has_refill else None,
                    "refill_label": mover.refill_label, "sub_frames": got["frame"], "sub_axis_samples": got["axis"],
-                   "start_rejected": mover.start_rejected, "sent": sent, "rejected": rejected, "codes": codes,
+                   "start_rejected": mover.start_rejected, "start_codes": dict(mover.start_codes),
+                   "start_texts": dict(mover.start_texts), "pairs": mover.pairs, "slaves": slaves,
+                   "synchron": synchron, "sent": sent, "rejected": rejected, "codes": codes,
                    "texts": dict(mover.texts),
                    "mix": mover.mix if mover.stress else []}
         finally:
@@ -408,6 +491,7 @@ def worker_main(role: str, root: str | None, realtime: str) -> int:
             info["calibration"] = calibrate()
         else:
             info["probe"] = probe()
+            info["features"] = probe_features()
     except Exception as exc:
         info["error"] = f"{exc.__class__.__name__}: {exc}"
         _emit("ready", info)
@@ -610,7 +694,9 @@ def ratio(a: float, b: float) -> str:
 
 
 def report(res: dict[tuple[str, str, int], Point], engines: list[str], labels: dict[str, str],
-           points: list[tuple[str, int]], cal: dict[str, float] | None, probes: dict[str, dict[str, Any]]) -> None:
+           points: list[tuple[str, int]], cal: dict[str, float] | None, probes: dict[str, dict[str, Any]],
+           not_run: dict[tuple[str, int], dict[str, str]] | None = None) -> None:
+    not_run = not_run or {}
     has_old = "old" in engines
     print()
     print("== work per cycle [us] (1 ms cycle, all axes moving): new = " + labels["new"]
@@ -630,9 +716,17 @@ def report(res: dict[tuple[str, str, int], Point], engines: list[str], labels: d
             g = GOALS.get((load, n))
             if g is not None and fig == "p99":
                 verdict = lambda x: "-" if x != x else ("met" if x < g else "NOT met")  # noqa: E731
-                goal = f"p99 < {g:.0f}: new {verdict(a)}" + (f", old {verdict(b)}" if has_old else "")
+                goal = f"p99 < {g:.0f}: new {verdict(a)}" + (
+                    (", old skipped" if "old" in not_run.get((load, n), {}) else f", old {verdict(b)}") if has_old else "")
+                bad = pn.total("start_rejected") if pn else 0
+                if bad:
+                    goal += f"; new start_rejected {bad}: NOT a valid point"
             print(f"{load:<13} {n:>5} {fig:>6} | {fmt(a)} {fmt(b)} {ratio(a, b)} | {fmt(f, 7)} {ratio(a, f)} "
                   f"{ratio(b, f)} | {goal}")
+    for (load, n), why in not_run.items():
+        for e, w in why.items():
+            print(f"({load} {n}: {e} skipped, {w}; measured for "
+                  + (", ".join(x for x in engines if x not in why) or "no engine") + " and the floor only)")
     if cal:
         print(f"(floor workload: {cal['calls']} numpy calls, quiet cost {cal['min_us']:.1f} us best / "
               f"{cal['p50_us']:.1f} us median in a tight loop; floor p99 / quiet cost = how much the machine "
@@ -661,9 +755,24 @@ def report(res: dict[tuple[str, str, int], Point], engines: list[str], labels: d
                   f"{pt.total('overruns'):>4} | {fmt(pct(late, 50))} {fmt(pct(late, 99), 7)} | "
                   f"{fmt(pct(step, 50))} {fmt(pct(step, 99), 7)} | {fmt(pct(ex, 50), 7)} {fmt(pct(ex, 99), 7)} | "
                   f"{refill:>6} {fmt(rp99)} {fmt(op99, 9)} | {r0['moving']}/{n}, "
-                  f"{sum(r['sub_frames'] for r in pt.runs)}/{sum(r['sub_axis_samples'] for r in pt.runs)}")
+                  f"{sum(r['sub_frames'] for r in pt.runs)}/{sum(r['sub_axis_samples'] for r in pt.runs)}"
+                  + (f"; slaves {r0.get('slaves', 0)}/{r0.get('pairs', 0)} coupled, {r0.get('synchron', 0)} synchron"
+                     if load == "coupled" else ""))
     print("step = core.step; cmd = parse + core.execute + reply pack of the cycle's command (stress); refill = share "
-          "of cycles whose step refilled the lookahead (engine's own signal), p99 work of those vs the others")
+          "of cycles whose step refilled the lookahead (engine's own signal), p99 work of those vs the others; "
+          "moving = axes with |SetVelo| > 0 at the end of the last window")
+    for load, n in points:
+        for eng in engines:
+            pt = res.get((eng, load, n))
+            if not pt or not pt.runs or not pt.total("start_rejected"):
+                continue
+            codes = pt.counter("start_codes")
+            texts: dict[str, str] = {}
+            for r in pt.runs:
+                for k, v in (r.get("start_texts") or {}).items():
+                    texts.setdefault(k, v)
+            print(f"  START REJECTED {eng} {load} {n}: {pt.total('start_rejected')} over {len(pt.runs)} run(s): "
+                  + "; ".join(f"{k} x{v} ({texts.get(k, '')})" for k, v in codes.most_common(4)))
     print("period of heavy steps (median step of the heaviest phase of cycle mod L >= 2x the median):")
     for load, n in points:
         for eng in engines:
@@ -674,6 +783,8 @@ def report(res: dict[tuple[str, str, int], Point], engines: list[str], labels: d
             print(f"  {eng:<5} {load:<13} {n:>5}: {period_signature(runs)}"
                   f"   [refill signal: {pt.runs[-1]['refill_label']}]")
 
+    if not any(ld.startswith("stress") for ld, _ in points):
+        return
     print()
     print("== stress command kinds actually run (sent / rejected over warm-up + windows; most frequent rejections) ==")
     for eng in engines:
@@ -715,7 +826,10 @@ def main() -> int:
     ap.add_argument("--warmup", type=float, default=1.0, help="warm-up before each window [s]")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (new/old order alternates)")
     ap.add_argument("--axes", type=int, nargs="+", default=[8, 64, 256, 1024])
-    ap.add_argument("--loads", nargs="+", default=["quiet", "stress"], choices=("quiet", "stress"))
+    ap.add_argument("--loads", nargs="+", default=list(LOADS), choices=LOADS,
+                    help="quiet and stress at each --axes, coupled at each --coupled-axes (default: all)")
+    ap.add_argument("--coupled-axes", type=int, nargs="+", default=[384], metavar="N",
+                    help="axis counts of the coupled load (N // 3 master/slave pairs; default %(default)s)")
     ap.add_argument("--baseline", default=DEFAULT_BASELINE,
                     help="git revision of the old engine (default %(default)s, the last commit before the engine "
                          "rewrite); 'none' skips it")
@@ -764,18 +878,33 @@ def main() -> int:
         for name in engines:
             info = workers[name].info
             print(f"  {name}: {labels[name]}; nc_server from {info['nc_server']}, nc_schema from {info['nc_schema']}")
-            pr = info["probe"]
+            pr = {**info["probe"], **info.get("features", {})}
             print(f"       probe: " + ", ".join(
-                f"{KIND_TEXT[k]} {'ok' if v['supported'] else 'NOT supported'}"
+                f"{KIND_TEXT.get(k) or FEATURE_TEXT[k]} {'ok' if v['supported'] else 'NOT supported'}"
                 + (f" (0x{v['code']:04X})" if v["code"] > 0 else "") for k, v in pr.items()))
         cal = workers["floor"].info.get("calibration") if not workers["floor"].dead else None
         supported = {e: [k for k, v in workers[e].info["probe"].items() if v["supported"]] for e in engines}
-        points = [(load, n) for load in args.loads for n in args.axes]
+        points = [(load, n) for load in args.loads if load != "coupled" for n in args.axes]
         if "stress" in args.loads and len(engines) == 2 and set(supported["new"]) != set(supported["old"]):
             common_n = 256 if 256 in args.axes else max(n for n in args.axes if n <= 256) if min(args.axes) <= 256 else None
             if common_n is not None:
                 points.append(("stress-common", common_n))
+        if "coupled" in args.loads:
+            points += [("coupled", n) for n in dict.fromkeys(args.coupled_axes)]
         common = [k for k in KINDS if all(k in supported[e] for e in engines)]
+        # (load, axes) -> {engine: why it is not run there}: a load needing a feature its probe did not find
+        not_run: dict[tuple[str, int], dict[str, str]] = {}
+        for load, n in points:
+            need = LOAD_NEEDS.get(load)
+            for e in engines:
+                f = workers[e].info.get("features", {}).get(need) if need else None
+                if need and not (f and f["supported"]):
+                    why = f"it has no {FEATURE_TEXT[need]} (probe: " + (
+                        (UNSUPPORTED.get(f["code"], "refused") + (f" 0x{f['code']:04X}" if f["code"] > 0 else ""))
+                        if f else "not probed") + ")"
+                    if f and f.get("text"):
+                        why += f": {f['text']}"
+                    not_run.setdefault((load, n), {})[e] = why
 
         res: dict[tuple[str, str, int], Point] = {}
         est: dict[tuple[str, int], float] = {}
@@ -784,6 +913,9 @@ def main() -> int:
         for rnd in range(args.rounds):
             for pi, (load, n) in enumerate(points):
                 order = list(engines) if (rnd + pi) % 2 == 0 else list(reversed(engines))
+                order = [e for e in order if e not in not_run.get((load, n), {})]
+                if not order:  # (the report lists why, from not_run)
+                    continue
                 guess = est.get((load, n), (args.warmup + seconds + 1.0 + n / 1000.0) * len(order) + seconds + 0.5)
                 if time.monotonic() + guess > budget_end:
                     skipped.append(f"round {rnd + 1} {load} {n} axes")
@@ -808,7 +940,7 @@ def main() -> int:
                     else:
                         pt.runs.append(r)
                 est[(load, n)] = time.monotonic() - t_pt
-        report(res, engines, labels, points, cal, {e: workers[e].info["probe"] for e in engines})
+        report(res, engines, labels, points, cal, {e: workers[e].info["probe"] for e in engines}, not_run)
         if skipped:
             print(f"\nskipped to stay within --budget {args.budget:g} s: " + "; ".join(skipped))
         if "stress-common" in [p[0] for p in points]:
