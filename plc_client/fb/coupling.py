@@ -59,13 +59,11 @@ from __future__ import annotations
 
 import logging
 import numbers
-from enum import IntEnum
 from typing import Any
 
 import numpy as np
 
-import nc_schema
-from nc_schema import ENUMS, AxisState, ErrorCodes, StateDWord
+from nc_schema import AxisState, E_DecoupleMode, ErrorCodes, StateDWord
 
 from ..axis_ref import AXIS_REF
 from ..task import current_task
@@ -75,13 +73,6 @@ from .motion import MotionBlock
 log = logging.getLogger(__name__)
 
 
-def _schema_enum(name: str) -> type[IntEnum]:
-    """The enum ``name`` of schema/enums.json: nc_schema's class if it has one, else built from the JSON."""
-    return getattr(nc_schema, name, None) or IntEnum(name, ENUMS[name]["values"])  # type: ignore[return-value]
-
-
-#: E_DecoupleMode (TcMC 3.21)
-E_DecoupleMode = _schema_enum("E_DecoupleMode")
 
 _SYNCHRON = int(AxisState.SLAVE_SYNCHRON)
 _HASJOB = int(StateDWord.HasJob)

@@ -29,21 +29,19 @@ into AxisRefOut's ExtSetPos, ExtSetVelo, ExtSetAcc, ExtSetDirection at once and 
 (TcMC: the result is unused). AxisRefOut is the axis's PLCTONC record (``ax.PlcToNc``, TcMC's
 PLCTONC_AXLESTRUCT) or the AXIS_REF itself. zenoh-nc choice: a set of values with a member that
 is not a finite number (or a Direction that is not -1, 0 or 1) is not written at all - the
-interface keeps the last consistent set-point, so a NaN never reaches the NC (which would ignore
-it anyway) - and the function still returns FALSE.
+interface keeps the last consistent set-point, so a NaN never reaches the NC (which would stop
+the axis with 0x4359) - and the function still returns FALSE.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from nc_schema import PLCTONC_DTYPE, ErrorCodes, StateDWord
+from nc_schema import E_TargPosType, ErrorCodes, PLCTONC_DTYPE, StateDWord
 
 from ..axis_ref import AXIS_REF
 from .base import ExecuteBlock, FunctionBlock
-from .coupling import _integer_in, _schema_enum
+from .coupling import _integer_in
 
-#: E_TargPosType (TcNC: 1 absolute, 2 relative, 5 modulo)
-E_TargPosType = _schema_enum("E_TargPosType")
 
 _EXT = int(StateDWord.ExtSetPointGenEnabled)
 _POS_TYPES = frozenset(int(m) for m in E_TargPosType)

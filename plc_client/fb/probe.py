@@ -49,15 +49,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from nc_schema import CmdState, ErrorCodes, cmdno_newer
+from nc_schema import CmdState, E_SignalEdge, E_TouchProbe, E_TouchProbeState, ErrorCodes, cmdno_newer
 
 from ..axis_ref import AXIS_REF
 from .base import ExecuteBlock
-from .coupling import _integer_in, _schema_enum
+from .coupling import _integer_in
 
-E_TouchProbe = _schema_enum("E_TouchProbe")
-E_SignalEdge = _schema_enum("E_SignalEdge")
-E_TouchProbeState = _schema_enum("E_TouchProbeState")
 
 _PLC_EVENT = int(E_TouchProbe["PlcEvent"])
 _RISING, _FALLING = int(E_SignalEdge["RisingEdge"]), int(E_SignalEdge["FallingEdge"])

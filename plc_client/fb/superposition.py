@@ -50,13 +50,11 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from nc_schema import CmdState, ErrorCodes, cmdno_newer
+from nc_schema import CmdState, E_SuperpositionMode, ErrorCodes, cmdno_newer
 
 from .base import ExecuteBlock
-from .coupling import _integer_in, _schema_enum
+from .coupling import _integer_in
 
-#: E_SuperpositionMode (TcMC 6.5)
-E_SuperpositionMode = _schema_enum("E_SuperpositionMode")
 
 _LENGTHREDUCTION_LIMITED = int(E_SuperpositionMode["SUPERPOSITIONMODE_LENGTHREDUCTION_LIMITEDMOTION"])
 _DONE, _ABORTED, _ERROR = int(CmdState.DONE), int(CmdState.ABORTED), int(CmdState.ERROR)
