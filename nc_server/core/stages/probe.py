@@ -98,7 +98,8 @@ def cmd_touch_probe(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, A
     """TouchProbe: arm the latch (a running probe cycle of the axis ends ABORTED: replaced).
 
     Raises:
-        NcError: 0x4B0B trigger input not supported / not correct; 0x4B06 a non-finite window.
+        NcError: 0x4B0B trigger input not supported / not correct; 0x4B06 a non-finite window or an
+            absolute one with FirstPosition > LastPosition (empty: only modulo windows wrap).
     """
     check_trigger_input(int(req.get("EncoderID", 1)), int(req.get("TouchProbe", 1)), int(req.get("Edge", 0)))
     st: ProbeStage = core.probe
@@ -108,6 +109,9 @@ def cmd_touch_probe(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, A
         if not (np.isfinite(first) and np.isfinite(last)):
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, "FirstPosition/LastPosition must be finite")
         window = (first, last, bool(req.get("ModuloPositions")))
+        if not window[2] and first > last:  # (only modulo windows wrap: an absolute one would be empty)
+            raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT,
+                          f"absolute window FirstPosition {first} > LastPosition {last} is empty")
     if st.armed[i]:
         st._end(i, CmdState.ABORTED)
     q = core.queues[i]
