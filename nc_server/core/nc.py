@@ -797,7 +797,13 @@ class NcCore:
             if ended.size:
                 self._plan_ends(ended)
         if ext.active or sup.active or cpl.active:
-            self._stage_sync()
+            try:
+                self._stage_sync()
+            except Exception:  # a bug must stop the axes of these stages, never the NC cycle
+                _log.exception("set-point stages failed")
+                staged = (cpl.master >= 0) | ext.on | sup.on
+                for i in staged.nonzero()[0].tolist():
+                    self.fault(int(i), ErrorCodes.NC_INTERNAL)
         # job watches and limits
         if self._watch_rows:
             for kind, rows in self._watch_rows:
@@ -840,6 +846,9 @@ class NcCore:
             self._derive_state()
         self._fill_nctoplc()
 
+    def _apply_superposition(self, rows: np.ndarray) -> None:
+        self.superposition.apply(self, rows)
+
     def _flush_slots(self) -> None:
         """Job records of the rows whose superposition or touch probe slot changed."""
         for st in (self.superposition, self.probe):
@@ -863,7 +872,7 @@ class NcCore:
             else:
                 sup.apply(self, sup.rows)
         if cpl.active:
-            for i in cpl.run(self, sup.apply if sup.active else None):
+            for i in cpl.run(self, self._apply_superposition if sup.active else None):
                 code = (ErrorCodes.NC_AXIS_SET_VELOCITY if abs(self.axes.set_velo[i]) > self.axes.vmax[i] * (1 + 1e-6)
                         else ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)
                 over.append((i, code))

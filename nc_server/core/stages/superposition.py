@@ -172,8 +172,8 @@ _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
 
 def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
     """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt): plan and start the offset
-    profile. The reference velocity for Length is |VelocityProcess|, or (0) the axis's basic set
-    velocity now, in the axis's direction of travel.
+    profile. The reference velocity for Length is |VelocityProcess|, or (0) the set velocity now of
+    the reference: for ADDITIVEMOTION on a slave its master's, else the axis's basic motion's.
 
     Raises:
         NcError: the start checks of any motion; 0x4B04 unknown Mode; 0x4B06 Distance 0,
@@ -189,7 +189,12 @@ def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
         raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_SuperpositionMode (1..4)")
     dyn = core.dynamics(i, req, None)
     base = core.start_state(i)
-    vp = abs(float(req.get("VelocityProcess", 0.0) or 0.0)) or abs(base.v)
+    vp = abs(float(req.get("VelocityProcess", 0.0) or 0.0))
+    if not vp:
+        # TcMC 6.5: ADDITIVEMOTION's Length is the reference's travel "without superimposed motion
+        # (e.g. master axis)": a slave's master; LIMITEDMOTION's is the axis's own
+        m = int(core.coupling.master[i])
+        vp = abs(float(core.axes.set_velo[m])) if mode in (1, 3) and m >= 0 else abs(base.v)
     v_ref = vp if base.v >= 0 else -vp
     stage = core.superposition
     start = stage.offset_state(i) if stage.on[i] else StartState(0.0)
