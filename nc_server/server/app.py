@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from nc_schema import FrameFlags, Keys
+from nc_schema import ErrorCodes, FrameFlags, Keys
 
 
 from .claims import ClaimTable
@@ -61,6 +61,7 @@ class NcServer:
         self.inputs = CycleInputs(core, self.claims)  # type: ignore[arg-type]
         self.io = IoThread(self.transport, self.stats)
         self._prev_start = 0.0
+        self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
         self._claims_snapshot: dict[int, str] = {}
         self._clients_snapshot: list[str] = []
@@ -160,7 +161,13 @@ class NcServer:
 
         if self._shutdown.is_set():
             self._stop_moving_axes()
-        core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
+        try:
+            core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
+        except Exception:  # a bug in the core: every axis stops on its ramp, the cycle goes on
+            self.step_errors += 1
+            log.exception("NC step failed: every axis is faulted with 0x4000")
+            for i in range(len(core.axis_ids)):  # type: ignore[attr-defined]
+                core.fault(i, ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
 
         frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs)  # type: ignore[attr-defined]
         out = Outgoing(core.cycle, core.nc_time_ns, frame, replies=replies)  # type: ignore[attr-defined]
@@ -250,5 +257,5 @@ class NcServer:
                   "plctonc_frames": self.transport.plc_frames, "plctonc_malformed": self.transport.plc_malformed,
                   "plctonc_ignored": self.transport.plc_ignored,
                   "frames_dropped": self.io.frames_dropped, "reply_errors": self.io.reply_errors,
-                  "gear_ratios_ignored": int(self.core.coupling.ignored_ratios)})
+                  "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors})
         return d
