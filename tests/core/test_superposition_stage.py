@@ -56,7 +56,7 @@ def dword(core, i=0):
 def cruising(v, n=1, axis=1, **params):
     """A core whose axis ``axis`` runs at constant velocity ``v`` (MoveVelocity, acceleration done)."""
     core = powered(n, **params)
-    assert cmd(core, "MoveVelocity", axis=axis, Velocity=abs(v), Direction=1 if v > 0 else 2)["error"] == 0
+    assert cmd(core, "MoveVelocity", axis=axis, Velocity=abs(v), Direction=1 if v > 0 else 3)["error"] == 0
     i = axis - 1
     run_until(core, lambda: abs(sp_of(core, i)[1] - v) < 1e-9 and abs(sp_of(core, i)[2]) < 1e-9)
     for _ in range(3):
@@ -217,12 +217,6 @@ def drilling_pair():
     return core
 
 
-SLAVE_CRASH = ("BUG: a superposition on a coupled slave crashes NcCore.step with TypeError: "
-               "_stage_sync passes the bound SuperpositionStage.apply(core, rows) as CouplingStage.run's "
-               "after_level(rows) callback")
-
-
-@pytest.mark.xfail(strict=True, raises=TypeError, reason=SLAVE_CRASH)
 @pytest.mark.parametrize("mode,T", [(3, 0.7), (1, 2.0)])
 def test_drilling_unit_on_a_geared_slave(mode, T):
     """Distance 250 relative to the workpiece, Length 400 of workpiece travel, VelocityDiff 500.
@@ -255,25 +249,35 @@ def test_drilling_unit_on_a_geared_slave(mode, T):
     assert state(core, 1) == MC_AxisStates.MC_AXISSTATE_SYNCHRONIZEDMOTION
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: VelocityProcess 0 on a slave takes the slave's own set velocity "
-                   "(cmd_move_superimposed: abs(base.v)), not the master's as protocol.json documents: with "
-                   "ratio 2 an ADDITIVE Length of master travel gets half the window. " + SLAVE_CRASH)
-def test_additive_length_of_a_slave_refers_to_its_master():
-    """Ratio 2:1, mode 1, VelocityProcess 0 (= the master's set velocity for a slave): the master (the
-    reference without superimposed motion) travels Length during the correction."""
+@pytest.mark.parametrize("mode,vp,D,T", [(1, 0.0, 250.0, 2.0), (1, 400.0, 250.0, 1.0), (2, 0.0, 50.0, (400.0 - 50.0) / 400.0)])
+def test_velocity_process_of_a_geared_slave(mode, vp, D, T):
+    """Ratio 2:1, workpiece at 200, the slave at 400, Distance D, Length 400. VelocityProcess 0 is the
+    reference's set velocity: ADDITIVE (mode 1) on a slave its master's (TcMC 6.5: Length is the travel
+    of the reference without superimposed motion), a 2 s window in which the workpiece travels 400;
+    LIMITED (mode 2) the slave's own basic velocity, the slave travels Length. Given explicitly (400 =
+    the slave's): a 1 s window."""
     core = powered(2, AxisVeloMax=3000.0)
     assert cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=2, RatioDenominator=1)["error"] == 0
     core.step()
     assert cmd(core, "MoveVelocity", axis=1, Velocity=200.0, Acceleration=2000.0, Jerk=20000.0)["error"] == 0
     run_until(core, lambda: sp_of(core, 0)[1] == 200.0 and sp_of(core, 0)[2] == 0.0)
-    m0 = sp_of(core, 0)[0]
-    try:
-        r = cmd(core, "MoveSuperImposed", axis=2, Mode=1, Distance=250.0, VelocityDiff=500.0, Length=400.0)
-        assert r["error"] == 0
-        k = run_until(core, lambda: slot(core, 1)[1] != ACTIVE, 5000)
-    except TypeError:  # (the crash above; this test is about the window)
-        raise AssertionError(SLAVE_CRASH) from None
-    assert 2000 <= k <= 2001 and sp_of(core, 0)[0] - m0 == pytest.approx(400.0, abs=0.25)
+    m0, s0 = sp_of(core, 0)[0], sp_of(core, 1)[0]
+    r = cmd(core, "MoveSuperImposed", axis=2, Mode=mode, Distance=D, VelocityDiff=500.0, Length=400.0,
+            VelocityProcess=vp)
+    assert r["error"] == 0 and r["Value"]["Incomplete"] is False, r
+    n = round(T / CT)
+    for _ in range(n):
+        core.step()
+    master, slave = sp_of(core, 0)[0] - m0, sp_of(core, 1)[0] - s0
+    assert master == pytest.approx(200.0 * T, abs=1e-6)
+    assert slave == pytest.approx(2.0 * master + D, abs=1e-6)
+    if mode == 1 and vp == 0.0:
+        assert master == pytest.approx(400.0, abs=1e-6)
+    if mode == 2:
+        assert slave == pytest.approx(400.0, abs=1e-6)
+    run_until(core, lambda: slot(core, 1)[1] != ACTIVE, 2)
+    assert slot(core, 1)[1] == DONE
+    assert sp_of(core, 1)[1] == 400.0 and sp_of(core, 1)[0] - s0 == pytest.approx(2.0 * (sp_of(core, 0)[0] - m0) + D)
 
 
 # -- exact additivity and continuity ------------------------------------------------------------------
