@@ -371,7 +371,7 @@ def test_target_position_is_shown(ptype, pos, want):
     core.step()
     assert float(core.nctoplc[0]["TargetPos"]) == pytest.approx(want, abs=1e-9)
     # the target does not move with the fed motion
-    run_feeds(core, lambda t: (400.0 + 100.0 * t, 100.0, 0.0), 1, 20, x_feed=lambda t: (400.0 + 100.0 * (t + CT), 100.0, 0.0))
+    run_feeds(core, lambda t: (400.0 + 100.0 * t, 100.0, 0.0), 1, 20)
     assert float(core.nctoplc[0]["TargetPos"]) == pytest.approx(want, abs=1e-9)
 
 
@@ -395,3 +395,76 @@ def test_not_in_target_while_away_from_position():
     assert cmd(core, "ExtSetPointGenEnable", Position=5.0)["error"] == 0
     run_feeds(core, lambda t: (min(100.0 * t, 1.0), 100.0 if t < 0.01 else 0.0, 0.0), 1, 100)
     assert not dword(core) & IN_TARGET
+
+
+# -- several axes, a superposition on top ----------------------------------------------------------------
+def test_a_bad_feed_faults_only_its_axis():
+    core = powered(2, SimTimeConstant=0.0)
+    for i in (0, 1):
+        feed(core, 0.0, i=i)
+        assert cmd(core, "ExtSetPointGenEnable", axis=i + 1)["error"] == 0
+    for k in range(50):
+        for i, v in ((0, 100.0), (1, -50.0)):
+            feed(core, v * k * CT, v, i=i)
+        core.step()
+    feed(core, 100.0, 100.0, i=0)  # axis 1 jumps
+    feed(core, -50.0 * 50 * CT, -50.0, i=1)
+    core.step()
+    assert int(core.nctoplc[0]["ErrorCode"]) == int(E.NC_AXIS_SET_VELOCITY)
+    assert int(core.nctoplc[1]["ErrorCode"]) == 0 and dword(core, 1) & EXT
+    assert sp(core, 1) == (-2.5, -50.0, 0.0)
+
+
+def test_superposition_on_top_of_fed_set_points():
+    """MoveSuperImposed on an axis the PLC feeds: total = fed trajectory + offset profile; the finished
+    offset stays folded into the fed positions (the PLC goes on feeding its own trajectory)."""
+    core, _ = enabled_at()
+    x = lambda t: (100.0 * t, 100.0, 0.0)  # noqa: E731
+    run_feeds(core, x, 4, 100)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=1000.0)
+    assert r["error"] == 0, r
+    rows = []
+    for k in range(100, 800):
+        if k % 4 == 0:
+            feed(core, *x(k * CT))
+        core.step()
+        rows.append((sp(core)[0], sp(core)[1]))
+        assert sp(core)[0] - 100.0 * k * CT >= -1e-9
+    assert int(core.ncjobs[0]["SuperState"]) == DONE and int(core.nctoplc[0]["ErrorCode"]) == 0
+    assert sp(core)[0] - 100.0 * 799 * CT == pytest.approx(10.0, abs=1e-9)
+    assert dword(core) & EXT and sync_flags(core) == SYNC_ENABLED | SYNC_FOLLOWING
+    assert_no_jump(rows)
+
+
+def test_disable_during_a_superposition_brakes_the_total_motion():
+    """ExtSetPointGenDisable while a superposition runs on the fed motion: the halt ramp brakes the total
+    (the superposition ends ABORTED), no jump."""
+    core, _ = enabled_at()
+    x = lambda t: (100.0 * t, 100.0, 0.0)  # noqa: E731
+    rows = [(r[2], r[3]) for r in run_feeds(core, x, 4, 100)]
+    assert cmd(core, "MoveSuperImposed", Mode=3, Distance=50.0, VelocityDiff=100.0, Length=1000.0)["error"] == 0
+    for k in range(100, 300):
+        if k % 4 == 0:
+            feed(core, *x(k * CT))
+        core.step()
+        rows.append(sp(core)[:2])
+    assert sp(core)[1] > 150.0  # fed 100 + the offset's
+    assert cmd(core, "ExtSetPointGenDisable")["error"] == 0
+    assert int(core.ncjobs[0]["SuperState"]) == ABORTED
+    for _ in range(300):
+        core.step()
+        rows.append(sp(core)[:2])
+    assert sp(core)[1] == 0.0 and not core.superposition.on[0]
+    assert_no_jump(rows)
+
+
+def test_enable_refused_on_an_axis_in_error_or_disabled():
+    core = powered(2)
+    core.fault(0, int(E.NC_POSITION_LAG))
+    rec = core.default_plctonc()
+    core.set_plctonc(1, rec)  # axis 2: no enable
+    core.step()
+    snap = snapshot(core)
+    assert cmd(core, "ExtSetPointGenEnable", axis=1)["error"] == int(E.MC_AXIS_CANNOT_BE_STARTED)
+    assert cmd(core, "ExtSetPointGenEnable", axis=2)["error"] == int(E.NC_NO_ENABLE)
+    assert snapshot(core) == snap

@@ -249,7 +249,8 @@ def test_drilling_unit_on_a_geared_slave(mode, T):
     assert state(core, 1) == MC_AxisStates.MC_AXISSTATE_SYNCHRONIZEDMOTION
 
 
-@pytest.mark.parametrize("mode,vp,D,T", [(1, 0.0, 250.0, 2.0), (1, 400.0, 250.0, 1.0), (2, 0.0, 50.0, (400.0 - 50.0) / 400.0)])
+@pytest.mark.parametrize("mode,vp,D,T", [(1, 0.0, 250.0, 2.0), (1, 400.0, 250.0, 1.0),
+                                         (2, 0.0, 50.0, (400.0 - 50.0) / 400.0)])
 def test_velocity_process_of_a_geared_slave(mode, vp, D, T):
     """Ratio 2:1, workpiece at 200, the slave at 400, Distance D, Length 400. VelocityProcess 0 is the
     reference's set velocity: ADDITIVE (mode 1) on a slave its master's (TcMC 6.5: Length is the travel
@@ -593,3 +594,40 @@ def test_set_velocity_never_exceeds_axis_velo_max_by_more_than_a_cycle():
     rec = Rec(core)
     rec.step(400)
     assert np.max(rec.v) <= 600.0 + 5000.0 * CT
+
+
+# -- the basic motion replanned, Enable FALSE -------------------------------------------------------------
+def test_move_absolute_during_a_superposition_leaves_it_running():
+    """A MoveAbsolute replaces the basic motion (planned from the basic state): the superposition runs on
+    and ends DONE; the move ends at its target + the superimposed distance, without a jump."""
+    core = cruising(300.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=5000.0)
+    rec = Rec(core)
+    rec.step(200)
+    m = cmd(core, "MoveAbsolute", Position=400.0, Velocity=300.0)
+    assert m["error"] == 0
+    assert slot(core)[:2] == (r["CmdNo"], ACTIVE)
+    rec.until(lambda: int(core.nctoplc[0]["CmdState"]) != ACTIVE)
+    rec.step(5)
+    assert (int(core.nctoplc[0]["CmdNo"]), int(core.nctoplc[0]["CmdState"])) == (m["CmdNo"], DONE)
+    assert slot(core)[:3] == (r["CmdNo"], DONE, 0)
+    assert sp_of(core) == (pytest.approx(500.0, abs=1e-9), 0.0, 0.0)
+    assert float(core.nctoplc[0]["TargetPos"]) == pytest.approx(500.0, abs=1e-9)
+    assert_continuous(rec, 1000.0, 10000.0)
+
+
+def test_enable_false_aborts_the_superposition():
+    core = cruising(300.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=5000.0)
+    for _ in range(100):
+        core.step()
+    power(core, ctrl=0)
+    core.step()
+    assert slot(core)[:2] == (r["CmdNo"], ABORTED)
+    assert not dword(core) & COMP and not core.superposition.on[0]
+    assert state(core) == MC_AxisStates.MC_AXISSTATE_DISABLED
+    power(core)
+    core.step()
+    core.step()
+    assert sp_of(core) == (float(core.nctoplc[0]["ActPos"]), 0.0, 0.0)  # set position := actual position
+    assert slot(core)[1] == ABORTED

@@ -367,3 +367,20 @@ def test_invalid_trigger_input_is_refused_and_changes_nothing(args, armed):
     r = cmd(core, "TouchProbe", **args)
     assert r["error"] == int(E.MC_TRIGGER_INPUT_INVALID), r
     assert snapshot(core) == snap
+
+
+def test_several_axes_latch_independently():
+    """Three axes armed at once (rising, falling, a window), at different velocities and directions:
+    each records its own edge in its own cycle."""
+    core = powered(3, **PATTERN)
+    for axis, v in ((1, 100.0), (2, 70.0), (3, -100.0)):
+        assert cmd(core, "MoveVelocity", axis=axis, Velocity=abs(v), Direction=1 if v > 0 else 3)["error"] == 0
+    cmd(core, "TouchProbe", axis=1, Edge=0)
+    cmd(core, "TouchProbe", axis=2, Edge=1)
+    cmd(core, "TouchProbe", axis=3, Edge=0, WindowOnly=True, FirstPosition=-30.0, LastPosition=-10.0)
+    for _ in range(600):
+        core.step()
+    want = [2.0, 5.0, -15.0]  # axis 3 negative: [-18, -15) entered at -15; -5 outside the window
+    for i, x in enumerate(want):
+        assert probe(core, i)[1:4] == (DONE, 1, pytest.approx(x, abs=1e-9))
+    assert tp_state(core, 0) == tp_state(core, 1) == tp_state(core, 2) == VALID
