@@ -79,6 +79,12 @@ class Trace:
             self._take()
         return self.rows[-1]
 
+    def take(self) -> np.void:
+        """Check and keep the current sample without stepping: several traces of one core (one per
+        axis, e.g. a master and its slaves) -- the caller steps the core, each trace takes its row."""
+        self._take()
+        return self.rows[-1]
+
     def until(self, pred: Callable[[np.void], Any], max_cycles: int = 20_000) -> int:
         """Step until ``pred(sample)``; returns the number of steps."""
         for k in range(1, max_cycles + 1):
