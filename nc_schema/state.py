@@ -11,13 +11,18 @@ condition on NCTOPLC                                MC_AxisStates
 StateDWord.Error                                    ERRORSTOP
 not StateDWord.ControlLoopClosed                    DISABLED
 StateDWord.MotionCommandsLocked                     STOPPING (MC_Stop active)
-HasBeenStopped and HasJob                           STOPPING (stop ramp)
+HasBeenStopped and (HasJob or not NotMoving)       STOPPING (stop ramp, also the NC's own ramp
+                                                    without a CmdNo, e.g. MC_ExtSetPointGenDisable
+                                                    of a moving axis)
 StateDWord.HomingBusy                               HOMING
 CoupleState in (SLAVE, MASTERSLAVE)                 SYNCHRONIZEDMOTION
 HasJob and ContinuousMotion                         CONTINOUSMOTION
-HasJob                                              DISCRETEMOTION
+HasJob, or not NotMoving                            DISCRETEMOTION (a motion without a job: a
+                                                    superposition on a standing axis)
 otherwise                                           STANDSTILL
 ==================================================  ===========================
+
+An axis that moves is never STANDSTILL.
 """
 from __future__ import annotations
 
@@ -28,6 +33,7 @@ from .codec import CoupleState, MC_AxisStates, StateDWord
 _ERR = int(StateDWord.Error)
 _CLC = int(StateDWord.ControlLoopClosed)
 _LOCK = int(StateDWord.MotionCommandsLocked)
+_NOT_MOVING = int(StateDWord.NotMoving)
 _STOPPED = int(StateDWord.HasBeenStopped)
 _JOB = int(StateDWord.HasJob)
 _HOMING = int(StateDWord.HomingBusy)
@@ -42,14 +48,15 @@ def motion_state(state_dword: int, couple_state: int = 0) -> MC_AxisStates:
         return MC_AxisStates.MC_AXISSTATE_ERRORSTOP
     if not s & _CLC:
         return MC_AxisStates.MC_AXISSTATE_DISABLED
-    if s & _LOCK or (s & _STOPPED and s & _JOB):
+    moving = not s & _NOT_MOVING
+    if s & _LOCK or (s & _STOPPED and (s & _JOB or moving)):
         return MC_AxisStates.MC_AXISSTATE_STOPPING
     if s & _HOMING:
         return MC_AxisStates.MC_AXISSTATE_HOMING
     if int(couple_state) in _SLAVE:
         return MC_AxisStates.MC_AXISSTATE_SYNCHRONIZEDMOTION
-    if s & _JOB:
-        if s & _CONT:
+    if s & _JOB or moving:
+        if s & _CONT and s & _JOB:
             return MC_AxisStates.MC_AXISSTATE_CONTINOUSMOTION
         return MC_AxisStates.MC_AXISSTATE_DISCRETEMOTION
     return MC_AxisStates.MC_AXISSTATE_STANDSTILL
@@ -60,14 +67,15 @@ def motion_state_array(state_dword: np.ndarray, couple_state: np.ndarray | None 
     s = np.asarray(state_dword, dtype=np.uint32)
     cs = np.zeros_like(s) if couple_state is None else np.asarray(couple_state)
     job = (s & _JOB) != 0
+    busy = job | ((s & _NOT_MOVING) == 0)
     conds = [
         (s & _ERR) != 0,
         (s & _CLC) == 0,
-        ((s & _LOCK) != 0) | (((s & _STOPPED) != 0) & job),
+        ((s & _LOCK) != 0) | (((s & _STOPPED) != 0) & busy),
         (s & _HOMING) != 0,
         (cs == _SLAVE[0]) | (cs == _SLAVE[1]),
         job & ((s & _CONT) != 0),
-        job,
+        busy,
     ]
     choices = [int(MC_AxisStates.MC_AXISSTATE_ERRORSTOP), int(MC_AxisStates.MC_AXISSTATE_DISABLED),
                int(MC_AxisStates.MC_AXISSTATE_STOPPING), int(MC_AxisStates.MC_AXISSTATE_HOMING),

@@ -73,14 +73,15 @@ _OPERATIONAL = np.uint32(int(StateDWord.Operational))
 #: NewestCmdNo, Flags, then ENDED_KEPT x (CmdNo, CmdState, ErrorId)
 _NCJOBS_RECORD = struct.Struct("<IHHHHHH" + "HHI" * ENDED_KEPT)
 #: its slots part: MasterId, SyncFlags, GearRatio, SuperCmdNo, SuperState, SuperErrorId, SuperDistance,
-#: SuperVelocityDiff, SuperLength, ProbeCmdNo, ProbeState, ProbeCounter, RecordedPosition, RecordedTimeNs, Reserved
-_NCJOBS_SLOTS = struct.Struct("<IIdHHIdddHHIdQQ")
+#: SuperVelocityDiff, SuperLength, ProbeCmdNo, ProbeState, ProbeCounter, RecordedPosition, RecordedTimeNs,
+#: ProbeErrorId, Reserved
+_NCJOBS_SLOTS = struct.Struct("<IIdHHIdddHHIdQII")
 _NCJOBS_SIZE = NCJOBS_DTYPE.itemsize
 assert _NCJOBS_RECORD.size + _NCJOBS_SLOTS.size == _NCJOBS_SIZE and NCJOBS_DTYPE.names == (
     "AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo", "Flags", "Ended",
     "MasterId", "SyncFlags", "GearRatio", "SuperCmdNo", "SuperState", "SuperErrorId", "SuperDistance",
     "SuperVelocityDiff", "SuperLength", "ProbeCmdNo", "ProbeState", "ProbeCounter", "RecordedPosition",
-    "RecordedTimeNs", "Reserved")
+    "RecordedTimeNs", "ProbeErrorId", "Reserved")
 _SYNC_EXT_ENABLED, _SYNC_EXT_FOLLOWING, _SYNC_DYN, _SYNC_SYNCHRON = 1, 2, 4, 8
 _PROTECTED = np.uint32(int(StateDWord.Protected))
 _PTP = np.uint32(int(StateDWord.PTPmode))
@@ -619,9 +620,10 @@ class NcCore:
             job.cmd_no = q.newest = next_cmdno(q.newest)
         job.state = int(CmdState.ACTIVE)
         q.active = job
+        if job.numbered or job.kind.internal:
+            a.stopped[i] = job.kind.is_stop
         if job.numbered:
             q.shown = job
-            a.stopped[i] = job.kind.is_stop
             if job.kind.locks:
                 a.locked[i] = True
         if job.kind.braking:
@@ -709,7 +711,7 @@ class NcCore:
         self._jobs_bytes[o:o + _NCJOBS_SLOTS.size] = _NCJOBS_SLOTS.pack(
             self._axis_id_list[m] if m >= 0 else 0, flags, float(c.ratio[i]) if m >= 0 else 0.0,
             int(sp.cmd_no[i]), int(sp.state[i]), int(sp.error[i]), *(float(x) for x in sp.actual[:, i]),
-            int(pr.cmd_no[i]), int(pr.state[i]), int(pr.counter[i]), float(pr.recorded[i]), int(pr.recorded_ns[i]), 0)
+            int(pr.cmd_no[i]), int(pr.state[i]), int(pr.counter[i]), float(pr.recorded[i]), int(pr.recorded_ns[i]), int(pr.error[i]), 0)
         self._state_dirty = True
 
     def finish(self, i: int, job: Job, state: CmdState = CmdState.DONE, error_id: int = 0) -> None:
@@ -840,7 +842,13 @@ class NcCore:
         if self._state_dirty:  # a job ended this cycle: monitor it as standing already
             self._derive_state()
         # monitoring: new faults stop their axes from the next cycle
-        for i, code in monitor(a, self.act_pos, self.cycle_time, self._watch):
+        watch = self._watch
+        if self.external.active:  # an enabled external generator: its target window counts when it stands
+            r = self.external.rows
+            st = watch[1].copy()
+            st[r] = (np.abs(a.set_velo[r]) <= _EPS_V) & a.enabled[r]
+            watch = (watch[0], st, watch[2], True)
+        for i, code in monitor(a, self.act_pos, self.cycle_time, watch):
             self.fault(i, code)
         if self._state_dirty:
             self._derive_state()
@@ -854,7 +862,7 @@ class NcCore:
         for st in (self.superposition, self.probe):
             if st.changed:
                 for i in set(st.changed):
-                    self._sync_slots(i)
+                    self._sync(i)  # (NewestCmdNo, HasJob, and the slots)
                 st.changed.clear()
 
     def _stage_sync(self) -> None:
@@ -872,10 +880,7 @@ class NcCore:
             else:
                 sup.apply(self, sup.rows)
         if cpl.active:
-            for i in cpl.run(self, self._apply_superposition if sup.active else None):
-                code = (ErrorCodes.NC_AXIS_SET_VELOCITY if abs(self.axes.set_velo[i]) > self.axes.vmax[i] * (1 + 1e-6)
-                        else ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)
-                over.append((i, code))
+            over += cpl.run(self, self._apply_superposition if sup.active else None)
             if cpl.changed:
                 cpl.changed = False
                 for i in cpl.slaves.tolist():
@@ -1197,6 +1202,8 @@ def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, An
 def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     a, q = core.axes, core.queues[i]
     core.probe.disarm_on_reset(i)
+    if core.coupling.is_slave(i) or core.external.on[i]:
+        return {}  # a stage drives it (no error: an error ends the coupling/generator): nothing to reset
     if a.traj_on[i]:
         if a.error[i] or a.locked[i]:
             # still braking: clear the error/lock now, but the ramp goes on as a numbered stop
@@ -1245,7 +1252,7 @@ def _cmd_set_actual_position(core: NcCore, i: int, req: dict[str, Any]) -> dict[
     """MC_SetActualPosition: at standstill only (0x4B01 while moving: that is
     MC_SetActualPositionOnTheFly's job); actual and set position take the new value."""
     a = core.axes
-    if a.traj_on[i] or a.has_job[i]:
+    if a.traj_on[i] or a.has_job[i] or core.superposition.on[i]:
         raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the axis is moving: use MC_SetActualPositionOnTheFly")
     pos = req["Position"]
     if not abs(pos) < MAX_POSITION:

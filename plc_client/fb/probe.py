@@ -10,9 +10,8 @@ LastPosition}; the NC arms the latch and rejects events outside the window itsel
 CmdNo is the probe cycle's own number, followed in the job record (from the first frame of the
 reply's NC cycle on): ``NCJOBS.ProbeCmdNo`` ours and ProbeState ACTIVE -> Busy; DONE -> Done
 with RecordedPosition = NCJOBS.RecordedPosition (modulo if ModuloPositions); ABORTED
-(MC_AbortTrigger, an axis reset, a disable) or ProbeCmdNo moved on to a newer cycle ->
-CommandAborted; ERROR -> Error with NcToPlc.ErrorCode (0x4B0C "latch disabled" if the axis shows
-none: the job record has no error id for the probe slot); ProbeCmdNo older than ours or a frame
+(MC_AbortTrigger) or ProbeCmdNo moved on to a newer cycle -> CommandAborted; ERROR -> Error
+with NCJOBS.ProbeErrorId (MC_Reset: 0x4B0C "latch disabled"); ProbeCmdNo older than ours or a frame
 without job records -> Error 0x4B60. A TriggerInput the NC cannot use (EncoderID outside
 1..255, TouchProbe 2..4, Edge not 0/1) is the NC's answer, 0x4B0B; values that cannot even be
 sent (not integers, BOOLs, beyond 32 bits) are refused by the block with 0x4B0B.
@@ -267,7 +266,7 @@ class MC_TouchProbe(_TriggerBlock):
         elif state == _ABORTED:
             self._finish("CommandAborted")
         elif state == _ERROR:
-            self._finish("Error", int(ax.NcToPlc["ErrorCode"]) or ErrorCodes.MC_LATCH_DISABLED)
+            self._finish("Error", int(jobs["ProbeErrorId"]) or ErrorCodes.MC_LATCH_DISABLED)
         # ACTIVE: the latch is armed - Busy
 
 

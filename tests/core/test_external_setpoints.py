@@ -244,9 +244,6 @@ def test_jumping_or_too_fast_feed_is_an_axis_error_and_a_stop(bad):
     assert max(r[2] for r in rows) - 19.8 == pytest.approx(200.0 * (200.0 / 50000.0) ** 0.5, abs=0.21)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: in the cycle of a bad feed ExternalStage.run leaves the row's "
-                   "set-point at last cycle's values (apply = follow & ~bad) and the fault ramp starts from them "
-                   "in the next cycle: SetPos stands still for one cycle at SetVelo 200 (a 0.2 u stall)")
 def test_bad_feed_stop_starts_without_a_stall():
     core, _ = enabled_at()
     rows = run_feeds(core, lambda t: (200.0 * t, 200.0, 0.0), 1, 100)
@@ -375,10 +372,6 @@ def test_target_position_is_shown(ptype, pos, want):
     assert float(core.nctoplc[0]["TargetPos"]) == pytest.approx(want, abs=1e-9)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: InTargetPosition is only evaluated at 'logical standstill' "
-                   "(monitoring: standstill = no job); the external generator's job is numbered (HasJob), so "
-                   "the flag never comes while it is enabled (TcMC 4.16: TRUE as soon as Position is reached); "
-                   "it comes only after MC_ExtSetPointGenDisable")
 def test_in_target_position_when_the_fed_motion_reaches_position():
     core = powered(1, SimTimeConstant=0.0)
     feed(core, 0.0)

@@ -275,20 +275,20 @@ def test_reset_while_armed_ends_it_with_latch_disabled():
     assert probe(core)[1:3] == (ERROR, 0)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: structs.json NCJOBS ProbeState says ABORTED on disable, but "
-                   "Enable FALSE (NcCore._derive_state) does not touch the probe stage: the latch stays armed "
-                   "(also: that doc says ABORTED on reset, the code and the module say ERROR 0x4B0C)")
-def test_disable_while_armed_aborts_the_probe_cycle():
+def test_disable_leaves_the_latch_armed_and_reset_ends_it_with_0x4b0c():
+    """The documented choice (structs.json ProbeState): Enable FALSE does not disarm the latch (a probe
+    can record an axis moved with its controller off); MC_Reset does, ERROR 0x4B0C in ProbeErrorId."""
     core = powered(1, **PATTERN)
     cmd(core, "TouchProbe")
     core.step()
     power(core, ctrl=0)
     core.step()
-    assert probe(core)[1] == ABORTED and tp_state(core) == 0
+    assert probe(core)[1] == ACTIVE and tp_state(core) & 1
+    cmd(core, "Reset")
+    core.step()
+    assert probe(core)[1] == ERROR and int(core.ncjobs[0]["ProbeErrorId"]) == 0x4B0C and not tp_state(core) & 1
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: cmd_touch_probe numbers the probe cycle (q.newest) but only the "
-                   "slots part of the NCJOBS record is packed (_sync_slots): NewestCmdNo stays stale")
 def test_newest_cmd_no_shows_the_probe_number():
     core = powered(1, **PATTERN)
     r = cmd(core, "TouchProbe")

@@ -17,15 +17,10 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-import pytest
 
 from znc_testing import NcServerProcess
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-#: a known NC bug (nc_server/core/nc.py _stage_sync): the example's superposition on a geared slave
-#: kills the NC's cycle thread; the test runs in full once it is fixed
-SLAVE_CRASH = "SuperpositionStage.apply() missing 1 required positional argument"
 
 
 def run_example(name: str, endpoint: str, timeout: float = 90.0) -> tuple[int, str]:
@@ -51,9 +46,6 @@ def test_example_09_coupled_conveyor(start_nc: Callable[..., NcServerProcess]) -
     nc = start_nc(extra_args=("--config", str(EXAMPLES / "09_coupled_conveyor.toml")))
     assert "3 axes" in (nc.ready_line() or ""), nc.ready_line()
     rc, out = run_example("09_coupled_conveyor.py", nc.endpoint)
-    if rc != 0 and SLAVE_CRASH in nc.stderr():
-        pytest.xfail("BUG: a superposition on a coupled slave crashes the NC cycle (_stage_sync passes the bound "
-                     "SuperpositionStage.apply(core, rows) as CouplingStage.run's after_level(rows))")
     assert rc == 0, f"example 09 exited {rc}:\n{out[-3000:]}\nnc-server stderr:\n{nc.stderr()[-2000:]}"
     assert "all checks passed" in out and "CHECK FAILED" not in out, out
     # couplings: fixed 1:2 and the dynamic ratio 1.0 -> 1.5, seen in the set velocities

@@ -208,10 +208,6 @@ def test_ext_set_point_generator_follows_a_fed_ramp_and_disable_stops(start_nc: 
     assert all(x.a["SetPos"] == s.a["SetPos"] for x in rest), "it stays"
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: after MC_ExtSetPointGenDisable of a moving axis the NC brakes with a "
-                   "jobless internal HALT_RAMP (NcCore._start_ramp), so StateDWord.HasJob is clear while the axis "
-                   "still moves and nc_schema.motion_state() reports STANDSTILL (MC_ReadStatus.StandStill TRUE, "
-                   "NotMoving FALSE, SetVelo > 0) until it stands")
 def test_ext_set_point_disable_brake_is_not_standstill(start_nc: Callable[..., NcServerProcess],
                                                        xplc: Callable[..., ExtPlc]) -> None:
     # a soft AxisDec (100 u/s^2: ~0.2 s of braking from 20 u/s) so that many PLC cycles see the ramp

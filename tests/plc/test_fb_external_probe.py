@@ -377,10 +377,10 @@ def test_touch_probe_without_trigger_input(nc: ScriptNc) -> None:
 
 
 # ---- MC_TouchProbe: the drive's latch (the NC) ------------------------------------------------------------
-def probe_slot(nc: ScriptNc, no: int, state: int, pos: float = 0.0) -> None:
+def probe_slot(nc: ScriptNc, no: int, state: int, pos: float = 0.0, error: int = 0) -> None:
     assert nc.jobs is not None
     j = nc.jobs[0]
-    j["ProbeCmdNo"], j["ProbeState"], j["RecordedPosition"] = no, state, pos
+    j["ProbeCmdNo"], j["ProbeState"], j["RecordedPosition"], j["ProbeErrorId"] = no, state, pos, error
     if state == DONE:
         j["ProbeCounter"] += 1
 
@@ -445,10 +445,9 @@ def test_nc_probe_error(nc: ScriptNc) -> None:
     assert tp.Error and tp.ErrorID == ErrorCodes.MC_LATCH_DISABLED
     assert ref.ProbeState == E_TouchProbeState.TouchProbeInactive
     tp2, _, _ = nc_probe(nc, 6)
-    nc.state(IDLE | int(S.Error), ErrorCode=0x4550)
-    probe_slot(nc, 6, ERROR)
+    probe_slot(nc, 6, ERROR, error=0x4B0B)
     nc.cycle_once()
-    assert tp2.Error and tp2.ErrorID == 0x4550
+    assert tp2.Error and tp2.ErrorID == 0x4B0B  # the slot's ProbeErrorId
 
 
 @pytest.mark.parametrize("slot", [0, 3])

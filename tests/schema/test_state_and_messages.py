@@ -9,16 +9,19 @@ import nc_schema as s
 from nc_schema import MC_AxisStates as M, StateDWord as B
 
 CLC = int(B.ControlLoopClosed)
+NM = int(B.NotMoving)
 
 
 @pytest.mark.parametrize("bits,couple,expected", [
     (0, 0, M.MC_AXISSTATE_DISABLED),
     (int(B.Error), 0, M.MC_AXISSTATE_ERRORSTOP),
     (int(B.Error) | CLC | int(B.HasJob), 0, M.MC_AXISSTATE_ERRORSTOP),
-    (CLC, 0, M.MC_AXISSTATE_STANDSTILL),
+    (CLC | NM, 0, M.MC_AXISSTATE_STANDSTILL),
+    (CLC, 0, M.MC_AXISSTATE_DISCRETEMOTION),  # moving without a job (a superposition on a standing axis)
+    (CLC | int(B.HasBeenStopped), 0, M.MC_AXISSTATE_STOPPING),  # moving on an NC ramp without a CmdNo
     (CLC | int(B.MotionCommandsLocked), 0, M.MC_AXISSTATE_STOPPING),
     (CLC | int(B.HasBeenStopped) | int(B.HasJob), 0, M.MC_AXISSTATE_STOPPING),
-    (CLC | int(B.HasBeenStopped), 0, M.MC_AXISSTATE_STANDSTILL),
+    (CLC | NM | int(B.HasBeenStopped), 0, M.MC_AXISSTATE_STANDSTILL),
     (CLC | int(B.HomingBusy) | int(B.HasJob), 0, M.MC_AXISSTATE_HOMING),
     (CLC | int(B.HasJob), 3, M.MC_AXISSTATE_SYNCHRONIZEDMOTION),
     (CLC | int(B.HasJob) | int(B.ContinuousMotion), 0, M.MC_AXISSTATE_CONTINOUSMOTION),

@@ -55,8 +55,7 @@ class ExternalKind(JobKind):
         return None
 
     def on_begin(self, core: NcCore, i: int, job: Job) -> None:
-        core.external.enable(core, i)
-        core.axes.since_end[i] = 0.0  # target position monitoring towards Position (TcMC 4.16)
+        core.external.enable(core, i)  # (TargetPos = Position: the target window is watched when it stands)
 
 
 EXTERNAL = ExternalKind()

@@ -79,6 +79,10 @@ class GearInKind(JobKind):
                           f"axis {int(a.ids[m])} is (through a chain) a slave of axis {int(a.ids[i])}: the coupling would close a cycle")
         if a.traj_on[i] or abs(start.v) > _EPS_V or abs(start.a) > 1e-9 or core.superposition.on[i]:
             raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the slave is moving: TcMC couples at standstill only")
+        v = abs(float(job.data["ratio"]) * float(a.set_velo[m]))
+        if v > float(a.vmax[i]) * (1 + 1e-9):
+            raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,
+                          f"ratio x master velocity = {v:.6g} exceeds the slave's AxisVeloMax {float(a.vmax[i]):g}")
         return None
 
     def on_begin(self, core: NcCore, i: int, job: Job) -> None:
@@ -88,6 +92,11 @@ class GearInKind(JobKind):
 
 
 GEAR_IN = GearInKind()
+
+
+def v_end_of(start: StartState, jerk: float) -> float:
+    """The velocity reached when the acceleration is brought to zero with ``jerk`` [u/s]."""
+    return start.v + start.a * abs(start.a) / (2.0 * jerk)
 
 
 def _coupling_job(core: NcCore, i: int) -> Job:
@@ -118,12 +127,11 @@ def gear_out(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
         a.target_pos[i] = a.set_pos[i]
         core._sync(i)
         return {}
-    sense = 1.0 if start.v > 0 else -1.0
+    sense = 1.0 if v_end_of(start, float(a.jerk[i]) if not req.get("Jerk") else float(req["Jerk"])) > 0 else -1.0
     direction = int(MC_Direction.MC_Positive_Direction if sense > 0 else MC_Direction.MC_Negative_Direction)
     dyn_args = {k: req.get(k, 0.0) for k in ("Acceleration", "Deceleration", "Jerk")}
     jerk = dyn_args["Jerk"] or float(a.jerk[i])
-    # the velocity reached when the acceleration is brought to zero with this jerk
-    v_end = start.v + start.a * abs(start.a) / (2.0 * jerk)
+    v_end = v_end_of(start, jerk)
     v_end = math.copysign(min(abs(v_end), float(a.vmax[i])), v_end)
     D = E_DecoupleMode
     if mode == int(D.MC_DECOUPLEMODE_STOP):
@@ -137,7 +145,8 @@ def gear_out(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
         else:
             cmd, args = "MoveVelocity", {"Velocity": v, "Direction": direction, **dyn_args, "BufferMode": 0}
     else:
-        v = abs(v_end) if mode == int(D.MC_DECOUPLEMODE_NEWPOS) else req.get("Velocity", 0.0)
+        # (a hair above |v_end|: exactly the velocity at zero acceleration made ruckig plan a creeping profile)
+        v = min(abs(v_end) * (1 + 1e-9), float(a.vmax[i])) if mode == int(D.MC_DECOUPLEMODE_NEWPOS) else req.get("Velocity", 0.0)
         cmd, args = "MoveAbsolute", {"Position": req.get("Position", 0.0), "Velocity": v, **dyn_args, "BufferMode": 0}
     follow = {"cmd": cmd, "id": req.get("id"), "client": req.get("client", ""), **args}
     kind = KINDS[cmd]

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
-from nc_schema import AxisState, CoupleState, StateDWord
+from nc_schema import AxisState, CoupleState, ErrorCodes, StateDWord
 
 if TYPE_CHECKING:
     from ..nc import NcCore
@@ -81,7 +81,7 @@ class CouplingStage:
         self.slaves = np.zeros(0, dtype=np.intp)
         self.ignored_ratios = 0
         self.changed = False  # the table changed: NcCore refreshes what it derives from it
-        self._cache: tuple[list[tuple], np.ndarray, np.ndarray] | None = None
+        self._cache: tuple[list[tuple], np.ndarray, np.ndarray, np.ndarray] | None = None
         self._otg = Ruckig(1, cycle_time)
         self._inp = InputParameter(1)
         self._out = OutputParameter(1)
@@ -184,7 +184,7 @@ class CouplingStage:
         """A column changed: the per-level copies are made again at the next run."""
         self._cache = None
 
-    def _levels(self, core: NcCore) -> tuple[list[tuple], np.ndarray, np.ndarray]:
+    def _levels(self, core: NcCore) -> tuple[list[tuple], np.ndarray, np.ndarray, np.ndarray]:
         """Per level: rows, masters, ratio, s_base, m_base, any dyn, any synchronizing, AxisState;
         and the slaves' velocity and acceleration limits (copies: a cycle gathers less)."""
         if self._cache is None:
@@ -196,15 +196,16 @@ class CouplingStage:
             s = self.slaves
             lim = np.stack((a.vmax[s], np.maximum(a.acc[s], a.dec[s]))) * (1 + 1e-6)
             lim += np.array([[_EPS_V], [1e-6]])
-            self._cache = (lv, s, lim)
+            self._cache = (lv, s, lim, 0.5 / a.jerk[s])
         return self._cache
 
-    def run(self, core: NcCore, after_level: Callable[[np.ndarray], None] | None) -> list[int]:
+    def run(self, core: NcCore, after_level: Callable[[np.ndarray], None] | None) -> list[tuple[int, int]]:
         """Set-points of every slave, level by level; ``after_level(rows)`` runs after each level
-        (the superposition of those rows, before their own slaves read them). Returns the slave
-        rows that exceed their AxisVeloMax or acceleration limits (the NC faults them)."""
+        (the superposition of those rows, before their own slaves read them). Returns (row, code) of
+        the slaves beyond their limits, for the NC to fault: 0x4359 AxisVeloMax, 0x422F
+        max(AxisAcc, AxisDec)."""
         S = core.axes.S
-        levels, s, lim = self._levels(core)
+        levels, s, lim, half_inv_jerk = self._levels(core)
         for rows, masters, r, sb, mb, dyn, syncing, state in levels:
             pm = S[0, masters]
             if syncing:
@@ -232,9 +233,17 @@ class CouplingStage:
             core.axis_state[rows] = state
             if after_level is not None:
                 after_level(rows)
-        over = (np.abs(S[1:3, s]) > lim).any(axis=0)
-        if np.count_nonzero(over):
-            return s[over].tolist()
+        # the velocity is judged where it goes: from the next cycle's state (the stop ramp starts there),
+        # v + a|a|/(2 AxisJerk) is what it reaches even braked with its own jerk: so it stays within AxisVeloMax
+        dt = self.dt
+        v, acc, jerk = S[1, s], S[2, s], S[3, s]
+        a1 = acc + jerk * dt
+        v1 = v + (acc + 0.5 * jerk * dt) * dt
+        fast = np.abs(v1 + a1 * np.abs(a1) * half_inv_jerk) > lim[0]
+        hard = np.abs(acc) > lim[1]
+        if np.count_nonzero(fast) or np.count_nonzero(hard):
+            return [(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in s[fast].tolist()] + [
+                (int(i), int(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)) for i in s[hard & ~fast].tolist()]
         return []
 
     def _dyn_ratios(self, core: NcCore, rows: np.ndarray, gr: np.ndarray) -> np.ndarray | None:
@@ -279,7 +288,8 @@ class CouplingStage:
         inp.current_velocity = [float(prev[1])]
         inp.current_acceleration = [float(prev[2])]
         acc_lim = float(max(a.acc[i], a.dec[i]))
-        inp.target_velocity = [r * float(a.set_velo[m])]
+        vmax = float(a.vmax[i])
+        inp.target_velocity = [max(-vmax, min(vmax, r * float(a.set_velo[m])))]  # (beyond: the limit check faults)
         inp.target_acceleration = [max(-acc_lim, min(acc_lim, r * float(a.set_acc[m])))]
         inp.max_velocity = [float(a.vmax[i])]
         inp.max_acceleration = [acc_lim]

@@ -99,6 +99,9 @@ class ExternalStage:
             follow = follow | starts
         bad = follow & (~ok | (step > reach) | (np.abs(v) > a.vmax[rows] * (1 + 1e-6) + _EPS_V))
         apply = follow & ~bad
+        if bad.any():  # the fault ramp starts next cycle: this one continues with the last velocity
+            rb = rows[bad]
+            S[0, rb] += S[1, rb] * self.dt
         r = rows[apply]
         S[0, r], S[1, r], S[2, r], S[3, r] = p[apply], v[apply], f[2][apply], 0.0
         held = rows[~follow]

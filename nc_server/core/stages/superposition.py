@@ -23,8 +23,8 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, StateDWord
 
-from ..planning import StartState, plan_velocity
-from ..profile import N_SEGMENTS, evaluate
+from ..planning import Dynamics, StartState, plan_velocity
+from ..profile import N_SEGMENTS, evaluate, velocity_extrema
 
 if TYPE_CHECKING:
     from ..nc import NcCore
@@ -57,6 +57,7 @@ class SuperpositionStage:
         self.error = np.zeros(n, dtype=np.uint32)
         self.actual = np.zeros((3, n))              # ActualDistance, ActualVelocityDiff, ActualLength
         self.end_error = np.zeros(n, dtype=np.uint32)  # the error the running one ends with (0x4243)
+        self.dyn: list[Dynamics | None] = [None] * n  # the command's dynamics (MC_AbortSuperposition brakes with them)
         self.rows = np.zeros(0, dtype=np.intp)
         self._values: np.ndarray | None = None     # this cycle's (4, len(rows)) offsets
         self.changed: list[int] = []               # rows whose slot changed (job records)
@@ -65,8 +66,10 @@ class SuperpositionStage:
     def active(self) -> bool:
         return bool(self.rows.size)
 
-    def start(self, i: int, plan: Plan, cmd_no: int, actual: tuple[float, float, float], end_error: int) -> None:
+    def start(self, i: int, plan: Plan, cmd_no: int, actual: tuple[float, float, float], end_error: int,
+              dyn: Dynamics | None = None) -> None:
         """Run ``plan`` (from the current offset state) as superposition ``cmd_no`` of row ``i``."""
+        self.dyn[i] = dyn
         if self.on[i] and self.state[i] == int(CmdState.ACTIVE):
             self.state[i] = int(CmdState.ABORTED)  # (a new one takes over)
         self.seg[:, i, :] = plan.seg
@@ -90,7 +93,7 @@ class SuperpositionStage:
             self.state[i] = int(CmdState.ABORTED)
             self.changed.append(i)
         a = core.axes
-        dyn = core.dynamics(i, {}, None)
+        dyn = self.dyn[i] or core.dynamics(i, {}, None)
         try:
             plan = plan_velocity(self.offset_state(i), 0.0, dyn.with_(velocity=float(a.vmax[i])))
         except Exception:  # cannot plan a brake: fold what is applied now (the NC's stop rule: never keep moving)
@@ -161,10 +164,15 @@ class SuperpositionStage:
         return done.tolist()
 
     def limits(self, core: NcCore) -> list[int]:
-        """Rows whose total velocity exceeds AxisVeloMax (the NC faults them with 0x4359)."""
+        """Rows whose total velocity goes beyond AxisVeloMax (the NC faults them with 0x4359): judged
+        as v + a|a|/(2 AxisJerk), where it gets to even when braked at once."""
         r = self.rows
         a = core.axes
-        return r[np.abs(a.S[1, r]) > a.vmax[r] * (1 + 1e-6) + _EPS_V].tolist()
+        dt = self.dt
+        v, acc, jerk = a.S[1, r], a.S[2, r], a.S[3, r]
+        a1 = acc + jerk * dt  # (from the next cycle's state, where a stop ramp would start)
+        v1 = v + (acc + 0.5 * jerk * dt) * dt
+        return r[np.abs(v1 + a1 * np.abs(a1) / (2.0 * a.jerk[r])) > a.vmax[r] * (1 + 1e-6) + _EPS_V].tolist()
 
 
 _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
@@ -205,9 +213,15 @@ def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
         raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, str(exc)) from None
     except Exception as exc:  # (planning.PlanningError)
         raise NcError(ErrorCodes.NC_MOTION_NOT_REALIZED, f"the superposition cannot be planned ({exc})") from None
+    # the total velocity must stay within AxisVeloMax (the basic motion as it is now plus the offset's peak)
+    lo, hi = velocity_extrema(sp.plan.seg)
+    vmax = float(core.axes.vmax[i])
+    if max(abs(base.v + lo), abs(base.v + hi)) > vmax * (1 + 1e-9):
+        raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,
+                      f"velocity {base.v:.6g} + superimposed up to {sp.velocity_diff:.6g} would exceed AxisVeloMax {vmax:g}")
     q = core.queues[i]
     cmd_no = q.newest = next_cmdno(q.newest)
-    stage.start(i, sp.plan, cmd_no, (sp.distance, sp.velocity_diff, sp.length), _INCOMPLETE if sp.incomplete else 0)
+    stage.start(i, sp.plan, cmd_no, (sp.distance, sp.velocity_diff, sp.length), _INCOMPLETE if sp.incomplete else 0, dyn)
     stage.changed.append(i)
     core._state_dirty = True
     return {"cmd_no": cmd_no, "value": {"ActualDistance": sp.distance, "ActualVelocityDiff": sp.velocity_diff,
