@@ -17,7 +17,6 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-
 from znc_testing import NcServerProcess
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
