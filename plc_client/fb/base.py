@@ -220,6 +220,21 @@ class ExecuteBlock(FunctionBlock):
             self._pending = None
         return self.Axis is not None and self.Axis.Status.NcCycleCounter >= self._cycle_no
 
+    def _accepted(self) -> tuple[int, int, dict[str, Any]] | None:
+        """(CmdNo, cycle, reply) once the NC accepted the command with a number; None while waiting
+        (or after the block finished: a lost axis, a refusal, a timeout, CmdNo 0 -> 0x4B65)."""
+        if self._lost_axis():
+            return None
+        reply = self._await_reply()
+        if reply is None:
+            return None
+        no = int(reply.get("CmdNo", 0))
+        if not no:
+            self._finish("Error", ErrorCodes.MC_CMD_NUMBER_ZERO)
+            return None
+        self._pending = None
+        return no, int(reply.get("cycle", 0)), reply
+
     def _await_reply(self) -> dict[str, Any] | None:
         """The reply once it arrived (error 0); finishes with Error on rejection/timeout."""
         p = self._pending

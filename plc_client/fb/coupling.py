@@ -188,17 +188,10 @@ class _GearInBlock(MotionBlock):
         """True once the reply's CmdNo is known; finishes with Error on loss/refusal/timeout."""
         if self._cmdno:
             return True
-        if self._lost_axis():
+        got = self._accepted()
+        if got is None:
             return False
-        reply = self._await_reply()
-        if reply is None:
-            return False
-        cmdno = int(reply.get("CmdNo", 0))
-        if not cmdno:
-            self._finish("Error", ErrorCodes.MC_CMD_NUMBER_ZERO)
-            return False
-        self._cmdno, self._cmd_cycle = cmdno, int(reply.get("cycle", 0))
-        self._pending = None
+        self._cmdno, self._cmd_cycle, _ = got
         return True
 
     # -- following (MotionBlock calls these) ---------------------------------------------

@@ -167,17 +167,10 @@ class MotionBlock(ExecuteBlock):
 
     def _progress(self) -> None:
         if not self._cmdno:
-            if self._lost_axis():
+            got = self._accepted()
+            if got is None:
                 return
-            reply = self._await_reply()
-            if reply is None:
-                return
-            cmdno = int(reply.get("CmdNo", 0))
-            if not cmdno:
-                self._finish("Error", ErrorCodes.MC_CMD_NUMBER_ZERO)
-                return
-            self._cmdno, self._cmd_cycle = cmdno, int(reply.get("cycle", 0))
-            self._pending = None
+            self._cmdno, self._cmd_cycle, _ = got
         self._follow()
 
 

@@ -214,17 +214,10 @@ class MC_TouchProbe(_TriggerBlock):
                 self._watch_plc_event()
             return
         if not self._probe_no:
-            if self._lost_axis():
+            got = self._accepted()
+            if got is None:
                 return
-            reply = self._await_reply()
-            if reply is None:
-                return
-            no = int(reply.get("CmdNo", 0))
-            if not no:
-                self._finish("Error", ErrorCodes.MC_CMD_NUMBER_ZERO)
-                return
-            self._probe_no, self._probe_cycle = no, int(reply.get("cycle", 0))
-            self._pending = None
+            self._probe_no, self._probe_cycle, _ = got
         self._follow()
 
     def _watch_plc_event(self) -> None:

@@ -102,17 +102,10 @@ class _SuperBlock(ExecuteBlock):
 
     def _progress(self) -> None:
         if not self._super_no:
-            if self._lost_axis():
+            got = self._accepted()
+            if got is None:
                 return
-            reply = self._await_reply()
-            if reply is None:
-                return
-            no = int(reply.get("CmdNo", 0))
-            if not no:
-                self._finish("Error", ErrorCodes.MC_CMD_NUMBER_ZERO)
-                return
-            self._super_no, self._super_cycle = no, int(reply.get("cycle", 0))
-            self._pending = None
+            self._super_no, self._super_cycle, reply = got
             self._take_actuals(reply.get("Value"))
         self._follow()
 

@@ -19,7 +19,6 @@ import threading
 from typing import Any, Callable
 
 import numpy as np
-import pytest
 
 from nc_schema import NCTOPLC_DTYPE
 from nc_server.server.config import default_config_text

@@ -11,7 +11,7 @@ import numpy as np
 
 from nc_schema import AxisState, StateDWord
 
-from ..profile import N_SEGMENTS, evaluate_block
+from ..profile import N_SEGMENTS
 
 if TYPE_CHECKING:
     from ..nc import NcCore
