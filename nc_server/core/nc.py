@@ -44,7 +44,7 @@ from .jobs.stop import FAULT_RAMP, HALT_RAMP, STOP
 from .monitoring import monitor
 from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
-from .profile import evaluate, peak_velocity, velocity_extrema
+from .profile import evaluate, peak_velocity, stopping_distance, velocity_extrema
 from .jobs.external import ext_disable
 from .jobs.gearing import gear_out
 from .stages import CouplingStage, ExternalStage, ProbeStage, ProfileStage, SuperpositionStage
@@ -854,6 +854,38 @@ class NcCore:
             self._derive_state()
         self._fill_nctoplc()
 
+    def _release_slaves(self, m: int) -> None:
+        """Master row ``m`` lost its enable: its set position now follows its actual position, which
+        a slave cannot follow without a jump. Its slaves are decoupled (the coupling jobs end ABORTED)
+        and brake on their own ramps (their own slaves follow them)."""
+        for s in (self.coupling.master == m).nonzero()[0].tolist():
+            q = self.queues[s]
+            job = q.active
+            if job is None or job.kind.source != "coupling":
+                continue
+            q.end(job, CmdState.ABORTED)
+            self.superposition.abort(self, s)
+            self._start_ramp(s, HALT_RAMP, None)
+            self._sync(s)
+
+    def _stage_soft_limits(self) -> list[tuple[int, int]]:
+        """Slaves, superpositions and external set-points towards an enabled software limit: an axis
+        error (0x4463/0x4462) as soon as its fault ramp (AxisDec, AxisJerk) from the next cycle's
+        position could no longer stop at the limit, so it stops there (a plan's own jobs brake for
+        the limit themselves)."""
+        a = self.axes
+        rows = np.flatnonzero((self.coupling.master >= 0) | self.superposition.on | self.external.on)
+        rows = rows[a.en_max[rows] | a.en_min[rows]]
+        if not rows.size:
+            return []
+        p, v = a.set_pos[rows], a.set_velo[rows]
+        end = p + v * self.cycle_time + np.sign(v) * stopping_distance(v, a.set_acc[rows], a.dec[rows], a.jerk[rows])
+        out = [(int(i), int(ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING))
+               for i in rows[a.en_max[rows] & (v > 0) & (end > a.max_lim[rows])].tolist()]
+        out += [(int(i), int(ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING))
+                for i in rows[a.en_min[rows] & (v < 0) & (end < a.min_lim[rows])].tolist()]
+        return out
+
     def _apply_superposition(self, rows: np.ndarray) -> None:
         self.superposition.apply(self, rows)
 
@@ -871,7 +903,7 @@ class NcCore:
         sup, cpl, ext = self.superposition, self.coupling, self.external
         over: list[tuple[int, int]] = []
         if ext.active:
-            over += [(i, ErrorCodes.NC_AXIS_SET_VELOCITY) for i in ext.run(self)]
+            over += ext.run(self)
         if sup.active:
             sup.evaluate()
             if cpl.active:
@@ -887,8 +919,9 @@ class NcCore:
                     self._sync_slots(i)
                 self._state_dirty = True
         if sup.active:
-            over += [(i, ErrorCodes.NC_AXIS_SET_VELOCITY) for i in sup.limits(self)]
+            over += sup.limits(self)
             sup.ended(self)
+        over += self._stage_soft_limits()
         self._flush_slots()
         if ext.changed:
             ext.changed = False
@@ -1000,6 +1033,7 @@ class NcCore:
                     self.superposition.abort(self, i)
                     self.clear_profile(i)
                     self._sync(i)
+                    self._release_slaves(i)
             a.enabled = enabled
             self._off_rows = (~enabled).nonzero()[0]
             self._state_dirty = False
@@ -1015,7 +1049,7 @@ class NcCore:
         if np.count_nonzero(watched):  # (np.count_nonzero: far cheaper than ndarray.any here)
             for k in np.unique(watch[watched]).tolist():
                 self._watch_rows.append((KINDS_LIST[k], (watch == k).nonzero()[0]))
-        self._feed_rows = (a.driving & ~(self._feed_plus & self._feed_minus)).nonzero()[0]
+        self._feed_rows = ((a.driving | self.superposition.on) & ~(self._feed_plus & self._feed_minus)).nonzero()[0]
         standstill = ~(a.traj_on | job)
         standstill &= enabled
         self._watch = (a.lag_en & enabled, standstill, bool(np.count_nonzero(a.en_max) or np.count_nonzero(a.en_min)),
@@ -1204,7 +1238,7 @@ def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     core.probe.disarm_on_reset(i)
     if core.coupling.is_slave(i) or core.external.on[i]:
         return {}  # a stage drives it (no error: an error ends the coupling/generator): nothing to reset
-    if a.traj_on[i]:
+    if a.traj_on[i] or core.superposition.on[i]:
         if a.error[i] or a.locked[i]:
             # still braking: clear the error/lock now, but the ramp goes on as a numbered stop
             # job, so the axis shows Stopping (HasJob + HasBeenStopped) until it stands

@@ -558,21 +558,25 @@ def test_enable_off_on_a_slave_aborts_the_coupling():
     assert abs(val(core, 0, "SetVelo") - 200.0) < 1e-9
 
 
-def test_enable_off_on_a_master_the_slaves_follow_its_set_position():
-    """The master's set position follows its actual position while disabled; the slaves stay coupled
-    and follow it (also when it is enabled and moves again)."""
+def test_enable_off_on_a_master_decouples_its_slaves_and_they_brake_alone():
+    """The master's set position follows its actual position while disabled, which a slave cannot
+    follow without a jump: its slaves are decoupled (the coupling job ABORTED) and brake on their own
+    ramps from their set-point state, continuously, without an error."""
     core, n = moving_pair()
-    fol = Follow(core, 1, 0, 0.5)
+    v0 = val(core, 1, "SetVelo")
+    assert v0 > 0
+    p_prev, v_prev = val(core, 1, "SetPos"), v0
     power(core, 0, ctrl=0)
-    run(core, 10, follows=(fol,))
+    for _ in range(400):
+        core.step()
+        p, v = val(core, 1, "SetPos"), val(core, 1, "SetVelo")
+        assert abs(p - p_prev - 0.5 * (v + v_prev) * core.cycle_time) < 1e-5  # no jump (jerk dt^3 / 6)
+        assert v <= v_prev + 1e-9  # braking, never faster
+        p_prev, v_prev = p, v
     assert val(core, 0, "SetPos") == val(core, 0, "ActPos") and val(core, 0, "SetVelo") == 0.0
-    assert_coupled(core, 1, 0, 0.5, n)
-    assert val(core, 1, "SetVelo") == 0.0
-    power(core, 0)
-    core.step()
-    m = do(core, 0, "MoveRelative", Distance=4.0, Velocity=100.0)["CmdNo"]
-    run(core, until=done(core, 0, m), follows=(fol,), max_cycles=1000)
-    assert_coupled(core, 1, 0, 0.5, n)
+    assert ended(core, 1)[n][0] == ABORTED
+    assert_single(core, 1)
+    assert val(core, 1, "SetVelo") == 0.0 and int(core.nctoplc[1]["ErrorCode"]) == 0
 
 
 def overspeeding(ratio: int = 3, **slave: Any) -> tuple[NcCore, int, Trace]:

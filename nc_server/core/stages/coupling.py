@@ -278,6 +278,12 @@ class CouplingStage:
         acc[np.searchsorted(rows, dm)] = (new[moved] - old[moved]) / self.dt * S[1, self.master[dm]]  # (rows ascend)
         return acc
 
+    def _update(self) -> Result:
+        try:
+            return self._otg.update(self._inp, self._out)
+        except Exception:  # (ruckig raises on inputs it cannot take)
+            return Result.Error
+
     def _synchronize(self, core: NcCore, i: int, m: int, prev: np.ndarray) -> None:
         """One cycle of a synchronizing slave: towards ratio x the master's velocity and acceleration
         with the slave's own dynamics; locked in position once it got there."""
@@ -291,22 +297,29 @@ class CouplingStage:
         vmax = float(a.vmax[i])
         inp.target_velocity = [max(-vmax, min(vmax, r * float(a.set_velo[m])))]  # (beyond: the limit check faults)
         inp.target_acceleration = [max(-acc_lim, min(acc_lim, r * float(a.set_acc[m])))]
+        jerk = float(a.jerk[i])
         inp.max_velocity = [float(a.vmax[i])]
         inp.max_acceleration = [acc_lim]
-        inp.max_jerk = [float(a.jerk[i])]
-        try:
-            res = self._otg.update(inp, out)
-        except Exception:  # (ruckig raises on inputs it cannot take)
-            res = Result.Error
+        inp.max_jerk = [jerk]
+        res = self._update()
         if res not in (Result.Working, Result.Finished):
-            # cannot synchronize from here (e.g. the target acceleration is out of reach): lock now
-            res = Result.Finished
-            p, v, acc = float(prev[0]) + float(prev[1]) * self.dt, float(prev[1]), 0.0
-        else:
+            inp.target_acceleration = [0.0]  # (a target acceleration out of reach from here: aim at 0 first)
+            res = self._update()
+        dt = self.dt
+        if res in (Result.Working, Result.Finished):
             p, v, acc = out.new_position[0], out.new_velocity[0], out.new_acceleration[0]
+        else:  # ruckig cannot plan: take the acceleration down with the jerk and try again next cycle
+            a0 = float(prev[2])
+            acc = a0 - math.copysign(min(abs(a0), jerk * dt), a0)
+            v = float(prev[1]) + 0.5 * (a0 + acc) * dt
+            p = float(prev[0]) + float(prev[1]) * dt + (a0 / 3.0 + acc / 6.0) * dt * dt
         a.set_pos[i], a.set_velo[i], a.set_acc[i] = p, v, acc
-        a.set_jerk[i] = (acc - float(prev[2])) / self.dt
-        if res == Result.Finished:
+        a.set_jerk[i] = (acc - float(prev[2])) / dt
+        # locked only where following the master is no step: velocity within a cycle of acceleration,
+        # acceleration within a cycle of jerk of ratio x the master's
+        locked = (res == Result.Finished and abs(v - r * float(a.set_velo[m])) <= acc_lim * dt
+                  and abs(acc - r * float(a.set_acc[m])) <= jerk * dt)
+        if locked:
             self.state[i] = SYNCHRON
             self.s_base[i] = p
             self.m_base[i] = self.m_last[i] = float(a.set_pos[m])

@@ -8,10 +8,12 @@ a generator whose acceleration is constant between its samples, and a jerk-limit
 deviation is of order jerk * (PLC cycle)^3 / 6. A feed is "new" when any of the three values
 changed. ExtSetDirection is informational (the direction bits come from the velocity).
 
-No jump: after MC_ExtSetPointGenEnable the axis holds its set position until a fed position lies
-within AxisVeloMax x 1.5 cycles of it (MC_ExtSetPointGenEnable feeds the current SetPos first);
-from then a fed set-point that would jump further in one cycle, or a fed velocity above
-AxisVeloMax, is an axis error 0x4359 (set velocity not allowed) and the axis brakes on its ramp.
+No jump: after MC_ExtSetPointGenEnable the axis holds its set position until a fed set-point
+matches where the axis is, within one cycle of the fed velocity (MC_ExtSetPointGenEnable feeds the
+current SetPos with velocity 0 first). From then each cycle's set-point must lie within half a cycle at AxisVeloMax of where the
+axis gets to at the mean of the last and the new velocity; a feed beyond, or a fed velocity above
+AxisVeloMax, is an axis error 0x4359 (set velocity not allowed), a fed acceleration above
+max(AxisAcc, AxisDec) is 0x422F; the axis then brakes on its ramp.
 A PLC that stops feeding is the watchdog's case: its PLCTONC times out (0x8F02), the axis stops.
 """
 from __future__ import annotations
@@ -20,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nc_schema import AxisState, StateDWord
+from nc_schema import AxisState, ErrorCodes, StateDWord
 
 if TYPE_CHECKING:
     from ..nc import NcCore
@@ -71,37 +73,46 @@ class ExternalStage:
     def fold(self, i: int, diff: float) -> None:
         self.offset[i] += diff
 
-    def run(self, core: NcCore) -> list[int]:
-        """Set-points of the enabled axes for this cycle. Returns the rows whose feed jumps or is
-        too fast (the NC faults them with 0x4359)."""
+    def run(self, core: NcCore) -> list[tuple[int, int]]:
+        """Set-points of the enabled axes for this cycle. Returns (row, code) of the feeds the NC
+        faults: 0x4359 a jump or a velocity above AxisVeloMax, 0x422F an acceleration above
+        max(AxisAcc, AxisDec)."""
         rows = self.rows
         a, S = core.axes, core.axes.S
+        dt = self.dt
         pc = core.plctonc[rows]
         feed = np.stack((pc["ExtSetPos"], pc["ExtSetVelo"], pc["ExtSetAcc"]))
         new = (feed != self.fed[:, rows]).any(axis=0)
         self.fed[:, rows[new]] = feed[:, new]
         tau = self.tau[rows]
         tau[new] = 0.0
-        tau[~new] += self.dt
+        tau[~new] += dt
         self.tau[rows] = tau
         f = self.fed[:, rows]
         p = f[0] + f[1] * tau + 0.5 * f[2] * tau * tau + self.offset[rows]
         v = f[1] + f[2] * tau
-        prev = S[0, rows]
-        reach = a.vmax[rows] * self.dt * 1.5 + 1e-9
-        step = np.abs(p - prev)
-        ok = np.isfinite(p) & np.isfinite(v)
+        prev_p, prev_v = S[0, rows], S[1, rows]
+        ok = np.isfinite(p) & np.isfinite(v) & np.isfinite(f[2])
         follow = self.following[rows]
-        starts = ~follow & ok & (step <= reach)
+        # where the axis gets to in this cycle at the mean of both velocities, and how far a feed may be
+        # from it while following: half a cycle at AxisVeloMax (the extrapolation error of a generator
+        # that feeds no acceleration is a T^2 / 2 per PLC cycle T)
+        dev = np.abs(p - (prev_p + 0.5 * (prev_v + v) * dt))
+        scale = np.maximum(np.abs(p), 1.0)
+        # (to start with: a feed within one cycle of its own velocity of the standing axis)
+        starts = ~follow & ok & (np.abs(p - prev_p) <= np.abs(v) * dt + 1e-9 * scale)
         if starts.any():
             self.following[rows[starts]] = True
             self.changed = True
             follow = follow | starts
-        bad = follow & (~ok | (step > reach) | (np.abs(v) > a.vmax[rows] * (1 + 1e-6) + _EPS_V))
+        vmax = a.vmax[rows]
+        jump = follow & (~ok | (dev > 0.5 * vmax * dt + 1e-9 * scale) | (np.abs(v) > vmax * (1 + 1e-6) + _EPS_V))
+        hard = follow & ok & ~jump & (np.abs(f[2]) > np.maximum(a.acc[rows], a.dec[rows]) * (1 + 1e-6) + 1e-6)
+        bad = jump | hard
         apply = follow & ~bad
         if bad.any():  # the fault ramp starts next cycle: this one continues with the last velocity
             rb = rows[bad]
-            S[0, rb] += S[1, rb] * self.dt
+            S[0, rb] += S[1, rb] * dt
         r = rows[apply]
         S[0, r], S[1, r], S[2, r], S[3, r] = p[apply], v[apply], f[2][apply], 0.0
         held = rows[~follow]
@@ -109,4 +120,7 @@ class ExternalStage:
         vv = S[1, rows]
         core.sp_dw[rows] = np.where(np.abs(vv) > _EPS_V, np.where(vv > 0, _POS, _NEG), _NOT_MOVING)
         core.axis_state[rows] = np.where(np.abs(vv) > _EPS_V, _RUNNING, np.uint32(0))
-        return rows[bad].tolist()
+        if not bad.any():
+            return []
+        return ([(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in rows[jump].tolist()]
+                + [(int(i), int(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)) for i in rows[hard].tolist()])

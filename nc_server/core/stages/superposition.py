@@ -164,15 +164,19 @@ class SuperpositionStage:
         return done.tolist()
 
     def limits(self, core: NcCore) -> list[int]:
-        """Rows whose total velocity goes beyond AxisVeloMax (the NC faults them with 0x4359): judged
-        as v + a|a|/(2 AxisJerk), where it gets to even when braked at once."""
+        """(row, code) of the rows whose total motion goes beyond AxisVeloMax (0x4359: judged as
+        v + a|a|/(2 AxisJerk) from the next cycle's state, where it gets to even braked at once) or
+        max(AxisAcc, AxisDec) (0x422F); the NC faults them."""
         r = self.rows
         a = core.axes
         dt = self.dt
         v, acc, jerk = a.S[1, r], a.S[2, r], a.S[3, r]
-        a1 = acc + jerk * dt  # (from the next cycle's state, where a stop ramp would start)
+        a1 = acc + jerk * dt
         v1 = v + (acc + 0.5 * jerk * dt) * dt
-        return r[np.abs(v1 + a1 * np.abs(a1) / (2.0 * a.jerk[r])) > a.vmax[r] * (1 + 1e-6) + _EPS_V].tolist()
+        fast = np.abs(v1 + a1 * np.abs(a1) / (2.0 * a.jerk[r])) > a.vmax[r] * (1 + 1e-6) + _EPS_V
+        hard = np.abs(acc) > np.maximum(a.acc[r], a.dec[r]) * (1 + 1e-6) + 1e-6
+        return ([(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in r[fast].tolist()]
+                + [(int(i), int(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)) for i in r[hard & ~fast].tolist()])
 
 
 _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
@@ -192,6 +196,8 @@ def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
     from nc_schema import NcError, next_cmdno
 
     core.check_startable(i)
+    if core.axes.homing[i]:
+        raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the axis is homing (PLCopen: Homing accepts only MC_Stop)")
     mode = req.get("Mode", 4)
     if mode not in (1, 2, 3, 4):
         raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_SuperpositionMode (1..4)")
@@ -220,6 +226,16 @@ def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
         raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,
                       f"velocity {base.v:.6g} + superimposed up to {sp.velocity_diff:.6g} would exceed AxisVeloMax {vmax:g}")
     q = core.queues[i]
+    job = q.running_numbered
+    a = core.axes
+    if a.en_max[i] or a.en_min[i]:
+        # where the basic motion ends (standing, or a positioning job's target) plus all offsets
+        basic_end = base.p if job is None else (job.target if job.target is not None and not job.continuous else None)
+        if basic_end is not None:
+            end = basic_end + sp.plan.end.p
+            if (a.en_max[i] and end > a.max_lim[i]) or (a.en_min[i] and end < a.min_lim[i]):
+                raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED,
+                              f"the superimposed motion would end at {end:.6g}, beyond a software limit")
     cmd_no = q.newest = next_cmdno(q.newest)
     stage.start(i, sp.plan, cmd_no, (sp.distance, sp.velocity_diff, sp.length), _INCOMPLETE if sp.incomplete else 0, dyn)
     stage.changed.append(i)

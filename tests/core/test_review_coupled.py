@@ -1,0 +1,158 @@
+"""Regressions from the independent review of coupled and superimposed motion (issue 7).
+
+Each test is a defect the review reproduced: a synchronization that locked with a velocity step,
+slaves of a disabled master, MC_Reset during a superposition, feed enables and software limits for
+superpositions and slaves, hostile external feeds, the acceleration of a superposition, and
+superpositions during homing.
+"""
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from nc_schema import ControlDWord, ErrorCodes as E
+from nc_server.core import AxisConfig, AxisParams, NcCore
+from tests.core.nc_helpers import cmd, power, powered, snapshot
+
+CT = 0.001
+
+
+@pytest.mark.parametrize("seed", range(0, 60, 3))
+def test_synchronizing_to_an_accelerating_master_never_steps_the_velocity(seed: int) -> None:
+    """A slave coupled to a moving master synchronizes without a velocity step, also where ruckig
+    cannot plan towards the master's acceleration (the review's seed 50 locked with a 318 u/s step)."""
+    rng = random.Random(seed if seed else 50)
+    core = powered(2)
+    r = rng.choice([0.3, -0.5, 1.0, 2.0, -2.5, 3.0])
+    acc, jerk = rng.choice([200.0, 1000.0, 1600.0]), rng.choice([2000.0, 20000.0, 1e5])
+    cmd(core, "MoveVelocity", axis=1, Velocity=rng.choice([50.0, 150.0, 300.0]), Direction=rng.choice([1, 3]),
+        Acceleration=acc, Deceleration=acc, Jerk=jerk)
+    for _ in range(rng.randrange(1, 200)):
+        core.step()
+    if cmd(core, "GearInFloat", axis=2, Master=1, GearRatio=r)["error"]:
+        return  # (refused: ratio x master velocity beyond the slave's AxisVeloMax)
+    pv, locked = float(core.nctoplc[1]["SetVelo"]), False
+    for _ in range(3000):
+        core.step()
+        rec = core.nctoplc[1]
+        v = float(rec["SetVelo"])
+        assert abs(v - pv) <= 5000.0 * CT * (1 + 1e-6), f"velocity step {pv} -> {v}"
+        pv = v
+        locked |= int(rec["AxisState"]) == 13
+        if int(rec["ErrorCode"]):
+            break
+    assert locked or int(core.nctoplc[1]["ErrorCode"])
+
+
+def test_mc_reset_during_a_superposition_of_a_standing_axis_does_not_jump() -> None:
+    core = powered(1, SimTimeConstant=0.01)
+    assert not cmd(core, "MoveSuperImposed", Mode=4, Distance=100.0, VelocityDiff=500.0, Length=1000.0)["error"]
+    for _ in range(150):
+        core.step()
+    p, v = float(core.nctoplc[0]["SetPos"]), float(core.nctoplc[0]["SetVelo"])
+    assert not cmd(core, "Reset")["error"]
+    core.step()
+    assert abs(float(core.nctoplc[0]["SetPos"]) - p - v * CT) < 0.01
+    for _ in range(2000):
+        core.step()
+    assert float(core.nctoplc[0]["SetPos"]) == pytest.approx(100.0, abs=1e-9)
+
+
+def test_a_superposition_needs_the_feed_enable_of_its_direction() -> None:
+    core = powered(1)
+    power(core, 0, ctrl=int(ControlDWord.Enable | ControlDWord.FeedEnableMinus))
+    core.step()
+    cmd(core, "MoveSuperImposed", Mode=4, Distance=10.0, VelocityDiff=50.0, Length=100.0)
+    for _ in range(50):
+        core.step()
+    assert int(core.nctoplc[0]["ErrorCode"]) == E.NC_AXIS_FEED_ENABLE_PLUS
+    assert float(core.nctoplc[0]["SetPos"]) < 1.0
+
+
+def test_a_superposition_beyond_a_software_limit_is_refused() -> None:
+    core = powered(1, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=50.0)
+    assert not cmd(core, "MoveAbsolute", Position=45.0, Velocity=100.0)["error"]
+    for _ in range(50):
+        core.step()
+    snap = snapshot(core)
+    r = cmd(core, "MoveSuperImposed", Mode=4, Distance=30.0, VelocityDiff=100.0, Length=1000.0)
+    assert r["error"] == E.NC_TARGET_POSITION_NOT_ALLOWED
+    assert snapshot(core) == snap
+
+
+def test_a_slave_stops_at_its_software_limit() -> None:
+    core = NcCore([AxisConfig(1, "M", AxisParams()),
+                   AxisConfig(2, "S", AxisParams(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=50.0))], CT)
+    power(core, 0)
+    power(core, 1)
+    core.step()
+    assert not cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=1)["error"]
+    assert not cmd(core, "MoveAbsolute", axis=1, Position=200.0, Velocity=500.0)["error"]
+    top = 0.0
+    for _ in range(3000):
+        core.step()
+        top = max(top, float(core.nctoplc[1]["SetPos"]))
+    assert top <= 50.0 + 500.0 * CT  # (noticed within a cycle)
+    assert int(core.nctoplc[1]["ErrorCode"]) == E.NC_SOFT_LIMIT_MAX_POSITIONING
+
+
+def _feed(core: NcCore, p: float, v: float = 0.0, acc: float = 0.0) -> None:
+    rec = core.plctonc[0].copy()
+    rec["ExtSetPos"], rec["ExtSetVelo"], rec["ExtSetAcc"] = p, v, acc
+    core.set_plctonc(0, rec)
+
+
+def test_external_enable_does_not_jump_to_a_stale_feed() -> None:
+    core = powered(1)
+    _feed(core, 1.4)  # stale: 1.4 u from the set position (less than 1.5 cycles at AxisVeloMax)
+    core.step()
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    for _ in range(5):
+        core.step()
+        assert float(core.nctoplc[0]["SetPos"]) == 0.0 and int(core.nctoplc[0]["ErrorCode"]) == 0
+
+
+def test_external_feeds_that_jump_or_accelerate_too_hard_are_axis_errors() -> None:
+    core = powered(1)
+    _feed(core, 0.0)
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    core.step()
+    _feed(core, 1.4)  # a jump with velocity 0, within 1.5 cycles at AxisVeloMax
+    core.step()
+    assert int(core.nctoplc[0]["ErrorCode"]) == E.NC_AXIS_SET_VELOCITY
+    core = powered(1)
+    _feed(core, 0.0)
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    core.step()
+    _feed(core, 0.0, 0.0, 1e9)
+    core.step()
+    assert int(core.nctoplc[0]["ErrorCode"]) == E.NC_ACCELERATION_NOT_ALLOWED
+    assert abs(float(core.nctoplc[0]["SetAcc"])) <= 5000.0
+
+
+def test_a_superposition_on_top_of_an_acceleration_is_an_error_not_a_silent_excess() -> None:
+    core = powered(1)
+    assert not cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)["error"]
+    for _ in range(30):
+        core.step()
+    assert not cmd(core, "MoveSuperImposed", Mode=3, Distance=20.0, VelocityDiff=400.0, Length=1e6)["error"]
+    worst = 0.0
+    for _ in range(400):
+        core.step()
+        worst = max(worst, abs(float(core.nctoplc[0]["SetAcc"])))
+        if int(core.nctoplc[0]["ErrorCode"]):
+            break
+    assert int(core.nctoplc[0]["ErrorCode"]) == E.NC_ACCELERATION_NOT_ALLOWED
+    assert worst <= 5000.0 + 2 * 50000.0 * CT  # (one cycle of both jerks at most)
+
+
+def test_no_superposition_during_homing() -> None:
+    core = powered(1, AxisCalibrationVelocityForward=50.0, AxisCalibrationVelocityBackward=10.0)
+    assert not cmd(core, "Home", Position=0.0, HomingMode=0)["error"]
+    for _ in range(50):
+        core.step()
+    snap = snapshot(core)
+    assert cmd(core, "MoveSuperImposed", Mode=4, Distance=10.0, VelocityDiff=50.0, Length=100.0)["error"] == \
+        E.MC_AXIS_CANNOT_BE_STARTED
+    assert snapshot(core) == snap
