@@ -913,21 +913,19 @@ class NcCore:
                 sup.apply(self, sup.rows)
         if cpl.active:
             over += cpl.run(self, self._apply_superposition if sup.active else None)
-            if cpl.changed:
-                cpl.changed = False
-                for i in cpl.slaves.tolist():
+            if cpl.changed_rows:
+                for i in cpl.changed_rows:
                     self._sync_slots(i)
-                self._state_dirty = True
+                cpl.changed_rows.clear()
         if sup.active:
             over += sup.limits(self)
             sup.ended(self)
         over += self._stage_soft_limits()
         self._flush_slots()
-        if ext.changed:
-            ext.changed = False
-            for i in ext.rows.tolist():
+        if ext.changed_rows:
+            for i in ext.changed_rows:
                 self._sync_slots(i)
-            self._state_dirty = True
+            ext.changed_rows.clear()
         for i, code in over:
             if not self.axes.error[i]:
                 _log.warning("axis %d: set-point beyond its limits (0x%X): stopped", int(self.axis_ids[i]), int(code))

@@ -80,7 +80,7 @@ class CouplingStage:
         self.levels: list[tuple[np.ndarray, np.ndarray]] = []  # (slave rows, their master rows) per depth
         self.slaves = np.zeros(0, dtype=np.intp)
         self.ignored_ratios = 0
-        self.changed = False  # the table changed: NcCore refreshes what it derives from it
+        self.changed_rows: list[int] = []  # slaves whose job record changed in a cycle (a synchronization locked)
         self._cache: tuple[list[tuple], np.ndarray, np.ndarray, np.ndarray] | None = None
         self._otg = Ruckig(1, cycle_time)
         self._inp = InputParameter(1)
@@ -176,7 +176,6 @@ class CouplingStage:
         cs[slave] = int(CoupleState.SLAVE)
         cs[slave & is_master] = int(CoupleState.MASTERSLAVE)
         self.couple_state = cs
-        self.changed = True
         self._cache = None
 
     # -- the cycle ----------------------------------------------------------------------------
@@ -323,7 +322,7 @@ class CouplingStage:
             self.state[i] = SYNCHRON
             self.s_base[i] = p
             self.m_base[i] = self.m_last[i] = float(a.set_pos[m])
-            self.changed = True
+            self.changed_rows.append(i)
             self._cache = None
         if not math.isfinite(p):  # never hand a non-finite set-point on
             a.set_pos[i], a.set_velo[i], a.set_acc[i] = float(prev[0]), 0.0, 0.0

@@ -49,7 +49,7 @@ class ExternalStage:
         self.tau = np.zeros(n)
         self.offset = np.zeros(n)
         self.rows = np.zeros(0, dtype=np.intp)
-        self.changed = False  # following flags changed: NcCore refreshes the job records
+        self.changed_rows: list[int] = []  # rows whose following flag changed (their job records)
 
     @property
     def active(self) -> bool:
@@ -61,14 +61,12 @@ class ExternalStage:
         self.fed[:, i] = np.nan  # whatever PLCTONC holds counts as a new feed
         self.offset[i] = 0.0
         self.rows = self.on.nonzero()[0]
-        self.changed = True
 
     def release(self, i: int) -> None:
         if not self.on[i]:
             return
         self.on[i] = self.following[i] = False
         self.rows = self.on.nonzero()[0]
-        self.changed = True
 
     def fold(self, i: int, diff: float) -> None:
         self.offset[i] += diff
@@ -103,7 +101,7 @@ class ExternalStage:
         starts = ~follow & ok & (np.abs(p - prev_p) <= np.abs(v) * dt + 1e-9 * scale)
         if starts.any():
             self.following[rows[starts]] = True
-            self.changed = True
+            self.changed_rows += rows[starts].tolist()
             follow = follow | starts
         vmax = a.vmax[rows]
         jump = follow & (~ok | (dev > 0.5 * vmax * dt + 1e-9 * scale) | (np.abs(v) > vmax * (1 + 1e-6) + _EPS_V))
