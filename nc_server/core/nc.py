@@ -1188,7 +1188,7 @@ class NcCore:
             return
         p = self.params[i]
         if kind.source == "coupling" and source == "coupling":
-            raise NcError(ErrorCodes.MC_AXIS_PROTECTED, f"axis {int(self.axis_ids[i])} is already coupled (MC_GearOut first)")
+            return  # (the coupling kind decides: GearInDyn may take its own coupling over)
         if source == "coupling" and not p.AxisAllowMotionCmdToSlave:
             raise NcError(ErrorCodes.NC_SLAVE_COMMAND_NOT_ALLOWED,
                           f"axis {int(self.axis_ids[i])} is a coupled slave (AxisAllowMotionCmdToSlave is off)")

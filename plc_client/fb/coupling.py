@@ -18,8 +18,10 @@ without them) and end as follows (zenoh-nc choices where the manual is silent):
   together with Busy (PLCopen: MC_GearIn stays Busy while it is responsible for the coupling),
   until the coupling ends. InGear, CommandAborted and Error are mutually exclusive.
 * The coupling job ends **DONE** (MC_GearOut / MC_GearOutExt decoupled the slave normally): the
-  block simply finishes - InGear and Busy fall, no CommandAborted, no Error (TcMC's MC_GearIn
-  has no Done output; PLCopen names MC_GearOut as the regular end of MC_GearIn's command).
+  block finishes with InGear as its result - Busy falls, InGear stays TRUE while Execute stays
+  TRUE (one cycle if it already fell), like a Done (TcMC: "InGear becomes TRUE if the coupling
+  was successful"; PLCopen names MC_GearOut as the regular end of MC_GearIn's command). Decoupled
+  before it ever was InGear (while synchronizing): CommandAborted.
 * It ends **ABORTED** (another command took the slave, MC_Stop, a disable, ...) or is pushed out
   of the job record by newer commands: CommandAborted.
 * It ends **ERROR**, or the slave's axis Error bit shows while it runs: Error with the job's
@@ -206,8 +208,9 @@ class _GearInBlock(MotionBlock):
         self._decoupled()
 
     def _decoupled(self) -> None:
-        """The coupling job ended DONE: decoupled normally (MC_GearOut): finish without a result."""
-        self._end_quietly()
+        """The coupling job ended DONE: decoupled normally (MC_GearOut): InGear is the result (it was
+        successful), CommandAborted if it never got synchronous."""
+        self._finish("InGear" if self.InGear else "CommandAborted")
 
     def _end_quietly(self) -> None:
         if self._pending is not None and not self._pending.done:
@@ -266,9 +269,12 @@ class MC_GearInDyn(_GearInBlock):
     Slave.
 
     Mechanism (wire contract): the block writes ``Slave.PlcToNc.GearRatio1 := GearRatio`` in
-    every cycle in which it is Busy and Execute is TRUE - in the cycle of the rising edge before
-    the ``GearInDyn`` request is sent, so the first PLCTONC frame of the coupling already
-    carries the ratio - and the NC reads PLCTONC.GearRatio1 of the slave in every NC cycle.
+    every cycle in which it is Busy and Execute is TRUE, from the cycle the NC accepted the
+    ``GearInDyn`` request on (a refused request changes nothing; the NC starts with the request's
+    GearRatio and takes GearRatio1 once it is the block's), and the NC reads PLCTONC.GearRatio1 of
+    the slave in every NC cycle. A new rising edge on a slave this block (or another GearInDyn)
+    still couples to the same master is accepted (TcMC 3.19: "a rising edge at Execute will then
+    be accepted"): the NC takes the coupling over at its current ratio, without a jump.
     Hence **the client running this block must be the one supplying the slave's PLCTONC, i.e.
     it runs the slave's MC_Power** (the NC applies only the claim holder's PLCTONC; a warning is
     logged if the slave is not controlled by this task, and the coupling then keeps its initial
@@ -301,13 +307,12 @@ class MC_GearInDyn(_GearInBlock):
         if not ax.controlled:
             log.warning("%s on %r: this task does not control the slave (no MC_Power): the NC will not see "
                         "GearRatio1 changes", type(self).__name__, ax)
-        self._write_ratio()
 
     def _progress(self) -> None:
-        if self.Execute:
-            self._write_ratio()
         if not self._take_reply():
             return
+        if self.Execute:
+            self._write_ratio()
         if not self.Execute:
             self._end_quietly()  # the falling edge finishes the command; the coupling stays
             return

@@ -156,3 +156,42 @@ def test_no_superposition_during_homing() -> None:
     assert cmd(core, "MoveSuperImposed", Mode=4, Distance=10.0, VelocityDiff=50.0, Length=100.0)["error"] == \
         E.MC_AXIS_CANNOT_BE_STARTED
     assert snapshot(core) == snap
+
+
+def _gear_ratio1(core: NcCore, i: int, r: float) -> None:
+    rec = core.plctonc[i].copy()
+    rec["GearRatio1"] = r
+    core.set_plctonc(i, rec)
+
+
+def test_gear_in_dyn_again_takes_its_coupling_over_without_a_jump() -> None:
+    """TcMC 3.19: after the falling edge 'a rising edge at Execute will then be accepted' - on the
+    slave still coupled at the last ratio: the new job takes over (the old one ABORTED), the ratio
+    moves on from where it is within the rate limit; a fixed GearIn is still refused (0x4B08)."""
+    core = powered(2)
+    _gear_ratio1(core, 1, 0.5)
+    first = cmd(core, "GearInDyn", axis=2, Master=1, GearRatio=0.5, Acceleration=1000.0)
+    assert not first["error"]
+    assert not cmd(core, "MoveVelocity", axis=1, Velocity=200.0, Direction=1)["error"]
+    for _ in range(300):
+        core.step()
+    snap = snapshot(core)
+    assert cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=1)["error"] == E.MC_AXIS_PROTECTED
+    assert snapshot(core) == snap
+    again = cmd(core, "GearInDyn", axis=2, Master=1, GearRatio=1.0, Acceleration=1000.0)
+    assert not again["error"] and again["CmdNo"] != first["CmdNo"]
+    pv = float(core.nctoplc[1]["SetVelo"])
+    for k in range(700):  # (0.5 at 1/s: Acceleration 1000 / master AxisVeloMax 1000)
+        if k == 5:
+            _gear_ratio1(core, 1, 1.0)  # the block writes its ratio once accepted
+        core.step()
+        v = float(core.nctoplc[1]["SetVelo"])
+        assert abs(v - pv) <= 1000.0 * CT * (1 + 1e-6) + 1e-9  # the rate limit, no step
+        pv = v
+        if k < 5:
+            assert float(core.ncjobs["GearRatio"][1]) == 0.5  # held until GearRatio1 is the block's
+    assert int(core.nctoplc[1]["CoupleState"]) == 3
+    assert float(core.ncjobs["GearRatio"][1]) == pytest.approx(1.0)
+    assert float(core.nctoplc[1]["SetVelo"]) == pytest.approx(200.0)
+    fates = {int(e["CmdNo"]): int(e["CmdState"]) for e in core.ncjobs[1]["Ended"]}
+    assert fates[first["CmdNo"]] == 3  # ABORTED: taken over

@@ -424,9 +424,10 @@ def test_gear_out_of_a_moving_slave_continues_at_constant_velocity(xp: ExtPlc) -
     xp.set("go", "MC_GearOut", refs={"Slave": 2}, Execute=True)
     go = xp.wait("go", ended, T)
     assert go.o["Done"] and go.a["CoupleState"] == 0, f"Done shows the slave decoupled: {go}"
-    # the gear-in block ends without a result: InGear and Busy fall, no Error, no CommandAborted
+    # the gear-in block ends with InGear as its result (Execute still TRUE): Busy falls, no Error,
+    # no CommandAborted
     gi = xp.wait("gi", lambda r: not r.o["Busy"], T)
-    assert not gi.o["InGear"], gi
+    assert gi.o["InGear"] and not gi.o["CommandAborted"] and not gi.o["Error"], gi
     clean(xp.history("gi"))
     clean(xp.history("go"))
     # the slave goes on at the velocity it had (master at constant velocity: exactly 50)
@@ -456,7 +457,7 @@ def test_gear_out_ext_newpos_ends_at_position(xp: ExtPlc) -> None:
     assert r.a["CoupleState"] == 0 and r.a["State"] == "STANDSTILL", r
     clean(xp.history("goe"))
     gi = xp.last("gi")
-    assert not gi.o["Busy"] and not gi.o["InGear"], gi
+    assert not gi.o["Busy"] and gi.o["InGear"] and not gi.o["CommandAborted"], gi  # (the coupling's result)
     clean(xp.history("gi"))
     # seamless: no velocity step of the slave at the decoupling (PLC samples 10 NC cycles apart)
     tr = xp.trace_of(2)

@@ -80,14 +80,18 @@ def test_gear_in_request_and_in_gear_after_synchronizing(gnc: ScriptNc) -> None:
     st["Execute"] = False
     gnc.cycle_once(3)
     assert gi.InGear and gi.Busy
-    # MC_GearOut ends the coupling normally: no result output, the block is simply free again
+    # MC_GearOut ends the coupling normally: InGear is the result (Execute fell: for one cycle)
     decouple(gnc, 7, DONE, next_cmdno=8)
     gnc.cycle_once()
-    assert not any((gi.InGear, gi.Busy, gi.CommandAborted, gi.Error)) and gi.ErrorID == 0
+    assert gi.InGear and not any((gi.Busy, gi.CommandAborted, gi.Error)) and gi.ErrorID == 0
+    gnc.cycle_once()
+    assert not any((gi.InGear, gi.Busy, gi.CommandAborted, gi.Error))
     assert len([p for p in gnc.port.sent if p.cmd == "GearIn"]) == 1
 
 
-def test_gear_out_with_execute_still_true_leaves_no_output(gnc: ScriptNc) -> None:
+def test_gear_out_with_execute_still_true_keeps_in_gear_as_the_result(gnc: ScriptNc) -> None:
+    """The coupling was successful: InGear stays TRUE (Busy FALSE) while Execute stays TRUE, like a
+    Done - while Execute is TRUE one output is TRUE (PLCopen output rules)."""
     gi = MC_GearIn()
     start_gear(gnc, gi, 7)
     couple(gnc, 7)
@@ -95,8 +99,9 @@ def test_gear_out_with_execute_still_true_leaves_no_output(gnc: ScriptNc) -> Non
     assert gi.InGear
     decouple(gnc, 7, DONE)  # at standstill: the coupling job itself is the last one, DONE
     gnc.cycle_once()
-    assert not gi.InGear and not gi.Busy and not gi.CommandAborted and not gi.Error
+    assert gi.InGear and not gi.Busy and not gi.CommandAborted and not gi.Error
     gnc.cycle_once(2)
+    assert gi.InGear
     assert len(gnc.port.sent) == 1, "no new command while Execute stays TRUE"
 
 
@@ -292,7 +297,7 @@ def test_axis_keyword_and_wrong_types_are_program_errors(gnc: ScriptNc) -> None:
 
 
 # ---- MC_GearInDyn --------------------------------------------------------------------------------------
-def test_gear_in_dyn_ratio_written_every_cycle_and_before_the_request(gnc: ScriptNc) -> None:
+def test_gear_in_dyn_ratio_written_every_cycle_once_accepted(gnc: ScriptNc) -> None:
     gd = MC_GearInDyn()
     at_send: list[float] = []
     orig = gnc.port._transmit
@@ -303,10 +308,12 @@ def test_gear_in_dyn_ratio_written_every_cycle_and_before_the_request(gnc: Scrip
 
     gnc.port._transmit = spy  # type: ignore[method-assign]
     st = start_gear(gnc, gd, 7, GearRatio=0.5, Acceleration=100.0)
-    assert at_send == [0.5], "GearRatio1 is written before the request is sent"
+    assert at_send == [0.0], "a request not accepted yet changes nothing (the NC starts with its GearRatio)"
     p = gnc.last_sent("GearInDyn")
     assert p.args == {"Master": 2, "GearRatio": 0.5, "Acceleration": 100.0, "Deceleration": 0.0, "Jerk": 0.0}
     couple(gnc, 7)
+    gnc.cycle_once()
+    assert gnc.ax.PlcToNc["GearRatio1"] == 0.5
     for r in (0.6, 0.7, -1.25, 2.0):
         st["GearRatio"] = r
         gnc.cycle_once()

@@ -6,6 +6,10 @@ set-points is then the coupling stage (:mod:`..stages.coupling`), not a plan. Th
 any job: DONE by MC_GearOut/MC_GearOutExt, ABORTED by another command that takes the slave
 (MC_Stop; a motion command with AxisAllowMotionCmdToSlave; Enable FALSE), ERROR on an axis error.
 
+MC_GearInDyn on a slave already coupled to the same master takes that coupling over (a new job,
+the old one ABORTED): the applied ratio stays and moves to the new one within the rate limit,
+without a jump (TcMC 3.19: after the falling edge "a rising edge at Execute will then be accepted").
+
 Refusals (nothing changes): RatioDenominator 0, a non-finite ratio or one beyond +/-1e6, the
 slave as its own master or a chain that would close a cycle: 0x4B06 (MC_PARAMETER_NOT_CORRECT,
 the Master or ratio input is not correct); an unknown master: 0x4012; an already coupled slave:
@@ -73,6 +77,8 @@ class GearInKind(JobKind):
         a, cpl = core.axes, core.coupling
         m = int(job.data["master"])
         if cpl.is_slave(i):
+            if job.data["dyn"] and int(cpl.master[i]) == m:
+                return None  # MC_GearInDyn again (TcMC 3.19): it takes the coupling over at its ratio
             raise NcError(ErrorCodes.MC_AXIS_PROTECTED, f"axis {int(a.ids[i])} is already coupled (MC_GearOut first)")
         if cpl.closes_cycle(i, m):
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT,

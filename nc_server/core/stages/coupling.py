@@ -117,6 +117,13 @@ class CouplingStage:
                 PLCTONC frame may arrive after the command: an older GearRatio1 is not its ratio).
         """
         a = core.axes
+        if dyn and self.master[i] == m:  # MC_GearInDyn again: the coupling goes on from its applied ratio
+            self.ratio_cmd[i] = ratio
+            self.dyn[i], self.rate[i] = True, rate
+            self.live[i] = False
+            self.gr_seen[i] = gear_ratio1
+            self._cache = None
+            return
         self.master[i] = m
         self.ratio[i] = self.ratio_cmd[i] = ratio
         self.dyn[i] = dyn
