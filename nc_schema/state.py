@@ -1,8 +1,7 @@
 """The one mapping from the cyclic interface to the PLCopen axis state.
 
-Both the NC (for its command acceptance checks) and the PLC clients (for
-``MC_ReadStatus`` and ``AXIS_REF.Status.MotionState``) call this, so they can
-never disagree. Tc2_MC2 does not publish its mapping; this is ours, checked in
+The PLC clients (``MC_ReadStatus``, ``AXIS_REF.Status.MotionState``) and every
+tool reading NCTOPLC call this one mapping, so they can never disagree. Tc2_MC2 does not publish its mapping; this is ours, checked in
 order (first match wins):
 
 ==================================================  ===========================
@@ -11,14 +10,14 @@ condition on NCTOPLC                                MC_AxisStates
 StateDWord.Error                                    ERRORSTOP
 not StateDWord.ControlLoopClosed                    DISABLED
 StateDWord.MotionCommandsLocked                     STOPPING (MC_Stop active)
-HasBeenStopped and (HasJob or not NotMoving)       STOPPING (stop ramp, also the NC's own ramp
-                                                    without a CmdNo, e.g. MC_ExtSetPointGenDisable
-                                                    of a moving axis)
+HasBeenStopped and (HasJob or not NotMoving)       STOPPING (a stop ramp)
 StateDWord.HomingBusy                               HOMING
 CoupleState in (SLAVE, MASTERSLAVE)                 SYNCHRONIZEDMOTION
 HasJob and ContinuousMotion                         CONTINOUSMOTION
-HasJob, or not NotMoving                            DISCRETEMOTION (a motion without a job: a
-                                                    superposition on a standing axis)
+HasJob, or not NotMoving                            DISCRETEMOTION (also a motion without a job: a
+                                                    superposition on a standing axis, the NC's
+                                                    brake ramp after MC_ExtSetPointGenDisable or
+                                                    of the slaves of a disabled master)
 otherwise                                           STANDSTILL
 ==================================================  ===========================
 

@@ -620,9 +620,8 @@ class NcCore:
             job.cmd_no = q.newest = next_cmdno(q.newest)
         job.state = int(CmdState.ACTIVE)
         q.active = job
-        if job.numbered or job.kind.internal:
-            a.stopped[i] = job.kind.is_stop
         if job.numbered:
+            a.stopped[i] = job.kind.is_stop
             q.shown = job
             if job.kind.locks:
                 a.locked[i] = True
@@ -870,20 +869,33 @@ class NcCore:
 
     def _stage_soft_limits(self) -> list[tuple[int, int]]:
         """Slaves, superpositions and external set-points towards an enabled software limit: an axis
-        error (0x4463/0x4462) as soon as its fault ramp (AxisDec, AxisJerk) from the next cycle's
-        position could no longer stop at the limit, so it stops there (a plan's own jobs brake for
-        the limit themselves)."""
+        error (0x4463/0x4462) in the first cycle in which the stop the fault ramp makes from this
+        cycle's state (AxisDec, AxisJerk) would end beyond the limit (a plan's own jobs brake for the
+        limit themselves). A bound of the stop distance picks the candidates, an exact plan decides,
+        so a motion that ends exactly at the limit is no fault; the price of deciding on this cycle's
+        state is that a real violation is noticed up to one cycle late (the stop then ends beyond the
+        limit by what the stop's end moved in that cycle, a fraction of the distance per cycle)."""
         a = self.axes
         rows = np.flatnonzero((self.coupling.master >= 0) | self.superposition.on | self.external.on)
         rows = rows[a.en_max[rows] | a.en_min[rows]]
         if not rows.size:
             return []
-        p, v = a.set_pos[rows], a.set_velo[rows]
-        end = p + v * self.cycle_time + np.sign(v) * stopping_distance(v, a.set_acc[rows], a.dec[rows], a.jerk[rows])
-        out = [(int(i), int(ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING))
-               for i in rows[a.en_max[rows] & (v > 0) & (end > a.max_lim[rows])].tolist()]
-        out += [(int(i), int(ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING))
-                for i in rows[a.en_min[rows] & (v < 0) & (end < a.min_lim[rows])].tolist()]
+        p, v, acc = a.set_pos[rows], a.set_velo[rows], a.set_acc[rows]
+        bound = p + np.sign(v) * stopping_distance(v, acc, a.dec[rows], a.jerk[rows])
+        cand = (a.en_max[rows] & (v > 0) & (bound > a.max_lim[rows])) | (a.en_min[rows] & (v < 0) & (bound < a.min_lim[rows]))
+        out: list[tuple[int, int]] = []
+        for k in np.flatnonzero(cand).tolist():
+            i = int(rows[k])
+            d = self.stop_dynamics(i, float(a.dec[i]), float(a.jerk[i]))  # (the fault ramp's)
+            try:
+                end = plan_velocity(StartState(float(p[k]), float(v[k]), float(acc[k])), 0.0, d).end.p
+            except PlanningError:
+                end = float(bound[k])
+            tol = 1e-6 * max(1.0, abs(end))
+            if v[k] > 0 and a.en_max[i] and end > a.max_lim[i] + tol:
+                out.append((i, int(ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING)))
+            elif v[k] < 0 and a.en_min[i] and end < a.min_lim[i] - tol:
+                out.append((i, int(ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING)))
         return out
 
     def _apply_superposition(self, rows: np.ndarray) -> None:

@@ -31,6 +31,11 @@ SYNC_ENABLED, SYNC_FOLLOWING = 1, 2
 
 
 # -- helpers ------------------------------------------------------------------------------------------
+#: most tests feed a velocity from the first sample on (a velocity step): an axis whose AxisAcc allows
+#: that in one cycle (the NC faults velocity steps beyond max(AxisAcc, AxisDec) x the feed period)
+STEPS = dict(AxisAcc=1e6, AxisDec=1e6)
+
+
 def feed(core, p, v=0.0, a=0.0, i=0):
     """MC_ExtSetPointGenFeed: the PLC's next PLCTONC with the set-point (applied from the next step)."""
     rec = core.plctonc[i].copy()
@@ -63,7 +68,7 @@ def ended(core, i=0):
 
 def enabled_at(x0=0.0, **params):
     """A standing axis at ``x0`` with the generator enabled and following (first feed: the SetPos)."""
-    core = powered(1, SimTimeConstant=0.0, **params)
+    core = powered(1, SimTimeConstant=0.0, **{**STEPS, **params})
     if x0:
         assert cmd(core, "SetActualPosition", Position=x0)["error"] == 0
         core.step()
@@ -192,7 +197,7 @@ def test_jerk_limited_feeds_deviate_at_most_by_the_taylor_bound(ratio):
 
 # -- the no-jump rule -----------------------------------------------------------------------------------
 def test_first_feed_far_away_is_not_applied_until_a_matching_one():
-    core = powered(1, SimTimeConstant=0.0)
+    core = powered(1, SimTimeConstant=0.0, **STEPS)
     assert cmd(core, "SetActualPosition", Position=50.0)["error"] == 0
     core.step()
     assert cmd(core, "ExtSetPointGenEnable")["error"] == 0  # PLCTONC still holds ExtSetPos 0: 50 away
@@ -289,7 +294,7 @@ def test_disable_while_moving_brakes_from_the_set_point_state():
     ("GearIn", dict(Master=2, RatioNumerator=1, RatioDenominator=1)),
 ])
 def test_motion_commands_while_enabled_are_refused_protected(name, args):
-    core = powered(2, SimTimeConstant=0.0)
+    core = powered(2, SimTimeConstant=0.0, **STEPS)
     assert cmd(core, "ExtSetPointGenEnable")["error"] == 0
     run_feeds(core, lambda t: (50.0 * t, 50.0, 0.0), 2, 20)
     snap = snapshot(core)
@@ -360,7 +365,7 @@ def test_bad_position_type_is_refused(ptype):
 @pytest.mark.parametrize("ptype,pos,want", [(1, 100.0, 100.0), (2, 10.0, 410.0), (5, 30.0, 390.0)])
 def test_target_position_is_shown(ptype, pos, want):
     """Position / PositionType: absolute, relative to the set position (400), modulo (period 360)."""
-    core = powered(1, SimTimeConstant=0.0)
+    core = powered(1, SimTimeConstant=0.0, **STEPS)
     assert cmd(core, "SetActualPosition", Position=400.0)["error"] == 0
     core.step()
     feed(core, 400.0)
@@ -373,7 +378,7 @@ def test_target_position_is_shown(ptype, pos, want):
 
 
 def test_in_target_position_when_the_fed_motion_reaches_position():
-    core = powered(1, SimTimeConstant=0.0)
+    core = powered(1, SimTimeConstant=0.0, **STEPS)
     feed(core, 0.0)
     assert cmd(core, "ExtSetPointGenEnable", Position=1.0)["error"] == 0
     run_feeds(core, lambda t: (min(100.0 * t, 1.0), 100.0 if t < 0.01 else 0.0, 0.0), 1, 11)
@@ -383,7 +388,7 @@ def test_in_target_position_when_the_fed_motion_reaches_position():
 
 
 def test_not_in_target_while_away_from_position():
-    core = powered(1, SimTimeConstant=0.0)
+    core = powered(1, SimTimeConstant=0.0, **STEPS)
     feed(core, 0.0)
     assert cmd(core, "ExtSetPointGenEnable", Position=5.0)["error"] == 0
     run_feeds(core, lambda t: (min(100.0 * t, 1.0), 100.0 if t < 0.01 else 0.0, 0.0), 1, 100)
@@ -392,7 +397,7 @@ def test_not_in_target_while_away_from_position():
 
 # -- several axes, a superposition on top ----------------------------------------------------------------
 def test_a_bad_feed_faults_only_its_axis():
-    core = powered(2, SimTimeConstant=0.0)
+    core = powered(2, SimTimeConstant=0.0, **STEPS)
     for i in (0, 1):
         feed(core, 0.0, i=i)
         assert cmd(core, "ExtSetPointGenEnable", axis=i + 1)["error"] == 0

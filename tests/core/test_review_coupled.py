@@ -81,6 +81,23 @@ def test_a_superposition_beyond_a_software_limit_is_refused() -> None:
     assert snapshot(core) == snap
 
 
+def test_a_gantry_move_exactly_to_the_limit_is_no_fault() -> None:
+    """Master and ratio-1 slave with the same limit 50: the master's MoveAbsolute to 50 (and -50) is
+    followed to the limit without an error (the review found a bound of the stop distance faulting it)."""
+    lim = dict(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=50.0, AxisEnMinSoftPosLimit=True, AxisMinSoftPosLimit=-50.0)
+    for target, velo in ((50.0, 500.0), (-50.0, 500.0), (50.0, 1000.0)):
+        core = NcCore([AxisConfig(1, "M", AxisParams(**lim)), AxisConfig(2, "S", AxisParams(**lim))], CT)
+        power(core, 0)
+        power(core, 1)
+        core.step()
+        assert not cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=1)["error"]
+        assert not cmd(core, "MoveAbsolute", axis=1, Position=target, Velocity=velo)["error"]
+        for _ in range(3000):
+            core.step()
+        assert int(core.nctoplc[1]["ErrorCode"]) == 0
+        assert float(core.nctoplc[1]["SetPos"]) == pytest.approx(target, abs=1e-9)
+
+
 def test_a_slave_stops_at_its_software_limit() -> None:
     core = NcCore([AxisConfig(1, "M", AxisParams()),
                    AxisConfig(2, "S", AxisParams(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=50.0))], CT)
@@ -93,7 +110,10 @@ def test_a_slave_stops_at_its_software_limit() -> None:
     for _ in range(3000):
         core.step()
         top = max(top, float(core.nctoplc[1]["SetPos"]))
-    assert top <= 50.0 + 500.0 * CT  # (noticed within a cycle)
+    # decided on each cycle's exact stop (no false faults of moves that end at the limit): noticed up to
+    # a cycle late, the stop ends beyond the limit by what its end moved in that cycle (here ~1.2 u at
+    # 300-500 u/s while accelerating); TwinCAT's own monitoring allows the lag window (5 u) beyond
+    assert top <= 50.0 + 2.0
     assert int(core.nctoplc[1]["ErrorCode"]) == E.NC_SOFT_LIMIT_MAX_POSITIONING
 
 
@@ -195,3 +215,65 @@ def test_gear_in_dyn_again_takes_its_coupling_over_without_a_jump() -> None:
     assert float(core.nctoplc[1]["SetVelo"]) == pytest.approx(200.0)
     fates = {int(e["CmdNo"]): int(e["CmdState"]) for e in core.ncjobs[1]["Ended"]}
     assert fates[first["CmdNo"]] == 3  # ABORTED: taken over
+
+
+@pytest.mark.parametrize("acc,vmax,ratio", [(5000.0, 1000.0, 10), (20000.0, 1000.0, 4), (50000.0, 1000.0, 10),
+                                            (1000.0, 10.0, 10), (200000.0, 500.0, 10)])
+def test_external_feeds_without_acceleration_at_the_axis_acceleration_are_no_fault(acc: float, vmax: float,
+                                                                                   ratio: int) -> None:
+    """A PLC generator that feeds position and velocity only (ExtSetAcc 0), once per PLC cycle, ramping
+    at AxisAcc: the feeds' extrapolation errors (a T^2 / 2, a T) stay inside what AxisAcc allows."""
+    core = powered(1, AxisAcc=acc, AxisDec=acc, AxisVeloMax=vmax, AxisJerk=1e9)
+    _feed(core, 0.0)
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    t_ramp = vmax / acc
+    for k in range(1, 400):
+        if k % ratio == 0:
+            t = k * CT
+            v = acc * t if t < t_ramp else vmax
+            p = 0.5 * acc * t * t if t < t_ramp else 0.5 * acc * t_ramp ** 2 + vmax * (t - t_ramp)
+            _feed(core, p, v)
+        core.step()
+        assert int(core.nctoplc[0]["ErrorCode"]) == 0, (k, float(core.nctoplc[0]["SetVelo"]))
+    assert t_ramp < 390 * CT and float(core.nctoplc[0]["SetVelo"]) == pytest.approx(vmax, rel=1e-9)
+
+
+def test_an_external_velocity_step_is_an_axis_error() -> None:
+    core = powered(1)
+    _feed(core, 0.0)
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    core.step()
+    _feed(core, 0.0, 999.0)  # from standstill to 999 u/s in one cycle
+    core.step()
+    assert int(core.nctoplc[0]["ErrorCode"]) == E.NC_AXIS_SET_VELOCITY
+    assert abs(float(core.nctoplc[0]["SetVelo"])) < 1e-9
+
+
+def test_gear_in_to_a_disabled_master_is_refused() -> None:
+    core = powered(2)
+    power(core, 0, ctrl=0)
+    core.step()
+    snap = snapshot(core)
+    assert cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=1)["error"] == E.NC_NO_ENABLE
+    assert snapshot(core) == snap
+
+
+def test_home_is_refused_while_a_superposition_moves_the_axis() -> None:
+    core = powered(1)
+    assert not cmd(core, "MoveSuperImposed", Mode=4, Distance=50.0, VelocityDiff=100.0, Length=1000.0)["error"]
+    for _ in range(20):
+        core.step()
+    assert cmd(core, "Home", Position=0.0, HomingMode=4)["error"] == E.MC_AXIS_CANNOT_BE_STARTED
+
+
+def test_a_slave_following_a_fast_master_within_its_limits_is_no_fault() -> None:
+    """Default axes, ratio 1: a master MoveVelocity to AxisVeloMax with various accelerations; judging
+    the velocity a cycle ahead had faulted these."""
+    for acc in (2500.0, 3000.0, 3700.0, 5000.0):
+        core = powered(2)
+        assert not cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=1)["error"]
+        assert not cmd(core, "MoveVelocity", axis=1, Velocity=1000.0, Direction=1, Acceleration=acc)["error"]
+        for _ in range(1500):
+            core.step()
+        assert int(core.nctoplc[1]["ErrorCode"]) == 0, acc
+        assert float(core.nctoplc[1]["SetVelo"]) == pytest.approx(1000.0)

@@ -85,6 +85,9 @@ class GearInKind(JobKind):
                           f"axis {int(a.ids[m])} is (through a chain) a slave of axis {int(a.ids[i])}: the coupling would close a cycle")
         if a.traj_on[i] or abs(start.v) > _EPS_V or abs(start.a) > 1e-9 or core.superposition.on[i]:
             raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the slave is moving: TcMC couples at standstill only")
+        if not a.enabled[m]:
+            # a disabled master's set position follows its actual position: no slave follows that
+            raise NcError(ErrorCodes.NC_NO_ENABLE, f"the master axis {int(a.ids[m])} has no controller enable")
         v = abs(float(job.data["ratio"]) * float(a.set_velo[m]))
         if v > float(a.vmax[i]) * (1 + 1e-9):
             raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,

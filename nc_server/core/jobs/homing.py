@@ -69,7 +69,7 @@ class HomeKind(JobKind):
         return Job(self, dict(req), dyn=core.dynamics(i, {}, None), data={"mode": mode, "ref": ref})
 
     def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
-        if abs(start.v) > 1e-9:  # (a buffered Home is checked against the predecessor's end: at rest)
+        if abs(start.v) > 1e-9 or core.superposition.on[i]:  # (a buffered Home: the predecessor's end, at rest)
             raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "homing starts only from standstill")
         job.data.update(cleared=False, latched=None)
         if job.data["mode"] != _DEFAULT:

@@ -239,13 +239,10 @@ class CouplingStage:
             core.axis_state[rows] = state
             if after_level is not None:
                 after_level(rows)
-        # the velocity is judged where it goes: from the next cycle's state (the stop ramp starts there),
-        # v + a|a|/(2 AxisJerk) is what it reaches even braked with its own jerk: so it stays within AxisVeloMax
-        dt = self.dt
-        v, acc, jerk = S[1, s], S[2, s], S[3, s]
-        a1 = acc + jerk * dt
-        v1 = v + (acc + 0.5 * jerk * dt) * dt
-        fast = np.abs(v1 + a1 * np.abs(a1) * half_inv_jerk) > lim[0]
+        # the velocity is judged where it goes: v + a|a|/(2 AxisJerk) is what it reaches when braked at
+        # once with its own jerk (the fault ramp is planned from this cycle's state): it stays within AxisVeloMax
+        v, acc = S[1, s], S[2, s]
+        fast = np.abs(v + acc * np.abs(acc) * half_inv_jerk) > lim[0]
         hard = np.abs(acc) > lim[1]
         if np.count_nonzero(fast) or np.count_nonzero(hard):
             return [(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in s[fast].tolist()] + [
@@ -262,7 +259,7 @@ class CouplingStage:
         want = gr[d]
         stale = ~self.live[d]
         if stale.any():
-            self.live[d] |= (want == self.ratio[d]) | (want != self.gr_seen[d])
+            self.live[d] |= (want == self.ratio_cmd[d]) | (want != self.gr_seen[d])
             d, want = d[self.live[d]], want[self.live[d]]
         ok = np.isfinite(want) & (np.abs(want) <= MAX_RATIO)
         if not ok.all():

@@ -10,10 +10,13 @@ changed. ExtSetDirection is informational (the direction bits come from the velo
 
 No jump: after MC_ExtSetPointGenEnable the axis holds its set position until a fed set-point
 matches where the axis is, within one cycle of the fed velocity (MC_ExtSetPointGenEnable feeds the
-current SetPos with velocity 0 first). From then each cycle's set-point must lie within half a cycle at AxisVeloMax of where the
-axis gets to at the mean of the last and the new velocity; a feed beyond, or a fed velocity above
-AxisVeloMax, is an axis error 0x4359 (set velocity not allowed), a fed acceleration above
-max(AxisAcc, AxisDec) is 0x422F; the axis then brakes on its ramp.
+current SetPos with velocity 0 first). From then, with T the time since the previous feed (the
+longer of the last two feed intervals plus a cycle of arrival jitter; a cycle between feeds) and
+amax = max(AxisAcc, AxisDec): a set-point farther than amax T^2 / 2 from where
+the axis gets to at the mean of the last and the new velocity, a velocity step beyond amax T or a
+fed velocity above AxisVeloMax is an axis error 0x4359 (set velocity not allowed), a fed
+acceleration above amax 0x422F; the axis then brakes on its ramp. (A generator that feeds no
+acceleration and ramps within AxisAcc stays inside, at any PLC/NC cycle ratio.)
 A PLC that stops feeding is the watchdog's case: its PLCTONC times out (0x8F02), the axis stops.
 """
 from __future__ import annotations
@@ -47,6 +50,7 @@ class ExternalStage:
         self.following = np.zeros(n, dtype=bool)
         self.fed = np.full((3, n), np.nan)
         self.tau = np.zeros(n)
+        self.last_span = np.zeros(n)  # the time between the last two feeds [s]
         self.offset = np.zeros(n)
         self.rows = np.zeros(0, dtype=np.intp)
         self.changed_rows: list[int] = []  # rows whose following flag changed (their job records)
@@ -59,6 +63,7 @@ class ExternalStage:
         self.on[i] = True
         self.following[i] = False
         self.fed[:, i] = np.nan  # whatever PLCTONC holds counts as a new feed
+        self.tau[i] = self.last_span[i] = 0.0
         self.offset[i] = 0.0
         self.rows = self.on.nonzero()[0]
 
@@ -83,6 +88,11 @@ class ExternalStage:
         new = (feed != self.fed[:, rows]).any(axis=0)
         self.fed[:, rows[new]] = feed[:, new]
         tau = self.tau[rows]
+        # the time a new feed may have taken from the previous one: as measured here, or as the previous
+        # feed took (frames bunch on their way), plus a cycle of arrival jitter; between feeds a cycle
+        since = tau + dt
+        span = np.where(new, np.maximum(since, self.last_span[rows]) + dt, dt)
+        self.last_span[rows[new]] = since[new]
         tau[new] = 0.0
         tau[~new] += dt
         self.tau[rows] = tau
@@ -93,8 +103,9 @@ class ExternalStage:
         ok = np.isfinite(p) & np.isfinite(v) & np.isfinite(f[2])
         follow = self.following[rows]
         # where the axis gets to in this cycle at the mean of both velocities, and how far a feed may be
-        # from it while following: half a cycle at AxisVeloMax (the extrapolation error of a generator
-        # that feeds no acceleration is a T^2 / 2 per PLC cycle T)
+        # from it: what the axis's acceleration can make of the time T since the previous feed
+        # (a amax T^2 / 2 in position, amax T in velocity: a generator that feeds no acceleration and
+        # ramps at AxisAcc stays inside; a jump or a velocity step does not)
         dev = np.abs(p - (prev_p + 0.5 * (prev_v + v) * dt))
         scale = np.maximum(np.abs(p), 1.0)
         # (to start with: a feed within one cycle of its own velocity of the standing axis)
@@ -104,8 +115,11 @@ class ExternalStage:
             self.changed_rows += rows[starts].tolist()
             follow = follow | starts
         vmax = a.vmax[rows]
-        jump = follow & (~ok | (dev > 0.5 * vmax * dt + 1e-9 * scale) | (np.abs(v) > vmax * (1 + 1e-6) + _EPS_V))
-        hard = follow & ok & ~jump & (np.abs(f[2]) > np.maximum(a.acc[rows], a.dec[rows]) * (1 + 1e-6) + 1e-6)
+        amax = np.maximum(a.acc[rows], a.dec[rows])
+        jump = follow & (~ok | (dev > 0.5 * amax * span * span + 1e-9 * scale)
+                         | (np.abs(v - prev_v) > amax * span * (1 + 1e-6) + 1e-9)
+                         | (np.abs(v) > vmax * (1 + 1e-6) + _EPS_V))
+        hard = follow & ok & ~jump & (np.abs(f[2]) > amax * (1 + 1e-6) + 1e-6)
         bad = jump | hard
         apply = follow & ~bad
         if bad.any():  # the fault ramp starts next cycle: this one continues with the last velocity

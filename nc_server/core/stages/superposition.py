@@ -165,15 +165,12 @@ class SuperpositionStage:
 
     def limits(self, core: NcCore) -> list[int]:
         """(row, code) of the rows whose total motion goes beyond AxisVeloMax (0x4359: judged as
-        v + a|a|/(2 AxisJerk) from the next cycle's state, where it gets to even braked at once) or
-        max(AxisAcc, AxisDec) (0x422F); the NC faults them."""
+        v + a|a|/(2 AxisJerk), where it gets to even braked at once from this cycle's state, which the
+        fault ramp starts from) or max(AxisAcc, AxisDec) (0x422F); the NC faults them."""
         r = self.rows
         a = core.axes
-        dt = self.dt
-        v, acc, jerk = a.S[1, r], a.S[2, r], a.S[3, r]
-        a1 = acc + jerk * dt
-        v1 = v + (acc + 0.5 * jerk * dt) * dt
-        fast = np.abs(v1 + a1 * np.abs(a1) / (2.0 * a.jerk[r])) > a.vmax[r] * (1 + 1e-6) + _EPS_V
+        v, acc = a.S[1, r], a.S[2, r]
+        fast = np.abs(v + acc * np.abs(acc) / (2.0 * a.jerk[r])) > a.vmax[r] * (1 + 1e-6) + _EPS_V
         hard = np.abs(acc) > np.maximum(a.acc[r], a.dec[r]) * (1 + 1e-6) + 1e-6
         return ([(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in r[fast].tolist()]
                 + [(int(i), int(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)) for i in r[hard & ~fast].tolist()])
@@ -236,6 +233,8 @@ def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
             if (a.en_max[i] and end > a.max_lim[i]) or (a.en_min[i] and end < a.min_lim[i]):
                 raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED,
                               f"the superimposed motion would end at {end:.6g}, beyond a software limit")
+    if job is None:
+        a.stopped[i] = False  # (a new motion: HasBeenStopped goes, as with the next motion command)
     cmd_no = q.newest = next_cmdno(q.newest)
     stage.start(i, sp.plan, cmd_no, (sp.distance, sp.velocity_diff, sp.length), _INCOMPLETE if sp.incomplete else 0, dyn)
     stage.changed.append(i)
