@@ -94,6 +94,32 @@ def test_move_superimposed_ext_adds_distance_to_a_constant_velocity(xp: ExtPlc) 
     assert busy.c <= done.c
 
 
+def test_move_superimposed_and_the_incomplete_compensation(xp: ExtPlc) -> None:
+    """MC_MoveSuperImposed (LENGTHREDUCTION_LIMITEDMOTION, MaxDistance): Done with the distance gained;
+    then one whose Distance cannot fit (VelocityDiff 5 over 20 u of travel): Error 0x4243 at its end,
+    the largest possible distance applied (TcMC 3.9)."""
+    v0 = 50.0
+    ref = cruise(xp, v0)
+    xp.set("sup", "MC_MoveSuperImposed", Execute=True, Distance=5.0, VelocityDiff=20.0, MaxDistance=200.0)
+    done = xp.wait("sup", ended, T)
+    assert done.o["Done"], (done, xp.history("sup"))
+    clean(xp.history("sup"))
+    xp.wait_cycles(5)
+    s = xp.wait_trace(1, lambda s: s.c > done.c, T)
+    assert math.isclose(offset(ref, s, v0), 5.0, abs_tol=1e-6), s
+    xp.set("sup", Execute=False)
+    xp.wait("sup", lambda r: not ended(r), T)
+    ref2 = xp.wait_trace(1, lambda s: s.c > done.c + 2, T)
+    xp.set("sx", "MC_MoveSuperImposedExt", Execute=True, Mode=4, Distance=50.0, VelocityDiff=5.0, Length=20.0)
+    r = xp.wait("sx", ended, T)
+    assert r.o["Error"] and r.o["ErrorID"] == 0x4243, (r, xp.history("sx"))
+    gained = r.o["ActualDistance"]
+    assert 0.0 < gained < 50.0, r.o
+    xp.wait_cycles(5)
+    s2 = xp.wait_trace(1, lambda s: s.c > r.c, T)
+    assert math.isclose(offset(ref2, s2, v0), gained, abs_tol=1e-6), (s2, gained)
+
+
 def test_abort_superposition(xp: ExtPlc) -> None:
     v0, dist = 50.0, 10.0
     ref = cruise(xp, v0)
