@@ -17,7 +17,9 @@ NC cycles, the wall clock of a loaded 2-core machine is not theirs).
 from __future__ import annotations
 
 import math
+import os
 import re
+import signal
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -507,3 +509,39 @@ def test_stop_of_the_master_stops_both_and_the_slave_stays_coupled(xp: ExtPlc) -
     gi = xp.last("gi")
     assert gi.o["InGear"] and gi.o["Busy"] and gi.a["CoupleState"] == SLAVE and gi.a["SetVelo"] == 0.0, gi
     clean(xp.history("gi"))
+
+
+# ---- losing the master's controlling client -------------------------------------------------------
+def test_the_master_client_killed_its_slave_follows_the_master_stop(nc: NcServerProcess,
+                                                                    xplc: Callable[..., ExtPlc]) -> None:
+    """Client A runs the master (MC_Power + MC_MoveVelocity), client B the slave (MC_Power + MC_GearIn
+    1:2). A is killed (SIGKILL of its process group) mid-motion: the NC faults the master (0x8F01,
+    its controlling client lost) and stops it on its ramp; the slave follows it down still coupled
+    and without an error of its own (the documented reaction: a master's error stops its slaves
+    synchronously). When the NC then releases A's claim, the master has no enable any more, which
+    ends the coupling (ABORTED: B's MC_GearIn reports CommandAborted); the slave stands."""
+    pa, pb = xplc(nc, "plc-a"), xplc(nc, "plc-b")
+    power_both(pa, 1)
+    power_both(pb, 2)
+    gear_in(pb, "gi", "MC_GearIn", 1, 2, RatioNumerator=1, RatioDenominator=2)
+    pa.set("mv", "MC_MoveVelocity", axis=1, Execute=True, Velocity=100.0, **DYN)
+    pa.wait("mv", lambda r: r.o["InVelocity"] or ended(r), T)
+    pb.trace(1)
+    pb.trace(2)
+    moving = pb.wait_trace(2, lambda s: abs(s.a["SetVelo"] - 50.0) < 1e-9, T)
+    os.killpg(pa.proc.pid, signal.SIGKILL)
+    pa.proc.wait(10)
+    stopped = pb.wait_trace(1, lambda s: s.c > moving.c and s.a["ErrorId"] != 0 and s.a["SetVelo"] == 0.0, T)
+    assert stopped.a["ErrorId"] in (0x8F01, 0x8F02), stopped
+    gi = pb.wait("gi", ended, T)
+    assert gi.o["CommandAborted"] and not gi.o["Error"], (gi, pb.history("gi"))
+    rest = pb.wait_trace(2, lambda s: s.c > gi.c and s.a["SetVelo"] == 0.0, T)
+    assert rest.a["CoupleState"] == 0 and rest.a["ErrorId"] == 0, rest
+    t1, t2 = pb.trace_of(1), pb.trace_of(2)
+    assert all(r.a["ErrorId"] == 0 for r in t2 if r.c > moving.c), "the slave has no error of its own"
+    # while it was coupled the slave braked with its master: half the master's velocity, same frame
+    by_cycle = {r.a["NcCycle"]: r.a["SetVelo"] for r in t1 if r.c > moving.c}
+    pairs = [(by_cycle[r.a["NcCycle"]], r.a["SetVelo"]) for r in t2
+             if r.c > moving.c and r.a["CoupleState"] == SLAVE and r.a["NcCycle"] in by_cycle]
+    assert len(pairs) >= 5 and any(0.0 < vm < 100.0 for vm, _ in pairs), pairs  # (some while braking)
+    assert all(abs(vs - 0.5 * vm) <= 1e-9 * max(1.0, vm) for vm, vs in pairs), pairs[:5]
