@@ -19,6 +19,23 @@ AGENT = Path(__file__).with_name("plc_agent.py")
 
 #: deadline of every wait [s]: generous, a loaded 2-core machine
 T = 30.0
+#: the numbered example programs
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def run_example(name: str, endpoint: str, timeout: float = 90.0) -> tuple[int, str]:
+    """Run ``examples/<name>`` as its docstring says (``plc-run <file> --nc nc1=<endpoint>``) until it
+    ends by itself; returns (exit code, output). Killed with its process group on a timeout."""
+    cmd = [sys.executable, "-m", "plc_client.cli", str(EXAMPLES / name), "--nc", f"nc1={endpoint}"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+    return proc.returncode, out
 #: the watchdog is not what these tests are about: tolerate PLC stalls of a loaded machine
 NC_ARGS = ("--watchdog-timeout", "3.0")
 

@@ -9,30 +9,11 @@ Deadlines are generous (loaded 2-core VM); every process is killed with its proc
 from __future__ import annotations
 
 import math
-import os
 import re
-import signal
-import subprocess
-import sys
-from pathlib import Path
 from typing import Callable
 
+from plc_harness import EXAMPLES, run_example
 from znc_testing import NcServerProcess
-
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-
-def run_example(name: str, endpoint: str, timeout: float = 90.0) -> tuple[int, str]:
-    cmd = [sys.executable, "-m", "plc_client.cli", str(EXAMPLES / name), "--nc", f"nc1={endpoint}"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
-    return proc.returncode, out
 
 
 def number(pattern: str, out: str) -> float:

@@ -7,17 +7,11 @@ Deadlines are generous (loaded 2-core VM); every process is killed with its proc
 from __future__ import annotations
 
 import math
-import os
 import re
-import signal
-import subprocess
-import sys
-from pathlib import Path
 
+import plc_harness
 from plc_harness import T, PlcProcess, exclusive, power_on
 from znc_testing import NcServerProcess
-
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def test_jog_continuous_and_inching(plc: PlcProcess) -> None:
@@ -50,17 +44,9 @@ def test_home_direct_and_reference_flag(plc: PlcProcess) -> None:
     exclusive(plc.history("home"))
 
 
-def run_example(name: str, endpoint: str, timeout: float = 90.0) -> str:
-    cmd = [sys.executable, "-m", "plc_client.cli", str(EXAMPLES / name), "--nc", f"nc1={endpoint}"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
-    assert proc.returncode == 0, f"{name} exited {proc.returncode}:\n{out[-3000:]}"
+def run_example(name: str, endpoint: str) -> str:
+    rc, out = plc_harness.run_example(name, endpoint)
+    assert rc == 0, f"{name} exited {rc}:\n{out[-3000:]}"
     return out
 
 
