@@ -134,6 +134,7 @@ class NcCore:
         n = len(ids)
         self.plctonc = np.zeros(n, dtype=PLCTONC_DTYPE)
         self.plctonc[:] = self.default_plctonc()
+        self.plctonc_arrived = np.zeros(n, dtype=bool)  # a PLCTONC was handed in since the last cycle
         self.ncjobs = np.zeros(n, dtype=NCJOBS_DTYPE)
         self.ncjobs["AxisId"] = self.axis_ids
         self._jobs_bytes = memoryview(self.ncjobs.view(np.uint8))  # _sync writes packed records into it
@@ -202,6 +203,7 @@ class NcCore:
             if len(record) != PLCTONC_DTYPE.itemsize:
                 raise ValueError(f"PLCTONC is {PLCTONC_DTYPE.itemsize} bytes, got {len(record)}")
             record = np.frombuffer(record, dtype=PLCTONC_DTYPE, count=1)[0]
+        self.plctonc_arrived[index] = True  # (a PLC frame: the external generator's feed, also unchanged)
         if self.plctonc[index].tobytes() != np.asarray(record, dtype=PLCTONC_DTYPE).tobytes():
             self.plctonc[index] = record
             self._in_dirty = True
@@ -209,6 +211,7 @@ class NcCore:
     def set_plctonc_many(self, index: np.ndarray, records: np.ndarray) -> None:
         """Apply PLCTONC records to several axis rows at once (vectorized :meth:`set_plctonc`)."""
         new = np.ascontiguousarray(records, dtype=PLCTONC_DTYPE)
+        self.plctonc_arrived[index] = True
         old = self.plctonc[index]
         if old.tobytes() != new.tobytes():
             self.plctonc[index] = new
@@ -649,8 +652,17 @@ class NcCore:
             dec, jerk = running.dyn.deceleration, running.dyn.jerk
         # the NC's own ramp is never refused: values the planner cannot take are clamped into range
         d = self.stop_dynamics(i, min(max(dec, 1e-6), 1e10), min(max(jerk, 1e-6), 1e12), running)
+        start = self.start_state(i, total=True)
+        if start.v * start.a > 0:
+            # accelerating (a slave, a superposition or a feed beyond AxisVeloMax): take the acceleration
+            # down with the jerk that keeps it within AxisVeloMax, up to 4 x AxisJerk (an emergency
+            # ramp may jerk harder than a motion; beyond that it overshoots by a^2 / (8 AxisJerk))
+            room = float(a.vmax[i]) - abs(start.v)
+            need = start.a * start.a / (2.0 * room) if room > 1e-9 else 1e12
+            if need > d.jerk:
+                d = d.with_(jerk=min(need, 4.0 * float(a.jerk[i]), 1e12))
         try:
-            plan = plan_velocity(self.start_state(i, total=True), 0.0, d)
+            plan = plan_velocity(start, 0.0, d)
         except PlanningError:
             _log.error("axis %d: no stop ramp could be planned; the set-point stops at once", int(a.ids[i]))
             self.clear_profile(i)  # cannot plan: stop the set-point at once (never keep moving)
@@ -876,7 +888,12 @@ class NcCore:
         state is that a real violation is noticed up to one cycle late (the stop then ends beyond the
         limit by what the stop's end moved in that cycle, a fraction of the distance per cycle)."""
         a = self.axes
-        rows = np.flatnonzero((self.coupling.master >= 0) | self.superposition.on | self.external.on)
+        sup = self.superposition.on.copy()
+        for i in np.flatnonzero(sup).tolist():
+            job = self.queues[i].running_numbered
+            if job is not None and job.target is not None and not job.continuous:
+                sup[i] = False  # (positioning + offset: checked against the limits when commanded)
+        rows = np.flatnonzero((self.coupling.master >= 0) | sup)  # (external rows: ExternalStage.run)
         rows = rows[a.en_max[rows] | a.en_min[rows]]
         if not rows.size:
             return []

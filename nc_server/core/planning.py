@@ -160,7 +160,23 @@ def _plan(start: StartState, dyn: Dynamics, sense: float, one_way: bool = False)
         wide = max(up, down, abs(start.a) * 1.01)
         _inp.max_acceleration = [wide]
         _inp.min_acceleration = [-wide]
-        traj = _run()
+        try:
+            traj = _run()
+        except PlanningError:
+            # ruckig 0.19 fails ("error in step 1") on some states that lie exactly on a profile's
+            # braking curve (a stop from them ends exactly on a target): a nudge of the acceleration
+            # within rounding plans them
+            _inp.max_acceleration, _inp.min_acceleration = [hi], [-lo]
+            for nudge in (1e-12, -1e-12, 1e-9, -1e-9):
+                _inp.current_acceleration = [start.a * (1 + nudge) + nudge]
+                try:
+                    traj = _run()
+                    break
+                except PlanningError:
+                    continue
+            else:
+                _inp.current_acceleration = [start.a]
+                raise
     seg, end = _segments(traj)
     ext = traj.position_extrema[0]
     return Plan(seg, float(traj.duration), float(ext.min), float(ext.max), end)

@@ -277,3 +277,90 @@ def test_a_slave_following_a_fast_master_within_its_limits_is_no_fault() -> None
             core.step()
         assert int(core.nctoplc[1]["ErrorCode"]) == 0, acc
         assert float(core.nctoplc[1]["SetVelo"]) == pytest.approx(1000.0)
+
+
+# -- third review --------------------------------------------------------------------------------------
+def test_a_pause_of_the_feeds_earns_no_jump() -> None:
+    """The feed interval is measured from PLCTONC frames (also ones repeating a standing feed) and
+    capped at 50 ms: after 200 ms without frames a velocity step of 1000 u/s is still a jump."""
+    core = powered(1)
+    _feed(core, 0.0)
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    for _ in range(200):
+        core.step()  # (no frames)
+    _feed(core, 20.0, 1000.0)
+    core.step()
+    assert int(core.nctoplc[0]["ErrorCode"]) == E.NC_AXIS_SET_VELOCITY
+    assert float(core.nctoplc[0]["SetPos"]) < 1.0
+
+
+@pytest.mark.parametrize("ratio,feed_acc", [(2, True), (2, False), (10, True), (10, False)])
+def test_an_external_generator_stopping_exactly_at_the_limit_is_no_fault(ratio: int, feed_acc: bool) -> None:
+    from nc_server.core.planning import Dynamics, StartState, plan_position, position_at
+    core = powered(1, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0)
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    plan = plan_position(StartState(0.0), 100.0, Dynamics(1000.0, 5000.0, 5000.0, 25000.0))
+    for n in range(int(plan.duration / CT) + 10 * ratio + 5):
+        if n % ratio == 0:
+            p, v, a = position_at(plan, n * CT)
+            _feed(core, p, v, a if feed_acc else 0.0)
+        core.step()
+        assert int(core.nctoplc[0]["ErrorCode"]) == 0, n
+    assert float(core.nctoplc[0]["SetPos"]) == pytest.approx(100.0, abs=1e-9)
+
+
+def test_a_feed_arriving_a_cycle_late_is_no_fault() -> None:
+    core = powered(1, AxisAcc=1e6, AxisDec=1e6)
+    _feed(core, 0.0)
+    assert not cmd(core, "ExtSetPointGenEnable")["error"]
+    late = False
+    for k in range(1, 300):
+        t = k * CT
+        if k == 150:
+            late = True  # from here every feed arrives one cycle after its time
+        _feed(core, 50.0 * (t - (CT if late else 0.0)), 50.0)
+        core.step()
+        assert int(core.nctoplc[0]["ErrorCode"]) == 0, k
+
+
+def test_a_gantry_move_whose_stop_ruckig_could_not_plan_is_no_fault() -> None:
+    """ruckig 0.19 failed to plan a stop from states exactly on a braking curve (a gantry at its
+    limit): the NC faulted the slave and stopped it at once; a nudge within rounding plans them."""
+    lim = dict(AxisVeloMax=3000.0, AxisAcc=20000.0, AxisDec=20000.0, AxisJerk=1e6, AxisEnMaxSoftPosLimit=True,
+               AxisMaxSoftPosLimit=0.001, AxisEnMinSoftPosLimit=True, AxisMinSoftPosLimit=-50.0)
+    core = NcCore([AxisConfig(1, "M", AxisParams(**lim)), AxisConfig(2, "S", AxisParams(**lim))], 0.002)
+    power(core, 0)
+    power(core, 1)
+    core.step()
+    assert not cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=1)["error"]
+    assert not cmd(core, "MoveAbsolute", axis=1, Position=0.001, Velocity=3000.0)["error"]
+    for _ in range(100):
+        core.step()
+    assert not cmd(core, "MoveRelative", axis=1, Distance=-50.001, Velocity=2977.4329)["error"]
+    for _ in range(400):
+        core.step()
+    assert int(core.nctoplc[1]["ErrorCode"]) == 0
+    assert float(core.nctoplc[1]["SetPos"]) == pytest.approx(-50.0, abs=1e-9)
+
+
+def test_a_superposition_on_a_positioning_move_near_the_limit_is_no_fault() -> None:
+    core = powered(1, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0)
+    assert not cmd(core, "MoveAbsolute", Position=95.0, Velocity=1000.0)["error"]
+    for _ in range(50):
+        core.step()
+    assert not cmd(core, "MoveSuperImposed", Mode=4, Distance=-5.0, VelocityDiff=100.0, Length=1000.0)["error"]
+    for _ in range(2000):
+        core.step()
+    assert int(core.nctoplc[0]["ErrorCode"]) == 0
+    assert float(core.nctoplc[0]["SetPos"]) == pytest.approx(90.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("jerk", [50000.0, 100000.0, 500000.0])
+def test_a_slave_behind_a_master_with_a_higher_jerk_is_no_fault(jerk: float) -> None:
+    core = powered(2)
+    assert not cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=1)["error"]
+    assert not cmd(core, "MoveVelocity", axis=1, Velocity=1000.0, Direction=1, Jerk=jerk)["error"]
+    for _ in range(1000):
+        core.step()
+    assert int(core.nctoplc[1]["ErrorCode"]) == 0
+    assert float(core.nctoplc[1]["SetVelo"]) == pytest.approx(1000.0)

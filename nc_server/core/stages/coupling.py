@@ -239,10 +239,10 @@ class CouplingStage:
             core.axis_state[rows] = state
             if after_level is not None:
                 after_level(rows)
-        # the velocity is judged where it goes: v + a|a|/(2 AxisJerk) is what it reaches when braked at
-        # once with its own jerk (the fault ramp is planned from this cycle's state): it stays within AxisVeloMax
+        # beyond AxisVeloMax: the fault ramp then takes the acceleration down with a jerk that keeps it
+        # within a cycle of acceleration of the limit (NcCore._start_ramp)
         v, acc = S[1, s], S[2, s]
-        fast = np.abs(v + acc * np.abs(acc) * half_inv_jerk) > lim[0]
+        fast = np.abs(v) > lim[0]
         hard = np.abs(acc) > lim[1]
         if np.count_nonzero(fast) or np.count_nonzero(hard):
             return [(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in s[fast].tolist()] + [

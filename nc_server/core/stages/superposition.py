@@ -164,13 +164,13 @@ class SuperpositionStage:
         return done.tolist()
 
     def limits(self, core: NcCore) -> list[int]:
-        """(row, code) of the rows whose total motion goes beyond AxisVeloMax (0x4359: judged as
-        v + a|a|/(2 AxisJerk), where it gets to even braked at once from this cycle's state, which the
-        fault ramp starts from) or max(AxisAcc, AxisDec) (0x422F); the NC faults them."""
+        """(row, code) of the rows whose total motion goes beyond AxisVeloMax (0x4359; the fault ramp
+        keeps it within a cycle of acceleration of it) or max(AxisAcc, AxisDec) (0x422F); the NC
+        faults them."""
         r = self.rows
         a = core.axes
         v, acc = a.S[1, r], a.S[2, r]
-        fast = np.abs(v + acc * np.abs(acc) / (2.0 * a.jerk[r])) > a.vmax[r] * (1 + 1e-6) + _EPS_V
+        fast = np.abs(v) > a.vmax[r] * (1 + 1e-6) + _EPS_V
         hard = np.abs(acc) > np.maximum(a.acc[r], a.dec[r]) * (1 + 1e-6) + 1e-6
         return ([(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in r[fast].tolist()]
                 + [(int(i), int(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)) for i in r[hard & ~fast].tolist()])
