@@ -887,6 +887,8 @@ class NcCore:
         so a motion that ends exactly at the limit is no fault; the price of deciding on this cycle's
         state is that a real violation is noticed up to one cycle late (the stop then ends beyond the
         limit by what the stop's end moved in that cycle, a fraction of the distance per cycle)."""
+        if not self._watch[2]:  # (no software limit enabled on any axis: derived on events)
+            return []
         a = self.axes
         sup = self.superposition.on.copy()
         for i in np.flatnonzero(sup).tolist():
