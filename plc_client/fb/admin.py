@@ -146,12 +146,9 @@ class MC_SetOverride(ExecuteBlock):
         if not _valid_override(self.Override):
             self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
             return
-        code = self._axis_problem()
-        if code:
-            self._finish("Error", code)
+        ax = self._usable_axis()
+        if ax is None:
             return
-        ax = self.Axis
-        assert ax is not None
         if ax.controlled:
             ax.PlcToNc["Override"] = override_to_plctonc(self.Override)
             self._finish("Done")

@@ -184,15 +184,22 @@ class ExecuteBlock(FunctionBlock):
                 return False
         return True
 
-    def _send(self, cmd: str, **args: Any) -> bool:
-        """Send ``cmd`` for the Axis; finish with Error and return False if that is impossible."""
+    def _usable_axis(self) -> AXIS_REF | None:
+        """The bound Axis if a command can use it now; else the block finishes with its error
+        (unbound, stale data, not in the frames) and None is returned."""
         code = self._axis_problem()
         if code:
             self._finish("Error", code)
+            return None
+        return self.Axis
+
+    def _send(self, cmd: str, **args: Any) -> bool:
+        """Send ``cmd`` for the Axis; finish with Error and return False if that is impossible."""
+        ax = self._usable_axis()
+        if ax is None:
             return False
-        task = self.Axis._task  # type: ignore[union-attr]
-        self._epoch = self.Axis.nc_epoch  # type: ignore[union-attr]
-        self._pending = task.send(self.Axis, cmd, **args)  # type: ignore[union-attr,arg-type]
+        self._epoch = ax.nc_epoch
+        self._pending = ax._task.send(ax, cmd, **args)  # type: ignore[union-attr]
         return True
 
     def _lost_axis(self) -> bool:

@@ -81,12 +81,9 @@ class MC_ExtSetPointGenEnable(_ExtSetPointBlock):
         if pt is None or pt not in _POS_TYPES:
             self._finish("Error", ErrorCodes.MC_INVALID_MODE)
             return
-        code = self._axis_problem()
-        if code:
-            self._finish("Error", code)
+        ax = self._usable_axis()
+        if ax is None:
             return
-        ax = self.Axis
-        assert ax is not None
         # the first set-point the NC takes is where the axis is: no jump
         out = ax.PlcToNc
         out["ExtSetPos"] = float(ax.NcToPlc["SetPos"])

@@ -198,11 +198,10 @@ class MC_TouchProbe(_TriggerBlock):
                 self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)  # an empty absolute window
                 return
             self._window = (first, last)
-        code = self._axis_problem()
-        if code:
-            self._finish("Error", code)
+        ax = self._usable_axis()
+        if ax is None:
             return
-        self._epoch = self.Axis.nc_epoch  # type: ignore[union-attr]
+        self._epoch = ax.nc_epoch
         self._edge = edge
         ref.ProbeState = _ACTIVATED
         self._watch_plc_event()
