@@ -657,9 +657,12 @@ class NcCore:
             # accelerating (a slave, a superposition or a feed beyond AxisVeloMax): take the acceleration
             # down with the jerk that keeps it within AxisVeloMax, up to 4 x AxisJerk (an emergency
             # ramp may jerk harder than a motion; beyond that it overshoots by a^2 / (8 AxisJerk))
-            room = float(a.vmax[i]) - abs(start.v)
-            need = start.a * start.a / (2.0 * room) if room > 1e-9 else 1e12
-            if need > d.jerk:
+            vmax = float(a.vmax[i])
+            room = vmax - abs(start.v)
+            # (only where its own jerk would overshoot by more than rounding: an axis reaching
+            # AxisVeloMax with a residue of acceleration keeps its ramp)
+            if start.a * start.a / (2.0 * d.jerk) - room > 1e-9 * max(vmax, 1.0):
+                need = start.a * start.a / (2.0 * max(room, 1e-12))
                 d = d.with_(jerk=min(need, 4.0 * float(a.jerk[i]), 1e12))
         try:
             plan = plan_velocity(start, 0.0, d)
