@@ -364,3 +364,23 @@ def test_a_slave_behind_a_master_with_a_higher_jerk_is_no_fault(jerk: float) -> 
         core.step()
     assert int(core.nctoplc[1]["ErrorCode"]) == 0
     assert float(core.nctoplc[1]["SetVelo"]) == pytest.approx(1000.0)
+
+
+@pytest.mark.parametrize("k", [2198, 2199, 2200])
+def test_a_fault_ramp_at_axis_velo_max_keeps_the_axis_jerk(k: int) -> None:
+    """Fourth review: an ordinary axis reaching AxisVeloMax with a rounding residue of acceleration
+    got a whole fault ramp at 4 x AxisJerk (the jerk raise is only for an overshoot beyond rounding)."""
+    core = powered(1, AxisVeloMax=1000.0, AxisAcc=1000.0, AxisDec=1000.0, AxisJerk=5000.0)
+    assert not cmd(core, "MoveAbsolute", Position=1e5, Velocity=1000.0, Acceleration=500.0, Deceleration=1000.0,
+                   Jerk=2500.0)["error"]
+    for _ in range(k + 1):
+        core.step()
+    core.fault(0, E.NC_POSITION_LAG)
+    prev, worst = float(core.axes.set_acc[0]), 0.0
+    for _ in range(3000):
+        core.step()
+        acc = float(core.axes.set_acc[0])
+        worst = max(worst, abs(acc - prev) / CT)
+        prev = acc
+    assert worst <= 5000.0 * (1 + 1e-6)
+    assert float(core.axes.set_velo[0]) == 0.0
