@@ -924,8 +924,9 @@ class NcCore:
         self.superposition.apply(self, rows)
 
     def _flush_slots(self) -> None:
-        """Job records of the rows whose superposition or touch probe slot changed."""
-        for st in (self.superposition, self.probe):
+        """Job records of the rows whose stage slot changed (a superposition, a touch probe, a
+        synchronization locked, an external feed matched)."""
+        for st in (self.superposition, self.probe, self.coupling, self.external):
             if st.changed:
                 for i in set(st.changed):
                     self._sync(i)  # (NewestCmdNo, HasJob, and the slots)
@@ -940,26 +941,14 @@ class NcCore:
             over += ext.run(self)
         if sup.active:
             sup.evaluate()
-            if cpl.active:
-                free = sup.rows[cpl.master[sup.rows] < 0]
-                sup.apply(self, free)
-            else:
-                sup.apply(self, sup.rows)
+            sup.apply(self, sup.rows[cpl.master[sup.rows] < 0])  # (the slaves' after their coupling)
         if cpl.active:
             over += cpl.run(self, self._apply_superposition if sup.active else None)
-            if cpl.changed_rows:
-                for i in cpl.changed_rows:
-                    self._sync_slots(i)
-                cpl.changed_rows.clear()
         if sup.active:
             over += sup.limits(self)
             sup.ended(self)
         over += self._stage_soft_limits()
         self._flush_slots()
-        if ext.changed_rows:
-            for i in ext.changed_rows:
-                self._sync_slots(i)
-            ext.changed_rows.clear()
         for i, code in over:
             if not self.axes.error[i]:
                 _log.warning("axis %d: set-point beyond its limits (0x%X): stopped", int(self.axis_ids[i]), int(code))

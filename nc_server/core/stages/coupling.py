@@ -31,7 +31,9 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
 
-from nc_schema import AxisState, CoupleState, ErrorCodes, StateDWord
+from nc_schema import AxisState, CoupleState, ErrorCodes
+
+from .profile import motion_dwords
 
 if TYPE_CHECKING:
     from ..nc import NcCore
@@ -41,14 +43,6 @@ MAX_RATIO = 1e6
 _EPS_V = 1e-9
 SYNCHRONIZING = int(AxisState.SLAVE_SYNCHRONIZING)
 SYNCHRON = int(AxisState.SLAVE_SYNCHRON)
-_NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
-_POS = np.uint32(int(StateDWord.PositiveDirection))
-_NEG = np.uint32(int(StateDWord.NegativeDirection))
-_CONST = np.uint32(int(StateDWord.ConstantVelocity))
-#: velocity classes for np.searchsorted(side="right"): 0 v < -eps, 1 standing, 2 v > eps
-_V_EDGES = np.array([-_EPS_V, np.nextafter(_EPS_V, np.inf)])
-#: set-point StateDWord bits by velocity class + 3 x (constant velocity: |a| < 1e-9)
-_DW_LUT = np.array([_NEG, _NOT_MOVING, _POS, _NEG | _CONST, _NOT_MOVING, _POS | _CONST], dtype=np.uint32)
 
 
 class CouplingStage:
@@ -80,8 +74,8 @@ class CouplingStage:
         self.levels: list[tuple[np.ndarray, np.ndarray]] = []  # (slave rows, their master rows) per depth
         self.slaves = np.zeros(0, dtype=np.intp)
         self.ignored_ratios = 0
-        self.changed_rows: list[int] = []  # slaves whose job record changed in a cycle (a synchronization locked)
-        self._cache: tuple[list[tuple], np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.changed: list[int] = []  # slaves whose job record changed in a cycle (a synchronization locked)
+        self._cache: tuple[list[tuple], np.ndarray, np.ndarray] | None = None
         self._otg = Ruckig(1, cycle_time)
         self._inp = InputParameter(1)
         self._out = OutputParameter(1)
@@ -190,7 +184,7 @@ class CouplingStage:
         """A column changed: the per-level copies are made again at the next run."""
         self._cache = None
 
-    def _levels(self, core: NcCore) -> tuple[list[tuple], np.ndarray, np.ndarray, np.ndarray]:
+    def _levels(self, core: NcCore) -> tuple[list[tuple], np.ndarray, np.ndarray]:
         """Per level: rows, masters, ratio, s_base, m_base, any dyn, any synchronizing, AxisState;
         and the slaves' velocity and acceleration limits (copies: a cycle gathers less)."""
         if self._cache is None:
@@ -202,7 +196,7 @@ class CouplingStage:
             s = self.slaves
             lim = np.stack((a.vmax[s], np.maximum(a.acc[s], a.dec[s]))) * (1 + 1e-6)
             lim += np.array([[_EPS_V], [1e-6]])
-            self._cache = (lv, s, lim, 0.5 / a.jerk[s])
+            self._cache = (lv, s, lim)
         return self._cache
 
     def run(self, core: NcCore, after_level: Callable[[np.ndarray], None] | None) -> list[tuple[int, int]]:
@@ -211,7 +205,7 @@ class CouplingStage:
         the slaves beyond their limits, for the NC to fault: 0x4359 AxisVeloMax, 0x422F
         max(AxisAcc, AxisDec)."""
         S = core.axes.S
-        levels, s, lim, half_inv_jerk = self._levels(core)
+        levels, s, lim = self._levels(core)
         for rows, masters, r, sb, mb, dyn, syncing, state in levels:
             pm = S[0, masters]
             if syncing:
@@ -222,25 +216,22 @@ class CouplingStage:
                 accel = self._dyn_ratios(core, rows, core.plctonc["GearRatio1"])
                 if accel is not None:
                     r, sb, mb = self.ratio[rows], self.s_base[rows], self.m_base[rows]
-                self.m_last[rows] = pm
+            if dyn or syncing:
+                self.m_last[rows] = pm  # (where a ratio change or a lock re-bases the coupling)
             S[0, rows] = sb + r * (pm - mb)
             S[1:, rows] = r * S[1:, masters]
             if accel is not None:  # ratio changes of this level (MC_GearInDyn)
                 S[2, rows] += accel
             if syncing:
-                self.m_last[rows] = pm
                 for col, k in enumerate(sync.tolist()):
                     self._synchronize(core, int(rows[k]), int(masters[k]), prev[:, col])
                 state = self.state[rows]
-            v = S[1, rows]
-            code = np.searchsorted(_V_EDGES, v, "right")
-            code += 3 * (np.abs(S[2, rows]) < 1e-9)
-            core.sp_dw[rows] = _DW_LUT[code]
+            core.sp_dw[rows] = motion_dwords(S[1, rows], S[2, rows])
             core.axis_state[rows] = state
             if after_level is not None:
                 after_level(rows)
-        # beyond AxisVeloMax: the fault ramp then takes the acceleration down with a jerk that keeps it
-        # within a cycle of acceleration of the limit (NcCore._start_ramp)
+        # beyond AxisVeloMax: the fault ramp then takes the acceleration down with up to 4 x AxisJerk
+        # (NcCore._start_ramp)
         v, acc = S[1, s], S[2, s]
         fast = np.abs(v) > lim[0]
         hard = np.abs(acc) > lim[1]
@@ -326,7 +317,7 @@ class CouplingStage:
             self.state[i] = SYNCHRON
             self.s_base[i] = p
             self.m_base[i] = self.m_last[i] = float(a.set_pos[m])
-            self.changed_rows.append(i)
+            self.changed.append(i)
             self._cache = None
         if not math.isfinite(p):  # never hand a non-finite set-point on
             a.set_pos[i], a.set_velo[i], a.set_acc[i] = float(prev[0]), 0.0, 0.0

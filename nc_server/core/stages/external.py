@@ -28,15 +28,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nc_schema import AxisState, ErrorCodes, StateDWord
+from nc_schema import AxisState, ErrorCodes
+
+from .profile import motion_dwords
 
 if TYPE_CHECKING:
     from ..nc import NcCore
 
 _EPS_V = 1e-9
-_NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
-_POS = np.uint32(int(StateDWord.PositiveDirection))
-_NEG = np.uint32(int(StateDWord.NegativeDirection))
 _RUNNING = np.uint32(int(AxisState.RUNNING))
 #: feeds farther apart are judged as this far apart [s]: the allowances grow with the feed interval,
 #: and a PLC that paused must not earn a jump by it (PLC cycles up to 50 ms feed within the rules)
@@ -59,7 +58,7 @@ class ExternalStage:
         self.last_span = np.zeros(n)  # the time between the last two feeds [s]
         self.offset = np.zeros(n)
         self.rows = np.zeros(0, dtype=np.intp)
-        self.changed_rows: list[int] = []  # rows whose following flag changed (their job records)
+        self.changed: list[int] = []  # rows whose following flag changed (their job records)
 
     @property
     def active(self) -> bool:
@@ -127,7 +126,7 @@ class ExternalStage:
         starts = ~follow & ok & (np.abs(p - prev_p) <= np.abs(v) * dt + 1e-9 * scale)
         if starts.any():
             self.following[rows[starts]] = True
-            self.changed_rows += rows[starts].tolist()
+            self.changed += rows[starts].tolist()
             follow = follow | starts
         # what the axis's acceleration (and a reversal of the fed one) can make of the feed interval,
         # plus two cycles of arrival jitter at the velocity
@@ -160,7 +159,7 @@ class ExternalStage:
         held = rows[~follow]
         S[1:, held] = 0.0  # waiting for a matching feed: the axis holds
         vv = S[1, rows]
-        core.sp_dw[rows] = np.where(np.abs(vv) > _EPS_V, np.where(vv > 0, _POS, _NEG), _NOT_MOVING)
+        core.sp_dw[rows] = motion_dwords(vv)
         core.axis_state[rows] = np.where(np.abs(vv) > _EPS_V, _RUNNING, np.uint32(0))
         if not bad.any():
             return []

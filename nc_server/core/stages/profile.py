@@ -60,6 +60,20 @@ _SHIFT = np.uint64(56)
 #: velocity 0: v < -eps, 1: neither, 2: v > eps; acceleration 1: |a| < 1e-9 (constant);
 #: a*v 0: < 0, 1: == 0, 2: > 0
 _V_EDGES = np.array([-_EPS_V, np.nextafter(_EPS_V, np.inf)])
+#: set-point StateDWord bits by velocity class + 3 x (constant velocity: |a| < 1e-9, only when moving)
+_NM, _PD, _ND, _CV = (np.uint32(int(f)) for f in (StateDWord.NotMoving, StateDWord.PositiveDirection,
+                                                  StateDWord.NegativeDirection, StateDWord.ConstantVelocity))
+_MOTION_DW = np.array([_ND, _NM, _PD, _ND | _CV, _NM, _PD | _CV], dtype=np.uint32)
+
+
+def motion_dwords(v: np.ndarray, acc: np.ndarray | None = None) -> np.ndarray:
+    """Set-point StateDWord bits of the stages that write set-points directly: NotMoving (|v| <= eps)
+    or the direction of ``v``, and with ``acc`` ConstantVelocity where a moving axis has |acc| < 1e-9
+    (the velocity classes of the profile stage)."""
+    code = np.searchsorted(_V_EDGES, v, "right")
+    if acc is not None:
+        code += 3 * (np.abs(acc) < 1e-9)
+    return _MOTION_DW[code]
 _A_EDGES = np.array([np.nextafter(-1e-9, np.inf), 1e-9])
 _AV_EDGES = np.array([0.0, np.nextafter(0.0, np.inf)])
 #: small blocks: fewer calls (searchsorted classes + one table) beat the flag bytes + packing

@@ -25,15 +25,13 @@ from nc_schema import CmdState, ErrorCodes, StateDWord
 
 from ..planning import Dynamics, StartState, plan_velocity
 from ..profile import N_SEGMENTS, evaluate, velocity_extrema
+from .profile import motion_dwords
 
 if TYPE_CHECKING:
     from ..nc import NcCore
     from ..planning import Plan
 
 _EPS_V = 1e-9
-_NOT_MOVING = np.uint32(int(StateDWord.NotMoving))
-_POS = np.uint32(int(StateDWord.PositiveDirection))
-_NEG = np.uint32(int(StateDWord.NegativeDirection))
 _DIR_BITS = np.uint32(int(StateDWord.NotMoving) | int(StateDWord.PositiveDirection) | int(StateDWord.NegativeDirection)
                       | int(StateDWord.ConstantVelocity))
 
@@ -141,7 +139,7 @@ class SuperpositionStage:
         S[:, r] += self.applied[:, r]
         v = S[1, r]
         dw = core.sp_dw[r] & ~_DIR_BITS
-        dw |= np.where(np.abs(v) > _EPS_V, np.where(v > 0, _POS, _NEG), _NOT_MOVING)
+        dw |= motion_dwords(v)
         core.sp_dw[r] = dw
 
     def ended(self, core: NcCore) -> list[int]:
