@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from nc_schema import ErrorCodes
+from nc_schema import ErrorCodes, cmdno_newer
 
 from ..axis_ref import AXIS_REF
 from ..port import PendingCommand
@@ -226,6 +226,31 @@ class ExecuteBlock(FunctionBlock):
             self._cycle_no = max(1, int(reply.get("cycle", 0)))
             self._pending = None
         return self.Axis is not None and self.Axis.Status.NcCycleCounter >= self._cycle_no
+
+    def _own_slot(self, no_field: str, state_field: str, no: int, cycle: int) -> tuple[int, Any] | None:
+        """(state, job record) of this block's command ``no`` in a slot of the axis's job record
+        (NCJOBS ``no_field``/``state_field``: the superposition, the touch probe) once a frame of
+        ``cycle`` is here; None while waiting, or after the block finished: the axis lost (its
+        error), no job records or an older number there (0x4B60), a newer one (CommandAborted:
+        replaced)."""
+        if self._lost_axis():
+            return None
+        ax = self.Axis
+        assert ax is not None
+        if ax.Status.NcCycleCounter < cycle:
+            return None  # the frame does not show the command yet
+        jobs = ax.NcJobs
+        if not int(jobs["AxisId"]):
+            self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)  # no job records: cannot be followed
+            return None
+        shown = int(jobs[no_field])
+        if shown != no:
+            if cmdno_newer(shown, no):
+                self._finish("CommandAborted")  # a newer one replaced ours
+            else:
+                self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)
+            return None
+        return int(jobs[state_field]), jobs
 
     def _accepted(self) -> tuple[int, int, dict[str, Any]] | None:
         """(CmdNo, cycle, reply) once the NC accepted the command with a number; None while waiting

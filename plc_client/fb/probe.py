@@ -48,7 +48,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from nc_schema import CmdState, E_SignalEdge, E_TouchProbe, E_TouchProbeState, ErrorCodes, cmdno_newer
+from nc_schema import CmdState, E_SignalEdge, E_TouchProbe, E_TouchProbeState, ErrorCodes
 
 from ..axis_ref import AXIS_REF
 from .base import ExecuteBlock
@@ -235,23 +235,10 @@ class MC_TouchProbe(_TriggerBlock):
         self._finish("Done")
 
     def _follow(self) -> None:
-        if self._lost_axis():
+        got = self._own_slot("ProbeCmdNo", "ProbeState", self._probe_no, self._probe_cycle)
+        if got is None:
             return
-        ax = self.Axis
-        assert ax is not None
-        if ax.Status.NcCycleCounter < self._probe_cycle:
-            return
-        jobs = ax.NcJobs
-        if not int(jobs["AxisId"]):
-            self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)  # no job records: cannot be followed
-            return
-        no, state = int(jobs["ProbeCmdNo"]), int(jobs["ProbeState"])
-        if no != self._probe_no:
-            if cmdno_newer(no, self._probe_no):
-                self._finish("CommandAborted")  # a newer probe cycle replaced ours
-            else:
-                self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)
-            return
+        state, jobs = got
         if state == _DONE:
             self.RecordedPosition = float(jobs["RecordedPosition"])
             self._finish("Done")

@@ -50,7 +50,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from nc_schema import CmdState, E_SuperpositionMode, ErrorCodes, cmdno_newer
+from nc_schema import CmdState, E_SuperpositionMode, ErrorCodes
 
 from .base import ExecuteBlock
 from .coupling import _integer_in
@@ -119,23 +119,10 @@ class _SuperBlock(ExecuteBlock):
             self._actuals_known = True
 
     def _follow(self) -> None:
-        if self._lost_axis():
+        got = self._own_slot("SuperCmdNo", "SuperState", self._super_no, self._super_cycle)
+        if got is None:
             return
-        ax = self.Axis
-        assert ax is not None
-        if ax.Status.NcCycleCounter < self._super_cycle:
-            return  # the frame does not show the superposition yet
-        jobs = ax.NcJobs
-        if not int(jobs["AxisId"]):
-            self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)  # no job records: cannot be followed
-            return
-        no, state = int(jobs["SuperCmdNo"]), int(jobs["SuperState"])
-        if no != self._super_no:
-            if cmdno_newer(no, self._super_no):
-                self._finish("CommandAborted")  # a newer superposition took over
-            else:
-                self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)
-            return
+        state, jobs = got
         if self._ACTUAL_OUTPUTS and not self._actuals_known:
             for out, field in _ACTUALS.items():
                 setattr(self, out, float(jobs[field]))
@@ -145,7 +132,7 @@ class _SuperBlock(ExecuteBlock):
         elif state == _ABORTED:
             self._finish("CommandAborted")
         elif state == _ERROR:
-            self._finish("Error", int(jobs["SuperErrorId"]) or int(ax.NcToPlc["ErrorCode"]))
+            self._finish("Error", int(jobs["SuperErrorId"]) or int(self.Axis.NcToPlc["ErrorCode"]))  # type: ignore[union-attr]
         # ACTIVE (or not yet ACTIVE): Busy
 
     def _reset_outputs(self) -> None:
