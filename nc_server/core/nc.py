@@ -883,7 +883,8 @@ class NcCore:
             self._sync(s)
 
     def _stage_soft_limits(self) -> list[tuple[int, int]]:
-        """Slaves, superpositions and external set-points towards an enabled software limit: an axis
+        """Slaves and superpositions (not on a positioning move: checked when commanded) towards an
+        enabled software limit (external set-points: ExternalStage.run judges their feeds): an axis
         error (0x4463/0x4462) in the first cycle in which the stop the fault ramp makes from this
         cycle's state (AxisDec, AxisJerk) would end beyond the limit (a plan's own jobs brake for the
         limit themselves). A bound of the stop distance picks the candidates, an exact plan decides,
