@@ -193,9 +193,51 @@ class NcServerProcess:
             self.proc.stdout.close()
 
 
+def nc_router_command() -> list[str]:
+    """How to run ``nc-router``: the venv's console script if present, else ``python -m``."""
+    script = Path(sys.executable).with_name("nc-router")
+    if script.exists():
+        return [str(script)]
+    return [sys.executable, "-m", "nc_server.router"]
+
+
+def start_nc_router(tmp_path: Path, extra_args: Sequence[str] = (), port: int | None = None,
+                    ready_timeout: float = READY_TIMEOUT) -> NcServerProcess:
+    """Start ``nc-router`` listening on ``tcp/127.0.0.1:<port>`` (a free port unless given).
+
+    Returns a handle like :func:`start_nc_server`'s (``name`` "router"); the caller stops or kills it.
+    """
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    for attempt in range(3):
+        p = port or free_port()
+        err_path = tmp_path / f"nc-router-{p}.stderr"
+        with open(err_path, "w") as err:
+            proc = subprocess.Popen([*nc_router_command(), "--listen", f"tcp/127.0.0.1:{p}", *extra_args],
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err, text=True,
+                                    start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        h = NcServerProcess(proc, p, "router", err_path)
+        try:
+            h.wait_ready(ready_timeout)
+            return h
+        except RuntimeError:
+            h.kill()
+            if "Address already in use" in h.stderr() and attempt < 2 and port is None:
+                continue
+            raise
+        except BaseException:
+            h.kill()
+            raise
+    raise AssertionError("unreachable")
+
+
 def start_nc_server(tmp_path: Path, config_text: str | None = None, extra_args: Sequence[str] = (),
-                    name: str = "nc1", ready_timeout: float = READY_TIMEOUT, wait: bool = True) -> NcServerProcess:
+                    name: str = "nc1", ready_timeout: float = READY_TIMEOUT, wait: bool = True,
+                    connect: str | None = None) -> NcServerProcess:
     """Start ``nc-server`` on a free 127.0.0.1 port (``--listen`` overrides the config's endpoints).
+
+    With ``connect`` (a router's endpoint, e.g. :func:`start_nc_router`'s) the NC runs in client mode
+    behind that router instead (``--mode client --connect``); the handle's ``port`` is then the
+    router's, which is where clients connect.
 
     Args:
         tmp_path: where the config file and the stderr log go.
@@ -212,14 +254,18 @@ def start_nc_server(tmp_path: Path, config_text: str | None = None, extra_args: 
     """
     tmp_path.mkdir(parents=True, exist_ok=True)
     for attempt in range(3):  # a free port can be taken between free_port() and bind: retry
-        port = free_port()
-        args = [*nc_server_command(), "--listen", f"tcp/127.0.0.1:{port}"]
+        if connect is not None:
+            port = int(connect.rsplit(":", 1)[1])
+            args = [*nc_server_command(), "--mode", "client", "--connect", connect]
+        else:
+            port = free_port()
+            args = [*nc_server_command(), "--listen", f"tcp/127.0.0.1:{port}"]
         if config_text is not None:
-            cfg = tmp_path / f"nc-{port}.toml"
+            cfg = tmp_path / f"nc-{name}-{port}.toml"
             cfg.write_text(config_text)
             args += ["--config", str(cfg)]
         args += list(extra_args)
-        err_path = tmp_path / f"nc-server-{port}.stderr"
+        err_path = tmp_path / f"nc-server-{name}-{port}.stderr"
         with open(err_path, "w") as err:
             proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err, text=True,
                                     start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))

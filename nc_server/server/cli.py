@@ -17,7 +17,7 @@ from typing import Sequence
 
 from nc_server.core.params import ConfigError
 
-from .config import REALTIME_MODES, check_endpoint, load_config
+from .config import REALTIME_MODES, ZENOH_MODES, check_endpoint, load_config
 
 log = logging.getLogger("nc_server.server")
 
@@ -27,6 +27,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="FILE", help="TOML configuration replacing the embedded default")
     p.add_argument("--listen", metavar="ENDPOINT", action="append",
                    help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable; replaces zenoh.listen)")
+    p.add_argument("--connect", metavar="ENDPOINT", action="append",
+                   help="zenoh endpoint to connect to, e.g. a router's tcp/127.0.0.1:7450 (repeatable; replaces zenoh.connect)")
+    p.add_argument("--mode", choices=ZENOH_MODES, help="zenoh mode (default from config: router; client: behind nc-router)")
     p.add_argument("--name", help="NC name (key prefix nc/<name>)")
     p.add_argument("--cycle-time", type=float, metavar="SECONDS", help="NC cycle time [s], e.g. 0.001")
     p.add_argument("--watchdog-timeout", type=float, metavar="SECONDS",
@@ -54,9 +57,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``nc-server`` (returns the exit code; also calls sys.exit when run as a script)."""
     args = _parser().parse_args(argv)
     try:
-        for i, ep in enumerate(args.listen or []):
-            check_endpoint(ep, f"--listen[{i}]")
-        cfg = load_config(args.config, listen=args.listen, name=args.name, cycle_time=args.cycle_time,
+        for opt, eps in (("--listen", args.listen), ("--connect", args.connect)):
+            for i, ep in enumerate(eps or []):
+                check_endpoint(ep, f"{opt}[{i}]")
+        cfg = load_config(args.config, listen=args.listen, connect=args.connect, mode=args.mode, name=args.name, cycle_time=args.cycle_time,
                           realtime=args.realtime, watchdog_timeout=args.watchdog_timeout)
     except ConfigError as exc:
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
@@ -111,7 +115,7 @@ def _run(cfg: object) -> int:
     try:
         server.start()
     except zenoh.ZError as exc:
-        log.error("cannot open zenoh on %s: %s", ", ".join(cfg.zenoh.listen), exc)
+        log.error("cannot open zenoh on %s: %s", ", ".join(cfg.zenoh.listen + cfg.zenoh.connect), exc)
         return 1
     except RealtimeError as exc:
         log.error("%s (use realtime = \"auto\" or \"off\")", exc)
@@ -119,7 +123,8 @@ def _run(cfg: object) -> int:
     # one write: with PYTHONUNBUFFERED, print() would write text and newline separately and a log
     # line on stderr could land between them when both streams go to one file
     sys.stdout.write(f"nc-server {cfg.name} ready: {len(cfg.axes)} axes, cycle {cfg.cycle_time * 1e3:.3f} ms, "
-                     f"timing {server.timing}, listening {', '.join(cfg.zenoh.listen)}\n")
+                     f"timing {server.timing}, listening {', '.join(cfg.zenoh.listen) or '-'}"
+                     + (f", connected to {', '.join(cfg.zenoh.connect)}" if cfg.zenoh.connect else "") + "\n")
     sys.stdout.flush()
     rc = 0
     try:

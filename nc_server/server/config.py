@@ -22,7 +22,7 @@ __all__ = ["ConfigError", "ServerConfig", "ZenohSettings", "load_config", "parse
            "check_endpoint", "REALTIME_MODES"]
 
 REALTIME_MODES = ("auto", "fifo", "off")
-ZENOH_MODES = ("router", "peer")
+ZENOH_MODES = ("router", "peer", "client")
 
 # proto/address[?metadata][#config]; the address part is checked per protocol below.
 _ENDPOINT_RE = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^?#]+)(?P<rest>[?#].*)?$")
@@ -35,9 +35,10 @@ class ZenohSettings:
     """The zenoh session of the NC.
 
     Attributes:
-        mode: ``"router"`` or ``"peer"``.
-        listen: explicit listen endpoints (at least one).
-        connect: endpoints to connect to (usually none).
+        mode: ``"router"`` (default: the NC is its clients' router), ``"peer"`` or ``"client"``
+            (the NC connects to a router, e.g. ``nc-router``, and needs no listen endpoint).
+        listen: explicit listen endpoints (at least one unless ``connect`` is given).
+        connect: endpoints to connect to (e.g. a router; usually none).
         lease_ms: transport lease in milliseconds (also what clients are told to use for us).
     """
 
@@ -196,17 +197,20 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         raise ConfigError("nc.drive", f"unknown drive {drive!r} (installed drives: {', '.join(known)}; "
                                       f"entry point group zenoh_nc.drives)")
     mode = _choice(zn.get("mode", "router"), "zenoh.mode", ZENOH_MODES)
-    listen = _endpoints(zn.get("listen", ["tcp/127.0.0.1:7447"]), "zenoh.listen")
-    if not listen:
-        raise ConfigError("zenoh.listen", "at least one listen endpoint is required")
     connect = _endpoints(zn.get("connect", []), "zenoh.connect")
+    listen = _endpoints(zn.get("listen", [] if mode == "client" else ["tcp/127.0.0.1:7447"]), "zenoh.listen")
+    if mode == "client" and listen:
+        raise ConfigError("zenoh.listen", "a client-mode NC listens nowhere: remove zenoh.listen or use mode router")
+    if not listen and not connect:
+        raise ConfigError("zenoh.listen", "at least one listen or connect endpoint is required")
     lease = _integer(zn.get("lease", 1000), "zenoh.lease", 100, 600_000)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, zenoh=ZenohSettings(mode, listen, connect, lease),
                         axes=_axes(data))
 
 
-def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None, name: str | None = None,
+def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None,
+                connect: Sequence[str] | None = None, mode: str | None = None, name: str | None = None,
                 cycle_time: float | None = None, realtime: str | None = None,
                 watchdog_timeout: float | None = None) -> ServerConfig:
     """Load ``path`` (TOML) or the embedded default, then apply the command-line overrides.
@@ -214,6 +218,8 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
     Args:
         path: a TOML file replacing the default as a whole; None for the embedded default.
         listen: replaces ``zenoh.listen`` when given (non-empty).
+        connect: replaces ``zenoh.connect`` when given (non-empty).
+        mode: replaces ``zenoh.mode``; ``"client"`` without ``listen`` also drops the default listen endpoint.
         name, cycle_time, realtime, watchdog_timeout: replace ``nc.*`` when given.
 
     Raises:
@@ -234,8 +240,14 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
     zn = data.setdefault("zenoh", {})
     if not isinstance(nc, dict) or not isinstance(zn, dict):
         return parse_config(data)  # reports the non-table
+    if mode is not None:
+        zn["mode"] = mode
+        if mode == "client" and not listen:
+            zn.pop("listen", None)
     if listen:
         zn["listen"] = list(listen)
+    if connect:
+        zn["connect"] = list(connect)
     for key, value in (("name", name), ("cycle_time", cycle_time), ("realtime", realtime),
                        ("watchdog_timeout", watchdog_timeout)):
         if value is not None:

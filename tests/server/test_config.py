@@ -69,7 +69,7 @@ def test_overrides(tmp_path: Path) -> None:
     ("[zenoh]\nlisten = 'tcp/127.0.0.1:7447'\n", "zenoh.listen"),
     ("[zenoh]\nlisten = []\n", "zenoh.listen"),
     ("[zenoh]\nconnect = ['foo/bar']\n", "zenoh.connect[0]"),
-    ("[zenoh]\nmode = 'client'\n", "zenoh.mode"),
+    ("[zenoh]\nmode = 'server'\n", "zenoh.mode"),
     ("[zenoh]\nlease = 1.5\n", "zenoh.lease"),
     ("[zenoh]\nmulticast = true\n", "zenoh.multicast"),
 ])
@@ -174,3 +174,24 @@ def test_drive_is_chosen_by_the_config(tmp_path: Path, monkeypatch: pytest.Monke
 
     _install_drive(monkeypatch, "missing", MissingDrive)
     assert cli._run(load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "missing"')))) == 1
+
+
+def test_client_mode_behind_a_router() -> None:
+    """``--mode client --connect EP``: the NC listens nowhere and connects to the router."""
+    cfg = load_config(None, mode="client", connect=["tcp/127.0.0.1:7450"])
+    assert cfg.zenoh.mode == "client" and cfg.zenoh.listen == () and cfg.zenoh.connect == ("tcp/127.0.0.1:7450",)
+
+
+@pytest.mark.parametrize("kwargs, msg", [
+    ({"mode": "client", "listen": ["tcp/127.0.0.1:7451"], "connect": ["tcp/127.0.0.1:7450"]}, "listens nowhere"),
+    ({"mode": "client"}, "at least one listen or connect"),
+])
+def test_client_mode_errors(kwargs: dict, msg: str) -> None:
+    with pytest.raises(ConfigError, match=msg):
+        load_config(None, **kwargs)
+
+
+def test_router_cli_rejects_a_bad_endpoint(capsys: pytest.CaptureFixture[str]) -> None:
+    from nc_server import router
+    assert router.main(["--listen", "tcp/127.0.0.1"]) == 2
+    assert "--listen[0]" in capsys.readouterr().err
