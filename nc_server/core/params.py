@@ -90,6 +90,9 @@ class AxisParams:
         0.0, "nonneg", "simulated touch probe sensor: length of each TRUE window (0: never TRUE, >= SimProbePeriod: "
         "always TRUE) [u]")
     Homed: bool = _p(False, "bool", "axis starts referenced (StateDWord.Homed)")
+    AxisEnDataPersistence: bool = _p(
+        False, "bool", "TwinCAT 'Data persistence' (MC_AxisPara 1037): with [nc] retain_file the NC keeps the "
+        "axis's actual position and homed flag across a restart (nc_server/server/retain.py)")
 
     def __post_init__(self) -> None:
         for f in fields(self):

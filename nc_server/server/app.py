@@ -4,6 +4,8 @@ Per cycle (:meth:`NcServer.cycle`): liveliness events -> claims; drain the comma
 (bounded); apply the newest PLCTONC frame of each claim holder and the watchdog
 (:class:`~nc_server.server.handler.CycleInputs`, shared with the in-process port);
 ``core.step()``; hand (frame, per-axis samples for matched publishers, replies) to the I/O thread.
+With a retain file (:mod:`.retain`): loaded and applied before the first cycle, a snapshot every
+100 ms for the retain thread, the final state written after the last cycle.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import CycleLoop, configure_interpreter
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
+from .retain import RetainKeeper
 from .transport import IoThread, Outgoing, Transport, encode_frame_fast
 
 log = logging.getLogger("nc_server.server")
@@ -70,6 +73,8 @@ class NcServer:
         self._matched: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
         self.started = False
         self._shutdown = threading.Event()  # set by stop(): the cycle stops every moving axis
+        # [nc] retain_file: built now, while the core's parameters are still the configured ones
+        self.retain = RetainKeeper(config.retain_file, config.name, core) if config.retain_file else None
 
     # ---- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
@@ -80,14 +85,20 @@ class NcServer:
             RealtimeError: ``realtime="fifo"`` and SCHED_FIFO was refused.
         """
         configure_interpreter()
+        if self.retain is not None:  # before anything runs: the axes are disabled, no cycle yet
+            self.retain.load(self.core)
         self.transport.open()
         self.io.start()
         # Objects made so far live as long as the server: keep the collector off them.
         gc.collect()
         gc.freeze()
+        if self.retain is not None:
+            self.retain.start()
         try:
             self.loop.start()
         except BaseException:
+            if self.retain is not None:
+                self.retain.stop()
             self.io.stop()
             self.transport.close()
             raise
@@ -106,6 +117,8 @@ class NcServer:
         while self.loop.alive and bool(np.asarray(self.core.moving).any()) and time.monotonic() < deadline:  # type: ignore[attr-defined]
             time.sleep(0.01)
         self.loop.stop()
+        if self.retain is not None:  # the cycle has ended: its final state goes into the file
+            self.retain.stop(self.core)
         try:
             self.core.drive.close()  # type: ignore[attr-defined]
         except Exception as exc:
@@ -178,6 +191,8 @@ class NcServer:
             out.pc_idx = self._matched[2]
             out.plctonc = core.plctonc.tobytes()  # type: ignore[attr-defined]
         self.io.submit(out)
+        if self.retain is not None:
+            self.retain.tick(core)  # a snapshot every 100 ms for the retain thread (no I/O here)
         if claims.version != self._claims_version:
             self._claims_version = claims.version
             self._claims_snapshot = claims.claims()

@@ -35,6 +35,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--watchdog-timeout", type=float, metavar="SECONDS",
                    help="maximum age of a claim holder's PLCTONC [s]")
     p.add_argument("--realtime", choices=REALTIME_MODES, help="cycle thread scheduling (default from config: auto)")
+    p.add_argument("--retain", metavar="PATH",
+                   help="retain file: positions of axes with AxisEnDataPersistence, homed flags and parameters "
+                        "written at run time survive a restart (replaces nc.retain_file)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
 
@@ -61,7 +64,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for i, ep in enumerate(eps or []):
                 check_endpoint(ep, f"{opt}[{i}]")
         cfg = load_config(args.config, listen=args.listen, connect=args.connect, mode=args.mode, name=args.name, cycle_time=args.cycle_time,
-                          realtime=args.realtime, watchdog_timeout=args.watchdog_timeout)
+                          realtime=args.realtime, watchdog_timeout=args.watchdog_timeout,
+                          retain_file=args.retain)
     except ConfigError as exc:
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -59,6 +59,8 @@ class ServerConfig:
         realtime: ``"auto"``, ``"fifo"`` or ``"off"``.
         rt_priority: SCHED_FIFO priority (1..99) of the cycle thread.
         drive: name of the drive backend (an entry point of group ``zenoh_nc.drives``; ``"sim"``).
+        retain_file: the retain file (positions of persistent axes, homed flags, parameters written at
+            run time: :mod:`nc_server.server.retain`), None: nothing is kept across a restart.
         zenoh: the session settings.
         axes: the axes in configuration order.
     """
@@ -69,6 +71,7 @@ class ServerConfig:
     realtime: str = "auto"
     rt_priority: int = 49
     drive: str = "sim"
+    retain_file: str | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     axes: tuple[AxisConfig, ...] = ()
 
@@ -136,6 +139,18 @@ def _endpoints(v: Any, key: str) -> tuple[str, ...]:
     return tuple(check_endpoint(ep, f"{key}[{i}]") for i, ep in enumerate(v))
 
 
+def _retain_path(v: Any, key: str) -> str:
+    """A retain file path: a non-empty string naming a file (not a directory) in an existing directory."""
+    if not isinstance(v, str) or not v.strip():
+        raise ConfigError(key, f"must be a file path, got {v!r}")
+    p = Path(v).expanduser()
+    if p.is_dir():
+        raise ConfigError(key, f"{v!r} is a directory, expected a file path")
+    if not p.parent.is_dir():
+        raise ConfigError(key, f"the directory of {v!r} does not exist")
+    return str(p)
+
+
 def _axes(data: Mapping[str, Any]) -> tuple[AxisConfig, ...]:
     tables = data.get("axis")
     if not isinstance(tables, list) or not tables:
@@ -178,7 +193,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     for k in data:
         if k not in ("nc", "zenoh", "axis"):
             raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis)")
-    nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive"})
+    nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive",
+                            "retain_file"})
     zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease"})
     name = nc.get("name", "nc1")
     try:
@@ -196,6 +212,9 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     if drive not in (known := drive_names()):
         raise ConfigError("nc.drive", f"unknown drive {drive!r} (installed drives: {', '.join(known)}; "
                                       f"entry point group zenoh_nc.drives)")
+    retain_file = nc.get("retain_file")
+    if retain_file is not None:
+        retain_file = _retain_path(retain_file, "nc.retain_file")
     mode = _choice(zn.get("mode", "router"), "zenoh.mode", ZENOH_MODES)
     connect = _endpoints(zn.get("connect", []), "zenoh.connect")
     listen = _endpoints(zn.get("listen", [] if mode == "client" else ["tcp/127.0.0.1:7447"]), "zenoh.listen")
@@ -205,14 +224,15 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         raise ConfigError("zenoh.listen", "at least one listen or connect endpoint is required")
     lease = _integer(zn.get("lease", 1000), "zenoh.lease", 100, 600_000)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
-                        rt_priority=rt_priority, drive=drive, zenoh=ZenohSettings(mode, listen, connect, lease),
+                        rt_priority=rt_priority, drive=drive, retain_file=retain_file,
+                        zenoh=ZenohSettings(mode, listen, connect, lease),
                         axes=_axes(data))
 
 
 def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None,
                 connect: Sequence[str] | None = None, mode: str | None = None, name: str | None = None,
                 cycle_time: float | None = None, realtime: str | None = None,
-                watchdog_timeout: float | None = None) -> ServerConfig:
+                watchdog_timeout: float | None = None, retain_file: str | None = None) -> ServerConfig:
     """Load ``path`` (TOML) or the embedded default, then apply the command-line overrides.
 
     Args:
@@ -220,7 +240,7 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
         listen: replaces ``zenoh.listen`` when given (non-empty).
         connect: replaces ``zenoh.connect`` when given (non-empty).
         mode: replaces ``zenoh.mode``; ``"client"`` without ``listen`` also drops the default listen endpoint.
-        name, cycle_time, realtime, watchdog_timeout: replace ``nc.*`` when given.
+        name, cycle_time, realtime, watchdog_timeout, retain_file: replace ``nc.*`` when given.
 
     Raises:
         ConfigError: unreadable file (key ``--config``), TOML syntax error, or any invalid value.
@@ -249,7 +269,7 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
     if connect:
         zn["connect"] = list(connect)
     for key, value in (("name", name), ("cycle_time", cycle_time), ("realtime", realtime),
-                       ("watchdog_timeout", watchdog_timeout)):
+                       ("watchdog_timeout", watchdog_timeout), ("retain_file", retain_file)):
         if value is not None:
             nc[key] = value
     return parse_config(data)

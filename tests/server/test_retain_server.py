@@ -1,0 +1,171 @@
+"""The retain file with real nc-server processes: home, move, WriteParameter, stop (SIGTERM / SIGKILL),
+restart, and what comes back; a corrupt file makes the NC start with its configuration and say so."""
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+from typing import Any, Callable
+
+import pytest
+
+from nc_schema import MC_AxisPara, StateDWord
+from nc_server.server.retain import RetainData, RetainError, parse_retain
+from znc_testing import NcServerProcess, NcTestClient, wait_until
+
+T = 60.0  # generous: a loaded 2-core machine
+HOMED = int(StateDWord.Homed)
+VELO_MAX = int(MC_AxisPara.AxisVeloMax)
+
+# axis 1 persistent, axis 2 not; a lenient watchdog (the test client's feeder is a Python thread)
+CONFIG = """
+[nc]
+name = "nc1"
+watchdog_timeout = 3.0
+realtime = "off"
+
+[[axis]]
+AxisId = 1
+Name = "X"
+AxisEnDataPersistence = true
+AxisEnMinSoftPosLimit = true
+AxisMinSoftPosLimit = -10.0
+AxisEnMaxSoftPosLimit = true
+AxisMaxSoftPosLimit = 1000.0
+
+[[axis]]
+AxisId = 2
+Name = "Y"
+AxisVeloMax = 500.0
+"""
+
+
+def retained(path: Path) -> RetainData | None:
+    """The file's content now (None: missing or not parseable, e.g. while it is replaced)."""
+    try:
+        return parse_retain(path.read_bytes(), "nc1", [1, 2])
+    except (OSError, RetainError):
+        return None
+
+
+def wait_file(path: Path, pred: Callable[[RetainData], bool], what: str) -> RetainData:
+    return wait_until(lambda: (d := retained(path)) is not None and pred(d) and d, T, what, interval=0.02)
+
+
+def wait_stderr(nc: NcServerProcess, text: str) -> str:
+    """The server's stderr once it contains ``text`` (its log lines go through a queue thread)."""
+    return wait_until(lambda: text in (e := nc.stderr()) and e, T, f"{text!r} on stderr")
+
+
+def powered_client(nc: NcServerProcess, make: Callable[..., NcTestClient], axes: tuple[int, ...]) -> NcTestClient:
+    cl = make(nc.port, "plc-r")
+    for a in axes:
+        cl.claim(a)
+    cl.feed_plctonc(axes)
+    for a in axes:
+        wait_until(lambda: (s := cl.nctoplc(a)) is not None and int(s["StateDWord"]) & (1 << 20), T,
+                   f"axis {a} enabled")
+    return cl
+
+
+def done(cl: NcTestClient, axis: int, reply: dict[str, Any]) -> None:
+    assert reply["error"] == 0, reply
+
+    def ended() -> bool:
+        s = cl.nctoplc(axis)
+        return s is not None and int(s["CmdNo"]) == reply["CmdNo"] and int(s["CmdState"]) == 2
+
+    wait_until(ended, T, f"axis {axis} command {reply['cmd']} done")
+
+
+def state(cl: NcTestClient, axis: int) -> tuple[float, bool]:
+    """(ActPos, Homed) of the newest NCTOPLC."""
+    s = wait_until(lambda: cl.nctoplc(axis), T, f"NCTOPLC of axis {axis}")
+    return float(s["ActPos"]), bool(int(s["StateDWord"]) & HOMED)
+
+
+def read_param(cl: NcTestClient, axis: int, number: int) -> Any:
+    r = cl.request("ReadParameter", axis=axis, ParameterNumber=number)
+    assert r["error"] == 0, r
+    return r["Value"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_positions_homed_flags_and_parameters_survive_a_restart(
+        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient], tmp_path: Path,
+        sig: int) -> None:
+    path = tmp_path / "nc1.retain"
+    args = ("--retain", str(path))
+    nc = start_nc(CONFIG, args)
+    wait_stderr(nc, "does not exist yet")
+    cl = powered_client(nc, nc_client, (1, 2))
+    for axis, ref, target in ((1, 100.0, 130.0), (2, 50.0, 70.0)):
+        done(cl, axis, cl.request("Home", axis=axis, HomingMode=4, Position=ref))  # MC_Direct: homed at ref
+        done(cl, axis, cl.request("MoveAbsolute", axis=axis, Position=target, Velocity=200.0))
+    assert cl.request("WriteParameter", axis=2, ParameterNumber=VELO_MAX, Value=321.0)["error"] == 0
+    assert state(cl, 1) == (pytest.approx(130.0, abs=0.02), True)
+    assert state(cl, 2) == (pytest.approx(70.0, abs=0.02), True)
+    # the retain thread has written what the NC knows (wait on the file, not on a clock)
+    wait_file(path, lambda d: 1 in d.axes and abs((d.axes[1].position or 0) - 130.0) < 0.02 and d.axes[1].homed
+              and 2 in d.axes and d.axes[2].params.get("AxisVeloMax") == 321.0, "the file to show the state")
+    data = retained(path)
+    assert data is not None and data.axes[2].position is None and data.axes[2].homed is None  # not persistent
+    cl.close()
+    rc = nc.stop(sig)
+    assert rc == (0 if sig == signal.SIGTERM else -signal.SIGKILL)
+
+    nc2 = start_nc(CONFIG, args)
+    assert "refused" not in wait_stderr(nc2, "loaded")
+    cl2 = nc_client(nc2.port, "observer")
+    act1, homed1 = state(cl2, 1)
+    assert act1 == pytest.approx(130.0, abs=0.02) and homed1  # persistent: position and homed flag back
+    assert state(cl2, 2) == (0.0, False)  # not persistent: the drive's position, not referenced
+    assert read_param(cl2, 2, VELO_MAX) == 321.0  # written at run time: kept
+    assert read_param(cl2, 1, VELO_MAX) == 1000.0  # the configuration's (AxisParams default)
+    # a second round: a new move, a clean stop; the parameter survives a second restart too
+    cl2.close()
+    cl3 = powered_client(nc2, nc_client, (1,))
+    done(cl3, 1, cl3.request("MoveAbsolute", axis=1, Position=140.0, Velocity=200.0))
+    cl3.close()
+    assert nc2.stop(signal.SIGTERM) == 0
+    nc3 = start_nc(CONFIG, args)
+    cl4 = nc_client(nc3.port, "observer")
+    assert state(cl4, 1) == (pytest.approx(140.0, abs=0.02), True)
+    assert read_param(cl4, 2, VELO_MAX) == 321.0
+    nc3.stop()
+
+
+def test_corrupt_file_starts_with_the_configuration(start_nc: Callable[..., NcServerProcess],
+                                                    nc_client: Callable[..., NcTestClient], tmp_path: Path) -> None:
+    path = tmp_path / "nc1.retain"
+    args = ("--retain", str(path))
+    nc = start_nc(CONFIG, args)
+    cl = powered_client(nc, nc_client, (1,))
+    done(cl, 1, cl.request("Home", axis=1, HomingMode=4, Position=200.0))
+    assert cl.request("WriteParameter", axis=1, ParameterNumber=VELO_MAX, Value=123.0)["error"] == 0
+    wait_file(path, lambda d: d.axes[1].homed and d.axes[1].params.get("AxisVeloMax") == 123.0, "the file")
+    cl.close()
+    assert nc.stop(signal.SIGTERM) == 0
+    raw = bytearray(path.read_bytes())
+    raw[-3] ^= 0xFF  # one flipped byte in the body
+    path.write_bytes(bytes(raw))
+
+    nc2 = start_nc(CONFIG, args)
+    err = wait_stderr(nc2, "refused")
+    lines = [ln for ln in err.splitlines() if "retain" in ln and "ERROR" in ln]
+    assert len(lines) == 1 and "0x4002" in lines[0] and "checksum" in lines[0] and \
+        "starts with its configuration" in lines[0], err
+    assert (tmp_path / "nc1.retain.rejected").read_bytes() == bytes(raw)  # kept aside, not overwritten
+    cl2 = nc_client(nc2.port, "observer")
+    assert state(cl2, 1) == (0.0, False)
+    assert read_param(cl2, 1, VELO_MAX) == 1000.0
+    # and the NC keeps a fresh file from its configured state
+    wait_file(path, lambda d: d.axes.get(1) is not None and d.axes[1].position == 0.0 and not d.axes[1].params,
+              "a fresh file")
+    nc2.stop()
+
+    # a file of another NC is refused the same way
+    other = CONFIG.replace('name = "nc1"', 'name = "nc9"')
+    nc3 = start_nc(other, args)
+    assert "'nc1'" in wait_stderr(nc3, "foreign")
+    assert (tmp_path / "nc1.retain.rejected.1").exists()
+    nc3.stop()
