@@ -14,8 +14,10 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)
 
+# through plc_client/lifeline.py, bound to make ($$PPID of the recipe's shell, which exec's it): the
+# demo (and so its NC and PLC) ends when make is killed, even with SIGKILL
 demo: $(STAMP)
-	$(VENV)/bin/zenoh-nc-demo $(DEMO_ARGS)
+	exec $(PY) -I -S plc_client/lifeline.py $$PPID -- $(VENV)/bin/zenoh-nc-demo $(DEMO_ARGS)
 
 test: $(STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)

@@ -6,10 +6,16 @@ Typical program (run with ``plc-run program.py``)::
 
     X = AXIS_REF(nc="nc1", axis_id=1)
     power, move = MC_Power(), MC_MoveAbsolute()
+    step = 0  # 0 wait for the enable, 10 move, 20 done (motion from a latched step, not from power.Status)
 
     def cycle(plc):
+        global step
         power(Axis=X, Enable=True, Enable_Positive=True, Enable_Negative=True)
-        move(Axis=X, Execute=power.Status, Position=100.0, Velocity=50.0)
+        if step == 0 and power.Status:
+            step = 10
+        move(Axis=X, Execute=step == 10, Position=100.0, Velocity=50.0)
+        if step == 10 and (move.Done or move.Error or move.CommandAborted):
+            step = 20
 """
 from nc_schema import MC_AxisStates, MC_BufferMode, MC_Direction
 

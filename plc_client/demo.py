@@ -1,11 +1,16 @@
 """``zenoh-nc-demo`` (``make demo``): the NC server plus a PLC program moving all axes.
 
 Starts ``nc-server`` with its embedded default configuration (NC ``nc1``, axes 1-4,
-router on tcp/127.0.0.1:7447), then ``plc-run plc_client/demo_program.py`` in another
-process, and shows a live table of the axes from ``nc/nc1/frame`` until Ctrl-C or the time
-limit. On a terminal the table is redrawn in place; without one (CI) it prints plain lines.
-At the end it checks that every axis moved without an error and the modulo axis turned
-several times, and exits 0 only then.
+router on tcp/127.0.0.1:7447, ``--port`` for another), then ``plc-run plc_client/demo_program.py``
+in another process, and shows a live table of the axes from ``nc/nc1/frame`` until Ctrl-C,
+SIGTERM or the time limit. On a terminal the table is redrawn in place; without one (CI) it
+prints plain lines. At the end it checks that every axis moved without an error and the modulo
+axis turned several times, and exits 0 only then.
+
+The children die with the launcher: they are started through :mod:`plc_client.lifeline`
+(``prctl(PR_SET_PDEATHSIG, SIGTERM)``), so a launcher killed with SIGKILL still leaves no NC
+holding the port and no PLC moving axes; ``make demo`` starts the launcher the same way, bound
+to make.
 """
 from __future__ import annotations
 
@@ -25,7 +30,7 @@ import zenoh
 
 from nc_schema import Keys, decode_frame, error_name, motion_state
 
-from . import demo_program
+from . import demo_program, lifeline
 
 STATE_SHORT = {1: "Disabled", 2: "StandStill", 3: "ErrorStop", 4: "Stopping", 5: "Homing", 6: "Discrete",
                7: "Continuous", 8: "Synchronized"}
@@ -46,13 +51,17 @@ def _client_config(endpoint: str) -> zenoh.Config:
 
 
 class Proc:
-    """A child process in its own process group, its output (stdout and stderr) relayed with a prefix."""
+    """A child process in its own process group, its output (stdout and stderr) relayed with a prefix.
+
+    It gets SIGTERM when the launcher ends, however it ends (:func:`plc_client.lifeline.wrap`);
+    create it from the main thread (the kernel signals when the forking thread ends).
+    """
 
     def __init__(self, name: str, argv: list[str], out: IO[str]) -> None:
         self.name = name
         self.lines: list[str] = []
         self.ready = threading.Event()
-        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        self.proc = subprocess.Popen(lifeline.wrap(argv), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      start_new_session=True, bufsize=1)
         self._out = out
         self.quiet = False  # True while the live table owns the terminal; lines are still kept
@@ -106,17 +115,22 @@ def main(argv: list[str] | None = None) -> int:
     endpoint = f"tcp/127.0.0.1:{args.port or 7447}"
     out = sys.stdout
     server_argv = _bin("nc-server") + (["--listen", endpoint] if args.port else [])
-    nc = Proc("nc-server", server_argv, out)
-    plc: Proc | None = None
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    nc = Proc("nc-server", server_argv, out)
+    plc: Proc | None = None
     first: dict[int, tuple[float, int]] = {}
     last: tuple[Any, np.ndarray] | None = None
     moved_turns: dict[int, float] = {}
     try:
-        if not nc.ready.wait(20.0):
-            print("zenoh-nc-demo: nc-server did not become ready (is port 7447 in use? try --port)", file=sys.stderr)
-            return 1
+        deadline = time.monotonic() + 20.0
+        while not nc.ready.wait(0.05):
+            if stop.is_set():
+                return 1
+            if nc.proc.poll() is not None or time.monotonic() >= deadline:
+                print(f"zenoh-nc-demo: nc-server did not become ready (is port {args.port or 7447} in use? "
+                      "try --port)", file=sys.stderr)
+                return 1
         plc = Proc("plc", _bin("plc-run") + [demo_program.__file__, "--nc", f"nc1={endpoint}", "--client-id", "demo-plc"],
                    out)
         keys = Keys("nc1")

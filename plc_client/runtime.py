@@ -346,11 +346,12 @@ class PlcRuntime(PlcTask):
                 return
             if ev.kind == zenoh.SampleKind.DELETE:
                 link.nc_gone = True
+                self.nc_token_gone(link.nc)
                 log.warning("NC %s is gone (liveliness token deleted)", link.nc)
             else:
                 if link.nc_alive_seen and link.nc_gone:
                     log.info("NC %s is back", link.nc)
-                    self.nc_restarted(link.nc)
+                    self.nc_token_back(link.nc)  # one restart = one nc_epoch step (with the cycle going back)
                 link.nc_alive_seen, link.nc_gone = True, False
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:

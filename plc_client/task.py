@@ -152,6 +152,8 @@ class PlcTask:
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
         self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
+        #: NCs whose liveliness token went away: [token back, restart counted] (see nc_token_gone)
+        self._nc_gaps: dict[str, list[bool]] = {}
 
     @property
     def program(self) -> Any:
@@ -363,8 +365,14 @@ class PlcTask:
     def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
         """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent."""
         prev = self._frames.get(nc)
+        gap = self._nc_gaps.get(nc)
         if prev is not None and cycle < prev[0]:  # the NC's cycle counter went back
-            self.nc_restarted(nc)
+            if gap is None or not gap[1]:  # not counted yet by its token's return
+                self.nc_restarted(nc)
+            if gap is not None:
+                gap[1] = True
+        if gap is not None and gap[0]:
+            del self._nc_gaps[nc]  # the first frame after the token's return ends the gap
         ids = records["AxisId"]
         self._frames[nc] = (int(cycle), records, {int(a): i for i, a in enumerate(ids.tolist())}, jobs)
 
@@ -382,6 +390,25 @@ class PlcTask:
             i = index.get(ax.axis_id)
             ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, self.stale_cycles,
                          None if i is None or jobs is None else jobs[i])
+
+    def nc_token_gone(self, nc: str) -> None:
+        """The liveliness token of NC ``nc`` disappeared (transports that watch it call this).
+
+        One NC restart shows twice: its token comes back (:meth:`nc_token_back`) and its cycle
+        counter goes back (in the frames). Whichever comes first counts the restart
+        (:meth:`nc_restarted`: ``nc_epoch`` + 1), the other one is the same restart, up to the
+        first frame after the token's return. A token that comes back with the cycle counter going
+        on (the NC was frozen or the link cut, the NC dropped this client) counts once as well.
+        """
+        self._nc_gaps[nc] = [False, False]
+
+    def nc_token_back(self, nc: str) -> None:
+        """The liveliness token of NC ``nc`` is back after :meth:`nc_token_gone`."""
+        gap = self._nc_gaps.setdefault(nc, [False, False])
+        gap[0] = True
+        if not gap[1]:
+            gap[1] = True
+            self.nc_restarted(nc)
 
     def nc_restarted(self, nc: str) -> None:
         """The NC ``nc`` restarted: bump the epoch of its axes and forget its claims."""

@@ -59,6 +59,20 @@ class MC_Power(FunctionBlock):
     Inputs: Enable, Enable_Positive, Enable_Negative (feed enables, only with Enable),
     Override [%] (0..100, default 100), BufferMode (only MC_Aborting).
     Outputs: Status, Busy, Active, Error, ErrorID.
+
+    Status is TRUE while this PLC holds the axis, its data is valid and the NC shows the control
+    loop closed without an axis error: the axis is ready for motion commands (Tc2_MC2/MC3).
+    Stale data (zenoh-nc choice; the manual is silent on a lost NC): while no new NC frame came
+    for ``stale_cycles`` (NC frozen, dead or restarting, link cut, frames not received) Status is
+    FALSE and Error/ErrorID show 0x4B0F; Busy stays TRUE, the enables stay set in PLCTONC (the PLC
+    does not switch an axis off because it cannot see it: the NC's watchdog decides) and Status
+    comes back by itself with fresh data. Why not keep the last Status: a readiness signal must not
+    be taken from data known to be old (TwinCAT leaves the AXIS_REF as it was when the NC stops
+    updating it, and Tc2_MC2 catches exactly that by the NC cycle counter, 0x4B0F), and a motion
+    command started then fails with 0x4B0F anyway. So Status may fall and rise again without the
+    program doing anything (also after an NC restart or a claim the NC dropped): never wire it to
+    a motion block's Execute (a new rising edge, a second move); start motion from a latched step
+    sequence that reads Status as the condition of its first step (README, examples/).
     """
 
     _INPUTS = {"Enable": False, "Enable_Positive": False, "Enable_Negative": False, "Override": 100.0,

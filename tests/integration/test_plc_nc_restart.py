@@ -5,7 +5,7 @@ import time
 from typing import Callable
 
 from plc_harness import NC_ARGS, T, PlcProcess, power_on
-from znc_testing import NcServerProcess, free_port
+from znc_testing import NcServerProcess, free_port, wait_until
 
 
 def test_nc_killed_and_restarted(start_nc: Callable[..., NcServerProcess]) -> None:
@@ -19,6 +19,7 @@ def test_nc_killed_and_restarted(start_nc: Callable[..., NcServerProcess]) -> No
         a.set("jog", "MC_MoveVelocity", Execute=True, Velocity=20.0)
         a.set("mv", "MC_MoveAbsolute", Execute=True, Position=800.0, Velocity=10.0)  # aborts jog, runs long
         a.wait("mv", lambda r: r.o["Active"], T)
+        assert a.last("mv").a["Epoch"] == 0
 
         nc.kill()  # SIGKILL: no goodbye
         for name in ("pw", "pos", "mv"):
@@ -32,6 +33,13 @@ def test_nc_killed_and_restarted(start_nc: Callable[..., NcServerProcess]) -> No
         # the session reconnects by itself; MC_Power claims the axis again on the new instance
         r = a.wait("pw", lambda r: r.o["Status"] and not r.o["Error"], T)
         assert r.a["Valid"] and r.a["State"] == "STANDSTILL"
+        # one restart, one nc_epoch step: its token came back and its cycle counter went back
+        wait_until(lambda: any("NC nc1 is back" in line for line in a.err_lines), T, "the NC's token back")
+        a.trace(1)
+        a.wait_trace(1, lambda r: r.a["Valid"], T)
+        a.wait_cycles(10)
+        assert {s.a["Epoch"] for s in a.trace_of(1)} == {1}
+        a.trace(1, on=False)
         p = a.wait("pos", lambda r: r.o["Valid"], T)
         # nothing moves by itself: mv still shows its error (Execute stays TRUE: no new edge)
         time.sleep(1.0)
