@@ -134,3 +134,41 @@ def test_live_json_refreshes_until_sigint(rig: Rig) -> None:
         assert p.wait(T) == 0, p.stderr.read() if p.stderr else ""
     finally:
         kill_group(p)
+
+
+def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
+    import signal
+    import subprocess
+
+    from tools_testing import kill_group, tool_command
+    from znc_testing import start_nc_router
+    router = start_nc_router(tmp_path / "router")
+    procs = [router]
+    live = None
+    try:
+        procs.append(start_nc_server(tmp_path / "nc1", connect=router.endpoint))
+        nc2 = start_nc_server(tmp_path / "nc2", extra_args=("--name", "nc2"), name="nc2", connect=router.endpoint)
+        procs.append(nc2)
+        p = run_tool("status", "--connect", router.endpoint, "--once", "--json", "--nc", "nc1", "--nc", "nc2")
+        assert p.returncode == 0, p.stderr
+        snap = json.loads(p.stdout)
+        assert [v["name"] for v in snap["ncs"]] == ["nc1", "nc2"]
+        assert all(v["state"] == "ALIVE" and len(v["axes"]) == 4 for v in snap["ncs"])
+        # live: nc2 stops, the table shows it GONE (its last frame said ShuttingDown, its token went)
+        live = subprocess.Popen(tool_command("status", "--connect", router.endpoint, "--json", "--interval", "0.2"),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+        assert live.stdout is not None
+
+        def states() -> dict[str, str]:
+            return {v["name"]: v["state"] for v in json.loads(live.stdout.readline())["ncs"]}
+
+        wait_until(lambda: states() == {"nc1": "ALIVE", "nc2": "ALIVE"}, T, "both NCs alive in the live view")
+        nc2.stop()
+        wait_until(lambda: states() == {"nc1": "ALIVE", "nc2": "GONE"}, T, "nc2 gone, nc1 alive")
+        live.send_signal(signal.SIGINT)
+        assert live.wait(T) == 0
+    finally:
+        if live is not None:
+            kill_group(live)
+        for h in reversed(procs):
+            h.kill()
