@@ -46,6 +46,9 @@ log = logging.getLogger("nc_server.server")
 QUERY_CHANNEL = 1024
 #: Largest message the NC's zenoh session accepts [bytes].
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
+#: Period of ``nc/<nc>/status``: the newest frame's bytes again, decimated for observers on slow
+#: links (nc-status); put by the I/O thread, the final ShuttingDown frame too [s].
+STATUS_PERIOD = 0.1
 #: Stats period [s].
 STATS_PERIOD = 0.1
 
@@ -201,6 +204,8 @@ class Transport:
                                                                 history=True)
         self.plc_sub = s.declare_subscriber(k.plctonc_in_any, self._on_plctonc)
         pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
+        self.status_pub = s.declare_publisher(f"{k.prefix}/status", **pub)
+        self._decl.append(self.status_pub)
         self.frame_pub = s.declare_publisher(k.frame, **pub)
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.nc_pubs = []
@@ -345,6 +350,7 @@ class IoThread:
         self.replies_sent = 0
         self.reply_errors = 0
         self.put_errors = 0
+        self._next_status = 0.0  # monotonic time of the next nc/<nc>/status put [s]
         self._thread = threading.Thread(target=self._main, name="nc-io", daemon=True)
 
     def start(self) -> None:
@@ -393,6 +399,9 @@ class IoThread:
                 newest = item
             if newest is not None:
                 self._publish(newest)
+                if time.monotonic() >= self._next_status or not running:
+                    self._next_status = time.monotonic() + STATUS_PERIOD
+                    self._put_status(newest.frame)
             now = time.monotonic()
             if now >= next_stats or not running:
                 next_stats = now + STATS_PERIOD
@@ -438,3 +447,10 @@ class IoThread:
         except Exception as exc:
             self.put_errors += 1
             log.debug("stats put failed: %s", exc)
+
+    def _put_status(self, frame: bytes) -> None:
+        try:
+            self.t.status_pub.put(frame)
+        except Exception as exc:
+            self.put_errors += 1
+            log.debug("status put failed: %s", exc)

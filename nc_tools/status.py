@@ -1,0 +1,386 @@
+"""nc-status: a live table of every NC on a router, like ``halcmd show`` or TwinCAT's online view.
+
+Per NC: alive or gone, cycle, cycle time, timing mode, missed cycles / overruns, work p99, the
+clients (and their roles) and the claims; per axis: AxisId, MotionState (PLCopen), AxisState,
+SetPos / ActPos / SetVelo, ErrorCode with its name (errors.json), the claim holder and the source
+of the last command.
+
+Usable over a slow link: it never subscribes to the 1 kHz ``nc/<nc>/frame``. It reads only
+
+* liveliness ``nc/*/alive`` (which NCs exist; NCs are also found by their stats),
+* ``nc/*/status`` (the newest frame's bytes, about 10 per second),
+* ``nc/*/stats`` (msgpack, every 100 ms),
+* ``nc/*/claims`` (msgpack, on every change and every second; holders, clients with roles, the
+  last command per axis). Without it (an older NC) claims and clients come from the stats.
+
+Usage::
+
+    nc-status --connect tcp/127.0.0.1:7447              # refreshing table (Ctrl-C ends)
+    nc-status --connect tcp/127.0.0.1:7447 --once       # one snapshot, for scripts
+    nc-status --connect tcp/127.0.0.1:7447 --once --json
+    nc-status --connect tcp/127.0.0.1:7447 --json       # one JSON document per refresh, one per line
+
+Exit status: 0; 1 with ``--once`` when no NC (or not every ``--nc``) was found; 2 when the router
+cannot be reached.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, TextIO
+
+import zenoh
+
+from nc_schema import AxisState, FrameFlags, decode_frame, error_name, motion_state, unpack
+
+from .common import axis_key, nc_of, open_session
+
+PROG = "nc-status"
+#: data older than this is shown as stale [s]
+STALE_AFTER = 1.5
+#: an NC without liveliness and without data for this long is dropped from the table [s]
+FORGET_AFTER = 30.0
+#: how long ``--once`` waits for ``nc/<nc>/claims`` once the rest is in (it comes every second) [s]
+CLAIMS_GRACE = 1.3
+_MOTION_PREFIX = "MC_AXISSTATE_"
+
+
+@dataclass
+class _Raw:
+    """The newest payload of one key and when it arrived (monotonic [s])."""
+
+    data: bytes
+    t: float
+
+
+class NcWatch:
+    """Keeps the newest status, stats and claims payload of every NC seen on a session.
+
+    Callbacks run on zenoh threads and only store bytes; :meth:`snapshot` decodes.
+
+    Args:
+        session: an open zenoh session.
+        ncs: only these NC names (None: all).
+    """
+
+    def __init__(self, session: zenoh.Session, ncs: set[str] | None = None) -> None:
+        self.session = session
+        self.only = ncs
+        self._lock = threading.Lock()
+        self.alive: dict[str, bool] = {}
+        self.alive_t: dict[str, float] = {}
+        self.raw: dict[tuple[str, str], _Raw] = {}  # (nc, "status" | "stats" | "claims")
+        self.first_seen: dict[str, float] = {}
+        self._decl: list[Any] = []
+
+    def start(self, discover_timeout: float = 2.0) -> None:
+        """Subscribe, then ask the router which NCs are alive now (waits up to ``discover_timeout`` s)."""
+        s = self.session
+        for what in ("status", "stats", "claims"):
+            self._decl.append(s.declare_subscriber(f"nc/*/{what}", self._on_data(what)))
+        self._decl.append(s.liveliness().declare_subscriber("nc/*/alive", self._on_alive, history=True))
+        try:
+            for r in s.liveliness().get("nc/*/alive", timeout=discover_timeout):
+                if r.ok is not None:
+                    self._set_alive(nc_of(r.ok.key_expr), True)
+        except Exception:  # the subscriber's history gives the same, only later
+            pass
+
+    def close(self) -> None:
+        for d in self._decl:
+            try:
+                d.undeclare()
+            except Exception:
+                pass
+        self._decl.clear()
+
+    def _wanted(self, nc: str) -> bool:
+        return bool(nc) and (self.only is None or nc in self.only)
+
+    def _set_alive(self, nc: str, alive: bool) -> None:
+        if not self._wanted(nc):
+            return
+        with self._lock:
+            now = time.monotonic()
+            self.alive[nc] = alive
+            self.alive_t[nc] = now
+            self.first_seen.setdefault(nc, now)
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        self._set_alive(nc_of(sample.key_expr), sample.kind != zenoh.SampleKind.DELETE)
+
+    def _on_data(self, what: str) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            nc = nc_of(sample.key_expr)
+            if not self._wanted(nc):
+                return
+            now = time.monotonic()
+            with self._lock:
+                self.raw[(nc, what)] = _Raw(sample.payload.to_bytes(), now)
+                self.first_seen.setdefault(nc, now)
+        return on_sample
+
+    # ---- reading -------------------------------------------------------------------------------
+    def names(self) -> list[str]:
+        """NC names seen so far (alive, gone or only by their data), sorted."""
+        with self._lock:
+            return sorted(self.first_seen)
+
+    def has(self, nc: str, what: str) -> bool:
+        with self._lock:
+            return (nc, what) in self.raw
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything known now as a JSON-ready map ``{"time", "ncs": [...]}`` (see :func:`nc_view`)."""
+        now = time.monotonic()
+        with self._lock:
+            names = sorted(self.first_seen)
+            raw = dict(self.raw)
+            alive = dict(self.alive)
+            alive_t = dict(self.alive_t)
+        views = []
+        for nc in names:
+            newest = max([r.t for (n, _), r in raw.items() if n == nc] + [alive_t.get(nc, 0.0)])
+            if not alive.get(nc, False) and now - newest > FORGET_AFTER:
+                continue
+            views.append(nc_view(nc, alive.get(nc), raw.get((nc, "status")), raw.get((nc, "stats")),
+                                 raw.get((nc, "claims")), now))
+        return {"time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds"), "ncs": views}
+
+
+def _unpack(r: _Raw | None) -> dict[str, Any] | None:
+    if r is None:
+        return None
+    try:
+        v = unpack(r.data)
+    except Exception:
+        return None
+    return v if isinstance(v, dict) else None
+
+
+def _error(code: int) -> str | None:
+    return None if not code else error_name(code)
+
+
+def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None, claims: _Raw | None,
+            now: float) -> dict[str, Any]:
+    """One NC's row set, decoded from its newest payloads (any of them may be missing or malformed).
+
+    Returns:
+        ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "cycle_time", "timing",
+        "missed_cycles", "overruns", "work_us_p99", "clients": {id: {"alive", "role"}}, "claims": {axis: id},
+        "axes": [{"AxisId", "MotionState", "AxisState", "SetPos", "ActPos", "SetVelo", "ErrorCode",
+        "ErrorName", "Holder", "LastCommand"}], "problems": [str]}``.
+    """
+    problems: list[str] = []
+    st = _unpack(stats)
+    if stats is not None and st is None:
+        problems.append("stats: not a msgpack map")
+    cl = _unpack(claims)
+    if claims is not None and cl is None:
+        problems.append("claims: not a msgpack map")
+    frame = None
+    if status is not None:
+        try:
+            frame = decode_frame(status.data)
+        except ValueError as exc:
+            problems.append(f"status: {exc}")
+    if status is None and stats is not None:
+        problems.append("no nc/<nc>/status yet (an NC without it is older than this tool: no axis table)")
+    ages = {k: (None if r is None else round(now - r.t, 3)) for k, r in
+            (("status", status), ("stats", stats), ("claims", claims))}
+    cycle = None
+    if frame is not None:
+        cycle = int(frame[0]["Cycle"])
+    if st is not None and isinstance(st.get("cycle"), int):
+        cycle = max(cycle or 0, st["cycle"])
+    shutting = frame is not None and bool(int(frame[0]["Flags"]) & int(FrameFlags.ShuttingDown))
+    if alive is False or shutting:
+        state = "GONE"
+    elif status is None and stats is None:
+        state = "NO DATA"
+    elif min(a for a in (ages["status"], ages["stats"]) if a is not None) > STALE_AFTER:
+        state = "STALE"
+    else:
+        state = "ALIVE"
+
+    # claims and clients: nc/<nc>/claims when the NC publishes it, else the stats
+    holders: dict[str, str] = {}
+    clients: dict[str, dict[str, Any]] = {}
+    last: dict[str, Any] = {}
+    if cl is not None:
+        for a, c in (cl.get("claims") or {}).items():
+            holders[axis_key(a)] = str(c)
+        for c, info in (cl.get("clients") or {}).items():
+            info = info if isinstance(info, dict) else {}
+            clients[str(c)] = {"alive": info.get("alive"), "role": info.get("role")}
+        for a, lc in (cl.get("last_command") or {}).items():
+            if isinstance(lc, dict):
+                last[axis_key(a)] = {"client": lc.get("client"), "cmd": lc.get("cmd"), "cycle": lc.get("cycle")}
+    elif st is not None:
+        for a, c in (st.get("claims") or {}).items():
+            holders[axis_key(a)] = str(c)
+        for c in st.get("clients") or []:
+            clients[str(c)] = {"alive": True, "role": None}
+
+    axes = []
+    if frame is not None:
+        for r in frame[1]:
+            aid = int(r["AxisId"])
+            code = int(r["ErrorCode"])
+            try:
+                axis_state = AxisState(int(r["AxisState"])).name
+            except ValueError:
+                axis_state = str(int(r["AxisState"]))
+            axes.append({
+                "AxisId": aid,
+                "MotionState": motion_state(int(r["StateDWord"]), int(r["CoupleState"])).name,
+                "AxisState": axis_state,
+                "SetPos": float(r["SetPos"]), "ActPos": float(r["ActPos"]), "SetVelo": float(r["SetVelo"]),
+                "ErrorCode": code, "ErrorName": _error(code),
+                "Holder": holders.get(str(aid)),
+                "LastCommand": last.get(str(aid)),
+            })
+    get = (st or {}).get
+    return {
+        "name": nc, "alive": alive, "state": state, "age_s": ages, "cycle": cycle,
+        "cycle_time": get("cycle_time"), "timing": get("timing"),
+        "missed_cycles": get("missed_cycles"), "overruns": get("overruns"), "work_us_p99": get("work_us_p99"),
+        "clients": clients, "claims": holders, "claims_source": "claims" if cl is not None else
+        ("stats" if st is not None else None), "axes": axes, "problems": problems,
+    }
+
+
+# ---- text ----------------------------------------------------------------------------------------
+def _num(v: Any, fmt: str, none: str = "-") -> str:
+    return none if v is None else format(v, fmt)
+
+
+def render(snap: dict[str, Any]) -> str:
+    """The snapshot as a text table (no escape codes)."""
+    out: list[str] = []
+    if not snap["ncs"]:
+        return f"{snap['time']}  no NC seen yet\n"
+    for v in snap["ncs"]:
+        ct = v["cycle_time"]
+        out.append(f"{v['name']}  {v['state']}  cycle {_num(v['cycle'], 'd')}  "
+                   f"{_num(None if ct is None else ct * 1e3, '.3f')} ms  {v['timing'] or '-'}  "
+                   f"missed {_num(v['missed_cycles'], 'd')}  overruns {_num(v['overruns'], 'd')}  "
+                   f"work p99 {_num(v['work_us_p99'], '.0f')} us")
+        if v["clients"]:
+            parts = []
+            for c, info in sorted(v["clients"].items()):
+                extra = [x for x in (info.get("role"), None if info.get("alive", True) else "gone") if x]
+                parts.append(f"{c} ({', '.join(extra)})" if extra else c)
+            out.append("  clients: " + ", ".join(parts))
+        else:
+            out.append("  clients: none")
+        for p in v["problems"]:
+            out.append(f"  ! {p}")
+        if v["axes"]:
+            out.append(f"  {'Axis':>4}  {'MotionState':<18} {'AxisState':<19} {'SetPos':>12} {'ActPos':>12} "
+                       f"{'SetVelo':>10}  {'ErrorCode':<30} {'Holder':<12} Last command")
+            for a in v["axes"]:
+                err = "0" if not a["ErrorCode"] else f"0x{a['ErrorCode']:04X} {a['ErrorName']}"
+                lc = a["LastCommand"]
+                lct = "-" if not lc else f"{lc.get('cmd')} by {lc.get('client')} @{lc.get('cycle')}"
+                out.append(f"  {a['AxisId']:>4}  {a['MotionState'].removeprefix(_MOTION_PREFIX):<18} "
+                           f"{a['AxisState']:<19} {a['SetPos']:>12.4f} {a['ActPos']:>12.4f} {a['SetVelo']:>10.3f}  "
+                           f"{err:<30} {a['Holder'] or '-':<12} {lct}")
+        else:
+            out.append("  (no status frame yet)")
+        out.append("")
+    return "\n".join(out)
+
+
+# ---- main --------------------------------------------------------------------------------------
+def _complete(w: NcWatch, wanted: set[str] | None, started: float) -> bool:
+    """--once: every NC (every wanted one) has status and stats, and claims or their grace passed."""
+    names = w.names()
+    if not names or (wanted is not None and not wanted <= set(names)):
+        return False
+    for nc in names:
+        if not (w.has(nc, "status") and w.has(nc, "stats")):
+            return False
+        if not w.has(nc, "claims") and time.monotonic() - started < CLAIMS_GRACE:
+            return False
+    return True
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog=PROG, description="Live table of every zenoh-nc NC on a router.")
+    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="zenoh router, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--nc", action="append", metavar="NAME", help="only this NC (repeatable; default: all)")
+    p.add_argument("--once", action="store_true", help="print one snapshot and exit")
+    p.add_argument("--json", action="store_true", help="JSON instead of the table (one document per line)")
+    p.add_argument("--interval", type=float, default=0.5, metavar="S", help="refresh period [s] (default 0.5)")
+    p.add_argument("--timeout", type=float, default=10.0, metavar="S",
+                   help="--once: how long to wait for the NCs' data [s] (default 10)")
+    a = p.parse_args(argv)
+    if a.interval <= 0 or a.timeout <= 0:
+        p.error("--interval and --timeout must be > 0")
+    return a
+
+
+def main(argv: list[str] | None = None, out: TextIO | None = None) -> int:
+    """Run nc-status; returns the exit status."""
+    a = parse_args(argv)
+    out = out or sys.stdout
+    wanted = set(a.nc) if a.nc else None
+    stop = threading.Event()
+    prev = signal.signal(signal.SIGINT, lambda *_: stop.set())
+    session = open_session(a.connect, PROG)
+    w = NcWatch(session, wanted)
+    try:
+        started = time.monotonic()
+        w.start()
+        if a.once:
+            deadline = started + a.timeout
+            while not _complete(w, wanted, started) and time.monotonic() < deadline and not stop.is_set():
+                time.sleep(0.02)
+            snap = w.snapshot()
+            out.write(json.dumps(snap) + "\n" if a.json else render(snap))
+            out.flush()
+            found = {v["name"] for v in snap["ncs"]}
+            if not found or (wanted is not None and not wanted <= found):
+                missing = sorted(wanted - found) if wanted else []
+                print(f"{PROG}: no data from {', '.join(missing) or 'any NC'} on {a.connect} within {a.timeout:g} s",
+                      file=sys.stderr)
+                return 1
+            return 0
+        tty = out.isatty() and not a.json
+        if tty:
+            out.write("\x1b[H\x1b[2J")
+        while not stop.is_set():
+            snap = w.snapshot()
+            if a.json:
+                out.write(json.dumps(snap) + "\n")
+            elif tty:  # home, each line cleared to its end, then the rest of the screen
+                text = f"{PROG} {a.connect}  {snap['time']}\n\n" + render(snap)
+                out.write("\x1b[H" + "\x1b[K\n".join(text.split("\n")) + "\x1b[J")
+            else:
+                out.write(f"--- {snap['time']}\n" + render(snap))
+            out.flush()
+            stop.wait(a.interval)
+        if tty:
+            out.write("\n")
+        return 0
+    except BrokenPipeError:  # e.g. piped into head
+        return 0
+    finally:
+        signal.signal(signal.SIGINT, prev)
+        w.close()
+        try:
+            session.close()
+        except Exception:
+            pass
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,174 @@
+"""nc-status against a real NC: one snapshot as JSON and as a table, a faulted axis with its error
+name, the holder of a claim, the cycle advancing; the decimated ``nc/<nc>/status`` key it reads."""
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import zenoh
+
+from tools_testing import T, Rig, run_tool
+from nc_schema import FrameFlags, decode_frame, error_name
+from znc_testing import NcTestClient, start_nc_server, wait_until, zenoh_client_config
+
+NC_LOST = 0x8F01
+
+
+def snapshot(rig: Rig, *extra: str) -> dict[str, Any]:
+    p = run_tool("status", "--connect", rig.endpoint, "--once", "--json", *extra)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert len(lines) == 1, p.stdout
+    return json.loads(lines[0])
+
+
+def nc1(snap: dict[str, Any]) -> dict[str, Any]:
+    [v] = [v for v in snap["ncs"] if v["name"] == "nc1"]
+    return v
+
+
+def test_once_json_and_table(rig: Rig) -> None:
+    # axis 2: claimed by a client that goes away -> 0x8F01 on the axis, claim released
+    t2 = NcTestClient(rig.srv.port, "t2")
+    try:
+        t2.claim(2)
+        t2.feed_plctonc([2])
+        wait_until(lambda: (s := rig.cl.nctoplc(2)) is not None and int(s["StateDWord"]) & (1 << 20), T, "axis 2 on")
+    finally:
+        t2.close()
+    wait_until(lambda: int(rig.cl.nctoplc(2)["ErrorCode"]) == NC_LOST, T, "axis 2 faulted with 0x8F01")
+    # axis 1: enabled by t1 and moving (a long move: it is still running when nc-status looks)
+    rig.enable(1)
+    r = rig.request("MoveAbsolute", axis=1, Position=900.0, Velocity=20.0)
+    wait_until(lambda: float(rig.cl.nctoplc(1)["SetVelo"]) > 0, T, "axis 1 moving")
+
+    first = nc1(snapshot(rig))
+    assert first["state"] == "ALIVE" and first["alive"] is True
+    assert first["cycle"] >= r["cycle"] and first["cycle_time"] == 0.001
+    assert isinstance(first["missed_cycles"], int) and isinstance(first["overruns"], int)
+    assert first["work_us_p99"] > 0 and first["timing"]
+    assert "t1" in first["clients"]
+    assert first["claims"].get("1") == "t1" and "2" not in first["claims"]
+    axes = {a["AxisId"]: a for a in first["axes"]}
+    assert sorted(axes) == [1, 2, 3, 4]
+    a1, a2 = axes[1], axes[2]
+    assert a1["MotionState"] == "MC_AXISSTATE_DISCRETEMOTION" and a1["Holder"] == "t1"
+    assert a1["SetVelo"] > 0 and 0 < a1["SetPos"] < 900 and a1["ErrorCode"] == 0 and a1["ErrorName"] is None
+    assert a2["MotionState"] == "MC_AXISSTATE_ERRORSTOP" and a2["Holder"] is None
+    assert a2["ErrorCode"] == NC_LOST and a2["ErrorName"] == error_name(NC_LOST) != "0x8F01"
+    assert axes[3]["MotionState"] == "MC_AXISSTATE_DISABLED"
+    if first["claims_source"] == "claims":  # the NC publishes nc/<nc>/claims (protocol version 2)
+        lc = a1["LastCommand"]
+        assert lc["client"] == "t1" and lc["cmd"] == "MoveAbsolute" and lc["cycle"] >= r["cycle"]
+    else:
+        assert first["claims_source"] == "stats" and a1["LastCommand"] is None
+
+    # the cycle advances between two snapshots (each its own process)
+    second = nc1(snapshot(rig, "--nc", "nc1"))
+    assert second["cycle"] > first["cycle"]
+    assert {a["AxisId"]: a for a in second["axes"]}[1]["SetPos"] > a1["SetPos"]
+
+    # the table
+    p = run_tool("status", "--connect", rig.endpoint, "--once")
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[0].startswith("nc1  ALIVE  cycle ") and " 1.000 ms " in lines[0]
+    row = {ln.split()[0]: ln for ln in lines if ln.strip()[:1].isdigit()}
+    assert set(row) == {"1", "2", "3", "4"}
+    assert "DISCRETEMOTION" in row["1"] and "t1" in row["1"]
+    assert "ERRORSTOP" in row["2"] and f"0x{NC_LOST:04X} {error_name(NC_LOST)}" in row["2"]
+    assert any(ln.strip().startswith("clients:") and "t1" in ln for ln in lines)
+    rig.request("Halt", axis=1)
+
+
+def test_once_reports_a_missing_nc(rig: Rig) -> None:
+    p = run_tool("status", "--connect", rig.endpoint, "--once", "--json", "--nc", "nope", "--timeout", "3")
+    assert p.returncode == 1 and "nope" in p.stderr
+    assert json.loads(p.stdout)["ncs"] == []
+
+
+def test_no_router_exits_2(rig: Rig) -> None:
+    from znc_testing import free_port
+    p = run_tool("status", "--connect", f"tcp/127.0.0.1:{free_port()}", "--once")
+    assert p.returncode == 2 and "cannot connect" in p.stderr
+
+
+def test_status_key_is_a_decimated_frame_with_the_final_shutdown(tmp_path) -> None:
+    srv = start_nc_server(tmp_path)
+    try:
+        s = zenoh.open(zenoh_client_config(srv.port))
+        got: list[bytes] = []
+        sub = s.declare_subscriber("nc/nc1/status", lambda smp: got.append(smp.payload.to_bytes()))
+        wait_until(lambda: len(got) >= 3, T, "three status samples")
+        hdrs = [decode_frame(b)[0] for b in got[:3]]
+        assert all(int(h["AxisCount"]) == 4 for h in hdrs)
+        assert int(hdrs[0]["Cycle"]) < int(hdrs[1]["Cycle"]) < int(hdrs[2]["Cycle"])
+        srv.stop()  # SIGTERM: the NC's last frame is flagged ShuttingDown, and goes out on the status key too
+        wait_until(lambda: int(decode_frame(got[-1])[0]["Flags"]) & int(FrameFlags.ShuttingDown), T,
+                   "a ShuttingDown status frame")
+        sub.undeclare()
+        s.close()
+    finally:
+        srv.kill()
+
+
+def test_live_json_refreshes_until_sigint(rig: Rig) -> None:
+    import signal
+    import subprocess
+
+    from tools_testing import kill_group, tool_command
+    p = subprocess.Popen(tool_command("status", "--connect", rig.endpoint, "--json", "--interval", "0.2"),
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert p.stdout is not None
+        cycles: list[int] = []
+
+        def two_docs_with_axes() -> bool:
+            v = [n for n in json.loads(p.stdout.readline())["ncs"] if n["name"] == "nc1"]
+            if v and v[0]["axes"]:
+                cycles.append(v[0]["cycle"])
+            return len(cycles) >= 2 and cycles[-1] > cycles[0]
+
+        wait_until(two_docs_with_axes, T, "two refreshed snapshots with the cycle advancing")
+        p.send_signal(signal.SIGINT)
+        assert p.wait(T) == 0, p.stderr.read() if p.stderr else ""
+    finally:
+        kill_group(p)
+
+
+def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
+    import signal
+    import subprocess
+
+    from tools_testing import kill_group, tool_command
+    from znc_testing import start_nc_router
+    router = start_nc_router(tmp_path / "router")
+    procs = [router]
+    live = None
+    try:
+        procs.append(start_nc_server(tmp_path / "nc1", connect=router.endpoint))
+        nc2 = start_nc_server(tmp_path / "nc2", extra_args=("--name", "nc2"), name="nc2", connect=router.endpoint)
+        procs.append(nc2)
+        p = run_tool("status", "--connect", router.endpoint, "--once", "--json", "--nc", "nc1", "--nc", "nc2")
+        assert p.returncode == 0, p.stderr
+        snap = json.loads(p.stdout)
+        assert [v["name"] for v in snap["ncs"]] == ["nc1", "nc2"]
+        assert all(v["state"] == "ALIVE" and len(v["axes"]) == 4 for v in snap["ncs"])
+        # live: nc2 stops, the table shows it GONE (its last frame said ShuttingDown, its token went)
+        live = subprocess.Popen(tool_command("status", "--connect", router.endpoint, "--json", "--interval", "0.2"),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+        assert live.stdout is not None
+
+        def states() -> dict[str, str]:
+            return {v["name"]: v["state"] for v in json.loads(live.stdout.readline())["ncs"]}
+
+        wait_until(lambda: states() == {"nc1": "ALIVE", "nc2": "ALIVE"}, T, "both NCs alive in the live view")
+        nc2.stop()
+        wait_until(lambda: states() == {"nc1": "ALIVE", "nc2": "GONE"}, T, "nc2 gone, nc1 alive")
+        live.send_signal(signal.SIGINT)
+        assert live.wait(T) == 0
+    finally:
+        if live is not None:
+            kill_group(live)
+        for h in reversed(procs):
+            h.kill()
