@@ -4,8 +4,10 @@ Per cycle (:meth:`NcServer.cycle`): liveliness events -> claims; drain the comma
 (bounded); apply the newest PLCTONC frame of each claim holder and the watchdog
 (:class:`~nc_server.server.handler.CycleInputs`, shared with the in-process port);
 ``core.step()``; hand (frame, per-axis samples for matched publishers, replies) to the I/O thread.
-With a retain file (:mod:`.retain`): loaded and applied before the first cycle, a snapshot every
-100 ms for the retain thread, the final state written after the last cycle.
+With a retain file (:mod:`.retain`): locked and read before the cycle starts; the first cycle only
+steps the core once (the drive is read) and applies the file through the commands, before any
+command or PLCTONC is taken and without publishing a frame; then a snapshot every 100 ms (and on
+every change of standstill) for the retain thread; the final state written after the last cycle.
 """
 from __future__ import annotations
 
@@ -73,6 +75,7 @@ class NcServer:
         self._matched: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
         self.started = False
         self._shutdown = threading.Event()  # set by stop(): the cycle stops every moving axis
+        self._retain_pending = False  # the first cycle has not applied the retain file yet
         # [nc] retain_file: built now, while the core's parameters are still the configured ones
         self.retain = RetainKeeper(config.retain_file, config.name, core) if config.retain_file else None
 
@@ -83,11 +86,16 @@ class NcServer:
         Raises:
             zenoh.ZError: the session could not be opened (e.g. endpoint in use).
             RealtimeError: ``realtime="fifo"`` and SCHED_FIFO was refused.
+            RetainLockError: another process uses the retain file (nothing was opened).
         """
         configure_interpreter()
-        if self.retain is not None:  # before anything runs: the axes are disabled, no cycle yet
-            self.retain.load(self.core)
-        self.transport.open()
+        self.load_retain()
+        try:
+            self.transport.open()
+        except BaseException:
+            if self.retain is not None:
+                self.retain.stop()  # (releases the lock; nothing is written)
+            raise
         self.io.start()
         # Objects made so far live as long as the server: keep the collector off them.
         gc.collect()
@@ -104,6 +112,16 @@ class NcServer:
             raise
         self.started = True
         log.info("cycle thread: %s", self.loop.stats.timing_detail)
+
+    def load_retain(self) -> None:
+        """Lock and read the retain file (if configured); the first cycle applies it (start() calls this).
+
+        Raises:
+            RetainLockError: another process uses the retain file.
+        """
+        if self.retain is not None and self.retain.status == "new":
+            self.retain.load()
+            self._retain_pending = True
 
     def stop(self) -> None:
         """Stop the cycle, publish a last frame flagged ShuttingDown, close zenoh (idempotent)."""
@@ -152,6 +170,9 @@ class NcServer:
         """One NC cycle scheduled at ``deadline_ns`` (CLOCK_MONOTONIC)."""
         t = self.transport
         core = self.core
+        if self._retain_pending:
+            self._retain_cycle(deadline_ns)
+            return
         claims = self.claims
         now = time.monotonic()
         if self._prev_start and now - self._prev_start > STALL_GRACE:
@@ -201,6 +222,29 @@ class NcServer:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
 
+    def _retain_cycle(self, deadline_ns: int) -> None:
+        """The first cycle with a retain file: one ``core.step()`` (the drive is read, the axes are still
+        disabled, no command or PLCTONC taken yet), then the file is applied through the commands. No
+        frame: the next cycle's shows the restored state."""
+        retain = self.retain
+        assert retain is not None
+        core = self.core
+        self._prev_start = time.monotonic()
+        self._retain_pending = False
+        try:
+            core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
+        except Exception:  # as in cycle(): a bug in the core faults the axes, the NC goes on
+            self.step_errors += 1
+            log.exception("NC step failed: every axis is faulted with 0x4000")
+            for i in range(len(core.axis_ids)):  # type: ignore[attr-defined]
+                core.fault(i, ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
+        try:
+            retain.apply(core)
+        except Exception:  # a bug: run on with what was applied, but never write that over the file
+            retain.writing_disabled = True
+            log.exception("retain file %s: 0x4002 NC retain data error: applying it failed; the NC does not "
+                          "write the retain file during this run", retain.path)
+
     def _stop_moving_axes(self) -> None:
         """Shutdown: MC_Stop every moving axis that is not already stopping (cycle thread)."""
         core = self.core
@@ -244,7 +288,10 @@ class NcServer:
 
         They take effect at the next ``core.step()``, as their reply's ``cycle`` says. Liveliness
         first: a client declares its token before it claims, and the NC must see them in that order.
+        Nothing before the retain file was applied (the first cycle).
         """
+        if self._retain_pending:
+            return
         self._take_liveliness()
         replies = self._drain_queries(time.monotonic())
         if replies:

@@ -87,6 +87,7 @@ def _run(cfg: object) -> int:
     from .app import NcServer
     from .config import ServerConfig
     from .cycle import RealtimeError
+    from .retain import RetainLockError
 
     assert isinstance(cfg, ServerConfig)
     try:
@@ -123,6 +124,9 @@ def _run(cfg: object) -> int:
         return 1
     except RealtimeError as exc:
         log.error("%s (use realtime = \"auto\" or \"off\")", exc)
+        return 1
+    except RetainLockError as exc:  # another NC runs on this retain file: a start failure
+        log.error("%s", exc)
         return 1
     # one write: with PYTHONUNBUFFERED, print() would write text and newline separately and a log
     # line on stderr could land between them when both streams go to one file

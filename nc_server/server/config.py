@@ -7,7 +7,9 @@ A configuration is checked completely before anything starts; every problem is r
 from __future__ import annotations
 
 import math
+import os
 import re
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -60,7 +62,9 @@ class ServerConfig:
         rt_priority: SCHED_FIFO priority (1..99) of the cycle thread.
         drive: name of the drive backend (an entry point of group ``zenoh_nc.drives``; ``"sim"``).
         retain_file: the retain file (positions of persistent axes, homed flags, parameters written at
-            run time: :mod:`nc_server.server.retain`), None: nothing is kept across a restart.
+            run time: :mod:`nc_server.server.retain`), an absolute path (a relative one is resolved
+            against the working directory when the configuration is loaded, also in a config file),
+            None: nothing is kept across a restart.
         zenoh: the session settings.
         axes: the axes in configuration order.
     """
@@ -140,14 +144,31 @@ def _endpoints(v: Any, key: str) -> tuple[str, ...]:
 
 
 def _retain_path(v: Any, key: str) -> str:
-    """A retain file path: a non-empty string naming a file (not a directory) in an existing directory."""
+    """A retain file path, made absolute against the working directory (not the config file's).
+
+    It must be a regular file or not exist yet (not a directory, FIFO, device or symlink: the NC
+    replaces it by rename), in an existing directory the NC may write (it creates ``<file>.lock`` and
+    temporary files there).
+    """
     if not isinstance(v, str) or not v.strip():
         raise ConfigError(key, f"must be a file path, got {v!r}")
-    p = Path(v).expanduser()
-    if p.is_dir():
-        raise ConfigError(key, f"{v!r} is a directory, expected a file path")
+    p = Path(os.path.abspath(Path(v).expanduser()))
+    try:
+        st = os.lstat(p)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise ConfigError(key, f"{str(p)!r}: {exc.strerror or exc}") from None
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        what = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                else "a symlink (the first write would replace the link: name its target)" if stat.S_ISLNK(st.st_mode)
+                else "not a regular file")
+        raise ConfigError(key, f"{str(p)!r} is {what}, expected a regular file or a path that does not exist yet")
     if not p.parent.is_dir():
-        raise ConfigError(key, f"the directory of {v!r} does not exist")
+        raise ConfigError(key, f"the directory of {str(p)!r} does not exist")
+    if not os.access(p.parent, os.W_OK | os.X_OK):
+        raise ConfigError(key, f"the directory {str(p.parent)!r} is not writable (the NC writes the file, "
+                               f"its .lock and temporary files there)")
     return str(p)
 
 

@@ -1,56 +1,86 @@
 """The retain file: what an NC keeps across a restart (opt-in: ``[nc] retain_file`` / ``--retain``).
 
-Kept per axis:
+Kept per axis (every entry carries the axis's ``Name``):
 
-* the actual position and the homed flag (StateDWord.Homed) of every axis whose TwinCAT parameter
-  ``AxisEnDataPersistence`` is TRUE (a homed flag without its position would claim a reference the
-  axis no longer has: for the other axes the configuration's ``Homed`` decides, e.g. for an
-  absolute encoder);
+* the actual position, the homed flag (StateDWord.Homed), a standstill flag and the modulo setting
+  of every axis whose TwinCAT parameter ``AxisEnDataPersistence`` is TRUE ("persistent" axes);
 * the parameters written at run time (MC_WriteParameter): every stored parameter whose value differs
-  from the configuration's. The configuration stays the base: a parameter written back to its
-  configured value is not kept.
+  from the configuration's, together with that configured value. The configuration stays the base:
+  a parameter written back to its configured value is not kept.
 
 File format (version :data:`FORMAT_VERSION`)::
 
     offset  size  field
     0       8     magic b"ZNCRTN\\r\\n"   (the CR LF catches text-mode mangling)
     8       2     format version, uint16 little-endian
-    10      4     body length, uint32 little-endian
+    10      4     body length, uint32 little-endian (at most max_body(configured axes))
     14      32    sha256 of the body
-    46      n     body: msgpack map {"nc": str, "saved_ns": int,
-                                     "axes": {AxisId: {"position": float, "homed": bool,
-                                                       "params": {name: float | bool}}}}
+    46      n     body: msgpack map (maps, strings, numbers and booleans only: no arrays, no bin)
+                  {"nc": str, "saved_ns": int,
+                   "axes": {AxisId: {"name": str,
+                                     # persistent axes (all four or none):
+                                     "position": float, "homed": bool, "standstill": bool,
+                                     "modulo": float,         # AxisEncoderModuloValue, 0.0: not Modulo
+                                     "params": {name: {"value": float | bool,
+                                                       "configured": float | bool}}}}}
 
 The magic and the version stay where they are in every future version; a reader refuses a version
-it does not know before it looks at anything else.
+it does not know before it looks at anything else (version 1, the first weeks' format without names,
+standstill flags and configured values, is refused that way).
 
-Threads: the cycle thread never touches the disk. Every :data:`SNAPSHOT_PERIOD` it copies the
-actual positions, the homed flags and the references of the (immutable) parameter objects
-(:meth:`RetainKeeper.tick`, a few microseconds) and hands them to the retain thread, which builds a
-:class:`RetainData`, and writes the file (:func:`write_atomic`) only when its content changed; once
-more at shutdown, after the cycle ended. After a SIGKILL the file holds the state of at most one
-snapshot period (plus one write) ago.
+Writing. The cycle thread never touches the disk. Every :data:`SNAPSHOT_PERIOD`, and within
+:data:`STANDSTILL_CHECK_PERIOD` when an axis starts or stops standing, it copies the actual
+positions, the homed and standstill flags and the references of the (immutable) parameter objects
+(:meth:`RetainKeeper.tick`, microseconds) and hands them to the retain thread, which builds a
+:class:`RetainData` and writes the file (:func:`write_atomic`) when its content changed: at once for
+a change of a homed or standstill flag, of a parameter or of a standing axis's position (by more
+than :data:`STANDSTILL_TOLERANCE` x its AxisTargetPositionWindow: smaller ones wait for another
+change); while axes move (only their positions changed) at most every :data:`MOVING_WRITE_PERIOD`
+(flash wear); once more at shutdown, after the cycle ended, with whatever changed. A position the
+reader would not restore (not finite, ``|pos| >= 1e9``) is left out with its homed flag (logged once
+per axis), and every file is parsed before it is written: the file never holds what its reader refuses.
 
-At startup (:meth:`RetainKeeper.load`, before the cycle starts, the axes disabled) the file's
-parameters go through WriteParameter (its validation: a value the configuration rejects is logged
-and skipped), then the positions through SetActualPosition and the homed flags through
-SetReferenceFlag, for the axes that are persistent by then. A file that cannot be used (corrupt,
-another NC's, an unknown format version) is refused with one error line (0x4002, TwinCAT's "NC
-retain data error"), renamed to ``<file>.rejected`` (``.rejected.1``, ... if that exists: it is never
-overwritten) and the NC starts with its configuration; the next write creates a fresh file.
+An axis "stands" when it has no job, ``|SetVelo| <= 1e-9`` and ``|ActVelo| <=``
+:data:`STANDSTILL_VELOCITY`. A position taken while the axis moved is restored, but the axis is not
+referenced (Homed FALSE): after a SIGKILL or a power cut mid-move the file lags the axis.
+
+Loading, in two steps. :meth:`RetainKeeper.load` (before the cycle starts) takes an exclusive lock
+on ``<file>.lock`` for the life of the process (a second NC on the same file fails to start:
+:class:`RetainLockError`), reads and checks the file. :meth:`RetainKeeper.apply` (the cycle thread,
+right after the first ``core.step()``, when the drive has been read once, before any command or
+PLCTONC and before the first snapshot) applies it through the commands a client would use:
+parameters through WriteParameter, positions through SetActualPosition, homed flags through
+SetReferenceFlag.
+
+Refusals. A file that cannot be used (corrupt, another NC's, an unknown format version) or cannot
+be read (an OSError such as EIO or EACCES) is refused with one error line (0x4002, TwinCAT's "NC
+retain data error"), renamed to ``<file>.rejected`` (``.rejected.1``, ... : never overwritten) and
+the NC starts with its configuration; the next write creates a fresh file. If it cannot even be
+renamed, the NC does not write the retain file during this run (it would overwrite what may still
+be rescued) and says so.
+
+Homed flags of persistent axes come from the file only: once a retain file exists, a persistent
+axis for which the file holds no usable position taken at standstill (refused or unreadable file,
+axis missing, another ``Name``, another modulo setting, a position out of range, SetActualPosition
+refused, a snapshot taken while it moved) starts with Homed FALSE (a 0x4002 warning: the axis must be
+referenced again). Only the first start (no file yet) keeps the configured ``Homed``.
 """
 from __future__ import annotations
 
+import errno
+import fcntl
 import hashlib
 import logging
 import math
 import os
+import stat
 import struct
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Collection, Mapping
+from typing import Any, Callable, Collection, Mapping
 
 import msgpack
 import numpy as np
@@ -59,27 +89,62 @@ from nc_schema import ErrorCodes, MC_AxisPara, NcError, error_name, make_request
 
 from nc_server.core.params import AxisParams
 
-__all__ = ["AxisRetain", "RetainData", "RetainError", "RetainKeeper", "encode_retain", "parse_retain",
-           "write_atomic", "FORMAT_VERSION", "MAGIC", "SNAPSHOT_PERIOD"]
+__all__ = ["AxisRetain", "RetainData", "RetainError", "RetainKeeper", "RetainLockError", "encode_retain",
+           "parse_retain", "write_atomic", "max_body", "FORMAT_VERSION", "MAGIC", "SNAPSHOT_PERIOD",
+           "MOVING_WRITE_PERIOD", "STANDSTILL_CHECK_PERIOD", "STANDSTILL_TOLERANCE", "STANDSTILL_VELOCITY"]
 
 log = logging.getLogger("nc_server.server")
 
 #: First bytes of every retain file.
 MAGIC = b"ZNCRTN\r\n"
 #: The format this module writes and reads.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 #: magic, version, body length, sha256(body)
 _HEADER = struct.Struct("<8sHI32s")
-#: Largest body read [bytes] (65535 axes with a few parameters each stay far below).
-MAX_BODY = 16 * 1024 * 1024
-#: Largest |position| kept (the NC's MAX_POSITION).
+#: Body bound: this much [bytes] ...
+BODY_BASE = 64 * 1024
+#: ... plus this much per configured axis (an axis with every parameter written and a 64-character
+#: Name encodes to about 4 KiB).
+BODY_PER_AXIS = 8 * 1024
+#: Longest string in a body [bytes]: a ``Name`` of 64 characters in UTF-8.
+MAX_STR = 256
+#: Most entries of one msgpack map (the axes map: AxisIds are 1..65535).
+MAX_MAP = 65535
+#: Largest |position| kept (the NC's MAX_POSITION: SetActualPosition refuses more).
 MAX_POSITION = 1e9
-#: The cycle hands a snapshot to the retain thread this often [s].
+#: The cycle hands a snapshot to the retain thread this often [s] (and at once when a standstill flag changes).
 SNAPSHOT_PERIOD = 0.1
+#: The cycle looks for axes that started or stopped standing this often [s] (a snapshot at once when
+#: one did; a check costs a few microseconds, so not every cycle).
+STANDSTILL_CHECK_PERIOD = 0.01
+#: While only positions of moving axes changed, the file is written at most this often [s].
+MOVING_WRITE_PERIOD = 1.0
+#: An axis without job and set velocity stands when |ActVelo| is at most this [u/s] (over one snapshot
+#: period it moves less than 1e-4 u); a noisier encoder counts as moving: the safe side.
+STANDSTILL_VELOCITY = 1e-3
+#: A standing axis's position change up to this fraction of its AxisTargetPositionWindow is not worth
+#: a write of its own (the settling tail, encoder noise); it goes with the next change or the final write.
+STANDSTILL_TOLERANCE = 0.1
 #: Error code of a refused file (TwinCAT: NC retain (persistent) data error).
 RETAIN_ERROR_CODE = 0x4002
+#: Set velocities up to this count as zero (the core's own threshold) [u/s].
+_EPS_V = 1e-9
 
 _PARAM_KINDS: dict[str, str] = {f.name: f.metadata["kind"] for f in fields(AxisParams)}
+_AXIS_KEYS = frozenset({"name", "position", "homed", "standstill", "modulo", "params"})
+_POS_KEYS = frozenset({"position", "homed", "standstill", "modulo"})
+_DIR_SYNC_UNSUPPORTED = frozenset({errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP})
+
+
+def max_body(n_axes: int) -> int:
+    """Largest body [bytes] a reader with ``n_axes`` configured axes accepts (bounds its memory too)."""
+    return BODY_BASE + BODY_PER_AXIS * max(1, int(n_axes))
+
+
+def _short(s: Any, n: int = 40) -> str:
+    """``repr(s)`` cut to ``n`` characters (names from a hostile file go into log lines)."""
+    r = repr(s)
+    return r if len(r) <= n else r[:n - 3] + "..."
 
 
 class RetainError(ValueError):
@@ -95,19 +160,34 @@ class RetainError(ValueError):
         self.kind = kind
 
 
+class RetainLockError(RuntimeError):
+    """The retain file cannot be locked for this process: another process holds ``<file>.lock`` (two NCs
+    must not share one retain file), or the lock file cannot be created."""
+
+
 @dataclass(frozen=True)
 class AxisRetain:
     """What is kept of one axis.
 
     Attributes:
+        name: the axis's ``Name`` when it was written (an axis renamed since is skipped).
         position: actual position [u] (persistent axes only), None: not kept.
-        homed: StateDWord.Homed (persistent axes only), None: not kept.
-        params: parameters written at run time, by TwinCAT name (``AxisVeloMax``: 400.0).
+        homed: StateDWord.Homed (with ``position``).
+        standstill: the axis stood when the position was taken (with ``position``); FALSE: it is
+            restored unreferenced.
+        modulo: AxisEncoderModuloValue when ``Modulo`` was TRUE, 0.0 otherwise [u] (with ``position``).
+        params: parameters written at run time, by TwinCAT name: (value, configured value then),
+            e.g. ``{"AxisVeloMax": (400.0, 1000.0)}``.
+        unknown: parameter names of the file this NC does not know (parsing only; skipped).
     """
 
+    name: str
     position: float | None = None
     homed: bool | None = None
-    params: Mapping[str, float | bool] = field(default_factory=dict)
+    standstill: bool | None = None
+    modulo: float | None = None
+    params: Mapping[str, tuple[float | bool, float | bool]] = field(default_factory=dict)
+    unknown: tuple[str, ...] = field(default=(), compare=False)
 
 
 @dataclass(frozen=True)
@@ -126,19 +206,22 @@ class RetainData:
 
 
 # ---- encoding / parsing -----------------------------------------------------------------------
+def _num(v: float | bool) -> float | bool:
+    return v if isinstance(v, bool) else float(v)
+
+
 def encode_retain(data: RetainData) -> bytes:
     """The file bytes of ``data`` (header + msgpack body; axes and parameters in sorted order, so equal
     data gives equal bytes apart from ``saved_ns``)."""
     axes: dict[int, dict[str, Any]] = {}
     for axis_id in sorted(data.axes):
         a = data.axes[axis_id]
-        d: dict[str, Any] = {}
+        d: dict[str, Any] = {"name": str(a.name)}
         if a.position is not None:
-            d["position"] = float(a.position)
-        if a.homed is not None:
-            d["homed"] = bool(a.homed)
+            d.update(position=float(a.position), homed=bool(a.homed), standstill=bool(a.standstill),
+                     modulo=float(a.modulo or 0.0))
         if a.params:
-            d["params"] = {k: (v if isinstance(v, bool) else float(v)) for k, v in sorted(a.params.items())}
+            d["params"] = {k: {"value": _num(v), "configured": _num(c)} for k, (v, c) in sorted(a.params.items())}
         axes[int(axis_id)] = d
     body = msgpack.packb({"nc": data.nc_name, "saved_ns": int(data.saved_ns), "axes": axes}, use_bin_type=True)
     return _HEADER.pack(MAGIC, FORMAT_VERSION, len(body), hashlib.sha256(body).digest()) + body
@@ -147,24 +230,28 @@ def encode_retain(data: RetainData) -> bytes:
 def parse_retain(raw: bytes, nc_name: str, axis_ids: Collection[int]) -> RetainData:
     """Check and decode a retain file written by :func:`encode_retain`.
 
-    Never raises anything but :class:`RetainError`, whatever ``raw`` holds (a fuzz target).
+    Never raises anything but :class:`RetainError`, whatever ``raw`` holds (a fuzz target), and its
+    memory stays bounded: a body above :func:`max_body` is refused before it is decoded, msgpack
+    arrays and binaries are refused, strings are at most :data:`MAX_STR` bytes. Values are judged
+    when applied (a position out of range costs that axis its position, not the file).
 
     Args:
         raw: the file's bytes.
         nc_name: this NC's name; a file of another NC is foreign.
-        axis_ids: this NC's axes; a file with axes of which none is configured here is foreign
-            (axes of the file that are not configured stay in the result: the caller reports them).
+        axis_ids: this NC's axes (their count bounds the body); a file with axes of which none is
+            configured here is foreign (axes of the file that are not configured stay in the
+            result: the caller reports them).
 
     Raises:
-        RetainError: ``corrupt`` (wrong magic, truncated, checksum mismatch, not msgpack, wrong
-            structure), ``version`` (unknown format version), ``foreign`` (see above).
+        RetainError: ``corrupt`` (wrong magic, truncated, too long, checksum mismatch, not msgpack,
+            wrong structure), ``version`` (unknown format version), ``foreign`` (see above).
     """
     try:
         return _parse(bytes(raw), nc_name, axis_ids)
     except RetainError:
         raise
     except Exception as exc:  # a case the checks below missed: still a refusal, never a crash
-        raise RetainError("corrupt", f"unreadable ({type(exc).__name__}: {exc})") from None
+        raise RetainError("corrupt", f"unreadable ({type(exc).__name__}: {_short(str(exc), 80)})") from None
 
 
 def _parse(raw: bytes, nc_name: str, axis_ids: Collection[int]) -> RetainData:
@@ -178,23 +265,24 @@ def _parse(raw: bytes, nc_name: str, axis_ids: Collection[int]) -> RetainData:
     if len(raw) < _HEADER.size:
         raise RetainError("corrupt", f"truncated header ({len(raw)} of {_HEADER.size} bytes)")
     _, _, length, digest = _HEADER.unpack_from(raw)
+    ids = {int(a) for a in axis_ids}
+    limit = max_body(len(ids))
+    if length > limit:
+        raise RetainError("corrupt", f"body length {length} above {limit} (the bound for {len(ids)} axes)")
     body = raw[_HEADER.size:]
-    if length > MAX_BODY:
-        raise RetainError("corrupt", f"body length {length} above {MAX_BODY}")
     if len(body) != length:
         raise RetainError("corrupt", f"truncated or padded: body has {len(body)} bytes, header says {length}")
     if hashlib.sha256(body).digest() != digest:
         raise RetainError("corrupt", "checksum mismatch (sha256 of the body)")
     try:
-        doc = msgpack.unpackb(body, raw=False, strict_map_key=False, use_list=True,
-                              max_str_len=MAX_BODY, max_bin_len=MAX_BODY, max_array_len=1 << 20, max_map_len=1 << 20,
-                              max_ext_len=0)
+        doc = msgpack.unpackb(body, raw=False, strict_map_key=False, use_list=False, max_str_len=MAX_STR,
+                              max_bin_len=0, max_array_len=0, max_map_len=MAX_MAP, max_ext_len=0)
     except Exception as exc:
-        raise RetainError("corrupt", f"body is not msgpack ({type(exc).__name__}: {exc})") from None
+        raise RetainError("corrupt", f"body is not msgpack of this format ({type(exc).__name__}: "
+                                     f"{_short(str(exc), 80)})") from None
     data = _structure(doc)
     if data.nc_name != nc_name:
-        raise RetainError("foreign", f"written by NC {data.nc_name!r}, this is NC {nc_name!r}")
-    ids = {int(a) for a in axis_ids}
+        raise RetainError("foreign", f"written by NC {_short(data.nc_name)}, this is NC {nc_name!r}")
     if data.axes and not ids.intersection(data.axes):
         raise RetainError("foreign", f"none of its axes {sorted(data.axes)[:8]} is configured here "
                                      f"(axes {sorted(ids)[:8]})")
@@ -208,63 +296,92 @@ def _structure(doc: Any) -> RetainData:
     if not isinstance(doc, dict):
         raise bad(f"the body is a {type(doc).__name__}, expected a map")
     if set(doc) != {"nc", "saved_ns", "axes"}:
-        raise bad(f"keys {sorted(map(repr, doc))}, expected 'axes', 'nc', 'saved_ns'")
+        raise bad(f"keys {[_short(k) for k in list(doc)[:8]]}, expected 'axes', 'nc', 'saved_ns'")
     nc, saved, axes = doc["nc"], doc["saved_ns"], doc["axes"]
     if not isinstance(nc, str) or not nc:
-        raise bad(f"nc must be a non-empty string, got {nc!r}")
+        raise bad(f"nc must be a non-empty string, got {_short(nc)}")
     if isinstance(saved, bool) or not isinstance(saved, int) or saved < 0:
-        raise bad(f"saved_ns must be an integer >= 0, got {saved!r}")
+        raise bad(f"saved_ns must be an integer >= 0, got {_short(saved)}")
     if not isinstance(axes, dict):
         raise bad(f"axes must be a map, got {type(axes).__name__}")
     out: dict[int, AxisRetain] = {}
     for axis_id, a in axes.items():
         if isinstance(axis_id, bool) or not isinstance(axis_id, int) or not 1 <= axis_id <= 65535:
-            raise bad(f"axis id {axis_id!r} is not an integer 1..65535")
+            raise bad(f"axis id {_short(axis_id)} is not an integer 1..65535")
         where = f"axis {axis_id}"
-        if not isinstance(a, dict) or not set(a) <= {"position", "homed", "params"}:
-            raise bad(f"{where}: expected a map with position, homed, params")
-        pos = a.get("position")
-        if pos is not None:
-            if not _is_number(pos) or not abs(pos) < MAX_POSITION:
-                raise bad(f"{where}: position {pos!r} is not a number within +/-{MAX_POSITION:g}")
-            pos = float(pos)
-        homed = a.get("homed")
-        if homed is not None and not isinstance(homed, bool):
-            raise bad(f"{where}: homed {homed!r} is not a boolean")
+        if not isinstance(a, dict) or not set(a) <= _AXIS_KEYS:
+            raise bad(f"{where}: expected a map with name, position, homed, standstill, modulo, params")
+        name = a.get("name")
+        if not isinstance(name, str):
+            raise bad(f"{where}: name {_short(name)} is not a string")
+        pos = homed = standstill = modulo = None
+        present = _POS_KEYS.intersection(a)
+        if present and present != _POS_KEYS:
+            raise bad(f"{where}: position, homed, standstill and modulo come together, got {sorted(present)}")
+        if present:
+            pos, homed, standstill, modulo = a["position"], a["homed"], a["standstill"], a["modulo"]
+            if not _is_number(pos):
+                raise bad(f"{where}: position {_short(pos)} is not a number")
+            if not isinstance(homed, bool) or not isinstance(standstill, bool):
+                raise bad(f"{where}: homed {_short(homed)} / standstill {_short(standstill)} are not booleans")
+            if not _is_number(modulo):
+                raise bad(f"{where}: modulo {_short(modulo)} is not a number")
+            pos, modulo = float(pos), float(modulo)
         params = a.get("params", {})
         if not isinstance(params, dict):
             raise bad(f"{where}: params must be a map")
-        clean: dict[str, float | bool] = {}
-        for name, v in params.items():
-            if not isinstance(name, str) or not name:
-                raise bad(f"{where}: parameter name {name!r} is not a string")
-            if not (isinstance(v, bool) or _is_number(v)):
-                raise bad(f"{where}: parameter {name} = {v!r} is not a finite number or a boolean")
-            clean[name] = v if isinstance(v, bool) else float(v)
-        out[axis_id] = AxisRetain(pos, homed, clean)
+        if len(params) > len(_PARAM_KINDS):
+            raise bad(f"{where}: {len(params)} parameters, an axis has {len(_PARAM_KINDS)}")
+        clean: dict[str, tuple[float | bool, float | bool]] = {}
+        unknown: list[str] = []
+        for pname, entry in params.items():
+            if not isinstance(pname, str) or not pname:
+                raise bad(f"{where}: parameter name {_short(pname)} is not a string")
+            if not isinstance(entry, dict) or set(entry) != {"value", "configured"}:
+                raise bad(f"{where}: parameter {_short(pname)} must be a map with value and configured")
+            v, c = entry["value"], entry["configured"]
+            for x in (v, c):
+                if not (isinstance(x, bool) or _is_number(x)):
+                    raise bad(f"{where}: parameter {_short(pname)} = {_short(x)} is not a number or a boolean")
+            if pname not in _PARAM_KINDS:
+                unknown.append(pname)
+                continue
+            clean[pname] = (_num(v), _num(c))
+        out[axis_id] = AxisRetain(name, pos, homed, standstill, modulo, clean, tuple(unknown))
     return RetainData(nc, out, saved)
 
 
 def _is_number(v: Any) -> bool:
-    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    """An int or a float (also inf/nan: a value out of range is judged where it is applied)."""
+    return not isinstance(v, bool) and isinstance(v, (int, float))
+
+
+def _keepable(pos: float) -> bool:
+    """A position the reader restores (finite, within +/-MAX_POSITION)."""
+    return math.isfinite(pos) and abs(pos) < MAX_POSITION
 
 
 # ---- the file ---------------------------------------------------------------------------------
-def write_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+def write_atomic(path: str | os.PathLike[str], data: bytes) -> bool:
     """Replace ``path`` by ``data`` so that a crash at any point leaves either the old or the new file.
 
-    Writes ``<path>.tmp`` in the same directory, fsyncs it, ``os.replace``s it over ``path`` and
-    fsyncs the directory (the rename itself is then durable). One fixed temporary name: a crash
-    leaves at most one stale ``.tmp``, which the next write replaces.
+    Writes a temporary file of its own (``mkstemp`` in the same directory: ``<name>.XXXXXXXX.tmp``,
+    so two writers never share one), fsyncs it, ``os.replace``s it over ``path`` and fsyncs the
+    directory (the rename itself is then durable).
+
+    Returns:
+        True; False when the file system cannot fsync a directory (EINVAL/ENOTSUP after the
+        rename): the new file is in place, only the rename's durability is the file system's.
 
     Raises:
-        OSError: the write failed (the temporary file is removed, ``path`` is untouched).
+        OSError: the write failed (the temporary file is removed, ``path`` is untouched), or the
+            directory fsync failed otherwise (the new file is in place).
     """
     p = Path(path)
-    tmp = p.with_name(p.name + ".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_CLOEXEC", 0), 0o644)
+    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent)
     try:
         try:
+            os.fchmod(fd, 0o644)
             view = memoryview(data)
             while view:
                 n = os.write(fd, view)
@@ -279,22 +396,53 @@ def write_atomic(path: str | os.PathLike[str], data: bytes) -> None:
         except OSError:
             pass
         raise
-    dfd = os.open(p.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
     try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)
+        dfd = os.open(p.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+    except OSError as exc:
+        if exc.errno in _DIR_SYNC_UNSUPPORTED:
+            return False
+        raise
+    return True
 
 
 def _set_aside(path: Path) -> Path:
     """Rename a refused file to ``<path>.rejected`` (or ``.rejected.N``: an older one is kept)."""
     target = path.with_name(path.name + ".rejected")
     n = 0
-    while target.exists():
+    while os.path.lexists(target):
         n += 1
         target = path.with_name(f"{path.name}.rejected.{n}")
     os.rename(path, target)
     return target
+
+
+def _read_file(path: Path, limit: int) -> bytes:
+    """At most ``limit`` bytes of a regular file (never blocks on a FIFO).
+
+    Raises:
+        FileNotFoundError: no file.
+        OSError: unreadable, or not a regular file (EINVAL).
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(errno.EINVAL, "not a regular file")
+        chunks: list[bytes] = []
+        left = limit
+        while left > 0:
+            b = os.read(fd, min(left, 1 << 20))
+            if not b:
+                break
+            chunks.append(b)
+            left -= len(b)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
 
 
 # ---- the server's part ------------------------------------------------------------------------
@@ -304,8 +452,10 @@ class _Snapshot:
 
     act_pos: np.ndarray
     homed: np.ndarray
+    standing: np.ndarray
     params: tuple[AxisParams, ...]
     time_ns: int
+    seq: int = 0
 
 
 def param_number(name: str) -> int | None:
@@ -325,88 +475,279 @@ def _command(core: Any, axis_id: int, cmd: str, **args: Any) -> dict[str, Any]:
     return core.execute(req, axis_id)
 
 
+def standing(core: Any) -> np.ndarray:
+    """Per axis: no job, ``|SetVelo| <= 1e-9`` and ``|ActVelo| <=`` :data:`STANDSTILL_VELOCITY`."""
+    a = core.axes
+    logical = ~(a.has_job | a.traj_on | (np.abs(a.set_velo) > _EPS_V))
+    return logical & (np.abs(core.drive.act_velo) <= STANDSTILL_VELOCITY)
+
+
+def _modulo(p: AxisParams) -> float:
+    return float(p.AxisEncoderModuloValue) if p.Modulo else 0.0
+
+
 class RetainKeeper:
     """Load the retain file at startup, keep it up to date while the NC runs (one thread).
 
+    Use: :meth:`load` (before the cycle), :meth:`start`, then on the cycle thread :meth:`apply`
+    after the first ``core.step()`` and :meth:`tick` every cycle; :meth:`stop` with the core once the
+    cycle ended (final write, lock released).
+
     Args:
-        path: the retain file (its directory must exist).
+        path: the retain file (its directory must exist and be writable).
         nc_name: this NC's name (written into the file, checked when loading).
         core: the NcCore; its parameters now are the configured base.
     """
 
     def __init__(self, path: str | os.PathLike[str], nc_name: str, core: Any) -> None:
         self.path = Path(path)
+        self.lock_path = self.path.with_name(self.path.name + ".lock")
         self.nc_name = nc_name
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]
+        self.names = [str(c.Name) for c in core.configs]
         self._base: tuple[AxisParams, ...] = tuple(core.params)  # replaced on every write, never changed
         self._period_cycles = max(1, round(SNAPSHOT_PERIOD / float(core.cycle_time)))
+        self._check_cycles = max(1, round(STANDSTILL_CHECK_PERIOD / float(core.cycle_time)))
         self._due = 0
+        self._check_due = 0
+        self._last_standing: np.ndarray | None = None
         self._pending: _Snapshot | None = None
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._written: RetainData | None = None
+        self._last_write = -math.inf  # _clock() of the last write
+        self._clock: Callable[[], float] = time.monotonic
         self._write_lock = threading.Lock()  # the retain thread and stop()'s final write never overlap
         self._last_error = ""
+        self._unkept: set[int] = set()  # axes whose position is left out of the file (logged once)
+        self._dir_sync_warned = False
+        self._lock_fd: int | None = None
+        self.status = "new"  # after load(): "missing", "loaded", "refused", "unreadable"
+        self.applied = False  # apply() ran: from now on snapshots are taken and written
+        self.writing_disabled = False  # an unreadable file could not be set aside: nothing is written
+        self.handed = 0  # snapshots handed over by tick() (sequence number of the newest)
+        self.processed = 0  # sequence number of the newest snapshot the retain thread has handled
         self.writes = 0  # files written
+        self.deferred = 0  # changed snapshots not written (moving axes within MOVING_WRITE_PERIOD, standstill noise)
         self.write_errors = 0  # writes that failed (logged once per kind of failure)
-        self.loaded: RetainData | None = None  # what load() applied
+        self.loaded: RetainData | None = None  # what load() read
         self.rejected: Path | None = None  # where load() put a refused file
 
-    # -- startup (before the cycle starts) -------------------------------------------------------
-    def load(self, core: Any) -> RetainData | None:
-        """Read the file and apply it to ``core`` (axes disabled, no cycle running).
+    # -- startup: read (before the cycle starts) -------------------------------------------------
+    def load(self) -> RetainData | None:
+        """Lock the file for this process, then read and check it (nothing is applied yet: :meth:`apply`).
 
-        A missing file is the first start; a refused one is logged (0x4002) and set aside. Never raises
-        for the file's content.
+        A missing file is the first start; a refused or unreadable one is logged (0x4002) and set
+        aside (``.rejected``). Never raises for the file's content.
 
         Returns:
-            what was applied, or None (no file, refused, unreadable).
+            the file's content, or None (no file, refused, unreadable).
+
+        Raises:
+            RetainLockError: another process holds ``<file>.lock``, or it cannot be created.
         """
+        if self.status != "new":  # (loaded once per process)
+            return self.loaded
+        self._lock()
+        self._remove_stale_temporaries()
         path = self.path
         try:
-            with open(path, "rb") as f:
-                raw = f.read(_HEADER.size + MAX_BODY + 1)
+            raw = _read_file(path, _HEADER.size + max_body(len(self.axis_ids)) + 1)
         except FileNotFoundError:
+            self.status = "missing"
             log.info("retain file %s does not exist yet: the NC starts with its configuration", path)
             return None
         except OSError as exc:
-            log.error("retain file %s: 0x%04X NC retain data error: cannot read it (%s); the NC starts with "
-                      "its configuration", path, RETAIN_ERROR_CODE, exc.strerror or exc)
+            self.status = "unreadable"
+            self._refuse(f"cannot read it ({exc.strerror or exc})")
             return None
         try:
             data = parse_retain(raw, self.nc_name, self.axis_ids)
         except RetainError as exc:
-            try:
-                aside = _set_aside(path)
-                kept = f"kept as {aside}"
-                self.rejected = aside
-            except OSError as oe:
-                kept = f"could not be renamed ({oe.strerror or oe}): it will be overwritten"
-            log.error("retain file %s refused: 0x%04X NC retain data error: %s; the NC starts with its "
-                      "configuration; the file is %s", path, RETAIN_ERROR_CODE, exc, kept)
+            self.status = "refused"
+            self._refuse(str(exc), verb="refused")
             return None
-        self._apply(core, data)
+        self.status = "loaded"
         self.loaded = data
         return data
 
+    def _refuse(self, why: str, verb: str = "unusable") -> None:
+        try:
+            aside = _set_aside(self.path)
+            self.rejected = aside
+            kept = f"the file is kept as {aside}"
+        except OSError as oe:
+            self.writing_disabled = True
+            kept = (f"the file could not be renamed ({oe.strerror or oe}): the NC does NOT write the retain file "
+                    f"during this run (it would overwrite it); move it away and restart")
+        log.error("retain file %s %s: 0x%04X NC retain data error: %s; the NC starts with its configuration "
+                  "(persistent axes unreferenced); %s", self.path, verb, RETAIN_ERROR_CODE, why, kept)
+
+    def _lock(self) -> None:
+        if self._lock_fd is not None:
+            return
+        try:
+            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        except OSError as exc:
+            raise RetainLockError(f"retain file {self.path}: cannot create its lock file {self.lock_path} "
+                                  f"({exc.strerror or exc})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = "".join(c for c in os.pread(fd, 32, 0).decode("ascii", "replace") if c.isdigit())[:10] or "?"
+            except OSError:
+                holder = "?"
+            os.close(fd)
+            raise RetainLockError(f"retain file {self.path} is in use by another process (pid {holder} "
+                                  f"holds {self.lock_path}): two NCs must not share one retain file") from None
+        except BaseException:
+            os.close(fd)
+            raise
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        except OSError:
+            pass  # (the pid is only for the message of a second NC)
+        self._lock_fd = fd
+
+    def close(self) -> None:
+        """Release the lock (as the kernel does when the process ends; idempotent, no write)."""
+        fd, self._lock_fd = self._lock_fd, None
+        if fd is not None:
+            os.close(fd)
+
+    def _remove_stale_temporaries(self) -> None:
+        """Temporary files a crash left behind (the lock is held: no other writer exists)."""
+        prefix = self.path.name + "."
+        try:
+            names = os.listdir(self.path.parent)
+        except OSError:
+            return
+        for n in names:
+            if n.startswith(prefix) and n.endswith(".tmp"):
+                try:
+                    os.unlink(self.path.parent / n)
+                except OSError:
+                    pass
+
+    # -- startup: apply (cycle thread, after the first core.step()) ------------------------------
+    def apply(self, core: Any) -> None:
+        """Apply what :meth:`load` read (cycle thread, after the first ``core.step()``: the drive has been
+        read, so SetActualPosition shifts against the real actual position; idempotent).
+
+        Raises:
+            RuntimeError: called before the first ``core.step()``.
+        """
+        if self.applied:
+            return
+        if int(core.cycle) < 1:
+            raise RuntimeError("RetainKeeper.apply() needs one core.step() first (the drive is not read yet)")
+        self.applied = True
+        if self.status in ("refused", "unreadable"):
+            for i, axis_id in enumerate(self.axis_ids):
+                if core.params[i].AxisEnDataPersistence:
+                    self._unreference(core, axis_id, i, "the retain file was not usable")
+        elif self.loaded is not None:
+            self._apply(core, self.loaded)
+
+    def _warn(self, axis_id: int, i: int, what: str) -> None:
+        log.warning("retain file %s: axis %d %s: %s", self.path, axis_id, _short(self.names[i]), what)
+
+    def _unreference(self, core: Any, axis_id: int, i: int, why: str, claimed: bool = False) -> None:
+        """Homed FALSE for a persistent axis the file cannot reference (warned when that changes anything)."""
+        if claimed or bool(core.axes.homed[i]):
+            self._warn(axis_id, i, f"0x{RETAIN_ERROR_CODE:04X} NC retain data error: {why}: Homed FALSE "
+                                   f"(the axis must be referenced again)")
+        _command(core, axis_id, "SetReferenceFlag", ReferenceFlag=False)
+
     def _apply(self, core: Any, data: RetainData) -> None:
         known = set(self.axis_ids)
-        for axis_id in sorted(set(data.axes) - known):
-            log.warning("retain file %s: axis %d is not configured: skipped", self.path, axis_id)
-        # parameters first (AxisEnDataPersistence may be one of them); a pass that fails on an order
-        # dependence (AxisMinSoftPosLimit < AxisMaxSoftPosLimit) is retried after the others
-        n_params = 0
+        extra = sorted(set(data.axes) - known)
+        if extra:
+            log.warning("retain file %s: %d axis/axes not configured here, skipped: %s%s", self.path, len(extra),
+                        extra[:8], " ..." if len(extra) > 8 else "")
+        usable: dict[int, AxisRetain] = {}
         for axis_id in sorted(known.intersection(data.axes)):
+            a, i = data.axes[axis_id], self.axis_ids.index(axis_id)
+            if a.name != self.names[i]:
+                self._warn(axis_id, i, f"the file's entry is of axis {_short(a.name)}: skipped (parameters, "
+                                       f"position and homed flag)")
+                continue
+            usable[axis_id] = a
+        n_params = self._apply_params(core, usable)
+        restored: list[int] = []
+        for i, axis_id in enumerate(self.axis_ids):
+            if not core.params[i].AxisEnDataPersistence:
+                a = usable.get(axis_id)
+                if a is not None and a.position is not None:
+                    self._warn(axis_id, i, "not persistent (AxisEnDataPersistence FALSE): its position and homed "
+                                           "flag are not restored")
+                continue
+            a = usable.get(axis_id)
+            if a is None:
+                why = ("its entry is of another axis" if axis_id in data.axes
+                       else "the retain file holds nothing of it")
+                self._unreference(core, axis_id, i, why)
+                continue
+            if a.position is None:
+                self._unreference(core, axis_id, i, "the retain file holds no position of it")
+                continue
+            if not _keepable(a.position):
+                self._unreference(core, axis_id, i, f"position {a.position!r} is not a number within "
+                                                    f"+/-{MAX_POSITION:g}: skipped", claimed=bool(a.homed))
+                continue
+            if a.modulo != _modulo(core.params[i]):
+                self._unreference(core, axis_id, i, f"the modulo setting changed (file {a.modulo:g}, now "
+                                                    f"{_modulo(core.params[i]):g}): position skipped",
+                                  claimed=bool(a.homed))
+                continue
+            r = _command(core, axis_id, "SetActualPosition", Position=a.position)
+            if r.get("error"):
+                self._unreference(core, axis_id, i, f"SetActualPosition {a.position!r} refused: "
+                                                    f"0x{int(r['error']):04X} {r.get('text', '')}",
+                                  claimed=bool(a.homed))
+                continue
+            restored.append(axis_id)
+            if a.homed and not a.standstill:
+                self._unreference(core, axis_id, i, f"its position {a.position:g} was taken while it moved "
+                                                    f"(restored)", claimed=True)
+            else:
+                _command(core, axis_id, "SetReferenceFlag", ReferenceFlag=bool(a.homed))
+        try:
+            saved = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(data.saved_ns / 1e9)) if data.saved_ns else "?"
+        except (OverflowError, OSError, ValueError):  # (a hostile saved_ns)
+            saved = "?"
+        log.info("retain file %s loaded (saved %s): positions of axes %s, %d parameter(s)", self.path, saved,
+                 restored or "none", n_params)
+
+    def _apply_params(self, core: Any, usable: Mapping[int, AxisRetain]) -> int:
+        """WriteParameter for each retained parameter whose configured value is still the configuration's."""
+        n_params = 0
+        for axis_id, a in usable.items():
+            i = self.axis_ids.index(axis_id)
+            for name in a.unknown:
+                code = ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET
+                self._warn(axis_id, i, f"parameter {_short(name)} skipped: 0x{code:04X} {error_name(code)} "
+                                       f"(no such parameter)")
             todo: list[tuple[str, int, float | bool]] = []
-            for name, value in data.axes[axis_id].params.items():
+            for name, (value, configured) in a.params.items():
                 number = param_number(name)
+                now = getattr(self._base[i], name)
                 if number is None:
                     code = ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET
-                    log.warning("retain file %s: axis %d parameter %s = %r skipped: 0x%04X %s (no such "
-                                "MC_AxisPara)", self.path, axis_id, name, value, code, error_name(code))
+                    self._warn(axis_id, i, f"parameter {name} = {value!r} skipped: 0x{code:04X} {error_name(code)} "
+                                           f"(no MC_AxisPara number)")
+                    continue
+                if type(now) is not type(configured) or now != configured:
+                    self._warn(axis_id, i, f"parameter {name}: the configuration changed it from {configured!r} to "
+                                           f"{now!r} since {value!r} was written at run time: the configuration's "
+                                           f"{now!r} wins")
                     continue
                 todo.append((name, number, value))
+            # a pass that fails on an order dependence (AxisMinSoftPosLimit < AxisMaxSoftPosLimit) is
+            # retried after the others
             failed: dict[str, dict[str, Any]] = {}
             while todo:
                 left = []
@@ -418,37 +759,15 @@ class RetainKeeper:
                     else:
                         failed.pop(name, None)
                         n_params += 1
+                        log.info("retain file %s: axis %d parameter %s = %r (configured %r)", self.path, axis_id,
+                                 name, value, a.params[name][1])
                 if len(left) == len(todo):
                     break
                 todo = left
             for name, r in failed.items():
-                log.warning("retain file %s: axis %d parameter %s = %r skipped (the configuration rejects it): "
-                            "0x%04X %s", self.path, axis_id, name, data.axes[axis_id].params[name],
-                            int(r["error"]), r.get("text", ""))
-        restored: list[int] = []
-        for axis_id in sorted(known.intersection(data.axes)):
-            a = data.axes[axis_id]
-            i = self.axis_ids.index(axis_id)
-            if a.position is None and a.homed is None:
-                continue
-            if not core.params[i].AxisEnDataPersistence:
-                log.warning("retain file %s: axis %d is not persistent (AxisEnDataPersistence FALSE): its "
-                            "position and homed flag are not restored", self.path, axis_id)
-                continue
-            steps: list[tuple[str, dict[str, Any]]] = []
-            if a.position is not None:
-                steps.append(("SetActualPosition", {"Position": a.position}))
-            if a.homed is not None:
-                steps.append(("SetReferenceFlag", {"ReferenceFlag": a.homed}))
-            for cmd, args in steps:
-                r = _command(core, axis_id, cmd, **args)
-                if r.get("error"):
-                    log.warning("retain file %s: axis %d %s %s skipped: 0x%04X %s", self.path, axis_id, cmd, args,
-                                int(r["error"]), r.get("text", ""))
-            restored.append(axis_id)
-        saved = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(data.saved_ns / 1e9)) if data.saved_ns else "?"
-        log.info("retain file %s loaded (saved %s): positions and homed flags of axes %s, %d parameter(s)",
-                 self.path, saved, restored or "none", n_params)
+                self._warn(axis_id, i, f"parameter {name} = {a.params[name][0]!r} skipped (the configuration "
+                                       f"rejects it): 0x{int(r['error']):04X} {r.get('text', '')}")
+        return n_params
 
     # -- running ---------------------------------------------------------------------------------
     def start(self) -> None:
@@ -459,27 +778,41 @@ class RetainKeeper:
             self._thread.start()
 
     def tick(self, core: Any) -> None:
-        """Cycle thread, every cycle: hand a snapshot over every SNAPSHOT_PERIOD (no I/O, no encoding)."""
-        if core.cycle < self._due:
+        """Cycle thread, every cycle: hand a snapshot over every SNAPSHOT_PERIOD and when a standstill
+        flag changed (looked at every STANDSTILL_CHECK_PERIOD; no I/O, no encoding, never blocks).
+        Nothing before :meth:`apply`."""
+        cycle = core.cycle
+        if cycle < self._check_due or not self.applied:
             return
-        self._due = core.cycle + self._period_cycles
-        self._pending = self._snapshot(core)
+        self._check_due = cycle + self._check_cycles
+        st = standing(core)
+        last = self._last_standing
+        if cycle < self._due and last is not None and np.array_equal(st, last):
+            return
+        self._last_standing = st
+        self._due = cycle + self._period_cycles
+        self.handed += 1
+        self._pending = self._snapshot(core, st, self.handed)
         self._wake.set()
 
-    def _snapshot(self, core: Any) -> _Snapshot:
-        return _Snapshot(np.array(core.act_pos, dtype=float), core.axes.homed.copy(), tuple(core.params),
-                         time.time_ns())
+    def _snapshot(self, core: Any, st: np.ndarray | None = None, seq: int = 0) -> _Snapshot:
+        return _Snapshot(np.array(core.act_pos, dtype=float), core.axes.homed.copy(),
+                         standing(core) if st is None else st, tuple(core.params), time.time_ns(), seq)
 
     def stop(self, core: Any | None = None) -> None:
-        """End the retain thread; with ``core`` (its cycle ended) write its final state first (idempotent)."""
+        """End the retain thread; with ``core`` (its cycle ended) write its final state first; release
+        the lock (idempotent). No write before :meth:`apply` ran: the file stays as loaded."""
         t = self._thread
         self._thread = None
         if t is not None:
             self._stop.set()
             self._wake.set()
             t.join(10)
-        if core is not None:
-            self._write(self._snapshot(core))
+        try:
+            if core is not None and self.applied:
+                self._write(self._snapshot(core), final=True)
+        finally:
+            self.close()
 
     def _run(self) -> None:
         while True:
@@ -487,54 +820,112 @@ class RetainKeeper:
             self._wake.clear()
             snap, self._pending = self._pending, None
             if snap is not None:
-                self._write(snap)
+                try:
+                    self._write(snap)
+                finally:
+                    self.processed = snap.seq
             if self._stop.is_set():
                 return
 
     def data_of(self, snap: _Snapshot) -> RetainData:
-        """The file content of a snapshot (retain thread)."""
+        """The file content of a snapshot (retain thread). Positions the reader would refuse are left out
+        (logged once per axis)."""
         axes: dict[int, AxisRetain] = {}
         for i, axis_id in enumerate(self.axis_ids):
             p, base = snap.params[i], self._base[i]
-            changed: dict[str, float | bool] = {}
+            changed: dict[str, tuple[float | bool, float | bool]] = {}
             if p is not base:
                 for name in _PARAM_KINDS:
-                    v = getattr(p, name)
-                    if v != getattr(base, name):
-                        changed[name] = v
+                    v, c = getattr(p, name), getattr(base, name)
+                    if v != c:
+                        changed[name] = (v, c)
+            name = self.names[i]
             if p.AxisEnDataPersistence:
-                axes[axis_id] = AxisRetain(float(snap.act_pos[i]), bool(snap.homed[i]), changed)
+                pos = float(snap.act_pos[i])
+                if _keepable(pos):
+                    if axis_id in self._unkept:
+                        self._unkept.discard(axis_id)
+                        log.info("retain file %s: axis %d position %g is kept again", self.path, axis_id, pos)
+                    axes[axis_id] = AxisRetain(name, pos, bool(snap.homed[i]), bool(snap.standing[i]), _modulo(p),
+                                               changed)
+                    continue
+                if axis_id not in self._unkept:
+                    self._unkept.add(axis_id)
+                    log.warning("retain file %s: axis %d position %r is outside +/-%g: not kept (nor its homed "
+                                "flag: the next start has it unreferenced)", self.path, axis_id, pos, MAX_POSITION)
+                axes[axis_id] = AxisRetain(name, params=changed)
             elif changed:
-                axes[axis_id] = AxisRetain(None, None, changed)
+                axes[axis_id] = AxisRetain(name, params=changed)
         return RetainData(self.nc_name, axes, snap.time_ns)
 
-    def _write(self, snap: _Snapshot) -> None:
+    def _change(self, new: RetainData, old: RetainData | None, snap: _Snapshot) -> str:
+        """How a changed content is written (retain thread): ``"urgent"`` at once (a homed or standstill
+        flag, a parameter, a standing axis's position by more than :data:`STANDSTILL_TOLERANCE` x
+        AxisTargetPositionWindow), ``"moving"`` at most every MOVING_WRITE_PERIOD (positions of moving
+        axes), ``"noise"`` not before another change or the final write (smaller changes of standing axes)."""
+        if old is None or set(new.axes) != set(old.axes):
+            return "urgent"
+        kind = "noise"
+        for axis_id, a in new.axes.items():
+            b = old.axes[axis_id]
+            if (a.name, a.homed, a.standstill, a.modulo, a.params) != (b.name, b.homed, b.standstill, b.modulo,
+                                                                       b.params):
+                return "urgent"
+            if a.position == b.position:
+                continue
+            if a.position is None or b.position is None:
+                return "urgent"
+            if not a.standstill:
+                kind = "moving"
+                continue
+            i = self.axis_ids.index(axis_id)
+            if abs(a.position - b.position) > STANDSTILL_TOLERANCE * snap.params[i].AxisTargetPositionWindow:
+                return "urgent"
+        return kind
+
+    def _write(self, snap: _Snapshot, final: bool = False) -> None:
         if not self._write_lock.acquire(timeout=10.0):  # a write hanging on a dead disk: give up on this one
             log.error("retain file %s: 0x%04X NC retain data error: a write hangs; this state is not kept",
                       self.path, RETAIN_ERROR_CODE)
             return
         try:
-            self._write_locked(snap)
+            self._write_locked(snap, final)
         finally:
             self._write_lock.release()
 
-    def _write_locked(self, snap: _Snapshot) -> None:
+    def _write_locked(self, snap: _Snapshot, final: bool) -> None:
+        if self.writing_disabled:
+            return
         try:
             data = self.data_of(snap)
             if data == self._written and self.path.exists():
                 return
-            write_atomic(self.path, encode_retain(data))
+            if not final:
+                change = self._change(data, self._written, snap)
+                if change == "noise" or (change == "moving" and self._clock() - self._last_write < MOVING_WRITE_PERIOD):
+                    self.deferred += 1
+                    return
+            raw = encode_retain(data)
+            parse_retain(raw, self.nc_name, self.axis_ids)  # never write what the reader refuses
+            synced = write_atomic(self.path, raw)
         except Exception as exc:  # a full disk must not end the NC: say it once per kind of failure
             self.write_errors += 1
-            msg = f"{type(exc).__name__}: {exc}"
+            # one kind of failure: its type and reason (not the random temporary file name)
+            msg = f"{type(exc).__name__}: {exc.strerror or exc}" if isinstance(exc, OSError) else \
+                f"{type(exc).__name__}: {exc}"
             if msg != self._last_error:
                 self._last_error = msg
                 log.error("retain file %s: 0x%04X NC retain data error: cannot write it (%s); retrying with "
                           "the next change", self.path, RETAIN_ERROR_CODE, msg)
             self._written = None
             return
+        if not synced and not self._dir_sync_warned:
+            self._dir_sync_warned = True
+            log.warning("retain file %s: the file system cannot fsync the directory (the rename is written, its "
+                        "durability after a power cut is the file system's); said once", self.path)
         if self._last_error:
             log.info("retain file %s written again", self.path)
             self._last_error = ""
         self._written = data
+        self._last_write = self._clock()
         self.writes += 1

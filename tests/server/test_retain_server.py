@@ -10,7 +10,7 @@ import pytest
 
 from nc_schema import MC_AxisPara, StateDWord
 from nc_server.server.retain import RetainData, RetainError, parse_retain
-from znc_testing import NcServerProcess, NcTestClient, wait_until
+from znc_testing import NcServerProcess, NcTestClient, start_nc_server, wait_until
 
 T = 60.0  # generous: a loaded 2-core machine
 HOMED = int(StateDWord.Homed)
@@ -104,9 +104,10 @@ def test_positions_homed_flags_and_parameters_survive_a_restart(
     assert cl.request("WriteParameter", axis=2, ParameterNumber=VELO_MAX, Value=321.0)["error"] == 0
     assert state(cl, 1) == (pytest.approx(130.0, abs=0.02), True)
     assert state(cl, 2) == (pytest.approx(70.0, abs=0.02), True)
-    # the retain thread has written what the NC knows (wait on the file, not on a clock)
+    # the retain thread has written what the NC knows, at standstill (wait on the file, not on a clock)
     wait_file(path, lambda d: 1 in d.axes and abs((d.axes[1].position or 0) - 130.0) < 0.02 and d.axes[1].homed
-              and 2 in d.axes and d.axes[2].params.get("AxisVeloMax") == 321.0, "the file to show the state")
+              and d.axes[1].standstill and 2 in d.axes and d.axes[2].params.get("AxisVeloMax") == (321.0, 500.0),
+              "the file to show the state")
     data = retained(path)
     assert data is not None and data.axes[2].position is None and data.axes[2].homed is None  # not persistent
     cl.close()
@@ -125,6 +126,8 @@ def test_positions_homed_flags_and_parameters_survive_a_restart(
     cl2.close()
     cl3 = powered_client(nc2, nc_client, (1,))
     done(cl3, 1, cl3.request("MoveAbsolute", axis=1, Position=140.0, Velocity=200.0))
+    wait_file(path, lambda d: abs((d.axes[1].position or 0) - 140.0) < 0.02 and bool(d.axes[1].standstill),
+              "the file to show the new standstill")
     cl3.close()
     assert nc2.stop(signal.SIGTERM) == 0
     nc3 = start_nc(CONFIG, args)
@@ -142,7 +145,7 @@ def test_corrupt_file_starts_with_the_configuration(start_nc: Callable[..., NcSe
     cl = powered_client(nc, nc_client, (1,))
     done(cl, 1, cl.request("Home", axis=1, HomingMode=4, Position=200.0))
     assert cl.request("WriteParameter", axis=1, ParameterNumber=VELO_MAX, Value=123.0)["error"] == 0
-    wait_file(path, lambda d: d.axes[1].homed and d.axes[1].params.get("AxisVeloMax") == 123.0, "the file")
+    wait_file(path, lambda d: d.axes[1].homed and d.axes[1].params.get("AxisVeloMax") == (123.0, 1000.0), "the file")
     cl.close()
     assert nc.stop(signal.SIGTERM) == 0
     raw = bytearray(path.read_bytes())
@@ -153,7 +156,7 @@ def test_corrupt_file_starts_with_the_configuration(start_nc: Callable[..., NcSe
     err = wait_stderr(nc2, "refused")
     lines = [ln for ln in err.splitlines() if "retain" in ln and "ERROR" in ln]
     assert len(lines) == 1 and "0x4002" in lines[0] and "checksum" in lines[0] and \
-        "starts with its configuration" in lines[0], err
+        "starts with its configuration" in lines[0] and "persistent axes unreferenced" in lines[0], err
     assert (tmp_path / "nc1.retain.rejected").read_bytes() == bytes(raw)  # kept aside, not overwritten
     cl2 = nc_client(nc2.port, "observer")
     assert state(cl2, 1) == (0.0, False)
@@ -169,3 +172,26 @@ def test_corrupt_file_starts_with_the_configuration(start_nc: Callable[..., NcSe
     assert "'nc1'" in wait_stderr(nc3, "foreign")
     assert (tmp_path / "nc1.retain.rejected.1").exists()
     nc3.stop()
+
+
+def test_a_second_nc_on_the_same_retain_file_does_not_start(
+        start_nc: Callable[..., NcServerProcess], tmp_path: Path) -> None:
+    path = tmp_path / "nc1.retain"
+    args = ("--retain", str(path))
+    nc = start_nc(CONFIG, args)
+    wait_stderr(nc, "does not exist yet")
+    second = start_nc_server(tmp_path / "second", CONFIG, args, wait=False)
+    try:
+        rc = second.proc.wait(T)
+        err = second.stderr()
+    finally:
+        second.kill()
+    assert rc == 1, err
+    assert f"retain file {path} is in use by another process (pid {nc.proc.pid} holds {path}.lock)" in err, err
+    assert "ready" not in err
+    # the first one is not disturbed: it still writes its file; once it ends, a new NC starts on it
+    wait_file(path, lambda d: 1 in d.axes, "the first NC's file")
+    assert nc.stop(signal.SIGTERM) == 0
+    nc2 = start_nc(CONFIG, args)
+    assert "refused" not in wait_stderr(nc2, "loaded")
+    nc2.stop()
