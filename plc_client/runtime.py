@@ -22,7 +22,9 @@ cycling (its axes stay invalid: blocks report 0x4B0F). An open session reconnect
 when the NC restarts; the runtime then sees the NC's cycle counter go back (or its liveliness
 token reappear), stops following the old instance's commands and claims again.
 
-Commands (:class:`ZenohPort`) are ``session.get`` queries on ``nc/<nc>/axis/<id>/cmd`` with a
+Commands (:class:`ZenohPort`) are ``session.get`` queries on the command's key
+``nc/<nc>/axis/<id>/cmd/<class>/<client_id>`` (``Keys.command_key``; NC-level commands on
+``nc/<nc>/cmd/<class>/<client_id>``) with a
 ``Callback(indirect=False)`` that only appends the reply to the port's queue (no thread per
 query); the zenoh query timeout (``query_timeout``, default 5 x command_timeout) is longer than
 the blocks' Timeout so that a late acceptance still reaches the task (see
@@ -62,7 +64,7 @@ import numpy as np
 import zenoh
 from zenoh.handlers import Callback, FifoChannel, RingChannel
 
-from nc_schema import ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_frame, unpack
+from nc_schema import ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_frame, make_reply, unpack
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, PendingCommand
@@ -172,7 +174,11 @@ class ZenohPort(CommandPort):
         if link is None or not link.ready or link.session is None:
             self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_NOTREADY)
             return
-        key = link.keys.cmd if pending.axis_id is None else link.keys.axis_cmd(pending.axis_id)
+        try:
+            key = link.keys.command_key(pending.cmd, pending.axis_id, self.client_id)
+        except ValueError as exc:  # e.g. a negative axis id: there is no such key
+            self._deliver(pending, make_reply(pending.id, pending.cmd, ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, str(exc)))
+            return
         got = [False]
 
         def on_reply(reply: Any) -> None:

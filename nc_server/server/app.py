@@ -39,6 +39,8 @@ QUERY_BUDGET_NS = 250_000
 EARLY_REPLIES = True
 #: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
 SHUTDOWN_STOP_TIMEOUT = 5.0
+#: last_command changes alone rebuild the claims map at most this often [s] (claims and clients: at once).
+CLAIMS_MIN_PERIOD = 0.05
 #: A gap between two cycle starts longer than this means the NC itself stalled [s]:
 #: nobody is blamed for PLCTONC that could not be processed meanwhile.
 STALL_GRACE = 0.05
@@ -50,9 +52,11 @@ class NcServer:
     Args:
         config: the checked configuration.
         core: an NcCore built from ``config.axes`` (the cycle thread owns it once started).
+        roles: client id -> role from the roles file (``--roles``): the handler refuses what a
+            client's role does not allow (0x723). None: no roles file.
     """
 
-    def __init__(self, config: ServerConfig, core: CoreLike) -> None:
+    def __init__(self, config: ServerConfig, core: CoreLike, roles: dict[str, str] | None = None) -> None:
         self.config = config
         self.core = core
         self.keys = Keys(config.name)
@@ -62,9 +66,14 @@ class NcServer:
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle,
                               wake=self.transport.query_event)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
-                                      refresh_liveliness=self._take_liveliness)
+                                      refresh_liveliness=self._take_liveliness, roles=roles)
         self.inputs = CycleInputs(core, self.claims)  # type: ignore[arg-type]
-        self.io = IoThread(self.transport, self.stats)
+        #: (version, claims map) made by the cycle thread; the I/O thread publishes it
+        self.claims_msg: tuple[int, dict[str, Any]] | None = None
+        self._arb_seen: tuple[int, int, int] = (-1, -1, -1)
+        self._arb_built = 0.0
+        self.io = IoThread(self.transport, self.stats, claims_source=lambda: self.claims_msg,
+                           cycle_source=lambda: int(self.core.cycle))
         self._prev_start = 0.0
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -221,6 +230,20 @@ class NcServer:
         if self._clients_dirty:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
+        self._update_claims_msg(now)
+
+    def _update_claims_msg(self, now: float) -> None:
+        """Rebuild the claims map when something changed (claims, clients: at once; last commands:
+        at most every CLAIMS_MIN_PERIOD), for the I/O thread to publish (cycle thread)."""
+        h = self.handler
+        seen = (self.claims.version, h.clients_version, h.commands_version)
+        if seen == self._arb_seen:
+            return
+        if seen[:2] == self._arb_seen[:2] and now - self._arb_built < CLAIMS_MIN_PERIOD:
+            return
+        self._arb_seen, self._arb_built = seen, now
+        version = self.claims_msg[0] + 1 if self.claims_msg is not None else 0
+        self.claims_msg = (version, h.arbitration())
 
     def _retain_cycle(self, deadline_ns: int) -> None:
         """The first cycle with a retain file: one ``core.step()`` (the drive is read, the axes are still
