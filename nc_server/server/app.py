@@ -22,6 +22,8 @@ import numpy as np
 from nc_schema import ErrorCodes, FrameFlags, Keys
 
 
+from nc_server.security.acl import access_control
+
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import CycleLoop, configure_interpreter
@@ -52,17 +54,26 @@ class NcServer:
     Args:
         config: the checked configuration.
         core: an NcCore built from ``config.axes`` (the cycle thread owns it once started).
-        roles: client id -> role from the roles file (``--roles``): the handler refuses what a
-            client's role does not allow (0x723). None: no roles file.
+    The roles file (``config.roles``) makes the handler refuse what a client's role does not allow
+    (0x723); with ``config.zenoh.tls_dir`` too, the NC's own session (router or peer mode) also
+    enforces the zenoh access control generated from it (:func:`nc_server.security.acl.access_control`),
+    so clients that connect to the NC directly get only their own keys.
     """
 
-    def __init__(self, config: ServerConfig, core: CoreLike, roles: dict[str, str] | None = None) -> None:
+    def __init__(self, config: ServerConfig, core: CoreLike) -> None:
         self.config = config
         self.core = core
         self.keys = Keys(config.name)
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
         self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout)
-        self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
+        roles = dict(config.roles.clients) if config.roles is not None else None
+        acl = None
+        if config.roles is not None and config.zenoh.tls_dir and config.zenoh.mode != "client":
+            acl = access_control(config.roles)
+        elif config.roles is not None and not config.zenoh.tls_dir:
+            log.warning("roles file without TLS: the client ids in the command keys are not authenticated "
+                        "(use --tls-dir, or a router with TLS and access control)")
+        self.transport = Transport(config.zenoh, self.keys, self.axis_ids, access_control=acl)
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle,
                               wake=self.transport.query_event)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,

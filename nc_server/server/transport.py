@@ -39,6 +39,8 @@ from nc_schema import (
 )
 from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 
+from nc_server.security.tls import apply_tls
+
 from .config import ZenohSettings
 
 log = logging.getLogger("nc_server.server")
@@ -95,11 +97,15 @@ def encode_frame_fast(cycle: int, nc_time_ns: int, records: np.ndarray, flags: i
                                         flags | _JOB_RECORDS), _bytes_of(records), _bytes_of(jobs)))
 
 
-def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
-    """An explicit zenoh config: mode, listen/connect endpoints, no multicast or gossip scouting, lease.
+def zenoh_config(settings: ZenohSettings, identity: str | None = None,
+                 access_control: dict[str, Any] | None = None) -> zenoh.Config:
+    """An explicit zenoh config: mode, listen/connect endpoints, no multicast or gossip scouting, lease;
+    with ``settings.tls_dir`` mutual TLS as ``identity`` (its certificate; every endpoint ``tls/``),
+    with ``access_control`` that section (``nc_server.security.acl``).
 
     Raises:
         zenoh.ZError: zenoh rejected a value.
+        nc_server.security.tls.TlsError: a certificate file is missing.
     """
     c = zenoh.Config()
     c.insert_json5("mode", json.dumps(settings.mode))
@@ -110,6 +116,10 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     c.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
     # zenoh's default accepts 1 GiB messages; nothing legitimate comes near 4 MiB here
     c.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
+    if settings.tls_dir:
+        apply_tls(c, settings.tls_dir, identity or "")
+    if access_control is not None:
+        c.insert_json5("access_control", json.dumps(access_control))
     return c
 
 
@@ -159,10 +169,13 @@ class Transport:
         settings: zenoh settings.
         keys: the NC's key expressions.
         axis_ids: configured axis ids (publishers are declared per axis, in this order).
+        access_control: the zenoh ``access_control`` section its session enforces (None: none).
     """
 
-    def __init__(self, settings: ZenohSettings, keys: Keys, axis_ids: list[int]) -> None:
+    def __init__(self, settings: ZenohSettings, keys: Keys, axis_ids: list[int],
+                 access_control: dict[str, Any] | None = None) -> None:
         self.settings = settings
+        self.access_control = access_control
         self.keys = keys
         self.axis_ids = list(axis_ids)
         n = len(self.axis_ids)
@@ -198,7 +211,7 @@ class Transport:
         Raises:
             zenoh.ZError: e.g. the listen endpoint is in use.
         """
-        self.session = s = zenoh.open(zenoh_config(self.settings))
+        self.session = s = zenoh.open(zenoh_config(self.settings, self.keys.nc, self.access_control))
         self._zid = str(s.info.zid())
         k = self.keys
         self.queryable = s.declare_queryable(k.cmd_any, Callback(self._on_query, indirect=False), complete=True)
