@@ -21,7 +21,7 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 #: Command classes (protocol.json ``classes``), lowest privilege first.
 CLASSES: tuple[str, ...] = ("read", "op", "eng")
 #: Command name -> its class.
-COMMAND_CLASS: dict[str, str] = {n: c["class"] for n, c in COMMANDS.items()}
+COMMAND_CLASS: dict[str, str] = {n: c.get("class", "op") for n, c in COMMANDS.items()}  # "op": the rest (design)
 #: Roles (roles file, ACL) -> the command classes they may send.
 ROLE_CLASSES: dict[str, tuple[str, ...]] = {"observer": ("read",), "operator": ("read", "op"),
                                             "engineer": ("read", "op", "eng")}
