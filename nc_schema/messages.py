@@ -45,6 +45,7 @@ class Keys:
         self.prefix = f"nc/{nc}"
         self.frame = f"{self.prefix}/frame"
         self.stats = f"{self.prefix}/stats"
+        self.status = f"{self.prefix}/status"
         self.claims = f"{self.prefix}/claims"
         #: the NC's one queryable: every command key (axis and NC level) of this NC
         self.cmd_any = f"{self.prefix}/**/cmd/*/*"

@@ -221,7 +221,7 @@ class Transport:
                                                                 history=True)
         self.plc_sub = s.declare_subscriber(k.plctonc_in_any, self._on_plctonc)
         pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
-        self.status_pub = s.declare_publisher(f"{k.prefix}/status", **pub)
+        self.status_pub = s.declare_publisher(k.status, **pub)
         self._decl.append(self.status_pub)
         self.frame_pub = s.declare_publisher(k.frame, **pub)
         self.stats_pub = s.declare_publisher(k.stats, **pub)

@@ -163,4 +163,4 @@ def test_keys_of_the_acl_are_the_protocols() -> None:
         assert not any(_includes(p, key) for p in pats), key
     assert _includes("nc/*/plctonc/plc1", k.plctonc_in("plc1")) and _includes("nc/*/client/plc1", k.client_alive("plc1"))
     assert all(any(_includes(p, key) for p in READ_KEYS)
-               for key in (k.frame, k.stats, k.claims, k.axis_nctoplc(2), k.axis_plctonc(2)))
+               for key in (k.frame, k.status, k.stats, k.claims, k.axis_nctoplc(2), k.axis_plctonc(2)))
