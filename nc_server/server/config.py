@@ -214,20 +214,15 @@ def _axes(data: Mapping[str, Any]) -> tuple[AxisConfig, ...]:
     return tuple(axes)
 
 
-def _path(v: Any, key: str, base: Path | None) -> str:
-    if not isinstance(v, str) or not v:
+def _path(v: Any, key: str) -> str:
+    """A path value: absolute, a relative one resolved against the working directory (as retain_file)."""
+    if not isinstance(v, str) or not v.strip():
         raise ConfigError(key, f"must be a path, got {v!r}")
-    p = Path(v).expanduser()
-    return str(p if p.is_absolute() or base is None else base / p)
+    return str(Path(v).expanduser().resolve())
 
 
-def parse_config(data: Mapping[str, Any], base: Path | None = None) -> ServerConfig:
+def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     """Check a parsed TOML document and build the configuration.
-
-    Args:
-        data: the TOML document.
-        base: directory relative ``zenoh.roles`` / ``zenoh.tls_dir`` paths refer to (the config
-            file's); None: the current directory.
 
     Raises:
         ConfigError: the first problem found, with its key.
@@ -267,7 +262,7 @@ def parse_config(data: Mapping[str, Any], base: Path | None = None) -> ServerCon
     lease = _integer(zn.get("lease", 1000), "zenoh.lease", 100, 600_000)
     tls_dir = None
     if zn.get("tls_dir") is not None:
-        tls_dir = _path(zn["tls_dir"], "zenoh.tls_dir", base)
+        tls_dir = _path(zn["tls_dir"], "zenoh.tls_dir")
         try:
             tls_files(tls_dir, name)
             check_tls_endpoints(listen, "zenoh.listen")
@@ -277,7 +272,7 @@ def parse_config(data: Mapping[str, Any], base: Path | None = None) -> ServerCon
     roles = None
     if zn.get("roles") is not None:
         try:
-            roles = load_roles(_path(zn["roles"], "zenoh.roles", base))
+            roles = load_roles(_path(zn["roles"], "zenoh.roles"))
         except RolesError as exc:
             raise ConfigError("zenoh.roles", str(exc)) from None
         if name not in roles.ncs:
@@ -300,17 +295,15 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
         connect: replaces ``zenoh.connect`` when given (non-empty).
         mode: replaces ``zenoh.mode``; ``"client"`` without ``listen`` also drops the default listen endpoint.
         name, cycle_time, realtime, watchdog_timeout, retain_file: replace ``nc.*`` when given.
-        roles, tls_dir: replace ``zenoh.roles`` / ``zenoh.tls_dir`` when given (relative to the
-            current directory; in the file: relative to the file's directory).
+        roles, tls_dir: replace ``zenoh.roles`` / ``zenoh.tls_dir`` when given (a relative path, here
+            or in the file, is resolved against the working directory, as ``nc.retain_file``).
 
     Raises:
         ConfigError: unreadable file (key ``--config``), TOML syntax error, or any invalid value.
     """
-    base: Path | None = None
     if path is None:
         text, origin = default_config_text(), "default.toml"
     else:
-        base = Path(path).resolve().parent
         try:
             text, origin = Path(path).read_text(encoding="utf-8"), str(path)
         except OSError as exc:
@@ -337,5 +330,5 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
             nc[key] = value
     for key, value in (("roles", roles), ("tls_dir", tls_dir)):
         if value is not None:
-            zn[key] = str(Path(value).expanduser().resolve())
-    return parse_config(data, base)
+            zn[key] = value
+    return parse_config(data)

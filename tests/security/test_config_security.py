@@ -1,6 +1,7 @@
 """``--roles`` / ``--tls-dir`` of nc-server, nc-router and plc-run: checked before anything opens."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -31,19 +32,24 @@ def test_nc_server_roles_and_tls(tmp_path: Path) -> None:
     assert cfg.roles is not None and cfg.roles.role_of("plc1") == "operator"
     assert cfg.zenoh.tls_dir == str(certs.resolve())
     assert load_config().roles is None and load_config().zenoh.tls_dir is None  # the default: neither
-    # relative paths in a config file are the file's
+    # relative paths, also in a config file, are the working directory's (as nc.retain_file)
     (tmp_path / "conf").mkdir()
     (tmp_path / "conf" / "roles.toml").write_text(ROLES.read_text())
     fake_certs(tmp_path / "conf" / "c", "lathe")
     p = tmp_path / "conf" / "nc.toml"
-    p.write_text('[nc]\nname = "lathe"\n[zenoh]\nlisten = ["tls/127.0.0.1:1"]\nroles = "roles.toml"\ntls_dir = "c"\n'
-                 '[[axis]]\nAxisId = 1\n')
-    with pytest.raises(ConfigError) as ei:  # lathe is not an [nc.*] of the roles file
-        load_config(p)
-    assert ei.value.key == "zenoh.roles" and "[nc.lathe]" in str(ei.value)
-    (tmp_path / "conf" / "roles.toml").write_text(ROLES.read_text() + "\n[nc.lathe]\n")
-    cfg = load_config(p)
-    assert cfg.zenoh.tls_dir == str(tmp_path / "conf" / "c") and "lathe" in cfg.roles.ncs
+    p.write_text('[nc]\nname = "lathe"\n[zenoh]\nlisten = ["tls/127.0.0.1:1"]\nroles = "conf/roles.toml"\n'
+                 'tls_dir = "conf/c"\n[[axis]]\nAxisId = 1\n')
+    old_cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        with pytest.raises(ConfigError) as ei:  # lathe is not an [nc.*] of the roles file
+            load_config(p)
+        assert ei.value.key == "zenoh.roles" and "[nc.lathe]" in str(ei.value)
+        (tmp_path / "conf" / "roles.toml").write_text(ROLES.read_text() + "\n[nc.lathe]\n")
+        cfg = load_config(p)
+    finally:
+        os.chdir(old_cwd)
+    assert cfg.zenoh.tls_dir == str((tmp_path / "conf" / "c").resolve()) and "lathe" in cfg.roles.ncs
 
 
 @pytest.mark.parametrize("kw, key, words", [
