@@ -108,15 +108,15 @@ def main() -> int:
 
         # warm-up (first queries, publisher and route setup)
         rtt_us(raw_cl.session, RAW_KEY, [b"x"] * 100, ok)
-        rtt_us(cl.session, "nc/nc1/axis/1/cmd", read_param()[:100], no_error)
+        rtt_us(cl.session, "nc/nc1/axis/1/cmd/read/bench-rtt", read_param()[:100], no_error)
         res: dict[str, list[float]] = {"raw": [], "ReadParameter": [], "MoveAbsolute": []}
         for _ in range(args.blocks):
             if time.monotonic() > deadline - 5:
                 print("(stopping early to stay within the time bound)")
                 break
             res["raw"] += rtt_us(raw_cl.session, RAW_KEY, [b"x"] * n_block, ok)
-            res["ReadParameter"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd", read_param(), no_error)
-            res["MoveAbsolute"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd", moves(), no_error)
+            res["ReadParameter"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd/read/bench-rtt", read_param(), no_error)
+            res["MoveAbsolute"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd/op/bench-rtt", moves(), no_error)
         stats = cl.stats() or {}
         floor1, f1 = floor_line()  # the NC still runs: the machine as the round trips saw it
 

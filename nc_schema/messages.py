@@ -18,21 +18,41 @@ _CLIENT_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
+#: Command classes (protocol.json ``classes``), lowest privilege first.
+CLASSES: tuple[str, ...] = ("read", "op", "eng")
+#: Command name -> its class.
+COMMAND_CLASS: dict[str, str] = {n: c.get("class", "op") for n, c in COMMANDS.items()}  # "op": the rest (design)
+#: Roles (roles file, ACL) -> the command classes they may send.
+ROLE_CLASSES: dict[str, tuple[str, ...]] = {"observer": ("read",), "operator": ("read", "op"),
+                                            "engineer": ("read", "op", "eng")}
+_AXIS_RE = r"(?:0|[1-9][0-9]{0,8})"  # decimal, no leading zeros: axis/01 is not axis 1
+
+
 class Keys:
-    """Key expressions of one NC (protocol.json ``keys``)."""
+    """Key expressions of one NC (protocol.json ``keys``).
+
+    Commands (protocol version 2) carry their class and the sender's client id in the key:
+    ``nc/<nc>/axis/<axis>/cmd/<class>/<client>`` and ``nc/<nc>/cmd/<class>/<client>``.
+
+    Raises:
+        ValueError: invalid NC name.
+    """
 
     def __init__(self, nc: str) -> None:
-        if not _NAME_RE.match(nc):
+        if not isinstance(nc, str) or not _NAME_RE.match(nc):
             raise ValueError(f"invalid NC name {nc!r}: use letters, digits, '_', '.', '-'")
         self.nc = nc
         self.prefix = f"nc/{nc}"
         self.frame = f"{self.prefix}/frame"
         self.stats = f"{self.prefix}/stats"
-        self.cmd = f"{self.prefix}/cmd"
-        self.cmd_any = f"{self.prefix}/**/cmd"
+        self.status = f"{self.prefix}/status"
+        self.claims = f"{self.prefix}/claims"
+        #: the NC's one queryable: every command key (axis and NC level) of this NC
+        self.cmd_any = f"{self.prefix}/**/cmd/*/*"
         self.alive = f"{self.prefix}/alive"
         self.client_alive_any = f"{self.prefix}/client/*"
         self.plctonc_in_any = f"{self.prefix}/plctonc/*"
+        self._cmd_re = re.compile(re.escape(self.prefix) + rf"(?:/axis/({_AXIS_RE}))?/cmd/([a-z]+)/([A-Za-z0-9_.-]{{1,64}})")
 
     def axis_nctoplc(self, axis: int) -> str:
         return f"{self.prefix}/axis/{int(axis)}/nctoplc"
@@ -40,8 +60,33 @@ class Keys:
     def axis_plctonc(self, axis: int) -> str:
         return f"{self.prefix}/axis/{int(axis)}/plctonc"
 
-    def axis_cmd(self, axis: int) -> str:
-        return f"{self.prefix}/axis/{int(axis)}/cmd"
+    def axis_cmd(self, axis: int, cls: str, client: str) -> str:
+        """``nc/<nc>/axis/<axis>/cmd/<cls>/<client>``.
+
+        Raises:
+            ValueError: unknown class, invalid client id or negative axis id.
+        """
+        if int(axis) < 0:
+            raise ValueError(f"invalid axis id {axis!r}")
+        return f"{self.prefix}/axis/{int(axis)}/cmd/{_check_class(cls)}/{check_client_id(client)}"
+
+    def cmd(self, cls: str, client: str) -> str:
+        """``nc/<nc>/cmd/<cls>/<client>`` (NC-level commands such as Info).
+
+        Raises:
+            ValueError: unknown class or invalid client id.
+        """
+        return f"{self.prefix}/cmd/{_check_class(cls)}/{check_client_id(client)}"
+
+    def command_key(self, cmd: str, axis: int | None, client: str) -> str:
+        """The key ``client`` sends ``cmd`` on: its class from protocol.json (``op`` for a command
+        the contract does not know: the NC answers it with 0x701); ``axis`` None: the NC-level key.
+
+        Raises:
+            ValueError: invalid client id.
+        """
+        cls = COMMAND_CLASS.get(cmd, "op")
+        return self.cmd(cls, client) if axis is None else self.axis_cmd(axis, cls, client)
 
     def client_alive(self, client: str) -> str:
         check_client_id(client)
@@ -51,18 +96,28 @@ class Keys:
         check_client_id(client)
         return f"{self.prefix}/plctonc/{client}"
 
-    def parse_cmd_key(self, key: str) -> int | None:
-        """Axis id of an ``.../axis/<id>/cmd`` key, None for the NC-level key.
+    def parse_cmd_key(self, key: str) -> tuple[int | None, str, str]:
+        """(axis id or None for the NC-level key, class, client) of a command key.
+
+        Only the canonical form is accepted: a decimal axis id without leading zeros, a known class
+        and a valid client id. Whether the axis exists is for the NC to say.
 
         Raises:
-            NcError: 0x4012 for anything else below the prefix.
+            NcError: 0x4012 for anything else.
         """
-        if key == self.cmd:
-            return None
-        m = re.fullmatch(re.escape(self.prefix) + r"/axis/([0-9]{1,9})/cmd", key)
-        if not m:
-            raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, f"no such command key {key!r}")
-        return int(m.group(1))
+        m = self._cmd_re.fullmatch(key) if isinstance(key, str) else None
+        if not m or m.group(2) not in CLASSES:
+            shown = key[:200] if isinstance(key, str) else key
+            raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED,
+                          f"no such command key {shown!r}: expected {self.prefix}/[axis/<id>/]cmd/<read|op|eng>/<client>")
+        axis = m.group(1)
+        return (None if axis is None else int(axis)), m.group(2), m.group(3)
+
+
+def _check_class(cls: str) -> str:
+    if cls not in CLASSES:
+        raise ValueError(f"unknown command class {cls!r}: one of {', '.join(CLASSES)}")
+    return cls
 
 
 def check_client_id(client: str) -> str:

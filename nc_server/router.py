@@ -6,8 +6,15 @@ between them and nothing else (it declares nothing of its own). Its zenoh config
 everywhere in zenoh-nc: the given listen/connect endpoints only, multicast and gossip scouting off,
 the transport lease in ms (how fast a frozen peer is dropped and its liveliness tokens vanish).
 
-Exit codes: 0 after SIGINT/SIGTERM, 2 for a bad command line, 1 when zenoh cannot open (e.g. the
-endpoint is in use). Prints one ``nc-router ready: ...`` line on stdout once it serves.
+Security (docs/roles.md): ``--tls-dir DIR`` makes every link mutual TLS with the router's
+certificate ``DIR/<--tls-id>.pem`` (default ``router``, as ``deploy/certs/make-certs.sh`` makes it);
+``--roles roles.toml`` (needs ``--tls-dir``) adds the zenoh access control generated from the roles
+file (``nc_server.security.acl``): default deny, each client only its own keys by certificate CN.
+zenoh reads both once, when the router opens: restart it after changing the roles file.
+
+Exit codes: 0 after SIGINT/SIGTERM, 2 for a bad command line (also an unusable roles file or
+certificate directory), 1 when zenoh cannot open (e.g. the endpoint is in use). Prints one
+``nc-router ready: ...`` line on stdout once it serves.
 """
 from __future__ import annotations
 
@@ -63,8 +70,42 @@ def _parser() -> argparse.ArgumentParser:
                    help="another router to connect to (repeatable)")
     p.add_argument("--lease-ms", type=int, default=DEFAULT_LEASE_MS, metavar="MS",
                    help=f"transport lease [ms] (default {DEFAULT_LEASE_MS})")
+    p.add_argument("--tls-dir", metavar="DIR", help="certificate directory (deploy/certs/make-certs.sh): mutual TLS, "
+                                                     "every endpoint tls/...")
+    p.add_argument("--tls-id", default="router", metavar="ID", help="the router's certificate DIR/ID.pem (router)")
+    p.add_argument("--roles", metavar="FILE", help="roles file: zenoh access control per certificate CN (needs --tls-dir)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
+
+
+def security_extra(tls_dir: str | None, tls_id: str, roles_file: str | None,
+                   endpoints: Sequence[str]) -> dict[str, Any]:
+    """The config sections (by json5 path) for ``--tls-dir`` / ``--roles``.
+
+    Raises:
+        ConfigError: ``--roles`` without ``--tls-dir``, an unusable roles file or certificate
+            directory, a non-TLS endpoint.
+    """
+    from nc_server.security.acl import access_control
+    from nc_server.security.roles import RolesError, load_roles
+    from nc_server.security.tls import TlsError, check_tls_endpoints, tls_section
+
+    extra: dict[str, Any] = {}
+    if roles_file is not None and tls_dir is None:
+        raise ConfigError("--roles", "needs --tls-dir: the access control identifies clients by certificate CN")
+    if tls_dir is not None:
+        try:
+            extra["transport/link/tls"] = tls_section(tls_dir, tls_id)
+            check_tls_endpoints(endpoints, "--listen/--connect")
+        except TlsError as exc:
+            raise ConfigError("--tls-dir", str(exc)) from None
+        extra["transport/link/protocols"] = ["tls"]
+    if roles_file is not None:
+        try:
+            extra["access_control"] = access_control(load_roles(roles_file))
+        except (RolesError, ValueError) as exc:
+            raise ConfigError("--roles", str(exc)) from None
+    return extra
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -77,10 +118,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 check_endpoint(ep, f"{opt}[{i}]")
         if not 100 <= args.lease_ms <= 600_000:
             raise ConfigError("--lease-ms", f"must be 100..600000, got {args.lease_ms}")
+        extra = security_extra(args.tls_dir, args.tls_id, args.roles, [*args.listen, *args.connect])
     except ConfigError as exc:
         print(f"nc-router: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2
-    return _run(router_config(args.listen, args.connect, args.lease_ms), args.listen)
+    return _run(router_config(args.listen, args.connect, args.lease_ms, extra), args.listen)
 
 
 def _run(config: Any, listen: Sequence[str]) -> int:

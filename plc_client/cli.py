@@ -1,6 +1,7 @@
 """``plc-run``: run a PLC program file cyclically against one or more NC servers.
 
     plc-run program.py [--nc nc1=tcp/127.0.0.1:7447] [--cycle-time 0.01] [--client-id ID] [--duration S]
+                       [--tls-dir DIR]
 
 ``program.py`` defines either ``def cycle(plc)`` (called once per PLC cycle with the
 :class:`~plc_client.runtime.PlcRuntime`), or a class ``Program`` (instantiated once without
@@ -40,6 +41,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="PLC cycles without a new NC frame before axis data is invalid (default: 0.2 s worth)")
     p.add_argument("--timeout", type=float, default=1.0, metavar="SECONDS",
                    help="function block command timeout [s] (1.0)")
+    p.add_argument("--tls-dir", metavar="DIR",
+                   help="certificate directory (deploy/certs/make-certs.sh): mutual TLS with DIR/<client-id>.pem; "
+                        "every --nc endpoint must be tls/...")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
 
@@ -98,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         rt = PlcRuntime(program, ncs, cycle_time=args.cycle_time, client_id=args.client_id,
-                        stale_cycles=args.stale_cycles, command_timeout=args.timeout)
+                        stale_cycles=args.stale_cycles, command_timeout=args.timeout, tls_dir=args.tls_dir)
     except (ValueError, TypeError) as exc:
         print(f"plc-run: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -19,7 +19,9 @@ guarantees that unless more than one request per microsecond was sent before the
 :class:`~nc_server.server.handler.CycleInputs`), shared by all in-process ports of that core.
 So an in-process client gets exactly the server's behaviour: parsing and error replies, dedup
 by (client, id), Claim (0x723 naming the holder) / Release / Info, SetOverride refused from a
-non-holder, and the watchdog. ``send`` runs the request immediately, so the command takes
+non-holder, and the watchdog. Each request goes to its command key
+(``nc/<nc>/[axis/<id>/]cmd/<class>/<client>``, ``Keys.command_key``) and through the same key
+checks as over zenoh. ``send`` runs the request immediately, so the command takes
 effect in the core's next ``step()``; the reply is queued and delivered by the next
 :meth:`poll` (the next PLC cycle), as over zenoh.
 
@@ -42,7 +44,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nc_schema import ErrorCodes, Keys, check_client_id, make_request, unpack
+from nc_schema import COMMAND_CLASS, ErrorCodes, Keys, check_client_id, make_reply, make_request, unpack
 from nc_server.server.claims import ClaimTable
 from nc_server.server.handler import CycleInputs, RequestHandler
 
@@ -269,13 +271,28 @@ class InProcessNc:
         return self.inputs.watchdog(self.clock())
 
     # ---- the doors --------------------------------------------------------------------------
-    def request(self, axis_id: int | None, payload: bytes) -> dict[str, Any]:
-        """Run one request through nc-server's handler now; the decoded reply.
-
-        ``axis_id`` None is the NC-level key ``nc/<nc>/cmd``. Never raises for bad input.
-        """
-        key = self.keys.cmd if axis_id is None else self.keys.axis_cmd(axis_id)
+    def query(self, key: str, payload: bytes) -> dict[str, Any]:
+        """Run one request that arrived on command key ``key`` through nc-server's handler now
+        (the same key checks as over zenoh: class, identity, axis); the decoded reply.
+        Never raises for bad input."""
         return unpack(self.handler.handle(key, payload, self.clock()))
+
+    def request(self, axis_id: int | None, payload: bytes, client: str = "plc", cls: str | None = None) -> dict[str, Any]:
+        """:meth:`query` on ``client``'s command key of class ``cls`` for axis ``axis_id`` (None:
+        the NC-level key); ``cls`` None: the class of the payload's command (protocol.json), ``op``
+        if the payload cannot be read.
+
+        Raises:
+            ValueError: invalid client id, class or axis id.
+        """
+        if cls is None:
+            try:
+                cmd = unpack(payload).get("cmd")
+            except Exception:
+                cmd = None
+            cls = COMMAND_CLASS.get(cmd, "op") if isinstance(cmd, str) else "op"
+        key = self.keys.cmd(cls, client) if axis_id is None else self.keys.axis_cmd(axis_id, cls, client)
+        return self.query(key, payload)
 
     def plctonc(self, client: str, axis_ids: np.ndarray, records: np.ndarray) -> list[tuple[int, int]]:
         """A PLCTONC frame of ``client`` arrives now: applied to the axes it holds, then the watchdog.
@@ -345,7 +362,12 @@ class InProcessPort(CommandPort):
     def _transmit(self, pending: PendingCommand, payload: bytes) -> None:
         if pending.nc != self.nc or self.closed:
             return  # nobody answers: the owner's timeout decides
-        reply = self.server.request(pending.axis_id, payload)
+        try:
+            key = self.server.keys.command_key(pending.cmd, pending.axis_id, self.client_id)
+        except ValueError as exc:  # e.g. a negative axis id: no such key, as the NC would say
+            reply = make_reply(pending.id, pending.cmd, ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, str(exc))
+        else:
+            reply = self.server.query(key, payload)
         if self.hold:
             self._held.append((pending, reply))
         else:

@@ -22,7 +22,9 @@ cycling (its axes stay invalid: blocks report 0x4B0F). An open session reconnect
 when the NC restarts; the runtime then sees the NC's cycle counter go back (or its liveliness
 token reappear), stops following the old instance's commands and claims again.
 
-Commands (:class:`ZenohPort`) are ``session.get`` queries on ``nc/<nc>/axis/<id>/cmd`` with a
+Commands (:class:`ZenohPort`) are ``session.get`` queries on the command's key
+``nc/<nc>/axis/<id>/cmd/<class>/<client_id>`` (``Keys.command_key``; NC-level commands on
+``nc/<nc>/cmd/<class>/<client_id>``) with a
 ``Callback(indirect=False)`` that only appends the reply to the port's queue (no thread per
 query); the zenoh query timeout (``query_timeout``, default 5 x command_timeout) is longer than
 the blocks' Timeout so that a late acceptance still reaches the task (see
@@ -62,7 +64,7 @@ import numpy as np
 import zenoh
 from zenoh.handlers import Callback, FifoChannel, RingChannel
 
-from nc_schema import ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_frame, unpack
+from nc_schema import ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_frame, make_reply, unpack
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, PendingCommand
@@ -77,11 +79,15 @@ def default_client_id() -> str:
     return f"plc-{host}-{os.getpid()}"
 
 
-def client_config(endpoint: str, lease_ms: int = 1000) -> zenoh.Config:
-    """The explicit zenoh configuration of a PLC session (see the module docstring).
+def client_config(endpoint: str, lease_ms: int = 1000, tls_dir: str | None = None,
+                  identity: str | None = None) -> zenoh.Config:
+    """The explicit zenoh configuration of a PLC session (see the module docstring); with
+    ``tls_dir`` mutual TLS with the certificate ``<tls_dir>/<identity>.pem``
+    (``nc_server.security.tls``; the endpoint must be ``tls/``).
 
     Raises:
         zenoh.ZError: zenoh rejected the endpoint.
+        ValueError: a certificate file is missing (``TlsError``).
     """
     c = zenoh.Config()
     c.insert_json5("mode", '"client"')
@@ -90,15 +96,19 @@ def client_config(endpoint: str, lease_ms: int = 1000) -> zenoh.Config:
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
+    if tls_dir:
+        from nc_server.security.tls import apply_tls
+        apply_tls(c, tls_dir, identity or "")
     return c
 
 
 class _NcLink:
     """Session and declarations for one NC (created by :meth:`open`, possibly in a thread)."""
 
-    def __init__(self, nc: str, endpoint: str, client_id: str, lease_ms: int) -> None:
+    def __init__(self, nc: str, endpoint: str, client_id: str, lease_ms: int, tls_dir: str | None = None) -> None:
         self.nc = nc
         self.endpoint = endpoint
+        self.tls_dir = tls_dir
         self.keys = Keys(nc)
         self.client_id = client_id
         self.lease_ms = lease_ms
@@ -115,7 +125,7 @@ class _NcLink:
     def open(self) -> bool:
         """Open the session and declare everything; False (and ``last_error``) if the NC is unreachable."""
         try:
-            s = zenoh.open(client_config(self.endpoint, self.lease_ms))
+            s = zenoh.open(client_config(self.endpoint, self.lease_ms, self.tls_dir, self.client_id))
         except Exception as exc:  # zenoh.ZError: nobody listens there (yet)
             self.last_error = str(exc).split(" at ")[0]
             return False
@@ -172,7 +182,11 @@ class ZenohPort(CommandPort):
         if link is None or not link.ready or link.session is None:
             self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_NOTREADY)
             return
-        key = link.keys.cmd if pending.axis_id is None else link.keys.axis_cmd(pending.axis_id)
+        try:
+            key = link.keys.command_key(pending.cmd, pending.axis_id, self.client_id)
+        except ValueError as exc:  # e.g. a negative axis id: there is no such key
+            self._deliver(pending, make_reply(pending.id, pending.cmd, ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, str(exc)))
+            return
         got = [False]
 
         def on_reply(reply: Any) -> None:
@@ -223,6 +237,9 @@ class PlcRuntime(PlcTask):
         shutdown_cycles: cycles of enables-off frames sent before releasing the claims.
         claim_retry: see :class:`~plc_client.task.PlcTask`.
         close_timeout: how long the shutdown waits for the zenoh sessions to close [s].
+        tls_dir: certificate directory (``deploy/certs/make-certs.sh``): mutual TLS with the
+            certificate ``<tls_dir>/<client_id>.pem`` (its CN is the identity the router's access
+            control knows); every endpoint must be ``tls/``. None: plain TCP.
 
     Attributes:
         overruns: cycles that started later than one cycle_time after their deadline.
@@ -230,18 +247,25 @@ class PlcRuntime(PlcTask):
         unclosed: NCs whose session had not finished closing within ``close_timeout`` at shutdown.
 
     Raises:
-        ValueError: invalid client id, NC name or timing arguments.
+        ValueError: invalid client id, NC name or timing arguments; with ``tls_dir``: a missing
+            certificate file or a non-TLS endpoint.
     """
 
     def __init__(self, program: Any = None, ncs: Mapping[str, str] | None = None, *, cycle_time: float = 0.010,
                  client_id: str | None = None, stale_cycles: int | None = None, command_timeout: float = 1.0,
                  query_timeout: float | None = None, lease_ms: int = 1000, reconnect_period: float = 1.0,
-                 shutdown_cycles: int = 3, claim_retry: float = 1.0, close_timeout: float = 2.0) -> None:
+                 shutdown_cycles: int = 3, claim_retry: float = 1.0, close_timeout: float = 2.0,
+                 tls_dir: str | None = None) -> None:
         cid = check_client_id(client_id or default_client_id())
         super().__init__(program, cycle_time=cycle_time, client_id=cid, stale_cycles=stale_cycles,
                          command_timeout=command_timeout, claim_retry=claim_retry)
         ncs = dict(ncs if ncs is not None else {"nc1": "tcp/127.0.0.1:7447"})
-        self.links: dict[str, _NcLink] = {nc: _NcLink(nc, ep, cid, lease_ms) for nc, ep in ncs.items()}
+        if tls_dir:
+            from nc_server.security.tls import check_tls_endpoints, tls_files
+            tls_files(tls_dir, cid)
+            check_tls_endpoints(list(ncs.values()), "ncs")
+        self.tls_dir = tls_dir
+        self.links: dict[str, _NcLink] = {nc: _NcLink(nc, ep, cid, lease_ms, tls_dir) for nc, ep in ncs.items()}
         for nc in ncs:
             Keys(nc)  # validates the name
         self.port = ZenohPort(cid, self.links, query_timeout or 5.0 * command_timeout)

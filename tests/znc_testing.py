@@ -32,6 +32,8 @@ import msgpack
 import numpy as np
 import zenoh
 
+from nc_schema import Keys
+
 T = TypeVar("T")
 
 #: PLCTONC ControlDWord: Enable | FeedEnablePlus | FeedEnableMinus.
@@ -300,7 +302,8 @@ class NcTestClient:
 
     Args:
         port: the NC's port on 127.0.0.1.
-        client_id: sent with every request; with ``token=True`` a liveliness token
+        client_id: the identity in the command keys and sent with every request ("": the keys carry
+            a unique ``anon-...`` id and requests no client field); with ``token=True`` a liveliness token
             ``nc/<nc>/client/<client_id>`` is declared (needed for Claim).
         nc: NC name.
         token: declare the liveliness token.
@@ -308,11 +311,15 @@ class NcTestClient:
     """
 
     _ids = itertools.count(1)
+    _anon = itertools.count(1)
 
     def __init__(self, port: int, client_id: str = "", nc: str = "nc1", token: bool = True,
                  lease_ms: int = 1000) -> None:
         self.port = port
         self.client_id = client_id
+        #: the identity in this client's command keys: client_id, or a unique one per instance
+        #: for an "anonymous" client (the NC takes the identity from the key)
+        self.key_client = client_id or f"anon-{os.getpid()}-{next(self._anon)}"
         self.nc = nc
         self.session = zenoh.open(zenoh_client_config(port, lease_ms))
         self.token = self.session.liveliness().declare_token(f"nc/{nc}/client/{client_id}") \
@@ -326,8 +333,9 @@ class NcTestClient:
         self.plc_cycle = 0
 
     # -- requests -------------------------------------------------------------------------------
-    def key(self, axis: int | None) -> str:
-        return f"nc/{self.nc}/cmd" if axis is None else f"nc/{self.nc}/axis/{axis}/cmd"
+    def key(self, axis: int | None, cmd: str = "Info") -> str:
+        """The command key of ``cmd`` (its class from protocol.json) for this client's identity."""
+        return Keys(self.nc).command_key(cmd, axis, self.key_client)
 
     def next_id(self) -> int:
         return next(self._ids)
@@ -346,13 +354,15 @@ class NcTestClient:
 
     def request(self, cmd: str, axis: int | None = None, timeout: float = 10.0, request_id: Any = None,
                 client: str | None = None, **args: Any) -> dict[str, Any]:
-        """Send ``{"id", "client", "cmd", **args}`` to the axis (or NC) command key; return the reply map."""
+        """Send ``{"id", "client", "cmd", **args}`` to the command key of ``cmd`` (axis or NC) of this
+        client (:attr:`key_client`); ``client`` replaces the request's ``client`` field (the key stays
+        this client's); return the reply map."""
         msg: dict[str, Any] = {"id": self.next_id() if request_id is None else request_id, "cmd": cmd}
         cid = self.client_id if client is None else client
         if cid:
             msg["client"] = cid
         msg.update(args)
-        return self.raw_request(self.key(axis), msgpack.packb(msg, use_bin_type=True), timeout)
+        return self.raw_request(self.key(axis, cmd), msgpack.packb(msg, use_bin_type=True), timeout)
 
     def claim(self, axis: int, timeout: float = 20.0) -> dict[str, Any]:
         """Claim ``axis``, retrying while the NC has not seen this client's token yet (0x723)."""

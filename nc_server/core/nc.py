@@ -228,7 +228,7 @@ class NcCore:
         self._state_dirty = True
         try:
             if axis_id is None:
-                raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} needs an axis key (nc/<nc>/axis/<id>/cmd)")
+                raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} needs an axis key (nc/<nc>/axis/<id>/cmd/<class>/<client>)")
             i = self.index(axis_id)
             out = self._dispatch(i, request)
         except NcError as err:

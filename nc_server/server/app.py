@@ -22,6 +22,8 @@ import numpy as np
 from nc_schema import ErrorCodes, FrameFlags, Keys
 
 
+from nc_server.security.acl import access_control
+
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import CycleLoop, configure_interpreter
@@ -39,6 +41,8 @@ QUERY_BUDGET_NS = 250_000
 EARLY_REPLIES = True
 #: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
 SHUTDOWN_STOP_TIMEOUT = 5.0
+#: last_command changes alone rebuild the claims map at most this often [s] (claims and clients: at once).
+CLAIMS_MIN_PERIOD = 0.05
 #: A gap between two cycle starts longer than this means the NC itself stalled [s]:
 #: nobody is blamed for PLCTONC that could not be processed meanwhile.
 STALL_GRACE = 0.05
@@ -50,6 +54,10 @@ class NcServer:
     Args:
         config: the checked configuration.
         core: an NcCore built from ``config.axes`` (the cycle thread owns it once started).
+    The roles file (``config.roles``) makes the handler refuse what a client's role does not allow
+    (0x723); with ``config.zenoh.tls_dir`` too, the NC's own session (router or peer mode) also
+    enforces the zenoh access control generated from it (:func:`nc_server.security.acl.access_control`),
+    so clients that connect to the NC directly get only their own keys.
     """
 
     def __init__(self, config: ServerConfig, core: CoreLike) -> None:
@@ -58,13 +66,25 @@ class NcServer:
         self.keys = Keys(config.name)
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
         self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout)
-        self.transport = Transport(config.zenoh, self.keys, self.axis_ids)
+        roles = dict(config.roles.clients) if config.roles is not None else None
+        acl = None
+        if config.roles is not None and config.zenoh.tls_dir and config.zenoh.mode != "client":
+            acl = access_control(config.roles)
+        elif config.roles is not None and not config.zenoh.tls_dir:
+            log.warning("roles file without TLS: the client ids in the command keys are not authenticated "
+                        "(use --tls-dir, or a router with TLS and access control)")
+        self.transport = Transport(config.zenoh, self.keys, self.axis_ids, access_control=acl)
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle,
                               wake=self.transport.query_event)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
-                                      refresh_liveliness=self._take_liveliness)
+                                      refresh_liveliness=self._take_liveliness, roles=roles)
         self.inputs = CycleInputs(core, self.claims)  # type: ignore[arg-type]
-        self.io = IoThread(self.transport, self.stats)
+        #: (version, claims map) made by the cycle thread; the I/O thread publishes it
+        self.claims_msg: tuple[int, dict[str, Any]] | None = None
+        self._arb_seen: tuple[int, int, int] = (-1, -1, -1)
+        self._arb_built = 0.0
+        self.io = IoThread(self.transport, self.stats, claims_source=lambda: self.claims_msg,
+                           cycle_source=lambda: int(self.core.cycle))
         self._prev_start = 0.0
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -221,6 +241,20 @@ class NcServer:
         if self._clients_dirty:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
+        self._update_claims_msg(now)
+
+    def _update_claims_msg(self, now: float) -> None:
+        """Rebuild the claims map when something changed (claims, clients: at once; last commands:
+        at most every CLAIMS_MIN_PERIOD), for the I/O thread to publish (cycle thread)."""
+        h = self.handler
+        seen = (self.claims.version, h.clients_version, h.commands_version)
+        if seen == self._arb_seen:
+            return
+        if seen[:2] == self._arb_seen[:2] and now - self._arb_built < CLAIMS_MIN_PERIOD:
+            return
+        self._arb_seen, self._arb_built = seen, now
+        version = self.claims_msg[0] + 1 if self.claims_msg is not None else 0
+        self.claims_msg = (version, h.arbitration())
 
     def _retain_cycle(self, deadline_ns: int) -> None:
         """The first cycle with a retain file: one ``core.step()`` (the drive is read, the axes are still

@@ -38,6 +38,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--retain", metavar="PATH",
                    help="retain file: positions of axes with AxisEnDataPersistence, homed flags and parameters "
                         "written at run time survive a restart (replaces nc.retain_file)")
+    p.add_argument("--roles", metavar="FILE",
+                   help="roles file (docs/roles.md): refuse commands a client's role does not allow; with --tls-dir "
+                        "the NC's own router session also enforces zenoh access control per certificate CN")
+    p.add_argument("--tls-dir", metavar="DIR",
+                   help="certificate directory (deploy/certs/make-certs.sh): mutual TLS with DIR/<name>.pem; "
+                        "every endpoint must be tls/...")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
 
@@ -65,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 check_endpoint(ep, f"{opt}[{i}]")
         cfg = load_config(args.config, listen=args.listen, connect=args.connect, mode=args.mode, name=args.name, cycle_time=args.cycle_time,
                           realtime=args.realtime, watchdog_timeout=args.watchdog_timeout,
-                          retain_file=args.retain)
+                          retain_file=args.retain, roles=args.roles, tls_dir=args.tls_dir)
     except ConfigError as exc:
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2

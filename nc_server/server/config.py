@@ -19,6 +19,8 @@ from typing import Any, Mapping, Sequence
 from nc_schema import Keys
 from nc_server.core.params import AxisConfig, AxisParams, ConfigError
 from nc_server.drives import drive_names
+from nc_server.security.roles import Roles, RolesError, load_roles
+from nc_server.security.tls import TlsError, check_tls_endpoints, tls_files
 
 __all__ = ["ConfigError", "ServerConfig", "ZenohSettings", "load_config", "parse_config", "default_config_text",
            "check_endpoint", "REALTIME_MODES"]
@@ -42,12 +44,15 @@ class ZenohSettings:
         listen: explicit listen endpoints (at least one unless ``connect`` is given).
         connect: endpoints to connect to (e.g. a router; usually none).
         lease_ms: transport lease in milliseconds (also what clients are told to use for us).
+        tls_dir: certificate directory (``deploy/certs/make-certs.sh``): mutual TLS with the NC's
+            certificate ``<name>.pem``, every endpoint ``tls/``; None: no TLS.
     """
 
     mode: str = "router"
     listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     connect: tuple[str, ...] = ()
     lease_ms: int = 1000
+    tls_dir: str | None = None
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,9 @@ class ServerConfig:
             None: nothing is kept across a restart.
         zenoh: the session settings.
         axes: the axes in configuration order.
+        roles: the roles file (``zenoh.roles`` / ``--roles``): the NC refuses commands a client's role
+            does not allow, and with ``zenoh.tls_dir`` its own router session enforces the access
+            control generated from it. None: no roles file.
     """
 
     name: str = "nc1"
@@ -78,6 +86,7 @@ class ServerConfig:
     retain_file: str | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     axes: tuple[AxisConfig, ...] = ()
+    roles: Roles | None = None
 
 
 def default_config_text() -> str:
@@ -205,6 +214,13 @@ def _axes(data: Mapping[str, Any]) -> tuple[AxisConfig, ...]:
     return tuple(axes)
 
 
+def _path(v: Any, key: str) -> str:
+    """A path value: absolute, a relative one resolved against the working directory (as retain_file)."""
+    if not isinstance(v, str) or not v.strip():
+        raise ConfigError(key, f"must be a path, got {v!r}")
+    return str(Path(v).expanduser().resolve())
+
+
 def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     """Check a parsed TOML document and build the configuration.
 
@@ -216,7 +232,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
             raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis)")
     nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive",
                             "retain_file"})
-    zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease"})
+    zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease", "roles", "tls_dir"})
     name = nc.get("name", "nc1")
     try:
         Keys(name if isinstance(name, str) else "")
@@ -244,16 +260,33 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     if not listen and not connect:
         raise ConfigError("zenoh.listen", "at least one listen or connect endpoint is required")
     lease = _integer(zn.get("lease", 1000), "zenoh.lease", 100, 600_000)
+    tls_dir = None
+    if zn.get("tls_dir") is not None:
+        tls_dir = _path(zn["tls_dir"], "zenoh.tls_dir")
+        try:
+            tls_files(tls_dir, name)
+            check_tls_endpoints(listen, "zenoh.listen")
+            check_tls_endpoints(connect, "zenoh.connect")
+        except TlsError as exc:
+            raise ConfigError("zenoh.tls_dir", str(exc)) from None
+    roles = None
+    if zn.get("roles") is not None:
+        try:
+            roles = load_roles(_path(zn["roles"], "zenoh.roles"))
+        except RolesError as exc:
+            raise ConfigError("zenoh.roles", str(exc)) from None
+        if name not in roles.ncs:
+            raise ConfigError("zenoh.roles", f"{roles.source}: NC {name!r} is not listed (add [nc.{name}])")
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
-                        zenoh=ZenohSettings(mode, listen, connect, lease),
-                        axes=_axes(data))
+                        zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=_axes(data), roles=roles)
 
 
 def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None,
                 connect: Sequence[str] | None = None, mode: str | None = None, name: str | None = None,
                 cycle_time: float | None = None, realtime: str | None = None,
-                watchdog_timeout: float | None = None, retain_file: str | None = None) -> ServerConfig:
+                watchdog_timeout: float | None = None, retain_file: str | None = None, roles: str | None = None,
+                tls_dir: str | None = None) -> ServerConfig:
     """Load ``path`` (TOML) or the embedded default, then apply the command-line overrides.
 
     Args:
@@ -262,6 +295,8 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
         connect: replaces ``zenoh.connect`` when given (non-empty).
         mode: replaces ``zenoh.mode``; ``"client"`` without ``listen`` also drops the default listen endpoint.
         name, cycle_time, realtime, watchdog_timeout, retain_file: replace ``nc.*`` when given.
+        roles, tls_dir: replace ``zenoh.roles`` / ``zenoh.tls_dir`` when given (a relative path, here
+            or in the file, is resolved against the working directory, as ``nc.retain_file``).
 
     Raises:
         ConfigError: unreadable file (key ``--config``), TOML syntax error, or any invalid value.
@@ -293,4 +328,7 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
                        ("watchdog_timeout", watchdog_timeout), ("retain_file", retain_file)):
         if value is not None:
             nc[key] = value
+    for key, value in (("roles", roles), ("tls_dir", tls_dir)):
+        if value is not None:
+            zn[key] = value
     return parse_config(data)

@@ -5,10 +5,15 @@ This is the one implementation behind every door to an NC: nc-server's queryable
 (:class:`plc_client.port.InProcessPort`, tests and simulations) both feed it.
 
 * :class:`RequestHandler` turns one request (key + payload bytes) into the msgpack reply bytes:
-  parse (``nc_schema.parse_request``), dedup by (client, id), Claim/Release/Info here,
-  SetOverride after a permission check, everything else through ``core.execute`` (the request
-  carries ``client``: the core records which client commanded each motion job). Nothing raises
-  out of :meth:`RequestHandler.handle`: bad input becomes an error reply. Client liveliness
+  parse (``nc_schema.parse_request``), the key (``nc/<nc>/[axis/<id>/]cmd/<class>/<client>``,
+  ``Keys.parse_cmd_key``: the sender's identity and the command's class, checked against the
+  command, the request's ``client`` field, the configured axes and, with a roles file, the
+  client's role), dedup by (key client, id), Claim/Release/Info here, SetOverride after a
+  permission check, everything else through ``core.execute`` (the request carries the key's
+  client: the core records which client commanded each motion job). Nothing raises out of
+  :meth:`RequestHandler.handle`: bad input becomes an error reply. It also keeps who was seen
+  with which class and the last command per axis (:meth:`RequestHandler.arbitration`, the
+  ``nc/<nc>/claims`` map). Client liveliness
   (:meth:`RequestHandler.client_alive` / :meth:`RequestHandler.client_gone`) goes through it too,
   so a vanished client's claims fault and its reply-cache entries are dropped in one place.
 * :class:`CycleInputs` is what the NC does before each ``core.step()``: apply the newest PLCTONC
@@ -18,11 +23,11 @@ from __future__ import annotations
 
 import logging
 from collections import OrderedDict
-from typing import Any, Callable, Iterable, Protocol
+from typing import Any, Callable, Iterable, Mapping, Protocol
 
 import numpy as np
 
-from nc_schema import COMMANDS, ErrorCodes, Keys, NcError, make_reply, pack, parse_request
+from nc_schema import CLASSES, COMMAND_CLASS, COMMANDS, ROLE_CLASSES, ErrorCodes, Keys, NcError, make_reply, pack, parse_request
 
 from .claims import ClaimTable
 
@@ -34,6 +39,13 @@ MAX_REQUEST_BYTES = 65536
 INVALID_DATA = int(ErrorCodes.ADSERR_DEVICE_INVALIDDATA)  # type: ignore[attr-defined]
 AXIS_NOT_ALLOWED = int(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED)  # type: ignore[attr-defined]
 INTERNAL = int(ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
+ACCESS_DENIED = int(ErrorCodes.ADSERR_DEVICE_ACCESSDENIED)  # type: ignore[attr-defined]
+#: Clients remembered for the ``clients`` of :meth:`RequestHandler.arbitration` (beyond: the oldest
+#: one without a liveliness token is forgotten first).
+MAX_SEEN = 256
+#: The role a client is shown with when the NC has no roles file: by the highest class it used.
+SEEN_ROLE = {"read": "observer", "op": "operator", "eng": "engineer"}
+_RANK = {c: i for i, c in enumerate(CLASSES)}
 
 
 class CoreLike(Protocol):
@@ -117,30 +129,51 @@ class RequestHandler:
         info_extra: returns extra Info fields (e.g. ``timing``) at call time.
         refresh_liveliness: applies liveliness events that arrived meanwhile (see Claim).
         cache_size: reply cache entries.
+        roles: client id -> role (``observer`` / ``operator`` / ``engineer``) from the NC's roles
+            file; a client must be listed and its role must allow the command's class (0x723
+            otherwise). None: no roles file (the router's access control, if any, decides).
 
-    Dedup applies to requests that carry a client id: a repeated (client, id) gets the cached
-    reply and is not executed again. Anonymous requests (no ``client``) are never deduplicated,
-    since unrelated anonymous tools would collide on ids like 1.
+    Dedup applies to commands of class op and eng: a repeated (client, id), client being the
+    key's, gets the cached reply and is not executed again. Reads (class read) are never cached:
+    running them twice changes nothing, and tools that always send id 1 get fresh values.
+
+    Attributes:
+        seen: client -> highest command class rank it used (0 read, 1 op, 2 eng).
+        last_command: AxisId -> (client, cmd, cycle) of the newest accepted op/eng command.
+        clients_version: bumped when a client appears, disappears or uses a higher class.
+        commands_version: bumped with every change of ``last_command``.
     """
 
     def __init__(self, core: CoreLike, claims: ClaimTable, keys: Keys,
                  info_extra: Callable[[], dict[str, Any]] | None = None, cache_size: int = 4096,
-                 refresh_liveliness: Callable[[], None] | None = None) -> None:
+                 refresh_liveliness: Callable[[], None] | None = None,
+                 roles: Mapping[str, str] | None = None) -> None:
         self.core = core
         self.claims = claims
         self.keys = keys
         self.info_extra = info_extra or (lambda: {})
         #: applies pending liveliness events (the server's); called before refusing an unknown client
         self.refresh_liveliness = refresh_liveliness or (lambda: None)
+        self.roles: dict[str, str] | None = None if roles is None else dict(roles)
+        for client, role in (self.roles or {}).items():
+            if role not in ROLE_CLASSES:
+                raise ValueError(f"client {client!r}: unknown role {role!r} (one of {', '.join(ROLE_CLASSES)})")
         self.cache = ReplyCache(cache_size)
+        self._axes = frozenset(claims.axis_ids)
+        self.seen: dict[str, int] = {}
+        self.last_command: dict[int, tuple[str, str, int]] = {}
+        self.clients_version = 0
+        self.commands_version = 0
         self.requests = 0
         self.errors = 0
+        self.denied = 0  # 0x723 for the key: wrong class, client field, role
         self.internal_errors = 0
 
     # ---- liveliness (the server's token events; an in-process port's creation / close) ------
     def client_alive(self, client: str) -> None:
         """``client``'s liveliness token appeared: it may claim."""
         self.claims.client_alive(client)
+        self.clients_version += 1
 
     def client_gone(self, client: str) -> None:
         """``client``'s token disappeared: its claims fault at the next watchdog check
@@ -148,13 +181,15 @@ class RequestHandler:
         may reuse request ids)."""
         self.claims.client_gone(client)
         self.cache.forget_client(client)
+        self.clients_version += 1
 
     # ---- requests ---------------------------------------------------------------------------
     def handle(self, key: str, payload: bytes, now: float) -> bytes:
         """Execute one request and return the packed reply (never raises).
 
         Args:
-            key: the query's key expression (``nc/<nc>/cmd`` or ``nc/<nc>/axis/<id>/cmd``).
+            key: the query's key expression (``nc/<nc>/cmd/<class>/<client>`` or
+                ``nc/<nc>/axis/<id>/cmd/<class>/<client>``).
             payload: the msgpack request.
             now: monotonic time [s] (claim bookkeeping).
         """
@@ -163,15 +198,18 @@ class RequestHandler:
             reply = self._handle(key, payload, now)
         except Exception as exc:  # a bug: answer it, keep cycling
             self.internal_errors += 1
-            log.exception("internal error handling request on %s", key)
+            log.exception("internal error handling request on %s", str(key)[:200])
             reply = pack(make_reply(None, None, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
                                     cycle=self.core.cycle + 1))
         return reply
 
     def _error(self, rid: Any, cmd: str | None, err: NcError) -> bytes:
+        return pack(self._error_reply(rid, cmd, err))
+
+    def _error_reply(self, rid: Any, cmd: str | None, err: NcError) -> dict[str, Any]:
         self.errors += 1
         text = str(err)
-        return pack(make_reply(rid, cmd, err.code, text[:512], cycle=self.core.cycle + 1))
+        return make_reply(rid, cmd, err.code, text[:512], cycle=self.core.cycle + 1)
 
     def too_large(self, size: int) -> bytes:
         """The reply to a request of ``size`` bytes over MAX_REQUEST_BYTES (0x706)."""
@@ -184,35 +222,82 @@ class RequestHandler:
             req = parse_request(payload)
         except NcError as err:
             return self._error(getattr(err, "request_id", None), getattr(err, "cmd", None), err)
-        rid, client = req["id"], req["client"]
-        if client:
-            cached = self.cache.get(client, rid)
-            if cached is not None:
-                return cached
-        reply = self._execute(key, req, now)
-        if client:
-            self.cache.put(client, rid, reply)
-        return reply
-
-    def _execute(self, key: str, req: dict[str, Any], now: float) -> bytes:
-        rid, client, cmd = req["id"], req["client"], req["cmd"]
+        rid, cmd = req["id"], req["cmd"]
         try:
-            axis_id = self.keys.parse_cmd_key(key)
+            axis_id, cls, client = self.keys.parse_cmd_key(key)
+            self._check_key(req, axis_id, cls, client)
         except NcError as err:
             return self._error(rid, cmd, err)
+        req["client"] = client  # the identity is the key's (the field, if given, equals it)
+        self._saw(client, cls)
+        if cls == "read":
+            return pack(self._execute(axis_id, req, now))
+        cached = self.cache.get(client, rid)
+        if cached is not None:
+            return cached
+        reply = self._execute(axis_id, req, now)
+        if axis_id is not None and not reply.get("error"):
+            self.last_command[axis_id] = (client, cmd, int(reply.get("cycle", self.core.cycle + 1)))
+            self.commands_version += 1
+        packed = pack(reply)
+        self.cache.put(client, rid, packed)
+        return packed
+
+    def _check_key(self, req: dict[str, Any], axis_id: int | None, cls: str, client: str) -> None:
+        """The key's axis, class and client against the request (and the roles file).
+
+        Raises:
+            NcError: 0x4012 an axis that is not configured; 0x723 the command is of another
+                class, the request names another client, or the client's role does not allow
+                the class (or it is not in the roles file).
+        """
+        cmd = req["cmd"]
+        if axis_id is not None and axis_id not in self._axes:
+            raise NcError(AXIS_NOT_ALLOWED, f"no axis {axis_id} on NC {self.keys.nc!r}")
+        want = COMMAND_CLASS[cmd]
+        if cls != want:
+            self.denied += 1
+            where = self.keys.cmd(want, client) if axis_id is None else self.keys.axis_cmd(axis_id, want, client)
+            raise NcError(ACCESS_DENIED, f"{cmd} is a command of class {want!r}, not {cls!r}: send it on {where}")
+        named = req.get("client", "")
+        if named and named != client:
+            self.denied += 1
+            raise NcError(ACCESS_DENIED, f"request names client {named!r} but was sent on the key of client {client!r}")
+        if self.roles is not None:
+            role = self.roles.get(client)
+            if role is None:
+                self.denied += 1
+                raise NcError(ACCESS_DENIED, f"client {client!r} is not in the NC's roles file")
+            if cls not in ROLE_CLASSES[role]:
+                self.denied += 1
+                raise NcError(ACCESS_DENIED, f"client {client!r} is an {role}: {cmd} (class {cls!r}) needs "
+                                             + " or ".join(r for r, c in ROLE_CLASSES.items() if cls in c))
+
+    def _saw(self, client: str, cls: str) -> None:
+        rank = _RANK[cls]
+        old = self.seen.get(client)
+        if old is not None and old >= rank:
+            return
+        if old is None and len(self.seen) >= MAX_SEEN:
+            victim = next((c for c in self.seen if not self.claims.is_alive(c)), next(iter(self.seen)))
+            del self.seen[victim]
+        self.seen[client] = rank
+        self.clients_version += 1
+
+    def _execute(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
+        rid, client, cmd = req["id"], req["client"], req["cmd"]
         scope = COMMANDS[cmd].get("scope", "axis")
         cycle = self.core.cycle + 1
         if cmd == "Info":
             value = {"name": self.keys.nc, **self.core.info(), **self.info_extra(),
-                     "claims": self.claims.claims(), "clients": self.claims.clients()}
-            return pack(make_reply(rid, cmd, 0, "", cycle=cycle, value=value))
+                     "claims": self.claims.claims(), "clients": self.claims.clients(),
+                     "arbitration": self.arbitration()}
+            return make_reply(rid, cmd, 0, "", cycle=cycle, value=value)
         if scope == "axis" and axis_id is None:
-            where = f"{self.keys.prefix}/axis/<id>/cmd"
-            return self._error(rid, cmd, NcError(AXIS_NOT_ALLOWED, f"{cmd} is an axis command: send it to {where}"))
+            where = f"{self.keys.prefix}/axis/<id>/cmd/{COMMAND_CLASS[cmd]}/{client}"
+            return self._error_reply(rid, cmd, NcError(AXIS_NOT_ALLOWED, f"{cmd} is an axis command: send it to {where}"))
         assert axis_id is not None
         if cmd in ("Claim", "Release"):
-            if not client:
-                return self._error(rid, cmd, NcError(INVALID_DATA, f"{cmd} needs a 'client' id"))
             try:
                 i = self.core.index(axis_id)
                 if cmd == "Claim":
@@ -220,25 +305,46 @@ class RequestHandler:
                         # its token event may have arrived a moment ago: take pending events first
                         self.refresh_liveliness()
                     self.claims.claim(axis_id, client, now)
-                    return pack(make_reply(rid, cmd, 0, "", cycle=cycle, value=client))
+                    return make_reply(rid, cmd, 0, "", cycle=cycle, value=client)
                 if self.claims.release(axis_id, client):
                     # Nobody supplies PLCTONC any more: all enables off, override 100 %.
                     self.core.set_plctonc(i, self.core.default_plctonc())
                     log.info("axis %d released by %s", axis_id, client)
-                return pack(make_reply(rid, cmd, 0, "", cycle=cycle))
+                return make_reply(rid, cmd, 0, "", cycle=cycle)
             except NcError as err:
-                return self._error(rid, cmd, err)
+                return self._error_reply(rid, cmd, err)
         if cmd == "SetOverride":
             try:
                 self.claims.may_override(axis_id, client)
             except NcError as err:
-                return self._error(rid, cmd, err)
-        # req["client"] ("" when anonymous) stays in the request: the core records it as the
-        # commander of the motion job it starts.
+                return self._error_reply(rid, cmd, err)
+        # req["client"] (the key's) stays in the request: the core records it as the commander
+        # of the motion job it starts.
         reply = self.core.execute(req, axis_id)
         if reply.get("error"):
             self.errors += 1
-        return pack(reply)
+        return reply
+
+    # ---- who holds what -----------------------------------------------------------------------
+    def role_of(self, client: str) -> tuple[str | None, str]:
+        """(role, source): from the roles file (``"roles"``; None if unlisted), else by the highest
+        class the client used (``"seen"``; None if it sent no command)."""
+        if self.roles is not None:
+            return self.roles.get(client), "roles"
+        rank = self.seen.get(client)
+        return (None if rank is None else SEEN_ROLE[CLASSES[rank]]), "seen"
+
+    def arbitration(self) -> dict[str, Any]:
+        """The ``nc/<nc>/claims`` map (protocol.json ``claims``): claims, clients (alive, role),
+        the last command per axis. Call it on the thread that owns the handler."""
+        alive = set(self.claims.clients())
+        clients: dict[str, dict[str, Any]] = {}
+        for c in sorted(alive | set(self.seen)):
+            role, source = self.role_of(c)
+            clients[c] = {"alive": c in alive, "role": role, "role_source": source}
+        return {"cycle": int(self.core.cycle), "claims": self.claims.claims(), "clients": clients,
+                "last_command": {a: {"client": c, "cmd": m, "cycle": cy}
+                                 for a, (c, m, cy) in sorted(self.last_command.items())}}
 
 
 class CycleInputs:

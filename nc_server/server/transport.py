@@ -10,7 +10,9 @@ takes SCHED_FIFO, so none inherits it):
   cycles, so a command is taken up at once instead of at the next poll);
 * one Python thread for the PLCTONC subscriber callback: it decodes a frame and keeps only
   the newest one per client (:attr:`Transport.plc_inbox`);
-* the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats.
+* the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats, and the claims map
+  ``nc/<nc>/claims`` (made by the cycle thread when something changed, published here on every
+  change and every :data:`CLAIMS_PERIOD`).
 
 The cycle thread itself never calls into zenoh: it pops the query, liveliness and PLCTONC inboxes
 and hands its output to the I/O thread through a ``SimpleQueue``.
@@ -37,6 +39,8 @@ from nc_schema import (
 )
 from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 
+from nc_server.security.tls import apply_tls
+
 from .config import ZenohSettings
 
 log = logging.getLogger("nc_server.server")
@@ -51,6 +55,8 @@ MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 STATUS_PERIOD = 0.1
 #: Stats period [s].
 STATS_PERIOD = 0.1
+#: The claims map is published on every change and at least this often [s].
+CLAIMS_PERIOD = 1.0
 
 _HEADER = FRAME_HEADER_DTYPE.itemsize  # per-axis NCTOPLC records start here in a status frame
 _NREC = NCTOPLC_DTYPE.itemsize
@@ -91,11 +97,15 @@ def encode_frame_fast(cycle: int, nc_time_ns: int, records: np.ndarray, flags: i
                                         flags | _JOB_RECORDS), _bytes_of(records), _bytes_of(jobs)))
 
 
-def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
-    """An explicit zenoh config: mode, listen/connect endpoints, no multicast or gossip scouting, lease.
+def zenoh_config(settings: ZenohSettings, identity: str | None = None,
+                 access_control: dict[str, Any] | None = None) -> zenoh.Config:
+    """An explicit zenoh config: mode, listen/connect endpoints, no multicast or gossip scouting, lease;
+    with ``settings.tls_dir`` mutual TLS as ``identity`` (its certificate; every endpoint ``tls/``),
+    with ``access_control`` that section (``nc_server.security.acl``).
 
     Raises:
         zenoh.ZError: zenoh rejected a value.
+        nc_server.security.tls.TlsError: a certificate file is missing.
     """
     c = zenoh.Config()
     c.insert_json5("mode", json.dumps(settings.mode))
@@ -106,6 +116,10 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     c.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
     # zenoh's default accepts 1 GiB messages; nothing legitimate comes near 4 MiB here
     c.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
+    if settings.tls_dir:
+        apply_tls(c, settings.tls_dir, identity or "")
+    if access_control is not None:
+        c.insert_json5("access_control", json.dumps(access_control))
     return c
 
 
@@ -155,10 +169,13 @@ class Transport:
         settings: zenoh settings.
         keys: the NC's key expressions.
         axis_ids: configured axis ids (publishers are declared per axis, in this order).
+        access_control: the zenoh ``access_control`` section its session enforces (None: none).
     """
 
-    def __init__(self, settings: ZenohSettings, keys: Keys, axis_ids: list[int]) -> None:
+    def __init__(self, settings: ZenohSettings, keys: Keys, axis_ids: list[int],
+                 access_control: dict[str, Any] | None = None) -> None:
         self.settings = settings
+        self.access_control = access_control
         self.keys = keys
         self.axis_ids = list(axis_ids)
         n = len(self.axis_ids)
@@ -194,7 +211,7 @@ class Transport:
         Raises:
             zenoh.ZError: e.g. the listen endpoint is in use.
         """
-        self.session = s = zenoh.open(zenoh_config(self.settings))
+        self.session = s = zenoh.open(zenoh_config(self.settings, self.keys.nc, self.access_control))
         self._zid = str(s.info.zid())
         k = self.keys
         self.queryable = s.declare_queryable(k.cmd_any, Callback(self._on_query, indirect=False), complete=True)
@@ -204,10 +221,11 @@ class Transport:
                                                                 history=True)
         self.plc_sub = s.declare_subscriber(k.plctonc_in_any, self._on_plctonc)
         pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
-        self.status_pub = s.declare_publisher(f"{k.prefix}/status", **pub)
+        self.status_pub = s.declare_publisher(k.status, **pub)
         self._decl.append(self.status_pub)
         self.frame_pub = s.declare_publisher(k.frame, **pub)
         self.stats_pub = s.declare_publisher(k.stats, **pub)
+        self.claims_pub = s.declare_publisher(k.claims)
         self.nc_pubs = []
         self.pc_pubs = []
         for i, a in enumerate(self.axis_ids):
@@ -240,7 +258,7 @@ class Transport:
         items = [getattr(self, "token", None), *self._decl, getattr(self, "plc_sub", None),
                  getattr(self, "liveliness_sub", None), getattr(self, "queryable", None)]
         items += getattr(self, "nc_pubs", []) + getattr(self, "pc_pubs", [])
-        items += [getattr(self, "frame_pub", None), getattr(self, "stats_pub", None)]
+        items += [getattr(self, "frame_pub", None), getattr(self, "stats_pub", None), getattr(self, "claims_pub", None)]
         for d in items:
             if d is None:
                 continue
@@ -339,11 +357,22 @@ class IoThread:
     Args:
         transport: the open transport.
         stats_source: returns the stats map (published every :data:`STATS_PERIOD` s).
+        claims_source: returns (version, claims map) or None: the newest map the cycle thread made
+            (never built here: the claim table belongs to the cycle thread); published when the
+            version changes and every :data:`CLAIMS_PERIOD` s (then with ``cycle`` from ``cycle_source``).
+        cycle_source: returns the NC's current cycle.
     """
 
-    def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]]) -> None:
+    def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]],
+                 claims_source: Callable[[], tuple[int, dict[str, Any]] | None] | None = None,
+                 cycle_source: Callable[[], int] | None = None) -> None:
         self.t = transport
         self.stats_source = stats_source
+        self.claims_source = claims_source or (lambda: None)
+        self.cycle_source = cycle_source
+        self.claims_sent = 0
+        self._claims_version: int | None = None
+        self._next_claims = 0.0
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.frames_sent = 0
         self.frames_dropped = 0
@@ -406,6 +435,7 @@ class IoThread:
             if now >= next_stats or not running:
                 next_stats = now + STATS_PERIOD
                 self._publish_stats()
+            self._publish_claims(now)
 
     def _reply(self, q: Any, payload: bytes) -> None:
         try:
@@ -440,6 +470,24 @@ class IoThread:
         except Exception as exc:  # session closing, etc.
             self.put_errors += 1
             log.debug("put failed: %s", exc)
+
+    def _publish_claims(self, now: float) -> None:
+        try:
+            got = self.claims_source()
+            if got is None:
+                return
+            version, msg = got
+            if version == self._claims_version and now < self._next_claims:
+                return
+            if version == self._claims_version and self.cycle_source is not None:
+                msg = {**msg, "cycle": int(self.cycle_source())}  # unchanged: republished as of now
+            self._claims_version = version
+            self._next_claims = now + CLAIMS_PERIOD
+            self.t.claims_pub.put(pack(msg))
+            self.claims_sent += 1
+        except Exception as exc:
+            self.put_errors += 1
+            log.debug("claims put failed: %s", exc)
 
     def _publish_stats(self) -> None:
         try:

@@ -43,7 +43,7 @@ def test_oversized_request_is_refused_and_the_cycle_goes_on(nc_server, nc_client
     cl.watch("nc/nc1/axis/1/nctoplc")
     wait_until(lambda: cl.nctoplc(1) is not None, 20, "first sample")
     payload = msgpack.packb({"id": 1, "cmd": "Info", "client": "big", "pad": "x" * (1 << 20)})
-    rep = cl.raw_request("nc/nc1/cmd", payload, timeout=20)
+    rep = cl.raw_request("nc/nc1/cmd/read/big", payload, timeout=20)
     assert rep["error"] == 0x706 and "exceeds" in rep["text"]
     c0 = int(cl.nctoplc(1)["DcTimeStamp"])
     wait_until(lambda: int(cl.nctoplc(1)["DcTimeStamp"]) != c0, 20, "the NC keeps cycling")

@@ -19,6 +19,8 @@ from typing import Any, Callable, Iterator
 import msgpack
 import pytest
 
+from nc_schema import COMMAND_CLASS
+
 from znc_testing import (
     BIT_CONTROL_LOOP_CLOSED, BIT_ERROR, NcServerProcess, NcTestClient, wait_until,
 )
@@ -126,11 +128,30 @@ GARBAGE: list[tuple[str, str, bytes, int]] = [
     ("axis id not a number", "axis/x", msgpack.packb({"id": 13, "cmd": "Reset"}), 0x4012),
     ("axis cmd on NC key", "", msgpack.packb({"id": 14, "cmd": "Reset"}), 0x4012),
     ("unknown parameter", "axis/1", msgpack.packb({"id": 15, "cmd": "ReadParameter", "ParameterNumber": 4242}), 0x703),
+    # regressions: Info on an axis that does not exist was answered, axis/01 was taken as axis 1
+    ("Info on an unknown axis", "axis/99", msgpack.packb({"id": 16, "cmd": "Info"}), 0x4012),
+    ("leading zero", "axis/01", msgpack.packb({"id": 17, "cmd": "ReadParameter", "ParameterNumber": 1003}), 0x4012),
+    ("leading zero, Info", "axis/01", msgpack.packb({"id": 18, "cmd": "Info"}), 0x4012),
+    # key identity and class
+    ("class mismatch", "axis/1 eng", msgpack.packb({"id": 19, "cmd": "Reset"}), 0x723),
+    ("write on the op key", "axis/1 op",
+     msgpack.packb({"id": 20, "cmd": "WriteParameter", "ParameterNumber": 1003, "Value": 1.0}), 0x723),
+    ("another client's name", "axis/1", msgpack.packb({"id": 21, "cmd": "Reset", "client": "someone-else"}), 0x723),
+    ("unknown class", "axis/1 admin", msgpack.packb({"id": 22, "cmd": "Reset"}), 0x4012),
 ]
 
 
-def key_of(where: str) -> str:
-    return f"nc/nc1/{where}/cmd" if where else "nc/nc1/cmd"
+def key_of(where: str, payload: bytes) -> str:
+    """The command key for GARBAGE's ``where`` ("axis/1", "axis/1 <class>", "" = NC level) from
+    client "fuzzer": the class of the payload's command unless given."""
+    where, _, cls = where.partition(" ")
+    if not cls:
+        try:
+            cmd = msgpack.unpackb(payload).get("cmd")
+        except Exception:
+            cmd = None
+        cls = COMMAND_CLASS.get(cmd, "op") if isinstance(cmd, str) else "op"
+    return f"nc/nc1/{where}/cmd/{cls}/fuzzer" if where else f"nc/nc1/cmd/{cls}/fuzzer"
 
 
 def test_garbage_requests_get_error_codes(nc_server: NcServerProcess,
@@ -140,7 +161,7 @@ def test_garbage_requests_get_error_codes(nc_server: NcServerProcess,
     c0 = struct.unpack_from("<Q", raw(cl, 1)[1])[0]
     got = {}
     for name, where, payload, _ in GARBAGE:
-        r = cl.raw_request(key_of(where), payload)
+        r = cl.raw_request(key_of(where, payload), payload)
         got[name] = r["error"]
         assert r["text"], (name, r)
     assert got == {name: code for name, _, _, code in GARBAGE}
@@ -266,16 +287,19 @@ def test_second_claimant_refused_and_duplicate_request_runs_once(
     assert anonymous.request("SetOverride", axis=3, Override=10.0)["error"] == 0x723
     assert b.request("Release", axis=3)["error"] == 0x723
     # A claim without a liveliness token is refused, saying why.
-    r = anonymous.request("Claim", axis=4, client="tokenless")
+    r = anonymous.request("Claim", axis=4)
     assert r["error"] == 0x723 and "liveliness" in r["text"]
+    # b cannot act as a: a request naming plc-a on b's key is refused (nothing released)
+    r = b.request("Release", axis=3, client="plc-a")
+    assert r["error"] == 0x723 and "'plc-a'" in r["text"]
 
     a.feed_plctonc([3])
     wait_until(lambda: enabled(a, 3), T, "axis 3 enabled")
     start = float(a.nctoplc(3)["SetPos"])
     req = msgpack.packb({"id": "move-1", "client": "plc-a", "cmd": "MoveRelative", "Distance": -10.0,
                          "Velocity": 100.0})
-    r1 = a.raw_request("nc/nc1/axis/3/cmd", req)
-    r2 = a.raw_request("nc/nc1/axis/3/cmd", req)
+    r1 = a.raw_request("nc/nc1/axis/3/cmd/op/plc-a", req)
+    r2 = a.raw_request("nc/nc1/axis/3/cmd/op/plc-a", req)
     assert r1["error"] == 0 and r1 == r2  # the second answer came from the cache
 
     def done() -> bool:
@@ -286,7 +310,7 @@ def test_second_claimant_refused_and_duplicate_request_runs_once(
     s = a.nctoplc(3)
     assert abs(float(s["SetPos"]) - (start - 10.0)) < 1e-6, (start, float(s["SetPos"]))
     # The same id from another client is a different request.
-    r3 = b.raw_request("nc/nc1/axis/3/cmd", msgpack.packb({"id": "move-1", "client": "plc-b", "cmd": "ReadParameter",
+    r3 = b.raw_request("nc/nc1/axis/3/cmd/read/plc-b", msgpack.packb({"id": "move-1", "client": "plc-b", "cmd": "ReadParameter",
                                                            "ParameterNumber": 1003}))
     assert r3["error"] == 0 and r3["Value"] == 250.0
 
@@ -303,7 +327,7 @@ def test_request_burst_is_answered_completely(nc_server: NcServerProcess,
                                               nc_client: Callable[..., NcTestClient]) -> None:
     # 300 requests in flight at once: drained a bounded number per cycle, every one answered.
     cl = nc_client(nc_server.port, "burst")
-    handlers = [cl.session.get("nc/nc1/axis/2/cmd", timeout=T,
+    handlers = [cl.session.get("nc/nc1/axis/2/cmd/read/burst", timeout=T,
                                payload=msgpack.packb({"id": k, "client": "burst", "cmd": "ReadParameter",
                                                       "ParameterNumber": 1003}))
                 for k in range(300)]
@@ -354,3 +378,40 @@ def test_invalid_config_exits_2(start_nc: Callable[..., NcServerProcess]) -> Non
     assert srv.proc.wait(60) == 2
     err = srv.stderr()
     assert "axis[1].AxisId" in err and "Traceback" not in err
+
+
+# ---- (f) who holds what: nc/<nc>/claims -----------------------------------------------------
+def test_claims_are_published(nc_server: NcServerProcess, nc_client: Callable[..., NcTestClient]) -> None:
+    a = nc_client(nc_server.port, "plc-a")
+    status = nc_client(nc_server.port, "status", token=False)
+    status.watch("nc/nc1/claims")
+
+    def claims() -> dict[str, Any] | None:
+        got = status.latest("nc/nc1/claims")
+        return msgpack.unpackb(got[0], strict_map_key=False) if got else None
+
+    first = wait_until(claims, T, "a first claims map (published at start and every 1 s)")
+    assert set(first) == {"cycle", "claims", "clients", "last_command"}
+    a.claim(2)
+    a.feed_plctonc([2])
+    wait_until(lambda: enabled(a, 2), T, "axis 2 enabled")
+    r = a.request("MoveVelocity", axis=2, Velocity=10.0)
+    assert r["error"] == 0
+    assert status.request("ReadParameter", axis=2, ParameterNumber=1003)["error"] == 0
+
+    def shows_all() -> dict[str, Any] | None:
+        m = claims()
+        ok = (m and m["claims"] == {2: "plc-a"} and m["last_command"].get(2, {}).get("cmd") == "MoveVelocity"
+              and m["clients"].get("status", {}).get("role") == "observer")
+        return m if ok else None
+
+    m = wait_until(shows_all, T, "the claim, the move and the observer in the claims map")
+    assert m["last_command"][2] == {"client": "plc-a", "cmd": "MoveVelocity", "cycle": r["cycle"]}
+    assert m["clients"]["plc-a"] == {"alive": True, "role": "operator", "role_source": "seen"}
+    assert m["clients"]["status"] == {"alive": False, "role": "observer", "role_source": "seen"}
+    info = status.request("Info")["Value"]
+    assert info["arbitration"]["claims"] == {2: "plc-a"} and info["arbitration"]["last_command"][2]["client"] == "plc-a"
+    # unchanged: republished (about every second) with a newer cycle
+    c0 = m["cycle"]
+    wait_until(lambda: (x := claims()) and x["cycle"] > c0 + 200, T, "the claims map republished")
+    assert a.request("Stop", axis=2)["error"] == 0

@@ -185,3 +185,30 @@ def test_requests_as_bytes_get_the_servers_error_replies() -> None:
     srv = InProcessNc.of(core)
     assert srv.request(1, b"\xc1")["error"] == 0x706
     assert srv.request(9, make_request("Reset", 1))["error"] == ErrorCodes.NC_AXIS_ID_NOT_ALLOWED
+    # the same key checks as over zenoh: class, identity
+    r = srv.request(1, make_request("WriteParameter", 2, ParameterNumber=1003, Value=100.0), cls="op")
+    assert r["error"] == ErrorCodes.ADSERR_DEVICE_ACCESSDENIED and "class 'eng'" in r["text"]
+    r = srv.request(1, make_request("Reset", 3, client="other"), client="plc")
+    assert r["error"] == ErrorCodes.ADSERR_DEVICE_ACCESSDENIED and "'other'" in r["text"]
+    assert srv.query("nc/nc1/axis/01/cmd/op/plc", make_request("Reset", 4))["error"] == ErrorCodes.NC_AXIS_ID_NOT_ALLOWED
+    assert srv.request(1, make_request("Reset", 5))["error"] == 0
+
+
+def test_in_process_ports_send_on_their_own_command_keys() -> None:
+    """A port's requests go to Keys.command_key(cmd, axis, client): the NC sees the port's client."""
+    core = core2()
+    srv = InProcessNc.of(core)
+    seen: list[str] = []
+    handle = srv.handler.handle
+    srv.handler.handle = lambda key, payload, now: (seen.append(key), handle(key, payload, now))[1]  # type: ignore[method-assign]
+    port = InProcessPort(core, "plc7")
+    for cmd, axis, args in (("Info", None, {}), ("ReadParameter", 1, {"ParameterNumber": 1003}),
+                            ("Claim", 2, {}), ("WriteParameter", 1, {"ParameterNumber": 1003, "Value": 100.0})):
+        p = port.send("nc1", axis, cmd, **args)
+        port.poll()
+        assert p.done and p.error == 0, p.reply
+    assert seen == ["nc/nc1/cmd/read/plc7", "nc/nc1/axis/1/cmd/read/plc7", "nc/nc1/axis/2/cmd/op/plc7",
+                    "nc/nc1/axis/1/cmd/eng/plc7"]
+    assert srv.claims.holder(2) == "plc7"
+    assert srv.handler.last_command[2][:2] == ("plc7", "Claim")
+    port.close()

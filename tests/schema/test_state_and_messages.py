@@ -68,12 +68,39 @@ def test_parse_request_rejects_bad_input_with_codes(payload, code):
 
 def test_keys():
     k = s.Keys("nc1")
-    assert k.axis_nctoplc(3) == "nc/nc1/axis/3/nctoplc" and k.frame == "nc/nc1/frame"
-    assert k.parse_cmd_key("nc/nc1/axis/12/cmd") == 12 and k.parse_cmd_key("nc/nc1/cmd") is None
-    with pytest.raises(s.NcError):
-        k.parse_cmd_key("nc/nc1/axis/x/cmd")
+    assert k.axis_nctoplc(3) == "nc/nc1/axis/3/nctoplc" and k.frame == "nc/nc1/frame" and k.claims == "nc/nc1/claims"
+    assert k.axis_cmd(12, "op", "plc1") == "nc/nc1/axis/12/cmd/op/plc1" and k.cmd("read", "cli") == "nc/nc1/cmd/read/cli"
+    assert k.command_key("WriteParameter", 2, "e") == "nc/nc1/axis/2/cmd/eng/e"
+    assert k.command_key("MoveAbsolute", 2, "p") == "nc/nc1/axis/2/cmd/op/p"
+    assert k.command_key("Info", None, "o") == "nc/nc1/cmd/read/o"
+    assert k.command_key("NoSuchCommand", 1, "o") == "nc/nc1/axis/1/cmd/op/o"  # the NC answers 0x701
+    assert k.parse_cmd_key("nc/nc1/axis/12/cmd/op/plc1") == (12, "op", "plc1")
+    assert k.parse_cmd_key("nc/nc1/axis/0/cmd/read/x") == (0, "read", "x")
+    assert k.parse_cmd_key("nc/nc1/cmd/eng/e.1-_") == (None, "eng", "e.1-_")
+    for bad in ("nc/nc1/axis/x/cmd/op/a", "nc/nc1/axis/01/cmd/op/a", "nc/nc1/axis/12/cmd", "nc/nc1/cmd",
+                "nc/nc1/cmd/root/a", "nc/nc1/cmd/op/a b", "nc/nc1/cmd/op/" + "a" * 65, "nc/nc2/cmd/op/a",
+                "nc/nc1/axis/1234567890/cmd/op/a", "nc/nc1/cmd/op/a/b", "nc/nc1/**"):
+        with pytest.raises(s.NcError) as ei:
+            k.parse_cmd_key(bad)
+        assert ei.value.code == 0x4012, bad
+    for bad_args in (("admin", "a"), ("op", "a b"), ("op", "")):
+        with pytest.raises(ValueError):
+            k.cmd(*bad_args)
+    with pytest.raises(ValueError):
+        k.axis_cmd(-1, "op", "a")
     with pytest.raises(ValueError):
         s.Keys("bad name")
+
+
+def test_every_command_has_a_class():
+    assert s.PROTOCOL["version"] == 2
+    assert set(s.CLASSES) == {"read", "op", "eng"} == set(s.PROTOCOL["classes"]) - {"doc"}
+    assert {n for n, c in s.COMMANDS.items() if c["class"] == "read"} == {"Info", "ReadParameter"}
+    assert {n for n, c in s.COMMANDS.items() if c["class"] == "eng"} == {
+        "WriteParameter", "SetActualPosition", "SetActualPositionOnTheFly", "SetReferenceFlag"}
+    assert all(c["class"] in s.CLASSES for c in s.COMMANDS.values())
+    for role, classes in s.ROLE_CLASSES.items():
+        assert all(role in s.PROTOCOL["classes"][c]["roles"] for c in classes)
 
 
 def test_parse_error_keeps_id_and_known_command():

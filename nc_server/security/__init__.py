@@ -1,0 +1,13 @@
+"""Security of a zenoh-nc deployment: the roles file, the zenoh access control generated from it
+and the TLS part of a zenoh config (docs/roles.md).
+
+* :mod:`.roles`: ``load_roles(path) -> Roles`` (observer / operator / engineer per client id, the
+  NC servers and routers that may connect);
+* :mod:`.acl`: ``access_control(roles)`` -> the zenoh ``access_control`` section (subjects by
+  certificate CN), and the ``nc-acl`` command that prints it;
+* :mod:`.tls`: the ``transport/link/tls`` section from a certificate directory made by
+  ``deploy/certs/make-certs.sh``.
+"""
+from .roles import Roles, RolesError, load_roles, parse_roles
+
+__all__ = ["Roles", "RolesError", "load_roles", "parse_roles"]

@@ -1,0 +1,141 @@
+"""zenoh access control from a roles file (``nc-acl roles.toml`` prints it as JSON).
+
+:func:`access_control` returns the ``access_control`` section of a zenoh config (zenoh 1.x format):
+default deny, one subject per listed id matched by its TLS certificate's common name, and for each
+subject exactly the key expressions of its identity (docs/roles.md has the table):
+
+* every listed client reads the NCs' cyclic data: ``nc/*/frame``, ``nc/*/status``, ``nc/*/stats``, ``nc/*/claims``,
+  ``nc/*/axis/*/nctoplc``, ``nc/*/axis/*/plctonc`` and the NCs' liveliness ``nc/*/alive``;
+* a client queries only its own command keys ``nc/*/[axis/*/]cmd/<class>/<id>`` of the classes
+  its role allows, and gets the replies on them;
+* operators and engineers also put their own PLCTONC ``nc/*/plctonc/<id>`` and declare their own
+  liveliness token ``nc/*/client/<id>``;
+* an NC server ``[nc.<name>]`` may declare its queryable, publish, subscribe and declare liveliness
+  only below its own prefix ``nc/<name>/**``, and is sent the queries and PLCTONC for it;
+* a router ``[router.<id>]`` (another router connecting to this one) may forward everything below ``nc/**``.
+
+It respects what was verified on eclipse-zenoh 1.10.2 (../shared/reference/zenoh-security-notes.md):
+rules match by *inclusion* (a rule's key expression must include the message's or declaration's,
+not merely intersect it); both directions need rules (ingress from the sender, egress to the
+receiver); a writer with a declared publisher drops its own puts unless the *egress*
+``declare_subscriber`` of the other side's subscriber (e.g. the NC's ``nc/nc1/plctonc/*``) reaches it,
+so those are allowed; liveliness tokens, liveliness subscribers and liveliness queries are separate
+message types.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any, Sequence
+
+from nc_schema import ROLE_CLASSES
+
+from .roles import Roles, RolesError, load_roles
+
+__all__ = ["access_control", "READ_KEYS", "main"]
+
+#: What every listed client may subscribe to and receive.
+READ_KEYS: tuple[str, ...] = ("nc/*/frame", "nc/*/status", "nc/*/stats", "nc/*/claims", "nc/*/axis/*/nctoplc",
+                              "nc/*/axis/*/plctonc")
+#: The NCs' liveliness tokens.
+NC_ALIVE = "nc/*/alive"
+
+_ALL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+                 "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+
+
+def _rule(rid: str, flow: str, messages: Sequence[str], keys: Sequence[str]) -> dict[str, Any]:
+    return {"id": rid, "permission": "allow", "flows": [flow], "messages": list(messages), "key_exprs": list(keys)}
+
+
+def command_keys(client: str, classes: Sequence[str]) -> list[str]:
+    """The command keys ``client`` may query with ``classes``, on every NC (axis and NC level)."""
+    out = []
+    for cls in classes:
+        out += [f"nc/*/cmd/{cls}/{client}", f"nc/*/axis/*/cmd/{cls}/{client}"]
+    return out
+
+
+def access_control(roles: Roles) -> dict[str, Any]:
+    """The zenoh ``access_control`` section for ``roles`` (see the module docstring).
+
+    Subjects match the certificate common name only, so the listener must use mutual TLS
+    (:mod:`nc_server.security.tls`): without a client certificate nothing matches and zenoh's
+    default (deny) applies.
+
+    Raises:
+        ValueError: ``roles`` lists nothing (zenoh refuses an access control without subjects).
+    """
+    if not roles.clients and not roles.ncs and not roles.routers:
+        raise ValueError(f"{roles.source}: no clients, NCs or routers listed")
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    shared: set[str] = set()
+
+    def share(rule: dict[str, Any]) -> str:
+        if rule["id"] not in shared:
+            shared.add(rule["id"])
+            rules.append(rule)
+        return rule["id"]
+
+    def subject(kind: str, ident: str, rule_ids: list[str]) -> None:
+        sid = f"{kind}:{ident}"
+        subjects.append({"id": sid, "cert_common_names": [ident]})
+        policies.append({"id": f"policy:{sid}", "rules": rule_ids, "subjects": [sid]})
+
+    for client, role in roles.clients.items():
+        classes = ROLE_CLASSES[role]
+        ids = [
+            share(_rule("read:subscribe", "ingress", ["declare_subscriber"], READ_KEYS)),
+            share(_rule("read:receive", "egress", ["put", "delete"], READ_KEYS)),
+            share(_rule("alive:watch", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [NC_ALIVE])),
+            share(_rule("alive:receive", "egress", ["liveliness_token", "reply"], [NC_ALIVE])),
+            # a declared querier (declare_querier) sends only while it sees a matching queryable
+            share(_rule("see:queryables", "egress", ["declare_queryable"], ["nc/**"])),
+        ]
+        keys = command_keys(client, classes)
+        rules.append(_rule(f"client:{client}:query", "ingress", ["query"], keys))
+        rules.append(_rule(f"client:{client}:reply", "egress", ["reply"], keys))
+        ids += [f"client:{client}:query", f"client:{client}:reply"]
+        if "op" in classes:
+            rules.append(_rule(f"client:{client}:plctonc", "ingress", ["put"], [f"nc/*/plctonc/{client}"]))
+            rules.append(_rule(f"client:{client}:token", "ingress", ["liveliness_token"], [f"nc/*/client/{client}"]))
+            ids += [f"client:{client}:plctonc", f"client:{client}:token",
+                    # its declared PLCTONC publisher drops puts unless it sees the NC's subscriber nc/<nc>/plctonc/*
+                    share(_rule("see:plctonc-subscribers", "egress", ["declare_subscriber"], ["nc/*/plctonc/*"]))]
+        subject("client", client, ids)
+    for nc in roles.ncs:
+        own = [f"nc/{nc}/**"]
+        rules.append(_rule(f"nc:{nc}:in", "ingress", [m for m in _ALL_MESSAGES if m != "query"], own))
+        rules.append(_rule(f"nc:{nc}:out", "egress", ["put", "delete", "query", "liveliness_token", "reply"], own))
+        # its declared publishers (frame, stats, per axis) drop puts unless they see the subscribers
+        ids = [f"nc:{nc}:in", f"nc:{nc}:out",
+               share(_rule("see:subscribers", "egress", ["declare_subscriber"], ["nc/**"]))]
+        subject("nc", nc, ids)
+    for router in roles.routers:
+        ids = [share(_rule("router:in", "ingress", _ALL_MESSAGES, ["nc/**"])),
+               share(_rule("router:out", "egress", _ALL_MESSAGES, ["nc/**"]))]
+        subject("router", router, ids)
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``nc-acl roles.toml``: print the access_control section as JSON (exit 2 for a bad roles file)."""
+    p = argparse.ArgumentParser(prog="nc-acl", description="Print the zenoh access_control section for a roles file.")
+    p.add_argument("roles", help="roles file (TOML), e.g. deploy/roles.toml")
+    p.add_argument("--indent", type=int, default=2, help="JSON indentation (0: one line)")
+    args = p.parse_args(argv)
+    try:
+        acl = access_control(load_roles(args.roles))
+    except (RolesError, ValueError) as exc:
+        print(f"nc-acl: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(acl, indent=args.indent or None))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""The roles file: who may do what on the NCs (docs/roles.md).
+
+A TOML file, e.g. ``deploy/roles.toml``::
+
+    [client.plc1]
+    role = "operator"        # observer | operator | engineer
+    [client.eng1]
+    role = "engineer"
+    [client.status]
+    role = "observer"
+    [nc.nc1]                 # an NC server (its certificate CN = its NC name)
+    [router.router]          # a router that may connect to this one (router-to-router link)
+
+The ids are the certificates' common names (``deploy/certs/make-certs.sh``), the client ids of
+``plc-run --client-id`` and the NC names. Roles and the command classes they may send
+(``nc_schema.ROLE_CLASSES``): observer ``read``; operator ``read``, ``op``; engineer ``read``,
+``op``, ``eng``.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from nc_schema import ROLE_CLASSES, Keys, check_client_id
+
+__all__ = ["Roles", "RolesError", "load_roles", "parse_roles", "ROLES"]
+
+#: The roles, lowest privilege first.
+ROLES: tuple[str, ...] = tuple(ROLE_CLASSES)
+
+
+class RolesError(ValueError):
+    """A roles file that cannot be used.
+
+    Attributes:
+        file: the file (or ``"<roles>"`` for parsed data).
+        key: the offending entry, e.g. ``client.plc1.role`` (``""`` for the file as a whole).
+        message: what is wrong.
+    """
+
+    def __init__(self, file: str, key: str, message: str) -> None:
+        self.file, self.key, self.message = file, key, message
+        super().__init__(f"{file}: {key}: {message}" if key else f"{file}: {message}")
+
+
+@dataclass(frozen=True)
+class Roles:
+    """A checked roles file.
+
+    Attributes:
+        clients: client id -> role (``observer``, ``operator``, ``engineer``).
+        ncs: the NC servers that may connect (their NC names = certificate CNs).
+        routers: routers that may connect to this one (certificate CNs).
+        source: where it was read from.
+    """
+
+    clients: Mapping[str, str] = field(default_factory=dict)
+    ncs: tuple[str, ...] = ()
+    routers: tuple[str, ...] = ()
+    source: str = "<roles>"
+
+    def role_of(self, client: str) -> str | None:
+        """The client's role, None if it is not listed."""
+        return self.clients.get(client)
+
+    def classes_of(self, client: str) -> tuple[str, ...]:
+        """The command classes the client may send (none if unlisted)."""
+        role = self.clients.get(client)
+        return ROLE_CLASSES[role] if role else ()
+
+
+def _table(v: Any, file: str, key: str) -> Mapping[str, Any]:
+    if not isinstance(v, Mapping):
+        raise RolesError(file, key, f"must be a table, got {type(v).__name__}")
+    return v
+
+
+def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
+    """Check parsed TOML data and build :class:`Roles`.
+
+    Raises:
+        RolesError: unknown sections or keys, a missing or unknown role, an invalid id, an id used
+            twice (a certificate CN names one identity), or nothing listed.
+    """
+    for k in data:
+        if k not in ("client", "nc", "router"):
+            raise RolesError(source, k, "unknown section (allowed: [client.<id>], [nc.<name>], [router.<id>])")
+    clients: dict[str, str] = {}
+    owner: dict[str, str] = {}
+
+    def take(section: str, ident: str) -> None:
+        key = f"{section}.{ident}"
+        try:
+            check_client_id(ident)
+            if section == "nc":
+                Keys(ident)
+        except ValueError as exc:
+            raise RolesError(source, key, str(exc)) from None
+        if ident in owner:
+            raise RolesError(source, key, f"{ident!r} is also [{owner[ident]}]: one certificate CN, one identity")
+        owner[ident] = key
+
+    for ident, t in _table(data.get("client", {}), source, "client").items():
+        take("client", ident)
+        t = _table(t, source, f"client.{ident}")
+        for k in t:
+            if k != "role":
+                raise RolesError(source, f"client.{ident}.{k}", "unknown key (allowed: role)")
+        if "role" not in t:
+            raise RolesError(source, f"client.{ident}.role", f"missing (one of {', '.join(ROLES)})")
+        role = t["role"]
+        if role not in ROLES:
+            raise RolesError(source, f"client.{ident}.role", f"must be one of {', '.join(ROLES)}, got {role!r}")
+        clients[ident] = role
+    ncs: list[str] = []
+    routers: list[str] = []
+    for section, out in (("nc", ncs), ("router", routers)):
+        for ident, t in _table(data.get(section, {}), source, section).items():
+            take(section, ident)
+            t = _table(t, source, f"{section}.{ident}")
+            if t:
+                raise RolesError(source, f"{section}.{ident}.{next(iter(t))}", "unknown key (the table takes none)")
+            out.append(ident)
+    if not clients and not ncs:
+        raise RolesError(source, "", "lists no [client.<id>] and no [nc.<name>]")
+    return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), source=source)
+
+
+def load_roles(path: str | Path) -> Roles:
+    """Read and check a roles file.
+
+    Raises:
+        RolesError: unreadable file, TOML syntax error, or any problem :func:`parse_roles` finds.
+    """
+    p = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RolesError(p, "", f"cannot read: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RolesError(p, "", f"TOML syntax error: {exc}") from None
+    return parse_roles(data, p)
