@@ -3,18 +3,16 @@ temporary directory, TLS sessions as a given identity, and NC / router processes
 access control of ``deploy/roles.toml`` (real processes on 127.0.0.1, free ports)."""
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import pytest
 import zenoh
 
-from nc_server.security.tls import apply_tls
+from sec_testing import tls_config
 from znc_testing import NcServerProcess, free_port, nc_router_command, nc_server_command
 
 REPO = Path(__file__).resolve().parents[2]
@@ -33,20 +31,6 @@ def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("certs")
     subprocess.run(["sh", str(MAKE_CERTS), str(out), *NAMES, "--rogue"], check=True, capture_output=True, timeout=120)
     return out
-
-
-def tls_config(port: int, certs_dir: Path, identity: str, lease_ms: int = 1000) -> zenoh.Config:
-    """Client-mode config to ``tls/127.0.0.1:<port>`` with ``identity``'s certificate; no scouting."""
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
-    c.insert_json5("connect/timeout_ms", "5000")
-    c.insert_json5("listen/endpoints", "[]")
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("scouting/gossip/enabled", "false")
-    c.insert_json5("transport/link/tx/lease", str(lease_ms))
-    apply_tls(c, certs_dir, identity)
-    return c
 
 
 def _start(cmd: list[str], tmp: Path, label: str, port: int, name: str) -> NcServerProcess:

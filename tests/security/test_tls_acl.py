@@ -21,6 +21,7 @@ import pytest
 import zenoh
 
 from nc_schema import PLCTONC_DTYPE, ControlDWord, ErrorCodes, Keys, decode, encode_plc_frame
+from sec_testing import tls_config
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, wait_until
 
 T = 30.0  # generous deadline for anything to happen on a loaded machine
@@ -83,7 +84,7 @@ def test_unlisted_client_and_other_ca_are_refused(start_tls_nc: Callable[..., Nc
     reader = Watch(status, K.frame)
     # a certificate of another CA (even with a listed CN) cannot open a session at all
     with pytest.raises(zenoh.ZError):
-        zenoh.open(__import__("conftest").tls_config(nc.port, certs / "rogue", "plc1"))
+        zenoh.open(tls_config(nc.port, certs / "rogue", "plc1"))
     # plain TCP to the TLS port neither
     c = zenoh.Config()
     c.insert_json5("mode", '"client"')
