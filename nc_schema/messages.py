@@ -14,8 +14,8 @@ PROTOCOL: dict[str, Any] = load_json("protocol.json")
 COMMANDS: dict[str, Any] = PROTOCOL["commands"]
 MOTION_COMMANDS = frozenset(n for n, c in COMMANDS.items() if c.get("motion"))
 _ENVELOPE = frozenset(PROTOCOL["request"]["fields"])
-_CLIENT_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
-_NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_CLIENT_RE = re.compile(r"[A-Za-z0-9_.-]{1,64}")  # fullmatch: "$" would let a trailing newline through
+_NAME_RE = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 
 #: Command classes (protocol.json ``classes``), lowest privilege first.
@@ -39,7 +39,7 @@ class Keys:
     """
 
     def __init__(self, nc: str) -> None:
-        if not isinstance(nc, str) or not _NAME_RE.match(nc):
+        if not isinstance(nc, str) or not _NAME_RE.fullmatch(nc):
             raise ValueError(f"invalid NC name {nc!r}: use letters, digits, '_', '.', '-'")
         self.nc = nc
         self.prefix = f"nc/{nc}"
@@ -122,7 +122,7 @@ def _check_class(cls: str) -> str:
 
 def check_client_id(client: str) -> str:
     """Raise ValueError unless ``client`` is a valid client id."""
-    if not isinstance(client, str) or not _CLIENT_RE.match(client):
+    if not isinstance(client, str) or not _CLIENT_RE.fullmatch(client):
         raise ValueError(f"invalid client id {client!r}: 1-64 of letters, digits, '_', '.', '-'")
     return client
 

@@ -122,6 +122,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"nc-router: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2
+    if args.tls_dir and not args.roles:
+        log.warning("TLS without --roles: clients are authenticated but not authorized (any certificate of the "
+                    "CA may use any client id's keys)")
     return _run(router_config(args.listen, args.connect, args.lease_ms, extra), args.listen)
 
 

@@ -70,6 +70,9 @@ class NcServer:
         acl = None
         if config.roles is not None and config.zenoh.tls_dir and config.zenoh.mode != "client":
             acl = access_control(config.roles)
+        elif config.roles is None and config.zenoh.tls_dir and config.zenoh.mode != "client":
+            log.warning("TLS without a roles file: clients are authenticated but not authorized (any certificate "
+                        "of the CA may use any client id's keys); add --roles")
         elif config.roles is not None and not config.zenoh.tls_dir:
             log.warning("roles file without TLS: the client ids in the command keys are not authenticated "
                         "(use --tls-dir, or a router with TLS and access control)")

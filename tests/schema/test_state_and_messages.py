@@ -110,3 +110,13 @@ def test_parse_error_keeps_id_and_known_command():
     with pytest.raises(s.NcError) as ei:
         s.parse_request(msgpack.packb({"id": 8, "cmd": "Explode"}))
     assert ei.value.cmd is None  # unknown commands are not echoed back
+
+
+def test_ids_with_a_trailing_newline_are_refused() -> None:
+    import pytest as _pytest
+
+    from nc_schema import Keys, check_client_id
+    with _pytest.raises(ValueError):
+        check_client_id("plc1\n")
+    with _pytest.raises(ValueError):
+        Keys("nc1\n")
