@@ -1,17 +1,22 @@
 """What the inspection tools share: an explicit zenoh client config and the key helpers."""
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
 import zenoh
 
 
-def client_config(endpoint: str, lease_ms: int = 1000) -> zenoh.Config:
-    """Client mode, connect to ``endpoint`` only: no listening, multicast and gossip scouting off.
+def client_config(endpoint: str, lease_ms: int = 1000, tls_dir: str | None = None,
+                  identity: str = "status") -> zenoh.Config:
+    """Client mode, connect to ``endpoint`` only: no listening, multicast and gossip scouting off;
+    with ``tls_dir`` mutual TLS as ``identity`` (its certificate ``<tls_dir>/<identity>.pem``, an
+    observer of the roles file; docs/roles.md).
 
     Raises:
         zenoh.ZError: zenoh rejected the endpoint.
+        ValueError: a certificate file is missing.
     """
     c = zenoh.Config()
     c.insert_json5("mode", '"client"')
@@ -20,13 +25,24 @@ def client_config(endpoint: str, lease_ms: int = 1000) -> zenoh.Config:
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    if tls_dir:
+        from nc_server.security.tls import apply_tls
+        apply_tls(c, tls_dir, identity)
     return c
 
 
-def open_session(endpoint: str, prog: str) -> zenoh.Session:
+def add_connection_args(p: argparse.ArgumentParser, help_connect: str) -> None:
+    """``--connect`` (required), ``--tls-dir`` and ``--client-id`` (the certificate's identity)."""
+    p.add_argument("--connect", required=True, metavar="ENDPOINT", help=help_connect)
+    p.add_argument("--tls-dir", metavar="DIR", help="certificate directory: mutual TLS as --client-id (tls/ endpoint)")
+    p.add_argument("--client-id", default="status", metavar="ID",
+                   help="identity of the certificate <DIR>/<ID>.pem (an observer of the roles file; default status)")
+
+
+def open_session(endpoint: str, prog: str, tls_dir: str | None = None, identity: str = "status") -> zenoh.Session:
     """Open a client session to ``endpoint``; on failure print why and exit with status 2."""
     try:
-        return zenoh.open(client_config(endpoint))
+        return zenoh.open(client_config(endpoint, tls_dir=tls_dir, identity=identity))
     except Exception as exc:  # zenoh.ZError: bad endpoint, nothing listening, ...
         print(f"{prog}: cannot connect to {endpoint}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None

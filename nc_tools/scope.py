@@ -53,7 +53,7 @@ import zenoh
 
 from nc_schema import NCTOPLC_DTYPE, decode_frame
 
-from .common import open_session
+from .common import add_connection_args, open_session
 
 PROG = "nc-scope"
 DEFAULT_FIELDS = ("SetPos", "ActPos", "SetVelo", "PosDiff")
@@ -603,7 +603,7 @@ def _fields(text: str) -> list[str]:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog=PROG, description="Record NCTOPLC fields of axes at the NC cycle rate: CSV, PNG, HTML.")
-    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="zenoh router or NC, e.g. tcp/127.0.0.1:7447")
+    add_connection_args(p, "zenoh router or NC, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--nc", default="nc1", help="NC name (default nc1)")
     p.add_argument("--axes", type=_int_list, required=True, metavar="IDS", help="axis ids, e.g. 1,2")
     p.add_argument("--fields", type=_fields, default=list(DEFAULT_FIELDS), metavar="NAMES",
@@ -650,7 +650,7 @@ def main(argv: list[str] | None = None) -> int:
     started = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     prefix = a.out or f"scope-{a.nc}-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
     rec = Recorder(a.axes, a.trigger, a.pre)
-    session = open_session(a.connect, PROG)
+    session = open_session(a.connect, PROG, a.tls_dir, a.client_id)
     subs: list[Any] = []
     try:
         if a.source == "axis":

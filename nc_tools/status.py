@@ -39,7 +39,7 @@ import zenoh
 
 from nc_schema import AxisState, FrameFlags, decode_frame, error_name, motion_state, unpack
 
-from .common import axis_key, nc_of, open_session
+from .common import add_connection_args, axis_key, nc_of, open_session
 
 PROG = "nc-status"
 #: data older than this is shown as stale [s]
@@ -315,7 +315,7 @@ def _complete(w: NcWatch, wanted: set[str] | None, started: float) -> bool:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog=PROG, description="Live table of every zenoh-nc NC on a router.")
-    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="zenoh router, e.g. tcp/127.0.0.1:7447")
+    add_connection_args(p, "zenoh router, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--nc", action="append", metavar="NAME", help="only this NC (repeatable; default: all)")
     p.add_argument("--once", action="store_true", help="print one snapshot and exit")
     p.add_argument("--json", action="store_true", help="JSON instead of the table (one document per line)")
@@ -335,7 +335,7 @@ def main(argv: list[str] | None = None, out: TextIO | None = None) -> int:
     wanted = set(a.nc) if a.nc else None
     stop = threading.Event()
     prev = signal.signal(signal.SIGINT, lambda *_: stop.set())
-    session = open_session(a.connect, PROG)
+    session = open_session(a.connect, PROG, a.tls_dir, a.client_id)
     w = NcWatch(session, wanted)
     try:
         started = time.monotonic()

@@ -298,3 +298,25 @@ def test_through_the_router(start_tls_router: Callable[..., NcServerProcess],
         except subprocess.TimeoutExpired:
             plc.kill()
     wait_until(lambda: (m := w.msg(K.claims)) and m["claims"] == {}, T, "plc-run released its claim at exit")
+
+
+def test_nc_status_reads_a_secured_nc_as_the_observer(start_tls_nc: Callable[..., NcServerProcess],
+                                                      certs: Path) -> None:
+    """The observer's own tool over mutual TLS: ``nc-status --tls-dir DIR --client-id status``."""
+    import json as _json
+    import os
+    import subprocess
+    import sys
+
+    nc = start_tls_nc()
+    cmd = [sys.executable, "-m", "nc_tools.status", "--connect", f"tls/127.0.0.1:{nc.port}", "--tls-dir", str(certs),
+           "--client-id", "status", "--once", "--json", "--timeout", "20"]
+
+    def snapshot() -> dict[str, Any] | None:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        if p.returncode != 0:
+            return None
+        return _json.loads(p.stdout)
+
+    doc = wait_until(snapshot, T * 2, "nc-status --once over TLS")
+    assert "nc1" in _json.dumps(doc)
