@@ -17,9 +17,8 @@
 #      entry scripts. Inputs: the base tag, pyproject.toml, the packages' and schema/ sources,
 #      deploy/images/{Dockerfile,znc-run,znc-health}, deploy/programs.
 #      One image for router, NC server and PLC runtime (`znc-run router|nc|plc`).
-# Prints what it built and what it reused. Exit code 0 on success, 1 on failure (message on
-# stderr; a missing network shows up as a failed debootstrap or pip download), 3 when no docker
-# engine is reachable.
+# Prints what it built and what it reused. Exit codes: 0 success; 1 failure (message on stderr);
+# 3 no docker engine reachable; 4 a download failed (apt-get, debootstrap, pip: no network?).
 # Environment: PYTHON (python with pip for the host steps, default python3), ZNC_BUILD_DIR
 # (default deploy/.build), ZNC_DEBIAN_MIRROR (default http://deb.debian.org/debian).
 set -euo pipefail
@@ -38,6 +37,7 @@ PLATFORMS=(manylinux2014_x86_64 $(for m in $(seq 17 36); do printf 'manylinux_2_
 
 log() { printf 'build.sh: %s\n' "$*" >&2; }
 die() { log "error: $*"; exit 1; }
+die_net() { log "error: $* (no network?)"; exit 4; }   # a download failed
 now() { date +%s.%N; }
 since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 image_exists() { docker image inspect "$1" >/dev/null 2>&1; }
@@ -64,8 +64,8 @@ else
         if ! command -v debootstrap >/dev/null 2>&1; then
             log "installing debootstrap (apt-get)"
             export DEBIAN_FRONTEND=noninteractive
-            apt-get update -qq >&2 || die "apt-get update failed (no network?)"
-            apt-get install -y -qq debootstrap >&2 || die "apt-get install debootstrap failed"
+            apt-get update -qq >&2 || die_net "apt-get update failed"
+            apt-get install -y -qq debootstrap >&2 || die_net "apt-get install debootstrap failed"
         fi
         rootfs="$BUILD/base/rootfs-$BASE_HASH"
         rm -rf "$rootfs"
@@ -75,7 +75,7 @@ else
                 >"$BUILD/base/debootstrap-$BASE_HASH.log" 2>&1; then
             tail -n 20 "$BUILD/base/debootstrap-$BASE_HASH.log" >&2
             rm -rf "$rootfs"
-            die "debootstrap failed (log: $BUILD/base/debootstrap-$BASE_HASH.log)"
+            die_net "debootstrap failed (log: $BUILD/base/debootstrap-$BASE_HASH.log)"
         fi
         # what an image does not need: package caches and lists, logs
         rm -rf "$rootfs"/var/cache/apt/archives/*.deb "$rootfs"/var/lib/apt/lists/* "$rootfs"/var/log/*.log
@@ -113,7 +113,7 @@ else
         rm -rf "$buildenv"
         { "$PYTHON" -m venv "$buildenv" \
           && "$buildenv/bin/python" -m pip install -q "setuptools>=68" wheel; } >&2 \
-            || die "cannot make the build venv $buildenv (no network for setuptools/wheel?)"
+            || die_net "cannot make the build venv $buildenv (pip install setuptools wheel)"
         touch "$buildenv/.done"
         SUMMARY+=("build venv (setuptools, wheel)  made in $(since "$t") s")
     fi
@@ -162,27 +162,31 @@ EOF
         mapfile -t reqs <<<"$deps_spec"
         env -u PIP_FIND_LINKS "$PYTHON" -m pip download -q -d "$deps" --only-binary=:all: \
             "${PLATFORMS[@]/#/--platform=}" --python-version "$PY_TAG" --implementation cp --abi "cp$PY_TAG" \
-            "${reqs[@]}" >&2 || die "pip download of the dependencies failed (no network?)"
+            "${reqs[@]}" >&2 || die_net "pip download of the dependencies failed"
         touch "$deps/.done"
         SUMMARY+=("wheels deps-$DEPS_HASH  downloaded in $(since "$t") s: $(cd "$deps" && ls *.whl | tr '\n' ' ')")
     fi
     # ---- 3. app image ----------------------------------------------------------------------------
     t=$(now)
     ctx="$BUILD/ctx-$APP_HASH"
-    rm -rf "$ctx" && mkdir -p "$ctx/deps" "$ctx/project"
+    rm -rf "$ctx" && mkdir -p "$ctx/deps" "$ctx/app"
     cp "$deps"/*.whl "$ctx/deps/"      # own layer: docker's cache keeps it while the deps stay
-    cp "$whl" "$ctx/project/"
-    cp "$HERE/Dockerfile" "$HERE/znc-run" "$HERE/znc-health" "$ctx/"
-    cp -r "$ROOT/deploy/programs" "$ctx/"
+    cp "$whl" "$HERE/znc-run" "$HERE/znc-health" "$ctx/app/"
+    cp -r "$ROOT/deploy/programs" "$ctx/app/"
+    cp "$HERE/Dockerfile" "$ctx/"
     find "$ctx" -name __pycache__ -prune -exec rm -rf {} +
     if ! DOCKER_BUILDKIT=0 docker build --build-arg "BASE=$BASE_TAG" \
-            --label "org.zenoh-nc.inputs=$APP_HASH" -t "$APP_TAG" -t zenoh-nc:latest "$ctx" \
+            -t "$APP_TAG" -t zenoh-nc:latest "$ctx" \
             >"$BUILD/docker-build-$APP_HASH.log" 2>&1; then
         tail -n 30 "$BUILD/docker-build-$APP_HASH.log" >&2
         die "docker build failed (log: $BUILD/docker-build-$APP_HASH.log)"
     fi
     rm -rf "$ctx" "$proj"
     SUMMARY+=("app   $APP_TAG  built in $(since "$t") s")
+    # older app images go (one in use by a container stays: docker rmi refuses it)
+    for old in $(docker images zenoh-nc --format '{{.Tag}}' | grep -E '^[0-9a-f]{16}$' | grep -vx "$APP_HASH"); do
+        docker rmi "zenoh-nc:$old" >/dev/null 2>&1 && SUMMARY+=("app   zenoh-nc:$old  removed (older)") || true
+    done
 fi
 
 for line in "${SUMMARY[@]}"; do echo "build.sh: $line"; done

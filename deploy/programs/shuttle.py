@@ -8,8 +8,9 @@ public block API (``MC_Power``, ``MC_ReadStatus``, ``MC_MoveAbsolute``, ``MC_Res
 * Once ``power.Status`` is TRUE and the dwell is over, one ``MC_MoveAbsolute`` to the other end (a
   rising edge of Execute: a new command, never a replay). Done -> dwell, then the way back.
 * CommandAborted (another client's newer command took the axis) -> dwell, then a new move.
-* An error of the move (0x4B0F NC data stale, 0x745 no reply, an axis error, ...) -> the program
-  waits ``rearm`` seconds, runs ``MC_Reset``, and only then moves again.
+* An error of the move (0x4B0F NC data stale, 0x745 no reply, an axis error, ...), or an axis
+  error while idle (e.g. 0x8F02 after a lost link; only the holder resets) -> the program waits
+  ``rearm`` seconds, runs ``MC_Reset``, and only then moves again.
 
 Every event is one line on stdout (``docker logs``): ``<client> <unix time> <nc>:<axis> <event> ...``;
 tests across hosts read ``move ->`` (a command issued), ``error 0x....`` and ``power on/off``.
@@ -64,6 +65,11 @@ class Shuttle:
         st = self.status
         return bool(st.Valid) and not st.Errorstop and bool(self.axis.NcToPlc["StateDWord"] & (1 << 20))
 
+    def axis_error(self) -> bool:
+        """The NC reports an axis error (on valid data)."""
+        ax = self.axis
+        return bool(ax.Status.Valid) and bool(int(ax.NcToPlc["StateDWord"]) & (1 << 31))
+
     def cycle(self, now: float) -> None:
         """Run the blocks of one PLC cycle (``now`` = plc.now [s])."""
         ax = self.axis
@@ -79,7 +85,11 @@ class Shuttle:
                     say(ax, f"error 0x{err:X} (MC_Power)")
         else:
             self.status(Axis=ax, Enable=True)  # binds the axis: its data is read each cycle
-        if self.state == "idle":
+        if self.state == "idle" and self.use_power and self.power.Active and self.axis_error():
+            # an axis error (e.g. 0x8F02 after a lost link): the holder resets it, then moves again
+            say(ax, f"axis error 0x{int(ax.NcToPlc['ErrorCode']):X}; reset in {self.rearm:g} s")
+            self._next("reset", now + self.rearm)
+        elif self.state == "idle":
             if now >= self.hold_until and self.ready():
                 say(ax, f"move -> {self.target:.3f}")
                 self.move(Axis=ax, Execute=True, Position=self.target, Velocity=self.velocity)
