@@ -91,7 +91,8 @@ zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): router, nc1, nc2, p
   $c ps                  # services and health
   $c logs -f plc1 plc2   # the PLC programs' events (moves, errors, power)
   $c logs -f nc1         # an NC server's log
-  router for status tools on the host: $ZNC_TRANSPORT/127.0.0.1:$ZNC_ROUTER_PORT
+  $c exec router nc-status --connect $ZNC_TRANSPORT/127.0.0.1:7447   # live table of the NCs
+  router for status tools on the host: $ZNC_TRANSPORT/127.0.0.1:$ZNC_ROUTER_PORT (nc-status --connect ...)
   make deploy-down       # stop and remove it
 EOF
         ;;

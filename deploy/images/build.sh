@@ -92,7 +92,7 @@ fi
 # ---- 3 (inputs first): the app image's content hash ------------------------------------------
 app_inputs() {
     # every file that ends up in the image, relative to ROOT, sorted (no caches)
-    (cd "$ROOT" && find pyproject.toml README.md nc_schema nc_server plc_client schema \
+    (cd "$ROOT" && find pyproject.toml README.md nc_schema nc_server nc_tools plc_client schema \
         deploy/images/Dockerfile deploy/images/znc-run deploy/images/znc-health deploy/programs \
         -type f ! -path '*/__pycache__/*' ! -name '*.pyc' 2>/dev/null | LC_ALL=C sort)
 }
@@ -136,7 +136,7 @@ else
 import pathlib, sys, zipfile
 root, names = pathlib.Path(sys.argv[1]), zipfile.ZipFile(sys.argv[2]).namelist()
 have = {n.rsplit("/", 1)[0] for n in names if n.endswith("/__init__.py")}
-want = {p.parent.relative_to(root).as_posix() for top in ("nc_schema", "nc_server", "plc_client")
+want = {p.parent.relative_to(root).as_posix() for top in ("nc_schema", "nc_server", "nc_tools", "plc_client")
         for p in (root / top).rglob("__init__.py") if "__pycache__" not in p.parts}
 missing = sorted(want - have)
 schema = any(n.startswith("nc_schema/contract/") and n.endswith(".json") for n in names)

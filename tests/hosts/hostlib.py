@@ -9,8 +9,8 @@ namespaces): a router, NCs ``nc1``/``nc2`` behind it, PLC clients running ``depl
 What a test looks at:
 
 * :class:`StatusClient`: a zenoh client session (explicit config: one endpoint, scouting off) that
-  samples every NC's status frame at about 50 Hz (a ``RingChannel(1)`` polled by a thread: no
-  callback per 1 ms frame) and asks each NC's ``Info`` (claims, clients) on demand.
+  samples every NC's ``nc/<nc>/status`` (its newest frame, about 10 Hz; a ``RingChannel(1)`` polled
+  by a thread) and asks each NC's ``Info`` (claims, clients) on demand.
 * PLC event lines (``deploy/programs/shuttle.py``): ``<client> <unix time> <nc>:<axis> <event>``,
   parsed by :func:`parse_events` from ``docker logs`` or a process's stdout.
 * :func:`motion_on_its_own`: the check "no axis moves on its own": after ``t0`` an axis that is at
@@ -183,7 +183,8 @@ class StatusClient:
         self._ids = iter(range(1, 1 << 30))
         self.session = wait_for(lambda: zenoh.open(client_config(endpoint, tls)), 60,
                                 f"a zenoh session to {endpoint}", interval=0.5)
-        self._subs = {nc: self.session.declare_subscriber(f"nc/{nc}/frame", zenoh.handlers.RingChannel(1))
+        # nc/<nc>/status: the newest frame's bytes about 10 times a second (not the 1 kHz frame)
+        self._subs = {nc: self.session.declare_subscriber(f"nc/{nc}/status", zenoh.handlers.RingChannel(1))
                       for nc in self.ncs}
         self._thread = threading.Thread(target=self._run, name="status-sampler", daemon=True)
         self._thread.start()
