@@ -352,30 +352,35 @@ def errors_after(events: Iterable[Event], t0: float, nc: str | None = None) -> l
     return [e for e in events if e.t >= t0 and e.text.startswith("error 0x") and (nc is None or e.nc == nc)]
 
 
-def motion_on_its_own(samples: list[AxisSample], events: Iterable[Event], t0: float) -> str | None:
-    """The check "no axis moves on its own" for one axis, from wall time ``t0`` (the cut) on.
+#: a command logged this long [s] before the last moving sample still explains a later restart
+#: (its reply and first frames can lag that much behind on a loaded machine)
+COMMAND_SLACK = 0.5
 
-    A stop ramp is fine; what is not: the axis at standstill at some sample after ``t0``, then
-    moving, with no ``move ->`` event for it (from any PLC) logged between ``t0`` and that sample.
+
+def motion_on_its_own(samples: list[AxisSample], events: Iterable[Event], t0: float) -> str | None:
+    """The check "no axis moves on its own" for one axis, for restarts at or after wall time ``t0``.
+
+    A stop ramp is fine; what is not: the axis at standstill, then moving again at a sample after
+    ``t0``, with no ``move ->`` event for it (from any PLC) logged since the axis last moved (less
+    :data:`COMMAND_SLACK`). So a move commanded before the cut and replayed after it is caught,
+    also when the PLC that sent it is back. Pass samples from some seconds before ``t0``.
     Returns a description of the first violation, or None.
     """
     if not samples:
         return None
     nc, axis = samples[0].nc, samples[0].axis
-    commands = sorted(e.t for e in events if e.nc == nc and e.axis == axis and e.text.startswith("move ->")
-                      and e.t >= t0)
-    stood = None
+    commands = sorted(e.t for e in events if e.nc == nc and e.axis == axis and e.text.startswith("move ->"))
+    last_moving = float("-inf")
+    stood: AxisSample | None = None
     for s in samples:
-        if s.t < t0:
-            continue
         if not s.moving:
             stood = stood or s
             continue
-        if stood is not None and not any(c <= s.t for c in commands):
+        if stood is not None and s.t >= t0 and not any(last_moving - COMMAND_SLACK <= c <= s.t for c in commands):
             return (f"{nc}:{axis} stood still at {stood.t:.3f} (cycle {stood.cycle}) and moved at {s.t:.3f} "
-                    f"(cycle {s.cycle}, SetVelo {s.set_velo:g}) without a new command since {t0:.3f}")
-        if commands and commands[0] <= s.t:
-            return None  # from here on the motion is commanded
+                    f"(cycle {s.cycle}, SetVelo {s.set_velo:g}) without a command since it last moved "
+                    f"({last_moving:.3f}; cut at {t0:.3f})")
+        stood, last_moving = None, s.t
     return None
 
 

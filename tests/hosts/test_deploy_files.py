@@ -58,4 +58,10 @@ def test_motion_on_its_own_finds_a_restart_without_a_command() -> None:
     samples = [_s(10.0, 50.0), _s(10.2, 0.0), _s(11.0, 30.0)]
     old = [Event("plc1", 9.0, "nc1", 1, "move -> 100.000"), Event("plc2", 10.9, "nc1", 2, "move -> 1.0")]
     v = motion_on_its_own(samples, old, t0=10.05)
-    assert v is not None and "without a new command" in v
+    assert v is not None and "without a command" in v
+
+
+def test_motion_on_its_own_accepts_a_command_sent_during_the_standstill_before_the_cut() -> None:
+    samples = [_s(9.0, 40.0), _s(9.5, 0.0), _s(10.2, 0.0), _s(10.4, -99.0)]
+    other_client = [Event("plc2", 9.9, "nc1", 1, "move -> 25.000")]
+    assert motion_on_its_own(samples, other_client, t0=10.0) is None

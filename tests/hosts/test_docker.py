@@ -200,7 +200,7 @@ def scenario(system: ComposeSystem, name: str, target: str, cut: Sequence[Sequen
     # no axis moves on its own after the cut
     events = system.events()
     for nc, axis in HOLDERS:
-        v = motion_on_its_own(st.history(nc, axis, t_cut - 1.0), events, t_cut)
+        v = motion_on_its_own(st.history(nc, axis, t_cut - 10.0), events, t_cut)
         assert v is None, v
     errs = sorted({f"{e.client} {e.nc}:{e.axis} {e.text.split(' (')[0]}" for e in errors_after(events, t_cut)})
     FIGURES["scenarios"].append({"where": "docker", "scenario": name, "react_s": round(t_react, 2),
