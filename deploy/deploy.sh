@@ -7,7 +7,7 @@
 #          healthy (ZNC_UP_TIMEOUT s, 240) and prints how to watch it.
 #   down   `docker-compose ... down` (containers and networks; images stay).
 #   ps     the services and their health.
-# Environment: ZNC_PROJECT (compose project, zenoh-nc), ZNC_TRANSPORT (tcp|tls), ZNC_ROUTER_PORT
+# Environment: ZNC_PROJECT (compose project, zenoh-nc), ZNC_TRANSPORT (tls, or tcp), ZNC_ROUTER_PORT
 # (7450: the router on 127.0.0.1 for status tools), ZNC_COMPOSE (the compose command: docker-compose,
 # else `docker compose`), PYTHON (for build.sh). Exit code 0 ok, 1 failure (what failed on stderr).
 set -euo pipefail
@@ -15,10 +15,10 @@ set -euo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 BUILD="$HERE/.build"
 PROJECT="${ZNC_PROJECT:-zenoh-nc}"
-export ZNC_TRANSPORT="${ZNC_TRANSPORT:-tcp}"
+export ZNC_TRANSPORT="${ZNC_TRANSPORT:-tls}"
 export ZNC_ROUTER_PORT="${ZNC_ROUTER_PORT:-7450}"
 SERVICES=(router nc1 nc2 plc1 plc2)
-IDS=(router nc1 nc2 plc1 plc2 status)   # one certificate each (status: an observer for status tools)
+IDS=(nc1 nc2 plc1 plc2 status)   # one certificate each (+ router, always; status: an observer for tools)
 APP_UID=10001                           # the image's user (deploy/images/Dockerfile)
 
 log() { printf 'deploy.sh: %s\n' "$*" >&2; }
@@ -91,10 +91,14 @@ zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): router, nc1, nc2, p
   $c ps                  # services and health
   $c logs -f plc1 plc2   # the PLC programs' events (moves, errors, power)
   $c logs -f nc1         # an NC server's log
-  $c exec router nc-status --connect $ZNC_TRANSPORT/127.0.0.1:7447   # live table of the NCs
-  router for status tools on the host: $ZNC_TRANSPORT/127.0.0.1:$ZNC_ROUTER_PORT (nc-status --connect ...)
   make deploy-down       # stop and remove it
 EOF
+        if [[ $ZNC_TRANSPORT == tcp ]]; then
+            echo "  nc-status --connect tcp/127.0.0.1:$ZNC_ROUTER_PORT   # live table of the NCs (the router on the host's loopback)"
+        else
+            echo "  router on the host: tls/127.0.0.1:$ZNC_ROUTER_PORT, observer certificate deploy/.build/certs/status.pem"
+            echo "  (nc-status speaks plain tcp only: ZNC_TRANSPORT=tcp make deploy to watch with it)"
+        fi
         ;;
     down)
         compose down -t 15

@@ -134,8 +134,9 @@ class AxisSample:
         return abs(self.set_velo) > STANDSTILL
 
 
-def client_config(endpoint: str, tls: dict[str, str] | None = None) -> Any:
-    """Client-mode zenoh config: only ``endpoint``, scouting off; ``tls`` = {ca, cert, key} for mTLS."""
+def client_config(endpoint: str, tls_dir: str | None = None, identity: str = "status") -> Any:
+    """Client-mode zenoh config: only ``endpoint``, scouting off; with ``tls_dir`` mutual TLS as
+    ``identity`` (its certificate ``<tls_dir>/<identity>.pem``, nc_server.security.tls)."""
     import zenoh
 
     c = zenoh.Config()
@@ -145,10 +146,10 @@ def client_config(endpoint: str, tls: dict[str, str] | None = None) -> Any:
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", "1000")
-    if tls:
-        c.insert_json5("transport/link/tls", json.dumps({
-            "root_ca_certificate": tls["ca"], "connect_certificate": tls["cert"],
-            "connect_private_key": tls["key"], "enable_mtls": True}))
+    if tls_dir:
+        from nc_server.security.tls import apply_tls
+
+        apply_tls(c, tls_dir, identity)
     return c
 
 
@@ -167,12 +168,12 @@ class StatusClient:
         endpoint: the router, e.g. ``tcp/127.0.0.1:7450``.
         ncs: NC names to watch.
         client_id: the id of this observer (its certificate's CN with TLS).
-        tls: mutual TLS files, see :func:`client_config`.
+        tls_dir: certificate directory for mutual TLS as ``client_id`` (None: plain TCP).
         period: sampling period [s].
     """
 
     def __init__(self, endpoint: str, ncs: Iterable[str] = NCS, client_id: str = "status",
-                 tls: dict[str, str] | None = None, period: float = 0.02) -> None:
+                 tls_dir: str | None = None, period: float = 0.02) -> None:
         import zenoh
 
         self.endpoint, self.ncs, self.client_id, self.period = endpoint, tuple(ncs), client_id, period
@@ -181,7 +182,7 @@ class StatusClient:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._ids = iter(range(1, 1 << 30))
-        self.session = wait_for(lambda: zenoh.open(client_config(endpoint, tls)), 60,
+        self.session = wait_for(lambda: zenoh.open(client_config(endpoint, tls_dir, client_id)), 60,
                                 f"a zenoh session to {endpoint}", interval=0.5)
         # nc/<nc>/status: the newest frame's bytes about 10 times a second (not the 1 kHz frame)
         self._subs = {nc: self.session.declare_subscriber(f"nc/{nc}/status", zenoh.handlers.RingChannel(1))

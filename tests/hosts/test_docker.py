@@ -58,9 +58,9 @@ class ComposeSystem:
         self.compose_cmd = [*cmd, "-f", str(COMPOSE_FILE), "-p", self.project]
         (workdir / "certs").mkdir(parents=True, exist_ok=True)
         (workdir / "etc").mkdir(parents=True, exist_ok=True)
-        if self.transport == "tls":
+        if self.transport == "tls":  # make-certs.sh always makes the router's certificate too
             subprocess.run([str(ROOT / "deploy" / "certs" / "make-certs.sh"), str(workdir / "certs"),
-                            *SERVICES, "status"], check=True, capture_output=True, timeout=120)
+                            "nc1", "nc2", "plc1", "plc2", "status"], check=True, capture_output=True, timeout=300)
             shutil.copy(ROOT / "deploy" / "roles.toml", workdir / "etc" / "roles.toml")
             for key in (workdir / "certs").glob("*.key"):
                 os.chown(key, -1, 10001)  # the image's user (deploy/images/Dockerfile)
@@ -115,11 +115,9 @@ class ComposeSystem:
     def events(self) -> list[Any]:
         return [e for s in PLCS for e in parse_events(self.logs(s))]
 
-    def status_tls(self) -> dict[str, str] | None:
-        if self.transport != "tls":
-            return None
-        d = self.workdir / "certs"
-        return {"ca": str(d / "ca.pem"), "cert": str(d / "status.pem"), "key": str(d / "status.key")}
+    def status_tls(self) -> str | None:
+        """The certificate directory for the test's status client (identity ``status``), None for tcp."""
+        return str(self.workdir / "certs") if self.transport == "tls" else None
 
     # -- life -----------------------------------------------------------------------------------
     def up(self) -> None:
@@ -152,7 +150,7 @@ def system(znc_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
     try:
         t0 = time.monotonic()
         s.up()
-        s.status = StatusClient(f"{s.transport}/127.0.0.1:{s.port}", tls=s.status_tls())
+        s.status = StatusClient(f"{s.transport}/127.0.0.1:{s.port}", tls_dir=s.status_tls())
         t_up = time.time()
         wait_for(lambda: cell_ok(s.status, moved_since=t_up), UP_TIMEOUT,
                  "every claim held and every held axis moving", interval=0.25)
