@@ -35,5 +35,14 @@ bench: $(STAMP)
 	$(PY) bench/fb_latency.py || rc=1; \
 	exit $$rc
 
+# Containers (deploy/): images built locally (no registry, cached by content hash), the compose system.
+.PHONY: images deploy deploy-down
+images:
+	PYTHON=$(PYTHON) deploy/images/build.sh
+deploy:
+	PYTHON=$(PYTHON) deploy/deploy.sh up
+deploy-down:
+	deploy/deploy.sh down
+
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -1,0 +1,113 @@
+#!/usr/bin/env bash
+# deploy/deploy.sh up|down|ps: the compose system of deploy/compose.yaml (`make deploy`, `make deploy-down`).
+#
+#   up     TLS material and config into deploy/.build (certificates by deploy/certs/make-certs.sh when
+#          missing, deploy/roles.toml copied), images by deploy/images/build.sh (cached), then
+#          `docker-compose -f deploy/compose.yaml -p zenoh-nc up -d`, waits until every service is
+#          healthy (ZNC_UP_TIMEOUT s, 240) and prints how to watch it.
+#   down   `docker-compose ... down` (containers and networks; images stay).
+#   ps     the services and their health.
+# Environment: ZNC_PROJECT (compose project, zenoh-nc), ZNC_TRANSPORT (tls, or tcp), ZNC_ROUTER_PORT
+# (7450: the router on 127.0.0.1 for status tools), ZNC_COMPOSE (the compose command: docker-compose,
+# else `docker compose`), PYTHON (for build.sh). Exit code 0 ok, 1 failure (what failed on stderr).
+set -euo pipefail
+
+HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+BUILD="$HERE/.build"
+PROJECT="${ZNC_PROJECT:-zenoh-nc}"
+export ZNC_TRANSPORT="${ZNC_TRANSPORT:-tls}"
+export ZNC_ROUTER_PORT="${ZNC_ROUTER_PORT:-7450}"
+SERVICES=(router nc1 nc2 plc1 plc2)
+IDS=(nc1 nc2 plc1 plc2 status)   # one certificate each (+ router, always; status: an observer for tools)
+APP_UID=10001                           # the image's user (deploy/images/Dockerfile)
+
+log() { printf 'deploy.sh: %s\n' "$*" >&2; }
+die() { log "error: $*"; exit 1; }
+
+if [[ -n ${ZNC_COMPOSE:-} ]]; then
+    read -r -a COMPOSE <<<"$ZNC_COMPOSE"
+elif command -v docker-compose >/dev/null 2>&1; then
+    COMPOSE=(docker-compose)
+else
+    COMPOSE=(docker compose)
+fi
+compose() { "${COMPOSE[@]}" -f "$HERE/compose.yaml" -p "$PROJECT" "$@"; }
+
+# certificates (mutual TLS, private CA) and the router's roles file, as the containers mount them
+prepare() {
+    mkdir -p "$BUILD/certs" "$BUILD/etc"
+    if [[ -f $HERE/roles.toml ]]; then
+        cp "$HERE/roles.toml" "$BUILD/etc/roles.toml"
+    elif [[ $ZNC_TRANSPORT == tls ]]; then
+        die "ZNC_TRANSPORT=tls needs deploy/roles.toml"
+    fi
+    if [[ ! -s $BUILD/certs/ca.pem ]]; then
+        if [[ -x $HERE/certs/make-certs.sh ]]; then
+            log "making certificates (private CA) in $BUILD/certs for ${IDS[*]}"
+            "$HERE/certs/make-certs.sh" "$BUILD/certs" "${IDS[@]}" >&2 || die "make-certs.sh failed"
+        elif [[ $ZNC_TRANSPORT == tls ]]; then
+            die "ZNC_TRANSPORT=tls needs deploy/certs/make-certs.sh"
+        fi
+    fi
+    # the containers run as uid $APP_UID: keys readable by its group only
+    if compgen -G "$BUILD/certs/*.key" >/dev/null; then
+        chgrp "$APP_UID" "$BUILD"/certs/*.key && chmod 0640 "$BUILD"/certs/*.key
+    fi
+}
+
+wait_healthy() {
+    local deadline=$((SECONDS + ${ZNC_UP_TIMEOUT:-240})) s id state all
+    while :; do
+        all=1
+        local line=()
+        for s in "${SERVICES[@]}"; do
+            id=$(compose ps -q "$s" 2>/dev/null || true)
+            state=$([[ -n $id ]] && docker inspect -f '{{if .State.Health}}{{.State.Health.Status}}{{else}}{{.State.Status}}{{end}}' "$id" 2>/dev/null || echo missing)
+            line+=("$s=$state")
+            [[ $state == healthy ]] || all=0
+        done
+        if ((all)); then
+            log "healthy: ${line[*]}"
+            return 0
+        fi
+        if ((SECONDS >= deadline)); then
+            log "not healthy after ${ZNC_UP_TIMEOUT:-240} s: ${line[*]}"
+            compose logs --tail 20 >&2 || true
+            return 1
+        fi
+        sleep 2
+    done
+}
+
+case "${1:-}" in
+    up)
+        prepare
+        PYTHON="${PYTHON:-python3}" "$HERE/images/build.sh"
+        compose up -d
+        wait_healthy || die "the system did not become healthy"
+        c="${COMPOSE[*]} -f deploy/compose.yaml -p $PROJECT"
+        cat <<EOF
+zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): router, nc1, nc2, plc1, plc2.
+  $c ps                  # services and health
+  $c logs -f plc1 plc2   # the PLC programs' events (moves, errors, power)
+  $c logs -f nc1         # an NC server's log
+  make deploy-down       # stop and remove it
+EOF
+        if [[ $ZNC_TRANSPORT == tcp ]]; then
+            echo "  nc-status --connect tcp/127.0.0.1:$ZNC_ROUTER_PORT   # live table of the NCs (the router on the host's loopback)"
+        else
+            echo "  router on the host: tls/127.0.0.1:$ZNC_ROUTER_PORT, observer certificate deploy/.build/certs/status.pem"
+            echo "  (nc-status speaks plain tcp only: ZNC_TRANSPORT=tcp make deploy to watch with it)"
+        fi
+        ;;
+    down)
+        compose down -t 15
+        ;;
+    ps)
+        compose ps
+        ;;
+    *)
+        sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'
+        exit 2
+        ;;
+esac

@@ -1,0 +1,67 @@
+"""Fast checks of deploy/ and of the host tests' own logic (no Docker, no namespaces)."""
+from __future__ import annotations
+
+import subprocess
+import tomllib
+
+import pytest
+
+from hostlib import ROOT, AxisSample, Event, compose_command, motion_on_its_own, parse_events
+
+
+def test_pyproject_lists_every_package() -> None:
+    """The wheel (the images install it) must hold every package of the tree."""
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    tops = {p.parent.name for p in ROOT.glob("*/__init__.py")} - {"tests", "bench"}
+    found = {p.parent.relative_to(ROOT).as_posix().replace("/", ".") for top in tops
+             for p in (ROOT / top).rglob("__init__.py") if "__pycache__" not in p.parts}
+    assert found <= listed, f"not in [tool.setuptools] packages: {sorted(found - listed)}"
+
+
+def test_compose_file_is_valid_for_the_installed_compose() -> None:
+    cmd = compose_command()
+    if cmd is None:
+        pytest.skip("no compose tool (docker-compose or docker compose)")
+    r = subprocess.run([*cmd, "-f", str(ROOT / "deploy" / "compose.yaml"), "config", "-q"], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+
+
+def test_scripts_parse() -> None:
+    for sh in ("deploy/images/build.sh", "deploy/deploy.sh"):
+        r = subprocess.run(["bash", "-n", str(ROOT / sh)], capture_output=True, text=True, timeout=30)
+        assert r.returncode == 0, f"{sh}: {r.stderr}"
+    r = subprocess.run(["sh", "-n", str(ROOT / "deploy/images/znc-run")], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+
+
+def test_event_lines_parse_with_and_without_compose_prefixes() -> None:
+    text = ("plc1 1700000000.250 nc1:1 move -> 100.000\n"
+            "plc1_1    | plc1 1700000001.500 nc2:1 error 0x4B0F (MC_MoveAbsolute); reset in 2 s\n"
+            "plc-run: WARNING something else\n")
+    ev = parse_events(text)
+    assert [(e.client, e.nc, e.axis, e.text[:8]) for e in ev] == [("plc1", "nc1", 1, "move -> "),
+                                                                   ("plc1", "nc2", 1, "error 0x")]
+
+
+def _s(t: float, v: float) -> AxisSample:
+    return AxisSample(t, "nc1", int(t * 1000), 1, 1 << 20, 0, 0.0, v)
+
+
+def test_motion_on_its_own_allows_a_stop_ramp_and_commanded_moves() -> None:
+    samples = [_s(10.0, 50.0), _s(10.1, 20.0), _s(10.2, 0.0), _s(10.3, 0.0), _s(11.0, 30.0)]
+    cmd = [Event("plc1", 10.9, "nc1", 1, "move -> 100.000")]
+    assert motion_on_its_own(samples, cmd, t0=10.05) is None
+
+
+def test_motion_on_its_own_finds_a_restart_without_a_command() -> None:
+    samples = [_s(10.0, 50.0), _s(10.2, 0.0), _s(11.0, 30.0)]
+    old = [Event("plc1", 9.0, "nc1", 1, "move -> 100.000"), Event("plc2", 10.9, "nc1", 2, "move -> 1.0")]
+    v = motion_on_its_own(samples, old, t0=10.05)
+    assert v is not None and "without a command" in v
+
+
+def test_motion_on_its_own_accepts_a_command_sent_during_the_standstill_before_the_cut() -> None:
+    samples = [_s(9.0, 40.0), _s(9.5, 0.0), _s(10.2, 0.0), _s(10.4, -99.0)]
+    other_client = [Event("plc2", 9.9, "nc1", 1, "move -> 25.000")]
+    assert motion_on_its_own(samples, other_client, t0=10.0) is None
