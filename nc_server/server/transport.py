@@ -12,7 +12,9 @@ takes SCHED_FIFO, so none inherits it):
   the newest one per client (:attr:`Transport.plc_inbox`);
 * the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats, and the claims map
   ``nc/<nc>/claims`` (made by the cycle thread when something changed, published here on every
-  change and every :data:`CLAIMS_PERIOD`).
+  change and every :data:`CLAIMS_PERIOD`). The frame goes to ``nc/<nc>/frame`` and, once per period
+  of NC time, to each ``nc/<nc>/frame/<P>ms``; each only while it has a subscriber (matching
+  listeners), so PLC clients reading one frame per PLC cycle do not cost the NC a 1 kHz stream each.
 
 The cycle thread itself never calls into zenoh: it pops the query, liveliness and PLCTONC inboxes
 and hands its output to the I/O thread through a ``SimpleQueue``.
@@ -34,8 +36,8 @@ import zenoh
 from zenoh.handlers import Callback
 
 from nc_schema import (
-    FRAME_HEADER_DTYPE, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame,
-    encode_stamp, pack,
+    FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
+    PLCTONC_DTYPE, Keys, decode_plc_frame, encode_stamp, pack,
 )
 from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 
@@ -182,6 +184,10 @@ class Transport:
         #: True where the axis's nctoplc / plctonc publisher has a matching subscriber.
         self.nc_matched = np.zeros(n, dtype=bool)
         self.pc_matched = np.zeros(n, dtype=bool)
+        #: whether ``frame`` / each ``frame_every`` publisher (FRAME_PERIODS_MS order) has a subscriber
+        self.frame_matched = np.zeros(1, dtype=bool)
+        self.frame_every_matched = np.zeros(len(FRAME_PERIODS_MS), dtype=bool)
+        self.frame_every_pubs: list[tuple[int, Any]] = []
         #: Bumped by every matching change (lets the cycle cache the matched indices).
         self.match_version = 0
         #: client id -> newest decoded frame (written by the subscriber thread, popped by the cycle).
@@ -224,6 +230,15 @@ class Transport:
         self.status_pub = s.declare_publisher(k.status, **pub)
         self._decl.append(self.status_pub)
         self.frame_pub = s.declare_publisher(k.frame, **pub)
+        self._decl.append(self.frame_pub.declare_matching_listener(
+            Callback(self._matcher(self.frame_matched, 0), indirect=False)))
+        # the same frame once per period, for clients that read one per PLC cycle (protocol.json frame_every)
+        self.frame_every_pubs = []
+        for i, ms in enumerate(FRAME_PERIODS_MS):
+            p = s.declare_publisher(k.frame_every(ms), **pub)
+            self._decl.append(p.declare_matching_listener(Callback(self._matcher(self.frame_every_matched, i),
+                                                                   indirect=False)))
+            self.frame_every_pubs.append((ms * 1_000_000, p))
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.claims_pub = s.declare_publisher(k.claims)
         self.nc_pubs = []
@@ -259,6 +274,7 @@ class Transport:
                  getattr(self, "liveliness_sub", None), getattr(self, "queryable", None)]
         items += getattr(self, "nc_pubs", []) + getattr(self, "pc_pubs", [])
         items += [getattr(self, "frame_pub", None), getattr(self, "stats_pub", None), getattr(self, "claims_pub", None)]
+        items += [p for _, p in self.frame_every_pubs]
         for d in items:
             if d is None:
                 continue
@@ -380,6 +396,8 @@ class IoThread:
         self.reply_errors = 0
         self.put_errors = 0
         self._next_status = 0.0  # monotonic time of the next nc/<nc>/status put [s]
+        #: per frame_every publisher: the NcTimeNs // period of the last frame published on it
+        self._windows = [-1] * len(FRAME_PERIODS_MS)
         self._thread = threading.Thread(target=self._main, name="nc-io", daemon=True)
 
     def start(self) -> None:
@@ -453,8 +471,16 @@ class IoThread:
     def _publish(self, out: Outgoing) -> None:
         t = self.t
         try:
-            t.frame_pub.put(out.frame)
+            if t.frame_matched[0]:
+                t.frame_pub.put(out.frame)
             self.frames_sent += 1
+            if t.frame_every_matched.any():
+                # the first frame of each period of NC time (the newest one if this thread fell behind)
+                for i, (period_ns, pub) in enumerate(t.frame_every_pubs):
+                    w = out.nc_time_ns // period_ns
+                    if w != self._windows[i] and t.frame_every_matched[i]:
+                        self._windows[i] = w
+                        pub.put(out.frame)
             if out.nc_idx is not None or out.plctonc is not None:
                 stamp = encode_stamp(out.cycle, out.nc_time_ns)
                 if out.nc_idx is not None:
