@@ -18,7 +18,8 @@ Measured over the window (after every axis moves):
   no 0x4B0F), the most consecutive PLC cycles without a newer frame, PLC overruns;
 * CPU per process [% of one core] over the window (/proc/<pid>/stat utime + stime, all threads).
 
-The run ends by asking the programs to stop sending (a file): every move still running ends, then
+The clients are started one after the other (each once the previous one runs its program). The run
+ends by asking the programs to stop sending (a file): every move still running ends, then
 each program writes its final report, and the processes are stopped.
 
     .venv/bin/python bench/many_clients.py                       # make bench: 16 clients, 20 s
@@ -164,11 +165,11 @@ def run(args: argparse.Namespace) -> int:
                    + "".join(AXIS_TOML.format(id=i + 1) for i in range(n * AXES_PER_CLIENT)))
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=os.pathsep.join(
-        [str(REPO)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+    tree = Path(args.tree).resolve() if args.tree else REPO
+    env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(tree))
     stop_file = tmp / "stop"
     print(f"many_clients: {n} plc-run x {AXES_PER_CLIENT} axes, NC {n * AXES_PER_CLIENT} axes at 1 ms, "
-          f"PLC 10 ms, window {args.seconds:g} s; logs in {tmp}", flush=True)
+          f"PLC 10 ms, window {args.seconds:g} s; code under test {tree}; logs in {tmp}", flush=True)
 
     cal = calibrate()
     fl = [floor(args.floor)]
@@ -207,6 +208,14 @@ def run(args: argparse.Namespace) -> int:
                                  start_new_session=True)
             clients.append(p)
             procs.append(p)
+            # one at a time: 16 interpreters importing numpy and zenoh at once would stall the running ones
+            t_start = time.monotonic()
+            while not (tmp / f"plc{k}.json").exists():
+                if p.poll() is not None:
+                    raise RuntimeError(f"plc{k} exited with {p.returncode}: {(tmp / f'plc{k}.err').read_text()[-2000:]}")
+                if time.monotonic() - t_start > args.start_timeout:
+                    raise RuntimeError(f"plc{k} did not start within {args.start_timeout:g} s")
+                time.sleep(0.05)
 
         def reports() -> list[dict[str, Any] | None]:
             out = []
@@ -377,6 +386,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-timeout", type=float, default=90.0)
     ap.add_argument("--observer", action="store_true", help="an extra subscriber counting every frame")
     ap.add_argument("--json", help="write the figures to this file")
+    ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run (default: this one; e.g. a "
+                                   "worktree of main for a before/after); the floor always runs this one's loop")
     ap.add_argument("--plc-args", nargs=argparse.REMAINDER, default=[], help="more plc-run arguments (last)")
     return run(ap.parse_args(argv))
 

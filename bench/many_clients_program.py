@@ -7,7 +7,7 @@ each move ended, and writes its report (JSON) to ``$MANY_REPORT`` about once a s
 ``$MANY_STOP`` exists it sends no new move, and once every move has ended it writes a final report
 with ``"final": true`` (then it idles until plc-run is stopped).
 
-Counted per axis: ``sent`` (rising edges of Execute while the axis was valid), ``done``,
+Counted per axis: ``sent`` (moves whose request went to the NC), ``done``,
 ``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``), the job records'
 ``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
 ``sent`` must equal the difference), and frame reception: ``invalid`` (cycles with stale data
@@ -78,9 +78,12 @@ class _Axis:
             if self.cmdno0 is None:
                 self.cmdno0 = int(ax.NcJobs["NewestCmdNo"])
             self.execute = True
-            self.sent += 1
             self.k += 1
-        m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
+            m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
+            if m._pending is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
+                self.sent += 1
+        else:
+            m = self.move(Axis=ax, Execute=True)
         if m.Done or m.Error or m.CommandAborted:
             if m.Done:
                 self.done += 1
