@@ -169,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
     env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(tree))
     stop_file = tmp / "stop"
     print(f"many_clients: {n} plc-run x {AXES_PER_CLIENT} axes, NC {n * AXES_PER_CLIENT} axes at 1 ms, "
-          f"PLC 10 ms, window {args.seconds:g} s; code under test {tree}; logs in {tmp}", flush=True)
+          f"PLC 10 ms , window {args.seconds:g} s; code under test {tree}; logs in {tmp}", flush=True)
 
     cal = calibrate()
     fl = [floor(args.floor)]
