@@ -22,12 +22,13 @@ The clients are started one after the other (each once the previous one runs its
 ends by asking the programs to stop sending (a file): every move still running ends, then
 each program writes its final report, and the processes are stopped.
 
-    .venv/bin/python bench/many_clients.py                       # make bench: 16 clients, 20 s
-    .venv/bin/python bench/many_clients.py --seconds 60          # the 1-minute run of issue 8
+    .venv/bin/python bench/many_clients.py                       # make bench: 16 clients, 20 s (~1.5 min)
+    .venv/bin/python bench/many_clients.py --seconds 60          # the 1-minute run of issue 8 (~2.5 min)
     .venv/bin/python bench/many_clients.py --clients 8 --seconds 60 --floor 10 --observer
 
-Exit code 1 if a block reported an error, a command was lost or doubled, or a client did not
-finish; the NC/floor comparison is printed, not judged (the machine is shared).
+The goal (no block error, no lost or doubled command, every client finished) is printed as met /
+NOT met; the NC/floor comparison is printed, not judged (the machine is shared). Exit code 0 unless
+something crashed (``--strict``: 1 when the goal is not met).
 """
 from __future__ import annotations
 
@@ -374,8 +375,9 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     if args.json:
         Path(args.json).write_text(json.dumps({"result": {k: v for k, v in r.items() if k != "reports"},
                                                "floor": fl, "errors": errors, "lost": lost}, default=str))
-    print("many_clients: " + ("OK" if ok else "FAILED"))
-    return 0 if ok else 1
+    print("many_clients: goal (no block error, no lost or doubled command, every client finished) "
+          + ("met" if ok else "NOT met"))
+    return 0 if ok or not args.strict else 1
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -386,6 +388,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-timeout", type=float, default=90.0)
     ap.add_argument("--observer", action="store_true", help="an extra subscriber counting every frame")
     ap.add_argument("--json", help="write the figures to this file")
+    ap.add_argument("--strict", action="store_true", help="exit 1 when the goal is not met")
     ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run (default: this one; e.g. a "
                                    "worktree of main for a before/after); the floor always runs this one's loop")
     ap.add_argument("--plc-args", nargs=argparse.REMAINDER, default=[], help="more plc-run arguments (last)")
