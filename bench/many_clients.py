@@ -334,7 +334,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     if r.get("observer"):
         o = r["observer"]
         print(f"observer: {o['frames']} frames in the window ({cycles} NC cycles), longest gap {o['max_gap_ms']:.1f} ms")
-    sent = done = aborted = 0
+    sent = done = aborted = accepted = refused = 0
     errors: dict[str, int] = {}
     lost = []
     worst_unchanged = 0
@@ -347,6 +347,8 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
             continue
         for ax, a in rep["axes"].items():
             sent += a["sent"]
+            accepted += a.get("accepted", 0)
+            refused += a.get("refused", 0)
             done += a["done"]
             aborted += a["aborted"]
             for code, c in a["errors"].items():
@@ -356,11 +358,14 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
             if a["cmdno0"] is not None and a["cmdno"] is not None:
                 # NewestCmdNo counts 1..65535 and wraps to 1
                 delta = (a["cmdno"] - a["cmdno0"]) % 65535
-                if delta != a["sent"]:
-                    lost.append(f"axis {ax}: sent {a['sent']}, NC accepted {delta}")
+                acc = a.get("accepted", a["sent"])
+                if delta != acc or a["sent"] != acc + a.get("refused", 0):
+                    lost.append(f"axis {ax}: sent {a['sent']}, accepted {acc}, refused {a.get('refused', 0)}, "
+                                f"NC CmdNo progress {delta}")
             else:
                 lost.append(f"axis {ax}: no job records ({a['cmdno0']}, {a['cmdno']})")
-    print(f"clients: {sent} moves sent, NC CmdNo progress {'equal on every axis' if not lost else 'DIFFERS: ' + '; '.join(lost[:8])}; "
+    print(f"clients: {sent} moves sent, {accepted} accepted, {refused} refused; NC CmdNo progress = accepted "
+          f"{'on every axis' if not lost else 'NOT on every axis: ' + '; '.join(lost[:6])}; "
           f"done {done}, aborted {aborted}, block errors {sum(errors.values())} {errors or ''}")
     print(f"frames: most consecutive PLC cycles without a newer frame {worst_unchanged}, PLC cycles with stale data {invalid}; "
           f"PLC overruns {sum(rep['overruns'] for rep in r['reports'] if rep)}")

@@ -7,10 +7,11 @@ each move ended, and writes its report (JSON) to ``$MANY_REPORT`` about once a s
 ``$MANY_STOP`` exists it sends no new move, and once every move has ended it writes a final report
 with ``"final": true`` (then it idles until plc-run is stopped).
 
-Counted per axis: ``sent`` (moves whose request went to the NC), ``done``,
+Counted per axis: ``sent`` (moves whose request went to the NC), ``accepted`` / ``refused`` (their
+replies: error 0 / an error or none), ``done``,
 ``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``), the job records'
 ``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
-``sent`` must equal the difference), and frame reception: ``invalid`` (cycles with stale data
+``accepted`` must equal the difference, ``sent`` = ``accepted`` + ``refused``), and frame reception: ``invalid`` (cycles with stale data
 after the first valid one), ``max_unchanged`` (most consecutive PLC cycles without a newer NC
 frame).
 """
@@ -39,7 +40,8 @@ class _Axis:
         self.k = 0
         self.execute = False
         self.busy = False
-        self.sent = self.done = self.aborted = 0
+        self.sent = self.done = self.aborted = self.accepted = self.refused = 0
+        self.req = None  # the PendingCommand of the move in flight, until its reply
         self.errors: dict[str, int] = {}
         self.cmdno0: int | None = None
         self.invalid = 0
@@ -51,6 +53,12 @@ class _Axis:
 
     def cycle(self, stopping: bool) -> None:
         ax = self.ax
+        if self.req is not None and self.req.done:  # the NC's answer to our last move (also a late one)
+            if self.req.reply is not None and int(self.req.reply.get("error", 0)) == 0:
+                self.accepted += 1
+            else:
+                self.refused += 1
+            self.req = None
         p = self.power(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
         st = ax.Status
         if st.Valid:
@@ -82,6 +90,7 @@ class _Axis:
             m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
             if m._pending is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
                 self.sent += 1
+                self.req = m._pending
         else:
             m = self.move(Axis=ax, Execute=True)
         if m.Done or m.Error or m.CommandAborted:
@@ -97,7 +106,8 @@ class _Axis:
 
     def report(self) -> dict:
         cmdno = int(self.ax.NcJobs["NewestCmdNo"]) if self.ax.Status.Valid else None
-        return {"sent": self.sent, "done": self.done, "aborted": self.aborted, "errors": self.errors,
+        return {"sent": self.sent, "accepted": self.accepted, "refused": self.refused, "pending": self.req is not None,
+                "done": self.done, "aborted": self.aborted, "errors": self.errors,
                 "cmdno0": self.cmdno0, "cmdno": cmdno, "invalid": self.invalid,
                 "max_unchanged": self.max_unchanged, "idle": not self.execute}
 
@@ -115,7 +125,7 @@ class Program:
         for a in self.axes:
             a.cycle(stopping)
         now = time.monotonic()
-        done = stopping and all(not a.execute for a in self.axes)
+        done = stopping and all(not a.execute and a.req is None for a in self.axes)
         if (now >= self.next_report and not self.final) or (done and not self.final):
             self.next_report = now + REPORT_PERIOD
             self.final = done
