@@ -25,14 +25,17 @@ test: $(STAMP)
 test-core: $(STAMP)
 	$(PY) -m pytest tests/core tests/schema tests/plc $(PYTEST_ARGS)
 
-# All three run even if one fails; the target fails if any did. NC_CYCLE_ARGS e.g. "--baseline none" or
+# All four run even if one fails; the target fails if any did. NC_CYCLE_ARGS e.g. "--baseline none" or
 # "--axes 64 256 --rounds 3"; the defaults keep the whole target around 4-5 minutes.
 NC_CYCLE_ARGS ?=
+# bench/many_clients.py: 16 plc-run x 4 moving axes; MANY_CLIENTS_ARGS="--seconds 60" is the one-minute run (~2.5 min).
+MANY_CLIENTS_ARGS ?= --seconds 20
 bench: $(STAMP)
 	@rc=0; \
 	$(PY) bench/nc_cycle.py $(NC_CYCLE_ARGS) || rc=1; \
 	$(PY) bench/command_rtt.py || rc=1; \
 	$(PY) bench/fb_latency.py || rc=1; \
+	$(PY) bench/many_clients.py $(MANY_CLIENTS_ARGS) || rc=1; \
 	exit $$rc
 
 # Containers (deploy/): images built locally (no registry, cached by content hash), the compose system.

@@ -17,8 +17,8 @@ from .codec import (
 )
 from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
 from .messages import (
-    CLASSES, COMMAND_CLASS, COMMANDS, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES, Keys, check_client_id, make_reply, make_request, pack, parse_request,
-    unpack,
+    CLASSES, COMMAND_CLASS, COMMANDS, FRAME_PERIODS_MS, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES, Keys, check_client_id,
+    frame_period_ms, make_reply, make_request, pack, parse_request, unpack,
 )
 from .state import cmdno_newer, motion_state, motion_state_array, next_cmdno
 

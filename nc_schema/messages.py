@@ -26,6 +26,15 @@ COMMAND_CLASS: dict[str, str] = {n: c.get("class", "op") for n, c in COMMANDS.it
 ROLE_CLASSES: dict[str, tuple[str, ...]] = {"observer": ("read",), "operator": ("read", "op"),
                                             "engineer": ("read", "op", "eng")}
 _AXIS_RE = r"(?:0|[1-9][0-9]{0,8})"  # decimal, no leading zeros: axis/01 is not axis 1
+#: Periods [ms] of the ``nc/<nc>/frame/<period>ms`` keys (protocol.json ``frame_every``).
+FRAME_PERIODS_MS: tuple[int, ...] = tuple(PROTOCOL["keys"]["frame_every"]["periods_ms"])
+
+
+def frame_period_ms(cycle_time: float) -> int | None:
+    """The ``frame_every`` period for a client reading once per ``cycle_time`` [s]: the longest one of at
+    most half the cycle (each cycle then sees a newer frame), or None (take every frame: ``frame``)."""
+    fit = [p for p in FRAME_PERIODS_MS if p * 1e-3 <= cycle_time / 2 + 1e-12]
+    return max(fit) if fit else None
 
 
 class Keys:
@@ -53,6 +62,16 @@ class Keys:
         self.client_alive_any = f"{self.prefix}/client/*"
         self.plctonc_in_any = f"{self.prefix}/plctonc/*"
         self._cmd_re = re.compile(re.escape(self.prefix) + rf"(?:/axis/({_AXIS_RE}))?/cmd/([a-z]+)/([A-Za-z0-9_.-]{{1,64}})")
+
+    def frame_every(self, period_ms: int) -> str:
+        """``nc/<nc>/frame/<period_ms>ms``: the status frame once per period (one of FRAME_PERIODS_MS).
+
+        Raises:
+            ValueError: not one of FRAME_PERIODS_MS.
+        """
+        if period_ms not in FRAME_PERIODS_MS:
+            raise ValueError(f"frame period {period_ms!r} ms: use one of {FRAME_PERIODS_MS}")
+        return f"{self.frame}/{int(period_ms)}ms"
 
     def axis_nctoplc(self, axis: int) -> str:
         return f"{self.prefix}/axis/{int(axis)}/nctoplc"

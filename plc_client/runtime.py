@@ -9,12 +9,25 @@ explicit configuration - never zenoh's defaults:
 * ``transport/link/tx/lease: 1000`` ms (``lease_ms``): a frozen PLC (or NC) is noticed by the
   other side within ~0.75 s instead of zenoh's default ~10 s.
 
-Declared on it: a subscriber on ``nc/<nc>/frame`` with a ``RingChannel(1)`` (only the newest
-status frame is kept; the cycle takes it with ``try_recv``, so no Python callback thread
-competes with the PLC cycle), a liveliness subscriber on ``nc/<nc>/alive`` (to notice NC
+Declared on it: a subscriber on the status frames with a ``RingChannel(1)`` (only the newest
+frame is kept; the cycle takes it with ``try_recv``), a liveliness subscriber on ``nc/<nc>/alive`` (to notice NC
 restarts), the liveliness token ``nc/<nc>/client/<client_id>`` (the NC accepts claims only
 from live clients and drops them when the token disappears) and a publisher for
 ``nc/<nc>/plctonc/<client_id>``.
+
+Frames: the PLC reads one frame per cycle, so it subscribes to ``nc/<nc>/frame/<P>ms`` (the frame
+once per P ms of NC time, P the longest of ``nc_schema.FRAME_PERIODS_MS`` of at most half the
+cycle: 5 ms at 10 ms; ``frame_period`` overrides it), not to every NC cycle's ``nc/<nc>/frame``
+(a cycle shorter than 4 ms does). Each cycle still sees a newer frame, at a fifth of the traffic:
+at 64 axes a frame is 24.6 kB, and receiving all 1000 a second cost a client ~6 % of a core in
+zenoh's receive threads and the NC ~5 % per client in its transmit thread.
+
+No Python code runs on zenoh's threads in a PLC client: frames, liveliness events and replies go
+through zenoh channels that the cycle polls. A Python callback there (a reply callback, as the
+runtime had) must take the GIL, and while it waits for it the link's receive task stands still:
+no frame arrives on that session. On a loaded machine the GIL holder (the PLC thread in its cycle)
+can be off the CPU for long, and a client saw no frame for more than 0.2 s (0x4B0F) while another
+subscriber got every frame (tests/integration/test_plc_frame_starvation.py).
 
 A zenoh client cannot open a session while its router is down, so a session that fails to
 open is retried every ``reconnect_period`` seconds by a background thread while the PLC keeps
@@ -24,9 +37,9 @@ token reappear), stops following the old instance's commands and claims again.
 
 Commands (:class:`ZenohPort`) are ``session.get`` queries on the command's key
 ``nc/<nc>/axis/<id>/cmd/<class>/<client_id>`` (``Keys.command_key``; NC-level commands on
-``nc/<nc>/cmd/<class>/<client_id>``) with a
-``Callback(indirect=False)`` that only appends the reply to the port's queue (no thread per
-query); the zenoh query timeout (``query_timeout``, default 5 x command_timeout) is longer than
+``nc/<nc>/cmd/<class>/<client_id>``) with a ``FifoChannel`` each; the cycle polls the channels of
+the queries in flight (``try_recv``, no thread per query, nothing on zenoh's threads); the zenoh
+query timeout (``query_timeout``, default 5 x command_timeout) is longer than
 the blocks' Timeout so that a late acceptance still reaches the task (see
 :mod:`plc_client.task`).
 
@@ -56,21 +69,45 @@ import os
 import re
 import signal
 import socket
+import struct
 import threading
 import time
 from typing import Any, Mapping
 
-import numpy as np
 import zenoh
-from zenoh.handlers import Callback, FifoChannel, RingChannel
+from zenoh.handlers import FifoChannel, RingChannel
 
-from nc_schema import ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_frame, make_reply, unpack
+from nc_schema import (
+    PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, ErrorCodes, Keys, check_client_id, decode_frame,
+    frame_period_ms, make_reply, unpack,
+)
+from nc_schema.codec import PLC_FRAME_MAGIC, WIRE_VERSION
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, PendingCommand
 from .task import PlcTask
 
 log = logging.getLogger(__name__)
+
+#: Replies kept per query until the PLC cycle takes them (the NC sends one).
+REPLY_CHANNEL = 4
+
+
+_PLC_HEADER = struct.Struct("<IHHQHHI")  # PLC_FRAME_HEADER: Magic, Version, HeaderSize, PlcCycle, AxisCount, RecordSize
+_PLC_AXIS = struct.Struct("<II")  # PLC_AXIS_RECORD before its PLCTONC: AxisId, reserved
+assert _PLC_HEADER.size == PLC_FRAME_HEADER_DTYPE.itemsize
+assert _PLC_AXIS.size + PLCTONC_DTYPE.itemsize == PLC_AXIS_RECORD_DTYPE.itemsize
+
+
+def plc_frame(plc_cycle: int, axes: list[AXIS_REF]) -> bytes:
+    """``nc_schema.encode_plc_frame(plc_cycle, ids, PlcToNc records)`` of ``axes``, byte for byte, in a few us
+    (numpy's concatenation of structured records alone took ~100 us for 4 axes)."""
+    parts = [_PLC_HEADER.pack(PLC_FRAME_MAGIC, WIRE_VERSION, _PLC_HEADER.size, plc_cycle, len(axes),
+                              PLC_AXIS_RECORD_DTYPE.itemsize, 0)]
+    for ax in axes:
+        parts.append(_PLC_AXIS.pack(ax.axis_id, 0))
+        parts.append(ax._plctonc.tobytes())
+    return b"".join(parts)
 
 
 def default_client_id() -> str:
@@ -105,11 +142,13 @@ def client_config(endpoint: str, lease_ms: int = 1000, tls_dir: str | None = Non
 class _NcLink:
     """Session and declarations for one NC (created by :meth:`open`, possibly in a thread)."""
 
-    def __init__(self, nc: str, endpoint: str, client_id: str, lease_ms: int, tls_dir: str | None = None) -> None:
+    def __init__(self, nc: str, endpoint: str, client_id: str, lease_ms: int, tls_dir: str | None = None,
+                 frame_key: str | None = None) -> None:
         self.nc = nc
         self.endpoint = endpoint
         self.tls_dir = tls_dir
         self.keys = Keys(nc)
+        self.frame_key = frame_key or self.keys.frame
         self.client_id = client_id
         self.lease_ms = lease_ms
         self.session: zenoh.Session | None = None
@@ -130,7 +169,7 @@ class _NcLink:
             self.last_error = str(exc).split(" at ")[0]
             return False
         try:
-            self.frames = s.declare_subscriber(self.keys.frame, RingChannel(1))
+            self.frames = s.declare_subscriber(self.frame_key, RingChannel(1))
             self.alive_sub = s.liveliness().declare_subscriber(self.keys.alive, FifoChannel(64), history=True)
             self.token = s.liveliness().declare_token(self.keys.client_alive(self.client_id))
             self.pub = s.declare_publisher(self.keys.plctonc_in(self.client_id))
@@ -176,6 +215,8 @@ class ZenohPort(CommandPort):
         super().__init__(client_id)
         self.links = links
         self.query_timeout = float(query_timeout)
+        #: queries in flight: (command, the zenoh reply channel of its get)
+        self._inflight: list[tuple[PendingCommand, Any]] = []
 
     def _transmit(self, pending: PendingCommand, payload: bytes) -> None:
         link = self.links.get(pending.nc)
@@ -187,38 +228,51 @@ class ZenohPort(CommandPort):
         except ValueError as exc:  # e.g. a negative axis id: there is no such key
             self._deliver(pending, make_reply(pending.id, pending.cmd, ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, str(exc)))
             return
-        got = [False]
-
-        def on_reply(reply: Any) -> None:
-            if got[0]:
-                return
-            got[0] = True
-            ok = reply.ok
-            if ok is None:
-                self._deliver(pending, None, ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)
-                return
-            try:
-                msg = unpack(ok.payload.to_bytes())
-            except Exception:
-                msg = None
-            if isinstance(msg, dict):
-                self._deliver(pending, msg)
-            else:
-                self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_INVALIDDATA)
-
-        def on_done() -> None:
-            if not got[0]:  # the query ended without any reply (no NC matched)
-                got[0] = True
-                self._deliver(pending, None, ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)
-
         try:
-            link.session.get(key, Callback(on_reply, on_done, indirect=False), payload=payload,
-                             timeout=self.query_timeout, consolidation=zenoh.ConsolidationMode.NONE)
+            # a channel, not a Python callback: zenoh's receive thread never waits for the GIL
+            rx = link.session.get(key, FifoChannel(REPLY_CHANNEL), payload=payload, timeout=self.query_timeout,
+                                  consolidation=zenoh.ConsolidationMode.NONE)
         except Exception as exc:  # session closing
             log.debug("get on %s failed: %s", key, exc)
-            if not got[0]:
-                got[0] = True
-                self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_NOTREADY)
+            self._deliver(pending, None, ErrorCodes.ADSERR_DEVICE_NOTREADY)
+            return
+        self._inflight.append((pending, rx))
+
+    def _collect(self) -> None:
+        """Move the replies that arrived into the inbox (PLC thread; never blocks)."""
+        if not self._inflight:
+            return
+        keep = []
+        for pending, rx in self._inflight:
+            try:
+                reply = rx.try_recv()
+            except Exception:  # "empty and closed": the query ended without a reply (no NC, timeout)
+                self._deliver(pending, None, ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)
+                continue
+            if reply is None:
+                keep.append((pending, rx))
+                continue
+            # the first reply answers the command; dropping the channel ends our interest in the query
+            self._deliver(pending, *_reply_of(reply))
+        self._inflight = keep
+
+    def poll(self) -> list[PendingCommand]:
+        self._collect()
+        return super().poll()
+
+
+def _reply_of(reply: Any) -> tuple[dict[str, Any] | None, int]:
+    """(reply map, 0) of a zenoh reply, or (None, error code) for an error reply or a bad payload."""
+    ok = reply.ok
+    if ok is None:
+        return None, ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT
+    try:
+        msg = unpack(ok.payload.to_bytes())
+    except Exception:
+        msg = None
+    if isinstance(msg, dict):
+        return msg, 0
+    return None, ErrorCodes.ADSERR_DEVICE_INVALIDDATA
 
 
 class PlcRuntime(PlcTask):
@@ -240,8 +294,12 @@ class PlcRuntime(PlcTask):
         tls_dir: certificate directory (``deploy/certs/make-certs.sh``): mutual TLS with the
             certificate ``<tls_dir>/<client_id>.pem`` (its CN is the identity the router's access
             control knows); every endpoint must be ``tls/``. None: plain TCP.
+        frame_period: period [ms] of the status frames taken (one of ``nc_schema.FRAME_PERIODS_MS``);
+            None: the longest of at most half ``cycle_time`` (``nc_schema.frame_period_ms``); 0: every
+            NC cycle's frame (``nc/<nc>/frame``).
 
     Attributes:
+        frame_period_ms: the period of the frames taken [ms] (None: every NC cycle's).
         overruns: cycles that started later than one cycle_time after their deadline.
         error: the exception that stopped the program, if any.
         unclosed: NCs whose session had not finished closing within ``close_timeout`` at shutdown.
@@ -255,7 +313,7 @@ class PlcRuntime(PlcTask):
                  client_id: str | None = None, stale_cycles: int | None = None, command_timeout: float = 1.0,
                  query_timeout: float | None = None, lease_ms: int = 1000, reconnect_period: float = 1.0,
                  shutdown_cycles: int = 3, claim_retry: float = 1.0, close_timeout: float = 2.0,
-                 tls_dir: str | None = None) -> None:
+                 tls_dir: str | None = None, frame_period: int | None = None) -> None:
         cid = check_client_id(client_id or default_client_id())
         super().__init__(program, cycle_time=cycle_time, client_id=cid, stale_cycles=stale_cycles,
                          command_timeout=command_timeout, claim_retry=claim_retry)
@@ -265,9 +323,13 @@ class PlcRuntime(PlcTask):
             tls_files(tls_dir, cid)
             check_tls_endpoints(list(ncs.values()), "ncs")
         self.tls_dir = tls_dir
-        self.links: dict[str, _NcLink] = {nc: _NcLink(nc, ep, cid, lease_ms, tls_dir) for nc, ep in ncs.items()}
-        for nc in ncs:
-            Keys(nc)  # validates the name
+        period = frame_period_ms(self.cycle_time) if frame_period is None else (frame_period or None)
+        self.frame_period_ms = period
+        self.links: dict[str, _NcLink] = {}
+        for nc, ep in ncs.items():
+            keys = Keys(nc)  # validates the name
+            self.links[nc] = _NcLink(nc, ep, cid, lease_ms, tls_dir,
+                                     keys.frame if period is None else keys.frame_every(period))
         self.port = ZenohPort(cid, self.links, query_timeout or 5.0 * command_timeout)
         self.port.clock = lambda: self.now
         self.reconnect_period = float(reconnect_period)
@@ -382,10 +444,8 @@ class PlcRuntime(PlcTask):
         link = self.links.get(nc)
         if link is None or not link.ready:
             return
-        ids = [ax.axis_id for ax in axes]
-        recs = np.concatenate([ax._plctonc for ax in axes])
         try:
-            link.pub.put(encode_plc_frame(self.cycle, ids, recs))
+            link.pub.put(plc_frame(self.cycle, axes))
         except Exception as exc:  # session closing
             log.debug("PLCTONC put failed: %s", exc)
 

@@ -154,6 +154,7 @@ class PlcTask:
         self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
         #: NCs whose liveliness token went away: [token back, restart counted] (see nc_token_gone)
         self._nc_gaps: dict[str, list[bool]] = {}
+        self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
 
     @property
     def program(self) -> Any:
@@ -374,7 +375,11 @@ class PlcTask:
         if gap is not None and gap[0]:
             del self._nc_gaps[nc]  # the first frame after the token's return ends the gap
         ids = records["AxisId"]
-        self._frames[nc] = (int(cycle), records, {int(a): i for i, a in enumerate(ids.tolist())}, jobs)
+        key = ids.tobytes()
+        index = self._index_cache.get(nc)
+        if index is None or index[0] != key:  # the NC's axes rarely change: keep the AxisId -> row map
+            index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
+        self._frames[nc] = (int(cycle), records, index[1], jobs)
 
     def _snapshot_all(self) -> None:
         for refs in self._refs.values():

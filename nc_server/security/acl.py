@@ -4,7 +4,8 @@
 default deny, one subject per listed id matched by its TLS certificate's common name, and for each
 subject exactly the key expressions of its identity (docs/roles.md has the table):
 
-* every listed client reads the NCs' cyclic data: ``nc/*/frame``, ``nc/*/status``, ``nc/*/stats``, ``nc/*/claims``,
+* every listed client reads the NCs' cyclic data: ``nc/*/frame``, ``nc/*/frame/*`` (the frame once per
+  period, what PLC clients take), ``nc/*/status``, ``nc/*/stats``, ``nc/*/claims``,
   ``nc/*/axis/*/nctoplc``, ``nc/*/axis/*/plctonc`` and the NCs' liveliness ``nc/*/alive``;
 * a client queries only its own command keys ``nc/*/[axis/*/]cmd/<class>/<id>`` of the classes
   its role allows, and gets the replies on them;
@@ -36,8 +37,8 @@ from .roles import Roles, RolesError, load_roles
 __all__ = ["access_control", "READ_KEYS", "main"]
 
 #: What every listed client may subscribe to and receive.
-READ_KEYS: tuple[str, ...] = ("nc/*/frame", "nc/*/status", "nc/*/stats", "nc/*/claims", "nc/*/axis/*/nctoplc",
-                              "nc/*/axis/*/plctonc")
+READ_KEYS: tuple[str, ...] = ("nc/*/frame", "nc/*/frame/*", "nc/*/status", "nc/*/stats", "nc/*/claims",
+                              "nc/*/axis/*/nctoplc", "nc/*/axis/*/plctonc")
 #: The NCs' liveliness tokens.
 NC_ALIVE = "nc/*/alive"
 

@@ -26,7 +26,7 @@ from nc_server.security.acl import access_control
 
 from .claims import ClaimTable
 from .config import ServerConfig
-from .cycle import CycleLoop, configure_interpreter
+from .cycle import CycleLoop, configure_interpreter, raise_io_priority
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
 from .retain import RetainKeeper
 from .transport import IoThread, Outgoing, Transport, encode_frame_fast
@@ -87,7 +87,7 @@ class NcServer:
         self._arb_seen: tuple[int, int, int] = (-1, -1, -1)
         self._arb_built = 0.0
         self.io = IoThread(self.transport, self.stats, claims_source=lambda: self.claims_msg,
-                           cycle_source=lambda: int(self.core.cycle))
+                           cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads)
         self._prev_start = 0.0
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -113,6 +113,7 @@ class NcServer:
         """
         configure_interpreter()
         self.load_retain()
+        io_priority = raise_io_priority(self.config.realtime)  # zenoh's threads inherit it
         try:
             self.transport.open()
         except BaseException:
@@ -134,7 +135,7 @@ class NcServer:
             self.transport.close()
             raise
         self.started = True
-        log.info("cycle thread: %s", self.loop.stats.timing_detail)
+        log.info("cycle thread: %s; I/O and zenoh's threads: %s", self.loop.stats.timing_detail, io_priority)
 
     def load_retain(self) -> None:
         """Lock and read the retain file (if configured); the first cycle applies it (start() calls this).
@@ -183,6 +184,16 @@ class NcServer:
         self.io.stop()
         self.transport.close()
         gc.unfreeze()  # let the collector free the server's cycles at exit (frozen objects never are)
+
+    def _rt_threads(self) -> set[int]:
+        """Native id of the thread that runs SCHED_FIFO on purpose: the cycle thread, if it does (else empty).
+
+        It polls the PLCTONC channel, and zenoh creates some threads lazily (its SHM watchdog threads):
+        one created from the cycle thread would inherit SCHED_FIFO and is set back to normal."""
+        t = self.loop._thread
+        if self.loop.stats.timing != "SCHED_FIFO" or t is None or t.native_id is None:
+            return set()
+        return {t.native_id}
 
     @property
     def timing(self) -> str:
@@ -333,6 +344,7 @@ class NcServer:
         replies = self._drain_queries(time.monotonic())
         if replies:
             self.io.submit_replies(replies)
+        self.transport.take_plctonc()  # decoded now, applied at the next cycle start
 
     def _nc_time_ns(self, deadline_ns: int) -> int:
         """CLOCK_REALTIME at the scheduled start of the cycle [ns]."""

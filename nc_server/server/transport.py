@@ -8,14 +8,17 @@ takes SCHED_FIFO, so none inherits it):
 * liveliness events and command queries are queued by callbacks on zenoh threads (a deque
   append; a query also sets :attr:`Transport.query_event`, which the cycle thread waits on between
   cycles, so a command is taken up at once instead of at the next poll);
-* one Python thread for the PLCTONC subscriber callback: it decodes a frame and keeps only
-  the newest one per client (:attr:`Transport.plc_inbox`);
+* PLCTONC frames wait in a zenoh ring channel; the cycle thread decodes them between cycles and
+  before each cycle's inputs (:meth:`Transport.take_plctonc`), keeping only the newest one per
+  client (:attr:`Transport.plc_inbox`);
 * the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats, and the claims map
   ``nc/<nc>/claims`` (made by the cycle thread when something changed, published here on every
-  change and every :data:`CLAIMS_PERIOD`).
+  change and every :data:`CLAIMS_PERIOD`). The frame goes to ``nc/<nc>/frame`` and, once per period
+  of NC time, to each ``nc/<nc>/frame/<P>ms``; each only while it has a subscriber (matching
+  listeners), so PLC clients reading one frame per PLC cycle do not cost the NC a 1 kHz stream each.
 
-The cycle thread itself never calls into zenoh: it pops the query, liveliness and PLCTONC inboxes
-and hands its output to the I/O thread through a ``SimpleQueue``.
+The cycle thread never waits for zenoh: it pops the query and liveliness inboxes, polls the PLCTONC
+channel (``try_recv``) and hands its output to the I/O thread through a ``SimpleQueue``.
 """
 from __future__ import annotations
 
@@ -31,11 +34,11 @@ from typing import Any, Callable
 
 import numpy as np
 import zenoh
-from zenoh.handlers import Callback
+from zenoh.handlers import Callback, RingChannel
 
 from nc_schema import (
-    FRAME_HEADER_DTYPE, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, decode_plc_frame,
-    encode_stamp, pack,
+    FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
+    PLCTONC_DTYPE, Keys, decode_plc_frame, encode_stamp, pack,
 )
 from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 
@@ -53,6 +56,11 @@ MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 #: Period of ``nc/<nc>/status``: the newest frame's bytes again, decimated for observers on slow
 #: links (nc-status); put by the I/O thread, the final ShuttingDown frame too [s].
 STATUS_PERIOD = 0.1
+#: PLCTONC frames kept between two drains by the cycle thread (newest kept; the cycle drains every
+#: ~0.2 ms: 16 clients at 100 Hz bring ~2 per ms).
+PLCTONC_CHANNEL = 1024
+#: How often the I/O thread sets threads that inherited SCHED_FIFO back to normal [s].
+DEMOTE_PERIOD = 1.0
 #: Stats period [s].
 STATS_PERIOD = 0.1
 #: The claims map is published on every change and at least this often [s].
@@ -182,6 +190,10 @@ class Transport:
         #: True where the axis's nctoplc / plctonc publisher has a matching subscriber.
         self.nc_matched = np.zeros(n, dtype=bool)
         self.pc_matched = np.zeros(n, dtype=bool)
+        #: whether ``frame`` / each ``frame_every`` publisher (FRAME_PERIODS_MS order) has a subscriber
+        self.frame_matched = np.zeros(1, dtype=bool)
+        self.frame_every_matched = np.zeros(len(FRAME_PERIODS_MS), dtype=bool)
+        self.frame_every_pubs: list[tuple[int, Any]] = []
         #: Bumped by every matching change (lets the cycle cache the matched indices).
         self.match_version = 0
         #: client id -> newest decoded frame (written by the subscriber thread, popped by the cycle).
@@ -219,11 +231,23 @@ class Transport:
         self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any,
                                                                 Callback(self._on_liveliness, indirect=False),
                                                                 history=True)
-        self.plc_sub = s.declare_subscriber(k.plctonc_in_any, self._on_plctonc)
+        # a channel drained by the cycle thread (take_plctonc), not a Python subscriber thread: that thread,
+        # at normal priority and holding the GIL while decoding, made the SCHED_FIFO cycle thread wait
+        # whenever the scheduler took it off the CPU (a loaded machine: NC cycles of tens of ms)
+        self.plc_sub = s.declare_subscriber(k.plctonc_in_any, RingChannel(PLCTONC_CHANNEL))
         pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
         self.status_pub = s.declare_publisher(k.status, **pub)
         self._decl.append(self.status_pub)
         self.frame_pub = s.declare_publisher(k.frame, **pub)
+        self._decl.append(self.frame_pub.declare_matching_listener(
+            Callback(self._matcher(self.frame_matched, 0), indirect=False)))
+        # the same frame once per period, for clients that read one per PLC cycle (protocol.json frame_every)
+        self.frame_every_pubs = []
+        for i, ms in enumerate(FRAME_PERIODS_MS):
+            p = s.declare_publisher(k.frame_every(ms), **pub)
+            self._decl.append(p.declare_matching_listener(Callback(self._matcher(self.frame_every_matched, i),
+                                                                   indirect=False)))
+            self.frame_every_pubs.append((ms * 1_000_000, p))
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.claims_pub = s.declare_publisher(k.claims)
         self.nc_pubs = []
@@ -259,6 +283,7 @@ class Transport:
                  getattr(self, "liveliness_sub", None), getattr(self, "queryable", None)]
         items += getattr(self, "nc_pubs", []) + getattr(self, "pc_pubs", [])
         items += [getattr(self, "frame_pub", None), getattr(self, "stats_pub", None), getattr(self, "claims_pub", None)]
+        items += [p for _, p in self.frame_every_pubs]
         for d in items:
             if d is None:
                 continue
@@ -305,7 +330,25 @@ class Transport:
             out.append(ev.popleft())
         return out
 
-    # ---- PLCTONC subscriber (its own Python thread) -------------------------------------------
+    # ---- PLCTONC subscriber (a channel, drained by the cycle thread) ----------------------------
+    def take_plctonc(self, limit: int = PLCTONC_CHANNEL) -> int:
+        """Decode the PLCTONC frames that arrived into :attr:`plc_inbox` (at most ``limit``); how many
+        (cycle thread, between cycles and before each cycle's inputs; never blocks)."""
+        sub = getattr(self, "plc_sub", None)
+        if sub is None:
+            return 0
+        n = 0
+        while n < limit:
+            try:
+                sample = sub.try_recv()
+            except Exception:  # undeclared (closing)
+                break
+            if sample is None:
+                break
+            n += 1
+            self._on_plctonc(sample)
+        return n
+
     def _on_plctonc(self, sample: zenoh.Sample) -> None:
         client = str(sample.key_expr).rsplit("/", 1)[-1]
         if client not in self.holders:
@@ -337,6 +380,7 @@ class Transport:
 
     def pop_plc_frames(self) -> list[tuple[str, PlcFrame]]:
         """Take the newest frame of each client that sent one since the last call (cycle thread)."""
+        self.take_plctonc()
         box = self.plc_inbox
         if not box:
             return []
@@ -365,7 +409,8 @@ class IoThread:
 
     def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]],
                  claims_source: Callable[[], tuple[int, dict[str, Any]] | None] | None = None,
-                 cycle_source: Callable[[], int] | None = None) -> None:
+                 cycle_source: Callable[[], int] | None = None,
+                 rt_threads: Callable[[], set[int]] | None = None) -> None:
         self.t = transport
         self.stats_source = stats_source
         self.claims_source = claims_source or (lambda: None)
@@ -373,6 +418,10 @@ class IoThread:
         self.claims_sent = 0
         self._claims_version: int | None = None
         self._next_claims = 0.0
+        #: native ids of the threads meant to run SCHED_FIFO (empty: none); any other thread that inherited
+        #: it is set back to normal every DEMOTE_PERIOD (see cycle.demote_other_threads)
+        self.rt_threads = rt_threads
+        self.demoted: list[int] = []
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.frames_sent = 0
         self.frames_dropped = 0
@@ -380,6 +429,8 @@ class IoThread:
         self.reply_errors = 0
         self.put_errors = 0
         self._next_status = 0.0  # monotonic time of the next nc/<nc>/status put [s]
+        #: per frame_every publisher: the NcTimeNs // period of the last frame published on it
+        self._windows = [-1] * len(FRAME_PERIODS_MS)
         self._thread = threading.Thread(target=self._main, name="nc-io", daemon=True)
 
     def start(self) -> None:
@@ -400,6 +451,7 @@ class IoThread:
 
     def _main(self) -> None:
         next_stats = time.monotonic() + STATS_PERIOD
+        next_demote = time.monotonic() + DEMOTE_PERIOD
         running = True
         while running:
             try:
@@ -436,6 +488,12 @@ class IoThread:
                 next_stats = now + STATS_PERIOD
                 self._publish_stats()
             self._publish_claims(now)
+            if self.rt_threads is not None and now >= next_demote:
+                next_demote = now + DEMOTE_PERIOD
+                keep = self.rt_threads()
+                if keep:
+                    from .cycle import demote_other_threads
+                    self.demoted += demote_other_threads(keep)
 
     def _reply(self, q: Any, payload: bytes) -> None:
         try:
@@ -453,8 +511,16 @@ class IoThread:
     def _publish(self, out: Outgoing) -> None:
         t = self.t
         try:
-            t.frame_pub.put(out.frame)
+            if t.frame_matched[0]:
+                t.frame_pub.put(out.frame)
             self.frames_sent += 1
+            if t.frame_every_matched.any():
+                # the first frame of each period of NC time (the newest one if this thread fell behind)
+                for i, (period_ns, pub) in enumerate(t.frame_every_pubs):
+                    w = out.nc_time_ns // period_ns
+                    if w != self._windows[i] and t.frame_every_matched[i]:
+                        self._windows[i] = w
+                        pub.put(out.frame)
             if out.nc_idx is not None or out.plctonc is not None:
                 stamp = encode_stamp(out.cycle, out.nc_time_ns)
                 if out.nc_idx is not None:

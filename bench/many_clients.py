@@ -1,0 +1,404 @@
+"""Many PLC clients on one NC: N ``plc-run`` processes with 4 axes each, all moving, for a duration.
+
+Topology: one ``nc-server`` (N x 4 axes, 1 ms cycle, its own router on a free 127.0.0.1 port, the
+default watchdog 0.5 s), N ``plc-run bench/many_clients_program.py`` processes (10 ms cycle, the
+default ``--stale-cycles``), each claiming its own 4 axes and moving each back and forth with
+MC_MoveAbsolute (a new move on the cycle after the previous one is Done), and this process reading
+``nc/<nc>/stats``. Optionally (``--observer``) an extra subscriber process counts every frame.
+
+Measured over the window (after every axis moves):
+
+* the NC: missed cycles and overruns (counter deltas), start lateness p99 (the stats' 10 s ring,
+  sampled every 5 s: the worst sample), watchdog faults, requests;
+* the same-run noise floor (bench/noise_floor.py, the NC cycle loop running a fixed numpy workload,
+  in this process with nothing else of ours running) before and after the load: what the machine
+  itself gives a 1 ms cycle right now. The NC's missed fraction is compared with the floor's;
+* the clients: commands sent (rising edges of Execute) against the NC's NewestCmdNo progress per
+  axis (no lost or doubled command), how the moves ended, block errors (must be 0: no 0x8F02,
+  no 0x4B0F), the most consecutive PLC cycles without a newer frame, PLC overruns;
+* CPU per process [% of one core] over the window (/proc/<pid>/stat utime + stime, all threads).
+
+The clients are started one after the other (each once the previous one runs its program). The run
+ends by asking the programs to stop sending (a file): every move still running ends, then
+each program writes its final report, and the processes are stopped.
+
+    .venv/bin/python bench/many_clients.py                       # make bench: 16 clients, 20 s (~1.5 min)
+    .venv/bin/python bench/many_clients.py --seconds 60          # the 1-minute run of issue 8 (~2.5 min)
+    .venv/bin/python bench/many_clients.py --clients 8 --seconds 60 --floor 10 --observer
+
+The goal (no block error, no lost or doubled command, every client finished) is printed as met /
+NOT met; the NC/floor comparison is printed, not judged (the machine is shared). Exit code 0 unless
+something crashed (``--strict``: 1 when the goal is not met).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+
+BENCH = Path(__file__).resolve().parent
+REPO = BENCH.parent
+sys.path.insert(0, str(REPO))
+from bench.noise_floor import calibrate, run_floor  # noqa: E402
+
+PROGRAM = BENCH / "many_clients_program.py"
+AXES_PER_CLIENT = 4
+NC_NAME = "nc1"
+#: axis parameters: fast enough for a ~0.45 s move of 40 units at 100 units/s; no lag monitoring
+AXIS_TOML = """
+[[axis]]
+AxisId = {id}
+Name = "A{id}"
+AxisVeloMax = 1000.0
+AxisAcc = 5000.0
+AxisDec = 5000.0
+AxisJerk = 50000.0
+AxisEnPositionLagMonitoring = false
+"""
+OBSERVER = r"""
+import json, sys, time, zenoh
+c = zenoh.Config()
+c.insert_json5("mode", '"client"')
+c.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+c.insert_json5("scouting/gossip/enabled", "false")
+st = {"frames": 0, "max_gap_ms": 0.0}
+last = [None]
+def on_frame(s):
+    now = time.monotonic()
+    if last[0] is not None:
+        st["max_gap_ms"] = max(st["max_gap_ms"], (now - last[0]) * 1e3)
+    last[0] = now
+    st["frames"] += 1
+with zenoh.open(c) as s:
+    sub = s.declare_subscriber(sys.argv[2], on_frame)
+    print("ready", flush=True)
+    sys.stdin.readline()
+    st["frames"], st["max_gap_ms"], last[0] = 0, 0.0, None
+    sys.stdin.readline()
+    print(json.dumps(st), flush=True)
+"""
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def cpu_ticks(pid: int) -> int:
+    """utime + stime of a process (all its threads) [clock ticks]; 0 if it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return int(fields[11]) + int(fields[12])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+def floor(seconds: float) -> dict[str, Any]:
+    """The noise floor for ``seconds`` in this process: cycles, missed, overruns, p99 work/lateness [us]."""
+    r = run_floor(seconds)
+    return {"timing": r["timing"], "cycles": int(r["cycles"]), "missed": int(r["missed"]),
+            "overruns": int(r["overruns"]), "work_p99_us": float(np.percentile(r["work"], 99)),
+            "late_p99_us": float(np.percentile(r["late"], 99))}
+
+
+class Stats:
+    """Subscriber of nc/<nc>/stats (this process, client mode)."""
+
+    def __init__(self, endpoint: str) -> None:
+        import zenoh
+        c = zenoh.Config()
+        c.insert_json5("mode", '"client"')
+        c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+        c.insert_json5("scouting/multicast/enabled", "false")
+        c.insert_json5("scouting/gossip/enabled", "false")
+        self.session = zenoh.open(c)
+        self.latest: dict[str, Any] | None = None
+        self.sub = self.session.declare_subscriber(f"nc/{NC_NAME}/stats", self._on)
+
+    def _on(self, sample: Any) -> None:
+        try:
+            self.latest = msgpack.unpackb(sample.payload.to_bytes(), raw=False, strict_map_key=False)
+        except Exception:
+            pass
+
+    def wait(self, timeout: float = 10.0) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        while self.latest is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if self.latest is None:
+            raise RuntimeError("no NC stats")
+        return dict(self.latest)
+
+    def close(self) -> None:
+        try:
+            self.sub.undeclare()
+            self.session.close()
+        except Exception:
+            pass
+
+
+def _kill(proc: subprocess.Popen[Any], sig: int = signal.SIGKILL) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except ProcessLookupError:
+        pass
+
+
+def run(args: argparse.Namespace) -> int:
+    n = args.clients
+    tmp = Path(tempfile.mkdtemp(prefix="many-clients-"))
+    cfg = tmp / "nc.toml"
+    cfg.write_text(f'[nc]\nname = "{NC_NAME}"\ncycle_time = 0.001\n\n[zenoh]\nmode = "router"\n'
+                   + "".join(AXIS_TOML.format(id=i + 1) for i in range(n * AXES_PER_CLIENT)))
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    tree = Path(args.tree).resolve() if args.tree else REPO
+    env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(tree))
+    stop_file = tmp / "stop"
+    print(f"many_clients: {n} plc-run x {AXES_PER_CLIENT} axes, NC {n * AXES_PER_CLIENT} axes at 1 ms, "
+          f"PLC 10 ms , window {args.seconds:g} s; code under test {tree}; logs in {tmp}", flush=True)
+
+    cal = calibrate()
+    fl = [floor(args.floor)]
+    print(f"  floor before: {fl[0]['cycles']} cycles, missed {fl[0]['missed']}, overruns {fl[0]['overruns']}, "
+          f"lateness p99 {fl[0]['late_p99_us']:.0f} us", flush=True)
+
+    procs: list[subprocess.Popen[Any]] = []
+    nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
+                           "--log-level", "WARNING"], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
+                          text=True, env=env, start_new_session=True)
+    procs.append(nc)
+    observer = None
+    stats = None
+    clients: list[subprocess.Popen[Any]] = []
+    result: dict[str, Any] = {}
+    try:
+        line = nc.stdout.readline() if nc.stdout else ""
+        if " ready: " not in line:
+            raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / 'nc.err').read_text()[-2000:]}")
+        stats = Stats(endpoint)
+        stats.wait()
+        if args.observer:
+            observer = subprocess.Popen([sys.executable, "-c", OBSERVER, endpoint, f"nc/{NC_NAME}/frame"],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                                        start_new_session=True)
+            procs.append(observer)
+            assert observer.stdout is not None and observer.stdout.readline().strip() == "ready"
+        for k in range(n):
+            axes = ",".join(str(k * AXES_PER_CLIENT + j + 1) for j in range(AXES_PER_CLIENT))
+            cenv = dict(env, MANY_AXES=axes, MANY_REPORT=str(tmp / f"plc{k}.json"), MANY_STOP=str(stop_file),
+                        MANY_NC=NC_NAME)
+            p = subprocess.Popen([sys.executable, "-m", "plc_client.cli", str(PROGRAM), "--nc", f"{NC_NAME}={endpoint}",
+                                  "--client-id", f"plc{k}", "--cycle-time", "0.01", "--log-level", "WARNING",
+                                  *args.plc_args],
+                                 stdout=subprocess.DEVNULL, stderr=open(tmp / f"plc{k}.err", "w"), env=cenv,
+                                 start_new_session=True)
+            clients.append(p)
+            procs.append(p)
+            # one at a time: 16 interpreters importing numpy and zenoh at once would stall the running ones
+            t_start = time.monotonic()
+            while not (tmp / f"plc{k}.json").exists():
+                if p.poll() is not None:
+                    raise RuntimeError(f"plc{k} exited with {p.returncode}: {(tmp / f'plc{k}.err').read_text()[-2000:]}")
+                if time.monotonic() - t_start > args.start_timeout:
+                    raise RuntimeError(f"plc{k} did not start within {args.start_timeout:g} s")
+                time.sleep(0.05)
+
+        def reports() -> list[dict[str, Any] | None]:
+            out = []
+            for k in range(n):
+                try:
+                    out.append(json.loads((tmp / f"plc{k}.json").read_text()))
+                except (OSError, ValueError):
+                    out.append(None)
+            return out
+
+        deadline = time.monotonic() + args.start_timeout
+        while True:
+            reps = reports()
+            if all(r is not None and all(a["sent"] > 0 for a in r["axes"].values()) for r in reps):
+                break
+            if time.monotonic() > deadline:
+                missing = [k for k, r in enumerate(reps) if r is None or not all(a["sent"] for a in r["axes"].values())]
+                raise RuntimeError(f"clients {missing} not moving after {args.start_timeout:g} s")
+            for k, p in enumerate(clients):
+                if p.poll() is not None:
+                    raise RuntimeError(f"plc{k} exited with {p.returncode}: {(tmp / f'plc{k}.err').read_text()[-2000:]}")
+            time.sleep(0.2)
+        time.sleep(1.0)  # settle
+
+        # ---- the window ----------------------------------------------------------------------------
+        if observer is not None:
+            assert observer.stdin is not None
+            observer.stdin.write("start\n")
+            observer.stdin.flush()
+        s0 = stats.wait()
+        pids = {"nc-server": nc.pid, **{f"plc{k}": p.pid for k, p in enumerate(clients)}}
+        c0 = {k: cpu_ticks(p) for k, p in pids.items()}
+        t0 = time.monotonic()
+        late_p99 = []
+        end = t0 + args.seconds
+        while time.monotonic() < end:
+            time.sleep(min(5.0, max(0.0, end - time.monotonic())))
+            late_p99.append(float(stats.wait()["lateness_us_p99"]))
+        s1 = stats.wait()
+        dt = time.monotonic() - t0
+        c1 = {k: cpu_ticks(p) for k, p in pids.items()}
+        obs = None
+        if observer is not None:
+            assert observer.stdin is not None and observer.stdout is not None
+            observer.stdin.write("stop\n")
+            observer.stdin.flush()
+            obs = json.loads(observer.stdout.readline())
+
+        # ---- stop sending, wait for the final reports ----------------------------------------------
+        stop_file.touch()
+        deadline = time.monotonic() + 30.0
+        while True:
+            reps = reports()
+            if all(r is not None and r.get("final") for r in reps) or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
+        s2 = stats.wait()
+
+        hz = os.sysconf("SC_CLK_TCK")
+        cpu = {k: 100.0 * (c1[k] - c0[k]) / hz / dt for k in pids}
+        cycles = int(s1["cycle"]) - int(s0["cycle"])
+        nc_missed = int(s1["missed_cycles"]) - int(s0["missed_cycles"])
+        nc_over = int(s1["overruns"]) - int(s0["overruns"])
+        result = {"stats0": s0, "stats1": s1, "stats2": s2, "cpu": cpu, "cycles": cycles, "missed": nc_missed,
+                  "overruns": nc_over, "late_p99": late_p99, "dt": dt, "reports": reps, "observer": obs}
+    finally:
+        if stats is not None:
+            stats.close()
+        for p in clients:
+            _kill(p, signal.SIGTERM)
+        t_end = time.monotonic() + 10.0
+        for p in clients:
+            try:
+                p.wait(max(0.1, t_end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+        _kill(nc, signal.SIGTERM)
+        try:
+            nc.wait(10)
+        except subprocess.TimeoutExpired:
+            pass
+        for p in procs:
+            _kill(p)
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                pass
+
+    fl.append(floor(args.floor))  # after every process of ours ended
+    print(f"  floor after:  {fl[1]['cycles']} cycles, missed {fl[1]['missed']}, overruns {fl[1]['overruns']}, "
+          f"lateness p99 {fl[1]['late_p99_us']:.0f} us (quiet cost of the workload {cal['min_us']:.0f} us)")
+    return report(args, result, fl)
+
+
+def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]) -> int:
+    ok = True
+    cycles, missed, over = r["cycles"], r["missed"], r["overruns"]
+    due = cycles + missed
+    fl_due = sum(f["cycles"] + f["missed"] for f in fl)
+    fl_missed = sum(f["missed"] for f in fl)
+    fl_over = sum(f["overruns"] for f in fl)
+    s1 = r["stats1"]
+    print(f"NC over {r['dt']:.1f} s: {cycles} cycles, missed {missed} ({100.0 * missed / max(1, due):.2f} %), "
+          f"overruns {over} ({100.0 * over / max(1, cycles):.2f} %), lateness p99 max {max(r['late_p99'] or [0]):.0f} us "
+          f"(samples {', '.join(f'{x:.0f}' for x in r['late_p99'])}), work p99 {s1['work_us_p99']:.0f} us")
+    print(f"floor (before + after): missed {fl_missed} ({100.0 * fl_missed / max(1, fl_due):.2f} %), "
+          f"overruns {fl_over} ({100.0 * fl_over / max(1, fl_due):.2f} %), lateness p99 "
+          f"{fl[0]['late_p99_us']:.0f} / {fl[1]['late_p99_us']:.0f} us -> NC/floor missed ratio "
+          f"{(missed / max(1, due)) / max(1e-9, fl_missed / max(1, fl_due)) if fl_missed else float('inf') if missed else 1.0:.2f}")
+    s0, s2 = r["stats0"], r["stats2"]
+    print(f"NC: requests {int(s2['requests']) - int(s0['requests'])}, request errors "
+          f"{int(s2['request_errors']) - int(s0['request_errors'])}, dedup hits {int(s2['dedup_hits']) - int(s0['dedup_hits'])}, "
+          f"watchdog faults {int(s2['faults']) - int(s0['faults'])}, frames dropped by its I/O thread "
+          f"{int(s2['frames_dropped']) - int(s0['frames_dropped'])}")
+    if r.get("observer"):
+        o = r["observer"]
+        print(f"observer: {o['frames']} frames in the window ({cycles} NC cycles), longest gap {o['max_gap_ms']:.1f} ms")
+    sent = done = aborted = accepted = refused = 0
+    errors: dict[str, int] = {}
+    lost = []
+    worst_unchanged = 0
+    invalid = 0
+    unfinished = []
+    for k, rep in enumerate(r["reports"]):
+        if rep is None or not rep.get("final"):
+            unfinished.append(f"plc{k}")
+        if rep is None:
+            continue
+        for ax, a in rep["axes"].items():
+            sent += a["sent"]
+            accepted += a.get("accepted", 0)
+            refused += a.get("refused", 0)
+            done += a["done"]
+            aborted += a["aborted"]
+            for code, c in a["errors"].items():
+                errors[code] = errors.get(code, 0) + c
+            worst_unchanged = max(worst_unchanged, a["max_unchanged"])
+            invalid += a["invalid"]
+            if a["cmdno0"] is not None and a["cmdno"] is not None:
+                # NewestCmdNo counts 1..65535 and wraps to 1
+                delta = (a["cmdno"] - a["cmdno0"]) % 65535
+                acc = a.get("accepted", a["sent"])
+                if delta != acc or a["sent"] != acc + a.get("refused", 0):
+                    lost.append(f"axis {ax}: sent {a['sent']}, accepted {acc}, refused {a.get('refused', 0)}, "
+                                f"NC CmdNo progress {delta}")
+            else:
+                lost.append(f"axis {ax}: no job records ({a['cmdno0']}, {a['cmdno']})")
+    print(f"clients: {sent} moves sent, {accepted} accepted, {refused} refused; NC CmdNo progress = accepted "
+          f"{'on every axis' if not lost else 'NOT on every axis: ' + '; '.join(lost[:6])}; "
+          f"done {done}, aborted {aborted}, block errors {sum(errors.values())} {errors or ''}")
+    print(f"frames: most consecutive PLC cycles without a newer frame {worst_unchanged}, PLC cycles with stale data {invalid}; "
+          f"PLC overruns {sum(rep['overruns'] for rep in r['reports'] if rep)}")
+    cpu = r["cpu"]
+    pl = [v for k, v in cpu.items() if k != "nc-server"]
+    print(f"CPU [% of one core]: nc-server {cpu['nc-server']:.0f}; plc-run mean {np.mean(pl):.1f}, max {max(pl):.1f}, "
+          f"sum {sum(pl):.0f}; total {sum(cpu.values()):.0f} of {100 * os.cpu_count()}")
+    if errors or lost or unfinished:
+        ok = False
+        if unfinished:
+            print(f"clients without a final report: {unfinished}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"result": {k: v for k, v in r.items() if k != "reports"},
+                                               "floor": fl, "errors": errors, "lost": lost}, default=str))
+    print("many_clients: goal (no block error, no lost or doubled command, every client finished) "
+          + ("met" if ok else "NOT met"))
+    return 0 if ok or not args.strict else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--clients", type=int, default=16)
+    ap.add_argument("--seconds", type=float, default=20.0, help="measurement window [s] (20; the issue's run: 60)")
+    ap.add_argument("--floor", type=float, default=5.0, help="noise floor run before and after [s] each (5)")
+    ap.add_argument("--start-timeout", type=float, default=90.0)
+    ap.add_argument("--observer", action="store_true", help="an extra subscriber counting every frame")
+    ap.add_argument("--json", help="write the figures to this file")
+    ap.add_argument("--strict", action="store_true", help="exit 1 when the goal is not met")
+    ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run (default: this one; e.g. a "
+                                   "worktree of main for a before/after); the floor always runs this one's loop")
+    ap.add_argument("--plc-args", nargs=argparse.REMAINDER, default=[], help="more plc-run arguments (last)")
+    return run(ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

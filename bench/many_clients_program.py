@@ -1,0 +1,139 @@
+"""The ``plc-run`` program of bench/many_clients.py: every axis of ``$MANY_AXES`` moves back and forth.
+
+Per axis: MC_Power (enables on) and one MC_MoveAbsolute that alternates between ``$MANY_TARGETS``
+(default 0 and 40 units at 100 units/s, ~0.45 s per move): a new move on the cycle after the
+previous one is Done, so the axis is almost always moving. The program counts what it sent and how
+each move ended, and writes its report (JSON) to ``$MANY_REPORT`` about once a second; when the file
+``$MANY_STOP`` exists it sends no new move, and once every move has ended it writes a final report
+with ``"final": true`` (then it idles until plc-run is stopped).
+
+Counted per axis: ``sent`` (moves whose request went to the NC), ``accepted`` / ``refused`` (their
+replies: error 0 / an error or none), ``done``,
+``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``), the job records'
+``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
+``accepted`` must equal the difference, ``sent`` = ``accepted`` + ``refused``), and frame reception: ``invalid`` (cycles with stale data
+after the first valid one), ``max_unchanged`` (most consecutive PLC cycles without a newer NC
+frame).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power
+
+NC = os.environ.get("MANY_NC", "nc1")
+AXES = [int(a) for a in os.environ["MANY_AXES"].split(",")]
+REPORT = os.environ["MANY_REPORT"]
+STOP = os.environ["MANY_STOP"]
+TARGETS = [float(x) for x in os.environ.get("MANY_TARGETS", "0,40").split(",")]
+VELOCITY = float(os.environ.get("MANY_VELOCITY", "100"))
+REPORT_PERIOD = 1.0
+
+
+class _Axis:
+    def __init__(self, axis_id: int) -> None:
+        self.ax = AXIS_REF(nc=NC, axis_id=axis_id)
+        self.power = MC_Power()
+        self.move = MC_MoveAbsolute()
+        self.k = 0
+        self.execute = False
+        self.busy = False
+        self.sent = self.done = self.aborted = self.accepted = self.refused = 0
+        self.req = None  # the PendingCommand of the move in flight, until its reply
+        self.errors: dict[str, int] = {}
+        self.cmdno0: int | None = None
+        self.invalid = 0
+        self.seen_valid = False
+        self.unchanged = 0
+        self.max_unchanged = 0
+        self.last_nc_cycle = -1
+        self._power_err = False
+
+    def cycle(self, stopping: bool) -> None:
+        ax = self.ax
+        if self.req is not None and self.req.done:  # the NC's answer to our last move (also a late one)
+            if self.req.reply is not None and int(self.req.reply.get("error", 0)) == 0:
+                self.accepted += 1
+            else:
+                self.refused += 1
+            self.req = None
+        p = self.power(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
+        st = ax.Status
+        if st.Valid:
+            self.seen_valid = True
+            if st.NcCycleCounter == self.last_nc_cycle:
+                self.unchanged += 1
+                self.max_unchanged = max(self.max_unchanged, self.unchanged)
+            else:
+                self.unchanged = 0
+                self.last_nc_cycle = st.NcCycleCounter
+        elif self.seen_valid:
+            self.invalid += 1
+        if p.Error and not self._power_err:
+            key = f"power:0x{int(p.ErrorID):04X}"
+            self.errors[key] = self.errors.get(key, 0) + 1
+        self._power_err = bool(p.Error)
+        if not self.execute:
+            if self.busy:
+                self.move(Axis=ax, Execute=False)  # one cycle with Execute FALSE between two moves
+                self.busy = False
+                return
+            if stopping or not p.Status:
+                self.move(Axis=ax, Execute=False)
+                return
+            if self.cmdno0 is None:
+                self.cmdno0 = int(ax.NcJobs["NewestCmdNo"])
+            self.execute = True
+            self.k += 1
+            m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
+            if m._pending is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
+                self.sent += 1
+                self.req = m._pending
+        else:
+            m = self.move(Axis=ax, Execute=True)
+        if m.Done or m.Error or m.CommandAborted:
+            if m.Done:
+                self.done += 1
+            elif m.CommandAborted:
+                self.aborted += 1
+            else:
+                key = f"0x{int(m.ErrorID):04X}"
+                self.errors[key] = self.errors.get(key, 0) + 1
+            self.execute = False
+            self.busy = True
+
+    def report(self) -> dict:
+        cmdno = int(self.ax.NcJobs["NewestCmdNo"]) if self.ax.Status.Valid else None
+        return {"sent": self.sent, "accepted": self.accepted, "refused": self.refused, "pending": self.req is not None,
+                "done": self.done, "aborted": self.aborted, "errors": self.errors,
+                "cmdno0": self.cmdno0, "cmdno": cmdno, "invalid": self.invalid,
+                "max_unchanged": self.max_unchanged, "idle": not self.execute}
+
+
+class Program:
+    def __init__(self) -> None:
+        self.axes = [_Axis(a) for a in AXES]
+        self.next_report = 0.0
+        self.final = False
+        self.t0 = time.monotonic()
+
+    def cycle(self, plc) -> None:  # type: ignore[no-untyped-def]
+        stopping = os.path.exists(STOP) if plc.cycle % 10 == 0 or self.final else self._stopping
+        self._stopping = stopping
+        for a in self.axes:
+            a.cycle(stopping)
+        now = time.monotonic()
+        done = stopping and all(not a.execute and a.req is None for a in self.axes)
+        if (now >= self.next_report and not self.final) or (done and not self.final):
+            self.next_report = now + REPORT_PERIOD
+            self.final = done
+            rep = {"final": done, "cycle": plc.cycle, "overruns": getattr(plc, "overruns", 0),
+                   "axes": {str(a.ax.axis_id): a.report() for a in self.axes}}
+            tmp = REPORT + ".tmp"
+            with open(tmp, "w") as f:
+                json.dump(rep, f)
+            os.replace(tmp, REPORT)
+
+    _stopping = False
