@@ -132,16 +132,22 @@ class _ReadParam(FunctionBlock):
 
     _BOOL: ClassVar[bool] = False
     _INPUTS: ClassVar[dict[str, Any]] = {"Enable": False, "ParameterNumber": 0, "ReadMode": E_ReadMode.ReadMode_Once}
-    _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Error": False, "ErrorID": 0}
+    _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Error": False, "ErrorID": 0, "Value": 0.0}
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
-        self.Value: Any = False if self._BOOL else 0.0
         self._prev = False
         self._pending: PendingCommand | None = None
         self._number = 0
         self._mode = int(E_ReadMode.ReadMode_Once)
         self._finished = False  # ReadMode_Once: the one read has a result
+
+    def _reset_outputs(self) -> None:
+        """Done, Error and ErrorID; Value keeps the last value read."""
+        keep = self.__dict__.get("Value")
+        super()._reset_outputs()
+        if keep is not None:
+            self.Value = keep
 
     def _cycle(self) -> None:
         en = bool(self.Enable)
@@ -233,6 +239,7 @@ class MC_ReadBoolParameter(_ReadParam):
     Error, ErrorID, Value (BOOL)."""
 
     _BOOL = True
+    _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Error": False, "ErrorID": 0, "Value": False}
 
 
 class _WriteParam(FunctionBlock):
