@@ -20,6 +20,11 @@ from .messages import (
     CLASSES, COMMAND_CLASS, COMMANDS, FRAME_PERIODS_MS, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES, Keys, check_client_id,
     frame_period_ms, make_reply, make_request, pack, parse_request, unpack,
 )
+from .params import (
+    PARAMETERS, ST_AXIS_COMPONENTS, ST_AXIS_PARAMETER_SET, E_DestallDetectMode, E_DestallMode, E_NcAxisType,
+    E_NcDriveType, E_NcEncoderType, E_ReadMode, ParamEntry, decode_ads, decode_axis_components, decode_parameter_set,
+    encode_ads, encode_axis_components, encode_parameter_set, pack_value, unpack_value,
+)
 from .state import cmdno_newer, motion_state, motion_state_array, next_cmdno
 
 __all__ = [n for n in dir() if not n.startswith("_")]

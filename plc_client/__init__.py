@@ -60,3 +60,15 @@ __all__ += ["MC_GearIn", "MC_GearInFloat", "MC_GearInDyn", "MC_GearOut", "MC_Gea
             "MC_InputRef", "MC_TouchProbe", "MC_AbortTrigger",
             "E_DecoupleMode", "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe", "E_SignalEdge",
             "E_TouchProbeState"]
+
+# parameters, axis components, override filter, stepper power
+from .fb import (  # noqa: E402
+    E_DestallDetectMode, E_DestallMode, E_ReadMode, MC_OverrideFilter, MC_PowerStepper, MC_ReadAxisComponents,
+    MC_ReadBoolParameter, MC_ReadParameter, MC_ReadParameterSet, MC_WriteBoolParameter, MC_WriteParameter,
+    ST_AxisComponents, ST_AxisParameterSet, ST_PowerStepperStruct,
+)
+
+__all__ += ["MC_ReadParameter", "MC_ReadBoolParameter", "MC_WriteParameter", "MC_WriteBoolParameter",
+            "MC_ReadParameterSet", "MC_ReadAxisComponents", "MC_OverrideFilter", "MC_PowerStepper",
+            "ST_AxisParameterSet", "ST_AxisComponents", "ST_PowerStepperStruct", "E_ReadMode", "E_DestallMode",
+            "E_DestallDetectMode"]

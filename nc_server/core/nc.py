@@ -31,8 +31,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from nc_schema import (
-    NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, CmdState, ControlDWord, ErrorCodes, MC_AxisPara, NcError,
-    OpModeDWord, StateDWord, error_name, make_reply, next_cmdno,
+    NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, ST_AXIS_PARAMETER_SET, CmdState, ControlDWord, E_NcDriveType,
+    E_NcEncoderType, ErrorCodes, NcError, OpModeDWord, StateDWord, error_name, make_reply, next_cmdno,
 )
 
 from ..drives.base import DriveABC
@@ -42,7 +42,7 @@ from .jobs import KINDS, Job, JobQueue
 from .jobs.base import ABORTING, BLENDING, ENDED_KEPT
 from .jobs.stop import FAULT_RAMP, HALT_RAMP, STOP
 from .monitoring import monitor
-from .params import STATUS_PARAMS, AxisConfig, AxisParams, ConfigError, param_name
+from .params import AxisConfig, AxisParams, ConfigError, param_entry
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
 from .profile import evaluate, peak_velocity, stopping_distance, velocity_extrema
 from .jobs.external import ext_disable
@@ -74,14 +74,14 @@ _OPERATIONAL = np.uint32(int(StateDWord.Operational))
 _NCJOBS_RECORD = struct.Struct("<IHHHHHH" + "HHI" * ENDED_KEPT)
 #: its slots part: MasterId, SyncFlags, GearRatio, SuperCmdNo, SuperState, SuperErrorId, SuperDistance,
 #: SuperVelocityDiff, SuperLength, ProbeCmdNo, ProbeState, ProbeCounter, RecordedPosition, RecordedTimeNs,
-#: ProbeErrorId, Reserved
+#: ProbeErrorId, DriveStatus
 _NCJOBS_SLOTS = struct.Struct("<IIdHHIdddHHIdQII")
 _NCJOBS_SIZE = NCJOBS_DTYPE.itemsize
 assert _NCJOBS_RECORD.size + _NCJOBS_SLOTS.size == _NCJOBS_SIZE and NCJOBS_DTYPE.names == (
     "AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo", "Flags", "Ended",
     "MasterId", "SyncFlags", "GearRatio", "SuperCmdNo", "SuperState", "SuperErrorId", "SuperDistance",
     "SuperVelocityDiff", "SuperLength", "ProbeCmdNo", "ProbeState", "ProbeCounter", "RecordedPosition",
-    "RecordedTimeNs", "ProbeErrorId", "Reserved")
+    "RecordedTimeNs", "ProbeErrorId", "DriveStatus")
 _SYNC_EXT_ENABLED, _SYNC_EXT_FOLLOWING, _SYNC_DYN, _SYNC_SYNCHRON = 1, 2, 4, 8
 _PROTECTED = np.uint32(int(StateDWord.Protected))
 _PTP = np.uint32(int(StateDWord.PTPmode))
@@ -138,6 +138,7 @@ class NcCore:
         self.ncjobs = np.zeros(n, dtype=NCJOBS_DTYPE)
         self.ncjobs["AxisId"] = self.axis_ids
         self._jobs_bytes = memoryview(self.ncjobs.view(np.uint8))  # _sync writes packed records into it
+        self._drive_status = self.ncjobs["DriveStatus"]  # (a view: a simulated stepper terminal's status)
         self._axis_id_list = [int(x) for x in ids]
         self._not_moving = np.array([_NOT_MOVING, 0], dtype=np.uint32)  # by |set velocity| > eps
         self._loop_ok = np.array([_LOOP | _OPERATIONAL, _LOOP], dtype=np.uint32)  # by error
@@ -286,38 +287,135 @@ class NcCore:
                           "ModuloFactor": c.params.AxisEncoderModuloValue} for c in self.configs]}
 
     def read_parameter(self, i: int, number: int) -> float | bool:
-        """Value of MC_AxisPara ``number`` for axis row ``i``.
+        """Value of MC_AxisPara ``number`` for axis row ``i`` (the parameter table ``nc_schema.PARAMETERS``):
+        a bool for BOOL parameters, else a float.
 
         Raises:
-            NcError: 0x703 unknown parameter number.
+            NcError: 0x703 a number TcMC does not define.
         """
-        if number in STATUS_PARAMS:
-            return self._status_param(i, number)
-        return getattr(self.params[i], param_name(number))
+        e = param_entry(number)
+        if e.source == "status":
+            return self._status_param(i, e.status or "")
+        if e.source == "fixed":
+            return bool(e.fixed) if e.is_bool else float(e.fixed)
+        v = getattr(self.params[i], e.store or "")
+        return bool(v) if e.is_bool else float(v)
 
     def write_parameter(self, i: int, number: int, value: float | bool) -> None:
-        """Write MC_AxisPara ``number``; validated, a rejected value changes nothing.
+        """Write MC_AxisPara ``number`` (validated; a rejected value changes nothing). It takes effect at once:
+        commands run between two cycles, so the next cycle is the first one with the new value.
 
         Raises:
-            NcError: 0x704 read-only, 0x703 unknown, 0x70B invalid value.
+            NcError: 0x703 unknown number, 0x704 read-only (status), 0x4251 another value than the fixed
+                one of a parameter without meaning here, 0x70B invalid value (type or range), 0x4220 a
+                parameter written only at standstill while the axis moves, 0x4B42 one written only while
+                disabled while the controller is enabled, 0x4221/0x422F/0x4222 a value that would
+                break the running motion (see :meth:`_check_running`).
         """
-        if number in STATUS_PARAMS:
-            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDACCESS, f"parameter {number} is read-only")
-        name = param_name(number)
-        if AxisParams.kind(name) == "bool" and not isinstance(value, bool):
+        e = param_entry(number)
+        if e.source == "status":
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDACCESS, f"parameter {number} ({e.name}) is read-only")
+        if e.is_bool and not isinstance(value, bool):
             if value not in (0.0, 1.0):
-                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{name} is boolean: 0/1 or true/false, got {value}")
+                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{e.name} is boolean: 0/1 or true/false, got {value}")
             value = bool(value)
+        if e.source == "fixed":
+            same = (bool(value) == bool(e.fixed)) if e.is_bool else (
+                not isinstance(value, bool) and float(value) == float(e.fixed))
+            if not same:
+                raise NcError(ErrorCodes.NC_FUNCTION_NOT_SUPPORTED,
+                              f"{e.name} has no meaning for this NC: its value is fixed at {e.fixed!r}")
+            return
+        name = e.store or ""
+        if not e.is_bool and isinstance(value, bool):
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{e.name} is a number, got {value!r}")
+        if e.when == "standstill" and self._moves(i):
+            raise NcError(ErrorCodes.NC_GROUP_NOT_READY, f"{e.name} can only be written at standstill")
+        if e.when == "disabled" and self.axes.enabled[i]:
+            raise NcError(ErrorCodes.MC_AXIS_IS_ENABLED, f"{e.name} can only be written while the controller is disabled")
         try:
             new = self.params[i].with_value(name, value)
         except ConfigError as exc:
             raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, str(exc)) from None
+        if self._moves(i):
+            self._check_running(i, new)
         self.params[i] = new
         self.configs[i].params = new
         self.axes.load_params(i, new)
         self.drive.configure(i, new)
         self.coupling.invalidate()  # (its copies of the limits)
         self._state_dirty = True
+
+    def _moves(self, i: int) -> bool:
+        """Whether axis row ``i`` moves or is driven: a job, a plan, a set velocity, a coupling, a
+        superposition or the external set-point generator."""
+        a = self.axes
+        return bool(a.has_job[i] or a.traj_on[i] or abs(a.set_velo[i]) > _EPS_V or self.queues[i].active is not None
+                    or self.coupling.master[i] >= 0 or self.superposition.on[i] or self.external.on[i])
+
+    def _check_running(self, i: int, new: AxisParams) -> None:
+        """Refuse parameters that the motion running now would violate (the write would break it):
+
+        * AxisVeloMax below the running command's velocity or the set velocity: 0x4221;
+        * AxisAcc and AxisDec both below the set acceleration (coupled slaves, superpositions and the
+          external generator are checked against them every cycle): 0x422F;
+        * a software limit (enabled) that the running command's target or the set position lies beyond:
+          0x4222.
+
+        Raises:
+            NcError: as above.
+        """
+        a, p = self.axes, self.params[i]
+        job = self.queues[i].active
+        v = abs(float(a.set_velo[i]))
+        if job is not None and job.dyn is not None and job.numbered:
+            v = max(v, abs(job.dyn.velocity))
+        if new.AxisVeloMax < p.AxisVeloMax and new.AxisVeloMax < v * (1 - 1e-12):
+            raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,
+                          f"AxisVeloMax {new.AxisVeloMax:g} is below the velocity of the running motion ({v:g})")
+        acc = abs(float(a.set_acc[i]))
+        if max(new.AxisAcc, new.AxisDec) < max(p.AxisAcc, p.AxisDec) and max(new.AxisAcc, new.AxisDec) < acc:
+            raise NcError(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED,
+                          f"AxisAcc/AxisDec {max(new.AxisAcc, new.AxisDec):g} below the set acceleration {acc:g}")
+        points = [("the set position", float(a.set_pos[i]))]
+        if job is not None and job.numbered and job.target is not None:
+            points.append(("the target of the running command", float(job.target)))
+        for what, x in points:
+            if new.AxisEnMaxSoftPosLimit and x > new.AxisMaxSoftPosLimit and not (
+                    p.AxisEnMaxSoftPosLimit and x > p.AxisMaxSoftPosLimit):
+                raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED,
+                              f"{what} {x:g} lies beyond the new maximum software limit {new.AxisMaxSoftPosLimit:g}")
+            if new.AxisEnMinSoftPosLimit and x < new.AxisMinSoftPosLimit and not (
+                    p.AxisEnMinSoftPosLimit and x < p.AxisMinSoftPosLimit):
+                raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED,
+                              f"{what} {x:g} lies below the new minimum software limit {new.AxisMinSoftPosLimit:g}")
+
+    def parameter_set(self, i: int) -> dict[str, Any]:
+        """ST_AxisParameterSet of axis row ``i`` as a map of its members (MC_ReadParameterSet; the table's
+        ``structs.ST_AxisParameterSet`` says where each value comes from)."""
+        c, p = self.configs[i], self.params[i]
+        stepper = bool(p.SimStepper) and self.drive.simulated
+        enc = E_NcEncoderType.NcEncoderType_KL2531_Stepper if stepper else E_NcEncoderType.NcEncoderType_Simulation
+        drv = E_NcDriveType.NcDriveType_KL2531_Stepper if stepper else E_NcDriveType.NcDriveType_undefined
+        core = {"AxisId": c.AxisId, "Name": c.Name, "CycleTime": self.cycle_time, "EncoderId": c.AxisId,
+                "ControllerId": c.AxisId, "DriveId": c.AxisId, "EncoderType": int(enc), "DriveType": int(drv),
+                "Kv": (1.0 / p.SimTimeConstant) if p.SimTimeConstant > 0 else 0.0}
+        out: dict[str, Any] = {}
+        for f in ST_AXIS_PARAMETER_SET.fields:
+            src, _, arg = f.value.partition(":")
+            if src == "param":
+                v: Any = getattr(p, arg)
+            elif src == "core":
+                v = core[arg]
+            else:
+                v = arg
+            if f.type == "LREAL":
+                out[f.name] = float(v)
+            elif f.type.startswith("STRING") or f.type == "T_AmsNetId":
+                out[f.name] = str(v)
+            else:
+                out[f.name] = int(float(v)) if not isinstance(v, bool) else int(v)
+        return out
 
     # -- helpers for the job kinds -----------------------------------------------------------
     def start_state(self, i: int, total: bool = False) -> StartState:
@@ -725,7 +823,8 @@ class NcCore:
         self._jobs_bytes[o:o + _NCJOBS_SLOTS.size] = _NCJOBS_SLOTS.pack(
             self._axis_id_list[m] if m >= 0 else 0, flags, float(c.ratio[i]) if m >= 0 else 0.0,
             int(sp.cmd_no[i]), int(sp.state[i]), int(sp.error[i]), *(float(x) for x in sp.actual[:, i]),
-            int(pr.cmd_no[i]), int(pr.state[i]), int(pr.counter[i]), float(pr.recorded[i]), int(pr.recorded_ns[i]), int(pr.error[i]), 0)
+            int(pr.cmd_no[i]), int(pr.state[i]), int(pr.counter[i]), float(pr.recorded[i]), int(pr.recorded_ns[i]), int(pr.error[i]),
+            int(self._drive_status[i]))
         self._state_dirty = True
 
     def finish(self, i: int, job: Job, state: CmdState = CmdState.DONE, error_id: int = 0) -> None:
@@ -850,6 +949,9 @@ class NcCore:
             self.drive.step(a.enabled, a.set_pos, a.set_velo, a.set_acc)
             self.act_pos = self.drive.act_pos
         del prev
+        ds = self.drive.terminal_status()
+        if ds is not None:
+            self._drive_status[:] = ds
         if self.probe.active:
             self.probe.run(self)
             self._flush_slots()
@@ -1105,23 +1207,26 @@ class NcCore:
         out["TargetPos"] = a.target_pos
         out["HomingState"] = a.homing_state
 
-    def _status_param(self, i: int, number: int) -> float:
+    def _status_param(self, i: int, what: str) -> float:
+        """A read-only parameter from the live axis state (the table entry's ``status``)."""
         a, r = self.axes, self.nctoplc[i]
-        P = MC_AxisPara
-        names = {int(P.CommandedPosition): "SetPos", int(P.ActualVelocity): "ActVelo", int(P.CommandedVelocity): "SetVelo"}
-        if number in names:
-            return float(r[names[number]])
-        if number == int(P.AxisId):
+        if what in ("SetPos", "ActVelo", "SetVelo"):
+            return float(r[what])
+        if what == "AxisId":
             return float(a.ids[i])
-        if number == int(P.AxisTargetPosition):
+        if what == "TargetPos":
             return float(a.target_pos[i])
+        if what == "RefVelo":
+            return float(self.params[i].AxisVeloMax)
+        if what == "UnitInterpretation":
+            return float(4 if self.params[i].Modulo else 0)  # bit 2 = modulo
         job = self.queues[i].active
         positioning = job is not None and job.numbered and job.target is not None and bool(a.traj_on[i])
-        if number == int(P.AxisRemainingTimeToGo):
+        if what == "RemainingTime":
             return float(max(a.traj_dur[i] - a.traj_t[i], 0.0)) if positioning else 0.0
-        if number == int(P.AxisRemainingDistanceToGo):
+        if what == "RemainingDistance":
             return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr,operator]
-        return float(4 if self.params[i].Modulo else 0)  # AxisUnitInterpretation: bit 2 = modulo
+        raise AssertionError(f"params.json: unknown status {what!r}")  # a contract bug, not input
 
     def _fill_nctoplc(self) -> None:
         a, d, o = self.axes, self.drive, self._out
@@ -1338,7 +1443,69 @@ def _cmd_set_reference_flag(core: NcCore, i: int, req: dict[str, Any]) -> dict[s
     return {}
 
 
+def _cmd_read_parameter_set(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """MC_ReadParameterSet: the whole ST_AxisParameterSet as a map of its members."""
+    return {"value": core.parameter_set(i)}
+
+
+def _cmd_read_axis_components(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """MC_ReadAxisComponents: ST_AxisComponents (one encoder, controller and drive per axis, with its id)."""
+    ident = int(core.axis_ids[i])
+    ids = [ident] + [0] * 8
+    return {"value": {"EncoderIDs": ids, "ControllerIDs": list(ids), "DriveIDs": list(ids)}}
+
+
+def _cmd_set_external_error(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """Set an external axis error (TwinCAT ADS axis function 0x19; MC_PowerStepper): the axis stops with
+    its deceleration as for any axis error (the first error sticks); Unreference also clears Homed.
+
+    Raises:
+        NcError: 0x4B06 ErrorCode not in 1..0x7FFFFFFF.
+    """
+    code = int(req["ErrorCode"])
+    if code <= 0:
+        raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"ErrorCode must be > 0, got {code}")
+    _log.warning("axis %d: external error 0x%X%s set by %s", int(core.axis_ids[i]), code,
+                 " (axis unreferenced)" if req.get("Unreference") else "", req.get("client") or "an anonymous client")
+    core.fault(i, code)
+    if req.get("Unreference"):
+        core.axes.homed[i] = False
+    core._state_dirty = True
+    return {}
+
+
+def _cmd_sim_stall(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """SimStall: a simulated stepper (SimStepper) stalls / stops stalling (see SimDrive.set_stall).
+
+    Raises:
+        NcError: 0x4251 not a simulated stepper axis.
+    """
+    try:
+        core.drive.set_stall(i, bool(req["Stall"]))
+    except (NotImplementedError, AttributeError) as exc:
+        raise NcError(ErrorCodes.NC_FUNCTION_NOT_SUPPORTED, str(exc) or "the drive cannot stall on demand") from None
+    return {}
+
+
+def _cmd_sim_terminal_error(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """SimTerminalError: the error bits of a simulated stepper terminal's status word (KL_Status2).
+
+    Raises:
+        NcError: 0x4251 not a simulated stepper axis; 0x4B06 StatusWord outside 0..65535.
+    """
+    word = int(req["StatusWord"])
+    if not 0 <= word <= 0xFFFF:
+        raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"StatusWord must be in 0..65535, got {word}")
+    try:
+        core.drive.set_terminal_error(i, word)
+    except (NotImplementedError, AttributeError) as exc:
+        raise NcError(ErrorCodes.NC_FUNCTION_NOT_SUPPORTED, str(exc) or "the drive has no simulated terminal") from None
+    return {}
+
+
 _ADMIN = {
+    "ReadParameterSet": _cmd_read_parameter_set, "ReadAxisComponents": _cmd_read_axis_components,
+    "SetExternalError": _cmd_set_external_error, "SimStall": _cmd_sim_stall, "SimTerminalError": _cmd_sim_terminal_error,
     "Reset": _cmd_reset, "StopRelease": _cmd_stop_release, "SetOverride": _cmd_set_override,
     "ReadParameter": _cmd_read_parameter, "WriteParameter": _cmd_write_parameter,
     "SetActualPosition": _cmd_set_actual_position, "SetActualPositionOnTheFly": _cmd_set_actual_position_otf,

@@ -2,6 +2,11 @@
 
 Units are the axis's own (e.g. mm or degrees): velocities in units/s, accelerations
 in units/s^2, jerk in units/s^3, times in seconds.
+
+Which MC_AxisPara number reads/writes which field, the valid ranges and when a write is allowed come
+from the parameter table ``schema/params.json`` (``nc_schema.PARAMETERS``): a field that a table entry
+stores is validated by that entry's range (the configuration and WriteParameter alike); the other fields
+(Sim*, Modulo, Homed, ...) by their kind here.
 """
 from __future__ import annotations
 
@@ -9,7 +14,7 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping
 
-from nc_schema import ErrorCodes, MC_AxisPara, NcError
+from nc_schema import PARAMETERS, ErrorCodes, NcError, ParamEntry
 
 
 class ConfigError(ValueError):
@@ -89,6 +94,10 @@ class AxisParams:
     SimProbeWidth: float = _p(
         0.0, "nonneg", "simulated touch probe sensor: length of each TRUE window (0: never TRUE, >= SimProbePeriod: "
         "always TRUE) [u]")
+    SimStepper: bool = _p(
+        False, "bool", "simulated drive: a stepper motor on a KL2531/KL2541 terminal (MC_PowerStepper): it can be made "
+        "to stall (command SimStall) and reports the terminal's status byte/word (NCJOBS DriveStatus); "
+        "MC_ReadAxisComponents/MC_ReadParameterSet report the KL2531 encoder and drive types")
     Homed: bool = _p(False, "bool", "axis starts referenced (StateDWord.Homed)")
     AxisEnDataPersistence: bool = _p(
         False, "bool", "TwinCAT 'Data persistence' (MC_AxisPara 1037): with [nc] retain_file the NC keeps the "
@@ -99,11 +108,7 @@ class AxisParams:
             setattr(self, f.name, _check(f.name, f.metadata["kind"], getattr(self, f.name), f.name))
         if self.AxisEnMinSoftPosLimit and self.AxisEnMaxSoftPosLimit and self.AxisMinSoftPosLimit >= self.AxisMaxSoftPosLimit:
             raise ConfigError("AxisMinSoftPosLimit", "must be below AxisMaxSoftPosLimit")
-        # the dynamics the planner can handle (the same ranges commands are checked against)
-        for name, hi in (("AxisAcc", 1e10), ("AxisDec", 1e10), ("AxisJerk", 1e12), ("AxisVeloMax", 1e9)):
-            v = getattr(self, name)
-            if not 1e-6 <= v <= hi:
-                raise ConfigError(name, f"must be in 1e-06..{hi:g}, got {v:g}")
+        # (the dynamics the planner can handle: the table's ranges of AxisVeloMax/AxisAcc/AxisDec/AxisJerk)
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "axis") -> AxisParams:
@@ -152,59 +157,63 @@ def _check(name: str, kind: str, value: Any, key: str) -> Any:
         raise ConfigError(key, f"must be > 0, got {value}")
     if kind == "nonneg" and value < 0:
         raise ConfigError(key, f"must be >= 0, got {value}")
+    entry = _RANGES.get(name)
+    if entry is not None and not entry.in_range(value):
+        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}")
     return value
 
 
 _KINDS: dict[str, str] = {f.name: f.metadata["kind"] for f in fields(AxisParams)}
 
-#: TwinCAT names that mean the same stored parameter.
+#: TwinCAT names that mean the same stored parameter (config keys; the table maps the numbers).
 ALIASES: dict[str, str] = {
     "AxisMaxVelocity": "AxisVeloMax",
     "AxisManualVelocityFast": "AxisVeloManFast",
     "AxisManualVelocitySlow": "AxisVeloManSlow",
 }
 
-#: PLCopen parameter numbers mapped onto the Beckhoff parameter they read/write.
-PLCOPEN_MAP: dict[int, str] = {
-    int(MC_AxisPara.SWLimitPos): "AxisMaxSoftPosLimit",
-    int(MC_AxisPara.SWLimitNeg): "AxisMinSoftPosLimit",
-    int(MC_AxisPara.EnableLimitPos): "AxisEnMaxSoftPosLimit",
-    int(MC_AxisPara.EnableLimitNeg): "AxisEnMinSoftPosLimit",
-    int(MC_AxisPara.EnablePosLagMonitoring): "AxisEnPositionLagMonitoring",
-    int(MC_AxisPara.MaxPositionLag): "AxisMaxPosLagValue",
-    int(MC_AxisPara.MaxVelocitySystem): "AxisVeloMax",
-    int(MC_AxisPara.MaxVelocityAppl): "AxisVeloMax",
-    int(MC_AxisPara.MaxAccelerationSystem): "AxisAcc",
-    int(MC_AxisPara.MaxAccelerationAppl): "AxisAcc",
-    int(MC_AxisPara.MaxDecelerationSystem): "AxisDec",
-    int(MC_AxisPara.MaxDecelerationAppl): "AxisDec",
-    int(MC_AxisPara.MaxJerk): "AxisJerk",
-}
+#: AxisParams field -> the table entry whose range validates it (all entries of one field share the range)
+_RANGES: dict[str, ParamEntry] = {}
+for _e in PARAMETERS:
+    if _e.source == "param" and _e.store is not None and (_e.min is not None or _e.max is not None):
+        _RANGES.setdefault(_e.store, _e)
 
 #: Read-only status parameters, answered from the live axis state by NcCore.
-STATUS_PARAMS = frozenset({
-    int(MC_AxisPara.CommandedPosition), int(MC_AxisPara.ActualVelocity), int(MC_AxisPara.CommandedVelocity),
-    int(MC_AxisPara.AxisId), int(MC_AxisPara.AxisTargetPosition), int(MC_AxisPara.AxisRemainingTimeToGo),
-    int(MC_AxisPara.AxisRemainingDistanceToGo), int(MC_AxisPara.AxisUnitInterpretation),
-})
+STATUS_PARAMS = frozenset(e.number for e in PARAMETERS if e.source == "status")
+
+
+def param_entry(number: int) -> ParamEntry:
+    """The table entry of MC_AxisPara ``number``.
+
+    Raises:
+        NcError: 0x703 (ADS "invalid index offset") for a number TcMC does not define.
+    """
+    e = PARAMETERS.by_number(number)
+    if e is None:
+        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET, f"no MC_AxisPara number {number}")
+    return e
 
 
 def param_name(number: int) -> str:
-    """The stored parameter a MC_AxisPara number reads/writes.
+    """The stored parameter (AxisParams field) a MC_AxisPara number reads/writes.
 
     Raises:
-        NcError: 0x703 for a number that is not a stored parameter.
+        NcError: 0x703 for a number that is not a stored parameter (unknown, status or fixed).
     """
-    if number in PLCOPEN_MAP:
-        return PLCOPEN_MAP[number]
-    try:
-        name = MC_AxisPara(number).name
-    except ValueError:
-        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET, f"no MC_AxisPara number {number}") from None
-    name = ALIASES.get(name, name)
-    if name not in _KINDS:
-        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET, f"parameter {number} ({name}) is not supported")
-    return name
+    e = param_entry(number)
+    if e.store is None:
+        raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET, f"parameter {number} ({e.name}) is not a stored parameter")
+    return e.store
+
+
+def param_number(name: str) -> int | None:
+    """The MC_AxisPara number that writes AxisParams field (or MC_AxisPara name) ``name``: the entry of that
+    name, else the Beckhoff entry (the highest number) storing it; None if no writable entry stores it."""
+    e = PARAMETERS.by_name(name)
+    if e is not None and e.writable:
+        return e.number
+    cands = [x for x in PARAMETERS.stores().get(ALIASES.get(name, name), []) if x.writable]
+    return max(cands, key=lambda x: x.number).number if cands else None
 
 
 @dataclass

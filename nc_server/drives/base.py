@@ -112,5 +112,29 @@ class DriveABC(ABC):
         """
         raise NotImplementedError(f"{type(self).__name__} has no simulated probe input")
 
+    # -- stepper terminal (MC_PowerStepper, TcMC 4.23): simulated drives only -------------------------------------
+
+    def terminal_status(self) -> np.ndarray | None:
+        """The status of each axis's stepper terminal (KL2531/KL2541) as NCJOBS_AXIS_REF.DriveStatus shows it:
+        bits 0-7 the status byte, 8-23 the status word, 31 set where there is one (schema/params.json
+        ``stepper_terminal``); None: no axis has one (default)."""
+        return None
+
+    def set_stall(self, index: int, stall: bool) -> None:
+        """A simulated stepper stalls (or stops stalling) now.
+
+        Raises:
+            NotImplementedError: not a simulated stepper (default; the NC answers 0x4251).
+        """
+        raise NotImplementedError(f"{type(self).__name__} cannot stall on demand")
+
+    def set_terminal_error(self, index: int, status_word: int) -> None:
+        """The error bits of a simulated stepper terminal's status word.
+
+        Raises:
+            NotImplementedError: not a simulated stepper (default; the NC answers 0x4251).
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no simulated stepper terminal")
+
     def close(self) -> None:
         """Release the hardware (no-op for simulations)."""

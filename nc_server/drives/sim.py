@@ -11,6 +11,15 @@ the drive position (SimProbePeriod > 0: TRUE while ((position - SimProbeOffset) 
 :meth:`SimDrive.set_probe_signal` at a given instant of the next cycle. Within a cycle the drive is
 taken as moving linearly from the previous to the new actual position, so the latch reports the
 exact pattern edge (or the interpolated position at a commanded instant), as a hardware latch would.
+
+Stepper axes (``SimStepper``, for MC_PowerStepper): the motor sits on a simulated KL2531/KL2541 terminal
+whose status byte and word the drive reports (:meth:`SimDrive.terminal_status`, NCJOBS DriveStatus). It
+can be made to stall on demand (:meth:`SimDrive.set_stall`, NC command SimStall): a stalled motor loses its
+field synchronism, so its actual position stays where it is (the encoder sees it stand; the set-point runs
+away: a growing following error) and the status byte shows LoadAngle 7, until the stall is lifted or the
+set velocity is 0 (at rest the motor latches in again and the position controller - the first-order lag -
+brings it to the set position). Terminal errors (status word bits, :meth:`SimDrive.set_terminal_error`)
+set the status byte's Error bit; Ready is the controller enable without an error, Idle a set velocity 0.
 """
 from __future__ import annotations
 
@@ -21,6 +30,13 @@ import numpy as np
 
 from ..core.params import AxisParams
 from .base import DriveABC
+
+
+_EPS_V = 1e-9
+#: the simulated terminal's status byte (schema/params.json stepper_terminal)
+_SB_READY, _SB_IDLE, _SB_ERROR = np.uint32(1), np.uint32(1 << 4), np.uint32(1 << 6)
+_LOAD_ANGLE_MAX = np.uint32(7)
+_PRESENT = np.uint32(1 << 31)
 
 
 class SimDrive(DriveABC):
@@ -41,6 +57,11 @@ class SimDrive(DriveABC):
         self._probe_pending: dict[int, list[tuple[float, bool]]] = {}
         #: the commanded edges of the cycle just stepped: axis -> [(fraction, new level)], in time order
         self._probe_edges: dict[int, list[tuple[float, bool]]] = {}
+        self._stepper = np.zeros(n, dtype=bool)  # SimStepper axes
+        self._stalled = np.zeros(n, dtype=bool)
+        self._status_word = np.zeros(n, dtype=np.uint32)  # the terminal's error bits (status word)
+        self._terminal = np.zeros(n, dtype=np.uint32)  # the DriveStatus of the last step
+        self._any_stepper = False
         for i, p in enumerate(params):
             self.configure(i, p)
 
@@ -58,6 +79,12 @@ class SimDrive(DriveABC):
             self._probe_pending.pop(index, None)
             self._probe_edges.pop(index, None)
         self._probe_rows = np.flatnonzero(self._probe_period > 0)
+        self._stepper[index] = bool(getattr(params, "SimStepper", False))
+        if not self._stepper[index]:
+            self._stalled[index] = False
+            self._status_word[index] = 0
+            self._terminal[index] = 0
+        self._any_stepper = bool(self._stepper.any())  # (a plain bool: the cycle checks it every step)
 
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         """Sync pulses at SimSyncPulseOffset + k * SimSyncPulseSpacing: the latch reports the exact
@@ -73,12 +100,58 @@ class SimDrive(DriveABC):
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         dt = self.cycle_time
         new_pos = self.act_pos + (self._alpha * enabled) * (set_pos - self.act_pos)  # disabled: hold
+        if self._any_stepper:
+            self._stalled &= np.abs(set_velo) > _EPS_V  # at rest the motor latches in again
+            if self._stalled.any():
+                new_pos = np.where(self._stalled, self.act_pos, new_pos)  # a stalled motor stands
+            self._terminal = self._status(enabled, set_velo)
         new_velo = (new_pos - self.act_pos) / dt
         self.act_acc = (new_velo - self.act_velo) / dt
         self.act_velo = new_velo
         self.act_pos = new_pos
         if self._probe_pending or self._probe_edges:  # no work at all without commanded probe signals
             self._probe_edges = self._apply_probe_signals()
+
+    # -- stepper terminal ----------------------------------------------------------------------------------
+
+    def _status(self, enabled: np.ndarray, set_velo: np.ndarray) -> np.ndarray:
+        err = self._status_word != 0
+        sb = ((np.asarray(enabled, dtype=bool) & ~err).astype(np.uint32) * _SB_READY
+              | self._stalled.astype(np.uint32) * (_LOAD_ANGLE_MAX << 1)
+              | (np.abs(set_velo) <= _EPS_V).astype(np.uint32) * _SB_IDLE
+              | err.astype(np.uint32) * _SB_ERROR)
+        return np.where(self._stepper, sb | (self._status_word << 8) | _PRESENT, 0).astype(np.uint32)
+
+    def terminal_status(self) -> np.ndarray | None:
+        """NCJOBS DriveStatus of every axis (see the module docstring); None without SimStepper axes."""
+        return self._terminal if self._any_stepper else None
+
+    def set_stall(self, index: int, stall: bool) -> None:
+        """Stall the stepper of axis ``index`` now (``stall`` False: it follows again at once).
+
+        Raises:
+            IndexError: no axis ``index``.
+            NotImplementedError: the axis is not a SimStepper (the NC answers 0x4251).
+        """
+        self._check_stepper(index)
+        self._stalled[index] = bool(stall)
+
+    def set_terminal_error(self, index: int, status_word: int) -> None:
+        """The error bits of axis ``index``'s terminal status word (0 clears them).
+
+        Raises:
+            IndexError, NotImplementedError: as :meth:`set_stall`; ValueError: outside 0..65535.
+        """
+        self._check_stepper(index)
+        if not 0 <= int(status_word) <= 0xFFFF:
+            raise ValueError(f"status word must be in 0..65535, got {status_word}")
+        self._status_word[index] = int(status_word)
+
+    def _check_stepper(self, index: int) -> None:
+        if not 0 <= int(index) < len(self.act_pos):
+            raise IndexError(f"no axis index {index}")
+        if not self._stepper[index]:
+            raise NotImplementedError(f"axis index {index} is not a simulated stepper (SimStepper = false)")
 
     # -- touch probe ---------------------------------------------------------------------------------------
 

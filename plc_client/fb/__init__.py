@@ -47,3 +47,16 @@ __all__ += ["MC_GearIn", "MC_GearInFloat", "MC_GearInDyn", "MC_GearOut", "MC_Gea
             "MC_InputRef", "MC_TouchProbe", "MC_AbortTrigger",
             "E_DecoupleMode", "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe", "E_SignalEdge",
             "E_TouchProbeState"]
+
+# parameters, axis components, override filter, stepper power (TcMC 4.6-4.11, 4.19, 4.23)
+from .override import MC_OverrideFilter  # noqa: E402
+from .params import (  # noqa: E402
+    E_ReadMode, MC_ReadAxisComponents, MC_ReadBoolParameter, MC_ReadParameter, MC_ReadParameterSet,
+    MC_WriteBoolParameter, MC_WriteParameter, ST_AxisComponents, ST_AxisParameterSet,
+)
+from .stepper import E_DestallDetectMode, E_DestallMode, MC_PowerStepper, ST_PowerStepperStruct  # noqa: E402
+
+__all__ += ["MC_ReadParameter", "MC_ReadBoolParameter", "MC_WriteParameter", "MC_WriteBoolParameter",
+            "MC_ReadParameterSet", "MC_ReadAxisComponents", "MC_OverrideFilter", "MC_PowerStepper",
+            "ST_AxisParameterSet", "ST_AxisComponents", "ST_PowerStepperStruct", "E_ReadMode", "E_DestallMode",
+            "E_DestallDetectMode"]

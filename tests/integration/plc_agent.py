@@ -14,7 +14,9 @@ stdin (one JSON object per line), applied at the start of the next PLC cycle:
   set before it (an Execute FALSE before a TRUE is a real falling edge);
 * ``{"op": "trace", "axis": 1, "nc": "nc1", "on": true}`` prints the axis's data every cycle
   (``{"c": n, "tr": <axis>, "a": {...}}``) until switched off;
-* ``{"op": "exit"}`` raises SystemExit in the program (the runtime shuts down cleanly, rc 1).
+* ``{"op": "exit"}`` raises SystemExit in the program (the runtime shuts down cleanly, rc 1);
+* ``{"op": "get", "name": "rps", "attr": "Parameter", "id": k}`` prints ``{"c": n, "get": k, "v": ...}``: the
+  block's attribute (a struct as the map of its members, e.g. MC_ReadParameterSet's ST_AxisParameterSet).
 
 stdout: ``{"c": <plc cycle>, "n": <name>, "o": {<outputs>}, "a": {<axis data>}}`` whenever a
 block's outputs or its axis's Valid/MotionState/Locked/ErrorId/Homed change (the record also
@@ -110,6 +112,11 @@ class Program:
                 break  # what comes after the sync: a later cycle
             elif op == "exit":
                 raise SystemExit("agent exit requested")
+            elif op == "get":
+                entry = self.blocks.get(msg["name"])
+                v = getattr(entry[0], msg["attr"], None) if entry else None
+                v = v.as_dict() if hasattr(v, "as_dict") else _plain(v)
+                print(json.dumps({"c": plc.cycle, "get": msg["id"], "v": v}), flush=True)
         for name, (fb, ax, inputs) in self.blocks.items():
             if isinstance(fb, plc_client.AXACT):
                 fb(**inputs)

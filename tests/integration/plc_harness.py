@@ -73,6 +73,7 @@ class PlcProcess:
         self.records: dict[str, list[Rec]] = {}
         self.samples: dict[int, list[Rec]] = {}
         self.synced: dict[int, int] = {}
+        self.got: dict[int, Any] = {}
         self._ids = itertools.count(1)
         self.cycle = 0
         self.lines: list[str] = []
@@ -99,6 +100,8 @@ class PlcProcess:
                     self.samples.setdefault(int(m["tr"]), []).append(Rec(m["c"], {}, m["a"]))
                 elif "sync" in m:
                     self.synced[int(m["sync"])] = int(m["c"])
+                elif "get" in m:
+                    self.got[int(m["get"])] = m["v"]
                 self._cv.notify_all()
         with self._cv:
             self._cv.notify_all()
@@ -136,6 +139,19 @@ class PlcProcess:
                                          f"{''.join(self.err_lines[-10:])}")
                 self._cv.wait(min(left, 0.1))
             return self.synced[k]
+
+    def get(self, name: str, attr: str, timeout: float = T) -> Any:
+        """Attribute ``attr`` of block ``name`` as the PLC has it now (a struct: the map of its members)."""
+        k = next(self._ids)
+        self._send({"op": "get", "name": name, "attr": attr, "id": k})
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while k not in self.got:
+                left = deadline - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None:
+                    raise AssertionError(f"{self.client_id}: no answer to get {name}.{attr} in {timeout} s")
+                self._cv.wait(min(left, 0.1))
+            return self.got.pop(k)
 
     def edge(self, name: str, input: str = "Execute", **inputs: Any) -> int:
         """A rising edge of ``input`` of block ``name``: FALSE for at least one PLC cycle, then TRUE

@@ -10,7 +10,7 @@ import nc_schema
 from nc_schema.codec import CONTRACT_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
-CONTRACT_FILES = ("structs.json", "bits.json", "enums.json", "errors.json", "protocol.json")
+CONTRACT_FILES = ("structs.json", "bits.json", "enums.json", "errors.json", "protocol.json", "params.json")
 
 
 def test_package_is_where_its_name_says():

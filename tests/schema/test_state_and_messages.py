@@ -95,7 +95,8 @@ def test_keys():
 def test_every_command_has_a_class():
     assert s.PROTOCOL["version"] == 2
     assert set(s.CLASSES) == {"read", "op", "eng"} == set(s.PROTOCOL["classes"]) - {"doc"}
-    assert {n for n, c in s.COMMANDS.items() if c["class"] == "read"} == {"Info", "ReadParameter"}
+    assert {n for n, c in s.COMMANDS.items() if c["class"] == "read"} == {
+        "Info", "ReadParameter", "ReadParameterSet", "ReadAxisComponents"}
     assert {n for n, c in s.COMMANDS.items() if c["class"] == "eng"} == {
         "WriteParameter", "SetActualPosition", "SetActualPositionOnTheFly", "SetReferenceFlag"}
     assert all(c["class"] in s.CLASSES for c in s.COMMANDS.values())
