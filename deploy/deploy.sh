@@ -49,10 +49,13 @@ prepare() {
             die "ZNC_TRANSPORT=tls needs deploy/certs/make-certs.sh"
         fi
     fi
-    # the containers run as uid $APP_UID: keys readable by its group only
-    if compgen -G "$BUILD/certs/*.key" >/dev/null; then
-        chgrp "$APP_UID" "$BUILD"/certs/*.key && chmod 0640 "$BUILD"/certs/*.key
-    fi
+    # the containers run as uid:gid $APP_UID: their keys readable by that group; the CA key stays root's
+    local key
+    for key in "$BUILD"/certs/*.key; do
+        [[ -e $key && $(basename "$key") != ca.key ]] || continue
+        chgrp "$APP_UID" "$key" && chmod 0640 "$key"
+    done
+    [[ ! -e $BUILD/certs/ca.key ]] || { chgrp root "$BUILD/certs/ca.key" && chmod 0600 "$BUILD/certs/ca.key"; }
 }
 
 wait_healthy() {

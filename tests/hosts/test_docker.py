@@ -63,8 +63,9 @@ class ComposeSystem:
                             "nc1", "nc2", "plc1", "plc2", "status"], check=True, capture_output=True, timeout=300)
             shutil.copy(ROOT / "deploy" / "roles.toml", workdir / "etc" / "roles.toml")
             for key in (workdir / "certs").glob("*.key"):
-                os.chown(key, -1, 10001)  # the image's user (deploy/images/Dockerfile)
-                key.chmod(0o640)
+                if key.name != "ca.key":  # the CA key stays unreadable to the containers
+                    os.chown(key, -1, 10001)  # the image's uid:gid (deploy/images/Dockerfile)
+                    key.chmod(0o640)
         self.env = dict(os.environ, ZNC_IMAGE=image, ZNC_ROUTER_PORT=str(self.port), ZNC_BUILD=str(workdir),
                         ZNC_TRANSPORT=self.transport, ZNC_RESTART="no", ZNC_REARM_S="0.5", ZNC_SHARE_S="6",
                         ZNC_WATCHDOG_S="2.0", ZNC_ROUTER_LEASE_MS="2000")  # lenient: a loaded 2-core machine (the cuts are seen by leases)
@@ -123,8 +124,15 @@ class ComposeSystem:
     def up(self) -> None:
         r = self.compose("up", "-d")
         assert r.returncode == 0, f"compose up failed:\n{r.stdout}\n{r.stderr}"
-        wait_for(lambda: all(self.health(s) == "healthy" for s in SERVICES), UP_TIMEOUT,
-                 "every service healthy (docker healthchecks)", interval=1.0)
+
+        def healthy() -> bool | str:
+            states = {s: self.health(s) for s in SERVICES}
+            return all(v == "healthy" for v in states.values()) or f"{states}"
+        try:
+            wait_for(healthy, UP_TIMEOUT, "every service healthy (docker healthchecks)", interval=1.0)
+        except AssertionError as exc:
+            logs = "\n".join(f"--- {s}\n{self.logs(s)[-1500:]}" for s in SERVICES)
+            raise AssertionError(f"{exc}\n{logs}") from None
 
     def down(self) -> None:
         if self.status is not None:
