@@ -47,10 +47,11 @@ CLAIMS_MIN_PERIOD = 0.05
 #: itself stalled [s]: nobody is blamed for PLCTONC that could not be processed meanwhile, nor for a
 #: liveliness token that vanished meanwhile and comes back (ClaimTable.grace).
 STALL_GRACE = 0.05
-#: After a stall at least this long [s], the commands queued across it are refused (0x4B0F), not
-#: executed late: their blocks have given up on stale data, or their session was dropped with the
-#: reply path (a move executed then would be followed by nobody). Covers a slice of STALE_QUERY_WINDOW
-#: after the stall, while zenoh still delivers what it read from the sockets.
+#: After a stall at least this long [s], the motion commands queued across it are refused (0x4B0F),
+#: not executed late: their blocks have given up on stale data, or their session was dropped with the
+#: reply path (a move executed then would be followed by nobody); stops and the rest run
+#: (RequestHandler.handle_after_stall). Covers STALE_QUERY_WINDOW after the stall, while zenoh still
+#: delivers what it read from the sockets.
 STALE_QUERY_STALL = 0.15
 STALE_QUERY_WINDOW = 0.05
 
@@ -311,7 +312,7 @@ class NcServer:
         """Every run of the cycle thread starts here (cycle and idle): notice the NC's own stalls.
 
         A gap over STALL_GRACE: nobody is blamed (ClaimTable.grace); over STALE_QUERY_STALL: the
-        queries queued across it are refused; over the watchdog timeout: the moving axes stop with
+        motion commands queued across it are refused; over the watchdog timeout: the moving axes stop with
         0x8F03 (their motion ran unsupervised). Must run before liveliness events and PLCTONC are taken.
         """
         prev, self._prev_tick = self._prev_tick, now
@@ -336,10 +337,11 @@ class NcServer:
             if q is None:
                 break
             p = q.payload
-            if now < self._refuse_until:
-                replies.append((q, self.handler.refused_after_stall(p.to_bytes() if p is not None else b"")))
-            elif p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
+            if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
                 replies.append((q, self.handler.too_large(len(p))))
+            elif now < self._refuse_until:
+                replies.append((q, self.handler.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"",
+                                                                   now)))
             else:
                 replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
             if time.monotonic_ns() > budget_end:

@@ -29,9 +29,13 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from nc_schema import CLASSES, COMMAND_CLASS, COMMANDS, ROLE_CLASSES, ErrorCodes, Keys, NcError, make_reply, pack, parse_request
+from nc_schema import (CLASSES, COMMAND_CLASS, COMMANDS, MOTION_COMMANDS, ROLE_CLASSES, ErrorCodes, Keys, NcError,
+                       make_reply, pack, parse_request)
 
 from .claims import ZNC_CLIENT_LOST, ClaimTable, Loss
+
+#: commands refused when they were queued across a long NC stall (stops are still executed)
+REFUSED_AFTER_STALL = (MOTION_COMMANDS | {"NewPos", "NewPosAndVelo", "ChangeDynParam"}) - {"Stop", "Halt"}
 
 #: ``ClientLossReaction`` of an axis (config key in the [[axis]] table); the first is the default.
 LOSS_REACTIONS = ("stop_disable", "stop", "keep_others")
@@ -222,19 +226,21 @@ class RequestHandler:
         """The reply to a request of ``size`` bytes over MAX_REQUEST_BYTES (0x706)."""
         return self._error(None, None, NcError(INVALID_DATA, f"request of {size} bytes exceeds {MAX_REQUEST_BYTES}"))
 
-    def refused_after_stall(self, payload: bytes) -> bytes:
-        """The reply to a request queued across a long NC stall: refused with 0x4B0F, not executed
-        (not cached: a retry with the same id is executed normally)."""
-        rid = cmd = None
+    def handle_after_stall(self, key: str, payload: bytes, now: float) -> bytes:
+        """:meth:`handle` for a request taken right after a long stall of the NC: a command that
+        would start or change a motion (:data:`REFUSED_AFTER_STALL`) is refused with 0x4B0F and not
+        executed (it was queued across the stall: its block may have given up on stale data, or
+        its session was dropped with the reply path); anything else runs as usual. Not cached: a
+        retry with the same id is executed normally."""
         try:
             req = parse_request(payload[:MAX_REQUEST_BYTES])
-            rid, cmd = req["id"], req["cmd"]
-        except NcError as err:
-            rid, cmd = getattr(err, "request_id", None), getattr(err, "cmd", None)
         except Exception:
-            pass
-        return self._error(rid, cmd, NcError(NO_NC_CYCLE, "the NC stalled: a command queued across the stall "
-                                                           "is refused, not executed late"))
+            return self.handle(key, payload, now)
+        if req["cmd"] not in REFUSED_AFTER_STALL:
+            return self.handle(key, payload, now)
+        self.requests += 1
+        return self._error(req["id"], req["cmd"], NcError(NO_NC_CYCLE, "the NC stalled: a motion command queued "
+                                                                       "across the stall is refused, not executed late"))
 
     def _handle(self, key: str, payload: bytes, now: float) -> bytes:
         if len(payload) > MAX_REQUEST_BYTES:
