@@ -6,6 +6,7 @@ explicit configuration - never zenoh's defaults:
 * ``mode: client``, ``connect/endpoints: [<the NC's endpoint>]``: a client is relayed by the
   NC's router and needs no listen socket of its own;
 * multicast and gossip scouting off: only the configured endpoint is ever contacted;
+* ``connect/retry``: a lost connection is retried every 100-250 ms (:data:`CONNECT_RETRY`);
 * ``transport/link/tx/lease: 500`` ms (``lease_ms``, :data:`DEFAULT_LEASE_MS`): the lease this PLC
   announces, so a frozen PLC is dropped by the NC (its liveliness token vanishes: 0x8F01 on what it
   held, its motions stop) within ~0.4 s instead of zenoh's default ~7.5 s.
@@ -119,6 +120,13 @@ def default_client_id() -> str:
 
 #: Default transport lease of a PLC session [ms] (see the module docstring).
 DEFAULT_LEASE_MS = 500
+#: How a lost connection is retried (zenoh ``connect/retry``): zenoh's default starts at 1 s and
+#: doubles up to 4 s, which made a router restart cost the PLC 0.5-3 s; every 100-250 ms it is back
+#: within about a quarter of a second of the router (or the link) (bench/recovery.py).
+CONNECT_RETRY = '{period_init_ms: 100, period_max_ms: 250, period_increase_factor: 1.5}'
+#: The first connection attempt keeps retrying this long [ms] before open() fails (then the runtime
+#: retries in the background every ``reconnect_period``).
+CONNECT_TIMEOUT_MS = 2000
 
 
 def client_config(endpoint: str, lease_ms: int = DEFAULT_LEASE_MS, tls_dir: str | None = None,
@@ -138,6 +146,8 @@ def client_config(endpoint: str, lease_ms: int = DEFAULT_LEASE_MS, tls_dir: str 
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
+    c.insert_json5("connect/retry", CONNECT_RETRY)
+    c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
     if tls_dir:
         from nc_server.security.tls import apply_tls
         apply_tls(c, tls_dir, identity or "")
