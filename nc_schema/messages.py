@@ -178,6 +178,11 @@ def _check_arg(cmd: str, name: str, spec: Mapping[str, Any], value: Any) -> Any:
         if is_bool:
             return value
         return _check_arg(cmd, name, {"type": "LREAL"}, value)
+    if t == "STRING":
+        if not isinstance(value, str) or len(value) > 255:
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDDATA, f"{cmd}.{name} must be a string of at most 255 "
+                                                                f"characters, got {str(value)[:40]!r}")
+        return value
     raise AssertionError(f"unknown arg type {t}")  # contract bug, not input
 
 

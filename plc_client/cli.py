@@ -44,6 +44,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--tls-dir", metavar="DIR",
                    help="certificate directory (deploy/certs/make-certs.sh): mutual TLS with DIR/<client-id>.pem; "
                         "every --nc endpoint must be tls/...")
+    p.add_argument("--lease-ms", type=int, default=None, metavar="MS",
+                   help="zenoh transport lease this PLC announces [ms] (500): the NC drops a frozen PLC after "
+                        "about 0.75 x lease (its claims fault with 0x8F01, its motions stop)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
 
@@ -98,11 +101,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"plc-run: {exc.__class__.__name__}: {exc}", file=sys.stderr, flush=True)
         return 2
 
-    from .runtime import PlcRuntime
+    from .runtime import DEFAULT_LEASE_MS, PlcRuntime
 
     try:
+        if args.lease_ms is not None and not 100 <= args.lease_ms <= 600_000:
+            raise ValueError(f"--lease-ms must be 100..600000, got {args.lease_ms}")
         rt = PlcRuntime(program, ncs, cycle_time=args.cycle_time, client_id=args.client_id,
-                        stale_cycles=args.stale_cycles, command_timeout=args.timeout, tls_dir=args.tls_dir)
+                        stale_cycles=args.stale_cycles, command_timeout=args.timeout, tls_dir=args.tls_dir,
+                        lease_ms=DEFAULT_LEASE_MS if args.lease_ms is None else args.lease_ms)
     except (ValueError, TypeError) as exc:
         print(f"plc-run: {exc}", file=sys.stderr, flush=True)
         return 2

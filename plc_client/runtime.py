@@ -6,8 +6,10 @@ explicit configuration - never zenoh's defaults:
 * ``mode: client``, ``connect/endpoints: [<the NC's endpoint>]``: a client is relayed by the
   NC's router and needs no listen socket of its own;
 * multicast and gossip scouting off: only the configured endpoint is ever contacted;
-* ``transport/link/tx/lease: 1000`` ms (``lease_ms``): a frozen PLC (or NC) is noticed by the
-  other side within ~0.75 s instead of zenoh's default ~10 s.
+* ``connect/retry``: a lost connection is retried every 100-250 ms (:data:`CONNECT_RETRY`);
+* ``transport/link/tx/lease: 500`` ms (``lease_ms``, :data:`DEFAULT_LEASE_MS`): the lease this PLC
+  announces, so a frozen PLC is dropped by the NC (its liveliness token vanishes: 0x8F01 on what it
+  held, its motions stop) within ~0.4 s instead of zenoh's default ~7.5 s.
 
 Declared on it: a subscriber on the status frames with a ``RingChannel(1)`` (only the newest
 frame is kept; the cycle takes it with ``try_recv``), a liveliness subscriber on ``nc/<nc>/alive`` (to notice NC
@@ -116,7 +118,18 @@ def default_client_id() -> str:
     return f"plc-{host}-{os.getpid()}"
 
 
-def client_config(endpoint: str, lease_ms: int = 1000, tls_dir: str | None = None,
+#: Default transport lease of a PLC session [ms] (see the module docstring).
+DEFAULT_LEASE_MS = 500
+#: How a lost connection is retried (zenoh ``connect/retry``): zenoh's default starts at 1 s and
+#: doubles up to 4 s, which made a router restart cost the PLC 0.5-3 s; every 100-250 ms it is back
+#: within about a quarter of a second of the router (or the link) (bench/recovery.py).
+CONNECT_RETRY = '{period_init_ms: 100, period_max_ms: 250, period_increase_factor: 1.5}'
+#: The first connection attempt keeps retrying this long [ms] before open() fails (then the runtime
+#: retries in the background every ``reconnect_period``).
+CONNECT_TIMEOUT_MS = 2000
+
+
+def client_config(endpoint: str, lease_ms: int = DEFAULT_LEASE_MS, tls_dir: str | None = None,
                   identity: str | None = None) -> zenoh.Config:
     """The explicit zenoh configuration of a PLC session (see the module docstring); with
     ``tls_dir`` mutual TLS with the certificate ``<tls_dir>/<identity>.pem``
@@ -133,6 +146,8 @@ def client_config(endpoint: str, lease_ms: int = 1000, tls_dir: str | None = Non
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
+    c.insert_json5("connect/retry", CONNECT_RETRY)
+    c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
     if tls_dir:
         from nc_server.security.tls import apply_tls
         apply_tls(c, tls_dir, identity or "")
@@ -311,7 +326,7 @@ class PlcRuntime(PlcTask):
 
     def __init__(self, program: Any = None, ncs: Mapping[str, str] | None = None, *, cycle_time: float = 0.010,
                  client_id: str | None = None, stale_cycles: int | None = None, command_timeout: float = 1.0,
-                 query_timeout: float | None = None, lease_ms: int = 1000, reconnect_period: float = 1.0,
+                 query_timeout: float | None = None, lease_ms: int = DEFAULT_LEASE_MS, reconnect_period: float = 1.0,
                  shutdown_cycles: int = 3, claim_retry: float = 1.0, close_timeout: float = 2.0,
                  tls_dir: str | None = None, frame_period: int | None = None) -> None:
         cid = check_client_id(client_id or default_client_id())
@@ -433,12 +448,14 @@ class PlcRuntime(PlcTask):
             if ev.kind == zenoh.SampleKind.DELETE:
                 link.nc_gone = True
                 self.nc_token_gone(link.nc)
+                # (nc_token_gone: its data is invalid from now on, blocks end with 0x4B0F at once)
                 log.warning("NC %s is gone (liveliness token deleted)", link.nc)
             else:
                 if link.nc_alive_seen and link.nc_gone:
                     log.info("NC %s is back", link.nc)
                     self.nc_token_back(link.nc)  # one restart = one nc_epoch step (with the cycle going back)
                 link.nc_alive_seen, link.nc_gone = True, False
+                self.nc_up(link.nc)  # (its data counts again; nc_token_back does it too)
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         link = self.links.get(nc)

@@ -30,9 +30,25 @@ A late ``Claim`` makes the claim held.
 Claim loss: when an axis this task holds shows the NC's claim faults (0x8F01 client lost,
 0x8F02 PLCTONC timeout: the NC dropped the claim), the claim is requested again by MC_Power;
 the axis stays in ErrorStop until MC_Reset.
+
+Hand-over (:meth:`PlcTask.hand_over`, :meth:`PlcTask.expect_hand_over`; docs/arbitration.md): the
+holder gives an axis to another live client without disabling it. The receiver first expects it:
+its MC_Power publishes PLCTONC for the axis (Enable TRUE) while its claim waits without an error,
+polling ``Claim`` every :data:`HANDOVER_POLL` s; the NC applies the receiver's frames from the
+hand-over on (until then the giver's last one), so the axis is never disabled. The giver's claim
+becomes 'handed' (MC_Power: no error, not Active; it claims again only on an Enable rising edge).
+
+Losing the NC (killed, frozen, the link cut): the axes' data turns invalid at once when the NC's
+liveliness token disappears (else after ``stale_cycles``), so blocks end with 0x4B0F instead of
+waiting. A block that gives up following an accepted motion command that way hands it to the task
+(:meth:`PlcTask.lost_command`): when frames of the same NC instance come back (its cycle counter
+did not go back) and that command is still running, the task stops it (Halt; Stop + StopRelease for
+homing, GearOut for a coupling, AbortSuperposition for a superposition) - the axis never goes on
+moving for a block that reported an error.
 """
 from __future__ import annotations
 
+import collections
 import inspect
 import logging
 import math
@@ -46,8 +62,10 @@ from nc_schema import MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, State
 
 #: late-accepted commands the task undoes with GearOut instead of Halt
 _COUPLINGS = frozenset({"GearIn", "GearInFloat", "GearInDyn"})
-#: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): nothing to undo by number
+#: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo)
 _SLOT_COMMANDS = frozenset({"MoveSuperImposed"})
+#: commands that change a running job (their CmdNo is that job's: not theirs to undo)
+_AMENDS = frozenset({"NewPos", "NewPosAndVelo", "ChangeDynParam"})
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, InProcessNc, InProcessPort, PendingCommand
@@ -64,6 +82,13 @@ _CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_P
 
 #: Data older than this is stale when the task is built without ``stale_cycles`` [s].
 DEFAULT_STALE_TIME = 0.2
+#: While expecting a hand-over, Claim is re-sent this often [s] (its success shows the hand-over).
+HANDOVER_POLL = 0.05
+#: A command lost with the NC is forgotten if no frame comes back within this time [s].
+LOST_COMMAND_TTL = 600.0
+#: what stops a motion command nobody follows any more (default: Halt)
+_UNDO = {"GearIn": ("GearOut",), "GearInFloat": ("GearOut",), "GearInDyn": ("GearOut",),
+         "Home": ("Stop", "StopRelease"), "MoveSuperImposed": ("AbortSuperposition",)}
 
 
 def current_task() -> PlcTask | None:
@@ -72,7 +97,9 @@ def current_task() -> PlcTask | None:
 
 
 class ClaimState:
-    """Claim of one axis by this task: ``state`` is 'none', 'pending', 'held' or 'refused'."""
+    """Claim of one axis by this task: ``state`` is 'none', 'pending', 'held', 'refused',
+    'awaiting' (expecting a hand-over: Claim is polled, a refusal is no error) or 'handed'
+    (given to another client with HandOver)."""
 
     __slots__ = ("state", "error", "pending", "since", "fault_seen")
 
@@ -85,6 +112,46 @@ class ClaimState:
 
     def __repr__(self) -> str:
         return f"ClaimState({self.state}, error=0x{self.error:X})"
+
+
+class _Orphan:
+    """A motion command the NC may still run although no block follows it any more.
+
+    ``lost``: its block gave up because the NC's data was lost (checked at the first valid frame:
+    a frame with a cycle below ``cycle`` is a restarted NC, which knows nothing of it); else a late
+    acceptance after a block timeout (checked once a frame of the reply's ``cycle`` is there, only
+    while ``epoch`` is the axis's).
+    """
+
+    __slots__ = ("ax", "cmdno", "cycle", "epoch", "cmd", "lost", "since")
+
+    def __init__(self, ax: AXIS_REF, cmdno: int, cycle: int, epoch: int, cmd: str, lost: bool = False,
+                 since: float = 0.0) -> None:
+        self.ax, self.cmdno, self.cycle, self.epoch, self.cmd = ax, cmdno, cycle, epoch, cmd
+        self.lost, self.since = lost, since
+
+
+class HandOverRequest:
+    """A hand-over asked for with :meth:`PlcTask.hand_over` (sent at the next cycle start).
+
+    Attributes:
+        nc, axis_id, to: what is handed to whom.
+        pending: the HandOver command once sent (None before).
+        done: True once the NC answered (or the request could not be sent).
+        error: 0 on success, else the error code (0x723: not the holder, or ``to`` unknown).
+    """
+
+    __slots__ = ("nc", "axis_id", "to", "pending", "done", "error")
+
+    def __init__(self, nc: str, axis_id: int, to: str) -> None:
+        self.nc, self.axis_id, self.to = nc, int(axis_id), to
+        self.pending: PendingCommand | None = None
+        self.done = False
+        self.error = 0
+
+    def __repr__(self) -> str:
+        state = "waiting" if not self.done else f"error=0x{self.error:X}"
+        return f"HandOverRequest({self.nc}/{self.axis_id} -> {self.to} {state})"
 
 
 def _program_caller(program: Any) -> Callable[[PlcTask], Any] | None:
@@ -148,7 +215,10 @@ class PlcTask:
         self._refs: dict[tuple[str, int], list[AXIS_REF]] = {}
         self._controlled: dict[tuple[str, int], AXIS_REF] = {}
         self._claims: dict[tuple[str, int], ClaimState] = {}
-        self._orphans: list[tuple[AXIS_REF, int, int, int, str]] = []  # (axis, CmdNo, cycle, epoch, cmd)
+        self._orphans: list[_Orphan] = []
+        self._nc_down: set[str] = set()  # NCs whose liveliness token is gone: their data is invalid
+        self._requests: collections.deque[Callable[[], None]] = collections.deque()  # from other threads
+        self._handovers: list[HandOverRequest] = []
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
         self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
@@ -221,6 +291,16 @@ class PlcTask:
         c = self._claims.setdefault(key, ClaimState())
         if not self.reachable(ax.nc):
             return c  # claimed as soon as the NC can be reached
+        if c.state == "handed":
+            if not retry:
+                return c  # given away: claimed again only on a new Enable edge
+            c.state = "none"
+        if c.state == "awaiting":
+            if c.pending is None and self.now - c.since >= HANDOVER_POLL:
+                c.since = self.now
+                c.pending = self.port.send(ax.nc, ax.axis_id, "Claim")
+                c.pending.owner = ax
+            return c
         if c.state == "none" or (c.state == "refused" and (retry or self.now - c.since >= self.claim_retry)):
             self._send_claim(ax, c)
         elif c.state == "held" and (retry or self._claim_looks_lost(ax, c)):
@@ -252,6 +332,16 @@ class PlcTask:
     def _update_claims(self, late: list[PendingCommand]) -> None:
         for key, c in self._claims.items():
             p = c.pending
+            if c.state == "awaiting" and p is not None:
+                if p.done:  # held once the hand-over happened; a refusal is no error here
+                    c.pending, c.since = None, self.now
+                    if (p.error or 0) == 0:
+                        c.state, c.error = "held", 0
+                        log.info("%s/%d: handed over to us", key[0], key[1])
+                elif self.now - p.sent_at > self.command_timeout:
+                    p.abandon()
+                    c.pending, c.since = None, self.now
+                continue
             if c.state != "pending" or p is None:
                 continue
             if p.done:
@@ -276,13 +366,78 @@ class PlcTask:
         for p in late:
             if p.cmd == "Claim" and (p.error or 0) == 0:
                 c = self._claims.get((p.nc, p.axis_id or 0))
-                if c is not None and c.state in ("refused", "none"):
+                if c is not None and c.state in ("refused", "none", "awaiting"):
                     c.state, c.error, c.pending = "held", 0, None
+        self._update_handovers()
+
+    # -- hand-over -----------------------------------------------------------------------
+    def hand_over(self, nc: str, axis_id: int, to: str) -> HandOverRequest:
+        """Hand the claim of ``nc``/``axis_id`` to the live client ``to`` without disabling the axis.
+
+        Thread-safe: sent at the start of the next cycle. The receiver should call
+        :meth:`expect_hand_over` first and keep its MC_Power enabled. On success this task's claim
+        becomes 'handed' and it stops publishing PLCTONC for the axis; the NC keeps applying the
+        last frame until the receiver's first one.
+
+        Returns:
+            The request; its ``done``/``error`` show the NC's answer (0x723: not the holder, or
+            ``to`` has no liveliness token).
+        """
+        req = HandOverRequest(nc, axis_id, to)
+        self._requests.append(lambda: self._send_hand_over(req))
+        return req
+
+    def expect_hand_over(self, nc: str, axis_id: int) -> None:
+        """Accept a hand-over of ``nc``/``axis_id`` (thread-safe; applied at the next cycle start).
+
+        MC_Power on the axis then publishes PLCTONC while its claim waits ('awaiting': no error,
+        not Active), polling Claim until the holder hands it over; then the claim is 'held'.
+        """
+        def apply() -> None:
+            c = self._claims.setdefault((nc, int(axis_id)), ClaimState())
+            if c.state != "held":
+                c.state, c.error, c.pending, c.since = "awaiting", 0, None, -math.inf
+        self._requests.append(apply)
+
+    def _send_hand_over(self, req: HandOverRequest) -> None:
+        key = (req.nc, req.axis_id)
+        ax = self._controlled.get(key) or next(iter(self._refs.get(key, [])), None)
+        if ax is None:
+            ax = self.axis(req.nc, req.axis_id)
+        req.pending = self.send(ax, "HandOver", To=req.to)
+        self._handovers.append(req)
+
+    def _update_handovers(self) -> None:
+        keep = []
+        for req in self._handovers:
+            p = req.pending
+            assert p is not None
+            if not p.done:
+                if self.now - p.sent_at <= self.command_timeout:
+                    keep.append(req)
+                    continue
+                p.abandon()
+                req.done, req.error = True, int(ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)
+            else:
+                req.done, req.error = True, int(p.error or 0)
+            key = (req.nc, req.axis_id)
+            if req.error:
+                log.warning("hand-over of %s/%d to %s refused: 0x%X %s", req.nc, req.axis_id, req.to, req.error,
+                            error_text(req.error))
+                continue
+            c = self._claims.setdefault(key, ClaimState())
+            if req.to != self.client_id:
+                c.state, c.error, c.pending, c.since = "handed", 0, None, self.now
+                self._controlled.pop(key, None)  # its frames no longer count: stop sending them
+                log.info("%s/%d handed over to %s", req.nc, req.axis_id, req.to)
+        self._handovers = keep
 
     def _forget_claims(self, nc: str) -> None:
         for (n, _), c in self._claims.items():
-            if n == nc:
+            if n == nc and c.state != "awaiting":
                 c.state, c.error, c.pending = "none", 0, None
+            elif n == nc:
+                c.pending = None
 
     # -- commands ----------------------------------------------------------------------
     def send(self, ax: AXIS_REF, cmd: str, **args: Any) -> PendingCommand:
@@ -304,26 +459,60 @@ class PlcTask:
                     log.info("late reply to abandoned %s (axis %s): 0x%X", p.cmd, p.axis_id, err)
                 continue
             cmdno = int(p.reply.get("CmdNo", 0))
-            if p.cmd in ("Stop", "Halt") or not cmdno or p.cmd in _SLOT_COMMANDS:
+            if p.cmd in ("Stop", "Halt") or not cmdno or p.cmd in _SLOT_COMMANDS or p.cmd in _AMENDS:
                 log.warning("late acceptance of %s on %r (CmdNo %d): left as is", p.cmd, ax, cmdno)
                 continue
-            self._orphans.append((ax, cmdno, int(p.reply.get("cycle", 0)), ax.nc_epoch, p.cmd))
+            self._orphans.append(_Orphan(ax, cmdno, int(p.reply.get("cycle", 0)), ax.nc_epoch, p.cmd))
+
+    def lost_command(self, ax: AXIS_REF, cmdno: int, cmd: str, nc_cycle: int) -> None:
+        """A block stopped following motion command ``cmdno`` (``cmd``) on ``ax`` because the NC's data
+        was lost (stale, NC gone or restarted) after a frame of NC cycle ``nc_cycle`` had shown it.
+
+        When valid frames come back from the same NC instance (cycle >= ``nc_cycle``) and the
+        command still runs, the task stops it (see the module docstring); a restarted NC (its cycle
+        counter went back) knows nothing of it.
+        """
+        if cmdno:
+            self._orphans.append(_Orphan(ax, int(cmdno), int(nc_cycle), ax.nc_epoch, cmd, lost=True, since=self.now))
+
+    def _still_running(self, o: _Orphan) -> bool:
+        """Whether the NC (as the axis's newest frame shows it) still runs orphan ``o``'s command."""
+        ax = o.ax
+        if o.cmd in _SLOT_COMMANDS:
+            jobs = ax.NcJobs
+            return int(jobs["SuperCmdNo"]) == o.cmdno and int(jobs["SuperState"]) == CmdState.ACTIVE
+        rec, jobs = ax.NcToPlc, ax.NcJobs
+        if int(jobs["AxisId"]):  # job records: running or still buffered
+            if int(jobs["ActiveCmdNo"]) == o.cmdno and int(jobs["ActiveState"]) == CmdState.ACTIVE:
+                return True
+            if int(jobs["BufferedCmdNo"]) == o.cmdno:
+                return True
+        return int(rec["CmdNo"]) == o.cmdno and int(rec["CmdState"]) == CmdState.ACTIVE
 
     def _check_orphans(self) -> None:
         keep = []
-        for ax, cmdno, cyc, epoch, cmd in self._orphans:
-            if ax.nc_epoch != epoch:
-                continue
-            if not ax.Status.Valid or ax.Status.NcCycleCounter < cyc:
-                keep.append((ax, cmdno, cyc, epoch, cmd))
-                continue
-            rec = ax.NcToPlc
-            if int(rec["CmdNo"]) == cmdno and int(rec["CmdState"]) == CmdState.ACTIVE:
-                # a coupling nobody follows is ended by decoupling (a Halt to a slave is refused)
-                undo = "GearOut" if cmd in _COUPLINGS else "Halt"
-                log.warning("%r: command %d was accepted after its block timed out; %s", ax, cmdno,
-                            "decoupling the slave" if undo == "GearOut" else "halting the axis")
-                self.detach(self.send(ax, undo), f"{undo} of a late-accepted command")
+        for o in self._orphans:
+            ax = o.ax
+            if o.lost:
+                if not ax.Status.Valid:
+                    if self.now - o.since < LOST_COMMAND_TTL:
+                        keep.append(o)
+                    continue
+                if ax.Status.NcCycleCounter < o.cycle:
+                    continue  # a restarted NC: the command is gone with the old instance
+            else:
+                if ax.nc_epoch != o.epoch:
+                    continue
+                if not ax.Status.Valid or ax.Status.NcCycleCounter < o.cycle:
+                    keep.append(o)
+                    continue
+            if self._still_running(o):
+                undo = _UNDO.get(o.cmd, ("Halt",))
+                why = ("its block gave up when the NC's data was lost" if o.lost
+                       else "it was accepted after its block timed out")
+                log.warning("%r: command %d (%s) still runs but %s; %s", ax, o.cmdno, o.cmd, why, " + ".join(undo))
+                for cmd in undo:
+                    self.detach(self.send(ax, cmd), f"{cmd} of an orphaned {o.cmd}")
         self._orphans = keep
 
     def _check_detached(self) -> None:
@@ -346,6 +535,8 @@ class PlcTask:
         self.now = self.clock()
         self._take_frames()
         self._snapshot_all()
+        while self._requests:
+            self._requests.popleft()()
         late = self.port.poll()
         self._update_claims(late)
         self._handle_late(late)
@@ -388,12 +579,13 @@ class PlcTask:
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
         frame = self._frames.get(ax.nc)
+        stale = 0 if ax.nc in self._nc_down else self.stale_cycles  # 0: invalid at once
         if frame is None:
-            ax._snapshot(None, None, self.cycle, self.cycle_time, self.stale_cycles)
+            ax._snapshot(None, None, self.cycle, self.cycle_time, stale)
         else:
             cyc, recs, index, jobs = frame
             i = index.get(ax.axis_id)
-            ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, self.stale_cycles,
+            ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, stale,
                          None if i is None or jobs is None else jobs[i])
 
     def nc_token_gone(self, nc: str) -> None:
@@ -406,14 +598,25 @@ class PlcTask:
         on (the NC was frozen or the link cut, the NC dropped this client) counts once as well.
         """
         self._nc_gaps[nc] = [False, False]
+        self.nc_down(nc)
 
     def nc_token_back(self, nc: str) -> None:
         """The liveliness token of NC ``nc`` is back after :meth:`nc_token_gone`."""
+        self.nc_up(nc)
         gap = self._nc_gaps.setdefault(nc, [False, False])
         gap[0] = True
         if not gap[1]:
             gap[1] = True
             self.nc_restarted(nc)
+
+    def nc_down(self, nc: str) -> None:
+        """The NC's liveliness token disappeared: its axes' data is invalid from this cycle on
+        (blocks end with 0x4B0F at once, without waiting ``stale_cycles``)."""
+        self._nc_down.add(nc)
+
+    def nc_up(self, nc: str) -> None:
+        """The NC's liveliness token is back: its frames count again."""
+        self._nc_down.discard(nc)
 
     def nc_restarted(self, nc: str) -> None:
         """The NC ``nc`` restarted: bump the epoch of its axes and forget its claims."""
@@ -440,6 +643,7 @@ class PlcTask:
             ax.PlcToNc["ControlDWord"] = 0
 
     def held_claims(self) -> Iterable[tuple[str, int]]:
+        """The claims to release at shutdown (held, or a Claim on its way)."""
         return [k for k, c in self._claims.items() if c.state in ("held", "pending")]
 
 

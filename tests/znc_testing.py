@@ -308,20 +308,21 @@ class NcTestClient:
         nc: NC name.
         token: declare the liveliness token.
         lease_ms: transport lease of this session.
+        config: a zenoh config to open instead (e.g. ``plc_client.runtime.client_config``'s).
     """
 
     _ids = itertools.count(1)
     _anon = itertools.count(1)
 
     def __init__(self, port: int, client_id: str = "", nc: str = "nc1", token: bool = True,
-                 lease_ms: int = 1000) -> None:
+                 lease_ms: int = 1000, config: zenoh.Config | None = None) -> None:
         self.port = port
         self.client_id = client_id
         #: the identity in this client's command keys: client_id, or a unique one per instance
         #: for an "anonymous" client (the NC takes the identity from the key)
         self.key_client = client_id or f"anon-{os.getpid()}-{next(self._anon)}"
         self.nc = nc
-        self.session = zenoh.open(zenoh_client_config(port, lease_ms))
+        self.session = zenoh.open(config if config is not None else zenoh_client_config(port, lease_ms))
         self.token = self.session.liveliness().declare_token(f"nc/{nc}/client/{client_id}") \
             if token and client_id else None
         self._latest: dict[str, tuple[bytes, bytes | None]] = {}

@@ -281,6 +281,16 @@ class NcCore:
             out[i] = q.active is not None and q.active.kind.is_stop
         return out
 
+    def commanders(self, i: int) -> set[str]:
+        """The clients whose motion runs or waits on axis row ``i``: the running and the buffered
+        numbered job (stops excepted: they stop anyway) and a running superposition ("" =
+        anonymous). The server stops these motions when their client is lost."""
+        q, sp = self.queues[i], self.superposition
+        out = {j.client for j in (q.active, q.waiting) if j is not None and j.numbered and not j.kind.is_stop}
+        if sp.on[i] and sp.state[i] == int(CmdState.ACTIVE):
+            out.add(sp.client[i])
+        return out
+
     def info(self) -> dict[str, Any]:
         return {"cycle_time": self.cycle_time,
                 "axes": [{"AxisId": c.AxisId, "Name": c.Name, "Modulo": c.params.Modulo,

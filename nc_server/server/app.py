@@ -43,9 +43,17 @@ EARLY_REPLIES = True
 SHUTDOWN_STOP_TIMEOUT = 5.0
 #: last_command changes alone rebuild the claims map at most this often [s] (claims and clients: at once).
 CLAIMS_MIN_PERIOD = 0.05
-#: A gap between two cycle starts longer than this means the NC itself stalled [s]:
-#: nobody is blamed for PLCTONC that could not be processed meanwhile.
+#: A gap this long between two runs of the cycle thread (cycle starts and idle slices) means the NC
+#: itself stalled [s]: nobody is blamed for PLCTONC that could not be processed meanwhile, nor for a
+#: liveliness token that vanished meanwhile and comes back (ClaimTable.grace).
 STALL_GRACE = 0.05
+#: After a stall at least this long [s], the motion commands queued across it are refused (0x4B0F),
+#: not executed late: their blocks have given up on stale data, or their session was dropped with the
+#: reply path (a move executed then would be followed by nobody); stops and the rest run
+#: (RequestHandler.handle_after_stall). Covers STALE_QUERY_WINDOW after the stall, while zenoh still
+#: delivers what it read from the sockets.
+STALE_QUERY_STALL = 0.15
+STALE_QUERY_WINDOW = 0.05
 
 
 class NcServer:
@@ -81,14 +89,16 @@ class NcServer:
                               wake=self.transport.query_event)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
                                       refresh_liveliness=self._take_liveliness, roles=roles)
-        self.inputs = CycleInputs(core, self.claims)  # type: ignore[arg-type]
+        self.inputs = CycleInputs(core, self.claims, config.loss_reactions or None)  # type: ignore[arg-type]
         #: (version, claims map) made by the cycle thread; the I/O thread publishes it
         self.claims_msg: tuple[int, dict[str, Any]] | None = None
         self._arb_seen: tuple[int, int, int] = (-1, -1, -1)
         self._arb_built = 0.0
         self.io = IoThread(self.transport, self.stats, claims_source=lambda: self.claims_msg,
                            cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads)
-        self._prev_start = 0.0
+        self._prev_tick = 0.0       # the cycle thread's last run (cycle start or idle slice) [s, monotonic]
+        self._refuse_until = 0.0    # queries popped before this are refused (after a long stall) [s]
+        self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
         self._claims_snapshot: dict[int, str] = {}
@@ -209,11 +219,9 @@ class NcServer:
             return
         claims = self.claims
         now = time.monotonic()
-        if self._prev_start and now - self._prev_start > STALL_GRACE:
-            claims.grace(now)
-        self._prev_start = now
+        self._tick(now)
 
-        self._take_liveliness()
+        self._take_liveliness(now)
 
         # Commands (bounded per cycle; the rest stay queued for the next one).
         replies = self._drain_queries(now)
@@ -277,7 +285,7 @@ class NcServer:
         retain = self.retain
         assert retain is not None
         core = self.core
-        self._prev_start = time.monotonic()
+        self._prev_tick = time.monotonic()
         self._retain_pending = False
         try:
             core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
@@ -300,6 +308,25 @@ class NcServer:
             core.execute({"id": None, "client": "", "cmd": "Stop", "Deceleration": 0.0, "Jerk": 0.0},  # type: ignore[attr-defined]
                          int(self.axis_ids[i]))
 
+    def _tick(self, now: float) -> None:
+        """Every run of the cycle thread starts here (cycle and idle): notice the NC's own stalls.
+
+        A gap over STALL_GRACE: nobody is blamed (ClaimTable.grace); over STALE_QUERY_STALL: the
+        motion commands queued across it are refused; over the watchdog timeout: the moving axes stop with
+        0x8F03 (their motion ran unsupervised). Must run before liveliness events and PLCTONC are taken.
+        """
+        prev, self._prev_tick = self._prev_tick, now
+        gap = now - prev
+        if not prev or gap <= STALL_GRACE:
+            return
+        self.stalls += 1
+        self.claims.grace(now, since=prev)
+        if gap >= STALE_QUERY_STALL:
+            self._refuse_until = now + STALE_QUERY_WINDOW
+        log.warning("the NC cycle thread stalled for %.3f s (the NC's own stall: no client is blamed)", gap)
+        if gap > self.config.watchdog_timeout:
+            self.inputs.nc_stalled(gap)
+
     def _drain_queries(self, now: float) -> list[tuple[Any, bytes]]:
         """Run the queued requests (at most MAX_QUERIES_PER_CYCLE / QUERY_BUDGET_NS); their replies."""
         t = self.transport
@@ -312,23 +339,27 @@ class NcServer:
             p = q.payload
             if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
                 replies.append((q, self.handler.too_large(len(p))))
+            elif now < self._refuse_until:
+                replies.append((q, self.handler.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"",
+                                                                   now)))
             else:
                 replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
             if time.monotonic_ns() > budget_end:
                 break
         return replies
 
-    def _take_liveliness(self) -> None:
-        """Liveliness: PUT = client present, DELETE = gone (its claims fault in claims.check())."""
+    def _take_liveliness(self, now: float | None = None) -> None:
+        """Liveliness: PUT = client present, DELETE = gone (the watchdog reacts: CycleInputs)."""
         t = self.transport
         if t.liveliness_events:
             self._clients_dirty = True
+            now = time.monotonic() if now is None else now
             for client, present in t.pop_liveliness():
                 if present:
                     self.handler.client_alive(client)
                     log.info("client %s present", client)
                 else:
-                    self.handler.client_gone(client)
+                    self.handler.client_gone(client, now)
                     log.info("client %s gone", client)
 
     def idle(self) -> None:
@@ -340,8 +371,10 @@ class NcServer:
         """
         if self._retain_pending:
             return
-        self._take_liveliness()
-        replies = self._drain_queries(time.monotonic())
+        now = time.monotonic()
+        self._tick(now)
+        self._take_liveliness(now)
+        replies = self._drain_queries(now)
         if replies:
             self.io.submit_replies(replies)
         self.transport.take_plctonc()  # decoded now, applied at the next cycle start

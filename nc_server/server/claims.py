@@ -1,40 +1,72 @@
 """Claim table and watchdog (pure: no zenoh, no clock reads; times are passed in, in seconds).
 
 One client at a time supplies an axis's PLCTONC: the *holder*. A client may claim only while its
-liveliness token ``nc/<nc>/client/<client>`` is present. :meth:`ClaimTable.check` returns the
-axes to fault and releases them:
+liveliness token ``nc/<nc>/client/<client>`` is present. :meth:`ClaimTable.check` reports the
+clients the NC lost since the last call (:class:`Loss`) and releases their claims:
 
-* 0x8F01 ZNC_CLIENT_LOST: the holder's liveliness token disappeared;
-* 0x8F02 ZNC_PLCTONC_TIMEOUT: the holder sent PLCTONC after claiming (the watchdog is armed
-  by the first frame after the claim) and its newest frame is older than ``watchdog_timeout``.
+* 0x8F01 ZNC_CLIENT_LOST: the client's liveliness token disappeared (process killed: within
+  milliseconds; frozen or cut off: after the client's zenoh lease). Every claim it held is faulted.
+* 0x8F02 ZNC_PLCTONC_TIMEOUT: a holder sent PLCTONC after claiming (the watchdog is armed by the
+  first frame after the claim, or by a hand-over) and its newest frame is older than
+  ``watchdog_timeout``. The claims it supplied are faulted, the others it held are released.
+
+What the NC does with a loss (stop ramps, the axis's ``ClientLossReaction``, the motions the lost
+client commanded on other axes) is :class:`~nc_server.server.handler.CycleInputs`' business.
 
 A claim whose holder never sent a PLCTONC frame is not watched: the NC applies the default
 PLCTONC (all enables off) to it, so there is nothing a silent client could keep moving.
+
+The NC's own stalls are never blamed on a client (:meth:`ClaimTable.grace`): the PLCTONC age
+starts again at the end of the stall (and never goes backwards, whatever order frames are
+processed in afterwards), and a token that disappears during the stall or just after it (the
+clients' zenoh dropped the link to the frozen NC and reconnects at once) is given
+``reconnect_grace`` seconds to come back before it counts as a loss.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
 
-from nc_schema import ErrorCodes, NcError
+from nc_schema import ErrorCodes, NcError, check_client_id
 
 ZNC_CLIENT_LOST = int(ErrorCodes.ZNC_CLIENT_LOST)  # type: ignore[attr-defined]
 ZNC_PLCTONC_TIMEOUT = int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)  # type: ignore[attr-defined]
 ACCESS_DENIED = int(ErrorCodes.ADSERR_DEVICE_ACCESSDENIED)  # type: ignore[attr-defined]
+INVALID_DATA = int(ErrorCodes.ADSERR_DEVICE_INVALIDDATA)  # type: ignore[attr-defined]
 
 
 @dataclass
 class _Client:
     alive: bool = False
-    last_plctonc: float | None = None  # arrival time of the newest PLCTONC frame [s]
+    last_plctonc: float | None = None  # arrival time of the newest PLCTONC frame [s] (never decreases)
+    gone_at: float | None = None       # when the token disappeared [s]; None: present (or loss reported)
 
 
 @dataclass
 class _Claim:
     client: str
-    since: float  # claim time [s]
+    since: float                       # claim (or hand-over) time [s]
+    watch_from: float | None = None    # hand-over: the watchdog counts from here until the first frame [s]
+
+
+@dataclass(frozen=True)
+class Loss:
+    """A client the NC lost (reported once by :meth:`ClaimTable.check`; its claims are released then).
+
+    Attributes:
+        client: the client id.
+        code: 0x8F01 (token gone) or 0x8F02 (PLCTONC timeout).
+        faulted: AxisIds it held and supplied: they get ``code`` and the axis's loss reaction.
+        released: AxisIds it held without ever supplying them (0x8F02 only): released, no fault.
+    """
+
+    client: str
+    code: int
+    faulted: tuple[int, ...] = ()
+    released: tuple[int, ...] = ()
 
 
 class ClaimTable:
@@ -43,14 +75,20 @@ class ClaimTable:
     Args:
         axis_ids: the configured axis ids (claims are keyed by axis id).
         watchdog_timeout: maximum age of the holder's newest PLCTONC [s].
+        reconnect_grace: how long a token that vanished during or right after an NC stall may take
+            to come back [s]; default ``watchdog_timeout``.
     """
 
-    def __init__(self, axis_ids: Iterable[int], watchdog_timeout: float) -> None:
+    def __init__(self, axis_ids: Iterable[int], watchdog_timeout: float,
+                 reconnect_grace: float | None = None) -> None:
         self.axis_ids = [int(a) for a in axis_ids]
         self._index = {a: i for i, a in enumerate(self.axis_ids)}
         self.watchdog_timeout = float(watchdog_timeout)
+        self.reconnect_grace = float(watchdog_timeout if reconnect_grace is None else reconnect_grace)
         self._clients: dict[str, _Client] = {}
         self._claims: dict[int, _Claim] = {}
+        #: the last NC stall, (start, end) [s] (see grace())
+        self._stall = (-math.inf, -math.inf)
         #: Incremented on every change of the claims (lets callers cache derived data).
         self.version = 0
         self._masks: dict[str, np.ndarray] = {}
@@ -58,15 +96,18 @@ class ClaimTable:
 
     # ---- liveliness -------------------------------------------------------------------------
     def client_alive(self, client: str) -> None:
-        """The client's liveliness token appeared."""
-        self._clients.setdefault(client, _Client()).alive = True
+        """The client's liveliness token appeared (or came back before its loss was reported)."""
+        c = self._clients.setdefault(client, _Client())
+        c.alive, c.gone_at = True, None
 
-    def client_gone(self, client: str) -> None:
-        """The client's liveliness token disappeared; its claims fault at the next :meth:`check`."""
+    def client_gone(self, client: str, now: float = 0.0) -> None:
+        """The client's liveliness token disappeared at ``now`` [s]; :meth:`check` reports the loss
+        (at once, or after ``reconnect_grace`` if it happened during or right after an NC stall and
+        the token did not come back)."""
         c = self._clients.get(client)
-        if c is not None:
-            c.alive = False
-        self.forget_gone()
+        if c is None or not c.alive:
+            return
+        c.alive, c.gone_at = False, float(now)
 
     def is_alive(self, client: str) -> bool:
         c = self._clients.get(client)
@@ -74,20 +115,33 @@ class ClaimTable:
 
     # ---- PLCTONC arrivals -------------------------------------------------------------------
     def plctonc_arrived(self, client: str, now: float) -> None:
-        """A PLCTONC frame of ``client`` arrived at ``now`` [s] (kept only for known clients)."""
+        """A PLCTONC frame of ``client`` arrived at ``now`` [s] (kept only for known clients).
+
+        The newest arrival time only moves forward: a frame that is processed late (it arrived
+        before an NC stall, or the subscriber thread ran late) never makes the client look older.
+        """
         c = self._clients.get(client)
-        if c is not None:
+        if c is not None and (c.last_plctonc is None or now > c.last_plctonc):
             c.last_plctonc = now
 
-    def grace(self, now: float) -> None:
-        """Treat every client as heard from at ``now``.
+    def grace(self, now: float, since: float | None = None) -> None:
+        """The NC itself stalled from ``since`` to ``now`` [s] (e.g. the process was stopped): nobody
+        is blamed for it.
 
-        For after the NC itself stalled (e.g. the process was stopped): frames queued during the
-        stall may not have been processed yet, so nobody is blamed for the gap.
+        Every client that sent PLCTONC counts as heard from at ``now`` (frames queued during the
+        stall may not have been processed yet; older ones processed later do not move it back),
+        and a token that disappears between ``since`` and ``now + reconnect_grace`` gets
+        ``reconnect_grace`` to come back (:meth:`check`).
         """
         for c in self._clients.values():
-            if c.last_plctonc is not None:
+            if c.last_plctonc is not None and c.last_plctonc < now:
                 c.last_plctonc = now
+        self._stall = (now if since is None else min(float(since), now), float(now))
+
+    def _excused(self, gone_at: float, now: float) -> bool:
+        """A token gone at ``gone_at`` is not a loss yet at ``now`` (an NC stall explains it)."""
+        start, end = self._stall
+        return start <= gone_at <= end + self.reconnect_grace and now < gone_at + self.reconnect_grace
 
     # ---- claims -----------------------------------------------------------------------------
     def holder(self, axis_id: int) -> str | None:
@@ -99,6 +153,12 @@ class ClaimTable:
         """A snapshot {axis_id: holder}."""
         return {a: cl.client for a, cl in self._claims.items()}
 
+    def _check_axis(self, axis_id: int) -> int:
+        axis_id = int(axis_id)
+        if axis_id not in self._index:
+            raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, f"no axis {axis_id}")
+        return axis_id
+
     def claim(self, axis_id: int, client: str, now: float) -> None:
         """Make ``client`` the holder of ``axis_id`` (idempotent for the holder).
 
@@ -106,9 +166,7 @@ class ClaimTable:
             NcError: 0x4012 unknown axis; 0x723 the client's liveliness token is not present, or
                 another live client holds the axis (the message names the holder).
         """
-        axis_id = int(axis_id)
-        if axis_id not in self._index:
-            raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, f"no axis {axis_id}")
+        axis_id = self._check_axis(axis_id)
         cur = self._claims.get(axis_id)
         if cur is not None and cur.client != client:
             raise NcError(ACCESS_DENIED, f"axis {axis_id} is held by client {cur.client!r}")
@@ -127,15 +185,44 @@ class ClaimTable:
         Raises:
             NcError: 0x4012 unknown axis; 0x723 another client holds the axis.
         """
-        axis_id = int(axis_id)
-        if axis_id not in self._index:
-            raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED, f"no axis {axis_id}")
+        axis_id = self._check_axis(axis_id)
         cur = self._claims.get(axis_id)
         if cur is None:
             return False
         if cur.client != client:
             raise NcError(ACCESS_DENIED, f"axis {axis_id} is held by client {cur.client!r}, not {client!r}")
         self._drop(axis_id)
+        return True
+
+    def hand_over(self, axis_id: int, client: str, to: str, now: float) -> bool:
+        """The holder ``client`` hands ``axis_id`` to the live client ``to`` at ``now`` [s].
+
+        The claim moves at once; the PLCTONC applied stays until ``to``'s first frame after the
+        hand-over (the caller leaves it as it is), and the watchdog counts from ``now``: a new holder
+        that sends nothing faults with 0x8F02 after ``watchdog_timeout``.
+
+        Returns:
+            True if the claim moved, False if ``to`` is ``client`` (nothing to do).
+
+        Raises:
+            NcError: 0x4012 unknown axis; 0x706 ``to`` is not a valid client id; 0x723 ``client`` does
+                not hold the axis, or ``to`` has no liveliness token.
+        """
+        axis_id = self._check_axis(axis_id)
+        try:
+            check_client_id(to)
+        except ValueError as exc:
+            raise NcError(INVALID_DATA, f"HandOver.To: {exc}") from None
+        cur = self._claims.get(axis_id)
+        if cur is None or cur.client != client:
+            held = f"held by client {cur.client!r}" if cur is not None else "not claimed"
+            raise NcError(ACCESS_DENIED, f"axis {axis_id} is {held}: only its holder may hand it over")
+        if to == client:
+            return False
+        if not self.is_alive(to):
+            raise NcError(ACCESS_DENIED, f"client {to!r} has no liveliness token nc/<nc>/client/{to}: "
+                                         f"it cannot take axis {axis_id} over")
+        self._set_holder(axis_id, to, now, watch_from=now)
         return True
 
     def may_override(self, axis_id: int, client: str) -> None:
@@ -149,29 +236,47 @@ class ClaimTable:
             raise NcError(ACCESS_DENIED, f"axis {axis_id} is held by client {cur.client!r}")
 
     # ---- watchdog ---------------------------------------------------------------------------
-    def check(self, now: float) -> list[tuple[int, int]]:
-        """The claims to fault at ``now`` [s], as (axis_id, error code); they are released.
+    def _watched_since(self, cl: _Claim, c: _Client) -> float | None:
+        """The time the claim's watchdog counts from, or None (not armed)."""
+        if c.last_plctonc is not None and c.last_plctonc >= cl.since:
+            return c.last_plctonc if cl.watch_from is None else max(c.last_plctonc, cl.watch_from)
+        return cl.watch_from
+
+    def check(self, now: float) -> list[Loss]:
+        """The clients lost at ``now`` [s] (each reported once); their claims are released.
 
         Also forgets clients that are gone and hold nothing.
         """
-        out: list[tuple[int, int]] = []
-        for axis_id, cl in list(self._claims.items()):
-            c = self._clients.get(cl.client)
-            if c is None or not c.alive:
-                out.append((axis_id, ZNC_CLIENT_LOST))
-            elif (c.last_plctonc is not None and c.last_plctonc >= cl.since
-                  and now - c.last_plctonc > self.watchdog_timeout):
-                out.append((axis_id, ZNC_PLCTONC_TIMEOUT))
-        for axis_id, _ in out:
-            self._drop(axis_id)
-        if out:
-            self.forget_gone()
+        by_client: dict[str, list[int]] = {}
+        for axis_id, cl in self._claims.items():
+            by_client.setdefault(cl.client, []).append(axis_id)
+        out: list[Loss] = []
+        for name, c in list(self._clients.items()):
+            axes = by_client.get(name, [])
+            if not c.alive:
+                if c.gone_at is None or self._excused(c.gone_at, now):
+                    continue
+                c.gone_at = None
+                out.append(Loss(name, ZNC_CLIENT_LOST, tuple(sorted(axes))))
+                continue
+            late = []
+            for a in axes:
+                ref = self._watched_since(self._claims[a], c)
+                if ref is not None and now - ref > self.watchdog_timeout:
+                    late.append(a)
+            if late:
+                out.append(Loss(name, ZNC_PLCTONC_TIMEOUT, tuple(sorted(late)),
+                                tuple(sorted(a for a in axes if a not in late))))
+        for loss in out:
+            for a in (*loss.faulted, *loss.released):
+                self._drop(a)
+        self.forget_gone()
         return out
 
     def forget_gone(self) -> list[str]:
-        """Forget clients whose token is gone and that hold nothing; returns their ids."""
+        """Forget clients whose token is gone, whose loss was reported and that hold nothing."""
         held = {cl.client for cl in self._claims.values()}
-        gone = [n for n, c in self._clients.items() if not c.alive and n not in held]
+        gone = [n for n, c in self._clients.items() if not c.alive and c.gone_at is None and n not in held]
         for n in gone:
             del self._clients[n]
         return gone
@@ -204,11 +309,11 @@ class ClaimTable:
         return sorted(n for n, c in self._clients.items() if c.alive)
 
     # ---- internals --------------------------------------------------------------------------
-    def _set_holder(self, axis_id: int, client: str, now: float) -> None:
+    def _set_holder(self, axis_id: int, client: str, now: float, watch_from: float | None = None) -> None:
         """Record ``client`` as the holder of ``axis_id`` since ``now`` [s] (the one place claims are added)."""
-        self._claims[axis_id] = _Claim(client, now)
+        self._claims[axis_id] = _Claim(client, now, watch_from)
         self.version += 1  # held_since() masks and the server's claim snapshot are rebuilt
 
     def _drop(self, axis_id: int) -> None:
-        del self._claims[axis_id]
-        self.version += 1
+        if self._claims.pop(axis_id, None) is not None:
+            self.version += 1

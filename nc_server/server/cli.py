@@ -34,6 +34,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--cycle-time", type=float, metavar="SECONDS", help="NC cycle time [s], e.g. 0.001")
     p.add_argument("--watchdog-timeout", type=float, metavar="SECONDS",
                    help="maximum age of a claim holder's PLCTONC [s]")
+    p.add_argument("--lease-ms", type=int, metavar="MS",
+                   help="zenoh transport lease this NC announces [ms] (replaces zenoh.lease; default 500)")
     p.add_argument("--realtime", choices=REALTIME_MODES, help="cycle thread scheduling (default from config: auto)")
     p.add_argument("--retain", metavar="PATH",
                    help="retain file: positions of axes with AxisEnDataPersistence, homed flags and parameters "
@@ -71,7 +73,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 check_endpoint(ep, f"{opt}[{i}]")
         cfg = load_config(args.config, listen=args.listen, connect=args.connect, mode=args.mode, name=args.name, cycle_time=args.cycle_time,
                           realtime=args.realtime, watchdog_timeout=args.watchdog_timeout,
-                          retain_file=args.retain, roles=args.roles, tls_dir=args.tls_dir)
+                          retain_file=args.retain, roles=args.roles, tls_dir=args.tls_dir,
+                          lease_ms=args.lease_ms)
     except ConfigError as exc:
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -22,6 +22,8 @@ from nc_server.drives import drive_names
 from nc_server.security.roles import Roles, RolesError, load_roles
 from nc_server.security.tls import TlsError, check_tls_endpoints, tls_files
 
+from .handler import LOSS_REACTIONS
+
 __all__ = ["ConfigError", "ServerConfig", "ZenohSettings", "load_config", "parse_config", "default_config_text",
            "check_endpoint", "REALTIME_MODES"]
 
@@ -43,7 +45,8 @@ class ZenohSettings:
             (the NC connects to a router, e.g. ``nc-router``, and needs no listen endpoint).
         listen: explicit listen endpoints (at least one unless ``connect`` is given).
         connect: endpoints to connect to (e.g. a router; usually none).
-        lease_ms: transport lease in milliseconds (also what clients are told to use for us).
+        lease_ms: transport lease in milliseconds: the lease this NC announces, i.e. how long its
+            peers (clients, a router) take to drop it when it freezes (about 0.75 x lease).
         tls_dir: certificate directory (``deploy/certs/make-certs.sh``): mutual TLS with the NC's
             certificate ``<name>.pem``, every endpoint ``tls/``; None: no TLS.
     """
@@ -51,7 +54,7 @@ class ZenohSettings:
     mode: str = "router"
     listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     connect: tuple[str, ...] = ()
-    lease_ms: int = 1000
+    lease_ms: int = 500
     tls_dir: str | None = None
 
 
@@ -75,6 +78,8 @@ class ServerConfig:
         roles: the roles file (``zenoh.roles`` / ``--roles``): the NC refuses commands a client's role
             does not allow, and with ``zenoh.tls_dir`` its own router session enforces the access
             control generated from it. None: no roles file.
+        loss_reactions: ``ClientLossReaction`` per axis, in the same order: "stop_disable"
+            (default), "stop" or "keep_others" (see ``handler.CycleInputs``).
     """
 
     name: str = "nc1"
@@ -87,6 +92,7 @@ class ServerConfig:
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     axes: tuple[AxisConfig, ...] = ()
     roles: Roles | None = None
+    loss_reactions: tuple[str, ...] = ()
 
 
 def default_config_text() -> str:
@@ -181,11 +187,13 @@ def _retain_path(v: Any, key: str) -> str:
     return str(p)
 
 
-def _axes(data: Mapping[str, Any]) -> tuple[AxisConfig, ...]:
+def _axes(data: Mapping[str, Any]) -> tuple[tuple[AxisConfig, ...], tuple[str, ...]]:
+    """The [[axis]] tables: the axes and their ClientLossReaction (a server key, not an AxisParams one)."""
     tables = data.get("axis")
     if not isinstance(tables, list) or not tables:
         raise ConfigError("axis", "at least one [[axis]] table is required")
     axes: list[AxisConfig] = []
+    reactions: list[str] = []
     ids: dict[int, int] = {}
     names: dict[str, int] = {}
     for i, t in enumerate(tables):
@@ -199,6 +207,8 @@ def _axes(data: Mapping[str, Any]) -> tuple[AxisConfig, ...]:
         name = t.pop("Name", "")
         if not isinstance(name, str) or len(name) > 64:
             raise ConfigError(f"{where}.Name", f"must be a string of at most 64 characters, got {name!r}")
+        reactions.append(_choice(t.pop("ClientLossReaction", LOSS_REACTIONS[0]), f"{where}.ClientLossReaction",
+                                 LOSS_REACTIONS))
         params = AxisParams.from_mapping(t, where=where)
         try:
             ax = AxisConfig(AxisId=axis_id, Name=name, params=params)
@@ -211,7 +221,7 @@ def _axes(data: Mapping[str, Any]) -> tuple[AxisConfig, ...]:
         ids[ax.AxisId] = i
         names[ax.Name] = i
         axes.append(ax)
-    return tuple(axes)
+    return tuple(axes), tuple(reactions)
 
 
 def _path(v: Any, key: str) -> str:
@@ -259,7 +269,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         raise ConfigError("zenoh.listen", "a client-mode NC listens nowhere: remove zenoh.listen or use mode router")
     if not listen and not connect:
         raise ConfigError("zenoh.listen", "at least one listen or connect endpoint is required")
-    lease = _integer(zn.get("lease", 1000), "zenoh.lease", 100, 600_000)
+    lease = _integer(zn.get("lease", ZenohSettings.lease_ms), "zenoh.lease", 100, 600_000)
     tls_dir = None
     if zn.get("tls_dir") is not None:
         tls_dir = _path(zn["tls_dir"], "zenoh.tls_dir")
@@ -277,16 +287,18 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
             raise ConfigError("zenoh.roles", str(exc)) from None
         if name not in roles.ncs:
             raise ConfigError("zenoh.roles", f"{roles.source}: NC {name!r} is not listed (add [nc.{name}])")
+    axes, reactions = _axes(data)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
-                        zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=_axes(data), roles=roles)
+                        zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
+                        loss_reactions=reactions)
 
 
 def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None,
                 connect: Sequence[str] | None = None, mode: str | None = None, name: str | None = None,
                 cycle_time: float | None = None, realtime: str | None = None,
                 watchdog_timeout: float | None = None, retain_file: str | None = None, roles: str | None = None,
-                tls_dir: str | None = None) -> ServerConfig:
+                tls_dir: str | None = None, lease_ms: int | None = None) -> ServerConfig:
     """Load ``path`` (TOML) or the embedded default, then apply the command-line overrides.
 
     Args:
@@ -297,6 +309,7 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
         name, cycle_time, realtime, watchdog_timeout, retain_file: replace ``nc.*`` when given.
         roles, tls_dir: replace ``zenoh.roles`` / ``zenoh.tls_dir`` when given (a relative path, here
             or in the file, is resolved against the working directory, as ``nc.retain_file``).
+        lease_ms: replaces ``zenoh.lease`` when given.
 
     Raises:
         ConfigError: unreadable file (key ``--config``), TOML syntax error, or any invalid value.
@@ -324,6 +337,8 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
         zn["listen"] = list(listen)
     if connect:
         zn["connect"] = list(connect)
+    if lease_ms is not None:
+        zn["lease"] = lease_ms
     for key, value in (("name", name), ("cycle_time", cycle_time), ("realtime", realtime),
                        ("watchdog_timeout", watchdog_timeout), ("retain_file", retain_file)):
         if value is not None:

@@ -17,19 +17,28 @@ This is the one implementation behind every door to an NC: nc-server's queryable
   (:meth:`RequestHandler.client_alive` / :meth:`RequestHandler.client_gone`) goes through it too,
   so a vanished client's claims fault and its reply-cache entries are dropped in one place.
 * :class:`CycleInputs` is what the NC does before each ``core.step()``: apply the newest PLCTONC
-  frame of each claim holder, then the watchdog (0x8F01 / 0x8F02 -> ``core.fault``, claim released).
+  frame of each claim holder, then the watchdog: a lost client (0x8F01 token gone, 0x8F02 PLCTONC
+  timeout) gets each axis's ``ClientLossReaction`` on the axes it supplied, and the motions it
+  commanded elsewhere stop with 0x8F01; its claims are released (docs/arbitration.md).
 """
 from __future__ import annotations
 
 import logging
 from collections import OrderedDict
-from typing import Any, Callable, Iterable, Mapping, Protocol
+from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from nc_schema import CLASSES, COMMAND_CLASS, COMMANDS, ROLE_CLASSES, ErrorCodes, Keys, NcError, make_reply, pack, parse_request
+from nc_schema import (CLASSES, COMMAND_CLASS, COMMANDS, MOTION_COMMANDS, ROLE_CLASSES, ErrorCodes, Keys, NcError,
+                       make_reply, pack, parse_request)
 
-from .claims import ClaimTable
+from .claims import ZNC_CLIENT_LOST, ClaimTable, Loss
+
+#: commands refused when they were queued across a long NC stall (stops are still executed)
+REFUSED_AFTER_STALL = (MOTION_COMMANDS | {"NewPos", "NewPosAndVelo", "ChangeDynParam"}) - {"Stop", "Halt"}
+
+#: ``ClientLossReaction`` of an axis (config key in the [[axis]] table); the first is the default.
+LOSS_REACTIONS = ("stop_disable", "stop", "keep_others")
 
 log = logging.getLogger("nc_server.server")
 
@@ -46,6 +55,8 @@ MAX_SEEN = 256
 #: The role a client is shown with when the NC has no roles file: by the highest class it used.
 SEEN_ROLE = {"read": "observer", "op": "operator", "eng": "engineer"}
 _RANK = {c: i for i, c in enumerate(CLASSES)}
+NO_NC_CYCLE = int(ErrorCodes.MC_NO_NC_CYCLE_UPDATE)  # type: ignore[attr-defined]
+ZNC_NC_STALLED = int(ErrorCodes.ZNC_NC_STALLED)  # type: ignore[attr-defined]
 
 
 class CoreLike(Protocol):
@@ -175,11 +186,11 @@ class RequestHandler:
         self.claims.client_alive(client)
         self.clients_version += 1
 
-    def client_gone(self, client: str) -> None:
-        """``client``'s token disappeared: its claims fault at the next watchdog check
-        (:meth:`CycleInputs.watchdog`), and its cached replies are dropped (a restarted client
-        may reuse request ids)."""
-        self.claims.client_gone(client)
+    def client_gone(self, client: str, now: float = 0.0) -> None:
+        """``client``'s token disappeared at ``now`` [s]: the next watchdog check
+        (:meth:`CycleInputs.watchdog`) reacts to the loss, and its cached replies are dropped (a
+        restarted client may reuse request ids)."""
+        self.claims.client_gone(client, now)
         self.cache.forget_client(client)
         self.clients_version += 1
 
@@ -214,6 +225,22 @@ class RequestHandler:
     def too_large(self, size: int) -> bytes:
         """The reply to a request of ``size`` bytes over MAX_REQUEST_BYTES (0x706)."""
         return self._error(None, None, NcError(INVALID_DATA, f"request of {size} bytes exceeds {MAX_REQUEST_BYTES}"))
+
+    def handle_after_stall(self, key: str, payload: bytes, now: float) -> bytes:
+        """:meth:`handle` for a request taken right after a long stall of the NC: a command that
+        would start or change a motion (:data:`REFUSED_AFTER_STALL`) is refused with 0x4B0F and not
+        executed (it was queued across the stall: its block may have given up on stale data, or
+        its session was dropped with the reply path); anything else runs as usual. Not cached: a
+        retry with the same id is executed normally."""
+        try:
+            req = parse_request(payload[:MAX_REQUEST_BYTES])
+        except Exception:
+            return self.handle(key, payload, now)
+        if req["cmd"] not in REFUSED_AFTER_STALL:
+            return self.handle(key, payload, now)
+        self.requests += 1
+        return self._error(req["id"], req["cmd"], NcError(NO_NC_CYCLE, "the NC stalled: a motion command queued "
+                                                                       "across the stall is refused, not executed late"))
 
     def _handle(self, key: str, payload: bytes, now: float) -> bytes:
         if len(payload) > MAX_REQUEST_BYTES:
@@ -297,7 +324,7 @@ class RequestHandler:
             where = f"{self.keys.prefix}/axis/<id>/cmd/{COMMAND_CLASS[cmd]}/{client}"
             return self._error_reply(rid, cmd, NcError(AXIS_NOT_ALLOWED, f"{cmd} is an axis command: send it to {where}"))
         assert axis_id is not None
-        if cmd in ("Claim", "Release"):
+        if cmd in ("Claim", "Release", "HandOver"):
             try:
                 i = self.core.index(axis_id)
                 if cmd == "Claim":
@@ -306,6 +333,14 @@ class RequestHandler:
                         self.refresh_liveliness()
                     self.claims.claim(axis_id, client, now)
                     return make_reply(rid, cmd, 0, "", cycle=cycle, value=client)
+                if cmd == "HandOver":
+                    # the claim moves; the applied PLCTONC stays until the new holder's first frame
+                    to = req["To"]
+                    if to != client and not self.claims.is_alive(to):
+                        self.refresh_liveliness()
+                    if self.claims.hand_over(axis_id, client, to, now):
+                        log.info("axis %d handed over by %s to %s", axis_id, client, to)
+                    return make_reply(rid, cmd, 0, "", cycle=cycle, value=to)
                 if self.claims.release(axis_id, client):
                     # Nobody supplies PLCTONC any more: all enables off, override 100 %.
                     self.core.set_plctonc(i, self.core.default_plctonc())
@@ -354,21 +389,44 @@ class CycleInputs:
     in-process NC (:class:`plc_client.port.InProcessNc`) with each PLC task's frame as it is
     published, and :meth:`watchdog` when a port closes.
 
+    A lost client (:class:`~nc_server.server.claims.Loss`), on each axis it supplied, per the axis's
+    ``ClientLossReaction``:
+
+    * ``"stop_disable"`` (default; TwinCAT's behaviour when the PLC stops): the axis stops on its
+      fault ramp with the loss's error (0x8F01 / 0x8F02) and gets the default PLCTONC: disabled
+      once it stands;
+    * ``"stop"``: the same stop and error, but the last applied PLCTONC stays: the axis stays
+      enabled, holding its position, until someone claims it and sends another;
+    * ``"keep_others"``: if the axis runs a motion commanded by other live clients only, nothing
+      stops: the NC keeps the last applied PLCTONC until the axis has no motion of a live client
+      and stands, then applies the default (unless somebody claimed it meanwhile); otherwise as
+      ``"stop_disable"``.
+
+    On every other axis, a motion the lost client commanded (running or buffered, a superposition
+    included; stops excepted) stops with 0x8F01 on the axis, so every client sees why; that axis's
+    PLCTONC is not touched (its holder's stays).
+
     Args:
         core: the NcCore (owned by the calling thread).
         claims: the claim table (its ``axis_ids`` are the core's, in configuration order).
+        reactions: ``ClientLossReaction`` per axis, in the same order (default: all "stop_disable").
 
     Attributes:
         faults: watchdog faults raised so far.
     """
 
-    def __init__(self, core: FaultingCore, claims: ClaimTable) -> None:
+    def __init__(self, core: FaultingCore, claims: ClaimTable, reactions: Sequence[str] | None = None) -> None:
         self.core = core
         self.claims = claims
         ids = claims.axis_ids
         # AxisId -> index lookup for PLC frames (vectorized); -1 = not configured.
         self._lut = np.full(max(ids, default=0) + 1, -1, dtype=np.int64)
         self._lut[ids] = np.arange(len(ids))
+        self.reactions = list(reactions) if reactions else [LOSS_REACTIONS[0]] * len(ids)
+        if len(self.reactions) != len(ids) or any(r not in LOSS_REACTIONS for r in self.reactions):
+            raise ValueError(f"reactions must be {len(ids)} of {LOSS_REACTIONS}, got {reactions!r}")
+        #: rows whose last PLCTONC the NC keeps after their holder was lost ("keep_others")
+        self.kept: set[int] = set()
         self.faults = 0
 
     def apply(self, frames: Iterable[tuple[str, PlctoncFrame]], now: float) -> list[tuple[int, int]]:
@@ -395,23 +453,92 @@ class CycleInputs:
                 self._set_plctonc(idx[sel], f.plctonc[sel])
 
     def watchdog(self, now: float) -> list[tuple[int, int]]:
-        """Fault the axes of lost clients (0x8F01) and stale PLCTONC (0x8F02) at ``now`` [s].
-
-        Each faulted axis stops with its deceleration, gets the default PLCTONC (nobody supplies
-        it any more) and its claim is released.
+        """React to the clients lost at ``now`` [s] (see the class docstring); review kept axes.
 
         Returns:
             The (axis_id, error code) pairs faulted now.
         """
-        core = self.core
-        out = self.claims.check(now)
-        for axis_id, code in out:
-            i = core.index(axis_id)
-            core.fault(i, code)
-            core.set_plctonc(i, core.default_plctonc())
-            self.faults += 1
-            log.warning("axis %d: fault 0x%04X (claim released)", axis_id, code)
+        out: list[tuple[int, int]] = []
+        for loss in self.claims.check(now):
+            out += self.client_lost(loss)
+        if self.kept:
+            self._review_kept()
         return out
+
+    def client_lost(self, loss: Loss) -> list[tuple[int, int]]:
+        """Apply one loss (its claims are already released); the (axis_id, code) pairs faulted."""
+        core, claims = self.core, self.claims
+        out: list[tuple[int, int]] = []
+        done: set[int] = set()
+        for axis_id in loss.faulted:
+            i = core.index(axis_id)
+            done.add(i)
+            reaction = self.reactions[i]
+            if reaction == "keep_others" and self._others_only(i, loss.client):
+                self.kept.add(i)  # nothing stops: the other clients' motion goes on with the last PLCTONC
+                log.warning("axis %d: client %s lost (0x%04X); the motion of %s goes on (keep_others)",
+                            axis_id, loss.client, loss.code, ", ".join(sorted(self._commanders(i))))
+                continue
+            self._fault(i, axis_id, loss.code, out)
+            if reaction != "stop":
+                core.set_plctonc(i, core.default_plctonc())
+            self.kept.discard(i)
+            log.warning("axis %d: client %s lost: fault 0x%04X, claim released (%s)", axis_id, loss.client,
+                        loss.code, reaction)
+        for axis_id in loss.released:
+            log.info("axis %d: claim of lost client %s released (it never supplied the axis)", axis_id, loss.client)
+        # the motions it commanded on axes somebody else supplies (or nobody)
+        for i in range(len(claims.axis_ids)):
+            if i not in done and loss.client in self._commanders(i):
+                axis_id = claims.axis_ids[i]
+                self._fault(i, axis_id, ZNC_CLIENT_LOST, out)
+                log.warning("axis %d: the motion commanded by lost client %s stopped (0x%04X)", axis_id,
+                            loss.client, ZNC_CLIENT_LOST)
+        if not out and not loss.faulted:
+            log.info("client %s lost (0x%04X): it held nothing and commanded no running motion", loss.client, loss.code)
+        return out
+
+    def nc_stalled(self, gap: float) -> list[tuple[int, int]]:
+        """The NC itself did not run for ``gap`` seconds (more than the watchdog timeout): every
+        moving axis stops with 0x8F03 (nothing supervised its motion meanwhile; no client is
+        blamed). Returns the (axis_id, code) pairs faulted."""
+        out: list[tuple[int, int]] = []
+        moving = getattr(self.core, "moving", None)
+        if moving is None:
+            return out
+        for i in np.flatnonzero(np.asarray(moving)).tolist():
+            self._fault(i, self.claims.axis_ids[i], ZNC_NC_STALLED, out)
+        if out:
+            log.error("the NC stalled for %.3f s: %d moving axes stopped with 0x%04X", gap, len(out), ZNC_NC_STALLED)
+        return out
+
+    def _fault(self, i: int, axis_id: int, code: int, out: list[tuple[int, int]]) -> None:
+        self.core.fault(i, code)
+        self.faults += 1
+        out.append((axis_id, code))
+
+    def _commanders(self, i: int) -> set[str]:
+        fn = getattr(self.core, "commanders", None)
+        return fn(i) if fn is not None else set()
+
+    def _others_only(self, i: int, lost: str) -> bool:
+        """Axis row ``i`` runs motions commanded by live clients other than ``lost`` only."""
+        who = self._commanders(i)
+        return bool(who) and all(c and c != lost and self.claims.is_alive(c) for c in who)
+
+    def _review_kept(self) -> None:
+        """Kept axes: the default PLCTONC once no live client's motion runs and the axis stands
+        (not if somebody claimed it meanwhile: the new holder's frames apply)."""
+        core, claims = self.core, self.claims
+        moving = np.asarray(getattr(core, "moving", np.zeros(len(claims.axis_ids), dtype=bool)))
+        for i in sorted(self.kept):
+            axis_id = claims.axis_ids[i]
+            if claims.holder(axis_id) is not None:
+                self.kept.discard(i)
+            elif not moving[i] and not any(c and claims.is_alive(c) for c in self._commanders(i)):
+                core.set_plctonc(i, core.default_plctonc())
+                self.kept.discard(i)
+                log.info("axis %d: the kept motion ended; default PLCTONC (keep_others)", axis_id)
 
     def _set_plctonc(self, idx: np.ndarray, records: np.ndarray) -> None:
         core = self.core

@@ -51,6 +51,8 @@ log = logging.getLogger("nc_server.server")
 #: Pending queries kept (the cycle drains a bounded number per cycle); beyond, a query is finalized
 #: at once without a reply (its querier sees no answer) and counted in Transport.queries_refused.
 QUERY_CHANNEL = 1024
+#: A PLCTONC sample's router stamp corrects its arrival time only if it is younger than this [s].
+HLC_MAX_AGE = 0.25
 #: Largest message the NC's zenoh session accepts [bytes].
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 #: Period of ``nc/<nc>/status``: the newest frame's bytes again, decimated for observers on slow
@@ -358,10 +360,14 @@ class Transport:
         # The arrival time feeds the watchdog. Our router stamps every sample it receives (HLC,
         # wall clock) on zenoh's own thread; that stamp is used when it is ours, so a late run of
         # this Python thread (GIL, CPU load) cannot make a live client look silent.
+        # (Only small ages are believed: the stamp is wall-clock time, and a step of the wall clock
+        # must not make every frame look old - a late arrival time only ever makes a client look
+        # fresher. Frames processed after an NC stall carry old stamps: ClaimTable never moves a
+        # client's PLCTONC time backwards, and grace() covers the stall.)
         ts = sample.timestamp
         if ts is not None and str(ts.get_id()) == self._zid:
             age = time.time() - ts.get_time_as_ntp64().as_secs_f64()
-            if 0.0 < age < 60.0:
+            if 0.0 < age < HLC_MAX_AGE:
                 now -= age
         try:
             if len(sample.payload) > self._max_plc_frame:

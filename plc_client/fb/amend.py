@@ -129,6 +129,7 @@ class MC_ChangeDynParam(MotionBlock):
     """
 
     CMD = "ChangeDynParam"
+    _UNDO_ON_LOSS = False  # it amends another block's job
     _INPUTS = {"Execute": False, "Acceleration": 0.0, "Deceleration": 0.0, "Jerk": 0.0}
     _OUTPUTS = {"Done": False, "Busy": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
     _REALS = ("Acceleration", "Deceleration", "Jerk")

@@ -17,7 +17,11 @@ Execute blocks:
 * a rising edge while Busy is ignored (no feedback, no second command);
 * the outputs are reset on Execute falling when the block is not Busy;
 * an axis whose data is stale (``AXIS_REF.Status.Valid`` False) makes a block that acts
-  on it report Error 0x4B0F (0x4012 if frames arrive without that axis).
+  on it report Error 0x4B0F (0x4012 if frames arrive without that axis); a Busy block ends so
+  as soon as it sees the data stale or the NC restarted (:meth:`ExecuteBlock._lost_axis`, the
+  one path every block family follows, waiting for a reply included), and hands the motion command
+  it followed to the task (``_on_axis_lost``: the task stops it if the same NC still runs it
+  when its data comes back, see :mod:`plc_client.task`).
 
 Timeouts: ``timeout`` (constructor argument, seconds, default the task's
 ``command_timeout``, 1 s) bounds the wait for the NC's reply: no reply -> Error 0x745.
@@ -203,15 +207,22 @@ class ExecuteBlock(FunctionBlock):
         return True
 
     def _lost_axis(self) -> bool:
-        """Finish with Error if the axis data is stale/missing or the NC restarted since the send."""
+        """Finish with Error if the axis data is stale/missing or the NC restarted since the send
+        (then :meth:`_on_axis_lost`)."""
         ax = self.Axis
         code = self._axis_problem()
         if not code and ax is not None and ax.nc_epoch != self._epoch:
             code = ErrorCodes.MC_NO_NC_CYCLE_UPDATE
         if code:
             self._finish("Error", code)
+            if ax is not None and ax._task is not None:
+                self._on_axis_lost(ax, ax._task)
             return True
         return False
+
+    def _on_axis_lost(self, ax: AXIS_REF, task: PlcTask) -> None:
+        """The block just ended with Error because the axis's data was lost: hand what it followed
+        to the task (``task.lost_command``) if the NC may still run it. Default: nothing."""
 
     def _reply_shown(self) -> bool:
         """True once the NC accepted the command and a frame of the reply's cycle (or later) is
@@ -268,9 +279,12 @@ class ExecuteBlock(FunctionBlock):
         return no, int(reply.get("cycle", 0)), reply
 
     def _await_reply(self) -> dict[str, Any] | None:
-        """The reply once it arrived (error 0); finishes with Error on rejection/timeout."""
+        """The reply once it arrived (error 0); finishes with Error on rejection/timeout, or at
+        once (0x4B0F) when the axis's data is lost meanwhile."""
         p = self._pending
         if p is None:
+            return None
+        if not p.done and self._lost_axis():
             return None
         if p.done:
             if p.reply is None:

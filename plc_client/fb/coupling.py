@@ -359,6 +359,7 @@ class MC_GearOutExt(_SlaveCall, MotionBlock):
     """
 
     CMD = "GearOutExt"
+    _UNDO_ON_LOSS = False  # it ends a coupling with a stop: nothing to undo
     _INPUTS = {"Execute": False, "Mode": 0, "Position": 0.0, "Velocity": 0.0, **_DYN}
     _OUTPUTS = {"Done": False, "Busy": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
     _REALS = ("Position", "Velocity", "Acceleration", "Deceleration", "Jerk")

@@ -117,6 +117,9 @@ class MotionBlock(ExecuteBlock):
     #: a rising edge of Execute while Busy sends a new command (MC_MoveAbsoluteOrRestart,
     #: MC_ChangeDynParam) instead of being ignored
     _RETRIGGER: ClassVar[bool] = False
+    #: the task stops the command if the block gave up on lost data and the NC still runs it
+    #: (False for stops and amendments: nothing to undo)
+    _UNDO_ON_LOSS: ClassVar[bool] = True
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -173,6 +176,10 @@ class MotionBlock(ExecuteBlock):
             self._cmdno, self._cmd_cycle, _ = got
         self._follow()
 
+
+    def _on_axis_lost(self, ax: Any, task: Any) -> None:
+        if self._UNDO_ON_LOSS and self._cmdno:
+            task.lost_command(ax, self._cmdno, self.CMD, max(self._cmd_cycle, ax.Status.NcCycleCounter))
 
     def _set_active(self, active: bool) -> None:
         if "Active" in self._OUTPUTS:
@@ -468,6 +475,7 @@ class MC_Halt(MotionBlock):
     """
 
     CMD = "Halt"
+    _UNDO_ON_LOSS = False  # a stop: nothing to undo
     _INPUTS = {"Execute": False, "Deceleration": 0.0, "Jerk": 0.0, **_BM}
     _REALS = ("Deceleration", "Jerk")
     _END = "standstill"
@@ -487,6 +495,7 @@ class MC_OrientedStop(MotionBlock):
     """
 
     CMD = "OrientedStop"
+    _UNDO_ON_LOSS = False  # a stop: nothing to undo
     _INPUTS = {"Execute": False, "Position": 0.0, "Deceleration": 0.0, "Jerk": 0.0}
     _REALS = ("Position", "Deceleration", "Jerk")
     _END = "standstill"
@@ -501,6 +510,7 @@ class MC_Stop(MotionBlock):
     """
 
     CMD = "Stop"
+    _UNDO_ON_LOSS = False  # a stop: nothing to undo
     _INPUTS = {"Execute": False, "Deceleration": 0.0, "Jerk": 0.0}
     _REALS = ("Deceleration", "Jerk")
     _END = "standstill"

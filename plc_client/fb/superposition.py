@@ -109,6 +109,10 @@ class _SuperBlock(ExecuteBlock):
             self._take_actuals(reply.get("Value"))
         self._follow()
 
+    def _on_axis_lost(self, ax: Any, task: Any) -> None:
+        if self._super_no:
+            task.lost_command(ax, self._super_no, "MoveSuperImposed", max(self._super_cycle, ax.Status.NcCycleCounter))
+
     def _take_actuals(self, value: Any) -> None:
         if not self._ACTUAL_OUTPUTS or not isinstance(value, dict):
             return

@@ -4,7 +4,12 @@ from __future__ import annotations
 import pytest
 
 from nc_schema import NcError
-from nc_server.server.claims import ACCESS_DENIED, ZNC_CLIENT_LOST, ZNC_PLCTONC_TIMEOUT, ClaimTable
+from nc_server.server.claims import ACCESS_DENIED, ZNC_CLIENT_LOST, ZNC_PLCTONC_TIMEOUT, ClaimTable, Loss
+
+
+def faults(losses: list[Loss]) -> list[tuple[int, int]]:
+    """The (axis_id, code) pairs of the axes the losses fault."""
+    return sorted((a, loss.code) for loss in losses for a in loss.faulted)
 
 
 @pytest.fixture
@@ -50,8 +55,8 @@ def test_client_lost_faults_and_releases(table: ClaimTable) -> None:
     table.claim(1, "a", 0.0)
     table.claim(2, "a", 0.0)
     assert table.check(0.1) == []
-    table.client_gone("a")
-    assert sorted(table.check(0.2)) == [(1, ZNC_CLIENT_LOST), (2, ZNC_CLIENT_LOST)]
+    table.client_gone("a", 0.15)
+    assert table.check(0.2) == [Loss("a", ZNC_CLIENT_LOST, (1, 2))]
     assert table.claims() == {} and table.check(0.3) == []
     assert table.clients() == []
     # A token that comes back may claim again.
@@ -70,10 +75,10 @@ def test_plctonc_timeout(table: ClaimTable) -> None:
     table.plctonc_arrived("b", 10.0)
     assert table.check(10.5) == []  # exactly the timeout: still fine
     table.plctonc_arrived("b", 10.4)
-    assert table.check(10.51) == [(1, ZNC_PLCTONC_TIMEOUT)]
+    assert faults(table.check(10.51)) == [(1, ZNC_PLCTONC_TIMEOUT)]
     assert table.holder(1) is None and table.holder(3) == "b"
     assert table.check(10.89) == []
-    assert table.check(10.91) == [(3, ZNC_PLCTONC_TIMEOUT)]
+    assert faults(table.check(10.91)) == [(3, ZNC_PLCTONC_TIMEOUT)]
 
 
 def test_frame_before_claim_does_not_arm(table: ClaimTable) -> None:
@@ -82,7 +87,7 @@ def test_frame_before_claim_does_not_arm(table: ClaimTable) -> None:
     table.claim(1, "a", 5.0)  # the frame at 1.0 predates the claim
     assert table.check(6.0) == []
     table.plctonc_arrived("a", 6.0)
-    assert table.check(6.6) == [(1, ZNC_PLCTONC_TIMEOUT)]
+    assert faults(table.check(6.6)) == [(1, ZNC_PLCTONC_TIMEOUT)]
 
 
 def test_grace_after_nc_stall(table: ClaimTable) -> None:
@@ -91,7 +96,7 @@ def test_grace_after_nc_stall(table: ClaimTable) -> None:
     table.plctonc_arrived("a", 0.1)
     table.grace(3.0)  # the NC itself was stopped: nobody is blamed for the gap
     assert table.check(3.2) == []
-    assert table.check(3.6) == [(1, ZNC_PLCTONC_TIMEOUT)]
+    assert faults(table.check(3.6)) == [(1, ZNC_PLCTONC_TIMEOUT)]
 
 
 def test_override_permission(table: ClaimTable) -> None:
@@ -128,3 +133,132 @@ def test_claim_records_holder_time_and_version(table: ClaimTable) -> None:
     assert table.held_since("a")[1] == 7.5
     table.claim(2, "a", 9.0)  # idempotent for the holder: the original claim time stays
     assert table.version == v + 1 and table.held_since("a")[1] == 7.5
+
+
+# ---- client loss -------------------------------------------------------------------------------
+def test_a_lost_commander_is_reported_although_it_holds_nothing(table: ClaimTable) -> None:
+    """A client that only commands (no claim) is reported once, so its motions can be stopped."""
+    table.client_alive("op")
+    table.client_gone("op", 1.0)
+    assert table.clients() == []
+    assert table.check(1.001) == [Loss("op", ZNC_CLIENT_LOST)]
+    assert table.check(1.002) == []
+
+
+def test_a_timed_out_holder_loses_all_its_claims(table: ClaimTable) -> None:
+    """0x8F02 on what it supplied; a claim it never supplied is released without a fault."""
+    table.client_alive("a")
+    table.claim(1, "a", 0.0)
+    table.plctonc_arrived("a", 1.0)
+    table.claim(2, "a", 1.2)  # after its last frame: never supplied
+    assert table.check(1.5) == []
+    assert table.check(1.51) == [Loss("a", ZNC_PLCTONC_TIMEOUT, (1,), (2,))]
+    assert table.claims() == {} and table.clients() == ["a"]  # still alive: it may claim again
+
+
+def test_a_token_that_comes_back_before_the_check_is_no_loss(table: ClaimTable) -> None:
+    table.client_alive("a")
+    table.claim(1, "a", 0.0)
+    table.client_gone("a", 1.0)
+    table.client_alive("a")
+    assert table.check(1.001) == [] and table.holder(1) == "a"
+
+
+# ---- the NC's own stall (issue 8: 0x8F02 12 ms after resuming) ----------------------------------
+def test_regression_older_frame_after_grace_does_not_fault(table: ClaimTable) -> None:
+    """The bug: the NC was frozen 0.7 s; at the first cycle after it, grace() set the holder's
+    PLCTONC time to 'now', then a frame that had arrived before the stall (HLC-corrected arrival
+    0.69 s earlier) was processed and set it back: 0x8F02 a few ms after resuming, blamed on a
+    live client. The arrival time never goes backwards now."""
+    table.client_alive("a")
+    table.claim(1, "a", 0.0)
+    table.plctonc_arrived("a", 10.000)  # the last frame processed before the stall
+    # the NC is frozen from 10.005 to 10.705; first cycle after it:
+    table.grace(10.705, since=10.005)
+    table.plctonc_arrived("a", 10.008)  # queued before the stall, processed after it
+    assert table.check(10.717) == []    # 12 ms after resuming: the observed fault
+    assert table.check(11.2) == []      # nothing is blamed within a watchdog timeout of the resume
+    table.plctonc_arrived("a", 10.72)   # the client's fresh frames
+    assert table.check(11.21) == []
+    assert faults(table.check(11.221)) == [(1, ZNC_PLCTONC_TIMEOUT)]  # and a real silence still faults
+
+
+def test_plctonc_time_never_goes_backwards(table: ClaimTable) -> None:
+    table.client_alive("a")
+    table.claim(1, "a", 0.0)
+    table.plctonc_arrived("a", 2.0)
+    table.plctonc_arrived("a", 1.0)  # processed late, arrived earlier
+    assert table.check(2.5) == [] and faults(table.check(2.51)) == [(1, ZNC_PLCTONC_TIMEOUT)]
+
+
+def test_token_lost_across_an_nc_stall_gets_time_to_come_back(table: ClaimTable) -> None:
+    """A stall longer than the clients' view of the NC's lease drops their links; their tokens
+    vanish and come back within milliseconds of the resume. Not a loss."""
+    table.client_alive("a")
+    table.client_alive("b")
+    table.claim(1, "a", 0.0)
+    table.plctonc_arrived("a", 10.0)
+    table.grace(10.8, since=10.0)
+    table.client_gone("a", 10.805)
+    table.client_gone("b", 10.806)
+    assert table.check(10.806) == [] and table.holder(1) == "a"
+    table.client_alive("a")  # reconnected
+    table.plctonc_arrived("a", 10.82)
+    assert table.check(11.2) == []
+    assert table.check(11.31) == [Loss("b", ZNC_CLIENT_LOST)]  # b did not come back
+    assert table.holder(1) == "a"
+
+
+def test_token_lost_long_after_a_stall_is_a_loss_at_once(table: ClaimTable) -> None:
+    table.client_alive("a")
+    table.claim(1, "a", 0.0)
+    table.grace(10.8, since=10.0)
+    table.client_gone("a", 20.0)
+    assert table.check(20.001) == [Loss("a", ZNC_CLIENT_LOST, (1,))]
+
+
+# ---- hand-over ---------------------------------------------------------------------------------
+def test_hand_over_moves_the_claim_and_arms_the_watchdog(table: ClaimTable) -> None:
+    table.client_alive("a")
+    table.client_alive("b")
+    table.claim(1, "a", 0.0)
+    table.plctonc_arrived("a", 1.0)
+    v = table.version
+    assert table.hand_over(1, "a", "b", 1.1) is True
+    assert table.holder(1) == "b" and table.version == v + 1
+    assert table.held_since("b")[0] == 1.1 and table.held_since("a")[0] == float("inf")
+    # the new holder's watchdog counts from the hand-over, even before its first frame
+    assert table.check(1.6) == []
+    assert table.check(1.61) == [Loss("b", ZNC_PLCTONC_TIMEOUT, (1,))]
+
+
+def test_hand_over_then_the_new_holders_frames_feed_the_watchdog(table: ClaimTable) -> None:
+    table.client_alive("a")
+    table.client_alive("b")
+    table.claim(1, "a", 0.0)
+    table.plctonc_arrived("b", 1.05)  # before the hand-over: does not count for the claim
+    table.hand_over(1, "a", "b", 1.1)
+    table.plctonc_arrived("b", 1.2)
+    assert table.check(1.7) == []
+    assert faults(table.check(1.71)) == [(1, ZNC_PLCTONC_TIMEOUT)]
+
+
+def test_hand_over_refusals(table: ClaimTable) -> None:
+    table.client_alive("a")
+    table.client_alive("b")
+    for args, code in (((1, "a", "b", 0.0), ACCESS_DENIED),   # not claimed
+                       ((9, "a", "b", 0.0), 0x4012)):
+        with pytest.raises(NcError) as ei:
+            table.hand_over(*args)
+        assert ei.value.code == code
+    table.claim(1, "a", 0.0)
+    with pytest.raises(NcError) as ei:
+        table.hand_over(1, "b", "b", 0.1)  # b is not the holder
+    assert ei.value.code == ACCESS_DENIED and "'a'" in str(ei.value)
+    with pytest.raises(NcError) as ei:
+        table.hand_over(1, "a", "ghost", 0.1)  # no liveliness token
+    assert ei.value.code == ACCESS_DENIED and "ghost" in str(ei.value)
+    with pytest.raises(NcError) as ei:
+        table.hand_over(1, "a", "no spaces", 0.1)
+    assert ei.value.code == 0x706
+    assert table.hand_over(1, "a", "a", 0.1) is False and table.holder(1) == "a"

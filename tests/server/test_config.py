@@ -27,7 +27,7 @@ def test_default_config() -> None:
     assert cfg.drive == "sim"
     assert cfg.zenoh.mode == "router"
     assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",)
-    assert cfg.zenoh.lease_ms == 1000
+    assert cfg.zenoh.lease_ms == 500  # a frozen NC is dropped by its peers within ~0.4 s
     assert [(a.AxisId, a.Name) for a in cfg.axes] == [(1, "X"), (2, "Y"), (3, "Z"), (4, "C")]
     c = cfg.axes[3].params
     assert c.Modulo and c.AxisEncoderModuloValue == 360.0
@@ -93,6 +93,8 @@ def test_errors_name_the_key(tmp_path: Path, text: str, key: str) -> None:
     ("[[axis]]\nAxisId = 1\nModulo = 'yes'\n", "axis[0].Modulo"),
     ("[[axis]]\nAxisId = 1\nAxisEnMinSoftPosLimit = true\nAxisEnMaxSoftPosLimit = true\n"
      "AxisMinSoftPosLimit = 10.0\nAxisMaxSoftPosLimit = 0.0\n", "axis[0].AxisMinSoftPosLimit"),
+    ("[[axis]]\nAxisId = 1\nClientLossReaction = 'halt'\n", "axis[0].ClientLossReaction"),
+    ("[[axis]]\nAxisId = 1\nClientLossReaction = 1\n", "axis[0].ClientLossReaction"),
 ])
 def test_axis_errors_name_the_key(tmp_path: Path, axes: str, key: str) -> None:
     with pytest.raises(ConfigError) as ei:
@@ -195,3 +197,13 @@ def test_router_cli_rejects_a_bad_endpoint(capsys: pytest.CaptureFixture[str]) -
     from nc_server import router
     assert router.main(["--listen", "tcp/127.0.0.1"]) == 2
     assert "--listen[0]" in capsys.readouterr().err
+
+
+def test_client_loss_reaction_per_axis_and_lease(tmp_path: Path) -> None:
+    """ClientLossReaction per [[axis]] (default stop_disable), in axis order; --lease-ms overrides."""
+    cfg = load_config(write(tmp_path, "[nc]\nname = 'nc1'\n[zenoh]\nlease = 300\n"
+                                      "[[axis]]\nAxisId = 1\nClientLossReaction = 'keep_others'\n"
+                                      "[[axis]]\nAxisId = 2\n[[axis]]\nAxisId = 3\nClientLossReaction = 'stop'\n"))
+    assert cfg.loss_reactions == ("keep_others", "stop_disable", "stop")
+    assert cfg.zenoh.lease_ms == 300
+    assert load_config(lease_ms=200).zenoh.lease_ms == 200

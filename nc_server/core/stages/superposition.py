@@ -56,6 +56,7 @@ class SuperpositionStage:
         self.actual = np.zeros((3, n))              # ActualDistance, ActualVelocityDiff, ActualLength
         self.end_error = np.zeros(n, dtype=np.uint32)  # the error the running one ends with (0x4243)
         self.dyn: list[Dynamics | None] = [None] * n  # the command's dynamics (MC_AbortSuperposition brakes with them)
+        self.client: list[str] = [""] * n           # who commanded it (the server stops it when that client is lost)
         self.rows = np.zeros(0, dtype=np.intp)
         self._values: np.ndarray | None = None     # this cycle's (4, len(rows)) offsets
         self.changed: list[int] = []               # rows whose slot changed (job records)
@@ -235,6 +236,7 @@ def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
         a.stopped[i] = False  # (a new motion: HasBeenStopped goes, as with the next motion command)
     cmd_no = q.newest = next_cmdno(q.newest)
     stage.start(i, sp.plan, cmd_no, (sp.distance, sp.velocity_diff, sp.length), _INCOMPLETE if sp.incomplete else 0, dyn)
+    stage.client[i] = str(req.get("client") or "")
     stage.changed.append(i)
     core._state_dirty = True
     return {"cmd_no": cmd_no, "value": {"ActualDistance": sp.distance, "ActualVelocityDiff": sp.velocity_diff,
