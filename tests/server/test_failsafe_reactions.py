@@ -45,7 +45,8 @@ class Rig:
 
     def cmd(self, client: str, cmd: str, axis: int, **args: Any) -> dict[str, Any]:
         self._rid += 1
-        rep = self.h.handle(f"nc/nc1/axis/{axis}/cmd", make_request(cmd, self._rid, client, **args), self.now)
+        rep = self.h.handle(Keys("nc1").command_key(cmd, axis, client), make_request(cmd, self._rid, client, **args),
+                            self.now)
         return msgpack.unpackb(rep, raw=False, strict_map_key=False)
 
     def ok(self, client: str, cmd: str, axis: int, **args: Any) -> dict[str, Any]:
@@ -279,7 +280,7 @@ def test_motion_commands_queued_across_a_stall_are_refused_with_0x4B0F() -> None
     r = Rig(["stop_disable"])
     r.join("a", [1])
     r.run(5)
-    key = "nc/nc1/axis/1/cmd"
+    key = Keys("nc1").command_key("MoveVelocity", 1, "a")  # Stop and Claim are class op too
     rep = msgpack.unpackb(r.h.handle_after_stall(key, make_request("MoveVelocity", 77, "a", Velocity=1.0), r.now),
                           strict_map_key=False)
     assert rep["error"] == 0x4B0F and rep["id"] == 77 and rep["cmd"] == "MoveVelocity" and "stalled" in rep["text"]
