@@ -33,7 +33,8 @@ class Rig:
         params = AxisParams(AxisVeloMax=500.0, AxisAcc=5000.0, AxisDec=5000.0, AxisJerk=50000.0)
         self.core = NcCore([AxisConfig(i + 1, params=params) for i in range(len(reactions))], DT)
         self.claims = ClaimTable(list(range(1, len(reactions) + 1)), watchdog)
-        self.h = RequestHandler(self.core, self.claims, Keys("nc1"))
+        self.keys = Keys("nc1")
+        self.h = RequestHandler(self.core, self.claims, self.keys)
         self.inputs = CycleInputs(self.core, self.claims, reactions)
         self.feeds: dict[str, tuple[list[int], int]] = {}  # client -> (axes, ControlDWord) sent every cycle
         self.faults: list[tuple[int, int]] = []
@@ -45,7 +46,7 @@ class Rig:
 
     def cmd(self, client: str, cmd: str, axis: int, **args: Any) -> dict[str, Any]:
         self._rid += 1
-        rep = self.h.handle(Keys("nc1").command_key(cmd, axis, client), make_request(cmd, self._rid, client, **args),
+        rep = self.h.handle(self.keys.command_key(cmd, axis, client), make_request(cmd, self._rid, client, **args),
                             self.now)
         return msgpack.unpackb(rep, raw=False, strict_map_key=False)
 
@@ -280,7 +281,7 @@ def test_motion_commands_queued_across_a_stall_are_refused_with_0x4B0F() -> None
     r = Rig(["stop_disable"])
     r.join("a", [1])
     r.run(5)
-    key = Keys("nc1").command_key("MoveVelocity", 1, "a")  # Stop and Claim are class op too
+    key = r.keys.command_key("MoveVelocity", 1, "a")
     rep = msgpack.unpackb(r.h.handle_after_stall(key, make_request("MoveVelocity", 77, "a", Velocity=1.0), r.now),
                           strict_map_key=False)
     assert rep["error"] == 0x4B0F and rep["id"] == 77 and rep["cmd"] == "MoveVelocity" and "stalled" in rep["text"]
@@ -289,8 +290,10 @@ def test_motion_commands_queued_across_a_stall_are_refused_with_0x4B0F() -> None
     assert msgpack.unpackb(r.h.handle(key, make_request("MoveVelocity", 77, "a", Velocity=1.0), r.now),
                            strict_map_key=False)["error"] == 0
     # a stop, a claim, a malformed request: handled as usual
-    for payload, code in ((make_request("Stop", 78, "a"), 0), (make_request("Claim", 79, "a"), 0), (b"\xc1", 0x706)):
-        assert msgpack.unpackb(r.h.handle_after_stall(key, payload, r.now), strict_map_key=False)["error"] == code
+    for cmd, payload, code in (("Stop", make_request("Stop", 78, "a"), 0), ("Claim", make_request("Claim", 79, "a"), 0),
+                               ("Stop", b"\xc1", 0x706)):
+        rep = msgpack.unpackb(r.h.handle_after_stall(r.keys.command_key(cmd, 1, "a"), payload, r.now), strict_map_key=False)
+        assert rep["error"] == code, rep
 
 
 # ---- hand-over ----------------------------------------------------------------------------------
