@@ -209,9 +209,11 @@ def scenario(system: ComposeSystem, name: str, target: str, cut: Sequence[Sequen
     assert {s: system.started(s) for s in others} == others, "another container was restarted"
     assert (system.started(target) != mine) == restarted
     # no axis moves on its own after the cut
+    t_events = time.time()  # lines logged before this are in the events read now
     events = system.events()
     for nc, axis in HOLDERS:
-        v = motion_on_its_own(st.history(nc, axis, t_cut - 10.0), events, t_cut)
+        v = motion_on_its_own(st.history(nc, axis, t_cut - 10.0), events, t_cut,
+                              until=t_events - 1.0)
         if v is not None:
             lines = [f"{e.client} {e.t:.3f} {e.nc}:{e.axis} {e.text}" for e in events if e.t >= t_cut - 10.0]
             logs = "\n".join(f"--- {s}\n{system.logs(s)[-2500:]}" for s in ("nc1", "nc2") if s == target or s == nc)
