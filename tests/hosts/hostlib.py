@@ -358,13 +358,16 @@ def errors_after(events: Iterable[Event], t0: float, nc: str | None = None) -> l
 COMMAND_SLACK = 0.5
 
 
-def motion_on_its_own(samples: list[AxisSample], events: Iterable[Event], t0: float) -> str | None:
+def motion_on_its_own(samples: list[AxisSample], events: Iterable[Event], t0: float,
+                      until: float = float("inf")) -> str | None:
     """The check "no axis moves on its own" for one axis, for restarts at or after wall time ``t0``.
 
     A stop ramp is fine; what is not: the axis at standstill, then moving again at a sample after
     ``t0``, with no ``move ->`` event for it (from any PLC) logged since the axis last moved (less
     :data:`COMMAND_SLACK`). So a move commanded before the cut and replayed after it is caught,
-    also when the PLC that sent it is back. Pass samples from some seconds before ``t0``.
+    also when the PLC that sent it is back. Pass samples from some seconds before ``t0``; samples
+    after ``until`` are not judged (pass a time safely before the events were read: a PLC's
+    newest lines reach ``docker logs`` later than its commands reach the NC).
     Returns a description of the first violation, or None.
     """
     if not samples:
@@ -374,6 +377,8 @@ def motion_on_its_own(samples: list[AxisSample], events: Iterable[Event], t0: fl
     last_moving = float("-inf")
     stood: AxisSample | None = None
     for s in samples:
+        if s.t > until:
+            break
         if not s.moving:
             stood = stood or s
             continue

@@ -125,11 +125,13 @@ class ComposeSystem:
         r = self.compose("up", "-d")
         assert r.returncode == 0, f"compose up failed:\n{r.stdout}\n{r.stderr}"
 
-        def healthy() -> bool | str:
+        # running is enough here: the system's own state (cell_ok) is what the tests wait for; the
+        # healthchecks (a zenoh session each) can time out on a loaded machine and are only noted
+        def running() -> bool | str:
             states = {s: self.health(s) for s in SERVICES}
-            return all(v == "healthy" for v in states.values()) or f"{states}"
+            return all(v in ("healthy", "starting", "running") for v in states.values()) or f"{states}"
         try:
-            wait_for(healthy, UP_TIMEOUT, "every service healthy (docker healthchecks)", interval=1.0)
+            wait_for(running, UP_TIMEOUT, "every service running", interval=1.0)
         except AssertionError as exc:
             logs = "\n".join(f"--- {s}\n{self.logs(s)[-1500:]}" for s in SERVICES)
             raise AssertionError(f"{exc}\n{logs}") from None
@@ -162,9 +164,10 @@ def system(znc_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
         t_up = time.time()
         wait_for(lambda: cell_ok(s.status, moved_since=t_up), UP_TIMEOUT,
                  "every claim held and every held axis moving", interval=0.25)
-        FIGURES["scenarios"].append({"where": "docker", "scenario": "compose up -> all healthy, moving",
+        health = " ".join(f"{x}={s.health(x)}" for x in SERVICES)
+        FIGURES["scenarios"].append({"where": "docker", "scenario": "compose up -> claims held, moving",
                                      "react_s": None, "recover_s": round(time.monotonic() - t0, 2),
-                                     "notes": f"project {s.project}, {s.transport}"})
+                                     "notes": f"project {s.project}, {s.transport}; {health}"})
         yield s
     finally:
         s.down()
@@ -209,9 +212,11 @@ def scenario(system: ComposeSystem, name: str, target: str, cut: Sequence[Sequen
     assert {s: system.started(s) for s in others} == others, "another container was restarted"
     assert (system.started(target) != mine) == restarted
     # no axis moves on its own after the cut
+    t_events = time.time()  # lines logged before this are in the events read now
     events = system.events()
     for nc, axis in HOLDERS:
-        v = motion_on_its_own(st.history(nc, axis, t_cut - 10.0), events, t_cut)
+        v = motion_on_its_own(st.history(nc, axis, t_cut - 10.0), events, t_cut,
+                              until=t_events - 1.0)
         if v is not None:
             lines = [f"{e.client} {e.t:.3f} {e.nc}:{e.axis} {e.text}" for e in events if e.t >= t_cut - 10.0]
             logs = "\n".join(f"--- {s}\n{system.logs(s)[-2500:]}" for s in ("nc1", "nc2") if s == target or s == nc)

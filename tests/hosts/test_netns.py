@@ -222,9 +222,11 @@ def cut(h: NetnsHosts, name: str, host: str, reaction: Callable[[float], None]) 
              interval=0.25)
     t_rec = time.time() - t_restore
     assert all(rc is None for rc in h.alive().values()), f"a process ended: {h.alive()}\n{h.logs()}"
+    t_events = time.time()  # lines logged before this are in the events read now
     events = h.events()
     for nc, axis in HOLDERS:
-        v = motion_on_its_own(h.status.history(nc, axis, t_cut - 10.0), events, t_cut)
+        v = motion_on_its_own(h.status.history(nc, axis, t_cut - 10.0), events, t_cut,
+                              until=t_events - 1.0)
         assert v is None, v
     errs = sorted({f"{e.client} {e.nc}:{e.axis} {e.text.split(' (')[0]}" for e in errors_after(events, t_cut)})
     FIGURES["scenarios"].append({"where": "netns", "scenario": name, "react_s": round(t_react, 2),
