@@ -240,7 +240,7 @@ DISCONNECT = [["network", "disconnect", "{net}", "{id}"]]
 CONNECT = [["network", "connect", "--alias", "{alias}", "{net}", "{id}"]]
 
 
-@pytest.mark.xfail(strict=False, reason="open (issue 8, found at the merge of the fail-safe and deploy work): after plc1's link is cut, nc1 kept plc1 as a live client with its claim beyond 60 s in one run")
+@pytest.mark.xfail(strict=False, reason="open (issue 8, found at the merge of the fail-safe and deploy work): under TLS, after plc1's container network is cut, nc1 still lists plc1 as a live client (its liveliness token stays) beyond 60 s; on plain TCP the lease drops it in ~2.6 s")
 def test_plc_link_down_up(system: ComposeSystem) -> None:
     scenario(system, "plc1 link down/up", "plc1", DISCONNECT, CONNECT, plc_lost(system, "plc1"))
 
@@ -250,7 +250,7 @@ def test_plc_kill(system: ComposeSystem) -> None:
              plc_lost(system, "plc1"), restarted=True)
 
 
-@pytest.mark.xfail(strict=False, reason="open (issue 8, found at the merge of the fail-safe and deploy work): an axis was seen to move after recovery without a command the observer saw; a late command or a real replay: to investigate")
+@pytest.mark.xfail(strict=False, reason="open (issue 8, found at the merge of the fail-safe and deploy work): an axis was seen to move after recovery without a command the observer saw; the check's docker-log lag is fixed since (3575053), not rerun here yet")
 def test_plc_pause(system: ComposeSystem) -> None:
     scenario(system, "plc1 docker pause / unpause", "plc1", [["pause", "{id}"]], [["unpause", "{id}"]],
              plc_lost(system, "plc1"))
@@ -290,7 +290,7 @@ def test_router_pause(system: ComposeSystem) -> None:
              nc_lost(system, list(NCS)))
 
 
-@pytest.mark.xfail(strict=False, reason="open (issue 8, found at the merge of the fail-safe and deploy work): an axis was seen to move after the router came back without a command the observer saw; to investigate")
+@pytest.mark.xfail(strict=False, reason="open (issue 8, found at the merge of the fail-safe and deploy work): an axis was seen to move after the router came back without a command the observer saw; the check's docker-log lag is fixed since (3575053), not rerun here yet")
 def test_router_stop(system: ComposeSystem) -> None:
     scenario(system, "router docker stop / start", "router", [["stop", "-t", "10", "{id}"]], [["start", "{id}"]],
              nc_lost(system, list(NCS)), restarted=True)
