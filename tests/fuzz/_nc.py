@@ -2,8 +2,9 @@
 
 ``NcCore`` from the embedded default configuration (nc1, axes 1-4: soft limits, axis 4 modulo),
 ``ClaimTable``, ``RequestHandler`` and ``CycleInputs`` wired as ``nc_server.server.app`` wires them.
-Clients ``plc1`` (holds and powers the axes, feeds PLCTONC every cycle), ``plc2`` and ``eng1`` have
-liveliness tokens, ``ghost`` has none.
+The handler has a roles map: ``plc1`` (operator: holds and powers the axes, feeds PLCTONC every
+cycle), ``plc2`` (operator), ``eng1`` (engineer) and ``obs1`` (observer) have liveliness tokens;
+``ghost`` has none and is not in the roles map.
 
 Import this module inside ``atheris.instrument_imports`` (it imports the project).
 
@@ -32,8 +33,9 @@ from tests.fuzz._runner import ExceptionLog, Finding
 
 CONFIG = load_config()
 AXES: list[int] = [int(c.AxisId) for c in CONFIG.axes]
-HOLDER, OTHER, ENGINEER, GHOST = "plc1", "plc2", "eng1", "ghost"
-CLIENTS = (HOLDER, OTHER, ENGINEER, GHOST)
+HOLDER, OTHER, ENGINEER, OBSERVER, GHOST = "plc1", "plc2", "eng1", "obs1", "ghost"
+CLIENTS = (HOLDER, OTHER, ENGINEER, OBSERVER, GHOST)
+ROLES = {HOLDER: "operator", OTHER: "operator", ENGINEER: "engineer", OBSERVER: "observer"}
 ALL_ENABLES = int(ControlDWord.Enable | ControlDWord.FeedEnablePlus | ControlDWord.FeedEnableMinus)
 INTERNAL = int(ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
 _F8_NCTOPLC = [n for n in NCTOPLC_DTYPE.names if NCTOPLC_DTYPE.fields[n][0].kind == "f"]
@@ -55,14 +57,15 @@ def key_table(keys: Keys) -> list[str]:
     out: list[str] = []
     for axis in (None, *AXES, 5, 0):
         for cls in _layout.CLASSES:
-            for client in (HOLDER, OTHER, ENGINEER):
-                k = _layout.class_key(keys, axis, cls, client)
-                if k not in out:
-                    out.append(k)
+            for client in CLIENTS:
+                out.append(_layout.class_key(keys, axis, cls, client))
     p = keys.prefix
-    out += [f"{p}/axis/01/cmd", f"{p}/axis/1", f"{p}/axis/-1/cmd", f"{p}/axis/4294967297/cmd", "nc/nc2/cmd", "",
-            f"{p}/axis/1/cmd/op/{HOLDER}/x", f"{p}/axis/1/cmd/op/", f"{p}/axis/1/cmd//{HOLDER}", f"{p}/cmd/op",
-            f"{p}/axis/1/cmd/root/{HOLDER}", f"{p}/axis/1/cmd/op/{GHOST}", f"{p}/axis/1 /cmd", f"{p}/axis/１/cmd"]
+    out += [f"{p}/axis/01/cmd/op/{HOLDER}", f"{p}/axis/1/cmd", f"{p}/axis/-1/cmd/op/{HOLDER}",
+            f"{p}/axis/4294967297/cmd/op/{HOLDER}", f"nc/nc2/cmd/read/{HOLDER}", "", f"{p}/axis/1/cmd/op/{HOLDER}/x",
+            f"{p}/axis/1/cmd/op/", f"{p}/axis/1/cmd//{HOLDER}", f"{p}/cmd/op", f"{p}/axis/1/cmd/root/{HOLDER}",
+            f"{p}/axis/1/cmd/OP/{HOLDER}", f"{p}/axis/1 /cmd/op/{HOLDER}", f"{p}/axis/１/cmd/op/{HOLDER}",
+            f"{p}/axis/1/cmd/op/{HOLDER}\n", f"{p}/axis/1/cmd/op/{'x' * 65}", f"{p}/axis/1/cmd/op/pl c",
+            f"{p}/axis/1/cmd/op/*", f"{p}/axis/*/cmd/op/{HOLDER}", f"{p}/**/cmd/op/{HOLDER}"]
     return out
 
 
@@ -78,12 +81,12 @@ class FuzzNc:
         self.core = core = NcCore(copy.deepcopy(list(CONFIG.axes)), cycle_time)
         self.claims = ClaimTable(AXES, CONFIG.watchdog_timeout)
         self.keys = Keys(CONFIG.name)
-        self.handler = RequestHandler(core, self.claims, self.keys,
+        self.handler = RequestHandler(core, self.claims, self.keys, roles=ROLES,
                                       info_extra=lambda: {"timing": "fuzz", "watchdog_timeout": CONFIG.watchdog_timeout})
         self.inputs = CycleInputs(core, self.claims)
         self.t = 0.0
         self.ids = itertools.count(1)
-        for c in (HOLDER, OTHER, ENGINEER):
+        for c in (HOLDER, OTHER, ENGINEER, OBSERVER):
             self.handler.client_alive(c)
         #: what plc1 sends every cycle (axis id -> PLCTONC record), while ``feeding``
         self.plc: dict[int, np.void] = {}

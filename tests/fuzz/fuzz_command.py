@@ -27,9 +27,9 @@ from tests.fuzz._runner import Reader, Writer, instrument, main
 with instrument():
     import msgpack
 
-    from nc_schema import COMMANDS, Keys, MC_AxisPara, make_request
+    from nc_schema import COMMAND_CLASS, COMMANDS, Keys, MC_AxisPara, make_request
     from tests.fuzz import _layout
-    from tests.fuzz._nc import AXES, CLIENTS, ENGINEER, HOLDER, OTHER, FuzzNc, key_table
+    from tests.fuzz._nc import AXES, CLIENTS, ENGINEER, HOLDER, FuzzNc, key_table
 
 CMDS = sorted(COMMANDS)
 MAX_OPS = 24
@@ -108,13 +108,13 @@ def structured(nc: FuzzNc, r: Reader) -> None:
     axis = r.pick(AXIS_CHOICES)
     if spec.get("scope", "axis") == "nc" and r.u8() & 1:
         axis = None
-    key_client = r.pick((HOLDER, OTHER, ENGINEER, "ghost"))
+    key_client = r.pick(CLIENTS)
     km = r.u8() % 8
     try:
         if km < 5:
-            key = nc.key(cmd, axis if axis in AXES or axis is None else axis, key_client)
+            key = nc.key(cmd, axis, key_client)
         elif km == 5:
-            key = _layout.class_key(nc.keys, axis if isinstance(axis, int) and axis >= 0 else 1,
+            key = _layout.class_key(nc.keys, axis if axis is None or axis >= 0 else 1,
                                     r.pick(_layout.CLASSES), key_client)
         elif km == 6:
             key = r.take(r.u8() % 48).decode("utf-8", "replace")
@@ -229,15 +229,17 @@ def sample(cmd: str) -> tuple[int | None, dict[str, object]]:
 
 
 def w_struct(w: Writer, cmd: str, axis: int | None = None, args: dict[str, object] | None = None,
-             client: str = HOLDER) -> Writer:
-    """A structured request exactly as ``structured`` reads it (valid, on its own key)."""
+             client: str | None = None) -> Writer:
+    """A structured request exactly as ``structured`` reads it (valid, on its own key; by plc1, or
+    eng1 for an engineer's command)."""
+    client = client or (ENGINEER if COMMAND_CLASS[cmd] == "eng" else HOLDER)
     a0, a1 = sample(cmd)
     axis = a0 if axis is None else axis
     args = a1 if args is None else args
     w.u8(STRUCT).index(CMDS, cmd).index(AXIS_CHOICES, axis)
     if COMMANDS[cmd].get("scope", "axis") == "nc":
         w.u8(1 if axis is None else 0)
-    w.index((HOLDER, OTHER, ENGINEER, "ghost"), client).u8(0)  # key: its own
+    w.index(CLIENTS, client).u8(0)  # key: its own
     w.u8(0).u8(1).u8(1)  # a fresh id, client = the key's, cmd
     for name, aspec in COMMANDS[cmd]["args"].items():
         if name not in args:
@@ -258,7 +260,8 @@ def w_steps(w: Writer, n: int, feed: bool = True) -> Writer:
     return w.u8(STEPS if feed else SILENT).u8(n - 1 if n <= 64 else 223 + max(1, n // 100))
 
 
-def w_raw(w: Writer, cmd: str, client: str = HOLDER) -> Writer:
+def w_raw(w: Writer, cmd: str, client: str | None = None) -> Writer:
+    client = client or (ENGINEER if COMMAND_CLASS[cmd] == "eng" else HOLDER)
     axis, args = sample(cmd)
     key = _layout.command_key(Keys("nc1"), cmd, axis, client)
     return w.u8(RAW).index(KEYS, key).blob(make_request(cmd, 7, client, **args))
@@ -303,7 +306,7 @@ def seeds() -> list[bytes]:
     w = w_struct(Writer().u8(0), "MoveVelocity")
     w_steps(w_steps(w, 20), 100, feed=False)
     out.append(w_struct(w, "Reset", 1, {}).bytes())
-    w = w_struct(Writer().u8(0), "MoveVelocity", client=OTHER)
+    w = w_struct(Writer().u8(0), "MoveVelocity", client="plc2")
     w.u8(LIVELINESS).index(CLIENTS, HOLDER).u8(0)
     out.append(w_steps(w, 100).bytes())
     w = Writer().u8(0).u8(PLCTONC).index(AXES, 1).u8(3).index(CTRLS, 1).index(OVERRIDES, 500_000)

@@ -41,10 +41,11 @@ def check_name(name: str) -> None:
     except ValueError:
         return
     p = f"nc/{name}/"
-    for key in (k.frame, k.stats, k.alive, k.client_alive_any, k.plctonc_in_any, k.axis_nctoplc(1), k.axis_plctonc(7),
-                k.client_alive("plc1"), k.plctonc_in("plc1"), _layout.command_key(k, "MoveAbsolute", 3, "plc1")):
-        if not key.startswith(p) or "*" in key.replace("/*", "") or "$" in key:
-            raise Finding(f"Keys({name!r}) made {key!r}")
+    for key in (k.frame, k.stats, k.status, k.claims, k.alive, k.axis_nctoplc(1), k.axis_plctonc(7),
+                k.client_alive("plc1"), k.plctonc_in("plc1"), _layout.command_key(k, "MoveAbsolute", 3, "plc1"),
+                _layout.command_key(k, "Info", None, "plc1")):
+        if not key.startswith(p) or any(c in key for c in "*$#?\n\r ") or "//" in key or key.endswith("/"):
+            raise Finding(f"Keys({name!r}) made {key!r}, not a plain key expression of that NC")
     for axis in (1, 2, 9999):
         key = _layout.command_key(k, "MoveAbsolute", axis, "plc1")
         parsed = k.parse_cmd_key(key)
@@ -70,6 +71,8 @@ def check_client(client: str) -> None:
         raise Finding(f"liveliness key {alive!r} not parsed back to {client!r}")
     if not KEYS.plctonc_in(client).endswith("/" + client):
         raise Finding(f"PLCTONC key of {client!r}: {KEYS.plctonc_in(client)!r}")
+    if any(c in client for c in "*$#?/\n\r "):
+        raise Finding(f"client id {client!r} accepted")
     key = _layout.command_key(KEYS, "Reset", 1, client)
     parsed = KEYS.parse_cmd_key(key)
     if _layout.rebuild(KEYS, parsed) != key:
@@ -84,7 +87,7 @@ def check_cmd_key(key: str) -> None:
             raise Finding(f"parse_cmd_key({key!r}): {err}") from err
         return
     axis = _layout.parsed_axis(KEYS, parsed)
-    if axis is not None and (type(axis) is not int or not 0 <= axis < 2**32):
+    if axis is not None and (type(axis) is not int or not 0 <= axis < 10**9):
         raise Finding(f"parse_cmd_key({key!r}) gave axis {axis!r}")
     if _layout.rebuild(KEYS, parsed) != key:
         raise Finding(f"parse_cmd_key({key!r}) = {parsed!r}, which is the key {_layout.rebuild(KEYS, parsed)!r}")
@@ -129,8 +132,8 @@ def seeds() -> list[bytes]:
 
     out = [w(NAME, "nc1"), w(NAME, "cell-2.nc_A"), w(NAME, "a" * 64), w(CLIENT, "plc1"), w(CLIENT, "plc-host-1234"),
            w(CLIENT, "x" * 64), w(LIVELINESS, KEYS.client_alive("plc1")), w(PREFIXED_LIVELINESS, "plc2"),
-           w(CMD_KEY, "nc/nc1/axis/01/cmd"), w(PREFIXED_CMD, "axis/1/cmd")]
-    for axis in (None, 1, 4, 4294967295):
+           w(CMD_KEY, "nc/nc1/axis/01/cmd/op/plc1"), w(PREFIXED_CMD, "axis/1/cmd/op/plc1"), w(CLIENT, "plc1\n")]
+    for axis in (None, 1, 4, 999999999):
         for cls in _layout.CLASSES:
             key = _layout.class_key(KEYS, axis, cls, "plc1")
             out.append(w(CMD_KEY, key))

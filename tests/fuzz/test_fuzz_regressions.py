@@ -126,3 +126,21 @@ def test_a_token_with_an_invalid_client_id_is_ignored() -> None:
     t._on_liveliness(sample("nc/nc1/client/plc1", zenoh.SampleKind.DELETE))
     assert t.pop_liveliness() == [("plc1", True), ("plc1", False)]
     assert t.liveliness_ignored == 1
+
+
+# ---- client ids and NC names (found by fuzz_keys: "plc1\n" passed check_client_id, its keys did not parse) ----
+@pytest.mark.parametrize("bad", ["plc1\n", "nc1\n", "\nplc1", "plc1\r", "plc1\n\n", "x" * 64 + "\n"])
+def test_a_trailing_newline_is_not_part_of_a_valid_id(bad: str) -> None:
+    from nc_schema import check_client_id
+    with pytest.raises(ValueError):
+        check_client_id(bad)
+    with pytest.raises(ValueError):
+        Keys(bad)
+    assert liveliness_client(KEYS, f"nc/nc1/client/{bad}") is None
+
+
+def test_every_valid_client_id_makes_keys_that_parse_back() -> None:
+    for client in ("plc1", "a", "x" * 64, "A.b-c_9"):
+        key = KEYS.command_key("Reset", 1, client)
+        assert KEYS.parse_cmd_key(key) == (1, "op", client)
+        assert liveliness_client(KEYS, KEYS.client_alive(client)) == client
