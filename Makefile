@@ -48,7 +48,7 @@ deploy-down:
 	deploy/deploy.sh down
 
 # Coverage-guided fuzzing (atheris): every target of tests/fuzz/ for FUZZ_TIME seconds each, one after the
-# other; corpora kept in build/fuzz/corpus/<target>/, findings in build/fuzz/<target>/ (see README).
+# other; corpora kept in build/fuzz/corpus/<target>/, findings and fuzz.log in build/fuzz/<target>/ (see README).
 FUZZ_TIME ?= 600
 FUZZ_TARGETS ?=
 fuzz: $(STAMP)

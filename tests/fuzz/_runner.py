@@ -128,7 +128,8 @@ def main(name: str, test_one: Callable[[bytes], None], seeds: Callable[[], list[
     Args:
         name: the target's name (its default corpus is ``build/fuzz/corpus/<name>/``).
         test_one: runs one input; any exception is a finding.
-        seeds: valid inputs, written into every corpus directory that does not hold them yet.
+        seeds: valid inputs, written into the first corpus directory (the one libFuzzer adds to; further
+            ones, e.g. committed regression inputs, are only read).
         argv: ``sys.argv`` (libFuzzer flags, corpus directories or input files).
         skip: if set, print why the target cannot run and exit with :data:`SKIPPED`.
     """
@@ -146,9 +147,9 @@ def main(name: str, test_one: Callable[[bytes], None], seeds: Callable[[], list[
         corpus = WORK / "corpus" / name
         args.append(str(corpus))
         paths = [corpus]
-    for p in paths:
-        if p.is_dir() or not p.exists():
-            write_seeds(p, seeds())
+    if paths[0].is_dir() or not paths[0].exists():  # the corpus libFuzzer adds to (not a file to reproduce)
+        write_seeds(paths[0], seeds())
+
     def one(data: bytes) -> None:
         if not getattr(atheris._trace_cmp, "_znc_patched", False):
             _patch_cmp()
@@ -318,11 +319,11 @@ def run_target(name: str, corpus: Path, artifacts: Path, max_time: int, runs: in
     Args:
         name: a :data:`TARGETS` name.
         corpus: the corpus folder (seeded by the target, new inputs are added to it).
-        artifacts: where crash/timeout files go (created).
+        artifacts: where crash/timeout files go (created), and ``fuzz.log``, the target's output.
         max_time: libFuzzer ``-max_total_time`` [s].
         runs: libFuzzer ``-runs`` (None: unbounded, ``max_time`` ends it).
         timeout: libFuzzer ``-timeout`` [s]: one input taking longer is a finding (a stall).
-        extra: more libFuzzer arguments or input folders (e.g. committed regression inputs).
+        extra: more libFuzzer arguments, or input folders that are only read (e.g. committed regression inputs).
         wall_timeout: kill the process after this long [s] (default: max_time + 5 timeouts + 120).
 
     Raises:
@@ -334,22 +335,20 @@ def run_target(name: str, corpus: Path, artifacts: Path, max_time: int, runs: in
            f"-artifact_prefix={artifacts}{os.sep}", "-print_final_stats=1", "-report_slow_units=3600"]
     if runs is not None:
         cmd.append(f"-runs={int(runs)}")
+    cmd.append(str(corpus))  # first: the folder libFuzzer adds new inputs to (and the target seeds)
     cmd += list(extra)
-    cmd.append(str(corpus))
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            errors="replace", start_new_session=True)
-    try:
-        out, _ = proc.communicate(timeout=wall_timeout or max_time + 5 * timeout + 120)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, 9)
-        proc.communicate()
-        raise
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, 9)
-            proc.wait()
+    log = artifacts / "fuzz.log"  # the target's whole output (libFuzzer's progress lines), while it runs
+    with open(log, "w", encoding="utf-8", errors="replace") as f:
+        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            proc.wait(timeout=wall_timeout or max_time + 5 * timeout + 120)
+        finally:
+            if proc.poll() is None:  # outlived its wall timeout (TimeoutExpired goes on up)
+                os.killpg(proc.pid, 9)
+                proc.wait()
+    out = log.read_text(encoding="utf-8", errors="replace")
     found = [a for a in sorted(set(artifacts.iterdir()) - before) if a.name.startswith(FINDINGS)]
     res = Result(name, proc.returncode, out, found)
     m = _DONE.findall(out) or _LAST.findall(out)

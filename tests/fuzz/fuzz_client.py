@@ -15,7 +15,7 @@ One input is up to 40 PLC cycles; in each:
 * which block inputs (Enable, Execute, ...) are set.
 
 A finding is an exception out of ``PlcRuntime.step()`` (the program's blocks are ours: nothing an NC
-sends may crash them) or a hang (``-timeout``).
+sends may crash them), an exception logged meanwhile, or a hang (``-timeout``).
 
 Run: ``python -m tests.fuzz.fuzz_client [libFuzzer args] [CORPUS_DIR | CRASH_FILE ...]``.
 """
@@ -41,7 +41,7 @@ with instrument():
         MC_TouchProbe,
     )
     from plc_client.runtime import PlcRuntime
-    from tests.fuzz._nc import FuzzNc
+    from tests.fuzz._nc import LOG, FuzzNc
 
 MAX_CYCLES = 40
 CYCLE = 0.01
@@ -323,8 +323,10 @@ def test_one(data: bytes) -> None:
             alive.items.append(_Sample(kind=zenoh.SampleKind.PUT))
         prog.bits = r.u32() | r.u8() << 32
         rt.step()
+        LOG.check(f"in PLC cycle {rt.cycle}")
         answer(r, nc, session)
     rt.step()
+    LOG.check("in the last PLC cycle")
 
 
 def seeds() -> list[bytes]:

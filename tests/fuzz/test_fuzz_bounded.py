@@ -1,7 +1,7 @@
 """Bounded runs of the atheris fuzz targets (``make test``; the long run is ``make fuzz``).
 
 Each target (``tests/fuzz/fuzz_<name>.py``) runs in a subprocess of its own for at most
-``FUZZ_BOUND_TIME`` seconds (default 5) or ``FUZZ_BOUND_RUNS`` inputs, with a fixed libFuzzer seed,
+``FUZZ_BOUND_TIME`` seconds (default 4) or ``FUZZ_BOUND_RUNS`` inputs, with a fixed libFuzzer seed,
 on a fresh corpus made from its seeds plus the committed regression inputs of
 ``tests/fuzz/regressions/<name>/`` (if any). A crash or a stall fails the
 test with the input (hex) and the target's output.
@@ -21,7 +21,7 @@ from tests.fuzz import _runner
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("atheris") is None,
                                 reason="atheris is not installed (pip install -e '.[dev]')")
 
-BOUND_TIME = int(os.environ.get("FUZZ_BOUND_TIME", "5"))
+BOUND_TIME = int(os.environ.get("FUZZ_BOUND_TIME", "4"))
 BOUND_RUNS = int(os.environ.get("FUZZ_BOUND_RUNS", "20000"))
 REGRESSIONS = Path(__file__).resolve().parent / "regressions"
 
