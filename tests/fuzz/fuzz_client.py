@@ -103,14 +103,31 @@ class _Reply:
         self.ok = ok
 
 
-class _Session:
-    """Records each ``get`` (a command query); the input answers them."""
+class _ReplyChannel:
+    """The FifoChannel of one command query: replies the input put there, then "empty and closed"."""
 
     def __init__(self) -> None:
-        self.queries: list[tuple[str, bytes, Any]] = []
+        self.replies: collections.deque[_Reply] = collections.deque()
+        self.closed = False
 
-    def get(self, key: str, handler: Any, payload: bytes = b"", **kw: Any) -> None:
-        self.queries.append((key, payload, handler))
+    def try_recv(self) -> _Reply | None:
+        if self.replies:
+            return self.replies.popleft()
+        if self.closed:
+            raise RuntimeError("channel is empty and closed")
+        return None
+
+
+class _Session:
+    """Records each ``get`` (a command query) with its reply channel; the input answers them."""
+
+    def __init__(self) -> None:
+        self.queries: list[tuple[str, bytes, _ReplyChannel]] = []
+
+    def get(self, key: str, handler: Any, payload: bytes = b"", **kw: Any) -> _ReplyChannel:
+        rx = _ReplyChannel()
+        self.queries.append((key, payload, rx))
+        return rx
 
     def close(self) -> None:
         pass
@@ -277,19 +294,19 @@ def answer(r: Reader, nc: NcModel, session: _Session) -> None:
     if m == 0:
         return  # no answer yet
     queries, session.queries = session.queries, []
-    for key, payload, handler in queries:
+    for key, payload, rx in queries:
         if m <= 3:
             nc.cmdno = (nc.cmdno + 1) % 65536
-            handler.callback(_Reply(_Ok(reply_for(r, flags, payload, nc.cycle, nc.cmdno))))
+            rx.replies.append(_Reply(_Ok(reply_for(r, flags, payload, nc.cycle, nc.cmdno))))
         elif m == 4:
-            handler.callback(_Reply(_Ok(r.blob())))
+            rx.replies.append(_Reply(_Ok(r.blob())))
         elif m == 5:
-            handler.callback(_Reply(None))  # an error reply (e.g. the query timed out in zenoh)
+            rx.replies.append(_Reply(None))  # an error reply (e.g. the query timed out in zenoh)
         if m == 7:  # answered right, the query stays open: a second reply comes with the next answer
-            handler.callback(_Reply(_Ok(reply_for(r, 0, payload, nc.cycle, nc.cmdno))))
-            session.queries.append((key, payload, handler))
+            rx.replies.append(_Reply(_Ok(reply_for(r, 0, payload, nc.cycle, nc.cmdno))))
+            session.queries.append((key, payload, rx))
         else:
-            handler.drop()  # the query ends (m == 6: without any reply)
+            rx.closed = True  # the query ends (m == 6: without any reply)
 
 
 def make_runtime() -> tuple[FuzzRuntime, Program, _Session, _Channel, _Channel]:

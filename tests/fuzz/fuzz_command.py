@@ -44,6 +44,7 @@ BIG = (2**31, -(2**31) - 1, 2**53 + 1, 2**63 - 1, -(2**63), 2**64 - 1, 2**32)
 CTRLS = (0, 1, 3, 5, 7, 15, 0xFF, 0xFFFFFFFF, 9, 11, 13)
 OVERRIDES = (1_000_000, 0, 500_000, 1, 999_999, 1_000_001, 2_000_000, 0xFFFFFFFF, 100)
 FIELDS = ("x", "position", "Axis", "", "id ", "CmdNo", "Value")
+STRINGS = (*CLIENTS, "", "x" * 255, "x" * 256, "plc1\n", "*", "nc/nc1/client/plc1", "\u00e9")
 KEYS = key_table(Keys("nc1"))
 
 # op codes (the first byte of an operation, modulo len)
@@ -84,6 +85,8 @@ def arg_value(r: Reader, typ: str) -> tuple[bool, object]:
     k = r.u8()
     if k < OMIT:
         return False, None
+    if typ == "STRING" and k < NUMBER:
+        return True, r.pick(STRINGS) if k < TABLE else r.take(r.u8()).decode("utf-8", "replace")
     if k < TABLE:
         if typ == "INT":
             return True, r.pick(INTS)
@@ -217,7 +220,7 @@ SAMPLES: dict[str, tuple[int, dict[str, object]]] = {
     "TouchProbe": (1, dict(EncoderID=1, TouchProbe=1, Edge=0)),
     "SimProbeSignal": (1, dict(Level=True, Offset=0.0)),
 }
-_DEFAULT = {"LREAL": 10.0, "INT": 1, "BOOL": True, "LREAL|BOOL": 1.0}
+_DEFAULT = {"LREAL": 10.0, "INT": 1, "BOOL": True, "LREAL|BOOL": 1.0, "STRING": "plc2"}
 
 
 def sample(cmd: str) -> tuple[int | None, dict[str, object]]:
@@ -246,7 +249,11 @@ def w_struct(w: Writer, cmd: str, axis: int | None = None, args: dict[str, objec
             w.u8(0)
             continue
         v = args[name]
-        w.u8(NUMBER - 1)
+        if aspec["type"] == "STRING":
+            b = str(v).encode()
+            w.u8(TABLE).u8(len(b)).raw(b)  # raw text
+            continue
+        w.u8(NUMBER - 1)  # a raw number
         if aspec["type"] == "INT":
             w.i32(int(v))  # type: ignore[arg-type]
         elif aspec["type"] == "BOOL" or isinstance(v, bool):
@@ -290,6 +297,7 @@ def seeds() -> list[bytes]:
         [("WriteParameter", 3, dict(ParameterNumber=9, Value=100.0)), ("ReadParameter", 3, dict(ParameterNumber=9)),
          ("MoveVelocity", 3, dict(Velocity=90.0, Direction=3)), 200],
         [("Claim", 1, {}), ("Release", 1, {}), ("Info", None, {}), 5],
+        [("MoveVelocity", 1, None), 20, ("HandOver", 1, dict(To="plc2")), 20, ("Claim", 2, {}, "plc2"), 20],
         [("MoveContinuousAbsolute", 1, None), ("ChangeDynParam", 1, None), 300,
          ("NewPosAndVelo", 1, dict(Mode=9, NewPos=400.0, NewVelo=80.0, ActivationPos=250.0)), 300],
         [("MoveVelocity", 1, None), 50, ("SetActualPositionOnTheFly", 1, None), ("SetOverride", 1, None), 100],

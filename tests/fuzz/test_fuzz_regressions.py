@@ -49,12 +49,19 @@ def test_parse_reply_refuses_non_msgpack(raw: bytes) -> None:
 
 
 class _Session:
+    """``get`` answers with one reply carrying ``payload`` (the reply channel ZenohPort polls)."""
+
     def __init__(self, payload: bytes) -> None:
         self.payload = payload
 
-    def get(self, key: str, handler: Any, **kw: Any) -> None:
-        handler.callback(SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: self.payload))))
-        handler.drop()
+    def get(self, key: str, handler: Any, **kw: Any) -> Any:
+        replies = [SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: self.payload)))]
+
+        def try_recv() -> Any:
+            if replies:
+                return replies.pop()
+            raise RuntimeError("channel is empty and closed")
+        return SimpleNamespace(try_recv=try_recv)
 
 
 @pytest.mark.parametrize("reply", [{"id": 1, "error": "x", "cycle": 1}, {"id": 1, "error": 0, "cycle": {}},
