@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-core bench clean
+.PHONY: venv demo test test-core bench fuzz clean
 
 venv: $(STAMP)
 
@@ -46,6 +46,13 @@ deploy:
 	PYTHON=$(PYTHON) deploy/deploy.sh up
 deploy-down:
 	deploy/deploy.sh down
+
+# Coverage-guided fuzzing (atheris): every target of tests/fuzz/ for FUZZ_TIME seconds each, one after the
+# other; corpora kept in build/fuzz/corpus/<target>/, findings and fuzz.log in build/fuzz/<target>/ (see README).
+FUZZ_TIME ?= 600
+FUZZ_TARGETS ?=
+fuzz: $(STAMP)
+	PYTHONPATH=$(CURDIR) $(PY) -m tests.fuzz --time $(FUZZ_TIME) $(FUZZ_TARGETS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -252,6 +252,31 @@ def make_reply(request_id: Any, cmd: str | None, error: int = 0, text: str = "",
     return r
 
 
+def parse_reply(data: bytes) -> dict[str, Any]:
+    """Decode and check a reply (client side): a msgpack map whose ``error`` (UDINT) and ``cycle``
+    (ULINT) are integers, ``CmdNo`` (UINT) an integer if present, ``text`` a string if present.
+
+    Raises:
+        ValueError: not msgpack, not a map, or one of those fields missing or of the wrong type or
+            range (a reply the function blocks could not act on).
+    """
+    try:
+        msg = unpack(data)
+    except Exception as exc:  # msgpack raises many types
+        raise ValueError(f"reply is not msgpack: {exc.__class__.__name__}") from None
+    if not isinstance(msg, dict):
+        raise ValueError("reply must be a msgpack map")
+    for name, hi, required in (("error", 2**32, True), ("cycle", 2**64, True), ("CmdNo", 2**16, False)):
+        v = msg.get(name)
+        if v is None and not required and name not in msg:
+            continue
+        if type(v) is not int or not 0 <= v < hi:
+            raise ValueError(f"reply field {name!r} must be an integer in [0, {hi}), got {v!r:.40}")
+    if not isinstance(msg.get("text", ""), str):
+        raise ValueError("reply field 'text' must be a string")
+    return msg
+
+
 def make_request(cmd: str, request_id: int | str, client: str = "", **args: Any) -> bytes:
     """Encode a request (client side helper)."""
     msg: dict[str, Any] = {"id": request_id, "cmd": cmd}

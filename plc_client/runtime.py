@@ -81,7 +81,7 @@ from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
     PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, ErrorCodes, Keys, check_client_id, decode_frame,
-    frame_period_ms, make_reply, unpack,
+    frame_period_ms, make_reply, parse_reply,
 )
 from nc_schema.codec import PLC_FRAME_MAGIC, WIRE_VERSION
 
@@ -282,12 +282,9 @@ def _reply_of(reply: Any) -> tuple[dict[str, Any] | None, int]:
     if ok is None:
         return None, ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT
     try:
-        msg = unpack(ok.payload.to_bytes())
-    except Exception:
-        msg = None
-    if isinstance(msg, dict):
-        return msg, 0
-    return None, ErrorCodes.ADSERR_DEVICE_INVALIDDATA
+        return parse_reply(ok.payload.to_bytes()), 0
+    except ValueError:  # not a reply the blocks could act on (error/cycle/CmdNo not integers, ...)
+        return None, ErrorCodes.ADSERR_DEVICE_INVALIDDATA
 
 
 class PlcRuntime(PlcTask):

@@ -38,7 +38,7 @@ from zenoh.handlers import Callback, RingChannel
 
 from nc_schema import (
     FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
-    PLCTONC_DTYPE, Keys, decode_plc_frame, encode_stamp, pack,
+    PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame, encode_stamp, pack,
 )
 from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 
@@ -148,6 +148,40 @@ class PlcFrame:
     plctonc: np.ndarray
 
 
+def decode_plctonc(payload: bytes | bytearray | memoryview, arrival: float, max_bytes: int) -> PlcFrame:
+    """Decode a client's PLCTONC frame (``nc/<nc>/plctonc/<client>``; pure, no zenoh).
+
+    Args:
+        payload: PLC_FRAME_HEADER + AxisCount x PLC_AXIS_RECORD.
+        arrival: its arrival time [s] (becomes :attr:`PlcFrame.arrival`).
+        max_bytes: the largest frame accepted (the header plus one record per configured axis).
+
+    Raises:
+        ValueError: longer than ``max_bytes``, wrong magic/version/sizes (``decode_plc_frame``),
+            or an AxisId twice.
+    """
+    if len(payload) > max_bytes:
+        raise ValueError("more records than axes")
+    # the header's PlcCycle is not used by the NC: the watchdog goes by arrival time
+    _, recs = decode_plc_frame(bytes(payload))
+    ids = recs["AxisId"]
+    if len(np.unique(ids)) != len(ids):
+        raise ValueError("duplicate AxisId")
+    return PlcFrame(arrival, ids.copy(), recs["PlcToNc"].copy())
+
+
+def liveliness_client(keys: Keys, key: str) -> str | None:
+    """The client id of a client liveliness key ``nc/<nc>/client/<client>``; None for any other
+    key or an invalid id (such a token is ignored: no valid request can name that client)."""
+    head, sep, client = key.rpartition("/")
+    if not sep or head != f"{keys.prefix}/client":
+        return None
+    try:
+        return check_client_id(client)
+    except ValueError:
+        return None
+
+
 @dataclass(slots=True)
 class Outgoing:
     """What one cycle hands to the I/O thread.
@@ -210,6 +244,7 @@ class Transport:
         #: set when a query arrives (the cycle loop waits on it between cycles)
         self.query_event = threading.Event()
         self.queries_refused = 0
+        self.liveliness_ignored = 0  # client tokens with an invalid id
         self.plc_frames = 0
         self.plc_malformed = 0
         self.plc_ignored = 0  # frames from clients that hold no axis
@@ -321,7 +356,10 @@ class Transport:
 
     # ---- liveliness (zenoh thread) -------------------------------------------------------------
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
-        client = str(sample.key_expr).rsplit("/", 1)[-1]
+        client = liveliness_client(self.keys, str(sample.key_expr))
+        if client is None:
+            self.liveliness_ignored += 1
+            return
         self.liveliness_events.append((client, sample.kind != zenoh.SampleKind.DELETE))
 
     def pop_liveliness(self) -> list[tuple[str, bool]]:
@@ -370,15 +408,10 @@ class Transport:
             if 0.0 < age < HLC_MAX_AGE:
                 now -= age
         try:
-            if len(sample.payload) > self._max_plc_frame:
+            if len(sample.payload) > self._max_plc_frame:  # before copying it out of zenoh
                 raise ValueError("more records than axes")
-            # the header's PlcCycle is not used by the NC: the watchdog goes by arrival time
-            _, recs = decode_plc_frame(sample.payload.to_bytes())
-            ids = recs["AxisId"]
-            if len(np.unique(ids)) != len(ids):
-                raise ValueError("duplicate AxisId")
-            frame = PlcFrame(now, ids.copy(), recs["PlcToNc"].copy())
-        except Exception:  # malformed: counted and dropped, never crash the subscriber
+            frame = decode_plctonc(sample.payload.to_bytes(), now, self._max_plc_frame)
+        except Exception:  # malformed (ValueError): counted and dropped, never crash the subscriber
             self.plc_malformed += 1
             return
         self.plc_frames += 1
