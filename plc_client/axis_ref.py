@@ -32,7 +32,9 @@ old NC instance stop following it (0x4B0F).
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+import contextlib
+import weakref
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
@@ -170,6 +172,22 @@ class ST_AxisStatus:
         return f"ST_AxisStatus({self.MotionState.name}, nc_cycle={self.NcCycleCounter}, {'|'.join(flags)})"
 
 
+#: collectors of :func:`collect_axes` (a program being loaded); weak: a temporary AXIS_REF is not kept
+_collectors: list[list[weakref.ref[AXIS_REF]]] = []
+
+
+@contextlib.contextmanager
+def collect_axes() -> Iterator[list[weakref.ref[AXIS_REF]]]:
+    """Record every AXIS_REF created inside the ``with`` block (how ``plc-run`` finds the axes a program
+    declares while it loads it, wherever it keeps them: module globals, a Program's attributes, lists...)."""
+    refs: list[weakref.ref[AXIS_REF]] = []
+    _collectors.append(refs)
+    try:
+        yield refs
+    finally:
+        _collectors.remove(refs)
+
+
 class AXIS_REF:
     """Reference to one NC axis: ``AXIS_REF(nc="nc1", axis_id=1)``.
 
@@ -210,6 +228,8 @@ class AXIS_REF:
         #: True once frames arrived but this axis id was not in them (-> 0x4012).
         self.missing = False
         self._task: PlcTask | None = None
+        for refs in _collectors:
+            refs.append(weakref.ref(self))
         self._has_data = False
         self._unchanged = 0  # PLC cycles without a newer NC cycle
 
