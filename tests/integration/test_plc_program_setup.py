@@ -129,3 +129,16 @@ def test_bad_set_stops_nc_server_before_it_starts(start_nc: Callable[..., NcServ
         assert srv.ready_line() is None
         err = srv.stderr()
         assert "nc-server: configuration error: " in err and text in err and "Traceback" not in err, err
+
+
+def test_example_05_monitor_with_arguments(start_nc: Callable[..., NcServerProcess]) -> None:
+    """examples/05 as its docstring says: no block, its axes from --arg, valid data printed."""
+    nc = start_nc()
+    example = Path(__file__).resolve().parents[2] / "examples" / "05_status_monitor.py"
+    plc = PlcRun(example, nc.endpoint, "--arg", "axes=2,4", "--arg", "every=5")
+    try:
+        line = wait_until(lambda: next((ln for ln in list(plc.lines) if ln.startswith("2:") and "DISABLED" in ln),
+                                       None), T, "a line of valid data")
+        assert "4:" in line and "1:" not in line and "no data" not in line, line
+    finally:
+        plc.kill()
