@@ -7,7 +7,8 @@
 2. drain the command port's replies (claims, late replies, detached commands);
 3. run the user program (``program(plc)``, or ``program.cycle(plc)`` / ``program.cycle()``)
    with this task as the *current task*, so an AXIS_REF passed to a function block for the
-   first time is bound to it;
+   first time is bound to it (the program's declared axes are bound before the first cycle:
+   the ``axes`` argument, which ``plc-run`` fills from :func:`plc_client.program.load`);
 4. publish one batched PLCTONC frame per NC for the axes this task controls.
 
 Transports subclass it (:class:`plc_client.runtime.PlcRuntime` over zenoh,
