@@ -539,7 +539,8 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
         raise prov.translate(exc) from None
 
 
-def _apply_options(data: dict[str, Any], prov: _Provenance, *, listen: Sequence[str] | None, connect: Sequence[str] | None,
+def _apply_options(data: dict[str, Any], prov: _Provenance, *, listen: Sequence[str] | None,
+                   connect: Sequence[str] | None,
                    mode: str | None, name: str | None, cycle_time: float | None, realtime: str | None,
                    watchdog_timeout: float | None, retain_file: str | None, roles: str | None,
                    tls_dir: str | None, lease_ms: int | None) -> ServerConfig:

@@ -97,8 +97,11 @@ def test_monitor_program_with_args_on_an_nc_with_overrides(tmp_path: Path, start
         assert too_fast["error"] == 0x4221, too_fast
         r = cl.request("MoveVelocity", axis=2, Velocity=250.0, Direction=1)
         assert r["error"] == 0, r
-        moving = wait_until(lambda: next((x for x in plc.records()[-3:] if x["Valid"] and math.isclose(x["SetVelo"], 250.0)
-                                          and x["CmdNo"] == r["CmdNo"]), None), T, "the monitor seeing the move")
+        def seen_moving() -> dict[str, Any] | None:
+            return next((x for x in plc.records()[-3:] if x["Valid"] and math.isclose(x["SetVelo"], 250.0)
+                         and x["CmdNo"] == r["CmdNo"]), None)
+
+        moving = wait_until(seen_moving, T, "the monitor seeing the move")
         assert moving["SetPos"] > 0.0 and moving["State"] == "MC_AXISSTATE_CONTINOUSMOTION"
         assert plc.proc.poll() is None, "the monitor ended (json.dumps of a value failed?)"
     finally:
