@@ -23,6 +23,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
+from nc_schema import StateDWord
 from plc_harness import NC_ARGS, T
 from znc_testing import NcServerProcess, NcTestClient, wait_until
 
@@ -92,7 +93,8 @@ def test_monitor_program_with_args_on_an_nc_with_overrides(tmp_path: Path, start
         assert cl.request("ReadParameter", axis=1, ParameterNumber=1003)["Value"] == 500.0  # axis 1 untouched
         cl.claim(2)
         cl.feed_plctonc([2])
-        wait_until(lambda: (r := plc.records()[-1])["StateDWord"] & 1 and r, T, "axis 2 enabled (seen by the monitor)")
+        clc = int(StateDWord.ControlLoopClosed)
+        wait_until(lambda: plc.records()[-1]["StateDWord"] & clc, T, "axis 2 enabled (seen by the monitor)")
         too_fast = cl.request("MoveVelocity", axis=2, Velocity=400.0, Direction=1)
         assert too_fast["error"] == 0x4221, too_fast
         r = cl.request("MoveVelocity", axis=2, Velocity=250.0, Direction=1)
