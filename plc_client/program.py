@@ -142,7 +142,7 @@ def _convert(name: str, text: str, default: Any) -> Any:
         raise ProgramArgsError(f"--arg {name}={text}: {name} must be true or false (default {default})")
     if isinstance(default, int):
         try:
-            return int(t, 0)
+            return int(t, 0) if not t.lstrip("+-").startswith("0") or t.lstrip("+-")[1:2].isalpha() else int(t, 10)
         except ValueError:
             raise ProgramArgsError(f"--arg {name}={text}: {name} must be an integer (default {default})") from None
     if isinstance(default, float):
@@ -155,9 +155,7 @@ def _convert(name: str, text: str, default: Any) -> Any:
         return v
     if isinstance(default, str):
         return text
-    if default is None:
-        return _untyped(text)
-    return _untyped(text)
+    return _untyped(text)  # default None
 
 
 def program_args(**defaults: Any) -> ProgramArgs:

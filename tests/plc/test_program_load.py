@@ -94,7 +94,7 @@ ARGS = """
 
 def test_program_args_are_typed_by_their_defaults(tmp_path: Path) -> None:
     p = str(write(tmp_path, ARGS))
-    loaded = load(p, parse_program_args(["speed=300", "axis=2", "verbose=TRUE", "label=a=b", "anything=0x10"]))
+    loaded = load(p, parse_program_args(["speed=300", "axis=02", "verbose=TRUE", "label=a=b", "anything=0x10"]))
     a = loaded.module.args
     assert a == {"speed": 300.0, "axis": 2, "verbose": True, "label": "a=b", "anything": 16}
     assert type(a.speed) is float and a["axis"] == 2 and loaded.args == a
