@@ -43,6 +43,6 @@ def cycle(plc):
     jog(Axis=X, Execute=step == 10, Velocity=50.0, Direction=MC_Direction.MC_Positive_Direction)
     stop(Axis=X, Execute=step == 20, Deceleration=500.0, Jerk=5000.0)
     if jog.InVelocity and plc.cycle % 25 == 0:
-        print(f"t={t:.2f} s: constant velocity {float(X.NcToPlc['ActVelo']):.1f} u/s at {X.ActPos:.1f}")
+        print(f"t={t:.2f} s: constant velocity {X.NcToPlc.ActVelo:.1f} u/s at {X.ActPos:.1f}")
     if stop.Done and stop.Busy and plc.cycle % 25 == 0:
         print(f"t={t:.2f} s: stopped at {X.ActPos:.2f}, axis locked: {X.Status.MotionCommandsLocked}")

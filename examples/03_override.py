@@ -26,4 +26,4 @@ def cycle(plc):
     percent = 100.0 / 2 ** (plc.cycle // 100 % 3)
     override(Axis=Y, Execute=plc.cycle % 100 == 0, Override=percent)
     if plc.cycle % 100 == 50:  # half a second later
-        print(f"override {percent:5.1f} %: set velocity {float(Y.NcToPlc['SetVelo']):5.1f} u/s")
+        print(f"override {percent:5.1f} %: set velocity {Y.NcToPlc.SetVelo:5.1f} u/s")

@@ -1,20 +1,26 @@
-"""Example 5: watch axes without controlling them (no MC_Power, no claim).
+"""Example 5: watch axes without controlling them (no MC_Power, no claim, no block at all).
 
     plc-run examples/05_status_monitor.py --client-id monitor
+    plc-run examples/05_status_monitor.py --client-id monitor --arg axes=1,3 --arg every=10
 
 Any number of PLCs may read an axis; only the one that claimed it (with MC_Power) drives it.
-"""
-from plc_client import AXIS_REF, MC_ReadActualPosition, MC_ReadStatus
+The AXIS_REFs a program declares are bound when plc-run loads it, so their data (``NcToPlc``,
+``Status``) is refreshed every cycle and ``Status.Valid`` is TRUE once the NC's data arrives,
+without a block being called with them. ``NcToPlc`` members are plain Python values (TwinCAT's
+names: ``ax.NcToPlc.SetPos``, ``.ActVelo``, ``.PosDiff``, ``.ErrorCode``, ...).
 
-axes = [AXIS_REF(nc="nc1", axis_id=i) for i in (1, 2, 3, 4)]
-positions = [MC_ReadActualPosition() for _ in axes]
-states = [MC_ReadStatus() for _ in axes]
+Arguments (``--arg NAME=VALUE``, typed like the defaults of ``program_args``): ``axes``, the AxisIds
+to watch (comma-separated), ``every``, print every so many PLC cycles, ``nc``, the NC's name.
+"""
+from plc_client import AXIS_REF, program_args
+
+args = program_args(axes="1,2,3,4", every=50, nc="nc1")
+axes = [AXIS_REF(nc=args.nc, axis_id=int(i)) for i in args.axes.split(",")]
 
 
 def cycle(plc):
-    for ax, pos, st in zip(axes, positions, states):
-        pos(Axis=ax, Enable=True)
-        st(Axis=ax, Enable=True)
-    if plc.cycle % 50 == 0:
-        print("  ".join(f"{ax.axis_id}: {p.Position:9.3f} {s.Status.MotionState.name[13:]:<18}" if p.Valid
-                        else f"{ax.axis_id}: no data (0x{p.ErrorID:X})" for ax, p, s in zip(axes, positions, states)))
+    if plc.cycle % args.every:
+        return
+    print("  ".join(f"{ax.axis_id}: {ax.NcToPlc.ActPos:9.3f} {ax.NcToPlc.SetVelo:8.2f} u/s "
+                    f"{ax.Status.MotionState.name[13:]:<18}" if ax.Status.Valid else f"{ax.axis_id}: no data"
+                    for ax in axes), flush=True)

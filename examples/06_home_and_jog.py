@@ -38,7 +38,7 @@ class Program:
         # X: the cam as a real sensor would report it
         self.hx(Axis=X, Execute=self.home, bCalibrationCam=X.ActPos < CAM_AT)
         # Y: no cam - simulate one: TRUE first, FALSE once HomingState >= 4 (TcMC 3.14)
-        cam_y = int(Y.NcToPlc["HomingState"]) < 4 if self.hy.Busy else True
+        cam_y = Y.NcToPlc.HomingState < 4 if self.hy.Busy else True
         self.hy(Axis=Y, Execute=self.home, bCalibrationCam=cam_y)
         self.jog(Axis=X, JogForward=self.fwd, JogBackwards=self.bwd, Mode=self.mode, Position=5.0, Velocity=50.0)
         next(self.steps)
@@ -61,7 +61,7 @@ class Program:
             if not fb.Done:
                 print(f"{ax.name}: homing failed, ErrorID 0x{fb.ErrorID:X}")
                 raise SystemExit(1)
-            print(f"{ax.name}: homed={ax.Status.Homed}, HomingState {int(ax.NcToPlc['HomingState'])}, "
+            print(f"{ax.name}: homed={ax.Status.Homed}, HomingState {ax.NcToPlc.HomingState}, "
                   f"stands at {ax.ActPos:.4f} (reference 0 + braking distance)")
         self.home = False
         for n in range(3):  # three presses of the forward key: 5 mm each
@@ -78,7 +78,7 @@ class Program:
         yield from self.wait(lambda: self.jog.Active, "the jog")
         t0 = self.plc.now
         yield from self.wait(lambda: self.plc.now - t0 >= 0.3, "0.3 s")
-        print(f"jogging backwards at {float(X.NcToPlc['ActVelo']):.1f} mm/s, X at {X.ActPos:.3f}")
+        print(f"jogging backwards at {X.NcToPlc.ActVelo:.1f} mm/s, X at {X.ActPos:.3f}")
         self.bwd = False  # release: MC_Jog sends a Halt and is Done at standstill
         yield
         yield from self.wait(lambda: not self.jog.Busy, "the stop")

@@ -57,8 +57,8 @@ class Program:
         if not self.move.Done:
             print(f"{what} failed: ErrorID 0x{self.move.ErrorID:X}")
             raise SystemExit(1)
-        print(f"{what}: ActPos {C.ActPos:8.3f}, modulo {float(C.NcToPlc['ModuloActPos']):7.3f}, "
-              f"turns {int(C.NcToPlc['ModuloActTurns'])}")
+        print(f"{what}: ActPos {C.ActPos:8.3f}, modulo {C.NcToPlc.ModuloActPos:7.3f}, "
+              f"turns {C.NcToPlc.ModuloActTurns}")
         self.ex_move = False
         yield
 
@@ -80,7 +80,7 @@ class Program:
                     yield
                     yield from self.wait(lambda: not self.reset.Busy, "MC_Reset")
                     self.ex_reset = False
-                    print(f"MC_Reset: set position now {float(C.NcToPlc['SetPos']):.4f}")
+                    print(f"MC_Reset: set position now {C.NcToPlc.SetPos:.4f}")
                     yield
                     break
         # the last cycle with AXACT: MODE 517 (modulo, positive direction), TARGPOS 450
@@ -94,5 +94,5 @@ class Program:
         yield from self.wait(lambda: C.Status.HasJob, "the job")  # accepted: the job is there
         yield from self.wait(lambda: not C.Status.HasJob and C.Status.InTargetPosition, "the end of the turn")
         print(f"cycle {CYCLES} (AXACT 517/450): ActPos {C.ActPos:8.3f}, modulo "
-              f"{float(C.NcToPlc['ModuloActPos']):7.3f}, turns {int(C.NcToPlc['ModuloActTurns'])}")
+              f"{C.NcToPlc.ModuloActPos:7.3f}, turns {C.NcToPlc.ModuloActTurns}")
         raise SystemExit(0)

@@ -42,11 +42,11 @@ class Program:
         next(self.steps)
 
     def watch_transitions(self):
-        pos = float(X.NcToPlc["SetPos"])
+        pos = X.NcToPlc.SetPos
         if self.last_pos is not None:
             for p, _, _ in MOVES[:-1]:
                 if self.last_pos < p <= pos and p not in self.passed:
-                    self.passed[p] = float(X.NcToPlc["SetVelo"])
+                    self.passed[p] = X.NcToPlc.SetVelo
         self.last_pos = pos
 
     def wait(self, cond, what, timeout=20.0):

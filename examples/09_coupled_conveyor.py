@@ -60,11 +60,11 @@ SUPER_LENGTH = 100.0  # mm of the roller's basic travel (at VelocityProcess) ove
 
 
 def set_pos(ax):
-    return float(ax.NcToPlc["SetPos"])
+    return ax.NcToPlc.SetPos
 
 
 def set_velo(ax):
-    return float(ax.NcToPlc["SetVelo"])
+    return ax.NcToPlc.SetVelo
 
 
 class Program:
@@ -152,14 +152,14 @@ class Program:
         yield
         yield from self.wait(lambda: self.gear_in.InGear and self.gear_dyn.InGear, "InGear")
         print(f"coupled: {ROLLER.name} MC_GearIn {ROLLER_RATIO[0]}:{ROLLER_RATIO[1]} "
-              f"(NC ratio {float(ROLLER.NcJobs['GearRatio']):.3f}, CoupleState {int(ROLLER.NcToPlc['CoupleState'])}), "
+              f"(NC ratio {float(ROLLER.NcJobs['GearRatio']):.3f}, CoupleState {ROLLER.NcToPlc.CoupleState}), "
               f"{FEED.name} MC_GearInDyn (NC ratio {float(FEED.NcJobs['GearRatio']):.3f}), "
-              f"{CONVEYOR.name} CoupleState {int(CONVEYOR.NcToPlc['CoupleState'])}")
+              f"{CONVEYOR.name} CoupleState {CONVEYOR.NcToPlc.CoupleState}")
 
         # 2. arm the product sensor, then start the conveyor
         self.ex["probe"] = True
         yield
-        yield from self.wait(lambda: int(CONVEYOR.NcToPlc["TouchProbeState"]) & 1, "the armed latch")
+        yield from self.wait(lambda: CONVEYOR.NcToPlc.TouchProbeState & 1, "the armed latch")
         self.ex["move"] = True
         yield
         yield from self.wait(lambda: self.conveyor_move.InVelocity, "the conveyor's velocity")
@@ -189,7 +189,7 @@ class Program:
         recorded = self.probe.RecordedPosition
         self.ex["probe"] = False
         print(f"product edge recorded at {recorded:.3f} mm (window {PROBE_WINDOW[0]:.0f}..{PROBE_WINDOW[1]:.0f}; "
-              f"TouchProbeCounter {int(CONVEYOR.NcToPlc['TouchProbeCounter'])})")
+              f"TouchProbeCounter {CONVEYOR.NcToPlc.TouchProbeCounter})")
         self.check(math.isclose(recorded, EXPECTED_EDGE, abs_tol=1e-3), f"the edge at {EXPECTED_EDGE} mm")
 
         # 4. the registration correction on the PrintRoller
@@ -222,9 +222,9 @@ class Program:
         yield from self.wait(lambda: not self.feed_out.Busy, "MC_GearOutExt")
         self.ex["feed_out"] = False
         print(f"{FEED.name} decoupled, stopped at {FEED.ActPos:.3f} (target {self.feed_target:.0f}, "
-              f"InTargetPosition {FEED.Status.InTargetPosition}, CoupleState {int(FEED.NcToPlc['CoupleState'])})")
+              f"InTargetPosition {FEED.Status.InTargetPosition}, CoupleState {FEED.NcToPlc.CoupleState})")
         self.check(math.isclose(FEED.ActPos, self.feed_target, abs_tol=0.02), f"{FEED.name} at its target")
-        self.check(int(FEED.NcToPlc["CoupleState"]) == 0, f"{FEED.name} decoupled")
+        self.check(FEED.NcToPlc.CoupleState == 0, f"{FEED.name} decoupled")
 
         # 6. stop the conveyor (the roller follows), then decouple the standing roller
         self.ex["halt"] = True
@@ -238,10 +238,10 @@ class Program:
         self.ex["gear_in"] = False
         yield
         print(f"stopped: {CONVEYOR.name} at {CONVEYOR.ActPos:.3f}, {ROLLER.name} at {ROLLER.ActPos:.3f} "
-              f"(decoupled: CoupleState {int(ROLLER.NcToPlc['CoupleState'])}, MC_GearIn Busy {self.gear_in.Busy}), "
+              f"(decoupled: CoupleState {ROLLER.NcToPlc.CoupleState}, MC_GearIn Busy {self.gear_in.Busy}), "
               f"{FEED.name} at {FEED.ActPos:.3f}")
         self.check(all(ax.Status.NotMoving for ax in AXES), "everything stands")
-        self.check(int(ROLLER.NcToPlc["CoupleState"]) == 0 and not self.gear_in.Busy, f"{ROLLER.name} decoupled")
+        self.check(ROLLER.NcToPlc.CoupleState == 0 and not self.gear_in.Busy, f"{ROLLER.name} decoupled")
         self.check(math.isclose(ROLLER.ActPos, ratio * CONVEYOR.ActPos + self.distance, abs_tol=0.02),
                    f"{ROLLER.name} = 1/2 {CONVEYOR.name} + the correction")
         if self.failed:

@@ -27,6 +27,8 @@ from .fb import (
     MC_Stop,
 )
 from .port import CommandPort, InProcessPort, PendingCommand
+from .program import ProgramArgs, ProgramArgsError, program_args
+from .records import NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF
 from .task import InProcessPlc, PlcTask, current_task, run_cycles
 
 __all__ = [
@@ -36,6 +38,7 @@ __all__ = [
     "current_task", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
     "MC_ChangeDynParam", "MC_MoveAbsoluteOrRestart", "MC_MoveAdditive", "MC_MoveContinuousAbsolute",
     "MC_MoveContinuousRelative", "MC_NewPos", "MC_NewPosAndVelo", "MC_OrientedStop",
+    "program_args", "ProgramArgs", "ProgramArgsError", "NCTOPLC_AXIS_REF", "PLCTONC_AXIS_REF",
 ]
 
 # homing, jogging, position administration, AXACT

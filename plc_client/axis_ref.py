@@ -2,21 +2,24 @@
 
 An :class:`AXIS_REF` holds
 
-* ``NcToPlc``: a **read-only** snapshot (``numpy.void`` of ``NCTOPLC_DTYPE``) of the
+* ``NcToPlc``: a **read-only** snapshot (:class:`~plc_client.records.NCTOPLC_AXIS_REF`) of the
   axis's record in the newest NC status frame, taken once at the start of every PLC
-  cycle, so every function block in one cycle sees the same data;
-* ``PlcToNc``: a **writable** record (``numpy.void`` of ``PLCTONC_DTYPE``) that the
+  cycle, so every function block in one cycle sees the same data; every member is an
+  attribute with a plain Python value (``X.NcToPlc.SetPos``, ``X.NcToPlc.StateDWord``);
+* ``PlcToNc``: a **writable** record (:class:`~plc_client.records.PLCTONC_AXIS_REF`) that the
   runtime publishes at the end of every PLC cycle for the axes it controls
-  (``Override`` starts at 1000000 = 100 %);
+  (``Override`` starts at 1000000 = 100 %; ``X.PlcToNc.Override = 500000``);
 * ``Status``: :class:`ST_AxisStatus`, refreshed from ``NcToPlc`` every PLC cycle (what
   ``MC_ReadStatus`` / ``Axis.ReadStatus()`` do in TwinCAT), plus ``NcCycleCounter``
   (the NC cycle that produced the snapshot), ``CycleCounter`` (the PLC cycle) and
   ``Valid`` (False while the data is stale or missing).
 
 Binding: ``AXIS_REF(nc="nc1", axis_id=1)`` names the axis; it is bound to a PLC task
-(:class:`plc_client.task.PlcTask`) either explicitly (``task.axis(...)`` /
-``task.register(ax)``) or implicitly the first time a function block is called with it
-inside a running PLC cycle.
+(:class:`plc_client.task.PlcTask`) when the program is loaded (``plc-run`` binds every AXIS_REF
+the program file declares: :func:`plc_client.cli.load_program`; embedding: ``PlcRuntime(...,
+axes=[...])``), explicitly (``task.axis(...)`` / ``task.register(ax)``) or implicitly the first
+time a function block is called with it inside a running PLC cycle. A bound axis's NcToPlc and
+Status are refreshed every cycle, whether or not a block uses it.
 
 Staleness (zenoh-nc choice; Tc2_MC2 raises 0x4B0F when its NC cycle counter stops):
 if the NC cycle of an axis's snapshot has not advanced for ``stale_cycles`` PLC cycles,
@@ -29,11 +32,15 @@ old NC instance stop following it (0x4B0F).
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+import contextlib
+import weakref
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
-from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, MC_AxisStates, StateDWord, motion_state
+from nc_schema import NCJOBS_DTYPE, MC_AxisStates, StateDWord, motion_state
+
+from .records import NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF
 
 if TYPE_CHECKING:  # pragma: no cover
     from .task import PlcTask
@@ -128,10 +135,10 @@ class ST_AxisStatus:
         for name in _BIT_FIELDS:
             setattr(self, name, False)
 
-    def update(self, rec: np.void, nc_cycle: int, plc_cycle: int, cycle_time: float, valid: bool) -> None:
+    def update(self, rec: NCTOPLC_AXIS_REF, nc_cycle: int, plc_cycle: int, cycle_time: float, valid: bool) -> None:
         """Refresh every member from one NCTOPLC record (what MC_ReadStatus does)."""
-        s = int(rec["StateDWord"])
-        cs = int(rec["CoupleState"])
+        s = rec.StateDWord
+        cs = rec.CoupleState
         self.CycleCounter = plc_cycle
         self.NcCycleCounter = nc_cycle
         self.UpdateCycleTime = cycle_time
@@ -140,8 +147,8 @@ class ST_AxisStatus:
         if flags is None:
             flags = _flags(s, cs)
         self.__dict__.update(flags)
-        self.ErrorId = int(rec["ErrorCode"])
-        acc, vel = float(rec["SetAcc"]), float(rec["SetVelo"])
+        self.ErrorId = rec.ErrorCode
+        acc, vel = rec.SetAcc, rec.SetVelo
         if abs(acc) <= _ACC_EPS:
             self.Accelerating = self.Decelerating = False
         elif vel == 0.0:
@@ -165,14 +172,32 @@ class ST_AxisStatus:
         return f"ST_AxisStatus({self.MotionState.name}, nc_cycle={self.NcCycleCounter}, {'|'.join(flags)})"
 
 
+#: collectors of :func:`collect_axes` (a program being loaded); weak: a temporary AXIS_REF is not kept
+_collectors: list[list[weakref.ref[AXIS_REF]]] = []
+
+
+@contextlib.contextmanager
+def collect_axes() -> Iterator[list[weakref.ref[AXIS_REF]]]:
+    """Record every AXIS_REF created inside the ``with`` block (how ``plc-run`` finds the axes a program
+    declares while it loads it, wherever it keeps them: module globals, a Program's attributes, lists...)."""
+    refs: list[weakref.ref[AXIS_REF]] = []
+    _collectors.append(refs)
+    try:
+        yield refs
+    finally:
+        _collectors.remove(refs)
+
+
 class AXIS_REF:
     """Reference to one NC axis: ``AXIS_REF(nc="nc1", axis_id=1)``.
 
     Attributes:
         nc: NC name (``nc/<nc>/...`` keys).
         axis_id: the axis's AxisId (1..65535).
-        NcToPlc: read-only NCTOPLC snapshot of this PLC cycle (``numpy.void``).
-        PlcToNc: writable PLCTONC record published for a controlled axis.
+        NcToPlc: read-only NCTOPLC snapshot of this PLC cycle (:class:`~plc_client.records.NCTOPLC_AXIS_REF`:
+            ``X.NcToPlc.SetPos`` ... as plain Python values; ``X.NcToPlc["SetPos"]`` is the same).
+        PlcToNc: writable PLCTONC record published for a controlled axis
+            (:class:`~plc_client.records.PLCTONC_AXIS_REF`: ``X.PlcToNc.Override = 500000``).
         NcJobs: read-only NCJOBS_AXIS_REF snapshot (zenoh-nc): the axis's command queue and the
             fates of its last ended commands, so a block sees how its own command ended.
         Status: :class:`ST_AxisStatus`, refreshed every PLC cycle.
@@ -191,20 +216,20 @@ class AXIS_REF:
         self.nc = nc
         self.axis_id = axis_id
         self.name = name or f"{nc}/{axis_id}"
-        empty = np.zeros(1, dtype=NCTOPLC_DTYPE)
-        empty.flags.writeable = False
-        self.NcToPlc: np.void = empty[0]
+        self.NcToPlc = NCTOPLC_AXIS_REF()
         no_jobs = np.zeros(1, dtype=NCJOBS_DTYPE)
         no_jobs.flags.writeable = False
         self.NcJobs: np.void = no_jobs[0]
-        self._plctonc = np.zeros(1, dtype=PLCTONC_DTYPE)
-        self._plctonc["Override"] = 1_000_000
-        self.PlcToNc: np.void = self._plctonc[0]
+        self.PlcToNc = PLCTONC_AXIS_REF()
+        self.PlcToNc.Override = 1_000_000
+        self._plctonc = self.PlcToNc._arr  # a numpy view of the same bytes (the frame encoders take it)
         self.Status = ST_AxisStatus()
         self.nc_epoch = 0
         #: True once frames arrived but this axis id was not in them (-> 0x4012).
         self.missing = False
         self._task: PlcTask | None = None
+        for refs in _collectors:
+            refs.append(weakref.ref(self))
         self._has_data = False
         self._unchanged = 0  # PLC cycles without a newer NC cycle
 
@@ -232,8 +257,7 @@ class AXIS_REF:
                 self._unchanged = 0  # a newer frame (or a restarted NC's: the task bumps nc_epoch)
             else:
                 self._unchanged += 1
-            arr = np.frombuffer(rec.tobytes(), dtype=NCTOPLC_DTYPE, count=1)  # read-only copy
-            self.NcToPlc = arr[0]
+            self.NcToPlc = NCTOPLC_AXIS_REF._of(rec.tobytes())  # this cycle's copy, unpacked when read
             if jobs is not None:
                 self.NcJobs = np.frombuffer(jobs.tobytes(), dtype=NCJOBS_DTYPE, count=1)[0]
             self._has_data = True
@@ -256,11 +280,11 @@ class AXIS_REF:
 
     @property
     def ActPos(self) -> float:
-        return float(self.NcToPlc["ActPos"])
+        return self.NcToPlc.ActPos
 
     @property
     def ActVelo(self) -> float:
-        return float(self.NcToPlc["ActVelo"])
+        return self.NcToPlc.ActVelo
 
     def __repr__(self) -> str:
         return f"AXIS_REF(nc={self.nc!r}, axis_id={self.axis_id})"

@@ -1,17 +1,21 @@
 """``plc-run``: run a PLC program file cyclically against one or more NC servers.
 
     plc-run program.py [--nc nc1=tcp/127.0.0.1:7447] [--cycle-time 0.01] [--client-id ID] [--duration S]
-                       [--tls-dir DIR]
+                       [--tls-dir DIR] [--arg NAME=VALUE ...]
 
 ``program.py`` defines either ``def cycle(plc)`` (called once per PLC cycle with the
 :class:`~plc_client.runtime.PlcRuntime`), or a class ``Program`` (instantiated once without
 arguments; its ``cycle(plc)`` or ``cycle()`` method is called each cycle). AXIS_REFs in the
 program name their NC (``AXIS_REF(nc="nc1", axis_id=1)``); every NC used needs a ``--nc``
-(default: ``nc1=tcp/127.0.0.1:7447``).
+(default: ``nc1=tcp/127.0.0.1:7447``). The AXIS_REFs the program declares are bound when it is
+loaded (their data is valid once the NC's frames arrive, without a block call), and ``--arg
+NAME=VALUE`` (repeatable) are the program's arguments, read with ``program_args(NAME=default, ...)``
+(:mod:`plc_client.program`).
 
 Exit codes: 0 after SIGINT/SIGTERM or ``--duration``; 1 when the program raised (the runtime
-then switched the enables off and released its claims); 2 for a bad command line or a program
-file that cannot be loaded. Prints one line on stdout once it runs; logs go to stderr.
+then switched the enables off and released its claims); 2 for a bad command line, a bad program
+argument or a program file that cannot be loaded (one line on stderr, no traceback, nothing
+connected). Prints one line on stdout once it runs; logs go to stderr.
 
 The shutdown after SIGINT/SIGTERM is bounded (see :mod:`plc_client.runtime`), also when an NC is
 dead or frozen: 3 cycles of enables-off frames, at most ``--timeout`` for the Release replies and
@@ -21,12 +25,14 @@ dead or frozen: 3 cycles of enables-off frames, at most ``--timeout`` for the Re
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import logging
 import os
 import sys
-from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
+
+from .program import ProgramArgsError, load, load_program, parse_program_args
+
+__all__ = ["main", "parse_ncs", "load_program"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -47,6 +53,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--lease-ms", type=int, default=None, metavar="MS",
                    help="zenoh transport lease this PLC announces [ms] (500): the NC drops a frozen PLC after "
                         "about 0.75 x lease (its claims fault with 0x8F01, its motions stop)")
+    p.add_argument("--arg", action="append", metavar="NAME=VALUE", dest="program_args",
+                   help="an argument of the program, read with plc_client.program_args(NAME=default) and typed "
+                        "like its default, e.g. --arg speed=300 --arg axis=2 (repeatable)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
 
@@ -68,27 +77,6 @@ def parse_ncs(items: Sequence[str] | None) -> dict[str, str]:
     return out
 
 
-def load_program(path: str) -> Any:
-    """Import ``path`` and return what the runtime should call each cycle.
-
-    Raises:
-        ValueError: the file defines neither ``cycle`` nor ``Program``.
-        OSError, SyntaxError, Exception: the file cannot be imported.
-    """
-    p = Path(path)
-    spec = importlib.util.spec_from_file_location(p.stem.replace("-", "_") or "program", p)
-    if spec is None or spec.loader is None:
-        raise ValueError(f"{path}: not a Python file")
-    mod = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(p.resolve().parent))  # the program may import its neighbours
-    spec.loader.exec_module(mod)
-    if hasattr(mod, "Program"):
-        return mod.Program()
-    if callable(getattr(mod, "cycle", None)):
-        return mod.cycle
-    raise ValueError(f"{path}: define `def cycle(plc)` or a `Program` class with a cycle() method")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``plc-run``; returns the exit code."""
     args = _parser().parse_args(argv)
@@ -96,7 +84,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.getLogger("zenoh").setLevel(logging.WARNING)
     try:
         ncs = parse_ncs(args.nc)
-        program = load_program(args.program)
+        loaded = load(args.program, parse_program_args(args.program_args))
+    except ProgramArgsError as exc:
+        print(f"plc-run: {exc}", file=sys.stderr, flush=True)
+        return 2
     except Exception as exc:  # any import-time failure of the user's file
         print(f"plc-run: {exc.__class__.__name__}: {exc}", file=sys.stderr, flush=True)
         return 2
@@ -106,7 +97,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.lease_ms is not None and not 100 <= args.lease_ms <= 600_000:
             raise ValueError(f"--lease-ms must be 100..600000, got {args.lease_ms}")
-        rt = PlcRuntime(program, ncs, cycle_time=args.cycle_time, client_id=args.client_id,
+        rt = PlcRuntime(loaded.program, ncs, axes=loaded.axes, cycle_time=args.cycle_time, client_id=args.client_id,
                         stale_cycles=args.stale_cycles, command_timeout=args.timeout, tls_dir=args.tls_dir,
                         lease_ms=DEFAULT_LEASE_MS if args.lease_ms is None else args.lease_ms)
     except (ValueError, TypeError) as exc:

@@ -74,7 +74,7 @@ import socket
 import struct
 import threading
 import time
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
@@ -309,6 +309,7 @@ class PlcRuntime(PlcTask):
         frame_period: period [ms] of the status frames taken (one of ``nc_schema.FRAME_PERIODS_MS``);
             None: the longest of at most half ``cycle_time`` (``nc_schema.frame_period_ms``); 0: every
             NC cycle's frame (``nc/<nc>/frame``).
+        axes: AXIS_REFs to bind at once (see :class:`~plc_client.task.PlcTask`).
 
     Attributes:
         frame_period_ms: the period of the frames taken [ms] (None: every NC cycle's).
@@ -325,10 +326,11 @@ class PlcRuntime(PlcTask):
                  client_id: str | None = None, stale_cycles: int | None = None, command_timeout: float = 1.0,
                  query_timeout: float | None = None, lease_ms: int = DEFAULT_LEASE_MS, reconnect_period: float = 1.0,
                  shutdown_cycles: int = 3, claim_retry: float = 1.0, close_timeout: float = 2.0,
-                 tls_dir: str | None = None, frame_period: int | None = None) -> None:
+                 tls_dir: str | None = None, frame_period: int | None = None,
+                 axes: Iterable[AXIS_REF] = ()) -> None:
         cid = check_client_id(client_id or default_client_id())
         super().__init__(program, cycle_time=cycle_time, client_id=cid, stale_cycles=stale_cycles,
-                         command_timeout=command_timeout, claim_retry=claim_retry)
+                         command_timeout=command_timeout, claim_retry=claim_retry, axes=axes)
         ncs = dict(ncs if ncs is not None else {"nc1": "tcp/127.0.0.1:7447"})
         if tls_dir:
             from nc_server.security.tls import check_tls_endpoints, tls_files
@@ -359,6 +361,7 @@ class PlcRuntime(PlcTask):
         self._closed = False
         self._lock = threading.Lock()
         self._warned: set[str] = set()
+        self.bind_axes()  # the program's declared axes (an unconfigured NC is named now, not at first use)
 
     # -- sessions ----------------------------------------------------------------------
     def open(self, wait: float = 0.0) -> bool:

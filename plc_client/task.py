@@ -7,7 +7,8 @@
 2. drain the command port's replies (claims, late replies, detached commands);
 3. run the user program (``program(plc)``, or ``program.cycle(plc)`` / ``program.cycle()``)
    with this task as the *current task*, so an AXIS_REF passed to a function block for the
-   first time is bound to it;
+   first time is bound to it (the program's declared axes are bound before the first cycle:
+   the ``axes`` argument, which ``plc-run`` fills from :func:`plc_client.program.load`);
 4. publish one batched PLCTONC frame per NC for the axes this task controls.
 
 Transports subclass it (:class:`plc_client.runtime.PlcRuntime` over zenoh,
@@ -182,6 +183,9 @@ class PlcTask:
             default: ``ceil(0.2 s / cycle_time)``, at least 3.
         command_timeout: default Timeout of the function blocks [s].
         claim_retry: seconds between claim retries while MC_Power.Enable stays TRUE.
+        axes: AXIS_REFs to bind now (the program's declared axes: ``plc-run`` passes what
+            :func:`plc_client.program.load` found), so their data is refreshed from the first cycle
+            without a block being called with them; ones bound to another task are left alone.
 
     Attributes:
         cycle: PLC cycle counter (1 in the first cycle).
@@ -192,7 +196,8 @@ class PlcTask:
     """
 
     def __init__(self, program: Any = None, *, cycle_time: float = 0.010, client_id: str = "plc",
-                 stale_cycles: int | None = None, command_timeout: float = 1.0, claim_retry: float = 1.0) -> None:
+                 stale_cycles: int | None = None, command_timeout: float = 1.0, claim_retry: float = 1.0,
+                 axes: Iterable[AXIS_REF] = ()) -> None:
         if not (isinstance(cycle_time, (int, float)) and math.isfinite(cycle_time) and cycle_time > 0):
             raise ValueError(f"cycle_time must be > 0 s, got {cycle_time!r}")
         if stale_cycles is None:
@@ -225,6 +230,18 @@ class PlcTask:
         #: NCs whose liveliness token went away: [token back, restart counted] (see nc_token_gone)
         self._nc_gaps: dict[str, list[bool]] = {}
         self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
+        self._initial_axes = list(axes)  # bound by bind_axes() once the subclass has its transport
+
+    def bind_axes(self, axes: Iterable[AXIS_REF] | None = None) -> list[AXIS_REF]:
+        """Bind ``axes`` (default: the constructor's ``axes``) that no task holds yet; returns those bound."""
+        todo = self._initial_axes if axes is None else list(axes)
+        if axes is None:
+            self._initial_axes = []
+        bound = []
+        for ax in todo:
+            if isinstance(ax, AXIS_REF) and ax._task is None:
+                bound.append(self.register(ax))
+        return bound
 
     @property
     def program(self) -> Any:
@@ -533,6 +550,8 @@ class PlcTask:
         """Run one PLC cycle (see the module docstring). Exceptions of the program propagate."""
         self.cycle += 1
         self.now = self.clock()
+        if self._initial_axes:
+            self.bind_axes()
         self._take_frames()
         self._snapshot_all()
         while self._requests:
@@ -673,6 +692,7 @@ class InProcessPlc(PlcTask):
         self.core = self.port.core
         self.nc = nc
         self.port.clock = lambda: self.now
+        self.bind_axes()
 
     def clock(self) -> float:
         return self.cycle * self.cycle_time

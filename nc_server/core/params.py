@@ -10,6 +10,7 @@ stores is validated by that entry's range (the configuration and WriteParameter 
 """
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping
@@ -123,7 +124,8 @@ class AxisParams:
             if k in ALIASES:
                 k = ALIASES[k]
             if k not in known:
-                raise ConfigError(f"{where}.{k}", "unknown axis parameter")
+                near = difflib.get_close_matches(str(k), [*known, *ALIASES], n=1)
+                raise ConfigError(f"{where}.{k}", "unknown axis parameter" + (f" (did you mean {near[0]}?)" if near else ""))
             kw[k] = _check(k, known[k].metadata["kind"], v, f"{where}.{k}")
         try:
             return cls(**kw)

@@ -1,7 +1,11 @@
 """``nc-server``: run the NC.
 
+Configuration: the embedded default or ``--config FILE`` (replacing it), then ``--config-overlay
+FILE`` (partial TOML merged over it), ``--set KEY=VALUE`` and the dedicated options
+(:mod:`nc_server.server.config`).
+
 Exit codes: 0 after SIGINT/SIGTERM (clean shutdown), 2 for an invalid configuration or
-command line, 1 when the NC cannot start (e.g. the listen endpoint is in use) or dies.
+command line (nothing is started), 1 when the NC cannot start (e.g. the listen endpoint is in use) or dies.
 Prints one line on stdout once it serves (tests wait for it), logs go to stderr.
 """
 from __future__ import annotations
@@ -24,7 +28,13 @@ log = logging.getLogger("nc_server.server")
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="nc-server", description="zenoh-nc NC server (TwinCAT-style NC over zenoh).")
-    p.add_argument("--config", metavar="FILE", help="TOML configuration replacing the embedded default")
+    p.add_argument("--config", metavar="FILE", help="TOML configuration replacing the embedded default as a whole")
+    p.add_argument("--config-overlay", metavar="FILE", action="append", default=[],
+                   help="partial TOML merged over the configuration ([nc]/[zenoh] keys, [axis.<AxisId>] tables or "
+                        "[[axis]] tables with an AxisId; repeatable, applied in order)")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="sets",
+                   help="one configuration value after the overlays: axis.<AxisId>.<Parameter>=VALUE (e.g. "
+                        "axis.1.AxisVeloMax=300), nc.<key>=VALUE or zenoh.<key>=VALUE (repeatable)")
     p.add_argument("--listen", metavar="ENDPOINT", action="append",
                    help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable; replaces zenoh.listen)")
     p.add_argument("--connect", metavar="ENDPOINT", action="append",
@@ -74,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = load_config(args.config, listen=args.listen, connect=args.connect, mode=args.mode, name=args.name, cycle_time=args.cycle_time,
                           realtime=args.realtime, watchdog_timeout=args.watchdog_timeout,
                           retain_file=args.retain, roles=args.roles, tls_dir=args.tls_dir,
-                          lease_ms=args.lease_ms)
+                          lease_ms=args.lease_ms, overlays=args.config_overlay, sets=args.sets)
     except ConfigError as exc:
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -1,8 +1,27 @@
 """Server configuration: TOML file (or the embedded ``default.toml``) plus command-line overrides.
 
+Layers, each over the one before (:func:`load_config`):
+
+1. the base: ``--config FILE`` (replaces the embedded default as a whole, as before) or the default;
+2. ``--config-overlay FILE`` (repeatable, in order): a *partial* TOML merged over the base. ``[nc]`` and
+   ``[zenoh]`` keys replace the base's one by one (a list such as ``listen`` is replaced, not extended);
+   axes are changed by AxisId, either as ``[axis.2]`` tables (the axis must exist: only the keys given
+   change) or as ``[[axis]]`` tables with an ``AxisId`` (an existing axis: its keys given change; a new
+   AxisId: a new axis, appended). An overlay cannot remove an axis (use ``--config`` for that);
+3. ``--set KEY=VALUE`` (repeatable, in order): one value, ``axis.<AxisId>.<Parameter>`` (the axis must
+   exist; e.g. ``axis.1.AxisVeloMax=300``, ``axis.2.Name=Spindle``), ``nc.<key>`` or ``zenoh.<key>``
+   (``nc.cycle_time=0.002``, ``zenoh.listen=["tcp/127.0.0.1:7500"]``). VALUE is read as a TOML value
+   (``300``, ``1e3``, ``true``, ``[..]``), except for string-valued keys (Name, ClientLossReaction,
+   nc.name/realtime/drive/retain_file, zenoh.mode/roles/tls_dir), which take the text as given; it is
+   then checked exactly like the same value in a config file: by the parameter's kind and the range of
+   its MC_AxisPara entry in ``schema/params.json``;
+4. the dedicated options (``--listen``, ``--cycle-time``, ``--name``, ...) last.
+
 A configuration is checked completely before anything starts; every problem is reported as a
 :class:`~nc_server.core.params.ConfigError` whose ``key`` names the offending entry, e.g.
-``nc.cycle_time`` or ``axis[2].AxisVeloMax``.
+``nc.cycle_time`` or ``axis[2].AxisVeloMax``; for a value that came from an overlay or a ``--set``,
+the key names that instead (``--set axis.1.AxisVeloMax``, ``over.toml: axis.2.AxisAcc``), so the
+message says which argument to fix.
 """
 from __future__ import annotations
 
@@ -17,7 +36,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from nc_schema import Keys
-from nc_server.core.params import AxisConfig, AxisParams, ConfigError
+from nc_server.core.params import ALIASES, AxisConfig, AxisParams, ConfigError
 from nc_server.drives import drive_names
 from nc_server.security.roles import Roles, RolesError, load_roles
 from nc_server.security.tls import TlsError, check_tls_endpoints, tls_files
@@ -25,7 +44,7 @@ from nc_server.security.tls import TlsError, check_tls_endpoints, tls_files
 from .handler import LOSS_REACTIONS
 
 __all__ = ["ConfigError", "ServerConfig", "ZenohSettings", "load_config", "parse_config", "default_config_text",
-           "check_endpoint", "REALTIME_MODES"]
+           "check_endpoint", "REALTIME_MODES", "merge_overlay", "apply_set"]
 
 REALTIME_MODES = ("auto", "fifo", "off")
 ZENOH_MODES = ("router", "peer", "client")
@@ -294,15 +313,200 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
                         loss_reactions=reactions)
 
 
+#: keys whose --set VALUE is the text as given (not a TOML value)
+_STRING_KEYS = {"nc": {"name", "realtime", "drive", "retain_file"}, "zenoh": {"mode", "roles", "tls_dir"},
+                "axis": {"Name", "ClientLossReaction"}}
+
+
+class _Provenance:
+    """Where overridden entries came from: a config key prefix (``axis[1].AxisVeloMax``, ``nc.cycle_time``,
+    ``axis[4]``) -> the label an error names instead (``--set axis.2.AxisVeloMax``)."""
+
+    def __init__(self) -> None:
+        self.labels: dict[str, str] = {}
+
+    def note(self, key: str, label: str) -> None:
+        self.labels[key] = label
+
+    def translate(self, exc: ConfigError) -> ConfigError:
+        key = exc.key
+        best = ""
+        for k in self.labels:
+            if (key == k or key.startswith(k + ".") or key.startswith(k + "[")) and len(k) > len(best):
+                best = k
+        if not best:
+            return exc
+        return ConfigError(self.labels[best] + key[len(best):], str(exc).split(": ", 1)[-1])
+
+
+def _axis_index(data: Mapping[str, Any], axis_id: Any) -> int | None:
+    axes = data.get("axis")
+    if not isinstance(axes, list):
+        return None
+    for i, t in enumerate(axes):
+        if isinstance(t, Mapping) and t.get("AxisId") == axis_id and not isinstance(axis_id, bool):
+            return i
+    return None
+
+
+def _axis_ids(data: Mapping[str, Any]) -> str:
+    axes = data.get("axis")
+    ids = [str(t.get("AxisId")) for t in axes if isinstance(t, Mapping)] if isinstance(axes, list) else []
+    return ", ".join(ids) or "none"
+
+
+def merge_overlay(data: dict[str, Any], overlay: Mapping[str, Any], origin: str,
+                  prov: _Provenance | None = None) -> None:
+    """Merge a parsed partial TOML ``overlay`` into ``data`` (in place; see the module docstring).
+
+    Raises:
+        ConfigError: an axis table without AxisId, ``[axis.N]`` for an axis that does not exist, a
+            section that is not a table; the key names ``origin``.
+    """
+    prov = prov or _Provenance()
+    for section, value in overlay.items():
+        if section == "axis":
+            _merge_axes(data, value, origin, prov)
+        elif isinstance(value, Mapping) and section in ("nc", "zenoh"):
+            base = data.setdefault(section, {})
+            if not isinstance(base, dict):
+                raise ConfigError(section, "must be a table")
+            for k, v in value.items():
+                base[k] = v
+                prov.note(f"{section}.{k}", f"{origin}: {section}.{k}")
+        else:  # not a known table: parse_config reports it, naming the overlay
+            data[section] = value
+            prov.note(section, f"{origin}: {section}")
+
+
+def _merge_axes(data: dict[str, Any], value: Any, origin: str, prov: _Provenance) -> None:
+    axes = data.setdefault("axis", [])
+    if not isinstance(axes, list):
+        raise ConfigError("axis", "must be an array of [[axis]] tables")
+    if isinstance(value, Mapping):  # [axis.2] tables: change existing axes
+        items = []
+        for k, t in value.items():
+            try:
+                axis_id = int(k)
+            except ValueError:
+                raise ConfigError(f"{origin}: axis.{k}", "expected [axis.<AxisId>] with an integer AxisId, "
+                                                         "e.g. [axis.1]") from None
+            i = _axis_index(data, axis_id)
+            if i is None:
+                raise ConfigError(f"{origin}: axis.{k}", f"no axis with AxisId {axis_id} (configured: "
+                                                         f"{_axis_ids(data)}; add one with an [[axis]] table)")
+            if not isinstance(t, Mapping):
+                raise ConfigError(f"{origin}: axis.{k}", "must be a table")
+            items.append((i, f"{origin}: axis.{k}", t))
+    elif isinstance(value, list):  # [[axis]] tables: by AxisId, a new one is appended
+        items = []
+        for n, t in enumerate(value):
+            where = f"{origin}: axis[{n}]"
+            if not isinstance(t, Mapping):
+                raise ConfigError(where, "must be a table")
+            if "AxisId" not in t:
+                raise ConfigError(f"{where}.AxisId", "missing (an overlay's [[axis]] table names the axis it "
+                                                    "changes or adds by AxisId)")
+            i = _axis_index(data, t["AxisId"])
+            if i is None:
+                axes.append({})
+                i = len(axes) - 1
+                prov.note(f"axis[{i}]", where)
+            items.append((i, where, t))
+    else:
+        raise ConfigError(f"{origin}: axis", "must be [axis.<AxisId>] or [[axis]] tables")
+    for i, where, t in items:
+        for k, v in t.items():
+            _put_axis_key(axes[i], k, v)
+            prov.note(f"axis[{i}].{k}", f"{where}.{k}")
+
+
+def _put_axis_key(table: dict[str, Any], key: str, value: Any) -> None:
+    """Set an [[axis]] key, dropping another spelling of the same parameter (AxisMaxVelocity = AxisVeloMax)."""
+    canon = ALIASES.get(key, key)
+    for k in [k for k in table if k != key and ALIASES.get(k, k) == canon]:
+        del table[k]
+    table[key] = value
+
+
+def apply_set(data: dict[str, Any], item: str, prov: _Provenance | None = None) -> None:
+    """Apply one ``--set KEY=VALUE`` to ``data`` (in place; see the module docstring).
+
+    Raises:
+        ConfigError: a malformed item or an axis that does not exist (key ``--set ...``); a bad
+            value is found by :func:`parse_config`, named the same way through ``prov``.
+    """
+    prov = prov or _Provenance()
+    key, sep, text = item.partition("=")
+    key = key.strip()
+    parts = key.split(".")
+    label = f"--set {key}"
+    if not sep or len(parts) < 2 or not all(parts):
+        raise ConfigError(f"--set {item}", "expected KEY=VALUE, e.g. axis.1.AxisVeloMax=300 or nc.cycle_time=0.002")
+    if parts[0] == "axis":
+        if len(parts) != 3:
+            raise ConfigError(label, "expected axis.<AxisId>.<Parameter>=VALUE, e.g. axis.1.AxisVeloMax=300")
+        try:
+            axis_id = int(parts[1])
+        except ValueError:
+            raise ConfigError(label, f"the AxisId must be an integer, got {parts[1]!r}") from None
+        name = parts[2]
+        if name == "AxisId":
+            raise ConfigError(label, "an axis's AxisId cannot be changed (use a config file)")
+        i = _axis_index(data, axis_id)
+        if i is None:
+            raise ConfigError(label, f"no axis with AxisId {axis_id} (configured: {_axis_ids(data)})")
+        _put_axis_key(data["axis"][i], name, _set_value(text, name in _STRING_KEYS["axis"]))
+        prov.note(f"axis[{i}].{name}", label)
+    elif parts[0] in ("nc", "zenoh"):
+        if len(parts) != 2:
+            raise ConfigError(label, f"expected {parts[0]}.<key>=VALUE, e.g. nc.cycle_time=0.002")
+        table = data.setdefault(parts[0], {})
+        if not isinstance(table, dict):
+            raise ConfigError(parts[0], "must be a table")
+        table[parts[1]] = _set_value(text, parts[1] in _STRING_KEYS[parts[0]])
+        prov.note(f"{parts[0]}.{parts[1]}", label)
+    else:
+        raise ConfigError(label, "unknown section (allowed: axis.<AxisId>.<Parameter>, nc.<key>, zenoh.<key>)")
+
+
+def _set_value(text: str, string: bool) -> Any:
+    """A --set VALUE: the text for a string-valued key, else a TOML value (true/false in any case), else the text."""
+    if string:
+        return text
+    t = text.strip()
+    if t.lower() in ("true", "false"):
+        return t.lower() == "true"
+    try:
+        return tomllib.loads(f"v = {t}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text  # not a TOML value: parse_config names the type it needs
+
+
+def _read_toml(path: str | Path, option: str) -> dict[str, Any]:
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(option, f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(option, f"{path}: TOML syntax error: {exc}") from None
+
+
 def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None = None,
                 connect: Sequence[str] | None = None, mode: str | None = None, name: str | None = None,
                 cycle_time: float | None = None, realtime: str | None = None,
                 watchdog_timeout: float | None = None, retain_file: str | None = None, roles: str | None = None,
-                tls_dir: str | None = None, lease_ms: int | None = None) -> ServerConfig:
-    """Load ``path`` (TOML) or the embedded default, then apply the command-line overrides.
+                tls_dir: str | None = None, lease_ms: int | None = None, overlays: Sequence[str | Path] = (),
+                sets: Sequence[str] = ()) -> ServerConfig:
+    """Load ``path`` (TOML) or the embedded default, then apply the overlays, ``sets`` and the
+    command-line overrides (the layers of the module docstring).
 
     Args:
         path: a TOML file replacing the default as a whole; None for the embedded default.
+        overlays: partial TOML files merged over it, in order (``--config-overlay``).
+        sets: ``KEY=VALUE`` items applied after the overlays, in order (``--set``).
         listen: replaces ``zenoh.listen`` when given (non-empty).
         connect: replaces ``zenoh.connect`` when given (non-empty).
         mode: replaces ``zenoh.mode``; ``"client"`` without ``listen`` also drops the default listen endpoint.
@@ -312,38 +516,57 @@ def load_config(path: str | Path | None = None, *, listen: Sequence[str] | None 
         lease_ms: replaces ``zenoh.lease`` when given.
 
     Raises:
-        ConfigError: unreadable file (key ``--config``), TOML syntax error, or any invalid value.
+        ConfigError: unreadable file (key ``--config`` / ``--config-overlay``), TOML syntax error, or
+            any invalid value (an overlay's or a --set's named as such).
     """
     if path is None:
-        text, origin = default_config_text(), "default.toml"
-    else:
         try:
-            text, origin = Path(path).read_text(encoding="utf-8"), str(path)
-        except OSError as exc:
-            raise ConfigError("--config", f"cannot read {path}: {exc.strerror or exc}") from None
+            data = tomllib.loads(default_config_text())
+        except tomllib.TOMLDecodeError as exc:  # pragma: no cover - the shipped file is tested
+            raise ConfigError("--config", f"default.toml: TOML syntax error: {exc}") from None
+    else:
+        data = _read_toml(path, "--config")
+    prov = _Provenance()
+    for ov in overlays:
+        merge_overlay(data, _read_toml(ov, "--config-overlay"), str(ov), prov)
+    for item in sets:
+        apply_set(data, item, prov)
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("--config", f"{origin}: TOML syntax error: {exc}") from None
+        return _apply_options(data, prov, listen=listen, connect=connect, mode=mode, name=name, cycle_time=cycle_time,
+                              realtime=realtime, watchdog_timeout=watchdog_timeout, retain_file=retain_file,
+                              roles=roles, tls_dir=tls_dir, lease_ms=lease_ms)
+    except ConfigError as exc:
+        raise prov.translate(exc) from None
+
+
+def _apply_options(data: dict[str, Any], prov: _Provenance, *, listen: Sequence[str] | None,
+                   connect: Sequence[str] | None,
+                   mode: str | None, name: str | None, cycle_time: float | None, realtime: str | None,
+                   watchdog_timeout: float | None, retain_file: str | None, roles: str | None,
+                   tls_dir: str | None, lease_ms: int | None) -> ServerConfig:
     nc = data.setdefault("nc", {})
     zn = data.setdefault("zenoh", {})
     if not isinstance(nc, dict) or not isinstance(zn, dict):
         return parse_config(data)  # reports the non-table
+    def put(table: dict[str, Any], section: str, key: str, value: Any) -> None:
+        table[key] = value
+        prov.labels.pop(f"{section}.{key}", None)  # an error in it is the option's, not an overlay's
+
     if mode is not None:
-        zn["mode"] = mode
+        put(zn, "zenoh", "mode", mode)
         if mode == "client" and not listen:
             zn.pop("listen", None)
     if listen:
-        zn["listen"] = list(listen)
+        put(zn, "zenoh", "listen", list(listen))
     if connect:
-        zn["connect"] = list(connect)
+        put(zn, "zenoh", "connect", list(connect))
     if lease_ms is not None:
-        zn["lease"] = lease_ms
+        put(zn, "zenoh", "lease", lease_ms)
     for key, value in (("name", name), ("cycle_time", cycle_time), ("realtime", realtime),
                        ("watchdog_timeout", watchdog_timeout), ("retain_file", retain_file)):
         if value is not None:
-            nc[key] = value
+            put(nc, "nc", key, value)
     for key, value in (("roles", roles), ("tls_dir", tls_dir)):
         if value is not None:
-            zn[key] = value
+            put(zn, "zenoh", key, value)
     return parse_config(data)

@@ -39,6 +39,7 @@ import numpy as np
 from nc_schema import E_TargPosType, ErrorCodes, PLCTONC_DTYPE, StateDWord
 
 from ..axis_ref import AXIS_REF
+from ..records import PLCTONC_AXIS_REF
 from .base import ExecuteBlock, FunctionBlock
 from .coupling import _integer_in
 
@@ -106,7 +107,7 @@ class MC_ExtSetPointGenDisable(_ExtSetPointBlock):
 
 
 def MC_ExtSetPointGenFeed(Position: float, Velocity: float, Acceleration: float, Direction: int,
-                          AxisRefOut: np.void | AXIS_REF) -> bool:
+                          AxisRefOut: PLCTONC_AXIS_REF | np.void | AXIS_REF) -> bool:
     """Feed one external set-point into the axis's PLCTONC interface (TcMC 4.18); returns FALSE.
 
     Args:
@@ -123,7 +124,7 @@ def MC_ExtSetPointGenFeed(Position: float, Velocity: float, Acceleration: float,
         TypeError: AxisRefOut is neither a PLCTONC record nor an AXIS_REF (a program bug).
     """
     out = AxisRefOut.PlcToNc if isinstance(AxisRefOut, AXIS_REF) else AxisRefOut
-    if not isinstance(out, np.void) or out.dtype != PLCTONC_DTYPE:
+    if not isinstance(out, PLCTONC_AXIS_REF) and not (isinstance(out, np.void) and out.dtype == PLCTONC_DTYPE):
         raise TypeError(f"MC_ExtSetPointGenFeed: AxisRefOut must be an AXIS_REF or its PlcToNc record, "
                         f"got {type(AxisRefOut).__name__}")
     real = FunctionBlock._is_real

@@ -1,0 +1,298 @@
+"""``AXIS_REF.NcToPlc`` and ``AXIS_REF.PlcToNc``: the cyclic interface with TwinCAT's member names.
+
+``Axis.NcToPlc.SetPos``, ``Axis.NcToPlc.StateDWord``, ``Axis.PlcToNc.Override := ...`` read (and for
+PLCTONC write) the members as plain Python values: ``float`` for LREAL, ``int`` for the integer types,
+a ``tuple`` for an array member (``CamCouplingState``, ``CamCouplingTableID``), so they go into JSON,
+f-strings and arithmetic without ``float()``. The members are generated from the struct layouts of
+``schema/structs.json`` (through ``nc_schema``'s dtypes), so they cannot drift from the wire contract;
+members whose name starts with ``_`` (reserved bytes) are not exposed.
+
+The item form ``Axis.NcToPlc["SetPos"]`` of earlier versions keeps working and returns the same plain
+values (it returned numpy scalars; ``float()``/``int()`` of a plain value is the same number).
+
+Cost (zenoh-nc choice): a PLC cycle copies each bound axis's 256 NCTOPLC bytes (one ``bytes`` object,
+no numpy record); the members are unpacked together, once, at the first read in that cycle (the
+axis's ``Status`` refresh reads some every cycle: one ``struct.unpack``, cheaper than the numpy field
+accesses it replaces). PLCTONC members are packed into / unpacked from the record's bytes one at a
+time (``struct.pack_into``), so a block writing ControlDWord every cycle touches four bytes.
+
+Writing (PLCTONC only): the value must fit the member's type - an integer within the type's range for
+DWORD/UDINT/DINT/BYTE/BOOL (a bool is accepted for BOOL and BYTE), a real number for LREAL - else
+``TypeError``/``ValueError`` naming the member, and nothing is written (numpy would have truncated
+5.5 to 5 or wrapped -1 to 4294967295 silently). NCTOPLC is read-only: writing raises (``ValueError``
+for the item form, as the read-only numpy record did; ``AttributeError`` for an attribute).
+"""
+from __future__ import annotations
+
+import struct
+from typing import Any, Iterator
+
+import numpy as np
+
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE
+from nc_schema.codec import load_json
+
+__all__ = ["NCTOPLC_AXIS_REF", "PLCTONC_AXIS_REF"]
+
+_CODES = {("u", 1): "B", ("u", 2): "H", ("u", 4): "I", ("u", 8): "Q", ("i", 1): "b", ("i", 2): "h", ("i", 4): "i",
+          ("i", 8): "q", ("f", 4): "f", ("f", 8): "d"}
+
+
+def _members(dtype: np.dtype) -> list[tuple[str, int, str, int]]:
+    """(name, offset, struct code, count: 0 for a scalar) of every member, in layout order."""
+    out = []
+    for name in dtype.names:
+        fdt, off = dtype.fields[name][:2]
+        if fdt.subdtype is not None:
+            base, shape = fdt.subdtype
+            out.append((name, off, _CODES[(base.kind, base.itemsize)], int(np.prod(shape))))
+        else:
+            out.append((name, off, _CODES[(fdt.kind, fdt.itemsize)], 0))
+    return out
+
+
+def _docs(struct_name: str) -> dict[str, str]:
+    """Member -> a one-line doc (type, and the schema's doc where it has one)."""
+    out = {}
+    for f in load_json("structs.json")["structs"][struct_name]["fields"]:
+        typ = f["type"] + (f"[{f['count']}]" if f.get("count") else "")
+        out[f["name"]] = f"{typ}" + (f": {f['doc']}" if f.get("doc") else "")
+    return out
+
+
+def _whole_struct(members: list[tuple[str, int, str, int]], size: int) -> struct.Struct:
+    fmt, end = "<", 0
+    for _, off, code, n in members:
+        assert off == end, "the schema's structs are packed"
+        fmt += f"{n}{code}" if n else code
+        end = off + struct.calcsize("<" + code) * max(n, 1)
+    st = struct.Struct(fmt)
+    assert st.size == size
+    return st
+
+
+_NC_MEMBERS = _members(NCTOPLC_DTYPE)
+_NC_STRUCT = _whole_struct(_NC_MEMBERS, NCTOPLC_DTYPE.itemsize)
+#: member -> (first index in the unpacked tuple, count: 0 for a scalar)
+_NC_INDEX: dict[str, tuple[int, int]] = {}
+_i = 0
+for _name, _off, _code, _n in _NC_MEMBERS:
+    _NC_INDEX[_name] = (_i, _n)
+    _i += max(_n, 1)
+#: the members a program sees (reserved bytes left out)
+NCTOPLC_FIELDS: tuple[str, ...] = tuple(n for n, *_ in _NC_MEMBERS if not n.startswith("_"))
+_ZERO_NCTOPLC = bytes(NCTOPLC_DTYPE.itemsize)
+
+
+class NCTOPLC_AXIS_REF:
+    """The read-only NCTOPLC snapshot of one axis (TwinCAT ``AXIS_REF.NcToPlc``).
+
+    Every member of ``schema/structs.json`` NCTOPLC_AXIS_REF is an attribute with a plain Python
+    value (``.SetPos``, ``.ActPos``, ``.StateDWord``, ``.CmdNo``, ...; arrays as tuples); ``rec["SetPos"]``
+    is the same. A new object every PLC cycle: one kept from an earlier cycle keeps that cycle's values.
+
+    Also: :meth:`as_dict` (JSON-ready), :meth:`tobytes`, ``dtype``, ``record`` (the numpy record,
+    read-only, made on first use), ``keys()``, ``in``.
+    """
+
+    __slots__ = ("_raw", "_v", "_rec")
+    dtype = NCTOPLC_DTYPE
+
+    def __init__(self, raw: bytes = _ZERO_NCTOPLC) -> None:
+        if len(raw) != NCTOPLC_DTYPE.itemsize:
+            raise ValueError(f"NCTOPLC_AXIS_REF: {NCTOPLC_DTYPE.itemsize} bytes expected, got {len(raw)}")
+        self._raw = bytes(raw)
+        self._v: tuple[Any, ...] | None = None
+        self._rec: np.void | None = None
+
+    @classmethod
+    def _of(cls, raw: bytes) -> NCTOPLC_AXIS_REF:
+        """A snapshot of ``raw`` (the runtime's per-cycle path: exactly 256 bytes, not copied again)."""
+        self = object.__new__(cls)
+        self._raw, self._v, self._rec = raw, None, None
+        return self
+
+    def _unpack(self) -> tuple[Any, ...]:
+        v = self._v = _NC_STRUCT.unpack(self._raw)
+        return v
+
+    def __getitem__(self, name: str) -> Any:
+        try:
+            i, n = _NC_INDEX[name]
+        except (KeyError, TypeError):
+            raise KeyError(f"NCTOPLC_AXIS_REF has no member {name!r}") from None
+        v = self._v or self._unpack()
+        return v[i:i + n] if n else v[i]
+
+    def __setitem__(self, name: str, value: Any) -> None:
+        raise ValueError(f"NcToPlc is read-only (the NC's data of this cycle): cannot set {name!r}")
+
+    def __contains__(self, name: object) -> bool:
+        return name in NCTOPLC_FIELDS
+
+    def keys(self) -> tuple[str, ...]:
+        return NCTOPLC_FIELDS
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(NCTOPLC_FIELDS)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every member as a plain value (arrays as lists): ``json.dumps(ax.NcToPlc.as_dict())`` works."""
+        v = self._v or self._unpack()
+        out: dict[str, Any] = {}
+        for name in NCTOPLC_FIELDS:
+            i, n = _NC_INDEX[name]
+            out[name] = list(v[i:i + n]) if n else v[i]
+        return out
+
+    def tobytes(self) -> bytes:
+        return self._raw
+
+    @property
+    def record(self) -> np.void:
+        """The snapshot as a read-only numpy record of ``NCTOPLC_DTYPE``."""
+        if self._rec is None:
+            self._rec = np.frombuffer(self._raw, dtype=NCTOPLC_DTYPE, count=1)[0]
+        return self._rec
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, NCTOPLC_AXIS_REF):
+            return self._raw == other._raw
+        return NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return (f"NCTOPLC_AXIS_REF(AxisId={self['AxisId']}, SetPos={self['SetPos']!r}, ActPos={self['ActPos']!r}, "
+                f"StateDWord=0x{self['StateDWord']:X}, ErrorCode=0x{self['ErrorCode']:X})")
+
+
+def _nc_getter(name: str, doc: str) -> property:
+    i, n = _NC_INDEX[name]
+    if n:
+        def get(self: NCTOPLC_AXIS_REF) -> Any:
+            return (self._v or self._unpack())[i:i + n]
+    else:
+        def get(self: NCTOPLC_AXIS_REF) -> Any:
+            return (self._v or self._unpack())[i]
+    get.__name__ = name
+    return property(get, doc=doc)
+
+
+_nc_docs = _docs("NCTOPLC_AXIS_REF")
+for _name in NCTOPLC_FIELDS:
+    setattr(NCTOPLC_AXIS_REF, _name, _nc_getter(_name, _nc_docs.get(_name, "")))
+
+
+# ---- PLCTONC ------------------------------------------------------------------------------------
+_PLC_MEMBERS = _members(PLCTONC_DTYPE)
+_whole_struct(_PLC_MEMBERS, PLCTONC_DTYPE.itemsize)  # asserts the layout is packed
+#: member -> (offset, struct.Struct of one value, count: 0 for a scalar)
+_PLC_INDEX: dict[str, tuple[int, struct.Struct, int]] = {
+    name: (off, struct.Struct(f"<{n}{code}" if n else "<" + code), n) for name, off, code, n in _PLC_MEMBERS}
+PLCTONC_FIELDS: tuple[str, ...] = tuple(n for n, *_ in _PLC_MEMBERS if not n.startswith("_"))
+_INT_RANGE = {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "Q": (0, 2 ** 64 - 1), "b": (-128, 127),
+              "h": (-0x8000, 0x7FFF), "i": (-0x80000000, 0x7FFFFFFF), "q": (-2 ** 63, 2 ** 63 - 1)}
+
+
+def _plc_value(name: str, code: str, value: Any) -> Any:
+    """``value`` checked for member ``name`` (struct code ``code``); raises TypeError/ValueError."""
+    if code in "fd":
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise TypeError(f"PlcToNc.{name}: LREAL needs a number, got {value!r}")
+        return float(value)
+    if isinstance(value, (bool, np.bool_)):
+        return int(value)
+    if not isinstance(value, (int, np.integer)):
+        raise TypeError(f"PlcToNc.{name}: an integer is needed, got {value!r}")
+    lo, hi = _INT_RANGE[code]
+    if not lo <= value <= hi:
+        raise ValueError(f"PlcToNc.{name}: must be within {lo}..{hi}, got {value!r}")
+    return int(value)
+
+
+class PLCTONC_AXIS_REF:
+    """The writable PLCTONC record of one axis (TwinCAT ``AXIS_REF.PlcToNc``), published at the end of
+    each PLC cycle for an axis the task controls.
+
+    Every member of ``schema/structs.json`` PLCTONC_AXIS_REF is an attribute (``.Override``,
+    ``.ControlDWord``, ``.GearRatio1``, ...) with a plain value; assigning one writes it (checked, see
+    the module docstring). ``rec["Override"]`` and ``rec["Override"] = 500000`` are the same. The object
+    stays the same for the AXIS_REF's life; ``record`` is a writable numpy view of the same bytes.
+    """
+
+    __slots__ = ("_buf", "_arr")
+    dtype = PLCTONC_DTYPE
+
+    def __init__(self) -> None:
+        self._buf = bytearray(PLCTONC_DTYPE.itemsize)
+        self._arr = np.frombuffer(self._buf, dtype=PLCTONC_DTYPE, count=1)  # shares _buf (writable)
+
+    def __getitem__(self, name: str) -> Any:
+        try:
+            off, st, n = _PLC_INDEX[name]
+        except (KeyError, TypeError):
+            raise KeyError(f"PLCTONC_AXIS_REF has no member {name!r}") from None
+        v = st.unpack_from(self._buf, off)
+        return v if n else v[0]
+
+    def __setitem__(self, name: str, value: Any) -> None:
+        try:
+            off, st, n = _PLC_INDEX[name]
+        except (KeyError, TypeError):
+            raise KeyError(f"PLCTONC_AXIS_REF has no member {name!r}") from None
+        code = st.format[-1]
+        if n:
+            vals = list(value)
+            if len(vals) != n:
+                raise ValueError(f"PlcToNc.{name}: {n} values expected, got {len(vals)}")
+            st.pack_into(self._buf, off, *(_plc_value(name, code, x) for x in vals))
+        else:
+            st.pack_into(self._buf, off, _plc_value(name, code, value))
+
+    def __contains__(self, name: object) -> bool:
+        return name in PLCTONC_FIELDS
+
+    def keys(self) -> tuple[str, ...]:
+        return PLCTONC_FIELDS
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(PLCTONC_FIELDS)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every member as a plain value (JSON-ready)."""
+        return {name: self[name] for name in PLCTONC_FIELDS}
+
+    def tobytes(self) -> bytes:
+        return bytes(self._buf)
+
+    @property
+    def record(self) -> np.void:
+        """A writable numpy record (``PLCTONC_DTYPE``) over the same bytes."""
+        return self._arr[0]
+
+    def __repr__(self) -> str:
+        return f"PLCTONC_AXIS_REF(ControlDWord=0x{self['ControlDWord']:X}, Override={self['Override']})"
+
+
+def _plc_property(name: str, doc: str) -> property:
+    off, st, n = _PLC_INDEX[name]
+    code = st.format[-1]
+
+    def get(self: PLCTONC_AXIS_REF) -> Any:
+        v = st.unpack_from(self._buf, off)
+        return v if n else v[0]
+
+    def set_(self: PLCTONC_AXIS_REF, value: Any) -> None:
+        if n:
+            self[name] = value
+        else:
+            st.pack_into(self._buf, off, _plc_value(name, code, value))
+
+    get.__name__ = name
+    return property(get, set_, doc=doc)
+
+
+_plc_docs = _docs("PLCTONC_AXIS_REF")
+for _name in PLCTONC_FIELDS:
+    setattr(PLCTONC_AXIS_REF, _name, _plc_property(_name, _plc_docs.get(_name, "")))

@@ -1,0 +1,134 @@
+"""AXIS_REF.NcToPlc / PlcToNc with TwinCAT member names: plain Python values, generated from
+schema/structs.json, the item form kept, checked writes, lazy unpacking."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, to_dict
+from nc_schema.codec import load_json
+from nc_server.core import NcCore
+from nc_server.core.params import AxisConfig
+from plc_client import AXIS_REF, NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF, InProcessPlc, MC_MoveVelocity, MC_Power, run_cycles
+
+
+def _record(**values: object) -> np.void:
+    a = np.zeros(1, dtype=NCTOPLC_DTYPE)
+    for k, v in values.items():
+        a[k] = v
+    return a[0]
+
+
+def test_every_schema_member_is_an_attribute() -> None:
+    schema = load_json("structs.json")["structs"]
+    for struct_name, cls in (("NCTOPLC_AXIS_REF", NCTOPLC_AXIS_REF), ("PLCTONC_AXIS_REF", PLCTONC_AXIS_REF)):
+        names = [f["name"] for f in schema[struct_name]["fields"] if not f["name"].startswith("_")]
+        assert list(cls().keys()) == names
+        for n in names:
+            assert isinstance(getattr(cls, n), property), n
+            assert getattr(cls, n).__doc__.startswith(next(f["type"] for f in schema[struct_name]["fields"]
+                                                           if f["name"] == n))
+
+
+def test_nctoplc_values_are_plain_and_match_numpy() -> None:
+    rec = _record(SetPos=12.5, ActPos=-3.25, StateDWord=0x80000001, CmdNo=65535, ModuloActTurns=-7,
+                  CamCouplingState=[1, 2, 3, 4, 5, 6, 7, 255], CamCouplingTableID=[9] * 8, AxisId=3)
+    r = NCTOPLC_AXIS_REF(rec.tobytes())
+    assert r.SetPos == 12.5 and type(r.SetPos) is float
+    assert r.ActPos == -3.25 and r.StateDWord == 0x80000001 and type(r.StateDWord) is int
+    assert r.CmdNo == 65535 and r.ModuloActTurns == -7 and r.AxisId == 3
+    assert r.CamCouplingState == (1, 2, 3, 4, 5, 6, 7, 255) and r.CamCouplingTableID == (9,) * 8
+    assert r["SetPos"] == r.SetPos and r["CamCouplingState"] == r.CamCouplingState
+    # every member equals what numpy reads from the same bytes
+    for name, want in to_dict(rec).items():
+        got = r[name]
+        assert (list(got) if isinstance(got, tuple) else got) == want, name
+    d = r.as_dict()
+    assert d == to_dict(rec)
+    json.dumps(d)  # JSON-ready without float()
+    assert r.tobytes() == rec.tobytes() and r.record.dtype == NCTOPLC_DTYPE and r.dtype == NCTOPLC_DTYPE
+    assert float(r.record["SetPos"]) == 12.5
+    with pytest.raises(ValueError):
+        r.record["SetPos"] = 1.0  # the numpy form is read-only too
+
+
+def test_nctoplc_is_read_only_and_names_are_checked() -> None:
+    r = NCTOPLC_AXIS_REF(_record(SetPos=1.0).tobytes())
+    with pytest.raises(ValueError):
+        r["SetPos"] = 2.0
+    with pytest.raises(AttributeError):
+        r.SetPos = 2.0  # type: ignore[misc]
+    with pytest.raises(AttributeError):
+        r.Foo = 1  # type: ignore[attr-defined]
+    with pytest.raises(KeyError):
+        r["Foo"]
+    with pytest.raises(AttributeError):
+        r.SetPosition  # type: ignore[attr-defined]
+    assert r.SetPos == 1.0
+    with pytest.raises(ValueError):
+        NCTOPLC_AXIS_REF(b"\0" * 10)
+
+
+def test_plctonc_attributes_write_the_published_bytes() -> None:
+    ax = AXIS_REF(nc="nc1", axis_id=1)
+    assert ax.PlcToNc.Override == 1_000_000 and ax.PlcToNc["Override"] == 1_000_000
+    ax.PlcToNc.Override = 500_000
+    ax.PlcToNc.GearRatio1 = 1.5
+    ax.PlcToNc["ExtSetDirection"] = -1
+    ax.PlcToNc.MapState = True
+    raw = np.frombuffer(ax.PlcToNc.tobytes(), dtype=PLCTONC_DTYPE)[0]
+    assert int(raw["Override"]) == 500_000 and float(raw["GearRatio1"]) == 1.5
+    assert int(raw["ExtSetDirection"]) == -1 and int(raw["MapState"]) == 1
+    # the numpy view the frame encoders take is the same memory
+    assert int(ax._plctonc["Override"][0]) == 500_000 and ax._plctonc.tobytes() == ax.PlcToNc.tobytes()
+    ax.PlcToNc.record["Override"] = 7
+    assert ax.PlcToNc.Override == 7
+    assert type(ax.PlcToNc.GearRatio1) is float and ax.PlcToNc.as_dict()["GearRatio1"] == 1.5
+
+
+@pytest.mark.parametrize("name,value,exc", [
+    ("Override", 5.5, TypeError), ("Override", -1, ValueError), ("Override", 2 ** 32, ValueError),
+    ("Override", "100", TypeError), ("GearRatio1", "1.0", TypeError), ("GearRatio1", None, TypeError),
+    ("ExtSetDirection", 2 ** 31, ValueError), ("PlcCycleCount", 256, ValueError), ("Nonsense", 1, KeyError),
+])
+def test_plctonc_bad_writes_change_nothing(name: str, value: object, exc: type[Exception]) -> None:
+    ax = AXIS_REF(nc="nc1", axis_id=1)
+    before = ax.PlcToNc.tobytes()
+    with pytest.raises(exc):
+        ax.PlcToNc[name] = value
+    if name != "Nonsense":
+        with pytest.raises(exc):
+            setattr(ax.PlcToNc, name, value)
+    assert ax.PlcToNc.tobytes() == before
+
+
+def test_snapshot_of_each_cycle_keeps_its_values() -> None:
+    core = NcCore([AxisConfig(AxisId=1)], cycle_time=0.001)
+    X = AXIS_REF(nc="nc1", axis_id=1)
+    power, jog = MC_Power(), MC_MoveVelocity()
+
+    def cycle(plc: InProcessPlc) -> None:
+        power(Axis=X, Enable=True, Enable_Positive=True, Enable_Negative=True)
+        jog(Axis=X, Execute=bool(power.Status), Velocity=100.0)
+
+    plc = InProcessPlc(core, cycle)
+    run_cycles(core, plc, 200, nc_steps=10, until=lambda: jog.InVelocity)
+    assert jog.InVelocity
+    old = X.NcToPlc
+    pos = old.SetPos
+    run_cycles(core, plc, 5, nc_steps=10)
+    assert X.NcToPlc.SetPos > pos and old.SetPos == pos  # an older snapshot is not changed under you
+    assert math.isclose(X.NcToPlc.SetVelo, 100.0) and X.NcToPlc.SetVelo == float(core.nctoplc[0]["SetVelo"])
+    assert X.NcToPlc.AxisId == 1 and X.NcToPlc.CmdNo == int(core.nctoplc[0]["CmdNo"])
+    json.dumps({"SetPos": X.NcToPlc.SetPos, "CmdNo": X.NcToPlc.CmdNo, "State": X.NcToPlc.StateDWord})
+
+
+def test_nctoplc_unpacks_lazily_once_per_cycle() -> None:
+    r = NCTOPLC_AXIS_REF._of(_record(SetPos=4.0).tobytes())
+    assert r._v is None  # nothing unpacked until read
+    assert r.SetPos == 4.0
+    v = r._v
+    assert v is not None and r.ActPos == 0.0 and r._v is v  # one unpack serves every member
