@@ -2,7 +2,7 @@
 
 Its table (all little-endian):
 - 0x4001/0x01  UDINT axis id (1), read-only
-- 0x4001/0x02  STRING(31) name, 32 bytes, read/write
+- 0x4001/0x02  STRING(31) name, 32 bytes, read/write (shorter writes allowed: the rest is zeroed)
 - 0x4001/0x27  LREAL MaxVelocity (1234.5), read/write
 - 0x4101/0x00  256-byte state struct, read-only; `step()` increments the LREAL at byte 16 (SetPos)
 - 0x4101/0x0A  LREAL SetPos (the same value), read-only
@@ -117,7 +117,7 @@ class FakeDevice(AdsDevice):
             cell = self._cell(group, offset)
             if not cell[1]:
                 raise AdsError(ADSERR_DEVICE_INVALIDACCESS)
-            if len(data) > len(cell[0]) or (len(data) != len(cell[0]) and group != 0x4001):
+            if len(data) > len(cell[0]) or (len(data) != len(cell[0]) and (group, offset) != (0x4001, 0x02)):
                 raise AdsError(ADSERR_DEVICE_INVALIDSIZE)
             cell[0][:len(data)] = data
             cell[0][len(data):] = bytes(len(cell[0]) - len(data))

@@ -4,7 +4,7 @@
   connects to 48898, so every test gets its own address instead of a free port).
 * ``fake_device``: a fresh ``nc_ads.testing.FakeDevice``.
 * ``ads_server``: an ``AdsServer`` serving ``fake_device`` on AMS ports 500 and 501 at ``ads_address``
-  (net id ``ads_testing.SERVER_NETID``), 2 ms tick; closed at teardown.
+  (net id ``netid_for(host)``, see ``server.net_id``), 2 ms tick; closed at teardown.
 * ``start_ads``: factory ``start_ads(devices=None, **server_kwargs)`` for other servers (same cleanup).
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from ads_testing import SERVER_NETID, free_ads_address, start_server_on_free_address
+from ads_testing import free_ads_address, netid_for, start_server_on_free_address
 from nc_ads.server import AdsServer
 from nc_ads.testing import FakeDevice
 
@@ -35,11 +35,11 @@ def start_ads(fake_device: FakeDevice) -> Iterator[Callable[..., AdsServer]]:
     def start(devices: Any = None, **kw: Any) -> AdsServer:
         kw.setdefault("tick_ms", 2.0)
         devs = devices if devices is not None else {500: fake_device, 501: fake_device}
-        net_id = kw.pop("net_id", SERVER_NETID)
+        net_id = kw.pop("net_id", None)
         port = kw.pop("port", 48898)
 
         def make(host: str) -> AdsServer:
-            s = AdsServer(devs, net_id, (host, port), **kw)
+            s = AdsServer(devs, net_id or netid_for(host), (host, port), **kw)
             s.start()
             return s
 
