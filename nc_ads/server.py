@@ -49,7 +49,8 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   (group, offset) the device cannot sample -> the device's code. At most `MAX_NOTIFICATIONS`
   (1024) per connection (then 0x716); an unknown handle on delete -> 0x714. A connection's
   subscriptions end when it closes. A client that does not read its socket gets no samples while more
-  than `MAX_WRITE_BUFFER` (8 MiB) wait to be sent to it.
+  than `MAX_WRITE_BUFFER` / 4 (2 MiB) wait to be sent to it, and its requests are not read while more
+  than `MAX_WRITE_BUFFER` (8 MiB) wait (until half of that is sent); other connections go on.
 - At most `MAX_CONNECTIONS` (256) TCP connections at once; more are closed at once and logged.
 """
 from __future__ import annotations
@@ -682,7 +683,11 @@ class AdsServer:
                             self._send(writer, f.result())
                     fut.add_done_callback(done)
                 if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER:
-                    await writer.drain()   # a client that sends but does not read: stop reading it
+                    # a client that sends but does not read: stop reading it until half is sent
+                    # (not drain(): it waits for a low-water mark notifications may never let it reach)
+                    while (writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER // 2
+                           and not writer.is_closing()):
+                        await asyncio.sleep(0.005)
         except (ConnectionError, OSError) as exc:
             log.info("ADS connection %d from %s: %s", session.conn_id, peer, exc)
         except asyncio.CancelledError:
@@ -749,7 +754,7 @@ class AdsServer:
             for session, writer in list(self._sessions.values()):
                 if not session.subs or writer.is_closing():
                     continue
-                if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER:
+                if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER // 4:
                     if not session.throttled:
                         log.warning("ADS connection %d from %s does not read: notifications paused",
                                     session.conn_id, session.peer)

@@ -91,9 +91,6 @@ class FakeDevice(AdsDevice):
         code = self.errors.get((group, offset))
         if code is not None:
             raise AdsError(code)
-        delay = self.delays.get((group, offset))
-        if delay:
-            time.sleep(delay)
         if group == 0x4101 and offset == 0x0A:
             return [self.mem[(0x4101, 0)][0][16:24], False]
         if group not in self.groups:
@@ -103,7 +100,13 @@ class FakeDevice(AdsDevice):
             raise AdsError(ADSERR_DEVICE_INVALIDOFFSET)
         return cell
 
+    def _delay(self, group: int, offset: int) -> None:
+        delay = self.delays.get((group, offset))
+        if delay:
+            time.sleep(delay)   # outside the lock: other requests go on meanwhile
+
     def read(self, group: int, offset: int, length: int, src: AdsSource) -> bytes:
+        self._delay(group, offset)
         with self.lock:
             value, _ = self._cell(group, offset)
             if length > len(value):
@@ -113,6 +116,7 @@ class FakeDevice(AdsDevice):
     def write(self, group: int, offset: int, data: bytes, src: AdsSource) -> None:
         if not src.may_write:
             raise AdsError(ADSERR_DEVICE_ACCESSDENIED)
+        self._delay(group, offset)
         with self.lock:
             cell = self._cell(group, offset)
             if not cell[1]:
@@ -135,15 +139,8 @@ class FakeDevice(AdsDevice):
     def sample(self, group: int, offset: int, length: int) -> bytes:
         if group == 0x4201:
             raise AdsError(ADSERR_DEVICE_INVALIDACCESS)
-        with self.lock:
-            if (group, offset) in self.delays:   # sample never blocks: skip the delay
-                saved = self.delays.pop((group, offset))
-                try:
-                    value, _ = self._cell(group, offset)
-                finally:
-                    self.delays[(group, offset)] = saved
-            else:
-                value, _ = self._cell(group, offset)
+        with self.lock:   # never blocks: no delay here
+            value, _ = self._cell(group, offset)
             return bytes(value)
 
     def add_change_listener(self, cb: Callable[[], None]) -> None:
