@@ -30,8 +30,8 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
 - Symbols (0xF003 handle by name, 0xF004 value by name, 0xF005 value by handle, 0xF006 release, 0xF009
   info by name ex) come from `device.symbols()`; names match exactly, else case-insensitively (TwinCAT
   names are case-insensitive). Handles belong to the connection, at most `MAX_SYMBOL_HANDLES` (4096)
-  per connection (then 0x716), freed when it closes; an unknown handle gets 0x710. Reading/writing more
-  bytes than the symbol's size gets 0x705.
+  per connection (then 0x716), freed when it closes; an unknown handle gets 0x710. A read longer than
+  the symbol gets the symbol's bytes (pyads reads a STRING with 1024); a write longer than it gets 0x705.
 - Sum commands: ReadWrite on 0xF080 (read), 0xF081 (write), 0xF082 (read-write), index offset = number
   of sub-commands, at most `MAX_SUM_COMMANDS` (500, pyads's chunk size); more, a read length too small for
   the reply, or a malformed sub-command list -> 0x705 for the whole request. Each sub-command has its own
@@ -320,9 +320,8 @@ class Dispatcher:
             if entry is None:
                 return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
             dev, _, sym = entry
-            if length > sym.size:
-                return ADSERR_DEVICE_INVALIDSIZE, b""
-            device, group, offset = dev, sym.group, sym.offset
+            # like TwinCAT: a longer read gets the symbol's bytes (pyads reads STRINGs with 1024)
+            device, group, offset, length = dev, sym.group, sym.offset, min(length, sym.size)
         elif group in (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE,
                        ams.IG_SYM_HNDBYNAME, ams.IG_SYM_RELEASEHND, ams.IG_SYM_INFOBYNAMEEX,
                        ams.IG_SYM_VALBYNAME):
@@ -391,9 +390,7 @@ class Dispatcher:
             if found is None:
                 return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
             sym = found[1]
-            if length > sym.size:
-                return ADSERR_DEVICE_INVALIDSIZE, b""
-            return self.read(device, sym.group, sym.offset, length, src, session)
+            return self.read(device, sym.group, sym.offset, min(length, sym.size), src, session)
         if group in (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE):
             return self._sum(device, group, offset, length, data, src, session)
         if group in (ams.IG_SYM_VALBYHND, ams.IG_SYM_RELEASEHND):

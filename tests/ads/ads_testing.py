@@ -156,3 +156,55 @@ def connect(server) -> RawClient:
     """A RawClient to an AdsServer, addressing its net id."""
     host, port = server.bound_address
     return RawClient(host, port, server.net_id)
+
+
+class PyadsSession:
+    """pyads Connections to an AdsServer that are always closed safely: every notification still
+    registered is deleted before close() (pyads/AdsLib segfault otherwise, ads-bridge-notes pitfall 8).
+    `open(ams_port)` -> Connection; one Connection per AMS port in flight at a time (AdsLib's rule)."""
+
+    def __init__(self, server) -> None:
+        self.server = server
+        self.conns: list = []
+
+    def open(self, ams_port: int = 501, net_id: str | None = None, timeout_ms: int = 5000):
+        import pyads
+
+        host = self.server.bound_address[0]
+        plc = pyads.Connection(net_id or self.server.net_id, ams_port, host)
+        plc.open()
+        plc.set_timeout(timeout_ms)
+        plc._znc_handles = []
+        add, delete = plc.add_device_notification, plc.del_device_notification
+
+        def add_tracked(*a, **kw):
+            h = add(*a, **kw)
+            plc._znc_handles.append(h)
+            return h
+
+        def del_tracked(*h):
+            if h in plc._znc_handles:
+                plc._znc_handles.remove(h)
+            delete(*h)
+
+        plc.add_device_notification = add_tracked
+        plc.del_device_notification = del_tracked
+        plc._znc_delete = delete
+        self.conns.append(plc)
+        return plc
+
+    def close(self) -> None:
+        import pyads
+
+        for plc in self.conns:
+            for h in list(plc._znc_handles):
+                try:
+                    plc._znc_delete(*h)
+                except pyads.ADSError:
+                    pass   # it still removes the handle locally
+            plc._znc_handles.clear()
+            try:
+                plc.close()
+            except pyads.ADSError:
+                pass
+        self.conns.clear()

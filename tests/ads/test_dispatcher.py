@@ -184,7 +184,8 @@ def test_symbol_handles(dev: FakeDevice) -> None:
     assert r.result == 0 and len(r.data) == 4
     h = struct.unpack("<I", r.data)[0]
     assert read(d, 0xF005, h, 8, s).data == struct.pack("<d", 1234.5)
-    assert read(d, 0xF005, h, 9, s).result == 0x705
+    assert read(d, 0xF005, h, 1024, s).data == struct.pack("<d", 1234.5)   # the symbol's bytes
+    assert write(d, 0xF005, h, bytes(9), s) == 0x705
     assert write(d, 0xF005, h, struct.pack("<d", 7.0), s) == 0
     assert dev.value(0x4001, 0x27) == struct.pack("<d", 7.0)
     assert rw(d, 0xF003, 0, 4, b"MAIN.nope\0", s).result == 0x710
