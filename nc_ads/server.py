@@ -660,11 +660,12 @@ class AdsServer:
                 chunk = await reader.read(65536)
                 if not chunk:
                     break
+                broken: ams.FrameError | None = None
                 try:
                     packets = assembler.feed(chunk)
                 except ams.FrameError as exc:
                     log.warning("ADS connection %d from %s: %s; closing it", session.conn_id, peer, exc)
-                    break
+                    broken, packets = exc, exc.packets   # answer the whole frames before it, then close
                 for pkt in packets:
                     if self.dispatcher.runs_inline(pkt):
                         self._send(writer, self._safe_handle(pkt, session))
@@ -679,6 +680,8 @@ class AdsServer:
                         if not f.cancelled() and f.exception() is None:
                             self._send(writer, f.result())
                     fut.add_done_callback(done)
+                if broken is not None:
+                    break
                 if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER:
                     # a client that sends but does not read: stop reading it until half is sent
                     # (not drain(): it waits for a low-water mark notifications may never let it reach)

@@ -6,7 +6,7 @@ Its table (all little-endian):
 - 0x4001/0x27  LREAL MaxVelocity (1234.5), read/write
 - 0x4101/0x00  256-byte state struct, read-only; `step()` increments the LREAL at byte 16 (SetPos)
 - 0x4101/0x0A  LREAL SetPos (the same value), read-only
-- 0x4002/8*i   LREAL GVL.v<i> = 1.5*i, i in 0..N_VALUES-1, read/write
+- 0x4002/8*i   LREAL GVL.v<i> = 1.5*i, i in 0..n_values-1 (default N_VALUES = 600), read/write
 - ReadWrite 0x4201/any: returns the written bytes reversed (at most the read length)
 Other groups -> 0x702, other offsets -> 0x703, wrong sizes -> 0x705, read-only -> 0x704, writes from a
 source without `may_write` -> 0x723. `errors[(group, offset)] = code` makes reads/writes there fail with
@@ -35,7 +35,7 @@ class FakeDevice(AdsDevice):
     name = "FakeNC"
     version = (3, 1, 4024)
 
-    def __init__(self) -> None:
+    def __init__(self, n_values: int = N_VALUES) -> None:
         self.lock = threading.Lock()
         # (group, offset) -> [bytearray value, writable]
         self.mem: dict[tuple[int, int], list] = {
@@ -44,7 +44,7 @@ class FakeDevice(AdsDevice):
             (0x4001, 0x27): [bytearray(struct.pack("<d", 1234.5)), True],
             (0x4101, 0x00): [bytearray(STATE_SIZE), False],
         }
-        for i in range(N_VALUES):
+        for i in range(n_values):
             self.mem[(0x4002, 8 * i)] = [bytearray(struct.pack("<d", 1.5 * i)), True]
         self.groups = {g for g, _ in self.mem} | {0x4201}
         self.errors: dict[tuple[int, int], int] = {}
@@ -60,7 +60,7 @@ class FakeDevice(AdsDevice):
             "MAIN.sName": Symbol(0x4001, 0x02, 32, "STRING(31)"),
             "MAIN.stState": Symbol(0x4101, 0x00, STATE_SIZE, "NCAXISSTATE_ONLINESTRUCT"),
         }
-        for i in range(N_VALUES):
+        for i in range(n_values):
             self._symbols[f"GVL.v{i}"] = Symbol(0x4002, 8 * i, 8, "LREAL")
 
     # -- test controls ----------------------------------------------------------------------------

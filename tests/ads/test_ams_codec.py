@@ -195,10 +195,12 @@ def test_partial_frame_waits() -> None:
 def test_unframeable_streams_raise_and_stay_broken(head: bytes, why: str) -> None:
     data, pkts = _stream()
     fa = FrameAssembler()
-    with pytest.raises(FrameError, match=why):
-        fa.feed(data + head)   # the good frames before are lost with the stream
-    with pytest.raises(FrameError):
+    with pytest.raises(FrameError, match=why) as err:
+        fa.feed(data + head)
+    assert err.value.packets == pkts        # the whole frames before the bad one
+    with pytest.raises(FrameError) as err:
         fa.feed(data)
+    assert err.value.packets == []
 
 
 def test_max_length_frame_accepted() -> None:

@@ -65,6 +65,14 @@ def test_garbage_closes_the_connection_and_is_logged_the_server_goes_on(
         assert wait_until(lambda: ads_server.connection_count == 1)   # the garbage one is gone
 
 
+def test_frames_before_garbage_in_the_same_send_are_answered(ads_server: AdsServer) -> None:
+    with connect(ads_server) as c:
+        p1, p2 = read_req(c, 0x4001, 0x27, 8), c.packet(Command.READ_STATE)
+        c.send_raw(p1.encode() + p2.encode() + b"\x01\x02garbage" * 4)
+        assert {c.recv().header.invoke_id, c.recv().header.invoke_id} == {p1.header.invoke_id, p2.header.invoke_id}
+        assert c.closed_by_server()
+
+
 def test_bad_header_gets_an_ams_error_and_the_connection_stays(ads_server: AdsServer) -> None:
     with connect(ads_server) as c:
         p = read_req(c, 0x4001, 0x27, 8)
