@@ -697,9 +697,9 @@ class AdsServer:
             session.subs.clear()
             with session.lock:
                 session.sym_handles.clear()
-            writer.close()
-            if pending:
+            if pending:   # replies of requests already read still go out (then the close sends them)
                 await asyncio.gather(*pending, return_exceptions=True)
+            writer.close()
             log.info("ADS connection %d from %s closed", session.conn_id, peer)
             self._connection_closed(session)
 
