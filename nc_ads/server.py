@@ -692,6 +692,8 @@ class AdsServer:
             log.info("ADS connection %d from %s: %s", session.conn_id, peer, exc)
         except asyncio.CancelledError:
             pass
+        except Exception as exc:   # a bug in here ends this connection only, never the server
+            log.error("ADS connection %d from %s: %r; closing it", session.conn_id, peer, exc, exc_info=exc)
         finally:
             self._sessions.pop(session.conn_id, None)
             session.subs.clear()
