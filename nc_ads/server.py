@@ -42,7 +42,11 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   (wire unit 100 ns) is rounded to a whole number of ticks, at least one; nMaxDelay is not waited for
   (sending at once is allowed). ServerOnChange sends the first value and then only when the bytes
   changed; ServerCycle sends every cycle. The first sample goes out on the first tick at least
-  `FIRST_SAMPLE_DELAY_S` (3 ms) after the AddDeviceNotification reply (pitfall 5); every sample has
+  `FIRST_SAMPLE_DELAY_S` (10 ms) after the AddDeviceNotification reply (pitfall 5: AdsLib registers the
+  handle only after its calling thread woke up; 3 ms still lost first samples on a loaded 2-core
+  machine), and a ServerOnChange value that did not change within `ONCHANGE_REPEAT_S` (1 s) after the
+  first sample is sent once more, so a first sample lost in that race anyway is not lost for good
+  (a client may see its initial value twice; a changed value supersedes it). Every sample has
   exactly the subscribed length (pitfall 4); samples due in one tick for the same (client address, server
   address) go into one DeviceNotification frame with one timestamp, sent from the address the client
   subscribed to (pitfall 3). Length 0 or above `MAX_NOTIFICATION_LENGTH` (64 KiB) -> 0x705; a
@@ -85,7 +89,8 @@ MAX_SYMBOL_HANDLES = 4096           # per connection
 MAX_NOTIFICATION_LENGTH = 65536     # bytes per subscription
 MIN_TICK_MS = 1.0
 DEFAULT_TICK_MS = 10.0
-FIRST_SAMPLE_DELAY_S = 0.003
+FIRST_SAMPLE_DELAY_S = 0.010
+ONCHANGE_REPEAT_S = 1.0
 MAX_INFLIGHT_PER_CONNECTION = 64
 MAX_WRITE_BUFFER = 8 * 1024 * 1024
 MAX_CONNECTIONS = 256
@@ -170,6 +175,8 @@ class Subscription:
     not_before: float        # time.monotonic() of the earliest first sample (pitfall 5)
     next_tick: int = 0
     last: bytes | None = None
+    first_sent: float | None = None   # when the first sample went out
+    repeated: bool = False            # ServerOnChange: the first value was sent again (or changed since)
 
 
 class Session:
@@ -484,8 +491,15 @@ class Dispatcher:
                 continue
             if len(data) != sub.length:   # pitfall 4: exactly the subscribed size
                 data = data[:sub.length].ljust(sub.length, b"\0")
-            if sub.trans_mode == ams.TRANS_SERVERONCHA and data == sub.last:
-                continue
+            if sub.trans_mode == ams.TRANS_SERVERONCHA and sub.last is not None:
+                if data != sub.last:
+                    sub.repeated = True
+                elif sub.repeated or sub.first_sent is None or now < sub.first_sent + ONCHANGE_REPEAT_S:
+                    continue
+                else:
+                    sub.repeated = True   # unchanged for ONCHANGE_REPEAT_S: send it once more
+            if sub.first_sent is None:
+                sub.first_sent = now
             sub.last = data
             batches.setdefault((sub.client, sub.server), []).append(ams.Sample(sub.handle, data))
         frames = []

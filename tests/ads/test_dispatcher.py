@@ -332,3 +332,27 @@ def test_collect_respects_cycle_ticks(dev: FakeDevice) -> None:
     later = d.clock() + 1
     got = [k for k in range(1, 20) if d.collect(s, k, later, 0)]
     assert got == [1, 4, 7, 10, 13, 16, 19] and s.subs[h].cycle_ticks == 3
+
+
+def test_on_change_value_is_repeated_once_if_unchanged(dev: FakeDevice) -> None:
+    d = make(dev)
+    s = Session(1, "x:1")
+    h = add(d, s, 0x4001, 0x27, 8, mode=4).handle
+    t0 = d.clock() + server.FIRST_SAMPLE_DELAY_S
+
+    def sent(tick: int, now: float) -> bool:
+        return any(smp.handle == h for f in d.collect(s, tick, now, 0)
+                   for smp in ams.DeviceNotification.decode(ams.decode_frame(f).data).stamps[0].samples)
+    assert sent(1, t0)                                          # first value
+    assert not sent(2, t0 + 0.5)                                # unchanged
+    assert sent(3, t0 + server.ONCHANGE_REPEAT_S)              # once more (first-sample race)
+    assert not any(sent(k, t0 + 5 + k) for k in range(4, 10))  # and never again while unchanged
+    h2 = add(d, s, 0x4002, 0, 8, mode=4).handle                 # a value that changes is not repeated
+    assert any(smp.handle == h2 for f in d.collect(s, 10, t0 + 20, 0)
+               for smp in ams.DeviceNotification.decode(ams.decode_frame(f).data).stamps[0].samples)
+    dev.write(0x4002, 0, struct.pack("<d", 9.0), server.AdsSource("x", 1, "x", 1, True))
+    out = [smp for f in d.collect(s, 11, t0 + 20.1, 0)
+           for smp in ams.DeviceNotification.decode(ams.decode_frame(f).data).stamps[0].samples]
+    assert [smp.data for smp in out if smp.handle == h2] == [struct.pack("<d", 9.0)]
+    assert not any(smp.handle == h2 for f in d.collect(s, 12, t0 + 30, 0)
+                   for smp in ams.DeviceNotification.decode(ams.decode_frame(f).data).stamps[0].samples)

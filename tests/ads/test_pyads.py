@@ -114,13 +114,17 @@ def test_notification_on_change_initial_value_then_one_per_write(ads_server: Ads
     got = Collector(plc, LREAL)
     attr = pyads.NotificationAttrib(8, pyads.constants.ADSTRANS_SERVERONCHA, 0, 10)
     h = plc.add_device_notification((0x4001, 0x27), attr, got)
-    assert wait_until(lambda: got.count() == 1)
-    for i, v in enumerate((1.0, 2.0, 3.0), start=2):
+    assert wait_until(lambda: got.count() >= 1)
+    for v in (1.0, 2.0, 3.0):
         writer.write(0x4001, 0x27, v, LREAL)
-        assert wait_until(lambda: got.count() == i), got.values
+        assert wait_until(lambda: got.values[-1] == v), got.values
+    n = got.count()
     time.sleep(0.1)                # nothing more while the value stays
+    assert got.count() == n
     plc.del_device_notification(*h)
-    assert got.values == [1234.5, 1.0, 2.0, 3.0] and set(got.sizes) == {8}
+    # the initial value may come twice (sent once more after 1 s unchanged, against the first-sample race)
+    collapsed = [v for k, v in enumerate(got.values) if k == 0 or v != got.values[k - 1]]
+    assert collapsed == [1234.5, 1.0, 2.0, 3.0] and got.values[1:].count(1234.5) <= 1 and set(got.sizes) == {8}
 
 
 def test_notification_server_cycle_full_struct_and_by_name(ads_server: AdsServer, fake_device: FakeDevice,
@@ -138,9 +142,9 @@ def test_notification_server_cycle_full_struct_and_by_name(ads_server: AdsServer
     for _ in range(10):
         fake_device.step()
         time.sleep(0.03)
-    assert wait_until(lambda: cyc.count() >= 20 and pos.count() >= 5 and velo.count() >= 1), \
-        (cyc.count(), pos.count(), velo.count())
-    assert wait_until(lambda: pos.values[-1] == 10.0)
+    # on a loaded machine steps may fall into one server tick: only the last value is sure to come
+    assert wait_until(lambda: cyc.count() >= 20 and pos.count() >= 2 and pos.values[-1] == 10.0
+                      and velo.count() >= 1), (cyc.count(), pos.values, velo.count())
     for h, p in ((h1, plc), (h2, plc500), (h3, plc)):
         p.del_device_notification(*h)
     assert set(cyc.sizes) == {256} and set(pos.sizes) == {8} and velo.values[0] == 1234.5
