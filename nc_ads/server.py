@@ -469,7 +469,7 @@ class Dispatcher:
         except Exception as exc:
             return ams.AddNotificationResponse(self._code(exc, dev, "sample"), 0)
         ticks = max(1, round(req.cycle_time * 1e-7 / self.tick_s))
-        handle = next(self._handles) & 0xFFFFFFFF or next(self._handles)
+        handle = next(self._handles) % 0xFFFFFFFF + 1   # unique in this server, never 0
         session.subs[handle] = Subscription(
             handle, pkt.header.source, pkt.header.target, dev, group, offset, req.length,
             req.trans_mode, ticks, self.clock() + FIRST_SAMPLE_DELAY_S)

@@ -214,3 +214,20 @@ def test_close_with_open_connections_and_rebind(start_ads, fake_device: FakeDevi
             assert ams.ReadStateResponse.decode(c2.request(Command.READ_STATE).data).ads_state == 5
     finally:
         again.close()
+
+
+def test_constructor_and_bind_errors(ads_server: AdsServer, fake_device: FakeDevice) -> None:
+    with pytest.raises(ValueError):
+        AdsServer({}, "1.2.3.4.1.1", ("127.0.0.1", 0))
+    with pytest.raises(ValueError):
+        AdsServer({501: fake_device}, "1.2.3.4.1.1", ("127.0.0.1", 0), tick_ms=0.5)
+    with pytest.raises(ValueError):
+        AdsServer({501: fake_device}, "not-a-netid", ("127.0.0.1", 0))
+    busy = AdsServer({501: fake_device}, "1.2.3.4.1.1", ads_server.bound_address)
+    with pytest.raises(OSError):
+        busy.start()
+    busy.close()
+    with AdsServer({501: fake_device}, "1.2.3.4.1.1", ("127.0.0.1", 0)) as free:   # port 0: any free port
+        assert free.bound_address[1] > 0
+        with RawClient(*free.bound_address, server_netid="1.2.3.4.1.1") as c:
+            assert ams.ReadStateResponse.decode(c.request(Command.READ_STATE).data).ads_state == 5
