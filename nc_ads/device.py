@@ -47,8 +47,9 @@ class AdsDevice(ABC):
 
     @abstractmethod
     def read(self, group: int, offset: int, length: int, src: AdsSource) -> bytes:
-        """At most `length` bytes at (group, offset); raises AdsError. The server never sends more than
-        `length` bytes (pitfall 2), it truncates a longer answer and logs it."""
+        """At most `length` bytes at (group, offset); raises AdsError. `length` is what the client asked
+        (any u32: check it against the object's size before allocating, 0x705 if wrong). The server
+        never sends more than `length` bytes (pitfall 2), it truncates a longer answer and logs it."""
 
     @abstractmethod
     def write(self, group: int, offset: int, data: bytes, src: AdsSource) -> None:

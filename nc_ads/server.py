@@ -34,7 +34,8 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   the symbol gets the symbol's bytes (pyads reads a STRING with 1024); a write longer than it gets 0x705.
 - Sum commands: ReadWrite on 0xF080 (read), 0xF081 (write), 0xF082 (read-write), index offset = number
   of sub-commands, at most `MAX_SUM_COMMANDS` (500, pyads's chunk size); more, a read length too small for
-  the reply, or a malformed sub-command list -> 0x705 for the whole request. Each sub-command has its own
+  the reply, a sum read asking for more than `ams.MAX_FRAME_LENGTH` (4 MiB) in all, or a malformed
+  sub-command list -> 0x705 for the whole request. Each sub-command has its own
   result; a sum read's data area holds every sub-read at its requested length (zeros on an error).
   Sub-commands may address symbol handles (0xF005), not other sum commands (0x701).
 - Notifications: transmission modes ServerCycle (3) and ServerOnChange (4); others get 0x713. The
@@ -421,7 +422,8 @@ class Dispatcher:
         try:
             if group == ams.IG_SUMUP_READ:
                 items = ams.decode_sum_read(count, data)
-                if length < 4 * count + sum(i.length for i in items):
+                need = 4 * count + sum(i.length for i in items)
+                if length < need or need > ams.MAX_FRAME_LENGTH:   # the reply pads every sub-read
                     return ADSERR_DEVICE_INVALIDSIZE, b""
                 results = [self.read(device, i.group, i.offset, i.length, src, session) for i in items]
                 return 0, ams.encode_sum_read_response(results, [i.length for i in items])

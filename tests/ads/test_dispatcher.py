@@ -233,6 +233,8 @@ def test_sum_read_write_readwrite(dev: FakeDevice) -> None:
     many = [ams.SumReadItem(0x4002, 0, 8)] * 501
     assert rw(d, 0xF080, 501, 12 * 501, ams.encode_sum_read(many), s).result == 0x705
     assert rw(d, 0xF080, 3, 100, b"\0" * 20, s).result == 0x705
+    huge = [ams.SumReadItem(0x4002, 0, 0x7FFFFFFF), ams.SumReadItem(0x4002, 0, 0x7FFFFFFF)]   # no 4 GiB reply
+    assert rw(d, 0xF080, 2, 0xFFFFFFFF, ams.encode_sum_read(huge), s).result == 0x705
     # sum write: each its own result; the refused one changes nothing
     w = [ams.SumWriteItem(0x4002, 0, struct.pack("<d", -1.0)), ams.SumWriteItem(0x4101, 0, bytes(256)),
          ams.SumWriteItem(0x4002, 8, struct.pack("<d", -2.0))]
