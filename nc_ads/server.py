@@ -52,7 +52,9 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   address) go into one DeviceNotification frame with one timestamp, sent from the address the client
   subscribed to (pitfall 3). Length 0 or above `MAX_NOTIFICATION_LENGTH` (64 KiB) -> 0x705; a
   (group, offset) the device cannot sample -> the device's code. At most `MAX_NOTIFICATIONS`
-  (1024) per connection (then 0x716); an unknown handle on delete -> 0x714. A connection's
+  (1024) per connection (then 0x716); an unknown handle on delete -> 0x714. A notification on a
+  symbol handle (0xF005/handle, what pyads does for a name) follows the symbol the handle had when it
+  was added; other 0xFxxx groups -> 0x701. A connection's
   subscriptions end when it closes. A client that does not read its socket gets no samples while more
   than `MAX_WRITE_BUFFER` / 4 (2 MiB) wait to be sent to it, and its requests are not read while more
   than `MAX_WRITE_BUFFER` (8 MiB) wait (until half of that is sent); other connections go on.
