@@ -1,8 +1,9 @@
 """The ADS server's own cost: unmodified pyads against nc_ads.server.AdsServer with the in-memory
 FakeDevice (no NC, no zenoh), in this process (server in its own thread), over loopback.
 
-Measured one at a time (p50 / p99 / max, microseconds): read_state, read of an LREAL (0x4001/0x27),
-read of the 256-byte struct (0x4101/0), write of an LREAL, a sum read of 500 LREALs by name
+Measured one at a time (p50 / p99 / max, microseconds): read_state (worker pool), read of an LREAL
+(0x4001/0x27), read of the 256-byte struct (0x4101/0), write of an LREAL (these three on the server's
+loop: FakeDevice says they never block), the same LREAL read through the worker pool, a sum read of 500 LREALs by name
 (read_list_by_name, one 0xF080 request), and the delivery delay of 256-byte ServerCycle notifications
 (client receive time minus the sample's FILETIME, 10 ms cycle). Not a test: speed lives here.
 
@@ -63,6 +64,9 @@ def main() -> None:
         print(stats("read 256 B 0x4101/0", timed(lambda: plc.read(0x4101, 0, ctypes.c_ubyte * 256,
                                                                   return_ctypes=True), args.n)))
         print(stats("write LREAL 0x4001/0x27", timed(lambda: plc.write(0x4001, 0x27, 1.0, L), args.n)))
+        dev.inline_off = True   # the same read through the worker pool (a device that may block)
+        print(stats("read LREAL via the worker pool", timed(lambda: plc.read(0x4001, 0x27, L), args.n)))
+        dev.inline_off = False
         names = [f"GVL.v{i}" for i in range(500)]
         plc.read_list_by_name(names)   # symbol infos cached
         print(stats("sum read 500 LREAL by name", timed(lambda: plc.read_list_by_name(names), max(50, args.n // 20), 10)))

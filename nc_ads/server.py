@@ -16,7 +16,7 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   ReadWrite replies always carry the length field, pitfall 1). Unknown command ids get AMS error 0x701
   in the header. Frames flagged as responses and DeviceNotifications sent to the server are ignored.
 - Read/Write/ReadWrite/ReadState go to the device in a bounded worker pool (`max_workers`, default 8),
-  so replies of different AMS source ports may complete out of order (matched by invoke id); at most
+  except reads/writes the device declares `nonblocking(group, offset)` (run on the loop), so replies of different AMS source ports may complete out of order (matched by invoke id); at most
   `MAX_INFLIGHT_PER_CONNECTION` (64) requests per connection are in flight, then reading pauses.
   A device answer longer than the requested length is truncated and logged (pitfall 2). An exception
   other than AdsError inside a device is logged and answered with 0x700.
@@ -215,10 +215,32 @@ class Dispatcher:
         self.clock = time.monotonic
 
     # -- classification -------------------------------------------------------------------------------
-    def runs_inline(self, pkt: AmsPacket) -> bool:
-        """True for what must/can run on the loop thread (no device call that may block)."""
-        return pkt.header.command not in (Command.READ, Command.WRITE, Command.READ_WRITE,
-                                          Command.READ_STATE)
+    def runs_inline(self, pkt: AmsPacket, session: Session) -> bool:
+        """True for what can run on the loop thread: no device call, or one the device says never
+        blocks (`AdsDevice.nonblocking`); the rest goes to the worker pool."""
+        h = pkt.header
+        if h.command == Command.READ_STATE:
+            return False
+        if h.command not in (Command.READ, Command.WRITE, Command.READ_WRITE):
+            return True
+        device = self.devices.get(h.target.port)
+        if device is None or len(pkt.data) < 8 or h.is_response:
+            return True                     # answered without the device
+        group, offset = struct.unpack_from("<II", pkt.data)
+        if group in (ams.IG_SYM_HNDBYNAME, ams.IG_SYM_RELEASEHND, ams.IG_SYM_INFOBYNAMEEX):
+            return True                     # the server's own symbol table work
+        if group == ams.IG_SYM_VALBYHND:
+            entry = self._handle_symbol(session, offset)
+            if entry is None:
+                return True
+            device, group, offset = entry[0], entry[2].group, entry[2].offset
+        elif group >= 0xF000:
+            return False                    # sum commands, value by name: may touch many objects
+        try:
+            return bool(device.nonblocking(group, offset))
+        except Exception as exc:
+            log.error("device %s: nonblocking raised %r", device.name, exc, exc_info=exc)
+            return False
 
     # -- entry point ----------------------------------------------------------------------------------
     def handle(self, pkt: AmsPacket, session: Session) -> AmsPacket | None:
@@ -685,7 +707,7 @@ class AdsServer:
                     log.warning("ADS connection %d from %s: %s; closing it", session.conn_id, peer, exc)
                     broken, packets = exc, exc.packets   # answer the whole frames before it, then close
                 for pkt in packets:
-                    if self.dispatcher.runs_inline(pkt):
+                    if self.dispatcher.runs_inline(pkt, session):
                         self._send(writer, self._safe_handle(pkt, session))
                         continue
                     await inflight.acquire()

@@ -358,3 +358,24 @@ def test_on_change_value_is_repeated_once_if_unchanged(dev: FakeDevice) -> None:
     assert [smp.data for smp in out if smp.handle == h2] == [struct.pack("<d", 9.0)]
     assert not any(smp.handle == h2 for f in d.collect(s, 12, t0 + 30, 0)
                    for smp in ams.DeviceNotification.decode(ams.decode_frame(f).data).stamps[0].samples)
+
+
+def test_runs_inline_only_what_does_not_block(dev: FakeDevice) -> None:
+    d = make(dev)
+    s = Session(1, "x:1")
+    R = lambda g, o: pkt(Command.READ, ams.ReadRequest(g, o, 8).encode())  # noqa: E731
+    assert d.runs_inline(R(0x4001, 0x27), s)                       # FakeDevice: non-blocking
+    dev.delays[(0x4001, 0x27)] = 0.1
+    assert not d.runs_inline(R(0x4001, 0x27), s)                   # may block: the pool
+    assert not d.runs_inline(pkt(Command.READ_STATE), s)
+    assert d.runs_inline(pkt(Command.READ_DEVICE_INFO), s) and d.runs_inline(pkt(Command.ADD_DEVICE_NOTIFICATION), s)
+    assert d.runs_inline(pkt(Command.READ, b"\0" * 3), s)          # malformed: no device call
+    assert d.runs_inline(pkt(Command.READ, ams.ReadRequest(1, 2, 3).encode(), port=851), s)
+    assert not d.runs_inline(pkt(Command.READ_WRITE, ams.ReadWriteRequest(0xF080, 1, 12, b"").encode()), s)
+    assert d.runs_inline(pkt(Command.READ_WRITE, ams.ReadWriteRequest(0xF003, 0, 4, b"MAIN.fVelo").encode()), s)
+    h = struct.unpack("<I", rw(d, 0xF003, 0, 4, b"MAIN.fVelo", s).data)[0]
+    assert not d.runs_inline(R(0xF005, h), s)                      # follows the symbol: delayed
+    del dev.delays[(0x4001, 0x27)]
+    assert d.runs_inline(R(0xF005, h), s)
+    dev.inline_off = True
+    assert not d.runs_inline(R(0x4001, 0x27), s)

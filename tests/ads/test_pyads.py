@@ -29,7 +29,9 @@ def test_read_state_and_device_info(ads_server: AdsServer, pyads_session) -> Non
     assert name == "FakeNC" and (version.version, version.revision, version.build) == (3, 1, 4024)
 
 
-def test_read_write_and_by_name(ads_server: AdsServer, fake_device: FakeDevice, pyads_session) -> None:
+@pytest.mark.parametrize("pool", [False, True], ids=["inline", "pool"])
+def test_read_write_and_by_name(ads_server: AdsServer, fake_device: FakeDevice, pyads_session, pool: bool) -> None:
+    fake_device.inline_off = pool
     plc = pyads_session(ads_server).open(501)
     assert plc.read(0x4001, 0x27, LREAL) == 1234.5
     plc.write(0x4001, 0x27, 42.25, LREAL)
@@ -182,7 +184,10 @@ def test_sum_read_and_write_over_the_symbol_table(ads_server: AdsServer, fake_de
     assert server.MAX_SUM_COMMANDS == 500
 
 
-def test_concurrent_connections_share_the_socket(ads_server: AdsServer, pyads_session) -> None:
+@pytest.mark.parametrize("pool", [False, True], ids=["inline", "pool"])
+def test_concurrent_connections_share_the_socket(ads_server: AdsServer, fake_device: FakeDevice, pyads_session,
+                                                 pool: bool) -> None:
+    fake_device.inline_off = pool
     s = pyads_session(ads_server)
     conns = [s.open(501) for _ in range(4)]     # four AMS ports on one TCP connection
     errors: list[str] = []

@@ -101,7 +101,9 @@ def test_replies_of_different_ports_may_overtake(ads_server: AdsServer, fake_dev
         assert ams.DataResponse.decode(second.data).data == struct.pack("<d", 1234.5)
 
 
-def test_many_connections_at_once(ads_server: AdsServer) -> None:
+@pytest.mark.parametrize("pool", [False, True], ids=["inline", "pool"])
+def test_many_connections_at_once(ads_server: AdsServer, fake_device: FakeDevice, pool: bool) -> None:
+    fake_device.inline_off = pool
     n_conn, n_req = 40, 25
     errors: list[str] = []
     clients = [connect(ads_server) for _ in range(n_conn)]

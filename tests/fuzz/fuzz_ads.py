@@ -137,6 +137,7 @@ def test_one(data: bytes) -> None:
     d.clock = lambda: 0.0
     s = Session(1, "127.0.0.1:40000")
     for tick, pkt in enumerate(whole, start=1):
+        d.runs_inline(pkt, s)   # must not raise either
         rep = d.handle(pkt, s)
         LOG.check(f"handling {pkt.header}")
         check_reply(pkt, rep)
