@@ -204,3 +204,39 @@ def test_concurrent_connections_share_the_socket(ads_server: AdsServer, fake_dev
     for t in threads:
         t.join(timeout=120)
     assert not errors and ads_server.connection_count == 1
+
+
+CHILD = """
+import sys, time, pyads
+net_id, host = sys.argv[1], sys.argv[2]
+plc = pyads.Connection(net_id, 501, host)
+plc.open()
+attr = pyads.NotificationAttrib(256, pyads.constants.ADSTRANS_SERVERCYCLE, 0, 10)
+plc.add_device_notification((0x4101, 0), attr, lambda n, name: None)
+plc.add_device_notification("MAIN.fVelo", pyads.NotificationAttrib(8, 4, 0, 10), lambda n, name: None)
+print("ready", flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_killed_pyads_client_frees_its_notifications(ads_server: AdsServer, fake_device: FakeDevice) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c", CHILD, ads_server.net_id, ads_server.bound_address[0]],
+                             stdout=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        assert wait_until(lambda: ads_server.subscription_count() == 2 and ads_server.connection_count == 1)
+        os.killpg(child.pid, signal.SIGKILL)
+        child.wait(timeout=30)
+        assert wait_until(lambda: ads_server.subscription_count() == 0 and ads_server.connection_count == 0)
+        assert wait_until(lambda: len(fake_device.closed_conns) == 1)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait(timeout=30)
+        if child.stdout is not None:
+            child.stdout.close()
