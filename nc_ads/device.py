@@ -77,4 +77,5 @@ class AdsDevice(ABC):
         """A TCP connection ended: free what it claimed (called from a worker thread)."""
 
     def close(self) -> None:
-        """Release the device's resources (the server calls it on close for every distinct device)."""
+        """Release the device's resources. Called by the device's owner (nc-ads's cli) after the server
+        closed; the server itself never closes devices it was given."""

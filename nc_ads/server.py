@@ -1,0 +1,765 @@
+"""Asyncio AMS/TCP server: serves `AdsDevice`s on AMS ports to pyads and other ADS clients.
+
+`AdsServer(devices, net_id, listen, write_policy, strict_netid)` runs its own event loop in its own
+thread (`start()` / `close()`). Per TCP connection a `Session` keeps the connection's symbol handles and
+notification subscriptions; `Dispatcher.handle(packet, session)` turns one request into its reply and is
+synchronous, so the same code runs on the loop, in the worker pool and in the fuzz target.
+
+Decisions (the ones a user sees; docs/ads.md repeats them):
+- Addressing: a request whose target net id is not the server's gets AMS error 7 (target machine not
+  found) unless `strict_netid=False`; a target port without a device gets AMS error 6. Both go in the AMS
+  header with no data. Replies come from exactly the address the request was sent to.
+- Malformed input: a stream that cannot be cut into frames (AMS/TCP reserved field != 0, length below the
+  32-byte AMS header or above `ams.MAX_FRAME_LENGTH` = 4 MiB) is logged and the connection is closed. A
+  frame whose AMS header's data length disagrees with the frame gets AMS error 0xE (invalid AMS length).
+  ADS data that does not have the command's layout gets 0x705 in the command's own reply layout (Read and
+  ReadWrite replies always carry the length field, pitfall 1). Unknown command ids get AMS error 0x701
+  in the header. Frames flagged as responses and DeviceNotifications sent to the server are ignored.
+- Read/Write/ReadWrite/ReadState go to the device in a bounded worker pool (`max_workers`, default 8),
+  so replies of different AMS source ports may complete out of order (matched by invoke id); at most
+  `MAX_INFLIGHT_PER_CONNECTION` (64) requests per connection are in flight, then reading pauses.
+  A device answer longer than the requested length is truncated and logged (pitfall 2). An exception
+  other than AdsError inside a device is logged and answered with 0x700.
+- WriteControl: always 0x701 (the NC's state is nc-server's business, not changed over ADS).
+- Write policy: `WritePolicy(allow)` lists AMS net ids and/or IP addresses/CIDR networks that may write;
+  `allow=None` (default) lets every client that can connect write (the listen address, loopback by
+  default, is the boundary). ADS Write (command 3, also through symbol handles and sum write) from a
+  client not allowed gets 0x723 from the server before the device sees it; ReadWrite goes to the device
+  with `AdsSource.may_write` (a ReadWrite can be a read), the device refuses with 0x723 where it writes.
+  Releasing a symbol handle (0xF006) is not a write.
+- Symbols (0xF003 handle by name, 0xF004 value by name, 0xF005 value by handle, 0xF006 release, 0xF009
+  info by name ex) come from `device.symbols()`; names match exactly, else case-insensitively (TwinCAT
+  names are case-insensitive). Handles belong to the connection, at most `MAX_SYMBOL_HANDLES` (4096)
+  per connection (then 0x716), freed when it closes; an unknown handle gets 0x710. Reading/writing more
+  bytes than the symbol's size gets 0x705.
+- Sum commands: ReadWrite on 0xF080 (read), 0xF081 (write), 0xF082 (read-write), index offset = number
+  of sub-commands, at most `MAX_SUM_COMMANDS` (500, pyads's chunk size); more, a read length too small for
+  the reply, or a malformed sub-command list -> 0x705 for the whole request. Each sub-command has its own
+  result; a sum read's data area holds every sub-read at its requested length (zeros on an error).
+  Sub-commands may address symbol handles (0xF005), not other sum commands (0x701).
+- Notifications: transmission modes ServerCycle (3) and ServerOnChange (4); others get 0x713. The
+  server samples on its tick (`tick_ms`, default 10 ms, at least `MIN_TICK_MS` = 1 ms); a cycle time
+  (wire unit 100 ns) is rounded to a whole number of ticks, at least one; nMaxDelay is not waited for
+  (sending at once is allowed). ServerOnChange sends the first value and then only when the bytes
+  changed; ServerCycle sends every cycle. The first sample goes out on the first tick at least
+  `FIRST_SAMPLE_DELAY_S` (3 ms) after the AddDeviceNotification reply (pitfall 5); every sample has
+  exactly the subscribed length (pitfall 4); samples due in one tick for the same (client address, server
+  address) go into one DeviceNotification frame with one timestamp, sent from the address the client
+  subscribed to (pitfall 3). Length 0 or above `MAX_NOTIFICATION_LENGTH` (64 KiB) -> 0x705; a
+  (group, offset) the device cannot sample -> the device's code. At most `MAX_NOTIFICATIONS`
+  (1024) per connection (then 0x716); an unknown handle on delete -> 0x714. A connection's
+  subscriptions end when it closes. A client that does not read its socket gets no samples while more
+  than `MAX_WRITE_BUFFER` (8 MiB) wait to be sent to it.
+- At most `MAX_CONNECTIONS` (256) TCP connections at once; more are closed at once and logged.
+"""
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import ipaddress
+import itertools
+import logging
+import socket
+import struct
+import threading
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from nc_ads import ams
+from nc_ads.ams import AmsAddr, AmsPacket, Command
+from nc_ads.device import AdsDevice, AdsSource, Symbol
+from nc_ads.errors import (
+    ADSERR_DEVICE_ACCESSDENIED, ADSERR_DEVICE_ERROR, ADSERR_DEVICE_INVALIDSIZE,
+    ADSERR_DEVICE_NOMOREHDLS, ADSERR_DEVICE_NOTIFYHNDINVALID, ADSERR_DEVICE_SRVNOTSUPP,
+    ADSERR_DEVICE_SYMBOLNOTFOUND, ADSERR_DEVICE_TRANSMODENOTSUPP, AMS_INVALID_LENGTH,
+    AMS_TARGET_MACHINE_NOT_FOUND, AMS_TARGET_PORT_NOT_FOUND, AdsError,
+)
+
+log = logging.getLogger("nc_ads.server")
+
+MAX_SUM_COMMANDS = 500
+MAX_NOTIFICATIONS = 1024            # per connection
+MAX_SYMBOL_HANDLES = 4096           # per connection
+MAX_NOTIFICATION_LENGTH = 65536     # bytes per subscription
+MIN_TICK_MS = 1.0
+DEFAULT_TICK_MS = 10.0
+FIRST_SAMPLE_DELAY_S = 0.003
+MAX_INFLIGHT_PER_CONNECTION = 64
+MAX_WRITE_BUFFER = 8 * 1024 * 1024
+MAX_CONNECTIONS = 256
+MAX_NOTIFICATION_FRAME = 1024 * 1024  # a tick's samples are split into frames of about this size
+
+_U32 = struct.Struct("<I")
+
+# IEC type name -> ADS data type id (pyads constants ADST_*), for SAdsSymbolEntry.dataType
+_ADST = {
+    "BOOL": 33, "BIT": 33, "SINT": 16, "USINT": 17, "BYTE": 17, "INT": 2, "UINT": 18, "WORD": 18,
+    "DINT": 3, "UDINT": 19, "DWORD": 19, "LINT": 20, "ULINT": 21, "LWORD": 21, "REAL": 4, "LREAL": 5,
+    "TIME": 19, "TOD": 19, "DATE": 19, "DT": 19, "TIME_OF_DAY": 19, "DATE_AND_TIME": 19,
+}
+ADST_STRING = 30
+ADST_WSTRING = 31
+ADST_BIGTYPE = 65
+
+
+def ads_type_id(type_name: str) -> int:
+    """ADS data type id of an IEC type name; structs and arrays are BIGTYPE (65)."""
+    t = type_name.strip().upper()
+    if t.startswith("WSTRING"):
+        return ADST_WSTRING
+    if t.startswith("STRING"):
+        return ADST_STRING
+    return _ADST.get(t, ADST_BIGTYPE)
+
+
+def encode_symbol_entry(name: str, sym: Symbol) -> bytes:
+    """SAdsSymbolEntry (0xF009 reply): u32 entryLength, iGroup, iOffs, size, dataType, flags, u16
+    nameLength, typeLength, commentLength, then the three strings each NUL-terminated."""
+    n, t, c = (s.encode("latin-1", "replace")[:255] for s in (name, sym.type_name, sym.comment))
+    body = n + b"\0" + t + b"\0" + c + b"\0"
+    length = 30 + len(body)
+    return struct.pack("<IIIIIIHHH", length, sym.group, sym.offset, sym.size,
+                       ads_type_id(sym.type_name), 0, len(n), len(t), len(c)) + body
+
+
+class WritePolicy:
+    """Who may write: `allow` is None (everyone who can connect) or a list of AMS net ids ("a.b.c.d.e.f")
+    and IP addresses / CIDR networks ("127.0.0.1", "10.0.0.0/8"); an empty list lets nobody write."""
+
+    def __init__(self, allow: Iterable[str] | None = None) -> None:
+        self.allow_all = allow is None
+        self.net_ids: set[str] = set()
+        self.networks: list[ipaddress.IPv4Network | ipaddress.IPv6Network] = []
+        for entry in allow or ():
+            entry = entry.strip()
+            try:
+                ams.netid_to_bytes(entry)
+                self.net_ids.add(entry)
+                continue
+            except ValueError:
+                pass
+            try:
+                self.networks.append(ipaddress.ip_network(entry, strict=False))
+            except ValueError:
+                raise ValueError(f"--allow-write entry {entry!r} is neither an AMS net id "
+                                 f"(a.b.c.d.e.f) nor an IP address/network") from None
+
+    def may_write(self, net_id: str, ip: str) -> bool:
+        if self.allow_all or net_id in self.net_ids:
+            return True
+        try:
+            addr = ipaddress.ip_address(ip)
+        except ValueError:
+            return False
+        return any(addr in net for net in self.networks)
+
+
+@dataclass
+class Subscription:
+    handle: int
+    client: AmsAddr          # the subscriber's AMS address (reply target)
+    server: AmsAddr          # the address it subscribed to: samples come from here (pitfall 3)
+    device: AdsDevice
+    group: int
+    offset: int
+    length: int
+    trans_mode: int
+    cycle_ticks: int
+    not_before: float        # time.monotonic() of the earliest first sample (pitfall 5)
+    next_tick: int = 0
+    last: bytes | None = None
+
+
+class Session:
+    """State of one TCP connection. Symbol handles may be touched from worker threads (lock);
+    subscriptions only from the thread that runs the loop (or the single-threaded fuzz target)."""
+
+    def __init__(self, conn_id: int, peer: str) -> None:
+        self.conn_id = conn_id
+        self.peer = peer
+        self.peer_ip = peer.rsplit(":", 1)[0].strip("[]")
+        self.lock = threading.Lock()
+        self.sym_handles: dict[int, tuple[AdsDevice, str, Symbol]] = {}
+        self._next_sym = itertools.count(1)
+        self.subs: dict[int, Subscription] = {}
+        self._may_write: dict[str, bool] = {}
+        self.devices_used: set[int] = set()   # id() of devices this connection talked to
+        self.throttled = False
+
+
+class Dispatcher:
+    """Request -> reply for every AMS command; no I/O of its own (see the module doc for the rules)."""
+
+    def __init__(self, devices: Mapping[int, AdsDevice], net_id: str, write_policy: WritePolicy,
+                 strict_netid: bool = True, tick_s: float = DEFAULT_TICK_MS / 1000) -> None:
+        ams.netid_to_bytes(net_id)
+        self.devices = dict(devices)
+        self.net_id = net_id
+        self.write_policy = write_policy
+        self.strict_netid = strict_netid
+        self.tick_s = tick_s
+        self._handles = itertools.count(1)
+        self._sym_index: dict[int, tuple[object, dict[str, tuple[str, Symbol]]]] = {}
+        self.clock = time.monotonic
+
+    # -- classification -------------------------------------------------------------------------------
+    def runs_inline(self, pkt: AmsPacket) -> bool:
+        """True for what must/can run on the loop thread (no device call that may block)."""
+        return pkt.header.command not in (Command.READ, Command.WRITE, Command.READ_WRITE,
+                                          Command.READ_STATE)
+
+    # -- entry point ----------------------------------------------------------------------------------
+    def handle(self, pkt: AmsPacket, session: Session) -> AmsPacket | None:
+        h = pkt.header
+        if h.is_response:
+            log.debug("conn %d %s: ignoring a response frame (cmd %d)", session.conn_id,
+                      session.peer, h.command)
+            return None
+        if h.command == Command.DEVICE_NOTIFICATION:
+            log.debug("conn %d: ignoring a DeviceNotification sent to the server", session.conn_id)
+            return None
+        if self.strict_netid and h.target.net_id != self.net_id:
+            return pkt.reply(error_code=AMS_TARGET_MACHINE_NOT_FOUND)
+        device = self.devices.get(h.target.port)
+        if device is None:
+            return pkt.reply(error_code=AMS_TARGET_PORT_NOT_FOUND)
+        if h.data_length != len(pkt.data):
+            log.warning("conn %d %s: AMS data length %d but %d bytes follow", session.conn_id,
+                        session.peer, h.data_length, len(pkt.data))
+            return pkt.reply(error_code=AMS_INVALID_LENGTH)
+        if h.command not in ams.RESPONSES:
+            log.warning("conn %d %s: unknown AMS command %d", session.conn_id, session.peer, h.command)
+            return pkt.reply(error_code=ADSERR_DEVICE_SRVNOTSUPP)
+        try:
+            req = ams.decode_request(h.command, pkt.data)
+        except ams.PayloadError as exc:
+            log.warning("conn %d %s: malformed command %d: %s", session.conn_id, session.peer,
+                        h.command, exc)
+            return pkt.reply(ams.error_response(h.command, ADSERR_DEVICE_INVALIDSIZE).encode())
+        session.devices_used.add(id(device))
+        resp = self._command(h.command, req, pkt, device, session)
+        return pkt.reply(resp.encode())
+
+    def _source(self, pkt: AmsPacket, session: Session) -> AdsSource:
+        src = pkt.header.source
+        may = session._may_write.get(src.net_id)
+        if may is None:
+            may = self.write_policy.may_write(src.net_id, session.peer_ip)
+            session._may_write[src.net_id] = may
+        return AdsSource(src.net_id, src.port, session.peer, session.conn_id, may)
+
+    def _command(self, cmd: int, req, pkt: AmsPacket, device: AdsDevice, session: Session):
+        if cmd == Command.READ_DEVICE_INFO:
+            major, minor, build = device.version
+            return ams.ReadDeviceInfoResponse(0, major & 0xFF, minor & 0xFF, build & 0xFFFF,
+                                              device.name)
+        if cmd == Command.READ_STATE:
+            try:
+                state, dev_state = device.read_state()
+                return ams.ReadStateResponse(0, state & 0xFFFF, dev_state & 0xFFFF)
+            except Exception as exc:  # the device's failure becomes the result, never a crash
+                return ams.ReadStateResponse(self._code(exc, device, "read_state"), 0, 0)
+        if cmd == Command.WRITE_CONTROL:
+            return ams.ResultOnly(ADSERR_DEVICE_SRVNOTSUPP)
+        if cmd == Command.ADD_DEVICE_NOTIFICATION:
+            return self._add_notification(req, pkt, device, session)
+        if cmd == Command.DEL_DEVICE_NOTIFICATION:
+            if session.subs.pop(req.handle, None) is None:
+                return ams.ResultOnly(ADSERR_DEVICE_NOTIFYHNDINVALID)
+            return ams.ResultOnly(0)
+        src = self._source(pkt, session)
+        if cmd == Command.READ:
+            code, data = self.read(device, req.group, req.offset, req.length, src, session)
+            return ams.DataResponse(code, data if code == 0 else b"")
+        if cmd == Command.WRITE:
+            return ams.ResultOnly(self.write(device, req.group, req.offset, req.data, src, session))
+        if cmd == Command.READ_WRITE:
+            code, data = self.read_write(device, req.group, req.offset, req.read_length, req.data,
+                                         src, session)
+            return ams.DataResponse(code, data if code == 0 else b"")
+        return ams.error_response(cmd, ADSERR_DEVICE_SRVNOTSUPP)  # pragma: no cover (guarded above)
+
+    @staticmethod
+    def _code(exc: Exception, device: AdsDevice, what: str) -> int:
+        if isinstance(exc, AdsError):
+            return exc.code
+        log.error("device %s: %s raised %r (answered 0x700)", getattr(device, "name", device), what,
+                  exc, exc_info=exc)
+        return ADSERR_DEVICE_ERROR
+
+    # -- symbols -------------------------------------------------------------------------------------
+    def _lookup(self, device: AdsDevice, name: str) -> tuple[str, Symbol] | None:
+        table = device.symbols()
+        sym = table.get(name)
+        if sym is not None:
+            return name, sym
+        cached = self._sym_index.get(id(device))
+        if cached is None or cached[0] is not table:
+            index = {k.lower(): (k, v) for k, v in table.items()}
+            self._sym_index[id(device)] = (table, index)
+        else:
+            index = cached[1]
+        return index.get(name.lower())
+
+    @staticmethod
+    def _name(data: bytes) -> str:
+        return data.split(b"\0", 1)[0].decode("latin-1")
+
+    def _handle_symbol(self, session: Session, handle: int) -> tuple[AdsDevice, str, Symbol] | None:
+        with session.lock:
+            return session.sym_handles.get(handle)
+
+    # -- reads and writes (also the sub-commands of sum commands) ------------------------------------
+    def read(self, device: AdsDevice, group: int, offset: int, length: int, src: AdsSource,
+             session: Session) -> tuple[int, bytes]:
+        """(result, data) of an ADS Read; data never longer than `length`."""
+        if group == ams.IG_SYM_VALBYHND:
+            entry = self._handle_symbol(session, offset)
+            if entry is None:
+                return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
+            dev, _, sym = entry
+            if length > sym.size:
+                return ADSERR_DEVICE_INVALIDSIZE, b""
+            device, group, offset = dev, sym.group, sym.offset
+        elif group in (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE,
+                       ams.IG_SYM_HNDBYNAME, ams.IG_SYM_RELEASEHND, ams.IG_SYM_INFOBYNAMEEX,
+                       ams.IG_SYM_VALBYNAME):
+            return ADSERR_DEVICE_SRVNOTSUPP, b""
+        try:
+            data = bytes(device.read(group, offset, length, src))
+        except Exception as exc:
+            return self._code(exc, device, f"read 0x{group:X}/0x{offset:X}"), b""
+        if len(data) > length:
+            log.warning("device %s: read 0x%X/0x%X returned %d bytes for %d asked; truncated",
+                        device.name, group, offset, len(data), length)
+            data = data[:length]
+        return 0, data
+
+    def write(self, device: AdsDevice, group: int, offset: int, data: bytes, src: AdsSource,
+              session: Session) -> int:
+        if group == ams.IG_SYM_RELEASEHND:
+            handle = _U32.unpack(data)[0] if len(data) == 4 else offset if not data else None
+            if handle is None:
+                return ADSERR_DEVICE_INVALIDSIZE
+            with session.lock:
+                return 0 if session.sym_handles.pop(handle, None) else ADSERR_DEVICE_SYMBOLNOTFOUND
+        if group in (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE,
+                     ams.IG_SYM_HNDBYNAME, ams.IG_SYM_INFOBYNAMEEX, ams.IG_SYM_VALBYNAME):
+            return ADSERR_DEVICE_SRVNOTSUPP
+        if not src.may_write:
+            return ADSERR_DEVICE_ACCESSDENIED
+        if group == ams.IG_SYM_VALBYHND:
+            entry = self._handle_symbol(session, offset)
+            if entry is None:
+                return ADSERR_DEVICE_SYMBOLNOTFOUND
+            dev, _, sym = entry
+            if len(data) > sym.size:
+                return ADSERR_DEVICE_INVALIDSIZE
+            device, group, offset = dev, sym.group, sym.offset
+        try:
+            device.write(group, offset, data, src)
+        except Exception as exc:
+            return self._code(exc, device, f"write 0x{group:X}/0x{offset:X}")
+        return 0
+
+    def read_write(self, device: AdsDevice, group: int, offset: int, length: int, data: bytes,
+                   src: AdsSource, session: Session) -> tuple[int, bytes]:
+        if group == ams.IG_SYM_HNDBYNAME:
+            found = self._lookup(device, self._name(data))
+            if found is None:
+                return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
+            if length < 4:
+                return ADSERR_DEVICE_INVALIDSIZE, b""
+            with session.lock:
+                if len(session.sym_handles) >= MAX_SYMBOL_HANDLES:
+                    return ADSERR_DEVICE_NOMOREHDLS, b""
+                handle = next(session._next_sym)
+                session.sym_handles[handle] = (device, found[0], found[1])
+            return 0, _U32.pack(handle)
+        if group == ams.IG_SYM_INFOBYNAMEEX:
+            found = self._lookup(device, self._name(data))
+            if found is None:
+                return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
+            entry = encode_symbol_entry(*found)
+            if len(entry) > length:
+                return ADSERR_DEVICE_INVALIDSIZE, b""
+            return 0, entry
+        if group == ams.IG_SYM_VALBYNAME:
+            found = self._lookup(device, self._name(data))
+            if found is None:
+                return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
+            sym = found[1]
+            if length > sym.size:
+                return ADSERR_DEVICE_INVALIDSIZE, b""
+            return self.read(device, sym.group, sym.offset, length, src, session)
+        if group in (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE):
+            return self._sum(device, group, offset, length, data, src, session)
+        if group in (ams.IG_SYM_VALBYHND, ams.IG_SYM_RELEASEHND):
+            return ADSERR_DEVICE_SRVNOTSUPP, b""
+        try:
+            out = bytes(device.read_write(group, offset, length, data, src))
+        except Exception as exc:
+            return self._code(exc, device, f"read_write 0x{group:X}/0x{offset:X}"), b""
+        if len(out) > length:
+            log.warning("device %s: read_write 0x%X/0x%X returned %d bytes for %d asked; truncated",
+                        device.name, group, offset, len(out), length)
+            out = out[:length]
+        return 0, out
+
+    def _sum(self, device: AdsDevice, group: int, count: int, length: int, data: bytes,
+             src: AdsSource, session: Session) -> tuple[int, bytes]:
+        if count > MAX_SUM_COMMANDS:
+            log.warning("conn %d: sum command 0x%X with %d sub-commands (limit %d)", session.conn_id,
+                        group, count, MAX_SUM_COMMANDS)
+            return ADSERR_DEVICE_INVALIDSIZE, b""
+        try:
+            if group == ams.IG_SUMUP_READ:
+                items = ams.decode_sum_read(count, data)
+                if length < 4 * count + sum(i.length for i in items):
+                    return ADSERR_DEVICE_INVALIDSIZE, b""
+                results = [self.read(device, i.group, i.offset, i.length, src, session) for i in items]
+                return 0, ams.encode_sum_read_response(results, [i.length for i in items])
+            if group == ams.IG_SUMUP_WRITE:
+                witems = ams.decode_sum_write(count, data)
+                if length < 4 * count:
+                    return ADSERR_DEVICE_INVALIDSIZE, b""
+                codes = [self.write(device, i.group, i.offset, i.data, src, session) for i in witems]
+                return 0, ams.encode_sum_results(codes)
+            rwitems = ams.decode_sum_read_write(count, data)
+            if length < 8 * count + sum(i.read_length for i in rwitems):
+                return ADSERR_DEVICE_INVALIDSIZE, b""
+            rw = []
+            for i in rwitems:
+                code, out = self.read_write(device, i.group, i.offset, i.read_length, i.data, src,
+                                            session)
+                rw.append((code, out if code == 0 else b""))
+            return 0, ams.encode_sum_read_write_response(rw)
+        except ams.PayloadError as exc:
+            log.warning("conn %d: malformed sum command 0x%X: %s", session.conn_id, group, exc)
+            return ADSERR_DEVICE_INVALIDSIZE, b""
+
+    # -- notifications --------------------------------------------------------------------------------
+    def _add_notification(self, req: ams.AddNotificationRequest, pkt: AmsPacket, device: AdsDevice,
+                          session: Session) -> ams.AddNotificationResponse:
+        if req.trans_mode not in (ams.TRANS_SERVERCYCLE, ams.TRANS_SERVERONCHA):
+            return ams.AddNotificationResponse(ADSERR_DEVICE_TRANSMODENOTSUPP, 0)
+        if not 0 < req.length <= MAX_NOTIFICATION_LENGTH:
+            return ams.AddNotificationResponse(ADSERR_DEVICE_INVALIDSIZE, 0)
+        if len(session.subs) >= MAX_NOTIFICATIONS:
+            return ams.AddNotificationResponse(ADSERR_DEVICE_NOMOREHDLS, 0)
+        group, offset, dev = req.group, req.offset, device
+        if group == ams.IG_SYM_VALBYHND:
+            entry = self._handle_symbol(session, offset)
+            if entry is None:
+                return ams.AddNotificationResponse(ADSERR_DEVICE_SYMBOLNOTFOUND, 0)
+            dev, _, sym = entry
+            if req.length > sym.size:
+                return ams.AddNotificationResponse(ADSERR_DEVICE_INVALIDSIZE, 0)
+            group, offset = sym.group, sym.offset
+        elif group >= 0xF000:
+            return ams.AddNotificationResponse(ADSERR_DEVICE_SRVNOTSUPP, 0)
+        try:
+            dev.sample(group, offset, req.length)   # can it be notified? (its code if not)
+        except Exception as exc:
+            return ams.AddNotificationResponse(self._code(exc, dev, "sample"), 0)
+        ticks = max(1, round(req.cycle_time * 1e-7 / self.tick_s))
+        handle = next(self._handles) & 0xFFFFFFFF or next(self._handles)
+        session.subs[handle] = Subscription(
+            handle, pkt.header.source, pkt.header.target, dev, group, offset, req.length,
+            req.trans_mode, ticks, self.clock() + FIRST_SAMPLE_DELAY_S)
+        return ams.AddNotificationResponse(0, handle)
+
+    def collect(self, session: Session, tick: int, now: float, filetime: int) -> list[bytes]:
+        """The DeviceNotification frames due for `session` at tick number `tick` (monotonic `now`)."""
+        batches: dict[tuple[AmsAddr, AmsAddr], list[ams.Sample]] = {}
+        for sub in list(session.subs.values()):
+            if now < sub.not_before or tick < sub.next_tick:
+                continue
+            sub.next_tick = tick + sub.cycle_ticks
+            try:
+                data = bytes(sub.device.sample(sub.group, sub.offset, sub.length))
+            except AdsError:
+                continue          # not available this tick (e.g. the NC went away): nothing to send
+            except Exception as exc:
+                log.error("device %s: sample raised %r", sub.device.name, exc, exc_info=exc)
+                continue
+            if len(data) != sub.length:   # pitfall 4: exactly the subscribed size
+                data = data[:sub.length].ljust(sub.length, b"\0")
+            if sub.trans_mode == ams.TRANS_SERVERONCHA and data == sub.last:
+                continue
+            sub.last = data
+            batches.setdefault((sub.client, sub.server), []).append(ams.Sample(sub.handle, data))
+        frames = []
+        for (client, server), samples in batches.items():
+            chunk: list[ams.Sample] = []
+            size = 0
+            for s in samples:
+                chunk.append(s)
+                size += 8 + len(s.data)
+                if size >= MAX_NOTIFICATION_FRAME:
+                    frames.append(self._frame(client, server, filetime, chunk))
+                    chunk, size = [], 0
+            if chunk:
+                frames.append(self._frame(client, server, filetime, chunk))
+        return frames
+
+    @staticmethod
+    def _frame(client: AmsAddr, server: AmsAddr, filetime: int, samples: list[ams.Sample]) -> bytes:
+        body = ams.DeviceNotification((ams.Stamp(filetime, tuple(samples)),)).encode()
+        return AmsPacket.build(client, server, Command.DEVICE_NOTIFICATION, body,
+                               state_flags=ams.FLAGS_REQUEST).encode()
+
+
+class AdsServer:
+    """AMS/TCP server in its own thread and event loop. `devices` maps AMS ports to devices (one device
+    may serve several ports, e.g. {500: nc, 501: nc}). `listen` is (host, port); port 0 picks a free one
+    (`bound_address` tells which). `start()` returns once listening (OSError if it cannot bind)."""
+
+    def __init__(self, devices: Mapping[int, AdsDevice], net_id: str, listen: tuple[str, int],
+                 write_policy: WritePolicy | None = None, strict_netid: bool = True, *,
+                 tick_ms: float = DEFAULT_TICK_MS, max_workers: int = 8) -> None:
+        if not devices:
+            raise ValueError("AdsServer needs at least one AMS port with a device")
+        if tick_ms < MIN_TICK_MS:
+            raise ValueError(f"tick_ms must be >= {MIN_TICK_MS}, got {tick_ms}")
+        self.tick_s = tick_ms / 1000
+        self.dispatcher = Dispatcher(devices, net_id, write_policy or WritePolicy(), strict_netid,
+                                     self.tick_s)
+        self.net_id = net_id
+        self.listen = listen
+        self._pool = concurrent.futures.ThreadPoolExecutor(max_workers, thread_name_prefix="nc-ads")
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._server: asyncio.base_events.Server | None = None
+        self._sessions: dict[int, tuple[Session, asyncio.StreamWriter]] = {}
+        self._tasks: set[asyncio.Task] = set()
+        self._conn_ids = itertools.count(1)
+        self._bound: tuple[str, int] | None = None
+        self._stopping = False
+
+    @property
+    def bound_address(self) -> tuple[str, int]:
+        if self._bound is None:
+            raise RuntimeError("AdsServer not started")
+        return self._bound
+
+    @property
+    def connection_count(self) -> int:
+        return len(self._sessions)
+
+    def subscription_count(self) -> int:
+        return sum(len(s.subs) for s, _ in list(self._sessions.values()))
+
+    # -- lifecycle ----------------------------------------------------------------------------------
+    def start(self) -> None:
+        ready = threading.Event()
+        error: list[BaseException] = []
+
+        def run() -> None:
+            loop = asyncio.new_event_loop()
+            self._loop = loop
+            try:
+                loop.run_until_complete(self._open())
+            except BaseException as exc:
+                error.append(exc)
+                ready.set()
+                loop.close()
+                return
+            ready.set()
+            try:
+                loop.run_forever()
+            finally:
+                loop.run_until_complete(loop.shutdown_asyncgens())
+                loop.close()
+
+        self._thread = threading.Thread(target=run, name="nc-ads-server", daemon=True)
+        self._thread.start()
+        ready.wait()
+        if error:
+            self._thread.join()
+            self._pool.shutdown(wait=False)
+            raise error[0]
+        log.info("ADS server %s listening on %s:%d, AMS ports %s", self.net_id, *self._bound,
+                 sorted(self.dispatcher.devices))
+
+    async def _open(self) -> None:
+        host, port = self.listen
+        self._server = await asyncio.start_server(self._serve, host, port, reuse_address=True,
+                                                  limit=1 << 16)
+        sock = self._server.sockets[0]
+        self._bound = sock.getsockname()[:2]
+        self._spawn(self._notifier())
+
+    def _spawn(self, coro) -> asyncio.Task:
+        task = asyncio.get_running_loop().create_task(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    def close(self) -> None:
+        """Stop listening, close every connection, wait for running device calls (bounded by the
+        devices' own timeouts). Idempotent."""
+        loop, thread = self._loop, self._thread
+        if loop is None or thread is None or self._stopping:
+            return
+        self._stopping = True
+        if thread.is_alive():
+            try:
+                fut = asyncio.run_coroutine_threadsafe(self._shutdown(), loop)
+                fut.result(timeout=10)
+            except (concurrent.futures.TimeoutError, RuntimeError):
+                log.warning("ADS server shutdown timed out")
+            loop.call_soon_threadsafe(loop.stop)
+            thread.join(timeout=10)
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    async def _shutdown(self) -> None:
+        if self._server is not None:
+            self._server.close()
+        for session, writer in list(self._sessions.values()):
+            writer.close()
+        tasks = [t for t in self._tasks if t is not asyncio.current_task()]
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    def __enter__(self) -> AdsServer:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- connections --------------------------------------------------------------------------------
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        if task is not None:
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+        peername = writer.get_extra_info("peername") or ("?", 0)
+        peer = f"{peername[0]}:{peername[1]}"
+        if len(self._sessions) >= MAX_CONNECTIONS or self._stopping:
+            log.warning("refusing ADS connection from %s: %d connections open (limit %d)", peer,
+                        len(self._sessions), MAX_CONNECTIONS)
+            writer.close()
+            return
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            try:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            except OSError:
+                pass
+        session = Session(next(self._conn_ids), peer)
+        self._sessions[session.conn_id] = (session, writer)
+        log.info("ADS connection %d from %s", session.conn_id, peer)
+        assembler = ams.FrameAssembler()
+        inflight = asyncio.Semaphore(MAX_INFLIGHT_PER_CONNECTION)
+        pending: set[asyncio.Future] = set()
+        loop = asyncio.get_running_loop()
+        try:
+            while True:
+                chunk = await reader.read(65536)
+                if not chunk:
+                    break
+                try:
+                    packets = assembler.feed(chunk)
+                except ams.FrameError as exc:
+                    log.warning("ADS connection %d from %s: %s; closing it", session.conn_id, peer, exc)
+                    break
+                for pkt in packets:
+                    if self.dispatcher.runs_inline(pkt):
+                        self._send(writer, self._safe_handle(pkt, session))
+                        continue
+                    await inflight.acquire()
+                    fut = loop.run_in_executor(self._pool, self._safe_handle, pkt, session)
+                    pending.add(fut)
+
+                    def done(f: asyncio.Future, pkt=pkt) -> None:
+                        pending.discard(f)
+                        inflight.release()
+                        if not f.cancelled() and f.exception() is None:
+                            self._send(writer, f.result())
+                    fut.add_done_callback(done)
+                if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER:
+                    await writer.drain()   # a client that sends but does not read: stop reading it
+        except (ConnectionError, OSError) as exc:
+            log.info("ADS connection %d from %s: %s", session.conn_id, peer, exc)
+        except asyncio.CancelledError:
+            pass
+        finally:
+            self._sessions.pop(session.conn_id, None)
+            session.subs.clear()
+            with session.lock:
+                session.sym_handles.clear()
+            writer.close()
+            if pending:
+                await asyncio.gather(*pending, return_exceptions=True)
+            log.info("ADS connection %d from %s closed", session.conn_id, peer)
+            self._connection_closed(session)
+
+    def _connection_closed(self, session: Session) -> None:
+        devices = {id(d): d for d in self.dispatcher.devices.values()
+                   if id(d) in session.devices_used}
+
+        def tell() -> None:
+            for d in devices.values():
+                try:
+                    d.connection_closed(session.conn_id)
+                except Exception as exc:
+                    log.error("device %s: connection_closed raised %r", d.name, exc, exc_info=exc)
+        if devices:
+            try:
+                self._pool.submit(tell)
+            except RuntimeError:   # pool already shut down (server closing)
+                tell()
+
+    def _safe_handle(self, pkt: AmsPacket, session: Session) -> AmsPacket | None:
+        try:
+            return self.dispatcher.handle(pkt, session)
+        except Exception as exc:    # a bug must not take the connection or the server down
+            log.error("conn %d: handling command %d raised %r", session.conn_id, pkt.header.command,
+                      exc, exc_info=exc)
+            if pkt.header.command in ams.RESPONSES and not pkt.header.is_response:
+                return pkt.reply(ams.error_response(pkt.header.command, ADSERR_DEVICE_ERROR).encode())
+            return None
+
+    @staticmethod
+    def _send(writer: asyncio.StreamWriter, reply: AmsPacket | None) -> None:
+        if reply is not None and not writer.is_closing():
+            writer.write(reply.encode())   # one write per frame: frames never interleave (pitfall 9)
+
+    # -- notifications ------------------------------------------------------------------------------
+    async def _notifier(self) -> None:
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+        tick = 0
+        while True:
+            tick += 1
+            deadline = start + tick * self.tick_s
+            delay = deadline - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            elif delay < -self.tick_s:   # late by more than a tick (loaded machine): skip, no burst
+                tick = int((loop.time() - start) / self.tick_s)
+            if not any(s.subs for s, _ in self._sessions.values()):
+                continue
+            now = time.monotonic()
+            filetime = ams.filetime_now()
+            for session, writer in list(self._sessions.values()):
+                if not session.subs or writer.is_closing():
+                    continue
+                if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER:
+                    if not session.throttled:
+                        log.warning("ADS connection %d from %s does not read: notifications paused",
+                                    session.conn_id, session.peer)
+                    session.throttled = True
+                    continue
+                session.throttled = False
+                try:
+                    frames = self.dispatcher.collect(session, tick, now, filetime)
+                except Exception as exc:
+                    log.error("notifications of connection %d: %r", session.conn_id, exc, exc_info=exc)
+                    continue
+                for frame in frames:
+                    writer.write(frame)
