@@ -89,6 +89,15 @@ def ads(nc: NcServerProcess, tmp_path_factory: pytest.TempPathFactory) -> Iterat
 
 
 @pytest.fixture(scope="module")
+def ads_op(nc: NcServerProcess, tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcAdsProcess]:
+    h = start_nc_ads(tmp_path_factory.mktemp("ads-op"), nc.endpoint, role="operator", client_id="ads-op")
+    try:
+        yield h
+    finally:
+        h.kill()
+
+
+@pytest.fixture(scope="module")
 def watcher(nc: NcServerProcess) -> Iterator[NcTestClient]:
     c = NcTestClient(nc.port, "watch", token=False)
     try:
@@ -187,9 +196,21 @@ def test_parameter_errors_change_nothing(plc: Any) -> None:
 
 
 # ---- motion through 0x4200, watched through a notification on 0x4100 ----------------------------------------
-def test_move_with_functions_watch_notification(plc: Any, watcher: NcTestClient) -> None:
-    axis = 2
+@pytest.fixture
+def plc_op(ads_op: NcAdsProcess) -> Iterator[Any]:
+    c = connect(ads_op)
+    try:
+        yield c
+    finally:
+        c.close()
+
+
+def test_move_with_functions_watch_notification(plc_op: Any, watcher: NcTestClient) -> None:
+    """As an operator: enable through 0x4300, move with 0x4200, watch it through a notification on 0x4100."""
+    plc, axis = plc_op, 2
     seen: list[float] = []
+    vmax = plc.read(0x4000 + axis, 0x27, pyads.PLCTYPE_LREAL)
+    assert ads_error(plc.write, 0x4000 + axis, 0x27, vmax, pyads.PLCTYPE_LREAL) == ACCESS_DENIED  # needs engineer
 
     @plc.notification(pyads.PLCTYPE_LREAL)
     def on_pos(handle: int, name: str, timestamp: Any, value: float) -> None:
@@ -201,7 +222,7 @@ def test_move_with_functions_watch_notification(plc: Any, watcher: NcTestClient)
         plc.write(0x4200 + axis, 0x01, None, None)  # reset (nothing to clear: accepted)
         plc.write(0x4300 + axis, 0x01, 0x7, pyads.PLCTYPE_UDINT)  # Enable + feed enables: claims the axis
         wait_until(lambda: state(plc, axis).StateDWord & BIT_CONTROL_LOOP_CLOSED, 20, "axis 2 enabled")
-        assert watcher.request("Info")["Value"]["claims"].get(axis) == "ads1"
+        assert watcher.request("Info")["Value"]["claims"].get(axis) == "ads-op"
         start = struct.pack("<I4xdd", 1, 37.5, 150.0)  # absolute start to 37.5 at 150 u/s
         plc.write(0x4200 + axis, 0x20, start, pyads.PLCTYPE_BYTE * len(start))
         wait_until(lambda: seen and seen[-1] == pytest.approx(37.5, abs=1e-6), 30, "the notification shows 37.5")
@@ -324,6 +345,10 @@ CLIENT = textwrap.dedent("""
     netid, host = sys.argv[1], sys.argv[2]
     plc = pyads.Connection(netid, 500, host)
     plc.open()
+    for _ in range(600):  # nc-ads answers 0x707 until the NC's first frame
+        if plc.read_state()[0] == pyads.ADSSTATE_RUN:
+            break
+        time.sleep(0.05)
     plc.write(0x4301, 0x01, 7, pyads.PLCTYPE_UDINT)
     for _ in range(400):
         if struct.unpack_from("<I", bytes(plc.read(0x4101, 0, pyads.PLCTYPE_BYTE * 256)), 104)[0] & (1 << 20):
@@ -355,5 +380,39 @@ def test_client_gone_releases_claim_and_stops(tmp_path: Path) -> None:
     finally:
         client.kill()
         watch.close()
+        ads1.kill()
+        nc1.kill()
+
+
+# ---- axes above 255 have no index group -------------------------------------------------------------------------
+BIG_IDS = """
+[nc]
+name = "nc1"
+cycle_time = 0.001
+[zenoh]
+listen = ["tcp/127.0.0.1:7447"]
+[[axis]]
+AxisId = 7
+Name = "Small"
+[[axis]]
+AxisId = 300
+Name = "Big"
+"""
+
+
+def test_axes_above_255_are_left_out(tmp_path: Path) -> None:
+    nc1 = start_nc_server(tmp_path / "nc", config_text=BIG_IDS)
+    ads1 = start_nc_ads(tmp_path / "ads", nc1.endpoint, role="observer")
+    try:
+        plc = connect(ads1)
+        try:
+            assert plc.read(0x1100, 0x03, pyads.PLCTYPE_UDINT) == 1
+            assert list(plc.read(0x1100, 0x33, pyads.PLCTYPE_UDINT * 1)) == [7]
+            assert plc.read(0x4007, 0x02, pyads.PLCTYPE_STRING) == "Small"
+            assert ads_error(plc.read, 0x4000 + (300 & 0xFF), 0x27, pyads.PLCTYPE_LREAL) == 0x702  # 0x402C: no axis 44
+        finally:
+            plc.close()
+        wait_until(lambda: "axis 300 has no ADS index group" in ads1.stderr(), 10, "the log line about axis 300")
+    finally:
         ads1.kill()
         nc1.kill()
