@@ -82,7 +82,13 @@ class Command(IntEnum):
 
 
 class FrameError(ValueError):
-    """The TCP byte stream cannot be cut into AMS frames (the connection must be closed)."""
+    """The TCP byte stream cannot be cut into AMS frames (the connection must be closed).
+    `packets`: the whole frames that came before the bad one in the same `feed` call (so the result does
+    not depend on how the stream was cut into reads)."""
+
+    def __init__(self, message: str, packets: list[AmsPacket] | None = None) -> None:
+        super().__init__(message)
+        self.packets: list[AmsPacket] = packets or []
 
 
 class PayloadError(ValueError):
@@ -195,7 +201,8 @@ def decode_frame(frame: bytes) -> AmsPacket:
 
 class FrameAssembler:
     """TCP reassembly: `feed(chunk)` returns every packet completed by the bytes so far (any split or
-    merge of frames over reads). After a `FrameError` the stream is lost: every later feed raises too."""
+    merge of frames over reads). A bad frame raises `FrameError` (with the packets before it in
+    `.packets`); after that the stream is lost: every later feed raises too (with no packets)."""
 
     def __init__(self, max_length: int = MAX_FRAME_LENGTH) -> None:
         self._buf = bytearray()
@@ -231,9 +238,9 @@ class FrameAssembler:
                 out.append(AmsPacket(header, bytes(buf[start + AMS_HEADER_SIZE:end])))
                 pos = end
         except FrameError as exc:
-            self._broken = exc
+            self._broken = FrameError(str(exc))
             self._buf = bytearray()
-            raise
+            raise FrameError(str(exc), out) from None
         del buf[:pos]
         return out
 

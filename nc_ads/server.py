@@ -30,8 +30,8 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
 - Symbols (0xF003 handle by name, 0xF004 value by name, 0xF005 value by handle, 0xF006 release, 0xF009
   info by name ex) come from `device.symbols()`; names match exactly, else case-insensitively (TwinCAT
   names are case-insensitive). Handles belong to the connection, at most `MAX_SYMBOL_HANDLES` (4096)
-  per connection (then 0x716), freed when it closes; an unknown handle gets 0x710. Reading/writing more
-  bytes than the symbol's size gets 0x705.
+  per connection (then 0x716), freed when it closes; an unknown handle gets 0x710. A read longer than
+  the symbol gets the symbol's bytes (pyads reads a STRING with 1024); a write longer than it gets 0x705.
 - Sum commands: ReadWrite on 0xF080 (read), 0xF081 (write), 0xF082 (read-write), index offset = number
   of sub-commands, at most `MAX_SUM_COMMANDS` (500, pyads's chunk size); more, a read length too small for
   the reply, or a malformed sub-command list -> 0x705 for the whole request. Each sub-command has its own
@@ -49,7 +49,8 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   (group, offset) the device cannot sample -> the device's code. At most `MAX_NOTIFICATIONS`
   (1024) per connection (then 0x716); an unknown handle on delete -> 0x714. A connection's
   subscriptions end when it closes. A client that does not read its socket gets no samples while more
-  than `MAX_WRITE_BUFFER` (8 MiB) wait to be sent to it.
+  than `MAX_WRITE_BUFFER` / 4 (2 MiB) wait to be sent to it, and its requests are not read while more
+  than `MAX_WRITE_BUFFER` (8 MiB) wait (until half of that is sent); other connections go on.
 - At most `MAX_CONNECTIONS` (256) TCP connections at once; more are closed at once and logged.
 """
 from __future__ import annotations
@@ -319,9 +320,8 @@ class Dispatcher:
             if entry is None:
                 return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
             dev, _, sym = entry
-            if length > sym.size:
-                return ADSERR_DEVICE_INVALIDSIZE, b""
-            device, group, offset = dev, sym.group, sym.offset
+            # like TwinCAT: a longer read gets the symbol's bytes (pyads reads STRINGs with 1024)
+            device, group, offset, length = dev, sym.group, sym.offset, min(length, sym.size)
         elif group in (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE,
                        ams.IG_SYM_HNDBYNAME, ams.IG_SYM_RELEASEHND, ams.IG_SYM_INFOBYNAMEEX,
                        ams.IG_SYM_VALBYNAME):
@@ -390,9 +390,7 @@ class Dispatcher:
             if found is None:
                 return ADSERR_DEVICE_SYMBOLNOTFOUND, b""
             sym = found[1]
-            if length > sym.size:
-                return ADSERR_DEVICE_INVALIDSIZE, b""
-            return self.read(device, sym.group, sym.offset, length, src, session)
+            return self.read(device, sym.group, sym.offset, min(length, sym.size), src, session)
         if group in (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE):
             return self._sum(device, group, offset, length, data, src, session)
         if group in (ams.IG_SYM_VALBYHND, ams.IG_SYM_RELEASEHND):
@@ -662,11 +660,12 @@ class AdsServer:
                 chunk = await reader.read(65536)
                 if not chunk:
                     break
+                broken: ams.FrameError | None = None
                 try:
                     packets = assembler.feed(chunk)
                 except ams.FrameError as exc:
                     log.warning("ADS connection %d from %s: %s; closing it", session.conn_id, peer, exc)
-                    break
+                    broken, packets = exc, exc.packets   # answer the whole frames before it, then close
                 for pkt in packets:
                     if self.dispatcher.runs_inline(pkt):
                         self._send(writer, self._safe_handle(pkt, session))
@@ -681,8 +680,14 @@ class AdsServer:
                         if not f.cancelled() and f.exception() is None:
                             self._send(writer, f.result())
                     fut.add_done_callback(done)
+                if broken is not None:
+                    break
                 if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER:
-                    await writer.drain()   # a client that sends but does not read: stop reading it
+                    # a client that sends but does not read: stop reading it until half is sent
+                    # (not drain(): it waits for a low-water mark notifications may never let it reach)
+                    while (writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER // 2
+                           and not writer.is_closing()):
+                        await asyncio.sleep(0.005)
         except (ConnectionError, OSError) as exc:
             log.info("ADS connection %d from %s: %s", session.conn_id, peer, exc)
         except asyncio.CancelledError:
@@ -749,7 +754,7 @@ class AdsServer:
             for session, writer in list(self._sessions.values()):
                 if not session.subs or writer.is_closing():
                     continue
-                if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER:
+                if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER // 4:
                     if not session.throttled:
                         log.warning("ADS connection %d from %s does not read: notifications paused",
                                     session.conn_id, session.peer)

@@ -2,11 +2,11 @@
 
 Its table (all little-endian):
 - 0x4001/0x01  UDINT axis id (1), read-only
-- 0x4001/0x02  STRING(31) name, 32 bytes, read/write
+- 0x4001/0x02  STRING(31) name, 32 bytes, read/write (shorter writes allowed: the rest is zeroed)
 - 0x4001/0x27  LREAL MaxVelocity (1234.5), read/write
 - 0x4101/0x00  256-byte state struct, read-only; `step()` increments the LREAL at byte 16 (SetPos)
 - 0x4101/0x0A  LREAL SetPos (the same value), read-only
-- 0x4002/8*i   LREAL GVL.v<i> = 1.5*i, i in 0..N_VALUES-1, read/write
+- 0x4002/8*i   LREAL GVL.v<i> = 1.5*i, i in 0..n_values-1 (default N_VALUES = 600), read/write
 - ReadWrite 0x4201/any: returns the written bytes reversed (at most the read length)
 Other groups -> 0x702, other offsets -> 0x703, wrong sizes -> 0x705, read-only -> 0x704, writes from a
 source without `may_write` -> 0x723. `errors[(group, offset)] = code` makes reads/writes there fail with
@@ -35,7 +35,7 @@ class FakeDevice(AdsDevice):
     name = "FakeNC"
     version = (3, 1, 4024)
 
-    def __init__(self) -> None:
+    def __init__(self, n_values: int = N_VALUES) -> None:
         self.lock = threading.Lock()
         # (group, offset) -> [bytearray value, writable]
         self.mem: dict[tuple[int, int], list] = {
@@ -44,7 +44,7 @@ class FakeDevice(AdsDevice):
             (0x4001, 0x27): [bytearray(struct.pack("<d", 1234.5)), True],
             (0x4101, 0x00): [bytearray(STATE_SIZE), False],
         }
-        for i in range(N_VALUES):
+        for i in range(n_values):
             self.mem[(0x4002, 8 * i)] = [bytearray(struct.pack("<d", 1.5 * i)), True]
         self.groups = {g for g, _ in self.mem} | {0x4201}
         self.errors: dict[tuple[int, int], int] = {}
@@ -60,7 +60,7 @@ class FakeDevice(AdsDevice):
             "MAIN.sName": Symbol(0x4001, 0x02, 32, "STRING(31)"),
             "MAIN.stState": Symbol(0x4101, 0x00, STATE_SIZE, "NCAXISSTATE_ONLINESTRUCT"),
         }
-        for i in range(N_VALUES):
+        for i in range(n_values):
             self._symbols[f"GVL.v{i}"] = Symbol(0x4002, 8 * i, 8, "LREAL")
 
     # -- test controls ----------------------------------------------------------------------------
@@ -91,9 +91,6 @@ class FakeDevice(AdsDevice):
         code = self.errors.get((group, offset))
         if code is not None:
             raise AdsError(code)
-        delay = self.delays.get((group, offset))
-        if delay:
-            time.sleep(delay)
         if group == 0x4101 and offset == 0x0A:
             return [self.mem[(0x4101, 0)][0][16:24], False]
         if group not in self.groups:
@@ -103,7 +100,13 @@ class FakeDevice(AdsDevice):
             raise AdsError(ADSERR_DEVICE_INVALIDOFFSET)
         return cell
 
+    def _delay(self, group: int, offset: int) -> None:
+        delay = self.delays.get((group, offset))
+        if delay:
+            time.sleep(delay)   # outside the lock: other requests go on meanwhile
+
     def read(self, group: int, offset: int, length: int, src: AdsSource) -> bytes:
+        self._delay(group, offset)
         with self.lock:
             value, _ = self._cell(group, offset)
             if length > len(value):
@@ -113,11 +116,12 @@ class FakeDevice(AdsDevice):
     def write(self, group: int, offset: int, data: bytes, src: AdsSource) -> None:
         if not src.may_write:
             raise AdsError(ADSERR_DEVICE_ACCESSDENIED)
+        self._delay(group, offset)
         with self.lock:
             cell = self._cell(group, offset)
             if not cell[1]:
                 raise AdsError(ADSERR_DEVICE_INVALIDACCESS)
-            if len(data) > len(cell[0]) or (len(data) != len(cell[0]) and group != 0x4001):
+            if len(data) > len(cell[0]) or (len(data) != len(cell[0]) and (group, offset) != (0x4001, 0x02)):
                 raise AdsError(ADSERR_DEVICE_INVALIDSIZE)
             cell[0][:len(data)] = data
             cell[0][len(data):] = bytes(len(cell[0]) - len(data))
@@ -135,15 +139,8 @@ class FakeDevice(AdsDevice):
     def sample(self, group: int, offset: int, length: int) -> bytes:
         if group == 0x4201:
             raise AdsError(ADSERR_DEVICE_INVALIDACCESS)
-        with self.lock:
-            if (group, offset) in self.delays:   # sample never blocks: skip the delay
-                saved = self.delays.pop((group, offset))
-                try:
-                    value, _ = self._cell(group, offset)
-                finally:
-                    self.delays[(group, offset)] = saved
-            else:
-                value, _ = self._cell(group, offset)
+        with self.lock:   # never blocks: no delay here
+            value, _ = self._cell(group, offset)
             return bytes(value)
 
     def add_change_listener(self, cb: Callable[[], None]) -> None:

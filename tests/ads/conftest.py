@@ -4,7 +4,9 @@
   connects to 48898, so every test gets its own address instead of a free port).
 * ``fake_device``: a fresh ``nc_ads.testing.FakeDevice``.
 * ``ads_server``: an ``AdsServer`` serving ``fake_device`` on AMS ports 500 and 501 at ``ads_address``
-  (net id ``ads_testing.SERVER_NETID``), 2 ms tick; closed at teardown.
+  (net id ``netid_for(host)``, see ``server.net_id``), 2 ms tick; closed at teardown.
+* ``pyads_session``: factory ``pyads_session(server)`` -> ``PyadsSession`` (``.open(ams_port)`` gives
+  pyads Connections; notifications are deleted before close at teardown, pass or fail).
 * ``start_ads``: factory ``start_ads(devices=None, **server_kwargs)`` for other servers (same cleanup).
 """
 from __future__ import annotations
@@ -13,7 +15,7 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from ads_testing import SERVER_NETID, free_ads_address, start_server_on_free_address
+from ads_testing import PyadsSession, free_ads_address, netid_for, start_server_on_free_address
 from nc_ads.server import AdsServer
 from nc_ads.testing import FakeDevice
 
@@ -35,11 +37,11 @@ def start_ads(fake_device: FakeDevice) -> Iterator[Callable[..., AdsServer]]:
     def start(devices: Any = None, **kw: Any) -> AdsServer:
         kw.setdefault("tick_ms", 2.0)
         devs = devices if devices is not None else {500: fake_device, 501: fake_device}
-        net_id = kw.pop("net_id", SERVER_NETID)
+        net_id = kw.pop("net_id", None)
         port = kw.pop("port", 48898)
 
         def make(host: str) -> AdsServer:
-            s = AdsServer(devs, net_id, (host, port), **kw)
+            s = AdsServer(devs, net_id or netid_for(host), (host, port), **kw)
             s.start()
             return s
 
@@ -57,3 +59,20 @@ def start_ads(fake_device: FakeDevice) -> Iterator[Callable[..., AdsServer]]:
 @pytest.fixture
 def ads_server(start_ads: Callable[..., AdsServer]) -> AdsServer:
     return start_ads()
+
+
+@pytest.fixture
+def pyads_session(start_ads: Callable[..., AdsServer]) -> Iterator[Callable[[AdsServer], PyadsSession]]:
+    # depends on start_ads so that it is torn down first: notifications deleted while the server still runs
+    sessions: list[PyadsSession] = []
+
+    def make(server: AdsServer) -> PyadsSession:
+        s = PyadsSession(server)
+        sessions.append(s)
+        return s
+
+    try:
+        yield make
+    finally:
+        for s in sessions:
+            s.close()

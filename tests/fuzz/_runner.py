@@ -29,9 +29,9 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 #: the fuzz targets, ``tests/fuzz/fuzz_<name>.py``
-TARGETS: tuple[str, ...] = ("command", "plctonc", "keys", "client", "retain")
+TARGETS: tuple[str, ...] = ("command", "plctonc", "keys", "client", "retain", "ads")
 #: the project's packages (instrumented for coverage)
-PROJECT: list[str] = ["nc_schema", "nc_server", "plc_client"]
+PROJECT: list[str] = ["nc_schema", "nc_server", "plc_client", "nc_ads"]
 ROOT = Path(__file__).resolve().parents[2]
 #: default working folder of the runner (corpora, crash files): ignored by git (``build/``)
 WORK = ROOT / "build" / "fuzz"
