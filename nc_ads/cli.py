@@ -125,8 +125,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         while not stop.wait(0.2):
             pass
     finally:
+        device.close()  # first: the held axes are released in order (enables off, Release), then the ADS side
         server.close()
-        device.close()
     return 0
 
 

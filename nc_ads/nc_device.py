@@ -46,7 +46,8 @@ a live holder) until
 * the NC restarts (its cycle counter goes back or its liveliness token goes) or the NC reports that
   it no longer holds the axis (``nc/<nc>/claims``): the supply ends; nothing is re-enabled by itself.
 
-If nc-ads itself dies or freezes, the NC's own client-loss rules apply to all its axes (token gone /
+nc-ads stopping (SIGTERM/SIGINT, ``close()``) ends like plc-run: enables off for a few supply periods, then
+Release, no error. If nc-ads itself dies or freezes, the NC's own client-loss rules apply to all its axes (token gone /
 PLCTONC watchdog, ClientLossReaction).
 
 The NC unreachable: no status frame for ``stale_after`` seconds (or none yet) -> every request fails
@@ -414,6 +415,7 @@ class NcDevice(AdsDevice):
         self._pub: Any = None
         self._plc_cycle = 0
         self._closed = threading.Event()
+        self._closing = False
         self._threads: list[threading.Thread] = []
         self.frames_seen = 0
         self.bad_frames = 0
@@ -467,8 +469,10 @@ class NcDevice(AdsDevice):
 
     def close(self) -> None:
         """Stop supplying, close the session (ends the threads). Idempotent."""
-        if self._closed.is_set():
+        if self._closed.is_set() or self._closing:
             return
+        self._closing = True  # no new claims; a connection closing now is part of the shutdown, not a loss
+        self._shutdown_supplies()
         self._closed.set()
         s = self._session
         if s is not None:
@@ -479,6 +483,29 @@ class NcDevice(AdsDevice):
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(3)
+
+    def _shutdown_supplies(self) -> None:
+        """As plc-run's shutdown: PLCTONC with all enables off for a few supply periods, then Release
+        (skipped while the NC is unreachable: its own client-loss rules take over when the session ends)."""
+        with self._lock:
+            axes = sorted(self._supplies)
+            for sup in self._supplies.values():
+                struct.pack_into("<I", sup.record, 0, struct.unpack_from("<I", sup.record, 0)[0] & ~CONTROL_ENABLE_ALL)
+                sup.release_after = -1
+        if not axes:
+            return
+        try:
+            self.fresh_image()
+        except AdsError:
+            return
+        for _ in range(3):
+            try:
+                self._publish_supply()
+            except Exception:
+                break
+            time.sleep(self.supply_period)
+        for a in axes:
+            self._release(a, None)
 
     # ---- the cyclic image -------------------------------------------------------------------------------------
     def _frame_loop(self) -> None:
@@ -640,6 +667,8 @@ class NcDevice(AdsDevice):
         """
         self._allow("op", src)
         self.fresh_image()
+        if self._closing:
+            raise AdsError(ADSERR_DEVICE_NOTREADY, "nc-ads is shutting down")
         with self._claim_lock:
             with self._lock:
                 sup = self._supplies.get(axis)
@@ -663,6 +692,8 @@ class NcDevice(AdsDevice):
 
     def connection_closed(self, conn_id: int) -> None:
         """The TCP connection ended: each axis it supplied stops as for a lost client (see the module doc)."""
+        if self._closing:
+            return  # nc-ads is stopping: close() released everything in order
         with self._lock:
             mine = [(a, bool(struct.unpack_from("<I", s.record, 0)[0] & CONTROL_ENABLE))
                     for a, s in self._supplies.items() if s.conn_id == conn_id]

@@ -416,3 +416,24 @@ def test_axes_above_255_are_left_out(tmp_path: Path) -> None:
     finally:
         ads1.kill()
         nc1.kill()
+
+
+# ---- nc-ads stopping: an orderly end (enables off, release), no client-loss error -----------------------------
+def test_nc_ads_stop_releases_without_error(nc: NcServerProcess, watcher: NcTestClient, tmp_path: Path) -> None:
+    h = start_nc_ads(tmp_path, nc.endpoint, role="operator", client_id="ads-stop")
+    try:
+        plc = connect(h)
+        try:
+            plc.write(0x4303, 0x02, 1, pyads.PLCTYPE_UINT)  # controller enable alone (IO 0x02)
+            wait_until(lambda: state(plc, 3).StateDWord & BIT_CONTROL_LOOP_CLOSED, 20, "axis 3 enabled")
+            assert plc.read(0x4303, 0x01, pyads.PLCTYPE_UDINT) == 0x1
+            assert watcher.request("Info")["Value"]["claims"].get(3) == "ads-stop"
+            assert h.stop() == 0  # SIGTERM while the ADS connection is still open
+        finally:
+            plc.close()
+        wait_until(lambda: watcher.request("Info")["Value"]["claims"].get(3) is None, 20, "axis 3 released")
+        n = wait_until(lambda: (x := watcher.nctoplc(3)) is not None and
+                       not int(x["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED and x, 20, "axis 3 disabled")
+        assert int(n["ErrorCode"]) == 0
+    finally:
+        h.kill()
