@@ -692,14 +692,16 @@ class AdsServer:
             log.info("ADS connection %d from %s: %s", session.conn_id, peer, exc)
         except asyncio.CancelledError:
             pass
+        except Exception as exc:   # a bug in here ends this connection only, never the server
+            log.error("ADS connection %d from %s: %r; closing it", session.conn_id, peer, exc, exc_info=exc)
         finally:
             self._sessions.pop(session.conn_id, None)
             session.subs.clear()
             with session.lock:
                 session.sym_handles.clear()
-            writer.close()
-            if pending:
+            if pending:   # replies of requests already read still go out (then the close sends them)
                 await asyncio.gather(*pending, return_exceptions=True)
+            writer.close()
             log.info("ADS connection %d from %s closed", session.conn_id, peer)
             self._connection_closed(session)
 
