@@ -364,11 +364,13 @@ def test_client_gone_releases_claim_and_stops(tmp_path: Path) -> None:
     nc1 = start_nc_server(tmp_path / "nc")
     ads1 = start_nc_ads(tmp_path / "ads", nc1.endpoint, role="operator")
     watch = NcTestClient(nc1.port, "watch2", token=False)
+    err = open(tmp_path / "client.stderr", "w+")
     client = subprocess.Popen([sys.executable, "-c", CLIENT, ads1.netid, ads1.host], stdout=subprocess.PIPE,
-                              text=True, start_new_session=True)
+                              stderr=err, text=True, start_new_session=True)
     try:
         assert client.stdout is not None
-        assert client.stdout.readline().strip() == "moving"
+        line = client.stdout.readline().strip()
+        assert line == "moving", f"client: {line!r}\n{(tmp_path / 'client.stderr').read_text()}\n{ads1.stderr()}"
         wait_until(lambda: float(watch.nctoplc(1)["ActVelo"]) > 1.0, 20, "axis 1 moving")
         assert watch.request("Info")["Value"]["claims"].get(1) == "ads1"
         client.kill()  # the TCP connection ends without a goodbye
@@ -379,6 +381,8 @@ def test_client_gone_releases_claim_and_stops(tmp_path: Path) -> None:
         wait_until(lambda: not int(watch.nctoplc(1)["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED, 20, "axis 1 disabled")
     finally:
         client.kill()
+        client.wait(10)
+        err.close()
         watch.close()
         ads1.kill()
         nc1.kill()
