@@ -21,10 +21,6 @@ from typing import Sequence
 
 from ads_testing import free_ads_address
 
-#: pyads's default is 5 s; these tests want a failing request to be quick and a hang to show
-PYADS_TIMEOUT_MS = 5000
-
-
 class NcAdsProcess:
     """A running ``nc-ads`` (``python -m nc_ads.cli``) listening on ``host``:48898 with net id ``netid``."""
 

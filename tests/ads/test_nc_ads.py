@@ -9,7 +9,6 @@ Connection is closed (pyads segfaults otherwise, ads-bridge-notes pitfall 8).
 from __future__ import annotations
 
 import ctypes
-import math
 import struct
 import subprocess
 import sys
