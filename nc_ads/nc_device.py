@@ -748,7 +748,10 @@ class NcDevice(AdsDevice):
         waited = time.monotonic() - t0
         if waited >= 0.9 * self.query_timeout:
             raise AdsError(ADSERR_DEVICE_TIMEOUT, f"{cmd}: no reply from NC {self.nc} within {self.query_timeout:g} s")
-        raise AdsError(ADSERR_DEVICE_NOTREADY, f"{cmd}: NC {self.nc} not reachable (no reply)")
+        # zenoh ended the query at once: no route to the NC, or the router's access control denied it (a denied
+        # query is finalized without a reply; docs/roles.md): the two cannot be told apart from here
+        raise AdsError(ADSERR_DEVICE_NOTREADY, f"{cmd}: no reply (NC {self.nc} unreachable, or access control denied "
+                                               f"{self.client_id}'s query)")
 
     # ---- addressing -------------------------------------------------------------------------------------------
     def _axis(self, group: int) -> tuple[int, int]:
