@@ -78,6 +78,8 @@ CLAIMS_PERIOD = 1.0
 _HEADER = FRAME_HEADER_DTYPE.itemsize  # per-axis NCTOPLC records start here in a status frame
 _NREC = NCTOPLC_DTYPE.itemsize
 _PREC = PLCTONC_DTYPE.itemsize
+_PAREC = PLC_AXIS_RECORD_DTYPE.itemsize
+_PC_OFF = int(PLC_AXIS_RECORD_DTYPE.fields["PlcToNc"][1])  # the PLCTONC's offset in a PLC_AXIS_RECORD
 
 
 #: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
@@ -169,12 +171,18 @@ def decode_plctonc(payload: bytes | bytearray | memoryview, arrival: float, max_
     """
     if len(payload) > max_bytes:
         raise ValueError("more records than axes")
+    data = bytes(payload)
     # the header's PlcCycle is not used by the NC: the watchdog goes by arrival time
-    _, recs = decode_plc_frame(bytes(payload))
-    ids = recs["AxisId"]
-    if len(np.unique(ids)) != len(ids):
+    _, recs = decode_plc_frame(data)  # (checks magic, version, sizes)
+    n = len(recs)
+    ids = recs["AxisId"].copy()
+    if len(set(ids.tolist())) != n:
         raise ValueError("duplicate AxisId")
-    return PlcFrame(arrival, ids.copy(), recs["PlcToNc"].copy())
+    # the PLCTONC records through a byte view: copying a structured array of 22 fields field by field cost
+    # ~10x more (1600 frames a second from 16 clients: the NC cycle thread's largest input cost)
+    rows = np.frombuffer(data, dtype=np.uint8, count=n * _PAREC, offset=len(data) - n * _PAREC).reshape(n, _PAREC)
+    plctonc = np.ascontiguousarray(rows[:, _PC_OFF:_PC_OFF + _PREC]).view(PLCTONC_DTYPE).reshape(n)
+    return PlcFrame(arrival, ids, plctonc)
 
 
 def liveliness_client(keys: Keys, key: str) -> str | None:
