@@ -188,8 +188,7 @@ def run(args: argparse.Namespace) -> int:
           f"lateness p99 {fl[0]['late_p99_us']:.0f} us", flush=True)
 
     procs: list[subprocess.Popen[Any]] = []
-    nc_cmd = [sys.executable, os.environ["MANY_NC_PROBE"]] if os.environ.get("MANY_NC_PROBE") else [sys.executable, "-m", "nc_server.server.cli"]
-    nc = subprocess.Popen([*nc_cmd, "--config", str(cfg), "--listen", endpoint,
+    nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
                            "--log-level", "WARNING"], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
                           text=True, env=env, start_new_session=True)
     procs.append(nc)
