@@ -7,7 +7,7 @@ each move ended, and writes its report (JSON) to ``$MANY_REPORT`` about once a s
 ``$MANY_STOP`` exists it sends no new move, and once every move has ended it writes a final report
 with ``"final": true`` (then it idles until plc-run is stopped).
 
-Counted per axis: ``sent`` (moves whose request went to the NC), ``accepted`` / ``refused`` (their
+Counted per axis: ``started`` (rising edges of Execute), ``sent`` (moves whose request went to the NC), ``accepted`` / ``refused`` (their
 replies: error 0 / an error or none), ``done``,
 ``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``), the job records'
 ``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
@@ -106,7 +106,7 @@ class _Axis:
 
     def report(self) -> dict:
         cmdno = int(self.ax.NcJobs["NewestCmdNo"]) if self.ax.Status.Valid else None
-        return {"sent": self.sent, "accepted": self.accepted, "refused": self.refused, "pending": self.req is not None,
+        return {"started": self.k, "sent": self.sent, "accepted": self.accepted, "refused": self.refused, "pending": self.req is not None,
                 "done": self.done, "aborted": self.aborted, "errors": self.errors,
                 "cmdno0": self.cmdno0, "cmdno": cmdno, "invalid": self.invalid,
                 "max_unchanged": self.max_unchanged, "idle": not self.execute}

@@ -211,11 +211,12 @@ class NcCore:
 
     def set_plctonc_many(self, index: np.ndarray, records: np.ndarray) -> None:
         """Apply PLCTONC records to several axis rows at once (vectorized :meth:`set_plctonc`)."""
-        new = np.ascontiguousarray(records, dtype=PLCTONC_DTYPE)
+        new = np.ascontiguousarray(records, dtype=PLCTONC_DTYPE).view(np.uint8).reshape(-1, PLCTONC_DTYPE.itemsize)
         self.plctonc_arrived[index] = True
-        old = self.plctonc[index]
-        if old.tobytes() != new.tobytes():
-            self.plctonc[index] = new
+        # through byte views: indexing a structured array of 22 fields copies field by field (~10x slower)
+        rows = self.plctonc.view(np.uint8).reshape(len(self.plctonc), PLCTONC_DTYPE.itemsize)
+        if not np.array_equal(rows[index], new):
+            rows[index] = new
             self._in_dirty = True
 
     def execute(self, request: dict[str, Any], axis_id: int | None) -> dict[str, Any]:

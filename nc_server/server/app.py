@@ -26,7 +26,7 @@ from nc_server.security.acl import access_control
 
 from .claims import ClaimTable
 from .config import ServerConfig
-from .cycle import CycleLoop, configure_interpreter, raise_io_priority
+from .cycle import IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
 from .retain import RetainKeeper
 from .transport import IoThread, Outgoing, Transport, encode_frame_fast
@@ -95,7 +95,8 @@ class NcServer:
         self._arb_seen: tuple[int, int, int] = (-1, -1, -1)
         self._arb_built = 0.0
         self.io = IoThread(self.transport, self.stats, claims_source=lambda: self.claims_msg,
-                           cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads)
+                           cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads,
+                           nice=None if config.realtime == "off" else IO_THREAD_NICE)
         self._prev_tick = 0.0       # the cycle thread's last run (cycle start or idle slice) [s, monotonic]
         self._refuse_until = 0.0    # queries popped before this are refused (after a long stall) [s]
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
@@ -145,7 +146,8 @@ class NcServer:
             self.transport.close()
             raise
         self.started = True
-        log.info("cycle thread: %s; I/O and zenoh's threads: %s", self.loop.stats.timing_detail, io_priority)
+        log.info("cycle thread: %s; zenoh's threads: %s; I/O thread: %s", self.loop.stats.timing_detail, io_priority,
+                 self.io.priority)
 
     def load_retain(self) -> None:
         """Lock and read the retain file (if configured); the first cycle applies it (start() calls this).
@@ -352,7 +354,7 @@ class NcServer:
     def _take_liveliness(self, now: float | None = None) -> None:
         """Liveliness: PUT = client present, DELETE = gone (the watchdog reacts: CycleInputs)."""
         t = self.transport
-        if t.liveliness_events:
+        if t.take_liveliness():
             self._clients_dirty = True
             now = time.monotonic() if now is None else now
             for client, present in t.pop_liveliness():

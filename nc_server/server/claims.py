@@ -93,6 +93,8 @@ class ClaimTable:
         self.version = 0
         self._masks: dict[str, np.ndarray] = {}
         self._masks_version = -1
+        self._by_client_cache: tuple[dict[str, list[int]], dict[str, float]] = ({}, {})
+        self._by_client_version = -1
 
     # ---- liveliness -------------------------------------------------------------------------
     def client_alive(self, client: str) -> None:
@@ -247,13 +249,19 @@ class ClaimTable:
 
         Also forgets clients that are gone and hold nothing.
         """
-        by_client: dict[str, list[int]] = {}
-        for axis_id, cl in self._claims.items():
-            by_client.setdefault(cl.client, []).append(axis_id)
+        by_client, newest_since = self._by_client()
+        timeout = self.watchdog_timeout
         out: list[Loss] = []
+        gone = False
         for name, c in list(self._clients.items()):
+            # (runs every NC cycle) a live client heard from within the timeout, after its newest claim,
+            # cannot be late on any claim: each one's watchdog counts from that frame or later
+            last = c.last_plctonc
+            if c.alive and last is not None and now - last <= timeout and last >= newest_since.get(name, -math.inf):
+                continue
             axes = by_client.get(name, [])
             if not c.alive:
+                gone = True
                 if c.gone_at is None or self._excused(c.gone_at, now):
                     continue
                 c.gone_at = None
@@ -270,8 +278,21 @@ class ClaimTable:
         for loss in out:
             for a in (*loss.faulted, *loss.released):
                 self._drop(a)
-        self.forget_gone()
+        if gone:
+            self.forget_gone()
         return out
+
+    def _by_client(self) -> tuple[dict[str, list[int]], dict[str, float]]:
+        """(client -> AxisIds it holds, client -> its newest claim time [s]), cached until the claims change."""
+        if self._by_client_version != self.version:
+            by_client: dict[str, list[int]] = {}
+            newest: dict[str, float] = {}
+            for axis_id, cl in self._claims.items():
+                by_client.setdefault(cl.client, []).append(axis_id)
+                newest[cl.client] = max(newest.get(cl.client, -math.inf), cl.since)
+            self._by_client_cache = (by_client, newest)
+            self._by_client_version = self.version
+        return self._by_client_cache
 
     def forget_gone(self) -> list[str]:
         """Forget clients whose token is gone, whose loss was reported and that hold nothing."""

@@ -118,6 +118,11 @@ def set_realtime(mode: str, priority: int) -> tuple[str, str]:
 #: nice 0 on a loaded machine they waited behind every other process. (Not SCHED_FIFO: the I/O thread's
 #: puts wait for zenoh's transmit threads, which a real-time I/O thread would keep off the CPU.)
 IO_NICE = -10
+#: nice value of the NC's I/O thread (below IO_NICE: ahead of zenoh's threads). Its puts hold the GIL
+#: while zenoh copies a frame to every subscriber (~100-200 us for 16 clients); taken off the CPU
+#: meanwhile by zenoh's own routing threads (same nice), it kept the cycle thread from the GIL for
+#: milliseconds on a loaded 2-core machine (bench/many_clients.py).
+IO_THREAD_NICE = -15
 
 
 def raise_io_priority(mode: str, nice: int = IO_NICE) -> str:

@@ -450,7 +450,8 @@ class CycleInputs:
             sel = np.flatnonzero((idx >= 0) & (since[np.maximum(idx, 0)] <= f.arrival))
             if sel.size:
                 claims.plctonc_arrived(client, f.arrival)
-                self._set_plctonc(idx[sel], f.plctonc[sel])
+                # (all records apply in the usual case: no copy of the structured records)
+                self._set_plctonc(idx[sel], f.plctonc if sel.size == len(idx) else f.plctonc[sel])
 
     def watchdog(self, now: float) -> list[tuple[int, int]]:
         """React to the clients lost at ``now`` [s] (see the class docstring); review kept axes.

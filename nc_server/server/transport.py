@@ -5,9 +5,12 @@ takes SCHED_FIFO, so none inherits it):
 
 * zenoh's own Rust threads; matching listeners run on them (``Callback(indirect=False)``),
   they only flip a flag in a numpy array;
-* liveliness events and command queries are queued by callbacks on zenoh threads (a deque
-  append; a query also sets :attr:`Transport.query_event`, which the cycle thread waits on between
-  cycles, so a command is taken up at once instead of at the next poll);
+* liveliness events and command queries wait in zenoh channels (a FIFO and a ring) that the cycle
+  thread polls (``try_recv``) at each cycle start and each idle slice (every <= 0.5 ms): no Python
+  code runs on zenoh's threads for them. A Python callback there must take the GIL: the link's
+  receive task stands still until it has it, and the thread holding it then competes with the cycle
+  thread for the GIL (on a loaded 2-core machine such a holder was taken off the CPU for
+  milliseconds while the cycle thread waited to run: missed NC cycles, bench/many_clients.py);
 * PLCTONC frames wait in a zenoh ring channel; the cycle thread decodes them between cycles and
   before each cycle's inputs (:meth:`Transport.take_plctonc`), keeping only the newest one per
   client (:attr:`Transport.plc_inbox`);
@@ -25,6 +28,7 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import os
 import queue
 import struct
 import threading
@@ -34,7 +38,7 @@ from typing import Any, Callable
 
 import numpy as np
 import zenoh
-from zenoh.handlers import Callback, RingChannel
+from zenoh.handlers import Callback, FifoChannel, RingChannel
 
 from nc_schema import (
     FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
@@ -48,9 +52,12 @@ from .config import ZenohSettings
 
 log = logging.getLogger("nc_server.server")
 
-#: Pending queries kept (the cycle drains a bounded number per cycle); beyond, a query is finalized
-#: at once without a reply (its querier sees no answer) and counted in Transport.queries_refused.
+#: Pending queries kept (a ring channel; the cycle drains a bounded number per cycle); beyond, the
+#: oldest is dropped by zenoh, which finalizes it without a reply (its querier sees no answer).
 QUERY_CHANNEL = 1024
+#: Liveliness events kept until the cycle takes them (a FIFO channel: none may be lost; it is drained
+#: every <= 0.5 ms, so it is never near full: a full one would hold zenoh's receive task back).
+LIVELINESS_CHANNEL = 4096
 #: A PLCTONC sample's router stamp corrects its arrival time only if it is younger than this [s].
 HLC_MAX_AGE = 0.25
 #: Largest message the NC's zenoh session accepts [bytes].
@@ -71,6 +78,8 @@ CLAIMS_PERIOD = 1.0
 _HEADER = FRAME_HEADER_DTYPE.itemsize  # per-axis NCTOPLC records start here in a status frame
 _NREC = NCTOPLC_DTYPE.itemsize
 _PREC = PLCTONC_DTYPE.itemsize
+_PAREC = PLC_AXIS_RECORD_DTYPE.itemsize
+_PC_OFF = int(PLC_AXIS_RECORD_DTYPE.fields["PlcToNc"][1])  # the PLCTONC's offset in a PLC_AXIS_RECORD
 
 
 #: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
@@ -162,12 +171,18 @@ def decode_plctonc(payload: bytes | bytearray | memoryview, arrival: float, max_
     """
     if len(payload) > max_bytes:
         raise ValueError("more records than axes")
+    data = bytes(payload)
     # the header's PlcCycle is not used by the NC: the watchdog goes by arrival time
-    _, recs = decode_plc_frame(bytes(payload))
-    ids = recs["AxisId"]
-    if len(np.unique(ids)) != len(ids):
+    _, recs = decode_plc_frame(data)  # (checks magic, version, sizes)
+    n = len(recs)
+    ids = recs["AxisId"].copy()
+    if len(set(ids.tolist())) != n:
         raise ValueError("duplicate AxisId")
-    return PlcFrame(arrival, ids.copy(), recs["PlcToNc"].copy())
+    # the PLCTONC records through a byte view: copying a structured array of 22 fields field by field cost
+    # ~10x more (1600 frames a second from 16 clients: the NC cycle thread's largest input cost)
+    rows = np.frombuffer(data, dtype=np.uint8, count=n * _PAREC, offset=len(data) - n * _PAREC).reshape(n, _PAREC)
+    plctonc = np.ascontiguousarray(rows[:, _PC_OFF:_PC_OFF + _PREC]).view(PLCTONC_DTYPE).reshape(n)
+    return PlcFrame(arrival, ids, plctonc)
 
 
 def liveliness_client(keys: Keys, key: str) -> str | None:
@@ -237,13 +252,14 @@ class Transport:
         #: clients holding an axis (replaced by the cycle thread); frames of anybody else are dropped
         #: before decoding, so a flood of frames cannot cost the NC more than a dict lookup each
         self.holders: frozenset[str] = frozenset()
-        #: (client id, present?) liveliness events in arrival order (appended by zenoh, popped by the cycle).
+        #: (client id, present?) liveliness events in arrival order (take_liveliness, popped by the cycle).
         self.liveliness_events: collections.deque[tuple[str, bool]] = collections.deque()
-        #: command queries in arrival order (appended by zenoh, popped by the cycle: try_recv_query)
+        #: queries taken before the channel's (tests; try_recv_query pops them first)
         self.queries: collections.deque[Any] = collections.deque()
-        #: set when a query arrives (the cycle loop waits on it between cycles)
+        #: the cycle loop's wake event between cycles (set by nobody since queries arrive through a channel:
+        #: the idle slices poll it)
         self.query_event = threading.Event()
-        self.queries_refused = 0
+        self.queries_refused = 0  # (the ring channel drops the oldest query when full: not counted)
         self.liveliness_ignored = 0  # client tokens with an invalid id
         self.plc_frames = 0
         self.plc_malformed = 0
@@ -263,10 +279,9 @@ class Transport:
         self.session = s = zenoh.open(zenoh_config(self.settings, self.keys.nc, self.access_control))
         self._zid = str(s.info.zid())
         k = self.keys
-        self.queryable = s.declare_queryable(k.cmd_any, Callback(self._on_query, indirect=False), complete=True)
-        # Liveliness events are rare: a zenoh-thread callback queues them, so the cycle only tests a deque.
-        self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any,
-                                                                Callback(self._on_liveliness, indirect=False),
+        # channels polled by the cycle thread: no Python callback (and no GIL) on zenoh's threads
+        self.queryable = s.declare_queryable(k.cmd_any, RingChannel(QUERY_CHANNEL), complete=True)
+        self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any, FifoChannel(LIVELINESS_CHANNEL),
                                                                 history=True)
         # a channel drained by the cycle thread (take_plctonc), not a Python subscriber thread: that thread,
         # at normal priority and holding the GIL while decoding, made the SCHED_FIFO cycle thread wait
@@ -334,27 +349,38 @@ class Transport:
         except Exception as exc:
             log.warning("closing the zenoh session: %s", exc)
 
-    # ---- command queries (zenoh thread) ---------------------------------------------------------
-    def _on_query(self, query: zenoh.Query) -> None:
-        """Runs on a zenoh thread (indirect=False): queue the query, wake the cycle thread; nothing else."""
-        if len(self.queries) >= QUERY_CHANNEL:
-            self.queries_refused += 1
-            try:
-                query.drop()
-            except Exception:
-                pass
-            return
-        self.queries.append(query)
-        self.query_event.set()
-
+    # ---- command queries (a channel, polled by the cycle thread) --------------------------------
     def try_recv_query(self) -> Any:
-        """The oldest queued query, or None (cycle thread; never blocks)."""
+        """The oldest pending query, or None (cycle thread; never blocks). Queries put into
+        :attr:`queries` (tests) come first."""
+        if self.queries:
+            try:
+                return self.queries.popleft()
+            except IndexError:
+                pass
+        q = getattr(self, "queryable", None)
+        if q is None:
+            return None
         try:
-            return self.queries.popleft()
-        except IndexError:
+            return q.try_recv()
+        except Exception:  # undeclared (closing)
             return None
 
-    # ---- liveliness (zenoh thread) -------------------------------------------------------------
+    # ---- liveliness (a channel, polled by the cycle thread) ------------------------------------
+    def take_liveliness(self) -> bool:
+        """Move the liveliness events that arrived into :attr:`liveliness_events`; whether any is
+        queued (cycle thread; never blocks)."""
+        sub = getattr(self, "liveliness_sub", None)
+        while sub is not None:
+            try:
+                sample = sub.try_recv()
+            except Exception:  # undeclared (closing)
+                break
+            if sample is None:
+                break
+            self._on_liveliness(sample)
+        return bool(self.liveliness_events)
+
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
         client = liveliness_client(self.keys, str(sample.key_expr))
         if client is None:
@@ -444,13 +470,18 @@ class IoThread:
             (never built here: the claim table belongs to the cycle thread); published when the
             version changes and every :data:`CLAIMS_PERIOD` s (then with ``cycle`` from ``cycle_source``).
         cycle_source: returns the NC's current cycle.
+        rt_threads: see :attr:`rt_threads`.
+        nice: the thread's nice value (``cycle.IO_THREAD_NICE``), set when it starts; None: inherited.
     """
 
     def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]],
                  claims_source: Callable[[], tuple[int, dict[str, Any]] | None] | None = None,
                  cycle_source: Callable[[], int] | None = None,
-                 rt_threads: Callable[[], set[int]] | None = None) -> None:
+                 rt_threads: Callable[[], set[int]] | None = None, nice: int | None = None) -> None:
         self.t = transport
+        #: the thread's nice value, set from inside it (None: inherited)
+        self.nice = nice
+        self.priority = "inherited"
         self.stats_source = stats_source
         self.claims_source = claims_source or (lambda: None)
         self.cycle_source = cycle_source
@@ -489,6 +520,12 @@ class IoThread:
         self._thread.join(timeout)
 
     def _main(self) -> None:
+        if self.nice is not None:
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, self.nice)  # pid 0: this thread (Linux: nice is per thread)
+                self.priority = f"nice {self.nice}"
+            except (OSError, AttributeError) as exc:
+                self.priority = f"inherited (nice {self.nice} not permitted: {exc})"
         next_stats = time.monotonic() + STATS_PERIOD
         next_demote = time.monotonic() + DEMOTE_PERIOD
         running = True
