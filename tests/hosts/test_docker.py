@@ -64,7 +64,9 @@ class ComposeSystem:
         self.compose_cmd = [*cmd, "-f", str(COMPOSE_FILE), "-p", self.project]
         (workdir / "certs").mkdir(parents=True, exist_ok=True)
         (workdir / "etc").mkdir(parents=True, exist_ok=True)
-        if self.transport == "tls":  # make-certs.sh always makes the router's certificate too
+        # each container mounts ca.pem and its own certificate and key (and the router the roles file):
+        # made for tcp too, as deploy.sh does (a missing file would be mounted as an empty directory)
+        if (ROOT / "deploy" / "certs" / "make-certs.sh").exists():  # it always makes the router's too
             subprocess.run([str(ROOT / "deploy" / "certs" / "make-certs.sh"), str(workdir / "certs"),
                             "nc1", "nc2", "plc1", "plc2", "status"], check=True, capture_output=True, timeout=300)
             shutil.copy(ROOT / "deploy" / "roles.toml", workdir / "etc" / "roles.toml")
