@@ -2,33 +2,25 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import zenoh
 
+from nc_schema.zenoh_config import client_config as shared_client_config
+
 
 def client_config(endpoint: str, lease_ms: int = 1000, tls_dir: str | None = None,
                   identity: str = "status") -> zenoh.Config:
-    """Client mode, connect to ``endpoint`` only: no listening, multicast and gossip scouting off;
-    with ``tls_dir`` mutual TLS as ``identity`` (its certificate ``<tls_dir>/<identity>.pem``, an
-    observer of the roles file; docs/roles.md).
+    """``nc_schema.zenoh_config.client_config`` for a tool: as ``identity`` (with ``tls_dir``, its
+    certificate ``<tls_dir>/<identity>.pem``, an observer of the roles file; docs/roles.md); the
+    first connection fails at once when nobody listens (a tool prints why and exits), a lost one
+    is retried every 100-250 ms.
 
     Raises:
         zenoh.ZError: zenoh rejected the endpoint.
         ValueError: a certificate file is missing.
     """
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    c.insert_json5("listen/endpoints", "[]")
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("scouting/gossip/enabled", "false")
-    c.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
-    if tls_dir:
-        from nc_server.security.tls import apply_tls
-        apply_tls(c, tls_dir, identity)
-    return c
+    return shared_client_config(endpoint, lease_ms, tls_dir, identity, connect_timeout_ms=0)
 
 
 def add_connection_args(p: argparse.ArgumentParser, help_connect: str) -> None:

@@ -15,7 +15,6 @@ to make.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import subprocess
@@ -29,6 +28,7 @@ import numpy as np
 import zenoh
 
 from nc_schema import Keys, decode_frame, error_name, motion_state
+from nc_schema.zenoh_config import client_config
 
 from . import demo_program, lifeline
 
@@ -42,12 +42,8 @@ def _bin(name: str) -> list[str]:
 
 
 def _client_config(endpoint: str) -> zenoh.Config:
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("scouting/gossip/enabled", "false")
-    return c
+    """The viewer's session: the project's client config (nc_schema.zenoh_config), lease 1 s."""
+    return client_config(endpoint, 1000, connect_timeout_ms=0)
 
 
 class Proc:

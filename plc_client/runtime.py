@@ -64,7 +64,6 @@ is taken in a signal handler); the cycle sees it within one cycle time.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -84,6 +83,8 @@ from nc_schema import (
     frame_period_ms, make_reply, parse_reply,
 )
 from nc_schema.codec import PLC_FRAME_MAGIC, WIRE_VERSION
+# the one client config builder, re-exported (plc_client.runtime.client_config, DEFAULT_LEASE_MS, ...)
+from nc_schema.zenoh_config import CONNECT_RETRY, CONNECT_TIMEOUT_MS, DEFAULT_LEASE_MS, client_config  # noqa: F401
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, PendingCommand
@@ -116,42 +117,6 @@ def default_client_id() -> str:
     """``plc-<host>-<pid>``, restricted to the characters a client id may use."""
     host = re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname())[:40] or "host"
     return f"plc-{host}-{os.getpid()}"
-
-
-#: Default transport lease of a PLC session [ms] (see the module docstring).
-DEFAULT_LEASE_MS = 500
-#: How a lost connection is retried (zenoh ``connect/retry``): zenoh's default starts at 1 s and
-#: doubles up to 4 s, which made a router restart cost the PLC 0.5-3 s; every 100-250 ms it is back
-#: within about a quarter of a second of the router (or the link) (bench/recovery.py).
-CONNECT_RETRY = '{period_init_ms: 100, period_max_ms: 250, period_increase_factor: 1.5}'
-#: The first connection attempt keeps retrying this long [ms] before open() fails (then the runtime
-#: retries in the background every ``reconnect_period``).
-CONNECT_TIMEOUT_MS = 2000
-
-
-def client_config(endpoint: str, lease_ms: int = DEFAULT_LEASE_MS, tls_dir: str | None = None,
-                  identity: str | None = None) -> zenoh.Config:
-    """The explicit zenoh configuration of a PLC session (see the module docstring); with
-    ``tls_dir`` mutual TLS with the certificate ``<tls_dir>/<identity>.pem``
-    (``nc_server.security.tls``; the endpoint must be ``tls/``).
-
-    Raises:
-        zenoh.ZError: zenoh rejected the endpoint.
-        ValueError: a certificate file is missing (``TlsError``).
-    """
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    c.insert_json5("listen/endpoints", "[]")
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("scouting/gossip/enabled", "false")
-    c.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
-    c.insert_json5("connect/retry", CONNECT_RETRY)
-    c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
-    if tls_dir:
-        from nc_server.security.tls import apply_tls
-        apply_tls(c, tls_dir, identity or "")
-    return c
 
 
 class _NcLink:

@@ -20,7 +20,8 @@
 # Prints what it built and what it reused. Exit codes: 0 success; 1 failure (message on stderr);
 # 3 no docker engine reachable; 4 a download failed (apt-get, debootstrap, pip: no network?).
 # Environment: PYTHON (python with pip for the host steps, default python3), ZNC_BUILD_DIR
-# (default deploy/.build), ZNC_DEBIAN_MIRROR (default http://deb.debian.org/debian).
+# (default deploy/.build), ZNC_DEBIAN_MIRROR (default http://deb.debian.org/debian), ZNC_KEEP_IMAGES
+# (1: older zenoh-nc:<hash> images are kept, not removed).
 set -euo pipefail
 
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -183,8 +184,9 @@ EOF
     fi
     rm -rf "$ctx" "$proj"
     SUMMARY+=("app   $APP_TAG  built in $(since "$t") s")
-    # older app images go (one in use by a container stays: docker rmi refuses it)
-    for old in $(docker images zenoh-nc --format '{{.Tag}}' | grep -E '^[0-9a-f]{16}$' | grep -vx "$APP_HASH"); do
+    # older app images go (one in use by a container stays: docker rmi refuses it); ZNC_KEEP_IMAGES=1
+    # keeps them (several checkouts of the project on one machine, each testing its own image)
+    [[ ${ZNC_KEEP_IMAGES:-0} == 1 ]] || for old in $(docker images zenoh-nc --format '{{.Tag}}' | grep -E '^[0-9a-f]{16}$' | grep -vx "$APP_HASH"); do
         docker rmi "zenoh-nc:$old" >/dev/null 2>&1 && SUMMARY+=("app   zenoh-nc:$old  removed (older)") || true
     done
 fi

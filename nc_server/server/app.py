@@ -73,7 +73,8 @@ class NcServer:
         self.core = core
         self.keys = Keys(config.name)
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
-        self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout)
+        # the NC's lease: a stall of half of it may have dropped every link (ClaimTable.grace)
+        self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout, lease=config.zenoh.lease_ms / 1000.0)
         roles = dict(config.roles.clients) if config.roles is not None else None
         acl = None
         if config.roles is not None and config.zenoh.tls_dir and config.zenoh.mode != "client":
@@ -359,7 +360,7 @@ class NcServer:
             now = time.monotonic() if now is None else now
             for client, present in t.pop_liveliness():
                 if present:
-                    self.handler.client_alive(client)
+                    self.handler.client_alive(client, now)
                     log.info("client %s present", client)
                 else:
                     self.handler.client_gone(client, now)

@@ -20,7 +20,13 @@ The NC's own stalls are never blamed on a client (:meth:`ClaimTable.grace`): the
 starts again at the end of the stall (and never goes backwards, whatever order frames are
 processed in afterwards), and a token that disappears during the stall or just after it (the
 clients' zenoh dropped the link to the frozen NC and reconnects at once) is given
-``reconnect_grace`` seconds to come back before it counts as a loss.
+``reconnect_grace`` seconds to come back before it counts as a loss. After a stall of at least
+half the NC's zenoh lease (``lease``) the NC's own session may not have renewed or processed the
+links meanwhile: every link may be dropped and re-established (a client behind a router retries
+every 100-250 ms, a loaded machine takes longer), so the window is ``lease_stall_grace``
+(:data:`LEASE_STALL_GRACE`, 2 s) instead. A token that comes back within its window restarts the
+watchdog of the claims it holds (:meth:`ClaimTable.client_alive`): its frames could not arrive
+while it was disconnected, which is the NC's stall, not the client's silence.
 """
 from __future__ import annotations
 
@@ -36,6 +42,9 @@ ZNC_CLIENT_LOST = int(ErrorCodes.ZNC_CLIENT_LOST)  # type: ignore[attr-defined]
 ZNC_PLCTONC_TIMEOUT = int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)  # type: ignore[attr-defined]
 ACCESS_DENIED = int(ErrorCodes.ADSERR_DEVICE_ACCESSDENIED)  # type: ignore[attr-defined]
 INVALID_DATA = int(ErrorCodes.ADSERR_DEVICE_INVALIDDATA)  # type: ignore[attr-defined]
+#: How long a token lost across an NC stall of at least half the NC's lease may take to come back [s]
+#: (its links were dropped: reconnecting, through a router too, on a loaded machine).
+LEASE_STALL_GRACE = 2.0
 
 
 @dataclass
@@ -77,18 +86,25 @@ class ClaimTable:
         watchdog_timeout: maximum age of the holder's newest PLCTONC [s].
         reconnect_grace: how long a token that vanished during or right after an NC stall may take
             to come back [s]; default ``watchdog_timeout``.
+        lease: the NC's zenoh lease [s] (None: unknown): a stall of at least half of it gives lost
+            tokens ``lease_stall_grace`` (if longer than ``reconnect_grace``) to come back.
+        lease_stall_grace: see ``lease`` [s].
     """
 
     def __init__(self, axis_ids: Iterable[int], watchdog_timeout: float,
-                 reconnect_grace: float | None = None) -> None:
+                 reconnect_grace: float | None = None, lease: float | None = None,
+                 lease_stall_grace: float = LEASE_STALL_GRACE) -> None:
         self.axis_ids = [int(a) for a in axis_ids]
         self._index = {a: i for i, a in enumerate(self.axis_ids)}
         self.watchdog_timeout = float(watchdog_timeout)
         self.reconnect_grace = float(watchdog_timeout if reconnect_grace is None else reconnect_grace)
+        self.lease = None if lease is None else float(lease)
+        self.lease_stall_grace = float(lease_stall_grace)
         self._clients: dict[str, _Client] = {}
         self._claims: dict[int, _Claim] = {}
-        #: the last NC stall, (start, end) [s] (see grace())
-        self._stall = (-math.inf, -math.inf)
+        #: the last NC stall, (start, end, window) [s]: a token gone between start and end + window
+        #: has window to come back (see grace())
+        self._stall = (-math.inf, -math.inf, 0.0)
         #: Incremented on every change of the claims (lets callers cache derived data).
         self.version = 0
         self._masks: dict[str, np.ndarray] = {}
@@ -97,9 +113,19 @@ class ClaimTable:
         self._by_client_version = -1
 
     # ---- liveliness -------------------------------------------------------------------------
-    def client_alive(self, client: str) -> None:
-        """The client's liveliness token appeared (or came back before its loss was reported)."""
+    def client_alive(self, client: str, now: float | None = None) -> None:
+        """The client's liveliness token appeared at ``now`` [s] (or came back before its loss was
+        reported).
+
+        A token that comes back within the window of an NC stall (it was lost across the stall)
+        restarts the watchdog of every armed claim it holds at ``now``: its frames could not reach
+        the NC while its link was down, and that was the NC's stall.
+        """
         c = self._clients.setdefault(client, _Client())
+        if not c.alive and c.gone_at is not None and now is not None and self._excused(c.gone_at, float(now)):
+            for cl in self._claims.values():
+                if cl.client == client and self._watched_since(cl, c) is not None:
+                    cl.watch_from = max(float(now), cl.watch_from if cl.watch_from is not None else -math.inf)
         c.alive, c.gone_at = True, None
 
     def client_gone(self, client: str, now: float = 0.0) -> None:
@@ -132,18 +158,24 @@ class ClaimTable:
 
         Every client that sent PLCTONC counts as heard from at ``now`` (frames queued during the
         stall may not have been processed yet; older ones processed later do not move it back),
-        and a token that disappears between ``since`` and ``now + reconnect_grace`` gets
-        ``reconnect_grace`` to come back (:meth:`check`).
+        and a token that disappears between ``since`` and ``now + window`` gets ``window`` to come
+        back (:meth:`check`; when it does, the watchdog of its claims restarts:
+        :meth:`client_alive`). ``window`` is ``reconnect_grace``, or ``lease_stall_grace`` if the
+        stall lasted at least half of ``lease`` (the NC's session could not keep its links meanwhile).
         """
         for c in self._clients.values():
             if c.last_plctonc is not None and c.last_plctonc < now:
                 c.last_plctonc = now
-        self._stall = (now if since is None else min(float(since), now), float(now))
+        start = float(now) if since is None else min(float(since), float(now))
+        window = self.reconnect_grace
+        if self.lease is not None and now - start >= self.lease / 2:
+            window = max(window, self.lease_stall_grace)
+        self._stall = (start, float(now), window)
 
     def _excused(self, gone_at: float, now: float) -> bool:
         """A token gone at ``gone_at`` is not a loss yet at ``now`` (an NC stall explains it)."""
-        start, end = self._stall
-        return start <= gone_at <= end + self.reconnect_grace and now < gone_at + self.reconnect_grace
+        start, end, window = self._stall
+        return start <= gone_at <= end + window and now < gone_at + window
 
     # ---- claims -----------------------------------------------------------------------------
     def holder(self, axis_id: int) -> str | None:

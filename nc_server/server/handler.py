@@ -181,9 +181,10 @@ class RequestHandler:
         self.internal_errors = 0
 
     # ---- liveliness (the server's token events; an in-process port's creation / close) ------
-    def client_alive(self, client: str) -> None:
-        """``client``'s liveliness token appeared: it may claim."""
-        self.claims.client_alive(client)
+    def client_alive(self, client: str, now: float | None = None) -> None:
+        """``client``'s liveliness token appeared at ``now`` [s]: it may claim (back within an NC
+        stall's window: its claims' watchdog restarts, ClaimTable.client_alive)."""
+        self.claims.client_alive(client, now)
         self.clients_version += 1
 
     def client_gone(self, client: str, now: float = 0.0) -> None:

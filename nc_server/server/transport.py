@@ -45,6 +45,7 @@ from nc_schema import (
     PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame, encode_stamp, pack,
 )
 from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
+from nc_schema.zenoh_config import CONNECT_RETRY
 
 from nc_server.security.tls import apply_tls
 
@@ -122,6 +123,12 @@ def zenoh_config(settings: ZenohSettings, identity: str | None = None,
     with ``settings.tls_dir`` mutual TLS as ``identity`` (its certificate; every endpoint ``tls/``),
     with ``access_control`` that section (``nc_server.security.acl``).
 
+    The connect endpoints (``--mode client --connect EP``: an NC behind a router) are retried every
+    100-250 ms once lost (``connect/retry``, :data:`nc_schema.zenoh_config.CONNECT_RETRY`; zenoh's
+    default waits 1 s, doubling up to 4 s), so a restarted router or a link that comes back has
+    the NC again within about a quarter of a second. The first connection still fails at once
+    (``connect/timeout_ms`` 0 in client mode): nc-server says so and exits.
+
     Raises:
         zenoh.ZError: zenoh rejected a value.
         nc_server.security.tls.TlsError: a certificate file is missing.
@@ -133,6 +140,8 @@ def zenoh_config(settings: ZenohSettings, identity: str | None = None,
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
+    if settings.connect:
+        c.insert_json5("connect/retry", CONNECT_RETRY)
     # zenoh's default accepts 1 GiB messages; nothing legitimate comes near 4 MiB here
     c.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
     if settings.tls_dir:

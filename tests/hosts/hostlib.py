@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import re
 import shutil
 import subprocess
@@ -135,22 +134,11 @@ class AxisSample:
 
 
 def client_config(endpoint: str, tls_dir: str | None = None, identity: str = "status") -> Any:
-    """Client-mode zenoh config: only ``endpoint``, scouting off; with ``tls_dir`` mutual TLS as
-    ``identity`` (its certificate ``<tls_dir>/<identity>.pem``, nc_server.security.tls)."""
-    import zenoh
+    """The observer's zenoh config: the project's client config (nc_schema.zenoh_config), lease
+    1 s, as ``identity`` with ``tls_dir`` (its certificate ``<tls_dir>/<identity>.pem``)."""
+    from nc_schema.zenoh_config import client_config as shared
 
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    c.insert_json5("listen/endpoints", "[]")
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("scouting/gossip/enabled", "false")
-    c.insert_json5("transport/link/tx/lease", "1000")
-    if tls_dir:
-        from nc_server.security.tls import apply_tls
-
-        apply_tls(c, tls_dir, identity)
-    return c
+    return shared(endpoint, 1000, tls_dir, identity)
 
 
 def info_key(nc: str, client: str) -> str:

@@ -65,3 +65,27 @@ def test_motion_on_its_own_accepts_a_command_sent_during_the_standstill_before_t
     samples = [_s(9.0, 40.0), _s(9.5, 0.0), _s(10.2, 0.0), _s(10.4, -99.0)]
     other_client = [Event("plc2", 9.9, "nc1", 1, "move -> 25.000")]
     assert motion_on_its_own(samples, other_client, t0=10.0) is None
+
+
+def test_each_container_mounts_only_its_own_key_and_certificate() -> None:
+    """deploy/compose.yaml: every service mounts ca.pem and its own <id>.pem/.key (never the whole
+    certs directory, the CA key or another identity's key); only the router the roles file."""
+    import re
+
+    text = (ROOT / "deploy" / "compose.yaml").read_text()
+    services = text.split("\nservices:\n", 1)[1].split("\nnetworks:\n", 1)[0]
+    blocks = re.split(r"\n  (?=[a-z0-9]+:\n)", "\n" + services)
+    seen = set()
+    for block in blocks:
+        m = re.match(r"([a-z0-9]+):\n", block.strip("\n") + "\n")
+        if not m:
+            continue
+        sid = m.group(1)
+        seen.add(sid)
+        mounts = re.findall(r"^\s+- \$\{ZNC_BUILD:-\./\.build\}/(\S+):(\S+):ro$", block, re.M)
+        sources = sorted(src for src, _ in mounts)
+        want = sorted(["certs/ca.pem", f"certs/{sid}.pem", f"certs/{sid}.key"]
+                      + (["etc/roles.toml"] if sid == "router" else []))
+        assert sources == want, (sid, sources)
+    assert seen == {"router", "nc1", "nc2", "plc1", "plc2"}
+    assert re.search(r"\.build\}/certs:", text) is None  # no directory mount left (anchor included)

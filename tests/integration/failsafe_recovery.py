@@ -10,7 +10,8 @@ the same port). Nothing else is restarted.
 Figures (seconds, monotonic clock of this process):
 
 * ``detect``: outage -> the PLC's blocks report 0x4B0F;
-* ``frame``: router back / link up -> the first fresh NC frame at the PLC (its data valid again);
+* ``frame``: router back (its port accepts connections again) / link up -> the first fresh NC
+  frame at the PLC (its data valid again);
 * ``claim``: -> the PLC's MC_Power holds the axis again (its Claim accepted);
 * ``command``: -> the first command of ``op-m`` accepted (Reset of axis 2);
 * ``baseline_connect``: same run, a fresh client session opened -> its first accepted command
@@ -22,6 +23,8 @@ Checked on the way: the NC lost its clients meanwhile and reacted as ClientLossR
 """
 from __future__ import annotations
 
+import socket
+import threading
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -39,7 +42,8 @@ def _first_ok(cl: NcTestClient, cmd: str, axis: int, deadline: float, **args: An
     """Send ``cmd`` until it is accepted (error 0); the monotonic time of the accepting reply."""
     while True:
         try:
-            r = cl.request(cmd, axis=axis, timeout=0.5, **args)
+            # short: a query sent while the session is still reconnecting gets no reply; ask again
+            r = cl.request(cmd, axis=axis, timeout=0.1, **args)
             if r["error"] == 0:
                 return time.monotonic()
         except ReplyError:
@@ -47,6 +51,37 @@ def _first_ok(cl: NcTestClient, cmd: str, axis: int, deadline: float, **args: An
         if time.monotonic() > deadline:
             raise AssertionError(f"{cmd} on axis {axis} not accepted in time")
         time.sleep(0.005)
+
+
+class ListenWatch:
+    """Notes the first moment ``127.0.0.1:<port>`` accepts a TCP connection (polled every 2 ms in a
+    thread): when a restarted router is back for its clients. (Its ready line comes later: the NC
+    and the PLC, retrying every 100-250 ms, may be reconnected before nc-router prints it.)"""
+
+    def __init__(self, port: int, timeout: float = T) -> None:
+        self.port = port
+        self.at: float | None = None
+        self._stop = threading.Event()
+        self._deadline = time.monotonic() + timeout
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set() and time.monotonic() < self._deadline:
+            try:
+                with socket.create_connection(("127.0.0.1", self.port), timeout=0.05):
+                    self.at = time.monotonic()
+                    return
+            except OSError:
+                time.sleep(0.002)
+
+    def wait(self) -> float:
+        """The first accepting moment [s, monotonic]."""
+        self._thread.join(max(0.0, self._deadline - time.monotonic()))
+        self._stop.set()
+        if self.at is None:
+            raise AssertionError(f"nothing listens on 127.0.0.1:{self.port}")
+        return self.at
 
 
 def baseline_connect(port: int) -> float:
@@ -98,14 +133,21 @@ def measure(tmp: Path, scenario: str, log: Callable[[str], None] = print) -> dic
         lost = plc.wait("pos", lambda r: r.t >= t_out and r.o["Error"] and r.o["ErrorID"] == 0x4B0F, T)
         time.sleep(2.0)  # long enough for the NC to drop the PLC (its lease) and react
 
-        # back
+        # back; op-m asks from now on (in a thread), so its figure does not wait for nc-router's ready line
+        accepted: list[float] = []
+        asker = threading.Thread(target=lambda: accepted.append(_first_ok(m, "Reset", 2, time.monotonic() + 2 * T)),
+                                 daemon=True)
+        asker.start()
         if scenario == "router":
+            listening = ListenWatch(rport)
             router = start_nc_router(tmp / "router2", port=rport, extra_args=["--lease-ms", "500"])
-            t_back = time.monotonic()
+            t_back = listening.wait()  # the router listens again (before its ready line)
         else:
             t_back = proxy.restore()  # type: ignore[union-attr]
         frame = plc.wait("pos", lambda r: r.t >= t_back and r.o["Valid"], T)
-        t_cmd = _first_ok(m, "Reset", 2, t_back + T)
+        asker.join(2 * T)
+        assert accepted, "op-m's Reset was not accepted in time"
+        t_cmd = accepted[0]
         claim = plc.wait("pw", lambda r: r.t >= t_back and r.o["Active"], T)
         # the NC's reaction to losing its client meanwhile (ClientLossReaction "stop_disable")
         err = plc.wait("pw", lambda r: r.t >= t_back and r.a["Valid"] and r.a["ErrorId"] != 0, T)

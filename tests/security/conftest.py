@@ -29,7 +29,9 @@ def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed: deploy/certs/make-certs.sh cannot make the test certificates")
     out = tmp_path_factory.mktemp("certs")
-    subprocess.run(["sh", str(MAKE_CERTS), str(out), *NAMES, "--rogue"], check=True, capture_output=True, timeout=120)
+    # nc1 and nc2 listen for their clients in some tests (start_tls_nc without connect): server certificates
+    subprocess.run(["sh", str(MAKE_CERTS), str(out), "--server", "nc1", "--server", "nc2", *NAMES, "--rogue"],
+                   check=True, capture_output=True, timeout=120)
     return out
 
 

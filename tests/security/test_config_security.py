@@ -102,3 +102,24 @@ def test_plc_run_tls_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     prog.write_text("def cycle(plc):\n    pass\n")
     assert plc_cli.main([str(prog), "--client-id", "plc9", "--nc", "nc1=tls/127.0.0.1:1", "--tls-dir", str(certs)]) == 2
     assert "plc9.pem" in capsys.readouterr().err
+
+
+def _ext(pem: Path) -> str:
+    import subprocess
+
+    return subprocess.run(["openssl", "x509", "-in", str(pem), "-noout", "-ext", "extendedKeyUsage,subjectAltName"],
+                          capture_output=True, text=True, check=True, timeout=30).stdout
+
+
+def test_make_certs_client_certificates_are_client_only(certs: Path) -> None:
+    """make-certs.sh: a client's certificate carries EKU clientAuth only and no localhost SAN (it
+    serves no listener); the router's and the --server ids' (nc1, nc2 here) serve one too."""
+    for name in ("plc1", "plc2", "eng1", "status", "stranger"):
+        ext = _ext(certs / f"{name}.pem")
+        assert "TLS Web Client Authentication" in ext and "Server Authentication" not in ext, (name, ext)
+        assert f"DNS:{name}" in ext and "localhost" not in ext and "127.0.0.1" not in ext, (name, ext)
+    for name in ("router", "nc1", "nc2"):
+        ext = _ext(certs / f"{name}.pem")
+        assert "TLS Web Server Authentication" in ext and "TLS Web Client Authentication" in ext, (name, ext)
+        assert "DNS:localhost" in ext and "IP Address:127.0.0.1" in ext, (name, ext)
+    assert "Server Authentication" not in _ext(certs / "rogue" / "plc1.pem")

@@ -4,7 +4,9 @@ from __future__ import annotations
 import pytest
 
 from nc_schema import NcError
-from nc_server.server.claims import ACCESS_DENIED, ZNC_CLIENT_LOST, ZNC_PLCTONC_TIMEOUT, ClaimTable, Loss
+from nc_server.server.claims import (
+    ACCESS_DENIED, LEASE_STALL_GRACE, ZNC_CLIENT_LOST, ZNC_PLCTONC_TIMEOUT, ClaimTable, Loss,
+)
 
 
 def faults(losses: list[Loss]) -> list[tuple[int, int]]:
@@ -215,6 +217,90 @@ def test_token_lost_long_after_a_stall_is_a_loss_at_once(table: ClaimTable) -> N
     table.grace(10.8, since=10.0)
     table.client_gone("a", 20.0)
     assert table.check(20.001) == [Loss("a", ZNC_CLIENT_LOST, (1,))]
+
+
+def test_token_lost_across_a_lease_stall_gets_2_s_and_a_restarted_watchdog() -> None:
+    """Issue 8: a stall of at least half the NC's lease (its own session could not renew or
+    process the links meanwhile) drops every link; a client behind a router may take well over a
+    watchdog timeout to come back. It gets LEASE_STALL_GRACE (2 s): no loss reaction meanwhile, and
+    when its token is seen again the watchdog of its claims counts from then (its frames could not
+    arrive while it was disconnected)."""
+    t = ClaimTable([1, 2, 3], watchdog_timeout=0.5, lease=0.5)
+    assert LEASE_STALL_GRACE == 2.0
+    for c in ("a", "b"):
+        t.client_alive(c, 0.0)
+    t.claim(1, "a", 0.0)
+    t.claim(2, "b", 0.0)
+    t.plctonc_arrived("a", 10.0)
+    t.plctonc_arrived("b", 10.0)
+    t.grace(10.25, since=10.0)           # exactly half the lease
+    t.client_gone("a", 10.26)            # the links dropped: both tokens gone after the resume
+    t.client_gone("b", 10.27)
+    assert t.check(10.3) == [] and t.check(11.9) == []   # far beyond the watchdog (0.5 s): no reaction
+    assert t.holder(1) == "a" and t.holder(2) == "b"
+    t.client_alive("a", 12.0)            # a back 1.74 s after it vanished
+    # its watchdog restarted at 12.0: no 0x8F02 for the frames it could not send meanwhile
+    assert t.check(12.01) == [] and t.check(12.26) == []  # b is still within its window too
+    assert t.check(12.28) == [Loss("b", ZNC_CLIENT_LOST, (2,))]  # b never came back: loss at 10.27 + 2 s
+    assert t.check(12.5) == []
+    assert faults(t.check(12.501)) == [(1, ZNC_PLCTONC_TIMEOUT)]  # a real silence after the return still faults
+
+
+def test_restarted_watchdog_follows_the_returned_clients_frames() -> None:
+    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
+    t.client_alive("a", 0.0)
+    t.claim(1, "a", 0.0)
+    t.plctonc_arrived("a", 10.0)
+    t.grace(11.0, since=10.0)
+    t.client_gone("a", 11.01)
+    t.client_alive("a", 12.5)
+    t.plctonc_arrived("a", 12.6)
+    assert t.check(13.1) == [] and faults(t.check(13.11)) == [(1, ZNC_PLCTONC_TIMEOUT)]
+
+
+def test_short_stall_keeps_the_watchdog_window_not_2_s() -> None:
+    """A stall shorter than half the lease (a loaded machine: the links stayed up): a token that
+    vanishes right after it gets only reconnect_grace (watchdog_timeout), not 2 s."""
+    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
+    t.client_alive("a", 0.0)
+    t.claim(1, "a", 0.0)
+    t.grace(10.2, since=10.0)            # 0.2 s < 0.25 s
+    t.client_gone("a", 10.21)
+    assert t.check(10.70) == []
+    assert t.check(10.711) == [Loss("a", ZNC_CLIENT_LOST, (1,))]
+
+
+def test_unarmed_claim_stays_unwatched_after_a_return() -> None:
+    """A holder that never sent PLCTONC is not watched; its return after a stall does not arm it."""
+    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
+    t.client_alive("a", 0.0)
+    t.claim(1, "a", 0.0)
+    t.grace(11.0, since=10.0)
+    t.client_gone("a", 11.01)
+    t.client_alive("a", 12.0)
+    assert t.check(20.0) == [] and t.holder(1) == "a"
+
+
+def test_token_lost_without_a_stall_is_a_loss_at_once_with_a_lease() -> None:
+    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
+    t.client_alive("a", 0.0)
+    t.claim(1, "a", 0.0)
+    t.client_gone("a", 5.0)
+    assert t.check(5.001) == [Loss("a", ZNC_CLIENT_LOST, (1,))]
+
+
+def test_a_lease_stall_is_never_blamed_even_when_the_token_outlives_the_watchdog() -> None:
+    """Without the restart, a holder back 1 s after a lease stall would fault with 0x8F02 the
+    moment its token is seen (its last frame is older than the watchdog): the NC's stall blamed
+    on the client."""
+    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
+    t.client_alive("a", 0.0)
+    t.claim(1, "a", 0.0)
+    t.plctonc_arrived("a", 9.99)
+    t.grace(10.6, since=10.0)
+    t.client_gone("a", 10.61)
+    t.client_alive("a", 11.6)
+    assert t.check(11.6) == [] and t.check(11.601) == []
 
 
 # ---- hand-over ---------------------------------------------------------------------------------

@@ -51,3 +51,37 @@ def test_zenoh_config_is_explicit() -> None:
     assert json.loads(c.get_json("scouting/multicast/enabled")) is False
     assert json.loads(c.get_json("scouting/gossip/enabled")) is False
     assert json.loads(c.get_json("transport/link/tx/lease")) == 750
+
+
+def test_nc_behind_a_router_retries_a_lost_connection_every_100_to_250_ms() -> None:
+    """``--mode client --connect EP``: zenoh's default retry (1 s, doubling up to 4 s) made a
+    router restart cost the NC seconds; the NC uses the PLC's 100-250 ms."""
+    c = zenoh_config(ZenohSettings("client", (), ("tcp/127.0.0.1:17447",), 500))
+    assert json.loads(c.get_json("connect/endpoints")) == ["tcp/127.0.0.1:17447"]
+    retry = json.loads(c.get_json("connect/retry"))
+    assert retry["period_init_ms"] == 100 and retry["period_max_ms"] == 250, retry
+    assert retry["period_increase_factor"] == 1.5
+    # a router NC without connect endpoints keeps zenoh's defaults there
+    r = zenoh_config(ZenohSettings("router", ("tcp/127.0.0.1:17447",), (), 500))
+    assert json.loads(r.get_json("connect/endpoints")) == []
+
+
+def test_one_client_config_for_plc_tools_and_host_tests() -> None:
+    """plc_client.runtime, nc_tools.common and tests/hosts/hostlib build their zenoh sessions with
+    nc_schema.zenoh_config.client_config (one function; they differ only in lease and timeout)."""
+    import nc_tools.common
+    import plc_client.runtime
+    from nc_schema import zenoh_config as zc
+
+    assert plc_client.runtime.client_config is zc.client_config
+    plc = zc.client_config("tcp/127.0.0.1:17447")
+    tool = nc_tools.common.client_config("tcp/127.0.0.1:17447")
+    for c in (plc, tool):
+        assert json.loads(c.get_json("mode")) == "client"
+        assert json.loads(c.get_json("listen/endpoints")) == []
+        assert json.loads(c.get_json("scouting/multicast/enabled")) is False
+        assert json.loads(c.get_json("connect/retry"))["period_max_ms"] == 250
+    assert json.loads(plc.get_json("transport/link/tx/lease")) == 500
+    assert json.loads(plc.get_json("connect/timeout_ms")) == 2000
+    assert json.loads(tool.get_json("transport/link/tx/lease")) == 1000
+    assert json.loads(tool.get_json("connect/timeout_ms")) == 0  # a tool says at once that nobody listens
