@@ -4,15 +4,52 @@
   127.0.0.1 port; its process group is killed when the test ends, pass or fail.
 * ``start_nc``: factory for servers with another config or arguments (same cleanup).
 * ``nc_client``: factory for :class:`znc_testing.NcTestClient` sessions (closed at the end).
+
+Every process a test starts from pytest's main thread dies with pytest (``PR_SET_PDEATHSIG``,
+:func:`_die_with_pytest`): fixtures kill their process groups when a test ends, but a pytest that is
+itself killed (a CI timeout, Ctrl-C twice, ``kill -9``) runs no fixture, and its nc-servers would
+keep a core busy for every later test.
 """
 from __future__ import annotations
 
+import ctypes
+import signal
+import subprocess
+import sys
+import threading
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 import pytest
 
 from znc_testing import NcServerProcess, NcTestClient, start_nc_server
+
+
+def _die_with_pytest() -> None:
+    """Install a default ``preexec_fn`` on :class:`subprocess.Popen` (Linux): the child gets SIGKILL when
+    pytest ends. Only for Popen calls from the main thread: the kernel signals when the forking *thread*
+    ends, and a helper thread of a test may end long before the process it started should."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+    except OSError:
+        return
+    main = threading.main_thread()
+    original = subprocess.Popen.__init__
+
+    def pdeathsig() -> None:
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
+
+    def init(self: subprocess.Popen[Any], *args: Any, **kwargs: Any) -> None:
+        if threading.current_thread() is main and kwargs.get("preexec_fn") is None:
+            kwargs["preexec_fn"] = pdeathsig
+        original(self, *args, **kwargs)
+
+    subprocess.Popen.__init__ = init  # type: ignore[method-assign]
+
+
+_die_with_pytest()
 
 
 @pytest.fixture
