@@ -16,7 +16,9 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   ReadWrite replies always carry the length field, pitfall 1). Unknown command ids get AMS error 0x701
   in the header. Frames flagged as responses and DeviceNotifications sent to the server are ignored.
 - Read/Write/ReadWrite/ReadState go to the device in a bounded worker pool (`max_workers`, default 8),
-  except reads/writes the device declares `nonblocking(group, offset)` (run on the loop), so replies of different AMS source ports may complete out of order (matched by invoke id); at most
+  except requests the device declares `nonblocking(group, offset, write)` (run on the loop; `write` is
+  False for Read, True for Write/ReadWrite), so replies of different AMS source ports may complete out
+  of order (matched by invoke id); at most
   `MAX_INFLIGHT_PER_CONNECTION` (64) requests per connection are in flight, then reading pauses.
   A device answer longer than the requested length is truncated and logged (pitfall 2). An exception
   other than AdsError inside a device is logged and answered with 0x700.
@@ -100,6 +102,7 @@ MAX_CONNECTIONS = 256
 MAX_NOTIFICATION_FRAME = 1024 * 1024  # a tick's samples are split into frames of about this size
 
 _U32 = struct.Struct("<I")
+_SUM_GROUPS = (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE)
 
 # IEC type name -> ADS data type id (pyads constants ADST_*), for SAdsSymbolEntry.dataType
 _ADST = {
@@ -236,8 +239,8 @@ class Dispatcher:
             device, group, offset = entry[0], entry[2].group, entry[2].offset
         elif group >= 0xF000:
             return False                    # sum commands, value by name: may touch many objects
-        try:
-            return bool(device.nonblocking(group, offset))
+        try:   # a Read only reads; a Write or ReadWrite may send commands
+            return bool(device.nonblocking(group, offset, write=h.command != Command.READ))
         except Exception as exc:
             log.error("device %s: nonblocking raised %r", device.name, exc, exc_info=exc)
             return False
@@ -462,6 +465,9 @@ class Dispatcher:
                 return ADSERR_DEVICE_INVALIDSIZE, b""
             rw = []
             for i in rwitems:
+                if i.group in _SUM_GROUPS:   # no sum inside a sum (no recursion, no amplification)
+                    rw.append((ADSERR_DEVICE_SRVNOTSUPP, b""))
+                    continue
                 code, out = self.read_write(device, i.group, i.offset, i.read_length, i.data, src,
                                             session)
                 rw.append((code, out if code == 0 else b""))
