@@ -19,6 +19,7 @@ answer 0x707 until its first status frame). Exit status 0 after SIGINT/SIGTERM, 
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import logging
 import signal
 import sys
@@ -95,6 +96,13 @@ def _args(argv: Sequence[str] | None) -> tuple[argparse.Namespace, str, str, tup
     return a, name, endpoint, (host, int(port_s)), ports
 
 
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     a, name, endpoint, listen, ports = _args(argv)
     logging.basicConfig(level=a.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -124,6 +132,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     host, port = server.bound_address
+    if not _loopback(host) and not a.allow_write and a.role != "observer":
+        log.warning("ADS on %s (not loopback) as %s and no --allow-write: every host that reaches this address "
+                    "may write (ADS has no authentication; docs/ads.md)", host, a.role)
     print(f"nc-ads ready: ADS {host}:{port} net id {server.net_id} ports {','.join(map(str, ports))}; NC {name} at "
           f"{endpoint} as {a.client_id} ({a.role}); axes above {MAX_ADS_AXIS_ID} have no ADS index group",
           flush=True)

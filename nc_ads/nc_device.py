@@ -50,12 +50,11 @@ nc-ads stopping (SIGTERM/SIGINT, ``close()``) ends like plc-run: enables off for
 Release, no error. If nc-ads itself dies or freezes, the NC's own client-loss rules apply to all its axes (token gone /
 PLCTONC watchdog, ClientLossReaction).
 
-The NC unreachable: no status frame for ``stale_after`` seconds (1 s; or none yet) -> every read answered
-from the frames (0x1100, 0x4100+ID, 0x4300+ID, notifications) and every PLCTONC write fails at once with
-0x707 (not ready), ReadState answers ADS state ERROR (11). A command (parameters, functions) is sent
-whatever the frames' age - the NC's reply decides (a loaded machine can delay frames without the NC being
-gone): no reply within ``query_timeout`` (1.5 s, well inside pyads's 5 s) -> 0x719, zenoh ending the query
-early (no route to the NC) -> 0x707.
+The NC unreachable: no status frame for ``stale_after`` seconds (1 s; or none yet) -> every request fails
+at once with 0x707 (not ready), ReadState answers ADS state ERROR (11); a query without a reply fails
+with 0x719 after ``query_timeout`` (1.5 s, well inside pyads's 5 s) or 0x707 if zenoh ended it early.
+Commands are refused on stale frames too, not sent: a frozen NC would otherwise hold a worker thread for
+each query's whole timeout and starve the other connections' requests.
 """
 from __future__ import annotations
 
@@ -767,19 +766,16 @@ class NcDevice(AdsDevice):
 
     # ---- addressing -------------------------------------------------------------------------------------------
     def _axis(self, group: int) -> tuple[int, int]:
-        """(kind, axis id) of an axis group 0x4000..0x43FF whose axis exists (in the newest frame, of any age:
-        what is answered from the image checks freshness itself, a command gets the NC's own answer).
+        """(kind, axis id) of an axis group 0x4000..0x43FF whose axis exists.
 
         Raises:
-            AdsError: 0x702 another group or an axis the NC does not have; 0x707 no frame yet.
+            AdsError: 0x702 another group or an axis the NC does not have; 0x707 no fresh frame (also for
+                commands: a frozen NC would otherwise hold a worker for every query's full timeout).
         """
         kind, axis = group & 0xFF00, group & 0xFF
         if kind not in (IG_AXIS_PARAM, IG_AXIS_STATE, IG_AXIS_FUNC, IG_AXIS_CYCLIC) or group > 0x43FF or axis == 0:
             raise AdsError(ADSERR_DEVICE_INVALIDGRP, f"index group {group:#x} is not served")
-        img = self._image
-        if img is None:
-            raise AdsError(ADSERR_DEVICE_NOTREADY, f"no status frame from NC {self.nc} yet")
-        if axis not in img.records:
+        if axis not in self.fresh_image().records:
             raise AdsError(ADSERR_DEVICE_INVALIDGRP, f"index group {group:#x}: NC {self.nc} has no axis {axis}")
         return kind, axis
 

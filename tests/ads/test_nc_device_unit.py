@@ -1,5 +1,4 @@
-"""NcDevice without zenoh: which requests run on the server's loop (`nonblocking`), and what a stale frame
-does to reads answered from the image versus commands the NC answers itself."""
+"""NcDevice without zenoh: which requests run on the server's loop (`nonblocking`), and what stale frames do."""
 from __future__ import annotations
 
 import struct
@@ -46,25 +45,23 @@ def test_nonblocking_reads_from_the_frame_only() -> None:
     assert not dev.nonblocking(0x4401, 0) and not dev.nonblocking(0xF080, 3)
 
 
-def test_stale_frames_fail_image_reads_but_commands_go_to_the_nc() -> None:
-    dev, sent = _device(age=5.0)  # the newest frame is 5 s old (a loaded machine, or the NC gone)
-    for g, o, n in ((0x4101, 0, 256), (0x4301, IO_NCTOPLC, 256), (0x1100, 0x03, 4)):
+def test_stale_frames_fail_at_once_and_send_nothing() -> None:
+    dev, sent = _device(age=1.5)  # the newest frame is older than stale_after (1 s): the NC gone or frozen
+    for call in (lambda: dev.read(0x4101, 0, 256, SRC), lambda: dev.read(0x4301, IO_NCTOPLC, 256, SRC),
+                 lambda: dev.read(0x1100, 0x03, 4, SRC), lambda: dev.read(0x4001, 0x27, 8, SRC),
+                 lambda: dev.write(0x4001, 0x27, struct.pack("<d", 2.0), SRC),
+                 lambda: dev.write(0x4201, 0x01, b"", SRC), lambda: dev.write(0x4301, 0x01, struct.pack("<I", 7), SRC)):
         with pytest.raises(AdsError) as e:
-            dev.read(g, o, n, SRC)
+            call()
         assert e.value.code == 0x707
-    with pytest.raises(AdsError) as e:
-        dev.write(0x4301, 0x01, struct.pack("<I", 7), SRC)   # a PLCTONC supply needs a live NC
-    assert e.value.code == 0x707
-    assert sent == []
-    # the NC answers commands itself (0x719 / 0x707 from _command when it does not)
+    assert sent == [] and dev.read_state()[0] == 11
+    dev, sent = _device(age=0.5)  # younger than stale_after (raised from 0.5 s: late frames on a loaded machine)
     assert dev.read(0x4001, 0x27, 8, SRC) == struct.pack("<d", 1.0)
-    dev.write(0x4001, 0x27, struct.pack("<d", 2.0), SRC)
     dev.write(0x4201, 0x01, b"", SRC)
-    assert sent == [("ReadParameter", 1), ("WriteParameter", 1), ("Reset", 1)]
-    # an unknown axis is still 0x702, not sent
+    assert sent == [("ReadParameter", 1), ("Reset", 1)] and dev.read_state()[0] == 5
     with pytest.raises(AdsError) as e:
-        dev.write(0x4209, 0x01, b"", SRC)
-    assert e.value.code == 0x702 and len(sent) == 3
+        dev.write(0x4209, 0x01, b"", SRC)   # an axis the NC does not have: 0x702, not sent
+    assert e.value.code == 0x702 and len(sent) == 2
 
 
 def test_no_frame_yet_is_0x707_everywhere() -> None:
