@@ -168,6 +168,8 @@ class WritePolicy:
             addr = ipaddress.ip_address(ip)
         except ValueError:
             return False
+        if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
+            addr = addr.ipv4_mapped   # an IPv4 client on a dual-stack listen socket
         return any(addr in net for net in self.networks)
 
 

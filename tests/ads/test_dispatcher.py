@@ -155,6 +155,7 @@ def test_write_policy(dev: FakeDevice) -> None:
     p = WritePolicy(["192.168.0.0/16", "127.0.0.2"])
     assert p.may_write("1.1.1.1.1.1", "192.168.77.1") and p.may_write("1.1.1.1.1.1", "127.0.0.2")
     assert not p.may_write("1.1.1.1.1.1", "127.0.0.1") and not p.may_write("1.1.1.1.1.1", "garbage")
+    assert p.may_write("1.1.1.1.1.1", "::ffff:192.168.3.4") and not p.may_write("1.1.1.1.1.1", "::ffff:10.0.0.1")
     assert WritePolicy().may_write("x", "y") and not WritePolicy([]).may_write("1.1.1.1.1.1", "127.0.0.1")
     with pytest.raises(ValueError, match="neither"):
         WritePolicy(["not-an-address"])
