@@ -594,7 +594,7 @@ class AdsServer:
         self.push_on_change = push_on_change
         self._tick = 0                 # the notifier's last tick number (loop thread only)
         self._push_pending = False     # a push is scheduled on the loop (coalesces a burst of images)
-        self.pushes = 0                # pushes run (tests, bench)
+        self.pushes = 0                # pushes that sent samples (tests, bench)
 
     @property
     def bound_address(self) -> tuple[str, int]:
@@ -829,11 +829,11 @@ class AdsServer:
             except Exception as exc:
                 log.error("notifications of connection %d: %r", session.conn_id, exc, exc_info=exc)
                 continue
+            if frames and not pushed:
+                pushed = True
+                self.pushes += 1   # before the write: a client may look at it as soon as the frame arrived
             for frame in frames:
                 writer.write(frame)
-            pushed = True
-        if pushed:
-            self.pushes += 1
 
     async def _notifier(self) -> None:
         loop = asyncio.get_running_loop()

@@ -252,4 +252,4 @@ def test_on_change_is_pushed_when_the_device_has_a_new_image(start_ads, fake_dev
         (stamp,) = ams.DeviceNotification.decode(p.data).stamps
         assert [s.handle for s in stamp.samples] == [h_change]
         assert struct.unpack_from("<d", stamp.samples[0].data, 16)[0] == 42.0
-        assert srv.pushes >= 1
+        assert wait_until(lambda: srv.pushes >= 1)
