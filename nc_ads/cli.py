@@ -19,6 +19,7 @@ answer 0x707 until its first status frame). Exit status 0 after SIGINT/SIGTERM, 
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import logging
 import signal
 import sys
@@ -53,6 +54,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--frame-period", type=int, default=2, metavar="MS",
                    help="status frames taken: nc/<nc>/frame/<MS>ms (0: every NC cycle; default 2)")
     p.add_argument("--query-timeout", type=float, default=1.5, help="wait for an NC reply [s] (default 1.5)")
+    p.add_argument("--stale-after", type=float, default=1.0, metavar="S",
+                   help="no status frame for this long: the NC counts as unreachable, reads of its cyclic data "
+                        "answer 0x707 (default 1.0)")
     p.add_argument("--lenient-netid", action="store_true", help="answer requests for any target net id")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     return p
@@ -85,9 +89,18 @@ def _args(argv: Sequence[str] | None) -> tuple[argparse.Namespace, str, str, tup
         netid_to_bytes(netid)
     except ValueError:
         p.error(f"--netid {netid!r}: an AMS net id has six numbers 0..255 (a.b.c.d.e.f)")
+    if not 0 < a.stale_after <= 60 or not 0 < a.query_timeout <= 60:
+        p.error("--stale-after and --query-timeout are seconds in (0, 60]")
     if a.tls_dir and not endpoint.startswith("tls/"):
         p.error(f"--tls-dir needs a tls/ endpoint, got {endpoint!r}")
     return a, name, endpoint, (host, int(port_s)), ports
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -98,7 +111,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         policy = WritePolicy(a.allow_write) if a.allow_write else WritePolicy()
         device = NcDevice(name, endpoint, client_id=a.client_id, role=a.role, tls_dir=a.tls_dir,
-                          query_timeout=a.query_timeout, frame_period_ms=a.frame_period)
+                          query_timeout=a.query_timeout, stale_after=a.stale_after,
+                          frame_period_ms=a.frame_period)
     except ValueError as exc:
         print(f"nc-ads: {exc}", file=sys.stderr)
         return 2
@@ -118,6 +132,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     host, port = server.bound_address
+    if not _loopback(host) and not a.allow_write and a.role != "observer":
+        log.warning("ADS on %s (not loopback) as %s and no --allow-write: every host that reaches this address "
+                    "may write (ADS has no authentication; docs/ads.md)", host, a.role)
     print(f"nc-ads ready: ADS {host}:{port} net id {server.net_id} ports {','.join(map(str, ports))}; NC {name} at "
           f"{endpoint} as {a.client_id} ({a.role}); axes above {MAX_ADS_AXIS_ID} have no ADS index group",
           flush=True)

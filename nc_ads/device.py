@@ -1,7 +1,7 @@
 """What an ADS server serves: the `AdsDevice` interface (one device per AMS port or shared by several).
 
 Threading: `read_state`, `read`, `write` and `read_write` are called from the server's worker threads
-(or on its event loop where `nonblocking(group, offset)` says they never block); they may block, bounded
+(or on its event loop where `nonblocking(group, offset, write)` says they never block); they may block, bounded
 by their own timeout (well inside pyads's default 5 s).
 `sample` is called on the event loop and must not block. Every failure is an `AdsError` (its code becomes
 the ADS result); any other exception is logged by the server and answered with 0x700.
@@ -67,10 +67,12 @@ class AdsDevice(ABC):
         loop). AdsError if (group, offset) cannot be notified: AddDeviceNotification then fails with
         that code. The server pads/truncates the result to `length` (pitfall 4)."""
 
-    def nonblocking(self, group: int, offset: int) -> bool:
-        """True if read/write/read_write of (group, offset) never block (e.g. answered from the cyclic
-        image): the server then calls them on its event loop instead of the worker pool, which saves a
+    def nonblocking(self, group: int, offset: int, write: bool = False) -> bool:
+        """True if the request on (group, offset) never blocks (e.g. a read answered from the cyclic
+        image): the server then calls it on its event loop instead of the worker pool, which saves a
         thread hop (0.1 ms against 0.5-0.9 ms per read on the loaded 2-core machine, bench/ads_server.py).
+        `write` is False for an ADS Read, True for a Write or ReadWrite (a device whose reads of an object
+        come from memory but whose writes send commands says True only for `write=False`).
         Must be cheap and must not raise. Default False (everything goes to the pool)."""
         return False
 

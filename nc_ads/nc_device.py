@@ -50,9 +50,11 @@ nc-ads stopping (SIGTERM/SIGINT, ``close()``) ends like plc-run: enables off for
 Release, no error. If nc-ads itself dies or freezes, the NC's own client-loss rules apply to all its axes (token gone /
 PLCTONC watchdog, ClientLossReaction).
 
-The NC unreachable: no status frame for ``stale_after`` seconds (or none yet) -> every request fails
+The NC unreachable: no status frame for ``stale_after`` seconds (1 s; or none yet) -> every request fails
 at once with 0x707 (not ready), ReadState answers ADS state ERROR (11); a query without a reply fails
 with 0x719 after ``query_timeout`` (1.5 s, well inside pyads's 5 s) or 0x707 if zenoh ended it early.
+Commands are refused on stale frames too, not sent: a frozen NC would otherwise hold a worker thread for
+each query's whole timeout and starve the other connections' requests.
 """
 from __future__ import annotations
 
@@ -70,8 +72,9 @@ import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, check_client_id, make_request, parse_reply
-from nc_schema import decode_ads, encode_ads, unpack
-from nc_schema.codec import FRAME_MAGIC, PLC_FRAME_MAGIC, WIRE_VERSION
+from nc_schema import NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLCTONC_DTYPE, decode_ads, encode_ads, unpack
+from nc_schema.codec import _FRAME_HEADER, FRAME_MAGIC, PLC_FRAME_MAGIC, WIRE_VERSION  # header Struct from the schema
+from plc_client.runtime import _PLC_AXIS, _PLC_HEADER  # the PLC runtime's frame encoder (same wire, same speed)
 
 from .device import AdsDevice, AdsSource, Symbol
 from .errors import (
@@ -105,19 +108,24 @@ NCTOPLC_SIZE = 256
 PLCTONC_SIZE = 128
 ONLINE_SIZE = 256
 
-_FRAME_HEADER = struct.Struct("<IHHQQHHI")  # FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
-_PLC_HEADER = struct.Struct("<IHHQHHI")  # PLC_FRAME_HEADER
-_PLC_AXIS = struct.Struct("<II")  # PLC_AXIS_RECORD before its PLCTONC: AxisId, reserved
-_PLC_RECORD_SIZE = _PLC_AXIS.size + PLCTONC_SIZE
+_PLC_RECORD_SIZE = _PLC_AXIS.size + PLCTONC_SIZE  # _PLC_HEADER/_PLC_AXIS: plc_client.runtime's, one wire format
 
-# NCTOPLC_AXIS_REF offsets (schema/structs.json)
-_N = {"StateDWord": (0, "<I"), "ErrorCode": (4, "<I"), "CoupleState": (20, "<I"), "AxisId": (32, "<I"),
-      "OpModeDWord": (36, "<I"), "ActPos": (40, "<d"), "ModuloActPos": (48, "<d"), "ActiveControlLoopIndex": (56, "<H"),
-      "ModuloActTurns": (60, "<i"), "ActVelo": (64, "<d"), "PosDiff": (72, "<d"), "SetPos": (80, "<d"),
-      "SetVelo": (88, "<d"), "SetAcc": (96, "<d"), "TargetPos": (104, "<d"), "ModuloSetPos": (112, "<d"),
-      "ModuloSetTurns": (120, "<i"), "CmdNo": (124, "<H"), "CmdState": (126, "<H"), "SetJerk": (128, "<d"),
-      "SetTorque": (136, "<d"), "ActTorque": (144, "<d"), "SetTorqueDerivative": (200, "<d"),
-      "TorqueOffset": (216, "<d"), "ActAcc": (232, "<d")}
+
+def _nctoplc_fields(*names: str) -> dict[str, tuple[int, str]]:
+    """NCTOPLC_AXIS_REF field -> (offset, struct format), from schema/structs.json (nc_schema's dtype)."""
+    out = {}
+    for n in names:
+        dt, off = NCTOPLC_DTYPE.fields[n][:2]
+        out[n] = (off, "<" + dt.base.char.replace("L", "I").replace("l", "i"))
+    return out
+
+
+_N = _nctoplc_fields("StateDWord", "ErrorCode", "CoupleState", "AxisId", "OpModeDWord", "ActPos", "ModuloActPos",
+                     "ActiveControlLoopIndex", "ModuloActTurns", "ActVelo", "PosDiff", "SetPos", "SetVelo", "SetAcc",
+                     "TargetPos", "ModuloSetPos", "ModuloSetTurns", "CmdNo", "CmdState", "SetJerk", "SetTorque",
+                     "ActTorque", "SetTorqueDerivative", "TorqueOffset", "ActAcc")
+assert NCTOPLC_DTYPE.itemsize == NCTOPLC_SIZE and PLCTONC_DTYPE.itemsize == PLCTONC_SIZE
+assert _PLC_RECORD_SIZE == PLC_AXIS_RECORD_DTYPE.itemsize
 
 #: NCAXISSTATE_ONLINESTRUCT, TC3 layout (reference 5.4.2, TwinSharp): ErrState, reserved, ActPos,
 #: ModuloActPos, SetPos, ModuloSetPos, ActVelo, SetVelo, Override, reserved, lag, peak-hold neg/pos,
@@ -185,7 +193,9 @@ class Image:
 
 
 def parse_frame(data: bytes, received: float) -> Image:
-    """An :class:`Image` of a status frame's bytes (FRAME_HEADER + NCTOPLC records [+ job records]).
+    """An :class:`Image` of a status frame's bytes (FRAME_HEADER + NCTOPLC records [+ job records]). The
+    header's layout is nc_schema's (built from schema/structs.json); struct instead of
+    ``nc_schema.decode_frame``: 10-20 us against 70-100 us per frame here, 500 frames a second.
 
     Raises:
         ValueError: not a zenoh-nc status frame.
@@ -198,9 +208,10 @@ def parse_frame(data: bytes, received: float) -> Image:
     if len(data) < hsize + count * rsize:
         raise ValueError("status frame shorter than its records")
     recs: dict[int, bytes] = {}
+    axis_id_off = _N["AxisId"][0]
     for k in range(count):
         rec = data[hsize + k * rsize: hsize + k * rsize + NCTOPLC_SIZE]
-        recs[struct.unpack_from("<I", rec, 32)[0]] = rec
+        recs[struct.unpack_from("<I", rec, axis_id_off)[0]] = rec
     return Image(cycle, nc_time, received, recs)
 
 
@@ -378,7 +389,7 @@ class NcDevice(AdsDevice):
     version = (3, 1, 0)
 
     def __init__(self, nc: str, endpoint: str, client_id: str = "ads1", role: str = "observer",
-                 tls_dir: str | None = None, query_timeout: float = 1.5, stale_after: float = 0.5,
+                 tls_dir: str | None = None, query_timeout: float = 1.5, stale_after: float = 1.0,
                  supply_period: float = 0.01, frame_period_ms: int = 2, lease_ms: int = 500,
                  config: zenoh.Config | None = None) -> None:
         if role not in ROLE_CLASSES:
@@ -758,7 +769,8 @@ class NcDevice(AdsDevice):
         """(kind, axis id) of an axis group 0x4000..0x43FF whose axis exists.
 
         Raises:
-            AdsError: 0x702 another group or an axis the NC does not have; 0x707 no fresh frame.
+            AdsError: 0x702 another group or an axis the NC does not have; 0x707 no fresh frame (also for
+                commands: a frozen NC would otherwise hold a worker for every query's full timeout).
         """
         kind, axis = group & 0xFF00, group & 0xFF
         if kind not in (IG_AXIS_PARAM, IG_AXIS_STATE, IG_AXIS_FUNC, IG_AXIS_CYCLIC) or group > 0x43FF or axis == 0:
@@ -766,6 +778,22 @@ class NcDevice(AdsDevice):
         if axis not in self.fresh_image().records:
             raise AdsError(ADSERR_DEVICE_INVALIDGRP, f"index group {group:#x}: NC {self.nc} has no axis {axis}")
         return kind, axis
+
+    def nonblocking(self, group: int, offset: int, write: bool = False) -> bool:
+        """Reads answered from the newest frame (0x1100, 0x4100+ID, 0x4300+ID once the axis's applied PLCTONC is
+        known) never block: the server runs them on its loop. Writes, parameters and functions send commands."""
+        if write:
+            return False
+        if group == IG_R0_STATE:
+            return True
+        kind, axis = group & 0xFF00, group & 0xFF
+        if group > 0x43FF:
+            return False
+        if kind == IG_AXIS_STATE:
+            return True
+        if kind == IG_AXIS_CYCLIC:  # the first read of an axis's applied PLCTONC may wait for its first sample
+            return offset == IO_NCTOPLC or axis in self._applied_latest or axis in self._supplies
+        return False
 
     def _axis_ids(self, img: Image) -> list[int]:
         return sorted(a for a in img.records if 0 < a <= MAX_ADS_AXIS_ID)
@@ -944,7 +972,6 @@ class NcDevice(AdsDevice):
         if e.ads.type == "UINT16" and data not in (b"\0\0", b"\1\0"):
             raise AdsError(ADSERR_DEVICE_INVALIDDATA, f"{e.name}: a UINT16 flag is 0 or 1")
         self._allow(COMMAND_CLASS["WriteParameter"], src)
-        self.fresh_image()
         self._command("WriteParameter", axis, ParameterNumber=e.number, Value=value)
 
     def _function(self, axis: int, offset: int, data: bytes, src: AdsSource) -> dict[str, Any]:
@@ -966,7 +993,6 @@ class NcDevice(AdsDevice):
             assert decode is not None
             call = decode(data)
         self._allow(COMMAND_CLASS[call.cmd], src)
-        self.fresh_image()
         return self._command(call.cmd, axis, **call.args)
 
     def _set_actual_position(self, axis: int, data: bytes) -> _Call:

@@ -16,7 +16,9 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   ReadWrite replies always carry the length field, pitfall 1). Unknown command ids get AMS error 0x701
   in the header. Frames flagged as responses and DeviceNotifications sent to the server are ignored.
 - Read/Write/ReadWrite/ReadState go to the device in a bounded worker pool (`max_workers`, default 8),
-  except reads/writes the device declares `nonblocking(group, offset)` (run on the loop), so replies of different AMS source ports may complete out of order (matched by invoke id); at most
+  except requests the device declares `nonblocking(group, offset, write)` (run on the loop; `write` is
+  False for Read, True for Write/ReadWrite), so replies of different AMS source ports may complete out
+  of order (matched by invoke id); at most
   `MAX_INFLIGHT_PER_CONNECTION` (64) requests per connection are in flight, then reading pauses.
   A device answer longer than the requested length is truncated and logged (pitfall 2). An exception
   other than AdsError inside a device is logged and answered with 0x700.
@@ -42,7 +44,11 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   server samples on its tick (`tick_ms`, default 10 ms, at least `MIN_TICK_MS` = 1 ms); a cycle time
   (wire unit 100 ns) is rounded to a whole number of ticks, at least one; nMaxDelay is not waited for
   (sending at once is allowed). ServerOnChange sends the first value and then only when the bytes
-  changed; ServerCycle sends every cycle. The first sample goes out on the first tick at least
+  changed; ServerCycle sends every cycle. With `push_on_change` (default) the server also registers
+  with every device's `add_change_listener`: when a device reports a new image (NcDevice: every NC
+  status frame) the ServerOnChange subscriptions are checked at once on the loop instead of on the
+  next tick (lower latency, up to a tick less); such a check counts as the next tick's, so a
+  subscription is still checked at most about once per cycle time. ServerCycle stays on the tick. The first sample goes out on the first tick at least
   `FIRST_SAMPLE_DELAY_S` (10 ms) after the AddDeviceNotification reply (pitfall 5: AdsLib registers the
   handle only after its calling thread woke up; 3 ms still lost first samples on a loaded 2-core
   machine), and a ServerOnChange value that did not change within `ONCHANGE_REPEAT_S` (1 s) after the
@@ -100,6 +106,7 @@ MAX_CONNECTIONS = 256
 MAX_NOTIFICATION_FRAME = 1024 * 1024  # a tick's samples are split into frames of about this size
 
 _U32 = struct.Struct("<I")
+_SUM_GROUPS = (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE)
 
 # IEC type name -> ADS data type id (pyads constants ADST_*), for SAdsSymbolEntry.dataType
 _ADST = {
@@ -161,6 +168,8 @@ class WritePolicy:
             addr = ipaddress.ip_address(ip)
         except ValueError:
             return False
+        if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
+            addr = addr.ipv4_mapped   # an IPv4 client on a dual-stack listen socket
         return any(addr in net for net in self.networks)
 
 
@@ -236,8 +245,8 @@ class Dispatcher:
             device, group, offset = entry[0], entry[2].group, entry[2].offset
         elif group >= 0xF000:
             return False                    # sum commands, value by name: may touch many objects
-        try:
-            return bool(device.nonblocking(group, offset))
+        try:   # a Read only reads; a Write or ReadWrite may send commands
+            return bool(device.nonblocking(group, offset, write=h.command != Command.READ))
         except Exception as exc:
             log.error("device %s: nonblocking raised %r", device.name, exc, exc_info=exc)
             return False
@@ -462,6 +471,9 @@ class Dispatcher:
                 return ADSERR_DEVICE_INVALIDSIZE, b""
             rw = []
             for i in rwitems:
+                if i.group in _SUM_GROUPS:   # no sum inside a sum (no recursion, no amplification)
+                    rw.append((ADSERR_DEVICE_SRVNOTSUPP, b""))
+                    continue
                 code, out = self.read_write(device, i.group, i.offset, i.read_length, i.data, src,
                                             session)
                 rw.append((code, out if code == 0 else b""))
@@ -501,10 +513,14 @@ class Dispatcher:
             req.trans_mode, ticks, self.clock() + FIRST_SAMPLE_DELAY_S)
         return ams.AddNotificationResponse(0, handle)
 
-    def collect(self, session: Session, tick: int, now: float, filetime: int) -> list[bytes]:
-        """The DeviceNotification frames due for `session` at tick number `tick` (monotonic `now`)."""
+    def collect(self, session: Session, tick: int, now: float, filetime: int,
+                only_on_change: bool = False) -> list[bytes]:
+        """The DeviceNotification frames due for `session` at tick number `tick` (monotonic `now`);
+        `only_on_change`: ServerOnChange subscriptions only (a push on the device's new image)."""
         batches: dict[tuple[AmsAddr, AmsAddr], list[ams.Sample]] = {}
         for sub in list(session.subs.values()):
+            if only_on_change and sub.trans_mode != ams.TRANS_SERVERONCHA:
+                continue
             if now < sub.not_before or tick < sub.next_tick:
                 continue
             sub.next_tick = tick + sub.cycle_ticks
@@ -556,7 +572,7 @@ class AdsServer:
 
     def __init__(self, devices: Mapping[int, AdsDevice], net_id: str, listen: tuple[str, int],
                  write_policy: WritePolicy | None = None, strict_netid: bool = True, *,
-                 tick_ms: float = DEFAULT_TICK_MS, max_workers: int = 8) -> None:
+                 tick_ms: float = DEFAULT_TICK_MS, max_workers: int = 8, push_on_change: bool = True) -> None:
         if not devices:
             raise ValueError("AdsServer needs at least one AMS port with a device")
         if tick_ms < MIN_TICK_MS:
@@ -575,6 +591,10 @@ class AdsServer:
         self._conn_ids = itertools.count(1)
         self._bound: tuple[str, int] | None = None
         self._stopping = False
+        self.push_on_change = push_on_change
+        self._tick = 0                 # the notifier's last tick number (loop thread only)
+        self._push_pending = False     # a push is scheduled on the loop (coalesces a burst of images)
+        self.pushes = 0                # pushes that sent samples (tests, bench)
 
     @property
     def bound_address(self) -> tuple[str, int]:
@@ -628,6 +648,9 @@ class AdsServer:
         sock = self._server.sockets[0]
         self._bound = sock.getsockname()[:2]
         self._spawn(self._notifier())
+        if self.push_on_change:
+            for device in {id(d): d for d in self.dispatcher.devices.values()}.values():
+                device.add_change_listener(self._image_arrived)
 
     def _spawn(self, coro) -> asyncio.Task:
         task = asyncio.get_running_loop().create_task(coro)
@@ -777,18 +800,54 @@ class AdsServer:
             writer.write(reply.encode())   # one write per frame: frames never interleave (pitfall 9)
 
     # -- notifications ------------------------------------------------------------------------------
+    def _image_arrived(self) -> None:
+        """A device's change listener (any thread, e.g. NcDevice's frame thread): ServerOnChange samples go
+        out now instead of on the next tick. Only schedules work on the loop, never runs it here."""
+        loop = self._loop
+        if self._push_pending or loop is None or self._stopping:
+            return
+        self._push_pending = True
+        try:
+            loop.call_soon_threadsafe(self._push)
+        except RuntimeError:   # loop closed (server closed; the device outlives it)
+            self._push_pending = False
+
+    def _push(self) -> None:
+        self._push_pending = False
+        if self._stopping:
+            return
+        # the push counts as the next tick's check: a subscription is checked at most once per cycle
+        tick = self._tick + 1
+        now = time.monotonic()
+        filetime = ams.filetime_now()
+        pushed = False
+        for session, writer in list(self._sessions.values()):
+            if not session.subs or writer.is_closing() or session.throttled:
+                continue
+            try:
+                frames = self.dispatcher.collect(session, tick, now, filetime, only_on_change=True)
+            except Exception as exc:
+                log.error("notifications of connection %d: %r", session.conn_id, exc, exc_info=exc)
+                continue
+            if frames and not pushed:
+                pushed = True
+                self.pushes += 1   # before the write: a client may look at it as soon as the frame arrived
+            for frame in frames:
+                writer.write(frame)
+
     async def _notifier(self) -> None:
         loop = asyncio.get_running_loop()
         start = loop.time()
         tick = 0
         while True:
             tick += 1
+            self._tick = tick
             deadline = start + tick * self.tick_s
             delay = deadline - loop.time()
             if delay > 0:
                 await asyncio.sleep(delay)
             elif delay < -self.tick_s:   # late by more than a tick (loaded machine): skip, no burst
-                tick = int((loop.time() - start) / self.tick_s)
+                tick = self._tick = int((loop.time() - start) / self.tick_s)
             if not any(s.subs for s, _ in self._sessions.values()):
                 continue
             now = time.monotonic()

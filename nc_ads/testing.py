@@ -12,7 +12,8 @@ Other groups -> 0x702, other offsets -> 0x703, wrong sizes -> 0x705, read-only -
 source without `may_write` -> 0x723. `errors[(group, offset)] = code` makes reads/writes there fail with
 that code (e.g. an NC code 0x4358); `delays[(group, offset)] = s` makes them block s seconds;
 `crash_groups` makes reads there raise RuntimeError (the server must answer 0x700).
-`nonblocking()` is True except where a delay is set or `inline_off` is True.
+`nonblocking()` is True except where a delay is set, `inline_off` is True, or for writes
+(`write=True`) when `inline_writes_off` is True.
 Symbols: MAIN.fVelo (0x4001/0x27), MAIN.nAxisId, MAIN.sName, MAIN.stState (256 B), GVL.v<i>.
 """
 from __future__ import annotations
@@ -52,6 +53,7 @@ class FakeDevice(AdsDevice):
         self.delays: dict[tuple[int, int], float] = {}
         self.crash_groups: set[int] = set()
         self.inline_off = False   # True: every read/write goes through the server's worker pool
+        self.inline_writes_off = False   # True: writes/read-writes go through the pool, reads may not
         self.ads_state = (5, 0)
         self.closed_conns: list[int] = []
         self.writes: list[tuple[int, int, bytes, AdsSource]] = []
@@ -138,7 +140,9 @@ class FakeDevice(AdsDevice):
             self._cell(group, offset)
         raise AdsError(ADSERR_DEVICE_INVALIDACCESS)
 
-    def nonblocking(self, group: int, offset: int) -> bool:
+    def nonblocking(self, group: int, offset: int, write: bool = False) -> bool:
+        if write and self.inline_writes_off:
+            return False
         return (group, offset) not in self.delays and not self.inline_off
 
     def sample(self, group: int, offset: int, length: int) -> bytes:

@@ -44,7 +44,7 @@ class NcAdsProcess:
         except OSError:
             return ""
 
-    def wait_ready(self, timeout: float = 30.0) -> None:
+    def wait_ready(self, timeout: float = 90.0) -> None:  # importing numpy alone took 20 s on the loaded machine
         deadline = time.monotonic() + timeout
         while not any(ln.startswith("nc-ads ready:") for ln in self.stdout_lines):
             if self.proc.poll() is not None:

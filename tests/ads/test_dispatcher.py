@@ -155,6 +155,7 @@ def test_write_policy(dev: FakeDevice) -> None:
     p = WritePolicy(["192.168.0.0/16", "127.0.0.2"])
     assert p.may_write("1.1.1.1.1.1", "192.168.77.1") and p.may_write("1.1.1.1.1.1", "127.0.0.2")
     assert not p.may_write("1.1.1.1.1.1", "127.0.0.1") and not p.may_write("1.1.1.1.1.1", "garbage")
+    assert p.may_write("1.1.1.1.1.1", "::ffff:192.168.3.4") and not p.may_write("1.1.1.1.1.1", "::ffff:10.0.0.1")
     assert WritePolicy().may_write("x", "y") and not WritePolicy([]).may_write("1.1.1.1.1.1", "127.0.0.1")
     with pytest.raises(ValueError, match="neither"):
         WritePolicy(["not-an-address"])
@@ -253,6 +254,13 @@ def test_sum_read_write_readwrite(dev: FakeDevice) -> None:
     nested = [ams.SumReadItem(0xF080, 0, 4)]
     r = rw(d, 0xF080, 1, 8, ams.encode_sum_read(nested), s)
     assert struct.unpack_from("<I", r.data)[0] == 0x701
+    # ... also inside a sum read-write (it used to recurse: a sum of sums of sums ...)
+    inner = ams.encode_sum_read([ams.SumReadItem(0x4002, 0, 8)])
+    nested_rw = [ams.SumReadWriteItem(0xF080, 1, 12, inner), ams.SumReadWriteItem(0xF082, 0, 8, b""),
+                 ams.SumReadWriteItem(0x4201, 0, 1, b"ab")]
+    r = rw(d, 0xF082, 3, 8 * 3 + 12 + 8 + 1, ams.encode_sum_read_write(nested_rw), s)
+    assert r.result == 0
+    assert ams.decode_sum_read_write_response(3, r.data) == [(0x701, b""), (0x701, b""), (0, b"b")]
 
 
 def add(d: Dispatcher, s: Session, g: int, o: int, n: int, mode: int = 4, cycle: int = 100000,
@@ -379,3 +387,11 @@ def test_runs_inline_only_what_does_not_block(dev: FakeDevice) -> None:
     assert d.runs_inline(R(0xF005, h), s)
     dev.inline_off = True
     assert not d.runs_inline(R(0x4001, 0x27), s)
+    dev.inline_off = False
+    # the device is told whether the request may write: reads inline, Write and ReadWrite to the pool
+    dev.inline_writes_off = True
+    assert d.runs_inline(R(0x4001, 0x27), s)
+    assert not d.runs_inline(pkt(Command.WRITE, ams.WriteRequest(0x4001, 0x27, bytes(8)).encode()), s)
+    assert not d.runs_inline(pkt(Command.READ_WRITE, ams.ReadWriteRequest(0x4001, 0x27, 8, b"x").encode()), s)
+    assert d.runs_inline(R(0xF005, h), s)
+    assert not d.runs_inline(pkt(Command.WRITE, ams.WriteRequest(0xF005, h, bytes(8)).encode()), s)

@@ -233,3 +233,23 @@ def test_constructor_and_bind_errors(ads_server: AdsServer, fake_device: FakeDev
         assert free.bound_address[1] > 0
         with RawClient(*free.bound_address, server_netid="1.2.3.4.1.1") as c:
             assert ams.ReadStateResponse.decode(c.request(Command.READ_STATE).data).ads_state == 5
+
+
+@pytest.mark.parametrize("push", [True, False])
+def test_on_change_is_pushed_when_the_device_has_a_new_image(start_ads, fake_device: FakeDevice,
+                                                              push: bool) -> None:
+    srv = start_ads(tick_ms=30000.0, push_on_change=push)   # the first tick is 30 s away
+    with connect(srv) as c:
+        h_change = add_notification(c, 0x4101, 0, 256, mode=4, cycle=1)
+        add_notification(c, 0x4101, 0, 256, mode=3, cycle=1)          # ServerCycle: stays on the tick
+        time.sleep(0.05)                                              # past the first-sample delay
+        fake_device.set_pos(42.0)                                     # the device's change listener fires
+        if not push:
+            with pytest.raises((socket.timeout, TimeoutError)):
+                notifications(c, 1, timeout=1.0)
+            return
+        (p,) = notifications(c, 1, timeout=10.0)
+        (stamp,) = ams.DeviceNotification.decode(p.data).stamps
+        assert [s.handle for s in stamp.samples] == [h_change]
+        assert struct.unpack_from("<d", stamp.samples[0].data, 16)[0] == 42.0
+        assert wait_until(lambda: srv.pushes >= 1)
