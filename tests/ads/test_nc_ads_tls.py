@@ -36,7 +36,7 @@ def test_tls_identity_and_roles_file(tmp_path: Path) -> None:
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed")
     certs = tmp_path / "certs"
-    subprocess.run(["sh", str(REPO / "deploy" / "certs" / "make-certs.sh"), str(certs), "nc1", "ads-op", "ads-obs"],
+    subprocess.run(["sh", str(REPO / "deploy" / "certs" / "make-certs.sh"), str(certs), "--server", "nc1", "ads-op", "ads-obs"],
                    check=True, capture_output=True, timeout=120)
     roles = tmp_path / "roles.toml"
     roles.write_text(ROLES)
