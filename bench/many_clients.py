@@ -31,8 +31,10 @@ The verdict against issue 8's criteria is printed check by check, then MET / NOT
 * NC missed cycles and NC overruns not above the floor: "above" means more than ``Z_ABOVE`` (3)
   standard errors above the floor's rate (pooled two-proportion z score; the floor's ~10 000 cycles
   make a fraction like 0.1 % uncertain by itself);
-* no lost or doubled command (per axis: the NC's NewestCmdNo progress = accepted, sent = accepted +
-  refused);
+* no lost or doubled command (per axis: the NC's NewestCmdNo progress = the program's accepted moves
+  + the Halts the PLC task sent on its own and the NC accepted (it stops a move whose block gave up
+  when the NC's data was lost, or that was accepted after its block timed out: plc_client/task.py),
+  sent = accepted + refused);
 * every block's outputs consistent: no block error, and every move started ended exactly once
   (Done, CommandAborted or Error);
 * every client finished (wrote its final report).
@@ -359,7 +361,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     if r.get("observer"):
         o = r["observer"]
         print(f"observer: {o['frames']} frames in the window ({cycles} NC cycles), longest gap {o['max_gap_ms']:.1f} ms")
-    sent = done = aborted = accepted = refused = 0
+    sent = done = aborted = accepted = refused = task_sent = task_accepted = 0
     errors: dict[str, int] = {}
     lost = []
     worst_unchanged = 0
@@ -375,6 +377,8 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
             sent += a["sent"]
             accepted += a.get("accepted", 0)
             refused += a.get("refused", 0)
+            task_sent += a.get("task_sent", 0)
+            task_accepted += a.get("task_accepted", 0)
             done += a["done"]
             aborted += a["aborted"]
             for code, c in a["errors"].items():
@@ -389,12 +393,16 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
                 # NewestCmdNo counts 1..65535 and wraps to 1
                 delta = (a["cmdno"] - a["cmdno0"]) % 65535
                 acc = a.get("accepted", a["sent"])
-                if delta != acc or a["sent"] != acc + a.get("refused", 0):
+                # the NC also numbers the task's own Halts (a move whose block gave up on lost NC data
+                # or was accepted after its block timed out, and still ran: plc_client/task.py)
+                task_acc = a.get("task_accepted", 0)
+                if delta != acc + task_acc or a["sent"] != acc + a.get("refused", 0):
                     lost.append(f"axis {ax}: sent {a['sent']}, accepted {acc}, refused {a.get('refused', 0)}, "
-                                f"NC CmdNo progress {delta}")
+                                f"task's Halts accepted {task_acc}, NC CmdNo progress {delta}")
             else:
                 lost.append(f"axis {ax}: no job records ({a['cmdno0']}, {a['cmdno']})")
-    print(f"clients: {sent} moves sent, {accepted} accepted, {refused} refused; NC CmdNo progress = accepted "
+    print(f"clients: {sent} moves sent, {accepted} accepted, {refused} refused; the task's own Halts {task_sent} sent, "
+          f"{task_accepted} accepted; NC CmdNo progress = accepted + Halts accepted "
           f"{'on every axis' if not lost else 'NOT on every axis: ' + '; '.join(lost[:6])}; "
           f"done {done}, aborted {aborted}, block errors {sum(errors.values())} {errors or ''}")
     print(f"frames: most consecutive PLC cycles without a newer frame {worst_unchanged}, PLC cycles with stale data {invalid}; "
@@ -421,7 +429,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
          f" ({z_missed:+.1f} standard errors; above: > {Z_ABOVE:g})", z_missed <= Z_ABOVE),
         (f"NC overruns not above the floor: {100.0 * over / max(1, cycles):.2f} % vs {100.0 * fl_over / max(1, fl_due):.2f} %"
          f" ({z_over:+.1f} standard errors)", z_over <= Z_ABOVE),
-        (f"no lost or doubled command (NC CmdNo progress = accepted, sent = accepted + refused on every axis)"
+        (f"no lost or doubled command (NC CmdNo progress = accepted + the task's Halts accepted, sent = accepted + refused on every axis)"
          f"{'' if not lost else ': ' + str(len(lost)) + ' axes differ'}", not lost),
         (f"every block's outputs consistent: no block error{'' if not errors else ' (' + str(sum(errors.values())) + ')'}, "
          f"every move started ended once (Done, CommandAborted or Error){'' if not inconsistent else ': not on ' + ', '.join(inconsistent[:6])}",

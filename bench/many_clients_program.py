@@ -11,7 +11,10 @@ Counted per axis: ``started`` (rising edges of Execute), ``sent`` (moves whose r
 replies: error 0 / an error or none), ``done``,
 ``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``), the job records'
 ``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
-``accepted`` must equal the difference, ``sent`` = ``accepted`` + ``refused``), and frame reception: ``invalid`` (cycles with stale data
+``accepted`` + ``task_accepted`` must equal the difference, ``sent`` = ``accepted`` + ``refused``),
+``task_sent`` / ``task_accepted`` (motion commands the PLC task sent on its own, not this program: the
+Halt that stops a move whose block gave up when the NC's data was lost or that was accepted after its
+block timed out, plc_client/task.py "orphans"; the NC numbers them too), and frame reception: ``invalid`` (cycles with stale data
 after the first valid one), ``max_unchanged`` (most consecutive PLC cycles without a newer NC
 frame).
 """
@@ -21,6 +24,7 @@ import json
 import os
 import time
 
+from nc_schema import MOTION_COMMANDS
 from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power
 
 NC = os.environ.get("MANY_NC", "nc1")
@@ -50,6 +54,7 @@ class _Axis:
         self.max_unchanged = 0
         self.last_nc_cycle = -1
         self._power_err = False
+        self.task_cmds: list = []  # PendingCommands of motion commands the task sent on its own (Halt)
 
     def cycle(self, stopping: bool) -> None:
         ax = self.ax
@@ -104,9 +109,15 @@ class _Axis:
             self.execute = False
             self.busy = True
 
+    def task_pending(self) -> bool:
+        return any(not p.done for p in self.task_cmds)
+
     def report(self) -> dict:
         cmdno = int(self.ax.NcJobs["NewestCmdNo"]) if self.ax.Status.Valid else None
-        return {"started": self.k, "sent": self.sent, "accepted": self.accepted, "refused": self.refused, "pending": self.req is not None,
+        task_acc = sum(1 for p in self.task_cmds if p.reply is not None and int(p.reply.get("error", 0)) == 0
+                       and int(p.reply.get("CmdNo", 0)))
+        return {"task_sent": len(self.task_cmds), "task_accepted": task_acc, "task_pending": self.task_pending(),
+                "started": self.k, "sent": self.sent, "accepted": self.accepted, "refused": self.refused, "pending": self.req is not None,
                 "done": self.done, "aborted": self.aborted, "errors": self.errors,
                 "cmdno0": self.cmdno0, "cmdno": cmdno, "invalid": self.invalid,
                 "max_unchanged": self.max_unchanged, "idle": not self.execute}
@@ -118,14 +129,33 @@ class Program:
         self.next_report = 0.0
         self.final = False
         self.t0 = time.monotonic()
+        self._hooked = False
+
+    def _hook(self, plc) -> None:  # type: ignore[no-untyped-def]
+        """Count the motion commands the task sends on its own (PlcTask.send outside our move
+        block's call: the orphan Halt), which the NC numbers like ours."""
+        by_id = {a.ax.axis_id: a for a in self.axes}
+        send = plc.send
+
+        def counting_send(ax, cmd, **args):  # type: ignore[no-untyped-def]
+            p = send(ax, cmd, **args)
+            a = by_id.get(ax.axis_id)
+            if a is not None and cmd in MOTION_COMMANDS and cmd != "MoveAbsolute":
+                a.task_cmds.append(p)
+            return p
+
+        plc.send = counting_send
+        self._hooked = True
 
     def cycle(self, plc) -> None:  # type: ignore[no-untyped-def]
+        if not self._hooked:
+            self._hook(plc)
         stopping = os.path.exists(STOP) if plc.cycle % 10 == 0 or self.final else self._stopping
         self._stopping = stopping
         for a in self.axes:
             a.cycle(stopping)
         now = time.monotonic()
-        done = stopping and all(not a.execute and a.req is None for a in self.axes)
+        done = stopping and all(not a.execute and a.req is None and not a.task_pending() for a in self.axes)
         if (now >= self.next_report and not self.final) or (done and not self.final):
             self.next_report = now + REPORT_PERIOD
             self.final = done

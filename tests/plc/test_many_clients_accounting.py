@@ -1,0 +1,55 @@
+"""bench/many_clients_program.py counts what the NC numbers (in-process NcCore, virtual time).
+
+The bench's "no lost or doubled command" check compares the NC's NewestCmdNo progress with the
+program's accepted moves. The PLC task also sends motion commands of its own: the Halt that stops
+a move whose block gave up when the NC's data was lost (plc_client/task.py orphans). The NC numbers
+that Halt too, so the progress is accepted + 1 without any doubled command; the program must count
+it (``task_accepted``) for the check to be exact.
+"""
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from nc_schema import ErrorCodes
+from plc_rig import Rig
+
+PROGRAM = Path(__file__).resolve().parents[2] / "bench" / "many_clients_program.py"
+
+
+@pytest.fixture
+def program_module(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Any:
+    monkeypatch.setenv("MANY_AXES", "1")
+    monkeypatch.setenv("MANY_REPORT", str(tmp_path / "report.json"))
+    monkeypatch.setenv("MANY_STOP", str(tmp_path / "stop"))
+    spec = importlib.util.spec_from_file_location("many_clients_program_under_test", PROGRAM)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    yield mod
+    sys.modules.pop("many_clients_program_under_test", None)
+
+
+def test_the_tasks_halt_of_an_orphaned_move_is_counted(program_module: Any, tmp_path: Path) -> None:
+    rig = Rig(n_axes=1)
+    prog = program_module.Program()
+    rig.plc("plc1", prog.cycle)
+    a = prog.axes[0]
+    rig.run_until(lambda: a.accepted >= 2 and a.execute, 500)  # a few moves, one running now
+    # the NC freezes: the running move's block ends with 0x4B0F; the NC comes back still running it
+    rig.nc_running = False
+    rig.run_until(lambda: not a.execute, 100)
+    assert a.errors.get(f"0x{int(ErrorCodes.MC_NO_NC_CYCLE_UPDATE):04X}") == 1, a.errors
+    rig.nc_running = True
+    (tmp_path / "stop").touch()
+    rig.run_until(lambda: prog.final, 500)
+    rep = a.report()
+    delta = rep["cmdno"] - rep["cmdno0"]
+    assert rep["task_sent"] == 1 and rep["task_accepted"] == 1, rep  # the task's Halt
+    assert rep["refused"] == 0 and rep["sent"] == rep["accepted"], rep  # no doubled or lost move
+    assert delta == rep["accepted"] + 1, rep  # what the old check reported as "progress = sent + 1"
+    assert delta == rep["accepted"] + rep["task_accepted"], rep
