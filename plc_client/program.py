@@ -248,7 +248,8 @@ def load(path: str, args: Mapping[str, str] | None = None) -> LoadedProgram:
         _loading.remove(ctx)
     if ctx.given:
         if not ctx.asked:
-            raise ProgramArgsError(f"{path} takes no arguments (it does not call program_args()); "
+            raise ProgramArgsError(f"{path} takes no arguments (it does not call program_args() while it loads: "
+                                   f"call it at module level or in Program.__init__, not in a cycle); "
                                    f"given: {', '.join(ctx.given)}")
         unknown = [n for n in ctx.given if n not in ctx.declared]
         if unknown and not ctx.open_ended:

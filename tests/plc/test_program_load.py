@@ -178,3 +178,14 @@ def test_an_axis_created_in_a_cycle_is_bound_at_creation(tmp_path: Path) -> None
     assert loaded.module.seen[-1] == (True, 2)  # valid data without any block call
     # outside a cycle an AXIS_REF stays unbound until used
     assert AXIS_REF(nc="nc1", axis_id=1).task is None
+
+
+def test_program_args_asked_only_in_a_cycle_is_named_at_load(tmp_path: Path) -> None:
+    """program_args() in cycle() is not seen while the file loads: --arg is refused, saying where to call it."""
+    p = write(tmp_path, """
+        from plc_client import program_args
+        def cycle(plc):
+            args = program_args(speed=1.0)
+    """)
+    with pytest.raises(ProgramArgsError, match=r"takes no arguments .*module level or in Program.__init__"):
+        load(str(p), {"speed": "2"})
