@@ -83,7 +83,7 @@ def fb_latency(trials: int, plc_cycle: float) -> tuple[list[float], list[float],
                     return
                 move(Axis=X)
                 cmd_no = move._cmdno  # the CmdNo the NC gave this block's command (0 until the reply)
-                if st["phase"] == "wait" and cmd_no and X.NcToPlc["CmdNo"] == cmd_no and X.NcToPlc["StateDWord"] & StateDWord.HasJob:
+                if st["phase"] == "wait" and cmd_no and X.NcToPlc.CmdNo == cmd_no and X.NcToPlc.StateDWord & StateDWord.HasJob:
                     seen.append((time.perf_counter() - st["t_edge"]) * 1e6)
                     st["phase"] = "moving"
                 if move.Done or move.Error or move.CommandAborted:

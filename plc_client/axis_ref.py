@@ -17,9 +17,11 @@ An :class:`AXIS_REF` holds
 Binding: ``AXIS_REF(nc="nc1", axis_id=1)`` names the axis; it is bound to a PLC task
 (:class:`plc_client.task.PlcTask`) when the program is loaded (``plc-run`` binds every AXIS_REF
 the program file declares: :func:`plc_client.cli.load_program`; embedding: ``PlcRuntime(...,
-axes=[...])``), explicitly (``task.axis(...)`` / ``task.register(ax)``) or implicitly the first
-time a function block is called with it inside a running PLC cycle. A bound axis's NcToPlc and
-Status are refreshed every cycle, whether or not a block uses it.
+axes=[...])``), when it is created inside a running PLC cycle (to the task running it),
+explicitly (``task.axis(...)`` / ``task.register(ax)``) or implicitly the first time a function
+block is called with it inside a running PLC cycle. A bound axis's NcToPlc and Status are
+refreshed every cycle, whether or not a block uses it; a bound AXIS_REF stays bound for the task's
+life, so create each once (at load or on first use), not anew every cycle.
 
 Staleness (zenoh-nc choice; Tc2_MC2 raises 0x4B0F when its NC cycle counter stops):
 if the NC cycle of an axis's snapshot has not advanced for ``stale_cycles`` PLC cycles,
@@ -232,6 +234,12 @@ class AXIS_REF:
             refs.append(weakref.ref(self))
         self._has_data = False
         self._unchanged = 0  # PLC cycles without a newer NC cycle
+        from .task import current_task  # (task imports this module)
+        task = current_task()
+        if task is not None:
+            # created by the program in a cycle (e.g. on first use): bound at once, as one declared at load
+            # is, so its data is valid from this cycle on without a block call (a monitor sees it too)
+            task.register(self)
 
     # -- binding -----------------------------------------------------------------------
     @property

@@ -9,8 +9,10 @@ file is executed and its ``Program`` is instantiated, and every AXIS_REF found i
 and the Program object's attributes (also inside lists, tuples, sets and dict values, one level deep;
 e.g. imported from a neighbouring module), is bound to the PLC task before the first cycle. Its
 ``NcToPlc`` and ``Status`` are refreshed every cycle from then on, so ``X.Status.Valid`` turns TRUE
-once the NC's data arrives and a monitor-only program needs no block call. AXIS_REFs created later
-(in a cycle) are bound the first time a block is called with them, as before.
+once the NC's data arrives and a monitor-only program needs no block call. An AXIS_REF created later,
+in a cycle (e.g. on first use), is bound to the running task when it is created, so it reads valid data
+from that cycle on as well; one created outside any cycle and load (e.g. by a helper thread) is bound
+the first time a block is called with it.
 
 **Program arguments** (``plc-run prog.py --arg speed=300 --arg axis=2``): the program asks for them
 with :func:`program_args`, at module level or in ``Program.__init__`` (the values are there while the
@@ -246,7 +248,8 @@ def load(path: str, args: Mapping[str, str] | None = None) -> LoadedProgram:
         _loading.remove(ctx)
     if ctx.given:
         if not ctx.asked:
-            raise ProgramArgsError(f"{path} takes no arguments (it does not call program_args()); "
+            raise ProgramArgsError(f"{path} takes no arguments (it does not call program_args() while it loads: "
+                                   f"call it at module level or in Program.__init__, not in a cycle); "
                                    f"given: {', '.join(ctx.given)}")
         unknown = [n for n in ctx.given if n not in ctx.declared]
         if unknown and not ctx.open_ended:

@@ -202,9 +202,12 @@ def _plc_value(name: str, code: str, value: Any) -> Any:
             raise TypeError(f"PlcToNc.{name}: LREAL needs a number, got {value!r}")
         return float(value)
     if isinstance(value, (bool, np.bool_)):
+        if code != "B":  # (Override = True would be 1 = 0.0001 %, silently)
+            raise TypeError(f"PlcToNc.{name}: an integer is needed, got {value!r} (a bool only for BOOL/BYTE members)")
         return int(value)
     if not isinstance(value, (int, np.integer)):
-        raise TypeError(f"PlcToNc.{name}: an integer is needed, got {value!r}")
+        hint = " (round() it: a real is never truncated silently)" if isinstance(value, (float, np.floating)) else ""
+        raise TypeError(f"PlcToNc.{name}: an integer is needed, got {value!r}{hint}")
     lo, hi = _INT_RANGE[code]
     if not lo <= value <= hi:
         raise ValueError(f"PlcToNc.{name}: must be within {lo}..{hi}, got {value!r}")

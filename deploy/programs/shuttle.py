@@ -1,7 +1,8 @@
 """A shuttle for the deploy/ PLC programs: one axis powered and moved between two positions.
 
 Used by ``plc1.py`` and ``plc2.py`` (plc-run puts the program's folder on ``sys.path``). Only the
-public block API (``MC_Power``, ``MC_ReadStatus``, ``MC_MoveAbsolute``, ``MC_Reset``). What a shuttle does each cycle:
+public block API (``MC_Power``, ``MC_MoveAbsolute``, ``MC_Reset``) and the axis's own data (``Axis.Status``,
+``Axis.NcToPlc``: the axis is bound when plc-run loads the program). What a shuttle does each cycle:
 
 * ``MC_Power`` with Enable TRUE: claims the axis and keeps it enabled (the block re-claims by itself
   after a loss of the NC or of the link).
@@ -20,7 +21,7 @@ from __future__ import annotations
 import os
 import time
 
-from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power, MC_ReadStatus, MC_Reset
+from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power, MC_Reset
 
 CLIENT = os.environ.get("ZNC_ID", "plc")
 
@@ -51,7 +52,6 @@ class Shuttle:
         self.rearm = env_float("ZNC_REARM_S", 2.0) if rearm is None else rearm
         self.use_power = power
         self.power, self.move, self.reset = MC_Power(), MC_MoveAbsolute(), MC_Reset()
-        self.status = MC_ReadStatus()
         self.target = b
         self.state = "idle"
         self.hold_until = 0.0
@@ -62,13 +62,13 @@ class Shuttle:
         """The axis can take a move: powered by this shuttle, or (without power) data valid and enabled."""
         if self.use_power:
             return bool(self.power.Status)
-        st = self.status
-        return bool(st.Valid) and not st.Errorstop and bool(self.axis.NcToPlc["StateDWord"] & (1 << 20))
+        st = self.axis.Status
+        return st.Valid and not st.ErrorStop and bool(self.axis.NcToPlc.StateDWord & (1 << 20))
 
     def axis_error(self) -> bool:
         """The NC reports an axis error (on valid data)."""
         ax = self.axis
-        return bool(ax.Status.Valid) and bool(int(ax.NcToPlc["StateDWord"]) & (1 << 31))
+        return ax.Status.Valid and bool(ax.NcToPlc.StateDWord & (1 << 31))
 
     def cycle(self, now: float) -> None:
         """Run the blocks of one PLC cycle (``now`` = plc.now [s])."""
@@ -83,11 +83,9 @@ class Shuttle:
                 self._power_err = err
                 if err:
                     say(ax, f"error 0x{err:X} (MC_Power)")
-        else:
-            self.status(Axis=ax, Enable=True)  # binds the axis: its data is read each cycle
         if self.state == "idle" and self.use_power and self.power.Active and self.axis_error():
             # an axis error (e.g. 0x8F02 after a lost link): the holder resets it, then moves again
-            say(ax, f"axis error 0x{int(ax.NcToPlc['ErrorCode']):X}; reset in {self.rearm:g} s")
+            say(ax, f"axis error 0x{ax.NcToPlc.ErrorCode:X}; reset in {self.rearm:g} s")
             self._next("reset", now + self.rearm)
         elif self.state == "idle":
             if now >= self.hold_until and self.ready():
@@ -97,7 +95,7 @@ class Shuttle:
         elif self.state == "moving":
             self.move(Axis=ax, Execute=True)
             if self.move.Done:
-                say(ax, f"done at {float(ax.NcToPlc['ActPos']):.3f}")
+                say(ax, f"done at {ax.NcToPlc.ActPos:.3f}")
                 self.target = self.a if self.target == self.b else self.b
                 self._next("idle", now + self.dwell)
             elif self.move.CommandAborted:

@@ -347,7 +347,7 @@ class NcCore:
         try:
             new = self.params[i].with_value(name, value)
         except ConfigError as exc:
-            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, str(exc)) from None
+            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{exc.key}: {exc.message}") from None
         if self._moves(i):
             self._check_running(i, new)
         self.params[i] = new

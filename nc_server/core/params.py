@@ -15,19 +15,36 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping
 
-from nc_schema import PARAMETERS, ErrorCodes, NcError, ParamEntry
+from nc_schema import PARAMETERS, ErrorCodes, NcError, ParamEntry, error_name
 
 
 class ConfigError(ValueError):
-    """An invalid configuration value.
+    """An invalid configuration value: ``key: message`` (``[0x070B ADSERR_DEVICE_INVALIDPARM]`` appended
+    when ``code`` is given).
+
+    Codes (zenoh-nc choice): an axis entry that the NC would refuse the same way at run time carries the
+    code it gets there, whatever the source (config file, overlay, ``--set``): a parameter value of the
+    wrong type or out of range 0x070B (what MC_WriteParameter answers), an unknown parameter name 0x0703
+    (what an undefined MC_AxisPara number gets), an AxisId that is not configured or not 1..65535 0x4012
+    (NC_AXIS_ID_NOT_ALLOWED). Keys TwinCAT has no error code for (``[nc]``, ``[zenoh]``, files, TOML
+    syntax, a duplicate axis) carry none.
 
     Attributes:
         key: the offending key, e.g. ``axis[2].AxisVeloMax``.
+        message: what is wrong, without the key and the code.
+        code: the TwinCAT error code, or None.
     """
 
-    def __init__(self, key: str, message: str) -> None:
-        super().__init__(f"{key}: {message}")
+    def __init__(self, key: str, message: str, code: int | None = None) -> None:
+        tail = f" [0x{code:04X} {error_name(code)}]" if code is not None else ""
+        super().__init__(f"{key}: {message}{tail}")
         self.key = key
+        self.message = message
+        self.code = code
+
+    def renamed(self, key: str) -> ConfigError:
+        """The same error under another key (where the value came from)."""
+        return ConfigError(key, self.message, self.code)
 
 
 def _p(default: Any, kind: str, doc: str) -> Any:
@@ -108,7 +125,7 @@ class AxisParams:
         for f in fields(self):
             setattr(self, f.name, _check(f.name, f.metadata["kind"], getattr(self, f.name), f.name))
         if self.AxisEnMinSoftPosLimit and self.AxisEnMaxSoftPosLimit and self.AxisMinSoftPosLimit >= self.AxisMaxSoftPosLimit:
-            raise ConfigError("AxisMinSoftPosLimit", "must be below AxisMaxSoftPosLimit")
+            raise ConfigError("AxisMinSoftPosLimit", "must be below AxisMaxSoftPosLimit", _BAD_VALUE)
         # (the dynamics the planner can handle: the table's ranges of AxisVeloMax/AxisAcc/AxisDec/AxisJerk)
 
     @classmethod
@@ -125,12 +142,13 @@ class AxisParams:
                 k = ALIASES[k]
             if k not in known:
                 near = difflib.get_close_matches(str(k), [*known, *ALIASES], n=1)
-                raise ConfigError(f"{where}.{k}", "unknown axis parameter" + (f" (did you mean {near[0]}?)" if near else ""))
+                raise ConfigError(f"{where}.{k}", "unknown axis parameter" + (f" (did you mean {near[0]}?)" if near else ""),
+                                  int(ErrorCodes.ADSERR_DEVICE_INVALIDOFFSET))
             kw[k] = _check(k, known[k].metadata["kind"], v, f"{where}.{k}")
         try:
             return cls(**kw)
         except ConfigError as exc:
-            raise ConfigError(f"{where}.{exc.key}", str(exc).split(": ", 1)[-1]) from None
+            raise exc.renamed(f"{where}.{exc.key}") from None
 
     def with_value(self, name: str, value: Any) -> AxisParams:
         """A copy with one parameter changed (validated; self stays untouched).
@@ -145,23 +163,27 @@ class AxisParams:
         return _KINDS[name]
 
 
+_BAD_VALUE = int(ErrorCodes.ADSERR_DEVICE_INVALIDPARM)  # 0x70B, as WriteParameter refuses the same value
+
+
 def _check(name: str, kind: str, value: Any, key: str) -> Any:
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(key, f"must be true or false, got {value!r}")
+            raise ConfigError(key, f"must be true or false, got {value!r}", _BAD_VALUE)
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(key, f"must be a number, got {value!r}")
+        raise ConfigError(key, f"must be a number, got {value!r}", _BAD_VALUE)
     value = float(value)
     if not math.isfinite(value):
-        raise ConfigError(key, f"must be finite, got {value}")
+        raise ConfigError(key, f"must be finite, got {value}", _BAD_VALUE)
     if kind == "pos" and value <= 0:
-        raise ConfigError(key, f"must be > 0, got {value}")
+        raise ConfigError(key, f"must be > 0, got {value}", _BAD_VALUE)
     if kind == "nonneg" and value < 0:
-        raise ConfigError(key, f"must be >= 0, got {value}")
+        raise ConfigError(key, f"must be >= 0, got {value}", _BAD_VALUE)
     entry = _RANGES.get(name)
     if entry is not None and not entry.in_range(value):
-        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}")
+        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}",
+                          _BAD_VALUE)
     return value
 
 
@@ -174,11 +196,13 @@ ALIASES: dict[str, str] = {
     "AxisManualVelocitySlow": "AxisVeloManSlow",
 }
 
-#: AxisParams field -> the table entry whose range validates it (all entries of one field share the range)
+#: AxisParams field -> the table entry whose range validates it (all entries of one field share the range;
+#: the entry of the field's own name is the one an error names: AxisVeloMax is 1003, not PLCopen's 8)
 _RANGES: dict[str, ParamEntry] = {}
 for _e in PARAMETERS:
     if _e.source == "param" and _e.store is not None and (_e.min is not None or _e.max is not None):
-        _RANGES.setdefault(_e.store, _e)
+        if _e.store not in _RANGES or _e.name == _e.store:
+            _RANGES[_e.store] = _e
 
 #: Read-only status parameters, answered from the live axis state by NcCore.
 STATUS_PARAMS = frozenset(e.number for e in PARAMETERS if e.source == "status")
@@ -228,6 +252,7 @@ class AxisConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.AxisId, bool) or not isinstance(self.AxisId, int) or not 1 <= self.AxisId <= 65535:
-            raise ConfigError("AxisId", f"must be an integer 1..65535, got {self.AxisId!r}")
+            raise ConfigError("AxisId", f"must be an integer 1..65535, got {self.AxisId!r}",
+                              int(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED))
         if not self.Name:
             self.Name = f"Axis{self.AxisId}"

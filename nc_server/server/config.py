@@ -12,7 +12,9 @@ Layers, each over the one before (:func:`load_config`):
    exist; e.g. ``axis.1.AxisVeloMax=300``, ``axis.2.Name=Spindle``), ``nc.<key>`` or ``zenoh.<key>``
    (``nc.cycle_time=0.002``, ``zenoh.listen=["tcp/127.0.0.1:7500"]``). VALUE is read as a TOML value
    (``300``, ``1e3``, ``true``, ``[..]``), except for string-valued keys (Name, ClientLossReaction,
-   nc.name/realtime/drive/retain_file, zenoh.mode/roles/tls_dir), which take the text as given; it is
+   nc.name/realtime/drive/retain_file, zenoh.mode/roles/tls_dir), which take the text as given, and
+   zenoh.listen/connect, which also take plain endpoints, comma-separated
+   (``zenoh.listen=tcp/127.0.0.1:7500,tcp/10.0.0.5:7500``, no shell quoting of a TOML list); it is
    then checked exactly like the same value in a config file: by the parameter's kind and the range of
    its MC_AxisPara entry in ``schema/params.json``;
 4. the dedicated options (``--listen``, ``--cycle-time``, ``--name``, ...) last.
@@ -22,6 +24,11 @@ A configuration is checked completely before anything starts; every problem is r
 ``nc.cycle_time`` or ``axis[2].AxisVeloMax``; for a value that came from an overlay or a ``--set``,
 the key names that instead (``--set axis.1.AxisVeloMax``, ``over.toml: axis.2.AxisAcc``), so the
 message says which argument to fix.
+
+An axis entry that the NC would refuse at run time too carries its TwinCAT code at the end
+(:class:`~nc_server.core.params.ConfigError`): ``--set axis.1.AxisVeloMax: must be 1e-06 .. 1e+09
+(MC_AxisPara 1003), got 1e+12 [0x070B ADSERR_DEVICE_INVALIDPARM]``, 0x0703 for an unknown parameter
+name, 0x4012 for an AxisId that is not configured.
 """
 from __future__ import annotations
 
@@ -35,7 +42,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from nc_schema import Keys
+from nc_schema import ErrorCodes, Keys
 from nc_server.core.params import ALIASES, AxisConfig, AxisParams, ConfigError
 from nc_server.drives import drive_names
 from nc_server.security.roles import Roles, RolesError, load_roles
@@ -232,7 +239,7 @@ def _axes(data: Mapping[str, Any]) -> tuple[tuple[AxisConfig, ...], tuple[str, .
         try:
             ax = AxisConfig(AxisId=axis_id, Name=name, params=params)
         except ConfigError as exc:
-            raise ConfigError(f"{where}.{exc.key}", str(exc).split(": ", 1)[-1]) from None
+            raise exc.renamed(f"{where}.{exc.key}") from None
         if ax.AxisId in ids:
             raise ConfigError(f"{where}.AxisId", f"duplicate AxisId {ax.AxisId} (also axis[{ids[ax.AxisId]}])")
         if ax.Name in names:
@@ -313,6 +320,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
                         loss_reactions=reactions)
 
 
+#: zenoh keys whose --set VALUE may also be plain endpoints, comma-separated (not only a TOML list)
+_LIST_KEYS = {"listen", "connect"}
 #: keys whose --set VALUE is the text as given (not a TOML value)
 _STRING_KEYS = {"nc": {"name", "realtime", "drive", "retain_file"}, "zenoh": {"mode", "roles", "tls_dir"},
                 "axis": {"Name", "ClientLossReaction"}}
@@ -336,7 +345,10 @@ class _Provenance:
                 best = k
         if not best:
             return exc
-        return ConfigError(self.labels[best] + key[len(best):], str(exc).split(": ", 1)[-1])
+        return exc.renamed(self.labels[best] + key[len(best):])
+
+
+_NO_AXIS = int(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED)  # 0x4012: what the NC answers for an axis it does not have
 
 
 def _axis_index(data: Mapping[str, Any], axis_id: Any) -> int | None:
@@ -390,13 +402,18 @@ def _merge_axes(data: dict[str, Any], value: Any, origin: str, prov: _Provenance
                 axis_id = int(k)
             except ValueError:
                 raise ConfigError(f"{origin}: axis.{k}", "expected [axis.<AxisId>] with an integer AxisId, "
-                                                         "e.g. [axis.1]") from None
+                                                         "e.g. [axis.1]", _NO_AXIS) from None
             i = _axis_index(data, axis_id)
             if i is None:
                 raise ConfigError(f"{origin}: axis.{k}", f"no axis with AxisId {axis_id} (configured: "
-                                                         f"{_axis_ids(data)}; add one with an [[axis]] table)")
+                                                         f"{_axis_ids(data)}; add one with an [[axis]] table)",
+                                  _NO_AXIS)
             if not isinstance(t, Mapping):
                 raise ConfigError(f"{origin}: axis.{k}", "must be a table")
+            if "AxisId" in t and (isinstance(t["AxisId"], bool) or t["AxisId"] != axis_id):
+                # (as --set axis.N.AxisId: [axis.N] names the axis it changes, it cannot renumber it)
+                raise ConfigError(f"{origin}: axis.{k}.AxisId", f"an axis's AxisId cannot be changed, got "
+                                                                f"{t['AxisId']!r} in [axis.{k}] (use a config file)")
             items.append((i, f"{origin}: axis.{k}", t))
     elif isinstance(value, list):  # [[axis]] tables: by AxisId, a new one is appended
         items = []
@@ -449,13 +466,13 @@ def apply_set(data: dict[str, Any], item: str, prov: _Provenance | None = None) 
         try:
             axis_id = int(parts[1])
         except ValueError:
-            raise ConfigError(label, f"the AxisId must be an integer, got {parts[1]!r}") from None
+            raise ConfigError(label, f"the AxisId must be an integer, got {parts[1]!r}", _NO_AXIS) from None
         name = parts[2]
         if name == "AxisId":
             raise ConfigError(label, "an axis's AxisId cannot be changed (use a config file)")
         i = _axis_index(data, axis_id)
         if i is None:
-            raise ConfigError(label, f"no axis with AxisId {axis_id} (configured: {_axis_ids(data)})")
+            raise ConfigError(label, f"no axis with AxisId {axis_id} (configured: {_axis_ids(data)})", _NO_AXIS)
         _put_axis_key(data["axis"][i], name, _set_value(text, name in _STRING_KEYS["axis"]))
         prov.note(f"axis[{i}].{name}", label)
     elif parts[0] in ("nc", "zenoh"):
@@ -464,7 +481,10 @@ def apply_set(data: dict[str, Any], item: str, prov: _Provenance | None = None) 
         table = data.setdefault(parts[0], {})
         if not isinstance(table, dict):
             raise ConfigError(parts[0], "must be a table")
-        table[parts[1]] = _set_value(text, parts[1] in _STRING_KEYS[parts[0]])
+        value = _set_value(text, parts[1] in _STRING_KEYS[parts[0]])
+        if parts[0] == "zenoh" and parts[1] in _LIST_KEYS and isinstance(value, str):
+            value = [e.strip() for e in value.split(",")]  # --set zenoh.listen=tcp/a:1,tcp/b:2 (no TOML quoting)
+        table[parts[1]] = value
         prov.note(f"{parts[0]}.{parts[1]}", label)
     else:
         raise ConfigError(label, "unknown section (allowed: axis.<AxisId>.<Parameter>, nc.<key>, zenoh.<key>)")

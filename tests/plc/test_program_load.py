@@ -153,3 +153,39 @@ def test_plc_run_bad_argument_exits_2_without_traceback(tmp_path: Path, capsys: 
     assert "expected NAME=VALUE" in capsys.readouterr().err
     assert main([p, "--arg", "nope=1"]) == 2
     assert "has no argument 'nope'" in capsys.readouterr().err
+
+
+LAZY = """
+    from plc_client import AXIS_REF
+    X = None
+    seen = []
+
+    def cycle(plc):
+        global X
+        if X is None:
+            X = AXIS_REF(nc="nc1", axis_id=2)   # created on first use, in a cycle, no block ever called
+        seen.append((X.Status.Valid, X.NcToPlc.AxisId))
+"""
+
+
+def test_an_axis_created_in_a_cycle_is_bound_at_creation(tmp_path: Path) -> None:
+    loaded = load(str(write(tmp_path, LAZY)))
+    assert loaded.axes == []
+    core = NcCore([AxisConfig(AxisId=1), AxisConfig(AxisId=2)], cycle_time=0.001)
+    plc = InProcessPlc(core, loaded.program)
+    run_cycles(core, plc, 4)
+    assert loaded.module.X.task is plc and plc.axes == [loaded.module.X]  # bound once, not per cycle
+    assert loaded.module.seen[-1] == (True, 2)  # valid data without any block call
+    # outside a cycle an AXIS_REF stays unbound until used
+    assert AXIS_REF(nc="nc1", axis_id=1).task is None
+
+
+def test_program_args_asked_only_in_a_cycle_is_named_at_load(tmp_path: Path) -> None:
+    """program_args() in cycle() is not seen while the file loads: --arg is refused, saying where to call it."""
+    p = write(tmp_path, """
+        from plc_client import program_args
+        def cycle(plc):
+            args = program_args(speed=1.0)
+    """)
+    with pytest.raises(ProgramArgsError, match=r"takes no arguments .*module level or in Program.__init__"):
+        load(str(p), {"speed": "2"})

@@ -93,6 +93,9 @@ def test_plctonc_attributes_write_the_published_bytes() -> None:
     ("Override", 5.5, TypeError), ("Override", -1, ValueError), ("Override", 2 ** 32, ValueError),
     ("Override", "100", TypeError), ("GearRatio1", "1.0", TypeError), ("GearRatio1", None, TypeError),
     ("ExtSetDirection", 2 ** 31, ValueError), ("PlcCycleCount", 256, ValueError), ("Nonsense", 1, KeyError),
+    # a bool only for BOOL/BYTE members: Override = True would be 1 (0.0001 %) silently
+    ("Override", True, TypeError), ("ControlDWord", np.bool_(True), TypeError), ("ExtSetDirection", False, TypeError),
+    ("Override", np.float64(500000.0), TypeError),
 ])
 def test_plctonc_bad_writes_change_nothing(name: str, value: object, exc: type[Exception]) -> None:
     ax = AXIS_REF(nc="nc1", axis_id=1)
@@ -132,3 +135,13 @@ def test_nctoplc_unpacks_lazily_once_per_cycle() -> None:
     assert r.SetPos == 4.0
     v = r._v
     assert v is not None and r.ActPos == 0.0 and r._v is v  # one unpack serves every member
+
+
+def test_plctonc_bool_members_take_bools_and_a_real_gets_a_hint() -> None:
+    ax = AXIS_REF(nc="nc1", axis_id=1)
+    ax.PlcToNc.MapState = True
+    ax.PlcToNc.PlcCycleControl = np.bool_(True)  # BYTE: a bool is 1
+    assert ax.PlcToNc.MapState == 1 and ax.PlcToNc.PlcCycleControl == 1
+    with pytest.raises(TypeError, match=r"round\(\)"):
+        ax.PlcToNc.Override = 0.5 * 1e6
+    assert ax.PlcToNc.Override == 1_000_000

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from nc_schema import error_name
 from nc_server.core.params import ConfigError
 from nc_server.server import cli
 from nc_server.server.config import load_config
@@ -59,7 +60,8 @@ def test_set_nc_and_zenoh_keys() -> None:
     ("nc.cycle_time=fast", "--set nc.cycle_time", "must be a number"),
     ("nc.cycletime=1", "--set nc.cycletime", "unknown key"),
     ("nc.rt_priority=1.5", "--set nc.rt_priority", "must be an integer"),
-    ("zenoh.listen=tcp/1.2.3.4:1", "--set zenoh.listen", "must be a list of endpoints"),
+    ("zenoh.listen=tcp/nowhere", "--set zenoh.listen[0]", "invalid endpoint"),
+    ("zenoh.listen=3", "--set zenoh.listen", "must be a list of endpoints"),
     ('zenoh.listen=["tcp/nowhere"]', "--set zenoh.listen[0]", "invalid endpoint"),
     ("axis.1.AxisVeloMax", "--set axis.1.AxisVeloMax", "expected KEY=VALUE"),
     ("axis.1=3", "--set axis.1", "expected axis.<AxisId>.<Parameter>=VALUE"),
@@ -135,6 +137,70 @@ def test_missing_overlay(tmp_path: Path) -> None:
 def test_cli_bad_set_exits_2_before_starting(capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["--set", "axis.1.AxisVeloMax=abc", "--listen", "tcp/127.0.0.1:1"]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == "nc-server: configuration error: --set axis.1.AxisVeloMax: must be a number, got 'abc'"
+    assert err.strip() == ("nc-server: configuration error: --set axis.1.AxisVeloMax: must be a number, got 'abc' "
+                           "[0x070B ADSERR_DEVICE_INVALIDPARM]")
     assert cli.main(["--set", "axis.5.AxisAcc=3"]) == 2
     assert "no axis with AxisId 5" in capsys.readouterr().err
+
+
+def test_set_listen_takes_plain_endpoints() -> None:
+    """``--set zenoh.listen=tcp/...`` needs no shell-quoted TOML list; commas separate several."""
+    assert load_config(sets=["zenoh.listen=tcp/127.0.0.1:17011"]).zenoh.listen == ("tcp/127.0.0.1:17011",)
+    cfg = load_config(sets=["zenoh.listen=tcp/127.0.0.1:17011, tcp/127.0.0.1:17012", "zenoh.connect=tcp/127.0.0.1:17013"])
+    assert cfg.zenoh.listen == ("tcp/127.0.0.1:17011", "tcp/127.0.0.1:17012")
+    assert cfg.zenoh.connect == ("tcp/127.0.0.1:17013",)
+
+
+@pytest.mark.parametrize("sets, overlay, code", [
+    (["axis.1.AxisVeloMax=1e12"], None, 0x070B),          # out of range: what MC_WriteParameter answers
+    (["axis.1.AxisVeloMax=fast"], None, 0x070B),          # wrong type
+    (["axis.1.Modulo=3"], None, 0x070B),
+    (["axis.1.AxisMinSoftPosLimit=5000"], None, 0x070B),  # above the enabled max limit
+    (["axis.1.AxisVeloMaxx=3"], None, 0x0703),            # unknown parameter, as an undefined MC_AxisPara number
+    (["axis.7.AxisAcc=3"], None, 0x4012),                 # an axis the NC does not have
+    (["axis.x.AxisAcc=3"], None, 0x4012),
+    ([], "[axis.7]\nAxisAcc = 3.0\n", 0x4012),
+    ([], "[[axis]]\nAxisId = 70000\n", 0x4012),
+    ([], "[axis.2]\nAxisAcc = -3.0\n", 0x070B),
+    ([], "[[axis]]\nAxisId = 2\nFoo = 1\n", 0x0703),
+    (["nc.cycle_time=fast"], None, None),                 # not an axis entry: TwinCAT has no code for it
+    (["axis.1.ClientLossReaction=x"], None, None),
+])
+def test_axis_errors_carry_the_twincat_code(tmp_path: Path, sets: list[str], overlay: str | None,
+                                            code: int | None) -> None:
+    ovs = [write(tmp_path, overlay)] if overlay else []
+    with pytest.raises(ConfigError) as ei:
+        load_config(overlays=ovs, sets=sets)
+    e = ei.value
+    assert e.code == code, str(e)
+    if code is None:
+        assert "[0x" not in str(e)
+    else:
+        assert str(e).endswith(f"{e.message} [0x{code:04X} {error_name(code)}]"), str(e)
+
+
+def test_the_same_value_in_a_config_file_has_the_same_code(tmp_path: Path) -> None:
+    p = write(tmp_path, "[[axis]]\nAxisId = 1\nAxisVeloMax = 1e12\n", "base.toml")
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    assert ei.value.code == 0x070B and ei.value.key == "axis[0].AxisVeloMax"
+    assert "(MC_AxisPara 1003)" in str(ei.value)  # the entry of the parameter's own name, not PLCopen's 8
+
+
+def test_write_parameter_detail_has_no_doubled_code() -> None:
+    from nc_schema import NcError
+    from nc_server.core import NcCore
+    from nc_server.core.params import AxisConfig
+    core = NcCore([AxisConfig(AxisId=1)], cycle_time=0.001)
+    with pytest.raises(NcError) as ei:
+        core.write_parameter(0, 1003, 1e12)
+    assert ei.value.code == 0x070B and "AxisVeloMax" in ei.value.detail and "0x070B" not in ei.value.detail
+
+
+def test_overlay_axis_table_cannot_renumber_its_axis(tmp_path: Path) -> None:
+    """[axis.1] AxisId = 5 is refused as --set axis.1.AxisId is (it silently renumbered axis 1 before)."""
+    with pytest.raises(ConfigError) as ei:
+        load_config(overlays=[write(tmp_path, "[axis.1]\nAxisId = 5\n")])
+    assert ei.value.key.endswith(": axis.1.AxisId") and "cannot be changed" in str(ei.value)
+    cfg = load_config(overlays=[write(tmp_path, "[axis.1]\nAxisId = 1\nAxisAcc = 300.0\n", "same.toml")])
+    assert [a.AxisId for a in cfg.axes] == [1, 2, 3, 4] and cfg.axes[0].params.AxisAcc == 300.0
