@@ -82,7 +82,8 @@ def test_monitor_program_with_args_on_an_nc_with_overrides(tmp_path: Path, start
     plc = PlcRun(prog, nc.endpoint, "--arg", "axis=2", "--arg", "every=5")
     try:
         # valid without any block, the NC's data of axis 2 (not 1: the --arg)
-        first = wait_until(lambda: next((r for r in plc.records() if r["Valid"]), None), T, "a valid record")
+        first = wait_until(lambda: next((r for r in plc.records() if r["Valid"]), None), 3 * T,
+                           "a valid record (plc-run starting: imports alone took 25 s on a loaded machine)")
         assert first["AxisId"] == 2 and first["State"] == "MC_AXISSTATE_DISABLED" and first["SetVelo"] == 0.0
         assert first["CamCouplingState"] == [0] * 8 and first["all"]["AxisId"] == 2
         # the overrides are the NC's parameters
