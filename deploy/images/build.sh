@@ -91,9 +91,17 @@ else
 fi
 
 # ---- 3 (inputs first): the app image's content hash ------------------------------------------
+# the top-level Python packages, from pyproject.toml's [tool.setuptools] packages (one list to keep)
+PKG_TOPS=$("$PYTHON" - "$ROOT/pyproject.toml" <<'EOF'
+import sys, tomllib
+pk = tomllib.load(open(sys.argv[1], "rb"))["tool"]["setuptools"]["packages"]
+print(" ".join(sorted({p.split(".")[0] for p in pk})))
+EOF
+) || die "cannot read the packages of $ROOT/pyproject.toml"
 app_inputs() {
     # every file that ends up in the image, relative to ROOT, sorted (no caches)
-    (cd "$ROOT" && find pyproject.toml README.md nc_schema nc_server nc_tools plc_client schema \
+    # shellcheck disable=SC2086  # PKG_TOPS: words on purpose
+    (cd "$ROOT" && find pyproject.toml README.md $PKG_TOPS schema \
         deploy/images/Dockerfile deploy/images/znc-run deploy/images/znc-health deploy/programs \
         -type f ! -path '*/__pycache__/*' ! -name '*.pyc' 2>/dev/null | LC_ALL=C sort)
 }
@@ -133,11 +141,11 @@ else
     rm -rf "$src"
     whl=$(ls "$proj"/zenoh_nc-*.whl)
     # every package of the sources must be in the wheel (pyproject lists them one by one)
-    "$PYTHON" - "$ROOT" "$whl" <<'EOF' || die "the wheel misses packages: add them to [tool.setuptools] packages in pyproject.toml"
+    "$PYTHON" - "$ROOT" "$whl" $PKG_TOPS <<'EOF' || die "the wheel misses packages: add them to [tool.setuptools] packages in pyproject.toml"
 import pathlib, sys, zipfile
 root, names = pathlib.Path(sys.argv[1]), zipfile.ZipFile(sys.argv[2]).namelist()
 have = {n.rsplit("/", 1)[0] for n in names if n.endswith("/__init__.py")}
-want = {p.parent.relative_to(root).as_posix() for top in ("nc_schema", "nc_server", "nc_tools", "plc_client")
+want = {p.parent.relative_to(root).as_posix() for top in sys.argv[3:]
         for p in (root / top).rglob("__init__.py") if "__pycache__" not in p.parts}
 missing = sorted(want - have)
 schema = any(n.startswith("nc_schema/contract/") and n.endswith(".json") for n in names)
