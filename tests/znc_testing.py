@@ -98,6 +98,20 @@ def nc_server_command() -> list[str]:
     return [sys.executable, "-m", "nc_server.server.cli"]
 
 
+def kill_process_group(proc: subprocess.Popen[Any], timeout: float = 10.0) -> None:
+    """SIGCONT then SIGKILL the process group of ``proc`` (a frozen one too) and reap it; idempotent,
+    for finalizers."""
+    for sig in (signal.SIGCONT, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        pass
+
+
 class NcServerProcess:
     """A running ``nc-server`` (its own process group).
 
@@ -183,14 +197,7 @@ class NcServerProcess:
 
     def kill(self) -> None:
         """SIGKILL the process group (idempotent; used by finalizers)."""
-        try:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            pass
+        kill_process_group(self.proc)
         if self.proc.stdout is not None:
             self.proc.stdout.close()
 

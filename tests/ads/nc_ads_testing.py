@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ads_testing import free_ads_address
+from znc_testing import kill_process_group
 
 class NcAdsProcess:
     """A running ``nc-ads`` (``python -m nc_ads.cli``) listening on ``host``:48898 with net id ``netid``."""
@@ -69,14 +70,7 @@ class NcAdsProcess:
         return rc
 
     def kill(self) -> None:
-        try:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            pass
+        kill_process_group(self.proc)
 
 
 def start_nc_ads(tmp_path: Path, endpoint: str, role: str = "operator", extra_args: Sequence[str] = (),

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -21,7 +20,7 @@ import numpy as np
 import zenoh
 
 from nc_schema import NCTOPLC_DTYPE
-from znc_testing import BIT_CONTROL_LOOP_CLOSED, zenoh_client_config
+from znc_testing import BIT_CONTROL_LOOP_CLOSED, kill_process_group, zenoh_client_config
 
 CLIENT = Path(__file__).with_name("failsafe_client.py")
 #: deadline of every wait [s]: generous, a loaded 2-core machine
@@ -181,28 +180,11 @@ class ClientProcess:
         return t
 
     def kill(self) -> None:
-        try:
-            os.killpg(self.proc.pid, signal.SIGCONT)
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            pass
+        resume_and_kill(self.proc)
 
 
-def resume_and_kill(proc: subprocess.Popen[Any]) -> None:
-    """SIGCONT then SIGKILL the process group of ``proc`` (idempotent; for finally blocks)."""
-    for sig in (signal.SIGCONT, signal.SIGKILL):
-        try:
-            os.killpg(proc.pid, sig)
-        except (ProcessLookupError, PermissionError):
-            pass
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        pass
+#: SIGCONT then SIGKILL the process group of a Popen and reap it (idempotent; for finally blocks)
+resume_and_kill = kill_process_group
 
 
 class TcpProxy:
