@@ -208,6 +208,15 @@ class Session:
         self.throttled = False
 
 
+def _clip(data: bytes, length: int, device: AdsDevice, what: str, group: int, offset: int) -> bytes:
+    """A device's answer cut to the ``length`` asked (AdsLib discards a longer reply: pitfall 2), logged."""
+    if len(data) > length:
+        log.warning("device %s: %s 0x%X/0x%X returned %d bytes for %d asked; truncated",
+                    device.name, what, group, offset, len(data), length)
+        return data[:length]
+    return data
+
+
 class Dispatcher:
     """Request -> reply for every AMS command; no I/O of its own (see the module doc for the rules)."""
 
@@ -371,11 +380,7 @@ class Dispatcher:
             data = bytes(device.read(group, offset, length, src))
         except Exception as exc:
             return self._code(exc, device, f"read 0x{group:X}/0x{offset:X}"), b""
-        if len(data) > length:
-            log.warning("device %s: read 0x%X/0x%X returned %d bytes for %d asked; truncated",
-                        device.name, group, offset, len(data), length)
-            data = data[:length]
-        return 0, data
+        return 0, _clip(data, length, device, "read", group, offset)
 
     def write(self, device: AdsDevice, group: int, offset: int, data: bytes, src: AdsSource,
               session: Session) -> int:
@@ -440,11 +445,7 @@ class Dispatcher:
             out = bytes(device.read_write(group, offset, length, data, src))
         except Exception as exc:
             return self._code(exc, device, f"read_write 0x{group:X}/0x{offset:X}"), b""
-        if len(out) > length:
-            log.warning("device %s: read_write 0x%X/0x%X returned %d bytes for %d asked; truncated",
-                        device.name, group, offset, len(out), length)
-            out = out[:length]
-        return 0, out
+        return 0, _clip(out, length, device, "read_write", group, offset)
 
     def _sum(self, device: AdsDevice, group: int, count: int, length: int, data: bytes,
              src: AdsSource, session: Session) -> tuple[int, bytes]:
