@@ -119,6 +119,19 @@ def cpu_ticks(pid: int) -> int:
         return 0
 
 
+def children(pid: int) -> list[int]:
+    """The child processes of ``pid`` (from /proc; e.g. nc-server's frame publisher)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    out.append(int(d.name))
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
 def machine_ticks() -> tuple[int, int]:
     """(busy, total) clock ticks of all CPUs since boot (/proc/stat; busy = total - idle - iowait)."""
     try:
@@ -270,6 +283,8 @@ def run(args: argparse.Namespace) -> int:
             observer.stdin.flush()
         s0 = stats.wait()
         pids = {"nc-server": nc.pid, **{f"plc{k}": p.pid for k, p in enumerate(clients)}}
+        for k, c in enumerate(children(nc.pid)):  # its frame publisher ([nc] publisher = "process")
+            pids[f"nc-child{k}"] = c
         c0 = {k: cpu_ticks(p) for k, p in pids.items()}
         m0 = machine_ticks()
         t0 = time.monotonic()
@@ -408,12 +423,14 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     print(f"frames: most consecutive PLC cycles without a newer frame {worst_unchanged}, PLC cycles with stale data {invalid}; "
           f"PLC overruns {sum(rep['overruns'] for rep in r['reports'] if rep)}")
     cpu = r["cpu"]
-    pl = [v for k, v in cpu.items() if k != "nc-server"]
-    print(f"CPU [% of one core]: nc-server {cpu['nc-server']:.0f}; plc-run mean {np.mean(pl):.1f}, max {max(pl):.1f}, "
+    pl = [v for k, v in cpu.items() if k.startswith("plc")]
+    nc_cpu = sum(v for k, v in cpu.items() if k.startswith("nc-"))
+    child = nc_cpu - cpu["nc-server"]
+    print(f"CPU [% of one core]: nc-server {nc_cpu:.0f} (its frame publisher {child:.0f} of it); plc-run mean {np.mean(pl):.1f}, max {max(pl):.1f}, "
           f"sum {sum(pl):.0f}; total {sum(cpu.values()):.0f} of {100 * os.cpu_count()}")
     n_cl = len(pl)
     print(f"CPU per plc-run {np.mean(pl):.1f} % of a core at a {args.plc_cycle * 1e3:g} ms cycle; {n_cl} of them "
-          f"{sum(pl):.0f} %, the NC {cpu['nc-server']:.0f} %: {sum(cpu.values()):.0f} % of the machine's "
+          f"{sum(pl):.0f} %, the NC {nc_cpu:.0f} %: {sum(cpu.values()):.0f} % of the machine's "
           f"{100 * (os.cpu_count() or 1)} %")
     others = max(0.0, r.get("machine_busy", 0.0) - sum(cpu.values()))
     print(f"the machine over the window: {r.get('machine_busy', 0.0):.0f} % busy, of which other processes (not this "

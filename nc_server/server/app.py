@@ -11,6 +11,7 @@ every change of standstill) for the retain thread; the final state written after
 """
 from __future__ import annotations
 
+import collections
 import gc
 import logging
 import threading
@@ -26,10 +27,12 @@ from nc_server.security.acl import access_control
 
 from .claims import ClaimTable
 from .config import ServerConfig
-from .cycle import IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
+from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
 from .retain import RetainKeeper
-from .transport import IoThread, Outgoing, Transport, encode_frame_fast
+from .frame_ring import RingCounters
+from .publisher import FrameOutput, PublisherProcess, PublisherThread
+from .transport import IoThread, Transport
 
 log = logging.getLogger("nc_server.server")
 
@@ -37,8 +40,27 @@ log = logging.getLogger("nc_server.server")
 MAX_QUERIES_PER_CYCLE = 32
 #: ... and no new one once this much of the cycle went into requests [ns] (a flood cannot stall the NC).
 QUERY_BUDGET_NS = 250_000
-#: Hand replies to the I/O thread right after the requests ran (before core.step()).
-EARLY_REPLIES = True
+#: start() waits this long for the frame publisher to declare its publishers [s].
+PUBLISHER_READY_TIMEOUT = 15.0
+#: A request starts between cycles only if the recent cost of one (the QUERY_COST_QUANTILE of the last
+#: QUERY_COST_WINDOW, recomputed every QUERY_COST_EVERY requests; between QUERY_RESERVE_MIN_NS and
+#: QUERY_RESERVE_MAX_NS) still fits before the next cycle: planning a move costs 0.1-0.2 ms on a quiet
+#: machine and 0.3-0.6 ms on a loaded one, and two of them in the cycle made it overrun
+#: (bench/many_clients.py). The cycle itself runs none (see cycle()).
+QUERY_COST_WINDOW = 64
+QUERY_COST_QUANTILE = 0.9
+QUERY_COST_EVERY = 16
+QUERY_RESERVE_MIN_NS = 50_000
+QUERY_RESERVE_MAX_NS = 600_000
+
+
+def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
+    """The time [ns] to keep free for one more request, from the recent request costs [ns]."""
+    if not costs:
+        return QUERY_RESERVE_MAX_NS
+    s = sorted(costs)
+    q = s[min(len(s) - 1, int(len(s) * QUERY_COST_QUANTILE))]
+    return int(min(QUERY_RESERVE_MAX_NS, max(QUERY_RESERVE_MIN_NS, q)))
 #: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
 SHUTDOWN_STOP_TIMEOUT = 5.0
 #: last_command changes alone rebuild the claims map at most this often [s] (claims and clients: at once).
@@ -97,9 +119,17 @@ class NcServer:
         self._arb_built = 0.0
         self.io = IoThread(self.transport, self.stats, claims_source=lambda: self.claims_msg,
                            cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads,
-                           nice=None if config.realtime == "off" else IO_THREAD_NICE)
+                           nice=None if config.realtime == "off" else IO_THREAD_NICE,
+                           watch=lambda: self.publisher.watch() if self.publisher is not None else None)
+        #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
+        #: process or a thread, ``[nc] publisher``)
+        self.frames = FrameOutput(config.name, len(self.axis_ids))
+        self.publisher: PublisherProcess | PublisherThread | None = None
         self._prev_tick = 0.0       # the cycle thread's last run (cycle start or idle slice) [s, monotonic]
         self._refuse_until = 0.0    # queries popped before this are refused (after a long stall) [s]
+        self._idle_ran = False      # an idle call ran since the last cycle (it ran the requests)
+        self._query_costs: collections.deque[int] = collections.deque(maxlen=QUERY_COST_WINDOW)  # [ns]
+        self._reserve_ns = QUERY_RESERVE_MIN_NS * 4  # until costs are known
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -132,6 +162,19 @@ class NcServer:
             if self.retain is not None:
                 self.retain.stop()  # (releases the lock; nothing is written)
             raise
+        try:
+            if self.config.publisher == "thread":
+                self.publisher = PublisherThread(self.frames, self.config.name, self.axis_ids, self.transport.session)
+            else:
+                self.publisher = PublisherProcess(self.frames, self.config.name, self.axis_ids, self.config.zenoh,
+                                                  nice=0 if self.config.realtime == "off" else IO_NICE,
+                                                  log_level=logging.getLevelName(log.getEffectiveLevel()))
+            self.publisher.start()
+        except BaseException:
+            if self.retain is not None:
+                self.retain.stop()
+            self.transport.close()
+            raise
         self.io.start()
         # Objects made so far live as long as the server: keep the collector off them.
         gc.collect()
@@ -144,11 +187,19 @@ class NcServer:
             if self.retain is not None:
                 self.retain.stop()
             self.io.stop()
+            self.publisher.stop()
+            self.frames.close()
             self.transport.close()
             raise
         self.started = True
-        log.info("cycle thread: %s; zenoh's threads: %s; I/O thread: %s", self.loop.stats.timing_detail, io_priority,
-                 self.io.priority)
+        # the ready line (cli) follows: the frames must be on zenoh by then, not a second later
+        deadline = time.monotonic() + PUBLISHER_READY_TIMEOUT
+        while not self.frames.ring.counters().ready and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if not self.frames.ring.counters().ready:
+            log.warning("the frame publisher is not ready after %g s: starting without it", PUBLISHER_READY_TIMEOUT)
+        log.info("cycle thread: %s; zenoh's threads: %s; I/O thread: %s; frames: %s publisher", self.loop.stats.timing_detail,
+                 io_priority, self.io.priority, self.config.publisher)
 
     def load_retain(self) -> None:
         """Lock and read the retain file (if configured); the first cycle applies it (start() calls this).
@@ -179,10 +230,10 @@ class NcServer:
         except Exception as exc:
             log.warning("drive close: %s", exc)
         core = self.core
-        try:
-            frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc,  # type: ignore[attr-defined]
-                                      flags=int(FrameFlags.ShuttingDown), jobs=core.ncjobs)  # type: ignore[attr-defined]
-            self.io.submit(Outgoing(core.cycle, core.nc_time_ns, frame))  # type: ignore[attr-defined]
+        try:  # the last frame, flagged ShuttingDown: the publisher puts it before it ends
+            self.frames.ring.write(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),  # type: ignore[attr-defined]
+                                   core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
+            self.frames.signal()
         except Exception as exc:
             log.warning("final frame: %s", exc)
         # Queries still queued get no execution; finalize them so queriers do not wait.
@@ -194,6 +245,9 @@ class NcServer:
                 q.drop()
             except Exception:
                 pass
+        if self.publisher is not None:
+            self.publisher.stop()
+        self.frames.close()
         self.io.stop()
         self.transport.close()
         gc.unfreeze()  # let the collector free the server's cycles at exit (frozen objects never are)
@@ -226,13 +280,13 @@ class NcServer:
 
         self._take_liveliness(now)
 
-        # Commands (bounded per cycle; the rest stay queued for the next one).
-        replies = self._drain_queries(now)
-        if replies and EARLY_REPLIES:
-            # Answer now rather than after core.step(): the reply's cycle says from which frame on
-            # the command shows, so clients lose nothing and get their answer a step earlier.
-            self.io.submit_replies(replies)
-            replies = []
+        # Commands run between cycles (idle), in the time the cycle leaves; only when no idle call ran
+        # since the last cycle (the work fills the period) does the cycle take one itself.
+        if not self._idle_ran:
+            replies = self._drain_queries(now, limit=1)
+            if replies:
+                self.io.submit_replies(replies)
+        self._idle_ran = False
 
         # PLCTONC (the newest frame of each client, applied to the axes it holds), then the
         # watchdog (lost clients, stale PLCTONC): the same code the in-process port runs.
@@ -248,15 +302,9 @@ class NcServer:
             for i in range(len(core.axis_ids)):  # type: ignore[attr-defined]
                 core.fault(i, ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
 
-        frame = encode_frame_fast(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs)  # type: ignore[attr-defined]
-        out = Outgoing(core.cycle, core.nc_time_ns, frame, replies=replies)  # type: ignore[attr-defined]
-        if t.match_version != self._matched[0]:
-            self._matched = t.matched()
-        out.nc_idx = self._matched[1]
-        if self._matched[2] is not None:
-            out.pc_idx = self._matched[2]
-            out.plctonc = core.plctonc.tobytes()  # type: ignore[attr-defined]
-        self.io.submit(out)
+        frames = self.frames
+        frames.ring.write(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
+        frames.signal()
         if self.retain is not None:
             self.retain.tick(core)  # a snapshot every 100 ms for the retain thread (no I/O here)
         if claims.version != self._claims_version:
@@ -331,15 +379,27 @@ class NcServer:
             self._refuse_until = now + STALE_QUERY_WINDOW
             self.inputs.nc_stalled(gap)
 
-    def _drain_queries(self, now: float) -> list[tuple[Any, bytes]]:
-        """Run the queued requests (at most MAX_QUERIES_PER_CYCLE / QUERY_BUDGET_NS); their replies."""
+    def _drain_queries(self, now: float, until_ns: int | None = None, at_least: int = 0,
+                       limit: int = MAX_QUERIES_PER_CYCLE) -> list[tuple[Any, bytes]]:
+        """Run queued requests; their replies.
+
+        At most ``limit``, none after QUERY_BUDGET_NS of this call, and (from the ``at_least``-th on) none
+        that would, at the recent cost of a request (:meth:`_query_reserve`), end after ``until_ns``
+        [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must start on time.
+        """
         t = self.transport
         replies: list[tuple[Any, bytes]] = []
-        budget_end = time.monotonic_ns() + QUERY_BUDGET_NS
-        for _ in range(MAX_QUERIES_PER_CYCLE):
+        clock = time.monotonic_ns
+        start = clock()
+        budget_end = start + QUERY_BUDGET_NS
+        costs = self._query_costs
+        for n in range(limit):
+            if n >= at_least and until_ns is not None and clock() + self._reserve_ns > until_ns:
+                break
             q = t.try_recv_query()
             if q is None:
                 break
+            t0 = clock()
             p = q.payload
             if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
                 replies.append((q, self.handler.too_large(len(p))))
@@ -348,7 +408,11 @@ class NcServer:
                                                                    now)))
             else:
                 replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
-            if time.monotonic_ns() > budget_end:
+            t1 = clock()
+            costs.append(t1 - t0)
+            if len(costs) % QUERY_COST_EVERY == 0:
+                self._reserve_ns = query_reserve(costs)
+            if t1 > budget_end:
                 break
         return replies
 
@@ -366,8 +430,10 @@ class NcServer:
                     self.handler.client_gone(client, now)
                     log.info("client %s gone", client)
 
-    def idle(self) -> None:
-        """Between cycles (cycle thread): answer requests that arrived, instead of at the next cycle start.
+    def idle(self, deadline_ns: int | None = None, after_work: bool = True) -> None:
+        """Between cycles (cycle thread): run the requests that arrived, in the time left before
+        ``deadline_ns`` [ns, monotonic; None: no limit]; right after the cycle's work (``after_work``) at
+        least one, so requests always progress.
 
         They take effect at the next ``core.step()``, as their reply's ``cycle`` says. Liveliness
         first: a client declares its token before it claims, and the NC must see them in that order.
@@ -375,10 +441,11 @@ class NcServer:
         """
         if self._retain_pending:
             return
+        self._idle_ran = True
         now = time.monotonic()
         self._tick(now)
         self._take_liveliness(now)
-        replies = self._drain_queries(now)
+        replies = self._drain_queries(now, until_ns=deadline_ns, at_least=1 if after_work else 0)
         if replies:
             self.io.submit_replies(replies)
         self.transport.take_plctonc()  # decoded now, applied at the next cycle start
@@ -388,6 +455,12 @@ class NcServer:
         return deadline_ns + self._rt_offset
 
     # ---- stats / info (read from other threads) ----------------------------------------------
+    def _publisher_counters(self) -> RingCounters:
+        try:
+            return self.frames.ring.counters()
+        except ValueError:  # closed (stopped)
+            return RingCounters(0, 0, 0, False)
+
     def _info_extra(self) -> dict[str, Any]:
         return {"timing": self.loop.stats.timing, "watchdog_timeout": self.config.watchdog_timeout}
 
@@ -404,6 +477,8 @@ class NcServer:
                   "dedup_hits": self.handler.cache.hits, "faults": self.inputs.faults,
                   "plctonc_frames": self.transport.plc_frames, "plctonc_malformed": self.transport.plc_malformed,
                   "plctonc_ignored": self.transport.plc_ignored,
-                  "frames_dropped": self.io.frames_dropped, "reply_errors": self.io.reply_errors,
+                  "frames_dropped": self._publisher_counters().dropped, "reply_errors": self.io.reply_errors,
+                  "publisher": self.config.publisher,
+                  "publisher_restarts": self.publisher.restarts if self.publisher is not None else 0,
                   "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors})
         return d

@@ -54,6 +54,9 @@ __all__ = ["ConfigError", "ServerConfig", "ZenohSettings", "load_config", "parse
            "check_endpoint", "REALTIME_MODES", "merge_overlay", "apply_set"]
 
 REALTIME_MODES = ("auto", "fifo", "off")
+#: Where the frame publisher runs (nc_server.server.publisher): a child process (own interpreter and GIL)
+#: or a thread of the NC process.
+PUBLISHER_MODES = ("process", "thread")
 ZENOH_MODES = ("router", "peer", "client")
 
 # proto/address[?metadata][#config]; the address part is checked per protocol below.
@@ -106,6 +109,9 @@ class ServerConfig:
             control generated from it. None: no roles file.
         loss_reactions: ``ClientLossReaction`` per axis, in the same order: "stop_disable"
             (default), "stop" or "keep_others" (see ``handler.CycleInputs``).
+        publisher: where the frames are put on zenoh: ``"process"`` (default: a child process with its
+            own interpreter, so its puts never hold the cycle thread's GIL) or ``"thread"``
+            (:mod:`nc_server.server.publisher`).
     """
 
     name: str = "nc1"
@@ -119,6 +125,7 @@ class ServerConfig:
     axes: tuple[AxisConfig, ...] = ()
     roles: Roles | None = None
     loss_reactions: tuple[str, ...] = ()
+    publisher: str = "process"
 
 
 def default_config_text() -> str:
@@ -267,7 +274,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         if k not in ("nc", "zenoh", "axis"):
             raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis)")
     nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive",
-                            "retain_file"})
+                            "retain_file", "publisher"})
     zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease", "roles", "tls_dir"})
     name = nc.get("name", "nc1")
     try:
@@ -281,6 +288,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
                           f"must be at least two cycles ({2 * cycle_time:g} s), got {watchdog:g}")
     realtime = _choice(nc.get("realtime", "auto"), "nc.realtime", REALTIME_MODES)
     rt_priority = _integer(nc.get("rt_priority", 49), "nc.rt_priority", 1, 99)
+    publisher = _choice(nc.get("publisher", "process"), "nc.publisher", PUBLISHER_MODES)
     drive = nc.get("drive", "sim")
     if drive not in (known := drive_names()):
         raise ConfigError("nc.drive", f"unknown drive {drive!r} (installed drives: {', '.join(known)}; "
@@ -317,13 +325,13 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
                         zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
-                        loss_reactions=reactions)
+                        loss_reactions=reactions, publisher=publisher)
 
 
 #: zenoh keys whose --set VALUE may also be plain endpoints, comma-separated (not only a TOML list)
 _LIST_KEYS = {"listen", "connect"}
 #: keys whose --set VALUE is the text as given (not a TOML value)
-_STRING_KEYS = {"nc": {"name", "realtime", "drive", "retain_file"}, "zenoh": {"mode", "roles", "tls_dir"},
+_STRING_KEYS = {"nc": {"name", "realtime", "drive", "retain_file", "publisher"}, "zenoh": {"mode", "roles", "tls_dir"},
                 "axis": {"Name", "ClientLossReaction"}}
 
 

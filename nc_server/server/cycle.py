@@ -220,8 +220,10 @@ class CycleLoop:
         period_s: the cycle time [s].
         work: the cycle body; receives the deadline (scheduled start) of this cycle [ns,
             CLOCK_MONOTONIC]. Exceptions propagate and end the loop (the caller decides).
-        idle: optional, called between sleep slices while waiting for the next deadline (must be
-            quick and non-blocking); its time is not counted as cycle work.
+        idle: optional, called as ``idle(deadline_ns, after_work)`` between sleep slices while waiting
+            for the next deadline ``deadline_ns`` (after_work: the call right after the cycle's work);
+            non-blocking, and it must leave the cycle its deadline: whatever it does past
+            ``deadline_ns - spin_ns`` makes the next cycle late. Its time is not counted as cycle work.
         wake: optional (with ``idle``): an event that ends the current slice early when set (cleared,
             then ``idle()`` runs).
         realtime: ``"auto"``, ``"fifo"`` or ``"off"`` (see :func:`set_realtime`).
@@ -229,7 +231,7 @@ class CycleLoop:
     """
 
     def __init__(self, period_s: float, work: Callable[[int], None], realtime: str = "auto",
-                 rt_priority: int = 49, idle: Callable[[], None] | None = None,
+                 rt_priority: int = 49, idle: Callable[[int, bool], None] | None = None,
                  wake: threading.Event | None = None) -> None:
         self.period_ns = int(round(period_s * 1e9))
         self.work = work
@@ -306,7 +308,7 @@ class CycleLoop:
             remaining = deadline - clock()
             if idle is not None:
                 if IDLE_AFTER_WORK and remaining > spin + IDLE_SLICE_NS // 2:
-                    idle()  # what arrived during the work: answered now, not a slice later
+                    idle(deadline - spin, True)  # what arrived during the work: answered now, not a slice later
                     remaining = deadline - clock()
                 while remaining > spin + IDLE_SLICE_NS // 2:
                     t = min(IDLE_SLICE_NS, remaining - spin)
@@ -318,7 +320,7 @@ class CycleLoop:
                         woke = sleep(t * 1e-9)
                     if not woke:  # timed out: how late it returned counts (woken by a request: not)
                         n_err = _record(errors, n_err, clock() - target)
-                    idle()
+                    idle(deadline - spin, False)
                     remaining = deadline - clock()
             if remaining > spin:
                 target = deadline - spin

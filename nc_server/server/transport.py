@@ -3,8 +3,7 @@
 Threads (all created by the thread that calls :meth:`Transport.open`, before the cycle thread
 takes SCHED_FIFO, so none inherits it):
 
-* zenoh's own Rust threads; matching listeners run on them (``Callback(indirect=False)``),
-  they only flip a flag in a numpy array;
+* zenoh's own Rust threads;
 * liveliness events and command queries wait in zenoh channels (a FIFO and a ring) that the cycle
   thread polls (``try_recv``) at each cycle start and each idle slice (every <= 0.5 ms): no Python
   code runs on zenoh's threads for them. A Python callback there must take the GIL: the link's
@@ -14,14 +13,16 @@ takes SCHED_FIFO, so none inherits it):
 * PLCTONC frames wait in a zenoh ring channel; the cycle thread decodes them between cycles and
   before each cycle's inputs (:meth:`Transport.take_plctonc`), keeping only the newest one per
   client (:attr:`Transport.plc_inbox`);
-* the I/O thread (:class:`IoThread`): replies, frame and per-axis puts, stats, and the claims map
-  ``nc/<nc>/claims`` (made by the cycle thread when something changed, published here on every
-  change and every :data:`CLAIMS_PERIOD`). The frame goes to ``nc/<nc>/frame`` and, once per period
-  of NC time, to each ``nc/<nc>/frame/<P>ms``; each only while it has a subscriber (matching
-  listeners), so PLC clients reading one frame per PLC cycle do not cost the NC a 1 kHz stream each.
+* the I/O thread (:class:`IoThread`): replies, stats, and the claims map ``nc/<nc>/claims`` (made by
+  the cycle thread when something changed, published here on every change and every
+  :data:`CLAIMS_PERIOD`). The frames (``nc/<nc>/frame``, ``.../frame/<P>ms``, ``.../status`` and the
+  per-axis samples) are not put here: the cycle writes them into shared memory and the frame
+  publisher puts them, by default from a child process (:mod:`.publisher`), so that no put holds
+  this process's GIL.
 
 The cycle thread never waits for zenoh: it pops the query and liveliness inboxes, polls the PLCTONC
-channel (``try_recv``) and hands its output to the I/O thread through a ``SimpleQueue``.
+channel (``try_recv``), hands replies to the I/O thread through a ``SimpleQueue`` and its frame to the
+publisher through the frame ring.
 """
 from __future__ import annotations
 
@@ -30,7 +31,6 @@ import json
 import logging
 import os
 import queue
-import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -38,13 +38,11 @@ from typing import Any, Callable
 
 import numpy as np
 import zenoh
-from zenoh.handlers import Callback, FifoChannel, RingChannel
+from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
-    FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, FrameFlags, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
-    PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame, encode_stamp, pack,
+    PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame, pack,
 )
-from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 from nc_schema.zenoh_config import CONNECT_RETRY
 
 from nc_server.security.tls import apply_tls
@@ -63,58 +61,19 @@ LIVELINESS_CHANNEL = 4096
 HLC_MAX_AGE = 0.25
 #: Largest message the NC's zenoh session accepts [bytes].
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
-#: Period of ``nc/<nc>/status``: the newest frame's bytes again, decimated for observers on slow
-#: links (nc-status); put by the I/O thread, the final ShuttingDown frame too [s].
-STATUS_PERIOD = 0.1
 #: PLCTONC frames kept between two drains by the cycle thread (newest kept; the cycle drains every
 #: ~0.2 ms: 16 clients at 100 Hz bring ~2 per ms).
 PLCTONC_CHANNEL = 1024
-#: How often the I/O thread sets threads that inherited SCHED_FIFO back to normal [s].
+#: How often the I/O thread sets threads that inherited SCHED_FIFO back to normal and watches the publisher [s].
 DEMOTE_PERIOD = 1.0
 #: Stats period [s].
 STATS_PERIOD = 0.1
 #: The claims map is published on every change and at least this often [s].
 CLAIMS_PERIOD = 1.0
 
-_HEADER = FRAME_HEADER_DTYPE.itemsize  # per-axis NCTOPLC records start here in a status frame
-_NREC = NCTOPLC_DTYPE.itemsize
 _PREC = PLCTONC_DTYPE.itemsize
 _PAREC = PLC_AXIS_RECORD_DTYPE.itemsize
 _PC_OFF = int(PLC_AXIS_RECORD_DTYPE.fields["PlcToNc"][1])  # the PLCTONC's offset in a PLC_AXIS_RECORD
-
-
-#: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
-_FRAME_HEADER = struct.Struct("<IHHQQHHI")
-assert _FRAME_HEADER.size == FRAME_HEADER_DTYPE.itemsize and FRAME_HEADER_DTYPE.names == (
-    "Magic", "Version", "HeaderSize", "Cycle", "NcTimeNs", "AxisCount", "RecordSize", "Flags")
-_JOB_RECORDS = int(FrameFlags.JobRecords)
-#: byte views of the arrays framed last (the NC's nctoplc / ncjobs: the same arrays every cycle);
-#: making a memoryview of a structured array costs more than copying 64 records
-_byte_views: collections.OrderedDict[int, tuple[np.ndarray, memoryview]] = collections.OrderedDict()
-
-
-def _bytes_of(a: np.ndarray) -> memoryview | bytes:
-    if not a.flags.c_contiguous:
-        return a.tobytes()
-    hit = _byte_views.get(id(a))
-    if hit is None or hit[0] is not a:
-        hit = _byte_views[id(a)] = (a, memoryview(a.view(np.uint8)))
-        while len(_byte_views) > 8:
-            _byte_views.popitem(last=False)
-    return hit[1]
-
-
-def encode_frame_fast(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0,
-                      jobs: np.ndarray | None = None) -> bytes:
-    """``nc_schema.encode_frame``, byte for byte, with a single copy of the records (the header
-    packed with one struct.pack, joined with the records' buffers: at 1024 axes ~7 us instead of
-    ~110 us for tobytes() + join)."""
-    n, rs = len(records), NCTOPLC_DTYPE.itemsize
-    if jobs is None:
-        return b"".join((_FRAME_HEADER.pack(FRAME_MAGIC, WIRE_VERSION, _FRAME_HEADER.size, cycle, nc_time_ns, n, rs,
-                                            flags & ~_JOB_RECORDS), _bytes_of(records)))
-    return b"".join((_FRAME_HEADER.pack(FRAME_MAGIC, WIRE_VERSION, _FRAME_HEADER.size, cycle, nc_time_ns, n, rs,
-                                        flags | _JOB_RECORDS), _bytes_of(records), _bytes_of(jobs)))
 
 
 def zenoh_config(settings: ZenohSettings, identity: str | None = None,
@@ -206,27 +165,6 @@ def liveliness_client(keys: Keys, key: str) -> str | None:
         return None
 
 
-@dataclass(slots=True)
-class Outgoing:
-    """What one cycle hands to the I/O thread.
-
-    Attributes:
-        cycle, nc_time_ns: the frame's cycle and NC time.
-        frame: the status frame bytes (header + NCTOPLC records).
-        plctonc: the applied PLCTONC records' bytes, or None when no per-axis plctonc subscriber.
-        nc_idx, pc_idx: axis indices whose nctoplc / plctonc publisher has a subscriber (or None).
-        replies: (query, reply payload) pairs.
-    """
-
-    cycle: int
-    nc_time_ns: int
-    frame: bytes
-    plctonc: bytes | None = None
-    nc_idx: np.ndarray | None = None
-    pc_idx: np.ndarray | None = None
-    replies: list[tuple[Any, bytes]] = field(default_factory=list)
-
-
 _STOP = object()
 
 
@@ -247,15 +185,6 @@ class Transport:
         self.keys = keys
         self.axis_ids = list(axis_ids)
         n = len(self.axis_ids)
-        #: True where the axis's nctoplc / plctonc publisher has a matching subscriber.
-        self.nc_matched = np.zeros(n, dtype=bool)
-        self.pc_matched = np.zeros(n, dtype=bool)
-        #: whether ``frame`` / each ``frame_every`` publisher (FRAME_PERIODS_MS order) has a subscriber
-        self.frame_matched = np.zeros(1, dtype=bool)
-        self.frame_every_matched = np.zeros(len(FRAME_PERIODS_MS), dtype=bool)
-        self.frame_every_pubs: list[tuple[int, Any]] = []
-        #: Bumped by every matching change (lets the cycle cache the matched indices).
-        self.match_version = 0
         #: client id -> newest decoded frame (written by the subscriber thread, popped by the cycle).
         self.plc_inbox: dict[str, PlcFrame] = {}
         #: clients holding an axis (replaced by the cycle thread); frames of anybody else are dropped
@@ -297,43 +226,9 @@ class Transport:
         # whenever the scheduler took it off the CPU (a loaded machine: NC cycles of tens of ms)
         self.plc_sub = s.declare_subscriber(k.plctonc_in_any, RingChannel(PLCTONC_CHANNEL))
         pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
-        self.status_pub = s.declare_publisher(k.status, **pub)
-        self._decl.append(self.status_pub)
-        self.frame_pub = s.declare_publisher(k.frame, **pub)
-        self._decl.append(self.frame_pub.declare_matching_listener(
-            Callback(self._matcher(self.frame_matched, 0), indirect=False)))
-        # the same frame once per period, for clients that read one per PLC cycle (protocol.json frame_every)
-        self.frame_every_pubs = []
-        for i, ms in enumerate(FRAME_PERIODS_MS):
-            p = s.declare_publisher(k.frame_every(ms), **pub)
-            self._decl.append(p.declare_matching_listener(Callback(self._matcher(self.frame_every_matched, i),
-                                                                   indirect=False)))
-            self.frame_every_pubs.append((ms * 1_000_000, p))
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.claims_pub = s.declare_publisher(k.claims)
-        self.nc_pubs = []
-        self.pc_pubs = []
-        for i, a in enumerate(self.axis_ids):
-            p = s.declare_publisher(k.axis_nctoplc(a), **pub)
-            self._decl.append(p.declare_matching_listener(Callback(self._matcher(self.nc_matched, i), indirect=False)))
-            self.nc_pubs.append(p)
-            p = s.declare_publisher(k.axis_plctonc(a), **pub)
-            self._decl.append(p.declare_matching_listener(Callback(self._matcher(self.pc_matched, i), indirect=False)))
-            self.pc_pubs.append(p)
         self.token = s.liveliness().declare_token(k.alive)
-
-    def _matcher(self, arr: np.ndarray, i: int) -> Callable[[Any], None]:
-        def on_matching(status: Any) -> None:  # runs on a zenoh thread (indirect=False): keep it tiny
-            arr[i] = bool(status.matching)
-            self.match_version += 1
-        return on_matching
-
-    def matched(self) -> tuple[int, np.ndarray | None, np.ndarray | None]:
-        """(match_version, nctoplc indices, plctonc indices) of the publishers with subscribers (None: none)."""
-        v = self.match_version
-        nc = np.flatnonzero(self.nc_matched)
-        pc = np.flatnonzero(self.pc_matched)
-        return v, (nc if nc.size else None), (pc if pc.size else None)
 
     def close(self) -> None:
         """Undeclare everything and close the session (idempotent, never raises)."""
@@ -342,9 +237,7 @@ class Transport:
         s, self.session = self.session, None
         items = [getattr(self, "token", None), *self._decl, getattr(self, "plc_sub", None),
                  getattr(self, "liveliness_sub", None), getattr(self, "queryable", None)]
-        items += getattr(self, "nc_pubs", []) + getattr(self, "pc_pubs", [])
-        items += [getattr(self, "frame_pub", None), getattr(self, "stats_pub", None), getattr(self, "claims_pub", None)]
-        items += [p for _, p in self.frame_every_pubs]
+        items += [getattr(self, "stats_pub", None), getattr(self, "claims_pub", None)]
         for d in items:
             if d is None:
                 continue
@@ -467,10 +360,11 @@ class Transport:
 
 
 class IoThread:
-    """Publishes what the cycle produced; never lets the network block the cycle.
+    """Sends what the cycle thread hands over and the periodic messages; never lets the network block the cycle.
 
-    Replies are all sent (then the query is finalized); if it fell behind, only the newest frame
-    and per-axis samples are published and the older ones are counted in :attr:`frames_dropped`.
+    Replies are all sent (then the query is finalized); stats every :data:`STATS_PERIOD`, the claims
+    map on change and every :data:`CLAIMS_PERIOD`; every DEMOTE_PERIOD it sets threads that inherited
+    SCHED_FIFO back to normal and calls ``watch`` (the frame publisher's: restarts a child that died).
 
     Args:
         transport: the open transport.
@@ -481,12 +375,14 @@ class IoThread:
         cycle_source: returns the NC's current cycle.
         rt_threads: see :attr:`rt_threads`.
         nice: the thread's nice value (``cycle.IO_THREAD_NICE``), set when it starts; None: inherited.
+        watch: called every DEMOTE_PERIOD (None: nothing).
     """
 
     def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]],
                  claims_source: Callable[[], tuple[int, dict[str, Any]] | None] | None = None,
                  cycle_source: Callable[[], int] | None = None,
-                 rt_threads: Callable[[], set[int]] | None = None, nice: int | None = None) -> None:
+                 rt_threads: Callable[[], set[int]] | None = None, nice: int | None = None,
+                 watch: Callable[[], None] | None = None) -> None:
         self.t = transport
         #: the thread's nice value, set from inside it (None: inherited)
         self.nice = nice
@@ -494,6 +390,7 @@ class IoThread:
         self.stats_source = stats_source
         self.claims_source = claims_source or (lambda: None)
         self.cycle_source = cycle_source
+        self.watch = watch
         self.claims_sent = 0
         self._claims_version: int | None = None
         self._next_claims = 0.0
@@ -502,25 +399,16 @@ class IoThread:
         self.rt_threads = rt_threads
         self.demoted: list[int] = []
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self.frames_sent = 0
-        self.frames_dropped = 0
         self.replies_sent = 0
         self.reply_errors = 0
         self.put_errors = 0
-        self._next_status = 0.0  # monotonic time of the next nc/<nc>/status put [s]
-        #: per frame_every publisher: the NcTimeNs // period of the last frame published on it
-        self._windows = [-1] * len(FRAME_PERIODS_MS)
         self._thread = threading.Thread(target=self._main, name="nc-io", daemon=True)
 
     def start(self) -> None:
         self._thread.start()
 
-    def submit(self, out: Outgoing) -> None:
-        """Hand one cycle's output over (cycle thread; never blocks)."""
-        self.q.put(out)
-
     def submit_replies(self, replies: list[tuple[Any, bytes]]) -> None:
-        """Hand replies over ahead of the cycle's frame (cycle thread; never blocks)."""
+        """Hand replies over (cycle thread; never blocks)."""
         self.q.put(replies)
 
     def stop(self, timeout: float = 5.0) -> None:
@@ -540,45 +428,35 @@ class IoThread:
         running = True
         while running:
             try:
-                first = self.q.get(timeout=STATS_PERIOD)
-                batch = [first]
-                while True:
-                    try:
-                        batch.append(self.q.get_nowait())
-                    except queue.Empty:
-                        break
+                item = self.q.get(timeout=STATS_PERIOD)
             except queue.Empty:
-                batch = []
-            newest: Outgoing | None = None
-            for item in batch:
+                item = None
+            while item is not None:
                 if item is _STOP:
                     running = False
-                    continue
-                if isinstance(item, list):  # replies handed over before the cycle's step
+                else:
                     for q, payload in item:
                         self._reply(q, payload)
-                    continue
-                for q, payload in item.replies:
-                    self._reply(q, payload)
-                if newest is not None:
-                    self.frames_dropped += 1
-                newest = item
-            if newest is not None:
-                self._publish(newest)
-                if time.monotonic() >= self._next_status or not running:
-                    self._next_status = time.monotonic() + STATUS_PERIOD
-                    self._put_status(newest.frame)
+                try:
+                    item = self.q.get_nowait()
+                except queue.Empty:
+                    item = None
             now = time.monotonic()
             if now >= next_stats or not running:
                 next_stats = now + STATS_PERIOD
                 self._publish_stats()
             self._publish_claims(now)
-            if self.rt_threads is not None and now >= next_demote:
+            if now >= next_demote:
                 next_demote = now + DEMOTE_PERIOD
-                keep = self.rt_threads()
+                keep = self.rt_threads() if self.rt_threads is not None else set()
                 if keep:
                     from .cycle import demote_other_threads
                     self.demoted += demote_other_threads(keep)
+                if self.watch is not None and running:
+                    try:
+                        self.watch()
+                    except Exception:  # never let a watcher end the I/O thread
+                        log.exception("publisher watch failed")
 
     def _reply(self, q: Any, payload: bytes) -> None:
         try:
@@ -592,35 +470,6 @@ class IoThread:
                 q.drop()  # finalize: the querier gets its answer now, not at its timeout
             except Exception:
                 pass
-
-    def _publish(self, out: Outgoing) -> None:
-        t = self.t
-        try:
-            if t.frame_matched[0]:
-                t.frame_pub.put(out.frame)
-            self.frames_sent += 1
-            if t.frame_every_matched.any():
-                # the first frame of each period of NC time (the newest one if this thread fell behind)
-                for i, (period_ns, pub) in enumerate(t.frame_every_pubs):
-                    w = out.nc_time_ns // period_ns
-                    if w != self._windows[i] and t.frame_every_matched[i]:
-                        self._windows[i] = w
-                        pub.put(out.frame)
-            if out.nc_idx is not None or out.plctonc is not None:
-                stamp = encode_stamp(out.cycle, out.nc_time_ns)
-                if out.nc_idx is not None:
-                    f = out.frame
-                    for i in out.nc_idx.tolist():
-                        o = _HEADER + i * _NREC
-                        t.nc_pubs[i].put(f[o:o + _NREC], attachment=stamp)
-                if out.plctonc is not None and out.pc_idx is not None:
-                    p = out.plctonc
-                    for i in out.pc_idx.tolist():
-                        o = i * _PREC
-                        t.pc_pubs[i].put(p[o:o + _PREC], attachment=stamp)
-        except Exception as exc:  # session closing, etc.
-            self.put_errors += 1
-            log.debug("put failed: %s", exc)
 
     def _publish_claims(self, now: float) -> None:
         try:
@@ -646,10 +495,3 @@ class IoThread:
         except Exception as exc:
             self.put_errors += 1
             log.debug("stats put failed: %s", exc)
-
-    def _put_status(self, frame: bytes) -> None:
-        try:
-            self.t.status_pub.put(frame)
-        except Exception as exc:
-            self.put_errors += 1
-            log.debug("status put failed: %s", exc)

@@ -18,7 +18,7 @@ from typing import Any
 import msgpack
 import pytest
 
-from nc_schema import ControlDWord, MC_AxisPara, make_request, parse_request
+from nc_schema import ControlDWord, MC_AxisPara, decode_frame, make_request, parse_request
 from nc_server.core import AxisConfig, AxisParams, NcCore
 from nc_server.core.params import ConfigError
 from nc_server.drives.sim import SimDrive
@@ -1007,10 +1007,13 @@ def test_the_server_applies_in_its_first_cycle_before_any_command(tmp_path: Path
         server.cycle(time.monotonic_ns())
         assert core.cycle == 1 and server.retain.applied
         assert core.act_pos[0] == pytest.approx(130.0) and core.axes.homed[0]
-        assert list(server.transport.queries) == [sentinel] and server.io.q.empty()  # no command, no frame yet
+        assert list(server.transport.queries) == [sentinel] and server.frames.ring.seq == 0  # no command, no frame yet
         server.transport.queries.clear()
+        frames = server.frames.reader()
         server.cycle(time.monotonic_ns())
-        assert not server.io.q.empty() and core.nctoplc["ActPos"][0] == pytest.approx(130.0)
+        got = frames.read_newest()
+        assert got is not None and core.nctoplc["ActPos"][0] == pytest.approx(130.0)
+        assert decode_frame(got[1])[1]["ActPos"][0] == pytest.approx(130.0)  # the first frame shows the restored state
     finally:
         server.retain.stop()
 

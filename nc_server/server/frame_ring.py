@@ -1,0 +1,212 @@
+"""The cycle's output in shared memory: a ring of frame slots that the frame publisher reads.
+
+The cycle thread writes each cycle's status frame (the bytes of ``nc/<nc>/frame``) and the applied
+PLCTONC records into the next slot and bumps the ring's sequence number; the publisher
+(:mod:`.publisher`, by default a child process with its own interpreter and GIL) wakes on an
+eventfd, copies the newest slot out and publishes it. The cycle never waits for the publisher: a
+publisher that falls behind skips to the newest slot (counted), one that is gone costs the cycle
+nothing.
+
+Layout (little endian), pure and testable on any buffer (``bytearray`` in tests, an ``mmap`` of a
+memfd in the server):
+
+* header, :data:`HEADER_SIZE` bytes: Magic u32, Version u16, Slots u16, SlotSize u32, pad u32,
+  Newest u64 (sequence number of the newest complete slot, 0 = none yet), Stop u32, pad u32;
+  then the publisher's counters (written by the publisher only): Sent u64, Dropped u64,
+  PutErrors u64, Ready u32 (1 once its publishers are declared), pad u32;
+* ``Slots`` slots of ``SlotSize`` bytes: Seq u64 (0 while being written), FrameLen u32,
+  PlcLen u32, then the frame bytes, then the PLCTONC bytes.
+
+A slot is overwritten ``Slots`` cycles after it was written; the reader checks the slot's Seq
+before and after copying (a seqlock) and retries with the newest slot if it changed meanwhile.
+"""
+from __future__ import annotations
+
+import collections
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from nc_schema import FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, FrameFlags
+from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
+
+__all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "slot_size_for"]
+
+RING_MAGIC = 0x4E435247  # "GRCN"
+RING_VERSION = 1
+#: Slots in the ring: the publisher has RING_SLOTS - 1 cycles to copy a slot out.
+RING_SLOTS = 16
+HEADER_SIZE = 64
+_SLOT_HEAD = struct.Struct("<QII")
+_HEAD = struct.Struct("<IHHII")
+_U64 = struct.Struct("<Q")
+_U32 = struct.Struct("<I")
+_OFF_NEWEST = 16
+_OFF_STOP = 24
+_OFF_SENT = 32
+_OFF_DROPPED = 40
+_OFF_PUT_ERRORS = 48
+_OFF_READY = 56
+#: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
+_FRAME_HEADER = struct.Struct("<IHHQQHHI")
+assert _FRAME_HEADER.size == FRAME_HEADER_DTYPE.itemsize
+_JOB_RECORDS = int(FrameFlags.JobRecords)
+
+
+def slot_size_for(n_axes: int) -> int:
+    """Bytes of one slot for ``n_axes`` axes (frame with job records + PLCTONC), 64-byte aligned."""
+    frame = _FRAME_HEADER.size + n_axes * (NCTOPLC_DTYPE.itemsize + NCJOBS_DTYPE.itemsize)
+    size = _SLOT_HEAD.size + frame + n_axes * PLCTONC_DTYPE.itemsize
+    return (size + 63) // 64 * 64
+
+
+def ring_bytes(n_axes: int, slots: int = RING_SLOTS) -> int:
+    """Total size of a ring for ``n_axes`` axes [bytes]."""
+    return HEADER_SIZE + slots * slot_size_for(n_axes)
+
+
+@dataclass(frozen=True)
+class RingCounters:
+    """The publisher's counters as the ring holds them."""
+
+    sent: int
+    dropped: int
+    put_errors: int
+    ready: bool
+
+
+#: byte views of the arrays written last (the NC's nctoplc / ncjobs / plctonc: the same arrays every cycle);
+#: making a memoryview of a structured array costs more than copying 64 records
+_byte_views: collections.OrderedDict[int, tuple[np.ndarray, memoryview]] = collections.OrderedDict()
+
+
+def _as_bytes(a: np.ndarray) -> memoryview | bytes:
+    if not a.flags.c_contiguous:
+        return a.tobytes()
+    hit = _byte_views.get(id(a))
+    if hit is None or hit[0] is not a:
+        hit = _byte_views[id(a)] = (a, memoryview(a.view(np.uint8)).cast("B"))
+        while len(_byte_views) > 8:
+            _byte_views.popitem(last=False)
+    return hit[1]
+
+
+class FrameRing:
+    """A frame ring over ``buf`` (writable, at least :func:`ring_bytes` long).
+
+    Args:
+        buf: the shared buffer.
+        n_axes: axes per frame (fixes the slot size).
+        slots: number of slots.
+        create: write a fresh header (the writer); False: check the existing one (the reader).
+
+    Raises:
+        ValueError: the buffer is too small, or (reader) its header is not a ring of this layout.
+    """
+
+    def __init__(self, buf: memoryview | bytearray, n_axes: int, slots: int = RING_SLOTS, create: bool = False) -> None:
+        self.mv = memoryview(buf).cast("B") if not isinstance(buf, memoryview) or buf.format != "B" else buf
+        self.n_axes = int(n_axes)
+        self.slots = int(slots)
+        self.slot_size = slot_size_for(self.n_axes)
+        if len(self.mv) < HEADER_SIZE + self.slots * self.slot_size:
+            raise ValueError(f"frame ring: buffer of {len(self.mv)} bytes, {ring_bytes(self.n_axes, self.slots)} needed")
+        if create:
+            self.mv[:HEADER_SIZE] = bytes(HEADER_SIZE)
+            _HEAD.pack_into(self.mv, 0, RING_MAGIC, RING_VERSION, self.slots, self.slot_size, 0)
+        else:
+            magic, version, slots_, size, _ = _HEAD.unpack_from(self.mv, 0)
+            if (magic, version, slots_, size) != (RING_MAGIC, RING_VERSION, self.slots, self.slot_size):
+                raise ValueError("frame ring: the shared buffer holds no ring of this layout")
+        self.seq = _U64.unpack_from(self.mv, _OFF_NEWEST)[0]
+        self._last_read = self.seq
+
+    def release(self) -> None:
+        """Drop the view (before the underlying mmap is closed)."""
+        self.mv.release()
+
+    # ---- writer (the cycle thread) ------------------------------------------------------------
+    def write(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0,
+              jobs: np.ndarray | None = None, plctonc: np.ndarray | None = None) -> int:
+        """Write one cycle's frame (``encode_frame_fast`` byte for byte) and PLCTONC; its sequence number.
+
+        Raises:
+            ValueError: more axes than the ring was made for.
+        """
+        n = len(records)
+        if n > self.n_axes:
+            raise ValueError(f"frame ring: {n} axes, made for {self.n_axes}")
+        seq = self.seq + 1
+        mv = self.mv
+        off = HEADER_SIZE + (seq % self.slots) * self.slot_size
+        _U64.pack_into(mv, off, 0)  # being written
+        p = off + _SLOT_HEAD.size
+        fl = (flags | _JOB_RECORDS) if jobs is not None else (flags & ~_JOB_RECORDS)
+        _FRAME_HEADER.pack_into(mv, p, FRAME_MAGIC, WIRE_VERSION, _FRAME_HEADER.size, cycle, nc_time_ns, n,
+                                NCTOPLC_DTYPE.itemsize, fl)
+        p += _FRAME_HEADER.size
+        rb = _as_bytes(records)
+        mv[p:p + len(rb)] = rb
+        p += len(rb)
+        if jobs is not None:
+            jb = _as_bytes(jobs)
+            mv[p:p + len(jb)] = jb
+            p += len(jb)
+        flen = p - off - _SLOT_HEAD.size
+        plen = 0
+        if plctonc is not None:
+            pb = _as_bytes(plctonc)
+            plen = len(pb)
+            mv[p:p + plen] = pb
+        _SLOT_HEAD.pack_into(mv, off, seq, flen, plen)
+        _U64.pack_into(mv, _OFF_NEWEST, seq)
+        self.seq = seq
+        return seq
+
+    def request_stop(self) -> None:
+        """Ask the publisher to publish what is there and end."""
+        _U32.pack_into(self.mv, _OFF_STOP, 1)
+
+    # ---- reader (the publisher) ---------------------------------------------------------------
+    @property
+    def stop_requested(self) -> bool:
+        return bool(_U32.unpack_from(self.mv, _OFF_STOP)[0])
+
+    @property
+    def newest(self) -> int:
+        return _U64.unpack_from(self.mv, _OFF_NEWEST)[0]
+
+    def read_newest(self) -> tuple[int, bytes, bytes | None, int] | None:
+        """The newest slot not read yet: (seq, frame bytes, PLCTONC bytes or None, slots skipped); None
+        when nothing new."""
+        mv = self.mv
+        for _ in range(8):
+            seq = _U64.unpack_from(mv, _OFF_NEWEST)[0]
+            if seq == self._last_read:
+                return None
+            off = HEADER_SIZE + (seq % self.slots) * self.slot_size
+            s1, flen, plen = _SLOT_HEAD.unpack_from(mv, off)
+            if s1 != seq:
+                continue  # overwritten meanwhile: take the newest again
+            p = off + _SLOT_HEAD.size
+            frame = bytes(mv[p:p + flen])
+            plc = bytes(mv[p + flen:p + flen + plen]) if plen else None
+            if _U64.unpack_from(mv, off)[0] != seq:
+                continue
+            skipped = max(0, seq - self._last_read - 1)
+            self._last_read = seq
+            return seq, frame, plc, skipped
+        return None
+
+    def set_counters(self, sent: int, dropped: int, put_errors: int, ready: bool) -> None:
+        """Store the publisher's counters (the publisher only)."""
+        _U64.pack_into(self.mv, _OFF_SENT, sent)
+        _U64.pack_into(self.mv, _OFF_DROPPED, dropped)
+        _U64.pack_into(self.mv, _OFF_PUT_ERRORS, put_errors)
+        _U32.pack_into(self.mv, _OFF_READY, 1 if ready else 0)
+
+    def counters(self) -> RingCounters:
+        mv = self.mv
+        return RingCounters(_U64.unpack_from(mv, _OFF_SENT)[0], _U64.unpack_from(mv, _OFF_DROPPED)[0],
+                            _U64.unpack_from(mv, _OFF_PUT_ERRORS)[0], bool(_U32.unpack_from(mv, _OFF_READY)[0]))

@@ -1,0 +1,105 @@
+"""The frame publisher: a child process of nc-server that puts the frames (nc_server/server/publisher.py).
+
+Real nc-server processes on free 127.0.0.1 ports; a test client subscribes to the frames.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import struct
+from pathlib import Path
+from typing import Callable
+
+import pytest
+
+from znc_testing import NcServerProcess, NcTestClient, wait_until
+
+T = 30.0  # deadline [s] on a loaded 2-core machine
+
+
+def publisher_pids(nc_pid: int) -> list[int]:
+    """The frame publisher children of ``nc_pid`` (from /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ")
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        if ppid == nc_pid and b"nc_server.server.publisher" in cmd:
+            out.append(int(d.name))
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def frame_cycle(cl: NcTestClient, key: str = "nc/nc1/frame/10ms") -> int | None:
+    got = cl.latest(key)
+    return None if got is None else struct.unpack_from("<Q", got[0], 8)[0]
+
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+
+
+def test_a_publisher_that_dies_is_restarted_and_the_frames_resume(
+        nc_server: NcServerProcess, nc_client: Callable[..., NcTestClient]) -> None:
+    pids = wait_until(lambda: publisher_pids(nc_server.pid) or None, T, "the publisher child")
+    assert len(pids) == 1
+    cl = nc_client(nc_server.port)
+    cl.watch("nc/nc1/frame/10ms")
+    c0 = wait_until(lambda: frame_cycle(cl), T, "a frame")
+    os.kill(pids[0], signal.SIGKILL)
+    new = wait_until(lambda: [p for p in publisher_pids(nc_server.pid) if p != pids[0]] or None, T, "a new publisher")
+    assert len(new) == 1
+    c1 = frame_cycle(cl)
+    wait_until(lambda: (frame_cycle(cl) or 0) > (c1 or c0) + 10, T, "frames from the new publisher")
+    st = wait_until(lambda: (s := cl.stats()) is not None and s.get("publisher_restarts", 0) >= 1 and s, T,
+                    "publisher_restarts in the stats")
+    assert st["publisher"] == "process"
+    assert nc_server.proc.poll() is None  # the NC never stopped
+    assert "restarting it" in nc_server.stderr()
+
+
+def test_the_publisher_ends_with_the_nc_even_when_the_nc_is_killed(
+        start_nc: Callable[..., NcServerProcess]) -> None:
+    nc = start_nc()
+    pids = wait_until(lambda: publisher_pids(nc.pid) or None, T, "the publisher child")
+    os.kill(nc.pid, signal.SIGKILL)  # (not its process group: only the NC)
+    nc.proc.wait(T)
+    wait_until(lambda: not alive(pids[0]) or None, T, "the publisher to end with the NC")
+
+
+def test_a_clean_stop_publishes_the_final_frame_and_ends_the_publisher(
+        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient]) -> None:
+    nc = start_nc()
+    pids = wait_until(lambda: publisher_pids(nc.pid) or None, T, "the publisher child")
+    cl = nc_client(nc.port)
+    cl.watch("nc/nc1/status")
+    wait_until(lambda: cl.latest("nc/nc1/status"), T, "a status frame")
+    assert nc.stop(signal.SIGTERM) == 0
+    flags = struct.unpack_from("<I", cl.latest("nc/nc1/status")[0], 28)[0]
+    assert flags & 0x1, "the last status frame is flagged ShuttingDown"
+    assert not alive(pids[0])
+
+
+def test_the_thread_publisher_delivers_the_same_frames(
+        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient]) -> None:
+    nc = start_nc(extra_args=["--set", "nc.publisher=thread"])
+    assert publisher_pids(nc.pid) == []
+    cl = nc_client(nc.port)
+    for k in ("nc/nc1/frame/10ms", "nc/nc1/axis/1/nctoplc"):
+        cl.watch(k)
+    c0 = wait_until(lambda: frame_cycle(cl), T, "a frame")
+    wait_until(lambda: (frame_cycle(cl) or 0) > c0 + 10, T, "frames to advance")
+    wait_until(lambda: cl.latest("nc/nc1/axis/1/nctoplc"), T, "per-axis samples")
+    st = wait_until(lambda: cl.stats(), T, "stats")
+    assert st["publisher"] == "thread" and st["publisher_restarts"] == 0

@@ -1,0 +1,98 @@
+"""The frame ring (pure): what the cycle writes is, byte for byte, what the publisher reads and puts."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nc_schema import (
+    FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, decode_frame, encode_frame,
+)
+from nc_server.server.frame_ring import HEADER_SIZE, FrameRing, ring_bytes
+
+
+def _random(dtype: np.dtype, n: int, rng: np.random.Generator) -> np.ndarray:
+    a = np.zeros(n, dtype=dtype)
+    a.view(np.uint8)[:] = rng.integers(0, 256, a.nbytes, dtype=np.uint8)
+    return a
+
+
+def _pair(n: int, slots: int = 4) -> tuple[FrameRing, FrameRing]:
+    buf = bytearray(ring_bytes(n, slots))
+    w = FrameRing(buf, n, slots, create=True)
+    return w, FrameRing(buf, n, slots)
+
+
+@pytest.mark.parametrize("n, flags", [(0, 0), (1, 1), (4, 0), (256, 1)])
+def test_frames_are_byte_identical_to_encode_frame(n: int, flags: int) -> None:
+    rng = np.random.default_rng(n)
+    w, r = _pair(n)
+    recs, jobs, plc = _random(NCTOPLC_DTYPE, n, rng), _random(NCJOBS_DTYPE, n, rng), _random(PLCTONC_DTYPE, n, rng)
+    cycle, t = 2**40 + 17, 1_763_900_000_123_456_789
+    for k in range(3):  # the same arrays again (their byte views are kept), changed in place meanwhile
+        recs.view(np.uint8)[:] = rng.integers(0, 256, recs.nbytes, dtype=np.uint8)
+        seq = w.write(cycle + k, t + k, recs, flags, jobs, plc)
+        got = r.read_newest()
+        assert got is not None and got[0] == seq and got[3] == 0
+        assert got[1] == encode_frame(cycle + k, t + k, recs, flags, jobs)
+        assert got[2] == plc.tobytes() or (n == 0 and got[2] is None)
+        assert r.read_newest() is None  # nothing new
+    w.write(1, 2, recs, flags)  # without job records
+    got = r.read_newest()
+    assert got is not None and got[1] == encode_frame(1, 2, recs, flags) and got[2] is None
+    # independent reference for the header: filled field by field through the numpy dtype
+    ref = np.zeros((), dtype=FRAME_HEADER_DTYPE)
+    ref["Magic"], ref["Version"], ref["HeaderSize"] = 0x314E435A, 1, 32
+    ref["Cycle"], ref["NcTimeNs"], ref["AxisCount"], ref["RecordSize"], ref["Flags"] = 1, 2, n, 256, flags
+    assert got[1][:32] == ref.tobytes()
+    h, out, _ = decode_frame(got[1])
+    assert out.tobytes() == recs.tobytes()
+
+
+def test_a_non_contiguous_array_is_copied() -> None:
+    w, r = _pair(3)
+    part = np.zeros(6, dtype=NCTOPLC_DTYPE)[::2]
+    part["SetPos"] = [1.0, 2.0, 3.0]
+    w.write(5, 6, part)
+    got = r.read_newest()
+    assert got is not None and got[1] == encode_frame(5, 6, part)
+
+
+def test_a_reader_that_fell_behind_takes_the_newest_and_counts_the_skipped() -> None:
+    w, r = _pair(2, slots=4)
+    recs = np.zeros(2, dtype=NCTOPLC_DTYPE)
+    for k in range(1, 11):
+        w.write(k, k, recs)
+    got = r.read_newest()
+    assert got is not None and got[0] == 10 and got[3] == 9
+    assert decode_frame(got[1])[0]["Cycle"] == 10
+
+
+def test_a_slot_overwritten_while_read_is_not_returned_torn() -> None:
+    """The seqlock: a slot whose Seq changed (being rewritten) is not taken; the newest complete one is."""
+    w, r = _pair(1, slots=2)
+    recs = np.zeros(1, dtype=NCTOPLC_DTYPE)
+    w.write(1, 1, recs)
+    # a writer that was interrupted half-way through slot 2: Seq 0 in the slot, Newest not yet bumped
+    off = HEADER_SIZE + (2 % 2) * w.slot_size
+    w.mv[off:off + 8] = bytes(8)
+    got = r.read_newest()
+    assert got is not None and got[0] == 1 and decode_frame(got[1])[0]["Cycle"] == 1
+
+
+def test_a_reader_refuses_a_buffer_without_a_ring() -> None:
+    with pytest.raises(ValueError, match="no ring"):
+        FrameRing(bytearray(ring_bytes(2)), 2)
+    with pytest.raises(ValueError, match="bytes"):
+        FrameRing(bytearray(10), 2, create=True)
+    w, _ = _pair(2)
+    with pytest.raises(ValueError, match="axes"):
+        w.write(1, 1, np.zeros(3, dtype=NCTOPLC_DTYPE))
+
+
+def test_stop_and_counters_go_through_the_header() -> None:
+    w, r = _pair(2)
+    assert not r.stop_requested and not w.counters().ready
+    r.set_counters(7, 2, 1, True)
+    assert w.counters() == type(w.counters())(7, 2, 1, True)
+    w.request_stop()
+    assert r.stop_requested
