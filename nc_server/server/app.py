@@ -1,9 +1,11 @@
 """The NC server: one NcCore, driven by the cycle thread, connected through zenoh.
 
-Per cycle (:meth:`NcServer.cycle`): liveliness events -> claims; drain the command queryable
-(bounded); apply the newest PLCTONC frame of each claim holder and the watchdog
-(:class:`~nc_server.server.handler.CycleInputs`, shared with the in-process port);
-``core.step()``; hand (frame, per-axis samples for matched publishers, replies) to the I/O thread.
+Per cycle (:meth:`NcServer.cycle`): liveliness events -> claims; apply the newest PLCTONC frame of each
+claim holder and the watchdog (:class:`~nc_server.server.handler.CycleInputs`, shared with the in-process
+port); ``core.step()``; the frame and the applied PLCTONC into the frame ring (:mod:`.frame_ring`), which
+the frame publisher (:mod:`.publisher`, a child process by default) puts on zenoh. Between cycles
+(:meth:`NcServer.idle`): the requests, as many as fit before the next cycle; their replies go to the
+I/O thread.
 With a retain file (:mod:`.retain`): locked and read before the cycle starts; the first cycle only
 steps the core once (the drive is read) and applies the file through the commands, before any
 command or PLCTONC is taken and without publishing a frame; then a snapshot every 100 ms (and on
