@@ -15,8 +15,8 @@ a time; the others wait idle on stdin):
 Both engines run this same file's measurement code:
 
   * the real ``NcServer``: its ``CycleLoop`` (SCHED_FIFO if permitted, sleep + spin), the core,
-    the real zenoh session (router on a free 127.0.0.1 port), the I/O thread publishing the
-    batched frame every cycle and per-axis NCTOPLC samples for the subscribed axes;
+    the real zenoh session (router on a free 127.0.0.1 port), the frame publisher (a child
+    process) putting the batched frame every cycle and per-axis NCTOPLC samples for the subscribed axes;
   * a subscriber process (client mode) taking the frame and the per-axis samples of 4 axes;
   * every axis enabled (PLCTONC preset in the core: no claims) and moving, under three loads:
     ``quiet``: continuous motion (MoveVelocity), no commands: the cycle itself;
@@ -423,11 +423,11 @@ def run_engine(n_axes: int, load: str, seconds: float, warmup: float, realtime: 
                 raise RuntimeError("subscriber did not start")
             time.sleep(warmup)  # connection, first puts of new publishers, matching
             st = server.loop.stats
-            c0, m0, o0, d0 = st.cycles, st.missed_cycles, st.overruns, server.io.frames_dropped
+            c0, m0, o0, d0 = st.cycles, st.missed_cycles, st.overruns, server.stats()["frames_dropped"]
             sub.stdin.write("go\n")
             sub.stdin.flush()
             time.sleep(seconds)
-            c1, m1, o1, d1 = st.cycles, st.missed_cycles, st.overruns, server.io.frames_dropped
+            c1, m1, o1, d1 = st.cycles, st.missed_cycles, st.overruns, server.stats()["frames_dropped"]
             k0, k1 = max(c0, c1 - RING), c1  # Mover's rings are indexed like the loop's (written first)
             sent, rejected, codes = dict(mover.sent), dict(mover.rejected), dict(mover.codes)
             sub.stdin.write("stop\n")

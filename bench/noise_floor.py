@@ -59,8 +59,10 @@ def calibrate(reps: int = 300) -> dict[str, float]:
     return {"calls": N_CALLS, "min_us": float(ts.min()), "p50_us": float(np.percentile(ts, 50))}
 
 
-def run_floor(seconds: float, warmup: float = 0.3, realtime: str = "auto", period_s: float = 0.001) -> dict[str, Any]:
-    """Run the workload in the NC cycle loop for ``seconds`` (after ``warmup``); in this process.
+def run_floor(seconds: float, warmup: float = 0.3, realtime: str = "auto", period_s: float = 0.001,
+              cpus: frozenset[int] | None = None) -> dict[str, Any]:
+    """Run the workload in the NC cycle loop for ``seconds`` (after ``warmup``); in this process
+    (with ``cpus``: the loop's thread on those CPUs, as ``[nc] cpu_affinity``).
 
     Uses ``nc_server.server.cycle`` as imported by the caller's ``sys.path`` (the tree under test).
 
@@ -72,7 +74,7 @@ def run_floor(seconds: float, warmup: float = 0.3, realtime: str = "auto", perio
     w = Workload()
     switch = sys.getswitchinterval()
     configure_interpreter()
-    loop = CycleLoop(period_s, lambda deadline_ns: w(), realtime)
+    loop = CycleLoop(period_s, lambda deadline_ns: w(), realtime, **({"cpus": cpus} if cpus else {}))
     gc.collect()
     gc.freeze()  # as NcServer.start does
     try:

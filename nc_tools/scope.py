@@ -17,7 +17,7 @@ Ctrl-C; SIGINT ends it cleanly and everything is still written:
   JSON (``<script type="application/json" id="scope-data">``).
 
 Lost samples are reported: cycles missing between the first and the last sample of an axis (the
-NC's I/O thread publishes only the newest cycle when it falls behind, the link may drop), and,
+NC's frame publisher puts only the newest cycle when it falls behind, the link may drop), and,
 separately, deadlines the NC itself skipped (NcTimeNs jumps by more than 1.5 cycles).
 
 ``--trigger '1.SetVelo>0'`` waits for the condition on an axis's field (``>``, ``<``, ``>=``,

@@ -34,7 +34,7 @@ from nc_schema import ROLE_CLASSES
 
 from .roles import Roles, RolesError, load_roles
 
-__all__ = ["access_control", "READ_KEYS", "main"]
+__all__ = ["access_control", "with_local_publisher", "READ_KEYS", "main"]
 
 #: What every listed client may subscribe to and receive.
 READ_KEYS: tuple[str, ...] = ("nc/*/frame", "nc/*/frame/*", "nc/*/status", "nc/*/stats", "nc/*/claims",
@@ -121,6 +121,22 @@ def access_control(roles: Roles) -> dict[str, Any]:
         subject("router", router, ids)
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
+
+
+def with_local_publisher(acl: dict[str, Any], nc: str, protocol: str = "unixsock-stream") -> dict[str, Any]:
+    """``acl`` plus a subject for the NC's own frame publisher: whatever connects over ``protocol`` (the
+    NC's internal unix socket, in a directory only the NC's user can open) gets the rules of NC ``nc``.
+
+    Raises:
+        ValueError: ``acl`` has no rules for NC ``nc`` (its roles file does not list it).
+    """
+    ids = [f"nc:{nc}:in", f"nc:{nc}:out", "see:subscribers"]
+    have = {r["id"] for r in acl["rules"]}
+    if not set(ids) <= have:
+        raise ValueError(f"no access control rules for NC {nc!r} (list it in the roles file)")
+    sid = f"nc:{nc}:local-publisher"
+    return {**acl, "subjects": [*acl["subjects"], {"id": sid, "link_protocols": [protocol]}],
+            "policies": [*acl["policies"], {"id": f"policy:{sid}", "rules": ids, "subjects": [sid]}]}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

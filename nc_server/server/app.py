@@ -16,6 +16,9 @@ from __future__ import annotations
 import collections
 import gc
 import logging
+import os
+import shutil
+import tempfile
 import threading
 import time
 from typing import Any
@@ -25,7 +28,7 @@ import numpy as np
 from nc_schema import ErrorCodes, FrameFlags, Keys
 
 
-from nc_server.security.acl import access_control
+from nc_server.security.acl import access_control, with_local_publisher
 
 from .claims import ClaimTable
 from .config import ServerConfig
@@ -33,7 +36,7 @@ from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, ra
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
 from .retain import RetainKeeper
 from .frame_ring import RingCounters
-from .publisher import FrameOutput, PublisherProcess, PublisherThread
+from .publisher import FrameOutput, PublisherProcess, PublisherThread, internal_endpoint
 from .transport import IoThread, Transport
 
 log = logging.getLogger("nc_server.server")
@@ -54,6 +57,31 @@ QUERY_COST_QUANTILE = 0.9
 QUERY_COST_EVERY = 16
 QUERY_RESERVE_MIN_NS = 50_000
 QUERY_RESERVE_MAX_NS = 600_000
+
+
+def _keep_off(cpus: tuple[int, ...]) -> set[int] | None:
+    """Move the calling thread (and the threads and processes it makes) off ``cpus``; the affinity it had
+    (None: nothing changed: no cpus, no other CPU left, or not supported)."""
+    if not cpus or not hasattr(os, "sched_setaffinity"):
+        return None
+    try:
+        old = os.sched_getaffinity(0)
+        rest = old - set(cpus)
+        if not rest:
+            return None
+        os.sched_setaffinity(0, rest)
+        return old
+    except OSError as exc:
+        log.warning("cpu_affinity: could not move the NC's other threads off CPU %s: %s", list(cpus), exc)
+        return None
+
+
+def _restore_affinity(saved: set[int] | None) -> None:
+    if saved:
+        try:
+            os.sched_setaffinity(0, saved)
+        except OSError:
+            pass
 
 
 def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
@@ -103,6 +131,8 @@ class NcServer:
         acl = None
         if config.roles is not None and config.zenoh.tls_dir and config.zenoh.mode != "client":
             acl = access_control(config.roles)
+            if config.publisher == "process":  # its publisher child connects over the internal unix socket
+                acl = with_local_publisher(acl, config.name)
         elif config.roles is None and config.zenoh.tls_dir and config.zenoh.mode != "client":
             log.warning("TLS without a roles file: clients are authenticated but not authorized (any certificate "
                         "of the CA may use any client id's keys); add --roles")
@@ -111,7 +141,7 @@ class NcServer:
                         "(use --tls-dir, or a router with TLS and access control)")
         self.transport = Transport(config.zenoh, self.keys, self.axis_ids, access_control=acl)
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle,
-                              wake=self.transport.query_event)
+                              wake=self.transport.query_event, cpus=frozenset(config.cpu_affinity) or None)
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
                                       refresh_liveliness=self._take_liveliness, roles=roles)
         self.inputs = CycleInputs(core, self.claims, config.loss_reactions or None)  # type: ignore[arg-type]
@@ -126,6 +156,8 @@ class NcServer:
         #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))
+        self._internal_dir: str | None = None  # holds the internal socket of the publisher child
+        self._saved_affinity: set[int] | None = None
         self.publisher: PublisherProcess | PublisherThread | None = None
         self._prev_tick = 0.0       # the cycle thread's last run (cycle start or idle slice) [s, monotonic]
         self._refuse_until = 0.0    # queries popped before this are refused (after a long stall) [s]
@@ -158,17 +190,25 @@ class NcServer:
         configure_interpreter()
         self.load_retain()
         io_priority = raise_io_priority(self.config.realtime)  # zenoh's threads inherit it
+        # with [nc] cpu_affinity the cycle thread has its CPUs alone: every other thread (zenoh's, I/O,
+        # retain) and the publisher child, made from here on, get the others
+        self._saved_affinity = _keep_off(self.config.cpu_affinity)
+        if self.config.publisher == "process" and self.config.zenoh.mode != "client":
+            self._internal_dir = tempfile.mkdtemp(prefix=f"nc-{self.config.name}-")  # (0700)
+            self.transport.internal = internal_endpoint(self._internal_dir)
         try:
             self.transport.open()
         except BaseException:
             if self.retain is not None:
                 self.retain.stop()  # (releases the lock; nothing is written)
+            self._cleanup_start()
             raise
         try:
             if self.config.publisher == "thread":
                 self.publisher = PublisherThread(self.frames, self.config.name, self.axis_ids, self.transport.session)
             else:
                 self.publisher = PublisherProcess(self.frames, self.config.name, self.axis_ids, self.config.zenoh,
+                                                  internal=self.transport.internal,
                                                   nice=0 if self.config.realtime == "off" else IO_NICE,
                                                   log_level=logging.getLevelName(log.getEffectiveLevel()))
             self.publisher.start()
@@ -176,6 +216,7 @@ class NcServer:
             if self.retain is not None:
                 self.retain.stop()
             self.transport.close()
+            self._cleanup_start()
             raise
         self.io.start()
         # Objects made so far live as long as the server: keep the collector off them.
@@ -190,18 +231,28 @@ class NcServer:
                 self.retain.stop()
             self.io.stop()
             self.publisher.stop()
-            self.frames.close()
             self.transport.close()
+            self._cleanup_start()
             raise
+        _restore_affinity(self._saved_affinity)
         self.started = True
         # the ready line (cli) follows: the frames must be on zenoh by then, not a second later
         deadline = time.monotonic() + PUBLISHER_READY_TIMEOUT
-        while not self.frames.ring.counters().ready and time.monotonic() < deadline:
+        while not self._publisher_counters().ready and time.monotonic() < deadline and self.loop.alive:
             time.sleep(0.01)
-        if not self.frames.ring.counters().ready:
+        if not self._publisher_counters().ready:
             log.warning("the frame publisher is not ready after %g s: starting without it", PUBLISHER_READY_TIMEOUT)
         log.info("cycle thread: %s; zenoh's threads: %s; I/O thread: %s; frames: %s publisher", self.loop.stats.timing_detail,
                  io_priority, self.io.priority, self.config.publisher)
+
+    def _cleanup_start(self) -> None:
+        """Close the frame ring, remove the internal socket's directory, give the affinity back."""
+        self.frames.close()
+        if self._internal_dir is not None:
+            shutil.rmtree(self._internal_dir, ignore_errors=True)
+            self._internal_dir = None
+        _restore_affinity(self._saved_affinity)
+        self._saved_affinity = None
 
     def load_retain(self) -> None:
         """Lock and read the retain file (if configured); the first cycle applies it (start() calls this).
@@ -249,9 +300,9 @@ class NcServer:
                 pass
         if self.publisher is not None:
             self.publisher.stop()
-        self.frames.close()
         self.io.stop()
         self.transport.close()
+        self._cleanup_start()
         gc.unfreeze()  # let the collector free the server's cycles at exit (frozen objects never are)
 
     def _rt_threads(self) -> set[int]:
@@ -459,7 +510,7 @@ class NcServer:
     # ---- stats / info (read from other threads) ----------------------------------------------
     def _publisher_counters(self) -> RingCounters:
         try:
-            return self.frames.ring.counters()
+            return self.publisher.counters() if self.publisher is not None else self.frames.ring.counters()
         except ValueError:  # closed (stopped)
             return RingCounters(0, 0, 0, False)
 

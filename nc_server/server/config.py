@@ -109,6 +109,9 @@ class ServerConfig:
             control generated from it. None: no roles file.
         loss_reactions: ``ClientLossReaction`` per axis, in the same order: "stop_disable"
             (default), "stop" or "keep_others" (see ``handler.CycleInputs``).
+        cpu_affinity: the CPUs the cycle thread may run on (``[nc] cpu_affinity = [1]``); empty: any.
+            Worth it only with the CPU kept free of other work (isolcpus, a cpuset, other processes
+            pinned elsewhere): see ``cycle.CycleLoop``.
         publisher: where the frames are put on zenoh: ``"process"`` (default: a child process with its
             own interpreter, so its puts never hold the cycle thread's GIL) or ``"thread"``
             (:mod:`nc_server.server.publisher`).
@@ -126,6 +129,25 @@ class ServerConfig:
     roles: Roles | None = None
     loss_reactions: tuple[str, ...] = ()
     publisher: str = "process"
+    cpu_affinity: tuple[int, ...] = ()
+
+
+def _cpus(v: Any, key: str) -> tuple[int, ...]:
+    """A list of CPU numbers this process may use (``os.sched_getaffinity``)."""
+    if isinstance(v, int) and not isinstance(v, bool):
+        v = [v]
+    if not isinstance(v, list) or not all(isinstance(c, int) and not isinstance(c, bool) for c in v):
+        raise ConfigError(key, f"must be a list of CPU numbers, got {v!r}")
+    try:
+        allowed = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        if v:
+            raise ConfigError(key, "CPU affinity is not available on this platform") from None
+        return ()
+    bad = [c for c in v if c not in allowed]
+    if bad:
+        raise ConfigError(key, f"CPU {bad[0]} is not one this process may use ({', '.join(map(str, allowed))})")
+    return tuple(sorted(set(v)))
 
 
 def default_config_text() -> str:
@@ -274,7 +296,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         if k not in ("nc", "zenoh", "axis"):
             raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis)")
     nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive",
-                            "retain_file", "publisher"})
+                            "retain_file", "publisher", "cpu_affinity"})
     zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease", "roles", "tls_dir"})
     name = nc.get("name", "nc1")
     try:
@@ -289,6 +311,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     realtime = _choice(nc.get("realtime", "auto"), "nc.realtime", REALTIME_MODES)
     rt_priority = _integer(nc.get("rt_priority", 49), "nc.rt_priority", 1, 99)
     publisher = _choice(nc.get("publisher", "process"), "nc.publisher", PUBLISHER_MODES)
+    cpu_affinity = _cpus(nc.get("cpu_affinity", []), "nc.cpu_affinity")
     drive = nc.get("drive", "sim")
     if drive not in (known := drive_names()):
         raise ConfigError("nc.drive", f"unknown drive {drive!r} (installed drives: {', '.join(known)}; "
@@ -325,7 +348,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
                         zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
-                        loss_reactions=reactions, publisher=publisher)
+                        loss_reactions=reactions, publisher=publisher, cpu_affinity=cpu_affinity)
 
 
 #: zenoh keys whose --set VALUE may also be plain endpoints, comma-separated (not only a TOML list)

@@ -13,12 +13,18 @@ newest slot and publishes it on the NC's keys:
 * per axis ``nc/<nc>/axis/<id>/nctoplc`` and ``.../plctonc`` (with the 16-byte stamp attachment)
   while each has a subscriber.
 
-Its zenoh session is a client of the NC's own session (router or peer mode: one of its listen
-endpoints, over loopback when it listens on every address) or of the NC's router (client mode:
-the NC's connect endpoints), with the NC's certificate when TLS is on: on the wire it is the NC.
-The child dies with the NC (PR_SET_PDEATHSIG, and it checks its parent every second); the NC
-restarts a child that died (:class:`PublisherProcess`). ``[nc] publisher = "thread"`` runs the
-same loop in a thread of the NC process instead (one interpreter; for platforms without eventfd).
+Its zenoh session is a client of the NC's own session (router or peer mode) through an internal
+unix socket in a private directory, whatever the NC's listen endpoints and certificates (with access
+control, the NC admits that link by its protocol with the NC's own rules,
+:func:`nc_server.security.acl.with_local_publisher`); or, for an NC in client mode, of the NC's
+router(s), with the NC's certificate: on the wire it is the NC.
+The child ends with the NC (a lifeline pipe); the NC restarts a child that died or hung
+(:class:`PublisherProcess`). ``[nc] publisher = "thread"`` runs the same loop in a thread of the NC
+process instead (one interpreter: simpler to debug, but its puts hold the cycle thread's GIL).
+
+The ring relies on the eventfd's write/read pair to order the cycle's stores before the publisher's
+loads (a system call on both sides); the seqlock check only guards against a slot being rewritten while
+it is copied, RING_SLOTS - 1 cycles later.
 """
 from __future__ import annotations
 
@@ -41,16 +47,21 @@ import numpy as np
 
 from nc_schema import FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, NCTOPLC_DTYPE, PLCTONC_DTYPE, FrameFlags, Keys, encode_stamp
 
-from .frame_ring import FrameRing, ring_bytes
+from .frame_ring import FrameRing, RingCounters, ring_bytes
 
 log = logging.getLogger("nc_server.server")
 
 #: Period of ``nc/<nc>/status`` (the newest frame again, decimated for observers on slow links) [s].
 STATUS_PERIOD = 0.1
-#: The publisher checks its parent (and the stop flag) at least this often [s].
+#: The publisher looks at the ring (and its stop flag) at least this often, signalled or not [s].
 PARENT_CHECK = 0.5
-#: The NC checks its publisher child this often, and restarts it if it died [s].
-WATCH_PERIOD = 0.5
+#: A publisher child that put nothing for this long while the cycle wrote frames is killed (then restarted) [s].
+STALL_TIMEOUT = 2.0
+#: Restart delays of a publisher child that ended: from RESTART_MIN_DELAY, doubled per restart up to
+#: RESTART_MAX_DELAY, back to the minimum once a child ran ready for RESTART_RESET_AFTER [s].
+RESTART_MIN_DELAY = 0.1
+RESTART_MAX_DELAY = 5.0
+RESTART_RESET_AFTER = 10.0
 
 _HEADER = FRAME_HEADER_DTYPE.itemsize
 _NREC = NCTOPLC_DTYPE.itemsize
@@ -162,29 +173,35 @@ class FramePublisher:
             self.put_errors += 1
             log.debug("put failed: %s", exc)
 
-    def run(self, wait: Callable[[float], bool], alive: Callable[[], bool] = lambda: True) -> None:
-        """Publish until the ring asks to stop (after publishing what is there) or ``alive()`` is False.
+    def run(self, wait: Callable[[float], bool]) -> None:
+        """Publish until the ring asks to stop (after publishing what is there).
 
         Args:
             wait: blocks until the writer signals or the timeout [s] passes; whether it signalled.
-            alive: checked at least every PARENT_CHECK s.
         """
         ring = self.ring
         while True:
             wait(PARENT_CHECK)
             self.publish_newest()
-            if ring.stop_requested or not alive():
+            if ring.stop_requested:
                 self.publish_newest()
                 return
 
 
 # ---- the child process -------------------------------------------------------------------------
-def _eventfd_wait(fd: int) -> Callable[[float], bool]:
+def _eventfd_wait(fd: int, lifeline: int | None = None) -> Callable[[float], bool]:
+    """A ``wait(timeout)`` on the eventfd; with ``lifeline`` (the read end of a pipe whose write end only
+    the NC holds) it raises :class:`ParentGone` once that pipe is closed: the NC process ended."""
     poller = select.poll()
     poller.register(fd, select.POLLIN)
+    if lifeline is not None:
+        poller.register(lifeline, select.POLLIN | select.POLLHUP)
 
     def wait(timeout: float) -> bool:
-        if not poller.poll(int(timeout * 1000)):
+        events = poller.poll(int(timeout * 1000))
+        if lifeline is not None and any(f == lifeline for f, _ in events):
+            raise ParentGone
+        if not events:
             return False
         try:
             os.eventfd_read(fd)
@@ -194,29 +211,27 @@ def _eventfd_wait(fd: int) -> Callable[[float], bool]:
     return wait
 
 
-def _die_with_parent() -> None:
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except Exception:  # not Linux: the parent check in run() still ends it
-        pass
+class ParentGone(Exception):
+    """The NC process ended (its end of the lifeline pipe closed)."""
 
 
 def child_main(argv: Sequence[str] | None = None) -> int:
-    """``python -m nc_server.server.publisher --spec JSON``: the NC's frame publisher (started by the NC)."""
+    """``python -m nc_server.server.publisher --spec JSON``: the NC's frame publisher (started by the NC).
+
+    It ends when the NC asks (the ring's stop flag, after the last frame) or when the NC process ends
+    (the lifeline pipe closes: a process-wide signal, unlike PR_SET_PDEATHSIG, which follows the
+    *thread* that forked). Signals meant for the NC's process group (Ctrl-C, SIGTERM, SIGHUP) are
+    ignored: the NC writes its last frame after them and then stops the publisher.
+    """
     p = argparse.ArgumentParser(prog="nc-publisher")
-    p.add_argument("--spec", required=True, help="JSON: nc, axis_ids, ring_fd, event_fd, parent, zenoh settings")
+    p.add_argument("--spec", required=True, help="JSON: nc, axis_ids, ring_fd, event_fd, lifeline_fd, zenoh, nice")
     args = p.parse_args(argv)
     spec = json.loads(args.spec)
-    _die_with_parent()
-    parent = int(spec["parent"])
-    if os.getppid() != parent:
-        return 0  # the NC is already gone
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the NC's Ctrl-C: the NC stops us
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_IGN)
     logging.basicConfig(level=spec.get("log_level", "WARNING"), format="%(asctime)s nc-publisher %(levelname)s %(message)s")
     try:
-        os.nice(int(spec.get("nice", 0)))
+        os.setpriority(os.PRIO_PROCESS, 0, int(spec.get("nice", 0)))  # (set, not added to the forking thread's)
     except OSError:
         pass
     import zenoh
@@ -227,11 +242,14 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     axis_ids = [int(a) for a in spec["axis_ids"]]
     mm = mmap.mmap(int(spec["ring_fd"]), ring_bytes(len(axis_ids)))
     ring = FrameRing(memoryview(mm), len(axis_ids))
+    wait = _eventfd_wait(int(spec["event_fd"]), int(spec["lifeline_fd"]))
     settings = ZenohSettings(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in spec["zenoh"].items()})
     session = zenoh.open(zenoh_config(settings, spec["nc"]))
     pub = FramePublisher(session, Keys(spec["nc"]), axis_ids, ring)
     try:
-        pub.run(_eventfd_wait(int(spec["event_fd"])), alive=lambda: os.getppid() == parent)
+        pub.run(wait)
+    except ParentGone:
+        pass
     finally:
         pub.close()
         ring.release()
@@ -240,25 +258,23 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def publisher_settings(settings: Any) -> dict[str, Any]:
-    """The publisher's zenoh settings (as a dict) for an NC with ``settings`` (ZenohSettings): a client of
-    the NC's own session (its first listen endpoint; ``0.0.0.0``/``[::]`` -> loopback), or, for an NC in
-    client mode, of the same router(s)."""
+def publisher_settings(settings: Any, internal: str | None = None) -> dict[str, Any]:
+    """The publisher's zenoh settings (a dict of ZenohSettings fields) for an NC with ``settings``: a client
+    of the NC's own session through its internal endpoint ``internal`` (router or peer mode: a unix socket
+    only the NC's user can open, see :func:`internal_endpoint`), or, for an NC in client mode, of the
+    same router(s) with the NC's certificate."""
     d = asdict(settings)
-    if settings.mode == "client":
-        connect = list(settings.connect)
-    else:
-        ep = settings.listen[0] if settings.listen else None
-        if ep is None:
-            connect = list(settings.connect)
-        else:
-            proto, _, rest = ep.partition("/")
-            host, _, port = rest.rpartition(":")
-            if host in ("0.0.0.0", "[::]", "::"):
-                host = "localhost" if proto == "tls" else "127.0.0.1"
-            connect = [f"{proto}/{host}:{port.split('#')[0]}"]
+    connect = [internal] if internal and settings.mode != "client" else list(settings.connect)
     d.update(mode="client", listen=[], connect=connect)
+    if internal and settings.mode != "client":
+        d["tls_dir"] = None  # (a local socket: no TLS; the NC's access control admits it by its link protocol)
     return d
+
+
+def internal_endpoint(directory: str) -> str:
+    """The unix socket endpoint, in ``directory`` (made 0700 by the NC), through which the publisher child
+    reaches the NC's session."""
+    return f"unixsock-stream/{os.path.join(directory, 'publisher.sock')}"
 
 
 class FrameOutput:
@@ -344,6 +360,9 @@ class PublisherThread:
     def watch(self) -> None:
         """(Nothing to watch: the thread ends only when asked.)"""
 
+    def counters(self) -> RingCounters:
+        return self.output.ring.counters()
+
     def stop(self, timeout: float = 3.0) -> None:
         """Publish the last frame written, then end the thread."""
         self.output.ring.request_stop()
@@ -361,47 +380,90 @@ class PublisherProcess:
         output: the server's frames (the child maps the same memfd and waits on the same eventfd).
         nc, axis_ids: the NC.
         settings: the NC's ZenohSettings (the child's session: :func:`publisher_settings`).
+        internal: the NC session's internal endpoint for the child (router/peer mode), None in client mode.
         nice: the child's nice value (the NC's zenoh threads' by default: ahead of the PLC clients).
         log_level: the child's logging level.
 
-    The child dies with the NC (PR_SET_PDEATHSIG, set in the child, and its parent check); one that
-    dies on its own is restarted by :meth:`watch` (the NC's I/O thread calls it every second).
+    The child ends with the NC (the lifeline pipe). :meth:`watch` (the NC's I/O thread, every 0.1 s)
+    restarts one that exited, and kills and restarts one that published nothing for :data:`STALL_TIMEOUT`
+    while the cycle wrote frames (hung, or stopped with SIGSTOP); restarts back off from 0.1 s to
+    :data:`RESTART_MAX_DELAY`. Its counters in the ring restart from zero with each child: :meth:`counters`
+    adds up every child's.
     """
 
-    def __init__(self, output: FrameOutput, nc: str, axis_ids: Sequence[int], settings: Any, nice: int = 0,
-                 log_level: str = "WARNING") -> None:
+    def __init__(self, output: FrameOutput, nc: str, axis_ids: Sequence[int], settings: Any,
+                 internal: str | None = None, nice: int = 0, log_level: str = "WARNING") -> None:
         self.output = output
         self.nc = nc
         self.axis_ids = [int(a) for a in axis_ids]
         self.settings = settings
+        self.internal = internal
         self.nice = nice
         self.log_level = log_level
         self.proc: subprocess.Popen[bytes] | None = None
         self.restarts = 0
         self._stopping = False
+        self._lifeline_r, self._lifeline_w = os.pipe()  # (both close-on-exec: only the child gets the read end)
+        self._base = (0, 0, 0)  # the counters of the children before this one
+        self._delay = RESTART_MIN_DELAY
+        self._restart_at: float | None = None
+        self._started_at = 0.0
+        self._seen = (-1, -1, 0.0)  # (ring seq, its sent counter, when): the last time it had published more
 
     def start(self) -> None:
         """Start the child (returns at once; it declares its publishers within ~0.1-1 s)."""
         o = self.output
         spec = {"nc": self.nc, "axis_ids": self.axis_ids, "ring_fd": o.memfd, "event_fd": o.eventfd,
-                "parent": os.getpid(), "zenoh": publisher_settings(self.settings), "nice": self.nice,
-                "log_level": self.log_level}
+                "lifeline_fd": self._lifeline_r, "zenoh": publisher_settings(self.settings, self.internal),
+                "nice": self.nice, "log_level": self.log_level}
         self.proc = subprocess.Popen([sys.executable, "-m", "nc_server.server.publisher", "--spec", json.dumps(spec)],
-                                     pass_fds=(o.memfd, o.eventfd), stdin=subprocess.DEVNULL)
+                                     pass_fds=(o.memfd, o.eventfd, self._lifeline_r), stdin=subprocess.DEVNULL)
+        self._started_at = time.monotonic()
+        self._seen = (self.output.ring.seq, 0, self._started_at)
 
     @property
     def pid(self) -> int | None:
         return self.proc.pid if self.proc is not None else None
 
+    def counters(self) -> RingCounters:
+        """Every child's counters added up; ``ready`` of the current one."""
+        c = self.output.ring.counters()
+        b = self._base
+        return RingCounters(b[0] + c.sent, b[1] + c.dropped, b[2] + c.put_errors, c.ready)
+
     def watch(self) -> None:
-        """Restart the child if it died."""
+        """Restart the child if it exited or stalled (see the class docstring)."""
         p = self.proc
-        if self._stopping or p is None or p.poll() is None:
+        if self._stopping or p is None:
             return
-        log.error("the frame publisher (pid %d) ended with %s: restarting it (clients miss frames meanwhile)",
-                  p.pid, p.returncode)
-        self.restarts += 1
-        self.start()
+        now = time.monotonic()
+        if self._restart_at is not None:
+            if now >= self._restart_at:
+                self._restart_at = None
+                self.restarts += 1
+                self.start()
+            return
+        if p.poll() is None:
+            c = self.output.ring.counters()
+            seq = self.output.ring.seq
+            if c.sent != self._seen[1]:  # it published since: progress
+                self._seen = (seq, c.sent, now)
+            if c.ready and now - self._seen[2] > STALL_TIMEOUT and seq != self._seen[0]:
+                log.error("the frame publisher (pid %d) published nothing for %.1f s: killing it", p.pid,
+                          now - self._seen[2])
+                p.kill()
+                p.wait()
+            else:
+                if c.ready and now - self._started_at > RESTART_RESET_AFTER:
+                    self._delay = RESTART_MIN_DELAY
+                return
+        c = self.output.ring.counters()
+        self._base = (self._base[0] + c.sent, self._base[1] + c.dropped, self._base[2] + c.put_errors)
+        self.output.ring.set_counters(0, 0, 0, False)
+        log.error("the frame publisher (pid %d) ended with %s: restarting it in %.1f s (clients miss frames meanwhile)",
+                  p.pid, p.returncode, self._delay)
+        self._restart_at = now + self._delay
+        self._delay = min(RESTART_MAX_DELAY, self._delay * 2)
 
     def stop(self, timeout: float = 3.0) -> None:
         """Let the child publish the last frame written and end (killed after ``timeout``)."""
@@ -415,6 +477,11 @@ class PublisherProcess:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+        for fd in (self._lifeline_r, self._lifeline_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
 
 if __name__ == "__main__":

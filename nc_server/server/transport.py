@@ -64,7 +64,7 @@ MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 #: PLCTONC frames kept between two drains by the cycle thread (newest kept; the cycle drains every
 #: ~0.2 ms: 16 clients at 100 Hz bring ~2 per ms).
 PLCTONC_CHANNEL = 1024
-#: How often the I/O thread sets threads that inherited SCHED_FIFO back to normal and watches the publisher [s].
+#: How often the I/O thread sets threads that inherited SCHED_FIFO back to normal [s].
 DEMOTE_PERIOD = 1.0
 #: Stats period [s].
 STATS_PERIOD = 0.1
@@ -77,7 +77,7 @@ _PC_OFF = int(PLC_AXIS_RECORD_DTYPE.fields["PlcToNc"][1])  # the PLCTONC's offse
 
 
 def zenoh_config(settings: ZenohSettings, identity: str | None = None,
-                 access_control: dict[str, Any] | None = None) -> zenoh.Config:
+                 access_control: dict[str, Any] | None = None, internal: str | None = None) -> zenoh.Config:
     """An explicit zenoh config: mode, listen/connect endpoints, no multicast or gossip scouting, lease;
     with ``settings.tls_dir`` mutual TLS as ``identity`` (its certificate; every endpoint ``tls/``),
     with ``access_control`` that section (``nc_server.security.acl``).
@@ -87,6 +87,9 @@ def zenoh_config(settings: ZenohSettings, identity: str | None = None,
     default waits 1 s, doubling up to 4 s), so a restarted router or a link that comes back has
     the NC again within about a quarter of a second. The first connection still fails at once
     (``connect/timeout_ms`` 0 in client mode): nc-server says so and exits.
+
+    With ``internal`` (a ``unixsock-stream/`` endpoint) the session also listens there, for the NC's own
+    frame publisher (:mod:`.publisher`), also when TLS allows no other protocol.
 
     Raises:
         zenoh.ZError: zenoh rejected a value.
@@ -103,8 +106,12 @@ def zenoh_config(settings: ZenohSettings, identity: str | None = None,
         c.insert_json5("connect/retry", CONNECT_RETRY)
     # zenoh's default accepts 1 GiB messages; nothing legitimate comes near 4 MiB here
     c.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
+    if internal is not None:
+        c.insert_json5("listen/endpoints", json.dumps([*settings.listen, internal]))
     if settings.tls_dir:
         apply_tls(c, settings.tls_dir, identity or "")
+        if internal is not None:
+            c.insert_json5("transport/link/protocols", json.dumps(["tls", internal.split("/", 1)[0]]))
     if access_control is not None:
         c.insert_json5("access_control", json.dumps(access_control))
     return c
@@ -204,6 +211,8 @@ class Transport:
         self.plc_ignored = 0  # frames from clients that hold no axis
         self._max_plc_frame = PLC_FRAME_HEADER_DTYPE.itemsize + len(self.axis_ids) * PLC_AXIS_RECORD_DTYPE.itemsize
         self.session: zenoh.Session | None = None
+        #: an extra listen endpoint for the NC's frame publisher (set before open(); None: none)
+        self.internal: str | None = None
         self._zid = ""
         self._decl: list[Any] = []
 
@@ -214,7 +223,7 @@ class Transport:
         Raises:
             zenoh.ZError: e.g. the listen endpoint is in use.
         """
-        self.session = s = zenoh.open(zenoh_config(self.settings, self.keys.nc, self.access_control))
+        self.session = s = zenoh.open(zenoh_config(self.settings, self.keys.nc, self.access_control, self.internal))
         self._zid = str(s.info.zid())
         k = self.keys
         # channels polled by the cycle thread: no Python callback (and no GIL) on zenoh's threads
@@ -364,7 +373,8 @@ class IoThread:
 
     Replies are all sent (then the query is finalized); stats every :data:`STATS_PERIOD`, the claims
     map on change and every :data:`CLAIMS_PERIOD`; every DEMOTE_PERIOD it sets threads that inherited
-    SCHED_FIFO back to normal and calls ``watch`` (the frame publisher's: restarts a child that died).
+    SCHED_FIFO back to normal; every pass (at least every STATS_PERIOD) it calls ``watch`` (the frame
+    publisher's: restarts a child that died).
 
     Args:
         transport: the open transport.
@@ -375,7 +385,7 @@ class IoThread:
         cycle_source: returns the NC's current cycle.
         rt_threads: see :attr:`rt_threads`.
         nice: the thread's nice value (``cycle.IO_THREAD_NICE``), set when it starts; None: inherited.
-        watch: called every DEMOTE_PERIOD (None: nothing).
+        watch: called at least every STATS_PERIOD (None: nothing).
     """
 
     def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]],
@@ -452,11 +462,11 @@ class IoThread:
                 if keep:
                     from .cycle import demote_other_threads
                     self.demoted += demote_other_threads(keep)
-                if self.watch is not None and running:
-                    try:
-                        self.watch()
-                    except Exception:  # never let a watcher end the I/O thread
-                        log.exception("publisher watch failed")
+            if self.watch is not None and running:
+                try:
+                    self.watch()
+                except Exception:  # never let a watcher end the I/O thread
+                    log.exception("publisher watch failed")
 
     def _reply(self, q: Any, payload: bytes) -> None:
         try:

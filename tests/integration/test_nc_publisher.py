@@ -78,17 +78,91 @@ def test_the_publisher_ends_with_the_nc_even_when_the_nc_is_killed(
     wait_until(lambda: not alive(pids[0]) or None, T, "the publisher to end with the NC")
 
 
+@pytest.mark.parametrize("to_group", [False, True], ids=["nc", "process-group"])
 def test_a_clean_stop_publishes_the_final_frame_and_ends_the_publisher(
-        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient]) -> None:
+        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient], to_group: bool) -> None:
+    """SIGTERM to the NC, or to its whole process group (systemd, a supervisor): the publisher outlives the
+    signal, puts the last frame (flag ShuttingDown) and ends."""
     nc = start_nc()
     pids = wait_until(lambda: publisher_pids(nc.pid) or None, T, "the publisher child")
     cl = nc_client(nc.port)
-    cl.watch("nc/nc1/status")
-    wait_until(lambda: cl.latest("nc/nc1/status"), T, "a status frame")
-    assert nc.stop(signal.SIGTERM) == 0
-    flags = struct.unpack_from("<I", cl.latest("nc/nc1/status")[0], 28)[0]
-    assert flags & 0x1, "the last status frame is flagged ShuttingDown"
-    assert not alive(pids[0])
+    for k in ("nc/nc1/status", "nc/nc1/frame/10ms"):
+        cl.watch(k)
+    wait_until(lambda: cl.latest("nc/nc1/status") and cl.latest("nc/nc1/frame/10ms"), T, "status and frames")
+    if to_group:
+        os.killpg(nc.proc.pid, signal.SIGTERM)
+    else:
+        nc.send_signal(signal.SIGTERM)
+    assert nc.proc.wait(T) == 0
+    for k in ("nc/nc1/status", "nc/nc1/frame/10ms"):
+        flags = struct.unpack_from("<I", wait_until(lambda: cl.latest(k), T, k)[0], 28)[0]
+        assert flags & 0x1, f"the last {k} frame is flagged ShuttingDown"
+    wait_until(lambda: not alive(pids[0]) or None, T, "the publisher to end")
+
+
+def test_the_publisher_runs_at_the_nice_of_the_ncs_zenoh_threads(start_nc: Callable[..., NcServerProcess]) -> None:
+    """(nice is set, not added to the forking thread's -10 / -15: the publisher must not outrank the NC's
+    own zenoh threads, which bring the PLCTONC and the requests.)"""
+    from nc_server.server.cycle import IO_NICE
+    nc = start_nc()
+    pid = wait_until(lambda: publisher_pids(nc.pid) or None, T, "the publisher child")[0]
+    main_nice = int(Path(f"/proc/{nc.pid}/stat").read_text().rsplit(")", 1)[1].split()[16])
+    if main_nice != IO_NICE:
+        pytest.skip(f"nice {IO_NICE} not permitted here (the NC runs at {main_nice})")
+    assert int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[16]) == IO_NICE
+
+
+def test_a_stopped_publisher_is_killed_and_replaced(
+        nc_server: NcServerProcess, nc_client: Callable[..., NcTestClient]) -> None:
+    """A publisher that hangs (here: SIGSTOP) publishes nothing while the cycle writes frames: the NC
+    replaces it after STALL_TIMEOUT."""
+    pid = wait_until(lambda: publisher_pids(nc_server.pid) or None, T, "the publisher child")[0]
+    cl = nc_client(nc_server.port)
+    cl.watch("nc/nc1/frame/10ms")
+    wait_until(lambda: frame_cycle(cl), T, "a frame")
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        new = wait_until(lambda: [p for p in publisher_pids(nc_server.pid) if p != pid] or None, T, "a new publisher")
+        c1 = frame_cycle(cl) or 0
+        wait_until(lambda: (frame_cycle(cl) or 0) > c1 + 10, T, "frames from the new publisher")
+        assert len(new) == 1 and not alive(pid)
+        assert "published nothing" in nc_server.stderr()
+    finally:
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass
+
+
+def test_an_nc_started_from_a_thread_that_ends_keeps_its_publisher(tmp_path: Path) -> None:
+    """PR_SET_PDEATHSIG would kill the child with the forking *thread*; the lifeline pipe follows the process."""
+    import threading
+    import time
+
+    from nc_server.core import NcCore
+    from nc_server.server.app import NcServer
+    from nc_server.server.config import load_config
+    from znc_testing import free_port
+    conf = tmp_path / "nc.toml"
+    conf.write_text(f'[nc]\nname = "nc1"\nrealtime = "off"\n[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+                    '[[axis]]\nAxisId = 1\n')
+    cfg = load_config(conf)
+    server = NcServer(cfg, NcCore(list(cfg.axes), cfg.cycle_time))
+    th = threading.Thread(target=server.start)
+    th.start()
+    th.join(T)
+    try:
+        assert server.started and server.publisher is not None
+        pid = server.publisher.pid
+        assert pid is not None
+        t_end = time.monotonic() + 1.5
+        while time.monotonic() < t_end:  # (the thread is gone: a PDEATHSIG child would be dead by now)
+            assert server.publisher.proc.poll() is None, "the publisher died with the thread that started it"
+            time.sleep(0.05)
+        assert server.publisher.restarts == 0
+    finally:
+        server.stop()
+    assert server.publisher.proc.poll() is not None
 
 
 def test_the_thread_publisher_delivers_the_same_frames(

@@ -10,7 +10,7 @@ import pytest
 import zenoh
 
 from nc_schema import Keys
-from nc_server.security.acl import READ_KEYS, access_control, command_keys, main as nc_acl
+from nc_server.security.acl import READ_KEYS, access_control, command_keys, main as nc_acl, with_local_publisher
 from nc_server.security.roles import Roles, RolesError, load_roles, parse_roles
 from nc_server.security.tls import TlsError, apply_tls, check_tls_endpoints, tls_section
 
@@ -164,3 +164,16 @@ def test_keys_of_the_acl_are_the_protocols() -> None:
     assert _includes("nc/*/plctonc/plc1", k.plctonc_in("plc1")) and _includes("nc/*/client/plc1", k.client_alive("plc1"))
     assert all(any(_includes(p, key) for p in READ_KEYS)
                for key in (k.frame, k.status, k.stats, k.claims, k.axis_nctoplc(2), k.axis_plctonc(2)))
+
+
+def test_the_local_publisher_gets_exactly_its_ncs_rules() -> None:
+    roles = parse_roles({"nc": {"nc1": {}, "nc2": {}}, "client": {"plc1": {"role": "operator"}}}, "t")
+    acl = access_control(roles)
+    out = with_local_publisher(acl, "nc1")
+    sub = [s for s in out["subjects"] if s["id"] == "nc:nc1:local-publisher"]
+    assert sub == [{"id": "nc:nc1:local-publisher", "link_protocols": ["unixsock-stream"]}]
+    pol = [p for p in out["policies"] if p["subjects"] == ["nc:nc1:local-publisher"]]
+    assert len(pol) == 1 and set(pol[0]["rules"]) == {"nc:nc1:in", "nc:nc1:out", "see:subscribers"}
+    assert out["subjects"][:-1] == acl["subjects"] and acl["policies"] == out["policies"][:-1]  # nothing else
+    with pytest.raises(ValueError, match="nc3"):
+        with_local_publisher(acl, "nc3")

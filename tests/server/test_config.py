@@ -72,6 +72,10 @@ def test_overrides(tmp_path: Path) -> None:
     ("[zenoh]\nmode = 'server'\n", "zenoh.mode"),
     ("[zenoh]\nlease = 1.5\n", "zenoh.lease"),
     ("[zenoh]\nmulticast = true\n", "zenoh.multicast"),
+    ("[nc]\npublisher = 'fork'\n", "nc.publisher"),
+    ("[nc]\ncpu_affinity = [4096]\n", "nc.cpu_affinity"),
+    ("[nc]\ncpu_affinity = ['1']\n", "nc.cpu_affinity"),
+    ("[nc]\ncpu_affinity = true\n", "nc.cpu_affinity"),
 ])
 def test_errors_name_the_key(tmp_path: Path, text: str, key: str) -> None:
     text += "\n[[axis]]\nAxisId = 1\n"
@@ -207,3 +211,13 @@ def test_client_loss_reaction_per_axis_and_lease(tmp_path: Path) -> None:
     assert cfg.loss_reactions == ("keep_others", "stop_disable", "stop")
     assert cfg.zenoh.lease_ms == 300
     assert load_config(lease_ms=200).zenoh.lease_ms == 200
+
+
+def test_publisher_and_cpu_affinity(tmp_path: Path) -> None:
+    d = load_config()
+    assert d.publisher == "process" and d.cpu_affinity == ()
+    import os
+    cpu = min(os.sched_getaffinity(0))
+    cfg = load_config(write(tmp_path, f"[nc]\npublisher = 'thread'\ncpu_affinity = [{cpu}, {cpu}]\n[[axis]]\nAxisId = 1\n"))
+    assert cfg.publisher == "thread" and cfg.cpu_affinity == (cpu,)
+    assert load_config(sets=[f"nc.cpu_affinity={cpu}", "nc.publisher=thread"]).cpu_affinity == (cpu,)

@@ -102,3 +102,26 @@ def test_fifo_only_on_the_cycle_thread() -> None:
         assert seen == [os.SCHED_FIFO]
     else:
         assert seen == [os.SCHED_OTHER] and "not permitted" in loop.stats.timing_detail
+
+
+def test_cpus_pin_the_cycle_thread_only() -> None:
+    import os
+    cpus = sorted(os.sched_getaffinity(0))
+    seen: list[set[int]] = []
+    loop = CycleLoop(0.001, lambda d: seen.append(os.sched_getaffinity(0)), realtime="off", cpus=frozenset({cpus[-1]}))
+    loop.start()
+    try:
+        wait = time.monotonic() + 10
+        while len(seen) < 5 and time.monotonic() < wait:
+            time.sleep(0.01)
+    finally:
+        loop.stop()
+    assert seen and seen[-1] == {cpus[-1]}
+    assert f"on CPU {cpus[-1]}" in loop.stats.timing_detail
+    assert sorted(os.sched_getaffinity(0)) == cpus  # the calling thread keeps its CPUs
+
+
+def test_impossible_cpus_refuse_to_start() -> None:
+    loop = CycleLoop(0.001, lambda d: None, realtime="off", cpus=frozenset({4096}))
+    with pytest.raises(RuntimeError, match="cpu_affinity"):
+        loop.start()
