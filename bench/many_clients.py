@@ -228,7 +228,6 @@ def run(args: argparse.Namespace) -> int:
         isolate = ["--set", f"nc.cpu_affinity=[{args.isolate_cpu}]"]
         rest = sorted(os.sched_getaffinity(0) - {args.isolate_cpu})
         pin_clients = ["taskset", "-c", ",".join(map(str, rest))]
-        os.sched_setaffinity(0, rest)  # this process (and the threads it makes from now on) too
     nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
                            "--log-level", "WARNING", *isolate], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
                           text=True, env=env, start_new_session=True)

@@ -47,50 +47,6 @@ MAX_QUERIES_PER_CYCLE = 32
 QUERY_BUDGET_NS = 250_000
 #: start() waits this long for the frame publisher to declare its publishers [s].
 PUBLISHER_READY_TIMEOUT = 15.0
-#: A request starts between cycles only if the recent cost of one (the QUERY_COST_QUANTILE of the last
-#: QUERY_COST_WINDOW, recomputed every QUERY_COST_EVERY requests; between QUERY_RESERVE_MIN_NS and
-#: QUERY_RESERVE_MAX_NS) still fits before the next cycle: planning a move costs 0.1-0.2 ms on a quiet
-#: machine and 0.3-0.6 ms on a loaded one, and two of them in the cycle made it overrun
-#: (bench/many_clients.py). The cycle itself runs none (see cycle()).
-QUERY_COST_WINDOW = 64
-QUERY_COST_QUANTILE = 0.9
-QUERY_COST_EVERY = 16
-QUERY_RESERVE_MIN_NS = 50_000
-QUERY_RESERVE_MAX_NS = 600_000
-
-
-def _keep_off(cpus: tuple[int, ...]) -> set[int] | None:
-    """Move the calling thread (and the threads and processes it makes) off ``cpus``; the affinity it had
-    (None: nothing changed: no cpus, no other CPU left, or not supported)."""
-    if not cpus or not hasattr(os, "sched_setaffinity"):
-        return None
-    try:
-        old = os.sched_getaffinity(0)
-        rest = old - set(cpus)
-        if not rest:
-            return None
-        os.sched_setaffinity(0, rest)
-        return old
-    except OSError as exc:
-        log.warning("cpu_affinity: could not move the NC's other threads off CPU %s: %s", list(cpus), exc)
-        return None
-
-
-def _restore_affinity(saved: set[int] | None) -> None:
-    if saved:
-        try:
-            os.sched_setaffinity(0, saved)
-        except OSError:
-            pass
-
-
-def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
-    """The time [ns] to keep free for one more request, from the recent request costs [ns]."""
-    if not costs:
-        return QUERY_RESERVE_MAX_NS
-    s = sorted(costs)
-    q = s[min(len(s) - 1, int(len(s) * QUERY_COST_QUANTILE))]
-    return int(min(QUERY_RESERVE_MAX_NS, max(QUERY_RESERVE_MIN_NS, q)))
 #: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
 SHUTDOWN_STOP_TIMEOUT = 5.0
 #: last_command changes alone rebuild the claims map at most this often [s] (claims and clients: at once).
@@ -106,6 +62,30 @@ STALL_GRACE = 0.05
 #: delivers what it read from the sockets. (Shorter stalls, common on a loaded machine, change nothing:
 #: a late reply to a block that gave up is undone by its PLC task.)
 STALE_QUERY_WINDOW = 0.05
+
+
+#: A request starts between cycles only if the recent cost of one (the QUERY_COST_QUANTILE of the last
+#: QUERY_COST_WINDOW, recomputed every QUERY_COST_EVERY requests; between QUERY_RESERVE_MIN_NS and
+#: QUERY_RESERVE_MAX_NS) still fits before the next cycle: planning a move costs 0.1-0.2 ms on a quiet
+#: machine and 0.2-0.45 ms on a loaded one (p50-p99); run in the cycle or past the next deadline, they
+#: were what made the NC's cycles overrun (bench/many_clients.py). The cycle itself runs none (see
+#: cycle()); when none fitted for QUERY_MAX_WAIT_NS, one runs right after the cycle's work anyway
+#: (requests always progress; that cycle may start late).
+QUERY_COST_WINDOW = 64
+QUERY_COST_QUANTILE = 0.98
+QUERY_COST_EVERY = 16
+QUERY_RESERVE_MIN_NS = 50_000
+QUERY_RESERVE_MAX_NS = 600_000
+QUERY_MAX_WAIT_NS = 20_000_000
+
+
+def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
+    """The time [ns] to keep free for one more request, from the recent request costs [ns]."""
+    if not costs:
+        return QUERY_RESERVE_MAX_NS
+    s = sorted(costs)
+    q = s[min(len(s) - 1, int(len(s) * QUERY_COST_QUANTILE))]
+    return int(min(QUERY_RESERVE_MAX_NS, max(QUERY_RESERVE_MIN_NS, q)))
 
 
 class NcServer:
@@ -157,13 +137,13 @@ class NcServer:
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))
         self._internal_dir: str | None = None  # holds the internal socket of the publisher child
-        self._saved_affinity: set[int] | None = None
         self.publisher: PublisherProcess | PublisherThread | None = None
         self._prev_tick = 0.0       # the cycle thread's last run (cycle start or idle slice) [s, monotonic]
         self._refuse_until = 0.0    # queries popped before this are refused (after a long stall) [s]
         self._idle_ran = False      # an idle call ran since the last cycle (it ran the requests)
         self._query_costs: collections.deque[int] = collections.deque(maxlen=QUERY_COST_WINDOW)  # [ns]
         self._reserve_ns = QUERY_RESERVE_MIN_NS * 4  # until costs are known
+        self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -190,9 +170,6 @@ class NcServer:
         configure_interpreter()
         self.load_retain()
         io_priority = raise_io_priority(self.config.realtime)  # zenoh's threads inherit it
-        # with [nc] cpu_affinity the cycle thread has its CPUs alone: every other thread (zenoh's, I/O,
-        # retain) and the publisher child, made from here on, get the others
-        self._saved_affinity = _keep_off(self.config.cpu_affinity)
         if self.config.publisher == "process" and self.config.zenoh.mode != "client":
             self._internal_dir = tempfile.mkdtemp(prefix=f"nc-{self.config.name}-")  # (0700)
             self.transport.internal = internal_endpoint(self._internal_dir)
@@ -234,7 +211,6 @@ class NcServer:
             self.transport.close()
             self._cleanup_start()
             raise
-        _restore_affinity(self._saved_affinity)
         self.started = True
         # the ready line (cli) follows: the frames must be on zenoh by then, not a second later
         deadline = time.monotonic() + PUBLISHER_READY_TIMEOUT
@@ -246,13 +222,11 @@ class NcServer:
                  io_priority, self.io.priority, self.config.publisher)
 
     def _cleanup_start(self) -> None:
-        """Close the frame ring, remove the internal socket's directory, give the affinity back."""
+        """Close the frame ring, remove the internal socket's directory."""
         self.frames.close()
         if self._internal_dir is not None:
             shutil.rmtree(self._internal_dir, ignore_errors=True)
             self._internal_dir = None
-        _restore_affinity(self._saved_affinity)
-        self._saved_affinity = None
 
     def load_retain(self) -> None:
         """Lock and read the retain file (if configured); the first cycle applies it (start() calls this).
@@ -336,9 +310,7 @@ class NcServer:
         # Commands run between cycles (idle), in the time the cycle leaves; only when no idle call ran
         # since the last cycle (the work fills the period) does the cycle take one itself.
         if not self._idle_ran:
-            replies = self._drain_queries(now, limit=1)
-            if replies:
-                self.io.submit_replies(replies)
+            self._drain_queries(now, limit=1)
         self._idle_ran = False
 
         # PLCTONC (the newest frame of each client, applied to the axes it holds), then the
@@ -433,41 +405,48 @@ class NcServer:
             self.inputs.nc_stalled(gap)
 
     def _drain_queries(self, now: float, until_ns: int | None = None, at_least: int = 0,
-                       limit: int = MAX_QUERIES_PER_CYCLE) -> list[tuple[Any, bytes]]:
-        """Run queued requests; their replies.
+                       limit: int = MAX_QUERIES_PER_CYCLE) -> int:
+        """Run queued requests and answer each at once (:meth:`Transport.reply`); how many ran.
 
         At most ``limit``, none after QUERY_BUDGET_NS of this call, and (from the ``at_least``-th on) none
-        that would, at the recent cost of a request (:meth:`_query_reserve`), end after ``until_ns``
-        [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must start on time.
+        that would, at the recent cost of a request and its reply (:func:`query_reserve`), end after
+        ``until_ns`` [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must
+        start on time. A request that does not fit goes back to the front of the queue (``transport.queries``).
         """
         t = self.transport
-        replies: list[tuple[Any, bytes]] = []
+        h = self.handler
         clock = time.monotonic_ns
-        start = clock()
-        budget_end = start + QUERY_BUDGET_NS
+        budget_end = clock() + QUERY_BUDGET_NS
         costs = self._query_costs
-        for n in range(limit):
-            if n >= at_least and until_ns is not None and clock() + self._reserve_ns > until_ns:
-                break
+        n = 0
+        while n < limit:
             q = t.try_recv_query()
             if q is None:
+                self._waiting_since = None
+                break
+            if n >= at_least and until_ns is not None and clock() + self._reserve_ns > until_ns:
+                t.queries.appendleft(q)  # first in line next time
+                if self._waiting_since is None:
+                    self._waiting_since = clock()
                 break
             t0 = clock()
             p = q.payload
             if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
-                replies.append((q, self.handler.too_large(len(p))))
+                reply = h.too_large(len(p))
             elif now < self._refuse_until:
-                replies.append((q, self.handler.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"",
-                                                                   now)))
+                reply = h.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
             else:
-                replies.append((q, self.handler.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)))
+                reply = h.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
+            t.reply(q, reply)
+            n += 1
             t1 = clock()
+            self._waiting_since = None
             costs.append(t1 - t0)
             if len(costs) % QUERY_COST_EVERY == 0:
                 self._reserve_ns = query_reserve(costs)
             if t1 > budget_end:
                 break
-        return replies
+        return n
 
     def _take_liveliness(self, now: float | None = None) -> None:
         """Liveliness: PUT = client present, DELETE = gone (the watchdog reacts: CycleInputs)."""
@@ -485,8 +464,9 @@ class NcServer:
 
     def idle(self, deadline_ns: int | None = None, after_work: bool = True) -> None:
         """Between cycles (cycle thread): run the requests that arrived, in the time left before
-        ``deadline_ns`` [ns, monotonic; None: no limit]; right after the cycle's work (``after_work``) at
-        least one, so requests always progress.
+        ``deadline_ns`` [ns, monotonic; None: no limit]: each one only if the recent cost of a request
+        still fits (:func:`query_reserve`); right after the cycle's work (``after_work``) one anyway when
+        none could run for QUERY_MAX_WAIT_NS, so requests always progress.
 
         They take effect at the next ``core.step()``, as their reply's ``cycle`` says. Liveliness
         first: a client declares its token before it claims, and the NC must see them in that order.
@@ -498,9 +478,9 @@ class NcServer:
         now = time.monotonic()
         self._tick(now)
         self._take_liveliness(now)
-        replies = self._drain_queries(now, until_ns=deadline_ns, at_least=1 if after_work else 0)
-        if replies:
-            self.io.submit_replies(replies)
+        waiting = self._waiting_since
+        force = after_work and waiting is not None and time.monotonic_ns() - waiting > QUERY_MAX_WAIT_NS
+        self._drain_queries(now, until_ns=deadline_ns, at_least=1 if force else 0)
         self.transport.take_plctonc()  # decoded now, applied at the next cycle start
 
     def _nc_time_ns(self, deadline_ns: int) -> int:
@@ -530,7 +510,7 @@ class NcServer:
                   "dedup_hits": self.handler.cache.hits, "faults": self.inputs.faults,
                   "plctonc_frames": self.transport.plc_frames, "plctonc_malformed": self.transport.plc_malformed,
                   "plctonc_ignored": self.transport.plc_ignored,
-                  "frames_dropped": self._publisher_counters().dropped, "reply_errors": self.io.reply_errors,
+                  "frames_dropped": self._publisher_counters().dropped, "reply_errors": self.transport.reply_errors,
                   "publisher": self.config.publisher,
                   "publisher_restarts": self.publisher.restarts if self.publisher is not None else 0,
                   "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors})

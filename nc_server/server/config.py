@@ -111,7 +111,10 @@ class ServerConfig:
             (default), "stop" or "keep_others" (see ``handler.CycleInputs``).
         cpu_affinity: the CPUs the cycle thread may run on (``[nc] cpu_affinity = [1]``); empty: any.
             Worth it only with the CPU kept free of other work (isolcpus, a cpuset, other processes
-            pinned elsewhere): see ``cycle.CycleLoop``.
+            pinned elsewhere): see ``cycle.CycleLoop``. The NC's other threads and its publisher stay
+            free to use every CPU: the I/O thread shares the cycle thread's GIL and zenoh's threads
+            bring its inputs; kept off the cycle's CPU, on a busy other one, they made the cycle wait
+            (bench/many_clients.py: missed cycles 0.08 % -> 0.33 %).
         publisher: where the frames are put on zenoh: ``"process"`` (default: a child process with its
             own interpreter, so its puts never hold the cycle thread's GIL) or ``"thread"``
             (:mod:`nc_server.server.publisher`).

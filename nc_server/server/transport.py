@@ -205,6 +205,8 @@ class Transport:
         #: the idle slices poll it)
         self.query_event = threading.Event()
         self.queries_refused = 0  # (the ring channel drops the oldest query when full: not counted)
+        self.replies_sent = 0
+        self.reply_errors = 0
         self.liveliness_ignored = 0  # client tokens with an invalid id
         self.plc_frames = 0
         self.plc_malformed = 0
@@ -276,6 +278,28 @@ class Transport:
             return q.try_recv()
         except Exception:  # undeclared (closing)
             return None
+
+    def reply(self, q: Any, payload: bytes) -> bool:
+        """Answer query ``q`` and finalize it (cycle thread, right after the request ran; never raises).
+
+        Congestion control DROP, express: a querier whose link is congested loses its answer (its block
+        reports the missing reply) rather than stall the NC's cycle thread, which sends it. (Sent from the
+        I/O thread instead, a reply took the GIL just when the cycle was due: cycles started up to half a
+        millisecond late after every request, bench/many_clients.py.)
+        """
+        try:
+            q.reply(q.key_expr, payload, congestion_control=zenoh.CongestionControl.DROP, express=True)
+            self.replies_sent += 1
+            return True
+        except Exception as exc:  # e.g. the querier is gone; the NC keeps going
+            self.reply_errors += 1
+            log.debug("reply failed: %s", exc)
+            return False
+        finally:
+            try:
+                q.drop()  # finalize: the querier gets its answer now, not at its timeout
+            except Exception:
+                pass
 
     # ---- liveliness (a channel, polled by the cycle thread) ------------------------------------
     def take_liveliness(self) -> bool:
@@ -369,9 +393,9 @@ class Transport:
 
 
 class IoThread:
-    """Sends what the cycle thread hands over and the periodic messages; never lets the network block the cycle.
+    """Sends the periodic messages; never lets the network block the cycle.
 
-    Replies are all sent (then the query is finalized); stats every :data:`STATS_PERIOD`, the claims
+    Stats every :data:`STATS_PERIOD`, the claims
     map on change and every :data:`CLAIMS_PERIOD`; every DEMOTE_PERIOD it sets threads that inherited
     SCHED_FIFO back to normal; every pass (at least every STATS_PERIOD) it calls ``watch`` (the frame
     publisher's: restarts a child that died).
@@ -408,21 +432,15 @@ class IoThread:
         #: it is set back to normal every DEMOTE_PERIOD (see cycle.demote_other_threads)
         self.rt_threads = rt_threads
         self.demoted: list[int] = []
-        self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self.replies_sent = 0
-        self.reply_errors = 0
+        self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()  # (only its stop request)
         self.put_errors = 0
         self._thread = threading.Thread(target=self._main, name="nc-io", daemon=True)
 
     def start(self) -> None:
         self._thread.start()
 
-    def submit_replies(self, replies: list[tuple[Any, bytes]]) -> None:
-        """Hand replies over (cycle thread; never blocks)."""
-        self.q.put(replies)
-
     def stop(self, timeout: float = 5.0) -> None:
-        """Send what is queued, then end the thread."""
+        """End the thread (after a last stats put)."""
         self.q.put(_STOP)
         self._thread.join(timeout)
 
@@ -441,16 +459,8 @@ class IoThread:
                 item = self.q.get(timeout=STATS_PERIOD)
             except queue.Empty:
                 item = None
-            while item is not None:
-                if item is _STOP:
-                    running = False
-                else:
-                    for q, payload in item:
-                        self._reply(q, payload)
-                try:
-                    item = self.q.get_nowait()
-                except queue.Empty:
-                    item = None
+            if item is _STOP:
+                running = False
             now = time.monotonic()
             if now >= next_stats or not running:
                 next_stats = now + STATS_PERIOD
@@ -467,19 +477,6 @@ class IoThread:
                     self.watch()
                 except Exception:  # never let a watcher end the I/O thread
                     log.exception("publisher watch failed")
-
-    def _reply(self, q: Any, payload: bytes) -> None:
-        try:
-            q.reply(q.key_expr, payload)
-            self.replies_sent += 1
-        except Exception as exc:  # e.g. the querier is gone; the NC keeps going
-            self.reply_errors += 1
-            log.debug("reply failed: %s", exc)
-        finally:
-            try:
-                q.drop()  # finalize: the querier gets its answer now, not at its timeout
-            except Exception:
-                pass
 
     def _publish_claims(self, now: float) -> None:
         try:

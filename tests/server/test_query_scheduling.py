@@ -14,11 +14,20 @@ from nc_server.server.config import load_config
 
 
 class FakeQuery:
-    """What the server reads of a zenoh query: key_expr and payload (``len``, ``to_bytes``)."""
+    """What the server uses of a zenoh query: key_expr, payload (``len``, ``to_bytes``), reply, drop."""
 
-    def __init__(self, key: str, msg: dict) -> None:
+    def __init__(self, key: str, msg: dict, sent: list) -> None:
         self.key_expr = key
         self.payload = _Payload(msgpack.packb(msg))
+        self.sent = sent
+        self.dropped = False
+
+    def reply(self, key: str, payload: bytes, **kw: object) -> None:
+        assert not self.dropped and key == self.key_expr
+        self.sent.append((payload, kw))
+
+    def drop(self) -> None:
+        self.dropped = True
 
 
 class _Payload:
@@ -34,6 +43,7 @@ class _Payload:
 
 @pytest.fixture
 def server(tmp_path: Path):  # type: ignore[no-untyped-def]
+    SENT.clear()
     conf = tmp_path / "nc.toml"
     conf.write_text('[nc]\nname = "nc1"\nrealtime = "off"\n[zenoh]\nlisten = ["tcp/127.0.0.1:9"]\n'
                     '[[axis]]\nAxisId = 1\n[[axis]]\nAxisId = 2\n')
@@ -45,15 +55,17 @@ def server(tmp_path: Path):  # type: ignore[no-untyped-def]
         srv.frames.close()
 
 
+SENT: list = []
+
+
 def _queue(srv: NcServer, n: int) -> None:
     for k in range(n):
-        srv.transport.queries.append(FakeQuery("nc/nc1/axis/1/cmd/read/t", {"id": k, "client": "t", "cmd": "Info"}))
+        srv.transport.queries.append(FakeQuery("nc/nc1/axis/1/cmd/read/t", {"id": k, "client": "t", "cmd": "Info"}, SENT))
 
 
 def _replies(srv: NcServer) -> int:
-    n = 0
-    while not srv.io.q.empty():
-        n += len(srv.io.q.get_nowait())
+    n = len(SENT)
+    SENT.clear()
     return n
 
 
@@ -63,10 +75,30 @@ def test_a_request_that_would_not_fit_before_the_deadline_waits(server: NcServer
     soon = time.monotonic_ns() + 300_000
     server.idle(soon, after_work=False)  # a slice: 0.3 ms left, nothing fits
     assert len(server.transport.queries) == 3 and _replies(server) == 0
-    server.idle(time.monotonic_ns() + 300_000, after_work=True)  # right after the work: one always runs
+    server.idle(time.monotonic_ns() + 300_000, after_work=True)  # right after the work: still does not fit
+    assert len(server.transport.queries) == 3 and _replies(server) == 0
+    assert server._waiting_since is not None
+    server._waiting_since -= A.QUERY_MAX_WAIT_NS + 1  # ... and it has waited that long by now:
+    server.idle(time.monotonic_ns() + 300_000, after_work=False)  # not in a slice,
+    assert len(server.transport.queries) == 3 and _replies(server) == 0
+    server.idle(time.monotonic_ns() + 300_000, after_work=True)  # but right after the work, one runs anyway
     assert len(server.transport.queries) == 2 and _replies(server) == 1
-    server.idle(time.monotonic_ns() + 50_000_000, after_work=False)  # plenty of time: the rest
+    assert server._waiting_since is not None and time.monotonic_ns() - server._waiting_since < A.QUERY_MAX_WAIT_NS
+    server.idle(time.monotonic_ns() + 50_000_000, after_work=False)  # plenty of time: the rest, in order
     assert len(server.transport.queries) == 0 and _replies(server) == 2
+    assert server._waiting_since is None
+
+
+def test_a_request_put_back_keeps_its_place(server: NcServer) -> None:
+    _queue(server, 3)
+    first = server.transport.queries[0]
+    server._reserve_ns = 400_000
+    server.idle(time.monotonic_ns() + 100_000, after_work=False)
+    assert server.transport.queries[0] is first and len(server.transport.queries) == 3
+    SENT.clear()
+    server.idle(None)
+    ids = [msgpack.unpackb(p, strict_map_key=False)["id"] for p, _ in SENT]
+    assert ids == [0, 1, 2]
 
 
 def test_the_cycle_runs_one_request_only_when_no_idle_call_ran(server: NcServer) -> None:
@@ -80,18 +112,37 @@ def test_the_cycle_runs_one_request_only_when_no_idle_call_ran(server: NcServer)
 
 
 def test_every_request_is_answered_and_takes_effect_at_the_next_step(server: NcServer) -> None:
-    server.transport.queries.append(FakeQuery("nc/nc1/axis/1/cmd/read/t", {"id": 1, "client": "t", "cmd": "Info"}))
+    sent: list = []
+    q = FakeQuery("nc/nc1/axis/1/cmd/read/t", {"id": 1, "client": "t", "cmd": "Info"}, sent)
+    server.transport.queries.append(q)
     c = server.core.cycle
     server.idle(None)
-    (q, payload), = server.io.q.get_nowait()
+    (payload, kw), = sent
     rep = msgpack.unpackb(payload, strict_map_key=False)
     assert rep["error"] == 0 and rep["cycle"] == c + 1
+    assert q.dropped  # finalized: the querier has its answer now
+    import zenoh
+    assert kw == {"congestion_control": zenoh.CongestionControl.DROP, "express": True}  # never blocks the cycle
 
 
 def test_the_reserve_follows_the_recent_costs_within_bounds() -> None:
     assert query_reserve([]) == A.QUERY_RESERVE_MAX_NS
     assert query_reserve([10_000] * 64) == A.QUERY_RESERVE_MIN_NS
     assert query_reserve([5_000_000] * 64) == A.QUERY_RESERVE_MAX_NS
-    costs = [100_000] * 57 + [300_000] * 7  # the 90th percentile is a 300 us one
+    costs = [100_000] * 60 + [300_000] * 4  # the 98th percentile is a 300 us one
     assert query_reserve(costs) == 300_000
-    assert query_reserve([100_000] * 60 + [300_000] * 4) == 100_000
+    assert query_reserve([100_000] * 63 + [300_000]) == 100_000
+
+
+def test_a_reply_that_fails_is_counted_and_the_query_finalized(server: NcServer) -> None:
+    class Gone(FakeQuery):
+        def reply(self, key: str, payload: bytes, **kw: object) -> None:
+            raise RuntimeError("querier gone")
+
+    q = Gone("nc/nc1/axis/1/cmd/read/t", {"id": 1, "client": "t", "cmd": "Info"}, [])
+    server.transport.queries.append(q)
+    _queue(server, 1)
+    server.idle(None)
+    assert q.dropped and server.transport.reply_errors == 1
+    assert _replies(server) == 1  # the next one is answered
+    assert server.stats()["reply_errors"] == 1
