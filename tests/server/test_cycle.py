@@ -66,6 +66,26 @@ def test_stats_percentiles() -> None:
     assert p["work_us_max"] == 100.0 and 49 <= p["work_us_p50"] <= 52 and p["lateness_us_p99"] == 5.0
 
 
+def test_stats_percentiles_cover_the_last_ring_of_cycles_only() -> None:
+    """(histograms kept by record(): the cycles that leave the ring leave the histograms too)"""
+    import numpy as np
+
+    from nc_server.server.cycle import RING
+    st = CycleStats()
+    for _ in range(RING):
+        st.record(work_ns=900_000, lateness_ns=400_000)  # an old slow period
+    rng = np.random.default_rng(1)
+    w = rng.integers(10_000, 300_000, RING)
+    for x in w.tolist():
+        st.record(work_ns=x, lateness_ns=7_000)
+    p = st.percentiles()
+    for q, key in ((50, "work_us_p50"), (99, "work_us_p99")):
+        assert abs(p[key] - np.percentile(w / 1000, q)) <= 1.5, (key, p[key])
+    assert p["lateness_us_p99"] == 7.0 and p["work_us_max"] == round(w.max() / 1000, 1)
+    st.record(work_ns=50_000_000, lateness_ns=0)  # beyond the histogram: its last bin; the max is exact
+    assert st.percentiles()["work_us_max"] == 50_000.0
+
+
 def test_realtime_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
     assert set_realtime("off", 49)[0] == "SCHED_OTHER"
 
