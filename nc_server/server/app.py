@@ -17,8 +17,6 @@ import collections
 import gc
 import logging
 import os
-import shutil
-import tempfile
 import threading
 import time
 from typing import Any
@@ -36,7 +34,7 @@ from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, ra
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
 from .retain import RetainKeeper
 from .frame_ring import RingCounters
-from .publisher import FrameOutput, PublisherProcess, PublisherThread, internal_endpoint
+from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
 from .transport import IoThread, Transport
 
 log = logging.getLogger("nc_server.server")
@@ -45,8 +43,6 @@ log = logging.getLogger("nc_server.server")
 MAX_QUERIES_PER_CYCLE = 32
 #: ... and no new one once this much of the cycle went into requests [ns] (a flood cannot stall the NC).
 QUERY_BUDGET_NS = 250_000
-#: start() waits this long for the frame publisher to declare its publishers [s].
-PUBLISHER_READY_TIMEOUT = 15.0
 #: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
 SHUTDOWN_STOP_TIMEOUT = 5.0
 #: last_command changes alone rebuild the claims map at most this often [s] (claims and clients: at once).
@@ -132,11 +128,12 @@ class NcServer:
         self.io = IoThread(self.transport, self.stats, claims_source=lambda: self.claims_msg,
                            cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads,
                            nice=None if config.realtime == "off" else IO_THREAD_NICE,
-                           watch=lambda: self.publisher.watch() if self.publisher is not None else None)
+                           watch=lambda: self.publisher.watch() if self.publisher is not None else None,
+                           rt_priority=None if config.realtime == "off" else max(1, config.rt_priority - 1))
         #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))
-        self._internal_dir: str | None = None  # holds the internal socket of the publisher child
+        self._internal_socket: str | None = None  # the path of the publisher child's internal socket
         self.publisher: PublisherProcess | PublisherThread | None = None
         self._prev_tick = 0.0       # the cycle thread's last run (cycle start or idle slice) [s, monotonic]
         self._refuse_until = 0.0    # queries popped before this are refused (after a long stall) [s]
@@ -171,8 +168,7 @@ class NcServer:
         self.load_retain()
         io_priority = raise_io_priority(self.config.realtime)  # zenoh's threads inherit it
         if self.config.publisher == "process" and self.config.zenoh.mode != "client":
-            self._internal_dir = tempfile.mkdtemp(prefix=f"nc-{self.config.name}-")  # (0700)
-            self.transport.internal = internal_endpoint(self._internal_dir)
+            self.transport.internal, self._internal_socket = internal_endpoint()
         try:
             self.transport.open()
         except BaseException:
@@ -213,20 +209,20 @@ class NcServer:
             raise
         self.started = True
         # the ready line (cli) follows: the frames must be on zenoh by then, not a second later
-        deadline = time.monotonic() + PUBLISHER_READY_TIMEOUT
+        deadline = time.monotonic() + READY_TIMEOUT
         while not self._publisher_counters().ready and time.monotonic() < deadline and self.loop.alive:
             time.sleep(0.01)
         if not self._publisher_counters().ready:
-            log.warning("the frame publisher is not ready after %g s: starting without it", PUBLISHER_READY_TIMEOUT)
+            log.warning("the frame publisher is not ready after %g s: starting without it", READY_TIMEOUT)
         log.info("cycle thread: %s; zenoh's threads: %s; I/O thread: %s; frames: %s publisher", self.loop.stats.timing_detail,
                  io_priority, self.io.priority, self.config.publisher)
 
     def _cleanup_start(self) -> None:
-        """Close the frame ring, remove the internal socket's directory."""
+        """Close the frame ring, remove the internal socket."""
         self.frames.close()
-        if self._internal_dir is not None:
-            shutil.rmtree(self._internal_dir, ignore_errors=True)
-            self._internal_dir = None
+        if self._internal_socket is not None:
+            remove_internal_socket(self._internal_socket)
+            self._internal_socket = None
 
     def load_retain(self) -> None:
         """Lock and read the retain file (if configured); the first cycle applies it (start() calls this).
@@ -280,14 +276,18 @@ class NcServer:
         gc.unfreeze()  # let the collector free the server's cycles at exit (frozen objects never are)
 
     def _rt_threads(self) -> set[int]:
-        """Native id of the thread that runs SCHED_FIFO on purpose: the cycle thread, if it does (else empty).
+        """Native ids of the threads that run SCHED_FIFO on purpose: the cycle thread and the I/O thread, those
+        that do (else empty).
 
-        It polls the PLCTONC channel, and zenoh creates some threads lazily (its SHM watchdog threads):
-        one created from the cycle thread would inherit SCHED_FIFO and is set back to normal."""
+        The cycle thread polls the PLCTONC channel, and zenoh creates some threads lazily (its SHM watchdog
+        threads): one created from the cycle thread would inherit SCHED_FIFO and is set back to normal."""
+        out: set[int] = set()
         t = self.loop._thread
-        if self.loop.stats.timing != "SCHED_FIFO" or t is None or t.native_id is None:
-            return set()
-        return {t.native_id}
+        if self.loop.stats.timing == "SCHED_FIFO" and t is not None and t.native_id is not None:
+            out.add(t.native_id)
+        if self.io.realtime and self.io.native_id is not None:
+            out.add(self.io.native_id)
+        return out
 
     @property
     def timing(self) -> str:
@@ -406,10 +406,10 @@ class NcServer:
 
     def _drain_queries(self, now: float, until_ns: int | None = None, at_least: int = 0,
                        limit: int = MAX_QUERIES_PER_CYCLE) -> int:
-        """Run queued requests and answer each at once (:meth:`Transport.reply`); how many ran.
+        """Run queued requests, hand their replies to the I/O thread; how many ran.
 
         At most ``limit``, none after QUERY_BUDGET_NS of this call, and (from the ``at_least``-th on) none
-        that would, at the recent cost of a request and its reply (:func:`query_reserve`), end after
+        that would, at the recent cost of a request (:func:`query_reserve`), end after
         ``until_ns`` [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must
         start on time. A request that does not fit goes back to the front of the queue (``transport.queries``).
         """
@@ -418,6 +418,7 @@ class NcServer:
         clock = time.monotonic_ns
         budget_end = clock() + QUERY_BUDGET_NS
         costs = self._query_costs
+        replies: list[tuple[Any, bytes]] = []
         n = 0
         while n < limit:
             q = t.try_recv_query()
@@ -437,7 +438,7 @@ class NcServer:
                 reply = h.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
             else:
                 reply = h.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
-            t.reply(q, reply)
+            replies.append((q, reply))
             n += 1
             t1 = clock()
             self._waiting_since = None
@@ -446,6 +447,8 @@ class NcServer:
                 self._reserve_ns = query_reserve(costs)
             if t1 > budget_end:
                 break
+        if replies:
+            self.io.submit_replies(replies)  # (zenoh's reply may block: never on this thread)
         return n
 
     def _take_liveliness(self, now: float | None = None) -> None:

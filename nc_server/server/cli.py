@@ -105,7 +105,7 @@ def _run(cfg: object) -> int:
 
     from .app import NcServer
     from .config import ServerConfig
-    from .cycle import RealtimeError
+    from .cycle import AffinityError, RealtimeError
     from .retain import RetainLockError
 
     assert isinstance(cfg, ServerConfig)
@@ -134,6 +134,7 @@ def _run(cfg: object) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGHUP, on_signal)  # (a closed terminal or session: stop cleanly too)
 
     server = NcServer(cfg, core)
     try:
@@ -143,6 +144,9 @@ def _run(cfg: object) -> int:
         return 1
     except RealtimeError as exc:
         log.error("%s (use realtime = \"auto\" or \"off\")", exc)
+        return 1
+    except AffinityError as exc:
+        log.error("%s", exc)
         return 1
     except RetainLockError as exc:  # another NC runs on this retain file: a start failure
         log.error("%s", exc)

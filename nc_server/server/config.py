@@ -136,21 +136,37 @@ class ServerConfig:
 
 
 def _cpus(v: Any, key: str) -> tuple[int, ...]:
-    """A list of CPU numbers this process may use (``os.sched_getaffinity``)."""
+    """A list of online CPU numbers (not only those this process runs on: an isolated CPU, isolcpus or
+    a systemd CPUAffinity, is outside the inherited mask; the cycle thread moves there when it starts)."""
     if isinstance(v, int) and not isinstance(v, bool):
         v = [v]
     if not isinstance(v, list) or not all(isinstance(c, int) and not isinstance(c, bool) for c in v):
         raise ConfigError(key, f"must be a list of CPU numbers, got {v!r}")
-    try:
-        allowed = sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        if v:
-            raise ConfigError(key, "CPU affinity is not available on this platform") from None
-        return ()
-    bad = [c for c in v if c not in allowed]
+    if v and not hasattr(os, "sched_setaffinity"):
+        raise ConfigError(key, "CPU affinity is not available on this platform")
+    online = _online_cpus()
+    bad = [c for c in v if c not in online]
     if bad:
-        raise ConfigError(key, f"CPU {bad[0]} is not one this process may use ({', '.join(map(str, allowed))})")
+        raise ConfigError(key, f"CPU {bad[0]} is not an online CPU ({_ranges(online)})")
     return tuple(sorted(set(v)))
+
+
+def _online_cpus() -> set[int]:
+    """The online CPUs (/sys/devices/system/cpu/online; else 0 .. cpu_count - 1)."""
+    try:
+        text = open("/sys/devices/system/cpu/online", encoding="ascii").read().strip()
+        out: set[int] = set()
+        for part in text.split(","):
+            lo, _, hi = part.partition("-")
+            out.update(range(int(lo), int(hi or lo) + 1))
+        return out
+    except (OSError, ValueError):
+        return set(range(os.cpu_count() or 1))
+
+
+def _ranges(cpus: set[int]) -> str:
+    s = sorted(cpus)
+    return f"{s[0]}-{s[-1]}" if s == list(range(s[0], s[-1] + 1)) and len(s) > 1 else ", ".join(map(str, s))
 
 
 def default_config_text() -> str:

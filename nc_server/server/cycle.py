@@ -59,7 +59,8 @@ RING = 10_000
 #: sys.setswitchinterval while the server runs [s]. CPython's 5 ms default would let the cycle thread
 #: keep the GIL through a whole cycle while the I/O thread waits to send a reply; measured with
 #: bench/command_rtt.py on a loaded 2-core VM, 0.1 ms gave MoveAbsolute round trips of ~2.0 ms p50
-#: against ~2.7 ms with 0.5 ms, and no worse cycle work.
+#: against ~2.7 ms with 0.5 ms, and no worse cycle work. (The other side: whatever the I/O thread does
+#: with the GIL may delay the cycle by as much; it only sends replies, stats and claims.)
 SWITCH_INTERVAL = 0.0001
 
 
@@ -83,6 +84,10 @@ def _record(ring: list[int], n: int, err: int) -> int:
 
 class RealtimeError(RuntimeError):
     """``realtime="fifo"`` was required but SCHED_FIFO is not permitted."""
+
+
+class AffinityError(RuntimeError):
+    """``[nc] cpu_affinity`` names CPUs the cycle thread cannot be moved to."""
 
 
 def set_realtime(mode: str, priority: int) -> tuple[str, str]:
@@ -113,15 +118,16 @@ def set_realtime(mode: str, priority: int) -> tuple[str, str]:
     return "SCHED_FIFO", f"SCHED_FIFO priority {priority} on the cycle thread"
 
 
-#: nice value of the NC's threads other than the cycle thread (zenoh's, the I/O thread) when realtime is
-#: not "off": they receive the PLCTONC frames the watchdog judges and send frames and replies, and at
-#: nice 0 on a loaded machine they waited behind every other process. (Not SCHED_FIFO: the I/O thread's
+#: nice value of the NC's threads other than the cycle thread (zenoh's, the I/O thread) and of its frame
+#: publisher when realtime is not "off": they receive the PLCTONC frames the watchdog judges and send
+#: frames and replies, and at nice 0 on a loaded machine they waited behind every other process. (Not SCHED_FIFO: the I/O thread's
 #: puts wait for zenoh's transmit threads, which a real-time I/O thread would keep off the CPU.)
 IO_NICE = -10
-#: nice value of the NC's I/O thread (below IO_NICE: ahead of zenoh's threads). Its puts hold the GIL
-#: while zenoh copies a frame to every subscriber (~100-200 us for 16 clients); taken off the CPU
-#: meanwhile by zenoh's own routing threads (same nice), it kept the cycle thread from the GIL for
-#: milliseconds on a loaded 2-core machine (bench/many_clients.py).
+#: nice value of the NC's I/O thread when it cannot run SCHED_FIFO (transport.IoThread: rt_priority) (below
+#: IO_NICE: ahead of zenoh's threads). Whatever it does holding
+#: the GIL, taken off the CPU meanwhile, keeps the cycle thread from the GIL: when it still put the frames
+#: (~100-200 us each for 16 clients, now the publisher child's job), for milliseconds on a loaded 2-core
+#: machine (bench/many_clients.py).
 IO_THREAD_NICE = -15
 
 
@@ -155,7 +161,7 @@ def demote_other_threads(keep: set[int]) -> list[int]:
         if tid in keep:
             continue
         try:
-            if os.sched_getscheduler(tid) in rt:
+            if os.sched_getscheduler(tid) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) in rt:
                 os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
                 out.append(tid)
         except OSError:  # the thread ended meanwhile, or not permitted
@@ -282,6 +288,7 @@ class CycleLoop:
 
         Raises:
             RealtimeError: SCHED_FIFO required but refused.
+            AffinityError: ``cpus`` cannot be set.
             RuntimeError: the thread did not start in time.
         """
         self._thread = threading.Thread(target=self._main, name=name, daemon=True)
@@ -315,7 +322,7 @@ class CycleLoop:
                 os.sched_setaffinity(0, self.cpus)  # pid 0: this thread only
                 self.stats.timing_detail += f", on CPU {','.join(map(str, sorted(self.cpus)))}"
             except (OSError, AttributeError) as exc:
-                self.error = RealtimeError(f"cpu_affinity {sorted(self.cpus)} not possible: {exc}")
+                self.error = AffinityError(f"cpu_affinity {sorted(self.cpus)}: cannot move the cycle thread there: {exc}")
                 self.started.set()
                 return
         self.started.set()

@@ -428,6 +428,8 @@ class CycleInputs:
             raise ValueError(f"reactions must be {len(ids)} of {LOSS_REACTIONS}, got {reactions!r}")
         #: rows whose last PLCTONC the NC keeps after their holder was lost ("keep_others")
         self.kept: set[int] = set()
+        self._apply_cache: dict[tuple[str, bytes], tuple[np.ndarray, np.ndarray, np.ndarray, float]] = {}
+        self._apply_version = -1
         self.faults = 0
 
     def apply(self, frames: Iterable[tuple[str, PlctoncFrame]], now: float) -> list[tuple[int, int]]:
@@ -443,12 +445,31 @@ class CycleInputs:
         Only frames that count for a claim feed (and arm) the watchdog.
         """
         claims, lut = self.claims, self._lut
+        cache = self._apply_cache
+        if self._apply_version != claims.version:
+            cache.clear()
+            self._apply_version = claims.version
         for client, f in frames:
-            since = claims.held_since(client)
-            ids = np.asarray(f.axis_ids).astype(np.int64)
-            ok = (ids >= 0) & (ids < len(lut))
-            idx = np.where(ok, lut[np.where(ok, ids, 0)], -1)
-            sel = np.flatnonzero((idx >= 0) & (since[np.maximum(idx, 0)] <= f.arrival))
+            # a client sends the same AxisIds frame after frame: their rows and claim times are cached
+            # until the claims change (the usual frame then costs one dict lookup and the copy)
+            key = (client, f.axis_ids.tobytes())
+            hit = cache.get(key)
+            if hit is None:
+                since = claims.held_since(client)
+                ids = np.asarray(f.axis_ids).astype(np.int64)
+                ok = (ids >= 0) & (ids < len(lut))
+                idx = np.where(ok, lut[np.where(ok, ids, 0)], -1)
+                mine = np.flatnonzero(idx >= 0)
+                t = since[idx[mine]]
+                newest = float(t.max()) if t.size else np.inf
+                hit = cache[key] = (idx, mine, t, newest)
+                if len(cache) > 4 * len(lut) + 64:  # (a client sending ever other AxisIds: bounded)
+                    cache.clear()
+            idx, mine, t, newest = hit
+            if f.arrival >= newest:  # every held axis was claimed before this frame arrived
+                sel = mine
+            else:
+                sel = mine[t <= f.arrival]
             if sel.size:
                 claims.plctonc_arrived(client, f.arrival)
                 # (all records apply in the usual case: no copy of the structured records)

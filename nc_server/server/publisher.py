@@ -36,7 +36,9 @@ import os
 import select
 import signal
 import subprocess
+import stat
 import sys
+import tempfile
 import threading
 import time
 import weakref
@@ -55,8 +57,12 @@ log = logging.getLogger("nc_server.server")
 STATUS_PERIOD = 0.1
 #: The publisher looks at the ring (and its stop flag) at least this often, signalled or not [s].
 PARENT_CHECK = 0.5
-#: A publisher child that put nothing for this long while the cycle wrote frames is killed (then restarted) [s].
+#: A publisher child that put nothing for this long while the cycle wrote at least STALL_FRAMES frames
+#: is killed (then restarted) [s]. READY_TIMEOUT: how long NcServer.start waits for the first one's
+#: publishers (a child that hangs before it is ready is not killed: it is logged at start).
 STALL_TIMEOUT = 2.0
+STALL_FRAMES = 100
+READY_TIMEOUT = 15.0
 #: Restart delays of a publisher child that ended: from RESTART_MIN_DELAY, doubled per restart up to
 #: RESTART_MAX_DELAY, back to the minimum once a child ran ready for RESTART_RESET_AFTER [s].
 RESTART_MIN_DELAY = 0.1
@@ -271,10 +277,63 @@ def publisher_settings(settings: Any, internal: str | None = None) -> dict[str, 
     return d
 
 
-def internal_endpoint(directory: str) -> str:
-    """The unix socket endpoint, in ``directory`` (made 0700 by the NC), through which the publisher child
-    reaches the NC's session."""
-    return f"unixsock-stream/{os.path.join(directory, 'publisher.sock')}"
+def internal_endpoint(directory: str | None = None) -> tuple[str, str]:
+    """(endpoint, socket path) of the unix socket through which the publisher child reaches the NC's
+    session: ``<dir>/<pid>.sock`` in :func:`socket_dir` (or ``directory``).
+
+    Sockets of NC processes that no longer exist (killed: nothing removed them) are removed first.
+    """
+    d = directory or socket_dir()
+    for name in os.listdir(d):
+        stem = name.split(".", 1)[0]  # <pid>.sock and zenoh's <pid>.sock.lock
+        if name.endswith((".sock", ".sock.lock")) and stem.isdigit() and int(stem) != os.getpid() \
+                and not _pid_alive(int(stem)):
+            try:
+                os.unlink(os.path.join(d, name))
+            except OSError:
+                pass
+    path = os.path.join(d, f"{os.getpid()}.sock")
+    remove_internal_socket(path)  # (ours from an earlier start in this process)
+    return f"unixsock-stream/{path}", path
+
+
+def remove_internal_socket(path: str) -> None:
+    """Remove the socket and zenoh's lock file beside it (never raises)."""
+    for p in (path, path + ".lock"):
+        try:
+            os.unlink(p)
+        except OSError:
+            pass
+
+
+def socket_dir() -> str:
+    """The directory of the NCs' internal sockets: ``$XDG_RUNTIME_DIR/zenoh-nc`` or ``<tmp>/zenoh-nc-<uid>``,
+    0700 and owned by this user (made if missing; a directory that is not, or a symlink, is refused and a
+    fresh private one used instead), so only this user (and root) can connect."""
+    base = os.environ.get("XDG_RUNTIME_DIR")
+    d = os.path.join(base, "zenoh-nc") if base and os.path.isdir(base) else \
+        os.path.join(tempfile.gettempdir(), f"zenoh-nc-{os.getuid()}")
+    try:
+        os.mkdir(d, 0o700)
+    except FileExistsError:
+        pass
+    except OSError:
+        return tempfile.mkdtemp(prefix="zenoh-nc-")
+    st = os.lstat(d)
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+        log.warning("%s is not a private directory of this user: the internal socket goes elsewhere", d)
+        return tempfile.mkdtemp(prefix="zenoh-nc-")
+    return d
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 class FrameOutput:
@@ -448,9 +507,9 @@ class PublisherProcess:
             seq = self.output.ring.seq
             if c.sent != self._seen[1]:  # it published since: progress
                 self._seen = (seq, c.sent, now)
-            if c.ready and now - self._seen[2] > STALL_TIMEOUT and seq != self._seen[0]:
-                log.error("the frame publisher (pid %d) published nothing for %.1f s: killing it", p.pid,
-                          now - self._seen[2])
+            if c.ready and now - self._seen[2] > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
+                log.error("the frame publisher (pid %d) published nothing for %.1f s (%d frames written; %s): "
+                          "killing it", p.pid, now - self._seen[2], seq - self._seen[0], c)
                 p.kill()
                 p.wait()
             else:

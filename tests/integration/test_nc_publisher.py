@@ -62,6 +62,8 @@ def test_a_publisher_that_dies_is_restarted_and_the_frames_resume(
     assert len(new) == 1
     c1 = frame_cycle(cl)
     wait_until(lambda: (frame_cycle(cl) or 0) > (c1 or c0) + 10, T, "frames from the new publisher")
+    # restarted from the NC's I/O thread, which may run SCHED_FIFO: the child must not inherit it
+    assert os.sched_getscheduler(new[0]) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_OTHER
     st = wait_until(lambda: (s := cl.stats()) is not None and s.get("publisher_restarts", 0) >= 1 and s, T,
                     "publisher_restarts in the stats")
     assert st["publisher"] == "process"
@@ -177,3 +179,48 @@ def test_the_thread_publisher_delivers_the_same_frames(
     wait_until(lambda: cl.latest("nc/nc1/axis/1/nctoplc"), T, "per-axis samples")
     st = wait_until(lambda: cl.stats(), T, "stats")
     assert st["publisher"] == "thread" and st["publisher_restarts"] == 0
+
+
+def test_the_internal_socket_is_private_and_cleaned_up(start_nc: Callable[..., NcServerProcess]) -> None:
+    """One socket per NC process in a 0700 directory; a killed NC's socket is removed by the next start."""
+    import stat as st_
+
+    from nc_server.server.publisher import internal_endpoint, socket_dir
+    d = socket_dir()
+    mode = os.stat(d).st_mode
+    assert st_.S_ISDIR(mode) and not mode & 0o077 and os.stat(d).st_uid == os.getuid()
+    nc = start_nc()
+    sock = Path(d) / f"{nc.pid}.sock"
+    wait_until(lambda: sock.exists() or None, T, "the NC's internal socket")
+    os.killpg(nc.proc.pid, signal.SIGKILL)
+    nc.proc.wait(T)
+    assert sock.exists()  # (nobody could remove it)
+    internal_endpoint()  # what the next NC's start does first
+    assert not sock.exists() and not Path(str(sock) + ".lock").exists()
+    nc2 = start_nc()
+    sock2 = Path(d) / f"{nc2.pid}.sock"
+    wait_until(lambda: sock2.exists() or None, T, "the second NC's socket")
+    assert nc2.stop(signal.SIGTERM) == 0
+    assert not sock2.exists() and not Path(str(sock2) + ".lock").exists()
+
+
+def test_only_the_cycle_and_io_threads_run_sched_fifo(start_nc: Callable[..., NcServerProcess]) -> None:
+    """The I/O thread (replies) runs SCHED_FIFO below the cycle thread when permitted; no other thread of the
+    NC and nothing of its publisher does."""
+    nc = start_nc()
+    if "SCHED_FIFO" not in (nc.ready_line() or ""):
+        pytest.skip("SCHED_FIFO not permitted here")
+    pid = wait_until(lambda: publisher_pids(nc.pid) or None, T, "the publisher child")[0]
+
+    def fifo(p: int) -> list[int]:
+        out = []
+        for t in Path(f"/proc/{p}/task").iterdir():
+            try:
+                if os.sched_getscheduler(int(t.name)) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_FIFO:
+                    out.append(int(os.sched_getparam(int(t.name)).sched_priority))
+            except OSError:
+                pass
+        return sorted(out)
+
+    wait_until(lambda: fifo(nc.pid) == [48, 49] or None, T, "the cycle thread (49) and the I/O thread (48)")
+    assert fifo(pid) == []

@@ -143,5 +143,5 @@ def test_cpus_pin_the_cycle_thread_only() -> None:
 
 def test_impossible_cpus_refuse_to_start() -> None:
     loop = CycleLoop(0.001, lambda d: None, realtime="off", cpus=frozenset({4096}))
-    with pytest.raises(RuntimeError, match="cpu_affinity"):
+    with pytest.raises(cycle_mod.AffinityError, match="cpu_affinity"):
         loop.start()
