@@ -129,7 +129,7 @@ class NcServer:
                            cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads,
                            nice=None if config.realtime == "off" else IO_THREAD_NICE,
                            watch=lambda: self.publisher.watch() if self.publisher is not None else None,
-                           rt_priority=None if config.realtime == "off" else max(1, config.rt_priority - 1))
+                           rt_priority=None if config.realtime == "off" or config.rt_priority < 2 else config.rt_priority - 1)
         #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))

@@ -110,7 +110,8 @@ def set_realtime(mode: str, priority: int) -> tuple[str, str]:
             raise RealtimeError("SCHED_FIFO is not available on this platform")
         return "SCHED_OTHER", "SCHED_FIFO not available on this platform"
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        # (SCHED_RESET_ON_FORK: threads zenoh creates from this one lazily do not inherit SCHED_FIFO)
+        os.sched_setscheduler(0, os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(priority))
     except OSError as exc:
         if mode == "fifo":
             raise RealtimeError(f"SCHED_FIFO not permitted: {exc.strerror or exc}") from None
@@ -120,8 +121,8 @@ def set_realtime(mode: str, priority: int) -> tuple[str, str]:
 
 #: nice value of the NC's threads other than the cycle thread (zenoh's, the I/O thread) and of its frame
 #: publisher when realtime is not "off": they receive the PLCTONC frames the watchdog judges and send
-#: frames and replies, and at nice 0 on a loaded machine they waited behind every other process. (Not SCHED_FIFO: the I/O thread's
-#: puts wait for zenoh's transmit threads, which a real-time I/O thread would keep off the CPU.)
+#: frames and replies, and at nice 0 on a loaded machine they waited behind every other process. (zenoh's
+#: threads are not SCHED_FIFO: they move the data of every client; the I/O thread is, see transport.IoThread.)
 IO_NICE = -10
 #: nice value of the NC's I/O thread when it cannot run SCHED_FIFO (transport.IoThread: rt_priority) (below
 #: IO_NICE: ahead of zenoh's threads). Whatever it does holding

@@ -383,6 +383,10 @@ class RequestHandler:
                                  for a, (c, m, cy) in sorted(self.last_command.items())}}
 
 
+#: Entries of CycleInputs' PLCTONC row cache (one per client and AxisIds list in use).
+APPLY_CACHE_MAX = 256
+
+
 class CycleInputs:
     """The NC's inputs of one cycle, applied before ``core.step()`` (pure: times are passed in).
 
@@ -428,7 +432,7 @@ class CycleInputs:
             raise ValueError(f"reactions must be {len(ids)} of {LOSS_REACTIONS}, got {reactions!r}")
         #: rows whose last PLCTONC the NC keeps after their holder was lost ("keep_others")
         self.kept: set[int] = set()
-        self._apply_cache: dict[tuple[str, bytes], tuple[np.ndarray, np.ndarray, np.ndarray, float]] = {}
+        self._apply_cache: dict[tuple[str, str, bytes], tuple[np.ndarray, np.ndarray, np.ndarray, float]] = {}
         self._apply_version = -1
         self.faults = 0
 
@@ -452,18 +456,19 @@ class CycleInputs:
         for client, f in frames:
             # a client sends the same AxisIds frame after frame: their rows and claim times are cached
             # until the claims change (the usual frame then costs one dict lookup and the copy)
-            key = (client, f.axis_ids.tobytes())
+            raw = np.asarray(f.axis_ids)
+            key = (client, raw.dtype.str, raw.tobytes())
             hit = cache.get(key)
             if hit is None:
                 since = claims.held_since(client)
-                ids = np.asarray(f.axis_ids).astype(np.int64)
+                ids = raw.astype(np.int64)
                 ok = (ids >= 0) & (ids < len(lut))
                 idx = np.where(ok, lut[np.where(ok, ids, 0)], -1)
                 mine = np.flatnonzero(idx >= 0)
                 t = since[idx[mine]]
                 newest = float(t.max()) if t.size else np.inf
                 hit = cache[key] = (idx, mine, t, newest)
-                if len(cache) > 4 * len(lut) + 64:  # (a client sending ever other AxisIds: bounded)
+                if len(cache) > APPLY_CACHE_MAX:  # (clients sending ever other AxisIds: bounded)
                     cache.clear()
             idx, mine, t, newest = hit
             if f.arrival >= newest:  # every held axis was claimed before this frame arrived

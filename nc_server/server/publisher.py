@@ -29,6 +29,7 @@ it is copied, RING_SLOTS - 1 cycles later.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import mmap
@@ -43,7 +44,7 @@ import threading
 import time
 import weakref
 from dataclasses import asdict
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -432,6 +433,32 @@ class PublisherThread:
             self.pub.close()
 
 
+@contextlib.contextmanager
+def _normal_while_forking(nice: int) -> Iterator[None]:
+    """A SCHED_FIFO caller (the NC's I/O thread restarting the publisher) runs SCHED_OTHER at ``nice`` around a
+    fork: Python's subprocess vforks holding the GIL until the child execs, and the child (SCHED_RESET_ON_FORK:
+    nice 0) would queue behind every loaded process meanwhile, with the cycle thread waiting for the GIL."""
+    policy = param = None
+    try:
+        policy = os.sched_getscheduler(0)
+        if policy & ~getattr(os, "SCHED_RESET_ON_FORK", 0) in (os.SCHED_FIFO, os.SCHED_RR):
+            param = os.sched_getparam(0)
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+        else:
+            policy = None
+    except (OSError, AttributeError):
+        policy = None
+    try:
+        yield
+    finally:
+        if policy is not None and param is not None:
+            try:
+                os.sched_setscheduler(0, policy, param)
+            except OSError:
+                pass
+
+
 class PublisherProcess:
     """The frame publisher as a child process (``publisher = "process"``, the default).
 
@@ -443,7 +470,7 @@ class PublisherProcess:
         nice: the child's nice value (the NC's zenoh threads' by default: ahead of the PLC clients).
         log_level: the child's logging level.
 
-    The child ends with the NC (the lifeline pipe). :meth:`watch` (the NC's I/O thread, every 0.1 s)
+    The child ends with the NC (the lifeline pipe). :meth:`watch` (the NC's I/O thread, about every 0.1 s)
     restarts one that exited, and kills and restarts one that published nothing for :data:`STALL_TIMEOUT`
     while the cycle wrote frames (hung, or stopped with SIGSTOP); restarts back off from 0.1 s to
     :data:`RESTART_MAX_DELAY`. Its counters in the ring restart from zero with each child: :meth:`counters`
@@ -475,8 +502,9 @@ class PublisherProcess:
         spec = {"nc": self.nc, "axis_ids": self.axis_ids, "ring_fd": o.memfd, "event_fd": o.eventfd,
                 "lifeline_fd": self._lifeline_r, "zenoh": publisher_settings(self.settings, self.internal),
                 "nice": self.nice, "log_level": self.log_level}
-        self.proc = subprocess.Popen([sys.executable, "-m", "nc_server.server.publisher", "--spec", json.dumps(spec)],
-                                     pass_fds=(o.memfd, o.eventfd, self._lifeline_r), stdin=subprocess.DEVNULL)
+        with _normal_while_forking(self.nice):
+            self.proc = subprocess.Popen([sys.executable, "-m", "nc_server.server.publisher", "--spec", json.dumps(spec)],
+                                         pass_fds=(o.memfd, o.eventfd, self._lifeline_r), stdin=subprocess.DEVNULL)
         self._started_at = time.monotonic()
         self._seen = (self.output.ring.seq, 0, self._started_at)
 

@@ -59,6 +59,10 @@ QUERY_CHANNEL = 1024
 LIVELINESS_CHANNEL = 4096
 #: A PLCTONC sample's router stamp corrects its arrival time only if it is younger than this [s].
 HLC_MAX_AGE = 0.25
+#: How long a BLOCK message waits for a full transmit queue before zenoh closes the link [us] (zenoh: 5 s);
+#: below the PLC's command timeout (1 s), above a PLC's plausible hiccup. A frozen client so dropped loses
+#: its liveliness token: the NC stops its axes (0x8F01), as its watchdog would after watchdog_timeout.
+BLOCK_WAIT_BEFORE_CLOSE_US = 200_000
 #: Largest message the NC's zenoh session accepts [bytes].
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 #: PLCTONC frames kept between two drains by the cycle thread (newest kept; the cycle drains every
@@ -102,6 +106,10 @@ def zenoh_config(settings: ZenohSettings, identity: str | None = None,
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
+    # a BLOCK message (a reply: it takes the PLC's query's congestion control) to a peer whose queue stays
+    # full waits at most this long, then zenoh closes that link: zenoh's 5 s held every other client's
+    # replies back that long (one I/O thread sends them in order)
+    c.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", str(BLOCK_WAIT_BEFORE_CLOSE_US))
     if settings.connect:
         c.insert_json5("connect/retry", CONNECT_RETRY)
     # zenoh's default accepts 1 GiB messages; nothing legitimate comes near 4 MiB here
@@ -284,7 +292,7 @@ class Transport:
 
         Never from the cycle thread: a reply takes the query's congestion control (zenoh 1.10 ignores the
         replier's), BLOCK for the PLC clients' requests, and to a querier that froze with a full link it
-        waited 5 s (zenoh's block/wait_before_close).
+        waits up to BLOCK_WAIT_BEFORE_CLOSE_US (zenoh's default: 5 s).
         """
         try:
             q.reply(q.key_expr, payload)
@@ -396,8 +404,8 @@ class IoThread:
 
     Replies in the order handed over (:meth:`Transport.reply`); stats every :data:`STATS_PERIOD`, the claims
     map on change and every :data:`CLAIMS_PERIOD`; every DEMOTE_PERIOD it sets threads that inherited
-    SCHED_FIFO back to normal; every pass (at least every STATS_PERIOD) it calls ``watch`` (the frame
-    publisher's: restarts a child that died).
+    SCHED_FIFO back to normal; with the stats it calls ``watch`` (the frame
+    publisher's: restarts a child that died), all at most every STATS_PERIOD.
 
     Args:
         transport: the open transport.
@@ -408,7 +416,7 @@ class IoThread:
         cycle_source: returns the NC's current cycle.
         rt_threads: see :attr:`rt_threads`.
         nice: the thread's nice value (``cycle.IO_THREAD_NICE``), set when it starts; None: inherited.
-        watch: called at least every STATS_PERIOD (None: nothing).
+        watch: called every STATS_PERIOD (None: nothing).
         rt_priority: if given, the thread runs SCHED_FIFO at this priority (below the cycle thread's; with
             SCHED_RESET_ON_FORK, so the threads and processes it makes do not), else with ``nice``.
             It sends the replies and shares the cycle thread's GIL: at normal priority, taken off the
@@ -442,6 +450,7 @@ class IoThread:
         self.demoted: list[int] = []
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.put_errors = 0
+        self.errors = 0  # exceptions caught in its loop (a bug)
         self._thread = threading.Thread(target=self._main, name="nc-io", daemon=True)
 
     def start(self) -> None:
@@ -483,32 +492,34 @@ class IoThread:
                 item = self.q.get(timeout=STATS_PERIOD)
             except queue.Empty:
                 item = None
-            while item is not None:
-                if item is _STOP:
-                    running = False
-                else:
-                    for q, payload in item:
-                        self.t.reply(q, payload)
-                try:
-                    item = self.q.get_nowait()
-                except queue.Empty:
-                    item = None
-            now = time.monotonic()
-            if now >= next_stats or not running:
+            try:
+                while item is not None:
+                    if item is _STOP:
+                        running = False
+                    else:
+                        for q, payload in item:
+                            self.t.reply(q, payload)
+                    try:
+                        item = self.q.get_nowait()
+                    except queue.Empty:
+                        item = None
+                now = time.monotonic()
+                if now < next_stats and running:
+                    continue  # (replies arrive up to once per cycle: the periodic work stays periodic)
                 next_stats = now + STATS_PERIOD
                 self._publish_stats()
-            self._publish_claims(now)
-            if now >= next_demote:
-                next_demote = now + DEMOTE_PERIOD
-                keep = self.rt_threads() if self.rt_threads is not None else set()
-                if keep:
-                    from .cycle import demote_other_threads
-                    self.demoted += demote_other_threads(keep)
-            if self.watch is not None and running:
-                try:
+                self._publish_claims(now)
+                if now >= next_demote:
+                    next_demote = now + DEMOTE_PERIOD
+                    keep = self.rt_threads() if self.rt_threads is not None else set()
+                    if keep:
+                        from .cycle import demote_other_threads
+                        self.demoted += demote_other_threads(keep)
+                if self.watch is not None and running:
                     self.watch()
-                except Exception:  # never let a watcher end the I/O thread
-                    log.exception("publisher watch failed")
+            except Exception:  # never let anything end the I/O thread (the replies would pile up)
+                self.errors += 1
+                log.exception("I/O thread")
 
     def _publish_claims(self, now: float) -> None:
         try:
