@@ -58,8 +58,8 @@ def router_config(listen: Sequence[str], connect: Sequence[str] = (), lease_ms: 
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
     # (as nc-server: a BLOCK message, e.g. the NC's reply, to a client whose queue stays full closes that
-    # link after 200 ms instead of holding the router's routing back for zenoh's 5 s)
-    c.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", "200000")
+    # link after 0.5 s instead of holding the router's routing back for zenoh's 5 s)
+    c.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", "500000")
     for path, value in (extra or {}).items():
         c.insert_json5(path, json.dumps(value))
     return c

@@ -60,9 +60,10 @@ LIVELINESS_CHANNEL = 4096
 #: A PLCTONC sample's router stamp corrects its arrival time only if it is younger than this [s].
 HLC_MAX_AGE = 0.25
 #: How long a BLOCK message waits for a full transmit queue before zenoh closes the link [us] (zenoh: 5 s);
-#: below the PLC's command timeout (1 s), above a PLC's plausible hiccup. A frozen client so dropped loses
-#: its liveliness token: the NC stops its axes (0x8F01), as its watchdog would after watchdog_timeout.
-BLOCK_WAIT_BEFORE_CLOSE_US = 200_000
+#: below the PLC's command timeout (1 s), as long as the default lease and watchdog: a client that reads
+#: nothing for that long counts as frozen. So dropped it loses its liveliness token: the NC stops its
+#: axes (0x8F01), as the lease would.
+BLOCK_WAIT_BEFORE_CLOSE_US = 500_000
 #: Largest message the NC's zenoh session accepts [bytes].
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 #: PLCTONC frames kept between two drains by the cycle thread (newest kept; the cycle drains every
