@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
+import os
 import signal
 import sys
 import threading
@@ -375,11 +376,32 @@ def main(argv: list[str] | None = None, out: TextIO | None = None) -> int:
         return 0
     finally:
         signal.signal(signal.SIGINT, prev)
-        w.close()
+        _close_bounded(w, session)
+
+
+#: How long nc-status waits for its zenoh session to close at exit [s].
+CLOSE_TIMEOUT = 5.0
+
+
+def _close_bounded(w: "NcWatch", session: Any) -> None:
+    """Undeclare and close, but never hang the exit on it: once (in CI, under load) closing did not return
+    within a minute after Ctrl-C. After CLOSE_TIMEOUT the process ends without waiting any longer."""
+    def close() -> None:
         try:
-            session.close()
-        except Exception:
-            pass
+            w.close()
+        finally:
+            try:
+                session.close()
+            except Exception:
+                pass
+    t = threading.Thread(target=close, daemon=True)
+    t.start()
+    t.join(CLOSE_TIMEOUT)
+    if t.is_alive():
+        print(f"{PROG}: the zenoh session did not close within {CLOSE_TIMEOUT:g} s; exiting anyway", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
 
 
 if __name__ == "__main__":
