@@ -246,10 +246,16 @@ def test_token_lost_across_a_lease_stall_gets_2_s_and_a_restarted_watchdog() -> 
     assert faults(t.check(12.501)) == [(1, ZNC_PLCTONC_TIMEOUT)]  # a real silence after the return still faults
 
 
-def test_restarted_watchdog_follows_the_returned_clients_frames() -> None:
+def held_by_a() -> ClaimTable:
+    """A table with a lease of 0.5 s (the NC's default) whose axis 1 client "a" claimed at 0 s."""
     t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
     t.client_alive("a", 0.0)
     t.claim(1, "a", 0.0)
+    return t
+
+
+def test_restarted_watchdog_follows_the_returned_clients_frames() -> None:
+    t = held_by_a()
     t.plctonc_arrived("a", 10.0)
     t.grace(11.0, since=10.0)
     t.client_gone("a", 11.01)
@@ -261,9 +267,7 @@ def test_restarted_watchdog_follows_the_returned_clients_frames() -> None:
 def test_short_stall_keeps_the_watchdog_window_not_2_s() -> None:
     """A stall shorter than half the lease (a loaded machine: the links stayed up): a token that
     vanishes right after it gets only reconnect_grace (watchdog_timeout), not 2 s."""
-    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
-    t.client_alive("a", 0.0)
-    t.claim(1, "a", 0.0)
+    t = held_by_a()
     t.grace(10.2, since=10.0)            # 0.2 s < 0.25 s
     t.client_gone("a", 10.21)
     assert t.check(10.70) == []
@@ -272,9 +276,7 @@ def test_short_stall_keeps_the_watchdog_window_not_2_s() -> None:
 
 def test_unarmed_claim_stays_unwatched_after_a_return() -> None:
     """A holder that never sent PLCTONC is not watched; its return after a stall does not arm it."""
-    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
-    t.client_alive("a", 0.0)
-    t.claim(1, "a", 0.0)
+    t = held_by_a()
     t.grace(11.0, since=10.0)
     t.client_gone("a", 11.01)
     t.client_alive("a", 12.0)
@@ -282,9 +284,7 @@ def test_unarmed_claim_stays_unwatched_after_a_return() -> None:
 
 
 def test_token_lost_without_a_stall_is_a_loss_at_once_with_a_lease() -> None:
-    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
-    t.client_alive("a", 0.0)
-    t.claim(1, "a", 0.0)
+    t = held_by_a()
     t.client_gone("a", 5.0)
     assert t.check(5.001) == [Loss("a", ZNC_CLIENT_LOST, (1,))]
 
@@ -293,9 +293,7 @@ def test_a_lease_stall_is_never_blamed_even_when_the_token_outlives_the_watchdog
     """Without the restart, a holder back 1 s after a lease stall would fault with 0x8F02 the
     moment its token is seen (its last frame is older than the watchdog): the NC's stall blamed
     on the client."""
-    t = ClaimTable([1], watchdog_timeout=0.5, lease=0.5)
-    t.client_alive("a", 0.0)
-    t.claim(1, "a", 0.0)
+    t = held_by_a()
     t.plctonc_arrived("a", 9.99)
     t.grace(10.6, since=10.0)
     t.client_gone("a", 10.61)
