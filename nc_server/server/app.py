@@ -172,9 +172,7 @@ class NcServer:
         try:
             self.transport.open()
         except BaseException:
-            if self.retain is not None:
-                self.retain.stop()  # (releases the lock; nothing is written)
-            self._cleanup_start()
+            self._abort_start()
             raise
         try:
             if self.config.publisher == "thread":
@@ -186,10 +184,7 @@ class NcServer:
                                                   log_level=logging.getLevelName(log.getEffectiveLevel()))
             self.publisher.start()
         except BaseException:
-            if self.retain is not None:
-                self.retain.stop()
-            self.transport.close()
-            self._cleanup_start()
+            self._abort_start()
             raise
         self.io.start()
         # Objects made so far live as long as the server: keep the collector off them.
@@ -200,12 +195,7 @@ class NcServer:
         try:
             self.loop.start()
         except BaseException:
-            if self.retain is not None:
-                self.retain.stop()
-            self.io.stop()
-            self.publisher.stop()
-            self.transport.close()
-            self._cleanup_start()
+            self._abort_start()
             raise
         self.started = True
         # the ready line (cli) follows: the frames must be on zenoh by then, not a second later
@@ -216,6 +206,17 @@ class NcServer:
             log.warning("the frame publisher is not ready after %g s: starting without it", READY_TIMEOUT)
         log.info("cycle thread: %s; zenoh's threads: %s; I/O thread: %s; frames: %s publisher", self.loop.stats.timing_detail,
                  io_priority, self.io.priority, self.config.publisher)
+
+    def _abort_start(self) -> None:
+        """start() failed: undo what it did so far (each step may not have happened)."""
+        if self.retain is not None:
+            self.retain.stop()  # (releases the lock; nothing is written)
+        if self.io.native_id is not None:  # (started)
+            self.io.stop()
+        if self.publisher is not None:
+            self.publisher.stop()
+        self.transport.close()  # (idempotent)
+        self._cleanup_start()
 
     def _cleanup_start(self) -> None:
         """Close the frame ring, remove the internal socket."""
@@ -254,9 +255,8 @@ class NcServer:
             log.warning("drive close: %s", exc)
         core = self.core
         try:  # the last frame, flagged ShuttingDown: the publisher puts it before it ends
-            self.frames.ring.write(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),  # type: ignore[attr-defined]
-                                   core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
-            self.frames.signal()
+            self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),  # type: ignore[attr-defined]
+                            core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
         except Exception as exc:
             log.warning("final frame: %s", exc)
         # Queries still queued get no execution; finalize them so queriers do not wait.
@@ -327,9 +327,7 @@ class NcServer:
             for i in range(len(core.axis_ids)):  # type: ignore[attr-defined]
                 core.fault(i, ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
 
-        frames = self.frames
-        frames.ring.write(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
-        frames.signal()
+        self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
         if self.retain is not None:
             self.retain.tick(core)  # a snapshot every 100 ms for the retain thread (no I/O here)
         if claims.version != self._claims_version:

@@ -119,6 +119,13 @@ def set_realtime(mode: str, priority: int) -> tuple[str, str]:
     return "SCHED_FIFO", f"SCHED_FIFO priority {priority} on the cycle thread"
 
 
+def is_realtime(tid: int = 0) -> bool:
+    """Whether thread ``tid`` (0: the calling one) runs SCHED_FIFO or SCHED_RR (whatever its
+    SCHED_RESET_ON_FORK flag, which ``sched_getscheduler`` ORs into the policy)."""
+    policy = os.sched_getscheduler(tid) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+    return policy in (getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1))
+
+
 #: nice value of the NC's threads other than the cycle thread (zenoh's, the I/O thread) and of its frame
 #: publisher when realtime is not "off": they receive the PLCTONC frames the watchdog judges and send
 #: frames and replies, and at nice 0 on a loaded machine they waited behind every other process. (zenoh's
@@ -157,12 +164,11 @@ def demote_other_threads(keep: set[int]) -> list[int]:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
     except (OSError, ValueError):
         return out
-    rt = {getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1)}
     for tid in tids:
         if tid in keep:
             continue
         try:
-            if os.sched_getscheduler(tid) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) in rt:
+            if is_realtime(tid):
                 os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
                 out.append(tid)
         except OSError:  # the thread ended meanwhile, or not permitted

@@ -31,7 +31,7 @@ import numpy as np
 from nc_schema import FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, FrameFlags
 from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 
-__all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "slot_size_for"]
+__all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "frame_stamp", "slot_size_for"]
 
 RING_MAGIC = 0x4E435247  # "GRCN"
 RING_VERSION = 1
@@ -52,6 +52,12 @@ _OFF_READY = 56
 _FRAME_HEADER = struct.Struct("<IHHQQHHI")
 assert _FRAME_HEADER.size == FRAME_HEADER_DTYPE.itemsize
 _JOB_RECORDS = int(FrameFlags.JobRecords)
+
+
+def frame_stamp(frame: bytes) -> tuple[int, int, int]:
+    """(Cycle, NcTimeNs, Flags) from a status frame's header (no checks: frames the ring holds)."""
+    _, _, _, cycle, nc_time_ns, _, _, flags = _FRAME_HEADER.unpack_from(frame)
+    return cycle, nc_time_ns, flags
 
 
 def slot_size_for(n_axes: int) -> int:

@@ -36,8 +36,8 @@ import mmap
 import os
 import select
 import signal
-import subprocess
 import stat
+import subprocess
 import sys
 import tempfile
 import threading
@@ -50,7 +50,7 @@ import numpy as np
 
 from nc_schema import FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, NCTOPLC_DTYPE, PLCTONC_DTYPE, FrameFlags, Keys, encode_stamp
 
-from .frame_ring import FrameRing, RingCounters, ring_bytes
+from .frame_ring import FrameRing, RingCounters, frame_stamp, ring_bytes
 
 log = logging.getLogger("nc_server.server")
 
@@ -73,9 +73,6 @@ RESTART_RESET_AFTER = 10.0
 _HEADER = FRAME_HEADER_DTYPE.itemsize
 _NREC = NCTOPLC_DTYPE.itemsize
 _PREC = PLCTONC_DTYPE.itemsize
-_FRAME_CYCLE = 8   # offsets of Cycle and NcTimeNs in FRAME_HEADER
-_FRAME_TIME = 16
-_FRAME_FLAGS = 28
 _SHUTTING_DOWN = int(FrameFlags.ShuttingDown)
 
 
@@ -151,10 +148,10 @@ class FramePublisher:
         """Put one frame (and its PLCTONC) on every key that has a subscriber; the NC's last frame (flag
         ShuttingDown) on every frame key, whatever the period."""
         try:
-            final = bool(int.from_bytes(frame[_FRAME_FLAGS:_FRAME_FLAGS + 4], "little") & _SHUTTING_DOWN)
+            cycle, nc_time_ns, flags = frame_stamp(frame)
+            final = bool(flags & _SHUTTING_DOWN)
             if self.frame_matched[0]:
                 self.frame_pub.put(frame)
-            nc_time_ns = int.from_bytes(frame[_FRAME_TIME:_FRAME_TIME + 8], "little")
             if self.every_matched.any():
                 for i, (period_ns, pub) in enumerate(self.every_pubs):
                     w = nc_time_ns // period_ns
@@ -166,7 +163,6 @@ class FramePublisher:
                 self._next_status = now + STATUS_PERIOD
                 self.status_pub.put(frame)
             if self.nc_matched.any() or (plc is not None and self.pc_matched.any()):
-                cycle = int.from_bytes(frame[_FRAME_CYCLE:_FRAME_CYCLE + 8], "little")
                 stamp = encode_stamp(cycle, nc_time_ns)
                 for i in np.flatnonzero(self.nc_matched).tolist():
                     o = _HEADER + i * _NREC
@@ -366,6 +362,12 @@ class FrameOutput:
         self._readers.append(r)
         return r
 
+    def put(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int, jobs: np.ndarray | None,
+            plctonc: np.ndarray | None) -> None:
+        """Write one cycle's frame into the ring (:meth:`FrameRing.write`) and wake the publisher (cycle thread)."""
+        self.ring.write(cycle, nc_time_ns, records, flags, jobs, plctonc)
+        self.signal()
+
     def signal(self) -> None:
         """Wake the publisher (cycle thread; one syscall, never blocks)."""
         try:
@@ -438,15 +440,14 @@ def _normal_while_forking(nice: int) -> Iterator[None]:
     """A SCHED_FIFO caller (the NC's I/O thread restarting the publisher) runs SCHED_OTHER at ``nice`` around a
     fork: Python's subprocess vforks holding the GIL until the child execs, and the child (SCHED_RESET_ON_FORK:
     nice 0) would queue behind every loaded process meanwhile, with the cycle thread waiting for the GIL."""
+    from .cycle import is_realtime
+
     policy = param = None
     try:
-        policy = os.sched_getscheduler(0)
-        if policy & ~getattr(os, "SCHED_RESET_ON_FORK", 0) in (os.SCHED_FIFO, os.SCHED_RR):
-            param = os.sched_getparam(0)
+        if is_realtime():
+            policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
             os.setpriority(os.PRIO_PROCESS, 0, nice)
-        else:
-            policy = None
     except (OSError, AttributeError):
         policy = None
     try:

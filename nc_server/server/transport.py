@@ -48,6 +48,7 @@ from nc_schema.zenoh_config import CONNECT_RETRY
 from nc_server.security.tls import apply_tls
 
 from .config import ZenohSettings
+from .cycle import demote_other_threads, set_realtime
 
 log = logging.getLogger("nc_server.server")
 
@@ -471,14 +472,10 @@ class IoThread:
         return self._thread.native_id
 
     def _main(self) -> None:
-        if self.rt_priority is not None and hasattr(os, "sched_setscheduler"):
-            try:
-                flags = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
-                os.sched_setscheduler(0, flags, os.sched_param(self.rt_priority))
+        if self.rt_priority is not None:
+            if set_realtime("auto", self.rt_priority)[0] == "SCHED_FIFO":  # (else not permitted: nice below)
                 self.realtime = True
                 self.priority = f"SCHED_FIFO priority {self.rt_priority}"
-            except OSError:
-                pass  # not permitted: nice below
         if not self.realtime and self.nice is not None:
             try:
                 os.setpriority(os.PRIO_PROCESS, 0, self.nice)  # pid 0: this thread (Linux: nice is per thread)
@@ -514,7 +511,6 @@ class IoThread:
                     next_demote = now + DEMOTE_PERIOD
                     keep = self.rt_threads() if self.rt_threads is not None else set()
                     if keep:
-                        from .cycle import demote_other_threads
                         self.demoted += demote_other_threads(keep)
                 if self.watch is not None and running:
                     self.watch()
