@@ -330,14 +330,20 @@ class NcServer:
         self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
         if self.retain is not None:
             self.retain.tick(core)  # a snapshot every 100 ms for the retain thread (no I/O here)
-        if claims.version != self._claims_version:
-            self._claims_version = claims.version
-            self._claims_snapshot = claims.claims()
-            t.holders = claims.holders()  # the subscriber drops frames of anybody else early
+        self._claims_changed()
         if self._clients_dirty:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
         self._update_claims_msg(now)
+
+    def _claims_changed(self) -> None:
+        """After anything that may change the claims (the watchdog in the cycle, requests between cycles):
+        the holders the PLCTONC subscriber accepts, and the snapshot for the stats (cycle thread)."""
+        claims = self.claims
+        if claims.version != self._claims_version:
+            self._claims_version = claims.version
+            self._claims_snapshot = claims.claims()
+            self.transport.holders = claims.holders()  # the subscriber drops frames of anybody else early
 
     def _update_claims_msg(self, now: float) -> None:
         """Rebuild the claims map when something changed (claims, clients: at once; last commands:
@@ -446,6 +452,9 @@ class NcServer:
             if t1 > budget_end:
                 break
         if replies:
+            # a Claim's holder must count before its reply goes out: the client's next PLCTONC frame,
+            # decoded between cycles, would otherwise be dropped as a non-holder's
+            self._claims_changed()
             self.io.submit_replies(replies)  # (zenoh's reply may block: never on this thread)
         return n
 

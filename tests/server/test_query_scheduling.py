@@ -156,3 +156,15 @@ def test_a_reply_that_fails_is_counted_and_the_query_finalized(server: NcServer)
     assert q.dropped and server.transport.reply_errors == 1
     assert _replies(server) == 1  # the next one is answered
     assert server.stats()["reply_errors"] == 1
+
+
+def test_a_claims_holder_is_accepted_before_its_reply_goes_out(server: NcServer) -> None:
+    """Requests run between cycles: the PLCTONC subscriber must know a new holder right away (a frame the
+    client sends on the Claim's reply is decoded in the next idle slice, before the next cycle)."""
+    server.claims.client_alive("t", time.monotonic())
+    server.transport.queries.append(FakeQuery("nc/nc1/axis/1/cmd/op/t", {"id": 1, "client": "t", "cmd": "Claim"}, SENT))
+    server.idle(None)
+    assert "t" in server.transport.holders
+    _flush(server)
+    (payload, _), = SENT
+    assert msgpack.unpackb(payload, strict_map_key=False)["error"] == 0
