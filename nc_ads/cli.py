@@ -19,7 +19,6 @@ answer 0x707 until its first status frame). Exit status 0 after SIGINT/SIGTERM, 
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import logging
 import signal
 import sys
@@ -27,6 +26,7 @@ import threading
 from typing import Sequence
 
 from nc_schema import ROLE_CLASSES, Keys, check_client_id
+from nc_schema.endpoints import is_loopback_host
 
 from .ams import AMS_TCP_PORT, netid_to_bytes
 from .nc_device import MAX_ADS_AXIS_ID, NcDevice
@@ -96,13 +96,6 @@ def _args(argv: Sequence[str] | None) -> tuple[argparse.Namespace, str, str, tup
     return a, name, endpoint, (host, int(port_s)), ports
 
 
-def _loopback(host: str) -> bool:
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return host == "localhost"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     a, name, endpoint, listen, ports = _args(argv)
     logging.basicConfig(level=a.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -132,7 +125,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     host, port = server.bound_address
-    if not _loopback(host) and not a.allow_write and a.role != "observer":
+    if not is_loopback_host(host) and not a.allow_write and a.role != "observer":
         log.warning("ADS on %s (not loopback) as %s and no --allow-write: every host that reaches this address "
                     "may write (ADS has no authentication; docs/ads.md)", host, a.role)
     print(f"nc-ads ready: ADS {host}:{port} net id {server.net_id} ports {','.join(map(str, ports))}; NC {name} at "

@@ -721,10 +721,12 @@ class NcDevice(AdsDevice):
     # ---- commands ---------------------------------------------------------------------------------------------
     def _allow(self, cls: str, src: AdsSource) -> None:
         if not src.may_write:
-            raise AdsError(ADSERR_DEVICE_ACCESSDENIED, f"{src.net_id} ({src.peer}) may not write (nc-ads --allow-write)")
+            raise AdsError(ADSERR_DEVICE_ACCESSDENIED, f"write policy: {src.net_id} ({src.peer}) is not in "
+                                                       "nc-ads --allow-write")
         if cls not in self.classes:
             need = " or ".join(r for r, c in ROLE_CLASSES.items() if cls in c)
-            raise AdsError(ADSERR_DEVICE_ACCESSDENIED, f"nc-ads runs as {self.role}: this write needs {need} (--role)")
+            raise AdsError(ADSERR_DEVICE_ACCESSDENIED, f"role: nc-ads runs as {self.role}; this write is of class "
+                                                       f"{cls!r}, which needs {need} (--role)")
 
     def _command(self, cmd: str, axis: int | None, **args: Any) -> dict[str, Any]:
         """Send ``cmd`` and wait for the reply; NC error codes raise AdsError with that code.

@@ -139,6 +139,20 @@ def encode_symbol_entry(name: str, sym: Symbol) -> bytes:
                        ads_type_id(sym.type_name), 0, len(n), len(t), len(c)) + body
 
 
+#: 0x723 reasons already logged (each once: ADS replies carry no text, so the log says which rule refused;
+#: bounded so that a client cycling through reasons cannot grow it).
+_DENIED_LOGGED: set[str] = set()
+_DENIED_LOGGED_MAX = 256
+
+
+def _log_denied(reason: str) -> None:
+    """Log why a request got 0x723 (ADSERR_DEVICE_ACCESSDENIED), once per distinct reason."""
+    if reason in _DENIED_LOGGED or len(_DENIED_LOGGED) >= _DENIED_LOGGED_MAX:
+        return
+    _DENIED_LOGGED.add(reason)
+    log.warning("access denied (0x723): %s", reason)
+
+
 class WritePolicy:
     """Who may write: `allow` is None (everyone who can connect) or a list of AMS net ids ("a.b.c.d.e.f")
     and IP addresses / CIDR networks ("127.0.0.1", "10.0.0.0/8"); an empty list lets nobody write."""
@@ -334,6 +348,8 @@ class Dispatcher:
     @staticmethod
     def _code(exc: Exception, device: AdsDevice, what: str) -> int:
         if isinstance(exc, AdsError):
+            if exc.code == ADSERR_DEVICE_ACCESSDENIED:
+                _log_denied(exc.message)
             return exc.code
         log.error("device %s: %s raised %r (answered 0x700)", getattr(device, "name", device), what,
                   exc, exc_info=exc)
@@ -394,6 +410,7 @@ class Dispatcher:
                      ams.IG_SYM_HNDBYNAME, ams.IG_SYM_INFOBYNAMEEX, ams.IG_SYM_VALBYNAME):
             return ADSERR_DEVICE_SRVNOTSUPP
         if not src.may_write:
+            _log_denied(f"write policy: {src.net_id} ({session.peer}) may not write (WritePolicy allow list)")
             return ADSERR_DEVICE_ACCESSDENIED
         if group == ams.IG_SYM_VALBYHND:
             entry = self._handle_symbol(session, offset)

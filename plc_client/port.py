@@ -44,7 +44,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nc_schema import COMMAND_CLASS, ErrorCodes, Keys, check_client_id, make_reply, make_request, unpack
+from nc_schema import COMMAND_CLASS, ErrorCodes, Keys, check_client_id, error_text, make_reply, make_request, unpack
 from nc_server.server.claims import ClaimTable
 from nc_server.server.handler import CycleInputs, RequestHandler
 
@@ -88,6 +88,16 @@ class PendingCommand:
         if self.reply is not None:
             return int(self.reply.get("error", 0))
         return self.failed or None
+
+    @property
+    def text(self) -> str:
+        """What the NC said about the outcome (its reply's ``text``: for a refusal, which rule refused
+        and why), else the error code's table text; "" while waiting or on success."""
+        code = self.error
+        if not code:
+            return ""
+        said = self.reply.get("text") if self.reply is not None else None
+        return said if isinstance(said, str) and said else error_text(code)
 
     def abandon(self) -> None:
         """The owner stops waiting; a later reply is reported by poll() as late."""

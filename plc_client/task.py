@@ -365,7 +365,7 @@ class PlcTask:
                 err = p.error or 0
                 c.state, c.error, c.since, c.pending = ("held" if err == 0 else "refused"), err, self.now, None
                 if err:
-                    log.warning("claim of %s/%d refused: 0x%X %s", key[0], key[1], err, error_text(err))
+                    log.warning("claim of %s/%d refused: 0x%X %s", key[0], key[1], err, p.text)
             elif self.now - p.sent_at > self.command_timeout:
                 p.abandon()
                 c.state, c.error, c.since = "refused", ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT, self.now
@@ -440,7 +440,7 @@ class PlcTask:
             key = (req.nc, req.axis_id)
             if req.error:
                 log.warning("hand-over of %s/%d to %s refused: 0x%X %s", req.nc, req.axis_id, req.to, req.error,
-                            error_text(req.error))
+                            p.text or error_text(req.error))
                 continue
             c = self._claims.setdefault(key, ClaimState())
             if req.to != self.client_id:
@@ -542,7 +542,7 @@ class PlcTask:
                     p.abandon()
                     log.warning("%s: no reply", what)
             elif p.error:
-                log.warning("%s failed: 0x%X %s", what, p.error, error_text(p.error))
+                log.warning("%s failed: 0x%X %s", what, p.error, p.text)
         self._detached = keep
 
     # -- the cycle ---------------------------------------------------------------------

@@ -27,6 +27,7 @@ from nc_schema import ErrorCodes, FrameFlags, Keys
 
 
 from nc_server.security.acl import access_control, with_local_publisher
+from nc_server.security.exposure import exposure
 
 from .claims import ClaimTable
 from .config import ServerConfig
@@ -115,6 +116,9 @@ class NcServer:
         elif config.roles is not None and not config.zenoh.tls_dir:
             log.warning("roles file without TLS: the client ids in the command keys are not authenticated "
                         "(use --tls-dir, or a router with TLS and access control)")
+        said = exposure(config.zenoh.listen, config.zenoh.tls_dir, config.roles is not None)
+        if said is not None:
+            log.log(*said)
         self.transport = Transport(config.zenoh, self.keys, self.axis_ids, access_control=acl)
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle,
                               wake=self.transport.query_event, cpus=frozenset(config.cpu_affinity) or None)

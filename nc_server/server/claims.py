@@ -203,9 +203,9 @@ class ClaimTable:
         axis_id = self._check_axis(axis_id)
         cur = self._claims.get(axis_id)
         if cur is not None and cur.client != client:
-            raise NcError(ACCESS_DENIED, f"axis {axis_id} is held by client {cur.client!r}")
+            raise NcError(ACCESS_DENIED, f"claim: axis {axis_id} is held by client {cur.client!r}")
         if not self.is_alive(client):
-            raise NcError(ACCESS_DENIED, f"client {client!r} has no liveliness token nc/<nc>/client/{client} "
+            raise NcError(ACCESS_DENIED, f"liveliness: client {client!r} has no liveliness token nc/<nc>/client/{client} "
                                          "(declare it before claiming; it may not have been seen yet)")
         if cur is None:
             self._set_holder(axis_id, client, now)
@@ -224,7 +224,7 @@ class ClaimTable:
         if cur is None:
             return False
         if cur.client != client:
-            raise NcError(ACCESS_DENIED, f"axis {axis_id} is held by client {cur.client!r}, not {client!r}")
+            raise NcError(ACCESS_DENIED, f"claim: axis {axis_id} is held by client {cur.client!r}, not {client!r}")
         self._drop(axis_id)
         return True
 
@@ -250,11 +250,11 @@ class ClaimTable:
         cur = self._claims.get(axis_id)
         if cur is None or cur.client != client:
             held = f"held by client {cur.client!r}" if cur is not None else "not claimed"
-            raise NcError(ACCESS_DENIED, f"axis {axis_id} is {held}: only its holder may hand it over")
+            raise NcError(ACCESS_DENIED, f"claim: axis {axis_id} is {held}: only its holder may hand it over")
         if to == client:
             return False
         if not self.is_alive(to):
-            raise NcError(ACCESS_DENIED, f"client {to!r} has no liveliness token nc/<nc>/client/{to}: "
+            raise NcError(ACCESS_DENIED, f"liveliness: client {to!r} has no liveliness token nc/<nc>/client/{to}: "
                                          f"it cannot take axis {axis_id} over")
         self._set_holder(axis_id, to, now, watch_from=now)
         return True
@@ -267,7 +267,7 @@ class ClaimTable:
         """
         cur = self._claims.get(int(axis_id))
         if cur is not None and cur.client != client:
-            raise NcError(ACCESS_DENIED, f"axis {axis_id} is held by client {cur.client!r}")
+            raise NcError(ACCESS_DENIED, f"claim: axis {axis_id} is held by client {cur.client!r}")
 
     # ---- watchdog ---------------------------------------------------------------------------
     def _watched_since(self, cl: _Claim, c: _Client) -> float | None:

@@ -286,19 +286,19 @@ class RequestHandler:
         if cls != want:
             self.denied += 1
             where = self.keys.cmd(want, client) if axis_id is None else self.keys.axis_cmd(axis_id, want, client)
-            raise NcError(ACCESS_DENIED, f"{cmd} is a command of class {want!r}, not {cls!r}: send it on {where}")
+            raise NcError(ACCESS_DENIED, f"class key: {cmd} is a command of class {want!r}, not {cls!r}: send it on {where}")
         named = req.get("client", "")
         if named and named != client:
             self.denied += 1
-            raise NcError(ACCESS_DENIED, f"request names client {named!r} but was sent on the key of client {client!r}")
+            raise NcError(ACCESS_DENIED, f"client id: the request names client {named!r} but was sent on the key of client {client!r}")
         if self.roles is not None:
             role = self.roles.get(client)
             if role is None:
                 self.denied += 1
-                raise NcError(ACCESS_DENIED, f"client {client!r} is not in the NC's roles file")
+                raise NcError(ACCESS_DENIED, f"role: client {client!r} is not in the NC's roles file")
             if cls not in ROLE_CLASSES[role]:
                 self.denied += 1
-                raise NcError(ACCESS_DENIED, f"client {client!r} is an {role}: {cmd} (class {cls!r}) needs "
+                raise NcError(ACCESS_DENIED, f"role: client {client!r} is an {role}: {cmd} (class {cls!r}) needs "
                                              + " or ".join(r for r, c in ROLE_CLASSES.items() if cls in c))
 
     def _saw(self, client: str, cls: str) -> None:

@@ -404,3 +404,27 @@ def test_cycle_inputs_apply_holders_frames_then_watchdog() -> None:
     h.client_gone("b")
     assert len(h.cache) == 0
     assert inputs.watchdog(2.1) == [(2, ZNC_CLIENT_LOST)] and core.faults[-1] == (1, ZNC_CLIENT_LOST)
+
+
+def test_every_access_denied_names_the_rule_that_refused(core: FakeCore) -> None:
+    """0x723 texts say which rule refused (role, class key, client id, liveliness, claim holder), and
+    none says the axis is claimed when nobody holds it."""
+    claims = ClaimTable([1, 2], 0.5)
+    h = RequestHandler(core, claims, Keys("nc1"), roles={"obs": "observer", "op1": "operator", "op2": "operator"})
+    texts = {}
+    texts["role"] = call(h, make_request("Reset", 1), key=key("Reset", client="obs"))
+    texts["roles file"] = call(h, make_request("Reset", 2), key=key("Reset", client="nobody"))
+    texts["class key"] = call(h, make_request("Reset", 3), key=KEYS.axis_cmd(1, "eng", "op1"))
+    texts["client id"] = call(h, make_request("Reset", 4, client="op2"), key=key("Reset", client="op1"))
+    texts["liveliness"] = call(h, make_request("Claim", 5), key=key("Claim", client="op1"))
+    claims.client_alive("op1")
+    claims.client_alive("op2")
+    assert call(h, make_request("Claim", 6), key=key("Claim", client="op1"))["error"] == 0
+    texts["claim"] = call(h, make_request("Claim", 7), key=key("Claim", client="op2"))
+    for rule, r in texts.items():
+        assert r["error"] == 0x723, (rule, r)
+        assert f"{rule.split()[0]}" in r["text"], (rule, r["text"])
+        if rule != "claim":
+            assert "claimed" not in r["text"] and "held by" not in r["text"], (rule, r["text"])
+    assert "'op1'" in texts["claim"]["text"] and "held by" in texts["claim"]["text"]  # who holds it
+    assert "observer" in texts["role"]["text"] and "'op'" in texts["role"]["text"]  # the role and the class
