@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-core bench fuzz clean
+.PHONY: venv demo test test-core test-loaded bench fuzz clean
 
 venv: $(STAMP)
 
@@ -21,6 +21,12 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# The whole suite RUNS times in a row (stopping at the first failure) with a CPU burner on every core.
+RUNS ?= 1
+test-loaded: $(STAMP)
+	@for i in $$(seq 1 $(RUNS)); do echo "== loaded run $$i of $(RUNS)"; \
+	  $(PY) bench/cpu_burner.py -- $(PY) -m pytest $(PYTEST_ARGS) || exit 1; done
 
 test-core: $(STAMP)
 	$(PY) -m pytest tests/core tests/schema tests/plc $(PYTEST_ARGS)
