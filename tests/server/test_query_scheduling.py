@@ -182,7 +182,8 @@ def retain_server(tmp_path: Path):  # type: ignore[no-untyped-def]
     SENT.clear()
     conf = tmp_path / "nc.toml"
     conf.write_text(f'[nc]\nname = "nc1"\nrealtime = "off"\nretain_file = "{tmp_path / "nc1.retain"}"\n'
-                    '[zenoh]\nlisten = ["tcp/127.0.0.1:9"]\n[[axis]]\nAxisId = 1\n[[axis]]\nAxisId = 2\n')
+                    '[zenoh]\nlisten = ["tcp/127.0.0.1:9"]\n[[axis]]\nAxisId = 1\nAxisEnDataPersistence = true\n'
+                    '[[axis]]\nAxisId = 2\n')
     cfg = load_config(conf)
     srv = NcServer(cfg, NcCore(list(cfg.axes), cfg.cycle_time))
     assert srv.retain is not None
@@ -286,3 +287,17 @@ def test_a_write_the_file_cannot_keep_is_answered_with_0x4002(retain_server: NcS
     r = msgpack.unpackb(payload, strict_map_key=False)
     assert (r["cmd"], r["id"], r["error"]) == ("WriteParameter", 1, 0x4002) and "retain" in r["text"]
     assert srv.io.replies_not_kept == 1 and srv.retain.settled == 1 and srv.retain.durable == 0
+
+
+def test_position_and_reference_flag_are_answered_once_kept(retain_server: NcServer, tmp_path: Path) -> None:
+    srv = retain_server
+    _send(srv, "a", 1, "SetActualPosition", cls="eng", Position=12.5)
+    _send(srv, "a", 2, "SetReferenceFlag", cls="eng", ReferenceFlag=True)
+    _run_all(srv)
+    _flush(srv)
+    assert _sent() == []
+    _write_pending(srv)
+    a = R.parse_retain((tmp_path / "nc1.retain").read_bytes(), "nc1", [1, 2]).axes[1]
+    assert a.position == 12.5 and a.homed
+    _flush(srv)
+    assert _sent() == [("SetActualPosition", 1, 0), ("SetReferenceFlag", 2, 0)]
