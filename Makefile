@@ -31,7 +31,7 @@ test-loaded: $(STAMP)
 test-core: $(STAMP)
 	$(PY) -m pytest tests/core tests/schema tests/plc $(PYTEST_ARGS)
 
-# All six run even if one fails; the target fails if any did. NC_CYCLE_ARGS e.g. "--baseline none" or
+# All seven run even if one fails; the target fails if any did. NC_CYCLE_ARGS e.g. "--baseline none" or
 # "--axes 64 256 --rounds 3"; the defaults keep the whole target around 4-5 minutes.
 NC_CYCLE_ARGS ?=
 # bench/many_clients.py: 16 plc-run x 4 moving axes; MANY_CLIENTS_ARGS="--seconds 60" is the one-minute run (~2.5 min).
@@ -40,6 +40,7 @@ bench: $(STAMP)
 	@rc=0; \
 	$(PY) bench/nc_cycle.py $(NC_CYCLE_ARGS) || rc=1; \
 	$(PY) bench/command_rtt.py || rc=1; \
+	$(PY) bench/retain_ack.py || rc=1; \
 	$(PY) bench/fb_latency.py || rc=1; \
 	$(PY) bench/many_clients.py $(MANY_CLIENTS_ARGS) || rc=1; \
 	$(PY) bench/ads_rtt.py || rc=1; \

@@ -45,6 +45,25 @@ BIT_ERROR = 1 << 31
 
 #: Default time to wait for the NC process to print its ready line [s].
 READY_TIMEOUT = 60.0
+#: A small NC for retain-file runs: two persistent axes, a lenient watchdog, the frame publisher as a
+#: thread (one process per NC: tests and benches that start many)
+RETAIN_CONFIG = """
+[nc]
+name = "nc1"
+watchdog_timeout = 3.0
+realtime = "off"
+publisher = "thread"
+
+[[axis]]
+AxisId = 1
+Name = "X"
+AxisEnDataPersistence = true
+
+[[axis]]
+AxisId = 2
+Name = "Y"
+AxisEnDataPersistence = true
+"""
 
 
 # ---- basics ---------------------------------------------------------------------------------

@@ -9,7 +9,9 @@ I/O thread.
 With a retain file (:mod:`.retain`): locked and read before the cycle starts; the first cycle only
 steps the core once (the drive is read) and applies the file through the commands, before any
 command or PLCTONC is taken and without publishing a frame; then a snapshot every 100 ms (and on
-every change of standstill) for the retain thread; the final state written after the last cycle.
+every change of standstill) for the retain thread; the final state written after the last cycle. The
+replies of durable commands (WriteParameter, SetActualPosition, SetReferenceFlag) wait in the I/O
+thread until the retain thread has written their snapshot (``RetainKeeper.commit``).
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
-from .retain import RetainKeeper
+from .retain import DURABLE_COMMANDS, RetainKeeper
 from .frame_ring import RingCounters
 from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
 from .transport import IoThread, Transport
@@ -122,8 +124,12 @@ class NcServer:
         self.transport = Transport(config.zenoh, self.keys, self.axis_ids, access_control=acl)
         self.loop = CycleLoop(config.cycle_time, self.cycle, config.realtime, config.rt_priority, idle=self.idle,
                               wake=self.transport.query_event, cpus=frozenset(config.cpu_affinity) or None)
+        # [nc] retain_file: built now, while the core's parameters are still the configured ones
+        self.retain = RetainKeeper(config.retain_file, config.name, core) if config.retain_file else None
+        retain = self.retain
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
-                                      refresh_liveliness=self._take_liveliness, roles=roles)
+                                      refresh_liveliness=self._take_liveliness, roles=roles,
+                                      durable_commands=DURABLE_COMMANDS if retain is not None else frozenset())
         self.inputs = CycleInputs(core, self.claims, config.loss_reactions or None)  # type: ignore[arg-type]
         #: (version, claims map) made by the cycle thread; the I/O thread publishes it
         self.claims_msg: tuple[int, dict[str, Any]] | None = None
@@ -133,7 +139,11 @@ class NcServer:
                            cycle_source=lambda: int(self.core.cycle), rt_threads=self._rt_threads,
                            nice=None if config.realtime == "off" else IO_THREAD_NICE,
                            watch=lambda: self.publisher.watch() if self.publisher is not None else None,
-                           rt_priority=None if config.realtime == "off" or config.rt_priority < 2 else config.rt_priority - 1)
+                           rt_priority=None if config.realtime == "off" or config.rt_priority < 2 else config.rt_priority - 1,
+                           durability=None if retain is None else lambda: (retain.settled, retain.durable),
+                           not_kept=self.handler.not_kept)
+        if retain is not None:
+            retain.on_settled = self.io.wake  # held replies go out once their commit is in the file
         #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))
@@ -156,8 +166,6 @@ class NcServer:
         self.started = False
         self._shutdown = threading.Event()  # set by stop(): the cycle stops every moving axis
         self._retain_pending = False  # the first cycle has not applied the retain file yet
-        # [nc] retain_file: built now, while the core's parameters are still the configured ones
-        self.retain = RetainKeeper(config.retain_file, config.name, core) if config.retain_file else None
 
     # ---- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
@@ -426,7 +434,7 @@ class NcServer:
         clock = time.monotonic_ns
         budget_end = clock() + QUERY_BUDGET_NS
         costs = self._query_costs
-        replies: list[tuple[Any, bytes]] = []
+        replies: list[tuple[Any, bytes, bool]] = []  # (query, reply, held until kept: handler.durable)
         n = 0
         while n < limit:
             q = t.try_recv_query()
@@ -446,7 +454,7 @@ class NcServer:
                 reply = h.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
             else:
                 reply = h.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
-            replies.append((q, reply))
+            replies.append((q, reply, h.durable))
             n += 1
             t1 = clock()
             self._waiting_since = None
@@ -459,7 +467,10 @@ class NcServer:
             # a Claim's holder must count before its reply goes out: the client's next PLCTONC frame,
             # decoded between cycles, would otherwise be dropped as a non-holder's
             self._claims_changed()
-            self.io.submit_replies(replies)  # (zenoh's reply may block: never on this thread)
+            # acknowledged means kept: the replies of durable commands wait for the retain file (one snapshot
+            # for all of them, written by the retain thread; the I/O thread sends them once it is fsync'ed)
+            commit = self.retain.commit(self.core) if self.retain is not None and any(r[2] for r in replies) else 0
+            self.io.submit_replies([(q, r, commit if d else 0) for q, r, d in replies])  # (never on this thread)
         return n
 
     def _take_liveliness(self, now: float | None = None) -> None:

@@ -30,9 +30,10 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 import numpy as np
 
 from nc_schema import (CLASSES, COMMAND_CLASS, COMMANDS, MOTION_COMMANDS, ROLE_CLASSES, ErrorCodes, Keys, NcError,
-                       make_reply, pack, parse_request)
+                       make_reply, pack, parse_request, unpack)
 
 from .claims import ZNC_CLIENT_LOST, ClaimTable, Loss
+from .retain import RETAIN_ERROR_CODE
 
 #: commands refused when they were queued across a long NC stall (stops are still executed)
 REFUSED_AFTER_STALL = (MOTION_COMMANDS | {"NewPos", "NewPosAndVelo", "ChangeDynParam"}) - {"Stop", "Halt"}
@@ -143,6 +144,8 @@ class RequestHandler:
         roles: client id -> role (``observer`` / ``operator`` / ``engineer``) from the NC's roles
             file; a client must be listed and its role must allow the command's class (0x723
             otherwise). None: no roles file (the router's access control, if any, decides).
+        durable_commands: commands whose success must be kept before the reply goes out (the retain
+            file's :data:`~nc_server.server.retain.DURABLE_COMMANDS`; empty: none): :attr:`durable`.
 
     Dedup applies to commands of class op and eng: a repeated (client, id), client being the
     key's, gets the cached reply and is not executed again. Reads (class read) are never cached:
@@ -153,12 +156,14 @@ class RequestHandler:
         last_command: AxisId -> (client, cmd, cycle) of the newest accepted op/eng command.
         clients_version: bumped when a client appears, disappears or uses a higher class.
         commands_version: bumped with every change of ``last_command``.
+        durable: the last :meth:`handle` ran one of ``durable_commands`` and answered with no error, or
+            gave a cached reply of one (the caller holds the reply until its effect is kept).
     """
 
     def __init__(self, core: CoreLike, claims: ClaimTable, keys: Keys,
                  info_extra: Callable[[], dict[str, Any]] | None = None, cache_size: int = 4096,
                  refresh_liveliness: Callable[[], None] | None = None,
-                 roles: Mapping[str, str] | None = None) -> None:
+                 roles: Mapping[str, str] | None = None, durable_commands: frozenset[str] = frozenset()) -> None:
         self.core = core
         self.claims = claims
         self.keys = keys
@@ -179,6 +184,8 @@ class RequestHandler:
         self.errors = 0
         self.denied = 0  # 0x723 for the key: wrong class, client field, role
         self.internal_errors = 0
+        self.durable_commands = durable_commands
+        self.durable = False
 
     # ---- liveliness (the server's token events; an in-process port's creation / close) ------
     def client_alive(self, client: str, now: float | None = None) -> None:
@@ -206,6 +213,7 @@ class RequestHandler:
             now: monotonic time [s] (claim bookkeeping).
         """
         self.requests += 1
+        self.durable = False
         try:
             reply = self._handle(key, payload, now)
         except Exception as exc:  # a bug: answer it, keep cycling
@@ -223,8 +231,19 @@ class RequestHandler:
         text = str(err)
         return make_reply(rid, cmd, err.code, text[:512], cycle=self.core.cycle + 1)
 
+    def not_kept(self, reply: bytes) -> bytes:
+        """``reply`` (no error) of a durable command whose effect could not be written to the retain file:
+        the same reply with 0x4002 (TwinCAT's NC retain data error): applied, but not kept."""
+        try:
+            r = unpack(reply)
+            text = "NC retain data error: applied, but the retain file could not be written (lost at a restart)"
+            return pack(make_reply(r.get("id"), r.get("cmd"), RETAIN_ERROR_CODE, text, cycle=int(r.get("cycle", 0))))
+        except Exception:  # (the NC's own packed reply: never expected)
+            return pack(make_reply(None, None, RETAIN_ERROR_CODE, "NC retain data error", cycle=self.core.cycle + 1))
+
     def too_large(self, size: int) -> bytes:
         """The reply to a request of ``size`` bytes over MAX_REQUEST_BYTES (0x706)."""
+        self.durable = False
         return self._error(None, None, NcError(INVALID_DATA, f"request of {size} bytes exceeds {MAX_REQUEST_BYTES}"))
 
     def handle_after_stall(self, key: str, payload: bytes, now: float) -> bytes:
@@ -233,6 +252,7 @@ class RequestHandler:
         executed (it was queued across the stall: its block may have given up on stale data, or
         its session was dropped with the reply path); anything else runs as usual. Not cached: a
         retry with the same id is executed normally."""
+        self.durable = False
         try:
             req = parse_request(payload[:MAX_REQUEST_BYTES])
         except Exception:
@@ -261,9 +281,12 @@ class RequestHandler:
         if cls == "read":
             return pack(self._execute(axis_id, req, now))
         cached = self.cache.get(client, rid)
+        durable = cmd in self.durable_commands
         if cached is not None:
+            self.durable = durable  # (an error reply held too: harmless, and no unpacking here)
             return cached
         reply = self._execute(axis_id, req, now)
+        self.durable = durable and not reply.get("error")
         if axis_id is not None and not reply.get("error"):
             self.last_command[axis_id] = (client, cmd, int(reply.get("cycle", self.core.cycle + 1)))
             self.commands_version += 1

@@ -36,7 +36,18 @@ positions, the homed and standstill flags and the references of the (immutable) 
 a change of a homed or standstill flag, of a parameter or of a standing axis's position (by more
 than :data:`STANDSTILL_TOLERANCE` x its AxisTargetPositionWindow: smaller ones wait for another
 change); while axes move (only their positions changed) at most every :data:`MOVING_WRITE_PERIOD`
-(flash wear); once more at shutdown, after the cycle ended, with whatever changed. A position the
+(flash wear); once more at shutdown, after the cycle ended, with whatever changed.
+
+Acknowledged means kept. A request of :data:`DURABLE_COMMANDS` answered with no error (WriteParameter,
+also MC_WriteBoolParameter's, SetActualPosition(OnTheFly), SetReferenceFlag) is in the file, written
+and fsync'ed, before its reply goes out: the cycle thread calls :meth:`RetainKeeper.commit` after the
+requests of one idle slice ran (a snapshot, microseconds, no I/O) and hands their replies to the I/O
+thread tagged with the commit's number; the retain thread writes every snapshot whose commit number
+is above :attr:`RetainKeeper.durable` at once (whatever kind of change) and then raises ``durable``
+(and ``settled``) and calls ``on_settled`` (the I/O thread's wake-up), which sends the held replies.
+Group commit: every snapshot carries the newest commit number taken before it, so commits made while
+a write runs share the next write and its fsyncs. A write that fails settles its commits without
+making them durable: their replies become 0x4002 errors (the value is applied, it is not kept). A position the
 reader would not restore (not finite, ``|pos| >= 1e9``) is left out with its homed flag (logged once
 per axis), and every file is parsed before it is written: the file never holds what its reader refuses.
 
@@ -67,6 +78,7 @@ referenced again). Only the first start (no file yet) keeps the configured ``Hom
 """
 from __future__ import annotations
 
+import collections
 import errno
 import fcntl
 import hashlib
@@ -91,7 +103,8 @@ from nc_server.core.params import AxisParams
 
 __all__ = ["AxisRetain", "RetainData", "RetainError", "RetainKeeper", "RetainLockError", "encode_retain",
            "parse_retain", "write_atomic", "max_body", "FORMAT_VERSION", "MAGIC", "SNAPSHOT_PERIOD",
-           "MOVING_WRITE_PERIOD", "STANDSTILL_CHECK_PERIOD", "STANDSTILL_TOLERANCE", "STANDSTILL_VELOCITY"]
+           "MOVING_WRITE_PERIOD", "STANDSTILL_CHECK_PERIOD", "STANDSTILL_TOLERANCE", "STANDSTILL_VELOCITY",
+           "DURABLE_COMMANDS"]
 
 log = logging.getLogger("nc_server.server")
 
@@ -127,6 +140,10 @@ STANDSTILL_VELOCITY = 1e-3
 STANDSTILL_TOLERANCE = 0.1
 #: Error code of a refused file (TwinCAT: NC retain (persistent) data error).
 RETAIN_ERROR_CODE = 0x4002
+#: Commands whose reply (no error) waits until their effect is in the file (MC_WriteBoolParameter sends
+#: WriteParameter too). Homing is not one: its reply comes before the axis is homed; the next
+#: snapshot keeps the flag.
+DURABLE_COMMANDS = frozenset({"WriteParameter", "SetActualPosition", "SetActualPositionOnTheFly", "SetReferenceFlag"})
 #: Set velocities up to this count as zero (the core's own threshold) [u/s].
 _EPS_V = 1e-9
 
@@ -456,6 +473,8 @@ class _Snapshot:
     params: tuple[AxisParams, ...]
     time_ns: int
     seq: int = 0
+    #: the newest commit taken before it (:meth:`RetainKeeper.commit`): it holds their state
+    commit: int = 0
 
 
 def param_number(name: str) -> int | None:
@@ -511,7 +530,9 @@ class RetainKeeper:
         self._due = 0
         self._check_due = 0
         self._last_standing: np.ndarray | None = None
-        self._pending: _Snapshot | None = None
+        # the newest snapshot handed over (append and popleft are atomic: a snapshot handed over while the
+        # retain thread takes the previous one is never lost)
+        self._pending: collections.deque[_Snapshot] = collections.deque(maxlen=1)
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -532,6 +553,11 @@ class RetainKeeper:
         self.deferred = 0  # changed snapshots not written (moving axes within MOVING_WRITE_PERIOD, standstill noise)
         self.write_errors = 0  # writes that failed (logged once per kind of failure)
         self.loaded: RetainData | None = None  # what load() read
+        self.committed = 0  # newest commit number handed out by commit() (cycle thread)
+        self.durable = 0  # newest commit number whose state is in the file (written and fsync'ed)
+        self.settled = 0  # newest commit number the retain thread has handled (durable or its write failed)
+        #: called by the retain thread after ``settled`` rose (the I/O thread's wake-up; never blocks)
+        self.on_settled: Callable[[], None] | None = None
         self.rejected: Path | None = None  # where load() put a refused file
 
     # -- startup: read (before the cycle starts) -------------------------------------------------
@@ -792,12 +818,30 @@ class RetainKeeper:
         self._last_standing = st
         self._due = cycle + self._period_cycles
         self.handed += 1
-        self._pending = self._snapshot(core, st, self.handed)
+        self._pending.append(self._snapshot(core, st, self.handed))
         self._wake.set()
+
+    def commit(self, core: Any) -> int:
+        """Cycle thread, after requests of :data:`DURABLE_COMMANDS` ran: hand a snapshot over that the
+        retain thread writes at once (no I/O here, never blocks). Their replies wait until
+        :attr:`settled` reaches the returned commit number (:attr:`durable` too: kept)."""
+        self.committed += 1
+        self.handed += 1
+        self._pending.append(self._snapshot(core, seq=self.handed))
+        self._wake.set()
+        return self.committed
+
+    def take_pending(self) -> _Snapshot | None:
+        """The newest snapshot handed over and not taken yet (the retain thread's; None: none)."""
+        try:
+            return self._pending.popleft()
+        except IndexError:
+            return None
 
     def _snapshot(self, core: Any, st: np.ndarray | None = None, seq: int = 0) -> _Snapshot:
         return _Snapshot(np.array(core.act_pos, dtype=float), core.axes.homed.copy(),
-                         standing(core) if st is None else st, tuple(core.params), time.time_ns(), seq)
+                         standing(core) if st is None else st, tuple(core.params), time.time_ns(), seq,
+                         self.committed)
 
     def stop(self, core: Any | None = None) -> None:
         """End the retain thread; with ``core`` (its cycle ended) write its final state first; release
@@ -813,12 +857,13 @@ class RetainKeeper:
                 self._write(self._snapshot(core), final=True)
         finally:
             self.close()
+            self._settle(self.committed, False)  # (no-op when the final write made them durable)
 
     def _run(self) -> None:
         while True:
             self._wake.wait()
             self._wake.clear()
-            snap, self._pending = self._pending, None
+            snap = self.take_pending()
             if snap is not None:
                 try:
                     self._write(snap)
@@ -887,24 +932,37 @@ class RetainKeeper:
         if not self._write_lock.acquire(timeout=10.0):  # a write hanging on a dead disk: give up on this one
             log.error("retain file %s: 0x%04X NC retain data error: a write hangs; this state is not kept",
                       self.path, RETAIN_ERROR_CODE)
+            self._settle(snap.commit, False)
             return
         try:
-            self._write_locked(snap, final)
+            kept = self._write_locked(snap, final or snap.commit > self.durable)
         finally:
             self._write_lock.release()
+        self._settle(snap.commit, kept)
 
-    def _write_locked(self, snap: _Snapshot, final: bool) -> None:
+    def _settle(self, commit: int, kept: bool) -> None:
+        """The commits up to ``commit`` are handled: in the file (``kept``) or not (their write failed)."""
+        if kept and commit > self.durable:
+            self.durable = commit
+        if commit > self.settled:
+            self.settled = commit
+            if self.on_settled is not None:
+                self.on_settled()
+
+    def _write_locked(self, snap: _Snapshot, force: bool) -> bool:
+        """Write the snapshot's content if it changed (``force``: at once, else when its kind of change
+        is due); whether the file holds it now."""
         if self.writing_disabled:
-            return
+            return False
         try:
             data = self.data_of(snap)
             if data == self._written and self.path.exists():
-                return
-            if not final:
+                return True
+            if not force:
                 change = self._change(data, self._written, snap)
                 if change == "noise" or (change == "moving" and self._clock() - self._last_write < MOVING_WRITE_PERIOD):
                     self.deferred += 1
-                    return
+                    return False
             raw = encode_retain(data)
             parse_retain(raw, self.nc_name, self.axis_ids)  # never write what the reader refuses
             synced = write_atomic(self.path, raw)
@@ -918,7 +976,7 @@ class RetainKeeper:
                 log.error("retain file %s: 0x%04X NC retain data error: cannot write it (%s); retrying with "
                           "the next change", self.path, RETAIN_ERROR_CODE, msg)
             self._written = None
-            return
+            return False
         if not synced and not self._dir_sync_warned:
             self._dir_sync_warned = True
             log.warning("retain file %s: the file system cannot fsync the directory (the rename is written, its "
@@ -929,3 +987,4 @@ class RetainKeeper:
         self._written = data
         self._last_write = self._clock()
         self.writes += 1
+        return True

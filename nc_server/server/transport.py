@@ -425,14 +425,33 @@ class IoThread:
             CPU while holding the GIL, it made the cycle start late (bench/many_clients.py: lateness
             p99 100-260 us and 0.2-0.3 % overruns, against 13-22 us and 0.01-0.03 % as SCHED_FIFO). It
             never spins: it waits on its queue (at most STATS_PERIOD) and in zenoh's blocking calls.
+        durability: returns (settled, durable) commit numbers of the retain file (:class:`~.retain.RetainKeeper`);
+            None: no retain file (a reply handed over with a commit number is then sent at once).
+        not_kept: turns a held reply whose commit settled without being kept into its error reply.
+
+    Held replies (the retain file, ``durability``): a reply handed over with commit number n > 0 waits until
+    the retain file's ``settled`` reaches n (the retain thread wakes this thread: :meth:`wake`), then goes out
+    as it is when ``durable`` >= n, else as ``not_kept(reply)``. Replies to one client stay in order: a
+    client's reply handed over after one of its held replies waits for it; other clients' replies are not
+    held.
     """
 
     def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]],
                  claims_source: Callable[[], tuple[int, dict[str, Any]] | None] | None = None,
                  cycle_source: Callable[[], int] | None = None,
                  rt_threads: Callable[[], set[int]] | None = None, nice: int | None = None,
-                 watch: Callable[[], None] | None = None, rt_priority: int | None = None) -> None:
+                 watch: Callable[[], None] | None = None, rt_priority: int | None = None,
+                 durability: Callable[[], tuple[int, int]] | None = None,
+                 not_kept: Callable[[bytes], bytes] | None = None) -> None:
         self.t = transport
+        self.durability = durability
+        self.not_kept = not_kept or (lambda reply: reply)
+        #: held replies, in the order handed over: (query, reply, commit number, client, its own commit: it
+        #: must be kept; else it only waits for an earlier reply of its client)
+        self.held: collections.deque[tuple[Any, bytes, int, str, bool]] = collections.deque()
+        self._held_clients: dict[str, tuple[int, int]] = {}  # client -> (replies held, newest commit number)
+        self.replies_held = 0  # replies that waited for the retain file
+        self.replies_not_kept = 0  # held replies sent as 0x4002 (the retain file was not written)
         self.rt_priority = rt_priority
         #: True while this thread runs SCHED_FIFO
         self.realtime = False
@@ -458,9 +477,52 @@ class IoThread:
     def start(self) -> None:
         self._thread.start()
 
-    def submit_replies(self, replies: list[tuple[Any, bytes]]) -> None:
-        """Hand (query, reply) pairs over (cycle thread; never blocks): answered in this order."""
+    def submit_replies(self, replies: list[tuple[Any, bytes]] | list[tuple[Any, bytes, int]]) -> None:
+        """Hand (query, reply) pairs, or (query, reply, commit number) for a reply that waits for the retain
+        file (0: none), over (cycle thread; never blocks): answered in this order (see the class: held)."""
         self.q.put(replies)
+
+    def wake(self) -> None:
+        """The retain file settled commits: send the held replies that may go (any thread; never blocks)."""
+        self.q.put(())
+
+    def _reply(self, q: Any, payload: bytes, commit: int = 0) -> None:
+        """Send one reply handed over, or hold it (the retain file; its client's order)."""
+        if self.durability is None:
+            self.t.reply(q, payload)
+            return
+        client = str(q.key_expr).rsplit("/", 1)[-1] if (commit or self._held_clients) else ""
+        behind = self._held_clients.get(client)
+        if commit == 0 and behind is None:
+            self.t.reply(q, payload)
+            return
+        own = commit > 0
+        commit = max(commit, behind[1] if behind is not None else 0)
+        self.held.append((q, payload, commit, client, own))
+        self._held_clients[client] = ((behind[0] if behind is not None else 0) + 1, commit)
+        self.replies_held += 1
+
+    def _release_held(self, everything: bool = False) -> None:
+        """Send the held replies whose commit settled (``everything``: all of them; those not kept as errors)."""
+        if not self.held or self.durability is None:
+            return
+        settled, durable = self.durability()
+        later: collections.deque[tuple[Any, bytes, int, str, bool]] = collections.deque()
+        while self.held:
+            q, payload, commit, client, own = entry = self.held.popleft()
+            if commit > settled and not everything:
+                later.append(entry)  # (a client's commit numbers never fall: its order stays)
+                continue
+            if own and commit > durable:
+                payload = self.not_kept(payload)
+                self.replies_not_kept += 1
+            self.t.reply(q, payload)
+            n, newest = self._held_clients[client]
+            if n > 1:
+                self._held_clients[client] = (n - 1, newest)
+            else:
+                del self._held_clients[client]
+        self.held = later
 
     def stop(self, timeout: float = 5.0) -> None:
         """Send the replies handed over, then end the thread (after a last stats put)."""
@@ -495,12 +557,13 @@ class IoThread:
                     if item is _STOP:
                         running = False
                     else:
-                        for q, payload in item:
-                            self.t.reply(q, payload)
+                        for entry in item:
+                            self._reply(*entry)
                     try:
                         item = self.q.get_nowait()
                     except queue.Empty:
                         item = None
+                self._release_held(everything=not running)
                 now = time.monotonic()
                 if now < next_stats and running:
                     continue  # (replies arrive up to once per cycle: the periodic work stays periodic)

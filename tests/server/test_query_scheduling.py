@@ -1,6 +1,7 @@
 """Requests run between cycles, in the time the cycle leaves (NcServer.idle / cycle), without zenoh."""
 from __future__ import annotations
 
+import errno
 import time
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import pytest
 
 from nc_server.core import NcCore
 from nc_server.server import app as A
+from nc_server.server import retain as R
 from nc_server.server.app import NcServer, query_reserve
 from nc_server.server.config import load_config
 
@@ -64,10 +66,12 @@ def _queue(srv: NcServer, n: int) -> None:
 
 
 def _flush(srv: NcServer) -> None:
-    """What the I/O thread does with the replies handed over (not started here)."""
+    """What the I/O thread does with the replies handed over (not started here): send them, or hold them
+    (the retain file), and send the held ones whose commit settled."""
     while not srv.io.q.empty():
-        for q, payload in srv.io.q.get_nowait():
-            srv.transport.reply(q, payload)
+        for entry in srv.io.q.get_nowait():
+            srv.io._reply(*entry)
+    srv.io._release_held()
 
 
 def _replies(srv: NcServer) -> int:
@@ -168,3 +172,132 @@ def test_a_claims_holder_is_accepted_before_its_reply_goes_out(server: NcServer)
     _flush(server)
     (payload, _), = SENT
     assert msgpack.unpackb(payload, strict_map_key=False)["error"] == 0
+
+
+# ---- acknowledged means kept: replies held until the retain file holds their effect ------------------
+@pytest.fixture
+def retain_server(tmp_path: Path):  # type: ignore[no-untyped-def]
+    """A server with a retain file, its first cycle run (the file applied); neither the retain thread nor
+    the I/O thread is started: the tests run their steps (``_write_pending``, ``_flush``)."""
+    SENT.clear()
+    conf = tmp_path / "nc.toml"
+    conf.write_text(f'[nc]\nname = "nc1"\nrealtime = "off"\nretain_file = "{tmp_path / "nc1.retain"}"\n'
+                    '[zenoh]\nlisten = ["tcp/127.0.0.1:9"]\n[[axis]]\nAxisId = 1\nAxisEnDataPersistence = true\n'
+                    '[[axis]]\nAxisId = 2\n')
+    cfg = load_config(conf)
+    srv = NcServer(cfg, NcCore(list(cfg.axes), cfg.cycle_time))
+    assert srv.retain is not None
+    srv.load_retain()
+    srv.cycle(time.monotonic_ns())
+    try:
+        yield srv
+    finally:
+        srv.retain.stop()
+        srv.frames.close()
+
+
+def _write_pending(srv: NcServer) -> None:
+    """What the retain thread does with the snapshot handed over (and its wake-up of the I/O thread)."""
+    k = srv.retain
+    assert k is not None
+    snap = k.take_pending()
+    assert snap is not None
+    k._write(snap)
+
+
+def _run_all(srv: NcServer) -> None:
+    """Idle slices until every queued request ran (a slice stops after QUERY_BUDGET_NS: a loaded machine)."""
+    while srv.transport.queries:
+        srv.idle(None)
+
+
+def _send(srv: NcServer, client: str, rid: int, cmd: str, axis: int = 1, cls: str = "eng", **args: object) -> None:
+    srv.transport.queries.append(FakeQuery(f"nc/nc1/axis/{axis}/cmd/{cls}/{client}",
+                                           {"id": rid, "client": client, "cmd": cmd, **args}, SENT))
+
+
+def _sent() -> list[tuple[str, int, int]]:
+    """(cmd, id, error) of the replies sent so far (then forgotten)."""
+    out = [(r["cmd"], r["id"], r["error"]) for r in (msgpack.unpackb(p, strict_map_key=False) for p, _ in SENT)]
+    SENT.clear()
+    return out
+
+
+def _file_velo_max(tmp_path: Path) -> float | None:
+    d = R.parse_retain((tmp_path / "nc1.retain").read_bytes(), "nc1", [1, 2])
+    a = d.axes.get(1)
+    return None if a is None or "AxisVeloMax" not in a.params else float(a.params["AxisVeloMax"][0])
+
+
+def test_a_write_is_answered_once_the_retain_file_holds_it(retain_server: NcServer, tmp_path: Path) -> None:
+    srv = retain_server
+    _send(srv, "a", 1, "WriteParameter", ParameterNumber=1003, Value=400.0)
+    _send(srv, "b", 1, "Info", axis=2, cls="read")
+    _send(srv, "a", 2, "Info", cls="read")  # after its write: must not overtake it
+    _run_all(srv)
+    _flush(srv)
+    assert _sent() == [("Info", 1, 0)]  # b's is not held; a's write and a's later Info wait
+    assert not (tmp_path / "nc1.retain").exists() or _file_velo_max(tmp_path) is None
+    assert srv.retain.committed == 1 and srv.retain.settled == 0
+    _write_pending(srv)
+    assert _file_velo_max(tmp_path) == 400.0 and srv.retain.durable == 1
+    _flush(srv)  # (the retain thread's wake-up: an empty batch)
+    assert _sent() == [("WriteParameter", 1, 0), ("Info", 2, 0)]  # a's, in order
+    assert not srv.io.held and not srv.io._held_clients
+
+
+def test_writes_in_flight_share_one_file_write(retain_server: NcServer, tmp_path: Path) -> None:
+    srv = retain_server
+    writes = srv.retain.writes
+    for rid, (axis, value) in enumerate(((1, 400.0), (2, 300.0), (1, 410.0)), start=1):
+        _send(srv, f"w{rid}", rid, "WriteParameter", axis=axis, ParameterNumber=1003, Value=value)
+        _run_all(srv)  # one request per slice: three commits while the retain thread is busy
+    _flush(srv)
+    assert _sent() == [] and srv.retain.committed == 3
+    _write_pending(srv)  # the newest snapshot holds all three
+    _flush(srv)
+    assert sorted(_sent()) == [("WriteParameter", 1, 0), ("WriteParameter", 2, 0), ("WriteParameter", 3, 0)]
+    assert srv.retain.writes == writes + 1 and _file_velo_max(tmp_path) == 410.0
+
+
+def test_a_refused_write_is_not_held(retain_server: NcServer) -> None:
+    srv = retain_server
+    _send(srv, "a", 1, "WriteParameter", ParameterNumber=1003, Value=-5.0)  # out of range: an error reply
+    _run_all(srv)
+    _flush(srv)
+    (cmd, rid, error), = _sent()
+    assert error != 0 and srv.retain.committed == 0
+
+
+def test_a_write_the_file_cannot_keep_is_answered_with_0x4002(retain_server: NcServer,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    srv = retain_server
+
+    def full(_p: object, _d: bytes) -> bool:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(R, "write_atomic", full)
+    _send(srv, "a", 1, "WriteParameter", ParameterNumber=1003, Value=400.0)
+    _run_all(srv)
+    _flush(srv)
+    assert _sent() == []
+    _write_pending(srv)
+    _flush(srv)
+    (payload, _), = SENT
+    r = msgpack.unpackb(payload, strict_map_key=False)
+    assert (r["cmd"], r["id"], r["error"]) == ("WriteParameter", 1, 0x4002) and "retain" in r["text"]
+    assert srv.io.replies_not_kept == 1 and srv.retain.settled == 1 and srv.retain.durable == 0
+
+
+def test_position_and_reference_flag_are_answered_once_kept(retain_server: NcServer, tmp_path: Path) -> None:
+    srv = retain_server
+    _send(srv, "a", 1, "SetActualPosition", cls="eng", Position=12.5)
+    _send(srv, "a", 2, "SetReferenceFlag", cls="eng", ReferenceFlag=True)
+    _run_all(srv)
+    _flush(srv)
+    assert _sent() == []
+    _write_pending(srv)
+    a = R.parse_retain((tmp_path / "nc1.retain").read_bytes(), "nc1", [1, 2]).axes[1]
+    assert a.position == 12.5 and a.homed
+    _flush(srv)
+    assert _sent() == [("SetActualPosition", 1, 0), ("SetReferenceFlag", 2, 0)]

@@ -2,7 +2,11 @@
 restart, and what comes back; a corrupt file makes the NC start with its configuration and say so."""
 from __future__ import annotations
 
+import os
+import random
 import signal
+import threading
+import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -10,7 +14,7 @@ import pytest
 
 from nc_schema import MC_AxisPara, StateDWord
 from nc_server.server.retain import RetainData, RetainError, parse_retain
-from znc_testing import NcServerProcess, NcTestClient, start_nc_server, wait_until
+from znc_testing import RETAIN_CONFIG, NcServerProcess, NcTestClient, start_nc_server, wait_until
 
 T = 60.0  # generous: a loaded 2-core machine
 HOMED = int(StateDWord.Homed)
@@ -195,3 +199,73 @@ def test_a_second_nc_on_the_same_retain_file_does_not_start(
     nc2 = start_nc(CONFIG, args)
     assert "refused" not in wait_stderr(nc2, "loaded")
     nc2.stop()
+
+
+KILL_ROUNDS = int(os.environ.get("ZNC_KILL_ROUNDS", "50"))
+#: (axis, parameter) each written by a writer thread of its own: concurrent writes share fsyncs
+KILL_PARAMS = ((1, int(MC_AxisPara.AxisVeloMax)), (2, int(MC_AxisPara.AxisVeloMax)),
+               (1, int(MC_AxisPara.AxisAcc)), (2, int(MC_AxisPara.AxisAcc)))
+
+
+class _Writer(threading.Thread):
+    """Writes 1, 2, 3, ... (+ base) to one parameter, one request at a time, until a request fails (the NC
+    was killed); ``acked``: the last value answered with no error, ``in_flight``: the one sent after it."""
+
+    def __init__(self, cl: NcTestClient, axis: int, number: int, base: float) -> None:
+        super().__init__(daemon=True)
+        self.cl, self.axis, self.number, self.base = cl, axis, number, base
+        self.acked: float | None = None
+        self.in_flight: float | None = None
+        self.errors: list[dict[str, Any]] = []
+
+    def run(self) -> None:
+        k = 0
+        while True:
+            k += 1
+            self.in_flight = self.base + k
+            try:
+                r = self.cl.request("WriteParameter", axis=self.axis, ParameterNumber=self.number,
+                                    Value=self.in_flight, timeout=5.0)
+            except Exception:  # no reply: the NC is gone (the value may or may not be kept)
+                return
+            if r["error"]:
+                self.errors.append(r)
+                return
+            self.acked, self.in_flight = self.in_flight, None
+
+
+def test_every_acknowledged_write_survives_kill_9_at_random_moments(
+        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient], tmp_path: Path) -> None:
+    """A stream of acknowledged WriteParameters, the NC killed with SIGKILL at a random moment, 50 rounds:
+    after each restart every parameter holds its last acknowledged value (or the one in flight)."""
+    path = tmp_path / "nc1.retain"
+    args = ("--retain", str(path))
+    seed = random.randrange(1 << 30)
+    rnd = random.Random(seed)
+    nc = start_nc(RETAIN_CONFIG, args)
+    expected: dict[tuple[int, int], set[float]] = {}
+    for rnd_no in range(KILL_ROUNDS):
+        cl = nc_client(nc.port, f"writer{rnd_no}")
+        for (axis, number), values in expected.items():  # the previous round's values came back
+            got = read_param(cl, axis, number)
+            assert got in values, (f"round {rnd_no} (seed {seed}): axis {axis} parameter {number} is {got}, "
+                                   f"acknowledged / in flight: {sorted(values)}")
+        base = 1000.0 * (rnd_no + 1)  # every round writes values of its own (above the configured ones)
+        writers = [_Writer(cl, axis, number, base) for axis, number in KILL_PARAMS]
+        for w in writers:
+            w.start()
+        wait_until(lambda: all(w.acked is not None for w in writers), T, "a first acknowledged write of each writer")
+        deadline = time.monotonic() + rnd.uniform(0.0, 0.3)
+        wait_until(lambda: time.monotonic() >= deadline, T, "the random moment", interval=0.001)
+        nc.kill()  # SIGKILL (the process group): no final write
+        for w in writers:
+            w.join(T)
+            assert not w.is_alive() and not w.errors, w.errors
+        expected = {(w.axis, w.number): {w.acked} | ({w.in_flight} if w.in_flight is not None else set())
+                    for w in writers}
+        cl.close()
+        nc = start_nc(RETAIN_CONFIG, args)
+    cl = nc_client(nc.port, "reader")
+    for axis, number in KILL_PARAMS:
+        assert read_param(cl, axis, number) in expected[axis, number], seed
+    nc.stop()
