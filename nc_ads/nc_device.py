@@ -44,7 +44,7 @@ a live holder) until
 * another connection writes PLCTONC to the axis: it becomes the supplier (same zenoh identity);
 * 0x4200+ID 0x50 (disable): enables off for a few supply periods, then Release;
 * the NC restarts (a new NC instance in the frames, ``nc_schema.NcInstance``: its cycle counter goes
-  back) or the NC reports that it no longer holds the axis (``nc/<nc>/claims``): the supply ends;
+  back, or its NC time ran on by more than its cycles take) or the NC reports that it no longer holds the axis (``nc/<nc>/claims``): the supply ends;
   nothing is re-enabled by itself. The NC's liveliness token going away is no restart: zenoh drops the
   link (and the token) whenever nc-ads, the NC or a router is starved for a lease, and the same NC is
   back 0.1-0.3 s later, still holding the axis for nc-ads (its stall) or not (nc-ads's stall: the
@@ -550,7 +550,7 @@ class NcDevice(AdsDevice):
                 self._image = img
                 listeners = list(self._listeners)
             self.frames_seen += 1
-            why = self._instance.frame(img.cycle)
+            why = self._instance.frame(img.cycle, img.nc_time_ns)
             if why is not None:
                 self._nc_restarted(why)
             if old is None or old.records.keys() != img.records.keys():
@@ -625,7 +625,7 @@ class NcDevice(AdsDevice):
             ev = self._alive.try_recv()
             if ev is None:
                 break
-            if ev.kind == zenoh.SampleKind.DELETE:  # unreachable (stale frames: 0x707), not a restart: see the module doc
+            if ev.kind == zenoh.SampleKind.DELETE:  # not a restart (see the module doc); stale frames then: 0x707
                 log.warning("NC %s unreachable (its liveliness token disappeared)", self.nc)
         s = self._claims_sub.try_recv()
         if s is None:

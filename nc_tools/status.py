@@ -1,10 +1,10 @@
 """nc-status: a live table of every NC on a router, like ``halcmd show`` or TwinCAT's online view.
 
 Per NC: alive or gone, cycle, the restarts seen (new NC instances in its frames,
-``nc_schema.NcInstance``: a liveliness token that goes and comes back is none), cycle time, timing mode, missed cycles / overruns, work p99, the
-clients (and their roles) and the claims; per axis: AxisId, MotionState (PLCopen), AxisState,
-SetPos / ActPos / SetVelo, ErrorCode with its name (errors.json), the claim holder and the source
-of the last command.
+``nc_schema.NcInstance``: a liveliness token that goes and comes back is none), cycle time, timing
+mode, missed cycles / overruns, work p99, the clients (and their roles) and the claims; per axis:
+AxisId, MotionState (PLCopen), AxisState, SetPos / ActPos / SetVelo, ErrorCode with its name
+(errors.json), the claim holder and the source of the last command.
 
 Usable over a slow link: it never subscribes to the 1 kHz ``nc/<nc>/frame``. It reads only
 
@@ -40,7 +40,9 @@ from typing import Any, Callable, TextIO
 import numpy as np
 import zenoh
 
-from nc_schema import FRAME_HEADER_DTYPE, AxisState, FrameFlags, NcInstance, decode_frame, error_name, motion_state, unpack
+from nc_schema import (
+    FRAME_HEADER_DTYPE, AxisState, FrameFlags, NcInstance, decode_frame, error_name, motion_state, unpack,
+)
 from nc_schema.codec import FRAME_MAGIC
 
 from .common import add_connection_args, axis_key, nc_of, open_session
@@ -133,7 +135,7 @@ class NcWatch:
                 if what == "status" and len(data) >= FRAME_HEADER_DTYPE.itemsize:
                     h = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
                     if int(h["Magic"]) == FRAME_MAGIC:  # (a bad frame: nc_view reports it)
-                        self.instances.setdefault(nc, NcInstance()).frame(int(h["Cycle"]))
+                        self.instances.setdefault(nc, NcInstance()).frame(int(h["Cycle"]), int(h["NcTimeNs"]))
         return on_sample
 
     # ---- reading -------------------------------------------------------------------------------

@@ -406,7 +406,7 @@ class PlcRuntime(PlcTask):
                     self._warned.add(f"bad-frame-{nc}")
                     log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
                 continue
-            self._set_frame(nc, int(h["Cycle"]), recs, jobs)
+            self._set_frame(nc, int(h["Cycle"]), recs, jobs, int(h["NcTimeNs"]))
 
     def _liveliness(self, link: _NcLink) -> None:
         while True:

@@ -119,8 +119,8 @@ class ClaimState:
 class _Orphan:
     """A motion command the NC may still run although no block follows it any more.
 
-    ``lost``: its block gave up because the NC's data was lost (checked at the first valid frame:
-    a frame with a cycle below ``cycle``, or another ``epoch``, is a restarted NC, which knows nothing of it); else a late
+    ``lost``: its block gave up because the NC's data was lost (checked at the first valid frame: a
+    frame with a cycle below ``cycle``, or another ``epoch``, is a restarted NC, which knows nothing of it); else a late
     acceptance after a block timeout (checked once a frame of the reply's ``cycle`` is there, only
     while ``epoch`` is the axis's).
     """
@@ -574,10 +574,12 @@ class PlcTask:
     def _take_frames(self) -> None:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
-    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
-        """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent. A frame
-        of a new NC instance (:class:`nc_schema.NcInstance`) is a restart (:meth:`nc_restarted`)."""
-        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
+    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None,
+                   nc_time_ns: int | None = None) -> None:
+        """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent;
+        ``nc_time_ns`` its header's NcTimeNs [ns] (None: unknown). A frame of a new NC instance
+        (:class:`nc_schema.NcInstance`) is a restart (:meth:`nc_restarted`)."""
+        why = self._instances.setdefault(nc, NcInstance()).frame(cycle, nc_time_ns)
         if why is not None:
             self.nc_restarted(nc, why)
         ids = records["AxisId"]
@@ -689,7 +691,8 @@ class InProcessPlc(PlcTask):
         return self.cycle * self.cycle_time
 
     def _take_frames(self) -> None:
-        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc, getattr(self.core, "ncjobs", None))
+        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc, getattr(self.core, "ncjobs", None),
+                        int(self.core.nc_time_ns))
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         if nc != self.nc:

@@ -417,7 +417,8 @@ def test_nc_frozen_past_its_lease_keeps_the_supply(tmp_path: Path) -> None:
             until = time.monotonic() + 2.0
             while time.monotonic() < until:
                 rec = watch.nctoplc(1)
-                assert rec is not None and int(rec["ErrorCode"]) == 0, f"axis 1 error 0x{int(rec['ErrorCode']):X}\n{ads1.stderr()}"
+                code = int(rec["ErrorCode"]) if rec is not None else -1
+                assert code == 0, f"axis 1 error 0x{code:X}\n{ads1.stderr()}"
                 time.sleep(0.05)
             assert state(plc, 1).StateDWord & BIT_CONTROL_LOOP_CLOSED
             assert watch.request("Info")["Value"]["claims"].get(1) == "ads1"

@@ -10,7 +10,8 @@ from plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess, free_port, wait_until
 
 
-def _nc_and_powered_plc(start_nc: Callable[..., NcServerProcess]) -> tuple[NcServerProcess, tuple[str, str], PlcProcess]:
+def _nc_and_powered_plc(
+        start_nc: Callable[..., NcServerProcess]) -> tuple[NcServerProcess, tuple[str, str], PlcProcess]:
     """An NC on a port of its own (its restart listens there again: ``listen``) and a PLC that powered axis 1."""
     port = free_port()
     listen = ("--listen", f"tcp/127.0.0.1:{port}")
@@ -102,13 +103,19 @@ def test_nc_frozen_past_its_lease_is_no_restart_but_a_new_instance_is(
         t_start = time.monotonic()
         nc2 = start_nc(extra_args=(*NC_ARGS, *listen))
         t_ready = time.monotonic()
-        wait_until(lambda: any("NC nc1 restarted" in line for line in a.err_lines), T, "the restart detected")
+        try:
+            wait_until(lambda: any("NC nc1 restarted" in line for line in a.err_lines), T, "the restart detected")
+        except AssertionError as exc:
+            seen = [(r.c, r.a["NcCycle"], r.a["Valid"], r.a["Epoch"]) for r in a.trace_of(1)[n_before:]]
+            raise AssertionError(f"{exc}\n{''.join(a.err_lines[-20:])}\nsamples (c, NcCycle, Valid, Epoch): "
+                                 f"{seen[:5]} ... {seen[-5:]}") from None
         print(f"\n[restart] new NC instance detected {(time.monotonic() - t_start) * 1e3:.0f} ms after nc-server was "
               f"started ({(t_ready - t_start) * 1e3:.0f} ms to its ready line)")
         a.wait_trace(1, lambda r: r.a["Valid"] and r.a["Epoch"] == 1, T)
         after = a.trace_of(1)[n_before:]
         lost = next(i for i, r in enumerate(after) if not r.a["Valid"])  # the old instance's end
-        assert {r.a["Epoch"] for r in after[lost:] if r.a["Valid"]} == {1}, "a valid sample of the new instance, old epoch"
+        new_epochs = {r.a["Epoch"] for r in after[lost:] if r.a["Valid"]}
+        assert new_epochs == {1}, f"valid samples of the new instance with the old epoch: {new_epochs}"
         a.wait("pw", lambda r: r.o["Status"] and not r.o["Error"], T)  # claimed again on the new instance
         assert a.stop() == 0
     nc2.stop()
