@@ -43,8 +43,12 @@ a live holder) until
   is just released;
 * another connection writes PLCTONC to the axis: it becomes the supplier (same zenoh identity);
 * 0x4200+ID 0x50 (disable): enables off for a few supply periods, then Release;
-* the NC restarts (its cycle counter goes back or its liveliness token goes) or the NC reports that
-  it no longer holds the axis (``nc/<nc>/claims``): the supply ends; nothing is re-enabled by itself.
+* the NC restarts (a new NC instance in the frames, ``nc_schema.NcInstance``: its cycle counter goes
+  back, or its NC time ran on by more than its cycles take) or the NC reports that it no longer holds the axis (``nc/<nc>/claims``): the supply ends;
+  nothing is re-enabled by itself. The NC's liveliness token going away is no restart: zenoh drops the
+  link (and the token) whenever nc-ads, the NC or a router is starved for a lease, and the same NC is
+  back 0.1-0.3 s later, still holding the axis for nc-ads (its stall) or not (nc-ads's stall: the
+  claims map says so).
 
 nc-ads stopping (SIGTERM/SIGINT, ``close()``) ends like plc-run: enables off for a few supply periods, then
 Release, no error. If nc-ads itself dies or freezes, the NC's own client-loss rules apply to all its axes (token gone /
@@ -71,7 +75,9 @@ from typing import Any
 import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
-from nc_schema import COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, check_client_id, make_request, parse_reply
+from nc_schema import (
+    COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, NcInstance, check_client_id, make_request, parse_reply,
+)
 from nc_schema import NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLCTONC_DTYPE, decode_ads, encode_ads, unpack
 from nc_schema.codec import _FRAME_HEADER, FRAME_MAGIC, PLC_FRAME_MAGIC, WIRE_VERSION  # header Struct from the schema
 from plc_client.runtime import _PLC_AXIS, _PLC_HEADER  # the PLC runtime's frame encoder (same wire, same speed)
@@ -430,7 +436,12 @@ class NcDevice(AdsDevice):
         self._threads: list[threading.Thread] = []
         self.frames_seen = 0
         self.bad_frames = 0
-        self.restarts = 0
+        self._instance = NcInstance()  # the restart rule, fed by the frame thread
+
+    @property
+    def restarts(self) -> int:
+        """NC restarts seen (new NC instances in the frames)."""
+        return self._instance.restarts
 
     # ---- lifecycle --------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -539,8 +550,9 @@ class NcDevice(AdsDevice):
                 self._image = img
                 listeners = list(self._listeners)
             self.frames_seen += 1
-            if old is not None and img.cycle < old.cycle:
-                self._nc_restarted("its cycle counter went back")
+            why = self._instance.frame(img.cycle, img.nc_time_ns)
+            if why is not None:
+                self._nc_restarted(why)
             if old is None or old.records.keys() != img.records.keys():
                 self._check_ids(img)
             for cb in listeners:
@@ -557,7 +569,6 @@ class NcDevice(AdsDevice):
                             a, MAX_ADS_AXIS_ID)
 
     def _nc_restarted(self, why: str) -> None:
-        self.restarts += 1
         with self._lock:
             dropped = sorted(self._supplies)
             self._supplies.clear()
@@ -614,8 +625,8 @@ class NcDevice(AdsDevice):
             ev = self._alive.try_recv()
             if ev is None:
                 break
-            if ev.kind == zenoh.SampleKind.DELETE:
-                self._nc_restarted("its liveliness token disappeared")
+            if ev.kind == zenoh.SampleKind.DELETE:  # not a restart (see the module doc); stale frames then: 0x707
+                log.warning("NC %s unreachable (its liveliness token disappeared)", self.nc)
         s = self._claims_sub.try_recv()
         if s is None:
             return

@@ -1,9 +1,10 @@
 """nc-status: a live table of every NC on a router, like ``halcmd show`` or TwinCAT's online view.
 
-Per NC: alive or gone, cycle, cycle time, timing mode, missed cycles / overruns, work p99, the
-clients (and their roles) and the claims; per axis: AxisId, MotionState (PLCopen), AxisState,
-SetPos / ActPos / SetVelo, ErrorCode with its name (errors.json), the claim holder and the source
-of the last command.
+Per NC: alive or gone, cycle, the restarts seen (new NC instances in its frames,
+``nc_schema.NcInstance``: a liveliness token that goes and comes back is none), cycle time, timing
+mode, missed cycles / overruns, work p99, the clients (and their roles) and the claims; per axis:
+AxisId, MotionState (PLCopen), AxisState, SetPos / ActPos / SetVelo, ErrorCode with its name
+(errors.json), the claim holder and the source of the last command.
 
 Usable over a slow link: it never subscribes to the 1 kHz ``nc/<nc>/frame``. It reads only
 
@@ -36,9 +37,13 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, TextIO
 
+import numpy as np
 import zenoh
 
-from nc_schema import AxisState, FrameFlags, decode_frame, error_name, motion_state, unpack
+from nc_schema import (
+    FRAME_HEADER_DTYPE, AxisState, FrameFlags, NcInstance, decode_frame, error_name, motion_state, unpack,
+)
+from nc_schema.codec import FRAME_MAGIC
 
 from .common import add_connection_args, axis_key, nc_of, open_session
 
@@ -78,6 +83,7 @@ class NcWatch:
         self.alive_t: dict[str, float] = {}
         self.raw: dict[tuple[str, str], _Raw] = {}  # (nc, "status" | "stats" | "claims")
         self.first_seen: dict[str, float] = {}
+        self.instances: dict[str, NcInstance] = {}  # the restart rule, fed by the status frames
         self._decl: list[Any] = []
 
     def start(self, discover_timeout: float = 2.0) -> None:
@@ -122,9 +128,14 @@ class NcWatch:
             if not self._wanted(nc):
                 return
             now = time.monotonic()
+            data = sample.payload.to_bytes()
             with self._lock:
-                self.raw[(nc, what)] = _Raw(sample.payload.to_bytes(), now)
+                self.raw[(nc, what)] = _Raw(data, now)
                 self.first_seen.setdefault(nc, now)
+                if what == "status" and len(data) >= FRAME_HEADER_DTYPE.itemsize:
+                    h = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
+                    if int(h["Magic"]) == FRAME_MAGIC:  # (a bad frame: nc_view reports it)
+                        self.instances.setdefault(nc, NcInstance()).frame(int(h["Cycle"]), int(h["NcTimeNs"]))
         return on_sample
 
     # ---- reading -------------------------------------------------------------------------------
@@ -145,13 +156,14 @@ class NcWatch:
             raw = dict(self.raw)
             alive = dict(self.alive)
             alive_t = dict(self.alive_t)
+            restarts = {nc: i.restarts for nc, i in self.instances.items()}
         views = []
         for nc in names:
             newest = max([r.t for (n, _), r in raw.items() if n == nc] + [alive_t.get(nc, 0.0)])
             if not alive.get(nc, False) and now - newest > FORGET_AFTER:
                 continue
             views.append(nc_view(nc, alive.get(nc), raw.get((nc, "status")), raw.get((nc, "stats")),
-                                 raw.get((nc, "claims")), now))
+                                 raw.get((nc, "claims")), now, restarts.get(nc, 0)))
         return {"time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds"), "ncs": views}
 
 
@@ -170,11 +182,12 @@ def _error(code: int) -> str | None:
 
 
 def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None, claims: _Raw | None,
-            now: float) -> dict[str, Any]:
-    """One NC's row set, decoded from its newest payloads (any of them may be missing or malformed).
+            now: float, restarts: int = 0) -> dict[str, Any]:
+    """One NC's row set, decoded from its newest payloads (any of them may be missing or malformed);
+    ``restarts``: the new NC instances seen so far.
 
     Returns:
-        ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "cycle_time", "timing",
+        ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "restarts", "cycle_time", "timing",
         "missed_cycles", "overruns", "work_us_p99", "clients": {id: {"alive", "role"}}, "claims": {axis: id},
         "axes": [{"AxisId", "MotionState", "AxisState", "SetPos", "ActPos", "SetVelo", "ErrorCode",
         "ErrorName", "Holder", "LastCommand"}], "problems": [str]}``.
@@ -250,7 +263,7 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
             })
     get = (st or {}).get
     return {
-        "name": nc, "alive": alive, "state": state, "age_s": ages, "cycle": cycle,
+        "name": nc, "alive": alive, "state": state, "age_s": ages, "cycle": cycle, "restarts": restarts,
         "cycle_time": get("cycle_time"), "timing": get("timing"),
         "missed_cycles": get("missed_cycles"), "overruns": get("overruns"), "work_us_p99": get("work_us_p99"),
         "clients": clients, "claims": holders, "claims_source": "claims" if cl is not None else
@@ -273,7 +286,7 @@ def render(snap: dict[str, Any]) -> str:
         out.append(f"{v['name']}  {v['state']}  cycle {_num(v['cycle'], 'd')}  "
                    f"{_num(None if ct is None else ct * 1e3, '.3f')} ms  {v['timing'] or '-'}  "
                    f"missed {_num(v['missed_cycles'], 'd')}  overruns {_num(v['overruns'], 'd')}  "
-                   f"work p99 {_num(v['work_us_p99'], '.0f')} us")
+                   f"work p99 {_num(v['work_us_p99'], '.0f')} us  restarts {v['restarts']}")
         if v["clients"]:
             parts = []
             for c, info in sorted(v["clients"].items()):

@@ -27,10 +27,10 @@ Staleness (zenoh-nc choice; Tc2_MC2 raises 0x4B0F when its NC cycle counter stop
 if the NC cycle of an axis's snapshot has not advanced for ``stale_cycles`` PLC cycles,
 or no frame has arrived yet, ``Status.Valid`` is False and function blocks report
 0x4B0F (MC_NO_NC_CYCLE_UPDATE) instead of acting on old data. A frame whose NC cycle
-is *lower* than the previous one (or the NC's liveliness token reappearing) means the NC
-restarted: the task increments ``nc_epoch`` (once per restart, although a restart shows both
-ways: :meth:`plc_client.task.PlcTask.nc_token_gone`) so that blocks following a command of the
-old NC instance stop following it (0x4B0F).
+is *lower* than the previous one means the NC restarted (:class:`nc_schema.NcInstance`; its
+liveliness token going and coming back is no restart, only an unreachable NC meanwhile: see
+:meth:`plc_client.task.PlcTask.nc_token_gone`): the task increments ``nc_epoch`` once so that
+blocks following a command of the old NC instance stop following it (0x4B0F).
 """
 from __future__ import annotations
 
@@ -203,8 +203,8 @@ class AXIS_REF:
         NcJobs: read-only NCJOBS_AXIS_REF snapshot (zenoh-nc): the axis's command queue and the
             fates of its last ended commands, so a block sees how its own command ended.
         Status: :class:`ST_AxisStatus`, refreshed every PLC cycle.
-        nc_epoch: incremented once each time the NC is seen to restart (its cycle went back or
-            its liveliness token came back).
+        nc_epoch: incremented once each time the NC is seen to restart (a new instance in the
+            frames: its cycle went back).
 
     Raises:
         ValueError: an invalid NC name or axis id.

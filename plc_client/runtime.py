@@ -12,8 +12,8 @@ explicit configuration - never zenoh's defaults:
   held, its motions stop) within ~0.4 s instead of zenoh's default ~7.5 s.
 
 Declared on it: a subscriber on the status frames with a ``RingChannel(1)`` (only the newest
-frame is kept; the cycle takes it with ``try_recv``), a liveliness subscriber on ``nc/<nc>/alive`` (to notice NC
-restarts), the liveliness token ``nc/<nc>/client/<client_id>`` (the NC accepts claims only
+frame is kept; the cycle takes it with ``try_recv``), a liveliness subscriber on ``nc/<nc>/alive`` (to notice an
+unreachable NC at once), the liveliness token ``nc/<nc>/client/<client_id>`` (the NC accepts claims only
 from live clients and drops them when the token disappears) and a publisher for
 ``nc/<nc>/plctonc/<client_id>``.
 
@@ -34,8 +34,11 @@ subscriber got every frame (tests/integration/test_plc_frame_starvation.py).
 A zenoh client cannot open a session while its router is down, so a session that fails to
 open is retried every ``reconnect_period`` seconds by a background thread while the PLC keeps
 cycling (its axes stay invalid: blocks report 0x4B0F). An open session reconnects by itself
-when the NC restarts; the runtime then sees the NC's cycle counter go back (or its liveliness
-token reappear), stops following the old instance's commands and claims again.
+when the NC restarts; the runtime then sees a new NC instance in the frames (its cycle counter goes
+back: :class:`nc_schema.NcInstance`), stops following the old instance's commands and claims again.
+The NC's liveliness token going away makes its data invalid at once, but is no restart: zenoh drops
+the link (and the token with it) whenever this process, the NC or a router is starved for a lease,
+and the same NC instance is back 0.1-0.3 s later.
 
 Commands (:class:`ZenohPort`) are ``session.get`` queries on the command's key
 ``nc/<nc>/axis/<id>/cmd/<class>/<client_id>`` (``Keys.command_key``; NC-level commands on
@@ -403,7 +406,7 @@ class PlcRuntime(PlcTask):
                     self._warned.add(f"bad-frame-{nc}")
                     log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
                 continue
-            self._set_frame(nc, int(h["Cycle"]), recs, jobs)
+            self._set_frame(nc, int(h["Cycle"]), recs, jobs, int(h["NcTimeNs"]))
 
     def _liveliness(self, link: _NcLink) -> None:
         while True:
@@ -417,10 +420,9 @@ class PlcRuntime(PlcTask):
                 log.warning("NC %s is gone (liveliness token deleted)", link.nc)
             else:
                 if link.nc_alive_seen and link.nc_gone:
-                    log.info("NC %s is back", link.nc)
-                    self.nc_token_back(link.nc)  # one restart = one nc_epoch step (with the cycle going back)
+                    log.info("NC %s is back", link.nc)  # the same instance or a new one: its frames tell
                 link.nc_alive_seen, link.nc_gone = True, False
-                self.nc_up(link.nc)  # (its data counts again; nc_token_back does it too)
+                self.nc_token_back(link.nc)  # its data counts again
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         link = self.links.get(nc)

@@ -17,8 +17,9 @@ Transports subclass it (:class:`plc_client.runtime.PlcRuntime` over zenoh,
 Claims: an axis becomes *controlled* the first time an ``MC_Power`` block is called on it;
 the task then sends ``Claim`` (the NC refuses with 0x723 while another live client holds the
 axis). A refused or timed-out claim is retried on MC_Power's Enable rising edge and every
-``claim_retry`` seconds while Enable stays TRUE. An NC restart (its cycle counter goes back,
-or its liveliness token reappears) forgets all claims on that NC; MC_Power claims again.
+``claim_retry`` seconds while Enable stays TRUE. An NC restart (a new NC instance in the
+frames, :class:`nc_schema.NcInstance`; a liveliness token that goes and comes back is none) forgets
+all claims on that NC; MC_Power claims again.
 
 Late replies (zenoh-nc choice, the manual is silent): a block that times out (0x745)
 abandons its request. If the NC accepted it anyway (late reply with error 0), the task
@@ -59,7 +60,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from nc_schema import MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, StateDWord, error_text
+from nc_schema import MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text
 
 #: late-accepted commands the task undoes with GearOut instead of Halt
 _COUPLINGS = frozenset({"GearIn", "GearInFloat", "GearInDyn"})
@@ -118,8 +119,8 @@ class ClaimState:
 class _Orphan:
     """A motion command the NC may still run although no block follows it any more.
 
-    ``lost``: its block gave up because the NC's data was lost (checked at the first valid frame:
-    a frame with a cycle below ``cycle`` is a restarted NC, which knows nothing of it); else a late
+    ``lost``: its block gave up because the NC's data was lost (checked at the first valid frame: a
+    frame with a cycle below ``cycle``, or another ``epoch``, is a restarted NC, which knows nothing of it); else a late
     acceptance after a block timeout (checked once a frame of the reply's ``cycle`` is there, only
     while ``epoch`` is the axis's).
     """
@@ -227,8 +228,8 @@ class PlcTask:
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
         self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
-        #: NCs whose liveliness token went away: [token back, restart counted] (see nc_token_gone)
-        self._nc_gaps: dict[str, list[bool]] = {}
+        #: each NC's instance as its frames show it: the restart rule (nc_schema.instance)
+        self._instances: dict[str, NcInstance] = {}
         self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
         self._initial_axes = list(axes)  # bound by bind_axes() once the subclass has its transport
 
@@ -515,7 +516,7 @@ class PlcTask:
                     if self.now - o.since < LOST_COMMAND_TTL:
                         keep.append(o)
                     continue
-                if ax.Status.NcCycleCounter < o.cycle:
+                if ax.Status.NcCycleCounter < o.cycle or ax.nc_epoch != o.epoch:
                     continue  # a restarted NC: the command is gone with the old instance
             else:
                 if ax.nc_epoch != o.epoch:
@@ -573,17 +574,14 @@ class PlcTask:
     def _take_frames(self) -> None:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
-    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
-        """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent."""
-        prev = self._frames.get(nc)
-        gap = self._nc_gaps.get(nc)
-        if prev is not None and cycle < prev[0]:  # the NC's cycle counter went back
-            if gap is None or not gap[1]:  # not counted yet by its token's return
-                self.nc_restarted(nc)
-            if gap is not None:
-                gap[1] = True
-        if gap is not None and gap[0]:
-            del self._nc_gaps[nc]  # the first frame after the token's return ends the gap
+    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None,
+                   nc_time_ns: int | None = None) -> None:
+        """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent;
+        ``nc_time_ns`` its header's NcTimeNs [ns] (None: unknown). A frame of a new NC instance
+        (:class:`nc_schema.NcInstance`) is a restart (:meth:`nc_restarted`)."""
+        why = self._instances.setdefault(nc, NcInstance()).frame(cycle, nc_time_ns)
+        if why is not None:
+            self.nc_restarted(nc, why)
         ids = records["AxisId"]
         key = ids.tobytes()
         index = self._index_cache.get(nc)
@@ -610,23 +608,18 @@ class PlcTask:
     def nc_token_gone(self, nc: str) -> None:
         """The liveliness token of NC ``nc`` disappeared (transports that watch it call this).
 
-        One NC restart shows twice: its token comes back (:meth:`nc_token_back`) and its cycle
-        counter goes back (in the frames). Whichever comes first counts the restart
-        (:meth:`nc_restarted`: ``nc_epoch`` + 1), the other one is the same restart, up to the
-        first frame after the token's return. A token that comes back with the cycle counter going
-        on (the NC was frozen or the link cut, the NC dropped this client) counts once as well.
+        The NC is unreachable: its data is invalid at once (:meth:`nc_down`). That is not a restart:
+        the token also goes and comes back when the zenoh link is dropped for a lease (a starved
+        client, NC or router) while the same NC runs on. Only the frames show a new instance
+        (:class:`nc_schema.NcInstance`, :meth:`_set_frame`); if this client's link was dropped, the NC
+        dropped its claims too and shows it (0x8F01 on the held axes: claimed again by MC_Power).
         """
-        self._nc_gaps[nc] = [False, False]
         self.nc_down(nc)
 
     def nc_token_back(self, nc: str) -> None:
-        """The liveliness token of NC ``nc`` is back after :meth:`nc_token_gone`."""
+        """The liveliness token of NC ``nc`` is back after :meth:`nc_token_gone`: its frames count
+        again (whether it is a new instance, its frames tell)."""
         self.nc_up(nc)
-        gap = self._nc_gaps.setdefault(nc, [False, False])
-        gap[0] = True
-        if not gap[1]:
-            gap[1] = True
-            self.nc_restarted(nc)
 
     def nc_down(self, nc: str) -> None:
         """The NC's liveliness token disappeared: its axes' data is invalid from this cycle on
@@ -637,14 +630,14 @@ class PlcTask:
         """The NC's liveliness token is back: its frames count again."""
         self._nc_down.discard(nc)
 
-    def nc_restarted(self, nc: str) -> None:
-        """The NC ``nc`` restarted: bump the epoch of its axes and forget its claims."""
+    def nc_restarted(self, nc: str, why: str = "its cycle counter went back") -> None:
+        """The NC ``nc`` restarted (``why``, for the log): bump the epoch of its axes and forget its claims."""
         for (n, _), refs in self._refs.items():
             if n == nc:
                 for ax in refs:
                     ax.nc_epoch += 1
         self._forget_claims(nc)
-        log.warning("NC %s restarted: commands of the old instance are no longer followed", nc)
+        log.warning("NC %s restarted (%s): commands of the old instance are no longer followed", nc, why)
 
     def _publish_all(self) -> None:
         by_nc: dict[str, list[AXIS_REF]] = {}
@@ -698,7 +691,8 @@ class InProcessPlc(PlcTask):
         return self.cycle * self.cycle_time
 
     def _take_frames(self) -> None:
-        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc, getattr(self.core, "ncjobs", None))
+        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc, getattr(self.core, "ncjobs", None),
+                        int(self.core.nc_time_ns))
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         if nc != self.nc:

@@ -9,6 +9,7 @@ Connection is closed (pyads segfaults otherwise, ads-bridge-notes pitfall 8).
 from __future__ import annotations
 
 import ctypes
+import signal
 import struct
 import subprocess
 import sys
@@ -382,6 +383,49 @@ def test_client_gone_releases_claim_and_stops(tmp_path: Path) -> None:
         client.kill()
         client.wait(10)
         err.close()
+        watch.close()
+        ads1.kill()
+        nc1.kill()
+
+
+# ---- the NC frozen past its lease: its token goes and comes back, no restart ------------------------------------
+def test_nc_frozen_past_its_lease_keeps_the_supply(tmp_path: Path) -> None:
+    """The NC SIGSTOPped 1.2 s (lease 0.5 s): nc-ads's zenoh drops the link, the NC's liveliness token goes
+    and comes back while the same instance runs on (what a starved process on a loaded machine does). The NC
+    excuses its own stall, so nc-ads still holds the axis: it must go on supplying PLCTONC. Before, it took
+    the token's loss for a restart, ended the supply, and the NC's watchdog stopped the axis (0x8F02)."""
+    nc1 = start_nc_server(tmp_path / "nc")
+    ads1 = start_nc_ads(tmp_path / "ads", nc1.endpoint, role="operator")
+    watch = NcTestClient(nc1.port, "watch3", token=False)
+    lost = "its liveliness token disappeared"
+    try:
+        plc = connect(ads1)
+        try:
+            plc.write(0x4301, 0x01, 7, pyads.PLCTYPE_UDINT)  # claims axis 1 and enables it: nc-ads supplies it
+            wait_until(lambda: state(plc, 1).StateDWord & BIT_CONTROL_LOOP_CLOSED, 20, "axis 1 enabled")
+            wait_until(lambda: watch.nctoplc(1) is not None, 20, "the observer's first NCTOPLC sample")
+            for _ in range(2):
+                n = ads1.stderr().count(lost)
+                nc1.send_signal(signal.SIGSTOP)
+                try:
+                    time.sleep(1.2)
+                finally:
+                    nc1.send_signal(signal.SIGCONT)
+                wait_until(lambda: ads1.stderr().count(lost) > n, 20, "nc-ads saw the NC's token go (its link dropped)")
+                wait_until(lambda: plc.read_state()[0] == pyads.ADSSTATE_RUN, 30, "RUN again", interval=0.05)
+            # several watchdog timeouts (0.5 s) after the stall: the axis still supplied, enabled, no error
+            until = time.monotonic() + 2.0
+            while time.monotonic() < until:
+                rec = watch.nctoplc(1)
+                code = int(rec["ErrorCode"]) if rec is not None else -1
+                assert code == 0, f"axis 1 error 0x{code:X}\n{ads1.stderr()}"
+                time.sleep(0.05)
+            assert state(plc, 1).StateDWord & BIT_CONTROL_LOOP_CLOSED
+            assert watch.request("Info")["Value"]["claims"].get(1) == "ads1"
+            assert "restarted" not in ads1.stderr() and "supply" not in ads1.stderr(), ads1.stderr()
+        finally:
+            plc.close()
+    finally:
         watch.close()
         ads1.kill()
         nc1.kill()

@@ -1,6 +1,8 @@
-"""Killing the NC under a running PLC, and restarting it on the same endpoint."""
+"""Killing the NC under a running PLC, and restarting it on the same endpoint; the NC frozen past
+its lease (its liveliness token goes and comes back, the same instance runs on) is no restart."""
 from __future__ import annotations
 
+import signal
 import time
 from typing import Callable
 
@@ -8,13 +10,25 @@ from plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess, free_port, wait_until
 
 
-def test_nc_killed_and_restarted(start_nc: Callable[..., NcServerProcess]) -> None:
+def _nc_and_powered_plc(
+        start_nc: Callable[..., NcServerProcess]) -> tuple[NcServerProcess, tuple[str, str], PlcProcess]:
+    """An NC on a port of its own (its restart listens there again: ``listen``) and a PLC that powered axis 1."""
     port = free_port()
     listen = ("--listen", f"tcp/127.0.0.1:{port}")
     nc = start_nc(extra_args=(*NC_ARGS, *listen))
-    with PlcProcess(f"tcp/127.0.0.1:{port}", "plc-a") as a:
+    a = PlcProcess(f"tcp/127.0.0.1:{port}", "plc-a")
+    try:
         a.wait_started()
         power_on(a)
+    except BaseException:
+        a.stop()
+        raise
+    return nc, listen, a
+
+
+def test_nc_killed_and_restarted(start_nc: Callable[..., NcServerProcess]) -> None:
+    nc, listen, plc = _nc_and_powered_plc(start_nc)
+    with plc as a:
         a.set("pos", "MC_ReadActualPosition", Enable=True)
         a.set("jog", "MC_MoveVelocity", Execute=True, Velocity=20.0)
         a.set("mv", "MC_MoveAbsolute", Execute=True, Position=800.0, Velocity=10.0)  # aborts jog, runs long
@@ -53,5 +67,55 @@ def test_nc_killed_and_restarted(start_nc: Callable[..., NcServerProcess]) -> No
         a.set("mv", Execute=True, Position=10.0, Velocity=100.0)
         done = a.wait("mv", lambda r: r.o["Done"], T)
         assert abs(done.a["ActPos"] - 10.0) < 0.02
+        assert a.stop() == 0
+    nc2.stop()
+
+
+def test_nc_frozen_past_its_lease_is_no_restart_but_a_new_instance_is(
+        start_nc: Callable[..., NcServerProcess]) -> None:
+    """The NC SIGSTOPped 1.2 s (its lease: 0.5 s): the PLC's zenoh drops the link, so the NC's liveliness
+    token goes and comes back while the same instance runs on - what a starved process on a loaded machine
+    does. No restart is declared (before: every token return was one: claims forgotten, nc_epoch + 1).
+    Then a new nc-server on the same port: a restart, seen at its first frame (no valid sample of the new
+    instance with the old epoch)."""
+    nc, listen, plc = _nc_and_powered_plc(start_nc)
+    with plc as a:
+        a.trace(1)
+        a.wait_trace(1, lambda r: r.a["Valid"], T)
+        for _ in range(2):
+            gone = sum("NC nc1 is gone" in line for line in a.err_lines)
+            nc.send_signal(signal.SIGSTOP)
+            try:
+                time.sleep(1.2)
+            finally:
+                nc.send_signal(signal.SIGCONT)
+            wait_until(lambda: sum("NC nc1 is gone" in line for line in a.err_lines) > gone, T,
+                       "the NC's token gone for the PLC (its link dropped)")
+            wait_until(lambda: sum("NC nc1 is back" in line for line in a.err_lines) > gone, T, "the NC's token back")
+            n = len(a.trace_of(1))
+            a.wait_trace(1, lambda r: r.a["Valid"] and len(a.trace_of(1)) > n, T)
+        a.wait_cycles(20)
+        assert not [line for line in a.err_lines if "restarted" in line], "".join(a.err_lines[-20:])
+        assert {s.a["Epoch"] for s in a.trace_of(1)} == {0}
+
+        n_before = len(a.trace_of(1))
+        nc.kill()
+        t_start = time.monotonic()
+        nc2 = start_nc(extra_args=(*NC_ARGS, *listen))
+        t_ready = time.monotonic()
+        try:
+            wait_until(lambda: any("NC nc1 restarted" in line for line in a.err_lines), T, "the restart detected")
+        except AssertionError as exc:
+            seen = [(r.c, r.a["NcCycle"], r.a["Valid"], r.a["Epoch"]) for r in a.trace_of(1)[n_before:]]
+            raise AssertionError(f"{exc}\n{''.join(a.err_lines[-20:])}\nsamples (c, NcCycle, Valid, Epoch): "
+                                 f"{seen[:5]} ... {seen[-5:]}") from None
+        print(f"\n[restart] new NC instance detected {(time.monotonic() - t_start) * 1e3:.0f} ms after nc-server was "
+              f"started ({(t_ready - t_start) * 1e3:.0f} ms to its ready line)")
+        a.wait_trace(1, lambda r: r.a["Valid"] and r.a["Epoch"] == 1, T)
+        after = a.trace_of(1)[n_before:]
+        lost = next(i for i, r in enumerate(after) if not r.a["Valid"])  # the old instance's end
+        new_epochs = {r.a["Epoch"] for r in after[lost:] if r.a["Valid"]}
+        assert new_epochs == {1}, f"valid samples of the new instance with the old epoch: {new_epochs}"
+        a.wait("pw", lambda r: r.o["Status"] and not r.o["Error"], T)  # claimed again on the new instance
         assert a.stop() == 0
     nc2.stop()

@@ -172,3 +172,46 @@ def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
             kill_group(live)
         for h in reversed(procs):
             h.kill()
+
+
+def test_restarts_count_new_nc_instances_not_a_token_that_comes_back(tmp_path) -> None:
+    """The NC SIGSTOPped 1.5 s (lease 0.5 s): nc-status's link to it is dropped, the NC's token goes
+    (GONE) and comes back (ALIVE) with the same instance: no restart. A new nc-server on the same
+    port: one restart (its cycle counter went back)."""
+    import signal
+    import subprocess
+    import time
+
+    from tools_testing import kill_group, tool_command
+    from znc_testing import free_port
+    port = free_port()
+    listen = ("--listen", f"tcp/127.0.0.1:{port}")
+    procs = [start_nc_server(tmp_path / "nc1", extra_args=listen)]
+    live = subprocess.Popen(tool_command("status", "--connect", f"tcp/127.0.0.1:{port}", "--json", "--interval", "0.2"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert live.stdout is not None
+        seen: list[tuple[str, int]] = []
+
+        def view() -> tuple[str, int]:
+            [v] = [v for v in json.loads(live.stdout.readline())["ncs"] if v["name"] == "nc1"]
+            seen.append((v["state"], v["restarts"]))
+            return seen[-1]
+
+        wait_until(lambda: view() == ("ALIVE", 0), T, "nc1 alive")
+        procs[0].send_signal(signal.SIGSTOP)
+        try:
+            time.sleep(1.5)
+        finally:
+            procs[0].send_signal(signal.SIGCONT)
+        wait_until(lambda: view()[0] == "GONE", T, "nc1's token gone for nc-status (its link dropped)")
+        wait_until(lambda: view() == ("ALIVE", 0), T, "the same nc1 alive again, no restart")
+        for _ in range(5):
+            assert view()[1] == 0, seen
+        procs[0].kill()
+        procs.append(start_nc_server(tmp_path / "nc1b", extra_args=listen))
+        wait_until(lambda: view() == ("ALIVE", 1), T, "the new nc1 instance: one restart")
+    finally:  # (no SIGINT: lines written while the new NC started may still fill the pipe)
+        kill_group(live)
+        for h in reversed(procs):
+            h.kill()
