@@ -593,7 +593,7 @@ class PublisherProcess:
         self.restarts = 0
         self.failovers = 0
         self._stopping = False
-        # (RLock: _ended runs from watch() and from the exit watcher, and _spawn from both)
+        # (re-entrant: _ended runs under it from watch() and from the exit watcher, _adopt takes it itself)
         self._lock = threading.RLock()
         self._lifeline_r, self._lifeline_w = os.pipe()  # (both close-on-exec: only the children get the read end)
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)  # wakes the exit watcher
