@@ -321,8 +321,10 @@ def test_a_publisher_that_keeps_dying_is_restarted_with_back_off_and_shows_in_th
     assert delays == [0.1, 0.2, 0.4], delays
     standby, active = publisher_pids(nc_server.pid, STANDBY_COMM), publisher_pids(nc_server.pid)
     assert len(standby) == 1 and len(active) == 1
-    for pid in standby + active:  # (the standby first: else it would take over)
-        os.kill(pid, signal.SIGKILL)
+    os.kill(standby[0], signal.SIGKILL)  # (gone first: else it would take over)
+    wait_until(lambda: f"standby frame publisher (pid {standby[0]}) ended" in nc_server.stderr() or None, T,
+               "the NC to see the standby end")
+    os.kill(active[0], signal.SIGKILL)
     c1 = wait_until(lambda: frame_cycle(cl), T, "a frame")
     wait_until(lambda: (frame_cycle(cl) or 0) > c1 + 10, T, "frames after active and standby were killed")
     st = wait_until(lambda: (s := cl.stats()) is not None and s["publisher_standby"] and s["publisher_restarts"] >= 5
