@@ -574,7 +574,8 @@ class PublisherProcess:
     put. :meth:`watch` (the NC's I/O thread, about every 0.1 s) starts a new standby for a child that ended,
     kills and replaces an active child that published nothing for :data:`STALL_TIMEOUT` while the cycle wrote
     frames (hung, or stopped with SIGSTOP), and falls back to promoting on its own when there is no pidfd.
-    Each child started after the first two counts in ``restarts``; they back off from
+    The first standby starts once the first child published; each child started after these two counts in
+    ``restarts``; they back off from
     :data:`RESTART_MIN_DELAY` to :data:`RESTART_MAX_DELAY` (a child that keeps dying). The counters in the ring
     restart from zero with each active child: :meth:`counters` adds up every one's.
     """
@@ -602,11 +603,12 @@ class PublisherProcess:
         self._delay = RESTART_MIN_DELAY
         self._restart_at: float | None = None
         self._seen = (-1, -1, 0.0)  # (ring seq, its sent counter, when): the last time it had published more
+        self._first_standby = True  # the first standby is still to start (not a restart)
 
     def start(self) -> None:
-        """Start the active child and the standby (returns at once; they declare their publishers within ~0.1-1 s)."""
-        for _ in range(2):
-            self._adopt(self._launch())
+        """Start the active child (returns at once; it declares its publishers within ~0.1-1 s); :meth:`watch` starts
+        the standby once it published (not both at once: the NC's start would wait for two interpreters)."""
+        self._adopt(self._launch())
         self._watcher = threading.Thread(target=self._watch_exits, name="nc-publisher-watch", daemon=True)
         self._watcher.start()
 
@@ -739,13 +741,16 @@ class PublisherProcess:
             if due:
                 self._restart_at = None
                 self.restarts += 1
+            elif self._first_standby and self.active is not None and self.standby is None and \
+                    self.output.ring.counters().ready:
+                due, self._first_standby = True, False
         if due:
             self._adopt(self._launch())
         with self._lock:
             if self._stopping:
                 return
             now = time.monotonic()
-            if (self.active is None or self.standby is None) and self._restart_at is None:
+            if (self.active is None or self.standby is None) and self._restart_at is None and not self._first_standby:
                 # both had ended: the standby's turn comes after the back-off
                 self._restart_at = now + self._delay
                 self._delay = min(RESTART_MAX_DELAY, self._delay * 2)
