@@ -16,7 +16,8 @@ from nc_server.server.publisher import ACTIVE_COMM, STANDBY_COMM
 from znc_testing import NcServerProcess, NcTestClient, wait_until
 
 T = 30.0  # deadline [s] on a loaded 2-core machine
-#: the longest pause of the frames a failover may cause [NC cycles] (a restart instead: ~700)
+#: the longest pause of the frames a failover may cause once the killed publisher has ended [NC cycles]
+#: (a restart instead: ~560)
 GAP_BOUND = 50
 
 
@@ -250,15 +251,22 @@ class FrameCycles:
         return max(b - a for a, b in zip(window, window[1:]))
 
 
-def kill_active_publisher(nc: NcServerProcess, cl: NcTestClient, failovers: int) -> tuple[int, float]:
-    """Wait for a ready standby (stats), SIGKILL the active publisher; (its pid, when [s, monotonic])."""
+def kill_active_publisher(nc: NcServerProcess, cl: NcTestClient, failovers: int) -> tuple[int, float, float]:
+    """Wait for a ready standby (stats), SIGKILL the active publisher; (its pid, when [s, monotonic], how long
+    the kernel took to end it, as this process saw it [ms])."""
+    import select
     import time
     wait_until(lambda: (s := cl.stats()) is not None and s["publisher_standby"] and s["publisher_failovers"] == failovers,
                T, "a ready standby publisher")
     pid = wait_until(lambda: publisher_pids(nc.pid) or None, T, "the active publisher")[0]
-    t = time.monotonic()
-    os.kill(pid, signal.SIGKILL)
-    return pid, t
+    pidfd = os.pidfd_open(pid)  # (readable once it exited: the earliest the NC can know)
+    try:
+        t = time.monotonic()
+        os.kill(pid, signal.SIGKILL)
+        assert select.select([pidfd], [], [], T)[0], "the killed publisher did not end"
+        return pid, t, 1000 * (time.monotonic() - t)
+    finally:
+        os.close(pidfd)
 
 
 def test_a_killed_publisher_is_replaced_within_10_nc_cycles_and_every_move_goes_on(
@@ -273,7 +281,7 @@ def test_a_killed_publisher_is_replaced_within_10_nc_cycles_and_every_move_goes_
     nc = start_nc(extra_args=NC_ARGS)
     cl = nc_client(nc.port)
     frames = FrameCycles(cl)
-    kills: list[tuple[int, float]] = []
+    kills: list[tuple[int, float, float]] = []
     with PlcProcess(nc.endpoint, "plc-a") as plc:
         plc.wait_started(T)
         for axis in (1, 2):
@@ -294,12 +302,13 @@ def test_a_killed_publisher_is_replaced_within_10_nc_cycles_and_every_move_goes_
         for name in ("mv1", "mv2", "pw1", "pw2"):
             errors = [r for r in plc.history(name) if r.o.get("Error")]
             assert not errors, f"{name} reported an error (0x4B0F: stale NC data): {errors}"
-    gaps = [frames.largest_gap_around(t) for _, t in kills]
-    print(f"frame pauses at the kills: {gaps} NC cycles")
-    # The goal is 10 cycles: typically 6-14 here, most of it the kernel ending the killed process (6-27 ms on the
-    # loaded 2-core machine, where other NCs' SCHED_FIFO threads spin); the bound has a margin for that load and
-    # is still ~11x below the pause of a restart (~560 cycles).
-    assert max(gaps) <= GAP_BOUND, f"frames paused for {gaps} NC cycles at the kills (at most {GAP_BOUND})"
+    gaps = [(frames.largest_gap_around(t), exit_ms) for _, t, exit_ms in kills]
+    print(f"frame pauses at the kills [NC cycles], the kernel's time to end the killed publisher [ms]: {gaps}")
+    # The goal is 10 cycles: typically 7-14 here, most of it the kernel ending the killed process (6-28 ms, once
+    # 116 ms, on the loaded 2-core machine); nobody can take over before that, so the bound counts from then
+    # (1 cycle = 1 ms), with a margin for the load: still far below a restart's pause (~560 cycles).
+    assert all(gap <= GAP_BOUND + exit_ms for gap, exit_ms in gaps), \
+        f"frames paused for more than {GAP_BOUND} NC cycles after the killed publisher ended: {gaps}"
     st = wait_until(lambda: (s := cl.stats()) is not None and s["publisher_failovers"] == 2 and s, T, "2 failovers")
     assert nc.proc.poll() is None
     assert st["publisher_restarts"] >= 1 and "took over" in nc.stderr()
