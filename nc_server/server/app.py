@@ -538,5 +538,7 @@ class NcServer:
                   "frames_dropped": self._publisher_counters().dropped, "reply_errors": self.transport.reply_errors,
                   "publisher": self.config.publisher,
                   "publisher_restarts": self.publisher.restarts if self.publisher is not None else 0,
+                  "publisher_failovers": self.publisher.failovers if self.publisher is not None else 0,
+                  "publisher_standby": self.publisher.standby_ready if self.publisher is not None else False,
                   "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors})
         return d

@@ -13,7 +13,9 @@ memfd in the server):
 * header, :data:`HEADER_SIZE` bytes: Magic u32, Version u16, Slots u16, SlotSize u32, pad u32,
   Newest u64 (sequence number of the newest complete slot, 0 = none yet), Stop u32, pad u32;
   then the publisher's counters (written by the publisher only): Sent u64, Dropped u64,
-  PutErrors u64, Ready u32 (1 once its publishers are declared), pad u32;
+  PutErrors u64, Ready u32 (1 once its publishers are declared), pad u32; Published u64 (the sequence
+  number of the last slot the active publisher put: a standby publisher promoted after it died goes
+  on with the next one), then padding;
 * ``Slots`` slots of ``SlotSize`` bytes: Seq u64 (0 while being written), FrameLen u32,
   PlcLen u32, then the frame bytes, then the PLCTONC bytes.
 
@@ -34,10 +36,10 @@ from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
 __all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "frame_stamp", "slot_size_for"]
 
 RING_MAGIC = 0x4E435247  # "GRCN"
-RING_VERSION = 1
+RING_VERSION = 2
 #: Slots in the ring: the publisher has RING_SLOTS - 1 cycles to copy a slot out.
 RING_SLOTS = 16
-HEADER_SIZE = 64
+HEADER_SIZE = 128
 _SLOT_HEAD = struct.Struct("<QII")
 _HEAD = struct.Struct("<IHHII")
 _U64 = struct.Struct("<Q")
@@ -48,6 +50,7 @@ _OFF_SENT = 32
 _OFF_DROPPED = 40
 _OFF_PUT_ERRORS = 48
 _OFF_READY = 56
+_OFF_PUBLISHED = 64
 #: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
 _FRAME_HEADER = struct.Struct("<IHHQQHHI")
 assert _FRAME_HEADER.size == FRAME_HEADER_DTYPE.itemsize
@@ -204,6 +207,16 @@ class FrameRing:
             self._last_read = seq
             return seq, frame, plc, skipped
         return None
+
+    def resume_after_published(self) -> None:
+        """Read on from the slot after the last one published (by this or an earlier publisher): a
+        standby publisher promoted when the active one died puts the frame that one did not, not one
+        it did (unless it died within its put: then that frame goes out again)."""
+        self._last_read = _U64.unpack_from(self.mv, _OFF_PUBLISHED)[0]
+
+    def set_published(self, seq: int) -> None:
+        """Note that slot ``seq`` has been put (the active publisher only)."""
+        _U64.pack_into(self.mv, _OFF_PUBLISHED, seq)
 
     def set_counters(self, sent: int, dropped: int, put_errors: int, ready: bool) -> None:
         """Store the publisher's counters (the publisher only)."""

@@ -18,9 +18,14 @@ unix socket in a private directory, whatever the NC's listen endpoints and certi
 control, the NC admits that link by its protocol with the NC's own rules,
 :func:`nc_server.security.acl.with_local_publisher`); or, for an NC in client mode, of the NC's
 router(s), with the NC's certificate: on the wire it is the NC.
-The child ends with the NC (a lifeline pipe); the NC restarts a child that died or hung
-(:class:`PublisherProcess`). ``[nc] publisher = "thread"`` runs the same loop in a thread of the NC
-process instead (one interpreter: simpler to debug, but its puts hold the cycle thread's GIL).
+The child ends with the NC (a lifeline pipe). A second child stands by, fully started (session open,
+publishers declared) and blocked on its control socket (no CPU); when the active child dies the NC
+promotes the standby at once (it sees the exit on the child's pidfd) and the standby goes on with the
+frame after the last one put (the ring's Published): the frames pause for a few NC cycles, not for the
+~0.7 s a fresh interpreter and session take. The NC then starts a new standby, and replaces a child
+that hung, with back-off (:class:`PublisherProcess`). ``[nc] publisher = "thread"`` runs the same loop
+in a thread of the NC process instead (one interpreter: simpler to debug, but its puts hold the cycle
+thread's GIL).
 
 The ring relies on the eventfd's write/read pair to order the cycle's stores before the publisher's
 loads (a system call on both sides); the seqlock check only guards against a slot being rewritten while
@@ -36,6 +41,7 @@ import mmap
 import os
 import select
 import signal
+import socket
 import stat
 import subprocess
 import sys
@@ -69,6 +75,12 @@ READY_TIMEOUT = 15.0
 RESTART_MIN_DELAY = 0.1
 RESTART_MAX_DELAY = 5.0
 RESTART_RESET_AFTER = 10.0
+#: The children's process names (/proc/<pid>/comm, ps, top): the one that puts the frames, the one standing by.
+ACTIVE_COMM = "nc-publisher"
+STANDBY_COMM = "nc-pub-standby"
+#: Control messages on a child's socket: child -> NC "standing by" (publishers declared), NC -> child "publish".
+_MSG_READY = b"R"
+_MSG_GO = b"G"
 
 _HEADER = FRAME_HEADER_DTYPE.itemsize
 _NREC = NCTOPLC_DTYPE.itemsize
@@ -123,7 +135,6 @@ class FramePublisher:
                            for i, ms in enumerate(FRAME_PERIODS_MS)]
         self.nc_pubs = [declare(keys.axis_nctoplc(a), self.nc_matched, i) for i, a in enumerate(self.axis_ids)]
         self.pc_pubs = [declare(keys.axis_plctonc(a), self.pc_matched, i) for i, a in enumerate(self.axis_ids)]
-        self.ring.set_counters(0, 0, 0, True)
 
     def close(self) -> None:
         for d in reversed(self._decl):
@@ -138,9 +149,10 @@ class FramePublisher:
         got = self.ring.read_newest()
         if got is None:
             return False
-        _seq, frame, plc, skipped = got
+        seq, frame, plc, skipped = got
         self.dropped += skipped
         self.publish(frame, plc)
+        self.ring.set_published(seq)
         self.ring.set_counters(self.sent, self.dropped, self.put_errors, True)
         return True
 
@@ -183,6 +195,7 @@ class FramePublisher:
             wait: blocks until the writer signals or the timeout [s] passes; whether it signalled.
         """
         ring = self.ring
+        ring.set_counters(self.sent, self.dropped, self.put_errors, True)  # (ready: the counters are this publisher's)
         while True:
             wait(PARENT_CHECK)
             self.publish_newest()
@@ -218,16 +231,52 @@ class ParentGone(Exception):
     """The NC process ended (its end of the lifeline pipe closed)."""
 
 
+def _set_comm(name: str) -> None:
+    """Name this process (its main thread) for ps/top and /proc/<pid>/comm."""
+    try:
+        with open("/proc/self/comm", "w") as f:
+            f.write(name)
+    except OSError:
+        pass
+
+
+def _stand_by(ctl: socket.socket, lifeline: int) -> bool:
+    """Tell the NC this child is ready, then block (no CPU) until it says publish: True; False when the NC
+    closes the control socket (stop: end without publishing). Raises :class:`ParentGone` with the NC."""
+    _set_comm(STANDBY_COMM)
+    try:
+        ctl.sendall(_MSG_READY)
+    except OSError:
+        return False
+    poller = select.poll()
+    poller.register(ctl.fileno(), select.POLLIN)
+    poller.register(lifeline, select.POLLIN | select.POLLHUP)
+    while True:
+        events = poller.poll()
+        if any(f == lifeline for f, _ in events):
+            raise ParentGone
+        try:
+            return ctl.recv(1) == _MSG_GO
+        except BlockingIOError:
+            continue
+        except OSError:
+            return False
+
+
 def child_main(argv: Sequence[str] | None = None) -> int:
     """``python -m nc_server.server.publisher --spec JSON``: the NC's frame publisher (started by the NC).
 
-    It ends when the NC asks (the ring's stop flag, after the last frame) or when the NC process ends
+    It starts as a standby: session open, publishers declared, then blocked on its control socket until the
+    NC promotes it (:func:`_stand_by`); then it publishes from the frame after the last one put. It ends
+    when the NC asks (the ring's stop flag, after the last frame; a standby: its control socket closes)
+    or when the NC process ends
     (the lifeline pipe closes: a process-wide signal, unlike PR_SET_PDEATHSIG, which follows the
     *thread* that forked). Signals meant for the NC's process group (Ctrl-C, SIGTERM, SIGHUP) are
     ignored: the NC writes its last frame after them and then stops the publisher.
     """
     p = argparse.ArgumentParser(prog="nc-publisher")
-    p.add_argument("--spec", required=True, help="JSON: nc, axis_ids, ring_fd, event_fd, lifeline_fd, zenoh, nice")
+    p.add_argument("--spec", required=True,
+                   help="JSON: nc, axis_ids, ring_fd, event_fd, lifeline_fd, control_fd, zenoh, nice")
     args = p.parse_args(argv)
     spec = json.loads(args.spec)
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
@@ -246,11 +295,15 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     mm = mmap.mmap(int(spec["ring_fd"]), ring_bytes(len(axis_ids)))
     ring = FrameRing(memoryview(mm), len(axis_ids))
     wait = _eventfd_wait(int(spec["event_fd"]), int(spec["lifeline_fd"]))
+    ctl = socket.socket(fileno=int(spec["control_fd"]))
     settings = ZenohSettings(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in spec["zenoh"].items()})
     session = zenoh.open(zenoh_config(settings, spec["nc"]))
     pub = FramePublisher(session, Keys(spec["nc"]), axis_ids, ring)
     try:
-        pub.run(wait)
+        if _stand_by(ctl, int(spec["lifeline_fd"])):
+            _set_comm(ACTIVE_COMM)
+            ring.resume_after_published()
+            pub.run(wait)
     except ParentGone:
         pass
     finally:
@@ -258,6 +311,7 @@ def child_main(argv: Sequence[str] | None = None) -> int:
         ring.release()
         session.close()
         mm.close()
+        ctl.close()
     return 0
 
 
@@ -404,6 +458,8 @@ class PublisherThread:
     """
 
     restarts = 0
+    failovers = 0
+    standby_ready = False  # (no standby: the thread ends only with the NC)
 
     def __init__(self, output: FrameOutput, nc: str, axis_ids: Sequence[int], session: Any) -> None:
         self.output = output
@@ -460,22 +516,68 @@ def _normal_while_forking(nice: int) -> Iterator[None]:
                 pass
 
 
+class _Child:
+    """One publisher child as the NC sees it: its process, its pidfd (readable once it exited) and the NC's
+    end of its control socket."""
+
+    def __init__(self, proc: subprocess.Popen[bytes], ctl: socket.socket) -> None:
+        self.proc = proc
+        self.ctl = ctl
+        try:
+            self.pidfd: int | None = os.pidfd_open(proc.pid)
+        except (OSError, AttributeError):  # (no pidfd: watch() notices the exit within ~0.1 s)
+            self.pidfd = None
+        self.ready = False  # it stood by: session open, publishers declared
+        self.since = time.monotonic()  # started, or promoted [s]
+
+    def poll_ready(self) -> bool:
+        """Whether it said it stands by (never blocks)."""
+        if not self.ready:
+            try:
+                self.ready = self.ctl.recv(1) == _MSG_READY
+            except OSError:  # (BlockingIOError: not yet)
+                pass
+        return self.ready
+
+    def promote(self) -> None:
+        """Tell it to publish (it does once it stands by, at once if it does already)."""
+        self.since = time.monotonic()
+        try:
+            self.ctl.send(_MSG_GO)
+        except OSError:  # it died: its exit is handled like any other
+            pass
+
+    def close(self) -> None:
+        """Close the NC's ends (a standby that still runs ends when its control socket closes)."""
+        with contextlib.suppress(OSError):
+            self.ctl.close()
+        if self.pidfd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self.pidfd)
+            self.pidfd = None
+
+
 class PublisherProcess:
-    """The frame publisher as a child process (``publisher = "process"``, the default).
+    """The frame publisher as child processes (``publisher = "process"``, the default): one active, one standby.
 
     Args:
-        output: the server's frames (the child maps the same memfd and waits on the same eventfd).
+        output: the server's frames (the children map the same memfd and wait on the same eventfd).
         nc, axis_ids: the NC.
-        settings: the NC's ZenohSettings (the child's session: :func:`publisher_settings`).
-        internal: the NC session's internal endpoint for the child (router/peer mode), None in client mode.
-        nice: the child's nice value (the NC's zenoh threads' by default: ahead of the PLC clients).
-        log_level: the child's logging level.
+        settings: the NC's ZenohSettings (the children's sessions: :func:`publisher_settings`).
+        internal: the NC session's internal endpoint for the children (router/peer mode), None in client mode.
+        nice: the children's nice value (the NC's zenoh threads' by default: ahead of the PLC clients).
+        log_level: the children's logging level.
 
-    The child ends with the NC (the lifeline pipe). :meth:`watch` (the NC's I/O thread, about every 0.1 s)
-    restarts one that exited, and kills and restarts one that published nothing for :data:`STALL_TIMEOUT`
-    while the cycle wrote frames (hung, or stopped with SIGSTOP); restarts back off from 0.1 s to
-    :data:`RESTART_MAX_DELAY`. Its counters in the ring restart from zero with each child: :meth:`counters`
-    adds up every child's.
+    Both children start alike (a session like the NC's, publishers declared) and stand by; the NC promotes
+    one: only the active child puts frames. When it exits (killed, crashed) a thread of the NC blocked on its
+    pidfd promotes the standby at once (``failovers``); the standby goes on with the frame after the last one
+    put. :meth:`watch` (the NC's I/O thread, about every 0.1 s) starts a new standby for a child that ended,
+    kills and replaces an active child that published nothing for :data:`STALL_TIMEOUT` while the cycle wrote
+    frames (hung, or stopped with SIGSTOP), and falls back to promoting on its own when there is no pidfd.
+    The first standby starts once the first child published; each child started after these two counts in
+    ``restarts``; they back off from
+    :data:`RESTART_MIN_DELAY` to :data:`RESTART_MAX_DELAY` (a child that keeps dying). The counters in the ring
+    restart from zero with each active child: :meth:`counters` adds up every one's.
     """
 
     def __init__(self, output: FrameOutput, nc: str, axis_ids: Sequence[int], settings: Any,
@@ -487,89 +589,211 @@ class PublisherProcess:
         self.internal = internal
         self.nice = nice
         self.log_level = log_level
-        self.proc: subprocess.Popen[bytes] | None = None
+        self.active: _Child | None = None
+        self.standby: _Child | None = None
         self.restarts = 0
+        self.failovers = 0
         self._stopping = False
-        self._lifeline_r, self._lifeline_w = os.pipe()  # (both close-on-exec: only the child gets the read end)
-        self._base = (0, 0, 0)  # the counters of the children before this one
+        # (re-entrant: _ended runs under it from watch() and from the exit watcher, _adopt takes it itself)
+        self._lock = threading.RLock()
+        self._lifeline_r, self._lifeline_w = os.pipe()  # (both close-on-exec: only the children get the read end)
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)  # wakes the exit watcher
+        self._watcher: threading.Thread | None = None
+        self._base = (0, 0, 0)  # the counters of the active children before this one
         self._delay = RESTART_MIN_DELAY
         self._restart_at: float | None = None
-        self._started_at = 0.0
         self._seen = (-1, -1, 0.0)  # (ring seq, its sent counter, when): the last time it had published more
+        self._first_standby = True  # the first standby is still to start (not a restart)
 
     def start(self) -> None:
-        """Start the child (returns at once; it declares its publishers within ~0.1-1 s)."""
-        o = self.output
-        spec = {"nc": self.nc, "axis_ids": self.axis_ids, "ring_fd": o.memfd, "event_fd": o.eventfd,
-                "lifeline_fd": self._lifeline_r, "zenoh": publisher_settings(self.settings, self.internal),
-                "nice": self.nice, "log_level": self.log_level}
-        with _normal_while_forking(self.nice):
-            self.proc = subprocess.Popen([sys.executable, "-m", "nc_server.server.publisher", "--spec", json.dumps(spec)],
-                                         pass_fds=(o.memfd, o.eventfd, self._lifeline_r), stdin=subprocess.DEVNULL)
-        self._started_at = time.monotonic()
-        self._seen = (self.output.ring.seq, 0, self._started_at)
+        """Start the active child (returns at once; it declares its publishers within ~0.1-1 s); :meth:`watch` starts
+        the standby once it published (not both at once: the NC's start would wait for two interpreters)."""
+        self._adopt(self._launch())
+        self._watcher = threading.Thread(target=self._watch_exits, name="nc-publisher-watch", daemon=True)
+        self._watcher.start()
+
+    @property
+    def proc(self) -> subprocess.Popen[bytes] | None:
+        """The active child's process (the last one after :meth:`stop`)."""
+        return self.active.proc if self.active is not None else None
 
     @property
     def pid(self) -> int | None:
         return self.proc.pid if self.proc is not None else None
 
+    @property
+    def standby_ready(self) -> bool:
+        """A standby child stands by, ready to take over."""
+        with self._lock:
+            return self.standby is not None and self.standby.poll_ready()
+
     def counters(self) -> RingCounters:
-        """Every child's counters added up; ``ready`` of the current one."""
+        """Every active child's counters added up; ``ready`` of the current one."""
         c = self.output.ring.counters()
         b = self._base
         return RingCounters(b[0] + c.sent, b[1] + c.dropped, b[2] + c.put_errors, c.ready)
 
-    def watch(self) -> None:
-        """Restart the child if it exited or stalled (see the class docstring)."""
-        p = self.proc
-        if self._stopping or p is None:
+    def _launch(self) -> _Child:
+        """Start a child process (without the lock: a failover never waits for a fork)."""
+        o = self.output
+        ours, theirs = socket.socketpair()
+        spec = {"nc": self.nc, "axis_ids": self.axis_ids, "ring_fd": o.memfd, "event_fd": o.eventfd,
+                "lifeline_fd": self._lifeline_r, "control_fd": theirs.fileno(),
+                "zenoh": publisher_settings(self.settings, self.internal), "nice": self.nice, "log_level": self.log_level}
+        try:
+            with _normal_while_forking(self.nice):
+                proc = subprocess.Popen([sys.executable, "-m", "nc_server.server.publisher", "--spec", json.dumps(spec)],
+                                        pass_fds=(o.memfd, o.eventfd, self._lifeline_r, theirs.fileno()),
+                                        stdin=subprocess.DEVNULL)
+        except BaseException:
+            ours.close()
+            raise
+        finally:
+            theirs.close()
+        ours.setblocking(False)
+        return _Child(proc, ours)
+
+    def _adopt(self, child: _Child) -> None:
+        """Make a started child the active one (promoted at once) when there is none, else the standby."""
+        with self._lock:
+            if not self._stopping:
+                if self.active is None:
+                    self._promote(child)
+                else:
+                    self.standby = child
+                self._wake()
+                return
+        child.close()  # (stopping meanwhile: it ends once it stands by, or is killed)
+        try:
+            child.proc.wait(READY_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            child.proc.kill()
+            child.proc.wait()
+
+    def _promote(self, child: _Child) -> None:
+        """Make ``child`` the active publisher (lock held; the ring's counters were reset)."""
+        self.active = child
+        child.promote()
+        self._seen = (self.output.ring.seq, 0, child.since)
+
+    def _ended(self, child: _Child) -> None:
+        """``child`` exited (or was killed): the standby takes over from an active one; a new standby is due
+        after the back-off (lock held; nothing if it was handled already)."""
+        if self._stopping or child not in (self.active, self.standby):
             return
-        now = time.monotonic()
-        if self._restart_at is not None:
-            if now >= self._restart_at:
+        rc = child.proc.wait()  # (it has exited: reaped at once)
+        child.close()
+        delay = self._delay
+        if child is self.active:
+            c = self.output.ring.counters()
+            self._base = (self._base[0] + c.sent, self._base[1] + c.dropped, self._base[2] + c.put_errors)
+            self.output.ring.set_counters(0, 0, 0, False)
+            self.active, nxt, self.standby = None, self.standby, None
+            if nxt is not None:
+                self.failovers += 1
+                self._promote(nxt)
+                log.error("the frame publisher (pid %d) ended with %s: the standby (pid %d) took over; "
+                          "restarting it as the standby in %.1f s", child.proc.pid, rc, nxt.proc.pid, delay)
+            else:
+                log.error("the frame publisher (pid %d) ended with %s and no standby is left: restarting it in %.1f s "
+                          "(clients miss frames meanwhile)", child.proc.pid, rc, delay)
+        else:
+            self.standby = None
+            log.error("the standby frame publisher (pid %d) ended with %s: restarting it in %.1f s",
+                      child.proc.pid, rc, delay)
+        if self._restart_at is None:
+            self._restart_at = time.monotonic() + delay
+            self._delay = min(RESTART_MAX_DELAY, self._delay * 2)
+        self._wake()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+
+    def _watch_exits(self) -> None:
+        """Thread: block on the children's pidfds (and the wake pipe); an exit is handled the moment it happens."""
+        while True:
+            with self._lock:
+                if self._stopping:
+                    return
+                kids = {c.pidfd: c for c in (self.active, self.standby) if c is not None and c.pidfd is not None}
+            poller = select.poll()
+            poller.register(self._wake_r, select.POLLIN)
+            for fd in kids:
+                poller.register(fd, select.POLLIN)
+            for fd, _ in poller.poll():
+                if fd == self._wake_r:
+                    with contextlib.suppress(OSError):
+                        os.read(self._wake_r, 4096)
+                elif fd in kids:
+                    with self._lock:
+                        self._ended(kids[fd])
+
+    def watch(self) -> None:
+        """Start the due standby, replace a stalled active child (see the class docstring); I/O thread."""
+        with self._lock:
+            if self._stopping:
+                return
+            for child in (self.active, self.standby):
+                if child is not None and child.proc.poll() is not None:  # (the exit watcher's fallback)
+                    self._ended(child)
+            due = self._restart_at is not None and time.monotonic() >= self._restart_at
+            if due:
                 self._restart_at = None
                 self.restarts += 1
-                self.start()
-            return
-        if p.poll() is None:
+            elif self._first_standby and self.active is not None and self.standby is None and \
+                    self.output.ring.counters().ready:
+                due, self._first_standby = True, False
+        if due:
+            self._adopt(self._launch())
+        with self._lock:
+            if self._stopping:
+                return
+            now = time.monotonic()
+            if (self.active is None or self.standby is None) and self._restart_at is None and not self._first_standby:
+                # both had ended: the standby's turn comes after the back-off
+                self._restart_at = now + self._delay
+                self._delay = min(RESTART_MAX_DELAY, self._delay * 2)
+            if self.standby is not None:
+                self.standby.poll_ready()
+            a = self.active
+            if a is None:
+                return
             c = self.output.ring.counters()
             seq = self.output.ring.seq
             if c.sent != self._seen[1]:  # it published since: progress
                 self._seen = (seq, c.sent, now)
-            if c.ready and now - self._seen[2] > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
+            # (ready: it published, or it stood by before it was promoted, e.g. a standby stopped with SIGSTOP)
+            if (c.ready or a.poll_ready()) and now - self._seen[2] > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
                 log.error("the frame publisher (pid %d) published nothing for %.1f s (%d frames written; %s): "
-                          "killing it", p.pid, now - self._seen[2], seq - self._seen[0], c)
-                p.kill()
-                p.wait()
-            else:
-                if c.ready and now - self._started_at > RESTART_RESET_AFTER:
-                    self._delay = RESTART_MIN_DELAY
-                return
-        c = self.output.ring.counters()
-        self._base = (self._base[0] + c.sent, self._base[1] + c.dropped, self._base[2] + c.put_errors)
-        self.output.ring.set_counters(0, 0, 0, False)
-        log.error("the frame publisher (pid %d) ended with %s: restarting it in %.1f s (clients miss frames meanwhile)",
-                  p.pid, p.returncode, self._delay)
-        self._restart_at = now + self._delay
-        self._delay = min(RESTART_MAX_DELAY, self._delay * 2)
+                          "killing it", a.proc.pid, now - self._seen[2], seq - self._seen[0], c)
+                a.proc.kill()
+                self._ended(a)
+            elif c.ready and now - a.since > RESTART_RESET_AFTER and self.standby is not None:
+                self._delay = RESTART_MIN_DELAY
 
     def stop(self, timeout: float = 3.0) -> None:
-        """Let the child publish the last frame written and end (killed after ``timeout``)."""
-        self._stopping = True
+        """Let the active child publish the last frame written and end, end the standby (killed after ``timeout``)."""
+        with self._lock:
+            self._stopping = True
+            children = [c for c in (self.active, self.standby) if c is not None]
+        self._wake()
+        if self._watcher is not None:
+            self._watcher.join(timeout)
         self.output.ring.request_stop()
         self.output.signal()
-        p = self.proc
-        if p is not None:
+        if self.standby is not None:
+            self.standby.close()  # (its control socket closes: it ends)
+        for child in children:
             try:
-                p.wait(timeout)
+                child.proc.wait(timeout)
             except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-        for fd in (self._lifeline_r, self._lifeline_w):
-            try:
+                child.proc.kill()
+                child.proc.wait()
+            child.close()
+        for fd in (self._lifeline_r, self._lifeline_w, self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
                 os.close(fd)
-            except OSError:
-                pass
 
 
 if __name__ == "__main__":

@@ -96,3 +96,21 @@ def test_stop_and_counters_go_through_the_header() -> None:
     assert w.counters() == type(w.counters())(7, 2, 1, True)
     w.request_stop()
     assert r.stop_requested
+
+
+def test_a_promoted_reader_goes_on_after_the_last_slot_published() -> None:
+    """A standby publisher promoted after the active one died neither repeats the frame that one put nor
+    skips the newest one it did not."""
+    w, active = _pair(2)
+    standby = FrameRing(w.mv, 2, 4)  # (mapped at its start, long before it is promoted)
+    recs = np.zeros(2, dtype=NCTOPLC_DTYPE)
+    for c in range(3):
+        w.write(c, c, recs)
+    got = active.read_newest()
+    assert got is not None
+    active.set_published(got[0])  # ... and then it dies
+    standby.resume_after_published()
+    assert standby.read_newest() is None  # nothing new since: no frame twice
+    seq = w.write(3, 3, recs)
+    got = standby.read_newest()
+    assert got is not None and got[0] == seq and got[3] == 0
