@@ -120,7 +120,7 @@ MAX_NOTIFICATION_FRAME = 1024 * 1024  # a tick's samples are split into frames o
 NOTIFY_PAUSE_BUFFER = 64 * 1024       # a connection with more unsent than this (ours and the kernel's) gets no
                                       # samples: it drops them
 NOTIFY_BUDGET_SHARE = 0.3             # a sampling round starts no further connection after this share of a tick
-INLINE_BATCH = 16                     # requests run on the loop before it serves other connections
+INLINE_BATCH = 4                       # requests run on the loop before it serves other connections
 MAX_SAMPLES_PER_VISIT = 128           # samples one connection gets per round (the rest are due in the next)
 SOCKET_SEND_BUFFER = 128 * 1024       # SO_SNDBUF: no kernel autotuning to 4 MiB per connection
 
