@@ -61,23 +61,35 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   (1024) per connection (then 0x716); an unknown handle on delete -> 0x714. A notification on a
   symbol handle (0xF005/handle, what pyads does for a name) follows the symbol the handle had when it
   was added; other 0xFxxx groups -> 0x701. A connection's
-  subscriptions end when it closes. A client that does not read its socket gets no samples while more
-  than `MAX_WRITE_BUFFER` / 4 (2 MiB) wait to be sent to it, and its requests are not read while more
-  than `MAX_WRITE_BUFFER` (8 MiB) wait (until half of that is sent); other connections go on.
+  subscriptions end when it closes. Sampling is bounded and fair, so that no client can deny service to
+  the others (issue 18; `AdsServer._round`): each distinct (device, group, offset, length) is sampled
+  once per round and shared by every subscription of every connection; connections asking for fewer
+  samples per tick go first; a connection gets at most `MAX_SAMPLES_PER_VISIT` (128) samples per round
+  and the loop serves requests between two connections; after `NOTIFY_BUDGET_SHARE` (30 %) of a tick no
+  further connection is started (what was left out is due in the next round: late, not lost). A client
+  that does not read its socket is not sampled at all while more than `NOTIFY_PAUSE_BUFFER` (64 KiB)
+  wait to be sent to it (`_unsent`: ours and the kernel's send queue): the samples it misses are dropped, counted (`Session.samples_dropped`,
+  `AdsServer.samples_dropped`, in the connection's "closed" log line) and logged once per connection;
+  its requests are not read while more than `MAX_WRITE_BUFFER` (8 MiB) wait (until half of that is
+  sent); other connections go on.
+- `close()` returns within about `SHUTDOWN_WAIT_S` (2 s) whatever the clients do (nc-ads must end within
+  5 s of SIGTERM; its cli releases the NC's axes before, on its own thread).
 - At most `MAX_CONNECTIONS` (256) TCP connections at once; more are closed at once and logged.
 """
 from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import fcntl
 import ipaddress
 import itertools
 import logging
 import socket
 import struct
+import termios
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 from nc_ads import ams
@@ -97,6 +109,7 @@ MAX_NOTIFICATIONS = 1024            # per connection
 MAX_SYMBOL_HANDLES = 4096           # per connection
 MAX_NOTIFICATION_LENGTH = 65536     # bytes per subscription
 MIN_TICK_MS = 1.0
+SHUTDOWN_WAIT_S = 2.0               # AdsServer.close() waits at most about this long
 DEFAULT_TICK_MS = 10.0
 FIRST_SAMPLE_DELAY_S = 0.010
 ONCHANGE_REPEAT_S = 1.0
@@ -104,6 +117,12 @@ MAX_INFLIGHT_PER_CONNECTION = 64
 MAX_WRITE_BUFFER = 8 * 1024 * 1024
 MAX_CONNECTIONS = 256
 MAX_NOTIFICATION_FRAME = 1024 * 1024  # a tick's samples are split into frames of about this size
+NOTIFY_PAUSE_BUFFER = 64 * 1024       # a connection with more unsent than this (ours and the kernel's) gets no
+                                      # samples: it drops them
+NOTIFY_BUDGET_SHARE = 0.3             # a sampling round starts no further connection after this share of a tick
+INLINE_BATCH = 4                       # requests run on the loop before it serves other connections
+MAX_SAMPLES_PER_VISIT = 128           # samples one connection gets per round (the rest are due in the next)
+SOCKET_SEND_BUFFER = 128 * 1024       # SO_SNDBUF: no kernel autotuning to 4 MiB per connection
 
 _U32 = struct.Struct("<I")
 _SUM_GROUPS = (ams.IG_SUMUP_READ, ams.IG_SUMUP_WRITE, ams.IG_SUMUP_READWRITE)
@@ -217,9 +236,39 @@ class Session:
         self.sym_handles: dict[int, tuple[AdsDevice, str, Symbol]] = {}
         self._next_sym = itertools.count(1)
         self.subs: dict[int, Subscription] = {}
+        self.load = 0.0            # samples per tick its subscriptions ask for (sampling rounds serve light ones first)
+        self.next_sub = 0          # where its next visit starts among its subscriptions (round robin)
         self._may_write: dict[str, bool] = {}
         self.devices_used: set[int] = set()   # id() of devices this connection talked to
-        self.throttled = False
+        self.throttled = False     # behind (NOTIFY_PAUSE_BUFFER): not sampled
+        self.warned_behind = False  # logged once per connection
+        self.samples_dropped = 0   # samples due while it was behind (NOTIFY_PAUSE_BUFFER): never sampled, never sent
+
+    def add_sub(self, sub: Subscription) -> None:
+        self.subs[sub.handle] = sub
+        self.load += 1.0 / sub.cycle_ticks
+
+    def remove_sub(self, handle: int) -> bool:
+        sub = self.subs.pop(handle, None)
+        if sub is None:
+            return False
+        self.load = max(0.0, self.load - 1.0 / sub.cycle_ticks) if self.subs else 0.0
+        return True
+
+
+def _unsent(writer: asyncio.StreamWriter) -> int:
+    """Bytes written to a connection and not yet taken by its client: the transport's buffer plus the
+    kernel's send queue (SIOCOUTQ; on loopback the kernel's grows only once the client's window is full).
+    A client that does not read is found behind after its receive window and NOTIFY_PAUSE_BUFFER, not after
+    megabytes of kernel buffers."""
+    n = writer.transport.get_write_buffer_size()
+    sock = writer.get_extra_info("socket")
+    if sock is not None:
+        try:
+            n += struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+        except (OSError, ValueError):   # closed meanwhile, or no SIOCOUTQ here: the transport's alone
+            pass
+    return n
 
 
 def _clip(data: bytes, length: int, device: AdsDevice, what: str, group: int, offset: int) -> bytes:
@@ -330,7 +379,7 @@ class Dispatcher:
         if cmd == Command.ADD_DEVICE_NOTIFICATION:
             return self._add_notification(req, pkt, device, session)
         if cmd == Command.DEL_DEVICE_NOTIFICATION:
-            if session.subs.pop(req.handle, None) is None:
+            if not session.remove_sub(req.handle):
                 return ams.ResultOnly(ADSERR_DEVICE_NOTIFYHNDINVALID)
             return ams.ResultOnly(0)
         src = self._source(pkt, session)
@@ -526,31 +575,80 @@ class Dispatcher:
             return ams.AddNotificationResponse(self._code(exc, dev, "sample"), 0)
         ticks = max(1, round(req.cycle_time * 1e-7 / self.tick_s))
         handle = next(self._handles) % 0xFFFFFFFF + 1   # unique in this server, never 0
-        session.subs[handle] = Subscription(
+        session.add_sub(Subscription(
             handle, pkt.header.source, pkt.header.target, dev, group, offset, req.length,
-            req.trans_mode, ticks, self.clock() + FIRST_SAMPLE_DELAY_S)
+            req.trans_mode, ticks, self.clock() + FIRST_SAMPLE_DELAY_S))
         return ams.AddNotificationResponse(0, handle)
 
-    def collect(self, session: Session, tick: int, now: float, filetime: int,
-                only_on_change: bool = False) -> list[bytes]:
-        """The DeviceNotification frames due for `session` at tick number `tick` (monotonic `now`);
-        `only_on_change`: ServerOnChange subscriptions only (a push on the device's new image)."""
-        batches: dict[tuple[AmsAddr, AmsAddr], list[ams.Sample]] = {}
-        for sub in list(session.subs.values()):
+    @staticmethod
+    def _due(session: Session, tick: int, now: float, only_on_change: bool,
+             limit: int | None) -> Iterator[Subscription]:
+        """At most `limit` subscriptions of `session` due at `tick` (their next tick moves on as they are
+        taken), from where its last visit stopped: a limit delays its other ones, never the same ones."""
+        subs = list(session.subs.values())
+        start = session.next_sub % len(subs) if subs else 0
+        taken = 0
+        for k in range(len(subs)):
+            sub = subs[(start + k) % len(subs)]
             if only_on_change and sub.trans_mode != ams.TRANS_SERVERONCHA:
                 continue
             if now < sub.not_before or tick < sub.next_tick:
                 continue
+            if limit is not None and taken >= limit:
+                session.next_sub = start + k
+                return
+            taken += 1
             sub.next_tick = tick + sub.cycle_ticks
-            try:
-                data = bytes(sub.device.sample(sub.group, sub.offset, sub.length))
-            except AdsError:
-                continue          # not available this tick (e.g. the NC went away): nothing to send
-            except Exception as exc:
-                log.error("device %s: sample raised %r", sub.device.name, exc, exc_info=exc)
+            yield sub
+
+    @staticmethod
+    def drop_missed(session: Session, tick: int) -> int:
+        """Count the samples `session` missed before `tick` (it was behind: they were never sampled) in
+        ``session.samples_dropped``; each subscription keeps its cycle (its next tick is the first of its
+        ticks from `tick` on). Returns how many."""
+        n = 0
+        for sub in session.subs.values():
+            missed = -((sub.next_tick - tick) // sub.cycle_ticks)   # its due ticks before `tick` (ceil)
+            if missed > 0:
+                n += missed
+                sub.next_tick += missed * sub.cycle_ticks
+        session.samples_dropped += n
+        return n
+
+    @staticmethod
+    def _sample(sub: Subscription, cache: dict[tuple, bytes | None]) -> bytes | None:
+        """`sub`'s bytes (exactly its length, pitfall 4), None if the device has none now. `cache` holds
+        one round's samples: each distinct (device, group, offset, length) is sampled once per round,
+        however many subscriptions (of however many connections) ask for it."""
+        key = (id(sub.device), sub.group, sub.offset, sub.length)
+        if key in cache:
+            return cache[key]
+        data: bytes | None = None
+        try:
+            data = bytes(sub.device.sample(sub.group, sub.offset, sub.length))
+        except AdsError:
+            pass          # not available this tick (e.g. the NC went away): nothing to send
+        except Exception as exc:
+            log.error("device %s: sample raised %r", sub.device.name, exc, exc_info=exc)
+        if data is not None and len(data) != sub.length:
+            data = data[:sub.length].ljust(sub.length, b"\0")
+        cache[key] = data
+        return data
+
+    def collect(self, session: Session, tick: int, now: float, filetime: int,
+                only_on_change: bool = False, cache: dict[tuple, bytes | None] | None = None,
+                limit: int | None = None) -> list[bytes]:
+        """The DeviceNotification frames due for `session` at tick number `tick` (monotonic `now`);
+        `only_on_change`: ServerOnChange subscriptions only (a push on the device's new image); `cache`:
+        the samples already taken in this round (shared by the connections of one round); `limit`: at
+        most this many subscriptions (the others stay due)."""
+        if cache is None:
+            cache = {}
+        batches: dict[tuple[AmsAddr, AmsAddr], list[ams.Sample]] = {}
+        for sub in self._due(session, tick, now, only_on_change, limit):
+            data = self._sample(sub, cache)
+            if data is None:
                 continue
-            if len(data) != sub.length:   # pitfall 4: exactly the subscribed size
-                data = data[:sub.length].ljust(sub.length, b"\0")
             if sub.trans_mode == ams.TRANS_SERVERONCHA and sub.last is not None:
                 if data != sub.last:
                     sub.repeated = True
@@ -613,6 +711,8 @@ class AdsServer:
         self._tick = 0                 # the notifier's last tick number (loop thread only)
         self._push_pending = False     # a push is scheduled on the loop (coalesces a burst of images)
         self.pushes = 0                # pushes that sent samples (tests, bench)
+        self._rr = 0                   # where the next sampling round starts (round robin over connections)
+        self.samples_dropped = 0       # samples not sent because their connection was behind (all connections)
 
     @property
     def bound_address(self) -> tuple[str, int]:
@@ -678,26 +778,35 @@ class AdsServer:
 
     def close(self) -> None:
         """Stop listening, close every connection, wait for running device calls (bounded by the
-        devices' own timeouts). Idempotent."""
+        devices' own timeouts, and in all by about SHUTDOWN_WAIT_S: nc-ads must exit within 5 s of
+        SIGTERM, whatever its clients do). Idempotent."""
         loop, thread = self._loop, self._thread
         if loop is None or thread is None or self._stopping:
             return
         self._stopping = True
+        end = time.monotonic() + SHUTDOWN_WAIT_S
         if thread.is_alive():
             try:
                 fut = asyncio.run_coroutine_threadsafe(self._shutdown(), loop)
-                fut.result(timeout=10)
+                fut.result(timeout=SHUTDOWN_WAIT_S)
             except (concurrent.futures.TimeoutError, RuntimeError):
-                log.warning("ADS server shutdown timed out")
-            loop.call_soon_threadsafe(loop.stop)
-            thread.join(timeout=10)
-        self._pool.shutdown(wait=True, cancel_futures=True)
+                log.warning("ADS server shutdown timed out after %.0f s", SHUTDOWN_WAIT_S)
+            try:
+                loop.call_soon_threadsafe(loop.stop)
+            except RuntimeError:   # the loop already closed
+                pass
+            thread.join(timeout=max(0.1, end - time.monotonic()))
+        # device calls still running end by their own timeouts in the (daemon) worker threads
+        self._pool.shutdown(wait=not thread.is_alive() and time.monotonic() < end, cancel_futures=True)
 
     async def _shutdown(self) -> None:
         if self._server is not None:
             self._server.close()
         for session, writer in list(self._sessions.values()):
-            writer.close()
+            if _unsent(writer) > NOTIFY_PAUSE_BUFFER:
+                writer.transport.abort()   # a client that does not read: flushing to it would never end
+            else:
+                writer.close()
         tasks = [t for t in self._tasks if t is not asyncio.current_task()]
         for t in tasks:
             t.cancel()
@@ -727,6 +836,7 @@ class AdsServer:
         if sock is not None:
             try:
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SEND_BUFFER)
             except OSError:
                 pass
         session = Session(next(self._conn_ids), peer)
@@ -747,9 +857,11 @@ class AdsServer:
                 except ams.FrameError as exc:
                     log.warning("ADS connection %d from %s: %s; closing it", session.conn_id, peer, exc)
                     broken, packets = exc, exc.packets   # answer the whole frames before it, then close
-                for pkt in packets:
+                for k, pkt in enumerate(packets, 1):
                     if self.dispatcher.runs_inline(pkt, session):
                         self._send(writer, self._safe_handle(pkt, session))
+                        if k % INLINE_BATCH == 0:
+                            await asyncio.sleep(0)   # a burst of requests (1000 adds in one read) lets others in
                         continue
                     await inflight.acquire()
                     fut = loop.run_in_executor(self._pool, self._safe_handle, pkt, session)
@@ -777,13 +889,17 @@ class AdsServer:
             log.error("ADS connection %d from %s: %r; closing it", session.conn_id, peer, exc, exc_info=exc)
         finally:
             self._sessions.pop(session.conn_id, None)
+            if session.throttled:
+                self._count_dropped(session, self._tick)
+            freed = len(session.subs)
             session.subs.clear()
             with session.lock:
                 session.sym_handles.clear()
+            log.info("ADS connection %d from %s closed: %d notifications freed, %d samples dropped",
+                     session.conn_id, peer, freed, session.samples_dropped)
             if pending:   # replies of requests already read still go out (then the close sends them)
                 await asyncio.gather(*pending, return_exceptions=True)
             writer.close()
-            log.info("ADS connection %d from %s closed", session.conn_id, peer)
             self._connection_closed(session)
 
     def _connection_closed(self, session: Session) -> None:
@@ -831,27 +947,16 @@ class AdsServer:
             self._push_pending = False
 
     def _push(self) -> None:
-        self._push_pending = False
         if self._stopping:
+            self._push_pending = False
             return
-        # the push counts as the next tick's check: a subscription is checked at most once per cycle
-        tick = self._tick + 1
-        now = time.monotonic()
-        filetime = ams.filetime_now()
-        pushed = False
-        for session, writer in list(self._sessions.values()):
-            if not session.subs or writer.is_closing() or session.throttled:
-                continue
-            try:
-                frames = self.dispatcher.collect(session, tick, now, filetime, only_on_change=True)
-            except Exception as exc:
-                log.error("notifications of connection %d: %r", session.conn_id, exc, exc_info=exc)
-                continue
-            if frames and not pushed:
-                pushed = True
-                self.pushes += 1   # before the write: a client may look at it as soon as the frame arrived
-            for frame in frames:
-                writer.write(frame)
+        self._spawn(self._push_round())
+
+    async def _push_round(self) -> None:
+        try:   # the push counts as the next tick's check: a subscription is checked at most once per cycle
+            await self._round(self._tick + 1, only_on_change=True)
+        finally:
+            self._push_pending = False   # images that arrived meanwhile: the next tick samples them
 
     async def _notifier(self) -> None:
         loop = asyncio.get_running_loop()
@@ -862,28 +967,64 @@ class AdsServer:
             self._tick = tick
             deadline = start + tick * self.tick_s
             delay = deadline - loop.time()
-            if delay > 0:
-                await asyncio.sleep(delay)
-            elif delay < -self.tick_s:   # late by more than a tick (loaded machine): skip, no burst
+            if delay < -self.tick_s:   # late by more than a tick (loaded machine): skip, no burst
                 tick = self._tick = int((loop.time() - start) / self.tick_s)
-            if not any(s.subs for s, _ in self._sessions.values()):
+            await asyncio.sleep(max(0.0, delay))   # always yields: requests go on even when a round is late
+            if any(s.subs for s, _ in self._sessions.values()):
+                await self._round(tick, only_on_change=False)
+
+    async def _round(self, tick: int, only_on_change: bool) -> None:
+        """One sampling round over the connections, fair and bounded (docs/ads.md "A slow or hostile client"):
+        - each distinct (device, group, offset, length) is sampled once per round (a shared cache);
+        - connections asking for fewer samples per tick go first (a client with a few notifications is
+          never queued behind one with a thousand), equal ones in round robin;
+        - a connection gets at most MAX_SAMPLES_PER_VISIT samples per round, the loop serves other work
+          between two connections, and after NOTIFY_BUDGET_SHARE of a tick no further connection is
+          started: what was left out is due in the next round (late, not lost);
+        - a connection with more than NOTIFY_PAUSE_BUFFER unsent is not sampled at all (no cost to anyone
+          else); what it missed is counted as dropped when it catches up or closes, logged once.
+        The push (`only_on_change`) does not move the round robin."""
+        sessions = list(self._sessions.values())
+        if not sessions:
+            return
+        first = self._rr % len(sessions)
+        order = sorted(sessions[first:] + sessions[:first], key=lambda sw: sw[0].load)   # stable: ties rotate
+        now = time.monotonic()
+        filetime = ams.filetime_now()
+        cache: dict[tuple, bytes | None] = {}
+        budget_end = time.perf_counter() + self.tick_s * NOTIFY_BUDGET_SHARE
+        pushed = False
+        for i, (session, writer) in enumerate(order):
+            if i and time.perf_counter() > budget_end:
+                if not only_on_change:
+                    self._rr = sessions.index((session, writer))
+                break
+            if not session.subs or writer.is_closing():
                 continue
-            now = time.monotonic()
-            filetime = ams.filetime_now()
-            for session, writer in list(self._sessions.values()):
-                if not session.subs or writer.is_closing():
-                    continue
-                if writer.transport.get_write_buffer_size() > MAX_WRITE_BUFFER // 4:
-                    if not session.throttled:
-                        log.warning("ADS connection %d from %s does not read: notifications paused",
-                                    session.conn_id, session.peer)
-                    session.throttled = True
-                    continue
-                session.throttled = False
-                try:
-                    frames = self.dispatcher.collect(session, tick, now, filetime)
-                except Exception as exc:
-                    log.error("notifications of connection %d: %r", session.conn_id, exc, exc_info=exc)
-                    continue
-                for frame in frames:
-                    writer.write(frame)
+            if _unsent(writer) > NOTIFY_PAUSE_BUFFER:
+                if not session.warned_behind:
+                    session.warned_behind = True
+                    log.warning("ADS connection %d from %s does not read: notifications paused, its samples are "
+                                "dropped while more than %d bytes wait to be sent to it", session.conn_id,
+                                session.peer, NOTIFY_PAUSE_BUFFER)
+                session.throttled = True
+                continue
+            if session.throttled:
+                self._count_dropped(session, tick)
+            try:
+                frames = self.dispatcher.collect(session, tick, now, filetime, only_on_change, cache,
+                                                 MAX_SAMPLES_PER_VISIT)
+            except Exception as exc:
+                log.error("notifications of connection %d: %r", session.conn_id, exc, exc_info=exc)
+                continue
+            if frames and only_on_change and not pushed:
+                pushed = True
+                self.pushes += 1   # before the write: a client may look at it as soon as the frame arrived
+            for frame in frames:
+                writer.write(frame)
+            await asyncio.sleep(0)   # the other connections' requests between two connections' samples
+
+    def _count_dropped(self, session: Session, tick: int) -> None:
+        """`session` was behind until now: what it missed is dropped (counted here and in the session)."""
+        session.throttled = False
+        self.samples_dropped += self.dispatcher.drop_missed(session, tick)

@@ -7,6 +7,8 @@
   (net id ``netid_for(host)``, see ``server.net_id``), 2 ms tick; closed at teardown.
 * ``pyads_session``: factory ``pyads_session(server)`` -> ``PyadsSession`` (``.open(ams_port)`` gives
   pyads Connections; notifications are deleted before close at teardown, pass or fail).
+* ``nc``, ``ads_op``, ``watcher`` (module scope, real processes): an nc-server, an nc-ads (operator, client id
+  "ads-op") in front of it and a zenoh client "watch" of the NC (stats, claims, NCTOPLC).
 * ``start_ads``: factory ``start_ads(devices=None, **server_kwargs)`` for other servers (same cleanup).
 """
 from __future__ import annotations
@@ -16,6 +18,8 @@ from typing import Any, Callable, Iterator
 import pytest
 
 from ads_testing import PyadsSession, free_ads_address, netid_for, start_server_on_free_address
+from nc_ads_testing import NcAdsProcess, start_nc_ads
+from znc_testing import NcServerProcess, NcTestClient, start_nc_server
 from nc_ads.server import AdsServer
 from nc_ads.testing import FakeDevice
 
@@ -76,3 +80,30 @@ def pyads_session(start_ads: Callable[..., AdsServer]) -> Iterator[Callable[[Ads
     finally:
         for s in sessions:
             s.close()
+
+
+@pytest.fixture(scope="module")
+def nc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcServerProcess]:
+    h = start_nc_server(tmp_path_factory.mktemp("nc"))
+    try:
+        yield h
+    finally:
+        h.kill()
+
+
+@pytest.fixture(scope="module")
+def ads_op(nc: NcServerProcess, tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcAdsProcess]:
+    h = start_nc_ads(tmp_path_factory.mktemp("ads-op"), nc.endpoint, role="operator", client_id="ads-op")
+    try:
+        yield h
+    finally:
+        h.kill()
+
+
+@pytest.fixture(scope="module")
+def watcher(nc: NcServerProcess) -> Iterator[NcTestClient]:
+    c = NcTestClient(nc.port, "watch", token=False)
+    try:
+        yield c
+    finally:
+        c.close()

@@ -395,3 +395,49 @@ def test_runs_inline_only_what_does_not_block(dev: FakeDevice) -> None:
     assert not d.runs_inline(pkt(Command.READ_WRITE, ams.ReadWriteRequest(0x4001, 0x27, 8, b"x").encode()), s)
     assert d.runs_inline(R(0xF005, h), s)
     assert not d.runs_inline(pkt(Command.WRITE, ams.WriteRequest(0xF005, h, bytes(8)).encode()), s)
+
+
+def _handles(frames: list[bytes]) -> list[int]:
+    return [smp.handle for f in frames for st in ams.DeviceNotification.decode(ams.decode_frame(f).data).stamps
+            for smp in st.samples]
+
+
+def test_one_sample_per_object_per_round_shared_by_every_connection(dev: FakeDevice,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """1000 subscriptions on one object cost one device sample per round, not 1000 (issue 18)."""
+    d = make(dev)
+    a, b = Session(1, "x:1"), Session(2, "x:2")
+    for s in (a, b):
+        for _ in range(500):
+            assert add(d, s, 0x4101, 0, 256, mode=3).result == 0
+    assert add(d, b, 0x4101, 0, 16, mode=3).result == 0       # another length: another sample
+    calls: list[tuple[int, int, int]] = []
+    real = dev.sample
+    monkeypatch.setattr(dev, "sample", lambda g, o, n: calls.append((g, o, n)) or real(g, o, n))
+    cache: dict = {}
+    later = 1e12
+    got = _handles(d.collect(a, 1, later, 0, cache=cache)) + _handles(d.collect(b, 1, later, 0, cache=cache))
+    assert len(got) == 1001 and sorted(calls) == [(0x4101, 0, 16), (0x4101, 0, 256)]
+
+
+def test_a_visit_limit_delays_a_connections_other_subscriptions_in_turn(dev: FakeDevice) -> None:
+    d = make(dev)
+    s = Session(1, "x:1")
+    hs = {add(d, s, 0x4101, 0, 8, mode=3).handle for _ in range(5)}
+    seen: list[int] = []
+    for tick in (1, 2, 3):
+        got = _handles(d.collect(s, tick, 1e12, 0, limit=2))
+        assert len(got) == 2
+        seen += got
+    assert set(seen) == hs   # every one within three visits, none starved behind the first two
+
+
+def test_samples_missed_while_behind_are_counted_as_dropped(dev: FakeDevice) -> None:
+    d = make(dev)
+    s = Session(1, "x:1")
+    fast = add(d, s, 0x4101, 0, 8, mode=3, cycle=1).handle              # every tick
+    slow = add(d, s, 0x4101, 0, 8, mode=3, cycle=400_000).handle        # every 4th tick (40 ms at 10 ms)
+    assert set(_handles(d.collect(s, 1, 1e12, 0))) == {fast, slow}
+    assert d.drop_missed(s, 11) == 9 + 2 and s.samples_dropped == 11    # ticks 2..10, and 5, 9 for the slow one
+    assert set(_handles(d.collect(s, 11, 1e12, 0))) == {fast}           # due now again, not a burst
+    assert d.drop_missed(s, 12) == 0

@@ -69,16 +69,8 @@ def connect(ads: NcAdsProcess, port: int = 500) -> Any:
     return plc
 
 
-# ---- module fixtures: one NC, one nc-ads (engineer), one observer zenoh client -------------------------------
-@pytest.fixture(scope="module")
-def nc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcServerProcess]:
-    h = start_nc_server(tmp_path_factory.mktemp("nc"))
-    try:
-        yield h
-    finally:
-        h.kill()
-
-
+# ---- module fixtures: one nc-ads (engineer); the NC (nc), an operator nc-ads (ads_op) and the observer (watcher)
+# ---- come from conftest.py
 @pytest.fixture(scope="module")
 def ads(nc: NcServerProcess, tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcAdsProcess]:
     h = start_nc_ads(tmp_path_factory.mktemp("ads"), nc.endpoint, role="engineer")
@@ -86,24 +78,6 @@ def ads(nc: NcServerProcess, tmp_path_factory: pytest.TempPathFactory) -> Iterat
         yield h
     finally:
         h.kill()
-
-
-@pytest.fixture(scope="module")
-def ads_op(nc: NcServerProcess, tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcAdsProcess]:
-    h = start_nc_ads(tmp_path_factory.mktemp("ads-op"), nc.endpoint, role="operator", client_id="ads-op")
-    try:
-        yield h
-    finally:
-        h.kill()
-
-
-@pytest.fixture(scope="module")
-def watcher(nc: NcServerProcess) -> Iterator[NcTestClient]:
-    c = NcTestClient(nc.port, "watch", token=False)
-    try:
-        yield c
-    finally:
-        c.close()
 
 
 @pytest.fixture
