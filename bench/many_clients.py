@@ -363,6 +363,9 @@ def run(args: argparse.Namespace) -> int:
             except subprocess.TimeoutExpired:
                 pass
 
+    # the NC never restarts during the run: every "NC ... restarted" a client logged is a false one (issue 18)
+    result["false_restarts"] = {f"plc{k}": n for k in range(len(clients))
+                                if (n := _count_lines(tmp / f"plc{k}.err", RESTART_LINE))}
     fl.append(floor(args.floor, args.isolate_cpu))  # after every process of ours ended
     print(f"  floor after:  {fl[1]['cycles']} cycles, missed {fl[1]['missed']}, overruns {fl[1]['overruns']}, "
           f"lateness p99 {fl[1]['late_p99_us']:.0f} us (quiet cost of the workload {cal['min_us']:.0f} us)")
@@ -467,6 +470,8 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
          f"every move started ended once (Done, CommandAborted or Error){'' if not inconsistent else ': not on ' + ', '.join(inconsistent[:6])}",
          not errors and not inconsistent),
         (f"every client finished{'' if not unfinished else ': not ' + ', '.join(unfinished)}", not unfinished),
+        (f"no false NC restart (a client logged '{RESTART_LINE}' while the one NC ran on)"
+         f"{'' if not r.get('false_restarts') else ': ' + str(r['false_restarts'])}", not r.get("false_restarts")),
     ]
     for text, good in checks:
         print(f"  [{'ok' if good else 'FAIL'}] {text}")
@@ -479,6 +484,19 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     print(f"many_clients: issue 8 load criteria ({n_cl} clients x {AXES_PER_CLIENT} axes, PLC "
           f"{args.plc_cycle * 1e3:g} ms, {r['dt']:.0f} s{where}) " + ("MET" if ok else "NOT MET"))
     return 0 if ok or not args.strict else 1
+
+
+#: What plc_client.task logs when it declares an NC restart (PlcTask.nc_restarted).
+RESTART_LINE = "restarted ("
+
+
+def _count_lines(path: Path, needle: str) -> int:
+    """Lines of ``path`` containing ``needle`` (0 if the file is missing)."""
+    try:
+        with open(path, errors="replace") as f:
+            return sum(needle in line for line in f)
+    except OSError:
+        return 0
 
 
 #: A count "above the floor": more than this many standard errors above it (two-proportion z score).
