@@ -96,6 +96,26 @@ def _args(argv: Sequence[str] | None) -> tuple[argparse.Namespace, str, str, tup
     return a, name, endpoint, (host, int(port_s)), ports
 
 
+def write_exposure(host: str, role: str, allow_write: bool) -> tuple[int, str] | None:
+    """What nc-ads says at start about who may write through it (ADS has no authentication).
+
+    Returns:
+        ``(logging.WARNING, text)`` when it listens beyond loopback as operator or engineer without
+        ``--allow-write`` (every host that reaches the address may write), ``(logging.INFO, text)`` for
+        the same on loopback (every process of this host may), None as observer or with
+        ``--allow-write`` (the write policy decides).
+    """
+    if role == "observer" or allow_write:
+        return None
+    if not is_loopback_host(host):
+        return logging.WARNING, (
+            f"ADS on {host} (not loopback) as {role} and no --allow-write: every host that reaches this address "
+            f"may write to the NC's axes (ADS has no authentication). Fix: --allow-write NETID|IP|CIDR for the "
+            f"hosts that may, or --listen 127.0.0.1:PORT (docs/ads.md)")
+    return logging.INFO, (f"ADS on loopback ({host}) as {role} without --allow-write: every process of this host "
+                          "may write (docs/ads.md)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     a, name, endpoint, listen, ports = _args(argv)
     logging.basicConfig(level=a.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -125,9 +145,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     host, port = server.bound_address
-    if not is_loopback_host(host) and not a.allow_write and a.role != "observer":
-        log.warning("ADS on %s (not loopback) as %s and no --allow-write: every host that reaches this address "
-                    "may write (ADS has no authentication; docs/ads.md)", host, a.role)
+    said = write_exposure(host, a.role, bool(a.allow_write))
+    if said is not None:
+        log.log(*said)
     print(f"nc-ads ready: ADS {host}:{port} net id {server.net_id} ports {','.join(map(str, ports))}; NC {name} at "
           f"{endpoint} as {a.client_id} ({a.role}); axes above {MAX_ADS_AXIS_ID} have no ADS index group",
           flush=True)

@@ -73,3 +73,13 @@ def test_access_denied_table_text_names_no_rule() -> None:
     # the code's table text is generic: the rule that refused is the NC's detail, never a fixed guess
     assert error_text(0x723) == "access denied"
 
+
+
+def test_nc_ads_says_who_may_write() -> None:
+    from nc_ads.cli import write_exposure
+    level, text = write_exposure("0.0.0.0", "operator", False)  # type: ignore[misc]
+    assert level == logging.WARNING and "0.0.0.0" in text and "--allow-write" in text and "127.0.0.1" in text
+    level, text = write_exposure("127.0.0.1", "engineer", False)  # type: ignore[misc]
+    assert level == logging.INFO and "loopback" in text
+    assert write_exposure("0.0.0.0", "observer", False) is None  # writes refused anyway (its role)
+    assert write_exposure("0.0.0.0", "operator", True) is None  # the write policy decides
