@@ -550,12 +550,14 @@ class _Child:
             self.pidfd = None
         self.ready = False  # it stood by: session open, publishers declared
         self.started = self.since = time.monotonic()  # started; started or promoted [s]
+        self.ready_at = float("inf")  # when the NC saw it ready [s]
 
     def poll_ready(self) -> bool:
         """Whether it said it stands by (never blocks)."""
         if not self.ready:
             try:
                 self.ready = self.ctl.recv(1) == _MSG_READY
+                self.ready_at = time.monotonic() if self.ready else self.ready_at
             except OSError:  # (BlockingIOError: not yet)
                 pass
         return self.ready
@@ -854,10 +856,11 @@ class PublisherProcess:
             seq = self.output.ring.seq
             if c.sent != self._seen[1]:  # it published since: progress
                 self._seen = (seq, c.sent, now)
-            # (ready: it published, or it stood by before it was promoted, e.g. a standby stopped with SIGSTOP)
-            if (c.ready or a.poll_ready()) and now - self._seen[2] > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
-                self._kill(a, f"published nothing for {now - self._seen[2]:.1f} s ({seq - self._seen[0]} frames "
-                              f"written; {c})")
+            # (quiet since it published, was promoted or got ready, whichever came last: a fresh child that took
+            # longer than STALL_TIMEOUT to start is not stalled; one not ready yet is READY_TIMEOUT's case)
+            quiet = now - max(self._seen[2], a.ready_at if a.poll_ready() else now)
+            if quiet > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
+                self._kill(a, f"published nothing for {quiet:.1f} s ({seq - self._seen[0]} frames written; {c})")
             elif c.ready and now - a.since > RESTART_RESET_AFTER and self.standby is not None:
                 self._delay = RESTART_MIN_DELAY
 
