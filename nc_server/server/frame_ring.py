@@ -15,7 +15,7 @@ memfd in the server):
   then the publisher's counters (written by the publisher only): Sent u64, Dropped u64,
   PutErrors u64, Ready u32 (1 once its publishers are declared), pad u32; Published u64 (the sequence
   number of the last slot the active publisher put: a standby publisher promoted after it died goes
-  on with the next one), then padding;
+  on with the newest slot after it, skipping, and counting as dropped, the ones in between), then padding;
 * ``Slots`` slots of ``SlotSize`` bytes: Seq u64 (0 while being written), FrameLen u32,
   PlcLen u32, then the frame bytes, then the PLCTONC bytes.
 
@@ -186,32 +186,46 @@ class FrameRing:
     def newest(self) -> int:
         return _U64.unpack_from(self.mv, _OFF_NEWEST)[0]
 
+    def _read_slot(self, seq: int) -> tuple[bytes, bytes | None] | None:
+        """Slot ``seq``'s (frame bytes, PLCTONC bytes or None); None if it was overwritten (meanwhile)."""
+        mv = self.mv
+        off = HEADER_SIZE + (seq % self.slots) * self.slot_size
+        s1, flen, plen = _SLOT_HEAD.unpack_from(mv, off)
+        if s1 != seq:
+            return None
+        p = off + _SLOT_HEAD.size
+        frame = bytes(mv[p:p + flen])
+        plc = bytes(mv[p + flen:p + flen + plen]) if plen else None
+        if _U64.unpack_from(mv, off)[0] != seq:
+            return None
+        return frame, plc
+
     def read_newest(self) -> tuple[int, bytes, bytes | None, int] | None:
         """The newest slot not read yet: (seq, frame bytes, PLCTONC bytes or None, slots skipped); None
         when nothing new."""
-        mv = self.mv
         for _ in range(8):
-            seq = _U64.unpack_from(mv, _OFF_NEWEST)[0]
+            seq = _U64.unpack_from(self.mv, _OFF_NEWEST)[0]
             if seq == self._last_read:
                 return None
-            off = HEADER_SIZE + (seq % self.slots) * self.slot_size
-            s1, flen, plen = _SLOT_HEAD.unpack_from(mv, off)
-            if s1 != seq:
+            got = self._read_slot(seq)
+            if got is None:
                 continue  # overwritten meanwhile: take the newest again
-            p = off + _SLOT_HEAD.size
-            frame = bytes(mv[p:p + flen])
-            plc = bytes(mv[p + flen:p + flen + plen]) if plen else None
-            if _U64.unpack_from(mv, off)[0] != seq:
-                continue
             skipped = max(0, seq - self._last_read - 1)
             self._last_read = seq
-            return seq, frame, plc, skipped
+            return seq, got[0], got[1], skipped
         return None
 
+    def published_frame(self) -> bytes | None:
+        """The frame of the last slot published (by an earlier publisher), if it is still in the ring."""
+        seq = _U64.unpack_from(self.mv, _OFF_PUBLISHED)[0]
+        got = self._read_slot(seq) if seq else None
+        return None if got is None else got[0]
+
     def resume_after_published(self) -> None:
-        """Read on from the slot after the last one published (by this or an earlier publisher): a
-        standby publisher promoted when the active one died puts the frame that one did not, not one
-        it did (unless it died within its put: then that frame goes out again)."""
+        """Read on after the last slot published (by this or an earlier publisher): a standby publisher
+        promoted when the active one died puts the newest frame if it is newer than that one, never an
+        older one (unless that one died within its put: then its frame goes out again); the slots written
+        in between are skipped (counted as dropped)."""
         self._last_read = _U64.unpack_from(self.mv, _OFF_PUBLISHED)[0]
 
     def set_published(self, seq: int) -> None:

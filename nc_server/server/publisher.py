@@ -20,10 +20,12 @@ control, the NC admits that link by its protocol with the NC's own rules,
 router(s), with the NC's certificate: on the wire it is the NC.
 The child ends with the NC (a lifeline pipe). A second child stands by, fully started (session open,
 publishers declared) and blocked on its control socket (no CPU); when the active child dies the NC
-promotes the standby at once (it sees the exit on the child's pidfd) and the standby goes on with the
-frame after the last one put (the ring's Published): the frames pause for a few NC cycles, not for the
-~0.7 s a fresh interpreter and session take. The NC then starts a new standby, and replaces a child
-that hung, with back-off (:class:`PublisherProcess`). ``[nc] publisher = "thread"`` runs the same loop
+promotes the standby at once (it sees the exit on the child's pidfd), if it is ready, and the standby
+puts the newest frame written since the last one put (the ring's Published; the frames written in between
+are dropped, counted in frames_dropped; the ``frame/<P>ms`` windows go on from the last one put, ``status``
+comes once early): the frames pause for a few NC cycles, not for the ~0.7 s a fresh interpreter and session
+take. The NC then starts a new standby, and replaces a child that hung, with back-off (:class:`PublisherProcess`),
+on a supervisor thread at normal priority. ``[nc] publisher = "thread"`` runs the same loop
 in a thread of the NC process instead (one interpreter: simpler to debug, but its puts hold the cycle
 thread's GIL).
 
@@ -65,8 +67,8 @@ STATUS_PERIOD = 0.1
 #: The publisher looks at the ring (and its stop flag) at least this often, signalled or not [s].
 PARENT_CHECK = 0.5
 #: A publisher child that put nothing for this long while the cycle wrote at least STALL_FRAMES frames
-#: is killed (then restarted) [s]. READY_TIMEOUT: how long NcServer.start waits for the first one's
-#: publishers (a child that hangs before it is ready is not killed: it is logged at start).
+#: is killed (then restarted) [s]. READY_TIMEOUT: how long a child may take to be ready (session open, publishers
+#: declared) before it is killed and replaced (a loaded machine takes seconds; a hung one would never publish).
 STALL_TIMEOUT = 2.0
 STALL_FRAMES = 100
 READY_TIMEOUT = 15.0
@@ -75,6 +77,11 @@ READY_TIMEOUT = 15.0
 RESTART_MIN_DELAY = 0.1
 RESTART_MAX_DELAY = 5.0
 RESTART_RESET_AFTER = 10.0
+#: How often the NC's supervisor of the children looks at them, besides their exits (seen at once) [s].
+SUPERVISE_PERIOD = 0.1
+#: Test hook (tests/integration/test_nc_publisher.py): a child started while the file this environment variable
+#: names exists hangs before it says it is ready (as if stuck in zenoh.open), until the NC ends.
+HANG_BEFORE_READY_ENV = "NC_PUBLISHER_TEST_HANG_BEFORE_READY"
 #: The children's process names (/proc/<pid>/comm, ps, top): the one that puts the frames, the one standing by.
 ACTIVE_COMM = "nc-publisher"
 STANDBY_COMM = "nc-pub-standby"
@@ -143,6 +150,14 @@ class FramePublisher:
             except Exception:  # session closing
                 pass
         self._decl.clear()
+
+    def resume_after(self, frame: bytes | None) -> None:
+        """Go on after ``frame``, the last one an earlier publisher put (None: none, or overwritten): its
+        ``frame/<P>ms`` windows count as put, so a failover puts no frame twice on those keys. (``status``, decimated
+        in wall time, which the earlier publisher did not record, goes out at once: one early status.)"""
+        if frame is not None:
+            nc_time_ns = frame_stamp(frame)[1]
+            self._windows = [nc_time_ns // period_ns for period_ns, _ in self.every_pubs]
 
     def publish_newest(self) -> bool:
         """Publish the newest slot if there is one not yet published; whether there was."""
@@ -267,7 +282,7 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     """``python -m nc_server.server.publisher --spec JSON``: the NC's frame publisher (started by the NC).
 
     It starts as a standby: session open, publishers declared, then blocked on its control socket until the
-    NC promotes it (:func:`_stand_by`); then it publishes from the frame after the last one put. It ends
+    NC promotes it (:func:`_stand_by`); then it publishes the newest frame after the last one put. It ends
     when the NC asks (the ring's stop flag, after the last frame; a standby: its control socket closes)
     or when the NC process ends
     (the lifeline pipe closes: a process-wide signal, unlike PR_SET_PDEATHSIG, which follows the
@@ -300,9 +315,15 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     session = zenoh.open(zenoh_config(settings, spec["nc"]))
     pub = FramePublisher(session, Keys(spec["nc"]), axis_ids, ring)
     try:
+        hang = os.environ.get(HANG_BEFORE_READY_ENV)
+        if hang and os.path.exists(hang):  # (the test hook: never ready; ends with the NC)
+            log.warning("pid %d hangs before it is ready (test hook %s)", os.getpid(), HANG_BEFORE_READY_ENV)
+            select.select([int(spec["lifeline_fd"])], [], [])
+            raise ParentGone
         if _stand_by(ctl, int(spec["lifeline_fd"])):
             _set_comm(ACTIVE_COMM)
             ring.resume_after_published()
+            pub.resume_after(ring.published_frame())
             pub.run(wait)
     except ParentGone:
         pass
@@ -525,16 +546,18 @@ class _Child:
         self.ctl = ctl
         try:
             self.pidfd: int | None = os.pidfd_open(proc.pid)
-        except (OSError, AttributeError):  # (no pidfd: watch() notices the exit within ~0.1 s)
+        except (OSError, AttributeError):  # (no pidfd: the supervisor notices the exit within SUPERVISE_PERIOD)
             self.pidfd = None
         self.ready = False  # it stood by: session open, publishers declared
-        self.since = time.monotonic()  # started, or promoted [s]
+        self.started = self.since = time.monotonic()  # started; started or promoted [s]
+        self.ready_at = float("inf")  # when the NC saw it ready [s]
 
     def poll_ready(self) -> bool:
         """Whether it said it stands by (never blocks)."""
         if not self.ready:
             try:
                 self.ready = self.ctl.recv(1) == _MSG_READY
+                self.ready_at = time.monotonic() if self.ready else self.ready_at
             except OSError:  # (BlockingIOError: not yet)
                 pass
         return self.ready
@@ -557,6 +580,20 @@ class _Child:
             self.pidfd = None
 
 
+def _run_normal(nice: int) -> None:
+    """Make the calling thread SCHED_OTHER at ``nice`` if it inherited a real-time policy (a thread started by a
+    SCHED_FIFO thread): the publisher's supervisor waits for processes and forks, which must not hold off the
+    NC's real-time threads (nor run ahead of them)."""
+    from .cycle import is_realtime
+
+    try:
+        if is_realtime():
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            os.setpriority(os.PRIO_PROCESS, 0, nice)  # (Linux: 0 is the calling thread)
+    except (OSError, AttributeError):
+        pass
+
+
 class PublisherProcess:
     """The frame publisher as child processes (``publisher = "process"``, the default): one active, one standby.
 
@@ -569,11 +606,18 @@ class PublisherProcess:
         log_level: the children's logging level.
 
     Both children start alike (a session like the NC's, publishers declared) and stand by; the NC promotes
-    one: only the active child puts frames. When it exits (killed, crashed) a thread of the NC blocked on its
-    pidfd promotes the standby at once (``failovers``); the standby goes on with the frame after the last one
-    put. :meth:`watch` (the NC's I/O thread, about every 0.1 s) starts a new standby for a child that ended,
-    kills and replaces an active child that published nothing for :data:`STALL_TIMEOUT` while the cycle wrote
-    frames (hung, or stopped with SIGSTOP), and falls back to promoting on its own when there is no pidfd.
+    one: only the active child puts frames. Everything else happens on a supervisor thread of the NC at normal
+    priority (never on the SCHED_FIFO I/O thread: the kernel may take 100 ms or more to end a killed process, a
+    fork and exec take milliseconds, and no reply would go out meanwhile). It blocks on the children's pidfds:
+    when the active child exits (killed, crashed) it promotes the standby at once (``failovers``), if that one
+    stands by ready; the standby then puts the newest frame (the frames written meanwhile are dropped, counted in
+    ``frames_dropped``). A standby that is not ready yet (starting, or hung before it got ready) is never
+    promoted: it is killed and a new active child starts after the back-off. Every :data:`SUPERVISE_PERIOD`
+    the supervisor starts a new standby for a child that ended, kills and replaces an active child that
+    published nothing for :data:`STALL_TIMEOUT` while the cycle wrote frames (hung, or stopped with SIGSTOP)
+    and a child that was not ready :data:`READY_TIMEOUT` after its start (hung in its start), and falls back to
+    polling the children when there is no pidfd. It only sends SIGKILL: a killed child is reaped when its
+    pidfd says it has ended, never waited for.
     The first standby starts once the first child published; each child started after these two counts in
     ``restarts``; they back off from
     :data:`RESTART_MIN_DELAY` to :data:`RESTART_MAX_DELAY` (a child that keeps dying). The counters in the ring
@@ -594,11 +638,13 @@ class PublisherProcess:
         self.restarts = 0
         self.failovers = 0
         self._stopping = False
-        # (re-entrant: _ended runs under it from watch() and from the exit watcher, _adopt takes it itself)
+        # (re-entrant: _ended runs under it from the supervisor's steps, which take it themselves; held only for
+        # non-blocking work: the I/O thread's stats take it too)
         self._lock = threading.RLock()
         self._lifeline_r, self._lifeline_w = os.pipe()  # (both close-on-exec: only the children get the read end)
-        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)  # wakes the exit watcher
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)  # wakes the supervisor
         self._watcher: threading.Thread | None = None
+        self._dying: list[_Child] = []  # killed, not yet ended (reaped when their pidfd says so)
         self._base = (0, 0, 0)  # the counters of the active children before this one
         self._delay = RESTART_MIN_DELAY
         self._restart_at: float | None = None
@@ -606,10 +652,11 @@ class PublisherProcess:
         self._first_standby = True  # the first standby is still to start (not a restart)
 
     def start(self) -> None:
-        """Start the active child (returns at once; it declares its publishers within ~0.1-1 s); :meth:`watch` starts
-        the standby once it published (not both at once: the NC's start would wait for two interpreters)."""
+        """Start the active child (returns at once; it declares its publishers within ~0.1-1 s) and the supervisor,
+        which starts the standby once the first child published (not both at once: the NC's start would wait
+        for two interpreters)."""
         self._adopt(self._launch())
-        self._watcher = threading.Thread(target=self._watch_exits, name="nc-publisher-watch", daemon=True)
+        self._watcher = threading.Thread(target=self._supervise, name="nc-publisher-watch", daemon=True)
         self._watcher.start()
 
     @property
@@ -629,8 +676,9 @@ class PublisherProcess:
 
     def counters(self) -> RingCounters:
         """Every active child's counters added up; ``ready`` of the current one."""
-        c = self.output.ring.counters()
-        b = self._base
+        with self._lock:  # (a failover moves the ring's counters into _base: both read at one moment)
+            c = self.output.ring.counters()
+            b = self._base
         return RingCounters(b[0] + c.sent, b[1] + c.dropped, b[2] + c.put_errors, c.ready)
 
     def _launch(self) -> _Child:
@@ -663,12 +711,9 @@ class PublisherProcess:
                     self.standby = child
                 self._wake()
                 return
-        child.close()  # (stopping meanwhile: it ends once it stands by, or is killed)
-        try:
-            child.proc.wait(READY_TIMEOUT)
-        except subprocess.TimeoutExpired:
-            child.proc.kill()
-            child.proc.wait()
+        child.close()  # (stopping meanwhile: it never published, it need not end cleanly)
+        child.proc.kill()
+        child.proc.wait()
 
     def _promote(self, child: _Child) -> None:
         """Make ``child`` the active publisher (lock held; the ring's counters were reset)."""
@@ -676,67 +721,113 @@ class PublisherProcess:
         child.promote()
         self._seen = (self.output.ring.seq, 0, child.since)
 
+    def _discard(self, child: _Child) -> None:
+        """Forget a child that ended or was sent SIGKILL (lock held): closed now, or once its pidfd says it ended."""
+        if child.proc.poll() is None:
+            self._dying.append(child)
+        else:
+            child.close()
+
+    def _kill(self, child: _Child, why: str) -> None:
+        """SIGKILL ``child`` (active or standby) and go on as if it had ended (lock held; never waits for it)."""
+        log.error("the %s frame publisher (pid %d) %s: killing it",
+                  "active" if child is self.active else "standby", child.proc.pid, why)
+        with contextlib.suppress(OSError):
+            child.proc.kill()
+        self._ended(child)
+
     def _ended(self, child: _Child) -> None:
-        """``child`` exited (or was killed): the standby takes over from an active one; a new standby is due
-        after the back-off (lock held; nothing if it was handled already)."""
+        """``child`` exited (or was killed): the standby takes over from an active one if it is ready; a new
+        child is due after the back-off (lock held; nothing if it was handled already)."""
         if self._stopping or child not in (self.active, self.standby):
             return
-        rc = child.proc.wait()  # (it has exited: reaped at once)
-        child.close()
+        rc = child.proc.poll()  # (reaped if it has exited; None: killed, not ended yet)
+        how = f"ended with {rc}" if rc is not None else "was killed"
+        self._discard(child)
         delay = self._delay
         if child is self.active:
             c = self.output.ring.counters()
             self._base = (self._base[0] + c.sent, self._base[1] + c.dropped, self._base[2] + c.put_errors)
             self.output.ring.set_counters(0, 0, 0, False)
             self.active, nxt, self.standby = None, self.standby, None
-            if nxt is not None:
+            if nxt is not None and nxt.proc.poll() is None and nxt.poll_ready():
                 self.failovers += 1
                 self._promote(nxt)
-                log.error("the frame publisher (pid %d) ended with %s: the standby (pid %d) took over; "
-                          "restarting it as the standby in %.1f s", child.proc.pid, rc, nxt.proc.pid, delay)
+                log.error("the frame publisher (pid %d) %s: the standby (pid %d) took over; "
+                          "restarting it as the standby in %.1f s", child.proc.pid, how, nxt.proc.pid, delay)
+            elif nxt is not None:
+                # (never promoted: one that hung before it was ready would never publish; a new one is as quick
+                # as one that is still starting)
+                with contextlib.suppress(OSError):
+                    nxt.proc.kill()
+                self._discard(nxt)
+                log.error("the frame publisher (pid %d) %s and the standby (pid %d) was not ready (killed): "
+                          "restarting it in %.1f s (clients miss frames meanwhile)", child.proc.pid, how,
+                          nxt.proc.pid, delay)
             else:
-                log.error("the frame publisher (pid %d) ended with %s and no standby is left: restarting it in %.1f s "
-                          "(clients miss frames meanwhile)", child.proc.pid, rc, delay)
+                log.error("the frame publisher (pid %d) %s and no standby is left: restarting it in %.1f s "
+                          "(clients miss frames meanwhile)", child.proc.pid, how, delay)
         else:
             self.standby = None
-            log.error("the standby frame publisher (pid %d) ended with %s: restarting it in %.1f s",
-                      child.proc.pid, rc, delay)
+            log.error("the standby frame publisher (pid %d) %s: restarting it in %.1f s", child.proc.pid, how, delay)
         if self._restart_at is None:
             self._restart_at = time.monotonic() + delay
             self._delay = min(RESTART_MAX_DELAY, self._delay * 2)
         self._wake()
 
+    def _exited(self, child: _Child) -> None:
+        """``child``'s pidfd says it exited (or, without pidfd, poll() did): reap it, handle its end."""
+        with self._lock:
+            if child in self._dying:
+                self._dying.remove(child)
+                child.proc.poll()
+                child.close()
+            else:
+                self._ended(child)
+
     def _wake(self) -> None:
         with contextlib.suppress(OSError):
             os.write(self._wake_w, b"x")
 
-    def _watch_exits(self) -> None:
-        """Thread: block on the children's pidfds (and the wake pipe); an exit is handled the moment it happens."""
+    def _supervise(self) -> None:
+        """Thread, normal priority: block on the children's pidfds (and the wake pipe), handle an exit the
+        moment it happens, and every SUPERVISE_PERIOD do :meth:`_step` (see the class docstring)."""
+        _run_normal(self.nice)
+        next_step = 0.0
         while True:
             with self._lock:
                 if self._stopping:
                     return
-                kids = {c.pidfd: c for c in (self.active, self.standby) if c is not None and c.pidfd is not None}
+                kids = {c.pidfd: c for c in (self.active, self.standby, *self._dying)
+                        if c is not None and c.pidfd is not None}
             poller = select.poll()
             poller.register(self._wake_r, select.POLLIN)
             for fd in kids:
                 poller.register(fd, select.POLLIN)
-            for fd, _ in poller.poll():
+            for fd, _ in poller.poll(max(0, int((next_step - time.monotonic()) * 1000)) + 1):
                 if fd == self._wake_r:
                     with contextlib.suppress(OSError):
                         os.read(self._wake_r, 4096)
                 elif fd in kids:
-                    with self._lock:
-                        self._ended(kids[fd])
+                    self._exited(kids[fd])
+            if time.monotonic() >= next_step:
+                next_step = time.monotonic() + SUPERVISE_PERIOD
+                try:
+                    self._step()
+                except Exception:  # (a bug here must not end the supervision)
+                    log.exception("the frame publisher's supervisor failed (going on)")
 
     def watch(self) -> None:
-        """Start the due standby, replace a stalled active child (see the class docstring); I/O thread."""
+        """(The I/O thread's periodic call: nothing to do here, the supervisor thread does the work.)"""
+
+    def _step(self) -> None:
+        """Start the due child, replace a stalled or never-ready one (see the class docstring); supervisor thread."""
         with self._lock:
             if self._stopping:
                 return
-            for child in (self.active, self.standby):
-                if child is not None and child.proc.poll() is not None:  # (the exit watcher's fallback)
-                    self._ended(child)
+            for child in (self.active, self.standby, *self._dying):
+                if child is not None and child.proc.poll() is not None:  # (the pidfd's fallback)
+                    self._exited(child)
             due = self._restart_at is not None and time.monotonic() >= self._restart_at
             if due:
                 self._restart_at = None
@@ -754,8 +845,10 @@ class PublisherProcess:
                 # both had ended: the standby's turn comes after the back-off
                 self._restart_at = now + self._delay
                 self._delay = min(RESTART_MAX_DELAY, self._delay * 2)
-            if self.standby is not None:
-                self.standby.poll_ready()
+            for child in (self.active, self.standby):
+                if child is not None and child in (self.active, self.standby) and not child.poll_ready() \
+                        and now - child.started > READY_TIMEOUT:
+                    self._kill(child, f"was not ready {now - child.started:.1f} s after its start")
             a = self.active
             if a is None:
                 return
@@ -763,12 +856,11 @@ class PublisherProcess:
             seq = self.output.ring.seq
             if c.sent != self._seen[1]:  # it published since: progress
                 self._seen = (seq, c.sent, now)
-            # (ready: it published, or it stood by before it was promoted, e.g. a standby stopped with SIGSTOP)
-            if (c.ready or a.poll_ready()) and now - self._seen[2] > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
-                log.error("the frame publisher (pid %d) published nothing for %.1f s (%d frames written; %s): "
-                          "killing it", a.proc.pid, now - self._seen[2], seq - self._seen[0], c)
-                a.proc.kill()
-                self._ended(a)
+            # (quiet since it published, was promoted or got ready, whichever came last: a fresh child that took
+            # longer than STALL_TIMEOUT to start is not stalled; one not ready yet is READY_TIMEOUT's case)
+            quiet = now - max(self._seen[2], a.ready_at if a.poll_ready() else now)
+            if quiet > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
+                self._kill(a, f"published nothing for {quiet:.1f} s ({seq - self._seen[0]} frames written; {c})")
             elif c.ready and now - a.since > RESTART_RESET_AFTER and self.standby is not None:
                 self._delay = RESTART_MIN_DELAY
 
@@ -776,7 +868,7 @@ class PublisherProcess:
         """Let the active child publish the last frame written and end, end the standby (killed after ``timeout``)."""
         with self._lock:
             self._stopping = True
-            children = [c for c in (self.active, self.standby) if c is not None]
+            children = [c for c in (self.active, self.standby, *self._dying) if c is not None]
         self._wake()
         if self._watcher is not None:
             self._watcher.join(timeout)

@@ -12,7 +12,7 @@ from typing import Callable
 
 import pytest
 
-from nc_server.server.publisher import ACTIVE_COMM, STANDBY_COMM
+from nc_server.server.publisher import ACTIVE_COMM, HANG_BEFORE_READY_ENV, STANDBY_COMM
 from znc_testing import NcServerProcess, NcTestClient, wait_until
 
 T = 30.0  # deadline [s] on a loaded 2-core machine
@@ -254,17 +254,22 @@ class FrameCycles:
 def kill_active_publisher(nc: NcServerProcess, cl: NcTestClient, failovers: int) -> tuple[int, float, float]:
     """Wait for a ready standby (stats), SIGKILL the active publisher; (its pid, when [s, monotonic], how long
     the kernel took to end it, as this process saw it [ms])."""
-    import select
-    import time
     wait_until(lambda: (s := cl.stats()) is not None and s["publisher_standby"] and s["publisher_failovers"] == failovers,
                T, "a ready standby publisher")
     pid = wait_until(lambda: publisher_pids(nc.pid) or None, T, "the active publisher")[0]
+    return (pid, *kill_and_wait(pid))
+
+
+def kill_and_wait(pid: int) -> tuple[float, float]:
+    """SIGKILL ``pid`` and wait until it ended; (when [s, monotonic], how long the kernel took to end it [ms])."""
+    import select
+    import time
     pidfd = os.pidfd_open(pid)  # (readable once it exited: the earliest the NC can know)
     try:
         t = time.monotonic()
         os.kill(pid, signal.SIGKILL)
         assert select.select([pidfd], [], [], T)[0], "the killed publisher did not end"
-        return pid, t, 1000 * (time.monotonic() - t)
+        return t, 1000 * (time.monotonic() - t)
     finally:
         os.close(pidfd)
 
@@ -316,18 +321,26 @@ def test_a_killed_publisher_is_replaced_within_10_nc_cycles_and_every_move_goes_
 
 def test_a_publisher_that_keeps_dying_is_restarted_with_back_off_and_shows_in_the_stats(
         nc_server: NcServerProcess, nc_client: Callable[..., NcTestClient]) -> None:
-    """Three kills of the active publisher: three failovers, each new standby started later than the one
-    before (0.1, 0.2, 0.4 s); then active and standby killed together: frames resume after the restarts and a
-    standby is ready again. Killing the NC ends both children (the lifeline)."""
+    """Three kills of the active publisher: three failovers, each new standby started after a back-off that
+    doubles (0.1, 0.2, 0.4 s; back to 0.1 s only once an active one ran RESTART_RESET_AFTER, which a slow
+    machine may reach between two kills); then the standby and the active one killed one after the other:
+    frames resume after the restarts and a standby is ready again, the stats counting what the NC did (its
+    log says whether a new standby was ready to take over in between). Killing the NC ends both children."""
     import re
+
+    from nc_server.server.publisher import RESTART_MAX_DELAY, RESTART_MIN_DELAY, RESTART_RESET_AFTER
     cl = nc_client(nc_server.port)
     cl.watch("nc/nc1/frame/10ms")
-    for n in range(3):
-        kill_active_publisher(nc_server, cl, n)
+    kills = [kill_active_publisher(nc_server, cl, n)[1] for n in range(3)]
     wait_until(lambda: (s := cl.stats()) is not None and s["publisher_failovers"] == 3 and s["publisher_standby"] and s,
                T, "a ready standby after the third failover")
     delays = [float(d) for d in re.findall(r"took over; restarting it as the standby in ([0-9.]+) s", nc_server.stderr())]
-    assert delays == [0.1, 0.2, 0.4], delays
+    assert len(delays) == 3 and delays[0] == RESTART_MIN_DELAY, delays
+    for k in (1, 2):
+        doubled = min(RESTART_MAX_DELAY, 2 * delays[k - 1])
+        # (the active one promoted at kill k-1 ran less than the time between the kills: no reset before that)
+        allowed = [doubled] if kills[k] - kills[k - 1] < RESTART_RESET_AFTER else [doubled, RESTART_MIN_DELAY]
+        assert delays[k] in allowed, (delays, kills)
     standby, active = publisher_pids(nc_server.pid, STANDBY_COMM), publisher_pids(nc_server.pid)
     assert len(standby) == 1 and len(active) == 1
     os.kill(standby[0], signal.SIGKILL)  # (gone first: else it would take over)
@@ -336,9 +349,15 @@ def test_a_publisher_that_keeps_dying_is_restarted_with_back_off_and_shows_in_th
     os.kill(active[0], signal.SIGKILL)
     c1 = wait_until(lambda: frame_cycle(cl), T, "a frame")
     wait_until(lambda: (frame_cycle(cl) or 0) > c1 + 10, T, "frames after active and standby were killed")
-    st = wait_until(lambda: (s := cl.stats()) is not None and s["publisher_standby"] and s["publisher_restarts"] >= 5
-                    and s, T, "a ready standby after 5 restarts")
-    assert st["publisher_failovers"] == 3 and st["publisher_restarts"] == 5, st
+    line = wait_until(lambda: re.search(rf"frame publisher \(pid {active[0]}\) ended with -9[^\n]*", nc_server.stderr()),
+                      T, "the NC to log the active one's end").group(0)
+    # the standby restarted after the first kill took over if it was ready by the second (a slow test), was
+    # killed if it was starting (then a new active one and a new standby start), else it had not started yet
+    took_over, killed = "took over" in line, "was not ready" in line
+    restarts = 5 + killed
+    st = wait_until(lambda: (s := cl.stats()) is not None and s["publisher_standby"] and s["publisher_restarts"] >= restarts
+                    and s, T, f"a ready standby after {restarts} restarts")
+    assert st["publisher_failovers"] == 3 + took_over and st["publisher_restarts"] == restarts, (st, line)
     both = publisher_pids(nc_server.pid, None)
     assert len(both) == 2
     os.kill(nc_server.pid, signal.SIGKILL)
@@ -366,3 +385,32 @@ def test_a_hung_standby_that_gets_promoted_is_replaced_too(
             os.kill(hung, signal.SIGCONT)
         except ProcessLookupError:
             pass
+
+
+def test_a_standby_that_never_got_ready_is_not_promoted(
+        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A standby that hangs before it is ready (here: the test hook, as if stuck in zenoh.open) when the active
+    publisher dies: it was promoted, and no frame was published again. Now it is killed and a new publisher
+    starts: the frames resume, no failover is counted."""
+    hang = tmp_path / "hang"
+    monkeypatch.setenv(HANG_BEFORE_READY_ENV, str(hang))
+    nc = start_nc()
+    cl = nc_client(nc.port)
+    cl.watch("nc/nc1/frame/10ms")
+    wait_until(lambda: (s := cl.stats()) is not None and s["publisher_standby"] and s, T, "a ready standby")
+    first = publisher_pids(nc.pid, STANDBY_COMM)[0]
+    hang.touch()  # (the children started from now on hang)
+    os.kill(first, signal.SIGKILL)
+    wait_until(lambda: "hangs before it is ready" in nc.stderr() or None, T, "the next standby to hang")
+    hang.unlink()  # (the next one starts normally)
+    active = publisher_pids(nc.pid)
+    hung = [p for p in publisher_pids(nc.pid, None) if p not in active]
+    assert len(active) == 1 and len(hung) == 1
+    kill_and_wait(active[0])
+    c1 = wait_until(lambda: frame_cycle(cl), T, "a frame")  # (the newest the killed one put, or a later one)
+    wait_until(lambda: (frame_cycle(cl) or 0) > c1 + 50, T, "frames from a new publisher")
+    wait_until(lambda: not alive(hung[0]) or None, T, "the hung standby to be killed")
+    st = wait_until(lambda: (s := cl.stats()) is not None and s["publisher_standby"] and s, T, "a ready standby again")
+    assert st["publisher_failovers"] == 0, st
+    assert f"the standby (pid {hung[0]}) was not ready (killed)" in nc.stderr()

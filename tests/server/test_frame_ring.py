@@ -114,3 +114,24 @@ def test_a_promoted_reader_goes_on_after_the_last_slot_published() -> None:
     seq = w.write(3, 3, recs)
     got = standby.read_newest()
     assert got is not None and got[0] == seq and got[3] == 0
+
+
+def test_a_promoted_reader_takes_the_newest_slot_and_sees_the_last_frame_published() -> None:
+    """The frames written between the last one put and the promotion are skipped (counted), not put late; the
+    promoted publisher reads the last frame put (its frame/<P>ms windows go on from it) while it is in the ring."""
+    w, active = _pair(2, slots=4)
+    standby = FrameRing(w.mv, 2, 4)
+    recs = np.zeros(2, dtype=NCTOPLC_DTYPE)
+    assert standby.published_frame() is None  # (nothing published yet)
+    w.write(1, 1_000_000, recs)
+    got = active.read_newest()
+    assert got is not None
+    active.set_published(got[0])  # ... and then it dies
+    for c in range(2, 5):
+        w.write(c, c * 1_000_000, recs)
+    assert standby.published_frame() == got[1]
+    standby.resume_after_published()
+    new = standby.read_newest()
+    assert new is not None and decode_frame(new[1])[0]["Cycle"] == 4 and new[3] == 2
+    w.write(5, 5_000_000, recs)  # (slot of the published frame, 4 slots later, overwritten)
+    assert standby.published_frame() is None

@@ -1,0 +1,77 @@
+"""The frame publisher (nc_server/server/publisher.py): its supervisor does the process work off the I/O thread; a
+promoted publisher goes on with the decimation of the one it replaces."""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from nc_schema import FRAME_PERIODS_MS, NCTOPLC_DTYPE, encode_frame
+from nc_server.server.publisher import FrameOutput, FramePublisher, PublisherProcess
+from znc_testing import wait_until
+
+pytestmark = pytest.mark.skipif(not hasattr(__import__("os"), "pidfd_open"), reason="needs Linux")
+
+
+def test_the_io_threads_watch_never_forks_and_the_supervisor_does() -> None:
+    """The NC's SCHED_FIFO I/O thread calls watch() every 0.1 s: it used to start the due child itself (fork and
+    exec, and kill and wait), holding replies and stats back meanwhile. The supervisor thread does it now."""
+    out = FrameOutput("nc1", 1)
+    pp = PublisherProcess(out, "nc1", [1], settings=None)
+    launched: list[str] = []
+
+    def launch() -> None:  # (records who starts a child; starts none: the supervisor logs and goes on)
+        launched.append(threading.current_thread().name)
+        raise RuntimeError("no child in this test")
+
+    pp._launch = launch  # type: ignore[method-assign]
+    pp._restart_at, pp._first_standby = 0.0, False  # a restart is due
+    try:
+        pp.watch()  # (what the I/O thread does)
+        assert launched == []
+        pp._watcher = threading.Thread(target=pp._supervise, name="nc-publisher-watch", daemon=True)
+        pp._watcher.start()
+        wait_until(lambda: launched or None, 10.0, "the supervisor to start the due child")
+        assert launched[0] == "nc-publisher-watch"
+    finally:
+        pp.stop(timeout=1.0)
+        out.close()
+
+
+class _Pub:
+    """A zenoh publisher that records what it was given."""
+
+    def __init__(self) -> None:
+        self.puts: list[bytes] = []
+
+    def put(self, payload: bytes, **_: object) -> None:
+        self.puts.append(payload)
+
+
+def _publisher() -> tuple[FramePublisher, _Pub]:
+    """A FramePublisher without a session (its publishers recorded): frame/10ms has a subscriber, nothing else."""
+    p = FramePublisher.__new__(FramePublisher)
+    p.sent = p.dropped = p.put_errors = 0
+    p.frame_matched = np.zeros(1, dtype=bool)
+    p.every_matched = np.array([ms == 10 for ms in FRAME_PERIODS_MS])
+    p.nc_matched = p.pc_matched = np.zeros(1, dtype=bool)
+    p.status_pub, p._next_status = _Pub(), float("inf")
+    p.every_pubs = [(ms * 1_000_000, _Pub()) for ms in FRAME_PERIODS_MS]
+    p._windows = [-1] * len(FRAME_PERIODS_MS)
+    return p, p.every_pubs[FRAME_PERIODS_MS.index(10)][1]
+
+
+def test_a_promoted_publisher_goes_on_with_the_decimation_windows_of_the_last_frame_put() -> None:
+    """After a failover the new publisher put the first frame it read on frame/10ms even when the dead one had
+    put that 10 ms window already: a duplicate window for every frame/<P>ms subscriber."""
+    recs = np.zeros(1, dtype=NCTOPLC_DTYPE)
+    frames = [encode_frame(c, c * 1_000_000, recs) for c in (11, 13, 21)]  # NC time 11, 13, 21 ms
+    dead, put = _publisher()
+    dead.publish(frames[0], None)
+    assert put.puts == [frames[0]]
+    new, put = _publisher()
+    new.resume_after(frames[0])
+    new.publish(frames[1], None)  # (the same 10 ms window)
+    new.publish(frames[2], None)
+    assert put.puts == [frames[2]]
