@@ -10,12 +10,14 @@ With a retain file (:mod:`.retain`): locked and read before the cycle starts; th
 steps the core once (the drive is read) and applies the file through the commands, before any
 command or PLCTONC is taken and without publishing a frame; then a snapshot every 100 ms (and on
 every change of standstill) for the retain thread; the final state written after the last cycle. The
-replies of durable commands (WriteParameter, SetActualPosition, SetReferenceFlag) wait in the I/O
-thread until the retain thread has written their snapshot (``RetainKeeper.commit``).
+replies of durable commands (WriteParameter; SetActualPosition, SetReferenceFlag of persistent axes) wait in
+the I/O thread until the retain thread has written their snapshot (``RetainKeeper.commit``), at most
+``transport.HOLD_MAX`` (then 0x4002).
 """
 from __future__ import annotations
 
 import collections
+import functools
 import gc
 import logging
 import os
@@ -35,7 +37,7 @@ from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
 from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
-from .retain import DURABLE_COMMANDS, RetainKeeper
+from .retain import RetainKeeper
 from .frame_ring import RingCounters
 from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
 from .transport import IoThread, Transport
@@ -129,7 +131,7 @@ class NcServer:
         retain = self.retain
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
                                       refresh_liveliness=self._take_liveliness, roles=roles,
-                                      durable_commands=DURABLE_COMMANDS if retain is not None else frozenset())
+                                      keeps=None if retain is None else functools.partial(retain.keeps, core))
         self.inputs = CycleInputs(core, self.claims, config.loss_reactions or None)  # type: ignore[arg-type]
         #: (version, claims map) made by the cycle thread; the I/O thread publishes it
         self.claims_msg: tuple[int, dict[str, Any]] | None = None
@@ -540,5 +542,6 @@ class NcServer:
                   "publisher_restarts": self.publisher.restarts if self.publisher is not None else 0,
                   "publisher_failovers": self.publisher.failovers if self.publisher is not None else 0,
                   "publisher_standby": self.publisher.standby_ready if self.publisher is not None else False,
-                  "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors})
+                  "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors,
+                  "replies_held": self.io.replies_held, "replies_not_kept": self.io.replies_not_kept})
         return d

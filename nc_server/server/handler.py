@@ -144,8 +144,9 @@ class RequestHandler:
         roles: client id -> role (``observer`` / ``operator`` / ``engineer``) from the NC's roles
             file; a client must be listed and its role must allow the command's class (0x723
             otherwise). None: no roles file (the router's access control, if any, decides).
-        durable_commands: commands whose success must be kept before the reply goes out (the retain
-            file's :data:`~nc_server.server.retain.DURABLE_COMMANDS`; empty: none): :attr:`durable`.
+        keeps: ``keeps(cmd, axis_id)``: whether a successful ``cmd`` on that axis must be kept before its
+            reply goes out (the retain file's :meth:`~nc_server.server.retain.RetainKeeper.keeps`; None:
+            nothing): :attr:`durable`.
 
     Dedup applies to commands of class op and eng: a repeated (client, id), client being the
     key's, gets the cached reply and is not executed again. Reads (class read) are never cached:
@@ -163,7 +164,8 @@ class RequestHandler:
     def __init__(self, core: CoreLike, claims: ClaimTable, keys: Keys,
                  info_extra: Callable[[], dict[str, Any]] | None = None, cache_size: int = 4096,
                  refresh_liveliness: Callable[[], None] | None = None,
-                 roles: Mapping[str, str] | None = None, durable_commands: frozenset[str] = frozenset()) -> None:
+                 roles: Mapping[str, str] | None = None,
+                 keeps: Callable[[str, int | None], bool] | None = None) -> None:
         self.core = core
         self.claims = claims
         self.keys = keys
@@ -184,7 +186,7 @@ class RequestHandler:
         self.errors = 0
         self.denied = 0  # 0x723 for the key: wrong class, client field, role
         self.internal_errors = 0
-        self.durable_commands = durable_commands
+        self.keeps = keeps or (lambda cmd, axis_id: False)
         self.durable = False
 
     # ---- liveliness (the server's token events; an in-process port's creation / close) ------
@@ -231,15 +233,21 @@ class RequestHandler:
         text = str(err)
         return make_reply(rid, cmd, err.code, text[:512], cycle=self.core.cycle + 1)
 
-    def not_kept(self, reply: bytes) -> bytes:
-        """``reply`` (no error) of a durable command whose effect could not be written to the retain file:
-        the same reply with 0x4002 (TwinCAT's NC retain data error): applied, but not kept."""
+    def not_kept(self, reply: bytes, late: bool = False) -> bytes:
+        """``reply`` (no error) of a durable command whose effect is not known to be in the retain file: the
+        same reply with 0x4002 (TwinCAT's NC retain data error): applied, but not kept. ``late``: its write
+        did not end within the I/O thread's HOLD_MAX (it may still reach the file); else it failed, or the
+        NC does not write its retain file this run (a reply must not claim a durability it lacks)."""
+        if late:
+            text = ("NC retain data error: applied, but not confirmed kept within the time (the retain file's write "
+                    "is slow; it may still reach the file)")
+        else:
+            text = "NC retain data error: applied, but the retain file could not be written (lost at a restart)"
         try:
             r = unpack(reply)
-            text = "NC retain data error: applied, but the retain file could not be written (lost at a restart)"
             return pack(make_reply(r.get("id"), r.get("cmd"), RETAIN_ERROR_CODE, text, cycle=int(r.get("cycle", 0))))
         except Exception:  # (the NC's own packed reply: never expected)
-            return pack(make_reply(None, None, RETAIN_ERROR_CODE, "NC retain data error", cycle=self.core.cycle + 1))
+            return pack(make_reply(None, None, RETAIN_ERROR_CODE, text, cycle=self.core.cycle + 1))
 
     def too_large(self, size: int) -> bytes:
         """The reply to a request of ``size`` bytes over MAX_REQUEST_BYTES (0x706)."""
@@ -281,7 +289,7 @@ class RequestHandler:
         if cls == "read":
             return pack(self._execute(axis_id, req, now))
         cached = self.cache.get(client, rid)
-        durable = cmd in self.durable_commands
+        durable = self.keeps(cmd, axis_id)
         if cached is not None:
             self.durable = durable  # (an error reply held too: harmless, and no unpacking here)
             return cached

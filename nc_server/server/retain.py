@@ -39,15 +39,20 @@ change); while axes move (only their positions changed) at most every :data:`MOV
 (flash wear); once more at shutdown, after the cycle ended, with whatever changed.
 
 Acknowledged means kept. A request of :data:`DURABLE_COMMANDS` answered with no error (WriteParameter,
-also MC_WriteBoolParameter's, SetActualPosition(OnTheFly), SetReferenceFlag) is in the file, written
-and fsync'ed, before its reply goes out: the cycle thread calls :meth:`RetainKeeper.commit` after the
+also MC_WriteBoolParameter's; SetActualPosition(OnTheFly), SetReferenceFlag on a persistent axis only:
+:meth:`RetainKeeper.keeps`; on another axis they change nothing in the file and reply at once) is in the
+file, written and fsync'ed, before its reply goes out: the cycle thread calls :meth:`RetainKeeper.commit` after the
 requests of one idle slice ran (a snapshot, microseconds, no I/O) and hands their replies to the I/O
 thread tagged with the commit's number; the retain thread writes every snapshot whose commit number
 is above :attr:`RetainKeeper.durable` at once (whatever kind of change) and then raises ``durable``
 (and ``settled``) and calls ``on_settled`` (the I/O thread's wake-up), which sends the held replies.
 Group commit: every snapshot carries the newest commit number taken before it, so commits made while
 a write runs share the next write and its fsyncs. A write that fails settles its commits without
-making them durable: their replies become 0x4002 errors (the value is applied, it is not kept). A position the
+making them durable: their replies become 0x4002 errors (the value is applied, it is not kept); so does
+every such reply while the NC does not write its file this run (``writing_disabled``): a reply must not
+claim a durability it lacks. A reply waits at most ``transport.HOLD_MAX`` (0.8 s, below the clients' 1 s
+command timeout), then goes out as 0x4002 too (not confirmed kept: a slow fsync may still put it in the
+file); only that reply waits, never another one of the same client, never the cycle. A position the
 reader would not restore (not finite, ``|pos| >= 1e9``) is left out with its homed flag (logged once
 per axis), and every file is parsed before it is written: the file never holds what its reader refuses.
 
@@ -104,7 +109,7 @@ from nc_server.core.params import AxisParams
 __all__ = ["AxisRetain", "RetainData", "RetainError", "RetainKeeper", "RetainLockError", "encode_retain",
            "parse_retain", "write_atomic", "max_body", "FORMAT_VERSION", "MAGIC", "SNAPSHOT_PERIOD",
            "MOVING_WRITE_PERIOD", "STANDSTILL_CHECK_PERIOD", "STANDSTILL_TOLERANCE", "STANDSTILL_VELOCITY",
-           "DURABLE_COMMANDS"]
+           "DURABLE_COMMANDS", "POSITION_COMMANDS"]
 
 log = logging.getLogger("nc_server.server")
 
@@ -144,6 +149,8 @@ RETAIN_ERROR_CODE = 0x4002
 #: WriteParameter too). Homing is not one: its reply comes before the axis is homed; the next
 #: snapshot keeps the flag.
 DURABLE_COMMANDS = frozenset({"WriteParameter", "SetActualPosition", "SetActualPositionOnTheFly", "SetReferenceFlag"})
+#: Those of DURABLE_COMMANDS that change what is kept of persistent axes only (AxisEnDataPersistence).
+POSITION_COMMANDS = frozenset({"SetActualPosition", "SetActualPositionOnTheFly", "SetReferenceFlag"})
 #: Set velocities up to this count as zero (the core's own threshold) [u/s].
 _EPS_V = 1e-9
 
@@ -820,6 +827,20 @@ class RetainKeeper:
         self.handed += 1
         self._pending.append(self._snapshot(core, st, self.handed))
         self._wake.set()
+
+    def keeps(self, core: Any, cmd: str, axis_id: int | None) -> bool:
+        """Whether ``cmd`` on ``axis_id``, answered with no error, changes the file's content, so its reply waits
+        for the file (:meth:`commit`): a parameter write, always; a position or homed flag, on a persistent
+        axis only (the file holds no position of another axis: its reply would claim a keeping that
+        never happens, so it goes out at once)."""
+        if cmd not in DURABLE_COMMANDS:
+            return False
+        if cmd not in POSITION_COMMANDS:
+            return True
+        try:
+            return bool(core.params[core.index(axis_id)].AxisEnDataPersistence)
+        except (NcError, TypeError):  # (no such axis: the command was refused anyway)
+            return False
 
     def commit(self, core: Any) -> int:
         """Cycle thread, after requests of :data:`DURABLE_COMMANDS` ran: hand a snapshot over that the

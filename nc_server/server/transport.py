@@ -76,6 +76,10 @@ DEMOTE_PERIOD = 1.0
 STATS_PERIOD = 0.1
 #: The claims map is published on every change and at least this often [s].
 CLAIMS_PERIOD = 1.0
+#: A reply held for the retain file waits at most this long [s], then goes out as 0x4002 (applied, not
+#: confirmed kept): below the clients' command timeout (1 s), so a slow or hung fsync (SD card, eMMC, NFS)
+#: gives the block a clear error in time, never a timeout (0x745) and the Halt that follows it.
+HOLD_MAX = 0.8
 
 _PREC = PLCTONC_DTYPE.itemsize
 _PAREC = PLC_AXIS_RECORD_DTYPE.itemsize
@@ -404,10 +408,10 @@ class Transport:
 class IoThread:
     """Sends the replies and the periodic messages; never lets the network block the cycle.
 
-    Replies in the order handed over (:meth:`Transport.reply`); stats every :data:`STATS_PERIOD`, the claims
-    map on change and every :data:`CLAIMS_PERIOD`; every DEMOTE_PERIOD it sets threads that inherited
-    SCHED_FIFO back to normal; with the stats it calls ``watch`` (the frame
-    publisher's: restarts a child that died), all at most every STATS_PERIOD.
+    Replies in the order handed over (:meth:`Transport.reply`), but for those held for the retain file
+    (below); stats every :data:`STATS_PERIOD`, the claims map on change and every :data:`CLAIMS_PERIOD`;
+    every DEMOTE_PERIOD it sets threads that inherited SCHED_FIFO back to normal; with the stats it calls
+    ``watch`` (the frame publisher's: restarts a child that died), all at most every STATS_PERIOD.
 
     Args:
         transport: the open transport.
@@ -427,13 +431,15 @@ class IoThread:
             never spins: it waits on its queue (at most STATS_PERIOD) and in zenoh's blocking calls.
         durability: returns (settled, durable) commit numbers of the retain file (:class:`~.retain.RetainKeeper`);
             None: no retain file (a reply handed over with a commit number is then sent at once).
-        not_kept: turns a held reply whose commit settled without being kept into its error reply.
+        not_kept: ``not_kept(reply, late)`` turns a held reply into its error reply: its commit settled
+            without being kept (``late`` False), or it waited :data:`HOLD_MAX` (``late`` True).
 
     Held replies (the retain file, ``durability``): a reply handed over with commit number n > 0 waits until
     the retain file's ``settled`` reaches n (the retain thread wakes this thread: :meth:`wake`), then goes out
-    as it is when ``durable`` >= n, else as ``not_kept(reply)``. Replies to one client stay in order: a
-    client's reply handed over after one of its held replies waits for it; other clients' replies are not
-    held.
+    as it is when ``durable`` >= n, else as ``not_kept(reply, False)``. Only that reply waits: every other
+    reply, of any client, goes out at once (replies to separate queries have no ordering guarantee; a
+    client that needs one waits for the reply). A held reply waits at most :data:`HOLD_MAX`, then goes out
+    as ``not_kept(reply, True)`` (0x4002: applied, not confirmed kept; it may still reach the file).
     """
 
     def __init__(self, transport: Transport, stats_source: Callable[[], dict[str, Any]],
@@ -442,16 +448,15 @@ class IoThread:
                  rt_threads: Callable[[], set[int]] | None = None, nice: int | None = None,
                  watch: Callable[[], None] | None = None, rt_priority: int | None = None,
                  durability: Callable[[], tuple[int, int]] | None = None,
-                 not_kept: Callable[[bytes], bytes] | None = None) -> None:
+                 not_kept: Callable[[bytes, bool], bytes] | None = None) -> None:
         self.t = transport
         self.durability = durability
-        self.not_kept = not_kept or (lambda reply: reply)
-        #: held replies, in the order handed over: (query, reply, commit number, client, its own commit: it
-        #: must be kept; else it only waits for an earlier reply of its client)
-        self.held: collections.deque[tuple[Any, bytes, int, str, bool]] = collections.deque()
-        self._held_clients: dict[str, tuple[int, int]] = {}  # client -> (replies held, newest commit number)
+        self.not_kept = not_kept or (lambda reply, late: reply)
+        #: held replies, in the order handed over: (query, reply, commit number, deadline [s, monotonic]);
+        #: commit numbers and deadlines both never fall along it: its head is the first to go
+        self.held: collections.deque[tuple[Any, bytes, int, float]] = collections.deque()
         self.replies_held = 0  # replies that waited for the retain file
-        self.replies_not_kept = 0  # held replies sent as 0x4002 (the retain file was not written)
+        self.replies_not_kept = 0  # held replies sent as 0x4002 (write failed, or not kept within HOLD_MAX)
         self.rt_priority = rt_priority
         #: True while this thread runs SCHED_FIFO
         self.realtime = False
@@ -479,7 +484,7 @@ class IoThread:
 
     def submit_replies(self, replies: list[tuple[Any, bytes]] | list[tuple[Any, bytes, int]]) -> None:
         """Hand (query, reply) pairs, or (query, reply, commit number) for a reply that waits for the retain
-        file (0: none), over (cycle thread; never blocks): answered in this order (see the class: held)."""
+        file (0: none), over (cycle thread; never blocks): answered in this order, a held one later (see the class)."""
         self.q.put(replies)
 
     def wake(self) -> None:
@@ -487,42 +492,40 @@ class IoThread:
         self.q.put(())
 
     def _reply(self, q: Any, payload: bytes, commit: int = 0) -> None:
-        """Send one reply handed over, or hold it (the retain file; its client's order)."""
-        if self.durability is None:
+        """Send one reply handed over, or hold it until the retain file holds its commit (at most HOLD_MAX)."""
+        if commit == 0 or self.durability is None:
             self.t.reply(q, payload)
             return
-        client = str(q.key_expr).rsplit("/", 1)[-1] if (commit or self._held_clients) else ""
-        behind = self._held_clients.get(client)
-        if commit == 0 and behind is None:
-            self.t.reply(q, payload)
-            return
-        own = commit > 0
-        commit = max(commit, behind[1] if behind is not None else 0)
-        self.held.append((q, payload, commit, client, own))
-        self._held_clients[client] = ((behind[0] if behind is not None else 0) + 1, commit)
+        self.held.append((q, payload, commit, time.monotonic() + HOLD_MAX))
         self.replies_held += 1
 
     def _release_held(self, everything: bool = False) -> None:
-        """Send the held replies whose commit settled (``everything``: all of them; those not kept as errors)."""
+        """Send the held replies whose commit settled or whose HOLD_MAX ran out (``everything``: all of them);
+        those not kept as errors."""
         if not self.held or self.durability is None:
             return
         settled, durable = self.durability()
-        later: collections.deque[tuple[Any, bytes, int, str, bool]] = collections.deque()
-        while self.held:
-            q, payload, commit, client, own = entry = self.held.popleft()
-            if commit > settled and not everything:
-                later.append(entry)  # (a client's commit numbers never fall: its order stays)
-                continue
-            if own and commit > durable:
-                payload = self.not_kept(payload)
+        now = time.monotonic()
+        held = self.held
+        while held:
+            q, payload, commit, deadline = held[0]
+            if commit <= settled or everything:
+                if commit > durable:
+                    payload = self.not_kept(payload, False)
+                    self.replies_not_kept += 1
+            elif now >= deadline:
+                payload = self.not_kept(payload, True)
                 self.replies_not_kept += 1
-            self.t.reply(q, payload)
-            n, newest = self._held_clients[client]
-            if n > 1:
-                self._held_clients[client] = (n - 1, newest)
             else:
-                del self._held_clients[client]
-        self.held = later
+                break  # (the rest settle later and run out later)
+            held.popleft()
+            self.t.reply(q, payload)
+
+    def _wait_time(self) -> float:
+        """How long the loop may wait for the queue [s]: STATS_PERIOD, less when a held reply runs out sooner."""
+        if not self.held:
+            return STATS_PERIOD
+        return min(STATS_PERIOD, max(0.0, self.held[0][3] - time.monotonic()))
 
     def stop(self, timeout: float = 5.0) -> None:
         """Send the replies handed over, then end the thread (after a last stats put)."""
@@ -549,7 +552,7 @@ class IoThread:
         running = True
         while running:
             try:
-                item = self.q.get(timeout=STATS_PERIOD)
+                item = self.q.get(timeout=self._wait_time())
             except queue.Empty:
                 item = None
             try:

@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import errno
+import threading
 import time
 from pathlib import Path
+from typing import Callable
 
 import msgpack
 import pytest
@@ -11,6 +13,7 @@ import pytest
 from nc_server.core import NcCore
 from nc_server.server import app as A
 from nc_server.server import retain as R
+from nc_server.server import transport as T
 from nc_server.server.app import NcServer, query_reserve
 from nc_server.server.config import load_config
 
@@ -233,17 +236,18 @@ def test_a_write_is_answered_once_the_retain_file_holds_it(retain_server: NcServ
     srv = retain_server
     _send(srv, "a", 1, "WriteParameter", ParameterNumber=1003, Value=400.0)
     _send(srv, "b", 1, "Info", axis=2, cls="read")
-    _send(srv, "a", 2, "Info", cls="read")  # after its write: must not overtake it
+    _send(srv, "a", 2, "Info", cls="read")  # the same client's next reply is not held behind its write
     _run_all(srv)
     _flush(srv)
-    assert _sent() == [("Info", 1, 0)]  # b's is not held; a's write and a's later Info wait
+    assert _sent() == [("Info", 1, 0), ("Info", 2, 0)]
     assert not (tmp_path / "nc1.retain").exists() or _file_velo_max(tmp_path) is None
     assert srv.retain.committed == 1 and srv.retain.settled == 0
     _write_pending(srv)
     assert _file_velo_max(tmp_path) == 400.0 and srv.retain.durable == 1
     _flush(srv)  # (the retain thread's wake-up: an empty batch)
-    assert _sent() == [("WriteParameter", 1, 0), ("Info", 2, 0)]  # a's, in order
-    assert not srv.io.held and not srv.io._held_clients
+    assert _sent() == [("WriteParameter", 1, 0)]
+    assert not srv.io.held and srv.io.replies_held == 1 and srv.io.replies_not_kept == 0
+    assert (srv.stats()["replies_held"], srv.stats()["replies_not_kept"]) == (1, 0)
 
 
 def test_writes_in_flight_share_one_file_write(retain_server: NcServer, tmp_path: Path) -> None:
@@ -301,3 +305,77 @@ def test_position_and_reference_flag_are_answered_once_kept(retain_server: NcSer
     assert a.position == 12.5 and a.homed
     _flush(srv)
     assert _sent() == [("SetActualPosition", 1, 0), ("SetReferenceFlag", 2, 0)]
+
+
+def test_position_and_reference_flag_of_an_axis_not_persisted_are_answered_at_once(retain_server: NcServer) -> None:
+    """Axis 2 has AxisEnDataPersistence FALSE: the file never holds its position or homed flag, so its replies
+    must not wait for a write (and claim a keeping that never happens)."""
+    srv = retain_server
+    for rid, cmd, args in ((1, "SetActualPosition", {"Position": 3.0}),
+                           (2, "SetActualPositionOnTheFly", {"ActualPosition": 4.0, "PreviousPosition": 3.0}),
+                           (3, "SetReferenceFlag", {"ReferenceFlag": True})):
+        _send(srv, "a", rid, cmd, axis=2, **args)
+    _run_all(srv)
+    _flush(srv)
+    assert _sent() == [("SetActualPosition", 1, 0), ("SetActualPositionOnTheFly", 2, 0), ("SetReferenceFlag", 3, 0)]
+    assert srv.retain.committed == 0 and not srv.io.held and srv.io.replies_held == 0
+
+
+def test_while_the_nc_does_not_write_its_file_a_write_is_answered_with_0x4002(retain_server: NcServer) -> None:
+    srv = retain_server
+    srv.retain.writing_disabled = True  # (a refused file it could not rename: see retain.py)
+    _send(srv, "a", 1, "WriteParameter", ParameterNumber=1003, Value=400.0)
+    _run_all(srv)
+    _write_pending(srv)
+    _flush(srv)
+    assert _sent() == [("WriteParameter", 1, 0x4002)]
+    assert srv.core.params[0].AxisVeloMax == 400.0  # applied, not kept
+
+
+def test_a_stalled_write_gives_0x4002_after_the_cap_and_holds_nothing_else(
+        retain_server: NcServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The retain thread and the I/O thread running, the file's write hangs (a dead disk): the cycle thread
+    never waits, the client's other replies go out at once, the write's reply is 0x4002 after HOLD_MAX."""
+    srv = retain_server
+    hung = threading.Event()
+    release = threading.Event()
+
+    def stalled(_p: object, _d: bytes) -> bool:
+        hung.set()
+        release.wait(30)
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(R, "write_atomic", stalled)
+    srv.retain.start()
+    srv.io.start()
+    try:
+        _send(srv, "a", 1, "WriteParameter", ParameterNumber=1003, Value=400.0)
+        t0 = time.monotonic()
+        _run_all(srv)
+        assert time.monotonic() - t0 < 0.5  # the cycle thread hands over and goes on (no I/O there)
+        assert hung.wait(5), "the retain thread never started the write"
+        for rid in range(2, 12):  # the cycle goes on taking the same client's requests while the write hangs
+            _send(srv, "a", rid, "Info", cls="read")
+            t1 = time.monotonic()
+            srv.cycle(time.monotonic_ns())
+            _run_all(srv)
+            assert time.monotonic() - t1 < 0.5  # (a wait for the write would take HOLD_MAX or more)
+        _wait(lambda: len(SENT) >= 10, 5.0, "the Info replies")
+        assert _sent() == [("Info", rid, 0) for rid in range(2, 12)]  # not held behind the hung write
+        _wait(lambda: len(SENT) >= 1, T.HOLD_MAX + 5.0, "the write's reply")
+        took = time.monotonic() - t0
+        (payload, _), = SENT
+        r = msgpack.unpackb(payload, strict_map_key=False)
+        assert (r["cmd"], r["id"], r["error"]) == ("WriteParameter", 1, 0x4002) and "within the time" in r["text"]
+        assert took >= T.HOLD_MAX - 0.05 and srv.io.replies_not_kept == 1 and not srv.io.held
+        assert srv.retain.settled == 0 and srv.core.params[0].AxisVeloMax == 400.0  # applied, still not settled
+    finally:
+        release.set()
+        srv.io.stop()
+
+
+def _wait(cond: Callable[[], bool], timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < end, f"{what}: not sent within {timeout} s"
+        time.sleep(0.01)

@@ -202,18 +202,23 @@ def test_a_second_nc_on_the_same_retain_file_does_not_start(
 
 
 KILL_ROUNDS = int(os.environ.get("ZNC_KILL_ROUNDS", "50"))
-#: (axis, parameter) each written by a writer thread of its own: concurrent writes share fsyncs
-KILL_PARAMS = ((1, int(MC_AxisPara.AxisVeloMax)), (2, int(MC_AxisPara.AxisVeloMax)),
-               (1, int(MC_AxisPara.AxisAcc)), (2, int(MC_AxisPara.AxisAcc)))
+#: SetActualPosition's target in KILL_TARGETS (else a parameter number)
+POSITION = "position"
+#: (axis, parameter or POSITION) each written by a writer thread of its own: concurrent writes share fsyncs.
+#: Axis 1 is persistent (RETAIN_CONFIG): its SetActualPosition replies wait for the file too.
+KILL_TARGETS: tuple[tuple[int, int | str], ...] = (
+    (1, int(MC_AxisPara.AxisVeloMax)), (2, int(MC_AxisPara.AxisVeloMax)),
+    (1, int(MC_AxisPara.AxisAcc)), (2, int(MC_AxisPara.AxisAcc)), (1, POSITION))
 
 
 class _Writer(threading.Thread):
-    """Writes 1, 2, 3, ... (+ base) to one parameter, one request at a time, until a request fails (the NC
-    was killed); ``acked``: the last value answered with no error, ``in_flight``: the one sent after it."""
+    """Writes 1, 2, 3, ... (+ base) to one parameter (or the actual position: SetActualPosition), one request
+    at a time, until a request fails (the NC was killed); ``acked``: the last value answered with no error,
+    ``in_flight``: the one sent after it."""
 
-    def __init__(self, cl: NcTestClient, axis: int, number: int, base: float) -> None:
+    def __init__(self, cl: NcTestClient, axis: int, target: int | str, base: float) -> None:
         super().__init__(daemon=True)
-        self.cl, self.axis, self.number, self.base = cl, axis, number, base
+        self.cl, self.axis, self.target, self.base = cl, axis, target, base
         self.acked: float | None = None
         self.in_flight: float | None = None
         self.errors: list[dict[str, Any]] = []
@@ -224,8 +229,11 @@ class _Writer(threading.Thread):
             k += 1
             self.in_flight = self.base + k
             try:
-                r = self.cl.request("WriteParameter", axis=self.axis, ParameterNumber=self.number,
-                                    Value=self.in_flight, timeout=5.0)
+                if self.target == POSITION:
+                    r = self.cl.request("SetActualPosition", axis=self.axis, Position=self.in_flight, timeout=5.0)
+                else:
+                    r = self.cl.request("WriteParameter", axis=self.axis, ParameterNumber=self.target,
+                                        Value=self.in_flight, timeout=5.0)
             except Exception:  # no reply: the NC is gone (the value may or may not be kept)
                 return
             if r["error"]:
@@ -234,24 +242,41 @@ class _Writer(threading.Thread):
             self.acked, self.in_flight = self.in_flight, None
 
 
+def _kept(cl: NcTestClient, axis: int, target: int | str, values: set[float],
+          make: Callable[[], NcTestClient]) -> tuple[bool, float]:
+    """Whether the restarted NC holds one of ``values`` (acknowledged / in flight) for ``target``; the value.
+    A position is read from the NCTOPLC by a client of its own (``make``), closed at once: receiving the
+    frames of every cycle for the rest of the round doubled the test's time on 2 cores."""
+    if target == POSITION:
+        reader = make()
+        try:
+            got = state(reader, axis)[0]
+        finally:
+            reader.close()
+        return any(abs(got - v) < 1e-3 for v in values), got
+    got = read_param(cl, axis, int(target))
+    return got in values, got
+
+
 def test_every_acknowledged_write_survives_kill_9_at_random_moments(
         start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient], tmp_path: Path) -> None:
-    """A stream of acknowledged WriteParameters, the NC killed with SIGKILL at a random moment, 50 rounds:
-    after each restart every parameter holds its last acknowledged value (or the one in flight)."""
+    """A stream of acknowledged WriteParameters and SetActualPositions (persistent axis), the NC killed with
+    SIGKILL at a random moment, 50 rounds: after each restart every parameter and the position hold their last
+    acknowledged value (or the one in flight)."""
     path = tmp_path / "nc1.retain"
     args = ("--retain", str(path))
     seed = random.randrange(1 << 30)
     rnd = random.Random(seed)
     nc = start_nc(RETAIN_CONFIG, args)
-    expected: dict[tuple[int, int], set[float]] = {}
+    expected: dict[tuple[int, int | str], set[float]] = {}
     for rnd_no in range(KILL_ROUNDS):
         cl = nc_client(nc.port, f"writer{rnd_no}")
-        for (axis, number), values in expected.items():  # the previous round's values came back
-            got = read_param(cl, axis, number)
-            assert got in values, (f"round {rnd_no} (seed {seed}): axis {axis} parameter {number} is {got}, "
-                                   f"acknowledged / in flight: {sorted(values)}")
+        for (axis, target), values in expected.items():  # the previous round's values came back
+            ok, got = _kept(cl, axis, target, values, lambda: nc_client(nc.port, f"frames{rnd_no}"))
+            assert ok, (f"round {rnd_no} (seed {seed}): axis {axis} {target} is {got}, "
+                        f"acknowledged / in flight: {sorted(values)}")
         base = 1000.0 * (rnd_no + 1)  # every round writes values of its own (above the configured ones)
-        writers = [_Writer(cl, axis, number, base) for axis, number in KILL_PARAMS]
+        writers = [_Writer(cl, axis, target, base) for axis, target in KILL_TARGETS]
         for w in writers:
             w.start()
         wait_until(lambda: all(w.acked is not None for w in writers), T, "a first acknowledged write of each writer")
@@ -261,11 +286,11 @@ def test_every_acknowledged_write_survives_kill_9_at_random_moments(
         for w in writers:
             w.join(T)
             assert not w.is_alive() and not w.errors, w.errors
-        expected = {(w.axis, w.number): {w.acked} | ({w.in_flight} if w.in_flight is not None else set())
+        expected = {(w.axis, w.target): {w.acked} | ({w.in_flight} if w.in_flight is not None else set())
                     for w in writers}
         cl.close()
         nc = start_nc(RETAIN_CONFIG, args)
     cl = nc_client(nc.port, "reader")
-    for axis, number in KILL_PARAMS:
-        assert read_param(cl, axis, number) in expected[axis, number], seed
+    for axis, target in KILL_TARGETS:
+        assert _kept(cl, axis, target, expected[axis, target], lambda: nc_client(nc.port, "frames"))[0], seed
     nc.stop()
