@@ -137,6 +137,30 @@ def test_live_json_refreshes_until_sigint(rig: Rig) -> None:
         kill_group(p)
 
 
+def test_a_silent_tool_cannot_hold_a_wait_past_its_deadline() -> None:
+    """The live-JSON tests wait for lines with a deadline: a blocking readline() inside wait_until (as
+    they had) waited here for the writer's 60 s silence, whatever the deadline."""
+    import subprocess
+    import sys
+    import time
+
+    import pytest
+
+    from tools_testing import JsonLines, kill_group
+    p = subprocess.Popen([sys.executable, "-c", "import time; print('{\"a\": 1}', flush=True); time.sleep(60)"],
+                         stdout=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert p.stdout is not None
+        docs = JsonLines(p.stdout)
+        assert docs.newest(T) == {"a": 1}
+        t0 = time.monotonic()
+        with pytest.raises(AssertionError, match="timed out after 1 s waiting for a second line"):
+            wait_until(lambda: docs.newest(0.2), 1.0, "a second line")
+        assert time.monotonic() - t0 < 10.0
+    finally:
+        kill_group(p)
+
+
 def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
     import signal
     import subprocess
