@@ -43,9 +43,10 @@ a live holder) until
   is just released;
 * another connection writes PLCTONC to the axis: it becomes the supplier (same zenoh identity);
 * 0x4200+ID 0x50 (disable): enables off for a few supply periods, then Release;
-* the NC restarts (a new NC instance in the frames, ``nc_schema.NcInstance``: its cycle counter goes
-  back, or its NC time ran on by more than its cycles take) or the NC reports that it no longer holds the axis (``nc/<nc>/claims``): the supply ends;
-  nothing is re-enabled by itself. The NC's liveliness token going away is no restart: zenoh drops the
+* the NC restarts (a new NC instance, ``nc_schema.NcInstance``: its instance token ``nc/<nc>/alive/<id>``
+  carries another id, or its frames' cycle counter goes back) or the NC reports that it no longer holds the
+  axis (``nc/<nc>/claims``): the supply ends; nothing is re-enabled by itself. The NC's liveliness token
+  going away (and its instance token coming back with the same id) is no restart: zenoh drops the
   link (and the token) whenever nc-ads, the NC or a router is starved for a lease, and the same NC is
   back 0.1-0.3 s later, still holding the axis for nc-ads (its stall) or not (nc-ads's stall: the
   claims map says so).
@@ -76,7 +77,8 @@ import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
-    COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, NcInstance, check_client_id, make_request, parse_reply,
+    COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, NcInstance, check_client_id, make_request,
+    parse_alive_instance, parse_reply,
 )
 from nc_schema import NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLCTONC_DTYPE, decode_ads, encode_ads, unpack
 from nc_schema.codec import _FRAME_HEADER, FRAME_MAGIC, PLC_FRAME_MAGIC, WIRE_VERSION  # header Struct from the schema
@@ -427,6 +429,7 @@ class NcDevice(AdsDevice):
         self._session: zenoh.Session | None = None
         self._frames: Any = None
         self._alive: Any = None
+        self._instance_sub: Any = None
         self._claims_sub: Any = None
         self._token: Any = None
         self._pub: Any = None
@@ -436,11 +439,13 @@ class NcDevice(AdsDevice):
         self._threads: list[threading.Thread] = []
         self.frames_seen = 0
         self.bad_frames = 0
-        self._instance = NcInstance()  # the restart rule, fed by the frame thread
+        #: the restart rule, fed by the frame thread (frames) and the supply thread (instance tokens)
+        self._instance = NcInstance()
+        self._instance_lock = threading.Lock()
 
     @property
     def restarts(self) -> int:
-        """NC restarts seen (new NC instances in the frames)."""
+        """NC restarts seen (new NC instances: instance tokens and frames)."""
         return self._instance.restarts
 
     # ---- lifecycle --------------------------------------------------------------------------------------------
@@ -483,6 +488,8 @@ class NcDevice(AdsDevice):
     def _declare(self, s: zenoh.Session) -> None:
         self._frames = s.declare_subscriber(self.frame_key, RingChannel(1))
         self._alive = s.liveliness().declare_subscriber(self.keys.alive, FifoChannel(64), history=True)
+        self._instance_sub = s.liveliness().declare_subscriber(self.keys.alive_instance_any, FifoChannel(64),
+                                                               history=True)
         self._claims_sub = s.declare_subscriber(self.keys.claims, RingChannel(1))
         if "op" in self.classes:  # an observer has no token and sends no PLCTONC (the ACL would deny both)
             self._token = s.liveliness().declare_token(self.keys.client_alive(self.client_id))
@@ -550,7 +557,8 @@ class NcDevice(AdsDevice):
                 self._image = img
                 listeners = list(self._listeners)
             self.frames_seen += 1
-            why = self._instance.frame(img.cycle, img.nc_time_ns)
+            with self._instance_lock:
+                why = self._instance.frame(img.cycle)
             if why is not None:
                 self._nc_restarted(why)
             if old is None or old.records.keys() != img.records.keys():
@@ -627,6 +635,16 @@ class NcDevice(AdsDevice):
                 break
             if ev.kind == zenoh.SampleKind.DELETE:  # not a restart (see the module doc); stale frames then: 0x707
                 log.warning("NC %s unreachable (its liveliness token disappeared)", self.nc)
+        while True:  # the NC process's instance token: another id is a restart, the same one back is none
+            ev = self._instance_sub.try_recv()
+            if ev is None:
+                break
+            parsed = parse_alive_instance(ev.key_expr)
+            if ev.kind != zenoh.SampleKind.DELETE and parsed is not None and parsed[0] == self.nc:
+                with self._instance_lock:
+                    why = self._instance.token(parsed[1])
+                if why is not None:
+                    self._nc_restarted(why)
         s = self._claims_sub.try_recv()
         if s is None:
             return

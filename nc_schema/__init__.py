@@ -16,10 +16,10 @@ from .codec import (
     decode_plc_frame, decode_stamp, encode_frame, encode_plc_frame, encode_stamp, to_dict,
 )
 from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
-from .instance import NcInstance
+from .instance import NcInstance, new_instance_id
 from .messages import (
     CLASSES, COMMAND_CLASS, COMMANDS, FRAME_PERIODS_MS, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES, Keys, check_client_id,
-    frame_period_ms, make_reply, make_request, pack, parse_reply, parse_request, unpack,
+    frame_period_ms, make_reply, make_request, pack, parse_alive_instance, parse_reply, parse_request, unpack,
 )
 from .params import (
     PARAMETERS, ST_AXIS_COMPONENTS, ST_AXIS_PARAMETER_SET, E_DestallDetectMode, E_DestallMode, E_NcAxisType,

@@ -1,76 +1,120 @@
 """NC restart detection: the one rule every client applies (PLC runtime, nc-ads, nc-status).
 
-A restart is a new NC *process instance*, and only the status frames show one. The NC's liveliness
-token ``nc/<nc>/alive`` is no such evidence: it disappears whenever the client's zenoh link to the NC
-is dropped, and zenoh drops a link when either side hears nothing for the other side's lease (500 ms
-by default here) - a starved or SIGSTOPped client, NC or router on a loaded machine - then reconnects
-within 0.1-0.3 s and the token is back while the same NC ran on. So a token that goes means "NC
-unreachable" (its data is invalid: the clients' stale handling), never a restart by itself.
+A restart is a new NC *process instance*. Two kinds of evidence show one:
 
-An instance counts its cycles from 1 (frame header ``Cycle``) and stamps each frame with the NC time of
-that cycle (``NcTimeNs``: CLOCK_REALTIME at its scheduled start; a missed cycle is skipped, so the NC
-time runs ahead of ``Cycle`` x cycle time by the missed cycles; schema/README.md "Time and ordering").
-:class:`NcInstance` declares a new instance when a frame
+1. **The instance token.** Every nc-server process declares, besides ``nc/<nc>/alive``, the liveliness
+   token ``nc/<nc>/alive/<instance>`` (``Keys.alive_instance``), ``<instance>`` an id of that process
+   (:func:`new_instance_id`). A token with an id other than the one a client follows is a new instance
+   (:meth:`NcInstance.token`). The token flaps like ``nc/<nc>/alive``: zenoh drops a link (and every token
+   behind it) when either side hears nothing for the other's lease (500 ms here: a starved or SIGSTOPped
+   client, NC or router on a loaded machine) and reconnects 0.1-0.3 s later - it then comes back with
+   the *same* id, which is no restart.
+2. **The frames** (:meth:`NcInstance.frame`): a ``Cycle`` below the previous frame's (an instance counts
+   its cycles from 1). The only evidence an older NC (no instance token) gives, and not enough alone: a
+   new instance whose first frame a client sees with a *higher* Cycle than the old instance's last (the
+   old one ran briefly; the new one counted cycles while its frame publisher child was starting or
+   while the client stood still) shows nothing in the frames.
 
-1. has a ``Cycle`` below the previous frame's (the counter went back), or
-2. has an ``NcTimeNs`` later than the previous frame's by more than :data:`MIN_GAP_NS` *and* by more
-   than its whole ``Cycle`` count takes (``(Cycle - 1) x`` the cycle time, learnt as the shortest NC
-   time per cycle between two frames): that instance started after the previous frame. A new NC
-   counts cycles before its first frame reaches anybody (its cycle starts while its frame publisher,
-   a child process, is still starting: seconds on a loaded machine), so its first frame can carry a
-   higher ``Cycle`` than the old instance's last when that one ran only seconds (a test under load
-   missed such a restart with rule 1 alone). The same instance would have had to stand still for longer than
-   :data:`MIN_GAP_NS` and than its whole life before: an NC frozen that long has stopped its moving
-   axes itself (0x8F03).
+The NC's ``nc/<nc>/alive`` going away is no evidence at all: it means "unreachable" (the clients' data
+turns invalid), never "restarted".
 
-Pure (no zenoh, no clock): the caller passes each frame's header fields.
+One restart is one step of ``restarts`` whichever evidence arrives first:
+
+* frames first (the cycle went back: counted), then the token: the next new id is that instance
+  (adopted, not counted again);
+* token first (counted), then frames: a cycle going back within the next :data:`FRAMES_OWED` frames is
+  that same instance's first frame (not counted again). A client may still take one or two frames of
+  the old instance after the new token (its RingChannel(1), nc-ads's frame thread holding one), so the
+  old instance's frames do not end the wait; a new instance's first frame comes right after them.
+
+Decisions: no rule on ``NcTimeNs`` (an earlier rule 2 took "NC time ran on by > 5 s and more than the
+whole Cycle count takes" as a new instance: an NC that ran 1 s and then stood 6 s on a loaded machine
+met it while it was the same instance - a false restart stops axes nobody wanted stopped; the instance
+token covers what it was for). The first id a client sees is adopted without a restart: the client
+starts following that NC. Pure (no zenoh, no clock): the caller passes the frames' ``Cycle`` and the
+token ids.
 """
 from __future__ import annotations
 
-#: Rule 2 needs at least this much NC time between two frames [ns] (see the module docstring).
-MIN_GAP_NS = 5_000_000_000
+import os
+import re
+
+#: A cycle going back within this many frames after a new instance token is that instance's (see above).
+FRAMES_OWED = 3
+
+#: An instance id: 16 lowercase hex digits (:func:`new_instance_id`).
+INSTANCE_RE = re.compile(r"[0-9a-f]{16}")
+
+
+def new_instance_id() -> str:
+    """A new NC process instance id: 16 hex digits from ``os.urandom(8)``.
+
+    Random rather than start time + pid: pids repeat (pid 1 in every container), wall clocks jump, and
+    2^64 ids make two instances of one NC share one by chance practically impossible. It tells nothing
+    about the host.
+    """
+    return os.urandom(8).hex()
 
 
 class NcInstance:
-    """Which NC instance one client's frames come from (see the module docstring).
+    """Which NC instance one client follows (see the module docstring); not thread-safe.
 
     Attributes:
+        instance: the instance id followed (None: no instance token seen: an older NC, or not yet).
         cycle: ``Cycle`` of the newest frame (None before the first).
-        nc_time_ns: its ``NcTimeNs`` [ns] (None: not known).
-        cycle_ns: the shortest NC time per cycle seen between two frames of this instance [ns]: its
-            cycle time, or more while every pair seen had missed cycles in between (None: not yet).
         restarts: how many new instances were seen.
     """
 
-    __slots__ = ("cycle", "nc_time_ns", "cycle_ns", "restarts")
+    __slots__ = ("instance", "cycle", "restarts", "_frames_owed", "_token_owed")
 
     def __init__(self) -> None:
+        self.instance: str | None = None
         self.cycle: int | None = None
-        self.nc_time_ns: int | None = None
-        self.cycle_ns: int | None = None
         self.restarts = 0
+        #: frames during which a cycle going back is the restart a new token already counted
+        self._frames_owed = 0
+        #: the frames showed a restart whose instance token has not come yet
+        self._token_owed = False
 
-    def frame(self, cycle: int, nc_time_ns: int | None = None) -> str | None:
-        """Take a frame's ``Cycle`` and ``NcTimeNs`` [ns] (None: unknown; then only rule 1 applies).
+    def frame(self, cycle: int) -> str | None:
+        """Take a frame's ``Cycle``.
 
         Returns:
             None for the same instance; for a new one the reason (for the log), counted in ``restarts``.
         """
         cycle = int(cycle)
-        t = None if nc_time_ns is None else int(nc_time_ns)
         why = None
-        if self.cycle is not None:
-            if cycle < self.cycle:
+        if self.cycle is not None and cycle < self.cycle:
+            if self._frames_owed:
+                self._frames_owed = 0  # the new instance's first frame: its token counted it
+            else:
                 why = "its cycle counter went back"
-            elif t is not None and self.nc_time_ns is not None:
-                gap = t - self.nc_time_ns
-                if self.cycle_ns is not None and gap > max(MIN_GAP_NS, (cycle - 1) * self.cycle_ns):
-                    why = f"its NC time ran {gap / 1e9:.1f} s on, more than its {cycle} cycles take"
-                elif cycle > self.cycle and gap > 0:
-                    per = gap // (cycle - self.cycle)
-                    self.cycle_ns = per if self.cycle_ns is None else min(self.cycle_ns, per)
-        if why is not None:
-            self.restarts += 1
-            self.cycle_ns = None  # the new instance may run another cycle time
-        self.cycle, self.nc_time_ns = cycle, t
+                self.restarts += 1
+                self._token_owed = True
+        elif self._frames_owed:
+            self._frames_owed -= 1
+        self.cycle = cycle
         return why
+
+    def token(self, instance: str) -> str | None:
+        """Take the id of an instance token that appeared (a liveliness PUT of ``nc/<nc>/alive/<instance>``).
+
+        Returns:
+            None for the instance followed (a token that came back), the first id seen, or the instance
+            the frames already showed; else the reason (for the log), counted in ``restarts``.
+
+        Raises:
+            ValueError: ``instance`` is not an instance id (callers drop such tokens before).
+        """
+        if not isinstance(instance, str) or not INSTANCE_RE.fullmatch(instance):
+            raise ValueError(f"not an NC instance id: {instance!r}")
+        old, self.instance = self.instance, instance
+        if old is None or instance == old:
+            self._token_owed = False
+            return None
+        if self._token_owed:  # the frames showed this restart first
+            self._token_owed = False
+            return None
+        self.restarts += 1
+        self._frames_owed = FRAMES_OWED
+        return f"a new instance {instance} (was {old})"

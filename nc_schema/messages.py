@@ -9,6 +9,7 @@ import msgpack
 
 from .codec import load_json
 from .errors import ErrorCodes, NcError, error_text
+from .instance import INSTANCE_RE
 
 PROTOCOL: dict[str, Any] = load_json("protocol.json")
 COMMANDS: dict[str, Any] = PROTOCOL["commands"]
@@ -28,6 +29,17 @@ ROLE_CLASSES: dict[str, tuple[str, ...]] = {"observer": ("read",), "operator": (
 _AXIS_RE = r"(?:0|[1-9][0-9]{0,8})"  # decimal, no leading zeros: axis/01 is not axis 1
 #: Periods [ms] of the ``nc/<nc>/frame/<period>ms`` keys (protocol.json ``frame_every``).
 FRAME_PERIODS_MS: tuple[int, ...] = tuple(PROTOCOL["keys"]["frame_every"]["periods_ms"])
+
+
+def parse_alive_instance(key: object) -> tuple[str, str] | None:
+    """(NC name, instance id) of an instance token's key ``nc/<nc>/alive/<instance>``; None for any
+    other key (``nc/<nc>/alive``, a malformed name or id: such a token is ignored, never an error)."""
+    parts = str(key).split("/")
+    if len(parts) != 4 or parts[0] != "nc" or parts[2] != "alive":
+        return None
+    if not _NAME_RE.fullmatch(parts[1]) or not INSTANCE_RE.fullmatch(parts[3]):
+        return None
+    return parts[1], parts[3]
 
 
 def frame_period_ms(cycle_time: float) -> int | None:
@@ -59,6 +71,8 @@ class Keys:
         #: the NC's one queryable: every command key (axis and NC level) of this NC
         self.cmd_any = f"{self.prefix}/**/cmd/*/*"
         self.alive = f"{self.prefix}/alive"
+        #: every instance token of this NC (``alive_instance``): what clients watch for a restart
+        self.alive_instance_any = f"{self.alive}/*"
         self.client_alive_any = f"{self.prefix}/client/*"
         self.plctonc_in_any = f"{self.prefix}/plctonc/*"
         self._cmd_re = re.compile(re.escape(self.prefix) + rf"(?:/axis/({_AXIS_RE}))?/cmd/([a-z]+)/([A-Za-z0-9_.-]{{1,64}})")
@@ -106,6 +120,16 @@ class Keys:
         """
         cls = COMMAND_CLASS.get(cmd, "op")
         return self.cmd(cls, client) if axis is None else self.axis_cmd(axis, cls, client)
+
+    def alive_instance(self, instance: str) -> str:
+        """``nc/<nc>/alive/<instance>``: the liveliness token of one NC process (``nc_schema.instance``).
+
+        Raises:
+            ValueError: not an instance id (16 lowercase hex digits).
+        """
+        if not isinstance(instance, str) or not INSTANCE_RE.fullmatch(instance):
+            raise ValueError(f"invalid NC instance id {instance!r}: 16 lowercase hex digits")
+        return f"{self.alive}/{instance}"
 
     def client_alive(self, client: str) -> str:
         check_client_id(client)

@@ -1,14 +1,17 @@
 """nc-status: a live table of every NC on a router, like ``halcmd show`` or TwinCAT's online view.
 
-Per NC: alive or gone, cycle, the restarts seen (new NC instances in its frames,
-``nc_schema.NcInstance``: a liveliness token that goes and comes back is none), cycle time, timing
+Per NC: alive or gone, cycle, its instance id (the NC process's token ``nc/<nc>/alive/<instance>``;
+None for an older NC), the restarts seen (new NC instances: another instance id, or the cycle counter
+going back in its frames, ``nc_schema.NcInstance``; a liveliness token that goes and comes back is
+none), cycle time, timing
 mode, missed cycles / overruns, work p99, the clients (and their roles) and the claims; per axis:
 AxisId, MotionState (PLCopen), AxisState, SetPos / ActPos / SetVelo, ErrorCode with its name
 (errors.json), the claim holder and the source of the last command.
 
 Usable over a slow link: it never subscribes to the 1 kHz ``nc/<nc>/frame``. It reads only
 
-* liveliness ``nc/*/alive`` (which NCs exist; NCs are also found by their stats),
+* liveliness ``nc/*/alive`` (which NCs exist; NCs are also found by their stats) and ``nc/*/alive/*``
+  (each NC process's instance id),
 * ``nc/*/status`` (the newest frame's bytes, about 10 per second),
 * ``nc/*/stats`` (msgpack, every 100 ms),
 * ``nc/*/claims`` (msgpack, on every change and every second; holders, clients with roles, the
@@ -41,7 +44,8 @@ import numpy as np
 import zenoh
 
 from nc_schema import (
-    FRAME_HEADER_DTYPE, AxisState, FrameFlags, NcInstance, decode_frame, error_name, motion_state, unpack,
+    FRAME_HEADER_DTYPE, AxisState, FrameFlags, NcInstance, decode_frame, error_name, motion_state,
+    parse_alive_instance, unpack,
 )
 from nc_schema.codec import FRAME_MAGIC
 
@@ -83,7 +87,7 @@ class NcWatch:
         self.alive_t: dict[str, float] = {}
         self.raw: dict[tuple[str, str], _Raw] = {}  # (nc, "status" | "stats" | "claims")
         self.first_seen: dict[str, float] = {}
-        self.instances: dict[str, NcInstance] = {}  # the restart rule, fed by the status frames
+        self.instances: dict[str, NcInstance] = {}  # the restart rule, fed by the status frames and tokens
         self._decl: list[Any] = []
 
     def start(self, discover_timeout: float = 2.0) -> None:
@@ -92,11 +96,15 @@ class NcWatch:
         for what in ("status", "stats", "claims"):
             self._decl.append(s.declare_subscriber(f"nc/*/{what}", self._on_data(what)))
         self._decl.append(s.liveliness().declare_subscriber("nc/*/alive", self._on_alive, history=True))
+        self._decl.append(s.liveliness().declare_subscriber("nc/*/alive/*", self._on_instance, history=True))
         try:
             for r in s.liveliness().get("nc/*/alive", timeout=discover_timeout):
                 if r.ok is not None:
                     self._set_alive(nc_of(r.ok.key_expr), True)
-        except Exception:  # the subscriber's history gives the same, only later
+            for r in s.liveliness().get("nc/*/alive/*", timeout=discover_timeout):
+                if r.ok is not None:
+                    self._on_instance(r.ok)
+        except Exception:  # the subscribers' history gives the same, only later
             pass
 
     def close(self) -> None:
@@ -122,6 +130,14 @@ class NcWatch:
     def _on_alive(self, sample: zenoh.Sample) -> None:
         self._set_alive(nc_of(sample.key_expr), sample.kind != zenoh.SampleKind.DELETE)
 
+    def _on_instance(self, sample: zenoh.Sample) -> None:
+        """An NC process's instance token appeared (its DELETE says what ``nc/<nc>/alive``'s does)."""
+        parsed = parse_alive_instance(sample.key_expr)
+        if sample.kind == zenoh.SampleKind.DELETE or parsed is None or not self._wanted(parsed[0]):
+            return
+        with self._lock:
+            self.instances.setdefault(parsed[0], NcInstance()).token(parsed[1])
+
     def _on_data(self, what: str) -> Callable[[zenoh.Sample], None]:
         def on_sample(sample: zenoh.Sample) -> None:
             nc = nc_of(sample.key_expr)
@@ -135,7 +151,7 @@ class NcWatch:
                 if what == "status" and len(data) >= FRAME_HEADER_DTYPE.itemsize:
                     h = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
                     if int(h["Magic"]) == FRAME_MAGIC:  # (a bad frame: nc_view reports it)
-                        self.instances.setdefault(nc, NcInstance()).frame(int(h["Cycle"]), int(h["NcTimeNs"]))
+                        self.instances.setdefault(nc, NcInstance()).frame(int(h["Cycle"]))
         return on_sample
 
     # ---- reading -------------------------------------------------------------------------------
@@ -156,14 +172,15 @@ class NcWatch:
             raw = dict(self.raw)
             alive = dict(self.alive)
             alive_t = dict(self.alive_t)
-            restarts = {nc: i.restarts for nc, i in self.instances.items()}
+            restarts = {nc: (i.restarts, i.instance) for nc, i in self.instances.items()}
         views = []
         for nc in names:
             newest = max([r.t for (n, _), r in raw.items() if n == nc] + [alive_t.get(nc, 0.0)])
             if not alive.get(nc, False) and now - newest > FORGET_AFTER:
                 continue
+            n_restarts, instance = restarts.get(nc, (0, None))
             views.append(nc_view(nc, alive.get(nc), raw.get((nc, "status")), raw.get((nc, "stats")),
-                                 raw.get((nc, "claims")), now, restarts.get(nc, 0)))
+                                 raw.get((nc, "claims")), now, n_restarts, instance))
         return {"time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds"), "ncs": views}
 
 
@@ -182,12 +199,13 @@ def _error(code: int) -> str | None:
 
 
 def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None, claims: _Raw | None,
-            now: float, restarts: int = 0) -> dict[str, Any]:
+            now: float, restarts: int = 0, instance: str | None = None) -> dict[str, Any]:
     """One NC's row set, decoded from its newest payloads (any of them may be missing or malformed);
-    ``restarts``: the new NC instances seen so far.
+    ``restarts``: the new NC instances seen so far; ``instance``: the id of the NC process followed
+    (None: no instance token seen, e.g. an older NC).
 
     Returns:
-        ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "restarts", "cycle_time", "timing",
+        ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "instance", "restarts", "cycle_time", "timing",
         "missed_cycles", "overruns", "work_us_p99", "clients": {id: {"alive", "role"}}, "claims": {axis: id},
         "axes": [{"AxisId", "MotionState", "AxisState", "SetPos", "ActPos", "SetVelo", "ErrorCode",
         "ErrorName", "Holder", "LastCommand"}], "problems": [str]}``.
@@ -263,7 +281,8 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
             })
     get = (st or {}).get
     return {
-        "name": nc, "alive": alive, "state": state, "age_s": ages, "cycle": cycle, "restarts": restarts,
+        "name": nc, "alive": alive, "state": state, "age_s": ages, "cycle": cycle, "instance": instance,
+        "restarts": restarts,
         "cycle_time": get("cycle_time"), "timing": get("timing"),
         "missed_cycles": get("missed_cycles"), "overruns": get("overruns"), "work_us_p99": get("work_us_p99"),
         "clients": clients, "claims": holders, "claims_source": "claims" if cl is not None else
@@ -286,7 +305,8 @@ def render(snap: dict[str, Any]) -> str:
         out.append(f"{v['name']}  {v['state']}  cycle {_num(v['cycle'], 'd')}  "
                    f"{_num(None if ct is None else ct * 1e3, '.3f')} ms  {v['timing'] or '-'}  "
                    f"missed {_num(v['missed_cycles'], 'd')}  overruns {_num(v['overruns'], 'd')}  "
-                   f"work p99 {_num(v['work_us_p99'], '.0f')} us  restarts {v['restarts']}")
+                   f"work p99 {_num(v['work_us_p99'], '.0f')} us  instance {v['instance'] or '-'}  "
+                   f"restarts {v['restarts']}")
         if v["clients"]:
             parts = []
             for c, info in sorted(v["clients"].items()):

@@ -26,9 +26,10 @@ life, so create each once (at load or on first use), not anew every cycle.
 Staleness (zenoh-nc choice; Tc2_MC2 raises 0x4B0F when its NC cycle counter stops):
 if the NC cycle of an axis's snapshot has not advanced for ``stale_cycles`` PLC cycles,
 or no frame has arrived yet, ``Status.Valid`` is False and function blocks report
-0x4B0F (MC_NO_NC_CYCLE_UPDATE) instead of acting on old data. A frame whose NC cycle
-is *lower* than the previous one means the NC restarted (:class:`nc_schema.NcInstance`; its
-liveliness token going and coming back is no restart, only an unreachable NC meanwhile: see
+0x4B0F (MC_NO_NC_CYCLE_UPDATE) instead of acting on old data. A new NC instance token
+(another id) or a frame whose NC cycle is *lower* than the previous one means the NC restarted
+(:class:`nc_schema.NcInstance`; its liveliness token going and coming back is no restart, only an
+unreachable NC meanwhile: see
 :meth:`plc_client.task.PlcTask.nc_token_gone`): the task increments ``nc_epoch`` once so that
 blocks following a command of the old NC instance stop following it (0x4B0F).
 """

@@ -12,8 +12,8 @@ explicit configuration - never zenoh's defaults:
   held, its motions stop) within ~0.4 s instead of zenoh's default ~7.5 s.
 
 Declared on it: a subscriber on the status frames with a ``RingChannel(1)`` (only the newest
-frame is kept; the cycle takes it with ``try_recv``), a liveliness subscriber on ``nc/<nc>/alive`` (to notice an
-unreachable NC at once), the liveliness token ``nc/<nc>/client/<client_id>`` (the NC accepts claims only
+frame is kept; the cycle takes it with ``try_recv``), liveliness subscribers on ``nc/<nc>/alive`` (to notice an
+unreachable NC at once) and ``nc/<nc>/alive/*`` (the NC process's instance token: a restart), the liveliness token ``nc/<nc>/client/<client_id>`` (the NC accepts claims only
 from live clients and drops them when the token disappears) and a publisher for
 ``nc/<nc>/plctonc/<client_id>``.
 
@@ -34,11 +34,11 @@ subscriber got every frame (tests/integration/test_plc_frame_starvation.py).
 A zenoh client cannot open a session while its router is down, so a session that fails to
 open is retried every ``reconnect_period`` seconds by a background thread while the PLC keeps
 cycling (its axes stay invalid: blocks report 0x4B0F). An open session reconnects by itself
-when the NC restarts; the runtime then sees a new NC instance in the frames (its cycle counter goes
-back: :class:`nc_schema.NcInstance`), stops following the old instance's commands and claims again.
-The NC's liveliness token going away makes its data invalid at once, but is no restart: zenoh drops
-the link (and the token with it) whenever this process, the NC or a router is starved for a lease,
-and the same NC instance is back 0.1-0.3 s later.
+when the NC restarts; the runtime then sees a new NC instance (an instance token with another id, or
+the frames' cycle counter going back: :class:`nc_schema.NcInstance`), stops following the old instance's
+commands and claims again. The NC's liveliness token going away makes its data invalid at once, but is no
+restart: zenoh drops the link (and the tokens with it) whenever this process, the NC or a router is starved
+for a lease, and the same NC instance (the same instance id) is back 0.1-0.3 s later.
 
 Commands (:class:`ZenohPort`) are ``session.get`` queries on the command's key
 ``nc/<nc>/axis/<id>/cmd/<class>/<client_id>`` (``Keys.command_key``; NC-level commands on
@@ -83,7 +83,7 @@ from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
     PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, ErrorCodes, Keys, check_client_id, decode_frame,
-    frame_period_ms, make_reply, parse_reply,
+    frame_period_ms, make_reply, parse_alive_instance, parse_reply,
 )
 from nc_schema.codec import PLC_FRAME_MAGIC, WIRE_VERSION
 # the one client config builder, re-exported (plc_client.runtime.client_config, DEFAULT_LEASE_MS, ...)
@@ -137,6 +137,7 @@ class _NcLink:
         self.session: zenoh.Session | None = None
         self.frames: Any = None
         self.alive_sub: Any = None
+        self.instance_sub: Any = None
         self.token: Any = None
         self.pub: Any = None
         self.ready = False
@@ -154,6 +155,8 @@ class _NcLink:
         try:
             self.frames = s.declare_subscriber(self.frame_key, RingChannel(1))
             self.alive_sub = s.liveliness().declare_subscriber(self.keys.alive, FifoChannel(64), history=True)
+            self.instance_sub = s.liveliness().declare_subscriber(self.keys.alive_instance_any, FifoChannel(64),
+                                                                  history=True)
             self.token = s.liveliness().declare_token(self.keys.client_alive(self.client_id))
             self.pub = s.declare_publisher(self.keys.plctonc_in(self.client_id))
         except Exception as exc:
@@ -170,13 +173,13 @@ class _NcLink:
     def close(self) -> None:
         """Undeclare everything and close the session (idempotent, never raises)."""
         self.ready = False
-        for d in (self.token, self.pub, self.alive_sub, self.frames):
+        for d in (self.token, self.pub, self.alive_sub, self.instance_sub, self.frames):
             if d is not None:
                 try:
                     d.undeclare()
                 except Exception:
                     pass
-        self.token = self.pub = self.alive_sub = self.frames = None
+        self.token = self.pub = self.alive_sub = self.instance_sub = self.frames = None
         if self.session is not None:
             try:
                 self.session.close()
@@ -406,13 +409,14 @@ class PlcRuntime(PlcTask):
                     self._warned.add(f"bad-frame-{nc}")
                     log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
                 continue
-            self._set_frame(nc, int(h["Cycle"]), recs, jobs, int(h["NcTimeNs"]))
+            self._set_frame(nc, int(h["Cycle"]), recs, jobs)
 
     def _liveliness(self, link: _NcLink) -> None:
+        """The NC's liveliness events: ``nc/<nc>/alive`` (reachable or not), then its instance tokens."""
         while True:
             ev = link.alive_sub.try_recv()
             if ev is None:
-                return
+                break
             if ev.kind == zenoh.SampleKind.DELETE:
                 link.nc_gone = True
                 self.nc_token_gone(link.nc)
@@ -420,9 +424,16 @@ class PlcRuntime(PlcTask):
                 log.warning("NC %s is gone (liveliness token deleted)", link.nc)
             else:
                 if link.nc_alive_seen and link.nc_gone:
-                    log.info("NC %s is back", link.nc)  # the same instance or a new one: its frames tell
+                    log.info("NC %s is back", link.nc)  # the same instance or a new one: its instance token tells
                 link.nc_alive_seen, link.nc_gone = True, False
                 self.nc_token_back(link.nc)  # its data counts again
+        while True:  # then the instance tokens (their DELETE says what nc/<nc>/alive's does)
+            ev = link.instance_sub.try_recv()
+            if ev is None:
+                return
+            parsed = parse_alive_instance(ev.key_expr)
+            if ev.kind != zenoh.SampleKind.DELETE and parsed is not None and parsed[0] == link.nc:
+                self.nc_instance_token(link.nc, parsed[1])
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         link = self.links.get(nc)

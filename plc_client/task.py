@@ -17,9 +17,9 @@ Transports subclass it (:class:`plc_client.runtime.PlcRuntime` over zenoh,
 Claims: an axis becomes *controlled* the first time an ``MC_Power`` block is called on it;
 the task then sends ``Claim`` (the NC refuses with 0x723 while another live client holds the
 axis). A refused or timed-out claim is retried on MC_Power's Enable rising edge and every
-``claim_retry`` seconds while Enable stays TRUE. An NC restart (a new NC instance in the
-frames, :class:`nc_schema.NcInstance`; a liveliness token that goes and comes back is none) forgets
-all claims on that NC; MC_Power claims again.
+``claim_retry`` seconds while Enable stays TRUE. An NC restart (a new NC instance: its instance token
+carries another id, or its frames' cycle counter went back, :class:`nc_schema.NcInstance`; a liveliness
+token that goes and comes back is none) forgets all claims on that NC; MC_Power claims again.
 
 Late replies (zenoh-nc choice, the manual is silent): a block that times out (0x745)
 abandons its request. If the NC accepted it anyway (late reply with error 0), the task
@@ -228,7 +228,7 @@ class PlcTask:
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
         self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
-        #: each NC's instance as its frames show it: the restart rule (nc_schema.instance)
+        #: each NC's instance as its instance token and frames show it: the restart rule (nc_schema.instance)
         self._instances: dict[str, NcInstance] = {}
         self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
         self._initial_axes = list(axes)  # bound by bind_axes() once the subclass has its transport
@@ -487,8 +487,8 @@ class PlcTask:
         was lost (stale, NC gone or restarted) after a frame of NC cycle ``nc_cycle`` had shown it.
 
         When valid frames come back from the same NC instance (cycle >= ``nc_cycle``) and the
-        command still runs, the task stops it (see the module docstring); a restarted NC (its cycle
-        counter went back) knows nothing of it.
+        command still runs, the task stops it (see the module docstring); a restarted NC (a new
+        instance, :meth:`nc_restarted`) knows nothing of it.
         """
         if cmdno:
             self._orphans.append(_Orphan(ax, int(cmdno), int(nc_cycle), ax.nc_epoch, cmd, lost=True, since=self.now))
@@ -574,12 +574,11 @@ class PlcTask:
     def _take_frames(self) -> None:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
-    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None,
-                   nc_time_ns: int | None = None) -> None:
-        """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent;
-        ``nc_time_ns`` its header's NcTimeNs [ns] (None: unknown). A frame of a new NC instance
-        (:class:`nc_schema.NcInstance`) is a restart (:meth:`nc_restarted`)."""
-        why = self._instances.setdefault(nc, NcInstance()).frame(cycle, nc_time_ns)
+    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
+        """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent. A frame of a
+        new NC instance (:class:`nc_schema.NcInstance`: its cycle counter went back) is a restart
+        (:meth:`nc_restarted`)."""
+        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
         if why is not None:
             self.nc_restarted(nc, why)
         ids = records["AxisId"]
@@ -610,16 +609,28 @@ class PlcTask:
 
         The NC is unreachable: its data is invalid at once (:meth:`nc_down`). That is not a restart:
         the token also goes and comes back when the zenoh link is dropped for a lease (a starved
-        client, NC or router) while the same NC runs on. Only the frames show a new instance
-        (:class:`nc_schema.NcInstance`, :meth:`_set_frame`); if this client's link was dropped, the NC
+        client, NC or router) while the same NC runs on. A new instance shows by its instance token
+        and its frames (:meth:`nc_instance_token`, :meth:`_set_frame`); if this client's link was dropped, the NC
         dropped its claims too and shows it (0x8F01 on the held axes: claimed again by MC_Power).
         """
         self.nc_down(nc)
 
     def nc_token_back(self, nc: str) -> None:
         """The liveliness token of NC ``nc`` is back after :meth:`nc_token_gone`: its frames count
-        again (whether it is a new instance, its frames tell)."""
+        again (whether it is a new instance, its instance token and frames tell)."""
         self.nc_up(nc)
+
+    def nc_instance_token(self, nc: str, instance: str) -> None:
+        """NC ``nc``'s instance token ``nc/<nc>/alive/<instance>`` appeared (transports that watch it call
+        this): another id than the one followed is a restart (:meth:`nc_restarted`), the same one coming
+        back (a dropped link) is none (:class:`nc_schema.NcInstance`).
+
+        Raises:
+            ValueError: ``instance`` is not an instance id (the transport drops such tokens before).
+        """
+        why = self._instances.setdefault(nc, NcInstance()).token(instance)
+        if why is not None:
+            self.nc_restarted(nc, why)
 
     def nc_down(self, nc: str) -> None:
         """The NC's liveliness token disappeared: its axes' data is invalid from this cycle on
@@ -631,12 +642,18 @@ class PlcTask:
         self._nc_down.discard(nc)
 
     def nc_restarted(self, nc: str, why: str = "its cycle counter went back") -> None:
-        """The NC ``nc`` restarted (``why``, for the log): bump the epoch of its axes and forget its claims."""
+        """The NC ``nc`` restarted (``why``, for the log): bump the epoch of its axes and forget its claims.
+
+        The frame held is the old instance's (a restart told by the instance token comes before the new
+        instance's frames): dropped, so no old data is valid under the new epoch (invalid until the new
+        instance's first frame)."""
         for (n, _), refs in self._refs.items():
             if n == nc:
                 for ax in refs:
                     ax.nc_epoch += 1
+                    ax._has_data = False  # (its snapshot is the old instance's)
         self._forget_claims(nc)
+        self._frames.pop(nc, None)
         log.warning("NC %s restarted (%s): commands of the old instance are no longer followed", nc, why)
 
     def _publish_all(self) -> None:
@@ -691,8 +708,7 @@ class InProcessPlc(PlcTask):
         return self.cycle * self.cycle_time
 
     def _take_frames(self) -> None:
-        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc, getattr(self.core, "ncjobs", None),
-                        int(self.core.nc_time_ns))
+        self._set_frame(self.nc, int(self.core.cycle), self.core.nctoplc, getattr(self.core, "ncjobs", None))
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         if nc != self.nc:

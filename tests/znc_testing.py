@@ -172,6 +172,16 @@ class NcServerProcess:
     def ready_line(self) -> str | None:
         return next((ln for ln in self.stdout_lines if " ready: " in ln), None)
 
+    def instance(self) -> str:
+        """The NC process's instance id, from its ready line (its token ``nc/<nc>/alive/<instance>``).
+
+        Raises:
+            AssertionError: no ready line with an instance (not ready, or not an nc-server).
+        """
+        line = self.ready_line() or ""
+        assert ", instance " in line, line
+        return line.rsplit(", instance ", 1)[1].strip()
+
     def wait_ready(self, timeout: float = READY_TIMEOUT) -> str:
         """Wait for the ready line.
 

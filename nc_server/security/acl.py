@@ -6,13 +6,15 @@ subject exactly the key expressions of its identity (docs/roles.md has the table
 
 * every listed client reads the NCs' cyclic data: ``nc/*/frame``, ``nc/*/frame/*`` (the frame once per
   period, what PLC clients take), ``nc/*/status``, ``nc/*/stats``, ``nc/*/claims``,
-  ``nc/*/axis/*/nctoplc``, ``nc/*/axis/*/plctonc`` and the NCs' liveliness ``nc/*/alive``;
+  ``nc/*/axis/*/nctoplc``, ``nc/*/axis/*/plctonc`` and the NCs' liveliness ``nc/*/alive`` and
+  ``nc/*/alive/*`` (each NC process's instance token: how clients tell a restart from a flapping token);
 * a client queries only its own command keys ``nc/*/[axis/*/]cmd/<class>/<id>`` of the classes
   its role allows, and gets the replies on them;
 * operators and engineers also put their own PLCTONC ``nc/*/plctonc/<id>`` and declare their own
   liveliness token ``nc/*/client/<id>``;
 * an NC server ``[nc.<name>]`` may declare its queryable, publish, subscribe and declare liveliness
-  only below its own prefix ``nc/<name>/**``, and is sent the queries and PLCTONC for it;
+  (``nc/<name>/alive``, ``nc/<name>/alive/<instance>``) only below its own prefix ``nc/<name>/**``, and is
+  sent the queries and PLCTONC for it;
 * a router ``[router.<id>]`` (another router connecting to this one) may forward everything below ``nc/**``.
 
 It respects what was verified on eclipse-zenoh 1.10.2 (../shared/reference/zenoh-security-notes.md):
@@ -34,13 +36,14 @@ from nc_schema import ROLE_CLASSES
 
 from .roles import Roles, RolesError, load_roles
 
-__all__ = ["access_control", "with_local_publisher", "READ_KEYS", "main"]
+__all__ = ["access_control", "with_local_publisher", "READ_KEYS", "NC_ALIVE", "main"]
 
 #: What every listed client may subscribe to and receive.
 READ_KEYS: tuple[str, ...] = ("nc/*/frame", "nc/*/frame/*", "nc/*/status", "nc/*/stats", "nc/*/claims",
                               "nc/*/axis/*/nctoplc", "nc/*/axis/*/plctonc")
-#: The NCs' liveliness tokens.
-NC_ALIVE = "nc/*/alive"
+#: The NCs' liveliness tokens: reachable, and one per NC process (its instance id; a rule must *include*
+#: the watched key, so ``nc/*/alive`` alone would not let a client see ``nc/nc1/alive/<instance>``).
+NC_ALIVE: tuple[str, ...] = ("nc/*/alive", "nc/*/alive/*")
 
 _ALL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
                  "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
@@ -91,8 +94,8 @@ def access_control(roles: Roles) -> dict[str, Any]:
         ids = [
             share(_rule("read:subscribe", "ingress", ["declare_subscriber"], READ_KEYS)),
             share(_rule("read:receive", "egress", ["put", "delete"], READ_KEYS)),
-            share(_rule("alive:watch", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [NC_ALIVE])),
-            share(_rule("alive:receive", "egress", ["liveliness_token", "reply"], [NC_ALIVE])),
+            share(_rule("alive:watch", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], NC_ALIVE)),
+            share(_rule("alive:receive", "egress", ["liveliness_token", "reply"], NC_ALIVE)),
             # a declared querier (declare_querier) sends only while it sees a matching queryable
             share(_rule("see:queryables", "egress", ["declare_queryable"], ["nc/**"])),
         ]

@@ -155,7 +155,8 @@ def _run(cfg: object) -> int:
     # line on stderr could land between them when both streams go to one file
     sys.stdout.write(f"nc-server {cfg.name} ready: {len(cfg.axes)} axes, cycle {cfg.cycle_time * 1e3:.3f} ms, "
                      f"timing {server.timing}, listening {', '.join(cfg.zenoh.listen) or '-'}"
-                     + (f", connected to {', '.join(cfg.zenoh.connect)}" if cfg.zenoh.connect else "") + "\n")
+                     + (f", connected to {', '.join(cfg.zenoh.connect)}" if cfg.zenoh.connect else "")
+                     + f", instance {server.transport.instance}\n")
     sys.stdout.flush()
     rc = 0
     try:

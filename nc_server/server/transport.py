@@ -41,7 +41,8 @@ import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
-    PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame, pack,
+    PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame,
+    new_instance_id, pack,
 )
 from nc_schema.zenoh_config import CONNECT_RETRY
 
@@ -231,6 +232,9 @@ class Transport:
         self.internal: str | None = None
         self._zid = ""
         self._decl: list[Any] = []
+        #: this process's instance id: its token nc/<nc>/alive/<instance> tells clients a restart from a
+        #: token that flapped (nc_schema.instance)
+        self.instance = new_instance_id()
 
     # ---- setup / teardown -------------------------------------------------------------------
     def open(self) -> None:
@@ -254,13 +258,14 @@ class Transport:
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.claims_pub = s.declare_publisher(k.claims)
         self.token = s.liveliness().declare_token(k.alive)
+        self.instance_token = s.liveliness().declare_token(k.alive_instance(self.instance))
 
     def close(self) -> None:
         """Undeclare everything and close the session (idempotent, never raises)."""
         if self.session is None:
             return
         s, self.session = self.session, None
-        items = [getattr(self, "token", None), *self._decl, getattr(self, "plc_sub", None),
+        items = [getattr(self, "token", None), getattr(self, "instance_token", None), *self._decl, getattr(self, "plc_sub", None),
                  getattr(self, "liveliness_sub", None), getattr(self, "queryable", None)]
         items += [getattr(self, "stats_pub", None), getattr(self, "claims_pub", None)]
         for d in items:

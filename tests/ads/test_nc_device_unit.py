@@ -73,3 +73,38 @@ def test_no_frame_yet_is_0x707_everywhere() -> None:
             call()
         assert e.value.code == 0x707
     assert sent == []
+
+
+class _Channel:
+    """A zenoh FifoChannel stand-in: ``try_recv`` pops queued samples, then None."""
+
+    def __init__(self) -> None:
+        self.queue: list[Any] = []
+
+    def try_recv(self) -> Any:
+        return self.queue.pop(0) if self.queue else None
+
+
+def test_a_new_instance_token_ends_the_supply_the_same_one_does_not() -> None:
+    """The NC process's instance token: another id is a restart (the new NC does not know nc-ads's claims:
+    supplying them on was the defect when the new Cycle went on above the old one's), the same id coming
+    back after a dropped link is none; a malformed or another NC's token is ignored."""
+    import zenoh
+
+    from nc_ads.nc_device import _Supply
+    from nc_schema import Keys
+
+    dev, _ = _device()
+    dev._alive, dev._instance_sub, dev._claims_sub = _Channel(), _Channel(), _Channel()
+    put = lambda key: type("S", (), {"key_expr": key, "kind": zenoh.SampleKind.PUT})()  # noqa: E731
+    a, b = "0123456789abcdef", "fedcba9876543210"
+    dev._instance_sub.queue += [put(Keys("nc1").alive_instance(a))]
+    dev._take_events()
+    dev._supplies[1] = _Supply(bytearray(128), conn_id=1, claim_cycle=7)
+    for key in (Keys("nc1").alive_instance(a), "nc/nc1/alive/NOT-AN-ID", Keys("nc2").alive_instance(b)):
+        dev._instance_sub.queue.append(put(key))
+        dev._take_events()
+        assert 1 in dev._supplies and dev.restarts == 0, key
+    dev._instance_sub.queue.append(put(Keys("nc1").alive_instance(b)))
+    dev._take_events()
+    assert dev._supplies == {} and dev.restarts == 1

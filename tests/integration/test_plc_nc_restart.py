@@ -1,13 +1,15 @@
-"""Killing the NC under a running PLC, and restarting it on the same endpoint; the NC frozen past
-its lease (its liveliness token goes and comes back, the same instance runs on) is no restart."""
+"""Killing the NC under a running PLC, and restarting it on the same endpoint (also fast, with the new
+Cycle above the old one's); the NC frozen past its lease (its liveliness tokens go and come back, the
+same instance runs on) is no restart."""
 from __future__ import annotations
 
+import os
 import signal
 import time
 from typing import Callable
 
 from plc_harness import NC_ARGS, T, PlcProcess, power_on
-from znc_testing import NcServerProcess, free_port, wait_until
+from znc_testing import NcServerProcess, NcTestClient, free_port, wait_until
 
 
 def _nc_and_powered_plc(
@@ -117,5 +119,57 @@ def test_nc_frozen_past_its_lease_is_no_restart_but_a_new_instance_is(
         new_epochs = {r.a["Epoch"] for r in after[lost:] if r.a["Valid"]}
         assert new_epochs == {1}, f"valid samples of the new instance with the old epoch: {new_epochs}"
         a.wait("pw", lambda r: r.o["Status"] and not r.o["Error"], T)  # claimed again on the new instance
+        assert a.stop() == 0
+    nc2.stop()
+
+
+def test_a_fast_restart_is_one_restart_although_its_cycle_went_on_higher(
+        start_nc: Callable[..., NcServerProcess], nc_client: Callable[..., NcTestClient]) -> None:
+    """The defect: the old NC ran briefly (here: from the PLC's first connection until it had powered the
+    axis), the PLC's first frame of the new NC on the same port carries a *higher* Cycle than the old one's
+    last. Before, no rule fired: the PLC kept its 'held' claim that the new NC did not know, MC_Power never
+    claimed again. Made deterministic by freezing the PLC (SIGSTOP) across the restart until the new NC's
+    Cycle is well above the old one's. Now the new instance token tells: one restart, nc_epoch + 1 once."""
+    port = free_port()
+    listen = ("--listen", f"tcp/127.0.0.1:{port}")
+    with PlcProcess(f"tcp/127.0.0.1:{port}", "plc-a") as a:  # waiting before the NC: the old NC lives briefly
+        a.wait_started()
+        a.set("pw", "MC_Power", Enable=True, Enable_Positive=True, Enable_Negative=True)
+        a.trace(1)
+        nc = start_nc(extra_args=(*NC_ARGS, *listen))
+        a.wait("pw", lambda r: r.o["Status"] and r.a["Epoch"] == 0, T)  # claimed and enabled on the old NC
+        os.kill(a.proc.pid, signal.SIGSTOP)
+        try:
+            # a stats sample sent after the freeze: the old NC's Cycle then, not below anything the PLC saw
+            old = nc_client(port)
+            c_old = wait_until(lambda: (s := old.stats()) and s["cycle"], T, "the old NC's stats")
+            nc.kill()
+            nc2 = start_nc(extra_args=(*NC_ARGS, *listen))
+            new = nc_client(port)
+            c_new = wait_until(lambda: (s := new.stats()) and s["cycle"] > c_old + 500 and s["cycle"], T,
+                               "the new NC's cycle well above the old one's")
+        finally:
+            os.kill(a.proc.pid, signal.SIGCONT)
+        assert nc2.instance() != nc.instance()
+        print(f"\n[fast restart] old NC's last Cycle <= {c_old}, new NC's Cycle {c_new} when the PLC went on")
+        restarted = lambda: [line for line in a.err_lines if "NC nc1 restarted" in line]  # noqa: E731
+        try:
+            wait_until(restarted, T, "the restart detected")
+            a.wait("pw", lambda r: r.o["Status"] and not r.o["Error"] and r.a["Epoch"] == 1, T)  # claimed again
+        except AssertionError as exc:
+            seen = [(r.c, r.a["NcCycle"], r.a["Valid"], r.a["Epoch"]) for r in a.trace_of(1)]
+            raise AssertionError(f"{exc}\n{''.join(a.err_lines[-20:])}\nsamples (c, NcCycle, Valid, Epoch): "
+                                 f"{seen[-10:]}") from None
+        a.wait_cycles(20)
+        assert len(restarted()) == 1 and nc2.instance() in restarted()[0], restarted()
+        samples = [r for r in a.trace_of(1) if r.a["Valid"]]
+        old_last = max(r.a["NcCycle"] for r in samples if r.a["Epoch"] == 0)
+        new_first = next(r.a["NcCycle"] for r in samples if r.a["Epoch"] == 1)
+        assert new_first > old_last, (old_last, new_first)  # the case the frames alone cannot show
+        # no data of the old instance is valid under the new epoch (the restart came before its frames)
+        assert all(r.a["NcCycle"] > c_old for r in samples if r.a["Epoch"] == 1), [
+            (r.c, r.a["NcCycle"], r.a["Epoch"]) for r in samples if r.a["Epoch"] == 1][:5]
+        epochs = [r.a["Epoch"] for r in a.trace_of(1)]
+        assert epochs == sorted(epochs) and epochs[-1] == 1  # one step, never back
         assert a.stop() == 0
     nc2.stop()

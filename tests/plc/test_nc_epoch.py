@@ -1,12 +1,16 @@
 """AXIS_REF.nc_epoch: one NC restart is one step; a liveliness token that flaps is none.
 
 A restart shows on zenoh as the NC's liveliness token going and coming back
-(``PlcTask.nc_token_gone`` / ``nc_token_back``, called by the runtime) and its cycle counter going
-back in the frames; only the frames are evidence (nc_schema.NcInstance): the token also goes and
-comes back when a starved process's zenoh link is dropped for a lease while the same NC runs on.
-The scripted NC (plc_rig.ScriptNc) plays both in every order; the rig (a real NcCore) the flap.
+(``PlcTask.nc_token_gone`` / ``nc_token_back``, called by the runtime), its instance token with a new
+id (``PlcTask.nc_instance_token``) and, mostly, its cycle counter going back in the frames. Evidence
+(nc_schema.NcInstance) are the instance id and the frames; ``nc/<nc>/alive`` also goes and comes back
+when a starved process's zenoh link is dropped for a lease while the same NC runs on, and so does the
+instance token, with the same id. The scripted NC (plc_rig.ScriptNc) plays them in every order; the
+rig (a real NcCore) the flap and a new instance id.
 """
 from __future__ import annotations
+
+import pytest
 
 from plc_rig import Rig, ScriptNc, powered
 
@@ -73,6 +77,82 @@ def test_two_restarts_count_two(nc: ScriptNc) -> None:
     assert nc.ax.nc_epoch == 3
 
 
+A, B = "0123456789abcdef", "fedcba9876543210"  # instance ids
+
+
+def test_a_new_instance_id_with_a_higher_cycle_is_one_restart(nc: ScriptNc) -> None:
+    """The new instance's frames go on above the old one's last Cycle (it ran briefly): only its id tells."""
+    nc.nc_instance_token("nc1", A)
+    nc.cycle_once(3)
+    nc.nc_token_gone("nc1")
+    nc.nc_cycle += 500  # the new instance counted more cycles than the old one ran
+    nc.nc_token_back("nc1")
+    nc.nc_instance_token("nc1", B)
+    nc.cycle_once(3)
+    assert nc.ax.nc_epoch == 1
+    for _ in range(3):  # its token flapping: the same id
+        nc.nc_token_gone("nc1")
+        nc.nc_token_back("nc1")
+        nc.nc_instance_token("nc1", B)
+        nc.cycle_once(2)
+    assert nc.ax.nc_epoch == 1
+
+
+def test_the_old_instances_frame_is_not_valid_under_the_new_epoch(nc: ScriptNc) -> None:
+    """A token restart comes before the new instance's frames: the old instance's frame the task held must
+    not count as valid data of epoch 1 (it did while its NC cycle had not stood still for stale_cycles)."""
+    nc.nc_instance_token("nc1", A)
+    nc.cycle_once(3)
+    assert nc.ax.Status.Valid
+    nc.nc_instance_token("nc1", B)
+    nc._snapshot_all()  # a PLC cycle without a new frame
+    assert nc.ax.nc_epoch == 1 and not nc.ax.Status.Valid
+    nc.cycle_once(1)  # the new instance's first frame
+    assert nc.ax.nc_epoch == 1 and nc.ax.Status.Valid
+
+
+@pytest.mark.parametrize("stale_frame", [False, True])
+def test_new_id_then_the_cycle_going_back_is_one_restart(nc: ScriptNc, stale_frame: bool) -> None:
+    """Token first (epoch + 1), then the new instance's frames with the cycle gone back (after one frame of
+    the old instance the client still held, ``stale_frame``): no second step."""
+    nc.nc_instance_token("nc1", A)
+    nc.cycle_once(3)
+    nc.nc_instance_token("nc1", B)
+    nc.cycle_once(2 if stale_frame else 0)
+    assert nc.ax.nc_epoch == 1
+    _restart_frames(nc)
+    nc.cycle_once(3)
+    assert nc.ax.nc_epoch == 1
+
+
+def test_cycle_back_then_the_new_id_is_one_restart(nc: ScriptNc) -> None:
+    nc.nc_instance_token("nc1", A)
+    nc.cycle_once(3)
+    _restart_frames(nc)
+    nc.cycle_once(2)
+    assert nc.ax.nc_epoch == 1
+    nc.nc_instance_token("nc1", B)
+    nc.cycle_once(2)
+    assert nc.ax.nc_epoch == 1
+
+
+def test_a_new_instance_id_forgets_the_claim(rig: Rig) -> None:
+    """The defect: a new NC instance whose Cycle went on above the old one's last (the rig's NcCore runs on,
+    as frames of such an instance look). Before, the PLC kept its 'held' claim, which the new NC would not
+    know; now the claim is forgotten and MC_Power claims again."""
+    ax, pw, _ = powered(rig)
+    plc = ax.task
+    plc.nc_instance_token("nc1", A)
+    rig.run(2)
+    sent: list[str] = []
+    orig = plc.port.send
+    plc.port.send = lambda *a, **k: sent.append(a[2]) or orig(*a, **k)
+    plc.nc_instance_token("nc1", B)
+    assert ax.nc_epoch == 1 and plc.claim_state(ax).state != "held"
+    rig.run_until(lambda: "Claim" in sent and plc.claim_state(ax).state == "held", 50)
+    assert ax.nc_epoch == 1
+
+
 def test_a_flapping_token_keeps_the_claim_and_the_epoch(rig: Rig) -> None:
     """The NC's token goes (a dropped zenoh link) and comes back while the same NcCore runs on.
     Before: every return counted as a restart (claims forgotten, MC_Power claimed again; nc-ads
@@ -88,6 +168,7 @@ def test_a_flapping_token_keeps_the_claim_and_the_epoch(rig: Rig) -> None:
         assert not ax.Status.Valid and pw.Error  # unreachable: invalid at once (0x4B0F)
         rig.run(3)
         plc.nc_token_back("nc1")
+        plc.nc_instance_token("nc1", A)  # its instance token, back with the same id
         rig.run_until(lambda: pw.Status and not pw.Error, 50)
         assert ax.nc_epoch == 0 and plc.claim_state(ax).state == "held"
         assert int(ax.NcToPlc["ErrorCode"]) == 0

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from nc_schema import Keys
-from nc_server.security.acl import READ_KEYS, access_control, command_keys, main as nc_acl, with_local_publisher
+from nc_schema import Keys, new_instance_id
+from nc_server.security.acl import NC_ALIVE, READ_KEYS, access_control, command_keys, main as nc_acl, with_local_publisher
 from nc_server.security.roles import Roles, RolesError, load_roles, parse_roles
 from nc_server.security.tls import TlsError, apply_tls, check_tls_endpoints, tls_section
 
@@ -84,7 +84,11 @@ def test_generated_access_control() -> None:
     for c in ("plc1", "eng1", "status"):
         assert allowed(acl, f"client:{c}", "ingress", "declare_subscriber") == set(READ_KEYS)
         assert allowed(acl, f"client:{c}", "egress", "put") == set(READ_KEYS)
-        assert allowed(acl, f"client:{c}", "ingress", "declare_liveliness_subscriber") == {"nc/*/alive"}
+        # the NCs' tokens: reachable, and each NC process's instance token (how a restart is told from a flap)
+        for msg in ("declare_liveliness_subscriber", "liveliness_query"):
+            assert allowed(acl, f"client:{c}", "ingress", msg) == {"nc/*/alive", "nc/*/alive/*"}
+        for msg in ("liveliness_token", "reply"):
+            assert {"nc/*/alive", "nc/*/alive/*"} <= allowed(acl, f"client:{c}", "egress", msg)
     # queries: own keys of the role's classes only; replies on the same
     assert allowed(acl, "client:status", "ingress", "query") == set(command_keys("status", ["read"]))
     assert allowed(acl, "client:plc1", "ingress", "query") == set(command_keys("plc1", ["read", "op"]))
@@ -107,6 +111,9 @@ def test_generated_access_control() -> None:
     assert allowed(acl, "nc:nc1", "egress", "query") == {"nc/nc1/**"}
     assert allowed(acl, "nc:nc1", "ingress", "query") == set()
     assert allowed(acl, "nc:nc1", "egress", "declare_subscriber") == {"nc/**"}
+    # its liveliness tokens nc/nc1/alive and nc/nc1/alive/<instance>: below its own prefix only
+    assert allowed(acl, "nc:nc1", "ingress", "liveliness_token") == {"nc/nc1/**"}
+    assert allowed(acl, "nc:nc2", "ingress", "liveliness_token") == {"nc/nc2/**"}
 
 
 def test_zenoh_accepts_it(tmp_path: Path) -> None:
@@ -162,6 +169,9 @@ def test_keys_of_the_acl_are_the_protocols() -> None:
     for key in (k.axis_cmd(1, "eng", "plc1"), k.axis_cmd(1, "op", "plc2"), k.command_key("WriteParameter", 1, "plc1")):
         assert not any(_includes(p, key) for p in pats), key
     assert _includes("nc/*/plctonc/plc1", k.plctonc_in("plc1")) and _includes("nc/*/client/plc1", k.client_alive("plc1"))
+    assert [p for p in NC_ALIVE if _includes(p, k.alive)] == ["nc/*/alive"]
+    assert [p for p in NC_ALIVE if _includes(p, k.alive_instance(new_instance_id()))] == ["nc/*/alive/*"]
+    assert _includes("nc/*/alive/*", k.alive_instance_any)  # what the clients watch
     assert all(any(_includes(p, key) for p in READ_KEYS)
                for key in (k.frame, k.status, k.stats, k.claims, k.axis_nctoplc(2), k.axis_plctonc(2)))
 

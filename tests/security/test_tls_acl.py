@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from nc_schema import PLCTONC_DTYPE, ControlDWord, ErrorCodes, Keys, decode, encode_plc_frame
+from nc_schema import PLCTONC_DTYPE, ControlDWord, ErrorCodes, Keys, decode, encode_plc_frame, parse_alive_instance
 from sec_testing import tls_config
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, wait_until
 
@@ -62,6 +62,12 @@ class Watch:
     def msg(self, key: str) -> Any:
         b = self.last.get(key)
         return None if b is None else msgpack.unpackb(b, strict_map_key=False)
+
+
+def instances(s: zenoh.Session, nc: str = "nc1") -> list[str]:
+    """The instance ids of ``nc``'s instance tokens ``nc/<nc>/alive/<id>`` that ``s`` may see."""
+    return sorted(p[1] for r in s.liveliness().get(Keys(nc).alive_instance_any, timeout=10.0)
+                  if r.ok is not None and (p := parse_alive_instance(r.ok.key_expr)) is not None)
 
 
 def info(s: zenoh.Session, client: str) -> dict[str, Any]:
@@ -114,6 +120,8 @@ def test_observer_reads_but_cannot_write_or_command(start_tls_nc: Callable[..., 
     w = Watch(status, K.frame, K.claims, K.stats, K.axis_nctoplc(1))
     wait_until(lambda: all(w.n.values()), T, "frames, claims, stats and nctoplc at the observer")
     assert w.msg(K.claims)["claims"] == {}
+    # the NC process's instance token (its restart evidence) reaches the observer, no one else's
+    assert instances(status) == [nc.instance()]
     v = info(status, "status")
     assert v["arbitration"]["clients"]["status"] == {"alive": False, "role": "observer", "role_source": "roles"}
     r = request(status, "ReadParameter", 1, "status", ParameterNumber=1003)
@@ -249,11 +257,14 @@ def test_through_the_router(start_tls_router: Callable[..., NcServerProcess],
                             start_tls_nc: Callable[..., NcServerProcess],
                             session_as: Callable[..., zenoh.Session], certs: Path, tmp_path: Path) -> None:
     router = start_tls_router()
-    start_tls_nc("nc1", connect=f"tls/127.0.0.1:{router.port}")
-    start_tls_nc("nc2", connect=f"tls/127.0.0.1:{router.port}")
+    nc1 = start_tls_nc("nc1", connect=f"tls/127.0.0.1:{router.port}")
+    nc2 = start_tls_nc("nc2", connect=f"tls/127.0.0.1:{router.port}")
     status = session_as(router.port, "status")
     w = Watch(status, K.axis_nctoplc(1), K.claims, K.stats, "nc/nc2/frame")
     wait_until(lambda: w.n["nc/nc2/frame"] and w.n[K.axis_nctoplc(1)], T, "both NCs' data through the router")
+    # each NC's instance token through the router (the NC declares it, the observer may watch it)
+    wait_until(lambda: instances(status, "nc1") == [nc1.instance()] and
+               instances(status, "nc2") == [nc2.instance()], T, "both NCs' instance tokens through the router")
 
     # a plc-run as plc1 over TLS: claims, supplies PLCTONC, the axis closes its loop
     prog = tmp_path / "power.py"

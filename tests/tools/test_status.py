@@ -116,15 +116,16 @@ def test_live_json_refreshes_until_sigint(rig: Rig) -> None:
     import signal
     import subprocess
 
-    from tools_testing import kill_group, tool_command
+    from tools_testing import JsonLines, kill_group, tool_command
     p = subprocess.Popen(tool_command("status", "--connect", rig.endpoint, "--json", "--interval", "0.2"),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         assert p.stdout is not None
+        docs = JsonLines(p.stdout)
         cycles: list[int] = []
 
         def two_docs_with_axes() -> bool:
-            v = [n for n in json.loads(p.stdout.readline())["ncs"] if n["name"] == "nc1"]
+            v = [n for n in docs.newest()["ncs"] if n["name"] == "nc1"]
             if v and v[0]["axes"]:
                 cycles.append(v[0]["cycle"])
             return len(cycles) >= 2 and cycles[-1] > cycles[0]
@@ -136,11 +137,35 @@ def test_live_json_refreshes_until_sigint(rig: Rig) -> None:
         kill_group(p)
 
 
+def test_a_silent_tool_cannot_hold_a_wait_past_its_deadline() -> None:
+    """The live-JSON tests wait for lines with a deadline: a blocking readline() inside wait_until (as
+    they had) waited here for the writer's 60 s silence, whatever the deadline."""
+    import subprocess
+    import sys
+    import time
+
+    import pytest
+
+    from tools_testing import JsonLines, kill_group
+    p = subprocess.Popen([sys.executable, "-c", "import time; print('{\"a\": 1}', flush=True); time.sleep(60)"],
+                         stdout=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert p.stdout is not None
+        docs = JsonLines(p.stdout)
+        assert docs.newest(T) == {"a": 1}
+        t0 = time.monotonic()
+        with pytest.raises(AssertionError, match="timed out after 1 s waiting for a second line"):
+            wait_until(lambda: docs.newest(0.2), 1.0, "a second line")
+        assert time.monotonic() - t0 < 10.0
+    finally:
+        kill_group(p)
+
+
 def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
     import signal
     import subprocess
 
-    from tools_testing import kill_group, tool_command
+    from tools_testing import JsonLines, kill_group, tool_command
     from znc_testing import start_nc_router
     router = start_nc_router(tmp_path / "router")
     procs = [router]
@@ -158,9 +183,10 @@ def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
         live = subprocess.Popen(tool_command("status", "--connect", router.endpoint, "--json", "--interval", "0.2"),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
         assert live.stdout is not None
+        docs = JsonLines(live.stdout)
 
         def states() -> dict[str, str]:
-            return {v["name"]: v["state"] for v in json.loads(live.stdout.readline())["ncs"]}
+            return {v["name"]: v["state"] for v in docs.newest()["ncs"]}
 
         wait_until(lambda: states() == {"nc1": "ALIVE", "nc2": "ALIVE"}, T, "both NCs alive in the live view")
         nc2.stop()
@@ -175,42 +201,48 @@ def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
 
 
 def test_restarts_count_new_nc_instances_not_a_token_that_comes_back(tmp_path) -> None:
-    """The NC SIGSTOPped 1.5 s (lease 0.5 s): nc-status's link to it is dropped, the NC's token goes
-    (GONE) and comes back (ALIVE) with the same instance: no restart. A new nc-server on the same
-    port: one restart (its cycle counter went back)."""
+    """The NC SIGSTOPped 1.5 s (lease 0.5 s): nc-status's link to it is dropped, the NC's tokens go
+    (GONE) and come back (ALIVE) with the same instance id: no restart. A new nc-server on the same
+    port: one restart, the new instance id shown."""
     import signal
     import subprocess
     import time
 
-    from tools_testing import kill_group, tool_command
+    from tools_testing import JsonLines, kill_group, tool_command
     from znc_testing import free_port
     port = free_port()
     listen = ("--listen", f"tcp/127.0.0.1:{port}")
     procs = [start_nc_server(tmp_path / "nc1", extra_args=listen)]
+    first = procs[0].instance()
     live = subprocess.Popen(tool_command("status", "--connect", f"tcp/127.0.0.1:{port}", "--json", "--interval", "0.2"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         assert live.stdout is not None
-        seen: list[tuple[str, int]] = []
+        docs = JsonLines(live.stdout)
+        seen: list[tuple[str, str | None, int]] = []
 
-        def view() -> tuple[str, int]:
-            [v] = [v for v in json.loads(live.stdout.readline())["ncs"] if v["name"] == "nc1"]
-            seen.append((v["state"], v["restarts"]))
+        def view() -> tuple[str, str | None, int]:
+            [v] = [v for v in docs.newest()["ncs"] if v["name"] == "nc1"]
+            seen.append((v["state"], v["instance"], v["restarts"]))
             return seen[-1]
 
-        wait_until(lambda: view() == ("ALIVE", 0), T, "nc1 alive")
+        wait_until(lambda: view() == ("ALIVE", first, 0), T, "nc1 alive, its instance shown")
         procs[0].send_signal(signal.SIGSTOP)
         try:
             time.sleep(1.5)
         finally:
             procs[0].send_signal(signal.SIGCONT)
         wait_until(lambda: view()[0] == "GONE", T, "nc1's token gone for nc-status (its link dropped)")
-        wait_until(lambda: view() == ("ALIVE", 0), T, "the same nc1 alive again, no restart")
+        wait_until(lambda: view() == ("ALIVE", first, 0), T, "the same nc1 alive again, no restart")
         for _ in range(5):
-            assert view()[1] == 0, seen
+            assert view()[1:] == (first, 0), seen
         procs[0].kill()
         procs.append(start_nc_server(tmp_path / "nc1b", extra_args=listen))
-        wait_until(lambda: view() == ("ALIVE", 1), T, "the new nc1 instance: one restart")
+        second = procs[1].instance()
+        assert second != first
+        wait_until(lambda: view() == ("ALIVE", second, 1), T, "the new nc1 instance: one restart")
+        for _ in range(5):
+            assert view()[1:] == (second, 1), seen
     finally:  # (no SIGINT: lines written while the new NC started may still fill the pipe)
         kill_group(live)
         for h in reversed(procs):

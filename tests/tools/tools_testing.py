@@ -5,12 +5,15 @@ console scripts); :func:`run_tool` kills their process group whatever happens.
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, wait_until
 
@@ -59,6 +62,54 @@ def run_tool(tool: str, *args: str, timeout: float = 180.0, cwd: Path | None = N
         return subprocess.CompletedProcess(p.args, p.returncode, out, err)
     finally:
         kill_group(p)
+
+
+class JsonLines:
+    """The JSON documents a running tool writes, one per stdout line, read by a thread of their own.
+
+    A test waits for them with a deadline (:meth:`newest`): a blocking ``readline()`` inside a
+    ``wait_until`` would never let its deadline fire while the tool writes nothing.
+    """
+
+    def __init__(self, stream: IO[str]) -> None:
+        self.docs: list[Any] = []
+        self.ended = False
+        self._taken = 0
+        self._cv = threading.Condition()
+        threading.Thread(target=self._read, args=(stream,), daemon=True).start()
+
+    def _read(self, stream: IO[str]) -> None:
+        try:
+            for line in stream:
+                try:
+                    doc = json.loads(line)
+                except ValueError:  # not a document (e.g. cut off at a kill): not the tests' concern
+                    continue
+                with self._cv:
+                    self.docs.append(doc)
+                    self._cv.notify_all()
+        except (OSError, ValueError):  # the pipe closed under us at teardown
+            pass
+        with self._cv:
+            self.ended = True
+            self._cv.notify_all()
+
+    def newest(self, timeout: float = 5.0) -> Any:
+        """The newest document written since the previous call, waiting up to ``timeout`` [s] for one.
+
+        Raises:
+            AssertionError: none came within ``timeout`` or the tool's output ended (``wait_until``
+                takes it as "not yet" and polls again until its own deadline).
+        """
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while len(self.docs) <= self._taken:
+                left = deadline - time.monotonic()
+                if left <= 0 or self.ended:
+                    raise AssertionError(f"no new JSON line within {timeout:g} s" + (" (output ended)" if self.ended else ""))
+                self._cv.wait(left)
+            self._taken = len(self.docs)
+            return self.docs[-1]
 
 
 def kill_group(p: subprocess.Popen[Any]) -> None:
