@@ -750,7 +750,7 @@ class NcDevice(AdsDevice):
     # ---- commands ---------------------------------------------------------------------------------------------
     def _allow(self, cls: str, src: AdsSource) -> None:
         if not src.may_write:
-            raise AdsError(ADSERR_DEVICE_ACCESSDENIED, f"write policy: {src.net_id} ({src.peer}) is not in "
+            raise AdsError(ADSERR_DEVICE_ACCESSDENIED, f"write policy: {src.net_id} ({src.peer.rsplit(':', 1)[0]}) is not in "
                                                        "nc-ads --allow-write")
         if cls not in self.classes:
             need = " or ".join(r for r, c in ROLE_CLASSES.items() if cls in c)

@@ -63,12 +63,14 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
   was added; other 0xFxxx groups -> 0x701. A connection's
   subscriptions end when it closes. Sampling is bounded and fair, so that no client can deny service to
   the others (issue 18; `AdsServer._round`): each distinct (device, group, offset, length) is sampled
-  once per round and shared by every subscription of every connection; connections asking for fewer
-  samples per tick go first; a connection gets at most `MAX_SAMPLES_PER_VISIT` (128) samples per round
-  and the loop serves requests between two connections; after `NOTIFY_BUDGET_SHARE` (30 %) of a tick no
-  further connection is started (what was left out is due in the next round: late, not lost). A client
+  once per round and shared by every subscription of every connection; connections a round did not
+  reach go first in the next, then those asking for fewer samples per tick; a connection gets at most
+  `MAX_SAMPLES_PER_VISIT` (128) samples per round, and no more than fit below `NOTIFY_PAUSE_BUFFER`
+  unsent, and the loop serves requests between two connections; after `NOTIFY_BUDGET_SHARE` (30 %) of a
+  tick no further connection is started (what was left out is sampled in a later round; a ServerCycle
+  subscription's cycles that passed meanwhile are dropped and counted). A client
   that does not read its socket is not sampled at all while more than `NOTIFY_PAUSE_BUFFER` (64 KiB)
-  wait to be sent to it (`_unsent`: ours and the kernel's send queue): the samples it misses are dropped, counted (`Session.samples_dropped`,
+  wait to be sent to it (`_unsent`: ours and the kernel's not yet sent): the samples it misses are dropped, counted (`Session.samples_dropped`,
   `AdsServer.samples_dropped`, in the connection's "closed" log line) and logged once per connection;
   its requests are not read while more than `MAX_WRITE_BUFFER` (8 MiB) wait (until half of that is
   sent); other connections go on.
@@ -79,6 +81,7 @@ Decisions (the ones a user sees; docs/ads.md repeats them):
 from __future__ import annotations
 
 import asyncio
+import collections
 import concurrent.futures
 import fcntl
 import ipaddress
@@ -122,6 +125,7 @@ NOTIFY_PAUSE_BUFFER = 64 * 1024       # a connection with more unsent than this 
 NOTIFY_BUDGET_SHARE = 0.3             # a sampling round starts no further connection after this share of a tick
 INLINE_BATCH = 4                       # requests run on the loop before it serves other connections
 MAX_SAMPLES_PER_VISIT = 128           # samples one connection gets per round (the rest are due in the next)
+SAMPLE_OVERHEAD = 12                  # bytes of a DeviceNotification sample besides its data (handle, size)
 SOCKET_SEND_BUFFER = 128 * 1024       # SO_SNDBUF: no kernel autotuning to 4 MiB per connection
 
 _U32 = struct.Struct("<I")
@@ -158,17 +162,22 @@ def encode_symbol_entry(name: str, sym: Symbol) -> bytes:
                        ads_type_id(sym.type_name), 0, len(n), len(t), len(c)) + body
 
 
-#: 0x723 reasons already logged (each once: ADS replies carry no text, so the log says which rule refused;
-#: bounded so that a client cycling through reasons cannot grow it).
-_DENIED_LOGGED: set[str] = set()
+#: 0x723 reasons logged lately (ADS replies carry no text, so the log says which rule refused), newest last;
+#: the oldest is forgotten beyond _DENIED_LOGGED_MAX, so a client cycling through reasons cannot grow it and
+#: a reason can be logged again later. Reasons name the peer's IP, never its port (a port per connection
+#: would make every connection a new reason).
+_DENIED_LOGGED: collections.OrderedDict[str, None] = collections.OrderedDict()
 _DENIED_LOGGED_MAX = 256
 
 
 def _log_denied(reason: str) -> None:
-    """Log why a request got 0x723 (ADSERR_DEVICE_ACCESSDENIED), once per distinct reason."""
-    if reason in _DENIED_LOGGED or len(_DENIED_LOGGED) >= _DENIED_LOGGED_MAX:
+    """Log why a request got 0x723 (ADSERR_DEVICE_ACCESSDENIED), once per reason among the recent ones."""
+    if reason in _DENIED_LOGGED:
+        _DENIED_LOGGED.move_to_end(reason)
         return
-    _DENIED_LOGGED.add(reason)
+    _DENIED_LOGGED[reason] = None
+    if len(_DENIED_LOGGED) > _DENIED_LOGGED_MAX:
+        _DENIED_LOGGED.popitem(last=False)
     log.warning("access denied (0x723): %s", reason)
 
 
@@ -237,6 +246,8 @@ class Session:
         self._next_sym = itertools.count(1)
         self.subs: dict[int, Subscription] = {}
         self.load = 0.0            # samples per tick its subscriptions ask for (sampling rounds serve light ones first)
+        self.waited = 0            # rounds in a row that ended before reaching it (they serve it first next time)
+        self.max_length = 0        # the longest sample it subscribed (bounds the bytes of one visit)
         self.next_sub = 0          # where its next visit starts among its subscriptions (round robin)
         self._may_write: dict[str, bool] = {}
         self.devices_used: set[int] = set()   # id() of devices this connection talked to
@@ -247,6 +258,7 @@ class Session:
     def add_sub(self, sub: Subscription) -> None:
         self.subs[sub.handle] = sub
         self.load += 1.0 / sub.cycle_ticks
+        self.max_length = max(self.max_length, sub.length)
 
     def remove_sub(self, handle: int) -> bool:
         sub = self.subs.pop(handle, None)
@@ -254,6 +266,11 @@ class Session:
             return False
         self.load = max(0.0, self.load - 1.0 / sub.cycle_ticks) if self.subs else 0.0
         return True
+
+
+#: Linux ioctl: bytes in a TCP socket's send queue not yet sent (SIOCOUTQ would also count bytes sent and not
+#: yet acknowledged: a reading client on a long link would look like one that does not read).
+SIOCOUTQNSD = 0x894B
 
 
 def _unsent(writer: asyncio.StreamWriter) -> int:
@@ -265,7 +282,7 @@ def _unsent(writer: asyncio.StreamWriter) -> int:
     sock = writer.get_extra_info("socket")
     if sock is not None:
         try:
-            n += struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+            n += struct.unpack("i", fcntl.ioctl(sock.fileno(), SIOCOUTQNSD, b"\0\0\0\0"))[0]
         except (OSError, ValueError):   # closed meanwhile, or no SIOCOUTQ here: the transport's alone
             pass
     return n
@@ -459,7 +476,7 @@ class Dispatcher:
                      ams.IG_SYM_HNDBYNAME, ams.IG_SYM_INFOBYNAMEEX, ams.IG_SYM_VALBYNAME):
             return ADSERR_DEVICE_SRVNOTSUPP
         if not src.may_write:
-            _log_denied(f"write policy: {src.net_id} ({session.peer}) may not write (WritePolicy allow list)")
+            _log_denied(f"write policy: {src.net_id} ({session.peer_ip}) may not write (WritePolicy allow list)")
             return ADSERR_DEVICE_ACCESSDENIED
         if group == ams.IG_SYM_VALBYHND:
             entry = self._handle_symbol(session, offset)
@@ -598,6 +615,10 @@ class Dispatcher:
                 session.next_sub = start + k
                 return
             taken += 1
+            if (sub.trans_mode != ams.TRANS_SERVERONCHA and sub.first_sent is not None
+                    and tick >= sub.next_tick + sub.cycle_ticks):
+                # served late (left out of earlier rounds): its cycles in between were never sampled
+                session.samples_dropped += (tick - sub.next_tick) // sub.cycle_ticks
             sub.next_tick = tick + sub.cycle_ticks
             yield sub
 
@@ -976,11 +997,13 @@ class AdsServer:
     async def _round(self, tick: int, only_on_change: bool) -> None:
         """One sampling round over the connections, fair and bounded (docs/ads.md "A slow or hostile client"):
         - each distinct (device, group, offset, length) is sampled once per round (a shared cache);
-        - connections asking for fewer samples per tick go first (a client with a few notifications is
-          never queued behind one with a thousand), equal ones in round robin;
-        - a connection gets at most MAX_SAMPLES_PER_VISIT samples per round, the loop serves other work
-          between two connections, and after NOTIFY_BUDGET_SHARE of a tick no further connection is
-          started: what was left out is due in the next round (late, not lost);
+        - connections the last round did not reach go first (none is starved), then those asking for fewer
+          samples per tick (a client with a few notifications is never queued behind one with a
+          thousand), equal ones in round robin;
+        - a connection gets at most MAX_SAMPLES_PER_VISIT samples per round and no more than fit below
+          NOTIFY_PAUSE_BUFFER unsent, the loop serves other work between two connections, and after
+          NOTIFY_BUDGET_SHARE of a tick no further connection is started: what was left out is sampled in
+          a later round (late; a ServerCycle subscription's cycles that passed meanwhile are dropped, counted);
         - a connection with more than NOTIFY_PAUSE_BUFFER unsent is not sampled at all (no cost to anyone
           else); what it missed is counted as dropped when it catches up or closes, logged once.
         The push (`only_on_change`) does not move the round robin."""
@@ -988,7 +1011,9 @@ class AdsServer:
         if not sessions:
             return
         first = self._rr % len(sessions)
-        order = sorted(sessions[first:] + sessions[:first], key=lambda sw: sw[0].load)   # stable: ties rotate
+        # a connection the last rounds did not reach goes first (none is starved, whatever the others ask
+        # for); then light ones before heavy ones; equal ones rotate (sorted() is stable)
+        order = sorted(sessions[first:] + sessions[:first], key=lambda sw: (-sw[0].waited, sw[0].load))
         now = time.monotonic()
         filetime = ams.filetime_now()
         cache: dict[tuple, bytes | None] = {}
@@ -998,7 +1023,12 @@ class AdsServer:
             if i and time.perf_counter() > budget_end:
                 if not only_on_change:
                     self._rr = sessions.index((session, writer))
+                    for left, _ in order[i:]:
+                        if left.subs:
+                            left.waited += 1
                 break
+            if not only_on_change:
+                session.waited = 0
             if not session.subs or writer.is_closing():
                 continue
             if _unsent(writer) > NOTIFY_PAUSE_BUFFER:
@@ -1011,12 +1041,16 @@ class AdsServer:
                 continue
             if session.throttled:
                 self._count_dropped(session, tick)
+            # at most what fits below NOTIFY_PAUSE_BUFFER (a visit must not queue megabytes to a slow reader)
+            room = NOTIFY_PAUSE_BUFFER - _unsent(writer)
+            limit = max(1, min(MAX_SAMPLES_PER_VISIT, room // (session.max_length + SAMPLE_OVERHEAD)))
+            before = session.samples_dropped
             try:
-                frames = self.dispatcher.collect(session, tick, now, filetime, only_on_change, cache,
-                                                 MAX_SAMPLES_PER_VISIT)
+                frames = self.dispatcher.collect(session, tick, now, filetime, only_on_change, cache, limit)
             except Exception as exc:
                 log.error("notifications of connection %d: %r", session.conn_id, exc, exc_info=exc)
                 continue
+            self.samples_dropped += session.samples_dropped - before   # served late: missed cycles
             if frames and only_on_change and not pushed:
                 pushed = True
                 self.pushes += 1   # before the write: a client may look at it as soon as the frame arrived

@@ -441,3 +441,73 @@ def test_samples_missed_while_behind_are_counted_as_dropped(dev: FakeDevice) -> 
     assert d.drop_missed(s, 11) == 9 + 2 and s.samples_dropped == 11    # ticks 2..10, and 5, 9 for the slow one
     assert set(_handles(d.collect(s, 11, 1e12, 0))) == {fast}           # due now again, not a burst
     assert d.drop_missed(s, 12) == 0
+
+
+def test_a_subscription_served_late_counts_the_cycles_that_passed(dev: FakeDevice) -> None:
+    d = make(dev)
+    s = Session(1, "x:1")
+    cyc = add(d, s, 0x4101, 0, 8, mode=3, cycle=1).handle              # ServerCycle, every tick
+    chg = add(d, s, 0x4002, 8, 8, mode=4, cycle=1).handle              # ServerOnChange, every tick
+    assert set(_handles(d.collect(s, 1, 1e12, 0))) == {cyc, chg}
+    assert s.samples_dropped == 0                                       # the first sample is no late one
+    d.collect(s, 5, 1e12, 0)                                            # ticks 2..4 never reached it
+    assert s.samples_dropped == 3                                       # its 3 cycles; on-change: nothing lost
+
+
+class _Transport:
+    def __init__(self) -> None:
+        self.sent = 0
+
+    def get_write_buffer_size(self) -> int:
+        return 0
+
+
+class _Writer:
+    """What a sampling round uses of an asyncio.StreamWriter (no socket: nothing is ever unsent)."""
+
+    def __init__(self) -> None:
+        self.transport = _Transport()
+        self.frames = 0
+
+    def is_closing(self) -> bool:
+        return False
+
+    def get_extra_info(self, name: str) -> None:
+        return None
+
+    def write(self, frame: bytes) -> None:
+        self.frames += 1
+
+
+def test_a_round_that_runs_out_of_time_serves_the_connections_it_left_out_first(
+        dev: FakeDevice, monkeypatch: pytest.MonkeyPatch) -> None:
+    """No connection is starved: a heavy one that the light ones crowd out of a round goes first in the next."""
+    import asyncio
+    monkeypatch.setattr(server, "NOTIFY_BUDGET_SHARE", 0.0)   # every round ends after its first connection
+    srv = server.AdsServer({501: dev}, NETID, ("127.0.0.1", 0), tick_ms=10)
+    d = srv.dispatcher
+    light, heavy = Session(1, "x:1"), Session(2, "x:2")
+    add(d, light, 0x4101, 0, 8, mode=3, cycle=1)
+    for k in range(20):
+        add(d, heavy, 0x4002, 8 * k, 8, mode=3, cycle=1)
+    for sub in [*light.subs.values(), *heavy.subs.values()]:
+        sub.not_before = 0.0   # no first-sample delay (pitfall 5) in this test
+    w_light, w_heavy = _Writer(), _Writer()
+    srv._sessions = {1: (light, w_light), 2: (heavy, w_heavy)}
+    for tick in range(1, 7):
+        asyncio.run(srv._round(tick, only_on_change=False))
+    assert w_light.frames >= 3 and w_heavy.frames >= 3, (w_light.frames, w_heavy.frames)
+
+
+def test_a_refused_write_logs_its_rule_once_per_host_not_per_connection(dev: FakeDevice,
+                                                                        caplog: pytest.LogCaptureFixture) -> None:
+    server._DENIED_LOGGED.clear()
+    d = make(dev, WritePolicy(["10.9.9.9.1.1"]))
+    with caplog.at_level(logging.WARNING, logger="nc_ads"):
+        for port in range(40000, 40000 + 3 * server._DENIED_LOGGED_MAX):   # a new connection each time
+            assert write(d, 0x4001, 0x27, struct.pack("<d", 5.0), Session(port, f"127.0.0.1:{port}")) == 0x723
+        assert write(d, 0x4001, 0x27, struct.pack("<d", 5.0), Session(1, "127.0.0.9:40000")) == 0x723
+    lines = [r.getMessage() for r in caplog.records if "0x723" in r.getMessage()]
+    assert len(lines) == 2, lines                     # one per host: the rule, the net id and the IP
+    assert "write policy" in lines[0] and "127.0.0.1" in lines[0] and "40000" not in lines[0]
+    assert "127.0.0.9" in lines[1]                    # still logged: the log was not used up by the first host
