@@ -245,6 +245,8 @@ class RequestHandler:
             text = "NC retain data error: applied, but the retain file could not be written (lost at a restart)"
         try:
             r = unpack(reply)
+            if r.get("error"):  # a cached refusal given again (a retry): it stays what it was
+                return reply
             return pack(make_reply(r.get("id"), r.get("cmd"), RETAIN_ERROR_CODE, text, cycle=int(r.get("cycle", 0))))
         except Exception:  # (the NC's own packed reply: never expected)
             return pack(make_reply(None, None, RETAIN_ERROR_CODE, text, cycle=self.core.cycle + 1))

@@ -276,6 +276,22 @@ def test_a_refused_write_is_not_held(retain_server: NcServer) -> None:
     assert error != 0 and srv.retain.committed == 0
 
 
+def test_a_refusal_given_again_from_the_cache_stays_a_refusal(retain_server: NcServer,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """A retry of a refused write gets its cached refusal, never 0x4002 "applied" (it was not)."""
+    srv = retain_server
+    monkeypatch.setattr(srv.retain, "writing_disabled", True)  # whatever is held comes back "not kept"
+    for _ in range(2):  # the request, then its retry with the same id (the reply cache)
+        _send(srv, "a", 1, "WriteParameter", ParameterNumber=1003, Value=-5.0)  # out of range: an error reply
+        _run_all(srv)
+        snap = srv.retain.take_pending()  # (a retry's cached reply may be held for a snapshot)
+        if snap is not None:
+            srv.retain._write(snap)
+        _flush(srv)
+    (_, _, first), (_, _, again) = _sent()
+    assert first == again and first not in (0, 0x4002)
+
+
 def test_a_write_the_file_cannot_keep_is_answered_with_0x4002(retain_server: NcServer,
                                                                monkeypatch: pytest.MonkeyPatch) -> None:
     srv = retain_server
