@@ -41,6 +41,10 @@ import re
 
 #: A cycle going back within this many frames after a new instance token is that instance's (see above).
 FRAMES_OWED = 3
+#: A new instance token within this many frames after the frames showed a restart (the cycle went back) is
+#: that restart's: tokens come within milliseconds of the first frames; an NC that declares none (an older
+#: one) never sends it, and a later restart announced by its token first must still count.
+TOKEN_OWED_FRAMES = 200
 
 #: An instance id: 16 lowercase hex digits (:func:`new_instance_id`).
 INSTANCE_RE = re.compile(r"[0-9a-f]{16}")
@@ -73,8 +77,9 @@ class NcInstance:
         self.restarts = 0
         #: frames during which a cycle going back is the restart a new token already counted
         self._frames_owed = 0
-        #: the frames showed a restart whose instance token has not come yet
-        self._token_owed = False
+        #: frames during which a new instance token is the restart the frames already counted (its token
+        #: comes within milliseconds; an NC without one never sends it: then the wait ends)
+        self._token_owed = 0
 
     def frame(self, cycle: int) -> str | None:
         """Take a frame's ``Cycle``.
@@ -90,9 +95,12 @@ class NcInstance:
             else:
                 why = "its cycle counter went back"
                 self.restarts += 1
-                self._token_owed = True
-        elif self._frames_owed:
-            self._frames_owed -= 1
+                self._token_owed = TOKEN_OWED_FRAMES
+        else:
+            if self._frames_owed:
+                self._frames_owed -= 1
+            if self._token_owed:
+                self._token_owed -= 1
         self.cycle = cycle
         return why
 
@@ -110,10 +118,10 @@ class NcInstance:
             raise ValueError(f"not an NC instance id: {instance!r}")
         old, self.instance = self.instance, instance
         if old is None or instance == old:
-            self._token_owed = False
+            self._token_owed = 0
             return None
         if self._token_owed:  # the frames showed this restart first
-            self._token_owed = False
+            self._token_owed = 0
             return None
         self.restarts += 1
         self._frames_owed = FRAMES_OWED

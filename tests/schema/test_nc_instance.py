@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 
 from nc_schema import Keys, NcInstance, new_instance_id, parse_alive_instance
-from nc_schema.instance import FRAMES_OWED, INSTANCE_RE
+from nc_schema.instance import FRAMES_OWED, INSTANCE_RE, TOKEN_OWED_FRAMES
 
 A, B, C = "0123456789abcdef", "fedcba9876543210", "00000000000000ff"
 
@@ -83,6 +83,18 @@ def test_the_wait_for_the_frames_ends() -> None:
     for c in range(1500, 1500 + FRAMES_OWED):
         assert inst.frame(c) is None
     assert inst.frame(3) is not None and inst.restarts == 2
+
+
+def test_the_wait_for_the_token_ends() -> None:
+    """After a restart the frames showed and whose token never came (an NC without instance tokens), a later
+    restart announced by its token first is counted, not taken for the earlier one."""
+    inst = NcInstance()
+    inst.token(A)
+    feed(inst, 1, 3000)
+    assert inst.frame(7) is not None and inst.restarts == 1  # the frames: a restart, token owed
+    for c in range(8, 8 + TOKEN_OWED_FRAMES):  # ... which never comes
+        inst.frame(c)
+    assert inst.token(B) is not None and inst.restarts == 2
 
 
 def test_without_instance_tokens_the_frames_decide() -> None:
