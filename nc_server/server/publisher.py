@@ -861,8 +861,15 @@ class PublisherProcess:
             quiet = now - max(self._seen[2], a.ready_at if a.poll_ready() else now)
             if quiet > STALL_TIMEOUT and seq - self._seen[0] >= STALL_FRAMES:
                 self._kill(a, f"published nothing for {quiet:.1f} s ({seq - self._seen[0]} frames written; {c})")
-            elif c.ready and now - a.since > RESTART_RESET_AFTER and self.standby is not None:
+            elif c.ready and now - a.since > RESTART_RESET_AFTER and self._settled(self.standby, now):
+                # both healthy for a while: the next failure starts the back-off anew (a standby that dies
+                # at its start never gets here: its restarts keep backing off)
                 self._delay = RESTART_MIN_DELAY
+
+    @staticmethod
+    def _settled(child: _Child | None, now: float) -> bool:
+        """``child`` got ready and has run RESTART_RESET_AFTER since."""
+        return child is not None and child.poll_ready() and now - child.ready_at > RESTART_RESET_AFTER
 
     def stop(self, timeout: float = 3.0) -> None:
         """Let the active child publish the last frame written and end, end the standby (killed after ``timeout``)."""

@@ -75,3 +75,22 @@ def test_a_promoted_publisher_goes_on_with_the_decimation_windows_of_the_last_fr
     new.publish(frames[1], None)  # (the same 10 ms window)
     new.publish(frames[2], None)
     assert put.puts == [frames[2]]
+
+
+class _FakeChild:
+    def __init__(self, ready_at: float | None) -> None:
+        self.ready_at = ready_at if ready_at is not None else float("inf")
+
+    def poll_ready(self) -> bool:
+        return self.ready_at != float("inf")
+
+
+def test_the_back_off_resets_only_with_a_standby_that_got_ready_and_lived() -> None:
+    """A standby dying at every start kept the restart delay at its minimum (a fresh interpreter and zenoh
+    session every 0.1 s on a 2-core machine) once the active had run 10 s: the reset asked only that one existed."""
+    from nc_server.server.publisher import RESTART_RESET_AFTER
+    now = 1000.0
+    assert not PublisherProcess._settled(None, now)
+    assert not PublisherProcess._settled(_FakeChild(None), now)  # launched, never ready (dies at its start)
+    assert not PublisherProcess._settled(_FakeChild(now - 1.0), now)  # ready, not for long yet
+    assert PublisherProcess._settled(_FakeChild(now - RESTART_RESET_AFTER - 1.0), now)
