@@ -13,6 +13,8 @@ Every attack is bounded in count and time; sockets are closed and processes kill
 """
 from __future__ import annotations
 
+import collections
+
 import re
 import socket
 import struct
@@ -300,12 +302,15 @@ def test_sigterm_during_attack_exits_in_order(nc: NcServerProcess, watcher: NcTe
                    "nc-ads takes the enable (NC frames arriving)", interval=0.1)
         wait_until(lambda: watcher.request("Info")["Value"]["claims"].get(3) == "ads-term", 20, "axis 3 claimed")
         socks = flood_connections(h, 50, 40)
-        time.sleep(2.0)   # the attack takes hold
+        wait_until(lambda: h.stderr().count("does not read") >= 10, 60,
+                   "the attack to take hold (nc-ads found connections that do not read)", interval=0.1)
         t0 = time.monotonic()
         rc = h.stop(timeout=5.0)
         took = time.monotonic() - t0
         assert rc == 0, f"nc-ads did not exit within 5 s of SIGTERM (rc {rc}):\n{h.stderr()[-3000:]}"
         print(f"figures: exit after SIGTERM {took:.2f} s")
+        behind = re.findall(r"ADS connection (\d+) from \S+ does not read", h.stderr())
+        assert behind and max(collections.Counter(behind).values()) == 1, "logged once per connection"
         wait_until(lambda: watcher.request("Info")["Value"]["claims"].get(3) is None, 20, "axis 3 released")
         n = wait_until(lambda: (x := watcher.nctoplc(3)) is not None and not int(x["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED and x,
                        20, "axis 3 disabled")
