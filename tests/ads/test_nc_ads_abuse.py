@@ -14,7 +14,6 @@ Every attack is bounded in count and time; sockets are closed and processes kill
 from __future__ import annotations
 
 import collections
-
 import re
 import socket
 import struct
