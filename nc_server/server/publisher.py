@@ -872,20 +872,24 @@ class PublisherProcess:
         return child is not None and child.poll_ready() and now - child.ready_at > RESTART_RESET_AFTER
 
     def stop(self, timeout: float = 3.0) -> None:
-        """Let the active child publish the last frame written and end, end the standby (killed after ``timeout``)."""
+        """Let the active child publish the last frame written and end, end the others; whatever has not ended
+        ``timeout`` [s] after the call (one deadline for all) is killed."""
+        end = time.monotonic() + timeout
         with self._lock:
             self._stopping = True
             children = [c for c in (self.active, self.standby, *self._dying) if c is not None]
+            active = self.active
         self._wake()
         if self._watcher is not None:
-            self._watcher.join(timeout)
+            self._watcher.join(max(0.0, end - time.monotonic()))
         self.output.ring.request_stop()
         self.output.signal()
-        if self.standby is not None:
-            self.standby.close()  # (its control socket closes: it ends)
+        for child in children:
+            if child is not active:
+                child.close()  # (its control socket closes: a standby ends; one still starting is killed below)
         for child in children:
             try:
-                child.proc.wait(timeout)
+                child.proc.wait(max(0.0, end - time.monotonic()))
             except subprocess.TimeoutExpired:
                 child.proc.kill()
                 child.proc.wait()
