@@ -17,6 +17,8 @@ import collections
 import re
 import socket
 import struct
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -28,7 +30,7 @@ from ads_testing import RawClient
 from nc_ads import ams
 from nc_ads.ams import AMS_TCP_PORT, AmsAddr, AmsPacket, Command
 from nc_ads_testing import NcAdsProcess, start_nc_ads
-from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, wait_until
+from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, kill_process_group, wait_until
 
 RTT_P99_LIMIT_S = 0.050      # the issue's bound for another client's read during an attack
 FREED_WITHIN_S = 1.0         # an attacker's notifications after it closed
@@ -263,30 +265,28 @@ def test_many_half_open_connections(ads: NcAdsProcess, victim: Victim, watcher: 
 
 
 def test_slow_reading_pyads_notification_client(ads: NcAdsProcess, victim: Victim, watcher: NcTestClient) -> None:
-    """A pyads client whose notification callback is slow (AdsLib reads its socket from the callback's thread)."""
-    pyads = pytest.importorskip("pyads")
-    plc = pyads.Connection(ads.netid, 501, ads.host)
-    handles: list[Any] = []
-
-    def slow(*_: Any) -> None:
-        time.sleep(0.02)
+    """A pyads client whose notification callback is slow (AdsLib reads its socket from the callback's thread),
+    in a process of its own (tests/ads/slow_pyads_client.py: AdsLib may crash at teardown, the runner must not)."""
+    pytest.importorskip("pyads")
+    procs: list[subprocess.Popen[str]] = []
 
     def attack() -> list[socket.socket]:
-        plc.open()
-        attr = pyads.NotificationAttrib(256, pyads.ADSTRANS_SERVERCYCLE, 0, 1)
-        for _ in range(100):   # 300: the NC missed more cycles, the test process's AdsLib busy dropping them
-            handles.append(plc.add_device_notification((0x4101, 0), attr, slow))
+        # 100 notifications: with 300 the NC missed more cycles, the client's AdsLib busy dropping them
+        p = subprocess.Popen([sys.executable, str(Path(__file__).with_name("slow_pyads_client.py")), ads.netid,
+                              ads.host, "100"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+        procs.append(p)
+        assert p.stdout is not None
+        line = wait_until(lambda: p.stdout.readline() if p.poll() is None else "exited", 60,  # type: ignore[union-attr]
+                          "the pyads client's notifications")
+        assert line.strip() == "ready", line
         return []
 
     try:
         check_attack(ads, victim, watcher, attack)
     finally:
-        for h in handles:   # delete before close (pyads segfaults otherwise, ads-bridge-notes pitfall 8)
-            try:
-                plc.del_device_notification(*h)
-            except pyads.ADSError:
-                pass
-        plc.close()
+        for p in procs:
+            kill_process_group(p)
 
 
 def test_sigterm_during_attack_exits_in_order(nc: NcServerProcess, watcher: NcTestClient, tmp_path: Path) -> None:
