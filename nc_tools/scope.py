@@ -668,6 +668,8 @@ def main(argv: list[str] | None = None) -> int:
             if not stop.is_set():
                 print(f"{PROG}: no sample from {what} within {a.wait:g} s", file=sys.stderr)
         else:
+            # (a script that starts a motion to record waits for this line: "recording" only says subscribed)
+            print(f"{PROG}: first sample received", file=sys.stderr, flush=True)
             if a.trigger is not None:
                 print(f"{PROG}: waiting for {a.trigger.text}", file=sys.stderr, flush=True)
                 while not rec.fired.is_set() and not stop.is_set():

@@ -127,6 +127,8 @@ def test_records_a_move_until_sigint(rig: Rig, tmp_path: Path) -> None:
         assert p.stderr is not None
         line = p.stderr.readline()
         assert "recording" in line, line
+        line = p.stderr.readline()  # subscribed is not receiving yet (through the router, on a loaded machine)
+        assert "first sample received" in line, line
         r = rig.request("MoveAbsolute", axis=1, Position=target, Velocity=40.0)
         wait_until(lambda: float(rig.cl.nctoplc(1)["SetPos"]) == target and float(rig.cl.nctoplc(1)["SetVelo"]) == 0,
                    T, "axis 1 at the target")
