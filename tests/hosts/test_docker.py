@@ -119,6 +119,17 @@ class ComposeSystem:
         r = subprocess.run(["docker", "logs", self.cid(service)], capture_output=True, text=True, timeout=60)
         return r.stdout + r.stderr
 
+    def diagnosis(self) -> str:
+        """One line (CI shows the first line of a failure): each service's state, restarts and last log lines;
+        the full logs follow on the next lines."""
+        parts, full = [], []
+        for sv in SERVICES:
+            restarts = self.docker("inspect", "-f", "{{.RestartCount}}", self.cid(sv), check=False)
+            tail = [ln for ln in self.logs(sv).splitlines() if ln.strip()][-3:]
+            parts.append(f"{sv}={self.health(sv)} restarts={restarts} log: {' | '.join(tail)[-400:]!r}")
+            full.append(f"--- {sv}\n{self.logs(sv)[-3000:]}")
+        return "; ".join(parts) + "\n" + "\n".join(full)
+
     def events(self) -> list[Any]:
         return [e for s in PLCS for e in parse_events(self.logs(s))]
 
@@ -168,8 +179,15 @@ def system(znc_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
         s.up()
         s.status = StatusClient(f"{s.transport}/127.0.0.1:{s.port}", tls_dir=s.status_tls())
         t_up = time.time()
-        wait_for(lambda: cell_ok(s.status, moved_since=t_up), UP_TIMEOUT,
-                 "every claim held and every held axis moving", interval=0.25)
+        try:
+            wait_for(lambda: cell_ok(s.status, moved_since=t_up), UP_TIMEOUT,
+                     "every claim held and every held axis moving", interval=0.25)
+        except AssertionError as exc:
+            try:
+                routers = len(list(s.status.session.info.routers_zid()))
+            except Exception as e:  # (diagnosis only)
+                routers = repr(e)
+            raise AssertionError(f"{exc}; status client's routers: {routers}; {s.diagnosis()}") from None
         health = " ".join(f"{x}={s.health(x)}" for x in SERVICES)
         FIGURES["scenarios"].append({"where": "docker", "scenario": "compose up -> claims held, moving",
                                      "react_s": None, "recover_s": round(time.monotonic() - t0, 2),
