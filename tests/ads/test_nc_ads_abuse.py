@@ -214,12 +214,20 @@ def check_attack(ads: NcAdsProcess, victim: Victim, watcher: NcTestClient, attac
         m2 = missed(watcher)
         rtts, notes = victim.measure(WINDOW_S)
         m3 = missed(watcher)
+        attack_missed = m3 - m2
+        if attack_missed > (m1 - m0) + MISSED_MARGIN:
+            # a second window under the same attack before concluding: a DoS of the NC shows in both, a stall
+            # of the machine itself (CI saw 337 missed cycles in one window once) in one
+            m4 = missed(watcher)
+            victim.measure(WINDOW_S)
+            attack_missed = min(attack_missed, missed(watcher) - m4)
     except BaseException:
         close_all(socks)
         raise
     fig = {"quiet_p99_ms": p99(quiet_rtts) * 1e3, "attack_p99_ms": p99(rtts) * 1e3,
            "attack_max_ms": max(rtts) * 1e3, "reads": len(rtts), "quiet_notes": quiet_notes, "attack_notes": notes,
-           "quiet_missed": m1 - m0, "attack_missed": m3 - m2, "0x707": victim.not_ready}
+           "quiet_missed": m1 - m0, "attack_missed": attack_missed, "attack_missed_first": m3 - m2,
+           "0x707": victim.not_ready}
     print("figures:", fig)
     lines = freed_after_close(ads, socks, freed_within) if socks else []
     after, _ = victim.measure(WINDOW_S)   # served as before once the attackers are gone (nc-ads stayed wedged once)
