@@ -170,10 +170,14 @@ class NcServer:
         self._retain_pending = False  # the first cycle has not applied the retain file yet
 
     # ---- lifecycle --------------------------------------------------------------------------
-    def start(self) -> None:
+    def start(self, cancel: threading.Event | None = None) -> None:
         """Open zenoh, start the I/O thread, then the cycle thread (SCHED_FIFO set inside it).
 
+        Args:
+            cancel: set to stop waiting for a router that is not up yet (client mode; :meth:`Transport.open`).
+
         Raises:
+            OpenCancelled: ``cancel`` was set while the NC waited for its router (nothing left running).
             zenoh.ZError: the session could not be opened (e.g. endpoint in use).
             RealtimeError: ``realtime="fifo"`` and SCHED_FIFO was refused.
             RetainLockError: another process uses the retain file (nothing was opened).
@@ -184,7 +188,7 @@ class NcServer:
         if self.config.publisher == "process" and self.config.zenoh.mode != "client":
             self.transport.internal, self._internal_socket = internal_endpoint()
         try:
-            self.transport.open()
+            self.transport.open(cancel)
         except BaseException:
             self._abort_start()
             raise

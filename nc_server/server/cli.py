@@ -107,6 +107,7 @@ def _run(cfg: object) -> int:
     from .config import ServerConfig
     from .cycle import AffinityError, RealtimeError
     from .retain import RetainLockError
+    from .transport import OpenCancelled
 
     assert isinstance(cfg, ServerConfig)
     try:
@@ -138,7 +139,10 @@ def _run(cfg: object) -> int:
 
     server = NcServer(cfg, core)
     try:
-        server.start()
+        server.start(cancel=stop)
+    except OpenCancelled as exc:
+        log.warning("%s", exc)
+        return 0
     except zenoh.ZError as exc:
         log.error("cannot open zenoh on %s: %s", ", ".join(cfg.zenoh.listen + cfg.zenoh.connect), exc)
         return 1

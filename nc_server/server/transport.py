@@ -53,6 +53,14 @@ from .cycle import demote_other_threads, set_realtime
 
 log = logging.getLogger("nc_server.server")
 
+#: An NC behind a router that is not up yet retries its first connection this often [s] and says so this often [s].
+ROUTER_RETRY_S = 0.25
+ROUTER_WAIT_LOG_S = 10.0
+
+
+class OpenCancelled(Exception):
+    """The NC was told to stop while it waited for its router (:meth:`Transport.open`)."""
+
 #: Pending queries kept (a ring channel; the cycle drains a bounded number per cycle); beyond, the
 #: oldest is dropped by zenoh, which finalizes it without a reply (its querier sees no answer).
 QUERY_CHANNEL = 1024
@@ -96,8 +104,9 @@ def zenoh_config(settings: ZenohSettings, identity: str | None = None,
     The connect endpoints (``--mode client --connect EP``: an NC behind a router) are retried every
     100-250 ms once lost (``connect/retry``, :data:`nc_schema.zenoh_config.CONNECT_RETRY`; zenoh's
     default waits 1 s, doubling up to 4 s), so a restarted router or a link that comes back has
-    the NC again within about a quarter of a second. The first connection still fails at once
-    (``connect/timeout_ms`` 0 in client mode): nc-server says so and exits.
+    the NC again within about a quarter of a second. The first connection fails at once
+    (``connect/timeout_ms`` 0 in client mode); :meth:`Transport.open` retries it (an NC behind a router
+    waits for the router, which may start later).
 
     With ``internal`` (a ``unixsock-stream/`` endpoint) the session also listens there, for the NC's own
     frame publisher (:mod:`.publisher`), also when TLS allows no other protocol.
@@ -237,13 +246,40 @@ class Transport:
         self.instance = new_instance_id()
 
     # ---- setup / teardown -------------------------------------------------------------------
-    def open(self) -> None:
+    def open(self, cancel: threading.Event | None = None) -> None:
         """Open the session and declare everything.
+
+        An NC in client mode (behind a router) waits for its router: while no connect endpoint accepts,
+        the open is retried every :data:`ROUTER_RETRY_S`, with a warning every :data:`ROUTER_WAIT_LOG_S`
+        (a router started at the same time, e.g. by compose, may take seconds; exiting instead left the NC
+        down for good where nothing restarts it).
+
+        Args:
+            cancel: set (e.g. by SIGTERM) to give up waiting for the router: raises :class:`OpenCancelled`.
 
         Raises:
             zenoh.ZError: e.g. the listen endpoint is in use.
+            OpenCancelled: ``cancel`` was set while waiting for the router.
         """
-        self.session = s = zenoh.open(zenoh_config(self.settings, self.keys.nc, self.access_control, self.internal))
+        t0 = time.monotonic()
+        next_log = t0
+        while True:
+            try:
+                self.session = s = zenoh.open(zenoh_config(self.settings, self.keys.nc, self.access_control,
+                                                           self.internal))
+                break
+            except zenoh.ZError as exc:
+                if self.settings.mode != "client" or not self.settings.connect or "connect" not in str(exc).lower():
+                    raise
+                now = time.monotonic()
+                if now >= next_log:
+                    log.warning("waiting for a router at %s (%.0f s so far): %s", ", ".join(self.settings.connect),
+                                now - t0, str(exc).split(" at ", 1)[0])
+                    next_log = now + ROUTER_WAIT_LOG_S
+                if cancel is not None and cancel.wait(ROUTER_RETRY_S):
+                    raise OpenCancelled(f"stopped while waiting for a router at {', '.join(self.settings.connect)}")
+                if cancel is None:
+                    time.sleep(ROUTER_RETRY_S)
         self._zid = str(s.info.zid())
         k = self.keys
         # channels polled by the cycle thread: no Python callback (and no GIL) on zenoh's threads

@@ -108,8 +108,9 @@ class ComposeSystem:
         return self.docker("inspect", "-f", "{{.State.StartedAt}} {{.RestartCount}}", self.cid(service))
 
     def health(self, service: str) -> str:
-        return self.docker("inspect", "-f", "{{if .State.Health}}{{.State.Health.Status}}{{else}}{{.State.Status}}"
-                           "{{end}}", self.cid(service), check=False)
+        # an exited container keeps the health it had ("starting"): its state first
+        return self.docker("inspect", "-f", "{{if ne .State.Status \"running\"}}{{.State.Status}}{{else if .State.Health}}"
+                           "{{.State.Health.Status}}{{else}}running{{end}}", self.cid(service), check=False)
 
     @property
     def network(self) -> str:

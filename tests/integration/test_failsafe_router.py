@@ -21,7 +21,7 @@ import pytest
 from failsafe_recovery import SCENARIOS, ListenWatch, measure
 from failsafe_support import T, AxisWatch, TcpProxy, failsafe_config, resume_and_kill
 from plc_harness import PlcProcess
-from znc_testing import NcServerProcess, free_port, start_nc_router, start_nc_server
+from znc_testing import NcServerProcess, free_port, start_nc_router, start_nc_server, wait_until
 
 BLAMED = (0x8F01, 0x8F02)
 ROUTER_ARGS = ["--lease-ms", "500"]
@@ -129,3 +129,40 @@ def test_nc_frozen_behind_a_router_blames_nobody_though_its_link_comes_back_late
             nc.kill()
         router.kill()
         link.close()
+
+
+def test_nc_started_before_its_router_waits_for_it_then_serves(tmp_path: Path) -> None:
+    """An NC behind a router that is not up yet waits for it (it said so and exited before: compose starts all
+    containers at once, and an NC that nothing restarts stayed down), then serves: its axis moves for a PLC.
+    SIGTERM while it waits ends it at once with exit code 0."""
+    rport = free_port()
+    endpoint = f"tcp/127.0.0.1:{rport}"
+    nc = start_nc_server(tmp_path / "nc", extra_args=["--name", "nc1"], connect=endpoint, wait=False)
+    router: NcServerProcess | None = None
+    plc: PlcProcess | None = None
+    try:
+        wait_until(lambda: "waiting for a router" in nc.stderr(), T, "nc-server says it waits for its router")
+        assert nc.proc.poll() is None and nc.ready_line() is None
+        router = start_nc_router(tmp_path / "r", port=rport, extra_args=ROUTER_ARGS)
+        nc.wait_ready(T)
+        plc = PlcProcess(router.endpoint, "plc-a")
+        plc.wait_started(T)
+        _power(plc)
+        plc.set("mv", "MC_MoveVelocity", Execute=False, Velocity=20.0)
+        plc.edge("mv", "Execute")
+        plc.wait("mv", lambda r: r.o["InVelocity"], T)
+    finally:
+        if plc is not None:
+            plc.stop()
+        nc.kill()
+        if router is not None:
+            router.kill()
+    waiting = start_nc_server(tmp_path / "nc2", extra_args=["--name", "nc1"], connect=f"tcp/127.0.0.1:{free_port()}",
+                              wait=False)
+    try:
+        wait_until(lambda: "waiting for a router" in waiting.stderr(), T, "nc-server says it waits for its router")
+        waiting.send_signal(signal.SIGTERM)
+        assert waiting.proc.wait(T) == 0
+        assert "stopped while waiting for a router" in waiting.stderr()
+    finally:
+        waiting.kill()
