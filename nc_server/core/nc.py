@@ -11,7 +11,7 @@ A test (or the server) drives it cycle by cycle::
 The motion engine: every motion command becomes a job (:mod:`.jobs`) in the axis's queue; the
 active job's plan (:mod:`.planning`) is evaluated by the set-point stages (:mod:`.stages`).
 
-Cycle order (``NcCore.STAGES``, :mod:`.stages`): inputs (PLCTONC: enables, override) -> the
+Cycle order (``NcCore.pipeline``, :mod:`.pipeline`; the set-point stages: :mod:`.stages`): inputs (PLCTONC: enables, override) -> the
 profile stage -> plan ends (jobs end, buffered jobs take over) -> the external set-point
 generator -> superposition and coupling, level by level (masters before slaves) -> limits of
 slaves and superpositions -> job watches and limits (soft-limit approach, switching positions,
@@ -21,6 +21,10 @@ Positions: the NC's positions (set, actual, targets) are what the PLC sees. ``ax
 difference NC - drive position at the drive boundary (MC_SetActualPosition), and ``axes.origin``
 the shift of a running plan since it was planned (MC_SetActualPositionOnTheFly): no absolute value
 is rewritten when the position is set.
+
+Seams: job kinds and set-point stages see the NC through :class:`.context.CoreContext`; the job
+lifecycle is :mod:`.engine`, the pure checks :mod:`.checks`, the output records :mod:`.packing`,
+the cycle :mod:`.pipeline`. NcCore is the front: execute, step, PLCTONC in, parameters.
 """
 from __future__ import annotations
 
