@@ -547,5 +547,6 @@ class NcServer:
                   "publisher_failovers": self.publisher.failovers if self.publisher is not None else 0,
                   "publisher_standby": self.publisher.standby_ready if self.publisher is not None else False,
                   "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors,
-                  "replies_held": self.io.replies_held, "replies_not_kept": self.io.replies_not_kept})
+                  "replies_held": self.io.replies_held, "replies_not_kept": self.io.replies_not_kept,
+                  "stages": self.core.stage_times()})
         return d

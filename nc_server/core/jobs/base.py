@@ -26,7 +26,7 @@ from ..planning import Dynamics, Plan, StartState
 from ..profile import stopping_distance, velocity_extrema
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 ABORTING = int(MC_BufferMode.MC_Aborting)
 BUFFERED = int(MC_BufferMode.MC_Buffered)
@@ -110,7 +110,7 @@ class JobKind:
     #: its plan (the profile stage). The stage holds the row exactly while such a job is active.
     source: ClassVar[str | None] = None
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         """Check the arguments and make the record (nothing is changed yet).
 
         Args:
@@ -122,7 +122,7 @@ class JobKind:
         """
         raise NotImplementedError
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         """Check the axis state and plan the job from ``start`` (a job of a ``source`` stage: None,
         it has no plan).
 
@@ -135,30 +135,30 @@ class JobKind:
         """
         raise NotImplementedError
 
-    def on_begin(self, core: NcCore, i: int, job: Job) -> None:
+    def on_begin(self, core: CoreContext, i: int, job: Job) -> None:
         """The job became the running one (a job of a ``source`` stage hands the row to it here)."""
 
-    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         """The plan ended. Returns "done" (the job is finished), "steady" (keep the plan's end
         velocity: the job goes on) or "continue" (the kind started a new plan itself)."""
         return "done"
 
-    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+    def replan(self, core: CoreContext, i: int, job: Job, start: StartState, override: float) -> Plan | None:
         """A new plan after an override change or a new end velocity (blending); None: keep."""
         return None
 
-    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+    def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         """Per-cycle checks of the running jobs of this kind in ``rows`` (after the set-points)."""
 
     def wants_watch(self, job: Job) -> bool:
         """Hand this job's row to :meth:`watch` every cycle (default: the class's ``watches``)."""
         return self.watches
 
-    def successor_may_start(self, core: NcCore, i: int, job: Job) -> bool:
+    def successor_may_start(self, core: CoreContext, i: int, job: Job) -> bool:
         """A buffered job may take over now (e.g. a velocity job at its constant velocity)."""
         return False
 
-    def amend(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
+    def amend(self, core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
         """Change the running job (NewPos, NewPosAndVelo, ChangeDynParam). Returns the new plan,
         None to keep the current one (the change happens later, e.g. at a switching position).
 
@@ -167,7 +167,7 @@ class JobKind:
         """
         raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"a {self.name} command cannot be changed so")
 
-    def change_dynamics(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
+    def change_dynamics(self, core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
         """MC_ChangeDynParam (TcMC 4.20): new dynamics for the running job, or a refusal that keeps
         the current ones: 0x425D a stop runs, 0x427F the target would be passed, 0x423A the
         velocity would overshoot, 0x4289 the direction would reverse. Generic: re-plans with
@@ -204,7 +204,7 @@ class JobKind:
         job.data = trial.data  # with the plan's own state (the ramp to the end velocity)
         return plan
 
-    def blend_velocity(self, core: NcCore, i: int, job: Job, nxt: Job) -> float:
+    def blend_velocity(self, core: CoreContext, i: int, job: Job, nxt: Job) -> float:
         """The velocity [u/s, >= 0, at 100 % override] with which ``job`` passes its target when
         ``nxt`` waits behind it with a Blending BufferMode (PLCopen Part 1: Low = the lower,
         Previous = this job's, High = the higher of both, Next = the waiting job's velocity).
@@ -253,7 +253,7 @@ class JobKind:
         if job.data.get("start") is not None:
             job.data["start"] += diff
 
-    def next_base(self, job: Job, core: NcCore, i: int) -> float | None:
+    def next_base(self, job: Job, core: CoreContext, i: int) -> float | None:
         """The position a relative/additive successor refers to (NC position): this job's target;
         None for a job without one (velocity, halt, homing): the successor refers to the set position
         where it starts."""

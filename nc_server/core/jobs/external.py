@@ -22,7 +22,7 @@ from .base import Job, JobKind
 from .stop import HALT_RAMP
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _EPS_V = 1e-9
 
@@ -33,7 +33,7 @@ class ExternalKind(JobKind):
     follows_override = False  # the PLC's generator owns the velocity
     source = "external"
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         ptype, pos = req.get("PositionType", 1), float(req.get("Position", 0.0))
         if ptype not in {int(t) for t in E_TargPosType}:
             raise NcError(ErrorCodes.MC_INVALID_MODE, f"PositionType {ptype} is not an E_TargPosType (1, 2, 5)")
@@ -41,7 +41,7 @@ class ExternalKind(JobKind):
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Position {pos} outside +/-1e9")
         return Job(self, dict(req))
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan | None:  # type: ignore[override]
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:  # type: ignore[override]
         a = core.axes
         if a.traj_on[i] or abs(start.v) > _EPS_V or core.coupling.is_slave(i):
             raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "a command moves the axis: stop it first")
@@ -54,14 +54,14 @@ class ExternalKind(JobKind):
         job.target = pos
         return None
 
-    def on_begin(self, core: NcCore, i: int, job: Job) -> None:
+    def on_begin(self, core: CoreContext, i: int, job: Job) -> None:
         core.external.enable(core, i)  # (TargetPos = Position: the target window is watched when it stands)
 
 
 EXTERNAL = ExternalKind()
 
 
-def ext_disable(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
+def ext_disable(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """MC_ExtSetPointGenDisable (see the module docstring); not enabled: nothing to do."""
     q = core.queues[i]
     job = q.active
@@ -71,11 +71,10 @@ def ext_disable(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     moving = abs(float(a.set_velo[i])) > _EPS_V or abs(float(a.set_acc[i])) > 1e-9
     q.end(job, CmdState.DONE)
     if moving:
-        core._start_ramp(i, HALT_RAMP, None)
+        core.start_ramp(i, HALT_RAMP, None)
     else:
         core.clear_profile(i)
         a.target_pos[i] = a.set_pos[i]
-    core._sync(i)
     return {}
 
 

@@ -34,7 +34,7 @@ from ..stages.coupling import MAX_RATIO
 from .base import Job, JobKind
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _EPS_V = 1e-9
 
@@ -47,7 +47,7 @@ class GearInKind(JobKind):
     follows_override = False  # the master's override moves the slave; its own does not
     source = "coupling"
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         cmd = req["cmd"]
         if cmd == "GearIn":
             num, den = req["RatioNumerator"], req["RatioDenominator"]
@@ -73,7 +73,7 @@ class GearInKind(JobKind):
             rate = (acc or float(core.axes.acc[i])) / float(core.axes.vmax[m])
         return Job(self, dict(req), data={"master": m, "ratio": ratio, "dyn": dyn, "rate": rate})
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan | None:  # type: ignore[override]
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:  # type: ignore[override]
         a, cpl = core.axes, core.coupling
         m = int(job.data["master"])
         if cpl.is_slave(i):
@@ -94,7 +94,7 @@ class GearInKind(JobKind):
                           f"ratio x master velocity = {v:.6g} exceeds the slave's AxisVeloMax {float(a.vmax[i]):g}")
         return None
 
-    def on_begin(self, core: NcCore, i: int, job: Job) -> None:
+    def on_begin(self, core: CoreContext, i: int, job: Job) -> None:
         d = job.data
         core.coupling.couple(core, i, int(d["master"]), float(d["ratio"]), bool(d["dyn"]), float(d["rate"]),
                              float(core.plctonc["GearRatio1"][i]))
@@ -108,14 +108,14 @@ def v_end_of(start: StartState, jerk: float) -> float:
     return start.v + start.a * abs(start.a) / (2.0 * jerk)
 
 
-def _coupling_job(core: NcCore, i: int) -> Job:
+def _coupling_job(core: CoreContext, i: int) -> Job:
     job = core.queues[i].active
     if job is None or job.kind is not GEAR_IN:
         raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"axis {int(core.axes.ids[i])} is not coupled")
     return job
 
 
-def gear_out(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
+def gear_out(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """MC_GearOut and MC_GearOutExt (see the module docstring). Returns the follow-on command's
     CmdNo (none at standstill). A follow-on command that cannot start (e.g. a target beyond a
     software limit, a missing feed enable) refuses the request: the slave stays coupled."""
@@ -134,7 +134,6 @@ def gear_out(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
         core.superposition.abort(core, i)
         core.clear_profile(i)  # (INSTANTANEOUSSTOP: the velocity jumps to zero, as TwinCAT's mode says)
         a.target_pos[i] = a.set_pos[i]
-        core._sync(i)
         return {}
     sense = 1.0 if v_end_of(start, float(a.jerk[i]) if not req.get("Jerk") else float(req["Jerk"])) > 0 else -1.0
     direction = int(MC_Direction.MC_Positive_Direction if sense > 0 else MC_Direction.MC_Negative_Direction)

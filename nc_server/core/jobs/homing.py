@@ -36,7 +36,7 @@ from ..planning import Plan, StartState, hold, plan_velocity
 from .base import Job, JobKind
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _DEFAULT = int(MC_HomingMode.MC_DefaultHoming)
 _DIRECT = int(MC_HomingMode.MC_Direct)
@@ -55,7 +55,7 @@ class HomeKind(JobKind):
     follows_override = False
     watches = True
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         mode = req["HomingMode"]
         if mode not in (_DEFAULT, _DIRECT, _FORCE, _RESET):
             raise NcError(ErrorCodes.MC_INVALID_MODE, f"HomingMode {mode} is not implemented (as in Tc2_MC2)")
@@ -68,7 +68,7 @@ class HomeKind(JobKind):
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Position {pos} outside +/-1e9")
         return Job(self, dict(req), dyn=core.dynamics(i, {}, None), data={"mode": mode, "ref": ref})
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         if abs(start.v) > 1e-9 or core.superposition.on[i]:  # (a buffered Home: the predecessor's end, at rest)
             raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "homing starts only from standstill")
         job.data.update(cleared=False, latched=None)
@@ -85,7 +85,7 @@ class HomeKind(JobKind):
         job.phase = S1
         return hold(start.p)
 
-    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         a = core.axes
         mode = job.data["mode"]
         if mode != _DEFAULT:
@@ -109,7 +109,7 @@ class HomeKind(JobKind):
             return "done"
         return "done"
 
-    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+    def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         a = core.axes
         cam = core.cam(rows)
         for n, i in enumerate(rows.tolist()):
@@ -119,7 +119,7 @@ class HomeKind(JobKind):
             if not job.data["cleared"] and job.data["mode"] == _DEFAULT:
                 job.data["cleared"] = True
                 a.homed[i] = False
-                core._state_dirty = True
+                core.touch(i)
             ph = job.phase
             if ph == S1:  # shown for one cycle, then: cam occupied -> leave it, else search it
                 if not job.data.get("s1_shown"):
@@ -134,7 +134,6 @@ class HomeKind(JobKind):
                 core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v,
                                            job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
                 job.phase = S2
-                core._sync(i)
                 continue
             if ph == S3 and a.traj_dur[i] == np.inf:  # started on the cam: show state 3, then leave it
                 if job.data.get("s3_shown"):
@@ -147,7 +146,7 @@ class HomeKind(JobKind):
             elif ph == S4 and not cam[n]:
                 job.phase = S5
                 job.data["armed_at"] = float(core.act_pos[i])
-                core._sync(i)
+                core.touch(i)  # (HomingState shows the phase)
             elif ph == S5:
                 # the latch reports drive positions: compare in the drive's frame
                 off = float(a.offset[i])
@@ -162,7 +161,7 @@ class HomeKind(JobKind):
             if job.data.get(key) is not None:
                 job.data[key] += diff
 
-    def _leave_cam(self, core: NcCore, i: int, job: Job) -> None:
+    def _leave_cam(self, core: CoreContext, i: int, job: Job) -> None:
         p = core.params[i]
         sense = -1.0 if p.AxisInvertSyncPulseSearchDirection else 1.0
         try:
@@ -173,13 +172,11 @@ class HomeKind(JobKind):
         job.phase = S4
         v = p.AxisCalibrationVelocityBackward
         core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
-        core._sync(i)
 
-    def _stop(self, core: NcCore, i: int, job: Job, phase: int) -> None:
+    def _stop(self, core: CoreContext, i: int, job: Job, phase: int) -> None:
         job.phase = phase
         d = core.stop_dynamics(i)
         core.set_plan(i, core.plan(plan_velocity, core.start_state(i), 0.0, d))
-        core._sync(i)
 
 
 def kinds() -> list[JobKind]:

@@ -26,7 +26,7 @@ from ..profile import velocity_extrema
 from .base import ALL_MODES, Job, JobKind
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _POS = int(MC_Direction.MC_Positive_Direction)
 _SHORT = int(MC_Direction.MC_Shortest_Way)
@@ -86,10 +86,10 @@ class PositionKind(JobKind):
         self.commands = (name,)  # type: ignore[misc]
 
     # -- accept / activate -------------------------------------------------------------------
-    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+    def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         return float(req["Position"])
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         v = req["Velocity"]
         core.check_velocity(i, v)
         dyn = core.dynamics(i, req, v)
@@ -106,10 +106,10 @@ class PositionKind(JobKind):
         return Job(self, dict(req), dyn=dyn, target=target, end_velocity=self.end_velocity_of(core, i, req, target, base),
                    data=data)
 
-    def end_velocity_of(self, core: NcCore, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
+    def end_velocity_of(self, core: CoreContext, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
         return 0.0
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         assert job.target is not None and job.dyn is not None
         if job.data.get("from_start"):
             job.target = self.target_of(core, i, job.args, start.p, None)
@@ -128,10 +128,10 @@ class PositionKind(JobKind):
     def wants_watch(self, job: Job) -> bool:
         return "switch" in job.data
 
-    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+    def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         _switch_reached(core, rows)
 
-    def _plan(self, core: NcCore, i: int, job: Job, start: StartState, ov: float) -> Plan:
+    def _plan(self, core: CoreContext, i: int, job: Job, start: StartState, ov: float) -> Plan:
         """The plan to the target from ``start`` at override ``ov``. ``job.end_velocity`` (blending,
         EndVelocity) is the velocity at the target at 100 % and scales with the override like the
         travel velocity. An end velocity above the travel velocity (BlendingNext/High towards a faster
@@ -165,7 +165,7 @@ class PositionKind(JobKind):
         return self._plan_to_target(core, job, start, dyn, ve)
 
     @staticmethod
-    def _plan_to_target(core: NcCore, job: Job, start: StartState, dyn: Dynamics, ve: float) -> Plan:
+    def _plan_to_target(core: CoreContext, job: Job, start: StartState, dyn: Dynamics, ve: float) -> Plan:
         """The first acceptable of: the plan with the end velocity ``ve``; the same without ruckig's
         brake pre-profile (a travel velocity below the current one: an override cut or a slower new
         velocity close to the target, where braking first to the new velocity leaves too little way and
@@ -199,12 +199,12 @@ class PositionKind(JobKind):
         # braking distance: past it and back)
         return fallback if fallback is not None else core.plan(plan_position, start, target, dyn, 0.0)
 
-    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+    def replan(self, core: CoreContext, i: int, job: Job, start: StartState, override: float) -> Plan | None:
         if job.continuous:  # past the target: a velocity job now
             return core.plan(plan_velocity, start, job.end_velocity * override, job.dyn)
         return self._plan(core, i, job, start, override)
 
-    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         if job.held:
             return "steady"  # override 0: waiting, not the end
         if self.start_ramp(core, i, job):
@@ -213,7 +213,7 @@ class PositionKind(JobKind):
             return "steady"
         return "done"
 
-    def start_ramp(self, core: NcCore, i: int, job: Job) -> bool:
+    def start_ramp(self, core: CoreContext, i: int, job: Job) -> bool:
         """At the end of the first part of a plan that speeds up to its end velocity just before the
         target (:meth:`_plan`): plan the ramp, which ends at the target."""
         ve = job.data.pop("ramp", None)
@@ -223,7 +223,6 @@ class PositionKind(JobKind):
         # from the first part's exact end (up to a cycle back), so that the ramp ends at the target
         end, _ = core.plan_end_state(i)
         core.continue_plan(i, core.plan(plan_velocity, end, ve, job.dyn.scaled(core.override(i))))
-        core._sync(i)
         return True
 
     def shift(self, job: Job, diff: float) -> None:
@@ -240,7 +239,7 @@ class PositionKind(JobKind):
         return job.target, sense, job.dyn.velocity
 
     # -- amendments ----------------------------------------------------------------------------
-    def amend(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
+    def amend(self, core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
         if req["cmd"] == "NewPos":
             mode, new_pos, new_velo, at = int(NPV.CHANGE_POS), req["NewPos"], 0.0, 0.0
         else:
@@ -259,7 +258,7 @@ class PositionKind(JobKind):
         job.data["switch"] = (mode, float(at), float(new_pos), float(new_velo))
         return None
 
-    def apply_change(self, core: NcCore, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
+    def apply_change(self, core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
         """A new target and/or velocity from the current set-point state (the job keeps its CmdNo)."""
         start = core.start_state(i)
         trial = Job(job.kind, job.args, dyn=job.dyn, target=job.target, end_velocity=job.end_velocity,
@@ -287,7 +286,7 @@ class PositionKind(JobKind):
 
 
 class RelativeKind(PositionKind):
-    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+    def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         return base + float(req["Distance"])
 
 
@@ -295,7 +294,7 @@ class AdditiveKind(PositionKind):
     """MC_MoveAdditive: the distance is added to the target of the discrete motion it follows or
     aborts; at rest or in continuous motion, to the set position (PLCopen Part 1)."""
 
-    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+    def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         if prev is not None and prev.target is not None and not prev.continuous and not prev.kind.is_stop:
             return prev.target + float(req["Distance"])
         return base + float(req["Distance"])
@@ -305,7 +304,7 @@ class ModuloKind(PositionKind):
     """MC_MoveModulo. MC_Current_Direction: the direction of the current motion -- of a job queued
     behind another, the direction that job travels in (a blend then passes its target moving on)."""
 
-    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+    def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         p = core.params[i]
         if prev is not None and req.get("BufferMode", 0) != 0:  # queued behind prev
             start = prev.data.get("start", prev.target)
@@ -326,10 +325,10 @@ class ContinuousKind(PositionKind):
         super().__init__(name)
         self.relative = relative
 
-    def target_of(self, core: NcCore, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
+    def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         return base + float(req["Distance"]) if self.relative else float(req["Position"])
 
-    def end_velocity_of(self, core: NcCore, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
+    def end_velocity_of(self, core: CoreContext, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
         ve = float(req["EndVelocity"])
         if abs(ve) > core.axes.vmax[i] * (1 + 1e-12):
             raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED, f"EndVelocity {ve} beyond AxisVeloMax {core.axes.vmax[i]}")
@@ -340,7 +339,7 @@ class ContinuousKind(PositionKind):
         """A new target is passed with EndVelocity as well (in the direction it lies in)."""
         return math.copysign(abs(job.end_velocity), target - p) if job.end_velocity and target != p else 0.0
 
-    def apply_change(self, core: NcCore, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
+    def apply_change(self, core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
         if job.continuous and not base & int(NPV.CHANGE_POS):
             # past the target, endless at EndVelocity: a new velocity is the new endless velocity
             assert job.dyn is not None
@@ -352,7 +351,7 @@ class ContinuousKind(PositionKind):
             return plan
         return super().apply_change(core, i, job, base, new_pos, new_velo)
 
-    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         if job.phase:  # stopped exactly at a software limit (as MoveVelocity): 0x4462/0x4463
             from .velocity import end_velocity
             return end_velocity(core, i, job)
@@ -362,17 +361,16 @@ class ContinuousKind(PositionKind):
             return "continue"
         if job.end_velocity:
             job.continuous = True  # past the target: endless at EndVelocity
-            core._sync(i)
             return "steady"
         return "done"
 
-    def successor_may_start(self, core: NcCore, i: int, job: Job) -> bool:
+    def successor_may_start(self, core: CoreContext, i: int, job: Job) -> bool:
         return job.continuous
 
     def wants_watch(self, job: Job) -> bool:
         return "switch" in job.data or (bool(job.end_velocity) and job.data.get("limits", False) and not job.phase)
 
-    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+    def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         from .velocity import limit_approach
         switch = np.array([("switch" in core.queues[i].active.data) for i in rows.tolist()], dtype=bool)  # type: ignore[union-attr]
         if switch.any():
@@ -381,7 +379,7 @@ class ContinuousKind(PositionKind):
         if rest.size:  # endless beyond the target: stop exactly at an enabled software limit
             limit_approach(core, rest)
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         plan = super().activate(core, i, job, start)
         a = core.axes
         job.data["limits"] = bool(a.en_max[i] or a.en_min[i])
@@ -395,7 +393,7 @@ class RestartKind(PositionKind):
 
     buffer_modes = frozenset({0})
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         job = super().accept(core, i, req, prev)
         running = core.queues[i].running_numbered
         if running is not None and running.dyn is not None and core.axes.traj_on[i] and not running.kind.is_stop:
@@ -410,7 +408,7 @@ def _turns(plan: Plan, sense: float) -> bool:
     return lo < -1e-9 if sense > 0 else hi > 1e-9
 
 
-def _switch_reached(core: NcCore, rows: np.ndarray) -> None:
+def _switch_reached(core: CoreContext, rows: np.ndarray) -> None:
     """Apply NewPosAndVelo changes armed at a switching position (PositionKind.watch)."""
     a = core.axes
     for i in rows.tolist():
@@ -443,7 +441,6 @@ def _switch_reached(core: NcCore, rows: np.ndarray) -> None:
             core.set_plan(i, plan)
             if job.target is not None:
                 a.target_pos[i] = job.target
-            core._sync(i)
 
 
 def kinds() -> list[JobKind]:

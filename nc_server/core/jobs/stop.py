@@ -18,12 +18,12 @@ from ..planning import Dynamics, Plan, StartState, hold, plan_position, plan_vel
 from .base import ALL_MODES, Job, JobKind
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _EPS_V = 1e-9
 
 
-def _stop_plan(core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+def _stop_plan(core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
     assert job.dyn is not None
     if not core.axes.traj_on[i] and abs(start.v) <= _EPS_V:
         return hold(start.p)  # standing: the stop is complete in its first cycle
@@ -51,7 +51,7 @@ class StopKind(JobKind):
     follows_override = False
     always_allowed = True
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         dec, jerk = req.get("Deceleration", 0.0), req.get("Jerk", 0.0)
         if (dec > 0) != (jerk > 0):
             dec = jerk = 0.0  # TcMC 3.15: only together; a stop is never refused
@@ -59,7 +59,7 @@ class StopKind(JobKind):
             dec = jerk = 0.0
         return Job(self, dict(req), dyn=core.stop_dynamics(i, dec, jerk))
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         return _stop_plan(core, i, job, start)
 
     def from_ramp(self, ramp: Job | None, cmd_no: int) -> Job:
@@ -69,7 +69,7 @@ class StopKind(JobKind):
         job.state = int(CmdState.ACTIVE)
         return job
 
-    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         if job.data.get("release"):  # Execute fell during the ramp: unlock now that it stands
             core.axes.locked[i] = False
         return "done"
@@ -85,11 +85,11 @@ class HaltKind(JobKind):
     follows_override = False
     braking = True
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         d = core.dynamics(i, {"Deceleration": req.get("Deceleration", 0.0), "Jerk": req.get("Jerk", 0.0)}, None)
         return Job(self, dict(req), dyn=d)
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         assert job.dyn is not None
         job.dyn = core.stop_dynamics(i, job.dyn.deceleration, job.dyn.jerk)
         return _stop_plan(core, i, job, start)
@@ -107,14 +107,14 @@ class OrientedStopKind(JobKind):
     feed_checked = False
     follows_override = False
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         period = core.params[i].AxisEncoderModuloValue
         pos = req["Position"]
         if not 0.0 <= pos < period:
             raise NcError(ErrorCodes.NC_ORIENTED_STOP_NOT_ALLOWED, f"Position {pos} outside [0, {period})")
         return Job(self, dict(req))
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         if abs(start.v) <= _EPS_V:
             raise NcError(ErrorCodes.MC_AXIS_NOT_MOVING, "the axis is not moving: use MC_MoveModulo to position it")
         running = core.queues[i].active

@@ -22,7 +22,7 @@ from .base import ALL_MODES, Job, JobKind
 from .position import PositionKind
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _POS = int(MC_Direction.MC_Positive_Direction)
 _NEG = int(MC_Direction.MC_Negative_Direction)
@@ -49,40 +49,40 @@ class VelocityKind(JobKind):
     commands = ("MoveVelocity",)
     buffer_modes = ALL_MODES
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         v = req["Velocity"]
         core.check_velocity(i, v)
         sense = direction_sense(req["Direction"])
         return Job(self, dict(req), dyn=core.dynamics(i, req, v), velocity=sense * v, continuous=True)
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         return activate_velocity(core, i, job, start)
 
-    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+    def replan(self, core: CoreContext, i: int, job: Job, start: StartState, override: float) -> Plan | None:
         if job.phase:
             return None  # stopping at a limit: the stop does not follow the override
         return core.plan(plan_velocity, start, job.velocity * override, job.dyn)
 
-    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         return end_velocity(core, i, job)
 
-    def successor_may_start(self, core: NcCore, i: int, job: Job) -> bool:
+    def successor_may_start(self, core: CoreContext, i: int, job: Job) -> bool:
         return bool(job.data.get("steady")) and not job.held
 
     def wants_watch(self, job: Job) -> bool:
         return bool(job.data.get("limits")) and not job.phase
 
-    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+    def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         limit_approach(core, rows)
 
-    def amend(self, core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
+    def amend(self, core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
         return amend_velocity(core, i, job, req)
 
 
 _TO_POSITION = PositionKind("MoveAbsolute")  # what an endless move becomes with a new target
 
 
-def amend_velocity(core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
+def amend_velocity(core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
     """MC_NewPos / MC_NewPosAndVelo on an endless move (TcMC 3.7/3.8: "an axis in motion"):
     CHANGE_VELO gives it a new velocity (same direction); NewPos, CHANGE_POS and CHANGE_POSANDVELO
     turn it into a positioning to NewPos (same CmdNo, then Done there). The switching-position
@@ -120,7 +120,7 @@ def amend_velocity(core: NcCore, i: int, job: Job, req: Mapping[str, Any]) -> Pl
     return plan
 
 
-def activate_velocity(core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+def activate_velocity(core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
     a = core.axes
     sense = 1.0 if job.velocity > 0 else -1.0
     core.check_feed(i, sense)
@@ -148,7 +148,7 @@ def activate_velocity(core: NcCore, i: int, job: Job, start: StartState) -> Plan
     return plan
 
 
-def end_velocity(core: NcCore, i: int, job: Job) -> str:
+def end_velocity(core: CoreContext, i: int, job: Job) -> str:
     if job.phase:  # stopped exactly at the limit: the commanded motion could not continue
         code = ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING if job.phase == LIMIT_MAX else ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING
         core.clear_profile(i)
@@ -158,7 +158,7 @@ def end_velocity(core: NcCore, i: int, job: Job) -> str:
     return "steady"
 
 
-def limit_approach(core: NcCore, rows: np.ndarray) -> None:
+def limit_approach(core: CoreContext, rows: np.ndarray) -> None:
     """Stop continuous moves exactly at an enabled software limit (vectorized check)."""
     a = core.axes
     v = a.set_velo[rows]
@@ -184,7 +184,6 @@ def limit_approach(core: NcCore, rows: np.ndarray) -> None:
         job.phase = LIMIT_MAX if vi > 0 else LIMIT_MIN
         core.set_plan(i, plan)
         a.target_pos[i] = target
-        core._sync(i)
 
 
 class JogKind(JobKind):
@@ -201,7 +200,7 @@ class JogKind(JobKind):
     def __init__(self) -> None:
         self._pos = PositionKind("Jog")
 
-    def accept(self, core: NcCore, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         mode = req["Mode"]
         sense = direction_sense(req["Direction"])
         p = core.params[i]
@@ -229,17 +228,17 @@ class JogKind(JobKind):
             target = (math.floor(k + 1e-9) + 1) * step if sense > 0 else (math.ceil(k - 1e-9) - 1) * step
         return Job(self, dict(req), dyn=dyn, target=target, data={"via": "position"})
 
-    def activate(self, core: NcCore, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         if job.data["via"] == "velocity":
             return activate_velocity(core, i, job, start)
         return self._pos.activate(core, i, job, start)
 
-    def replan(self, core: NcCore, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+    def replan(self, core: CoreContext, i: int, job: Job, start: StartState, override: float) -> Plan | None:
         if job.data["via"] == "velocity":
             return None if job.phase else core.plan(plan_velocity, start, job.velocity * override, job.dyn)
         return self._pos.replan(core, i, job, start, override)
 
-    def on_end(self, core: NcCore, i: int, job: Job) -> str:
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         if job.data["via"] == "velocity":
             return end_velocity(core, i, job)
         return self._pos.on_end(core, i, job)
@@ -247,7 +246,7 @@ class JogKind(JobKind):
     def wants_watch(self, job: Job) -> bool:
         return job.data["via"] == "velocity" and bool(job.data.get("limits")) and not job.phase
 
-    def watch(self, core: NcCore, rows: np.ndarray) -> None:
+    def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         limit_approach(core, rows)
 
     def blend_point(self, job: Job) -> tuple[float, float, float] | None:

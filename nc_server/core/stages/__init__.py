@@ -4,7 +4,7 @@ Each stage owns some axes' set-points for the cycle and may read any set-point t
 stage produced in the same cycle. Which stage drives an axis follows its running job: a plan ->
 the profile stage; a coupling job -> the coupling stage; an external-generator job -> the
 external stage (``JobKind.source``). The superposition stage adds on top of any of them. In the
-order of ``NcCore.step`` (``NcCore.STAGES``):
+order of ``NcCore.step`` (``NcCore.pipeline``, :mod:`..pipeline`):
 
 1. :class:`~.profile.ProfileStage` -- every running plan (constant-jerk segments), staggered
    lookahead; then the plans that ended (jobs end, buffered jobs take over).

@@ -19,7 +19,7 @@ reached when the master is moving at its maximum velocity"). A non-finite GearRa
 beyond +/-MAX_RATIO is ignored (the last ratio stays) and counted in ``ignored_ratios``.
 
 Which axes are coupled follows the jobs: a slave is coupled exactly while its running job is a
-coupling job (``NcCore._sync`` releases the row when another job takes over), so every way a
+coupling job (``JobEngine.sync`` releases the row when another job takes over), so every way a
 coupling can end (MC_GearOut, a motion command with AxisAllowMotionCmdToSlave, MC_Stop, an error,
 Enable FALSE) goes through one place.
 """
@@ -36,7 +36,7 @@ from nc_schema import AxisState, CoupleState, ErrorCodes
 from .profile import motion_dwords
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 #: largest |gear ratio| accepted
 MAX_RATIO = 1e6
@@ -100,7 +100,7 @@ class CouplingStage:
             m = int(self.master[m])
         return True
 
-    def couple(self, core: NcCore, i: int, m: int, ratio: float, dyn: bool = False, rate: float = 0.0,
+    def couple(self, core: CoreContext, i: int, m: int, ratio: float, dyn: bool = False, rate: float = 0.0,
                gear_ratio1: float = math.nan) -> None:
         """Make row ``i`` a slave of row ``m`` from this cycle's set-points on (the caller checked
         that it may: slave standing, no cycle). A moving master: synchronize first.
@@ -184,7 +184,7 @@ class CouplingStage:
         """A column changed: the per-level copies are made again at the next run."""
         self._cache = None
 
-    def _levels(self, core: NcCore) -> tuple[list[tuple], np.ndarray, np.ndarray]:
+    def _levels(self, core: CoreContext) -> tuple[list[tuple], np.ndarray, np.ndarray]:
         """Per level: rows, masters, ratio, s_base, m_base, any dyn, any synchronizing, AxisState;
         and the slaves' velocity and acceleration limits (copies: a cycle gathers less)."""
         if self._cache is None:
@@ -199,7 +199,7 @@ class CouplingStage:
             self._cache = (lv, s, lim)
         return self._cache
 
-    def run(self, core: NcCore, after_level: Callable[[np.ndarray], None] | None) -> list[tuple[int, int]]:
+    def run(self, core: CoreContext, after_level: Callable[[np.ndarray], None] | None) -> list[tuple[int, int]]:
         """Set-points of every slave, level by level; ``after_level(rows)`` runs after each level
         (the superposition of those rows, before their own slaves read them). Returns (row, code) of
         the slaves beyond their limits, for the NC to fault: 0x4359 AxisVeloMax, 0x422F
@@ -231,7 +231,7 @@ class CouplingStage:
             if after_level is not None:
                 after_level(rows)
         # beyond AxisVeloMax: the fault ramp then takes the acceleration down with up to 4 x AxisJerk
-        # (NcCore._start_ramp)
+        # (JobEngine.start_ramp)
         v, acc = S[1, s], S[2, s]
         fast = np.abs(v) > lim[0]
         hard = np.abs(acc) > lim[1]
@@ -240,7 +240,7 @@ class CouplingStage:
                 (int(i), int(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)) for i in s[hard & ~fast].tolist()]
         return []
 
-    def _dyn_ratios(self, core: NcCore, rows: np.ndarray, gr: np.ndarray) -> np.ndarray | None:
+    def _dyn_ratios(self, core: CoreContext, rows: np.ndarray, gr: np.ndarray) -> np.ndarray | None:
         """MC_GearInDyn rows of a level: the ratio moves towards PLCTONC.GearRatio1 within its rate;
         where it changed, the coupling is re-based at last cycle's positions (so position stays
         continuous) and the ratio change adds ``dr/dt * master velocity`` to the acceleration, which is
@@ -278,7 +278,7 @@ class CouplingStage:
         except Exception:  # (ruckig raises on inputs it cannot take)
             return Result.Error
 
-    def _synchronize(self, core: NcCore, i: int, m: int, prev: np.ndarray) -> None:
+    def _synchronize(self, core: CoreContext, i: int, m: int, prev: np.ndarray) -> None:
         """One cycle of a synchronizing slave: towards ratio x the master's velocity and acceleration
         with the slave's own dynamics; locked in position once it got there."""
         a = core.axes

@@ -33,7 +33,7 @@ from nc_schema import AxisState, ErrorCodes
 from .profile import motion_dwords
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _EPS_V = 1e-9
 _RUNNING = np.uint32(int(AxisState.RUNNING))
@@ -64,7 +64,7 @@ class ExternalStage:
     def active(self) -> bool:
         return bool(self.rows.size)
 
-    def enable(self, core: NcCore, i: int) -> None:
+    def enable(self, core: CoreContext, i: int) -> None:
         self.on[i] = True
         self.following[i] = False
         self.fed[:, i] = np.nan  # whatever PLCTONC holds counts as a new feed
@@ -81,7 +81,7 @@ class ExternalStage:
     def fold(self, i: int, diff: float) -> None:
         self.offset[i] += diff
 
-    def run(self, core: NcCore) -> list[tuple[int, int]]:
+    def run(self, core: CoreContext) -> list[tuple[int, int]]:
         """Set-points of the enabled axes for this cycle. Returns (row, code) of the feeds the NC
         faults: 0x4359 a jump, a velocity step or a velocity above AxisVeloMax, 0x422F an
         acceleration above max(AxisAcc, AxisDec), 0x4463/0x4462 a software limit."""

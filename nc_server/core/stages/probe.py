@@ -24,7 +24,7 @@ from nc_schema import CmdState, ErrorCodes, NcError, next_cmdno
 from ..probe import check_trigger_input, in_window, modulo_position
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 ARMED, VALID = 1, 2  # TouchProbeState bits
 
@@ -69,7 +69,7 @@ class ProbeStage:
         if self.armed[i]:
             self._end(i, CmdState.ERROR, int(ErrorCodes.MC_LATCH_DISABLED))
 
-    def run(self, core: NcCore) -> None:
+    def run(self, core: CoreContext) -> None:
         """After the drive step: latch events of the armed axes (NC positions)."""
         rows = self.rows
         a = core.axes
@@ -91,10 +91,10 @@ class ProbeStage:
             self.counter[i] += 1
             self.valid[i] = True
             self._end(i, CmdState.DONE)
-        core._state_dirty = True
+        core.state_dirty = True
 
 
-def cmd_touch_probe(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
+def cmd_touch_probe(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """TouchProbe: arm the latch (a running probe cycle of the axis ends ABORTED: replaced).
 
     Raises:
@@ -124,20 +124,20 @@ def cmd_touch_probe(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, A
     st.valid[i] = False
     st.rows = st.armed.nonzero()[0]
     st.changed.append(i)
-    core._state_dirty = True
+    core.state_dirty = True
     return {"cmd_no": cmd_no}
 
 
-def cmd_abort_trigger(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
+def cmd_abort_trigger(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """AbortTrigger: disarm; a running probe cycle ends ABORTED."""
     st: ProbeStage = core.probe
     st.valid[i] = False
     st._end(i, CmdState.ABORTED)
-    core._state_dirty = True
+    core.state_dirty = True
     return {}
 
 
-def cmd_sim_probe_signal(core: NcCore, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
+def cmd_sim_probe_signal(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """SimProbeSignal: a simulated edge of input 1 inside the next cycle (simulated drive only).
 
     Raises:

@@ -14,7 +14,7 @@ from nc_schema import AxisState, StateDWord
 from ..profile import N_SEGMENTS
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
 
 _EPS_V = 1e-9
 
@@ -131,7 +131,7 @@ class ProfileStage:
 
     name = "profile"
 
-    def __init__(self, core: NcCore, lookahead: int, groups: int | None = None) -> None:
+    def __init__(self, core: CoreContext, lookahead: int, groups: int | None = None) -> None:
         n = core.axes.n
         L = lookahead
         self.n = n
@@ -171,7 +171,7 @@ class ProfileStage:
         self._on_key = None
         self.pending = set(range(n))  # every row from the next run on (whatever ran before)
 
-    def run(self, core: NcCore) -> np.ndarray:
+    def run(self, core: CoreContext) -> np.ndarray:
         """Advance one cycle; returns the rows whose plan ended in this cycle."""
         a = core.axes
         on = core.on_rows
@@ -212,7 +212,7 @@ class ProfileStage:
         core.sp_words[:, on] = self.buf_words[:, on, col]
         return on[a.traj_t[on] >= a.traj_dur[on]]
 
-    def refresh(self, core: NcCore, rows: Iterable[int]) -> None:
+    def refresh(self, core: CoreContext, rows: Iterable[int]) -> None:
         """Rows whose plan (or whose job's hold/HasJob) changed: evaluated afresh at the next run."""
         self.pending.update(rows)
 
@@ -259,7 +259,7 @@ class ProfileStage:
             self._on_groups = [on[g == k] for k in range(self.groups)]
         return self._on_groups[group]
 
-    def _eval_row(self, core: NcCore, rows: slice, base: np.ndarray, col: int) -> None:
+    def _eval_row(self, core: CoreContext, rows: slice, base: np.ndarray, col: int) -> None:
         """:meth:`_eval` for one row ``rows = slice(r, r + 1)``: when one segment serves all its
         samples (the common case), with that segment's coefficients as scalars (fewer calls; the
         same operations on the same values, bit for bit)."""
@@ -314,7 +314,7 @@ class ProfileStage:
             buf[:, r] = res
             bw[:, r] = words
 
-    def _eval(self, core: NcCore, rows: np.ndarray | slice, base: np.ndarray, col: int) -> None:
+    def _eval(self, core: CoreContext, rows: np.ndarray | slice, base: np.ndarray, col: int) -> None:
         """Evaluate ``rows`` (offsets ``base`` into the flat segment table, (m, 1)) for the stage
         cycles from this one on, into columns col, col+1, ... (mod L).
 

@@ -28,7 +28,7 @@ from ..profile import N_SEGMENTS, evaluate, velocity_extrema
 from .profile import motion_dwords
 
 if TYPE_CHECKING:
-    from ..nc import NcCore
+    from ..context import CoreContext
     from ..planning import Plan
 
 _EPS_V = 1e-9
@@ -84,7 +84,7 @@ class SuperpositionStage:
         p, v, a, _ = self.applied[:, i]
         return StartState(float(p), float(v), float(a))
 
-    def brake(self, core: NcCore, i: int) -> None:
+    def brake(self, core: CoreContext, i: int) -> None:
         """MC_AbortSuperposition: the slot ends ABORTED now, the offset brakes to rest and is folded."""
         if not self.on[i]:
             return
@@ -102,7 +102,7 @@ class SuperpositionStage:
         self.t[i], self.dur[i] = 0.0, plan.duration
         self.end_error[i] = 0
 
-    def abort(self, core: NcCore, i: int) -> None:
+    def abort(self, core: CoreContext, i: int) -> None:
         """End row ``i``'s superposition now: what it applied becomes part of the basic motion
         (the caller plans from the total state, or the axis stands)."""
         if not self.on[i] and not self.applied[:, i].any():
@@ -118,7 +118,7 @@ class SuperpositionStage:
         self.rows = self.on.nonzero()[0]
 
     # -- the cycle ----------------------------------------------------------------------------
-    def unapply(self, core: NcCore) -> None:
+    def unapply(self, core: CoreContext) -> None:
         """Cycle start: the set-points of the rows return to their basic motion."""
         core.axes.S[:, self.rows] -= self.applied[:, self.rows]
 
@@ -131,7 +131,7 @@ class SuperpositionStage:
         self._values = np.stack((p, v, a, np.broadcast_to(j, p.shape)))
         self.applied[:, r] = self._values
 
-    def apply(self, core: NcCore, rows: np.ndarray) -> None:
+    def apply(self, core: CoreContext, rows: np.ndarray) -> None:
         """Add the offsets to those of ``rows`` that have a superposition (after their basic motion)."""
         r = rows[self.on[rows]]
         if not r.size:
@@ -143,7 +143,7 @@ class SuperpositionStage:
         dw |= motion_dwords(v)
         core.sp_dw[r] = dw
 
-    def ended(self, core: NcCore) -> list[int]:
+    def ended(self, core: CoreContext) -> list[int]:
         """Rows whose offset profile ended in this cycle: their slot ends (DONE, or ERROR with the
         reduced-distance code) and the offset is folded into the basic motion."""
         r = self.rows
@@ -162,7 +162,7 @@ class SuperpositionStage:
             self._rows()
         return done.tolist()
 
-    def limits(self, core: NcCore) -> list[int]:
+    def limits(self, core: CoreContext) -> list[int]:
         """(row, code) of the rows whose total motion goes beyond AxisVeloMax (0x4359; the fault ramp
         keeps it within a cycle of acceleration of it) or max(AxisAcc, AxisDec) (0x422F); the NC
         faults them."""
@@ -178,7 +178,7 @@ class SuperpositionStage:
 _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
 
 
-def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
+def cmd_move_superimposed(core: CoreContext, i: int, req: dict) -> dict:
     """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt): plan and start the offset
     profile. The reference velocity for Length is |VelocityProcess|, or (0) the set velocity now of
     the reference: for ADDITIVEMOTION on a slave its master's, else the axis's basic motion's.
@@ -238,13 +238,13 @@ def cmd_move_superimposed(core: NcCore, i: int, req: dict) -> dict:
     stage.start(i, sp.plan, cmd_no, (sp.distance, sp.velocity_diff, sp.length), _INCOMPLETE if sp.incomplete else 0, dyn)
     stage.client[i] = str(req.get("client") or "")
     stage.changed.append(i)
-    core._state_dirty = True
+    core.state_dirty = True
     return {"cmd_no": cmd_no, "value": {"ActualDistance": sp.distance, "ActualVelocityDiff": sp.velocity_diff,
                                         "ActualLength": sp.length, "Incomplete": bool(sp.incomplete)}}
 
 
-def cmd_abort_superposition(core: NcCore, i: int, req: dict) -> dict:
+def cmd_abort_superposition(core: CoreContext, i: int, req: dict) -> dict:
     """AbortSuperposition: see :meth:`SuperpositionStage.brake` (none running: nothing changes)."""
     core.superposition.brake(core, i)
-    core._state_dirty = True
+    core.state_dirty = True
     return {}

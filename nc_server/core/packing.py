@@ -1,0 +1,111 @@
+"""Packing the NC's state into its output records: the NCJOBS_AXIS_REF job records (on events, one
+packed write per part) and the NCTOPLC_AXIS_REF fields the cycle writes (every cycle, a few vector
+copies into views of the record array).
+
+It owns the record layouts' packed forms (checked against ``nc_schema``'s dtypes at import) and
+nothing else: what goes in comes from the caller.
+
+It may import: nc_schema, numpy, .jobs.base (ENDED_KEPT, types).
+"""
+from __future__ import annotations
+
+import struct
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE
+
+from .jobs.base import ENDED_KEPT
+
+if TYPE_CHECKING:
+    from .jobs.base import JobQueue
+    from .stages import CouplingStage, ExternalStage, ProbeStage, SuperpositionStage
+
+#: the queue part of an NCJOBS_AXIS_REF record: AxisId, ActiveCmdNo, ActiveState, BufferedCmdNo, BufferedMode,
+#: NewestCmdNo, Flags, then ENDED_KEPT x (CmdNo, CmdState, ErrorId)
+NCJOBS_QUEUE = struct.Struct("<IHHHHHH" + "HHI" * ENDED_KEPT)
+#: its slots part: MasterId, SyncFlags, GearRatio, SuperCmdNo, SuperState, SuperErrorId, SuperDistance,
+#: SuperVelocityDiff, SuperLength, ProbeCmdNo, ProbeState, ProbeCounter, RecordedPosition, RecordedTimeNs,
+#: ProbeErrorId, DriveStatus
+NCJOBS_SLOTS = struct.Struct("<IIdHHIdddHHIdQII")
+NCJOBS_SIZE = NCJOBS_DTYPE.itemsize
+assert NCJOBS_QUEUE.size + NCJOBS_SLOTS.size == NCJOBS_SIZE and NCJOBS_DTYPE.names == (
+    "AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo", "Flags", "Ended",
+    "MasterId", "SyncFlags", "GearRatio", "SuperCmdNo", "SuperState", "SuperErrorId", "SuperDistance",
+    "SuperVelocityDiff", "SuperLength", "ProbeCmdNo", "ProbeState", "ProbeCounter", "RecordedPosition",
+    "RecordedTimeNs", "ProbeErrorId", "DriveStatus")
+SYNC_EXT_ENABLED, SYNC_EXT_FOLLOWING, SYNC_DYN, SYNC_SYNCHRON = 1, 2, 4, 8
+_NO_ENDED = [0, 0, 0] * ENDED_KEPT
+
+
+class JobRecords:
+    """The NCJOBS_AXIS_REF records of one NC (``ncjobs``), written as packed bytes (field by field
+    through np.void cost ~6 us a record)."""
+
+    def __init__(self, ncjobs: np.ndarray, axis_ids: Any) -> None:
+        self.ncjobs = ncjobs
+        self._bytes = memoryview(ncjobs.view(np.uint8))
+        self._ids = [int(x) for x in axis_ids]
+        self.drive_status = ncjobs["DriveStatus"]  # (a view: a simulated stepper terminal's status)
+
+    def pack_queue(self, i: int, q: JobQueue, cmd_no: int, cmd_state: int, amended: bool) -> None:
+        """Row ``i``'s queue part: the shown job (``cmd_no``, ``cmd_state``), the waiting one, the ended ones."""
+        w = q.waiting
+        ended = [x for e in q.ended for x in (e.cmd_no, e.state, e.error_id)]
+        ended += _NO_ENDED[len(ended):]
+        o = i * NCJOBS_SIZE
+        self._bytes[o:o + NCJOBS_QUEUE.size] = NCJOBS_QUEUE.pack(
+            self._ids[i], cmd_no, cmd_state, w.cmd_no if w is not None else 0,
+            w.buffer_mode if w is not None else 0, q.newest, 1 if amended else 0, *ended)
+
+    def pack_slots(self, i: int, c: CouplingStage, sp: SuperpositionStage, pr: ProbeStage, ex: ExternalStage) -> None:
+        """Row ``i``'s coupling, superposition, touch probe and drive status part."""
+        m = int(c.master[i])
+        flags = ((SYNC_EXT_ENABLED if ex.on[i] else 0) | (SYNC_EXT_FOLLOWING if ex.following[i] else 0)
+                 | (SYNC_DYN if c.dyn[i] else 0) | (SYNC_SYNCHRON if m >= 0 and c.state[i] == 13 else 0))
+        o = i * NCJOBS_SIZE + NCJOBS_QUEUE.size
+        self._bytes[o:o + NCJOBS_SLOTS.size] = NCJOBS_SLOTS.pack(
+            self._ids[m] if m >= 0 else 0, flags, float(c.ratio[i]) if m >= 0 else 0.0,
+            int(sp.cmd_no[i]), int(sp.state[i]), int(sp.error[i]), *(float(x) for x in sp.actual[:, i]),
+            int(pr.cmd_no[i]), int(pr.state[i]), int(pr.counter[i]), float(pr.recorded[i]), int(pr.recorded_ns[i]), int(pr.error[i]),
+            int(self.drive_status[i]))
+
+
+class NctoplcPacker:
+    """The NCTOPLC_AXIS_REF fields the cycle writes, as views of ``nctoplc`` (a field lookup per
+    write costs more than the copy)."""
+
+    def __init__(self, nctoplc: np.ndarray) -> None:
+        n = len(nctoplc)
+        self.nctoplc = nctoplc
+        self.out = {name: nctoplc[name] for name in NCTOPLC_DTYPE.names}
+        f8 = NCTOPLC_DTYPE.fields
+        assert f8["SetVelo"][1] == f8["SetPos"][1] + 8 and f8["SetAcc"][1] == f8["SetPos"][1] + 16
+        self.out_sp = np.ndarray((n, 3), np.float64, nctoplc, f8["SetPos"][1], (NCTOPLC_DTYPE.itemsize, 8))
+
+    def fill(self, core: Any, event_dw: np.ndarray, loop_dw: np.ndarray) -> None:
+        """This cycle's values from the axis table, the drive and the set-point words of ``core``."""
+        a, d, o = core.axes, core.drive, self.out
+        act = core.act_pos
+        sd = event_dw | core.sp_dw
+        sd |= a.mon_dw
+        sd |= (a.enabled & d.ready) * loop_dw
+        o["StateDWord"][...] = sd
+        o["AxisState"][...] = core.axis_state
+        period = a.modulo_factor
+        o["ActPos"][...] = act
+        np.divmod(act, period, out=(o["ModuloActTurns"], o["ModuloActPos"]), casting="unsafe")  # // and %
+        o["ActVelo"][...] = d.act_velo
+        o["ActAcc"][...] = d.act_acc
+        np.subtract(a.set_pos, act, out=o["PosDiff"])
+        self.out_sp[...] = a.S[:3].T  # SetPos, SetVelo, SetAcc: adjacent fields, one copy
+        o["SetJerk"][...] = a.set_jerk
+        if np.count_nonzero(a.continuous):
+            cont = a.continuous
+            a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
+            o["TargetPos"][...] = a.target_pos
+        np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
+        o["ActPosWithoutPosCorrection"][...] = act
+        o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState
+        o["DcTimeStamp"][...] = core.nc_time_ns & 0xFFFFFFFF
