@@ -76,3 +76,22 @@ def test_plc_frame_from_an_array_or_per_axis_buffers() -> None:
     assert s.decode_stamp(s.encode_stamp(2**63, 5)) == (2**63, 5)
     with pytest.raises(ValueError):
         s.decode_stamp(b"\0" * 15)
+
+
+def test_plc_frame_axis_heads_are_cached_and_bounded() -> None:
+    from nc_schema import frames
+    pt = _random(s.PLCTONC_DTYPE, 1, 5)
+    for a in range(5000):  # more ids than the cache keeps: it starts over, the frames stay right
+        data = s.encode_plc_records(1, [(a, pt)])
+        assert s.decode_plc_frame(data)[1]["AxisId"].tolist() == [a]
+    assert len(frames._AXIS_HEADS) <= 4096
+
+
+def test_frame_header_refuses_a_header_size_below_the_header() -> None:
+    # HeaderSize 8 and one 256-byte record: the length adds up (8 + 256), but the records would overlap the header
+    head = s.FRAME_HEADER_STRUCT.pack(s.FRAME_MAGIC, s.WIRE_VERSION, 8, 1, 2, 1, s.NCTOPLC_SIZE, 0)
+    data = head + bytes(8 + s.NCTOPLC_SIZE - len(head))
+    with pytest.raises(ValueError, match="sizes do not add up"):
+        s.frame_header(data)
+    ok = s.FRAME_HEADER_STRUCT.pack(s.FRAME_MAGIC, s.WIRE_VERSION, 32, 1, 2, 1, s.NCTOPLC_SIZE, 0)
+    assert s.frame_header(ok + bytes(s.NCTOPLC_SIZE)).AxisCount == 1
