@@ -34,6 +34,8 @@ from .generated import (  # noqa: F401
 from .layout import load_json
 
 _DATA: dict[str, Any] = load_json("params.json")
+#: params.json ``stepper_terminal``: the stepper terminal's status bits and limits (MC_PowerStepper reads them)
+STEPPER_TERMINAL: dict[str, Any] = _DATA["stepper_terminal"]
 
 #: ADS groups of a parameter: the axis object and its sub-objects (Tc2_MC2 index offset prefixes)
 ADS_GROUPS = ("axis", "encoder", "controller", "drive")
