@@ -2,18 +2,28 @@
 
 The JSON files in the repository's ``schema/`` folder are the single source of truth
 (language-neutral: a C, Rust or TypeScript client reads the same files); this package builds
-the Python codec from them at import time. An installed wheel carries a copy of them in
-``nc_schema/contract/`` (see ``codec.CONTRACT_DIR``).
+the Python codec from them at import time (:mod:`.layout`: dtypes and the one dtype -> struct conversion;
+:mod:`.frames`: the frame codec every client and the NC use), plus the typed enums and error codes that
+``python -m nc_schema.generate`` writes into the committed :mod:`.generated`. An installed wheel carries a
+copy of the JSON in ``nc_schema/contract/`` (see ``layout.CONTRACT_DIR``).
+
+May import: the standard library, numpy, msgpack, zenoh (the client config); not a client package
+(everything else depends on this one; ``zenoh_config``'s TLS import of ``nc_server`` is issue 16's boundary 5).
 
 Imported as ``nc_schema`` (not ``schema``, which is an unrelated PyPI package).
 """
 from .codec import (
-    BITSETS, DTYPES, ENUMS, FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE,
-    PLCTONC_DTYPE, STAMP_DTYPE, STRUCTS, AxisState, CamCouplingState, CmdState, ControlDWord, CoupleState, E_CmdTypeNewTargPosAndVelo, E_JogMode,
-    E_DecoupleMode, E_SignalEdge, E_SuperpositionMode, E_TargPosType, E_TouchProbe, E_TouchProbeState, NcJobsSyncFlags,
-    DEFAULT_HOME_POSITION, E_StartPosType, FrameFlags, HomingState, MC_AxisPara, MC_AxisStates, MC_BufferMode, MC_Direction,
-    MC_HomingMode, OpModeDWord, StateDWord, StateDWord2, StateDWord3, bit_names, decode, decode_frame,
-    decode_plc_frame, decode_stamp, encode_frame, encode_plc_frame, encode_stamp, to_dict,
+    BITSETS, CONTRACT_DIR, DEFAULT_HOME_POSITION, DTYPES, ENUMS, FRAME_HEADER_DTYPE, FRAME_HEADER_SIZE,
+    FRAME_HEADER_STRUCT, FRAME_MAGIC, JOB_RECORDS, NCJOBS_DTYPE, NCJOBS_SIZE, NCTOPLC_DTYPE, NCTOPLC_SIZE,
+    PLCTONC_DTYPE, PLCTONC_SIZE, PLC_AXIS_HEAD_STRUCT, PLC_AXIS_RECORD_DTYPE, PLC_AXIS_RECORD_SIZE,
+    PLC_FRAME_HEADER_DTYPE, PLC_FRAME_HEADER_SIZE, PLC_FRAME_HEADER_STRUCT, PLC_FRAME_MAGIC, STAMP_DTYPE,
+    STAMP_SIZE, STAMP_STRUCT, STRUCTS, WIRE_VERSION, AxisState, CamCouplingState, CmdState, ControlDWord,
+    CoupleState, E_CmdTypeNewTargPosAndVelo, E_DecoupleMode, E_JogMode, E_SignalEdge, E_StartPosType,
+    E_SuperpositionMode, E_TargPosType, E_TouchProbe, E_TouchProbeState, FrameFlags, FrameHeader, HomingState,
+    MC_AxisPara, MC_AxisStates, MC_BufferMode, MC_Direction, MC_HomingMode, Member, NcJobsFlags, NcJobsSyncFlags,
+    OpModeDWord, StateDWord, StateDWord2, StateDWord3, bit_names, decode, decode_frame, decode_plc_frame,
+    decode_stamp, encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_header, frame_records,
+    frame_stamp, load_json, member_struct, members, pack_frame_header_into, struct_of, to_dict,
 )
 from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
 from .instance import NcInstance, new_instance_id
@@ -28,4 +38,26 @@ from .params import (
 )
 from .state import cmdno_newer, motion_state, motion_state_array, next_cmdno
 
-__all__ = [n for n in dir() if not n.startswith("_")]
+# static, so a type checker sees the re-exports (tests/schema/test_generated.py checks it is complete)
+__all__ = [
+    "AxisState", "BITSETS", "CLASSES", "COMMANDS", "COMMAND_CLASS", "CONTRACT_DIR", "CamCouplingState", "CmdState",
+    "ControlDWord", "CoupleState", "DEFAULT_HOME_POSITION", "DTYPES", "ENUMS", "ERRORS",
+    "E_CmdTypeNewTargPosAndVelo", "E_DecoupleMode", "E_DestallDetectMode", "E_DestallMode", "E_JogMode",
+    "E_NcAxisType", "E_NcDriveType", "E_NcEncoderType", "E_ReadMode", "E_SignalEdge", "E_StartPosType",
+    "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe", "E_TouchProbeState", "ErrorCodes", "FRAME_HEADER_DTYPE",
+    "FRAME_HEADER_SIZE", "FRAME_HEADER_STRUCT", "FRAME_MAGIC", "FRAME_PERIODS_MS", "FrameFlags", "FrameHeader",
+    "HomingState", "JOB_RECORDS", "Keys", "MC_AxisPara", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
+    "MC_HomingMode", "MOTION_COMMANDS", "Member", "NCJOBS_DTYPE", "NCJOBS_SIZE", "NCTOPLC_DTYPE", "NCTOPLC_SIZE",
+    "NcError", "NcInstance", "NcJobsFlags", "NcJobsSyncFlags", "OpModeDWord", "PARAMETERS", "PLCTONC_DTYPE",
+    "PLCTONC_SIZE", "PLC_AXIS_HEAD_STRUCT", "PLC_AXIS_RECORD_DTYPE", "PLC_AXIS_RECORD_SIZE",
+    "PLC_FRAME_HEADER_DTYPE", "PLC_FRAME_HEADER_SIZE", "PLC_FRAME_HEADER_STRUCT", "PLC_FRAME_MAGIC", "PROTOCOL",
+    "ParamEntry", "ROLE_CLASSES", "STAMP_DTYPE", "STAMP_SIZE", "STAMP_STRUCT", "STRUCTS", "ST_AXIS_COMPONENTS",
+    "ST_AXIS_PARAMETER_SET", "StateDWord", "StateDWord2", "StateDWord3", "WIRE_VERSION", "bit_names",
+    "check_client_id", "cmdno_newer", "decode", "decode_ads", "decode_axis_components", "decode_frame",
+    "decode_parameter_set", "decode_plc_frame", "decode_stamp", "encode_ads", "encode_axis_components",
+    "encode_frame", "encode_parameter_set", "encode_plc_frame", "encode_plc_records", "encode_stamp", "error_name",
+    "error_text", "frame_header", "frame_period_ms", "frame_records", "frame_stamp", "load_json", "make_reply",
+    "make_request", "member_struct", "members", "motion_state", "motion_state_array", "new_instance_id",
+    "next_cmdno", "pack", "pack_frame_header_into", "pack_value", "parse_alive_instance", "parse_reply",
+    "parse_request", "struct_of", "to_dict", "unpack", "unpack_value",
+]

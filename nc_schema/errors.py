@@ -1,22 +1,15 @@
-"""Error codes of the wire contract (``errors.json``) and the exception that carries one."""
+"""Error codes of the wire contract (``errors.json``) and the exception that carries one.
+
+``ERRORS`` (code -> name, class, text) and ``ErrorCodes`` are generated into :mod:`nc_schema.generated`
+(``python -m nc_schema.generate``); this module adds the look-ups and :class:`NcError`.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .codec import load_json
+from .generated import ERRORS, ErrorCodes
 
-_ERRORS = load_json("errors.json")["errors"]
-
-#: code -> (name, class, text)
-ERRORS: dict[int, tuple[str, str, str]] = {e["code"]: (e["name"], e["class"], e["text"]) for e in _ERRORS}
-
-
-class ErrorCodes:
-    """Named error codes, e.g. ``ErrorCodes.NC_NO_ENABLE == 0x4223``."""
-
-
-for _code, (_name, _cls, _text) in ERRORS.items():
-    setattr(ErrorCodes, _name, _code)
+__all__ = ["ERRORS", "ErrorCodes", "NcError", "error_name", "error_text"]
 
 
 def error_name(code: int) -> str:

@@ -19,12 +19,23 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Any, Iterator, Mapping
 
-from .codec import ENUMS, load_json
+# the parameter blocks' enums, generated from params.json / enums.json (re-exported: nc_schema.params.E_ReadMode, ...)
+from .generated import E_DestallDetectMode as E_DestallDetectMode
+from .generated import E_DestallMode as E_DestallMode
+from .generated import E_NcAxisType as E_NcAxisType
+from .generated import E_NcDriveType as E_NcDriveType
+from .generated import E_NcEncoderType as E_NcEncoderType
+from .generated import E_ReadMode as E_ReadMode
+from .generated import (  # noqa: F401
+    E_DestallDetectMode, E_DestallMode, E_NcAxisType, E_NcDriveType, E_NcEncoderType, E_ReadMode,
+)
+from .layout import load_json
 
 _DATA: dict[str, Any] = load_json("params.json")
+#: params.json ``stepper_terminal``: the stepper terminal's status bits and limits (MC_PowerStepper reads them)
+STEPPER_TERMINAL: dict[str, Any] = _DATA["stepper_terminal"]
 
 #: ADS groups of a parameter: the axis object and its sub-objects (Tc2_MC2 index offset prefixes)
 ADS_GROUPS = ("axis", "encoder", "controller", "drive")
@@ -385,16 +396,3 @@ def encode_axis_components(values: Mapping[str, Any]) -> bytes:
 
 def decode_axis_components(data: bytes | bytearray | memoryview) -> dict[str, Any]:
     return ST_AXIS_COMPONENTS.decode(data)
-
-
-# ---- enums of the parameter blocks ------------------------------------------------------------------------------
-def _enum(name: str, values: Mapping[str, int]) -> type[IntEnum]:
-    return IntEnum(name, dict(values))  # type: ignore[return-value]
-
-
-E_ReadMode = _enum("E_ReadMode", ENUMS["E_ReadMode"]["values"])
-E_DestallMode = _enum("E_DestallMode", ENUMS["E_DestallMode"]["values"])
-E_DestallDetectMode = _enum("E_DestallDetectMode", ENUMS["E_DestallDetectMode"]["values"])
-E_NcAxisType = _enum("E_NcAxisType", _DATA["enums"]["E_NcAxisType"]["values"])
-E_NcEncoderType = _enum("E_NcEncoderType", _DATA["enums"]["E_NcEncoderType"]["values"])
-E_NcDriveType = _enum("E_NcDriveType", _DATA["enums"]["E_NcDriveType"]["values"])

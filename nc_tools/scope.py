@@ -40,7 +40,6 @@ import math
 import operator
 import re
 import signal
-import struct
 import sys
 import threading
 import time
@@ -51,7 +50,7 @@ from typing import Any, Callable
 import numpy as np
 import zenoh
 
-from nc_schema import NCTOPLC_DTYPE, decode_frame
+from nc_schema import NCTOPLC_DTYPE, NCTOPLC_SIZE, STAMP_SIZE, decode_stamp, frame_records, member_struct
 
 from .common import add_connection_args, open_session
 
@@ -62,7 +61,6 @@ PNG_WIDTH, PNG_BASE_HEIGHT, PNG_FIELD_HEIGHT, PNG_DPI = 1200, 100, 250, 100
 #: line colours per axis, in order (matplotlib's tab10; the PNG and the HTML page use the same)
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
           "#bcbd22", "#17becf")
-_STAMP = struct.Struct("<QQ")
 _OPS: dict[str, Callable[[float, float], bool]] = {
     ">=": operator.ge, "<=": operator.le, "==": operator.eq, "!=": operator.ne, ">": operator.gt, "<": operator.lt}
 _TRIGGER_RE = re.compile(r"^\s*(\d+)\.(\w+)\s*(>=|<=|==|!=|>|<)\s*(\S+)\s*$")
@@ -79,9 +77,7 @@ def recordable_fields() -> list[str]:
 
 
 def _field_reader(name: str) -> Callable[[bytes | memoryview, int], float]:
-    dt, off = NCTOPLC_DTYPE.fields[name][:2]
-    st = struct.Struct("<" + {("f", 8): "d", ("f", 4): "f", ("u", 1): "B", ("u", 2): "H", ("u", 4): "I",
-                              ("u", 8): "Q", ("i", 1): "b", ("i", 2): "h", ("i", 4): "i", ("i", 8): "q"}[(dt.kind, dt.itemsize)])
+    off, st = member_struct(NCTOPLC_DTYPE, name)
     return lambda buf, base: float(st.unpack_from(buf, base + off)[0])
 
 
@@ -141,11 +137,10 @@ class Recorder:
         self.fired = threading.Event()
         self._read_trig = _field_reader(trigger.field) if trigger else None
         self._op = _OPS[trigger.op] if trigger else None
-        self._frame_index: dict[int, int] | None = None
 
     def add(self, axis: int, cycle: int, t_ns: int, rec: bytes, base: int = 0) -> None:
         """Record one axis sample (``rec[base:base+256]`` is its NCTOPLC)."""
-        data = rec[base:base + NCTOPLC_DTYPE.itemsize] if base or len(rec) != NCTOPLC_DTYPE.itemsize else rec
+        data = rec[base:base + NCTOPLC_SIZE] if base or len(rec) != NCTOPLC_SIZE else rec
         with self.lock:
             self.samples[axis].append((cycle, t_ns, data))
             if self.first_at is None:
@@ -163,33 +158,27 @@ class Recorder:
     def on_axis_sample(self, axis: int) -> Callable[[zenoh.Sample], None]:
         def cb(sample: zenoh.Sample) -> None:
             att = sample.attachment
-            if att is None or len(att) != _STAMP.size:
+            if att is None or len(att) != STAMP_SIZE:
                 self.unstamped += 1
                 return
             payload = sample.payload.to_bytes()
-            if len(payload) != NCTOPLC_DTYPE.itemsize:
+            if len(payload) != NCTOPLC_SIZE:
                 self.malformed += 1
                 return
-            cycle, t_ns = _STAMP.unpack(att.to_bytes())
+            cycle, t_ns = decode_stamp(att.to_bytes())
             self.add(axis, cycle, t_ns, payload)
         return cb
 
     def on_frame(self, sample: zenoh.Sample) -> None:
-        data = sample.payload.to_bytes()
         try:
-            h, recs, _ = decode_frame(data)
+            h, records = frame_records(sample.payload.to_bytes())
         except ValueError:
             self.malformed += 1
             return
-        ids = recs["AxisId"]
-        if self._frame_index is None or len(self._frame_index) != len(ids) or any(
-                int(ids[i]) != a for a, i in self._frame_index.items()):
-            self._frame_index = {int(a): i for i, a in enumerate(ids.tolist())}
-        cycle, t_ns, hs = int(h["Cycle"]), int(h["NcTimeNs"]), int(h["HeaderSize"])
         for a in self.axes:
-            i = self._frame_index.get(a)
-            if i is not None:
-                self.add(a, cycle, t_ns, data, hs + i * NCTOPLC_DTYPE.itemsize)
+            rec = records.get(a)
+            if rec is not None:
+                self.add(a, h.Cycle, h.NcTimeNs, rec)
 
     def prune(self) -> None:
         """Before the trigger: drop what is older than ``pre`` seconds before the newest sample."""

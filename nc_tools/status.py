@@ -40,14 +40,12 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, TextIO
 
-import numpy as np
 import zenoh
 
 from nc_schema import (
-    FRAME_HEADER_DTYPE, AxisState, FrameFlags, NcInstance, decode_frame, error_name, motion_state,
-    parse_alive_instance, unpack,
+    AxisState, FrameFlags, NcInstance, decode_frame, error_name, frame_header, motion_state, parse_alive_instance,
+    unpack,
 )
-from nc_schema.codec import FRAME_MAGIC
 
 from .common import add_connection_args, axis_key, nc_of, open_session
 
@@ -148,10 +146,13 @@ class NcWatch:
             with self._lock:
                 self.raw[(nc, what)] = _Raw(data, now)
                 self.first_seen.setdefault(nc, now)
-                if what == "status" and len(data) >= FRAME_HEADER_DTYPE.itemsize:
-                    h = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
-                    if int(h["Magic"]) == FRAME_MAGIC:  # (a bad frame: nc_view reports it)
-                        self.instances.setdefault(nc, NcInstance()).frame(int(h["Cycle"]))
+                if what == "status":
+                    try:
+                        cycle = frame_header(data).Cycle
+                    except ValueError:  # (a bad frame: nc_view reports it)
+                        cycle = None
+                    if cycle is not None:
+                        self.instances.setdefault(nc, NcInstance()).frame(cycle)
         return on_sample
 
     # ---- reading -------------------------------------------------------------------------------

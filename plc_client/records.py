@@ -29,26 +29,9 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE
-from nc_schema.codec import load_json
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, Member, load_json, member_struct, members, struct_of
 
 __all__ = ["NCTOPLC_AXIS_REF", "PLCTONC_AXIS_REF"]
-
-_CODES = {("u", 1): "B", ("u", 2): "H", ("u", 4): "I", ("u", 8): "Q", ("i", 1): "b", ("i", 2): "h", ("i", 4): "i",
-          ("i", 8): "q", ("f", 4): "f", ("f", 8): "d"}
-
-
-def _members(dtype: np.dtype) -> list[tuple[str, int, str, int]]:
-    """(name, offset, struct code, count: 0 for a scalar) of every member, in layout order."""
-    out = []
-    for name in dtype.names:
-        fdt, off = dtype.fields[name][:2]
-        if fdt.subdtype is not None:
-            base, shape = fdt.subdtype
-            out.append((name, off, _CODES[(base.kind, base.itemsize)], int(np.prod(shape))))
-        else:
-            out.append((name, off, _CODES[(fdt.kind, fdt.itemsize)], 0))
-    return out
 
 
 def _docs(struct_name: str) -> dict[str, str]:
@@ -60,19 +43,8 @@ def _docs(struct_name: str) -> dict[str, str]:
     return out
 
 
-def _whole_struct(members: list[tuple[str, int, str, int]], size: int) -> struct.Struct:
-    fmt, end = "<", 0
-    for _, off, code, n in members:
-        assert off == end, "the schema's structs are packed"
-        fmt += f"{n}{code}" if n else code
-        end = off + struct.calcsize("<" + code) * max(n, 1)
-    st = struct.Struct(fmt)
-    assert st.size == size
-    return st
-
-
-_NC_MEMBERS = _members(NCTOPLC_DTYPE)
-_NC_STRUCT = _whole_struct(_NC_MEMBERS, NCTOPLC_DTYPE.itemsize)
+_NC_MEMBERS: list[Member] = members(NCTOPLC_DTYPE)
+_NC_STRUCT = struct_of(NCTOPLC_DTYPE)  # (raises if the layout is not packed)
 #: member -> (first index in the unpacked tuple, count: 0 for a scalar)
 _NC_INDEX: dict[str, tuple[int, int]] = {}
 _i = 0
@@ -185,11 +157,11 @@ for _name in NCTOPLC_FIELDS:
 
 
 # ---- PLCTONC ------------------------------------------------------------------------------------
-_PLC_MEMBERS = _members(PLCTONC_DTYPE)
-_whole_struct(_PLC_MEMBERS, PLCTONC_DTYPE.itemsize)  # asserts the layout is packed
+_PLC_MEMBERS: list[Member] = members(PLCTONC_DTYPE)
+struct_of(PLCTONC_DTYPE)  # raises if the layout is not packed
 #: member -> (offset, struct.Struct of one value, count: 0 for a scalar)
 _PLC_INDEX: dict[str, tuple[int, struct.Struct, int]] = {
-    name: (off, struct.Struct(f"<{n}{code}" if n else "<" + code), n) for name, off, code, n in _PLC_MEMBERS}
+    m.name: (*member_struct(PLCTONC_DTYPE, m.name), m.array_len) for m in _PLC_MEMBERS}
 PLCTONC_FIELDS: tuple[str, ...] = tuple(n for n, *_ in _PLC_MEMBERS if not n.startswith("_"))
 _INT_RANGE = {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "Q": (0, 2 ** 64 - 1), "b": (-128, 127),
               "h": (-0x8000, 0x7FFF), "i": (-0x80000000, 0x7FFFFFFF), "q": (-2 ** 63, 2 ** 63 - 1)}

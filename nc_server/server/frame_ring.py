@@ -30,10 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nc_schema import FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, FrameFlags
-from nc_schema.codec import FRAME_MAGIC, WIRE_VERSION
+from nc_schema import FRAME_HEADER_SIZE, NCJOBS_SIZE, NCTOPLC_SIZE, PLCTONC_SIZE, pack_frame_header_into
 
-__all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "frame_stamp", "slot_size_for"]
+__all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "slot_size_for"]
 
 RING_MAGIC = 0x4E435247  # "GRCN"
 RING_VERSION = 2
@@ -51,22 +50,10 @@ _OFF_DROPPED = 40
 _OFF_PUT_ERRORS = 48
 _OFF_READY = 56
 _OFF_PUBLISHED = 64
-#: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
-_FRAME_HEADER = struct.Struct("<IHHQQHHI")
-assert _FRAME_HEADER.size == FRAME_HEADER_DTYPE.itemsize
-_JOB_RECORDS = int(FrameFlags.JobRecords)
-
-
-def frame_stamp(frame: bytes) -> tuple[int, int, int]:
-    """(Cycle, NcTimeNs, Flags) from a status frame's header (no checks: frames the ring holds)."""
-    _, _, _, cycle, nc_time_ns, _, _, flags = _FRAME_HEADER.unpack_from(frame)
-    return cycle, nc_time_ns, flags
-
-
 def slot_size_for(n_axes: int) -> int:
     """Bytes of one slot for ``n_axes`` axes (frame with job records + PLCTONC), 64-byte aligned."""
-    frame = _FRAME_HEADER.size + n_axes * (NCTOPLC_DTYPE.itemsize + NCJOBS_DTYPE.itemsize)
-    size = _SLOT_HEAD.size + frame + n_axes * PLCTONC_DTYPE.itemsize
+    frame = FRAME_HEADER_SIZE + n_axes * (NCTOPLC_SIZE + NCJOBS_SIZE)
+    size = _SLOT_HEAD.size + frame + n_axes * PLCTONC_SIZE
     return (size + 63) // 64 * 64
 
 
@@ -138,7 +125,7 @@ class FrameRing:
     # ---- writer (the cycle thread) ------------------------------------------------------------
     def write(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0,
               jobs: np.ndarray | None = None, plctonc: np.ndarray | None = None) -> int:
-        """Write one cycle's frame (``encode_frame_fast`` byte for byte) and PLCTONC; its sequence number.
+        """Write one cycle's frame (``nc_schema.encode_frame`` byte for byte) and PLCTONC; its sequence number.
 
         Raises:
             ValueError: more axes than the ring was made for.
@@ -151,10 +138,7 @@ class FrameRing:
         off = HEADER_SIZE + (seq % self.slots) * self.slot_size
         _U64.pack_into(mv, off, 0)  # being written
         p = off + _SLOT_HEAD.size
-        fl = (flags | _JOB_RECORDS) if jobs is not None else (flags & ~_JOB_RECORDS)
-        _FRAME_HEADER.pack_into(mv, p, FRAME_MAGIC, WIRE_VERSION, _FRAME_HEADER.size, cycle, nc_time_ns, n,
-                                NCTOPLC_DTYPE.itemsize, fl)
-        p += _FRAME_HEADER.size
+        p += pack_frame_header_into(mv, p, cycle, nc_time_ns, n, flags, jobs is not None)
         rb = _as_bytes(records)
         mv[p:p + len(rb)] = rb
         p += len(rb)

@@ -56,9 +56,11 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from nc_schema import FRAME_HEADER_DTYPE, FRAME_PERIODS_MS, NCTOPLC_DTYPE, PLCTONC_DTYPE, FrameFlags, Keys, encode_stamp
+from nc_schema import (
+    FRAME_HEADER_SIZE, FRAME_PERIODS_MS, NCTOPLC_SIZE, PLCTONC_SIZE, FrameFlags, Keys, encode_stamp, frame_stamp,
+)
 
-from .frame_ring import FrameRing, RingCounters, frame_stamp, ring_bytes
+from .frame_ring import FrameRing, RingCounters, ring_bytes
 
 log = logging.getLogger("nc_server.server")
 
@@ -89,9 +91,9 @@ STANDBY_COMM = "nc-pub-standby"
 _MSG_READY = b"R"
 _MSG_GO = b"G"
 
-_HEADER = FRAME_HEADER_DTYPE.itemsize
-_NREC = NCTOPLC_DTYPE.itemsize
-_PREC = PLCTONC_DTYPE.itemsize
+_HEADER = FRAME_HEADER_SIZE  # (the NC's frames: encode_frame's layout, records right after the header)
+_NREC = NCTOPLC_SIZE
+_PREC = PLCTONC_SIZE
 _SHUTTING_DOWN = int(FrameFlags.ShuttingDown)
 
 

@@ -44,7 +44,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from nc_schema import PARAMETERS, E_DestallDetectMode, E_DestallMode, ErrorCodes, MC_AxisPara
-from nc_schema.params import _DATA as _PARAMS_DATA
+from nc_schema.params import STEPPER_TERMINAL
 
 from ..axis_ref import AXIS_REF
 from ..port import PendingCommand
@@ -53,7 +53,7 @@ from .base import FunctionBlock
 
 log = logging.getLogger("plc_client.fb")
 
-_TERMINAL = _PARAMS_DATA["stepper_terminal"]
+_TERMINAL = STEPPER_TERMINAL
 #: status word bit -> (name, NC error code), in bit order
 STATUS_WORD_ERRORS: dict[int, tuple[str, int]] = {
     int(b["bit"]): (b["name"], int(b["error"], 16)) for b in _TERMINAL["status_word"]}
