@@ -13,7 +13,7 @@ import pytest
 
 from nc_schema import ControlDWord, ErrorCodes as E
 from nc_server.core import AxisConfig, AxisParams, NcCore
-from tests.core.nc_helpers import cmd, power, powered, snapshot
+from znc_testing.nc_core import cmd, power, powered, snapshot
 
 CT = 0.001
 

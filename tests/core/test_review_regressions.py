@@ -2,7 +2,7 @@
 import pytest
 
 from nc_schema import CmdState, ControlDWord, ErrorCodes as E, MC_AxisStates as S, StateDWord
-from tests.core.nc_helpers import cmd, power, powered, run_until, state
+from znc_testing.nc_core import cmd, power, powered, run_until, state
 
 
 def accelerating_axis():
@@ -16,13 +16,14 @@ def accelerating_axis():
 
 
 def peak_until_standstill(core, max_cycles=20_000):
-    peak = 0.0
-    for _ in range(max_cycles):
-        core.step()
-        peak = max(peak, abs(float(core.nctoplc[0]["SetVelo"])))
-        if core.nctoplc[0]["SetVelo"] == 0.0 and not core.axes.traj_on[0]:
-            return peak
-    raise AssertionError("no standstill")
+    peak = [0.0]
+
+    def standstill():
+        peak[0] = max(peak[0], abs(float(core.nctoplc[0]["SetVelo"])))
+        return core.nctoplc[0]["SetVelo"] == 0.0 and not core.axes.traj_on[0]
+
+    run_until(core, standstill, max_cycles)
+    return peak[0]
 
 
 @pytest.mark.parametrize("stop", [dict(), dict(Deceleration=500.0, Jerk=5000.0)])

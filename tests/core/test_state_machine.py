@@ -2,7 +2,7 @@
 import numpy as np
 
 from nc_schema import CmdState, ControlDWord, ErrorCodes, MC_AxisStates as S, StateDWord
-from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, powered, run_until, state
+from znc_testing.nc_core import ALL_ENABLES, cmd, make_core, power, powered, run_until, state
 
 
 def test_disabled_standstill_discrete_standstill():
