@@ -1,4 +1,9 @@
-"""Fixtures shared by all test folders (helpers live in ``tests/znc_testing.py``).
+"""Fixtures shared by all test folders, and the one place that sets the import path of the suite.
+
+Helpers live in the package ``tests/znc_testing/`` and are imported one way, ``from znc_testing[.module]
+import ...``: this file puts ``tests/`` on ``sys.path`` (before anything imports a helper), and the
+repository root for the fuzz program ``tests.fuzz`` (also run as ``python -m tests.fuzz``). So
+``make test``, ``pytest tests/<dir>`` and a run from inside ``tests/`` import the same modules.
 
 * ``nc_server``: a real ``nc-server`` process (default config: ``nc1``, axes 1-4) on a free
   127.0.0.1 port; its process group is killed when the test ends, pass or fail.
@@ -22,7 +27,12 @@ from typing import Any, Callable, Iterator, Sequence
 
 import pytest
 
-from znc_testing import NcServerProcess, NcTestClient, start_nc_server
+TESTS = Path(__file__).resolve().parent
+for _path in (TESTS.parent, TESTS):  # idempotent: pytest may have put them there already
+    if str(_path) not in sys.path:
+        sys.path.insert(0, str(_path))
+
+from znc_testing import NcServerProcess, NcTestClient, start_nc_server  # noqa: E402
 
 
 def _die_with_pytest() -> None:

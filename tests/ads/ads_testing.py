@@ -142,16 +142,6 @@ class RawClient:
         self.close()
 
 
-def wait_until(cond, timeout: float = 10.0, interval: float = 0.01) -> bool:
-    """Poll `cond()` until true or `timeout` seconds passed; returns its last value."""
-    deadline = time.monotonic() + timeout
-    while True:
-        v = cond()
-        if v or time.monotonic() >= deadline:
-            return v
-        time.sleep(interval)
-
-
 def connect(server) -> RawClient:
     """A RawClient to an AdsServer, addressing its net id."""
     host, port = server.bound_address

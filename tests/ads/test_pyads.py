@@ -14,10 +14,10 @@ import pytest
 
 pyads = pytest.importorskip("pyads")
 
-from ads_testing import wait_until  # noqa: E402
 from nc_ads import ams, server  # noqa: E402
 from nc_ads.server import AdsServer, WritePolicy  # noqa: E402
 from nc_ads.testing import FakeDevice  # noqa: E402
+from znc_testing import wait_until  # noqa: E402
 
 LREAL = pyads.PLCTYPE_LREAL
 

@@ -10,11 +10,12 @@ import time
 
 import pytest
 
-from ads_testing import RawClient, connect, wait_until
+from ads_testing import RawClient, connect
 from nc_ads import ams
 from nc_ads.ams import Command
 from nc_ads.server import AdsServer
 from nc_ads.testing import FakeDevice
+from znc_testing import wait_until
 
 
 def read_req(c: RawClient, g: int, o: int, n: int, **kw) -> ams.AmsPacket:

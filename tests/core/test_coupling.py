@@ -5,7 +5,7 @@ Every cycle a coupled slave's NCTOPLC SetPos is checked against s_start + ratio 
 m_start) and its SetVelo/SetAcc against ratio x the master's (``Follow``); the motion of each axis
 around couplings and decouplings goes through engine_check.Trace (limits, no set-point jump, job
 records). A coupled slave's jerk is ratio x its master's: its Trace gets that as its jerk limit
-(``slave_trace``). Refusals are checked to change nothing (nc_helpers.snapshot).
+(``slave_trace``). Refusals are checked to change nothing (znc_testing.nc_core.snapshot).
 """
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ from ruckig import InputParameter, Result, Ruckig, Trajectory
 from nc_schema import (AxisState, CmdState, CoupleState, ErrorCodes as E, MC_AxisStates, NcError, NcJobsSyncFlags,
                        StateDWord, make_request, parse_request)
 from nc_server.core import AxisConfig, AxisParams, NcCore
-from tests.core.engine_check import Trace
-from tests.core.nc_helpers import cmd, power, snapshot, state
+from znc_testing.engine_check import Trace
+from znc_testing.nc_core import cmd, power, snapshot, state
 
 DT = 0.001
 ACTIVE, DONE, ABORTED, ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED), int(CmdState.ERROR))

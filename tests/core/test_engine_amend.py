@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from nc_schema import CmdState, ErrorCodes as E, StateDWord
-from tests.core.engine_check import Trace, velocity_at
-from tests.core.nc_helpers import cmd, powered, snapshot
+from znc_testing.engine_check import Trace, velocity_at
+from znc_testing.nc_core import cmd, powered, snapshot
 
 DONE, ACTIVE, ABORTED = int(CmdState.DONE), int(CmdState.ACTIVE), int(CmdState.ABORTED)
 
@@ -313,7 +313,7 @@ def test_change_dyn_param_of_a_velocity_job_is_used_by_override_changes():
     tr.step(200)
     assert cmd(core, "ChangeDynParam", Acceleration=500.0, Deceleration=500.0, Jerk=50000.0)["error"] == 0
     tr.step()
-    from tests.core.nc_helpers import power
+    from znc_testing.nc_core import power
     power(core, override=500_000)
     tr.until(lambda r: abs(r["SetVelo"] - 100.0) < 1e-9, 2000)
     assert tr.col("SetAcc")[200:].min() == pytest.approx(-500.0, rel=1e-6)
@@ -478,7 +478,7 @@ def slower(how):
     elif how == "new velocity":
         assert cmd(core, "NewPosAndVelo", Mode=2, NewVelo=30.0)["error"] == 0
     else:
-        from tests.core.nc_helpers import power
+        from znc_testing.nc_core import power
         power(core, override=300_000)
     return tr
 
@@ -495,7 +495,7 @@ def test_slowing_down_never_turns_the_axis_back(how):
 
 @pytest.mark.parametrize("ov_from,ov_to", [(1.0, 0.5), (1.0, 0.3), (0.7, 1.0), (0.7, 0.5)])
 def test_override_change_while_speeding_up_to_a_blend_never_turns_back(ov_from, ov_to):
-    from tests.core.nc_helpers import power
+    from znc_testing.nc_core import power
     core = powered()
     power(core, override=round(ov_from * 1e6))
     tr = Trace(core, vmax=200.0)

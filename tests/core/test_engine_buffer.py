@@ -7,8 +7,8 @@ import math
 import pytest
 
 from nc_schema import CmdState, ControlDWord, ErrorCodes as E, MC_AxisStates as S, MC_AxisPara as P, StateDWord
-from tests.core.engine_check import Trace, cycles_for, ruckig_duration, velocity_at
-from tests.core.nc_helpers import ALL_ENABLES, cmd, power, powered, snapshot, state
+from znc_testing.engine_check import Trace, cycles_for, ruckig_duration, velocity_at
+from znc_testing.nc_core import ALL_ENABLES, cmd, power, powered, snapshot, state
 
 BUFFERED, LOW, PREVIOUS, NEXT, HIGH = 1, 18, 19, 20, 21
 DONE, ABORTED, ERROR = int(CmdState.DONE), int(CmdState.ABORTED), int(CmdState.ERROR)

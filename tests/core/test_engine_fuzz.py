@@ -7,8 +7,8 @@ import random
 import pytest
 
 from nc_schema import ControlDWord, HomingState
-from tests.core.engine_check import Trace
-from tests.core.nc_helpers import ALL_ENABLES, cmd, power, powered
+from znc_testing.engine_check import Trace
+from znc_testing.nc_core import ALL_ENABLES, cmd, power, powered
 
 MODES = [0, 0, 1, 18, 19, 20, 21]
 

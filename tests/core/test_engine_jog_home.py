@@ -9,8 +9,8 @@ import pytest
 from nc_schema import (
     DEFAULT_HOME_POSITION, CmdState, ControlDWord, ErrorCodes as E, HomingState as H, MC_AxisStates as S, StateDWord,
 )
-from tests.core.engine_check import Trace
-from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, powered, snapshot, state
+from znc_testing.engine_check import Trace
+from znc_testing.nc_core import ALL_ENABLES, cmd, make_core, power, powered, snapshot, state
 
 DONE, ACTIVE, ABORTED, ERROR = int(CmdState.DONE), int(CmdState.ACTIVE), int(CmdState.ABORTED), int(CmdState.ERROR)
 POS, NEG = 1, 3

@@ -4,8 +4,8 @@ while moving and behind another job, a buffered modulo move refers to the previo
 import pytest
 
 from nc_schema import CmdState, ErrorCodes as E
-from tests.core.engine_check import Trace
-from tests.core.nc_helpers import cmd, powered, snapshot
+from znc_testing.engine_check import Trace
+from znc_testing.nc_core import cmd, powered, snapshot
 
 POS, SHORT, NEG, CURRENT = 1, 2, 3, 4
 DONE = int(CmdState.DONE)

@@ -12,7 +12,7 @@ import math
 import pytest
 
 from nc_schema import ErrorCodes, MC_AxisPara
-from nc_helpers import cmd, power, powered, run_until
+from znc_testing.nc_core import cmd, power, powered, run_until
 
 
 @pytest.mark.parametrize("override", [1, 2, 5, 10, 20, 100])

@@ -5,8 +5,8 @@ Found by the random sequences of test_engine_fuzz.py."""
 import pytest
 
 from nc_schema import CmdState, ErrorCodes as E
-from tests.core.engine_check import Trace
-from tests.core.nc_helpers import cmd, power, powered, snapshot
+from znc_testing.engine_check import Trace
+from znc_testing.nc_core import cmd, power, powered, snapshot
 
 DONE = int(CmdState.DONE)
 

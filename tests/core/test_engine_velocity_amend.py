@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from nc_schema import CmdState, ErrorCodes, StateDWord
-from nc_helpers import cmd, powered, run_until, snapshot
+from znc_testing.nc_core import cmd, powered, run_until, snapshot
 
 
 def _running(v: float = 10.0):

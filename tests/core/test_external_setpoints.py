@@ -20,7 +20,7 @@ import pytest
 
 from nc_schema import CmdState, ErrorCodes as E, MC_AxisStates, StateDWord
 from nc_server.core.planning import Dynamics, StartState, plan_position, position_at
-from tests.core.nc_helpers import cmd, powered, run_until, snapshot, state
+from znc_testing.nc_core import cmd, powered, run_until, snapshot, state
 
 CT = 0.001
 ACTIVE, DONE, ABORTED, ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),

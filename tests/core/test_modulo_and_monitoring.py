@@ -3,7 +3,7 @@ import pytest
 
 from nc_schema import ErrorCodes as E, MC_AxisStates as S, StateDWord
 from nc_server.core.jobs.position import modulo_target
-from tests.core.nc_helpers import cmd, make_core, power, powered, run_until, state
+from znc_testing.nc_core import cmd, make_core, power, powered, run_until, state
 
 POS, SHORT, NEG = 1, 2, 3
 

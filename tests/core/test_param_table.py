@@ -8,7 +8,7 @@ import pytest
 from nc_schema import PARAMETERS, E_NcDriveType, E_NcEncoderType, ErrorCodes as E, OpModeDWord, StateDWord
 from nc_schema import encode_parameter_set
 from nc_server.core.params import AxisParams, param_number
-from tests.core.nc_helpers import cmd, make_core, power, powered, run_until, snapshot
+from znc_testing.nc_core import cmd, make_core, power, powered, run_until, snapshot
 
 
 def _valid_value(e, current):

@@ -9,7 +9,7 @@ import pytest
 
 from nc_schema import ControlDWord, make_request, parse_request
 from nc_server.core import AxisConfig, AxisParams, NcCore
-from tests.core.nc_helpers import ALL_ENABLES
+from znc_testing.nc_core import ALL_ENABLES
 
 MODES = [0, 0, 1, 18, 20, 21]
 PARAMS = dict(AxisJerk=100000.0, AxisDec=8000.0, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=400.0,

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from nc_schema import AxisState, CmdState, StateDWord
-from tests.core.nc_helpers import cmd, make_core, power, powered, run_until, state
+from znc_testing.nc_core import cmd, make_core, power, powered, run_until, state
 
 DT = 0.001
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from nc_schema import ErrorCodes
-from nc_helpers import cmd, powered
+from znc_testing.nc_core import cmd, powered
 
 
 def _raise(*args, **kwargs):

@@ -2,7 +2,7 @@
 import pytest
 
 from nc_schema import ControlDWord, ErrorCodes as E
-from tests.core.nc_helpers import cmd, make_core, power, powered, run_until, snapshot
+from znc_testing.nc_core import cmd, make_core, power, powered, run_until, snapshot
 
 
 @pytest.fixture

@@ -1,8 +1,8 @@
 """PLCopen state transitions as seen through the cyclic interface."""
 import numpy as np
 
-from nc_schema import CmdState, ControlDWord, ErrorCodes, MC_AxisStates as S, StateDWord
-from tests.core.nc_helpers import ALL_ENABLES, cmd, make_core, power, powered, run_until, state
+from nc_schema import CmdState, ControlDWord, ErrorCodes, ErrorCodes as E, MC_AxisStates as S, StateDWord
+from znc_testing.nc_core import ALL_ENABLES, cmd, make_core, power, powered, run_until, state
 
 
 def test_disabled_standstill_discrete_standstill():
@@ -129,3 +129,65 @@ def test_set_plctonc_many_applies_and_is_idempotent():
                                                   S.MC_AXISSTATE_STANDSTILL]
     core.set_plctonc_many(np.array([0, 2]), recs)  # unchanged frame: nothing to re-derive
     assert not core._in_dirty
+
+
+def test_enable_off_after_fault_and_stop_disables():
+    core = powered()
+    cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)
+    for _ in range(100):
+        core.step()
+    core.fault(0, E.ZNC_CLIENT_LOST)     # watchdog: fault ...
+    power(core, ctrl=0)                   # ... and enables off
+    assert cmd(core, "Stop")["error"] == 0  # another client stops it during the fault ramp
+    run_until(core, lambda: not core.axes.traj_on[0], 5000)
+    core.step()
+    assert not core.nctoplc[0]["StateDWord"] & StateDWord.ControlLoopClosed
+    power(core)
+    for _ in range(50):  # after the ramp, reset, move; then enable off must disable at once
+        core.step()
+    assert cmd(core, "Reset")["error"] == 0
+    core.step()
+    assert cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)["error"] == 0
+    for _ in range(50):
+        core.step()
+    power(core, ctrl=int(ControlDWord.FeedEnablePlus | ControlDWord.FeedEnableMinus))  # Enable off only
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_DISABLED and core.nctoplc[0]["SetVelo"] == 0.0
+
+
+def test_reset_during_a_fault_ramp_keeps_stopping_until_standstill():
+    core = powered()
+    cmd(core, "MoveVelocity", Velocity=800.0, Direction=1)
+    run_until(core, lambda: core.nctoplc[0]["StateDWord"] & StateDWord.ConstantVelocity)
+    core.fault(0, E.NC_AXIS_FEED_ENABLE_PLUS)
+    core.step()
+    rep = cmd(core, "Reset")
+    assert rep["error"] == 0
+    core.step()
+    r = core.nctoplc[0]
+    assert r["ErrorCode"] == 0 and r["CmdNo"] == 2 and r["CmdState"] == CmdState.ACTIVE
+    assert state(core) == S.MC_AXISSTATE_STOPPING  # never StandStill while still braking
+    v_prev = abs(float(r["SetVelo"]))
+    while core.axes.traj_on[0]:
+        core.step()
+        v = abs(float(core.nctoplc[0]["SetVelo"]))
+        assert v <= v_prev + 1e-9  # the ramp goes on, it does not speed up
+        assert core.axes.traj_on[0] or state(core) == S.MC_AXISSTATE_STANDSTILL
+        v_prev = v
+    assert core.nctoplc[0]["CmdState"] == CmdState.DONE and state(core) == S.MC_AXISSTATE_STANDSTILL
+
+
+def test_enable_off_during_stop_releases_the_lock():
+    core = powered()
+    cmd(core, "MoveVelocity", Velocity=300.0, Direction=1)
+    for _ in range(100):
+        core.step()
+    cmd(core, "Stop")
+    core.step()
+    power(core, ctrl=0)
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_DISABLED
+    power(core)
+    core.step()
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+    assert cmd(core, "MoveRelative", Distance=1.0, Velocity=10.0)["error"] == 0

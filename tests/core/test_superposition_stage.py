@@ -27,7 +27,8 @@ import pytest
 from nc_schema import CmdState, ErrorCodes as E, MC_AxisStates, StateDWord
 from nc_server.core.planning import StartState, position_at
 from nc_server.core.superposition import plan_superposition
-from tests.core.nc_helpers import cmd, power, powered, run_until, snapshot, state
+from znc_testing import step_until
+from znc_testing.nc_core import cmd, power, powered, run_until, snapshot, state
 
 CT = 0.001
 ACTIVE, DONE, ABORTED, ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),
@@ -88,11 +89,7 @@ class Rec:
                 self.twin_rows.append(sp_of(self.twin, self.i))
 
     def until(self, pred, max_cycles=20000):
-        for k in range(1, max_cycles + 1):
-            self.step()
-            if pred():
-                return k
-        raise AssertionError("condition not reached")
+        return step_until(self.step, pred, max_cycles)
 
     @property
     def p(self):

@@ -17,7 +17,8 @@ from __future__ import annotations
 import pytest
 
 from nc_schema import CmdState, ErrorCodes as E, StateDWord
-from tests.core.nc_helpers import cmd, power, powered, snapshot
+from znc_testing import step_until
+from znc_testing.nc_core import cmd, power, powered, snapshot
 
 CT = 0.001
 DT_NS = 1_000_000
@@ -61,11 +62,7 @@ class Cycles:
                           int(c.nctoplc[self.i]["StateDWord3"])))
 
     def until_state_not(self, st, max_cycles=5000):
-        for _ in range(max_cycles):
-            self.step()
-            if probe(self.core, self.i)[1] != st:
-                return
-        raise AssertionError("probe state unchanged")
+        step_until(self.step, lambda: probe(self.core, self.i)[1] != st, max_cycles, f"a probe state other than {st}")
 
     def run(self, n):
         for _ in range(n):

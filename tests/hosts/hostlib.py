@@ -35,6 +35,8 @@ from typing import Any, Callable, Iterable
 import msgpack
 import numpy as np
 
+from znc_testing.until import wait_until
+
 ROOT = Path(__file__).resolve().parents[2]
 BUILD_SH = ROOT / "deploy" / "images" / "build.sh"
 #: Figures of this run (printed by conftest.py): "scenarios" rows {where, scenario, react_s, recover_s,
@@ -51,32 +53,13 @@ BIT_ERROR = 1 << 31
 STANDSTILL = 1e-6
 #: deadline of a reaction to a cut [s] (generous: a loaded 2-core machine)
 REACT_TIMEOUT = 60.0
+#: poll period of the waits across hosts [s] (their predicates may run docker or open sessions)
+POLL = 0.05
 
 
 def axes_of(client: str) -> list[tuple[str, int]]:
     """The (nc, axis) pairs ``client`` holds."""
     return sorted(k for k, v in HOLDERS.items() if v == client)
-
-
-def wait_for(predicate: Callable[[], Any], timeout: float, what: str, interval: float = 0.05) -> Any:
-    """Poll until ``predicate()`` is truthy and not a str; return it.
-
-    A str return means "not yet" and says why (reported on timeout).
-    Raises AssertionError after ``timeout`` s.
-    """
-    deadline = time.monotonic() + timeout
-    last: Any = None
-    while True:
-        try:
-            last = predicate()
-        except Exception as exc:  # keep polling, report the last failure
-            last = exc
-        else:
-            if last and not isinstance(last, str):
-                return last
-        if time.monotonic() >= deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what} (last: {last!r})")
-        time.sleep(interval)
 
 
 # ---- what can run here ----------------------------------------------------------------------
@@ -170,8 +153,8 @@ class StatusClient:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._ids = iter(range(1, 1 << 30))
-        self.session = wait_for(lambda: zenoh.open(client_config(endpoint, tls_dir, client_id)), 60,
-                                f"a zenoh session to {endpoint}", interval=0.5)
+        self.session = wait_until(lambda: zenoh.open(client_config(endpoint, tls_dir, client_id)), 60,
+                                  f"a zenoh session to {endpoint}", interval=0.5)
         # nc/<nc>/status: the newest frame's bytes about 10 times a second (not the 1 kHz frame)
         self._subs = {nc: self.session.declare_subscriber(f"nc/{nc}/status", zenoh.handlers.RingChannel(1))
                       for nc in self.ncs}
@@ -294,7 +277,7 @@ def wait_plc_lost(st: Any, plc: str, holders: dict[tuple[str, int], str] = HOLDE
             if s is None or s.moving or st.frame_age(nc) > 1.0:
                 return f"{nc}:{axis} still moving or not seen"
         return True
-    wait_for(gone, timeout, f"the NCs releasing {plc}'s claims and stopping its axes", interval=0.1)
+    wait_until(gone, timeout, f"the NCs releasing {plc}'s claims and stopping its axes", interval=0.1)
 
 
 def wait_nc_lost(st: Any, events: Callable[[], list["Event"]], ncs: Iterable[str], t_cut: float,
@@ -302,7 +285,8 @@ def wait_nc_lost(st: Any, events: Callable[[], list["Event"]], ncs: Iterable[str
     """Wait until no frames of ``ncs`` arrive and every PLC holding axes of them logged an error
     (its blocks saw the loss) after ``t_cut``."""
     ncs = list(ncs)
-    wait_for(lambda: all(st.frame_age(nc) > 1.5 for nc in ncs), timeout, f"no frames of {', '.join(ncs)}")
+    wait_until(lambda: all(st.frame_age(nc) > 1.5 for nc in ncs), timeout, f"no frames of {', '.join(ncs)}",
+               interval=POLL)
     users = {(c, nc) for (nc, _), c in holders.items() if nc in ncs}
 
     def reported() -> bool | str:
@@ -310,7 +294,7 @@ def wait_nc_lost(st: Any, events: Callable[[], list["Event"]], ncs: Iterable[str
         missing = [f"{c} on {nc}" for c, nc in sorted(users)
                    if not any(e.client == c for e in errors_after(ev, t_cut, nc))]
         return True if not missing else "no error event of " + ", ".join(missing)
-    wait_for(reported, timeout, "the PLCs' blocks reporting the NC's loss", interval=0.5)
+    wait_until(reported, timeout, "the PLCs' blocks reporting the NC's loss", interval=0.5)
 
 
 # ---- PLC events --------------------------------------------------------------------------------

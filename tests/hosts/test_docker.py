@@ -26,8 +26,8 @@ from typing import Any, Callable, Iterator, Sequence
 import pytest
 
 from hostlib import (FIGURES, HOLDERS, NCS, ROOT, StatusClient, cell_ok, compose_command, errors_after,
-                     motion_on_its_own, parse_events, wait_for, wait_nc_lost, wait_plc_lost)
-from znc_testing import free_port
+                     motion_on_its_own, parse_events, wait_nc_lost, wait_plc_lost)
+from znc_testing import free_port, wait_until
 
 # The cut scenarios are strict: every one passed in two consecutive full runs on the loaded 2-core
 # machine after the fixes of issue 8's second fail-safe round (the NC behind the router retrying
@@ -149,7 +149,7 @@ class ComposeSystem:
             states = {s: self.health(s) for s in SERVICES}
             return all(v in ("healthy", "starting", "running") for v in states.values()) or f"{states}"
         try:
-            wait_for(running, UP_TIMEOUT, "every service running", interval=1.0)
+            wait_until(running, UP_TIMEOUT, "every service running", interval=1.0)
         except AssertionError as exc:
             logs = "\n".join(f"--- {s}\n{self.logs(s)[-1500:]}" for s in SERVICES)
             raise AssertionError(f"{exc}\n{logs}") from None
@@ -181,8 +181,8 @@ def system(znc_image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
         s.status = StatusClient(f"{s.transport}/127.0.0.1:{s.port}", tls_dir=s.status_tls())
         t_up = time.time()
         try:
-            wait_for(lambda: cell_ok(s.status, moved_since=t_up), UP_TIMEOUT,
-                     "every claim held and every held axis moving", interval=0.25)
+            wait_until(lambda: cell_ok(s.status, moved_since=t_up), UP_TIMEOUT,
+                       "every claim held and every held axis moving", interval=0.25)
         except AssertionError as exc:
             try:
                 routers = len(list(s.status.session.info.routers_zid()))
@@ -211,7 +211,7 @@ def scenario(system: ComposeSystem, name: str, target: str, cut: Sequence[Sequen
     """
     st = system.status
     assert st is not None
-    wait_for(lambda: cell_ok(st), RECOVER_TIMEOUT, f"the system healthy before {name}", interval=0.25)
+    wait_until(lambda: cell_ok(st), RECOVER_TIMEOUT, f"the system healthy before {name}", interval=0.25)
     others = {s: system.started(s) for s in SERVICES if s != target}
     mine = system.started(target)
     fmt = {"id": system.cid(target), "net": system.network, "alias": target}
@@ -226,8 +226,8 @@ def scenario(system: ComposeSystem, name: str, target: str, cut: Sequence[Sequen
         for c in restore:
             system.docker(*(a.format(**fmt) for a in c))
         done_restore = True
-        wait_for(lambda: cell_ok(st, moved_since=t_restore), RECOVER_TIMEOUT,
-                 f"recovery after {name}", interval=0.25)
+        wait_until(lambda: cell_ok(st, moved_since=t_restore), RECOVER_TIMEOUT,
+                   f"recovery after {name}", interval=0.25)
         t_rec = time.time() - t_restore
     finally:
         if not done_restore:

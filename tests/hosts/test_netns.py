@@ -24,7 +24,8 @@ from typing import Any, Callable, Iterator
 import pytest
 
 from hostlib import (FIGURES, ROOT, AxisSample, Event, cell_ok, errors_after, motion_on_its_own, parse_events,
-                     wait_for, wait_nc_lost, wait_plc_lost)
+                     wait_nc_lost, wait_plc_lost)
+from znc_testing import wait_until
 
 pytestmark = pytest.mark.timeout(600)
 
@@ -156,7 +157,7 @@ class NetnsHosts:
             if self.procs[name].poll() is not None:
                 raise AssertionError(f"{name} exited with {self.procs[name].returncode}:\n{self.logs()}")
             return text in (self.workdir / f"{name}.out").read_text(errors="replace") or f"no {text!r} yet"
-        wait_for(seen, timeout, f"{name} ready", interval=0.1)
+        wait_until(seen, timeout, f"{name} ready", interval=0.1)
 
     def events(self) -> list[Event]:
         return parse_events((self.workdir / "plc2.out").read_text(errors="replace"))
@@ -197,8 +198,8 @@ def hosts(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NetnsHosts]:
         h.up()
         t_up = time.time()
         try:
-            wait_for(lambda: cell_ok(h.status, HOLDERS, moved_since=t_up), 180,
-                     "plc2 holding nc1 axis 2 and moving it", interval=0.25)
+            wait_until(lambda: cell_ok(h.status, HOLDERS, moved_since=t_up), 180,
+                       "plc2 holding nc1 axis 2 and moving it", interval=0.25)
         except AssertionError as exc:
             raise AssertionError(f"{exc}\nprocesses: {h.alive()}\n{h.logs()}") from None
         FIGURES["scenarios"].append({"where": "netns", "scenario": "start -> holding, moving", "react_s": None,
@@ -209,7 +210,7 @@ def hosts(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NetnsHosts]:
 
 
 def cut(h: NetnsHosts, name: str, host: str, reaction: Callable[[float], None]) -> None:
-    wait_for(lambda: cell_ok(h.status, HOLDERS), RECOVER_TIMEOUT, f"healthy before {name}", interval=0.25)
+    wait_until(lambda: cell_ok(h.status, HOLDERS), RECOVER_TIMEOUT, f"healthy before {name}", interval=0.25)
     t_cut = time.time()
     h.link(host, "down")
     try:
@@ -218,8 +219,8 @@ def cut(h: NetnsHosts, name: str, host: str, reaction: Callable[[float], None]) 
     finally:
         t_restore = time.time()
         h.link(host, "up")
-    wait_for(lambda: cell_ok(h.status, HOLDERS, moved_since=t_restore), RECOVER_TIMEOUT, f"recovery after {name}",
-             interval=0.25)
+    wait_until(lambda: cell_ok(h.status, HOLDERS, moved_since=t_restore), RECOVER_TIMEOUT, f"recovery after {name}",
+               interval=0.25)
     t_rec = time.time() - t_restore
     assert all(rc is None for rc in h.alive().values()), f"a process ended: {h.alive()}\n{h.logs()}"
     t_events = time.time()  # lines logged before this are in the events read now

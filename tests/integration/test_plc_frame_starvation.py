@@ -29,7 +29,7 @@ from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power
 from plc_client.port import CommandPort
 from plc_client.runtime import PlcRuntime
 from plc_harness import NC_ARGS, T
-from znc_testing import NcServerProcess
+from znc_testing import NcServerProcess, wait_until
 
 #: counts the frames of nc/nc1/frame (every NC cycle): "go" on stdin starts, each 100 frames a line
 WITNESS = r"""
@@ -79,14 +79,6 @@ class Witness:
     def close(self) -> None:
         self.proc.kill()
         self.proc.wait(10)
-
-
-def wait_for(cond: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.01)
 
 
 class Program:
@@ -141,16 +133,16 @@ def test_frames_keep_flowing_while_a_reply_handler_is_blocked(nc: NcServerProces
         assert rt.open(wait=T)
         t = rt.start()
         blocked_delivery["plc_thread"] = t
-        wait_for(lambda: prog.power.Status, T, "MC_Power.Status")
+        wait_until(lambda: prog.power.Status, T, "MC_Power.Status")
         n0 = len(prog.log)
         blocked_delivery["armed"].set()
         witness.go()
         prog.execute = True  # the move's reply comes while delivery off the PLC thread blocks
-        wait_for(lambda: witness.frames >= 400 and len(prog.log) - n0 >= 40, 3 * T,
-                 "400 frames at the witness and 40 PLC cycles")
+        wait_until(lambda: witness.frames >= 400 and len(prog.log) - n0 >= 40, 3 * T,
+                   "400 frames at the witness and 40 PLC cycles")
         window = prog.log[n0:]
         blocked_delivery["armed"].clear()
-        wait_for(lambda: prog.move.Busy or prog.move.Error, T, "the move to start")
+        wait_until(lambda: prog.move.Busy or prog.move.Error, T, "the move to start")
         bad = [r for r in window if not r[1] or r[3]]
         assert not bad, f"stale data / block errors while a reply handler was blocked: {bad[:5]}"
         seen = sorted({r[5] for r in window})

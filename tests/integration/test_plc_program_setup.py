@@ -143,8 +143,8 @@ def test_example_05_monitor_with_arguments(start_nc: Callable[..., NcServerProce
     example = Path(__file__).resolve().parents[2] / "examples" / "05_status_monitor.py"
     plc = PlcRun(example, nc.endpoint, "--arg", "axes=2,4", "--arg", "every=5")
     try:
-        line = wait_until(lambda: next((ln for ln in list(plc.lines) if ln.startswith("2:") and "DISABLED" in ln),
-                                       None), T, "a line of valid data")
+        line, = wait_until(lambda: [ln for ln in list(plc.lines) if ln.startswith("2:") and "DISABLED" in ln][:1],
+                           T, "a line of valid data")  # a list: a str would mean "not yet"
         assert "4:" in line and "1:" not in line and "no data" not in line, line
     finally:
         plc.kill()

@@ -18,6 +18,7 @@ from nc_server.core import AxisConfig, AxisParams, NcCore
 from nc_server.drives.sim import SimDrive
 from plc_client import AXIS_REF, InProcessPlc, MC_Power, PlcTask
 from plc_client.port import CommandPort
+from znc_testing.until import step_until
 
 NC_CYCLE = 0.001
 PLC_CYCLE = 0.010
@@ -90,10 +91,9 @@ class Rig:
                 return k
         return n
 
-    def run_until(self, cond: Callable[[], bool], limit: int = 1000) -> int:
-        n = self.run(limit, until=cond)
-        assert cond(), f"condition not reached in {limit} cycles"
-        return n
+    def run_until(self, cond: Callable[[], Any], limit: int = 1000) -> int:
+        """PLC cycles until ``cond()`` (:func:`znc_testing.until.step_until`); returns their number."""
+        return step_until(self.run, cond, limit)
 
     def rec(self, axis_id: int = 1) -> np.void:
         return self.core.nctoplc[self.core.index(axis_id)]

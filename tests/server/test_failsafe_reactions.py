@@ -12,6 +12,7 @@ from nc_schema import PLCTONC_DTYPE, Keys, make_request
 from nc_server.core import AxisConfig, AxisParams, NcCore
 from nc_server.server.claims import ZNC_CLIENT_LOST, ZNC_PLCTONC_TIMEOUT, ClaimTable
 from nc_server.server.handler import ZNC_NC_STALLED, CycleInputs, RequestHandler
+from znc_testing import done, step_until
 
 DT = 0.001
 ENABLE_ALL = 0x7
@@ -71,11 +72,10 @@ class Rig:
             self.core.step()
 
     def run_until(self, pred: Any, limit: int = 20000) -> int:
-        for n in range(limit):
-            if pred():
-                return n
-            self.run(1)
-        raise AssertionError("condition not reached")
+        """Cycles until ``pred()``, asked before the first one too (0: already true)."""
+        if done(pred()):
+            return 0
+        return step_until(lambda: self.run(1), pred, limit - 1)
 
     def gone(self, client: str) -> None:
         self.feeds.pop(client, None)

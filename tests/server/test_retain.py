@@ -28,9 +28,13 @@ from nc_server.server.retain import (
     BODY_PER_AXIS, FORMAT_VERSION, MAGIC, MAX_STR, AxisRetain, RetainData, RetainError, RetainKeeper,
     RetainLockError, encode_retain, max_body, parse_retain, write_atomic,
 )
+from znc_testing import wait_until
+from znc_testing.nc_core import run_until
 
 ALL_ENABLES = int(ControlDWord.Enable | ControlDWord.FeedEnablePlus | ControlDWord.FeedEnableMinus)
 VELO_MAX = int(MC_AxisPara.AxisVeloMax)
+#: deadline of a wait for the retain thread [s] (generous; no timing is asserted)
+T = 60.0
 
 
 def cmd(core: NcCore, name: str, axis: int, **args: Any) -> dict[str, Any]:
@@ -47,27 +51,6 @@ def power(core: NcCore, i: int, ctrl: int = ALL_ENABLES) -> None:
     rec = core.default_plctonc()
     rec["ControlDWord"] = ctrl
     core.set_plctonc(i, rec)
-
-
-def run_until(core: NcCore, pred: Any, max_cycles: int = 100_000) -> None:
-    for _ in range(max_cycles):
-        core.step()
-        if pred():
-            return
-    raise AssertionError(f"condition not reached within {max_cycles} cycles")
-
-
-def wait_for(pred: Any, timeout: float = 60.0, what: str = "condition") -> None:
-    """Wait for a condition (generous deadline; no timing is asserted)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            if pred():
-                return
-        except (OSError, RetainError, KeyError, AttributeError):
-            pass
-        assert time.monotonic() < deadline, f"{what} not reached"
-        time.sleep(0.01)
 
 
 DATA = RetainData("nc1", {
@@ -839,25 +822,25 @@ def test_the_thread_writes_changes_once_and_the_final_state(tmp_path: Path) -> N
     k.start()
     try:
         k.tick(core)
-        wait_for(lambda: caught_up(k) and stored(tmp_path).axes[1] == AxisRetain("A1", 0.0, False, True, 0.0))
+        wait_until(lambda: caught_up(k) and stored(tmp_path).axes[1] == AxisRetain("A1", 0.0, False, True, 0.0), T)
         n, handed = k.writes, k.handed
         step_and_tick(core, k, 300)  # nothing changes: no more writes
-        wait_for(lambda: caught_up(k), what="the retain thread to handle the last snapshot")
+        wait_until(lambda: caught_up(k), T, "the retain thread to handle the last snapshot")
         assert k.handed >= handed + 2 and k.writes == n
         power(core, 0)
         core.step()
         ok(cmd(core, "MoveAbsolute", 1, Position=20.0, Velocity=100.0))
         step_and_tick(core, k, 30)  # the axis started moving: a snapshot at once, written at once (standstill FALSE)
-        wait_for(lambda: caught_up(k), what="the retain thread to handle the last snapshot")
+        wait_until(lambda: caught_up(k), T, "the retain thread to handle the last snapshot")
         d = stored(tmp_path).axes[1]
         assert d.standstill is False and 0.0 <= d.position < 20.0
         run_until(core, lambda: not core.moving[0], 10_000)
         step_and_tick(core, k, 50)  # the axis stands: written at once
-        wait_for(lambda: caught_up(k) and stored(tmp_path).axes[1].standstill is True)
+        wait_until(lambda: caught_up(k) and stored(tmp_path).axes[1].standstill is True, T)
         assert stored(tmp_path).axes[1].position == pytest.approx(20.0, abs=0.02)
         n = k.writes
         step_and_tick(core, k, 300)
-        wait_for(lambda: caught_up(k))
+        wait_until(lambda: caught_up(k), T)
         assert k.writes == n
     finally:
         k.stop(core)
@@ -882,9 +865,9 @@ def test_the_standstill_check_can_fail(tmp_path: Path, monkeypatch: pytest.Monke
     k.start()
     try:
         k.tick(core)
-        wait_for(lambda: caught_up(k) and k.writes == 1)
+        wait_until(lambda: caught_up(k) and k.writes == 1, T)
         step_and_tick(core, k, 300)
-        wait_for(lambda: caught_up(k))
+        wait_until(lambda: caught_up(k), T)
         assert k.writes > 1
     finally:
         k.stop()
@@ -960,7 +943,7 @@ def test_a_kill_mid_move(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> No
     k.start()
     try:
         step_and_tick(core, k, 200)
-        wait_for(lambda: caught_up(k), what="the retain thread to handle the last snapshot")
+        wait_until(lambda: caught_up(k), T, "the retain thread to handle the last snapshot")
         d = stored(tmp_path).axes[1]
         assert d.homed and d.standstill is False
         step_and_tick(core, k, 50)  # the axis goes on after the write

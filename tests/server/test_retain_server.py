@@ -57,7 +57,8 @@ def wait_file(path: Path, pred: Callable[[RetainData], bool], what: str) -> Reta
 
 def wait_stderr(nc: NcServerProcess, text: str) -> str:
     """The server's stderr once it contains ``text`` (its log lines go through a queue thread)."""
-    return wait_until(lambda: text in (e := nc.stderr()) and e, T, f"{text!r} on stderr")
+    wait_until(lambda: text in nc.stderr(), T, f"{text!r} on stderr")  # a str would mean "not yet"
+    return nc.stderr()
 
 
 def powered_client(nc: NcServerProcess, make: Callable[..., NcTestClient], axes: tuple[int, ...]) -> NcTestClient:

@@ -1,5 +1,6 @@
-"""Regression tests for what the fuzz targets found, and for the pure decode functions they fuzz
-(no atheris needed)."""
+"""The pure decoders the fuzz targets exercise, on hostile input (no atheris needed): replies
+(parse_reply, and a hostile reply failing its command with 0x706), PLCTONC frames, liveliness keys and
+client ids. A finding of a fuzz target that got fixed gets its test here."""
 from __future__ import annotations
 
 from types import SimpleNamespace

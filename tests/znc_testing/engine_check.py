@@ -20,6 +20,7 @@ import numpy as np
 
 from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE, CmdState, StateDWord
 from nc_server.core import NcCore
+from znc_testing.until import step_until
 
 _ENDED = {int(CmdState.DONE), int(CmdState.ABORTED), int(CmdState.ERROR)}
 _ACTIVE, _ERROR = int(CmdState.ACTIVE), int(CmdState.ERROR)
@@ -87,10 +88,7 @@ class Trace:
 
     def until(self, pred: Callable[[np.void], Any], max_cycles: int = 20_000) -> int:
         """Step until ``pred(sample)``; returns the number of steps."""
-        for k in range(1, max_cycles + 1):
-            if pred(self.step()):
-                return k
-        raise AssertionError(f"condition not reached within {max_cycles} cycles")
+        return step_until(self.step, lambda: pred(self.rows[-1]), max_cycles)
 
     def settle(self, max_cycles: int = 20_000) -> int:
         """Step until the axis has no job and no set velocity."""

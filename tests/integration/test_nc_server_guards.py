@@ -1,4 +1,6 @@
-"""Server regressions found by review (each failed before its fix), through a real nc-server."""
+"""What a real nc-server guards against: a PLC frame sent before the claim neither enables the axis nor
+escapes the watchdog, an oversized request is refused while the cycle goes on, a PLCTONC frame with
+duplicate axis ids is dropped, and a shutdown stops moving axes with a ramp."""
 from __future__ import annotations
 
 import time

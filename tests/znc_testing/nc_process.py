@@ -1,4 +1,4 @@
-"""Shared helpers for tests that run a real ``nc-server`` process and talk to it over zenoh.
+"""A real ``nc-server`` (or ``nc-router``) process and a zenoh client of it, for tests.
 
 Everything here stays on 127.0.0.1 with explicit zenoh configs (client mode, multicast and gossip
 scouting off). Typical use (fixtures in ``tests/conftest.py`` wrap these)::
@@ -26,15 +26,14 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence, TypeVar
+from typing import Any, Iterable, Sequence
 
 import msgpack
 import numpy as np
 import zenoh
 
 from nc_schema import Keys
-
-T = TypeVar("T")
+from znc_testing.until import wait_until
 
 #: PLCTONC ControlDWord: Enable | FeedEnablePlus | FeedEnableMinus.
 ENABLE_ALL = 0x7
@@ -84,28 +83,6 @@ def zenoh_client_config(port: int, lease_ms: int = 1000) -> zenoh.Config:
     c.insert_json5("scouting/gossip/enabled", "false")
     c.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
     return c
-
-
-def wait_until(predicate: Callable[[], T], timeout: float, what: str, interval: float = 0.005) -> T:
-    """Poll ``predicate`` until it returns something truthy; return that value.
-
-    Raises:
-        AssertionError: ``timeout`` seconds passed; the message says ``what`` was awaited and
-            the last value (or exception) seen.
-    """
-    deadline = time.monotonic() + timeout
-    last: Any = None
-    while True:
-        try:
-            last = predicate()
-        except Exception as exc:  # keep polling; report it if it never succeeds
-            last = exc
-        else:
-            if last:
-                return last
-        if time.monotonic() >= deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what} (last: {last!r})")
-        time.sleep(interval)
 
 
 # ---- the NC process --------------------------------------------------------------------------

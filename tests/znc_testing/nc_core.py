@@ -1,4 +1,6 @@
-"""Helpers to drive an in-process NcCore cycle by cycle in tests."""
+"""Drive an in-process NcCore cycle by cycle: build powered cores, send commands, step until a condition.
+
+May import: ``nc_schema``, ``nc_server.core`` and :mod:`znc_testing.until`."""
 from __future__ import annotations
 
 import itertools
@@ -6,6 +8,7 @@ from typing import Any, Callable
 
 from nc_schema import ControlDWord, MC_AxisStates, make_request, motion_state, parse_request
 from nc_server.core import AxisConfig, AxisParams, NcCore
+from znc_testing.until import step_until
 
 ALL_ENABLES = int(ControlDWord.Enable | ControlDWord.FeedEnablePlus | ControlDWord.FeedEnableMinus)
 _ids = itertools.count(1)
@@ -40,13 +43,9 @@ def state(core: NcCore, i: int = 0) -> MC_AxisStates:
     return motion_state(int(r["StateDWord"]), int(r["CoupleState"]))
 
 
-def run_until(core: NcCore, pred: Callable[[], bool], max_cycles: int = 100_000) -> int:
-    """Step until pred() is true; return the number of steps. Fails after max_cycles."""
-    for k in range(1, max_cycles + 1):
-        core.step()
-        if pred():
-            return k
-    raise AssertionError(f"condition not reached within {max_cycles} cycles")
+def run_until(core: NcCore, pred: Callable[[], Any], max_cycles: int = 100_000) -> int:
+    """Step ``core`` until ``pred()`` (:func:`znc_testing.until.step_until`); return the number of steps."""
+    return step_until(core.step, pred, max_cycles)
 
 
 def snapshot(core: NcCore) -> bytes:
