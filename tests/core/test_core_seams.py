@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from nc_server.core.context import CoreContext
-from nc_helpers import powered
+from znc_testing.nc_core import powered
 
 ROOT = Path(__file__).resolve().parents[2]
 CORE = ROOT / "nc_server" / "core"
