@@ -304,7 +304,7 @@ class PlcRuntime(PlcTask):
                          command_timeout=command_timeout, claim_retry=claim_retry, axes=axes)
         ncs = dict(ncs if ncs is not None else {"nc1": "tcp/127.0.0.1:7447"})
         if tls_dir:
-            from nc_server.security.tls import check_tls_endpoints, tls_files
+            from nc_schema.tls import check_tls_endpoints, tls_files
             tls_files(tls_dir, cid)
             check_tls_endpoints(list(ncs.values()), "ncs")
         self.tls_dir = tls_dir
