@@ -159,7 +159,7 @@ def test_nc_restart_is_detected(rig: Rig) -> None:
     from nc_server.core import AxisConfig, NcCore
     new = NcCore([AxisConfig(AxisId=1), AxisConfig(AxisId=2)], cycle_time=0.001)
     plc = ax.task
-    from plc_client.port import InProcessPort
+    from nc_sim import InProcessPort
     plc.core = new
     plc.port = InProcessPort(new, client_id=plc.client_id)  # the new instance's server side
     plc.port.clock = lambda: plc.now
