@@ -1,10 +1,11 @@
 """NcDevice: the zenoh NC as an ADS device (TwinCAT's NC index groups on AMS ports 500/501).
 
 nc-ads is an ordinary zenoh client of one NC through the client link (:class:`nc_link.NcLink`: the one
-explicit client config, scouting off, TLS, the NC's liveliness and instance, commands): it subscribes to the NC's status frames, sends the NC's commands as zenoh queries
-on its own command keys (``nc/<nc>/[axis/<id>/]cmd/<class>/<client_id>``, the same RequestHandler
-path every door uses) and, for PLCTONC writes, claims the axis and publishes PLCTONC frames on
-``nc/<nc>/plctonc/<client_id>`` like a PLC. docs/ads.md has the user-facing tables; in short:
+explicit client config, scouting off, TLS, the NC's liveliness and instance, commands): it subscribes to the
+NC's status frames, sends the NC's commands as zenoh queries on its own command keys
+(``nc/<nc>/[axis/<id>/]cmd/<class>/<client_id>``, the same RequestHandler path every door uses) and, for
+PLCTONC writes, claims the axis and publishes PLCTONC frames on ``nc/<nc>/plctonc/<client_id>`` like a PLC.
+docs/ads.md has the user-facing tables; in short:
 
 =================  ===========================================================================
 index group        what

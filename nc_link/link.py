@@ -222,7 +222,8 @@ class NcLink:
         payload = make_request(cmd, next(self._ids), self.client_id, **args)
         t0 = time.monotonic()
         try:
-            replies = s.get(key, payload=payload, timeout=self.query_timeout, consolidation=zenoh.ConsolidationMode.NONE)
+            replies = s.get(key, payload=payload, timeout=self.query_timeout,
+                            consolidation=zenoh.ConsolidationMode.NONE)
             for r in replies:
                 if r.ok is None:
                     raise CommandError(ErrorCodes.ADSERR_DEVICE_NOTREADY, "error reply from the NC's queryable")

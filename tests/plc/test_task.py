@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from nc_schema import CmdState, ErrorCodes, NCTOPLC_DTYPE, decode_plc_frame, encode_plc_frame
+from nc_sim import InProcessPlc, run_cycles
 from plc_client import (
-    AXIS_REF, InProcessPlc, MC_GearIn, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_Reset, MC_Stop,
-    run_cycles,
+    AXIS_REF, MC_GearIn, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_Reset, MC_Stop,
 )
 from plc_client.task import PlcTask
 from plc_rig import Rig, powered
