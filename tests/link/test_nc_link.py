@@ -39,7 +39,8 @@ def test_liveliness_gone_back_and_restarts_once_whichever_evidence_comes_first()
     link.instance_sub.items += [_ev(k.alive_instance(A))]
     assert link.take_events() == [LinkEvent(ALIVE), LinkEvent(GONE), LinkEvent(BACK)]  # the first id: adopted
     # the same id back, a malformed one, another NC's: nothing
-    link.instance_sub.items += [_ev(k.alive_instance(A)), _ev("nc/nc1/alive/NOT-AN-ID"), _ev(Keys("nc2").alive_instance(B))]
+    link.instance_sub.items += [_ev(k.alive_instance(A)), _ev("nc/nc1/alive/NOT-AN-ID"),
+                                _ev(Keys("nc2").alive_instance(B))]
     assert link.take_events() == [] and link.restarts == 0
     assert link.frame_cycle(100) is None
     link.instance_sub.items += [_ev(k.alive_instance(B))]
