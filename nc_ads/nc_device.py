@@ -1,10 +1,11 @@
 """NcDevice: the zenoh NC as an ADS device (TwinCAT's NC index groups on AMS ports 500/501).
 
-nc-ads is an ordinary zenoh client of one NC (explicit client config, scouting off, the PLC runtime's
-``client_config``): it subscribes to the NC's status frames, sends the NC's commands as zenoh queries
-on its own command keys (``nc/<nc>/[axis/<id>/]cmd/<class>/<client_id>``, the same RequestHandler
-path every door uses) and, for PLCTONC writes, claims the axis and publishes PLCTONC frames on
-``nc/<nc>/plctonc/<client_id>`` like a PLC. docs/ads.md has the user-facing tables; in short:
+nc-ads is an ordinary zenoh client of one NC through the client link (:class:`nc_link.NcLink`: the one
+explicit client config, scouting off, TLS, the NC's liveliness and instance, commands): it subscribes to the
+NC's status frames, sends the NC's commands as zenoh queries on its own command keys
+(``nc/<nc>/[axis/<id>/]cmd/<class>/<client_id>``, the same RequestHandler path every door uses) and, for
+PLCTONC writes, claims the axis and publishes PLCTONC frames on ``nc/<nc>/plctonc/<client_id>`` like a PLC.
+docs/ads.md has the user-facing tables; in short:
 
 =================  ===========================================================================
 index group        what
@@ -63,7 +64,6 @@ each query's whole timeout and starve the other connections' requests.
 """
 from __future__ import annotations
 
-import itertools
 import logging
 import math
 import struct
@@ -74,22 +74,23 @@ from dataclasses import dataclass
 from typing import Any
 
 import zenoh
-from zenoh.handlers import FifoChannel, RingChannel
+from zenoh.handlers import RingChannel
 
+from nc_link import CommandError, NcLink, Supplies
+from nc_link.link import GONE, RESTART
+from nc_link.supply import CONTROL_ENABLE_ALL
+from nc_link.supply import Supply as _Supply  # noqa: F401  (the supply of one axis: nc_link's)
+from nc_schema import COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, check_client_id
 from nc_schema import (
-    COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, NcInstance, check_client_id, make_request,
-    parse_alive_instance, parse_reply,
-)
-from nc_schema import (
-    NCTOPLC_DTYPE, NCTOPLC_SIZE, PLCTONC_SIZE, decode_ads, encode_ads, encode_plc_records, frame_records,
-    member_struct, unpack,
+    NCTOPLC_DTYPE, NCTOPLC_SIZE, PLCTONC_SIZE, decode_ads, encode_ads, encode_plc_records,
+    frame_records, member_struct,
 )
 
 from .device import AdsDevice, AdsSource, Symbol
 from .errors import (
     ADSERR_DEVICE_ACCESSDENIED, ADSERR_DEVICE_INVALIDACCESS, ADSERR_DEVICE_INVALIDDATA, ADSERR_DEVICE_INVALIDGRP,
     ADSERR_DEVICE_INVALIDOFFSET, ADSERR_DEVICE_INVALIDSIZE, ADSERR_DEVICE_NOTREADY, ADSERR_DEVICE_SRVNOTSUPP,
-    ADSERR_DEVICE_TIMEOUT, AdsError,
+    AdsError,
 )
 
 log = logging.getLogger(__name__)
@@ -147,8 +148,6 @@ CYCLIC_BITS: dict[int, int] = {0x02: 0, 0x03: 1, 0x04: 2, 0x07: 5}
 #: 0x4300+ID IO 0x27: external set-point {REAL64 pos, velo, acc, INT32 dir}, 28 bytes (32 with padding).
 IO_EXT_SETPOINT = 0x27
 
-CONTROL_ENABLE = 0x1
-CONTROL_ENABLE_ALL = 0x7  # Enable | FeedEnablePlus | FeedEnableMinus
 OVERRIDE_100 = 1_000_000
 
 
@@ -196,16 +195,6 @@ def parse_frame(data: bytes, received: float) -> Image:
     """
     h, recs = frame_records(data)
     return Image(h.Cycle, h.NcTimeNs, received, recs)
-
-
-@dataclass
-class _Supply:
-    """An axis nc-ads holds: the PLCTONC it publishes and the connection that wrote it."""
-
-    record: bytearray
-    conn_id: int
-    claim_cycle: int
-    release_after: int = -1  # >= 0: publish this many more times, then Release (disable function)
 
 
 class _Call:
@@ -389,39 +378,65 @@ class NcDevice(AdsDevice):
         self.supply_period = float(supply_period)
         self.frame_key = self.keys.frame_every(frame_period_ms) if frame_period_ms else self.keys.frame
         self.lease_ms = int(lease_ms)
-        self._config = config
-        self._ids = itertools.count(time.time_ns() // 1000)  # unique across restarts (see plc_client.port)
+        # an observer has no token and sends no PLCTONC (the ACL would deny both)
+        self.link = NcLink(nc, endpoint, self.client_id, self.lease_ms, tls_dir, self.frame_key,
+                           holder="op" in self.classes, claims=True, query_timeout=self.query_timeout, config=config)
         self._lock = threading.Lock()  # image, supplies, listeners
         self._claim_lock = threading.Lock()  # one claim/release sequence at a time
+        self._publish_lock = threading.Lock()  # the PLC cycle counter of the supply frames
         self._image: Image | None = None
-        self._supplies: dict[int, _Supply] = {}
+        #: the claim/supply machine (nc_link), under the same lock as the image
+        self.supplies = Supplies(self._lock)
         self._listeners: list[Callable[[], None]] = []
         self._names: dict[int, str] = {}
         self._applied: dict[int, Any] = {}  # AxisId -> RingChannel subscriber of nc/<nc>/axis/<id>/plctonc
         self._applied_latest: dict[int, bytes] = {}  # AxisId -> the newest applied PLCTONC seen there
         self._warned_ids: set[int] = set()
         self._claims_map: tuple[int, dict[int, str]] | None = None
-        self._session: zenoh.Session | None = None
-        self._frames: Any = None
-        self._alive: Any = None
-        self._instance_sub: Any = None
-        self._claims_sub: Any = None
-        self._token: Any = None
-        self._pub: Any = None
         self._plc_cycle = 0
         self._closed = threading.Event()
         self._closing = False
         self._threads: list[threading.Thread] = []
         self.frames_seen = 0
         self.bad_frames = 0
-        #: the restart rule, fed by the frame thread (frames) and the supply thread (instance tokens)
-        self._instance = NcInstance()
-        self._instance_lock = threading.Lock()
 
     @property
     def restarts(self) -> int:
-        """NC restarts seen (new NC instances: instance tokens and frames)."""
-        return self._instance.restarts
+        """NC restarts seen (new NC instances: instance tokens and frames; the link's rule)."""
+        return self.link.restarts
+
+    # the link's declarations and the supplies, by their former names (tests feed channels through them)
+    @property
+    def _session(self) -> zenoh.Session | None:
+        return self.link.session
+
+    @property
+    def _alive(self) -> Any:
+        return self.link.alive_sub
+
+    @_alive.setter
+    def _alive(self, sub: Any) -> None:
+        self.link.alive_sub = sub
+
+    @property
+    def _instance_sub(self) -> Any:
+        return self.link.instance_sub
+
+    @_instance_sub.setter
+    def _instance_sub(self, sub: Any) -> None:
+        self.link.instance_sub = sub
+
+    @property
+    def _claims_sub(self) -> Any:
+        return self.link.claims_sub
+
+    @_claims_sub.setter
+    def _claims_sub(self, sub: Any) -> None:
+        self.link.claims_sub = sub
+
+    @property
+    def _supplies(self) -> dict[int, _Supply]:
+        return self.supplies.axes
 
     # ---- lifecycle --------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -430,25 +445,10 @@ class NcDevice(AdsDevice):
         t.start()
         self._threads.append(t)
 
-    def _zenoh_config(self) -> zenoh.Config:
-        if self._config is not None:
-            return self._config
-        from plc_client.runtime import client_config  # the PLC runtime's explicit client config
-        return client_config(self.endpoint, self.lease_ms, self.tls_dir, self.client_id)
-
     def _connect_loop(self) -> None:
         while not self._closed.is_set():
-            try:
-                s = zenoh.open(self._zenoh_config())
-            except Exception as exc:  # nobody listens there (yet)
-                log.warning("NC %s at %s not reachable (%s); retrying", self.nc, self.endpoint, str(exc).split(" at ")[0])
-                self._closed.wait(0.5)
-                continue
-            try:
-                self._declare(s)
-            except Exception:
-                log.exception("declarations on the NC session failed")
-                s.close()
+            if not self.link.open():  # nobody listens there (yet), or a declaration failed
+                log.warning("NC %s at %s not reachable (%s); retrying", self.nc, self.endpoint, self.link.last_error)
                 self._closed.wait(0.5)
                 continue
             log.info("connected to NC %s at %s as %s (%s)", self.nc, self.endpoint, self.client_id, self.role)
@@ -460,17 +460,6 @@ class NcDevice(AdsDevice):
             t.start()
             self._threads.append(t)
 
-    def _declare(self, s: zenoh.Session) -> None:
-        self._frames = s.declare_subscriber(self.frame_key, RingChannel(1))
-        self._alive = s.liveliness().declare_subscriber(self.keys.alive, FifoChannel(64), history=True)
-        self._instance_sub = s.liveliness().declare_subscriber(self.keys.alive_instance_any, FifoChannel(64),
-                                                               history=True)
-        self._claims_sub = s.declare_subscriber(self.keys.claims, RingChannel(1))
-        if "op" in self.classes:  # an observer has no token and sends no PLCTONC (the ACL would deny both)
-            self._token = s.liveliness().declare_token(self.keys.client_alive(self.client_id))
-            self._pub = s.declare_publisher(self.keys.plctonc_in(self.client_id))
-        self._session = s
-
     def close(self) -> None:
         """Stop supplying, close the session (ends the threads). Idempotent."""
         if self._closed.is_set() or self._closing:
@@ -478,12 +467,7 @@ class NcDevice(AdsDevice):
         self._closing = True  # no new claims; a connection closing now is part of the shutdown, not a loss
         self._shutdown_supplies()
         self._closed.set()
-        s = self._session
-        if s is not None:
-            try:
-                s.close()  # ends the frame thread's recv (never undeclare under a blocked recv)
-            except Exception:
-                pass
+        self.link.close(undeclare=False)  # ends the frame thread's recv (never undeclare under a blocked recv)
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(3)
@@ -491,11 +475,7 @@ class NcDevice(AdsDevice):
     def _shutdown_supplies(self) -> None:
         """As plc-run's shutdown: PLCTONC with all enables off for a few supply periods, then Release
         (skipped while the NC is unreachable: its own client-loss rules take over when the session ends)."""
-        with self._lock:
-            axes = sorted(self._supplies)
-            for sup in self._supplies.values():
-                struct.pack_into("<I", sup.record, 0, struct.unpack_from("<I", sup.record, 0)[0] & ~CONTROL_ENABLE_ALL)
-                sup.release_after = -1
+        axes = self.supplies.disable_all()
         if not axes:
             return
         try:
@@ -513,7 +493,7 @@ class NcDevice(AdsDevice):
 
     # ---- the cyclic image -------------------------------------------------------------------------------------
     def _frame_loop(self) -> None:
-        frames = self._frames
+        frames = self.link.frames
         while not self._closed.is_set():
             try:
                 sample = frames.recv()  # releases the GIL; ends when the session closes
@@ -532,8 +512,7 @@ class NcDevice(AdsDevice):
                 self._image = img
                 listeners = list(self._listeners)
             self.frames_seen += 1
-            with self._instance_lock:
-                why = self._instance.frame(img.cycle)
+            why = self.link.frame_cycle(img.cycle)
             if why is not None:
                 self._nc_restarted(why)
             if old is None or old.records.keys() != img.records.keys():
@@ -552,9 +531,8 @@ class NcDevice(AdsDevice):
                             a, MAX_ADS_AXIS_ID)
 
     def _nc_restarted(self, why: str) -> None:
+        dropped = self.supplies.end_all()
         with self._lock:
-            dropped = sorted(self._supplies)
-            self._supplies.clear()
             self._names.clear()
         log.warning("NC %s restarted (%s)%s", self.nc, why,
                     f": PLCTONC supply of axes {dropped} ended (write PLCTONC again to claim)" if dropped else "")
@@ -604,66 +582,36 @@ class NcDevice(AdsDevice):
             self._closed.wait(max(0.0, delay))
 
     def _take_events(self) -> None:
-        while True:
-            ev = self._alive.try_recv()
-            if ev is None:
-                break
-            if ev.kind == zenoh.SampleKind.DELETE:  # not a restart (see the module doc); stale frames then: 0x707
+        for ev in self.link.take_events():
+            if ev.kind == GONE:  # not a restart (see the module doc); stale frames then: 0x707
                 log.warning("NC %s unreachable (its liveliness token disappeared)", self.nc)
-        while True:  # the NC process's instance token: another id is a restart, the same one back is none
-            ev = self._instance_sub.try_recv()
-            if ev is None:
-                break
-            parsed = parse_alive_instance(ev.key_expr)
-            if ev.kind != zenoh.SampleKind.DELETE and parsed is not None and parsed[0] == self.nc:
-                with self._instance_lock:
-                    why = self._instance.token(parsed[1])
-                if why is not None:
-                    self._nc_restarted(why)
-        s = self._claims_sub.try_recv()
-        if s is None:
+            elif ev.kind == RESTART:  # another instance id; the same one back is none
+                self._nc_restarted(ev.why)
+        m = self.link.take_claims()
+        if m is None:
             return
-        try:
-            m = unpack(s.payload.to_bytes())
-            claims = {int(k): str(v) for k, v in (m.get("claims") or {}).items()}
-            cycle = int(m.get("cycle", 0))
-        except Exception:
-            return
-        self._claims_map = (cycle, claims)
-        lost = []
-        with self._lock:
-            for a, sup in list(self._supplies.items()):
-                if cycle > sup.claim_cycle and claims.get(a) != self.client_id:
-                    del self._supplies[a]
-                    lost.append(a)
-        for a in lost:
+        self._claims_map = cycle, claims = m
+        for a in self.supplies.end_lost(cycle, claims, self.client_id):
             log.warning("axis %d: the NC no longer counts nc-ads as its holder (lost by the NC's rules); supply ended", a)
 
     def _publish_supply(self) -> None:
-        release: list[int] = []
-        with self._lock:
-            if not self._supplies or self._pub is None:
+        if not self.supplies or self.link.pub is None:
+            return
+        with self._publish_lock:  # one PLC cycle number per frame (the supply thread and ADS writes publish)
+            items, release = self.supplies.due()
+            if not items:
                 return
-            items = sorted(self._supplies.items())
-            for a, sup in items:
-                if sup.release_after >= 0:
-                    if sup.release_after == 0:
-                        release.append(a)
-                    sup.release_after -= 1
             self._plc_cycle += 1
             frame = encode_plc_records(self._plc_cycle, [(a, sup.record) for a, sup in items])
-        self._pub.put(frame)
+        self.link.publish(frame)
         for a in release:
             threading.Thread(target=self._release, args=(a, None), daemon=True).start()
 
     def _release(self, axis: int, conn_id: int | None) -> None:
         """Release ``axis`` (if still supplied by ``conn_id``; None: any)."""
         with self._claim_lock:
-            with self._lock:
-                sup = self._supplies.get(axis)
-                if sup is None or (conn_id is not None and sup.conn_id != conn_id):
-                    return
-                del self._supplies[axis]
+            if self.supplies.take(axis, conn_id) is None:
+                return
             try:
                 self._command("Release", axis)
                 log.info("axis %d released", axis)
@@ -681,33 +629,22 @@ class NcDevice(AdsDevice):
         if self._closing:
             raise AdsError(ADSERR_DEVICE_NOTREADY, "nc-ads is shutting down")
         with self._claim_lock:
-            with self._lock:
-                sup = self._supplies.get(axis)
-            if sup is None:
+            prev = self.supplies.change(axis, change, src.conn_id)
+            if prev is None:
                 rec = _default_plctonc()
                 change(rec)
                 reply = self._command("Claim", axis)  # raises with the NC's 0x723 naming the holder
-                sup = _Supply(rec, src.conn_id, int(reply.get("cycle", 0)))
-                with self._lock:
-                    self._supplies[axis] = sup
+                self.supplies.start(axis, rec, src.conn_id, int(reply.get("cycle", 0)))
                 log.info("axis %d claimed for ADS connection %d (%s)", axis, src.conn_id, src.peer)
-            else:
-                with self._lock:
-                    rec = bytearray(sup.record)
-                    change(rec)
-                    if sup.conn_id != src.conn_id:
-                        log.info("axis %d: PLCTONC now supplied by ADS connection %d (was %d)", axis, src.conn_id,
-                                 sup.conn_id)
-                    sup.record, sup.conn_id, sup.release_after = rec, src.conn_id, -1
+            elif prev != src.conn_id:
+                log.info("axis %d: PLCTONC now supplied by ADS connection %d (was %d)", axis, src.conn_id, prev)
         self._publish_supply()  # at once: the write takes effect in the NC's next cycle
 
     def connection_closed(self, conn_id: int) -> None:
         """The TCP connection ended: each axis it supplied stops as for a lost client (see the module doc)."""
         if self._closing:
             return  # nc-ads is stopping: close() released everything in order
-        with self._lock:
-            mine = [(a, bool(struct.unpack_from("<I", s.record, 0)[0] & CONTROL_ENABLE))
-                    for a, s in self._supplies.items() if s.conn_id == conn_id]
+        mine = self.supplies.owned_by(conn_id)
         for axis, enabled in mine:
             if enabled:
                 try:
@@ -729,42 +666,16 @@ class NcDevice(AdsDevice):
                                                        f"{cls!r}, which needs {need} (--role)")
 
     def _command(self, cmd: str, axis: int | None, **args: Any) -> dict[str, Any]:
-        """Send ``cmd`` and wait for the reply; NC error codes raise AdsError with that code.
+        """Send ``cmd`` and wait for the reply (``NcLink.request``); NC error codes raise AdsError with that code.
 
         Raises:
             AdsError: the NC's code; 0x707 no session or zenoh ended the query without a reply early;
-                0x719 no reply within query_timeout.
+                0x706 a malformed reply; 0x719 no reply within query_timeout.
         """
-        s = self._session
-        if s is None:
-            raise AdsError(ADSERR_DEVICE_NOTREADY, f"not connected to NC {self.nc}")
-        key = self.keys.command_key(cmd, axis, self.client_id)
-        payload = make_request(cmd, next(self._ids), self.client_id, **args)
-        t0 = time.monotonic()
         try:
-            replies = s.get(key, payload=payload, timeout=self.query_timeout, consolidation=zenoh.ConsolidationMode.NONE)
-            for r in replies:
-                if r.ok is None:
-                    raise AdsError(ADSERR_DEVICE_NOTREADY, "error reply from the NC's queryable")
-                try:
-                    reply = parse_reply(r.ok.payload.to_bytes())
-                except ValueError as exc:
-                    raise AdsError(ADSERR_DEVICE_INVALIDDATA, f"malformed reply: {exc}") from None
-                code = int(reply["error"])
-                if code:
-                    raise AdsError(code, f"{cmd}: {reply.get('text') or 'refused by the NC'}")
-                return reply
-        except AdsError:
-            raise
-        except Exception as exc:  # session closing
-            raise AdsError(ADSERR_DEVICE_NOTREADY, f"query failed: {exc}") from None
-        waited = time.monotonic() - t0
-        if waited >= 0.9 * self.query_timeout:
-            raise AdsError(ADSERR_DEVICE_TIMEOUT, f"{cmd}: no reply from NC {self.nc} within {self.query_timeout:g} s")
-        # zenoh ended the query at once: no route to the NC, or the router's access control denied it (a denied
-        # query is finalized without a reply; docs/roles.md): the two cannot be told apart from here
-        raise AdsError(ADSERR_DEVICE_NOTREADY, f"{cmd}: no reply (NC {self.nc} unreachable, or access control denied "
-                                               f"{self.client_id}'s query)")
+            return self.link.request(cmd, axis, **args)
+        except CommandError as exc:
+            raise AdsError(exc.code, exc.message) from None
 
     # ---- addressing -------------------------------------------------------------------------------------------
     def _axis(self, group: int) -> tuple[int, int]:
@@ -903,10 +814,10 @@ class NcDevice(AdsDevice):
     def _plctonc(self, axis: int, blocking: bool) -> bytes:
         """The PLCTONC applied to ``axis``: what nc-ads supplies, else the NC's ``axis/<id>/plctonc`` (subscribed
         on first use; ``blocking`` waits up to 0.5 s for its first sample), else the default."""
+        rec = self.supplies.record(axis)
+        if rec is not None:
+            return rec
         with self._lock:
-            sup = self._supplies.get(axis)
-            if sup is not None:
-                return bytes(sup.record)
             sub = self._applied.get(axis)
         s = self._session
         if sub is None and s is not None:
@@ -926,10 +837,9 @@ class NcDevice(AdsDevice):
         return latest.get(axis) or bytes(_default_plctonc())
 
     def _override(self, axis: int) -> int:
-        with self._lock:
-            sup = self._supplies.get(axis)
-            if sup is not None:
-                return struct.unpack_from("<I", sup.record, 4)[0]
+        supplied = self.supplies.override(axis)
+        if supplied is not None:
+            return supplied
         rec = self._applied_latest.get(axis)
         return struct.unpack_from("<I", rec, 4)[0] if rec else 0
 
@@ -1009,12 +919,7 @@ class NcDevice(AdsDevice):
     def _disable(self, axis: int, src: AdsSource) -> None:
         """Enables off (Enable, feed enables) for a few supply periods, then Release."""
         self._allow("op", src)
-        with self._lock:
-            sup = self._supplies.get(axis)
-            if sup is None:
-                return  # nc-ads does not hold it: nothing of ours to disable
-            struct.pack_into("<I", sup.record, 0, struct.unpack_from("<I", sup.record, 0)[0] & ~CONTROL_ENABLE_ALL)
-            sup.conn_id, sup.release_after = src.conn_id, 3
+        self.supplies.disable(axis, src.conn_id, periods=3)  # False: nc-ads does not hold it, nothing to disable
 
     def _write_cyclic(self, axis: int, offset: int, data: bytes, src: AdsSource) -> None:
         if offset == IO_NCTOPLC:

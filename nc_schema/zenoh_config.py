@@ -9,7 +9,7 @@ the host tests' observer): never zenoh's defaults.
   ``zenoh.open`` fails (0: at once);
 * ``transport/link/tx/lease``: the lease this session announces (how fast its peers drop it
   when it freezes);
-* with ``tls_dir``: mutual TLS as ``identity`` (``nc_server.security.tls``; ``tls/`` endpoints).
+* with ``tls_dir``: mutual TLS as ``identity`` (:mod:`nc_schema.tls`; ``tls/`` endpoints).
 
 The NC server's own session (``nc_server.server.transport.zenoh_config``) uses
 :data:`CONNECT_RETRY` too for the endpoints it connects to (``--mode client --connect EP``).
@@ -57,6 +57,6 @@ def client_config(endpoint: str, lease_ms: int = DEFAULT_LEASE_MS, tls_dir: str 
     c.insert_json5("connect/retry", CONNECT_RETRY)
     c.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
     if tls_dir:
-        from nc_server.security.tls import apply_tls
+        from .tls import apply_tls
         apply_tls(c, tls_dir, identity or "")
     return c

@@ -91,7 +91,7 @@ def security_extra(tls_dir: str | None, tls_id: str, roles_file: str | None,
     """
     from nc_server.security.acl import access_control
     from nc_server.security.roles import RolesError, load_roles
-    from nc_server.security.tls import TlsError, check_tls_endpoints, tls_section
+    from nc_schema.tls import TlsError, check_tls_endpoints, tls_section
 
     extra: dict[str, Any] = {}
     if roles_file is not None and tls_dir is None:

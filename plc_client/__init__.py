@@ -16,6 +16,11 @@ Typical program (run with ``plc-run program.py``)::
         move(Axis=X, Execute=step == 10, Position=100.0, Velocity=50.0)
         if step == 10 and (move.Done or move.Error or move.CommandAborted):
             step = 20
+
+Owns the PLC side: AXIS_REF, the function blocks, the transport-independent task (claims per MC_Power,
+late replies, orphans) and the zenoh runtime. May import ``nc_schema`` and the client link ``nc_link``
+(sessions, liveliness, NC restarts); never ``nc_server`` (tests/test_import_graph.py). The in-process NC
+(``InProcessPlc``, ``run_cycles``, ``InProcessPort``: tests and simulations without zenoh) is ``nc_sim``.
 """
 from nc_schema import MC_AxisStates, MC_BufferMode, MC_Direction
 
@@ -26,15 +31,15 @@ from .fb import (
     MC_OrientedStop, MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset, MC_SetOverride,
     MC_Stop,
 )
-from .port import CommandPort, InProcessPort, PendingCommand
+from .port import CommandPort, PendingCommand
 from .program import ProgramArgs, ProgramArgsError, program_args
 from .records import NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF
-from .task import InProcessPlc, PlcTask, current_task, run_cycles
+from .task import PlcTask, current_task
 
 __all__ = [
     "AXIS_REF", "ST_AxisStatus", "MC_Power", "MC_Reset", "MC_MoveAbsolute", "MC_MoveRelative", "MC_MoveModulo",
     "MC_MoveVelocity", "MC_Halt", "MC_Stop", "MC_SetOverride", "MC_ReadActualPosition", "MC_ReadStatus",
-    "MC_ReadAxisError", "CommandPort", "InProcessPort", "PendingCommand", "PlcTask", "InProcessPlc", "run_cycles",
+    "MC_ReadAxisError", "CommandPort", "PendingCommand", "PlcTask",
     "current_task", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
     "MC_ChangeDynParam", "MC_MoveAbsoluteOrRestart", "MC_MoveAdditive", "MC_MoveContinuousAbsolute",
     "MC_MoveContinuousRelative", "MC_NewPos", "MC_NewPosAndVelo", "MC_OrientedStop",

@@ -1,6 +1,7 @@
 """PlcRuntime: the cyclic PLC task over zenoh (one session per NC, client mode).
 
-Per NC (``ncs={"nc1": "tcp/127.0.0.1:7447"}``) the runtime opens one zenoh session with an
+Per NC (``ncs={"nc1": "tcp/127.0.0.1:7447"}``) the runtime opens one client link (:class:`nc_link.NcLink`:
+the session, its declarations, the NC's liveliness and instance), a zenoh session with an
 explicit configuration - never zenoh's defaults:
 
 * ``mode: client``, ``connect/endpoints: [<the NC's endpoint>]``: a client is relayed by the
@@ -78,14 +79,16 @@ import time
 from typing import Any, Iterable, Mapping
 
 import zenoh
-from zenoh.handlers import FifoChannel, RingChannel
+from zenoh.handlers import FifoChannel
 
+from nc_link import NcLink, check_tls
+# the one client config builder, re-exported (plc_client.runtime.client_config, DEFAULT_LEASE_MS, ...)
+from nc_link import CONNECT_RETRY, CONNECT_TIMEOUT_MS, DEFAULT_LEASE_MS, client_config  # noqa: F401
+from nc_link.link import BACK, GONE, RESTART
 from nc_schema import (
     ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_records, frame_period_ms, make_reply,
-    parse_alive_instance, parse_reply,
+    parse_reply,
 )
-# the one client config builder, re-exported (plc_client.runtime.client_config, DEFAULT_LEASE_MS, ...)
-from nc_schema.zenoh_config import CONNECT_RETRY, CONNECT_TIMEOUT_MS, DEFAULT_LEASE_MS, client_config  # noqa: F401
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, PendingCommand
@@ -108,70 +111,8 @@ def default_client_id() -> str:
     return f"plc-{host}-{os.getpid()}"
 
 
-class _NcLink:
-    """Session and declarations for one NC (created by :meth:`open`, possibly in a thread)."""
-
-    def __init__(self, nc: str, endpoint: str, client_id: str, lease_ms: int, tls_dir: str | None = None,
-                 frame_key: str | None = None) -> None:
-        self.nc = nc
-        self.endpoint = endpoint
-        self.tls_dir = tls_dir
-        self.keys = Keys(nc)
-        self.frame_key = frame_key or self.keys.frame
-        self.client_id = client_id
-        self.lease_ms = lease_ms
-        self.session: zenoh.Session | None = None
-        self.frames: Any = None
-        self.alive_sub: Any = None
-        self.instance_sub: Any = None
-        self.token: Any = None
-        self.pub: Any = None
-        self.ready = False
-        self.last_error = ""
-        self.nc_alive_seen = False
-        self.nc_gone = False
-
-    def open(self) -> bool:
-        """Open the session and declare everything; False (and ``last_error``) if the NC is unreachable."""
-        try:
-            s = zenoh.open(client_config(self.endpoint, self.lease_ms, self.tls_dir, self.client_id))
-        except Exception as exc:  # zenoh.ZError: nobody listens there (yet)
-            self.last_error = str(exc).split(" at ")[0]
-            return False
-        try:
-            self.frames = s.declare_subscriber(self.frame_key, RingChannel(1))
-            self.alive_sub = s.liveliness().declare_subscriber(self.keys.alive, FifoChannel(64), history=True)
-            self.instance_sub = s.liveliness().declare_subscriber(self.keys.alive_instance_any, FifoChannel(64),
-                                                                  history=True)
-            self.token = s.liveliness().declare_token(self.keys.client_alive(self.client_id))
-            self.pub = s.declare_publisher(self.keys.plctonc_in(self.client_id))
-        except Exception as exc:
-            self.last_error = str(exc)
-            try:
-                s.close()
-            except Exception:
-                pass
-            return False
-        self.session = s
-        self.ready = True
-        return True
-
-    def close(self) -> None:
-        """Undeclare everything and close the session (idempotent, never raises)."""
-        self.ready = False
-        for d in (self.token, self.pub, self.alive_sub, self.instance_sub, self.frames):
-            if d is not None:
-                try:
-                    d.undeclare()
-                except Exception:
-                    pass
-        self.token = self.pub = self.alive_sub = self.instance_sub = self.frames = None
-        if self.session is not None:
-            try:
-                self.session.close()
-            except Exception:
-                pass
-            self.session = None
+#: the link of one NC (nc_link's; by its former name here)
+_NcLink = NcLink
 
 
 class ZenohPort(CommandPort):
@@ -183,7 +124,7 @@ class ZenohPort(CommandPort):
         query_timeout: zenoh query timeout [s].
     """
 
-    def __init__(self, client_id: str, links: Mapping[str, _NcLink], query_timeout: float = 5.0) -> None:
+    def __init__(self, client_id: str, links: Mapping[str, NcLink], query_timeout: float = 5.0) -> None:
         super().__init__(client_id)
         self.links = links
         self.query_timeout = float(query_timeout)
@@ -290,17 +231,17 @@ class PlcRuntime(PlcTask):
                          command_timeout=command_timeout, claim_retry=claim_retry, axes=axes)
         ncs = dict(ncs if ncs is not None else {"nc1": "tcp/127.0.0.1:7447"})
         if tls_dir:
-            from nc_server.security.tls import check_tls_endpoints, tls_files
-            tls_files(tls_dir, cid)
-            check_tls_endpoints(list(ncs.values()), "ncs")
+            check_tls(tls_dir, cid, ncs.values(), "ncs")
         self.tls_dir = tls_dir
         period = frame_period_ms(self.cycle_time) if frame_period is None else (frame_period or None)
         self.frame_period_ms = period
-        self.links: dict[str, _NcLink] = {}
+        self.links: dict[str, NcLink] = {}
         for nc, ep in ncs.items():
             keys = Keys(nc)  # validates the name
-            self.links[nc] = _NcLink(nc, ep, cid, lease_ms, tls_dir,
-                                     keys.frame if period is None else keys.frame_every(period))
+            link = self.links[nc] = NcLink(nc, ep, cid, lease_ms, tls_dir,
+                                           keys.frame if period is None else keys.frame_every(period))
+            # one restart rule per NC: the link's instance takes the tokens, the task's frames go to the same one
+            self._instances[nc] = link.instance
         self.port = ZenohPort(cid, self.links, query_timeout or 5.0 * command_timeout)
         self.port.clock = lambda: self.now
         self.reconnect_period = float(reconnect_period)
@@ -351,7 +292,7 @@ class PlcRuntime(PlcTask):
             return False
         return not missing
 
-    def _reconnect(self, links: list[_NcLink]) -> None:
+    def _reconnect(self, links: list[NcLink]) -> None:
         todo = list(links)
         while todo and not self._stop.wait(self.reconnect_period):
             for link in list(todo):
@@ -397,36 +338,26 @@ class PlcRuntime(PlcTask):
                 continue
             self._set_frame(nc, int(h["Cycle"]), recs, jobs)
 
-    def _liveliness(self, link: _NcLink) -> None:
-        """The NC's liveliness events: ``nc/<nc>/alive`` (reachable or not), then its instance tokens."""
-        while True:
-            ev = link.alive_sub.try_recv()
-            if ev is None:
-                break
-            if ev.kind == zenoh.SampleKind.DELETE:
-                link.nc_gone = True
+    def _liveliness(self, link: NcLink) -> None:
+        """The NC's liveliness events (the link's): ``nc/<nc>/alive`` (reachable or not), then its instance tokens."""
+        for ev in link.take_events():
+            if ev.kind == GONE:
                 self.nc_token_gone(link.nc)
                 # (nc_token_gone: its data is invalid from now on, blocks end with 0x4B0F at once)
                 log.warning("NC %s is gone (liveliness token deleted)", link.nc)
+            elif ev.kind == RESTART:  # a new instance id (the link's instance is the task's: self._instances)
+                self.nc_restarted(link.nc, ev.why)
             else:
-                if link.nc_alive_seen and link.nc_gone:
+                if ev.kind == BACK:
                     log.info("NC %s is back", link.nc)  # the same instance or a new one: its instance token tells
-                link.nc_alive_seen, link.nc_gone = True, False
                 self.nc_token_back(link.nc)  # its data counts again
-        while True:  # then the instance tokens (their DELETE says what nc/<nc>/alive's does)
-            ev = link.instance_sub.try_recv()
-            if ev is None:
-                return
-            parsed = parse_alive_instance(ev.key_expr)
-            if ev.kind != zenoh.SampleKind.DELETE and parsed is not None and parsed[0] == link.nc:
-                self.nc_instance_token(link.nc, parsed[1])
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
         link = self.links.get(nc)
         if link is None or not link.ready:
             return
         try:
-            link.pub.put(plc_frame(self.cycle, axes))
+            link.publish(plc_frame(self.cycle, axes))
         except Exception as exc:  # session closing
             log.debug("PLCTONC put failed: %s", exc)
 

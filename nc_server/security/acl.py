@@ -65,7 +65,7 @@ def access_control(roles: Roles) -> dict[str, Any]:
     """The zenoh ``access_control`` section for ``roles`` (see the module docstring).
 
     Subjects match the certificate common name only, so the listener must use mutual TLS
-    (:mod:`nc_server.security.tls`): without a client certificate nothing matches and zenoh's
+    (:mod:`nc_schema.tls`): without a client certificate nothing matches and zenoh's
     default (deny) applies.
 
     Raises:

@@ -46,7 +46,7 @@ from nc_schema import ErrorCodes, Keys
 from nc_server.core.params import ALIASES, AxisConfig, AxisParams, ConfigError
 from nc_server.drives import drive_names
 from nc_server.security.roles import Roles, RolesError, load_roles
-from nc_server.security.tls import TlsError, check_tls_endpoints, tls_files
+from nc_schema.tls import TlsError, check_tls_endpoints, tls_files
 
 from .handler import LOSS_REACTIONS
 

@@ -2,7 +2,7 @@
 
 This is the one implementation behind every door to an NC: nc-server's queryable
 (:mod:`nc_server.server.app`, cycle thread) and the in-process port
-(:class:`plc_client.port.InProcessPort`, tests and simulations) both feed it.
+(:class:`nc_sim.InProcessPort`, tests and simulations) both feed it.
 
 * :class:`RequestHandler` turns one request (key + payload bytes) into the msgpack reply bytes:
   parse (``nc_schema.parse_request``), the key (``nc/<nc>/[axis/<id>/]cmd/<class>/<client>``,
@@ -424,7 +424,7 @@ class CycleInputs:
     """The NC's inputs of one cycle, applied before ``core.step()`` (pure: times are passed in).
 
     nc-server calls :meth:`apply` once per cycle with the newest frame of each client; the
-    in-process NC (:class:`plc_client.port.InProcessNc`) with each PLC task's frame as it is
+    in-process NC (:class:`nc_sim.InProcessNc`) with each PLC task's frame as it is
     published, and :meth:`watchdog` when a port closes.
 
     A lost client (:class:`~nc_server.server.claims.Loss`), on each axis it supplied, per the axis's

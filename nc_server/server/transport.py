@@ -46,7 +46,7 @@ from nc_schema import (
 )
 from nc_schema.zenoh_config import CONNECT_RETRY
 
-from nc_server.security.tls import apply_tls
+from nc_schema.tls import apply_tls
 
 from .config import ZenohSettings
 from .cycle import demote_other_threads, set_realtime
@@ -113,7 +113,7 @@ def zenoh_config(settings: ZenohSettings, identity: str | None = None,
 
     Raises:
         zenoh.ZError: zenoh rejected a value.
-        nc_server.security.tls.TlsError: a certificate file is missing.
+        nc_schema.tls.TlsError: a certificate file is missing.
     """
     c = zenoh.Config()
     c.insert_json5("mode", json.dumps(settings.mode))

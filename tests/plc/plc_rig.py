@@ -16,7 +16,8 @@ import numpy as np
 from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE, CmdState, StateDWord, make_reply
 from nc_server.core import AxisConfig, AxisParams, NcCore
 from nc_server.drives.sim import SimDrive
-from plc_client import AXIS_REF, InProcessPlc, MC_Power, PlcTask
+from nc_sim import InProcessPlc
+from plc_client import AXIS_REF, MC_Power, PlcTask
 from plc_client.port import CommandPort
 from znc_testing.until import step_until
 

@@ -10,8 +10,9 @@ from nc_schema import ControlDWord, ErrorCodes, make_request
 from nc_server.core import AxisConfig, NcCore
 from nc_server.server.claims import ClaimTable
 from nc_server.server.handler import CycleInputs, RequestHandler
-from plc_client import MC_MoveVelocity, MC_Power, run_cycles
-from plc_client.port import InProcessNc, InProcessPort, PendingCommand
+from nc_sim import InProcessNc, InProcessPort, run_cycles
+from plc_client import MC_MoveVelocity, MC_Power
+from plc_client.port import PendingCommand
 from plc_rig import Rig, powered
 
 LOST = int(ErrorCodes.ZNC_CLIENT_LOST)

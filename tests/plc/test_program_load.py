@@ -9,7 +9,8 @@ import pytest
 
 from nc_server.core import NcCore
 from nc_server.core.params import AxisConfig
-from plc_client import AXIS_REF, InProcessPlc, ProgramArgsError, program_args, run_cycles
+from nc_sim import InProcessPlc, run_cycles
+from plc_client import AXIS_REF, ProgramArgsError, program_args
 from plc_client.cli import main
 from plc_client.program import load, parse_program_args
 

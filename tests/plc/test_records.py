@@ -12,7 +12,8 @@ from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, to_dict
 from nc_schema.codec import load_json
 from nc_server.core import NcCore
 from nc_server.core.params import AxisConfig
-from plc_client import AXIS_REF, NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF, InProcessPlc, MC_MoveVelocity, MC_Power, run_cycles
+from nc_sim import InProcessPlc, run_cycles
+from plc_client import AXIS_REF, NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF, MC_MoveVelocity, MC_Power
 
 
 def _record(**values: object) -> np.void:

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from nc_schema import CmdState, ErrorCodes, NCTOPLC_DTYPE, decode_plc_frame, encode_plc_frame
+from nc_sim import InProcessPlc, run_cycles
 from plc_client import (
-    AXIS_REF, InProcessPlc, MC_GearIn, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_Reset, MC_Stop,
-    run_cycles,
+    AXIS_REF, MC_GearIn, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_Reset, MC_Stop,
 )
 from plc_client.task import PlcTask
 from plc_rig import Rig, powered
@@ -159,7 +159,7 @@ def test_nc_restart_is_detected(rig: Rig) -> None:
     from nc_server.core import AxisConfig, NcCore
     new = NcCore([AxisConfig(AxisId=1), AxisConfig(AxisId=2)], cycle_time=0.001)
     plc = ax.task
-    from plc_client.port import InProcessPort
+    from nc_sim import InProcessPort
     plc.core = new
     plc.port = InProcessPort(new, client_id=plc.client_id)  # the new instance's server side
     plc.port.clock = lambda: plc.now

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import zenoh
 
-from nc_server.security.tls import apply_tls
+from nc_schema.tls import apply_tls
 
 
 def tls_config(port: int, certs_dir: Path, identity: str, lease_ms: int = 1000) -> zenoh.Config:

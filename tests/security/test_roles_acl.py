@@ -12,7 +12,7 @@ import zenoh
 from nc_schema import Keys, new_instance_id
 from nc_server.security.acl import NC_ALIVE, READ_KEYS, access_control, command_keys, main as nc_acl, with_local_publisher
 from nc_server.security.roles import Roles, RolesError, load_roles, parse_roles
-from nc_server.security.tls import TlsError, apply_tls, check_tls_endpoints, tls_section
+from nc_schema.tls import TlsError, apply_tls, check_tls_endpoints, tls_section
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "deploy" / "roles.toml"

@@ -1,5 +1,9 @@
 """The TLS part of a zenoh config, from a certificate directory (``deploy/certs/make-certs.sh``).
 
+Owned here, below both sides: the client config (:mod:`nc_schema.zenoh_config`, the client link ``nc_link``)
+and nc-server's own sessions and ``nc-router`` build their TLS sections with it. Imports only the standard
+library (no zenoh: the caller passes its ``zenoh.Config``).
+
 The directory holds ``ca.pem`` (the private CA) and, per identity, ``<id>.pem`` and ``<id>.key``
 (certificate with CN=<id>, its private key). One section serves both directions, since the
 certificates are made for client and server use:
