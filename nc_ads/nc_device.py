@@ -602,7 +602,7 @@ class NcDevice(AdsDevice):
             if not items:
                 return
             self._plc_cycle += 1
-            frame = encode_plc_records(self._plc_cycle, [(a, sup.record) for a, sup in items])
+            frame = encode_plc_records(self._plc_cycle, items)
         self.link.publish(frame)
         for a in release:
             threading.Thread(target=self._release, args=(a, None), daemon=True).start()
