@@ -285,8 +285,9 @@ def test_slow_reading_pyads_notification_client(ads: NcAdsProcess, victim: Victi
                              stderr=subprocess.DEVNULL, text=True, start_new_session=True)
         procs.append(p)
         assert p.stdout is not None
-        line = wait_until(lambda: p.stdout.readline() if p.poll() is None else "exited", 60,  # type: ignore[union-attr]
-                          "the pyads client's notifications")
+        # (in a list: a str alone means "not yet" to wait_until)
+        line = wait_until(lambda: [p.stdout.readline() if p.poll() is None else "exited"], 60,  # type: ignore[union-attr]
+                          "the pyads client's notifications")[0]
         assert line.strip() == "ready", line
         return []
 
