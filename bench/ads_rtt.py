@@ -37,11 +37,12 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the test helpers (znc_testing)
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests" / "ads"))
 
 from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
-from tests.znc_testing import NcTestClient, free_port, start_nc_server, wait_until  # noqa: E402
+from znc_testing import NcTestClient, free_port, start_nc_server, wait_until  # noqa: E402
 
 FILETIME_EPOCH_NS = 11_644_473_600 * 10**9  # 1601-01-01 -> 1970-01-01
 

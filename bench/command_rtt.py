@@ -32,9 +32,10 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (znc_testing)
 from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
-from tests.znc_testing import (  # noqa: E402
+from znc_testing import (  # noqa: E402
     BIT_CONTROL_LOOP_CLOSED, NcTestClient, free_port, start_nc_server, wait_until,
 )
 

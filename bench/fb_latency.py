@@ -25,9 +25,10 @@ from pathlib import Path
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (znc_testing)
 from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
-from tests.znc_testing import free_port, start_nc_server, zenoh_client_config  # noqa: E402
+from znc_testing import free_port, start_nc_server, zenoh_client_config  # noqa: E402
 
 from nc_schema import StateDWord  # noqa: E402
 from plc_client import AXIS_REF, MC_MoveRelative, MC_Power  # noqa: E402

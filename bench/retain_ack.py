@@ -30,9 +30,10 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (znc_testing)
 from bench.command_rtt import fmt, rtt_us  # noqa: E402
 from nc_server.server.retain import write_atomic  # noqa: E402
-from tests.znc_testing import RETAIN_CONFIG, NcTestClient, start_nc_server  # noqa: E402
+from znc_testing import RETAIN_CONFIG, NcTestClient, start_nc_server  # noqa: E402
 
 KEY = "nc/nc1/axis/{axis}/cmd/eng/bench-retain"
 VELO_MAX, ACC = 1003, 1004
