@@ -8,7 +8,7 @@ the Python codec from them at import time (:mod:`.layout`: dtypes and the one dt
 copy of the JSON in ``nc_schema/contract/`` (see ``layout.CONTRACT_DIR``).
 
 May import: the standard library, numpy, msgpack, zenoh (the client config); not a client package
-(everything else depends on this one; ``zenoh_config``'s TLS import of ``nc_server`` is issue 16's boundary 5).
+and never ``nc_server`` (everything else depends on this one; the TLS helpers live here, in ``tls.py``).
 
 Imported as ``nc_schema`` (not ``schema``, which is an unrelated PyPI package).
 """

@@ -209,6 +209,15 @@ class NcCore:
             rows[index] = new
             self._in_dirty = True
 
+    def _sync_refused(self) -> None:
+        """After a refused or failed command: the rows its hooks touched before it raised are synced too
+        (records stay true; the next step would otherwise drop them unsynced). Never raises."""
+        try:
+            self.engine.sync_touched()
+            self.engine.flush_slots()
+        except Exception:  # (the reply is an error already; the cycle must go on)
+            _log.exception("syncing after a refused command failed")
+
     def execute(self, request: dict[str, Any], axis_id: int | None) -> dict[str, Any]:
         """Run one parsed request (``nc_schema.parse_request``) against an axis.
 
@@ -225,9 +234,11 @@ class NcCore:
             i = self.index(axis_id)
             out = self._dispatch(i, request)
         except NcError as err:
+            self._sync_refused()
             return make_reply(rid, cmd, err.code, str(err), cycle)
         except Exception as exc:  # a bug must cost one command, never the NC cycle
             _log.exception("command %r failed", cmd)
+            self._sync_refused()
             return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
         self.engine.sync(i)  # (the engine's rule: records true after every command)
         self.engine.sync_touched()

@@ -12,6 +12,7 @@ the NC through :class:`~.context.CoreContext` and the NcCore members of :class:`
 from __future__ import annotations
 
 import logging
+from time import perf_counter_ns
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -190,7 +191,6 @@ def default_pipeline() -> list[Stage]:
 def run_pipeline(core: NcCore) -> None:
     """Run ``core.pipeline`` once: each stage under the one fault guard, its time kept
     (``core.stage_last_ns`` / ``core.stage_max_ns``, by position in the pipeline)."""
-    from time import perf_counter_ns
     last, peak = core.stage_last_ns, core.stage_max_ns
     k = 0
     t = perf_counter_ns()
