@@ -38,7 +38,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the test helpers (znc_testing)
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests" / "ads"))
 
 from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
@@ -63,7 +62,7 @@ def nc_time_of(low32: int, now_ns: int) -> int:
 def main() -> int:
     import pyads
 
-    from nc_ads_testing import start_nc_ads
+    from znc_testing.nc_ads_testing import start_nc_ads
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=1500, help="round trips per kind")

@@ -22,10 +22,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests" / "ads"))
+sys.path.insert(0, str(ROOT / "tests"))  # the test helpers (znc_testing)
 import pyads  # noqa: E402
 
-from ads_testing import PyadsSession, netid_for, start_server_on_free_address  # noqa: E402
+from znc_testing.ads_testing import PyadsSession, netid_for, start_server_on_free_address  # noqa: E402
 from nc_ads import ams  # noqa: E402
 from nc_ads.server import AdsServer  # noqa: E402
 from nc_ads.testing import FakeDevice  # noqa: E402

@@ -22,9 +22,9 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "tests" / "integration")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from failsafe_recovery import SCENARIOS, measure  # noqa: E402
+from znc_testing.failsafe_recovery import SCENARIOS, measure  # noqa: E402
 
 FIGURES = ("detect", "frame", "claim", "command", "baseline_connect")
 

@@ -82,8 +82,8 @@ from nc_link.supply import CONTROL_ENABLE_ALL
 from nc_link.supply import Supply as _Supply  # noqa: F401  (the supply of one axis: nc_link's)
 from nc_schema import COMMAND_CLASS, PARAMETERS, ROLE_CLASSES, ErrorCodes, Keys, check_client_id
 from nc_schema import (
-    NCTOPLC_DTYPE, NCTOPLC_SIZE, PLCTONC_SIZE, decode_ads, encode_ads, encode_plc_records,
-    frame_records, member_struct,
+    NCTOPLC_DTYPE, NCTOPLC_SIZE, PLCTONC_DTYPE, PLCTONC_SIZE, decode_ads, encode_ads, encode_plc_records,
+    frame_records, member_struct, members,
 )
 
 from .device import AdsDevice, AdsSource, Symbol
@@ -140,13 +140,27 @@ STATE_FIELDS: dict[int, tuple[str, str]] = {
     0x2000D: ("PosDiff", "<d"), 0x2000F: ("PosDiff", "<d"),
 }
 
+def _plc(name: str) -> tuple[int, str]:
+    """(offset, struct format) of PLCTONC member ``name``, from the contract's layout."""
+    off, st = member_struct(PLCTONC_DTYPE, name)
+    return off, st.format
+
+
 #: 0x4300+ID single fields writing into PLCTONC: IO -> (PLCTONC offset, format).
-CYCLIC_FIELDS: dict[int, tuple[int, str]] = {0x01: (0, "<I"), 0x21: (4, "<I"), 0x22: (8, "<I"), 0x25: (24, "<d"),
-                                              0x26: (64, "<d")}
+CYCLIC_FIELDS: dict[int, tuple[int, str]] = {
+    0x01: _plc("ControlDWord"), 0x21: _plc("Override"), 0x22: _plc("AxisModeRequest"),
+    0x25: _plc("PositionCorrection"), 0x26: _plc("ExtControllerOutput")}
 #: 0x4300+ID UINT16 0/1 flags: IO -> ControlDWord bit (Enable, FeedEnablePlus, FeedEnableMinus, HomingSensor).
 CYCLIC_BITS: dict[int, int] = {0x02: 0, 0x03: 1, 0x04: 2, 0x07: 5}
 #: 0x4300+ID IO 0x27: external set-point {REAL64 pos, velo, acc, INT32 dir}, 28 bytes (32 with padding).
 IO_EXT_SETPOINT = 0x27
+_CONTROL_DWORD = _plc("ControlDWord")[0]
+_OVERRIDE = _plc("Override")[0]
+#: PLCTONC's ExtSetPos .. ExtSetDirection: the 28 bytes IO 0x27 reads and writes
+_EXT_SETPOINT = slice(_plc("ExtSetPos")[0], _plc("ExtSetDirection")[0] + 4)
+assert _EXT_SETPOINT.stop - _EXT_SETPOINT.start == 28
+#: the offsets of PLCTONC's REAL64 members (all must be finite)
+_REAL64_OFFSETS = tuple(m.offset for m in members(PLCTONC_DTYPE) if m.fmt == "d")
 
 OVERRIDE_100 = 1_000_000
 
@@ -154,7 +168,7 @@ OVERRIDE_100 = 1_000_000
 def _default_plctonc() -> bytearray:
     """The PLCTONC the NC applies to an axis nobody holds: all enables off, override 100 %."""
     rec = bytearray(PLCTONC_SIZE)
-    struct.pack_into("<I", rec, 4, OVERRIDE_100)
+    struct.pack_into("<I", rec, _OVERRIDE, OVERRIDE_100)
     return rec
 
 
@@ -804,11 +818,11 @@ class NcDevice(AdsDevice):
             return bytes(plc[off:off + struct.calcsize(fmt)])
         if offset in CYCLIC_BITS:
             _size(length, 2)
-            return struct.pack("<H", (struct.unpack_from("<I", plc, 0)[0] >> CYCLIC_BITS[offset]) & 1)
+            return struct.pack("<H", (struct.unpack_from("<I", plc, _CONTROL_DWORD)[0] >> CYCLIC_BITS[offset]) & 1)
         if offset == IO_EXT_SETPOINT:
             if length not in (28, 32):
                 raise AdsError(ADSERR_DEVICE_INVALIDSIZE, "the external set-point is 28 bytes (32 padded)")
-            return (bytes(plc[32:60]) + bytes(4))[:length]
+            return (bytes(plc[_EXT_SETPOINT]) + bytes(4))[:length]
         raise AdsError(ADSERR_DEVICE_INVALIDOFFSET, f"cyclic data offset {offset:#x} is not served")
 
     def _plctonc(self, axis: int, blocking: bool) -> bytes:
@@ -841,7 +855,7 @@ class NcDevice(AdsDevice):
         if supplied is not None:
             return supplied
         rec = self._applied_latest.get(axis)
-        return struct.unpack_from("<I", rec, 4)[0] if rec else 0
+        return struct.unpack_from("<I", rec, _OVERRIDE)[0] if rec else 0
 
     # ---- write ------------------------------------------------------------------------------------------------
     def write(self, group: int, offset: int, data: bytes, src: AdsSource) -> None:
@@ -955,7 +969,7 @@ class NcDevice(AdsDevice):
             _finite(pos, velo, acc)
 
             def change(rec: bytearray) -> None:
-                rec[32:60] = data[:28]
+                rec[_EXT_SETPOINT] = data[:28]
         else:
             raise AdsError(ADSERR_DEVICE_INVALIDOFFSET, f"cyclic data offset {offset:#x} is not served")
         self._supply(axis, src, change)
@@ -981,8 +995,8 @@ def _size(got: int, want: int, what: str = "") -> None:
 
 def _set_control(mask: int, bits: int) -> Callable[[bytearray], None]:
     def change(rec: bytearray) -> None:
-        cw = struct.unpack_from("<I", rec, 0)[0]
-        struct.pack_into("<I", rec, 0, (cw & ~mask) | (bits & mask))
+        cw = struct.unpack_from("<I", rec, _CONTROL_DWORD)[0]
+        struct.pack_into("<I", rec, _CONTROL_DWORD, (cw & ~mask) | (bits & mask))
     return change
 
 
@@ -992,10 +1006,10 @@ def _check_plctonc(data: bytes) -> None:
     Raises:
         AdsError: 0x706.
     """
-    override = struct.unpack_from("<I", data, 4)[0]
+    override = struct.unpack_from("<I", data, _OVERRIDE)[0]
     if override > OVERRIDE_100:
         raise AdsError(ADSERR_DEVICE_INVALIDDATA, f"PLCTONC.Override {override} above 1000000 (100 %)")
-    for off in (16, 24, 32, 40, 48, 64, 72, 80, 88, 96, 112):
+    for off in _REAL64_OFFSETS:
         if not math.isfinite(struct.unpack_from("<d", data, off)[0]):
             raise AdsError(ADSERR_DEVICE_INVALIDDATA, f"PLCTONC: non-finite REAL64 at offset {off}")
 

@@ -177,6 +177,51 @@ def member_struct(dtype: np.dtype, name: str) -> tuple[int, struct.Struct]:
     raise KeyError(name)
 
 
+def _flat_codes(dt: np.dtype) -> str:
+    """The struct codes of one value of ``dt``, nested structs and arrays of them flattened in order."""
+    if dt.subdtype is not None:
+        base, shape = dt.subdtype
+        return _flat_codes(base) * int(np.prod(shape))
+    if dt.names is None or dt.fields is None:
+        code = _CODES.get((dt.kind, dt.itemsize))
+        if code is None:
+            raise ValueError(f"{dt} has no struct format")
+        return code
+    out, end = "", 0
+    for name in dt.names:
+        fdt, off = dt.fields[name][:2]
+        if off != end:
+            raise ValueError(f"{name}: not a packed layout (gap before offset {off})")
+        out += _flat_codes(fdt)
+        end = off + fdt.itemsize
+    return out
+
+
+def flat_struct(dtype: np.dtype, start: str | None = None, stop: str | None = None) -> struct.Struct:
+    """The ``struct.Struct`` of the members of ``dtype`` from ``start`` (included; None: the first) to ``stop``
+    (excluded; None: the end), nested structs flattened: one ``pack`` writes that span of a record, e.g.
+    NCJOBS_AXIS_REF's queue part with its ``Ended`` array of (CmdNo, CmdState, ErrorId).
+
+    Raises:
+        ValueError: the span has gaps, or a member has no struct format.
+        KeyError: ``start`` or ``stop`` is no member.
+    """
+    assert dtype.names is not None and dtype.fields is not None
+    names = list(dtype.names)
+    i = 0 if start is None else names.index(start) if start in names else -1
+    j = len(names) if stop is None else names.index(stop) if stop in names else -1
+    if i < 0 or j < 0:
+        raise KeyError(start if i < 0 else stop)
+    fmt, end = "<", None
+    for name in names[i:j]:
+        fdt, off = dtype.fields[name][:2]
+        if end is not None and off != end:
+            raise ValueError(f"{name}: not a packed layout (gap before offset {off})")
+        fmt += _flat_codes(fdt)
+        end = off + fdt.itemsize
+    return struct.Struct(fmt)
+
+
 def decode(struct_name: str, data: bytes | bytearray | memoryview) -> np.void:
     """Decode exactly one record of ``struct_name``.
 

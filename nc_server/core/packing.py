@@ -9,12 +9,12 @@ It may import: nc_schema, numpy, .jobs.base (ENDED_KEPT, types).
 """
 from __future__ import annotations
 
-import struct
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE
+from nc_schema.layout import flat_struct
 
 from .jobs.base import ENDED_KEPT
 
@@ -24,12 +24,13 @@ if TYPE_CHECKING:
 
 #: the queue part of an NCJOBS_AXIS_REF record: AxisId, ActiveCmdNo, ActiveState, BufferedCmdNo, BufferedMode,
 #: NewestCmdNo, Flags, then ENDED_KEPT x (CmdNo, CmdState, ErrorId)
-NCJOBS_QUEUE = struct.Struct("<IHHHHHH" + "HHI" * ENDED_KEPT)
+NCJOBS_QUEUE = flat_struct(NCJOBS_DTYPE, stop="MasterId")
 #: its slots part: MasterId, SyncFlags, GearRatio, SuperCmdNo, SuperState, SuperErrorId, SuperDistance,
 #: SuperVelocityDiff, SuperLength, ProbeCmdNo, ProbeState, ProbeCounter, RecordedPosition, RecordedTimeNs,
 #: ProbeErrorId, DriveStatus
-NCJOBS_SLOTS = struct.Struct("<IIdHHIdddHHIdQII")
+NCJOBS_SLOTS = flat_struct(NCJOBS_DTYPE, start="MasterId")
 NCJOBS_SIZE = NCJOBS_DTYPE.itemsize
+assert NCJOBS_DTYPE["Ended"].shape == (ENDED_KEPT,)
 assert NCJOBS_QUEUE.size + NCJOBS_SLOTS.size == NCJOBS_SIZE and NCJOBS_DTYPE.names == (
     "AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo", "Flags", "Ended",
     "MasterId", "SyncFlags", "GearRatio", "SuperCmdNo", "SuperState", "SuperErrorId", "SuperDistance",

@@ -1,4 +1,4 @@
-"""Fixtures of the ADS tests (helpers in ads_testing.py).
+"""Fixtures of the ADS tests (helpers in znc_testing.ads_testing).
 
 * ``ads_address``: a free loopback address 127.0.0.x whose port 48898 is bindable (AdsLib/pyads always
   connects to 48898, so every test gets its own address instead of a free port).
@@ -17,8 +17,8 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from ads_testing import PyadsSession, free_ads_address, netid_for, start_server_on_free_address
-from nc_ads_testing import NcAdsProcess, start_nc_ads
+from znc_testing.ads_testing import PyadsSession, free_ads_address, netid_for, start_server_on_free_address
+from znc_testing.nc_ads_testing import NcAdsProcess, start_nc_ads
 from znc_testing import NcServerProcess, NcTestClient, start_nc_server
 from nc_ads.server import AdsServer
 from nc_ads.testing import FakeDevice

@@ -22,7 +22,7 @@ import pytest
 
 pyads = pytest.importorskip("pyads")
 
-from nc_ads_testing import NcAdsProcess, start_nc_ads  # noqa: E402
+from znc_testing.nc_ads_testing import NcAdsProcess, start_nc_ads  # noqa: E402
 from nc_schema import PARAMETERS, encode_ads, decode_ads  # noqa: E402
 from znc_testing import (  # noqa: E402
     BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, nc_server_command, start_nc_server, wait_until,

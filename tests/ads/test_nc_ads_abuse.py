@@ -26,10 +26,10 @@ from typing import Any, Iterator
 
 import pytest
 
-from ads_testing import RawClient
+from znc_testing.ads_testing import RawClient
 from nc_ads import ams
 from nc_ads.ams import AMS_TCP_PORT, AmsAddr, AmsPacket, Command
-from nc_ads_testing import NcAdsProcess, start_nc_ads
+from znc_testing.nc_ads_testing import NcAdsProcess, start_nc_ads
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, kill_process_group, wait_until
 
 RTT_P99_LIMIT_S = 0.050      # the bound for another client's read during an attack

@@ -106,7 +106,7 @@ def _loopback_48898_free() -> bool:
 def test_readme_example_runs(tmp_path: Path) -> None:
     """The snippet addresses 127.0.0.1:48898 (what a reader has); nc-ads listens there for this test."""
     pytest.importorskip("pyads")
-    from nc_ads_testing import NcAdsProcess
+    from znc_testing.nc_ads_testing import NcAdsProcess
     from znc_testing import start_nc_server
     deadline = time.monotonic() + 60
     while not _loopback_48898_free():  # another test of this kind may be using it: wait, never steal it

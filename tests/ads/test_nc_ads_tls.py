@@ -12,7 +12,7 @@ import pytest
 
 pyads = pytest.importorskip("pyads")
 
-from nc_ads_testing import start_nc_ads  # noqa: E402
+from znc_testing.nc_ads_testing import start_nc_ads  # noqa: E402
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, free_port, nc_server_command, wait_until  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]

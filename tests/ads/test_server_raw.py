@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from ads_testing import RawClient, connect
+from znc_testing.ads_testing import RawClient, connect
 from nc_ads import ams
 from nc_ads.ams import Command
 from nc_ads.server import AdsServer

@@ -17,7 +17,7 @@ from typing import Any, Iterator
 
 import pytest
 
-from hostlib import BUILD_SH, FIGURES, docker_unavailable
+from znc_testing.hostlib import BUILD_SH, FIGURES, docker_unavailable
 
 
 @pytest.fixture(scope="session")

@@ -14,8 +14,8 @@ import threading
 import time
 from pathlib import Path
 
-sys.path[:0] = [str(Path(__file__).resolve().parents[1]), str(Path(__file__).resolve().parent)]  # tests/ (znc_testing), hostlib
-from hostlib import StatusClient  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/ (znc_testing)
+from znc_testing.hostlib import StatusClient  # noqa: E402
 
 
 def main(argv: list[str]) -> int:

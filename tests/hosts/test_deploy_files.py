@@ -6,7 +6,7 @@ import tomllib
 
 import pytest
 
-from hostlib import ROOT, AxisSample, Event, compose_command, motion_on_its_own, parse_events
+from znc_testing.hostlib import ROOT, AxisSample, Event, compose_command, motion_on_its_own, parse_events
 
 
 def test_pyproject_lists_every_package() -> None:

@@ -25,7 +25,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import pytest
 
-from hostlib import (FIGURES, HOLDERS, NCS, ROOT, StatusClient, cell_ok, compose_command, errors_after,
+from znc_testing.hostlib import (FIGURES, HOLDERS, NCS, ROOT, StatusClient, cell_ok, compose_command, errors_after,
                      motion_on_its_own, parse_events, wait_nc_lost, wait_plc_lost)
 from znc_testing import free_port, wait_until
 

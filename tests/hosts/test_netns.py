@@ -23,7 +23,7 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from hostlib import (FIGURES, ROOT, AxisSample, Event, cell_ok, errors_after, motion_on_its_own, parse_events,
+from znc_testing.hostlib import (FIGURES, ROOT, AxisSample, Event, cell_ok, errors_after, motion_on_its_own, parse_events,
                      wait_nc_lost, wait_plc_lost)
 from znc_testing import wait_until
 

@@ -1,4 +1,4 @@
-"""Fixtures of the integration tests that drive PLC processes (helpers in plc_harness.py).
+"""Fixtures of the integration tests that drive PLC processes (helpers in znc_testing.plc_harness).
 
 * ``nc``: an ``nc-server`` with the embedded default configuration (axes 1-4, axis 4 modulo 360)
   and a lenient watchdog (``plc_harness.NC_ARGS``) on a free port; its process group is killed at
@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import pytest
 
-from plc_harness import NC_ARGS, PlcProcess
+from znc_testing.plc_harness import NC_ARGS, PlcProcess
 from znc_testing import NcServerProcess
 
 

@@ -12,7 +12,7 @@ import math
 import re
 from typing import Callable
 
-from plc_harness import EXAMPLES, run_example
+from znc_testing.plc_harness import EXAMPLES, run_example
 from znc_testing import NcServerProcess
 
 

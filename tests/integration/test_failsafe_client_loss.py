@@ -17,8 +17,8 @@ from typing import Callable
 
 import pytest
 
-from failsafe_support import T, AxisWatch, ClientProcess, failsafe_config, resume_and_kill
-from plc_harness import PlcProcess
+from znc_testing.failsafe_support import T, AxisWatch, ClientProcess, failsafe_config, resume_and_kill
+from znc_testing.plc_harness import PlcProcess
 from znc_testing import NcServerProcess, NcTestClient, wait_until
 
 LOST = (0x8F01, 0x8F02)

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from failsafe_support import T, AxisWatch, failsafe_config, resume_and_kill
+from znc_testing.failsafe_support import T, AxisWatch, failsafe_config, resume_and_kill
 from test_plc_coupling import ExtPlc
 from znc_testing import BIT_OPERATIONAL, NcServerProcess
 

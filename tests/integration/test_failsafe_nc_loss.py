@@ -19,8 +19,8 @@ from typing import Callable
 
 import pytest
 
-from failsafe_support import T, AxisWatch, failsafe_config, resume_and_kill
-from plc_harness import PlcProcess, Rec
+from znc_testing.failsafe_support import T, AxisWatch, failsafe_config, resume_and_kill
+from znc_testing.plc_harness import PlcProcess, Rec
 from test_plc_coupling import ExtPlc
 from znc_testing import NcServerProcess, NcTestClient, free_port, wait_until
 

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from failsafe_recovery import SCENARIOS, ListenWatch, measure
-from failsafe_support import T, AxisWatch, TcpProxy, failsafe_config, resume_and_kill
-from plc_harness import PlcProcess
+from znc_testing.failsafe_recovery import SCENARIOS, ListenWatch, measure
+from znc_testing.failsafe_support import T, AxisWatch, TcpProxy, failsafe_config, resume_and_kill
+from znc_testing.plc_harness import PlcProcess
 from znc_testing import NcServerProcess, free_port, start_nc_router, start_nc_server, wait_until
 
 BLAMED = (0x8F01, 0x8F02)

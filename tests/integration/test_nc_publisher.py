@@ -282,7 +282,7 @@ def test_a_killed_publisher_is_replaced_within_10_nc_cycles_and_every_move_goes_
     in the middle of a move of two axes, the second one hitting the standby started after the first)."""
     import math
 
-    from plc_harness import NC_ARGS, PlcProcess, power_on
+    from znc_testing.plc_harness import NC_ARGS, PlcProcess, power_on
     nc = start_nc(extra_args=NC_ARGS)
     cl = nc_client(nc.port)
     frames = FrameCycles(cl)

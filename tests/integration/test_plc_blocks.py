@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from plc_harness import T, PlcProcess, exclusive, power_on
+from znc_testing.plc_harness import T, PlcProcess, exclusive, power_on
 
 
 def test_power_and_move_absolute_done_held(plc: PlcProcess) -> None:

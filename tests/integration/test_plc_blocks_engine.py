@@ -16,7 +16,7 @@ import math
 
 import pytest
 
-from plc_harness import T, PlcProcess, Rec, ended, exclusive, first_cycle, power_on
+from znc_testing.plc_harness import T, PlcProcess, Rec, ended, exclusive, first_cycle, power_on
 
 #: position tolerance at a target: the axes' AxisTargetPositionWindow (X 0.02)
 WINDOW = 0.02

@@ -25,8 +25,8 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-import plc_harness
-from plc_harness import T, PlcProcess, Rec, ended, exclusive
+from znc_testing import plc_harness
+from znc_testing.plc_harness import T, PlcProcess, Rec, ended, exclusive
 from znc_testing import NcServerProcess
 
 # ---- the PLC program --------------------------------------------------------------------------

@@ -28,7 +28,7 @@ import pytest
 from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power
 from plc_client.port import CommandPort
 from plc_client.runtime import PlcRuntime
-from plc_harness import NC_ARGS, T
+from znc_testing.plc_harness import NC_ARGS, T
 from znc_testing import NcServerProcess, wait_until
 
 #: counts the frames of nc/nc1/frame (every NC cycle): "go" on stdin starts, each 100 frames a line

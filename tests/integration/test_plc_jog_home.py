@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 import re
 
-import plc_harness
-from plc_harness import T, PlcProcess, exclusive, power_on
+from znc_testing import plc_harness
+from znc_testing.plc_harness import T, PlcProcess, exclusive, power_on
 from znc_testing import NcServerProcess
 
 

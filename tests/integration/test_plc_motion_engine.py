@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from plc_harness import T, PlcProcess, ended, exclusive, first_cycle, power_on
+from znc_testing.plc_harness import T, PlcProcess, ended, exclusive, first_cycle, power_on
 
 
 def test_buffered_sequence_of_three_blended_moves(plc: PlcProcess) -> None:

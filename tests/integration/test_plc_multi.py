@@ -5,7 +5,7 @@ from typing import Callable, Iterator
 
 import pytest
 
-from plc_harness import NC_ARGS, T, PlcProcess, power_on
+from znc_testing.plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess
 
 

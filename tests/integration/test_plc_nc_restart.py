@@ -8,7 +8,7 @@ import signal
 import time
 from typing import Callable
 
-from plc_harness import NC_ARGS, T, PlcProcess, power_on
+from znc_testing.plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess, NcTestClient, free_port, wait_until
 
 

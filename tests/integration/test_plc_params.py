@@ -8,7 +8,7 @@ from typing import Callable
 
 from nc_schema import decode_parameter_set, encode_parameter_set
 from nc_server.server import config as server_config
-from plc_harness import NC_ARGS, T, PlcProcess, power_on
+from znc_testing.plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess, NcTestClient
 
 

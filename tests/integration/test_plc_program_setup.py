@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from nc_schema import StateDWord
-from plc_harness import NC_ARGS, T
+from znc_testing.plc_harness import NC_ARGS, T
 from znc_testing import NcServerProcess, NcTestClient, wait_until
 
 MONITOR = """

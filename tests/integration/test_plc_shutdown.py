@@ -17,7 +17,7 @@ from typing import Callable
 
 import pytest
 
-from plc_harness import NC_ARGS, T, PlcProcess, power_on
+from znc_testing.plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess
 
 #: what a clean shutdown may take here: 3 cycles, <= 1 s for the Release replies, <= 2 s for the

@@ -22,7 +22,7 @@ import numpy as np
 
 from nc_schema import NCTOPLC_DTYPE
 from nc_server.server.config import default_config_text
-from plc_harness import NC_ARGS, T, Rec, ended, exclusive
+from znc_testing.plc_harness import NC_ARGS, T, Rec, ended, exclusive
 from test_plc_coupling import ExtPlc, axis_config, clean, power_both, xp, xplc  # noqa: F401 (fixtures)
 from znc_testing import NcServerProcess, NcTestClient, wait_until
 

@@ -1,9 +1,9 @@
-"""Fixtures of the PLC-side unit tests (helpers in plc_rig.py)."""
+"""Fixtures of the PLC-side unit tests (helpers in znc_testing.plc_rig)."""
 from __future__ import annotations
 
 import pytest
 
-from plc_rig import Rig, ScriptNc
+from znc_testing.plc_rig import Rig, ScriptNc
 
 
 @pytest.fixture

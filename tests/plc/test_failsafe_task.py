@@ -15,7 +15,7 @@ from nc_schema import ErrorCodes, StateDWord
 from plc_client import (
     MC_GearIn, MC_Home, MC_Jog, MC_MoveAbsolute, MC_MoveSuperImposed, MC_MoveVelocity, MC_NewPos, MC_Power, MC_SetOverride,
 )
-from plc_rig import Rig, powered
+from znc_testing.plc_rig import Rig, powered
 
 NO_UPDATE = ErrorCodes.MC_NO_NC_CYCLE_UPDATE
 CLC = int(StateDWord.ControlLoopClosed)

@@ -8,7 +8,7 @@ from plc_client import (
     MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset,
     MC_SetOverride,
 )
-from plc_rig import Rig, powered
+from znc_testing.plc_rig import Rig, powered
 
 
 def test_power_on_and_off(rig: Rig) -> None:

@@ -11,7 +11,7 @@ import pytest
 from nc_schema import ErrorCodes, make_reply
 from nc_server.core import AxisParams
 from plc_client import AXACT, AXIS_REF
-from plc_rig import Rig, ScriptNc, powered
+from znc_testing.plc_rig import Rig, ScriptNc, powered
 
 P = AxisParams()
 

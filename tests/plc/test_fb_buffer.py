@@ -17,7 +17,7 @@ from plc_client import (
     MC_MoveContinuousAbsolute, MC_MoveContinuousRelative, MC_MoveRelative, MC_MoveVelocity, MC_NewPos,
     MC_NewPosAndVelo, MC_OrientedStop,
 )
-from plc_rig import Rig, powered
+from znc_testing.plc_rig import Rig, powered
 
 
 def first(trace: list[dict[str, Any]], output: str) -> int:

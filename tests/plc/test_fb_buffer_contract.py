@@ -14,7 +14,7 @@ from plc_client import (
     MC_MoveContinuousAbsolute, MC_MoveContinuousRelative, MC_MoveRelative, MC_MoveVelocity, MC_NewPos,
     MC_NewPosAndVelo, MC_OrientedStop,
 )
-from plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, MOVING, S, ScriptNc, run_move, started
+from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, MOVING, S, ScriptNc, run_move, started
 
 MOVE = {"Position": 100.0, "Velocity": 10.0}
 

@@ -13,7 +13,7 @@ from nc_schema import AxisState, CoupleState, ErrorCodes, OpModeDWord
 from plc_client import (
     AXIS_REF, E_DecoupleMode, MC_GearIn, MC_GearInDyn, MC_GearInFloat, MC_GearOut, MC_GearOutExt,
 )
-from plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, MOVING, S, ScriptNc
+from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, MOVING, S, ScriptNc
 
 SYNCHRONIZING, SYNCHRON = int(AxisState.SLAVE_SYNCHRONIZING), int(AxisState.SLAVE_SYNCHRON)
 SLAVE = int(CoupleState.SLAVE)

@@ -15,7 +15,7 @@ from plc_client import (
     AXIS_REF, E_SignalEdge, E_TargPosType, E_TouchProbe, E_TouchProbeState, MC_AbortTrigger,
     MC_ExtSetPointGenDisable, MC_ExtSetPointGenEnable, MC_ExtSetPointGenFeed, MC_InputRef, MC_TouchProbe,
 )
-from plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, S, ScriptNc
+from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, S, ScriptNc
 
 EXT = int(S.ExtSetPointGenEnabled)
 

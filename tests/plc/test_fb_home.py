@@ -12,7 +12,7 @@ import pytest
 from nc_schema import DEFAULT_HOME_POSITION, ControlDWord, ErrorCodes, MC_HomingMode, StateDWord
 from nc_server.core import AxisParams
 from plc_client import MC_Home, MC_MoveVelocity, MC_Stop
-from plc_rig import ABORTED, ACTIVE, DONE, IDLE, MOVING, Rig, ScriptNc, powered
+from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, IDLE, MOVING, Rig, ScriptNc, powered
 
 HOMED = int(StateDWord.Homed)
 _CAM_BIT = int(ControlDWord.HomingSensor)

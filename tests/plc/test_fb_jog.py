@@ -12,7 +12,7 @@ import pytest
 from nc_schema import E_JogMode, ErrorCodes
 from nc_server.core import AxisParams
 from plc_client import AXIS_REF, MC_Jog, MC_MoveAbsolute
-from plc_rig import ABORTED, ACTIVE, DONE, IDLE, MOVING, Rig, ScriptNc, powered
+from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, IDLE, MOVING, Rig, ScriptNc, powered
 
 SLOW, FAST, CONT, INCH, INCH_MOD = (int(m) for m in E_JogMode)
 

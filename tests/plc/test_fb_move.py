@@ -9,7 +9,7 @@ import pytest
 from nc_schema import CmdState, ErrorCodes, MC_BufferMode, StateDWord
 from plc_client import MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power
 from plc_client.fb import DONE_WINDOW_TIMEOUT
-from plc_rig import OffsetDrive, Rig, powered
+from znc_testing.plc_rig import OffsetDrive, Rig, powered
 
 
 def test_move_absolute_done_held_while_execute_true(rig: Rig) -> None:

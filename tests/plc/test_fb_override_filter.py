@@ -8,7 +8,7 @@ import pytest
 
 from nc_schema import ErrorCodes as E
 from plc_client import MC_OverrideFilter
-from plc_rig import ScriptNc
+from znc_testing.plc_rig import ScriptNc
 
 
 def run(nc: ScriptNc, fb: MC_OverrideFilter, st: dict, n: int = 1) -> None:

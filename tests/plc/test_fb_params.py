@@ -11,7 +11,7 @@ from plc_client import (
     E_ReadMode, MC_ReadAxisComponents, MC_ReadBoolParameter, MC_ReadParameter, MC_ReadParameterSet,
     MC_WriteBoolParameter, MC_WriteParameter, ST_AxisComponents, ST_AxisParameterSet,
 )
-from plc_rig import Rig, ScriptNc, powered
+from znc_testing.plc_rig import Rig, ScriptNc, powered
 
 
 def _program(rig: Rig, calls: dict) -> None:

@@ -14,7 +14,7 @@ from plc_client import (
     F_GetVersionTcMC, MC_MoveRelative, MC_MoveVelocity, MC_SetActualPosition, MC_SetActualPositionOnTheFly,
     MC_SetReferenceFlag,
 )
-from plc_rig import Rig, ScriptNc, powered
+from znc_testing.plc_rig import Rig, ScriptNc, powered
 
 
 # ---- against the contract (scripted NC) -------------------------------------------------------------

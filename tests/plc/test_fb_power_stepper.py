@@ -15,7 +15,7 @@ from plc_client import (
     ST_PowerStepperStruct,
 )
 from plc_client.fb.stepper import terminal_status
-from plc_rig import Rig
+from znc_testing.plc_rig import Rig
 
 _ids = itertools.count(1)
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from nc_schema import ErrorCodes
 from plc_client import MC_MoveAbsolute, MC_MoveVelocity, MC_Stop
-from plc_rig import Rig, powered
+from znc_testing.plc_rig import Rig, powered
 
 
 def test_stop_locks_until_execute_falls(rig: Rig) -> None:

@@ -10,7 +10,7 @@ import pytest
 
 from nc_schema import ErrorCodes
 from plc_client import E_SuperpositionMode, MC_AbortSuperposition, MC_MoveSuperImposed, MC_MoveSuperImposedExt
-from plc_rig import ABORTED, ACTIVE, DONE, ERROR, MOVING, ScriptNc
+from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, ERROR, MOVING, ScriptNc
 
 SUPER = {"Distance": 5.0, "VelocityDiff": 2.0, "Acceleration": 10.0, "Deceleration": 20.0, "Jerk": 0.0,
          "VelocityProcess": 50.0}

@@ -13,7 +13,7 @@ from nc_server.server.handler import CycleInputs, RequestHandler
 from nc_sim import InProcessNc, InProcessPort, run_cycles
 from plc_client import MC_MoveVelocity, MC_Power
 from plc_client.port import PendingCommand
-from plc_rig import Rig, powered
+from znc_testing.plc_rig import Rig, powered
 
 LOST = int(ErrorCodes.ZNC_CLIENT_LOST)
 TIMEOUT = int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)

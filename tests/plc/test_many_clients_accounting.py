@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from nc_schema import ErrorCodes
-from plc_rig import Rig
+from znc_testing.plc_rig import Rig
 
 PROGRAM = Path(__file__).resolve().parents[2] / "bench" / "many_clients_program.py"
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from plc_rig import Rig, ScriptNc, powered
+from znc_testing.plc_rig import Rig, ScriptNc, powered
 
 
 def _restart_frames(nc: ScriptNc) -> None:

@@ -18,7 +18,7 @@ import pytest
 from nc_schema import ErrorCodes
 from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power, demo_program
 from plc_client.cli import load_program
-from plc_rig import ACTIVE, MOVING, ScriptNc
+from znc_testing.plc_rig import ACTIVE, MOVING, ScriptNc
 
 ROOT = Path(__file__).resolve().parents[2]
 MOTION = ("MoveAbsolute", "MoveRelative", "MoveVelocity")

@@ -12,7 +12,7 @@ from plc_client import (
     AXIS_REF, MC_GearIn, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_Reset, MC_Stop,
 )
 from plc_client.task import PlcTask
-from plc_rig import Rig, powered
+from znc_testing.plc_rig import Rig, powered
 
 
 def test_stale_data_gives_4b0f(rig: Rig) -> None:

@@ -12,7 +12,7 @@ from typing import Callable, Iterator, Sequence
 import pytest
 import zenoh
 
-from sec_testing import tls_config
+from znc_testing.sec_testing import tls_config
 from znc_testing import NcServerProcess, free_port, nc_router_command, nc_server_command
 
 REPO = Path(__file__).resolve().parents[2]

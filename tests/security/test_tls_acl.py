@@ -21,7 +21,7 @@ import pytest
 import zenoh
 
 from nc_schema import PLCTONC_DTYPE, ControlDWord, ErrorCodes, Keys, decode, encode_plc_frame, parse_alive_instance
-from sec_testing import tls_config
+from znc_testing.sec_testing import tls_config
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, wait_until
 
 T = 30.0  # generous deadline for anything to happen on a loaded machine

@@ -1,5 +1,5 @@
 """Fixtures of the inspection-tool tests (nc-status, nc-scope, zenoh-cli codecs; helpers in
-tools_testing.py).
+znc_testing.tools_testing).
 
 ``rig``: one real ``nc-server`` per test module (default config: ``nc1``, axes 1-4, a lenient
 watchdog) and a client ``t1`` (liveliness token, PLCTONC feeder) that enables axes on request;
@@ -11,7 +11,7 @@ from typing import Iterator
 
 import pytest
 
-from tools_testing import Rig
+from znc_testing.tools_testing import Rig
 from znc_testing import NcTestClient, start_nc_server
 
 

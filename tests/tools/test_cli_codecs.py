@@ -16,7 +16,7 @@ from nc_schema import (
     NCTOPLC_DTYPE, PLCTONC_DTYPE, ErrorCodes, cli_codecs, encode_frame, encode_plc_frame, make_reply, pack,
     Keys, parse_request, unpack,
 )
-from tools_testing import T, Rig, kill_group, zenoh_cli_command
+from znc_testing.tools_testing import T, Rig, kill_group, zenoh_cli_command
 
 ROOT = Path(__file__).resolve().parents[2]
 

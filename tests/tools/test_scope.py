@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tools_testing import T, Rig, kill_group, run_tool, tool_command
+from znc_testing.tools_testing import T, Rig, kill_group, run_tool, tool_command
 from nc_tools import scope
 from znc_testing import wait_until
 

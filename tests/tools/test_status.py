@@ -7,7 +7,7 @@ from typing import Any
 
 import zenoh
 
-from tools_testing import T, Rig, run_tool
+from znc_testing.tools_testing import T, Rig, run_tool
 from nc_schema import FrameFlags, decode_frame, error_name
 from znc_testing import NcTestClient, start_nc_server, wait_until, zenoh_client_config
 
@@ -116,7 +116,7 @@ def test_live_json_refreshes_until_sigint(rig: Rig) -> None:
     import signal
     import subprocess
 
-    from tools_testing import JsonLines, kill_group, tool_command
+    from znc_testing.tools_testing import JsonLines, kill_group, tool_command
     p = subprocess.Popen(tool_command("status", "--connect", rig.endpoint, "--json", "--interval", "0.2"),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -146,7 +146,7 @@ def test_a_silent_tool_cannot_hold_a_wait_past_its_deadline() -> None:
 
     import pytest
 
-    from tools_testing import JsonLines, kill_group
+    from znc_testing.tools_testing import JsonLines, kill_group
     p = subprocess.Popen([sys.executable, "-c", "import time; print('{\"a\": 1}', flush=True); time.sleep(60)"],
                          stdout=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -165,7 +165,7 @@ def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
     import signal
     import subprocess
 
-    from tools_testing import JsonLines, kill_group, tool_command
+    from znc_testing.tools_testing import JsonLines, kill_group, tool_command
     from znc_testing import start_nc_router
     router = start_nc_router(tmp_path / "router")
     procs = [router]
@@ -208,7 +208,7 @@ def test_restarts_count_new_nc_instances_not_a_token_that_comes_back(tmp_path) -
     import subprocess
     import time
 
-    from tools_testing import JsonLines, kill_group, tool_command
+    from znc_testing.tools_testing import JsonLines, kill_group, tool_command
     from znc_testing import free_port
     port = free_port()
     listen = ("--listen", f"tcp/127.0.0.1:{port}")

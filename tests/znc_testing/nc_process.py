@@ -26,7 +26,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Protocol, Sequence, TypeVar
 
 import msgpack
 import numpy as np
@@ -216,6 +216,38 @@ def nc_router_command() -> list[str]:
     return [sys.executable, "-m", "nc_server.router"]
 
 
+_H = TypeVar("_H", bound="_Startable")
+
+
+class _Startable(Protocol):
+    def kill(self) -> None: ...
+    def stderr(self) -> str: ...
+
+
+def start_with_port_retry(launch: Callable[[], _H], ready: Callable[[_H], object], attempts: int = 3) -> _H:
+    """Start a process on an address picked just before (``free_port()``) and wait until it is ready.
+
+    A free port can be taken by another process between the pick and the bind: a start whose ``ready``
+    raised RuntimeError with "Address already in use" in the process's stderr is killed and launched
+    again (``launch`` picks a fresh address), up to ``attempts`` starts. Any other failure kills the
+    process and propagates.
+    """
+    for attempt in range(attempts):
+        h = launch()
+        try:
+            ready(h)
+            return h
+        except RuntimeError:
+            h.kill()
+            if "Address already in use" in h.stderr() and attempt < attempts - 1:
+                continue
+            raise
+        except BaseException:
+            h.kill()
+            raise
+    raise AssertionError("unreachable")
+
+
 def start_nc_router(tmp_path: Path, extra_args: Sequence[str] = (), port: int | None = None,
                     ready_timeout: float = READY_TIMEOUT) -> NcServerProcess:
     """Start ``nc-router`` listening on ``tcp/127.0.0.1:<port>`` (a free port unless given).
@@ -223,26 +255,17 @@ def start_nc_router(tmp_path: Path, extra_args: Sequence[str] = (), port: int | 
     Returns a handle like :func:`start_nc_server`'s (``name`` "router"); the caller stops or kills it.
     """
     tmp_path.mkdir(parents=True, exist_ok=True)
-    for attempt in range(3):
+
+    def launch() -> NcServerProcess:
         p = port or free_port()
         err_path = tmp_path / f"nc-router-{p}.stderr"
         with open(err_path, "w") as err:
             proc = subprocess.Popen([*nc_router_command(), "--listen", f"tcp/127.0.0.1:{p}", *extra_args],
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err, text=True,
                                     start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-        h = NcServerProcess(proc, p, "router", err_path)
-        try:
-            h.wait_ready(ready_timeout)
-            return h
-        except RuntimeError:
-            h.kill()
-            if "Address already in use" in h.stderr() and attempt < 2 and port is None:
-                continue
-            raise
-        except BaseException:
-            h.kill()
-            raise
-    raise AssertionError("unreachable")
+        return NcServerProcess(proc, p, "router", err_path)
+
+    return start_with_port_retry(launch, lambda h: h.wait_ready(ready_timeout), attempts=3 if port is None else 1)
 
 
 def start_nc_server(tmp_path: Path, config_text: str | None = None, extra_args: Sequence[str] = (),
@@ -268,7 +291,7 @@ def start_nc_server(tmp_path: Path, config_text: str | None = None, extra_args: 
         RuntimeError / AssertionError: see :meth:`NcServerProcess.wait_ready`.
     """
     tmp_path.mkdir(parents=True, exist_ok=True)
-    for attempt in range(3):  # a free port can be taken between free_port() and bind: retry
+    def launch() -> NcServerProcess:
         if connect is not None:
             port = int(connect.rsplit(":", 1)[1])
             args = [*nc_server_command(), "--mode", "client", "--connect", connect]
@@ -284,21 +307,11 @@ def start_nc_server(tmp_path: Path, config_text: str | None = None, extra_args: 
         with open(err_path, "w") as err:
             proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err, text=True,
                                     start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-        h = NcServerProcess(proc, port, name, err_path)
-        if not wait:
-            return h
-        try:
-            h.wait_ready(ready_timeout)
-            return h
-        except RuntimeError:
-            h.kill()
-            if "Address already in use" in h.stderr() and attempt < 2:
-                continue
-            raise
-        except BaseException:
-            h.kill()
-            raise
-    raise AssertionError("unreachable")
+        return NcServerProcess(proc, port, name, err_path)
+
+    if not wait:
+        return launch()
+    return start_with_port_retry(launch, lambda h: h.wait_ready(ready_timeout))
 
 
 # ---- a client in the test process ------------------------------------------------------------

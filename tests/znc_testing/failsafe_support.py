@@ -22,7 +22,7 @@ import zenoh
 from nc_schema import NCTOPLC_DTYPE
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, kill_process_group, zenoh_client_config
 
-CLIENT = Path(__file__).with_name("failsafe_client.py")
+CLIENT = Path(__file__).resolve().parents[1] / "integration" / "failsafe_client.py"
 #: deadline of every wait [s]: generous, a loaded 2-core machine
 T = 30.0
 

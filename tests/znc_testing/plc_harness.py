@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-AGENT = Path(__file__).with_name("plc_agent.py")
+AGENT = Path(__file__).resolve().parents[1] / "integration" / "plc_agent.py"
 
 #: deadline of every wait [s]: generous, a loaded 2-core machine
 T = 30.0

@@ -29,9 +29,9 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from failsafe_support import TcpProxy, failsafe_config
+from znc_testing.failsafe_support import TcpProxy, failsafe_config
 from plc_client.runtime import client_config
-from plc_harness import PlcProcess
+from znc_testing.plc_harness import PlcProcess
 from znc_testing import NcServerProcess, NcTestClient, ReplyError, free_port, start_nc_router, start_nc_server
 
 SCENARIOS = ("router", "cut", "blackhole")

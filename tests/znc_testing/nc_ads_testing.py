@@ -19,8 +19,9 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from ads_testing import free_ads_address
+from znc_testing.ads_testing import free_ads_address
 from znc_testing import kill_process_group
+from znc_testing.nc_process import start_with_port_retry
 
 class NcAdsProcess:
     """A running ``nc-ads`` (``python -m nc_ads.cli``) listening on ``host``:48898 with net id ``netid``."""
@@ -77,7 +78,7 @@ def start_nc_ads(tmp_path: Path, endpoint: str, role: str = "operator", extra_ar
                  client_id: str = "ads1", nc: str = "nc1") -> NcAdsProcess:
     """Start nc-ads for NC ``nc`` at zenoh ``endpoint`` on a free 127.0.0.x (retried if the address is taken)."""
     tmp_path.mkdir(parents=True, exist_ok=True)
-    for attempt in range(5):
+    def launch() -> NcAdsProcess:
         host = free_ads_address()
         netid = f"{host}.1.1"
         err_path = tmp_path / f"nc-ads-{host}.stderr"
@@ -86,16 +87,6 @@ def start_nc_ads(tmp_path: Path, endpoint: str, role: str = "operator", extra_ar
         with open(err_path, "w") as err:
             proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err, text=True,
                                     start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-        h = NcAdsProcess(proc, host, netid, err_path)
-        try:
-            h.wait_ready()
-            return h
-        except RuntimeError:
-            h.kill()
-            if "Address already in use" in h.stderr() and attempt < 4:
-                continue
-            raise
-        except BaseException:
-            h.kill()
-            raise
-    raise AssertionError("unreachable")
+        return NcAdsProcess(proc, host, netid, err_path)
+
+    return start_with_port_retry(launch, lambda h: h.wait_ready(), attempts=5)
