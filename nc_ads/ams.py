@@ -21,6 +21,7 @@ import struct
 import time
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Any, Protocol
 
 AMS_TCP_PORT = 48898                 # 0xBF02
 AMS_TCP_HEADER = struct.Struct("<HI")
@@ -531,7 +532,19 @@ class DeviceNotification:
         return cls(tuple(stamps))
 
 
-REQUESTS: dict[int, type] = {
+class _PayloadClass(Protocol):
+    """A payload dataclass as REQUESTS/RESPONSES hold it (the class itself): ``decode`` makes one."""
+
+    def decode(self, data: bytes) -> Any: ...
+
+
+class _ResponseClass(_PayloadClass, Protocol):
+    """A response class: the one made with only ``result`` is the response carrying that error."""
+
+    def __call__(self, *, result: int = ...) -> Any: ...
+
+
+REQUESTS: dict[int, _PayloadClass] = {
     Command.READ_DEVICE_INFO: Empty,
     Command.READ: ReadRequest,
     Command.WRITE: WriteRequest,
@@ -543,7 +556,7 @@ REQUESTS: dict[int, type] = {
     Command.READ_WRITE: ReadWriteRequest,
 }
 
-RESPONSES: dict[int, type] = {
+RESPONSES: dict[int, _ResponseClass] = {
     Command.READ_DEVICE_INFO: ReadDeviceInfoResponse,
     Command.READ: DataResponse,
     Command.WRITE: ResultOnly,

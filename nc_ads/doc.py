@@ -55,7 +55,7 @@ def _params() -> list[str]:
     for off in sorted(by_addr):
         es = by_addr[off]
         main = PARAMETERS.ads_axis_offset(off)
-        assert main is not None
+        assert main is not None and main.ads is not None  # (found by its ADS address)
         others = ", ".join(f"{e.number} {e.name}" for e in es if e is not main)
         w = f"yes ({main.when})" if main.writable else "no (0x704)"
         rows.append(f"| 0x{off:X} | {main.ads.type} | {main.number} {main.name} | {others} | {w} | {main.source} |")

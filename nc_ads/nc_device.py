@@ -936,6 +936,7 @@ class NcDevice(AdsDevice):
         self.supplies.disable(axis, src.conn_id, periods=3)  # False: nc-ads does not hold it, nothing to disable
 
     def _write_cyclic(self, axis: int, offset: int, data: bytes, src: AdsSource) -> None:
+        change: Callable[[bytearray], None]  # what the write does to the axis's PLCTONC record
         if offset == IO_NCTOPLC:
             raise AdsError(ADSERR_DEVICE_INVALIDACCESS, "NCTOPLC_AXIS_REF (0x4300+ID IO 0x80) is read-only")
         if offset == 0:

@@ -777,7 +777,7 @@ class AdsServer:
             self._thread.join()
             self._pool.shutdown(wait=False)
             raise error[0]
-        log.info("ADS server %s listening on %s:%d, AMS ports %s", self.net_id, *self._bound,
+        log.info("ADS server %s listening on %s:%d, AMS ports %s", self.net_id, *self.bound_address,
                  sorted(self.dispatcher.devices))
 
     async def _open(self) -> None:

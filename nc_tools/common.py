@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any, cast
 
 import zenoh
 
@@ -49,6 +50,6 @@ def nc_of(key: object) -> str:
 def axis_key(axis: object) -> str:
     """A map key for an axis id (msgpack maps may use ints or strings): its decimal string."""
     try:
-        return str(int(axis))  # type: ignore[call-overload]
+        return str(int(cast(Any, axis)))  # (any key msgpack gave: int() decides)
     except (TypeError, ValueError):
         return str(axis)

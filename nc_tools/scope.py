@@ -69,6 +69,7 @@ _TRIGGER_RE = re.compile(r"^\s*(\d+)\.(\w+)\s*(>=|<=|==|!=|>|<)\s*(\S+)\s*$")
 def recordable_fields() -> list[str]:
     """NCTOPLC fields nc-scope can record: the numeric scalar ones."""
     out = []
+    assert NCTOPLC_DTYPE.names is not None and NCTOPLC_DTYPE.fields is not None  # (a struct dtype)
     for name in NCTOPLC_DTYPE.names:
         dt = NCTOPLC_DTYPE.fields[name][0]
         if not name.startswith("_") and dt.shape == () and dt.kind in "iuf":

@@ -119,6 +119,46 @@ class ST_AxisStatus:
         "SynchronizedMotion", "Homing", "Accelerating", "Decelerating", "Moving", "Coupled", "Valid",
         *_BIT_FIELDS,
     )
+    # the members __init__ sets from _STATE_FLAGS and _BIT_FIELDS, declared for the type checker
+    # (tests/plc/test_declarations.py checks that none is missing)
+    ErrorStop: bool
+    Disabled: bool
+    Stopping: bool
+    StandStill: bool
+    DiscreteMotion: bool
+    ContinuousMotion: bool
+    SynchronizedMotion: bool
+    Homing: bool
+    Operational: bool
+    ControlLoopClosed: bool
+    HasJob: bool
+    HasBeenStopped: bool
+    NewTargetPosition: bool
+    InPositionArea: bool
+    InTargetPosition: bool
+    ProtectedMode: bool
+    Homed: bool
+    HomingBusy: bool
+    MotionCommandsLocked: bool
+    SoftLimitMinExceeded: bool
+    SoftLimitMaxExceeded: bool
+    PositiveDirection: bool
+    NegativeDirection: bool
+    NotMoving: bool
+    Compensating: bool
+    ExtSetPointGenEnabled: bool
+    PhasingActive: bool
+    ExternalLatchValid: bool
+    CamDataQueued: bool
+    CamTableQueued: bool
+    CamScalingPending: bool
+    CmdBuffered: bool
+    PTPmode: bool
+    DriveDeviceError: bool
+    IoDataInvalid: bool
+    ErrorPropagationDelayed: bool
+    DriveLimitActive: bool
+    ConstantVelocity: bool
 
     def __init__(self) -> None:
         self.UpdateTaskIndex: int = 0

@@ -174,10 +174,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        for p in (plc, nc):
-            if p is not None:
-                p.quiet = False
-                p.stop()
+        for proc in (plc, nc):
+            if proc is not None:
+                proc.quiet = False
+                proc.stop()
     if last is None:
         print("zenoh-nc-demo: no status frame received", file=sys.stderr)
         return 1

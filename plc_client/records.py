@@ -25,13 +25,25 @@ for the item form, as the read-only numpy record did; ``AttributeError`` for an 
 from __future__ import annotations
 
 import struct
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
 from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, Member, load_json, member_struct, members, struct_of
 
 __all__ = ["NCTOPLC_AXIS_REF", "PLCTONC_AXIS_REF"]
+
+if TYPE_CHECKING:
+    from typing import Generic, TypeVar
+
+    _T = TypeVar("_T")
+
+    class _Writable(Generic[_T]):
+        """How the type checker sees a PLCTONC member: the property :func:`_plc_property` makes."""
+
+        def __get__(self, obj: object, owner: type | None = None) -> _T: ...
+
+        def __set__(self, obj: object, value: _T) -> None: ...
 
 
 def _docs(struct_name: str) -> dict[str, str]:
@@ -69,6 +81,50 @@ class NCTOPLC_AXIS_REF:
 
     __slots__ = ("_raw", "_v", "_rec")
     dtype = NCTOPLC_DTYPE
+    # the members: read-only properties set from the layout below, declared here for the type checker
+    # (tests/plc/test_declarations.py checks them against the layout)
+    StateDWord: int
+    ErrorCode: int
+    AxisState: int
+    AxisModeConfirmation: int
+    HomingState: int
+    CoupleState: int
+    SvbEntries: int
+    SafEntries: int
+    AxisId: int
+    OpModeDWord: int
+    ActPos: float
+    ModuloActPos: float
+    ActiveControlLoopIndex: int
+    ControlLoopIndex: int
+    ModuloActTurns: int
+    ActVelo: float
+    PosDiff: float
+    SetPos: float
+    SetVelo: float
+    SetAcc: float
+    TargetPos: float
+    ModuloSetPos: float
+    ModuloSetTurns: int
+    CmdNo: int
+    CmdState: int
+    SetJerk: float
+    SetTorque: float
+    ActTorque: float
+    StateDWord2: int
+    StateDWord3: int
+    TouchProbeState: int
+    TouchProbeCounter: int
+    CamCouplingState: tuple[int, ...]
+    CamCouplingTableID: tuple[int, ...]
+    ActTorqueDerivative: float
+    SetTorqueDerivative: float
+    AbsPhasingPos: float
+    TorqueOffset: float
+    ActPosWithoutPosCorrection: float
+    ActAcc: float
+    DcTimeStamp: int
+    UserData: float
 
     def __init__(self, raw: bytes = _ZERO_NCTOPLC) -> None:
         if len(raw) != NCTOPLC_DTYPE.itemsize:
@@ -132,7 +188,7 @@ class NCTOPLC_AXIS_REF:
             return self._raw == other._raw
         return NotImplemented
 
-    __hash__ = None  # type: ignore[assignment]
+    __hash__ = None  # type: ignore[assignment]  # unhashable, as __eq__ makes it (typeshed: a method)
 
     def __repr__(self) -> str:
         return (f"NCTOPLC_AXIS_REF(AxisId={self['AxisId']}, SetPos={self['SetPos']!r}, ActPos={self['ActPos']!r}, "
@@ -198,6 +254,27 @@ class PLCTONC_AXIS_REF:
 
     __slots__ = ("_buf", "_arr")
     dtype = PLCTONC_DTYPE
+    # the members: properties set from the layout below, declared here for the type checker
+    # (tests/plc/test_declarations.py checks them against the layout)
+    ControlDWord: _Writable[int]
+    Override: _Writable[int]
+    AxisModeRequest: _Writable[int]
+    AxisModeDWord: _Writable[int]
+    AxisModeLReal: _Writable[float]
+    PositionCorrection: _Writable[float]
+    ExtSetPos: _Writable[float]
+    ExtSetVelo: _Writable[float]
+    ExtSetAcc: _Writable[float]
+    ExtSetDirection: _Writable[int]
+    ExtControllerOutput: _Writable[float]
+    GearRatio1: _Writable[float]
+    GearRatio2: _Writable[float]
+    GearRatio3: _Writable[float]
+    GearRatio4: _Writable[float]
+    MapState: _Writable[int]
+    PlcCycleControl: _Writable[int]
+    PlcCycleCount: _Writable[int]
+    ExtTorque: _Writable[float]
 
     def __init__(self) -> None:
         self._buf = bytearray(PLCTONC_DTYPE.itemsize)

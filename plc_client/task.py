@@ -227,7 +227,8 @@ class PlcTask:
         self._handovers: list[HandOverRequest] = []
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
-        self._frames: dict[str, tuple[int, np.ndarray, dict[int, int]]] = {}
+        #: NC -> (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None) of its newest frame
+        self._frames: dict[str, tuple[int, np.ndarray, dict[int, int], np.ndarray | None]] = {}
         #: each NC's instance as its instance token and frames show it: the restart rule (nc_schema.instance)
         self._instances: dict[str, NcInstance] = {}
         self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
@@ -348,6 +349,7 @@ class PlcTask:
         c.pending.owner = ax
 
     def _update_claims(self, late: list[PendingCommand]) -> None:
+        c: ClaimState | None  # (the loops below also look claims up)
         for key, c in self._claims.items():
             p = c.pending
             if c.state == "awaiting" and p is not None:

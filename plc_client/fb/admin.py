@@ -78,6 +78,18 @@ class MC_Power(FunctionBlock):
     _INPUTS = {"Enable": False, "Enable_Positive": False, "Enable_Negative": False, "Override": 100.0,
                "BufferMode": 0}
     _OUTPUTS = {"Status": False, "Busy": False, "Active": False, "Error": False, "ErrorID": 0}
+    # inputs
+    Enable: bool
+    Enable_Positive: bool
+    Enable_Negative: bool
+    Override: float
+    BufferMode: int
+    # outputs
+    Status: bool
+    Busy: bool
+    Active: bool
+    Error: bool
+    ErrorID: int
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -155,6 +167,7 @@ class MC_SetOverride(ExecuteBlock):
 
     _INPUTS = {"Execute": False, "Override": 100.0}
     _OUTPUTS = {"Done": False, "Busy": False, "Active": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
+    Override: float
 
     def _start(self) -> None:
         if not _valid_override(self.Override):
@@ -178,6 +191,7 @@ class MC_ReadActualPosition(EnableBlock):
     """Actual position (TcMC 4.3). Outputs: Valid, Done, Busy, Error, ErrorID, Position [u]."""
 
     _OUTPUTS = {**EnableBlock._OUTPUTS, "Position": 0.0}
+    Position: float
 
     def _read(self, ax: AXIS_REF) -> None:
         self.Position = float(ax.NcToPlc["ActPos"])
@@ -194,6 +208,17 @@ class MC_ReadStatus(EnableBlock):
              "SynchronizedMotion": "SynchronizedMotion", "Homing": "Homing", "ConstantVelocity": "ConstantVelocity",
              "Accelerating": "Accelerating", "Decelerating": "Decelerating"}
     _OUTPUTS: ClassVar[dict[str, Any]] = {**EnableBlock._OUTPUTS, **{k: False for k in _FLAT}}
+    Status: ST_AxisStatus
+    Errorstop: bool
+    Stopping: bool
+    StandStill: bool
+    DiscreteMotion: bool
+    ContinuousMotion: bool
+    SynchronizedMotion: bool
+    Homing: bool
+    ConstantVelocity: bool
+    Accelerating: bool
+    Decelerating: bool
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -209,6 +234,7 @@ class MC_ReadAxisError(EnableBlock):
     """Axis error code (TcMC 4.5 / Tc2_MC2). Outputs: Valid, Done, Busy, Error, ErrorID, AxisErrorID."""
 
     _OUTPUTS = {**EnableBlock._OUTPUTS, "AxisErrorID": 0}
+    AxisErrorID: int
 
     def _read(self, ax: AXIS_REF) -> None:
         self.AxisErrorID = int(ax.NcToPlc["ErrorCode"])

@@ -70,6 +70,7 @@ class MC_NewPos(_AmendBlock):
 
     CMD = "NewPos"
     _INPUTS = {"Execute": False, "NewPos": 0.0}
+    NewPos: float
     _REALS = ("NewPos",)
 
 
@@ -92,14 +93,20 @@ class MC_NewPosAndVelo(_AmendBlock):
     CMD = "NewPosAndVelo"
     _INPUTS = {"Execute": False, "Mode": int(E_CmdTypeNewTargPosAndVelo.CHANGE_POSANDVELO), "NewPos": 0.0,
                "NewVelo": 0.0, "ActivationPos": 0.0}
+    Mode: int
+    NewPos: float
+    NewVelo: float
+    ActivationPos: float
     _REALS = ("NewPos", "NewVelo", "ActivationPos")
 
     def _args(self) -> dict[str, Any] | None:
-        mode = _wire_int(self.Mode)  # type: ignore[attr-defined]
+        mode = _wire_int(self.Mode)
         if mode is None:
             self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
             return None
-        return {"Mode": mode, **super()._args()}  # type: ignore[dict-item]
+        reals = super()._args()
+        assert reals is not None  # (_AmendBlock's are always there)
+        return {"Mode": mode, **reals}
 
 
 class MC_ChangeDynParam(MotionBlock):
@@ -132,6 +139,9 @@ class MC_ChangeDynParam(MotionBlock):
     _UNDO_ON_LOSS = False  # it amends another block's job
     _INPUTS = {"Execute": False, "Acceleration": 0.0, "Deceleration": 0.0, "Jerk": 0.0}
     _OUTPUTS = {"Done": False, "Busy": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
     _REALS = ("Acceleration", "Deceleration", "Jerk")
     _RETRIGGER = True
 

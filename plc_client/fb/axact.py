@@ -64,7 +64,7 @@ from __future__ import annotations
 import datetime
 import math
 import numbers
-from typing import Any, Callable, ClassVar
+from typing import Any, Callable, ClassVar, Self
 
 import numpy as np
 
@@ -102,6 +102,12 @@ def _rel_step(sign: float, step: float | None) -> _Build:
     return build
 
 
+def _modulo_to(direction: int) -> _Build:
+    def build(v: float, p: float, _: dict[int, Any]) -> tuple[str, dict[str, Any]]:
+        return "MoveModulo", {"Position": p, "Velocity": v, "Direction": direction}
+    return build
+
+
 _MODES: dict[int, tuple[tuple[str, ...], tuple[int, ...], _Build]] = {
     1: (("VELOCITY", "TARGPOS"), (), lambda v, p, _: ("MoveAbsolute", {"Position": p, "Velocity": v})),
     2: (("VELOCITY", "TARGPOS"), (), lambda v, p, _: ("MoveRelative", {"Distance": p, "Velocity": v})),
@@ -118,8 +124,7 @@ _MODES: dict[int, tuple[tuple[str, ...], tuple[int, ...], _Build]] = {
     289: ((), (_P_SCALING, _P_MANSLOW), _rel_step(-1.0, None)),
 }
 for _mode, _dir in ((261, _SHORT), (517, _POS), (773, _NEG), (1029, _CURRENT)):
-    _MODES[_mode] = (("VELOCITY", "TARGPOS"), (),
-                     lambda v, p, _, d=_dir: ("MoveModulo", {"Position": p, "Velocity": v, "Direction": d}))
+    _MODES[_mode] = (("VELOCITY", "TARGPOS"), (), _modulo_to(_dir))
 for _base, _step in ((544, 0.001), (800, 0.01), (1056, 0.1), (1312, 1.0)):
     _MODES[_base] = ((), (_P_MANSLOW,), _rel_step(1.0, _step))
     _MODES[_base + 1] = ((), (_P_MANSLOW,), _rel_step(-1.0, _step))
@@ -149,6 +154,16 @@ class AXACT(FunctionBlock):
     _INPUTS: ClassVar[dict[str, Any]] = {"AXID": 1, "START": False, "STOP": False, "MODE": 1, "VELOCITY": 0.0,
                                          "TARGPOS": 0.0, "TMOUT": 1.0}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"BUSY": False, "ERR": False, "ERRID": 0}
+    AXID: int
+    START: bool
+    STOP: bool
+    MODE: int
+    VELOCITY: float
+    TARGPOS: float
+    TMOUT: float | datetime.timedelta
+    BUSY: bool
+    ERR: bool
+    ERRID: int
 
     def __init__(self, nc: str = "nc1") -> None:
         AXIS_REF(nc=nc, axis_id=1)  # validates the NC name (ValueError)
@@ -166,7 +181,7 @@ class AXACT(FunctionBlock):
         self._inputs: tuple[float, float] = (0.0, 0.0)
         self._pending: PendingCommand | None = None
 
-    def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> AXACT:  # type: ignore[override]
+    def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> Self:
         if Axis is not None:
             raise TypeError("AXACT addresses its axis by AXID (and the nc given to its constructor), not by Axis")
         super().__call__(None, **inputs)

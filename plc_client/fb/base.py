@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
@@ -44,7 +44,10 @@ from ..task import PlcTask, current_task
 class FunctionBlock:
     """Base of all blocks: input handling and the Axis binding.
 
-    Subclasses declare ``_INPUTS`` (name -> default) and ``_OUTPUTS`` (name -> reset value).
+    Subclasses declare ``_INPUTS`` (name -> default) and ``_OUTPUTS`` (name -> reset value), and
+    annotate each of those names in the class body (``Execute: bool``) so that the type checker
+    knows the attributes ``__init__`` creates from the two maps (tests/plc/test_declarations.py
+    checks that none is missing).
     """
 
     _INPUTS: ClassVar[dict[str, Any]] = {}
@@ -63,7 +66,7 @@ class FunctionBlock:
         for k, v in self._OUTPUTS.items():
             setattr(self, k, v)
 
-    def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> FunctionBlock:
+    def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> Self:
         if Axis is not None:
             if not isinstance(Axis, AXIS_REF):
                 raise TypeError(f"{type(self).__name__}: Axis must be an AXIS_REF, got {type(Axis).__name__}")
@@ -130,6 +133,13 @@ class ExecuteBlock(FunctionBlock):
                                           "Error": False, "ErrorID": 0}
     #: the output that means success (InVelocity for MC_MoveVelocity)
     _DONE: ClassVar[str] = "Done"
+    Execute: bool
+    Done: bool
+    Busy: bool
+    Active: bool
+    CommandAborted: bool
+    Error: bool
+    ErrorID: int
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -202,8 +212,9 @@ class ExecuteBlock(FunctionBlock):
         ax = self._usable_axis()
         if ax is None:
             return False
+        assert ax._task is not None  # (_usable_axis: bound)
         self._epoch = ax.nc_epoch
-        self._pending = ax._task.send(ax, cmd, **args)  # type: ignore[union-attr]
+        self._pending = ax._task.send(ax, cmd, **args)
         return True
 
     def _lost_axis(self) -> bool:
@@ -305,6 +316,12 @@ class EnableBlock(FunctionBlock):
 
     _INPUTS: ClassVar[dict[str, Any]] = {"Enable": False}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Valid": False, "Done": False, "Busy": False, "Error": False, "ErrorID": 0}
+    Enable: bool
+    Valid: bool
+    Done: bool
+    Busy: bool
+    Error: bool
+    ErrorID: int
 
     def _cycle(self) -> None:
         if not self.Enable:
@@ -318,7 +335,8 @@ class EnableBlock(FunctionBlock):
             self.Error, self.ErrorID = True, code
             return
         self.Error, self.ErrorID = False, 0
-        self._read(self.Axis)  # type: ignore[arg-type]
+        assert self.Axis is not None  # (_axis_problem checked it)
+        self._read(self.Axis)
         self.Valid = self.Done = True
 
     def _read(self, ax: AXIS_REF) -> None:  # pragma: no cover - abstract

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import logging
 import numbers
-from typing import Any
+from typing import TYPE_CHECKING, Any, Self
 
 import numpy as np
 
@@ -100,16 +100,22 @@ def _check_axis_arg(block: str, name: str, v: Any) -> None:
         raise TypeError(f"{block}: {name} must be an AXIS_REF, got {type(v).__name__}")
 
 
-class _SlaveCall:
+if TYPE_CHECKING:
+    # the checker sees the block the mixin is combined with (its super().__call__, its Axis)
+    _SlaveCallBase = ExecuteBlock
+else:
+    _SlaveCallBase = object
+
+
+class _SlaveCall(_SlaveCallBase):
     """Mixin of the blocks acting on a slave alone: the ``Slave`` keyword is the block's Axis."""
 
-    Axis: AXIS_REF | None
-
-    def __call__(self, Slave: AXIS_REF | None = None, **inputs: Any) -> Any:
+    # [override]: TcMC names the axis Slave, so Axis= is refused (not substitutable, on purpose)
+    def __call__(self, Slave: AXIS_REF | None = None, **inputs: Any) -> Self:  # type: ignore[override]
         if "Axis" in inputs:
             raise TypeError(f"{type(self).__name__}: pass the slave axis as Slave=..., not Axis=...")
         _check_axis_arg(type(self).__name__, "Slave", Slave)
-        return super().__call__(Axis=Slave, **inputs)  # type: ignore[misc]
+        return super().__call__(Axis=Slave, **inputs)
 
     @property
     def Slave(self) -> AXIS_REF | None:
@@ -121,14 +127,16 @@ class _GearInBlock(MotionBlock):
     """Couple Slave to Master and follow the coupling job (see the module docstring)."""
 
     _OUTPUTS = {"InGear": False, "Busy": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
+    InGear: bool
     _DONE = "InGear"
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
         self.Master: AXIS_REF | None = None
 
+    # [override]: TcMC names the axes Master and Slave, so Axis= is refused (not substitutable, on purpose)
     def __call__(self, Master: AXIS_REF | None = None, Slave: AXIS_REF | None = None,  # type: ignore[override]
-                 **inputs: Any) -> Any:
+                 **inputs: Any) -> Self:
         name = type(self).__name__
         if "Axis" in inputs:
             raise TypeError(f"{name}: pass the axes as Master=... and Slave=..., not Axis=...")
@@ -198,7 +206,8 @@ class _GearInBlock(MotionBlock):
 
     # -- following (MotionBlock calls these) ---------------------------------------------
     def _on_active(self, sdw: int) -> None:
-        if int(self.Axis.NcToPlc["AxisState"]) == _SYNCHRON:  # type: ignore[union-attr]
+        assert self.Axis is not None  # (_follow checked it)
+        if int(self.Axis.NcToPlc["AxisState"]) == _SYNCHRON:
             self.InGear = True  # latched until the coupling ends
 
     def _on_done(self, rec: Any, sdw: int) -> None:
@@ -235,10 +244,15 @@ class MC_GearIn(_GearInBlock):
 
     CMD = "GearIn"
     _INPUTS = {"Execute": False, "RatioNumerator": 1, "RatioDenominator": 1, **_DYN}
+    RatioNumerator: int
+    RatioDenominator: int
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
 
     def _ratio_args(self) -> dict[str, Any] | None:
-        num = _integer_in(self.RatioNumerator, *_INT16)  # type: ignore[attr-defined]
-        den = _integer_in(self.RatioDenominator, *_UINT16_POSITIVE)  # type: ignore[attr-defined]
+        num = _integer_in(self.RatioNumerator, *_INT16)
+        den = _integer_in(self.RatioDenominator, *_UINT16_POSITIVE)
         if num is None or den is None:
             return None
         return {"RatioNumerator": num, "RatioDenominator": den}
@@ -254,9 +268,13 @@ class MC_GearInFloat(_GearInBlock):
 
     CMD = "GearInFloat"
     _INPUTS = {"Execute": False, "GearRatio": 1.0, **_DYN}
+    GearRatio: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
 
     def _ratio_args(self) -> dict[str, Any] | None:
-        r = self.GearRatio  # type: ignore[attr-defined]
+        r = self.GearRatio
         return {"GearRatio": float(r)} if self._is_real(r) else None
 
 
@@ -291,15 +309,19 @@ class MC_GearInDyn(_GearInBlock):
 
     CMD = "GearInDyn"
     _INPUTS = {"Execute": False, "GearRatio": 1.0, **_DYN}
+    GearRatio: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
 
     def _ratio_args(self) -> dict[str, Any] | None:
-        r = self.GearRatio  # type: ignore[attr-defined]
+        r = self.GearRatio
         return {"GearRatio": float(r)} if self._is_real(r) else None
 
     def _write_ratio(self) -> None:
         ax = self.Axis
-        if ax is not None and self._is_real(self.GearRatio):  # type: ignore[attr-defined]
-            ax.PlcToNc["GearRatio1"] = float(self.GearRatio)  # type: ignore[attr-defined]
+        if ax is not None and self._is_real(self.GearRatio):
+            ax.PlcToNc["GearRatio1"] = float(self.GearRatio)
 
     def _before_send(self) -> None:
         ax = self.Axis
@@ -362,6 +384,12 @@ class MC_GearOutExt(_SlaveCall, MotionBlock):
     _UNDO_ON_LOSS = False  # it ends a coupling with a stop: nothing to undo
     _INPUTS = {"Execute": False, "Mode": 0, "Position": 0.0, "Velocity": 0.0, **_DYN}
     _OUTPUTS = {"Done": False, "Busy": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
+    Mode: int
+    Position: float
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
     _REALS = ("Position", "Velocity", "Acceleration", "Deceleration", "Jerk")
 
     def __init__(self, timeout: float | None = None) -> None:
@@ -371,7 +399,7 @@ class MC_GearOutExt(_SlaveCall, MotionBlock):
 
     def _start(self) -> None:
         self._standing = False
-        mode = _integer_in(self.Mode, min(_GEAROUT_END), max(_GEAROUT_END))  # type: ignore[attr-defined]
+        mode = _integer_in(self.Mode, min(_GEAROUT_END), max(_GEAROUT_END))
         if mode is None or mode not in _GEAROUT_END:
             self._finish("Error", ErrorCodes.MC_INVALID_MODE)
             return
@@ -381,7 +409,7 @@ class MC_GearOutExt(_SlaveCall, MotionBlock):
     def _args(self) -> dict[str, Any] | None:
         a = super()._args()
         if a is not None:
-            a["Mode"] = int(self.Mode)  # type: ignore[attr-defined]
+            a["Mode"] = int(self.Mode)
         return a
 
     def _progress(self) -> None:

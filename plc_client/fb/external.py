@@ -52,6 +52,7 @@ class _ExtSetPointBlock(ExecuteBlock):
     """Done once the command's frame is shown; ``Enabled`` every cycle (see the module docstring)."""
 
     _OUTPUTS = {"Done": False, "Busy": False, "Error": False, "ErrorID": 0, "Enabled": False}
+    Enabled: bool
 
     def _cycle(self) -> None:
         super()._cycle()
@@ -72,13 +73,15 @@ class MC_ExtSetPointGenEnable(_ExtSetPointBlock):
     """
 
     _INPUTS = {"Execute": False, "Position": 0.0, "PositionType": 1}
+    Position: float
+    PositionType: int
 
     def _start(self) -> None:
         self._cycle_no = 0
-        if not self._is_real(self.Position):  # type: ignore[attr-defined]
+        if not self._is_real(self.Position):
             self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
             return
-        pt = _integer_in(self.PositionType, min(_POS_TYPES), max(_POS_TYPES))  # type: ignore[attr-defined]
+        pt = _integer_in(self.PositionType, min(_POS_TYPES), max(_POS_TYPES))
         if pt is None or pt not in _POS_TYPES:
             self._finish("Error", ErrorCodes.MC_INVALID_MODE)
             return
@@ -91,7 +94,7 @@ class MC_ExtSetPointGenEnable(_ExtSetPointBlock):
         out["ExtSetVelo"] = 0.0
         out["ExtSetAcc"] = 0.0
         out["ExtSetDirection"] = 0
-        self._send("ExtSetPointGenEnable", Position=float(self.Position), PositionType=pt)  # type: ignore[attr-defined]
+        self._send("ExtSetPointGenEnable", Position=float(self.Position), PositionType=pt)
 
 
 class MC_ExtSetPointGenDisable(_ExtSetPointBlock):

@@ -88,6 +88,10 @@ class MC_Home(MotionBlock):
         "Execute": False, "Position": DEFAULT_HOME_POSITION, "HomingMode": int(MC_HomingMode.MC_DefaultHoming),
         "BufferMode": 0, "bCalibrationCam": False,
     }
+    Position: float
+    HomingMode: int
+    BufferMode: int
+    bCalibrationCam: bool
     _REALS = ("Position",)
     _END = "standstill"
 
@@ -133,7 +137,9 @@ class MC_Home(MotionBlock):
         if ready and homed_ok:
             self._finish("Done")
             return
-        now = self.Axis._task.now  # type: ignore[union-attr]
+        ax = self.Axis
+        assert ax is not None and ax._task is not None  # (_follow: bound, valid data)
+        now = ax._task.now
         if self._done_since is None:
             self._done_since = now
         elif now - self._done_since >= DONE_WINDOW_TIMEOUT:

@@ -87,6 +87,14 @@ class MC_Jog(MotionBlock):
         "JogForward": False, "JogBackwards": False, "Mode": int(E_JogMode.MC_JOGMODE_STANDARD_SLOW),
         "Position": 0.0, "Velocity": 0.0, "Acceleration": 0.0, "Deceleration": 0.0, "Jerk": 0.0,
     }
+    JogForward: bool
+    JogBackwards: bool
+    Mode: int
+    Position: float
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -101,6 +109,7 @@ class MC_Jog(MotionBlock):
         self._halt_args: dict[str, float] = {}
 
     # -- what MotionBlock sends and how it ends ------------------------------------------
+    # [override]: properties where MotionBlock has class constants (the latched jog mode decides)
     @property
     def _REALS(self) -> tuple[str, ...]:  # type: ignore[override]
         if self._mode in _STANDARD:

@@ -131,10 +131,11 @@ class MotionBlock(ExecuteBlock):
         """The command's arguments: the latched real inputs, Direction and BufferMode where the
         block has them. None (the block finished with Error) if BufferMode cannot be sent."""
         a: dict[str, Any] = {k: float(getattr(self, k)) for k in self._REALS}
+        # (getattr: only the blocks whose _INPUTS have them have these attributes)
         if "Direction" in self._INPUTS:
-            a["Direction"] = _int_or_invalid(self.Direction)  # type: ignore[attr-defined]
+            a["Direction"] = _int_or_invalid(getattr(self, "Direction"))
         if "BufferMode" in self._INPUTS:
-            bm = _wire_int(self.BufferMode)  # type: ignore[attr-defined]
+            bm = _wire_int(getattr(self, "BufferMode"))
             if bm is None:
                 self._finish("Error", ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED)
                 return None
@@ -288,7 +289,9 @@ class MotionBlock(ExecuteBlock):
         if ok:
             self._finish(self._DONE)
             return
-        now = self.Axis._task.now  # type: ignore[union-attr]
+        ax = self.Axis
+        assert ax is not None and ax._task is not None  # (_follow: bound, valid data)
+        now = ax._task.now
         if self._done_since is None:
             self._done_since = now
         elif now - self._done_since >= DONE_WINDOW_TIMEOUT:
@@ -309,6 +312,12 @@ class MC_MoveAbsolute(MotionBlock):
 
     CMD = "MoveAbsolute"
     _INPUTS = {"Execute": False, "Position": 0.0, "Velocity": 0.0, **_DYN, **_BM}
+    Position: float
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    BufferMode: int
     _REALS = ("Position", "Velocity", "Acceleration", "Deceleration", "Jerk")
 
 
@@ -318,6 +327,12 @@ class MC_MoveRelative(MotionBlock):
 
     CMD = "MoveRelative"
     _INPUTS = {"Execute": False, "Distance": 0.0, "Velocity": 0.0, **_DYN, **_BM}
+    Distance: float
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    BufferMode: int
     _REALS = ("Distance", "Velocity", "Acceleration", "Deceleration", "Jerk")
 
 
@@ -333,6 +348,12 @@ class MC_MoveAdditive(MotionBlock):
 
     CMD = "MoveAdditive"
     _INPUTS = {"Execute": False, "Distance": 0.0, "Velocity": 0.0, **_DYN, **_BM}
+    Distance: float
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    BufferMode: int
     _REALS = ("Distance", "Velocity", "Acceleration", "Deceleration", "Jerk")
 
 
@@ -342,6 +363,13 @@ class MC_MoveModulo(MotionBlock):
     CMD = "MoveModulo"
     _INPUTS = {"Execute": False, "Position": 0.0, "Velocity": 0.0, **_DYN,
                "Direction": int(MC_Direction.MC_Positive_Direction), **_BM}
+    Position: float
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    Direction: int
+    BufferMode: int
     _REALS = ("Position", "Velocity", "Acceleration", "Deceleration", "Jerk")
 
 
@@ -366,6 +394,13 @@ class MC_MoveVelocity(MotionBlock):
                "Direction": int(MC_Direction.MC_Positive_Direction), **_BM}
     _OUTPUTS = {"InVelocity": False, "Busy": False, "Active": False, "CommandAborted": False,
                 "Error": False, "ErrorID": 0}
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    Direction: int
+    BufferMode: int
+    InVelocity: bool
     _DONE = "InVelocity"
     _REALS = ("Velocity", "Acceleration", "Deceleration", "Jerk")
     _END = "velocity"
@@ -406,12 +441,14 @@ class _MoveContinuous(MotionBlock):
 
     _OUTPUTS = {"InEndVelocity": False, "Busy": False, "Active": False, "CommandAborted": False,
                 "Error": False, "ErrorID": 0}
+    InEndVelocity: bool
     _DONE = "InEndVelocity"
 
     def _on_active(self, sdw: int) -> None:
         if not (sdw & _CONSTV and sdw & _HASJOB):
             return
-        rec = self.Axis.NcToPlc  # type: ignore[union-attr]
+        assert self.Axis is not None  # (_follow checked it)
+        rec = self.Axis.NcToPlc
         v = float(rec["SetVelo"])
         if v != 0.0 and (float(rec["SetPos"]) - float(rec["TargetPos"])) * v >= 0.0:
             self._finish("InEndVelocity")
@@ -428,6 +465,13 @@ class MC_MoveContinuousAbsolute(_MoveContinuous):
 
     CMD = "MoveContinuousAbsolute"
     _INPUTS = {"Execute": False, "Position": 0.0, "Velocity": 0.0, "EndVelocity": 0.0, **_DYN, **_BM}
+    Position: float
+    Velocity: float
+    EndVelocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    BufferMode: int
     _REALS = ("Position", "Velocity", "EndVelocity", "Acceleration", "Deceleration", "Jerk")
 
 
@@ -442,6 +486,13 @@ class MC_MoveContinuousRelative(_MoveContinuous):
 
     CMD = "MoveContinuousRelative"
     _INPUTS = {"Execute": False, "Distance": 0.0, "Velocity": 0.0, "EndVelocity": 0.0, **_DYN, **_BM}
+    Distance: float
+    Velocity: float
+    EndVelocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    BufferMode: int
     _REALS = ("Distance", "Velocity", "EndVelocity", "Acceleration", "Deceleration", "Jerk")
 
 
@@ -463,6 +514,11 @@ class MC_MoveAbsoluteOrRestart(MotionBlock):
 
     CMD = "MoveAbsoluteOrRestart"
     _INPUTS = {"Execute": False, "Position": 0.0, "Velocity": 0.0, **_DYN}
+    Position: float
+    Velocity: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
     _REALS = ("Position", "Velocity", "Acceleration", "Deceleration", "Jerk")
     _RETRIGGER = True
 
@@ -477,6 +533,9 @@ class MC_Halt(MotionBlock):
     CMD = "Halt"
     _UNDO_ON_LOSS = False  # a stop: nothing to undo
     _INPUTS = {"Execute": False, "Deceleration": 0.0, "Jerk": 0.0, **_BM}
+    Deceleration: float
+    Jerk: float
+    BufferMode: int
     _REALS = ("Deceleration", "Jerk")
     _END = "standstill"
 
@@ -497,6 +556,9 @@ class MC_OrientedStop(MotionBlock):
     CMD = "OrientedStop"
     _UNDO_ON_LOSS = False  # a stop: nothing to undo
     _INPUTS = {"Execute": False, "Position": 0.0, "Deceleration": 0.0, "Jerk": 0.0}
+    Position: float
+    Deceleration: float
+    Jerk: float
     _REALS = ("Position", "Deceleration", "Jerk")
     _END = "standstill"
 
@@ -512,6 +574,8 @@ class MC_Stop(MotionBlock):
     CMD = "Stop"
     _UNDO_ON_LOSS = False  # a stop: nothing to undo
     _INPUTS = {"Execute": False, "Deceleration": 0.0, "Jerk": 0.0}
+    Deceleration: float
+    Jerk: float
     _REALS = ("Deceleration", "Jerk")
     _END = "standstill"
 

@@ -25,7 +25,7 @@ import datetime
 import math
 import numbers
 import time
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
@@ -57,6 +57,15 @@ class MC_OverrideFilter(FunctionBlock):
                                          "OverrideRecoveryTime": 0.15}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"OverrideValueFiltered": 0, "OverridePercentFiltered": 0.0,
                                           "Error": False, "ErrorId": 0}
+    OverrideValueRaw: int
+    LowerOverrideThreshold: int
+    UpperOverrideThreshold: int
+    OverrideSteps: int
+    OverrideRecoveryTime: float | datetime.timedelta
+    OverrideValueFiltered: int
+    OverridePercentFiltered: float
+    Error: bool
+    ErrorId: int
 
     def __init__(self) -> None:
         super().__init__()
@@ -67,7 +76,7 @@ class MC_OverrideFilter(FunctionBlock):
         """The same as ErrorId (the spelling of the other blocks)."""
         return int(self.ErrorId)
 
-    def __call__(self, Axis: Any = None, **inputs: Any) -> MC_OverrideFilter:  # type: ignore[override]
+    def __call__(self, Axis: Any = None, **inputs: Any) -> Self:
         """Call with the inputs (no Axis: the block computes only; an Axis passed is ignored)."""
         for k, v in inputs.items():
             if k not in self._INPUTS:
@@ -109,8 +118,8 @@ class MC_OverrideFilter(FunctionBlock):
         if value == self.OverrideValueFiltered and self._changed_at is not None:
             return
         now = self._now()
-        immediate = value in (0, OVERRIDE_FULL) or self._changed_at is None
-        if immediate or now - self._changed_at >= recovery:  # type: ignore[operator]
+        changed_at = self._changed_at
+        if value in (0, OVERRIDE_FULL) or changed_at is None or now - changed_at >= recovery:
             self.OverrideValueFiltered = int(value)
             self.OverridePercentFiltered = value / 10000.0
             self._changed_at = now

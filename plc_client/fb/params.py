@@ -85,7 +85,7 @@ class _Struct:
         return type(self)(**self.as_dict())
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self.as_dict() == other.as_dict()  # type: ignore[attr-defined]
+        return type(other) is type(self) and self.as_dict() == other.as_dict()
 
     def __repr__(self) -> str:
         items = ", ".join(f"{k}={v!r}" for k, v in self.as_dict().items() if v not in (0, 0.0, "", [0] * 9))
@@ -133,6 +133,13 @@ class _ReadParam(FunctionBlock):
     _BOOL: ClassVar[bool] = False
     _INPUTS: ClassVar[dict[str, Any]] = {"Enable": False, "ParameterNumber": 0, "ReadMode": E_ReadMode.ReadMode_Once}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Error": False, "ErrorID": 0, "Value": 0.0}
+    Enable: bool
+    ParameterNumber: int
+    ReadMode: int
+    Done: bool
+    Error: bool
+    ErrorID: int
+    Value: float
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -240,6 +247,7 @@ class MC_ReadBoolParameter(_ReadParam):
 
     _BOOL = True
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Error": False, "ErrorID": 0, "Value": False}
+    Value: bool
 
 
 class _WriteParam(FunctionBlock):
@@ -248,6 +256,13 @@ class _WriteParam(FunctionBlock):
     _BOOL: ClassVar[bool] = False
     _INPUTS: ClassVar[dict[str, Any]] = {"Enable": False, "Execute": False, "ParameterNumber": 0, "Value": 0.0}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Error": False, "ErrorID": 0}
+    Enable: bool
+    Execute: bool
+    ParameterNumber: int
+    Value: float
+    Done: bool
+    Error: bool
+    ErrorID: int
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -365,6 +380,7 @@ class MC_WriteBoolParameter(_WriteParam):
 
     _BOOL = True
     _INPUTS: ClassVar[dict[str, Any]] = {"Enable": False, "Execute": False, "ParameterNumber": 0, "Value": False}
+    Value: bool
 
 
 class _ReadStruct(ExecuteBlock):
@@ -414,6 +430,7 @@ class MC_ReadParameterSet(_ReadStruct):
     STRUCT = ST_AxisParameterSet
     IN_OUT = "Parameter"
     _INPUTS: ClassVar[dict[str, Any]] = {"Execute": False, "Parameter": None}
+    Parameter: ST_AxisParameterSet
 
 
 class MC_ReadAxisComponents(_ReadStruct):
@@ -424,6 +441,7 @@ class MC_ReadAxisComponents(_ReadStruct):
     STRUCT = ST_AxisComponents
     IN_OUT = "AxisComponents"
     _INPUTS: ClassVar[dict[str, Any]] = {"Execute": False, "AxisComponents": None}
+    AxisComponents: ST_AxisComponents
 
 
 __all__ = ["MC_ReadParameter", "MC_ReadBoolParameter", "MC_WriteParameter", "MC_WriteBoolParameter",

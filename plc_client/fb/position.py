@@ -79,6 +79,7 @@ class MC_SetActualPosition(_AcceptedCommand):
     CMD = "SetActualPosition"
     _INPUTS: ClassVar[dict[str, Any]] = {"Execute": False, "Position": 0.0}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "CommandAborted": False, "Error": False, "ErrorID": 0}
+    Position: float
 
     def _request(self) -> dict[str, Any] | None:
         if not self._check_inputs(("Position",), buffer_mode=False):
@@ -97,6 +98,8 @@ class MC_SetActualPositionOnTheFly(_AcceptedCommand):
     _INPUTS: ClassVar[dict[str, Any]] = {"Execute": False, "ActualPosition": 0.0, "PreviousPosition": 0.0}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Busy": False, "CommandAborted": False, "Error": False,
                                           "ErrorID": 0}
+    ActualPosition: float
+    PreviousPosition: float
 
     def _request(self) -> dict[str, Any] | None:
         if not self._check_inputs(("ActualPosition", "PreviousPosition"), buffer_mode=False):
@@ -113,6 +116,7 @@ class MC_SetReferenceFlag(_AcceptedCommand):
     CMD = "SetReferenceFlag"
     _INPUTS: ClassVar[dict[str, Any]] = {"Execute": False, "ReferenceFlag": False}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Error": False, "ErrorID": 0}
+    ReferenceFlag: bool
 
     def _request(self) -> dict[str, Any] | None:
         flag = self.ReferenceFlag

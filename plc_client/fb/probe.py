@@ -46,7 +46,7 @@ Busy, Error, ErrorID.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self
 
 from nc_schema import CmdState, E_SignalEdge, E_TouchProbe, E_TouchProbeState, ErrorCodes
 
@@ -104,8 +104,8 @@ class _TriggerBlock(ExecuteBlock):
         super().__init__(timeout)
         self.TriggerInput: MC_InputRef | None = None
 
-    def __call__(self, Axis: AXIS_REF | None = None, TriggerInput: MC_InputRef | None = None,  # type: ignore[override]
-                 **inputs: Any) -> Any:
+    def __call__(self, Axis: AXIS_REF | None = None, TriggerInput: MC_InputRef | None = None,
+                 **inputs: Any) -> Self:
         if TriggerInput is not None:
             if not isinstance(TriggerInput, MC_InputRef):
                 raise TypeError(f"{type(self).__name__}: TriggerInput must be an MC_InputRef, "
@@ -125,6 +125,10 @@ class MC_TouchProbe(_TriggerBlock):
     _INPUTS = {"Execute": False, "WindowOnly": False, "FirstPosition": 0.0, "LastPosition": 0.0}
     _OUTPUTS = {"Done": False, "Busy": False, "CommandAborted": False, "Error": False, "ErrorID": 0,
                 "RecordedPosition": 0.0}
+    WindowOnly: bool
+    FirstPosition: float
+    LastPosition: float
+    RecordedPosition: float
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -167,11 +171,11 @@ class MC_TouchProbe(_TriggerBlock):
         if ref is None:
             self._finish("Error", ErrorCodes.MC_TRIGGER_INPUT_INVALID)
             return
-        if not (self._is_real(self.FirstPosition) and self._is_real(self.LastPosition)):  # type: ignore[attr-defined]
+        if not (self._is_real(self.FirstPosition) and self._is_real(self.LastPosition)):
             self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
             return
-        first, last = float(self.FirstPosition), float(self.LastPosition)  # type: ignore[attr-defined]
-        window_only = bool(self.WindowOnly)  # type: ignore[attr-defined]
+        first, last = float(self.FirstPosition), float(self.LastPosition)
+        window_only = bool(self.WindowOnly)
         self._plc_event = _is_plc_event(ref)
         if self._plc_event:
             self._start_plc_event(ref, window_only, first, last)

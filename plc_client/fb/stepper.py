@@ -98,6 +98,16 @@ class MC_PowerStepper(FunctionBlock):
                                          "Override": 100.0, "DestallParams": None, "KL_Status": None,
                                          "KL_Status2": None}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Status": False, "Error": False, "ErrorID": 0}
+    Enable: bool
+    Enable_Positive: bool
+    Enable_Negative: bool
+    Override: float
+    DestallParams: ST_PowerStepperStruct | dict[str, Any]
+    KL_Status: int | None
+    KL_Status2: int | None
+    Status: bool
+    Error: bool
+    ErrorID: int
 
     def __init__(self, timeout: float | None = None) -> None:
         super().__init__(timeout)
@@ -161,7 +171,7 @@ class MC_PowerStepper(FunctionBlock):
             return None
         if detect not in {int(m) for m in E_DestallDetectMode} or mode not in {int(m) for m in E_DestallMode}:
             return None
-        return detect, mode, enable, mon  # type: ignore[return-value]
+        return detect, mode, enable, mon
 
     def _terminal_inputs(self, ax: AXIS_REF) -> tuple[int, int]:
         sim = terminal_status(ax)
@@ -197,7 +207,8 @@ class MC_PowerStepper(FunctionBlock):
             if limits is None:
                 return self._read_error
             lag_max, lag_time = limits
-            now = ax._task.now  # type: ignore[union-attr]
+            assert ax._task is not None  # (_cycle checked it)
+            now = ax._task.now
             if lag > lag_max:
                 if self._lag_since is None:
                     self._lag_since = now
@@ -234,7 +245,8 @@ class MC_PowerStepper(FunctionBlock):
                 if err:
                     self._read_error = err
                 else:
-                    self._lag[number] = float(p.reply["Value"])  # type: ignore[index]
+                    assert p.reply is not None  # (no reply: err is set)
+                    self._lag[number] = float(p.reply["Value"])
             elif p is not None and task.now - p.sent_at >= self._timeout():
                 p.abandon()
                 del self._reads[number]
@@ -250,7 +262,8 @@ class MC_PowerStepper(FunctionBlock):
             return
         log.warning("MC_PowerStepper(AxId:=%d) reporting error 0x%04X (%s)!", ax.axis_id, code, what)
         self._reported, self._report_error = code, 0
-        self._report = ax._task.send(ax, "SetExternalError", ErrorCode=code, Unreference=unreference)  # type: ignore[union-attr]
+        assert ax._task is not None  # (_supervise runs on a bound axis)
+        self._report = ax._task.send(ax, "SetExternalError", ErrorCode=code, Unreference=unreference)
 
     def _own_error(self, ax: AXIS_REF | None) -> int:
         """The code this block reported while the axis shows it (or the NC's refusal of the report)."""
@@ -261,7 +274,8 @@ class MC_PowerStepper(FunctionBlock):
             if err:
                 self._report_error, self._reported = err, 0
             else:
-                self._report_cycle = max(1, int(p.reply.get("cycle", 0)))  # type: ignore[union-attr]
+                assert p.reply is not None  # (no reply: err is set)
+                self._report_cycle = max(1, int(p.reply.get("cycle", 0)))
         if self._report_error:
             return self._report_error
         if not self._reported:

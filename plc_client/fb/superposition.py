@@ -116,10 +116,10 @@ class _SuperBlock(ExecuteBlock):
     def _take_actuals(self, value: Any) -> None:
         if not self._ACTUAL_OUTPUTS or not isinstance(value, dict):
             return
-        vals = {k: value.get(k) for k in _ACTUALS}
+        vals: dict[str, Any] = {k: value.get(k) for k in _ACTUALS}
         if all(self._is_real(v) for v in vals.values()):
             for k, v in vals.items():
-                setattr(self, k, float(v))  # type: ignore[arg-type]
+                setattr(self, k, float(v))
             self._actuals_known = True
 
     def _follow(self) -> None:
@@ -136,7 +136,8 @@ class _SuperBlock(ExecuteBlock):
         elif state == _ABORTED:
             self._finish("CommandAborted")
         elif state == _ERROR:
-            self._finish("Error", int(jobs["SuperErrorId"]) or int(self.Axis.NcToPlc["ErrorCode"]))  # type: ignore[union-attr]
+            assert self.Axis is not None  # (_own_slot checked it)
+            self._finish("Error", int(jobs["SuperErrorId"]) or int(self.Axis.NcToPlc["ErrorCode"]))
         # ACTIVE (or not yet ACTIVE): Busy
 
     def _reset_outputs(self) -> None:
@@ -161,9 +162,16 @@ class MC_MoveSuperImposed(_SuperBlock):
 
     _INPUTS = {"Execute": False, "Distance": 0.0, "VelocityDiff": 0.0, **_DYN, "VelocityProcess": 0.0,
                "MaxDistance": 0.0}
+    Distance: float
+    VelocityDiff: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    VelocityProcess: float
+    MaxDistance: float
 
     def _mode_and_length(self) -> tuple[int, Any] | None:
-        return _LENGTHREDUCTION_LIMITED, self.MaxDistance  # type: ignore[attr-defined]
+        return _LENGTHREDUCTION_LIMITED, self.MaxDistance
 
 
 class MC_MoveSuperImposedExt(_SuperBlock):
@@ -178,14 +186,25 @@ class MC_MoveSuperImposedExt(_SuperBlock):
     _INPUTS = {"Execute": False, "Mode": _LENGTHREDUCTION_LIMITED, "Distance": 0.0, "VelocityDiff": 0.0, **_DYN,
                "VelocityProcess": 0.0, "Length": 0.0}
     _OUTPUTS = {**_SuperBlock._OUTPUTS, "ActualVelocityDiff": 0.0, "ActualDistance": 0.0, "ActualLength": 0.0}
+    Mode: int
+    Distance: float
+    VelocityDiff: float
+    Acceleration: float
+    Deceleration: float
+    Jerk: float
+    VelocityProcess: float
+    Length: float
+    ActualVelocityDiff: float
+    ActualDistance: float
+    ActualLength: float
     _ACTUAL_OUTPUTS = True
 
     def _mode_and_length(self) -> tuple[int, Any] | None:
-        mode = _integer_in(self.Mode, 1, 4)  # type: ignore[attr-defined]
+        mode = _integer_in(self.Mode, 1, 4)
         if mode is None:
             self._finish("Error", ErrorCodes.MC_INVALID_MODE)
             return None
-        return mode, self.Length  # type: ignore[attr-defined]
+        return mode, self.Length
 
 
 class MC_AbortSuperposition(ExecuteBlock):
