@@ -88,6 +88,7 @@ class JobEngine:
             a.sp_row[i] = row_bits
             if a.traj_on[i]:
                 a.changed.append(i)  # the buffered set-point bits depend on them (the profile stage)
+        # (the union-attr ignores: numbered means j is not None)
         homing = numbered and j.kind.homing  # type: ignore[union-attr]
         amended = numbered and j.amended  # type: ignore[union-attr]
         a.has_job[i] = numbered

@@ -812,7 +812,7 @@ class NcCore:
         if what == "RemainingTime":
             return float(max(a.traj_dur[i] - a.traj_t[i], 0.0)) if positioning else 0.0
         if what == "RemainingDistance":
-            return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr]
+            return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr]  # (positioning: a target)
         raise AssertionError(f"params.json: unknown status {what!r}")  # a contract bug, not input
 
     # -- commands ----------------------------------------------------------------------------

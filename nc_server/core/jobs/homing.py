@@ -171,7 +171,7 @@ class HomeKind(JobKind):
             return
         job.phase = S4
         v = p.AxisCalibrationVelocityBackward
-        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
+        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]  # (dyn: set on accept)
 
     def _stop(self, core: CoreContext, i: int, job: Job, phase: int) -> None:
         job.phase = phase

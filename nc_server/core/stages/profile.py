@@ -198,9 +198,9 @@ class ProfileStage:
             rows, base = self._take_pending(a, rows, base, group)
         if rows is not None:
             if type(rows) is slice and rows.step is None:  # one row (a command)
-                self._eval_row(core, rows, base, col)  # type: ignore[arg-type]
+                self._eval_row(core, rows, base, col)  # type: ignore[arg-type]  # (base is set with rows)
             else:
-                self._eval(core, rows, base, col)  # type: ignore[arg-type]
+                self._eval(core, rows, base, col)  # type: ignore[arg-type]  # (base is set with rows)
         dt = self.dt
         if core.all_on:
             a.traj_t += dt
