@@ -811,8 +811,8 @@ class NcCore:
         positioning = job is not None and job.numbered and job.target is not None and bool(a.traj_on[i])
         if what == "RemainingTime":
             return float(max(a.traj_dur[i] - a.traj_t[i], 0.0)) if positioning else 0.0
-        if what == "RemainingDistance":
-            return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr]  # (positioning: a target)
+        if what == "RemainingDistance":  # (the ignore: positioning means job and its target are not None)
+            return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr]
         raise AssertionError(f"params.json: unknown status {what!r}")  # a contract bug, not input
 
     # -- commands ----------------------------------------------------------------------------

@@ -81,7 +81,8 @@ class JobKind:
     Class attributes describe how the NC treats a running job of this kind.
     """
 
-    #: (name, commands, is_stop, holds_enable: set per instance by the kinds made for several commands)
+    #: its name (name, commands, is_stop, holds_enable: no ClassVars, a kind made for several commands sets
+    #: them per instance)
     name: str = ""
     #: request commands this kind accepts
     commands: tuple[str, ...] = ()

@@ -171,7 +171,8 @@ class HomeKind(JobKind):
             return
         job.phase = S4
         v = p.AxisCalibrationVelocityBackward
-        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]  # (dyn: set on accept)
+        # (the ignore: a homing job's dyn is set on accept)
+        core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
 
     def _stop(self, core: CoreContext, i: int, job: Job, phase: int) -> None:
         job.phase = phase

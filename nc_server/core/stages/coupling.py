@@ -43,7 +43,8 @@ MAX_RATIO = 1e6
 _EPS_V = 1e-9
 SYNCHRONIZING = int(AxisState.SLAVE_SYNCHRONIZING)
 SYNCHRON = int(AxisState.SLAVE_SYNCHRON)
-#: one level's copies (CouplingStage._levels): rows, masters, ratio, s_base, m_base, any dyn, any synchronizing, AxisState
+#: one level's copies (CouplingStage._levels): rows, masters, ratio, s_base, m_base, any dyn, any synchronizing,
+#: AxisState
 _Level = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool, bool, np.ndarray]
 
 
