@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-core test-loaded bench fuzz clean
+.PHONY: venv demo test test-core test-loaded typecheck bench fuzz clean
 
 venv: $(STAMP)
 
@@ -30,6 +30,11 @@ test-loaded: $(STAMP)
 
 test-core: $(STAMP)
 	$(PY) -m pytest tests/core tests/schema tests/plc $(PYTEST_ARGS)
+
+# mypy with pyproject.toml's [tool.mypy] (strict on nc_schema, nc_server.core, nc_link); tests/test_typecheck.py
+# runs the same and fails on any error
+typecheck: $(STAMP)
+	$(PY) -m mypy
 
 # All seven run even if one fails; the target fails if any did. NC_CYCLE_ARGS e.g. "--baseline none" or
 # "--axes 64 256 --rounds 3"; the defaults keep the whole target around 4-5 minutes.
@@ -64,4 +69,4 @@ fuzz: $(STAMP)
 	PYTHONPATH=$(CURDIR) $(PY) -m tests.fuzz --time $(FUZZ_TIME) $(FUZZ_TARGETS)
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache

@@ -146,7 +146,7 @@ class NcLink:
             self.token = self.pub = self.alive_sub = self.instance_sub = self.claims_sub = self.frames = None
         if self.session is not None:
             try:
-                self.session.close()
+                self.session.close()  # type: ignore[no-untyped-call]  # (zenoh's stub leaves close() unannotated)
             except Exception:
                 pass
             if undeclare:

@@ -29,6 +29,7 @@ from nc_schema import PLCTONC_DTYPE
 CONTROL_ENABLE_ALL = 0x7
 CONTROL_ENABLE = 0x1
 _CW = struct.Struct("<I")
+assert PLCTONC_DTYPE.fields is not None  # (a structured dtype)
 _CW_OFF = int(PLCTONC_DTYPE.fields["ControlDWord"][1])
 _OVERRIDE_OFF = int(PLCTONC_DTYPE.fields["Override"][1])
 

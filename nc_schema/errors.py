@@ -5,7 +5,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from .generated import ERRORS, ErrorCodes
 
@@ -31,10 +31,14 @@ class NcError(Exception):
     Attributes:
         code: the TwinCAT/ADS/zenoh-nc error code (errors.json).
         detail: what exactly was wrong, for humans.
+        request_id, cmd: set by ``parse_request`` on a refused request when they could be read (so
+            the reply carries them); None otherwise. Not constructor arguments, not compared.
     """
 
     code: int
     detail: str = ""
+    request_id: int | str | None = field(default=None, init=False, repr=False, compare=False)
+    cmd: str | None = field(default=None, init=False, repr=False, compare=False)
 
     def __str__(self) -> str:
         base = f"0x{self.code:04X} {error_name(self.code)}: {error_text(self.code)}"

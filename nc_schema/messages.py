@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Mapping
+from typing import Any, Mapping, cast
 
 import msgpack
 
@@ -171,7 +171,7 @@ def check_client_id(client: str) -> str:
 
 
 def pack(obj: Mapping[str, Any]) -> bytes:
-    return msgpack.packb(obj, use_bin_type=True)
+    return cast(bytes, msgpack.packb(obj, use_bin_type=True))  # (msgpack has no type information)
 
 
 def unpack(data: bytes) -> Any:
@@ -258,9 +258,9 @@ def parse_request(data: bytes) -> dict[str, Any]:
                 out[name] = aspec.get("default")
         return out
     except NcError as err:
-        err.request_id = rid if isinstance(rid, (int, str)) and not isinstance(rid, bool) else None  # type: ignore[attr-defined]
+        err.request_id = rid if isinstance(rid, (int, str)) and not isinstance(rid, bool) else None
         cmd = msg.get("cmd")
-        err.cmd = cmd if isinstance(cmd, str) and cmd in COMMANDS else None  # type: ignore[attr-defined]
+        err.cmd = cmd if isinstance(cmd, str) and cmd in COMMANDS else None
         raise
 
 

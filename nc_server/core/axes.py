@@ -36,12 +36,32 @@ assert [name for name, _ in EVENT_FLAGS] == ["homed", "stopped", "has_job", "hom
 class AxisTable:
     """All per-axis state, column-wise."""
 
+    # the columns __init__ unpacks from a matrix (rows of ``S``, columns of ``events``): declared, as
+    # iterating an array is untyped
+    set_pos: np.ndarray
+    set_velo: np.ndarray
+    set_acc: np.ndarray
+    set_jerk: np.ndarray
+    homed: np.ndarray
+    stopped: np.ndarray
+    has_job: np.ndarray
+    homing: np.ndarray
+    amended: np.ndarray
+    continuous: np.ndarray
+    buffered: np.ndarray
+    locked: np.ndarray
+
     def __init__(self, axis_ids: Sequence[int], params: Sequence[AxisParams]) -> None:
         n = len(axis_ids)
         self.n = n
         self.ids = np.asarray(axis_ids, dtype=np.uint32)
-        f = lambda: np.zeros(n)  # noqa: E731
-        b = lambda: np.zeros(n, dtype=bool)  # noqa: E731
+
+        def f() -> np.ndarray:
+            return np.zeros(n)
+
+        def b() -> np.ndarray:
+            return np.zeros(n, dtype=bool)
+
         # parameter columns
         self.vmax, self.acc, self.dec, self.jerk = f(), f(), f(), f()
         self.en_min, self.en_max, self.min_lim, self.max_lim = b(), b(), f(), f()
@@ -97,7 +117,7 @@ class AxisTable:
         """The event-driven StateDWord bits of every axis (``err``: its error != 0)."""
         code = self.events.view(np.uint64)[:, 0] * PACK_BYTES
         code >>= PACK_SHIFT
-        dw = _EVENT_LUT[code]
+        dw: np.ndarray = _EVENT_LUT[code]
         dw |= err * _ERROR
         return dw
 

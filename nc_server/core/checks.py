@@ -107,8 +107,8 @@ def check_overshoot(a: AxisTable, i: int, job: Job | None, plan: Plan, v_new: fl
     """Refuse (0x423A) a plan that would exceed both the new and the running motion's (``job``)
     velocity, or AxisVeloMax: it happens when weaker dynamics meet an accelerating axis."""
     # (a stop's "velocity" is AxisVeloMax, not a velocity it runs at)
-    moving_job = job is not None and job.dyn is not None and a.traj_on[i] and not job.kind.braking
-    running = job.dyn.velocity * a.override[i] if moving_job else 0.0  # type: ignore[union-attr]
+    dyn = job.dyn if job is not None and a.traj_on[i] and not job.kind.braking else None  # (of a moving job)
+    running = dyn.velocity * a.override[i] if dyn is not None else 0.0
     cap = min(max(v_new, running, abs(a.set_velo[i])), a.vmax[i])
     peak = peak_velocity(plan.seg)
     if peak > cap * (1 + 1e-6) + 1e-9:

@@ -47,7 +47,8 @@ def on_bug(what: str, rows: Iterable[int], fault: Callable[[int, int], None]) ->
         fault(int(i), ErrorCodes.NC_INTERNAL)
 
 
-def guarded(what: str, call: Callable[[], Any], rows: Callable[[], Iterable[int]], fault: Callable[[int, int], None],
+# (call, rows: called without arguments; typed "..." because the callers' lambdas bind loop variables as defaults)
+def guarded(what: str, call: Callable[..., Any], rows: Callable[..., Iterable[int]], fault: Callable[[int, int], None],
             passthrough: tuple[type[BaseException], ...] = ()) -> Any:
     """``call()`` under the fault guard (:func:`on_bug`; exceptions in ``passthrough`` are no bugs
     and propagate). Returns what ``call`` returned, or :data:`FAILED` after a bug."""
@@ -87,6 +88,7 @@ class JobEngine:
             a.sp_row[i] = row_bits
             if a.traj_on[i]:
                 a.changed.append(i)  # the buffered set-point bits depend on them (the profile stage)
+        # (the union-attr ignores: numbered means j is not None)
         homing = numbered and j.kind.homing  # type: ignore[union-attr]
         amended = numbered and j.amended  # type: ignore[union-attr]
         a.has_job[i] = numbered
@@ -179,6 +181,7 @@ class JobEngine:
         job = q.running_numbered
         if job is None or not (a.traj_on[i] or abs(a.set_velo[i]) > _EPS_V):
             raise NcError(ErrorCodes.MC_AXIS_NOT_MOVING, f"{req['cmd']}: the axis has no moving command to change")
+        plan: Plan | None
         if req["cmd"] == "ChangeDynParam":
             plan = job.kind.change_dynamics(core, i, job, req)
         else:

@@ -29,7 +29,7 @@ the cycle :mod:`.pipeline`. NcCore is the front: execute, step, PLCTONC in, para
 from __future__ import annotations
 
 import logging
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence, cast
 
 import numpy as np
 
@@ -178,7 +178,7 @@ class NcCore:
         """The PLCTONC applied when no client controls an axis: all enables off, override 100 %."""
         r = np.zeros((), dtype=PLCTONC_DTYPE)
         r["Override"] = _OVERRIDE_MAX
-        return r[()]
+        return cast(np.void, r[()])  # (numpy's stubs type a 0-d array's [()] as an array)
 
     def set_plctonc(self, index: int, record: np.void | bytes | bytearray) -> None:
         """Apply a PLCTONC to axis row ``index`` from the next step.
@@ -256,7 +256,8 @@ class NcCore:
     @property
     def moving(self) -> np.ndarray:
         """Axes with a job or a non-zero set velocity."""
-        return self.axes.has_job | (np.abs(self.axes.set_velo) > _EPS_V) | self.axes.traj_on
+        moving: np.ndarray = self.axes.has_job | (np.abs(self.axes.set_velo) > _EPS_V) | self.axes.traj_on
+        return moving
 
     @property
     def stopping(self) -> np.ndarray:
@@ -425,7 +426,7 @@ class NcCore:
         """Refuse (0x4289) a plan that turns back on its way (:func:`.checks.check_reversal`)."""
         checks.check_reversal(plan, start, sense, target)
 
-    def plan(self, fn: Any, *args: Any) -> Plan:
+    def plan(self, fn: Callable[..., Plan], *args: Any) -> Plan:
         """Call a planning function; ruckig failures become NcError 0x427E (the motion cannot be
         realized from this state with these dynamics; the command is refused, nothing changes)."""
         try:
@@ -512,7 +513,8 @@ class NcCore:
 
     def cam(self, rows: np.ndarray) -> np.ndarray:
         """The reference cam (PLCTONC ControlDWord.HomingSensor) of ``rows``."""
-        return (self.plctonc["ControlDWord"][rows] & _CAM) != 0
+        cam: np.ndarray = (self.plctonc["ControlDWord"][rows] & _CAM) != 0
+        return cam
 
     def shift_position(self, i: int, diff: float) -> None:
         """Shift the NC positions of row ``i`` by ``diff`` [u]: the drive offset takes it, the set
@@ -809,8 +811,8 @@ class NcCore:
         positioning = job is not None and job.numbered and job.target is not None and bool(a.traj_on[i])
         if what == "RemainingTime":
             return float(max(a.traj_dur[i] - a.traj_t[i], 0.0)) if positioning else 0.0
-        if what == "RemainingDistance":
-            return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr,operator]
+        if what == "RemainingDistance":  # (the ignore: positioning means job and its target are not None)
+            return float(abs(job.target - a.set_pos[i])) if positioning else 0.0  # type: ignore[union-attr]
         raise AssertionError(f"params.json: unknown status {what!r}")  # a contract bug, not input
 
     # -- commands ----------------------------------------------------------------------------

@@ -46,7 +46,7 @@ class JobRecords:
 
     def __init__(self, ncjobs: np.ndarray, axis_ids: Any) -> None:
         self.ncjobs = ncjobs
-        self._bytes = memoryview(ncjobs.view(np.uint8))
+        self._bytes = ncjobs.view(np.uint8).data  # (= memoryview(...), which numpy types as a buffer on 3.12+ only)
         self._ids = [int(x) for x in axis_ids]
         self.drive_status = ncjobs["DriveStatus"]  # (a view: a simulated stepper terminal's status)
 
@@ -80,6 +80,7 @@ class NctoplcPacker:
     def __init__(self, nctoplc: np.ndarray) -> None:
         n = len(nctoplc)
         self.nctoplc = nctoplc
+        assert NCTOPLC_DTYPE.names is not None and NCTOPLC_DTYPE.fields is not None  # (a structured dtype)
         self.out = {name: nctoplc[name] for name in NCTOPLC_DTYPE.names}
         f8 = NCTOPLC_DTYPE.fields
         assert f8["SetVelo"][1] == f8["SetPos"][1] + 8 and f8["SetAcc"][1] == f8["SetPos"][1] + 16

@@ -122,4 +122,5 @@ def stopping_distance(velo: np.ndarray, acc: np.ndarray, dec: np.ndarray, jerk: 
     # 2) trapezoidal/triangular jerk-limited stop from v1 at zero acceleration
     full = v1 >= dec * dec / jerk
     d2 = np.where(full, 0.5 * v1 * (v1 / dec + dec / jerk), v1 * np.sqrt(np.maximum(v1, 0) / jerk))
-    return d1 + d2
+    d: np.ndarray = d1 + d2
+    return d

@@ -23,7 +23,7 @@ import logging
 import os
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,11 +36,14 @@ from nc_server.security.exposure import exposure
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
-from .handler import MAX_REQUEST_BYTES, CoreLike, CycleInputs, RequestHandler
+from .handler import MAX_REQUEST_BYTES, CycleInputs, RequestHandler
 from .retain import RetainKeeper
 from .frame_ring import RingCounters
 from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
 from .transport import IoThread, Transport
+
+if TYPE_CHECKING:
+    from nc_server.core import NcCore
 
 log = logging.getLogger("nc_server.server")
 
@@ -101,11 +104,11 @@ class NcServer:
     so clients that connect to the NC directly get only their own keys.
     """
 
-    def __init__(self, config: ServerConfig, core: CoreLike) -> None:
+    def __init__(self, config: ServerConfig, core: NcCore) -> None:
         self.config = config
         self.core = core
         self.keys = Keys(config.name)
-        self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]  # type: ignore[attr-defined]
+        self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]
         # the NC's lease: a stall of half of it may have dropped every link (ClaimTable.grace)
         self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout, lease=config.zenoh.lease_ms / 1000.0)
         roles = dict(config.roles.clients) if config.roles is not None else None
@@ -132,7 +135,7 @@ class NcServer:
         self.handler = RequestHandler(core, self.claims, self.keys, info_extra=self._info_extra,
                                       refresh_liveliness=self._take_liveliness, roles=roles,
                                       keeps=None if retain is None else functools.partial(retain.keeps, core))
-        self.inputs = CycleInputs(core, self.claims, config.loss_reactions or None)  # type: ignore[arg-type]
+        self.inputs = CycleInputs(core, self.claims, config.loss_reactions or None)
         #: (version, claims map) made by the cycle thread; the I/O thread publishes it
         self.claims_msg: tuple[int, dict[str, Any]] | None = None
         self._arb_seen: tuple[int, int, int] = (-1, -1, -1)
@@ -262,19 +265,19 @@ class NcServer:
         # for standstill, then end the cycle and release the drive.
         self._shutdown.set()
         deadline = time.monotonic() + SHUTDOWN_STOP_TIMEOUT
-        while self.loop.alive and bool(np.asarray(self.core.moving).any()) and time.monotonic() < deadline:  # type: ignore[attr-defined]
+        while self.loop.alive and bool(np.asarray(self.core.moving).any()) and time.monotonic() < deadline:
             time.sleep(0.01)
         self.loop.stop()
         if self.retain is not None:  # the cycle has ended: its final state goes into the file
             self.retain.stop(self.core)
         try:
-            self.core.drive.close()  # type: ignore[attr-defined]
+            self.core.drive.close()
         except Exception as exc:
             log.warning("drive close: %s", exc)
         core = self.core
         try:  # the last frame, flagged ShuttingDown: the publisher puts it before it ends
-            self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),  # type: ignore[attr-defined]
-                            core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
+            self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),
+                            core.ncjobs, core.plctonc)
         except Exception as exc:
             log.warning("final frame: %s", exc)
         # Queries still queued get no execution; finalize them so queriers do not wait.
@@ -338,14 +341,14 @@ class NcServer:
         if self._shutdown.is_set():
             self._stop_moving_axes()
         try:
-            core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
+            core.step(self._nc_time_ns(deadline_ns))
         except Exception:  # a bug in the core: every axis stops on its ramp, the cycle goes on
             self.step_errors += 1
             log.exception("NC step failed: every axis is faulted with 0x4000")
-            for i in range(len(core.axis_ids)):  # type: ignore[attr-defined]
-                core.fault(i, ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
+            for i in range(len(core.axis_ids)):
+                core.fault(i, ErrorCodes.NC_INTERNAL)
 
-        self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)  # type: ignore[attr-defined]
+        self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)
         if self.retain is not None:
             self.retain.tick(core)  # a snapshot every 100 ms for the retain thread (no I/O here)
         self._claims_changed()
@@ -386,12 +389,12 @@ class NcServer:
         self._prev_tick = time.monotonic()
         self._retain_pending = False
         try:
-            core.step(self._nc_time_ns(deadline_ns))  # type: ignore[attr-defined]
+            core.step(self._nc_time_ns(deadline_ns))
         except Exception:  # as in cycle(): a bug in the core faults the axes, the NC goes on
             self.step_errors += 1
             log.exception("NC step failed: every axis is faulted with 0x4000")
-            for i in range(len(core.axis_ids)):  # type: ignore[attr-defined]
-                core.fault(i, ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
+            for i in range(len(core.axis_ids)):
+                core.fault(i, ErrorCodes.NC_INTERNAL)
         try:
             retain.apply(core)
         except Exception:  # a bug: run on with what was applied, but never write that over the file
@@ -402,8 +405,8 @@ class NcServer:
     def _stop_moving_axes(self) -> None:
         """Shutdown: MC_Stop every moving axis that is not already stopping (cycle thread)."""
         core = self.core
-        for i in np.flatnonzero(core.moving & ~core.stopping).tolist():  # type: ignore[attr-defined]
-            core.execute({"id": None, "client": "", "cmd": "Stop", "Deceleration": 0.0, "Jerk": 0.0},  # type: ignore[attr-defined]
+        for i in np.flatnonzero(core.moving & ~core.stopping).tolist():
+            core.execute({"id": None, "client": "", "cmd": "Stop", "Deceleration": 0.0, "Jerk": 0.0},
                          int(self.axis_ids[i]))
 
     def _tick(self, now: float) -> None:

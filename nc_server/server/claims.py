@@ -38,10 +38,10 @@ import numpy as np
 
 from nc_schema import ErrorCodes, NcError, check_client_id
 
-ZNC_CLIENT_LOST = int(ErrorCodes.ZNC_CLIENT_LOST)  # type: ignore[attr-defined]
-ZNC_PLCTONC_TIMEOUT = int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)  # type: ignore[attr-defined]
-ACCESS_DENIED = int(ErrorCodes.ADSERR_DEVICE_ACCESSDENIED)  # type: ignore[attr-defined]
-INVALID_DATA = int(ErrorCodes.ADSERR_DEVICE_INVALIDDATA)  # type: ignore[attr-defined]
+ZNC_CLIENT_LOST = int(ErrorCodes.ZNC_CLIENT_LOST)
+ZNC_PLCTONC_TIMEOUT = int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)
+ACCESS_DENIED = int(ErrorCodes.ADSERR_DEVICE_ACCESSDENIED)
+INVALID_DATA = int(ErrorCodes.ADSERR_DEVICE_INVALIDDATA)
 #: How long a token lost across an NC stall of at least half the NC's lease may take to come back [s]
 #: (its links were dropped: reconnecting, through a router too, on a loaded machine).
 LEASE_STALL_GRACE = 2.0

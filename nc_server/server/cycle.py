@@ -159,7 +159,7 @@ def demote_other_threads(keep: set[int]) -> list[int]:
     A thread inherits its creator's policy: zenoh creates some threads lazily (e.g. its SHM watchdog
     threads on first use), and one created from a SCHED_FIFO thread would run at real-time priority.
     """
-    out = []
+    out: list[int] = []
     try:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
     except (OSError, ValueError):
@@ -354,6 +354,7 @@ class CycleLoop:
         spin = SPIN_NS
         errors: list[int] = []  # wake-up errors of the last SPIN_WINDOW sleeps [ns] (a ring)
         n_err = n_adapted = 0  # wake-ups recorded; and when the spin was last adapted
+        woke: bool | None  # a wake event's wait(); None: a plain sleep (never "woken")
         deadline = clock() + period
         while not stop.is_set():
             # Wait: sleep most of it (in slices with idle() between them), spin the end

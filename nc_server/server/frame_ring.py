@@ -82,7 +82,7 @@ def _as_bytes(a: np.ndarray) -> memoryview | bytes:
         return a.tobytes()
     hit = _byte_views.get(id(a))
     if hit is None or hit[0] is not a:
-        hit = _byte_views[id(a)] = (a, memoryview(a.view(np.uint8)).cast("B"))
+        hit = _byte_views[id(a)] = (a, a.view(np.uint8).data.cast("B"))
         while len(_byte_views) > 8:
             _byte_views.popitem(last=False)
     return hit[1]

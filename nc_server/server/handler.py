@@ -46,18 +46,18 @@ log = logging.getLogger("nc_server.server")
 #: Requests above this size are rejected (0x706) before msgpack sees them [bytes].
 MAX_REQUEST_BYTES = 65536
 
-INVALID_DATA = int(ErrorCodes.ADSERR_DEVICE_INVALIDDATA)  # type: ignore[attr-defined]
-AXIS_NOT_ALLOWED = int(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED)  # type: ignore[attr-defined]
-INTERNAL = int(ErrorCodes.NC_INTERNAL)  # type: ignore[attr-defined]
-ACCESS_DENIED = int(ErrorCodes.ADSERR_DEVICE_ACCESSDENIED)  # type: ignore[attr-defined]
+INVALID_DATA = int(ErrorCodes.ADSERR_DEVICE_INVALIDDATA)
+AXIS_NOT_ALLOWED = int(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED)
+INTERNAL = int(ErrorCodes.NC_INTERNAL)
+ACCESS_DENIED = int(ErrorCodes.ADSERR_DEVICE_ACCESSDENIED)
 #: Clients remembered for the ``clients`` of :meth:`RequestHandler.arbitration` (beyond: the oldest
 #: one without a liveliness token is forgotten first).
 MAX_SEEN = 256
 #: The role a client is shown with when the NC has no roles file: by the highest class it used.
 SEEN_ROLE = {"read": "observer", "op": "operator", "eng": "engineer"}
 _RANK = {c: i for i, c in enumerate(CLASSES)}
-NO_NC_CYCLE = int(ErrorCodes.MC_NO_NC_CYCLE_UPDATE)  # type: ignore[attr-defined]
-ZNC_NC_STALLED = int(ErrorCodes.ZNC_NC_STALLED)  # type: ignore[attr-defined]
+NO_NC_CYCLE = int(ErrorCodes.MC_NO_NC_CYCLE_UPDATE)
+ZNC_NC_STALLED = int(ErrorCodes.ZNC_NC_STALLED)
 
 
 class CoreLike(Protocol):

@@ -313,7 +313,8 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     ring = FrameRing(memoryview(mm), len(axis_ids))
     wait = _eventfd_wait(int(spec["event_fd"]), int(spec["lifeline_fd"]))
     ctl = socket.socket(fileno=int(spec["control_fd"]))
-    settings = ZenohSettings(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in spec["zenoh"].items()})
+    fields: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in spec["zenoh"].items()}
+    settings = ZenohSettings(**fields)
     session = zenoh.open(zenoh_config(settings, spec["nc"]))
     pub = FramePublisher(session, Keys(spec["nc"]), axis_ids, ring)
     try:

@@ -702,6 +702,7 @@ class RetainKeeper:
             log.warning("retain file %s: %d axis/axes not configured here, skipped: %s%s", self.path, len(extra),
                         extra[:8], " ..." if len(extra) > 8 else "")
         usable: dict[int, AxisRetain] = {}
+        a: AxisRetain | None  # (a file entry; below: None if the axis has no usable one)
         for axis_id in sorted(known.intersection(data.axes)):
             a, i = data.axes[axis_id], self.axis_ids.index(axis_id)
             if a.name != self.names[i]:

@@ -92,6 +92,7 @@ HOLD_MAX = 0.8
 
 _PREC = PLCTONC_DTYPE.itemsize
 _PAREC = PLC_AXIS_RECORD_DTYPE.itemsize
+assert PLC_AXIS_RECORD_DTYPE.fields is not None  # (a structured dtype)
 _PC_OFF = int(PLC_AXIS_RECORD_DTYPE.fields["PlcToNc"][1])  # the PLCTONC's offset in a PLC_AXIS_RECORD
 
 
@@ -290,7 +291,7 @@ class Transport:
         # at normal priority and holding the GIL while decoding, made the SCHED_FIFO cycle thread wait
         # whenever the scheduler took it off the CPU (a loaded machine: NC cycles of tens of ms)
         self.plc_sub = s.declare_subscriber(k.plctonc_in_any, RingChannel(PLCTONC_CHANNEL))
-        pub = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
+        pub: dict[str, Any] = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.claims_pub = s.declare_publisher(k.claims)
         self.token = s.liveliness().declare_token(k.alive)

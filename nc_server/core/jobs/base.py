@@ -81,19 +81,21 @@ class JobKind:
     Class attributes describe how the NC treats a running job of this kind.
     """
 
-    name: ClassVar[str] = ""
+    #: its name (name, commands, is_stop, holds_enable: no ClassVars, a kind made for several commands sets
+    #: them per instance)
+    name: str = ""
     #: request commands this kind accepts
-    commands: ClassVar[tuple[str, ...]] = ()
+    commands: tuple[str, ...] = ()
     #: BufferModes accepted (others: 0x4B64)
     buffer_modes: ClassVar[frozenset[int]] = frozenset({ABORTING})
     #: a stop: sets HasBeenStopped; never made weaker by a later stop
-    is_stop: ClassVar[bool] = False
+    is_stop: bool = False
     #: locks the axis for motion commands (MC_Stop)
     locks: ClassVar[bool] = False
     #: checked against the feed enables of its direction while it runs
     feed_checked: ClassVar[bool] = True
     #: keeps the drive enabled until it ends, whatever the PLCTONC says (fault ramps)
-    holds_enable: ClassVar[bool] = False
+    holds_enable: bool = False
     #: HomingBusy while it runs
     homing: ClassVar[bool] = False
     #: its plan follows the override (replanned on changes)
@@ -122,7 +124,7 @@ class JobKind:
         """
         raise NotImplementedError
 
-    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:
         """Check the axis state and plan the job from ``start`` (a job of a ``source`` stage: None,
         it has no plan).
 

@@ -41,7 +41,7 @@ class ExternalKind(JobKind):
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Position {pos} outside +/-1e9")
         return Job(self, dict(req))
 
-    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:  # type: ignore[override]
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:
         a = core.axes
         if a.traj_on[i] or abs(start.v) > _EPS_V or core.coupling.is_slave(i):
             raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "a command moves the axis: stop it first")

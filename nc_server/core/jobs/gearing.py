@@ -73,7 +73,7 @@ class GearInKind(JobKind):
             rate = (acc or float(core.axes.acc[i])) / float(core.axes.vmax[m])
         return Job(self, dict(req), data={"master": m, "ratio": ratio, "dyn": dyn, "rate": rate})
 
-    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:  # type: ignore[override]
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:
         a, cpl = core.axes, core.coupling
         m = int(job.data["master"])
         if cpl.is_slave(i):

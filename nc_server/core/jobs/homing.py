@@ -132,7 +132,7 @@ class HomeKind(JobKind):
                 sense = -1.0 if p.AxisInvertCalibrationCamSearchDirection else 1.0
                 v = p.AxisCalibrationVelocityForward
                 core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v,
-                                           job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
+                                           job.dyn.with_(velocity=v)))
                 job.phase = S2
                 continue
             if ph == S3 and a.traj_dur[i] == np.inf:  # started on the cam: show state 3, then leave it
@@ -171,6 +171,7 @@ class HomeKind(JobKind):
             return
         job.phase = S4
         v = p.AxisCalibrationVelocityBackward
+        # (the ignore: a homing job's dyn is set on accept)
         core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
 
     def _stop(self, core: CoreContext, i: int, job: Job, phase: int) -> None:

@@ -82,8 +82,8 @@ class PositionKind(JobKind):
     commands = ("MoveAbsolute",)
 
     def __init__(self, name: str) -> None:
-        self.name = name  # type: ignore[misc]
-        self.commands = (name,)  # type: ignore[misc]
+        self.name = name
+        self.commands = (name,)
 
     # -- accept / activate -------------------------------------------------------------------
     def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
@@ -94,7 +94,7 @@ class PositionKind(JobKind):
         core.check_velocity(i, v)
         dyn = core.dynamics(i, req, v)
         queued = prev is not None and req.get("BufferMode", 0) != 0
-        base = prev.kind.next_base(prev, core, i) if queued else None  # type: ignore[union-attr]
+        base = prev.kind.next_base(prev, core, i) if queued and prev is not None else None
         data: dict[str, Any] = {}
         if base is None:
             base = core.nc_set_pos(i)
@@ -372,7 +372,7 @@ class ContinuousKind(PositionKind):
 
     def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         from .velocity import limit_approach
-        switch = np.array([("switch" in core.queues[i].active.data) for i in rows.tolist()], dtype=bool)  # type: ignore[union-attr]
+        switch = np.array([("switch" in core.queues[i].active.data) for i in rows.tolist()], dtype=bool)
         if switch.any():
             _switch_reached(core, rows[switch])
         rest = rows[~switch]

@@ -143,9 +143,9 @@ class RampKind(JobKind):
     braking = True
 
     def __init__(self, name: str, holds_enable: bool) -> None:
-        self.name = name  # type: ignore[misc]
-        self.holds_enable = holds_enable  # type: ignore[misc]
-        self.is_stop = True  # type: ignore[misc]
+        self.name = name
+        self.holds_enable = holds_enable
+        self.is_stop = True
 
 
 STOP = StopKind()

@@ -165,7 +165,7 @@ def limit_approach(core: CoreContext, rows: np.ndarray) -> None:
     dec = np.empty(rows.size)
     jerk = np.empty(rows.size)
     for n, i in enumerate(rows.tolist()):
-        d = core.queues[i].active.dyn  # type: ignore[union-attr]
+        d = core.queues[i].active.dyn
         dec[n], jerk[n] = d.deceleration, d.jerk
     d = stopping_distance(v, a.set_acc[rows], dec, jerk) + 2 * np.abs(v) * core.cycle_time
     pos = a.set_pos[rows]

@@ -43,6 +43,9 @@ MAX_RATIO = 1e6
 _EPS_V = 1e-9
 SYNCHRONIZING = int(AxisState.SLAVE_SYNCHRONIZING)
 SYNCHRON = int(AxisState.SLAVE_SYNCHRON)
+#: one level's copies (CouplingStage._levels): rows, masters, ratio, s_base, m_base, any dyn, any synchronizing,
+#: AxisState
+_Level = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool, bool, np.ndarray]
 
 
 class CouplingStage:
@@ -75,7 +78,7 @@ class CouplingStage:
         self.slaves = np.zeros(0, dtype=np.intp)
         self.ignored_ratios = 0
         self.changed: list[int] = []  # slaves whose job record changed in a cycle (a synchronization locked)
-        self._cache: tuple[list[tuple], np.ndarray, np.ndarray] | None = None
+        self._cache: tuple[list[_Level], np.ndarray, np.ndarray] | None = None
         self._otg = Ruckig(1, cycle_time)
         self._inp = InputParameter(1)
         self._out = OutputParameter(1)
@@ -184,7 +187,7 @@ class CouplingStage:
         """A column changed: the per-level copies are made again at the next run."""
         self._cache = None
 
-    def _levels(self, core: CoreContext) -> tuple[list[tuple], np.ndarray, np.ndarray]:
+    def _levels(self, core: CoreContext) -> tuple[list[_Level], np.ndarray, np.ndarray]:
         """Per level: rows, masters, ratio, s_base, m_base, any dyn, any synchronizing, AxisState;
         and the slaves' velocity and acceleration limits (copies: a cycle gathers less)."""
         if self._cache is None:

@@ -198,9 +198,9 @@ class ProfileStage:
             rows, base = self._take_pending(a, rows, base, group)
         if rows is not None:
             if type(rows) is slice and rows.step is None:  # one row (a command)
-                self._eval_row(core, rows, base, col)  # type: ignore[arg-type]
+                self._eval_row(core, rows, base, col)  # type: ignore[arg-type]  # (base is set with rows)
             else:
-                self._eval(core, rows, base, col)  # type: ignore[arg-type]
+                self._eval(core, rows, base, col)  # type: ignore[arg-type]  # (base is set with rows)
         dt = self.dt
         if core.all_on:
             a.traj_t += dt
@@ -210,7 +210,8 @@ class ProfileStage:
         a.traj_t[on] += dt
         a.S[:, on] = self.buf[:, on, col]
         core.sp_words[:, on] = self.buf_words[:, on, col]
-        return on[a.traj_t[on] >= a.traj_dur[on]]
+        ended: np.ndarray = on[a.traj_t[on] >= a.traj_dur[on]]
+        return ended
 
     def refresh(self, core: CoreContext, rows: Iterable[int]) -> None:
         """Rows whose plan (or whose job's hold/HasJob) changed: evaluated afresh at the next run."""
@@ -248,7 +249,7 @@ class ProfileStage:
             return slice(r, r + 1), self._row_base[r:r + 1]
         more = np.array(extra, dtype=np.intp)
         if rows is not None:
-            more = np.concatenate((self._all_groups[group] if isinstance(rows, slice) else rows, more))  # type: ignore[arg-type]
+            more = np.concatenate((self._all_groups[group] if isinstance(rows, slice) else rows, more))
         return more, self._row_base[more]
 
     def _group_rows(self, on: np.ndarray, group: int) -> np.ndarray:

@@ -17,7 +17,7 @@ answer where TcMC is silent on re-triggering.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -148,7 +148,8 @@ class SuperpositionStage:
         reduced-distance code) and the offset is folded into the basic motion."""
         r = self.rows
         done = r[self.t[r] >= self.dur[r]]
-        for i in done.tolist():
+        ended: list[int] = done.tolist()
+        for i in ended:
             offset = float(self.applied[0, i])
             if self.state[i] == int(CmdState.ACTIVE):
                 code = int(self.end_error[i])
@@ -160,9 +161,9 @@ class SuperpositionStage:
             self.changed.append(i)
         if done.size:
             self._rows()
-        return done.tolist()
+        return ended
 
-    def limits(self, core: CoreContext) -> list[int]:
+    def limits(self, core: CoreContext) -> list[tuple[int, int]]:
         """(row, code) of the rows whose total motion goes beyond AxisVeloMax (0x4359; the fault ramp
         keeps it within a cycle of acceleration of it) or max(AxisAcc, AxisDec) (0x422F); the NC
         faults them."""
@@ -178,7 +179,7 @@ class SuperpositionStage:
 _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
 
 
-def cmd_move_superimposed(core: CoreContext, i: int, req: dict) -> dict:
+def cmd_move_superimposed(core: CoreContext, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt): plan and start the offset
     profile. The reference velocity for Length is |VelocityProcess|, or (0) the set velocity now of
     the reference: for ADDITIVEMOTION on a slave its master's, else the axis's basic motion's.
@@ -243,7 +244,7 @@ def cmd_move_superimposed(core: CoreContext, i: int, req: dict) -> dict:
                                         "ActualLength": sp.length, "Incomplete": bool(sp.incomplete)}}
 
 
-def cmd_abort_superposition(core: CoreContext, i: int, req: dict) -> dict:
+def cmd_abort_superposition(core: CoreContext, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """AbortSuperposition: see :meth:`SuperpositionStage.brake` (none running: nothing changes)."""
     core.superposition.brake(core, i)
     core.state_dirty = True
