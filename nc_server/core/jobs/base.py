@@ -82,8 +82,10 @@ class JobKind:
     """
 
     name: ClassVar[str] = ""
-    #: request commands this kind accepts
+    #: request commands this kind accepts (each registered as a job: :func:`..commands.register_kind`)
     commands: ClassVar[tuple[str, ...]] = ()
+    #: starting its job starts a motion (the contract's ``motion``; the registry checks they agree)
+    motion: ClassVar[bool] = True
     #: BufferModes accepted (others: 0x4B64)
     buffer_modes: ClassVar[frozenset[int]] = frozenset({ABORTING})
     #: a stop: sets HasBeenStopped; never made weaker by a later stop
