@@ -25,6 +25,7 @@ from .codec import (
     decode_stamp, encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_header, frame_records,
     frame_stamp, load_json, member_struct, members, pack_frame_header_into, struct_of, to_dict,
 )
+from .commands import COMMAND_SPECS, CommandSpec
 from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
 from .instance import NcInstance, new_instance_id
 from .messages import (
@@ -40,8 +41,8 @@ from .state import cmdno_newer, motion_state, motion_state_array, next_cmdno
 
 # static, so a type checker sees the re-exports (tests/schema/test_generated.py checks it is complete)
 __all__ = [
-    "AxisState", "BITSETS", "CLASSES", "COMMANDS", "COMMAND_CLASS", "CONTRACT_DIR", "CamCouplingState", "CmdState",
-    "ControlDWord", "CoupleState", "DEFAULT_HOME_POSITION", "DTYPES", "ENUMS", "ERRORS",
+    "AxisState", "BITSETS", "CLASSES", "COMMANDS", "COMMAND_CLASS", "COMMAND_SPECS", "CONTRACT_DIR", "CamCouplingState",
+    "CmdState", "CommandSpec", "ControlDWord", "CoupleState", "DEFAULT_HOME_POSITION", "DTYPES", "ENUMS", "ERRORS",
     "E_CmdTypeNewTargPosAndVelo", "E_DecoupleMode", "E_DestallDetectMode", "E_DestallMode", "E_JogMode",
     "E_NcAxisType", "E_NcDriveType", "E_NcEncoderType", "E_ReadMode", "E_SignalEdge", "E_StartPosType",
     "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe", "E_TouchProbeState", "ErrorCodes", "FRAME_HEADER_DTYPE",

@@ -60,14 +60,16 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from nc_schema import MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text
+from nc_schema import (COMMAND_SPECS, MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, NcInstance, StateDWord,
+                       error_text)
 
-#: late-accepted commands the task undoes with GearOut instead of Halt
-_COUPLINGS = frozenset({"GearIn", "GearInFloat", "GearInDyn"})
-#: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo)
-_SLOT_COMMANDS = frozenset({"MoveSuperImposed"})
-#: commands that change a running job (their CmdNo is that job's: not theirs to undo)
-_AMENDS = frozenset({"NewPos", "NewPosAndVelo", "ChangeDynParam"})
+# The command sets come from the contract's command properties (protocol.json, nc_schema.COMMAND_SPECS).
+#: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): ``slot``
+_SLOT_COMMANDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.motion and s.slot is not None)
+#: commands that change a running job (their CmdNo is that job's: not theirs to undo): ``amends``
+_AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
+#: plain stops: a late one is left as it is (it only stops): ``stop``
+_STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
 from .axis_ref import AXIS_REF
 from .port import CommandPort, PendingCommand
@@ -88,9 +90,8 @@ DEFAULT_STALE_TIME = 0.2
 HANDOVER_POLL = 0.05
 #: A command lost with the NC is forgotten if no frame comes back within this time [s].
 LOST_COMMAND_TTL = 600.0
-#: what stops a motion command nobody follows any more (default: Halt)
-_UNDO = {"GearIn": ("GearOut",), "GearInFloat": ("GearOut",), "GearInDyn": ("GearOut",),
-         "Home": ("Stop", "StopRelease"), "MoveSuperImposed": ("AbortSuperposition",)}
+#: what stops a motion command nobody follows any more, where it is not the default Halt: ``undo``
+_UNDO = {n: s.undo for n, s in COMMAND_SPECS.items() if s.motion and not s.stop and s.undo != ("Halt",)}
 
 
 def current_task() -> PlcTask | None:
@@ -479,7 +480,7 @@ class PlcTask:
                     log.info("late reply to abandoned %s (axis %s): 0x%X", p.cmd, p.axis_id, err)
                 continue
             cmdno = int(p.reply.get("CmdNo", 0))
-            if p.cmd in ("Stop", "Halt") or not cmdno or p.cmd in _SLOT_COMMANDS or p.cmd in _AMENDS:
+            if p.cmd in _STOPS or not cmdno or p.cmd in _SLOT_COMMANDS or p.cmd in _AMENDS:
                 log.warning("late acceptance of %s on %r (CmdNo %d): left as is", p.cmd, ax, cmdno)
                 continue
             self._orphans.append(_Orphan(ax, cmdno, int(p.reply.get("cycle", 0)), ax.nc_epoch, p.cmd))

@@ -43,19 +43,16 @@ from ..drives.sim import SimDrive
 from . import checks
 from .axes import AxisTable
 from .checks import MAX_POSITION
+from .commands import CORE_HANDLERS, core_command
 from .engine import KINDS_LIST, JobEngine
-from .jobs import KINDS, Job, JobKind, JobQueue
+from .jobs import Job, JobKind, JobQueue
 from .jobs.stop import STOP
 from .packing import JobRecords, NctoplcPacker
 from .pipeline import Stage, default_pipeline, run_pipeline
 from .params import AxisConfig, AxisParams, ConfigError, param_entry
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
 from .profile import evaluate
-from .jobs.external import ext_disable
-from .jobs.gearing import gear_out
 from .stages import CouplingStage, ExternalStage, ProbeStage, ProfileStage, SuperpositionStage
-from .stages.probe import cmd_abort_trigger, cmd_sim_probe_signal, cmd_touch_probe
-from .stages.superposition import cmd_abort_superposition, cmd_move_superimposed
 
 _log = logging.getLogger(__name__)
 #: Cycles of set-points evaluated ahead (NcCore(lookahead=...)); the refills are staggered over the
@@ -78,9 +75,6 @@ _PTP = np.uint32(int(StateDWord.PTPmode))
 _COMPENSATING = np.uint32(int(StateDWord.Compensating))
 _EXT_ENABLED = np.uint32(int(StateDWord.ExtSetPointGenEnabled))
 _LATCH_VALID = np.uint32(int(StateDWord.ExternalLatchValid))
-
-#: commands that change the running job instead of starting one
-AMENDMENTS = frozenset({"NewPos", "NewPosAndVelo", "ChangeDynParam"})
 
 
 class NcCore:
@@ -817,19 +811,21 @@ class NcCore:
 
     # -- commands ----------------------------------------------------------------------------
     def _dispatch(self, i: int, req: dict[str, Any]) -> dict[str, Any]:
-        cmd = req["cmd"]
-        kind = KINDS.get(cmd)
-        if kind is not None:
-            return self.engine.motion(i, kind, req)
-        if cmd in AMENDMENTS:
-            return self.engine.amend(i, req)
-        handler = _ADMIN.get(cmd)
+        # the command registry's handler (.commands): a job kind, an amendment or a function
+        handler = CORE_HANDLERS.get(req["cmd"])
         if handler is None:
-            raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} is not an axis command of the NC core")
+            raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{req['cmd']} is not an axis command of the NC core")
         return handler(self, i, req)
 
 
 
+@core_command("NewPos", "NewPosAndVelo", "ChangeDynParam", how="amendment")
+def _cmd_amend(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """NewPos, NewPosAndVelo, ChangeDynParam: the running job changes (the engine's amend; its kind decides how)."""
+    return core.engine.amend(i, req)
+
+
+@core_command("StopRelease")
 def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MC_Stop Execute fell: unlock -- but not during the stop ramp (PLCopen: Stopping until the axis
     stands and Execute is FALSE); then the lock goes when the ramp ends."""
@@ -842,6 +838,7 @@ def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, An
     return {}
 
 
+@core_command("Reset")
 def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     a, q = core.axes, core.queues[i]
     core.probe.disarm_on_reset(i)
@@ -871,6 +868,7 @@ def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     return {}
 
 
+@core_command("SetOverride")
 def _cmd_set_override(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     ov = req["Override"]
     if not 0.0 <= ov <= 100.0:
@@ -880,15 +878,18 @@ def _cmd_set_override(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, An
     return {}
 
 
+@core_command("ReadParameter")
 def _cmd_read_parameter(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     return {"value": core.read_parameter(i, req["ParameterNumber"])}
 
 
+@core_command("WriteParameter")
 def _cmd_write_parameter(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     core.write_parameter(i, req["ParameterNumber"], req["Value"])
     return {}
 
 
+@core_command("SetActualPosition")
 def _cmd_set_actual_position(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MC_SetActualPosition: at standstill only (0x4B01 while moving: that is
     MC_SetActualPositionOnTheFly's job); actual and set position take the new value."""
@@ -902,6 +903,7 @@ def _cmd_set_actual_position(core: NcCore, i: int, req: dict[str, Any]) -> dict[
     return {}
 
 
+@core_command("SetActualPositionOnTheFly")
 def _cmd_set_actual_position_otf(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MC_SetActualPositionOnTheFly: shift by ActualPosition - PreviousPosition, also while moving;
     the running move covers the same distance (its target shifts with it)."""
@@ -916,17 +918,20 @@ def _cmd_set_actual_position_otf(core: NcCore, i: int, req: dict[str, Any]) -> d
     return {}
 
 
+@core_command("SetReferenceFlag")
 def _cmd_set_reference_flag(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     core.axes.homed[i] = bool(req["ReferenceFlag"])
     core.state_dirty = True
     return {}
 
 
+@core_command("ReadParameterSet")
 def _cmd_read_parameter_set(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MC_ReadParameterSet: the whole ST_AxisParameterSet as a map of its members."""
     return {"value": core.parameter_set(i)}
 
 
+@core_command("ReadAxisComponents")
 def _cmd_read_axis_components(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MC_ReadAxisComponents: ST_AxisComponents (one encoder, controller and drive per axis, with its id)."""
     ident = int(core.axis_ids[i])
@@ -934,6 +939,7 @@ def _cmd_read_axis_components(core: NcCore, i: int, req: dict[str, Any]) -> dict
     return {"value": {"EncoderIDs": ids, "ControllerIDs": list(ids), "DriveIDs": list(ids)}}
 
 
+@core_command("SetExternalError")
 def _cmd_set_external_error(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """Set an external axis error (TwinCAT ADS axis function 0x19; MC_PowerStepper): the axis stops with
     its deceleration as for any axis error (the first error sticks); Unreference also clears Homed.
@@ -953,6 +959,7 @@ def _cmd_set_external_error(core: NcCore, i: int, req: dict[str, Any]) -> dict[s
     return {}
 
 
+@core_command("SimStall")
 def _cmd_sim_stall(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """SimStall: a simulated stepper (SimStepper) stalls / stops stalling (see SimDrive.set_stall).
 
@@ -966,6 +973,7 @@ def _cmd_sim_stall(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     return {}
 
 
+@core_command("SimTerminalError")
 def _cmd_sim_terminal_error(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """SimTerminalError: the error bits of a simulated stepper terminal's status word (KL_Status2).
 
@@ -980,16 +988,3 @@ def _cmd_sim_terminal_error(core: NcCore, i: int, req: dict[str, Any]) -> dict[s
     except (NotImplementedError, AttributeError) as exc:
         raise NcError(ErrorCodes.NC_FUNCTION_NOT_SUPPORTED, str(exc) or "the drive has no simulated terminal") from None
     return {}
-
-
-_ADMIN = {
-    "ReadParameterSet": _cmd_read_parameter_set, "ReadAxisComponents": _cmd_read_axis_components,
-    "SetExternalError": _cmd_set_external_error, "SimStall": _cmd_sim_stall, "SimTerminalError": _cmd_sim_terminal_error,
-    "Reset": _cmd_reset, "StopRelease": _cmd_stop_release, "SetOverride": _cmd_set_override,
-    "ReadParameter": _cmd_read_parameter, "WriteParameter": _cmd_write_parameter,
-    "SetActualPosition": _cmd_set_actual_position, "SetActualPositionOnTheFly": _cmd_set_actual_position_otf,
-    "SetReferenceFlag": _cmd_set_reference_flag,
-    "GearOut": gear_out, "GearOutExt": gear_out, "ExtSetPointGenDisable": ext_disable,
-    "MoveSuperImposed": cmd_move_superimposed, "AbortSuperposition": cmd_abort_superposition,
-    "TouchProbe": cmd_touch_probe, "AbortTrigger": cmd_abort_trigger, "SimProbeSignal": cmd_sim_probe_signal,
-}

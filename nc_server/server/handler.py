@@ -8,8 +8,9 @@ This is the one implementation behind every door to an NC: nc-server's queryable
   parse (``nc_schema.parse_request``), the key (``nc/<nc>/[axis/<id>/]cmd/<class>/<client>``,
   ``Keys.parse_cmd_key``: the sender's identity and the command's class, checked against the
   command, the request's ``client`` field, the configured axes and, with a roles file, the
-  client's role), dedup by (key client, id), Claim/Release/Info here, SetOverride after a
-  permission check, everything else through ``core.execute`` (the request carries the key's
+  client's role), dedup by (key client, id), the commands of the contract's layer ``server``
+  (Claim/Release/HandOver/Info) here, SetOverride after a claim check, everything else through
+  ``core.execute`` (the request carries the key's
   client: the core records which client commanded each motion job). Nothing raises out of
   :meth:`RequestHandler.handle`: bad input becomes an error reply. It also keeps who was seen
   with which class and the last command per axis (:meth:`RequestHandler.arbitration`, the
@@ -25,18 +26,51 @@ from __future__ import annotations
 
 import logging
 from collections import OrderedDict
-from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
+from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence, TypeVar
 
 import numpy as np
 
-from nc_schema import (CLASSES, COMMAND_CLASS, COMMANDS, MOTION_COMMANDS, ROLE_CLASSES, ErrorCodes, Keys, NcError,
-                       make_reply, pack, parse_request, unpack)
+from nc_schema import (CLASSES, COMMAND_CLASS, COMMAND_SPECS, ROLE_CLASSES, ErrorCodes, Keys, NcError, make_reply,
+                       pack, parse_request, unpack)
 
+from ..core.commands import REGISTRY
 from .claims import ZNC_CLIENT_LOST, ClaimTable, Loss
 from .retain import RETAIN_ERROR_CODE
 
-#: commands refused when they were queued across a long NC stall (stops are still executed)
-REFUSED_AFTER_STALL = (MOTION_COMMANDS | {"NewPos", "NewPosAndVelo", "ChangeDynParam"}) - {"Stop", "Halt"}
+#: commands refused when they were queued across a long NC stall: those that start or change a motion,
+#: stops excepted (protocol.json ``motion``, ``amends``, ``stop``)
+REFUSED_AFTER_STALL = frozenset(n for n, s in COMMAND_SPECS.items() if (s.motion or s.amends) and not s.stop)
+
+#: a command the handler executes itself: (handler, axis id or None, request, now [s]) -> reply (NcError: refused)
+ServerCommand = Callable[["RequestHandler", "int | None", dict[str, Any], float], dict[str, Any]]
+#: a check the handler makes before the core runs a command: (handler, axis id, client); NcError: refused
+ServerGuard = Callable[["RequestHandler", int, str], None]
+_S = TypeVar("_S", bound=Callable[..., dict[str, Any]])
+_G = TypeVar("_G", bound=Callable[..., None])
+#: the commands of the contract's layer "server", registered beside their code (:func:`_server_command`)
+_OWN: dict[str, ServerCommand] = {}
+#: the handler's checks of core commands (:func:`_guard`)
+_GUARDS: dict[str, ServerGuard] = {}
+
+
+def _server_command(*names: str) -> Callable[[_S], _S]:
+    """Decorator: the method executes ``names`` here (the command registry's layer "server")."""
+    def register(fn: _S) -> _S:
+        for name in names:
+            REGISTRY.register(name, where=f"{__name__}.{fn.__qualname__}", layer="server")
+            _OWN[name] = fn
+        return fn
+    return register
+
+
+def _guard(name: str) -> Callable[[_G], _G]:
+    """Decorator: the method checks core command ``name`` before ``core.execute`` runs it."""
+    def register(fn: _G) -> _G:
+        REGISTRY.guard(name, layer="server", where=f"{__name__}.{fn.__qualname__}")
+        _GUARDS[name] = fn
+        return fn
+    return register
+
 
 #: ``ClientLossReaction`` of an axis (config key in the [[axis]] table); the first is the default.
 LOSS_REACTIONS = ("stop_disable", "stop", "keep_others")
@@ -347,44 +381,20 @@ class RequestHandler:
 
     def _execute(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
         rid, client, cmd = req["id"], req["client"], req["cmd"]
-        scope = COMMANDS[cmd].get("scope", "axis")
-        cycle = self.core.cycle + 1
-        if cmd == "Info":
-            value = {"name": self.keys.nc, **self.core.info(), **self.info_extra(),
-                     "claims": self.claims.claims(), "clients": self.claims.clients(),
-                     "arbitration": self.arbitration()}
-            return make_reply(rid, cmd, 0, "", cycle=cycle, value=value)
-        if scope == "axis" and axis_id is None:
+        if COMMAND_SPECS[cmd].scope == "axis" and axis_id is None:
             where = f"{self.keys.prefix}/axis/<id>/cmd/{COMMAND_CLASS[cmd]}/{client}"
             return self._error_reply(rid, cmd, NcError(AXIS_NOT_ALLOWED, f"{cmd} is an axis command: send it to {where}"))
-        assert axis_id is not None
-        if cmd in ("Claim", "Release", "HandOver"):
+        own = _OWN.get(cmd)
+        if own is not None:  # (the command registry's layer "server": claims, Info)
             try:
-                i = self.core.index(axis_id)
-                if cmd == "Claim":
-                    if not self.claims.is_alive(client):
-                        # its token event may have arrived a moment ago: take pending events first
-                        self.refresh_liveliness()
-                    self.claims.claim(axis_id, client, now)
-                    return make_reply(rid, cmd, 0, "", cycle=cycle, value=client)
-                if cmd == "HandOver":
-                    # the claim moves; the applied PLCTONC stays until the new holder's first frame
-                    to = req["To"]
-                    if to != client and not self.claims.is_alive(to):
-                        self.refresh_liveliness()
-                    if self.claims.hand_over(axis_id, client, to, now):
-                        log.info("axis %d handed over by %s to %s", axis_id, client, to)
-                    return make_reply(rid, cmd, 0, "", cycle=cycle, value=to)
-                if self.claims.release(axis_id, client):
-                    # Nobody supplies PLCTONC any more: all enables off, override 100 %.
-                    self.core.set_plctonc(i, self.core.default_plctonc())
-                    log.info("axis %d released by %s", axis_id, client)
-                return make_reply(rid, cmd, 0, "", cycle=cycle)
+                return own(self, axis_id, req, now)
             except NcError as err:
                 return self._error_reply(rid, cmd, err)
-        if cmd == "SetOverride":
+        assert axis_id is not None
+        guard = _GUARDS.get(cmd)
+        if guard is not None:
             try:
-                self.claims.may_override(axis_id, client)
+                guard(self, axis_id, client)
             except NcError as err:
                 return self._error_reply(rid, cmd, err)
         # req["client"] (the key's) stays in the request: the core records it as the commander
@@ -393,6 +403,52 @@ class RequestHandler:
         if reply.get("error"):
             self.errors += 1
         return reply
+
+    # ---- the commands of the server's layer (registered in the command registry) ----------------
+    @_server_command("Info")
+    def _info(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
+        value = {"name": self.keys.nc, **self.core.info(), **self.info_extra(),
+                 "claims": self.claims.claims(), "clients": self.claims.clients(),
+                 "arbitration": self.arbitration()}
+        return make_reply(req["id"], req["cmd"], 0, "", cycle=self.core.cycle + 1, value=value)
+
+    @_server_command("Claim")
+    def _claim(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
+        assert axis_id is not None
+        client = req["client"]
+        self.core.index(axis_id)  # (0x4012 for an axis the core does not have)
+        if not self.claims.is_alive(client):
+            # its token event may have arrived a moment ago: take pending events first
+            self.refresh_liveliness()
+        self.claims.claim(axis_id, client, now)
+        return make_reply(req["id"], req["cmd"], 0, "", cycle=self.core.cycle + 1, value=client)
+
+    @_server_command("HandOver")
+    def _hand_over(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
+        # the claim moves; the applied PLCTONC stays until the new holder's first frame
+        assert axis_id is not None
+        client, to = req["client"], req["To"]
+        self.core.index(axis_id)
+        if to != client and not self.claims.is_alive(to):
+            self.refresh_liveliness()
+        if self.claims.hand_over(axis_id, client, to, now):
+            log.info("axis %d handed over by %s to %s", axis_id, client, to)
+        return make_reply(req["id"], req["cmd"], 0, "", cycle=self.core.cycle + 1, value=to)
+
+    @_server_command("Release")
+    def _release(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
+        assert axis_id is not None
+        client = req["client"]
+        i = self.core.index(axis_id)
+        if self.claims.release(axis_id, client):
+            # Nobody supplies PLCTONC any more: all enables off, override 100 %.
+            self.core.set_plctonc(i, self.core.default_plctonc())
+            log.info("axis %d released by %s", axis_id, client)
+        return make_reply(req["id"], req["cmd"], 0, "", cycle=self.core.cycle + 1)
+
+    @_guard("SetOverride")
+    def _may_override(self, axis_id: int, client: str) -> None:
+        self.claims.may_override(axis_id, client)
 
     # ---- who holds what -----------------------------------------------------------------------
     def role_of(self, client: str) -> tuple[str | None, str]:

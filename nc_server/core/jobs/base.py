@@ -84,8 +84,10 @@ class JobKind:
     #: its name (name, commands, is_stop, holds_enable: no ClassVars, a kind made for several commands sets
     #: them per instance)
     name: str = ""
-    #: request commands this kind accepts
+    #: request commands this kind accepts (each registered as a job: :func:`..commands.register_kind`)
     commands: tuple[str, ...] = ()
+    #: starting its job starts a motion (the contract's ``motion``; the registry checks they agree)
+    motion: ClassVar[bool] = True
     #: BufferModes accepted (others: 0x4B64)
     buffer_modes: ClassVar[frozenset[int]] = frozenset({ABORTING})
     #: a stop: sets HasBeenStopped; never made weaker by a later stop

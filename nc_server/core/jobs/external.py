@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 from nc_schema import CmdState, E_TargPosType, ErrorCodes, NcError
 
+from ..commands import core_command
 from ..planning import Plan, StartState
 from .base import Job, JobKind
 from .stop import HALT_RAMP
@@ -30,6 +31,7 @@ _EPS_V = 1e-9
 class ExternalKind(JobKind):
     name = "ExtSetPointGen"
     commands = ("ExtSetPointGenEnable",)
+    motion = False  # (enabling moves nothing: the fed set-points do)
     follows_override = False  # the PLC's generator owns the velocity
     source = "external"
 
@@ -61,6 +63,7 @@ class ExternalKind(JobKind):
 EXTERNAL = ExternalKind()
 
 
+@core_command("ExtSetPointGenDisable")
 def ext_disable(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """MC_ExtSetPointGenDisable (see the module docstring); not enabled: nothing to do."""
     q = core.queues[i]

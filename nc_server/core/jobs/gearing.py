@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 from nc_schema import CmdState, E_DecoupleMode, ErrorCodes, MC_Direction, NcError
 
+from ..commands import REGISTRY, core_command
 from ..planning import Plan, StartState
 from ..stages.coupling import MAX_RATIO
 from .base import Job, JobKind
@@ -115,12 +116,11 @@ def _coupling_job(core: CoreContext, i: int) -> Job:
     return job
 
 
+@core_command("GearOut", "GearOutExt", motion=True)
 def gear_out(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """MC_GearOut and MC_GearOutExt (see the module docstring). Returns the follow-on command's
     CmdNo (none at standstill). A follow-on command that cannot start (e.g. a target beyond a
     software limit, a missing feed enable) refuses the request: the slave stays coupled."""
-    from . import KINDS  # (the kinds of the other families, registered by the package)
-
     job = _coupling_job(core, i)
     a = core.axes
     start = core.start_state(i, total=True)  # (a superposition of the slave ends with the coupling)
@@ -157,7 +157,8 @@ def gear_out(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any
         v = min(abs(v_end) * (1 + 1e-9), float(a.vmax[i])) if mode == int(D.MC_DECOUPLEMODE_NEWPOS) else req.get("Velocity", 0.0)
         cmd, args = "MoveAbsolute", {"Position": req.get("Position", 0.0), "Velocity": v, **dyn_args, "BufferMode": 0}
     follow = {"cmd": cmd, "id": req.get("id"), "client": req.get("client", ""), **args}
-    kind = KINDS[cmd]
+    kind = REGISTRY[cmd].kind  # (a job kind of another family: registered when gear_out runs)
+    assert kind is not None
     new = kind.accept(core, i, follow, None)
     new.client = str(req.get("client") or "")
     plan = kind.activate(core, i, new, start)

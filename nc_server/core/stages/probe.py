@@ -21,6 +21,7 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, NcError, next_cmdno
 
+from ..commands import core_command
 from ..probe import check_trigger_input, in_window, modulo_position
 
 if TYPE_CHECKING:
@@ -94,6 +95,7 @@ class ProbeStage:
         core.state_dirty = True
 
 
+@core_command("TouchProbe")
 def cmd_touch_probe(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """TouchProbe: arm the latch (a running probe cycle of the axis ends ABORTED: replaced).
 
@@ -128,6 +130,7 @@ def cmd_touch_probe(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[s
     return {"cmd_no": cmd_no}
 
 
+@core_command("AbortTrigger")
 def cmd_abort_trigger(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """AbortTrigger: disarm; a running probe cycle ends ABORTED."""
     st: ProbeStage = core.probe
@@ -137,6 +140,7 @@ def cmd_abort_trigger(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict
     return {}
 
 
+@core_command("SimProbeSignal")
 def cmd_sim_probe_signal(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """SimProbeSignal: a simulated edge of input 1 inside the next cycle (simulated drive only).
 

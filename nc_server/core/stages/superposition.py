@@ -23,6 +23,7 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, StateDWord
 
+from ..commands import core_command
 from ..planning import Dynamics, StartState, plan_velocity
 from ..profile import N_SEGMENTS, evaluate, velocity_extrema
 from .profile import motion_dwords
@@ -179,6 +180,7 @@ class SuperpositionStage:
 _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
 
 
+@core_command("MoveSuperImposed", motion=True)
 def cmd_move_superimposed(core: CoreContext, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt): plan and start the offset
     profile. The reference velocity for Length is |VelocityProcess|, or (0) the set velocity now of
@@ -244,6 +246,7 @@ def cmd_move_superimposed(core: CoreContext, i: int, req: dict[str, Any]) -> dic
                                         "ActualLength": sp.length, "Incomplete": bool(sp.incomplete)}}
 
 
+@core_command("AbortSuperposition")
 def cmd_abort_superposition(core: CoreContext, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """AbortSuperposition: see :meth:`SuperpositionStage.brake` (none running: nothing changes)."""
     core.superposition.brake(core, i)
