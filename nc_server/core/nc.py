@@ -35,7 +35,7 @@ import numpy as np
 
 from nc_schema import (
     NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, ST_AXIS_PARAMETER_SET, CmdState, ControlDWord, E_NcDriveType,
-    E_NcEncoderType, ErrorCodes, NcError, OpModeDWord, StateDWord, make_reply, next_cmdno,
+    COMMAND_CLASS, E_NcEncoderType, ErrorCodes, NcError, OpModeDWord, StateDWord, make_reply, next_cmdno,
 )
 
 from ..drives.base import DriveABC
@@ -81,6 +81,10 @@ _LATCH_VALID = np.uint32(int(StateDWord.ExternalLatchValid))
 
 #: commands that change the running job instead of starting one
 AMENDMENTS = frozenset({"NewPos", "NewPosAndVelo", "ChangeDynParam"})
+#: commands whose engine path ends with the sync of their row (JobEngine.motion, JobEngine.amend)
+_ENGINE_SYNCED = frozenset(KINDS) | AMENDMENTS
+#: the read class (schema/protocol.json): they change nothing, so no row is synced after them
+_READS = frozenset(c for c, k in COMMAND_CLASS.items() if k == "read")
 
 
 class NcCore:
@@ -240,9 +244,16 @@ class NcCore:
             _log.exception("command %r failed", cmd)
             self._sync_refused()
             return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
-        self.engine.sync(i)  # (the engine's rule: records true after every command)
-        self.engine.sync_touched()
-        self.engine.flush_slots()
+        # the engine's rule: records true after every command. Row i is synced unless its engine path
+        # ended with that sync or the command only reads; then the other rows its hooks changed.
+        engine = self.engine
+        if cmd in _READS:
+            engine.sync_touched()
+        else:
+            if cmd not in _ENGINE_SYNCED:
+                engine.sync(i)
+            engine.sync_touched({i: len(engine.touched)})  # (row i: synced after its last change)
+        engine.flush_slots()
         return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
 
     def fault(self, i: int, code: int) -> None:
