@@ -47,7 +47,7 @@ from .engine import KINDS_LIST, JobEngine
 from .jobs import KINDS, Job, JobKind, JobQueue
 from .jobs.stop import STOP
 from .packing import JobRecords, NctoplcPacker
-from .pipeline import Stage, default_pipeline, run_pipeline
+from .pipeline import Pipeline, Stage, default_pipeline, run_pipeline
 from .params import AxisConfig, AxisParams, ConfigError, param_entry
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
 from .profile import evaluate
@@ -157,8 +157,7 @@ class NcCore:
         self.state_dirty = True  # derived state and records to recompute before their next use
         self.profile_idle = np.zeros(0, dtype=np.intp)
         self.plan_ended = self.profile_idle  # the profile stage's rows whose plan ended this cycle
-        #: the cycle's stages in order (pipeline.Stage); step() runs them, the stats show their times
-        self.pipeline: list[Stage] = default_pipeline()
+        self._pipeline = Pipeline(default_pipeline())
         self.stage_last_ns = [0] * len(self.pipeline)
         self.stage_max_ns = [0] * len(self.pipeline)
         self._apply_inputs()
@@ -634,7 +633,17 @@ class NcCore:
         """
         self.cycle += 1
         self.nc_time_ns = int(nc_time_ns) if nc_time_ns is not None else self.nc_time_ns + self._dt_ns
-        run_pipeline(self)
+        run_pipeline(self, self._pipeline)
+
+    @property
+    def pipeline(self) -> list[Stage]:
+        """The cycle's stages in order (:class:`.pipeline.Stage`); step() runs them, the stats show
+        their times. A list: a stage inserted, replaced or removed runs from the next step on."""
+        return self._pipeline
+
+    @pipeline.setter
+    def pipeline(self, stages: list[Stage]) -> None:
+        self._pipeline = Pipeline(stages)
 
     def stage_times(self) -> list[dict[str, Any]]:
         """Per stage of the pipeline, in order: name, last and largest time [us] (the stats' ``stages``)."""
