@@ -246,12 +246,13 @@ class NcCore:
         # the engine's rule: records true after every command. Row i is synced unless its engine path
         # ended with that sync or the command only reads; then the other rows its hooks changed.
         engine = self.engine
-        if cmd in _READS:
-            engine.sync_touched()
-        else:
+        if cmd not in _READS:
             if cmd not in _ENGINE_SYNCED:
                 engine.sync(i)
-            engine.sync_touched({i: len(engine.touched)})  # (row i: synced after its last change)
+            if engine.touched:
+                engine.sync_touched({i: len(engine.touched)})  # (row i: synced after its last change)
+        elif engine.touched:
+            engine.sync_touched()
         engine.flush_slots()
         return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
 
