@@ -114,9 +114,20 @@ class JobEngine:
         core.records.pack_slots(i, core.coupling, core.superposition, core.probe, core.external)
         core.state_dirty = True
 
-    def sync_touched(self) -> None:
-        """Sync the rows a hook changed (see the module docstring)."""
+    def sync_touched(self, synced: dict[int, int] | None = None) -> None:
+        """Sync the rows a hook changed (see the module docstring), in the order of their first change.
+
+        Args:
+            synced: rows the caller synced since, each with ``len(touched)`` at that sync: a row not
+                changed after its sync is not synced again (a sync only mirrors the state).
+        """
         rows, self.touched = self.touched, []
+        if synced:
+            last = {r: k for k, r in enumerate(rows)}  # (a row's last change)
+            for i in dict.fromkeys(rows):
+                if last[i] >= synced.get(i, -1):
+                    self.sync(i)
+            return
         for i in dict.fromkeys(rows):
             self.sync(i)
 
@@ -371,6 +382,7 @@ class JobEngine:
         core = self.core
         a = core.axes
         self.touched.clear()  # (rows touched before are synced by whoever touched them)
+        synced: dict[int, int] = {}  # rows whose branch below ended with their sync (sync_touched)
         for i in rows.tolist():
             q = core.queues[i]
             job = q.active
@@ -400,9 +412,10 @@ class JobEngine:
                 self.finish(i, job)
             else:  # "continue": the kind planned on
                 self.sync(i)
+            synced[i] = len(self.touched)
             core.state_dirty = True
         if self.touched:
-            self.sync_touched()
+            self.sync_touched(synced)
 
     def watches(self, watch_rows: list[tuple[JobKind, np.ndarray]]) -> None:
         """The per-cycle watches of the running jobs, kind by kind (rows synced as they changed)."""
@@ -413,8 +426,10 @@ class JobEngine:
                 rows = self.still_watched(kind, rows)
                 if not rows.size:
                     continue
-            guarded(f"job watch of {kind.name}", lambda kind=kind, rows=rows: kind.watch(core, rows),
-                    rows.tolist, core.fault)
+            try:  # (the guard of guarded(), inline: no closure and no text built every cycle)
+                kind.watch(core, rows)
+            except Exception:
+                on_bug(f"job watch of {kind.name}", rows.tolist(), core.fault)
             if self.touched:
                 self.sync_touched()
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from nc_schema import (
     NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, ST_AXIS_PARAMETER_SET, CmdState, ControlDWord, E_NcDriveType,
-    E_NcEncoderType, ErrorCodes, NcError, OpModeDWord, StateDWord, make_reply, next_cmdno,
+    COMMAND_SPECS, E_NcEncoderType, ErrorCodes, NcError, OpModeDWord, StateDWord, make_reply, next_cmdno,
 )
 
 from ..drives.base import DriveABC
@@ -45,10 +45,10 @@ from .axes import AxisTable
 from .checks import MAX_POSITION
 from .commands import CORE_HANDLERS, core_command
 from .engine import KINDS_LIST, JobEngine
-from .jobs import Job, JobKind, JobQueue
+from .jobs import KINDS, Job, JobKind, JobQueue
 from .jobs.stop import STOP
 from .packing import JobRecords, NctoplcPacker
-from .pipeline import Stage, default_pipeline, run_pipeline
+from .pipeline import Pipeline, Stage, default_pipeline, run_pipeline
 from .params import AxisConfig, AxisParams, ConfigError, param_entry
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
 from .profile import evaluate
@@ -76,6 +76,11 @@ _COMPENSATING = np.uint32(int(StateDWord.Compensating))
 _EXT_ENABLED = np.uint32(int(StateDWord.ExtSetPointGenEnabled))
 _LATCH_VALID = np.uint32(int(StateDWord.ExternalLatchValid))
 
+#: commands whose engine path ends with the sync of their row (JobEngine.motion, JobEngine.amend): the job
+#: kinds (the registry's, filled when .jobs was imported) and the contract's amendments
+_ENGINE_SYNCED = frozenset(KINDS) | frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
+#: the read class (schema/protocol.json): they change nothing, so no row is synced after them
+_READS = frozenset(n for n, s in COMMAND_SPECS.items() if s.cls == "read")
 
 class NcCore:
     """All axes of one NC, stepped one fixed cycle at a time.
@@ -147,8 +152,7 @@ class NcCore:
         self.state_dirty = True  # derived state and records to recompute before their next use
         self.profile_idle = np.zeros(0, dtype=np.intp)
         self.plan_ended = self.profile_idle  # the profile stage's rows whose plan ended this cycle
-        #: the cycle's stages in order (pipeline.Stage); step() runs them, the stats show their times
-        self.pipeline: list[Stage] = default_pipeline()
+        self._pipeline = Pipeline(default_pipeline())
         self.stage_last_ns = [0] * len(self.pipeline)
         self.stage_max_ns = [0] * len(self.pipeline)
         self._apply_inputs()
@@ -234,9 +238,17 @@ class NcCore:
             _log.exception("command %r failed", cmd)
             self._sync_refused()
             return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
-        self.engine.sync(i)  # (the engine's rule: records true after every command)
-        self.engine.sync_touched()
-        self.engine.flush_slots()
+        # the engine's rule: records true after every command. Row i is synced unless its engine path
+        # ended with that sync or the command only reads; then the other rows its hooks changed.
+        engine = self.engine
+        if cmd not in _READS:
+            if cmd not in _ENGINE_SYNCED:
+                engine.sync(i)
+            if engine.touched:
+                engine.sync_touched({i: len(engine.touched)})  # (row i: synced after its last change)
+        elif engine.touched:
+            engine.sync_touched()
+        engine.flush_slots()
         return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
 
     def fault(self, i: int, code: int) -> None:
@@ -619,7 +631,17 @@ class NcCore:
         """
         self.cycle += 1
         self.nc_time_ns = int(nc_time_ns) if nc_time_ns is not None else self.nc_time_ns + self._dt_ns
-        run_pipeline(self)
+        run_pipeline(self, self._pipeline)
+
+    @property
+    def pipeline(self) -> list[Stage]:
+        """The cycle's stages in order (:class:`.pipeline.Stage`); step() runs them, the stats show
+        their times. A list: a stage inserted, replaced or removed runs from the next step on."""
+        return self._pipeline
+
+    @pipeline.setter
+    def pipeline(self, stages: list[Stage]) -> None:
+        self._pipeline = Pipeline(stages)
 
     def stage_times(self) -> list[dict[str, Any]]:
         """Per stage of the pipeline, in order: name, last and largest time [us] (the stats' ``stages``)."""

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from time import perf_counter_ns
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Protocol
 
 import numpy as np
 
@@ -47,6 +47,14 @@ class Stage(Protocol):
 class _Stage:
     name = ""
 
+    def bind(self, core: NcCore) -> Callable[[NcCore], None]:
+        """What :func:`run_pipeline` calls with ``core`` every cycle, looked up once: :meth:`run`; a
+        stage that only forwards to a method of the core gives that method's function (a call less)."""
+        return self.run
+
+    def run(self, core: NcCore) -> None:
+        raise NotImplementedError
+
     def rows_at_fault(self, core: NcCore) -> np.ndarray | None:
         return None
 
@@ -63,6 +71,9 @@ class Inputs(_Stage):
 
     def run(self, core: NcCore) -> None:
         core.take_inputs()
+
+    def bind(self, core: NcCore) -> Callable[[NcCore], None]:
+        return type(core).take_inputs
 
 
 class Profile(_Stage):
@@ -105,7 +116,7 @@ class SetPoints(_Stage):
             sup.evaluate()
             sup.apply(core, sup.rows[cpl.master[sup.rows] < 0])  # (the slaves' after their coupling)
         if cpl.active:
-            over += cpl.run(core, (lambda rows: sup.apply(core, rows)) if sup.active else None)
+            over += cpl.run(core, sup.apply if sup.active else None)  # (no closure built every cycle)
         if sup.active:
             over += sup.limits(core)
             sup.ended(core)
@@ -140,6 +151,9 @@ class Drive(_Stage):
 
     def run(self, core: NcCore) -> None:
         core.step_drive()
+
+    def bind(self, core: NcCore) -> Callable[[NcCore], None]:
+        return type(core).step_drive
 
 
 class Probe(_Stage):
@@ -182,32 +196,72 @@ class Output(_Stage):
     def run(self, core: NcCore) -> None:
         core.fill_nctoplc()
 
+    def bind(self, core: NcCore) -> Callable[[NcCore], None]:
+        return type(core).fill_nctoplc
+
 
 def default_pipeline() -> list[Stage]:
     """The NC cycle's stages, in order."""
     return [Inputs(), Profile(), PlanEnds(), SetPoints(), Jobs(), Drive(), Probe(), Monitoring(), Output()]
 
 
-def run_pipeline(core: NcCore) -> None:
-    """Run ``core.pipeline`` once: each stage under the one fault guard, its time kept
-    (``core.stage_last_ns`` / ``core.stage_max_ns``, by position in the pipeline)."""
+def _changes(name: str) -> Callable[..., Any]:
+    base = getattr(list, name)
+
+    def method(self: Pipeline, *args: Any, **kwargs: Any) -> Any:
+        self.calls = None
+        return base(self, *args, **kwargs)
+    method.__name__ = name
+    return method
+
+
+class Pipeline(list):  # type: ignore[type-arg]  # (a list[Stage])
+    """``NcCore.pipeline``: one core's stages in order, a list like any other (read, insert, replace).
+    :func:`run_pipeline` calls what the stages bound once (``calls``, :meth:`_Stage.bind`; a stage
+    without ``bind``: its ``run``); any change of the list drops them, to be bound anew at the next
+    cycle."""
+
+    def __init__(self, stages: Iterable[Stage] = ()) -> None:
+        super().__init__(stages)
+        self.calls: tuple[Callable[[NcCore], None], ...] | None = None
+
+    def bind(self, core: NcCore) -> tuple[Callable[[NcCore], None], ...]:
+        """The stages' calls for ``core`` (kept until the list changes); the timing lists of the
+        core grown to the stages."""
+        self.calls = tuple(stage.bind(core) if hasattr(stage, "bind") else stage.run for stage in self)
+        for times in (core.stage_last_ns, core.stage_max_ns):
+            times += [0] * (len(self) - len(times))
+        return self.calls
+
+
+for _name in ("__setitem__", "__delitem__", "__iadd__", "__imul__", "append", "extend", "insert", "pop", "remove",
+              "clear", "sort", "reverse"):  # (every change in place)
+    setattr(Pipeline, _name, _changes(_name))
+del _name
+
+
+def run_pipeline(core: NcCore, stages: Pipeline) -> None:
+    """Run the pipeline ``stages`` (``core.pipeline``) once: each stage under the one fault guard, its
+    time kept (``core.stage_last_ns`` / ``core.stage_max_ns``, by position in the pipeline; one clock
+    read per stage boundary, the end of one stage is the start of the next)."""
+    calls = stages.calls or stages.bind(core)
     last, peak = core.stage_last_ns, core.stage_max_ns
     k = 0
     t = perf_counter_ns()
-    for stage in core.pipeline:
-        try:
-            stage.run(core)
+    for call in calls:
+        try:  # (free in CPython >= 3.11 while nothing is raised)
+            call(core)
         except Exception:
+            stage = stages[k]
             rows = stage.rows_at_fault(core)
             if rows is None:
                 raise
             on_bug(f"stage {stage.name}", rows.tolist(), core.fault)
         now = perf_counter_ns()
-        dt = now - t
-        t = now
-        last[k] = dt
+        dt = last[k] = now - t
         if dt > peak[k]:
             peak[k] = dt
+        t = now
         k += 1
 
 

@@ -202,8 +202,8 @@ class CouplingStage:
             self._cache = (lv, s, lim)
         return self._cache
 
-    def run(self, core: CoreContext, after_level: Callable[[np.ndarray], None] | None) -> list[tuple[int, int]]:
-        """Set-points of every slave, level by level; ``after_level(rows)`` runs after each level
+    def run(self, core: CoreContext, after_level: Callable[[CoreContext, np.ndarray], None] | None) -> list[tuple[int, int]]:
+        """Set-points of every slave, level by level; ``after_level(core, rows)`` runs after each level
         (the superposition of those rows, before their own slaves read them). Returns (row, code) of
         the slaves beyond their limits, for the NC to fault: 0x4359 AxisVeloMax, 0x422F
         max(AxisAcc, AxisDec)."""
@@ -232,7 +232,7 @@ class CouplingStage:
             core.sp_dw[rows] = motion_dwords(S[1, rows], S[2, rows])
             core.axis_state[rows] = state
             if after_level is not None:
-                after_level(rows)
+                after_level(core, rows)
         # beyond AxisVeloMax: the fault ramp then takes the acceleration down with up to 4 x AxisJerk
         # (JobEngine.start_ramp)
         v, acc = S[1, s], S[2, s]
