@@ -28,7 +28,7 @@ from typing import Any
 NC_FILE = "nc_server/core/nc.py"
 #: names under which modules hold an NcCore (or the narrow context it hands to jobs and stages)
 HOLDERS = frozenset({"core", "ctx", "nc"})
-SKIP_DIRS = frozenset({".venv", ".git", "__pycache__", "build", "dist", ".mypy_cache"})
+SKIP_DIRS = frozenset({".cache", ".venv", ".git", "__pycache__", "build", "dist", ".mypy_cache"})
 
 
 def _nccore_class(tree: ast.Module) -> ast.ClassDef:

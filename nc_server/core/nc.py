@@ -643,6 +643,12 @@ class NcCore:
     def pipeline(self, stages: list[Stage]) -> None:
         self._pipeline = Pipeline(stages)
 
+    @property
+    def inputs_pending(self) -> bool:
+        """A PLCTONC changed since the last step: the next step's inputs stage applies it (an unchanged
+        frame leaves this False: nothing to re-derive)."""
+        return self._in_dirty
+
     def stage_times(self) -> list[dict[str, Any]]:
         """Per stage of the pipeline, in order: name, last and largest time [us] (the stats' ``stages``)."""
         return [{"name": st.name, "last_us": round(last / 1000.0, 1), "max_us": round(peak / 1000.0, 1)}

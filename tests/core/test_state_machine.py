@@ -128,7 +128,7 @@ def test_set_plctonc_many_applies_and_is_idempotent():
     assert [state(core, i) for i in range(3)] == [S.MC_AXISSTATE_STANDSTILL, S.MC_AXISSTATE_DISABLED,
                                                   S.MC_AXISSTATE_STANDSTILL]
     core.set_plctonc_many(np.array([0, 2]), recs)  # unchanged frame: nothing to re-derive
-    assert not core._in_dirty
+    assert not core.inputs_pending
 
 
 def test_enable_off_after_fault_and_stop_disables():
