@@ -90,10 +90,10 @@ class NctoplcPacker:
         """This cycle's values from the axis table, the drive and the set-point words of ``core``."""
         a, d, o = core.axes, core.drive, self.out
         act = core.act_pos
-        sd = o["StateDWord"]  # (composed in place: no temporary to copy)
-        np.bitwise_or(event_dw, core.sp_dw, out=sd)
+        sd = event_dw | core.sp_dw
         sd |= a.mon_dw
         sd |= (a.enabled & d.ready) * loop_dw
+        o["StateDWord"][...] = sd
         o["AxisState"][...] = core.axis_state
         period = a.modulo_factor
         o["ActPos"][...] = act
