@@ -1,7 +1,7 @@
 """Recovery after a router restart or a link cut, on real processes (nc-router, nc-server behind it,
 plc-run and a measuring client on 127.0.0.1): how long until the first fresh NC frame at the PLC
 and the first accepted command, against a same-run baseline (a fresh client session's first
-accepted command). The scenarios and figures are those of tests/integration/failsafe_recovery.py
+accepted command). The scenarios and figures are those of tests/znc_testing/failsafe_recovery.py
 (also run, once each, by tests/integration/test_failsafe_router.py):
 
 * router:    nc-router SIGKILLed, started again on the same port;

@@ -4,7 +4,9 @@ The JSON files in the repository's ``schema/`` folder are the single source of t
 (language-neutral: a C, Rust or TypeScript client reads the same files); this package builds
 the Python codec from them at import time (:mod:`.layout`: dtypes and the one dtype -> struct conversion;
 :mod:`.frames`: the frame codec every client and the NC use), plus the typed enums and error codes that
-``python -m nc_schema.generate`` writes into the committed :mod:`.generated`. An installed wheel carries a
+``python -m nc_schema.generate`` writes into the committed :mod:`.generated`, and :mod:`.commands`: every
+command's properties (:data:`COMMAND_SPECS`, the typed view of ``protocol.json``'s commands that the NC's
+command registry and the clients' command sets are checked against). An installed wheel carries a
 copy of the JSON in ``nc_schema/contract/`` (see ``layout.CONTRACT_DIR``).
 
 May import: the standard library, numpy, msgpack, zenoh (the client config); not a client package

@@ -1,6 +1,14 @@
 """The pure NC core: axis state machine, motion engine (jobs, set-point stages), monitoring.
 
-No zenoh, no threads, no clock reads: a test drives it one cycle at a time.
+Owns: :class:`NcCore` (the front: execute, step, PLCTONC in, parameters), the narrow
+:class:`~.context.CoreContext` jobs and stages type against, the job lifecycle (:mod:`.engine`), the
+pure checks (:mod:`.checks`), the record packing (:mod:`.packing`), the cycle's pipeline
+(:mod:`.pipeline`) and the command registry (:mod:`.commands`: every core command registered where it
+is implemented, checked against ``schema/protocol.json``).
+
+May import: ``nc_schema``, numpy, ruckig, ``nc_server.drives``; never zenoh, threads or a client package.
+No zenoh, no threads; the only clock reads are the pipeline's per-stage timing (stats ``stages``): a test
+drives the core one cycle at a time.
 """
 from .jobs import KINDS, Job, JobKind, JobQueue
 from .nc import NcCore

@@ -77,7 +77,9 @@ _EXT_ENABLED = np.uint32(int(StateDWord.ExtSetPointGenEnabled))
 _LATCH_VALID = np.uint32(int(StateDWord.ExternalLatchValid))
 
 #: commands whose engine path ends with the sync of their row (JobEngine.motion, JobEngine.amend): the job
-#: kinds (the registry's, filled when .jobs was imported) and the contract's amendments
+#: kinds (the registry's, filled when .jobs was imported) and the contract's amendments (the registry
+#: refuses an amendment registered other than as ``how="amendment"``, whose handler must end in
+#: JobEngine.amend). A read-class command must change no record: execute syncs nothing after it.
 _ENGINE_SYNCED = frozenset(KINDS) | frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 #: the read class (schema/protocol.json): they change nothing, so no row is synced after them
 _READS = frozenset(n for n, s in COMMAND_SPECS.items() if s.cls == "read")

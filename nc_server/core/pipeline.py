@@ -215,7 +215,7 @@ def _changes(name: str) -> Callable[..., Any]:
     return method
 
 
-class Pipeline(list):  # type: ignore[type-arg]  # (a list[Stage])
+class Pipeline(list["Stage"]):
     """``NcCore.pipeline``: one core's stages in order, a list like any other (read, insert, replace).
     :func:`run_pipeline` calls what the stages bound once (``calls``, :meth:`_Stage.bind`; a stage
     without ``bind``: its ``run``); any change of the list drops them, to be bound anew at the next

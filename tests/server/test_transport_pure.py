@@ -30,7 +30,7 @@ def test_nc_behind_a_router_retries_a_lost_connection_every_100_to_250_ms() -> N
 
 
 def test_one_client_config_for_plc_tools_and_host_tests() -> None:
-    """plc_client.runtime, nc_tools.common and tests/hosts/hostlib build their zenoh sessions with
+    """plc_client.runtime, nc_tools.common and tests/znc_testing/hostlib build their zenoh sessions with
     nc_schema.zenoh_config.client_config (one function; they differ only in lease and timeout)."""
     import nc_tools.common
     import plc_client.runtime

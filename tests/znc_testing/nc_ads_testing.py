@@ -1,6 +1,6 @@
 """Helpers of the nc-ads tests: an ``nc-ads`` process on its own loopback address in front of a real nc-server.
 
-    nc = start_nc_server(tmp)                                   # tests/znc_testing.py
+    nc = start_nc_server(tmp)                                   # znc_testing
     ads = start_nc_ads(tmp, nc.endpoint, role="operator")       # 127.0.0.x:48898, waits for its ready line
     plc = pyads.Connection(ads.netid, 500, ads.host); plc.open()
     ...
