@@ -53,12 +53,14 @@ class Trace:
         before_step: called before every step (e.g. a cam simulated from the last sample's ActPos).
         shift_ok: ``shift_ok(prev, sample)`` true where the position may be set (SetPos and ActPos jump
             by the same amount: PosDiff stays continuous), e.g. at the end of homing.
+        floors: check velocity floors, learnt (:meth:`learn`) from every command the core executes for
+            this axis and from every change of the axis's applied override.
     """
 
     def __init__(self, core: NcCore, i: int = 0, vmax: float | None = None, amax: float | None = None,
                  jerk: float | None = None, check_jumps: bool = True,
                  before_step: Callable[[], Any] | None = None,
-                 shift_ok: Callable[[np.void, np.void], Any] | None = None) -> None:
+                 shift_ok: Callable[[np.void, np.void], Any] | None = None, floors: bool = True) -> None:
         p = core.params[i]
         self.core, self.i = core, i
         self.vmax = p.AxisVeloMax if vmax is None else vmax
@@ -81,6 +83,9 @@ class Trace:
         self._floors: dict[int, list[Any]] = {}
         self._learned: dict[int, tuple[float, float]] = {}  # CmdNo -> (velocity at 100 %, jerk)
         self._override = float(core.override(i))
+        self.floors = floors
+        if floors:
+            _learn_from(core, self)
 
     # -- velocity floors -------------------------------------------------------------------------
     def floor(self, v: float, cmd_no: int, jerk: float | None = None) -> None:
@@ -141,9 +146,10 @@ class Trace:
         self.floor(v100 * self._override, no, jerk)
 
     def cmd(self, name: str, **args: Any) -> dict[str, Any]:
-        """Send command ``name`` to this trace's axis and :meth:`learn` its floors."""
+        """Send command ``name`` to this trace's axis (its floors learnt)."""
         reply = _cmd(self.core, name, int(self.core.axis_ids[self.i]), **args)
-        self.learn(name, args, reply)
+        if not self.floors:
+            self.learn(name, args, reply)
         return reply
 
     def _check_floor(self, p: tuple[Any, ...], r: tuple[Any, ...], c: int) -> None:
@@ -219,6 +225,10 @@ class Trace:
 
     # -- the checks ------------------------------------------------------------------------------
     def _take(self) -> None:
+        if self.floors:
+            ov = float(self.core.override(self.i))
+            if ov != self._override:  # the override applied in this step: the floors from its start
+                self.learn("Override", {"Override": ov})
         r = self.core.nctoplc[self.i].copy()
         j = self.core.ncjobs[self.i].copy()
         self._check(self._prev, r, j)
@@ -290,6 +300,26 @@ class Trace:
             if no in self.fates:
                 assert self.fates[no] == (st, err), f"cycle {c}: the fate of {no} changed {self.fates[no]} -> {(st, err)}"
             self.fates[no] = (st, err)
+
+
+def _learn_from(core: NcCore, tr: Trace) -> None:
+    """Let ``tr`` learn its floors from every request ``core.execute`` runs for its axis (one wrapper
+    per core, shared by its traces)."""
+    execute = core.execute
+    traces: list[Trace] | None = getattr(execute, "traces", None)
+    if traces is None:
+        traces = []
+
+        def learning(request: dict[str, Any], axis_id: int | None) -> dict[str, Any]:
+            reply: dict[str, Any] = execute(request, axis_id)
+            for t in traces:
+                if axis_id is not None and int(t.core.axis_ids[t.i]) == axis_id:
+                    t.learn(str(request.get("cmd")), request, reply)
+            return reply
+
+        learning.traces = traces  # type: ignore[attr-defined]
+        core.execute = learning  # type: ignore[method-assign]
+    traces.append(tr)
 
 
 def velocity_at(tr: Trace, pos: float) -> float:
