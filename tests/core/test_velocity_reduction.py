@@ -7,6 +7,9 @@ a^2 / (2 * jerk) = 250 u/s below the limit). The rule: no SetVelo below the new 
 noise, a = 0 on arrival, as fast as the dynamics allow (here 0.3 s: 0.1 s jerk, 0.1 s at -5000, 0.1 s
 jerk). Every case runs under the per-cycle checker with its velocity floors (:meth:`Trace.learn`).
 """
+import random
+
+import numpy as np
 import pytest
 
 from nc_schema import CmdState, MC_BufferMode
@@ -264,3 +267,45 @@ def test_move_at_override_zero_not_refused_for_another_axis_target():
     assert rep["error"] == 0, rep
     power(core, 1)
     run_until(core, lambda: float(core.nctoplc[1]["SetPos"]) == 50.0 and not core.nctoplc[1]["SetVelo"])
+
+
+def _sampled(plan, n=4000):
+    """(times, positions, velocities) of ``plan`` sampled from 0 to its end."""
+    ts = np.linspace(0.0, plan.duration, n)
+    t0, p, v, a, j = plan.seg
+    k = np.searchsorted(t0, ts, side="right") - 1
+    tau = ts - t0[k]
+    return (ts, p[k] + tau * (v[k] + tau * (a[k] / 2 + tau * j[k] / 6)),
+            v[k] + tau * (a[k] + tau * j[k] / 2))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_random_reductions_never_dip_and_rise(seed):
+    """Random start states faster than (or carried past) a random limit, random dynamics and targets
+    ahead: the plan ends at the target, its extrema bound the path, and below the floor (the limit, or
+    the least dip the jerk allows) the velocity never rises again while it moves forward."""
+    rng = random.Random(seed)
+    checked = 0
+    for _ in range(300):
+        jerk = rng.choice([20000.0, 50000.0, 100000.0])
+        acc, dec = rng.choice([1000.0, 5000.0, 8000.0]), rng.choice([1000.0, 5000.0, 8000.0])
+        v0, a0, vl = rng.uniform(10, 3000), rng.uniform(-8000, 8000), rng.uniform(10, 3000)
+        target, ve = rng.uniform(1, 5000), rng.choice([0.0, rng.uniform(0, vl)])
+        if v0 + max(a0, 0.0) ** 2 / (2 * jerk) <= vl:
+            continue
+        plan = plan_position(StartState(0.0, v0, a0), target, Dynamics(vl, acc, dec, jerk), ve)
+        assert plan.seg[0, -1] == np.inf  # the sentinel
+        ts, p, v = _sampled(plan)
+        assert plan.end.p == pytest.approx(target, abs=1e-6) and p[-1] == pytest.approx(target, abs=1e-6)
+        tol = dec * (plan.duration / len(ts)) ** 2 + 1e-6  # a turning point between two samples
+        assert plan.p_min - tol <= p.min() and p.max() <= plan.p_max + tol
+        assert p.min() <= plan.p_min + tol and plan.p_max - tol <= p.max()
+        if v.min() < 0:  # a full brake passing the target: past it and back, as before
+            continue
+        floor = min(vl, v0 - min(a0, 0.0) ** 2 / (2 * jerk))
+        below = np.nonzero(v < floor - 1e-7 * vl)[0]
+        if len(below):
+            rest = v[below[0]:]
+            assert (rest - np.minimum.accumulate(rest) <= 1e-7 * vl).all(), (v0, a0, vl, target, ve)
+        checked += 1
+    assert checked > 100
