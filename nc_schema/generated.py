@@ -217,11 +217,12 @@ class MC_BufferMode(IntEnum):
 
 
 class E_JogMode(IntEnum):
-    """MC_Jog modes (Tc2_MC2 numbering from 0; INCHING_MODULO is Tc2_MC2 only)."""
+    """MC_Jog modes (Tc2_MC2 numbering from 0; INCHING_MODULO is Tc2_MC2 only). MC_JOGMODE_CONTINOUS is Tc2_MC2's spelling; MC_JOGMODE_CONTINUOUS is the same value (an alias)."""
 
     MC_JOGMODE_STANDARD_SLOW = 0
     MC_JOGMODE_STANDARD_FAST = 1
     MC_JOGMODE_CONTINOUS = 2
+    MC_JOGMODE_CONTINUOUS = 2
     MC_JOGMODE_INCHING = 3
     MC_JOGMODE_INCHING_MODULO = 4
 

@@ -15,7 +15,8 @@ What the block sends (wire contract, ``schema/protocol.json``):
 * the mode decides which inputs go with it: MC_JOGMODE_STANDARD_SLOW/FAST send only Mode and
   Direction (the NC uses AxisVeloManSlow/AxisVeloManFast and the axis dynamics; the block's
   Position/Velocity/dynamics are ignored and not checked, as the manual says they need not be
-  specified); MC_JOGMODE_CONTINOUS sends Velocity and the dynamics (not Position: "no effect");
+  specified); MC_JOGMODE_CONTINOUS (Tc2_MC2's spelling; ``E_JogMode.MC_JOGMODE_CONTINUOUS`` is the
+  same value) sends Velocity and the dynamics (not Position: "no effect");
   MC_JOGMODE_INCHING and MC_JOGMODE_INCHING_MODULO send Position too. The inputs are latched at
   the edge;
 * continuous modes (STANDARD_SLOW, STANDARD_FAST, CONTINOUS): when the key that started the

@@ -191,7 +191,7 @@ class MotionBlock(ExecuteBlock):
             return
         ax = self.Axis
         assert ax is not None
-        if ax.Status.NcCycleCounter < self._cmd_cycle:
+        if not ax.shows_cycle(self._cmd_cycle):
             return  # the frame does not show the command's effect yet
         jobs = ax.NcJobs
         if int(jobs["AxisId"]):
