@@ -174,16 +174,6 @@ def test_svb_and_saf_entries_count_the_buffered_and_the_running_command():
     assert float(r["SetVelo"]) == 0.0
 
 
-def test_axis_mode_confirmation_stays_zero_whatever_is_requested():
-    core = powered()
-    rec = core.plctonc[0].copy()
-    rec["AxisModeRequest"] = 3
-    core.set_plctonc(0, rec)
-    for _ in range(3):
-        core.step()
-    assert int(core.nctoplc[0]["AxisModeConfirmation"]) == 0
-
-
 # ---- the drive's I/O and device state -------------------------------------------------------------------
 
 def _dw(core, i: int = 0) -> int:
