@@ -48,6 +48,9 @@ class Mechanics:
         self.coulomb = np.zeros(n)   # [%]
         self.offset = np.zeros(n)
         self.fields = np.zeros((6, n))
+        self._n = n
+        self._offset_on = False  # some offset is not 0 (else the offset's rows need no work)
+        self._offset_dirty = False  # the offsets changed since the last step
         self._rest = 0  # steps in a row without any drive delivering torque (3: at rest, nothing to do)
 
     def configure(self, i: int, params: AxisParams) -> None:
@@ -60,6 +63,8 @@ class Mechanics:
         """The additive torque [%] per axis: non-finite values keep the last value, |value| clipped to 1000 %."""
         ok = np.isfinite(values)
         self.offset[ok] = np.clip(values[ok], -OFFSET_LIMIT, OFFSET_LIMIT)
+        self._offset_on = bool(np.count_nonzero(self.offset))
+        self._offset_dirty = True
 
     @property
     def resting(self) -> bool:
@@ -75,7 +80,8 @@ class Mechanics:
             set_velo, set_acc: the set-point [u/s, u/s^2]; act_velo, act_acc: the measured motion.
         """
         f = self.fields
-        if not np.count_nonzero(delivering):  # (far cheaper than ndarray.any here)
+        k = np.count_nonzero(delivering)  # (far cheaper than ndarray.any here)
+        if not k:
             if self._rest < 3:
                 self._rest += 1
                 if self._rest < 3:  # 1: the fields fall to 0 within this cycle, 2: their derivatives
@@ -87,10 +93,14 @@ class Mechanics:
         t = self.inertia * np.array((set_acc, act_acc))
         t += self.viscous * v
         t += self.coulomb * np.sign(v)
-        t[0] += self.offset
-        t *= delivering
+        if self._offset_on:
+            t[0] += self.offset
+        if k < self._n:
+            t *= delivering
         # derivatives from the values shown last cycle (rows 0, 1), in NCTOPLC's order (act, set)
         np.subtract(t[::-1], f[1::-1], out=f[2:4])
         f[2:4] *= self.inv_dt
         f[0:2] = t
-        np.multiply(self.offset, delivering, out=f[5])
+        if self._offset_on or self._offset_dirty:
+            np.multiply(self.offset, delivering, out=f[5])
+            self._offset_dirty = False
