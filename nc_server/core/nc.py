@@ -364,8 +364,7 @@ class NcCore:
         otherwise now: an encoder parameter). The NC's copies follow at once (the set position of a disabled
         axis follows its actual position), then every hook of :attr:`position_jump_hooks` is called."""
         a = self.axes
-        self.act_pos = self.act_pos.copy()
-        self.act_pos[i] += jump
+        self.act_pos = self.drive.act_pos + a.offset  # (a new array: the drive's may have changed in place)
         self.prev_act_pos = self.prev_act_pos.copy()  # (a latch compares the last two: no motion)
         self.prev_act_pos[i] += jump
         if not a.enabled[i]:
