@@ -44,6 +44,7 @@ from . import checks
 from .axes import AxisTable
 from .checks import MAX_POSITION
 from .commands import CORE_HANDLERS, core_command
+from .drive_monitor import DriveMonitor
 from .engine import KINDS_LIST, JobEngine
 from .jobs import KINDS, Job, JobKind, JobQueue
 from .jobs.stop import STOP
@@ -150,6 +151,10 @@ class NcCore:
         self._dt_ns = int(round(self.cycle_time * 1e9))
         self.act_pos = self.drive.act_pos.copy()
         self.prev_act_pos = self.act_pos.copy()
+        self.drive_monitor = DriveMonitor(n)
+        #: called as hook(row, jump [u]) when an axis's actual position moved without motion (an encoder
+        #: parameter changed what the drive reports): what keeps a history of positions restarts there
+        self.position_jump_hooks: list[Callable[[int, float], None]] = []
         self._in_dirty = True
         self.state_dirty = True  # derived state and records to recompute before their next use
         self.profile_idle = np.zeros(0, dtype=np.intp)
@@ -346,9 +351,27 @@ class NcCore:
         self.params[i] = new
         self.configs[i].params = new
         self.axes.load_params(i, new)
+        before = float(self.drive.act_pos[i])
         self.drive.configure(i, new)
         self.coupling.invalidate()  # (its copies of the limits)
         self.state_dirty = True
+        jump = float(self.drive.act_pos[i]) - before
+        if jump:
+            self.position_jumped(i, jump)
+
+    def position_jumped(self, i: int, jump: float) -> None:
+        """Axis row ``i``'s actual position moved by ``jump`` [u] without motion (the drive reports it
+        otherwise now: an encoder parameter). The NC's copies follow at once (the set position of a disabled
+        axis follows its actual position), then every hook of :attr:`position_jump_hooks` is called."""
+        a = self.axes
+        self.act_pos = self.drive.act_pos + a.offset  # (a new array: the drive's may have changed in place)
+        self.prev_act_pos = self.prev_act_pos.copy()  # (a latch compares the last two: no motion)
+        self.prev_act_pos[i] += jump
+        if not a.enabled[i]:
+            a.set_pos[i] = a.target_pos[i] = self.act_pos[i]
+        self.state_dirty = True
+        for hook in self.position_jump_hooks:
+            hook(i, jump)
 
     def _moves(self, i: int) -> bool:
         """Whether axis row ``i`` moves or is driven: a job, a plan, a set velocity, a coupling, a
@@ -715,6 +738,7 @@ class NcCore:
         self._enable_in = (ctrl & _EN) != 0
         self._feed_plus = (ctrl & _FP) != 0
         self._feed_minus = (ctrl & _FM) != 0
+        self.drive.set_torque_offset(self.plctonc["ExtTorque"])  # (TorqueOffset; the drive judges the value)
         raw = self.plctonc["Override"]
         too_high = (raw > _OVERRIDE_MAX).nonzero()[0]
         for i in too_high.tolist():
@@ -811,7 +835,8 @@ class NcCore:
         self._has_offset = bool(np.count_nonzero(a.offset))
         self.has_origin = bool(np.count_nonzero(a.origin))
         out["ErrorCode"] = a.error
-        out["SafEntries"] = job
+        out["SafEntries"] = job  # (1 while a job runs; SvbEntries 1 while a command waits behind it)
+        out["SvbEntries"] = a.buffered
         out["OpModeDWord"] = a.opmode | self._opmode_sim
         out["CmdNo"] = a.cmd_no
         out["CmdState"] = a.cmd_state

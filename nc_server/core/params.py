@@ -48,7 +48,8 @@ class ConfigError(ValueError):
 
 
 def _p(default: Any, kind: str, doc: str) -> Any:
-    """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite)."""
+    """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite),
+    "mask" (2^k - 1, k = 1..32)."""
     return field(default=default, metadata={"kind": kind, "doc": doc})
 
 
@@ -98,9 +99,12 @@ class AxisParams:
     AxisAllowMotionCmdToExtSetAxis: bool = _p(
         False, "bool", "TwinCAT 'Allow motion commands to external setpoint axis' (OpModeDWord.OpModeAllowExtSetAxisCommands): "
         "a motion command disables the external set-point generator; off: refused with 0x4B08")
-    AxisEncoderScalingFactor: float = _p(1.0, "pos", "encoder scaling (stored)")
-    AxisEncoderOffset: float = _p(0.0, "real", "encoder offset (stored)")
-    AxisEncoderDirectionInverse: bool = _p(False, "bool", "encoder direction inverted (stored)")
+    # the encoder chain of the simulated drive (nc_server/drives/encoder.py):
+    # ActPos = +-(increments & AxisEncoderEncoderMask) * AxisEncoderScalingFactor + AxisEncoderOffset
+    AxisEncoderScalingFactor: float = _p(1.0, "pos", "encoder scaling factor [u/inc]")
+    AxisEncoderOffset: float = _p(0.0, "real", "encoder position offset [u]")
+    AxisEncoderDirectionInverse: bool = _p(False, "bool", "encoder counting direction inverted")
+    AxisEncoderEncoderMask: float = _p(4294967295.0, "mask", "encoder mask (maximum encoder value), 2^k - 1 [inc]")
     SimTimeConstant: float = _p(0.001, "nonneg", "simulated drive: first-order position lag [s]")
     SimSyncPulseSpacing: float = _p(1.0, "pos", "simulated encoder: distance between sync (zero) pulses [u]")
     SimSyncPulseOffset: float = _p(0.0, "real", "simulated encoder: position of one sync pulse [u]")
@@ -116,6 +120,12 @@ class AxisParams:
         False, "bool", "simulated drive: a stepper motor on a KL2531/KL2541 terminal (MC_PowerStepper): it can be made "
         "to stall (command SimStall) and reports the terminal's status byte/word (NCJOBS DriveStatus); "
         "MC_ReadAxisComponents/MC_ReadParameterSet report the KL2531 encoder and drive types")
+    # the simulated drive's mechanics (nc_server/drives/mechanics.py): torque = SimLoadInertia * a +
+    # SimViscousFriction * v + SimCoulombFriction * sign(v), shown in % of SimRatedTorque (NCTOPLC SetTorque, ActTorque)
+    SimLoadInertia: float = _p(1e-4, "nonneg", "simulated mechanics: load inertia seen by the motor [N*m*s^2/u]")
+    SimViscousFriction: float = _p(1e-4, "nonneg", "simulated mechanics: viscous friction [N*m*s/u]")
+    SimCoulombFriction: float = _p(0.02, "nonneg", "simulated mechanics: Coulomb (dry) friction [N*m]")
+    SimRatedTorque: float = _p(1.0, "pos", "simulated motor: rated torque, 100 % of the torque fields [N*m]")
     Homed: bool = _p(False, "bool", "axis starts referenced (StateDWord.Homed)")
     AxisEnDataPersistence: bool = _p(
         False, "bool", "TwinCAT 'Data persistence' (MC_AxisPara 1037): with [nc] retain_file the NC keeps the "
@@ -163,6 +173,7 @@ class AxisParams:
         return _KINDS[name]
 
 
+_MASK_MAX = float(2 ** 32 - 1)  # a 32-bit encoder (UDINT)
 _BAD_VALUE = int(ErrorCodes.ADSERR_DEVICE_INVALIDPARM)  # 0x70B, as WriteParameter refuses the same value
 
 
@@ -180,6 +191,9 @@ def _check(name: str, kind: str, value: Any, key: str) -> Any:
         raise ConfigError(key, f"must be > 0, got {value}", _BAD_VALUE)
     if kind == "nonneg" and value < 0:
         raise ConfigError(key, f"must be >= 0, got {value}", _BAD_VALUE)
+    if kind == "mask" and not (value.is_integer() and 1.0 <= value <= _MASK_MAX and (int(value) & (int(value) + 1)) == 0):
+        # an encoder mask is the maximum value of a k-bit counter (Infosys: 'Encoder Mask (maximum encoder value)')
+        raise ConfigError(key, f"must be 2^k - 1 for k = 1..32 (a k-bit encoder), got {value:g}", _BAD_VALUE)
     entry = _RANGES.get(name)
     if entry is not None and not entry.in_range(value):
         raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}",
