@@ -184,9 +184,10 @@ _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
 def cmd_move_superimposed(core: CoreContext, i: int, req: dict[str, Any]) -> dict[str, Any]:
     """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt, TcMC 3.9/3.10: Infosys
     https://infosys.beckhoff.com/content/1033/tcplclibmc/10988419339.html and .../10988420875.html):
-    plan and start the offset profile. The reference velocity for Length is |VelocityProcess| ("absolute value > 0": 0 is
-    refused with 0x4B06), in the direction the basic motion travels (a standing axis: positive, and
-    the window |Length| / |VelocityProcess| in every mode: :func:`..superposition.plan_superposition`).
+    plan and start the offset profile. The reference velocity for Length is |VelocityProcess|
+    ("absolute value > 0": 0 is refused with 0x4B06), in the direction the basic motion travels
+    (a standing axis: positive, and the window |Length| / |VelocityProcess| in every mode:
+    :func:`..superposition.plan_superposition`).
     "Jerk: the jerk value is not used": the offset profile is limited by AxisJerk whatever the
     request's Jerk (no check either); Acceleration/Deceleration 0 = AxisAcc/AxisDec.
 
