@@ -147,3 +147,19 @@ def test_an_activation_pos_passed_by_a_positioning_is_refused_too() -> None:
     assert rep["error"] == ErrorCodes.NC_NEW_TARGET_OVERRUN
     assert snapshot(core) == before
     assert cmd(core, "NewPosAndVelo", Mode=10, NewVelo=20.0, ActivationPos=150.0)["error"] == 0
+
+
+def test_a_switch_on_an_endless_move_towards_a_software_limit_keeps_the_limit_stop() -> None:
+    """The velocity job's watch does both: the armed change at ActivationPos, then the stop exactly at the
+    enabled software limit (0x4462) with the new velocity."""
+    core = powered(1, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=60.0)
+    no = cmd(core, "MoveVelocity", Velocity=100.0, Direction=1)["CmdNo"]
+    run_until(core, lambda: math.isclose(float(core.nctoplc[0]["SetVelo"]), 100.0), 5000)
+    at = float(core.nctoplc[0]["SetPos"]) + 10.0
+    assert cmd(core, "NewPosAndVelo", Mode=10, NewVelo=40.0, ActivationPos=at)["error"] == 0
+    run_until(core, lambda: math.isclose(float(core.nctoplc[0]["SetVelo"]), 40.0), 5000)
+    assert float(core.nctoplc[0]["SetPos"]) < 60.0 and int(core.nctoplc[0]["CmdNo"]) == no
+    run_until(core, lambda: int(core.nctoplc[0]["ErrorCode"]) != 0, 20_000)
+    assert int(core.nctoplc[0]["ErrorCode"]) == ErrorCodes.NC_SOFT_LIMIT_MAX_POSITIONING
+    run_until(core, lambda: float(core.nctoplc[0]["SetVelo"]) == 0.0, 5000)
+    assert float(core.nctoplc[0]["SetPos"]) == pytest.approx(60.0, abs=1e-6)
