@@ -254,8 +254,7 @@ class PositionKind(JobKind):
             core.check_target(i, core.nc_set_pos(i), new_pos)
         if mode in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
             return self.apply_change(core, i, job, base, new_pos, new_velo)
-        # at a switching position: armed now, applied by watch()
-        job.data["switch"] = (mode, float(at), float(new_pos), float(new_velo))
+        arm_switch(core, i, job, mode, at, new_pos, new_velo)  # applied by watch()
         return None
 
     def apply_change(self, core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
@@ -408,8 +407,43 @@ def _turns(plan: Plan, sense: float) -> bool:
     return lo < -1e-9 if sense > 0 else hi > 1e-9
 
 
+def travel_sense(core: CoreContext, i: int, job: Job) -> float:
+    """The direction of travel (+1/-1) of row ``i``'s running ``job``: of the set velocity, and where
+    that is 0 (all but standing, e.g. at override 0) the direction the job heads in (its target, or
+    a velocity job's velocity)."""
+    v = float(core.axes.set_velo[i])
+    if abs(v) > 1e-9:
+        return 1.0 if v > 0 else -1.0
+    if job.target is None:
+        return -1.0 if job.velocity < 0 else 1.0
+    return 1.0 if job.target >= float(core.axes.set_pos[i]) else -1.0
+
+
+def arm_switch(core: CoreContext, i: int, job: Job, mode: int, at: float, new_pos: float, new_velo: float) -> None:
+    """Arm a NewPosAndVelo switching-position change (modes 9, 10, 11, 14) on the running ``job``
+    of any kind with an ``apply_change`` (positionings, MoveVelocity): the kind's watch applies it
+    when the set position passes ``at`` [u] in the direction of travel (:func:`_switch_reached`).
+
+    Decision (TcMC 3.8 is silent): an ActivationPos the set position has already passed in the
+    direction of travel is refused with 0x427F "new target position has been /
+    would be overrun" (the closest code of TwinCAT's NC list: the switching point lies behind the
+    axis) and changes nothing; exactly at ActivationPos counts as not passed (applied at once in the
+    next watch). Before, a passed ActivationPos switched at once.
+
+    Raises:
+        NcError: 0x427F ActivationPos already passed.
+    """
+    sense = travel_sense(core, i, job)
+    p = float(core.axes.set_pos[i])
+    if (p - at) * sense > 0:
+        raise NcError(ErrorCodes.NC_NEW_TARGET_OVERRUN,
+                      f"ActivationPos {at:g} has already been passed (set position {p:g}, direction {sense:+g})")
+    job.data["switch"] = (int(mode), float(at), float(new_pos), float(new_velo))
+
+
 def _switch_reached(core: CoreContext, rows: np.ndarray) -> None:
-    """Apply NewPosAndVelo changes armed at a switching position (PositionKind.watch)."""
+    """Apply NewPosAndVelo changes armed at a switching position (the watch of positionings and of
+    MoveVelocity: :func:`arm_switch`)."""
     a = core.axes
     for i in rows.tolist():
         job = core.queues[i].active
@@ -418,10 +452,7 @@ def _switch_reached(core: CoreContext, rows: np.ndarray) -> None:
         mode, at, new_pos, new_velo = job.data["switch"]
         v = float(a.set_velo[i])
         p = float(a.set_pos[i])
-        if abs(v) > 1e-9:
-            sense = 1.0 if v > 0 else -1.0
-        else:  # (all but standing: the direction the job heads in)
-            sense = 1.0 if job.target is None or job.target >= p else -1.0
+        sense = travel_sense(core, i, job)
         if mode == int(NPV.REACH_VELO_AT_POS):
             # start the change so that the new velocity is reached at ActivationPos
             assert job.dyn is not None
