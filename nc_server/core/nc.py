@@ -44,6 +44,7 @@ from . import checks
 from .axes import AxisTable
 from .checks import MAX_POSITION
 from .commands import CORE_HANDLERS, core_command
+from .corrections import Corrections
 from .engine import KINDS_LIST, JobEngine
 from .jobs import KINDS, Job, JobKind, JobQueue
 from .jobs.stop import STOP
@@ -114,6 +115,11 @@ class NcCore:
         self.axis_ids = self.axes.ids
         self._index = {int(a): i for i, a in enumerate(ids)}
         self.drive = drive if drive is not None else SimDrive(self.params, self.cycle_time)
+        #: position correction, backlash, dead time between the set-point and the drive (corrections.py)
+        self.corrections = Corrections(self.axes, self.params, self.cycle_time)
+        #: the set position the controller compares with ActPos (PosDiff, lag): SetPos, or with a dead
+        #: time the delayed one (set by the drive stage)
+        self.pos_ref: np.ndarray = self.axes.set_pos
         self.queues = [JobQueue() for _ in ids]
         self.cycle = 0
         self.nc_time_ns = 0
@@ -321,7 +327,8 @@ class NcCore:
             raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDACCESS, f"parameter {number} ({e.name}) is read-only")
         if e.is_bool and not isinstance(value, bool):
             if value not in (0.0, 1.0):
-                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{e.name} is boolean: 0/1 or true/false, got {value}")
+                raise NcError(e.error or ErrorCodes.ADSERR_DEVICE_INVALIDPARM,
+                              f"{e.name} is boolean: 0/1 or true/false, got {value}")
             value = bool(value)
         if e.source == "fixed":
             same = (bool(value) == bool(e.fixed)) if e.is_bool else (
@@ -339,14 +346,17 @@ class NcCore:
             raise NcError(ErrorCodes.MC_AXIS_IS_ENABLED, f"{e.name} can only be written while the controller is disabled")
         try:
             new = self.params[i].with_value(name, value)
-        except ConfigError as exc:
-            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{exc.key}: {exc.message}") from None
+        except ConfigError as exc:  # (its code: the entry's TwinCAT code for a bad value, else 0x70B)
+            raise NcError(exc.code or ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{exc.key}: {exc.message}") from None
         if self._moves(i):
             self._check_running(i, new)
         self.params[i] = new
         self.configs[i].params = new
         self.axes.load_params(i, new)
         self.drive.configure(i, new)
+        self.corrections.configure(i, new)
+        if e.when == "disabled":  # (the encoder parameters move the position without motion)
+            self.corrections.restart_history(i)
         self.coupling.invalidate()  # (its copies of the limits)
         self.state_dirty = True
 
@@ -534,6 +544,7 @@ class NcCore:
             self.external.fold(i, diff)
         a.offset[i] += diff
         a.set_pos[i] += diff
+        self.corrections.shift(i, diff)
         a.target_pos[i] += diff
         if a.traj_on[i]:
             a.origin[i] += diff
@@ -687,8 +698,13 @@ class NcCore:
         """The drive steps to this cycle's set-points (NC positions less the offset)."""
         a = self.axes
         self.prev_act_pos, prev = self.act_pos, self.act_pos
+        ref = a.set_pos
+        if self.corrections.active:  # (position correction, backlash, dead time: corrections.py)
+            ref = self.corrections.step(self)
+            self._has_offset = True
+        self.pos_ref = ref
         if self._has_offset:
-            self.drive.step(a.enabled, a.set_pos - a.offset, a.set_velo, a.set_acc)
+            self.drive.step(a.enabled, ref - a.offset, a.set_velo, a.set_acc)
             self.act_pos = self.drive.act_pos + a.offset
         else:
             self.drive.step(a.enabled, a.set_pos, a.set_velo, a.set_acc)
@@ -712,6 +728,7 @@ class NcCore:
         a = self.axes
         self._in_dirty = False
         ctrl = self.plctonc["ControlDWord"]
+        self.corrections.take_input(self.plctonc["PositionCorrection"])
         self._enable_in = (ctrl & _EN) != 0
         self._feed_plus = (ctrl & _FP) != 0
         self._feed_minus = (ctrl & _FM) != 0
@@ -758,6 +775,7 @@ class NcCore:
             for i in flips.tolist():
                 if enabled[i]:  # controller activation: set position := actual position
                     a.set_pos[i] = a.target_pos[i] = self.act_pos[i]
+                    self.corrections.restart_history(i)
                 else:
                     q = self.queues[i]
                     if q.waiting is not None:
@@ -895,6 +913,7 @@ def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     # TwinCAT: after a reset the set position is the actual position
     a.set_pos[i] = core.act_pos[i]
     a.target_pos[i] = a.set_pos[i]
+    core.corrections.restart_history(i)
     return {}
 
 

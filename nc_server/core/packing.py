@@ -100,7 +100,7 @@ class NctoplcPacker:
         np.divmod(act, period, out=(o["ModuloActTurns"], o["ModuloActPos"]), casting="unsafe")  # // and %
         o["ActVelo"][...] = d.act_velo
         o["ActAcc"][...] = d.act_acc
-        np.subtract(a.set_pos, act, out=o["PosDiff"])
+        np.subtract(core.pos_ref, act, out=o["PosDiff"])  # (with a dead time: the delayed set position)
         self.out_sp[...] = a.S[:3].T  # SetPos, SetVelo, SetAcc: adjacent fields, one copy
         o["SetJerk"][...] = a.set_jerk
         if np.count_nonzero(a.continuous):
@@ -108,6 +108,6 @@ class NctoplcPacker:
             a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
         np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
-        o["ActPosWithoutPosCorrection"][...] = act
+        o["ActPosWithoutPosCorrection"][...] = core.corrections.without_correction(act)
         o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState
         o["DcTimeStamp"][...] = core.nc_time_ns & 0xFFFFFFFF

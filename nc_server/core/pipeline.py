@@ -182,7 +182,7 @@ class Monitoring(_Stage):
             st = watch[1].copy()
             st[r] = (np.abs(a.set_velo[r]) <= _EPS_V) & a.enabled[r]
             watch = (watch[0], st, watch[2], True)
-        for i, code in monitor(a, core.act_pos, core.cycle_time, watch):
+        for i, code in monitor(a, core.act_pos, core.cycle_time, watch, core.pos_ref):
             core.fault(i, code)
         if core.state_dirty:
             core.derive_state()
