@@ -127,9 +127,10 @@ class Corrections:
         ok = np.isfinite(correction)
         self.pc_in[ok] = correction[ok]
 
-    def restart_history(self, i: int) -> None:
+    def restart_history(self, i: int, jump: float = 0.0) -> None:
         """Axis row ``i``'s position moved without motion: its dead-time history restarts at its set
-        position (the delayed set position is the set position; nothing old is replayed)."""
+        position (the delayed set position is the set position; nothing old is replayed). ``jump`` (by
+        how much it moved, unused) makes it fit a position-jump hook's ``(row, jump)`` signature."""
         if self._hist is not None:
             self._hist[:, i] = self.axes.set_pos[i]
 
@@ -138,11 +139,6 @@ class Corrections:
         history moves with them, so a running motion goes on unchanged."""
         if self._hist is not None:
             self._hist[:, i] += diff
-
-    def without_correction(self, act_pos: np.ndarray) -> np.ndarray:
-        """NCTOPLC.ActPosWithoutPosCorrection: ``act_pos`` less the filtered position correction."""
-        out: np.ndarray = act_pos - self.pc if self.any_pc else act_pos
-        return out
 
     def step(self, core: NcCore) -> np.ndarray:
         """This cycle's corrections, before the drive step: the change of the correction value goes

@@ -108,6 +108,7 @@ class NctoplcPacker:
             a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
         np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
-        o["ActPosWithoutPosCorrection"][...] = core.corrections.without_correction(act)
+        corr = core.corrections  # (ActPos less the filtered PLCTONC.PositionCorrection)
+        o["ActPosWithoutPosCorrection"][...] = act - corr.pc if corr.any_pc else act
         o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState
         o["DcTimeStamp"][...] = core.nc_time_ns & 0xFFFFFFFF
