@@ -13,7 +13,8 @@ it; the position controller closes its loop on the corrected ActPos, so the driv
 correction (the simulated drive is the machine's uncorrected side). Decisions (the manual is silent): a
 non-finite PositionCorrection is ignored (the last finite value stays the filter's input); filter time
 0 = unfiltered; the filter starts from 0 when the correction is switched on, and the correction leaves
-at once when it is switched off.
+at once when it is switched off; the software limits are checked against the corrected ActPos (the page:
+"this correction does not affect the software end positions": the limits themselves do not move).
 
 Backlash compensation (AxisEnBacklashCompensation 1035, AxisBacklash 1036; TwinCAT keeps it "only for
 compatibility", MC_BacklashCompensation builds on the position correction instead:
