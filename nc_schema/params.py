@@ -81,8 +81,8 @@ class ParamEntry:
         ads: its ADS address (None where no source gives one).
         field: the ST_AxisParameterSet member that holds it (None: not in the set).
         doc: what it is.
-        error: the TwinCAT error code a value outside the range (or a BOOL other than 0/1) gets
-            (Beckhoff's NC error list, e.g. 0x430C for AxisDelayTimeVeloPosition); None: 0x70B.
+        code: the TwinCAT error code of a bad value of this parameter (TwinCAT's axis error list, e.g. 0x4328
+            for AxisLoopingDistance); None: 0x70B.
     """
 
     number: int
@@ -101,7 +101,7 @@ class ParamEntry:
     ads: AdsAddress | None
     field: str | None
     doc: str
-    error: int | None = None
+    code: int | None = None
 
     @property
     def is_bool(self) -> bool:
@@ -132,7 +132,7 @@ def _entry(d: Mapping[str, Any]) -> ParamEntry:
                       writable=bool(d["writable"]), when=d.get("when"), min=d.get("min"), max=d.get("max"),
                       min_exclusive=bool(d.get("min_exclusive", False)), source=d["source"], store=d.get("store"),
                       status=d.get("status"), fixed=d.get("fixed"), ads=ads, field=d.get("field"), doc=d["doc"],
-                      error=int(d["error"], 16) if "error" in d else None)
+                      code=int(d["code"], 16) if "code" in d else None)
 
 
 class ParameterTable:

@@ -27,8 +27,8 @@ parameter set of MC_ReadParameterSet and the ADS door's index group 0x4000+ID. T
   with 0x422F, a software limit that the running command's target or the set position lies beyond with
   0x4222.
 * **Errors**: a number TcMC does not define 0x703 (ADS "invalid index offset"), a write of a read-only
-  number 0x704, a value of the wrong type or outside the range 0x70B, or the parameter's own TwinCAT code
-  where Beckhoff's NC error list has one (shown after its range, e.g. 0x430C; nothing changes). The blocks add
+  number 0x704, a value of the wrong type or outside the range 0x70B (nothing changes; a bad value of a
+  parameter whose table entry names TwinCAT's own code gets that code: see its *What*). The blocks add
   0x4B05 for a parameter of the other type (MC_ReadBoolParameter on an LREAL parameter, ...).
 * **ADS**: the index offset in the axis's object (axis = index group 0x4000+ID; encoder, controller, drive
   are its sub-objects, which Tc2_MC2 addresses as offsets 0x0001_xxxx, 0x0002_xxxx, 0x0003_xxxx of the axis
@@ -45,14 +45,6 @@ def _ads(e: ParamEntry) -> str:
     if e.ads is None:
         return ""
     return f"{e.ads.group} 0x{e.ads.offset:02X} {e.ads.type}"
-
-
-def _range(e: ParamEntry) -> str:
-    """The range and, where the parameter has its own, the TwinCAT code of a bad value."""
-    text = e.range_text()
-    if e.error is not None:
-        text = f"{text} (else 0x{e.error:04X})" if text else f"0x{e.error:04X} if not 0/1"
-    return _cell(text)
 
 
 def _writable(e: ParamEntry) -> str:
@@ -82,7 +74,7 @@ def render() -> str:
            "| No. | Name | Type | Unit | Writable | Range | Value | ADS | ST_AxisParameterSet | What |",
            "|---:|---|---|---|---|---|---|---|---|---|"]
     for e in PARAMETERS:
-        out.append(f"| {e.number} | {e.name} | {e.type} | {e.unit} | {_writable(e)} | {_range(e)} | "
+        out.append(f"| {e.number} | {e.name} | {e.type} | {e.unit} | {_writable(e)} | {_cell(e.range_text())} | "
                    f"{_value(e)} | {_ads(e)} | {e.field or ''} | {_cell(e.doc)} |")
     out.append("\nUnits: " + "; ".join(f"`{k}` {v}" for k, v in UNITS.items()) + ".\n")
     out.append("Column meanings (schema/params.json `doc`): " + " ".join(

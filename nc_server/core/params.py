@@ -24,7 +24,8 @@ class ConfigError(ValueError):
 
     Codes (zenoh-nc choice): an axis entry that the NC would refuse the same way at run time carries the
     code it gets there, whatever the source (config file, overlay, ``--set``): a parameter value of the
-    wrong type or out of range 0x070B (what MC_WriteParameter answers), an unknown parameter name 0x0703
+    wrong type or out of range 0x070B (what MC_WriteParameter answers; a bad value of a parameter whose
+    table entry names TwinCAT's own code, e.g. AxisLoopingDistance 0x4328, that code), an unknown parameter name 0x0703
     (what an undefined MC_AxisPara number gets), an AxisId that is not configured or not 1..65535 0x4012
     (NC_AXIS_ID_NOT_ALLOWED). Keys TwinCAT has no error code for (``[nc]``, ``[zenoh]``, files, TOML
     syntax, a duplicate axis) carry none.
@@ -180,30 +181,26 @@ _BAD_VALUE = int(ErrorCodes.ADSERR_DEVICE_INVALIDPARM)  # 0x70B, as WriteParamet
 
 
 def _check(name: str, kind: str, value: Any, key: str) -> Any:
+    # a bad value gets the parameter's own TwinCAT code where the table gives one (a number for a BOOL
+    # counts as a bad value, a non-number for a number as the wrong type: 0x70B)
+    bad = _CODES.get(name, _BAD_VALUE)
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(key, f"must be true or false, got {value!r}", bad_value_code(name))
+            raise ConfigError(key, f"must be true or false, got {value!r}", bad)
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(key, f"must be a number, got {value!r}", _BAD_VALUE)
     value = float(value)
     if not math.isfinite(value):
-        raise ConfigError(key, f"must be finite, got {value}", bad_value_code(name))
+        raise ConfigError(key, f"must be finite, got {value}", bad)
     if kind == "pos" and value <= 0:
-        raise ConfigError(key, f"must be > 0, got {value}", bad_value_code(name))
+        raise ConfigError(key, f"must be > 0, got {value}", bad)
     if kind == "nonneg" and value < 0:
-        raise ConfigError(key, f"must be >= 0, got {value}", bad_value_code(name))
+        raise ConfigError(key, f"must be >= 0, got {value}", bad)
     entry = _RANGES.get(name)
     if entry is not None and not entry.in_range(value):
-        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}",
-                          bad_value_code(name))
+        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}", bad)
     return value
-
-
-def bad_value_code(name: str) -> int:
-    """The TwinCAT code a bad value of AxisParams field ``name`` gets: its table entry's ``error`` (e.g.
-    0x430C for AxisDelayTimeVeloPosition), else 0x70B."""
-    return _CODES.get(name, _BAD_VALUE)
 
 
 _KINDS: dict[str, str] = {f.name: f.metadata["kind"] for f in fields(AxisParams)}
@@ -223,8 +220,8 @@ for _e in PARAMETERS:
         if _e.store not in _RANGES or _e.name == _e.store:
             _RANGES[_e.store] = _e
 
-#: AxisParams field -> the TwinCAT code of a bad value (the table entries' ``error``)
-_CODES: dict[str, int] = {e.store: e.error for e in PARAMETERS if e.source == "param" and e.store and e.error is not None}
+#: AxisParams field -> the TwinCAT code of a bad value (the table's ``code``; fields without one: 0x70B)
+_CODES: dict[str, int] = {e.store: e.code for e in PARAMETERS if e.source == "param" and e.store and e.code is not None}
 
 #: Read-only status parameters, answered from the live axis state by NcCore.
 STATUS_PARAMS = frozenset(e.number for e in PARAMETERS if e.source == "status")

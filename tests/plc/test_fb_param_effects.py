@@ -27,8 +27,8 @@ def test_the_plcs_position_correction_reaches_actpos(rig: Rig) -> None:
 
 
 @pytest.mark.parametrize("number, value, code", [
-    (1032, 0.5, E.NC_PARAM_DEAD_TIME), (1047, -1.0, E.NC_PARAM_POS_CORRECTION_FILTER_TIME),
-    (1031, 0.0, E.NC_PARAM_MOTION_MONITORING_TIME), (1030, -0.5, E.NC_PARAM_MOTION_MONITORING_WINDOW),
+    (1032, 0.5, E.NC_AXIS_DEAD_TIME_NOT_ALLOWED), (1047, -1.0, E.NC_ENCODER_POS_CORRECTION_FILTER_TIME_NOT_ALLOWED),
+    (1031, 0.0, E.NC_AXIS_MOTION_MONITORING_TIME_NOT_ALLOWED), (1030, -0.5, E.NC_AXIS_MOTION_MONITORING_WINDOW_NOT_ALLOWED),
 ])
 def test_write_parameter_gets_the_twincat_code(rig: Rig, number: int, value: float, code: int) -> None:
     ax, _, calls = powered(rig)
