@@ -551,6 +551,14 @@ class ErrorCodes:
     NC_BUFFERED_DIRECTION_INCONSISTENT: Final = 0x4296
     #: Axis locked for motion commands because a stop command is still active
     NC_AXIS_LOCKED_BY_STOP: Final = 0x42EF
+    #: Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)
+    NC_AXIS_DEAD_TIME_NOT_ALLOWED: Final = 0x430C
+    #: Motion monitoring not allowed (AxisEnMotionMonitoring: flag invalid)
+    NC_AXIS_MOTION_MONITORING_NOT_ALLOWED: Final = 0x4320
+    #: Motion monitoring time not allowed (AxisMotionMonitoringTime)
+    NC_AXIS_MOTION_MONITORING_TIME_NOT_ALLOWED: Final = 0x4324
+    #: Motion monitoring window not allowed (AxisMotionMonitoringWindow)
+    NC_AXIS_MOTION_MONITORING_WINDOW_NOT_ALLOWED: Final = 0x4330
     #: Controller enable missing
     NC_AXIS_CONTROLLER_ENABLE: Final = 0x4356
     #: Feed enable minus missing while moving in negative direction
@@ -561,6 +569,12 @@ class ErrorCodes:
     NC_AXIS_SET_VELOCITY: Final = 0x4359
     #: Target position window not reached within the in-target timeout (PEH time monitoring)
     NC_AXIS_PEH_TIMEOUT: Final = 0x435C
+    #: Motion monitoring: the actual position changed too little within the monitoring time while the axis should move
+    NC_AXIS_MOTION_MONITORING: Final = 0x435D
+    #: Actual position correction not allowed (AxisEnActPosCorrection: flag invalid)
+    NC_ENCODER_POS_CORRECTION_NOT_ALLOWED: Final = 0x440E
+    #: Filter time for the actual position correction not allowed (AxisActPosCorrectionFilterTime)
+    NC_ENCODER_POS_CORRECTION_FILTER_TIME_NOT_ALLOWED: Final = 0x440F
     #: Software end location minimum (axis start)
     NC_SOFT_LIMIT_MIN_START: Final = 0x4460
     #: Software end location maximum (axis start)
@@ -686,11 +700,18 @@ ERRORS: Final[dict[int, tuple[str, str, str]]] = {
     0x4292: ('NC_COMMAND_BUFFER_FULL', 'group', 'Command buffer full'),
     0x4296: ('NC_BUFFERED_DIRECTION_INCONSISTENT', 'group', 'Positioning direction inconsistent with the buffered command'),
     0x42EF: ('NC_AXIS_LOCKED_BY_STOP', 'group', 'Axis locked for motion commands because a stop command is still active'),
+    0x430C: ('NC_AXIS_DEAD_TIME_NOT_ALLOWED', 'axis', 'Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)'),
+    0x4320: ('NC_AXIS_MOTION_MONITORING_NOT_ALLOWED', 'axis', 'Motion monitoring not allowed (AxisEnMotionMonitoring: flag invalid)'),
+    0x4324: ('NC_AXIS_MOTION_MONITORING_TIME_NOT_ALLOWED', 'axis', 'Motion monitoring time not allowed (AxisMotionMonitoringTime)'),
+    0x4330: ('NC_AXIS_MOTION_MONITORING_WINDOW_NOT_ALLOWED', 'axis', 'Motion monitoring window not allowed (AxisMotionMonitoringWindow)'),
     0x4356: ('NC_AXIS_CONTROLLER_ENABLE', 'axis', 'Controller enable missing'),
     0x4357: ('NC_AXIS_FEED_ENABLE_MINUS', 'axis', 'Feed enable minus missing while moving in negative direction'),
     0x4358: ('NC_AXIS_FEED_ENABLE_PLUS', 'axis', 'Feed enable plus missing while moving in positive direction'),
     0x4359: ('NC_AXIS_SET_VELOCITY', 'axis', 'Set velocity not allowed'),
     0x435C: ('NC_AXIS_PEH_TIMEOUT', 'axis', 'Target position window not reached within the in-target timeout (PEH time monitoring)'),
+    0x435D: ('NC_AXIS_MOTION_MONITORING', 'axis', 'Motion monitoring: the actual position changed too little within the monitoring time while the axis should move'),
+    0x440E: ('NC_ENCODER_POS_CORRECTION_NOT_ALLOWED', 'encoder', 'Actual position correction not allowed (AxisEnActPosCorrection: flag invalid)'),
+    0x440F: ('NC_ENCODER_POS_CORRECTION_FILTER_TIME_NOT_ALLOWED', 'encoder', 'Filter time for the actual position correction not allowed (AxisActPosCorrectionFilterTime)'),
     0x4460: ('NC_SOFT_LIMIT_MIN_START', 'encoder', 'Software end location minimum (axis start)'),
     0x4461: ('NC_SOFT_LIMIT_MAX_START', 'encoder', 'Software end location maximum (axis start)'),
     0x4462: ('NC_SOFT_LIMIT_MIN_POSITIONING', 'encoder', 'Software end location minimum (positioning)'),

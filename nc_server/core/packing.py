@@ -111,7 +111,7 @@ class NctoplcPacker:
             self.out_torque[...] = torque[:2].T
             self.out_torque2[...] = torque[2:].T
         o["ActAcc"][...] = d.act_acc
-        np.subtract(a.set_pos, act, out=o["PosDiff"])
+        np.subtract(core.pos_ref, act, out=o["PosDiff"])  # (with a dead time: the delayed set position)
         self.out_sp[...] = a.S[:3].T  # SetPos, SetVelo, SetAcc: adjacent fields, one copy
         o["SetJerk"][...] = a.set_jerk
         if np.count_nonzero(a.continuous):
@@ -119,6 +119,7 @@ class NctoplcPacker:
             a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
         np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
-        o["ActPosWithoutPosCorrection"][...] = act
+        corr = core.corrections  # (ActPos less the filtered PLCTONC.PositionCorrection)
+        o["ActPosWithoutPosCorrection"][...] = act - corr.pc if corr.any_pc else act
         o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState
         o["DcTimeStamp"][...] = core.nc_time_ns & 0xFFFFFFFF

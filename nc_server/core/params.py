@@ -24,7 +24,8 @@ class ConfigError(ValueError):
 
     Codes (zenoh-nc choice): an axis entry that the NC would refuse the same way at run time carries the
     code it gets there, whatever the source (config file, overlay, ``--set``): a parameter value of the
-    wrong type or out of range 0x070B (what MC_WriteParameter answers), an unknown parameter name 0x0703
+    wrong type or out of range 0x070B (what MC_WriteParameter answers; a bad value of a parameter whose
+    table entry names TwinCAT's own code, e.g. AxisLoopingDistance 0x4328, that code), an unknown parameter name 0x0703
     (what an undefined MC_AxisPara number gets), an AxisId that is not configured or not 1..65535 0x4012
     (NC_AXIS_ID_NOT_ALLOWED). Keys TwinCAT has no error code for (``[nc]``, ``[zenoh]``, files, TOML
     syntax, a duplicate axis) carry none.
@@ -87,9 +88,22 @@ class AxisParams:
     AxisTargetPositionMonitoringTime: float = _p(0.02, "nonneg", "time inside the window before InTargetPosition [s]")
     AxisEnInTargetTimeout: bool = _p(False, "bool", "PEH time monitoring enabled (0x435C)")
     AxisInTargetTimeout: float = _p(5.0, "pos", "PEH time: target window must be reached within [s]")
-    AxisEnMotionMonitoring: bool = _p(False, "bool", "motion monitoring enabled (stored; the simulation cannot stall)")
+    AxisEnMotionMonitoring: bool = _p(
+        False, "bool", "motion monitoring enabled: 0x435D when the actual position moves less than "
+        "AxisMotionMonitoringWindow within AxisMotionMonitoringTime while the axis should move (monitoring.py)")
     AxisMotionMonitoringWindow: float = _p(0.1, "pos", "motion monitoring window [u]")
     AxisMotionMonitoringTime: float = _p(0.5, "pos", "motion monitoring time [s]")
+    # the set-point / actual position chain (corrections.py)
+    AxisDelayTimeVeloPosition: float = _p(
+        0.0, "nonneg", "dead time between set-point and actual position: the controller and PosDiff use the set "
+        "position this long ago (whole NC cycles, rounded; at most 0.1) [s]")
+    AxisEnBacklashCompensation: bool = _p(
+        False, "bool", "backlash compensation: AxisBacklash added on the negative side at each reversal")
+    AxisBacklash: float = _p(0.0, "nonneg", "backlash (play) compensated by AxisEnBacklashCompensation [u]")
+    AxisEnActPosCorrection: bool = _p(
+        False, "bool", "actual position correction: PLCTONC.PositionCorrection added to the actual position")
+    AxisActPosCorrectionFilterTime: float = _p(
+        0.0, "nonneg", "P-T1 filter time of the actual position correction (0: unfiltered) [s]")
     AxisEncoderModuloValue: float = _p(360.0, "pos", "modulo factor (period) for Modulo* positions [u]")
     AxisModuloToleranceWindow: float = _p(0.0, "nonneg", "modulo tolerance window (TcMC 3.5) [u]")
     Modulo: bool = _p(False, "bool", "modulo axis (OpModeDWord.OpModeModulo, modulo display)")
@@ -178,26 +192,28 @@ _BAD_VALUE = int(ErrorCodes.ADSERR_DEVICE_INVALIDPARM)  # 0x70B, as WriteParamet
 
 
 def _check(name: str, kind: str, value: Any, key: str) -> Any:
+    # a bad value gets the parameter's own TwinCAT code where the table gives one (a number for a BOOL
+    # counts as a bad value, a non-number for a number as the wrong type: 0x70B)
+    bad = _CODES.get(name, _BAD_VALUE)
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(key, f"must be true or false, got {value!r}", _BAD_VALUE)
+            raise ConfigError(key, f"must be true or false, got {value!r}", bad)
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(key, f"must be a number, got {value!r}", _BAD_VALUE)
     value = float(value)
     if not math.isfinite(value):
-        raise ConfigError(key, f"must be finite, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be finite, got {value}", bad)
     if kind == "pos" and value <= 0:
-        raise ConfigError(key, f"must be > 0, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be > 0, got {value}", bad)
     if kind == "nonneg" and value < 0:
-        raise ConfigError(key, f"must be >= 0, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be >= 0, got {value}", bad)
     if kind == "mask" and not (value.is_integer() and 1.0 <= value <= _MASK_MAX and (int(value) & (int(value) + 1)) == 0):
         # an encoder mask is the maximum value of a k-bit counter (Infosys: 'Encoder Mask (maximum encoder value)')
-        raise ConfigError(key, f"must be 2^k - 1 for k = 1..32 (a k-bit encoder), got {value:g}", _BAD_VALUE)
+        raise ConfigError(key, f"must be 2^k - 1 for k = 1..32 (a k-bit encoder), got {value:g}", bad)
     entry = _RANGES.get(name)
     if entry is not None and not entry.in_range(value):
-        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}",
-                          _BAD_VALUE)
+        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}", bad)
     return value
 
 
@@ -217,6 +233,9 @@ for _e in PARAMETERS:
     if _e.source == "param" and _e.store is not None and (_e.min is not None or _e.max is not None):
         if _e.store not in _RANGES or _e.name == _e.store:
             _RANGES[_e.store] = _e
+
+#: AxisParams field -> the TwinCAT code of a bad value (the table's ``code``; fields without one: 0x70B)
+_CODES: dict[str, int] = {e.store: e.code for e in PARAMETERS if e.source == "param" and e.store and e.code is not None}
 
 #: Read-only status parameters, answered from the live axis state by NcCore.
 STATUS_PARAMS = frozenset(e.number for e in PARAMETERS if e.source == "status")

@@ -183,7 +183,7 @@ class Monitoring(_Stage):
             st = watch[1].copy()
             st[r] = (np.abs(a.set_velo[r]) <= _EPS_V) & a.enabled[r]
             watch = (watch[0], st, watch[2], True)
-        for i, code in monitor(a, core.act_pos, core.cycle_time, watch):
+        for i, code in monitor(a, core.act_pos, core.cycle_time, watch, core.pos_ref):
             core.fault(i, code)
         dm = core.drive_monitor
         if dm.active or core.drive.faulty:  # the drive's I/O and device state (.drive_monitor)

@@ -58,8 +58,6 @@ def test_every_writable_number_round_trips_and_its_aliases_follow():
     (1000, 7.0, E.ADSERR_DEVICE_INVALIDACCESS),       # AxisId
     (2001, 0.0, E.ADSERR_DEVICE_INVALIDACCESS),
     (1038, 100.0, E.ADSERR_DEVICE_INVALIDACCESS),     # AxisRefVeloOnRefOutput: status
-    (1035, True, E.NC_FUNCTION_NOT_SUPPORTED),        # backlash compensation: fixed FALSE
-    (1036, 0.5, E.NC_FUNCTION_NOT_SUPPORTED),
     (1039, 3.0, E.NC_FUNCTION_NOT_SUPPORTED),         # override type: fixed 4
     (1003, 0.0, E.ADSERR_DEVICE_INVALIDPARM),         # below the table's min
     (1003, 2e9, E.ADSERR_DEVICE_INVALIDPARM),         # above its max
