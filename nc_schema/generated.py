@@ -550,6 +550,16 @@ class ErrorCodes:
     NC_BUFFERED_DIRECTION_INCONSISTENT: Final = 0x4296
     #: Axis locked for motion commands because a stop command is still active
     NC_AXIS_LOCKED_BY_STOP: Final = 0x42EF
+    #: Override type not allowed (AxisOverrideType: 1..4)
+    NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED: Final = 0x430D
+    #: Pulse width in positive direction not allowed (AxisJogIncrementForward)
+    NC_AXIS_PULSE_WIDTH_POS_NOT_ALLOWED: Final = 0x4314
+    #: Pulse width in negative direction not allowed (AxisJogIncrementBackward)
+    NC_AXIS_PULSE_WIDTH_NEG_NOT_ALLOWED: Final = 0x4315
+    #: Loop not allowed: the value for the activation of the loop movement is not allowed (AxisEnLoopingDistance)
+    NC_AXIS_LOOP_NOT_ALLOWED: Final = 0x4323
+    #: Loop movement not allowed: the value for the loop movement is not allowed (AxisLoopingDistance)
+    NC_AXIS_LOOP_DISTANCE_NOT_ALLOWED: Final = 0x4328
     #: Controller enable missing
     NC_AXIS_CONTROLLER_ENABLE: Final = 0x4356
     #: Feed enable minus missing while moving in negative direction
@@ -683,6 +693,11 @@ ERRORS: Final[dict[int, tuple[str, str, str]]] = {
     0x4292: ('NC_COMMAND_BUFFER_FULL', 'group', 'Command buffer full'),
     0x4296: ('NC_BUFFERED_DIRECTION_INCONSISTENT', 'group', 'Positioning direction inconsistent with the buffered command'),
     0x42EF: ('NC_AXIS_LOCKED_BY_STOP', 'group', 'Axis locked for motion commands because a stop command is still active'),
+    0x430D: ('NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED', 'axis', 'Override type not allowed (AxisOverrideType: 1..4)'),
+    0x4314: ('NC_AXIS_PULSE_WIDTH_POS_NOT_ALLOWED', 'axis', 'Pulse width in positive direction not allowed (AxisJogIncrementForward)'),
+    0x4315: ('NC_AXIS_PULSE_WIDTH_NEG_NOT_ALLOWED', 'axis', 'Pulse width in negative direction not allowed (AxisJogIncrementBackward)'),
+    0x4323: ('NC_AXIS_LOOP_NOT_ALLOWED', 'axis', 'Loop not allowed: the value for the activation of the loop movement is not allowed (AxisEnLoopingDistance)'),
+    0x4328: ('NC_AXIS_LOOP_DISTANCE_NOT_ALLOWED', 'axis', 'Loop movement not allowed: the value for the loop movement is not allowed (AxisLoopingDistance)'),
     0x4356: ('NC_AXIS_CONTROLLER_ENABLE', 'axis', 'Controller enable missing'),
     0x4357: ('NC_AXIS_FEED_ENABLE_MINUS', 'axis', 'Feed enable minus missing while moving in negative direction'),
     0x4358: ('NC_AXIS_FEED_ENABLE_PLUS', 'axis', 'Feed enable plus missing while moving in positive direction'),

@@ -313,15 +313,18 @@ class NcCore:
             NcError: 0x703 unknown number, 0x704 read-only (status), 0x4251 another value than the fixed
                 one of a parameter without meaning here, 0x70B invalid value (type or range), 0x4220 a
                 parameter written only at standstill while the axis moves, 0x4B42 one written only while
-                disabled while the controller is enabled, 0x4221/0x422F/0x4222 a value that would
-                break the running motion (see :meth:`_check_running`).
+                disabled while the controller is enabled, the parameter's own TwinCAT code for a bad value where
+                the table gives one (``ParamEntry.code``: AxisLoopingDistance 0x4328, AxisOverrideType 0x430D,
+                ...), 0x4221/0x422F/0x4222 a value that would break the running motion (see
+                :meth:`_check_running`).
         """
         e = param_entry(number)
         if e.source == "status":
             raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDACCESS, f"parameter {number} ({e.name}) is read-only")
         if e.is_bool and not isinstance(value, bool):
             if value not in (0.0, 1.0):
-                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{e.name} is boolean: 0/1 or true/false, got {value}")
+                raise NcError(e.code or ErrorCodes.ADSERR_DEVICE_INVALIDPARM,
+                              f"{e.name} is boolean: 0/1 or true/false, got {value}")
             value = bool(value)
         if e.source == "fixed":
             same = (bool(value) == bool(e.fixed)) if e.is_bool else (
@@ -339,8 +342,8 @@ class NcCore:
             raise NcError(ErrorCodes.MC_AXIS_IS_ENABLED, f"{e.name} can only be written while the controller is disabled")
         try:
             new = self.params[i].with_value(name, value)
-        except ConfigError as exc:
-            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{exc.key}: {exc.message}") from None
+        except ConfigError as exc:  # (the parameter's own TwinCAT code where the table gives one)
+            raise NcError(exc.code or ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{exc.key}: {exc.message}") from None
         if self._moves(i):
             self._check_running(i, new)
         self.params[i] = new
@@ -725,13 +728,14 @@ class NcCore:
                 self.fault(i, ErrorCodes.NC_OVERRIDE_NOT_ALLOWED)
         ov = np.minimum(raw, _OVERRIDE_MAX) / float(_OVERRIDE_MAX)
         changed = (ov != a.override).nonzero()[0]
+        old_ov = a.override
         a.override = ov
         for i in changed.tolist():
             job = self.queues[i].active
             if job is not None and job.numbered and job.kind.follows_override and a.traj_on[i]:
                 held = ov[i] <= 0
-                try:
-                    plan = job.kind.replan(self, i, job, self.start_state(i), float(ov[i]))
+                try:  # (the kind applies AxisOverrideType: an instantaneous type may keep the running plan)
+                    plan = job.kind.override_replan(self, i, job, self.start_state(i), float(old_ov[i]), float(ov[i]))
                 except NcError:
                     # not plannable at this override from here (e.g. a tiny override while fast):
                     # the job waits at rest as at override 0 and is re-planned on the next change

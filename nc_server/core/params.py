@@ -24,7 +24,8 @@ class ConfigError(ValueError):
 
     Codes (zenoh-nc choice): an axis entry that the NC would refuse the same way at run time carries the
     code it gets there, whatever the source (config file, overlay, ``--set``): a parameter value of the
-    wrong type or out of range 0x070B (what MC_WriteParameter answers), an unknown parameter name 0x0703
+    wrong type or out of range 0x070B (what MC_WriteParameter answers; a bad value of a parameter whose
+    table entry names TwinCAT's own code, e.g. AxisLoopingDistance 0x4328, that code), an unknown parameter name 0x0703
     (what an undefined MC_AxisPara number gets), an AxisId that is not configured or not 1..65535 0x4012
     (NC_AXIS_ID_NOT_ALLOWED). Keys TwinCAT has no error code for (``[nc]``, ``[zenoh]``, files, TOML
     syntax, a duplicate axis) carry none.
@@ -48,7 +49,8 @@ class ConfigError(ValueError):
 
 
 def _p(default: Any, kind: str, doc: str) -> Any:
-    """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite)."""
+    """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite),
+    "int" (a whole number, held as a float: MC_AxisPara carries it as an LREAL)."""
     return field(default=default, metadata={"kind": kind, "doc": doc})
 
 
@@ -70,8 +72,13 @@ class AxisParams:
         True, "bool", "TwinCAT 'Invert direction of calibration cam search': True = search the cam in negative direction")
     AxisInvertSyncPulseSearchDirection: bool = _p(
         False, "bool", "TwinCAT 'Invert direction towards sync impulse': False = leave the cam in positive direction")
-    AxisJogIncrementForward: float = _p(1.0, "nonneg", "inching distance forward [u]")
-    AxisJogIncrementBackward: float = _p(1.0, "nonneg", "inching distance backward [u]")
+    AxisJogIncrementForward: float = _p(
+        1.0, "nonneg", "inching distance forward [u] (MC_AxisPara 1013): MC_Jog MC_JOGMODE_INCHING(_MODULO) with "
+        "Position 0 moves forward by it; 0: such a jog is refused (0x4B06). Bad value: 0x4314 (TwinCAT's 'pulse width "
+        "in positive direction', taken to be this parameter)")
+    AxisJogIncrementBackward: float = _p(
+        1.0, "nonneg", "inching distance backward [u] (MC_AxisPara 1014): as AxisJogIncrementForward, backward. Bad "
+        "value: 0x4315 (TwinCAT's 'pulse width in negative direction')")
     AxisEnMinSoftPosLimit: bool = _p(False, "bool", "minimum software limit enabled")
     AxisMinSoftPosLimit: float = _p(-1000.0, "real", "minimum software limit [u]")
     AxisEnMaxSoftPosLimit: bool = _p(False, "bool", "maximum software limit enabled")
@@ -120,6 +127,24 @@ class AxisParams:
     AxisEnDataPersistence: bool = _p(
         False, "bool", "TwinCAT 'Data persistence' (MC_AxisPara 1037): with [nc] retain_file the NC keeps the "
         "axis's actual position and homed flag across a restart (nc_server/server/retain.py)")
+    # loop movement and override type (MC_AxisPara 1033, 1034, 1039; their effect: jobs/position.py). Bad values
+    # get TwinCAT's axis errors 0x4323, 0x4328, 0x430D (Axis Errors,
+    # https://infosys.beckhoff.com/content/1033/tc3ncerrcode/513133323.html).
+    AxisEnLoopingDistance: bool = _p(
+        False, "bool", "TwinCAT 'Loop' (MC_AxisPara 1033, ADS axis 0x13, bEnableLoop): loop movement enabled. With a "
+        "non-zero AxisLoopingDistance a positioning that ends at rest and would reach its target from the other side "
+        "goes on to the loop point (target + AxisLoopingDistance), stops there and returns to the target")
+    AxisLoopingDistance: float = _p(
+        0.0, "real", "TwinCAT 'Loop distance (+/-)' (MC_AxisPara 1034, ADS axis 0x14, fLoopDistance) [u]: its sign is "
+        "the side the target is approached from (> 0: from above, the last leg runs in negative direction), its size the "
+        "distance of the loop point beyond the target; 0: no loop")
+    AxisOverrideType: float = _p(
+        4.0, "int", "TwinCAT 'Velocity Override Type' (MC_AxisPara 1039; Setpoint Generator, "
+        "https://infosys.beckhoff.com/content/1033/tc3_system/3396207115.html): 1 reduced (instantaneous), 2 original "
+        "(instantaneous), 3 reduced (iterated), 4 original (iterated). Reduced: the override refers to the peak "
+        "velocity of the command's profile at 100 %; original: to its commanded velocity. Instantaneous: an override "
+        "raise that the new profile cannot reach (its peak stays below the new level) is not applied. Default 4, "
+        "how this NC behaved before the parameter acted (TwinCAT's own default seems to be 3)")
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -167,23 +192,27 @@ _BAD_VALUE = int(ErrorCodes.ADSERR_DEVICE_INVALIDPARM)  # 0x70B, as WriteParamet
 
 
 def _check(name: str, kind: str, value: Any, key: str) -> Any:
+    # a bad value gets the parameter's own TwinCAT code where the table gives one (a number for a BOOL
+    # counts as a bad value, a non-number for a number as the wrong type: 0x70B)
+    bad = _CODES.get(name, _BAD_VALUE)
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(key, f"must be true or false, got {value!r}", _BAD_VALUE)
+            raise ConfigError(key, f"must be true or false, got {value!r}", bad)
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(key, f"must be a number, got {value!r}", _BAD_VALUE)
     value = float(value)
     if not math.isfinite(value):
-        raise ConfigError(key, f"must be finite, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be finite, got {value}", bad)
     if kind == "pos" and value <= 0:
-        raise ConfigError(key, f"must be > 0, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be > 0, got {value}", bad)
     if kind == "nonneg" and value < 0:
-        raise ConfigError(key, f"must be >= 0, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be >= 0, got {value}", bad)
+    if kind == "int" and value != math.floor(value):
+        raise ConfigError(key, f"must be a whole number, got {value:g}", bad)
     entry = _RANGES.get(name)
     if entry is not None and not entry.in_range(value):
-        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}",
-                          _BAD_VALUE)
+        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}", bad)
     return value
 
 
@@ -203,6 +232,9 @@ for _e in PARAMETERS:
     if _e.source == "param" and _e.store is not None and (_e.min is not None or _e.max is not None):
         if _e.store not in _RANGES or _e.name == _e.store:
             _RANGES[_e.store] = _e
+
+#: AxisParams field -> the TwinCAT code of a bad value (the table's ``code``; fields without one: 0x70B)
+_CODES: dict[str, int] = {e.store: e.code for e in PARAMETERS if e.source == "param" and e.store and e.code is not None}
 
 #: Read-only status parameters, answered from the live axis state by NcCore.
 STATUS_PARAMS = frozenset(e.number for e in PARAMETERS if e.source == "status")
