@@ -482,13 +482,15 @@ class NcCore:
         return Dynamics(float(a.vmax[i]), max(d.acceleration, dec_), dec_, jerk_)
 
     def stop_within(self, i: int, plan: Plan, running: Job | None) -> bool:
-        """The stop ``plan`` ends before the running job's target and an enabled soft limit
-        (TcMC 3.15: weaker stop dynamics are not used if the target would be exceeded)."""
+        """The stop ``plan`` ends before the running job's target (on the way out of a loop movement: its
+        loop point, where that motion heads) and an enabled soft limit (TcMC 3.15: weaker stop dynamics
+        are not used if the target would be exceeded)."""
         a = self.axes
         end = plan.end.p
         v0 = float(a.set_velo[i])
-        if running is not None and running.target is not None and not running.continuous and v0:
-            if (end - running.target) * v0 > 1e-9:
+        goal = running.kind.goal(running) if running is not None else None  # (a loop movement: its loop point)
+        if running is not None and goal is not None and not running.continuous and v0:
+            if (end - goal) * v0 > 1e-9:
                 return False
         if a.en_max[i] and v0 > 0 and end > max(float(a.max_lim[i]), float(a.set_pos[i])) + 1e-9:
             return False

@@ -176,6 +176,20 @@ def test_override_zero_on_the_way_out_holds_and_a_raise_goes_on() -> None:
     assert tr.col("SetPos").max() == pytest.approx(25.0, abs=1e-6) and tr.col("SetPos")[-1] == 20.0
 
 
+def test_a_weak_stop_past_the_target_on_the_way_out_heads_for_the_loop_point() -> None:
+    """TcMC 3.15 (weaker stop dynamics are not used if the target would be passed): on the way out of a loop
+    the motion heads for the loop point, so a stop that ends before it keeps its own weak deceleration."""
+    core = looping(50.0)
+    tr = moved(core, check_jumps=False)
+    ok(cmd(core, "MoveAbsolute", Position=100.0, Velocity=100.0))
+    tr.until(lambda r: r["SetPos"] >= 105.0)
+    assert float(core.nctoplc[0]["SetVelo"]) == pytest.approx(100.0)
+    ok(cmd(core, "Stop", Deceleration=250.0, Jerk=2500.0))
+    tr.settle()
+    end = float(tr.col("SetPos")[-1])
+    assert 120.0 < end < 150.0, end
+
+
 def test_inching_loops_too() -> None:
     core = looping(0.5)
     tr = moved(core)

@@ -302,7 +302,8 @@ def test_the_body_bound_fits_what_the_nc_writes(tmp_path: Path) -> None:
     k = RetainKeeper(tmp_path / "r", "nc1", core)
     changed = {f: (not v if isinstance(v, bool) else v + 1.0) for f, v in vars(core.params[0]).items()}
     core.params[0] = AxisParams(**{**changed, "AxisEnDataPersistence": True,
-                                   "AxisEnMinSoftPosLimit": False, "AxisEnMaxSoftPosLimit": False})
+                                   "AxisEnMinSoftPosLimit": False, "AxisEnMaxSoftPosLimit": False,
+                                   "AxisOverrideType": 3.0})  # (1..4: its default 4 + 1 is not one)
     raw = encode_retain(k.data_of(k._snapshot(core)))
     assert len(raw) - 46 < BODY_PER_AXIS, len(raw)
     assert parse_retain(raw, "nc1", [1]).axes[1].name == name
