@@ -29,8 +29,8 @@ point.
 Override type (MC_AxisPara 1039 AxisOverrideType; TwinCAT's 'Velocity Override Type', Setpoint Generator:
 https://infosys.beckhoff.com/content/1033/tc3_system/3396207115.html): 4 original (iterated, the default and
 how this NC behaved): the override scales the commanded Velocity and every change re-plans; 3 reduced
-(iterated): it scales the peak velocity of the command's profile at 100 % (a short move that peaks at 700 of
-a commanded 1000 u/s runs at 350 u/s at 50 %, type 4 at 500 u/s, i.e. at its 700 u/s peak); 1 reduced and
+(iterated): it scales the peak velocity of the command's profile at 100 % (a short move commanded at 1000 u/s
+that peaks at 700 u/s runs at 350 u/s at 50 %; type 4 at 500 u/s, and at 80 % still at its 700 u/s); 1 reduced and
 2 original (instantaneous): as 3 and 4, but an override raise whose new plan cannot reach the new level (its
 peak stays below it: the remaining way is too short) is not applied, the running profile stays (only that
 raise: a later ChangeDynParam, blending or NewPosAndVelo plans as always). The reduced reference is taken
