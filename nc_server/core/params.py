@@ -74,8 +74,9 @@ class AxisParams:
         False, "bool", "TwinCAT 'Invert direction towards sync impulse': False = leave the cam in positive direction")
     AxisJogIncrementForward: float = _p(
         1.0, "nonneg", "inching distance forward [u] (MC_AxisPara 1013): MC_Jog MC_JOGMODE_INCHING(_MODULO) with "
-        "Position 0 moves forward by it; 0: such a jog is refused (0x4B06). Bad value: 0x4314 (TwinCAT's 'pulse width "
-        "in positive direction', taken to be this parameter)")
+        "Position 0 moves forward by it; 0: such a jog is refused (0x4B06; E_JogMode, "
+        "https://infosys.beckhoff.com/content/1033/tcplclib_tc2_mc2/70142987.html). Bad value: 0x4314 (TwinCAT's "
+        "'pulse width in positive direction', taken to be this parameter)")
     AxisJogIncrementBackward: float = _p(
         1.0, "nonneg", "inching distance backward [u] (MC_AxisPara 1014): as AxisJogIncrementForward, backward. Bad "
         "value: 0x4315 (TwinCAT's 'pulse width in negative direction')")

@@ -32,7 +32,10 @@ how this NC behaved): the override scales the commanded Velocity and every chang
 (iterated): it scales the peak velocity of the command's profile at 100 % (a short move commanded at 1000 u/s
 that peaks at 700 u/s runs at 350 u/s at 50 %; type 4 at 500 u/s, and at 80 % still at its 700 u/s); 1 reduced and
 2 original (instantaneous): as 3 and 4, but an override raise whose new plan cannot reach the new level (its
-peak stays below it: the remaining way is too short) is not applied, the running profile stays (only that
+peak stays below it: the remaining way is too short) is not applied, the running profile stays (TwinCAT NC
+Master Axes, https://infosys.beckhoff.com/content/1033/tcncptp/3449220235.html: "'Override on x%' causes a
+new runtime table to be calculated and activated ... In case of failure, the function is not called again
+automatically"; only that
 raise: a later ChangeDynParam, blending or NewPosAndVelo plans as always). The reduced reference is taken
 when the positioning is planned for its command (start, new target or velocity, the return of a loop); a
 type written while a positioning runs acts from its next override change (a reduced type from the next
