@@ -553,10 +553,20 @@ class ErrorCodes:
     NC_AXIS_LOCKED_BY_STOP: Final = 0x42EF
     #: Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)
     NC_AXIS_DEAD_TIME_NOT_ALLOWED: Final = 0x430C
+    #: Override type not allowed (AxisOverrideType: 1..4)
+    NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED: Final = 0x430D
+    #: Pulse width in positive direction not allowed (AxisJogIncrementForward)
+    NC_AXIS_PULSE_WIDTH_POS_NOT_ALLOWED: Final = 0x4314
+    #: Pulse width in negative direction not allowed (AxisJogIncrementBackward)
+    NC_AXIS_PULSE_WIDTH_NEG_NOT_ALLOWED: Final = 0x4315
     #: Motion monitoring not allowed (AxisEnMotionMonitoring: flag invalid)
     NC_AXIS_MOTION_MONITORING_NOT_ALLOWED: Final = 0x4320
+    #: Loop not allowed: the value for the activation of the loop movement is not allowed (AxisEnLoopingDistance)
+    NC_AXIS_LOOP_NOT_ALLOWED: Final = 0x4323
     #: Motion monitoring time not allowed (AxisMotionMonitoringTime)
     NC_AXIS_MOTION_MONITORING_TIME_NOT_ALLOWED: Final = 0x4324
+    #: Loop movement not allowed: the value for the loop movement is not allowed (AxisLoopingDistance)
+    NC_AXIS_LOOP_DISTANCE_NOT_ALLOWED: Final = 0x4328
     #: Motion monitoring window not allowed (AxisMotionMonitoringWindow)
     NC_AXIS_MOTION_MONITORING_WINDOW_NOT_ALLOWED: Final = 0x4330
     #: Controller enable missing
@@ -701,8 +711,13 @@ ERRORS: Final[dict[int, tuple[str, str, str]]] = {
     0x4296: ('NC_BUFFERED_DIRECTION_INCONSISTENT', 'group', 'Positioning direction inconsistent with the buffered command'),
     0x42EF: ('NC_AXIS_LOCKED_BY_STOP', 'group', 'Axis locked for motion commands because a stop command is still active'),
     0x430C: ('NC_AXIS_DEAD_TIME_NOT_ALLOWED', 'axis', 'Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)'),
+    0x430D: ('NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED', 'axis', 'Override type not allowed (AxisOverrideType: 1..4)'),
+    0x4314: ('NC_AXIS_PULSE_WIDTH_POS_NOT_ALLOWED', 'axis', 'Pulse width in positive direction not allowed (AxisJogIncrementForward)'),
+    0x4315: ('NC_AXIS_PULSE_WIDTH_NEG_NOT_ALLOWED', 'axis', 'Pulse width in negative direction not allowed (AxisJogIncrementBackward)'),
     0x4320: ('NC_AXIS_MOTION_MONITORING_NOT_ALLOWED', 'axis', 'Motion monitoring not allowed (AxisEnMotionMonitoring: flag invalid)'),
+    0x4323: ('NC_AXIS_LOOP_NOT_ALLOWED', 'axis', 'Loop not allowed: the value for the activation of the loop movement is not allowed (AxisEnLoopingDistance)'),
     0x4324: ('NC_AXIS_MOTION_MONITORING_TIME_NOT_ALLOWED', 'axis', 'Motion monitoring time not allowed (AxisMotionMonitoringTime)'),
+    0x4328: ('NC_AXIS_LOOP_DISTANCE_NOT_ALLOWED', 'axis', 'Loop movement not allowed: the value for the loop movement is not allowed (AxisLoopingDistance)'),
     0x4330: ('NC_AXIS_MOTION_MONITORING_WINDOW_NOT_ALLOWED', 'axis', 'Motion monitoring window not allowed (AxisMotionMonitoringWindow)'),
     0x4356: ('NC_AXIS_CONTROLLER_ENABLE', 'axis', 'Controller enable missing'),
     0x4357: ('NC_AXIS_FEED_ENABLE_MINUS', 'axis', 'Feed enable minus missing while moving in negative direction'),

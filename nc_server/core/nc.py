@@ -513,13 +513,15 @@ class NcCore:
         return Dynamics(float(a.vmax[i]), max(d.acceleration, dec_), dec_, jerk_)
 
     def stop_within(self, i: int, plan: Plan, running: Job | None) -> bool:
-        """The stop ``plan`` ends before the running job's target and an enabled soft limit
-        (TcMC 3.15: weaker stop dynamics are not used if the target would be exceeded)."""
+        """The stop ``plan`` ends before the running job's target (on the way out of a loop movement: its
+        loop point, where that motion heads) and an enabled soft limit (TcMC 3.15: weaker stop dynamics
+        are not used if the target would be exceeded)."""
         a = self.axes
         end = plan.end.p
         v0 = float(a.set_velo[i])
-        if running is not None and running.target is not None and not running.continuous and v0:
-            if (end - running.target) * v0 > 1e-9:
+        goal = running.kind.goal(running) if running is not None else None  # (a loop movement: its loop point)
+        if running is not None and goal is not None and not running.continuous and v0:
+            if (end - goal) * v0 > 1e-9:
                 return False
         if a.en_max[i] and v0 > 0 and end > max(float(a.max_lim[i]), float(a.set_pos[i])) + 1e-9:
             return False
@@ -767,13 +769,14 @@ class NcCore:
                 self.fault(i, ErrorCodes.NC_OVERRIDE_NOT_ALLOWED)
         ov = np.minimum(raw, _OVERRIDE_MAX) / float(_OVERRIDE_MAX)
         changed = (ov != a.override).nonzero()[0]
+        old_ov = a.override
         a.override = ov
         for i in changed.tolist():
             job = self.queues[i].active
             if job is not None and job.numbered and job.kind.follows_override and a.traj_on[i]:
                 held = ov[i] <= 0
-                try:
-                    plan = job.kind.replan(self, i, job, self.start_state(i), float(ov[i]))
+                try:  # (the kind applies AxisOverrideType: an instantaneous type may keep the running plan)
+                    plan = job.kind.override_replan(self, i, job, self.start_state(i), float(old_ov[i]), float(ov[i]))
                 except NcError:
                     # not plannable at this override from here (e.g. a tiny override while fast):
                     # the job waits at rest as at override 0 and is re-planned on the next change

@@ -50,7 +50,8 @@ class ConfigError(ValueError):
 
 def _p(default: Any, kind: str, doc: str) -> Any:
     """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite),
-    "mask" (2^k - 1, k = 1..32)."""
+    "mask" (2^k - 1, k = 1..32),
+    "int" (a whole number, held as a float: MC_AxisPara carries it as an LREAL)."""
     return field(default=default, metadata={"kind": kind, "doc": doc})
 
 
@@ -72,8 +73,14 @@ class AxisParams:
         True, "bool", "TwinCAT 'Invert direction of calibration cam search': True = search the cam in negative direction")
     AxisInvertSyncPulseSearchDirection: bool = _p(
         False, "bool", "TwinCAT 'Invert direction towards sync impulse': False = leave the cam in positive direction")
-    AxisJogIncrementForward: float = _p(1.0, "nonneg", "inching distance forward [u]")
-    AxisJogIncrementBackward: float = _p(1.0, "nonneg", "inching distance backward [u]")
+    AxisJogIncrementForward: float = _p(
+        1.0, "nonneg", "inching distance forward [u] (MC_AxisPara 1013): MC_Jog MC_JOGMODE_INCHING(_MODULO) with "
+        "Position 0 moves forward by it; 0: such a jog is refused (0x4B06; E_JogMode, "
+        "https://infosys.beckhoff.com/content/1033/tcplclib_tc2_mc2/70142987.html). Bad value: 0x4314 (TwinCAT's "
+        "'pulse width in positive direction', taken to be this parameter)")
+    AxisJogIncrementBackward: float = _p(
+        1.0, "nonneg", "inching distance backward [u] (MC_AxisPara 1014): as AxisJogIncrementForward, backward. Bad "
+        "value: 0x4315 (TwinCAT's 'pulse width in negative direction')")
     AxisEnMinSoftPosLimit: bool = _p(False, "bool", "minimum software limit enabled")
     AxisMinSoftPosLimit: float = _p(-1000.0, "real", "minimum software limit [u]")
     AxisEnMaxSoftPosLimit: bool = _p(False, "bool", "maximum software limit enabled")
@@ -144,6 +151,24 @@ class AxisParams:
     AxisEnDataPersistence: bool = _p(
         False, "bool", "TwinCAT 'Data persistence' (MC_AxisPara 1037): with [nc] retain_file the NC keeps the "
         "axis's actual position and homed flag across a restart (nc_server/server/retain.py)")
+    # loop movement and override type (MC_AxisPara 1033, 1034, 1039; their effect: jobs/position.py). Bad values
+    # get TwinCAT's axis errors 0x4323, 0x4328, 0x430D (Axis Errors,
+    # https://infosys.beckhoff.com/content/1033/tc3ncerrcode/513133323.html).
+    AxisEnLoopingDistance: bool = _p(
+        False, "bool", "TwinCAT 'Loop' (MC_AxisPara 1033, ADS axis 0x13, bEnableLoop): loop movement enabled. With a "
+        "non-zero AxisLoopingDistance a positioning that ends at rest and would reach its target from the other side "
+        "goes on to the loop point (target + AxisLoopingDistance), stops there and returns to the target")
+    AxisLoopingDistance: float = _p(
+        0.0, "real", "TwinCAT 'Loop distance (+/-)' (MC_AxisPara 1034, ADS axis 0x14, fLoopDistance) [u]: its sign is "
+        "the side the target is approached from (> 0: from above, the last leg runs in negative direction), its size the "
+        "distance of the loop point beyond the target; 0: no loop")
+    AxisOverrideType: float = _p(
+        4.0, "int", "TwinCAT 'Velocity Override Type' (MC_AxisPara 1039; Setpoint Generator, "
+        "https://infosys.beckhoff.com/content/1033/tc3_system/3396207115.html): 1 reduced (instantaneous), 2 original "
+        "(instantaneous), 3 reduced (iterated), 4 original (iterated). Reduced: the override refers to the peak "
+        "velocity of the command's profile at 100 %; original: to its commanded velocity. Instantaneous: an override "
+        "raise that the new profile cannot reach (its peak stays below the new level) is not applied. Default 4, "
+        "how this NC behaved before the parameter acted (TwinCAT's own default seems to be 3)")
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -211,6 +236,8 @@ def _check(name: str, kind: str, value: Any, key: str) -> Any:
     if kind == "mask" and not (value.is_integer() and 1.0 <= value <= _MASK_MAX and (int(value) & (int(value) + 1)) == 0):
         # an encoder mask is the maximum value of a k-bit counter (Infosys: 'Encoder Mask (maximum encoder value)')
         raise ConfigError(key, f"must be 2^k - 1 for k = 1..32 (a k-bit encoder), got {value:g}", bad)
+    if kind == "int" and value != math.floor(value):
+        raise ConfigError(key, f"must be a whole number, got {value:g}", bad)
     entry = _RANGES.get(name)
     if entry is not None and not entry.in_range(value):
         raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}", bad)

@@ -58,7 +58,7 @@ def test_every_writable_number_round_trips_and_its_aliases_follow():
     (1000, 7.0, E.ADSERR_DEVICE_INVALIDACCESS),       # AxisId
     (2001, 0.0, E.ADSERR_DEVICE_INVALIDACCESS),
     (1038, 100.0, E.ADSERR_DEVICE_INVALIDACCESS),     # AxisRefVeloOnRefOutput: status
-    (1039, 3.0, E.NC_FUNCTION_NOT_SUPPORTED),         # override type: fixed 4
+    (1039, 5.0, E.NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED),  # override type: 1..4
     (1003, 0.0, E.ADSERR_DEVICE_INVALIDPARM),         # below the table's min
     (1003, 2e9, E.ADSERR_DEVICE_INVALIDPARM),         # above its max
     (1006, 1e13, E.ADSERR_DEVICE_INVALIDPARM),

@@ -257,7 +257,13 @@ class JogKind(JobKind):
     with the block's Velocity and dynamics; INCHING: relative by Position (> 0) in Direction;
     INCHING_MODULO (Tc2_MC2): relative, the end rounded to the next multiple of Position in the
     direction of travel (from a multiple: exactly Position). Continuous jogs run until a Halt
-    (the block sends it when the key is released) or any other command."""
+    (the block sends it when the key is released) or any other command.
+
+    Inching with Position 0 (zenoh-nc decision; the manual says only "relative distance"): the axis's jog
+    increment of the direction, AxisJogIncrementForward / AxisJogIncrementBackward (MC_AxisPara 1013/1014,
+    TwinCAT's inching distances), is the distance; an increment of 0 then refuses the jog with 0x4B06, as a
+    Position <= 0 is. An inching jog is a positioning: it loops as any (AxisEnLoopingDistance) and follows
+    AxisOverrideType."""
 
     name = "Jog"
     commands = ("Jog",)
@@ -283,6 +289,11 @@ class JogKind(JobKind):
         if mode == int(E_JogMode.MC_JOGMODE_CONTINOUS):
             return Job(self, dict(req), dyn=dyn, velocity=sense * v, continuous=True, data={"via": "velocity"})
         step = req["Position"]
+        if step == 0:  # the axis's jog increment of this direction (taken when the jog is accepted)
+            name = "AxisJogIncrementForward" if sense > 0 else "AxisJogIncrementBackward"
+            step = getattr(p, name)
+            if not step > 0:
+                raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Position 0 and {name} is 0: no inching distance")
         if not step > 0:
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"inching distance Position {step} must be > 0")
         start = core.nc_set_pos(i)
@@ -302,6 +313,21 @@ class JogKind(JobKind):
         if job.data["via"] == "velocity":
             return None if job.phase else core.plan(plan_velocity, start, job.velocity * override, job.dyn)
         return self._pos.replan(core, i, job, start, override)
+
+    def override_replan(self, core: CoreContext, i: int, job: Job, start: StartState, old: float,
+                        new: float) -> Plan | None:
+        if job.data["via"] == "velocity":
+            return self.replan(core, i, job, start, new)
+        return self._pos.override_replan(core, i, job, start, old, new)  # (inching: AxisOverrideType)
+
+    def goal(self, job: Job) -> float | None:
+        return self._pos.goal(job) if job.data["via"] == "position" else job.target
+
+    def shift(self, job: Job, diff: float) -> None:
+        if job.data["via"] == "position":
+            self._pos.shift(job, diff)  # (a loop point moves with the axis)
+        else:
+            super().shift(job, diff)
 
     def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         if job.data["via"] == "velocity":
