@@ -110,7 +110,7 @@ class VelocityKind(JobKind):
 
     def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         queues = core.queues
-        switch = np.array([("switch" in queues[i].active.data) for i in rows.tolist()], dtype=bool)  # type: ignore[union-attr]
+        switch = np.array([("switch" in queues[i].active.data) for i in rows.tolist()], dtype=bool)
         if switch.any():
             _switch_reached(core, rows[switch])
         # (a row whose switch just made it a positioning is no velocity job any more)
