@@ -92,7 +92,7 @@ class Corrections:
         self.bl_neg = np.zeros(n, dtype=bool)  # the last set velocity was negative
         self.value = np.zeros(n)
         self.delay = np.zeros(n, dtype=np.intp)
-        self._hist: np.ndarray | None = None  # (max_delay + 1, n) ring of set positions
+        self._hist: np.ndarray | None = None  # (max_delay + 2, n) ring of set positions (the delayed one and the one before)
         self._head = 0
         self._cols = np.arange(n)
         self.any_pc = self.any_bl = self.any_dt = False
@@ -117,7 +117,7 @@ class Corrections:
             self.delay[i] = d
             self.any_dt = bool(np.count_nonzero(self.delay))
             if self.any_dt and self._hist is None:
-                self._hist = np.repeat(self.axes.set_pos[None, :], self.max_delay + 1, axis=0)
+                self._hist = np.repeat(self.axes.set_pos[None, :], self.max_delay + 2, axis=0)
             self.restart_history(i)
         self.any_pc = bool(np.count_nonzero(self.pc_on))
         self.any_bl = bool(np.count_nonzero(self.bl_on))
@@ -147,12 +147,16 @@ class Corrections:
         latches compare with); returns the set position the controller uses (the delayed one)."""
         a = self.axes
         ref: np.ndarray = a.set_pos
+        v: np.ndarray = a.set_velo
         if self.any_dt:
             h = self._hist
             assert h is not None  # (allocated when the first dead time was configured)
             self._head = head = (self._head + 1) % h.shape[0]
             h[head] = a.set_pos
             ref = h[(head - self.delay) % h.shape[0], self._cols]
+            if self.any_bl:  # (the backlash reverses with the set-point the drive follows: the delayed one)
+                v = np.where(self.delay > 0,
+                             (ref - h[(head - self.delay - 1) % h.shape[0], self._cols]) / self.cycle_time, v)
         new = np.zeros(a.n)
         if self.any_pc:
             pc = self.pc
@@ -160,7 +164,6 @@ class Corrections:
             pc *= self.pc_on
             new += pc
         if self.any_bl:
-            v = a.set_velo
             neg = self.bl_neg
             neg |= v < -_EPS_V
             neg &= (v <= _EPS_V) & self.bl_on

@@ -152,6 +152,23 @@ def test_backlash_is_added_on_the_negative_side_as_a_step_at_the_reversal() -> N
     assert float(row(core)["ActPos"]) == pytest.approx(5.0, abs=0.02)
 
 
+def test_backlash_with_a_dead_time_steps_when_the_delayed_set_point_reverses() -> None:
+    # the drive follows the set position 20 cycles late: the play must come when that one reverses, not
+    # when SetVelo does (a step while the drive still travels the old way would jerk it backwards)
+    b, cycles = 0.4, 20
+    core = powered(AxisEnBacklashCompensation=True, AxisBacklash=b, AxisVeloMax=500.0,
+                   AxisDelayTimeVeloPosition=cycles * DT)
+    move(core, 10.0)
+    assert cmd(core, "MoveAbsolute", Position=0.0, Velocity=100.0)["error"] == 0
+    run_until(core, lambda: float(core.nctoplc[0]["SetVelo"]) < 0)
+    for _ in range(cycles - 2):  # the delayed set-point still stands (the move started from rest)
+        core.step()
+        assert float(row(core)["ActPos"]) - float(core.drive.act_pos[0]) == pytest.approx(0.0, abs=1e-9)
+    run_until(core, lambda: abs(float(row(core)["ActPos"]) - float(core.drive.act_pos[0])) > b / 2, max_cycles=10)
+    run_until(core, lambda: int(core.nctoplc[0]["StateDWord"]) & IN_TARGET and not core.axes.has_job[0])
+    assert float(core.drive.act_pos[0]) == pytest.approx(-b, abs=0.02) and row(core)["ErrorCode"] == 0
+
+
 def test_backlash_switched_on_starts_from_the_positive_reference_direction() -> None:
     core = powered(AxisVeloMax=500.0)
     move(core, -10.0)  # the last motion was negative, but the compensation was off
