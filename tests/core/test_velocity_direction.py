@@ -96,3 +96,15 @@ def test_the_direction_is_fixed_at_acceptance() -> None:
     assert rep["error"] == 0
     run_until(core, lambda: int(core.nctoplc[0]["CmdNo"]) == rep["CmdNo"], 20_000)
     run_until(core, lambda: math.isclose(velo(core), 40.0), 5000)
+
+
+def test_current_direction_buffered_behind_a_loop_movement_is_its_return_leg() -> None:
+    """A loop movement (AxisLoopingDistance 5: targets approached from above) to 20 from 0 goes on to 25 and
+    ends moving down: a buffered MC_Current_Direction follows that last leg."""
+    core = powered(AxisEnLoopingDistance=True, AxisLoopingDistance=5.0)
+    assert cmd(core, "MoveAbsolute", Position=20.0, Velocity=100.0)["error"] == 0
+    for _ in range(20):
+        core.step()
+    assert velo(core) > 0  # (still on the way out)
+    assert cmd(core, "MoveVelocity", Velocity=30.0, Direction=CUR, BufferMode=1)["error"] == 0
+    run_until(core, lambda: math.isclose(velo(core), -30.0), 20000)

@@ -63,6 +63,8 @@ def current_sense(core: CoreContext, i: int, followed: Job | None) -> float:
             v = followed.velocity
         elif followed.end_velocity:
             v = followed.end_velocity
+        elif followed.target is not None and followed.data.get("loop") is not None:
+            v = followed.target - followed.data["loop"]  # (a loop movement ends on its return leg)
         elif followed.target is not None and start is not None and followed.target != start:
             v = followed.target - start
     if abs(v) <= _EPS_V:
