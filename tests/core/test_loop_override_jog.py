@@ -246,6 +246,18 @@ def test_instantaneous_types_keep_the_running_profile_on_a_raise_it_cannot_reach
 
 
 @pytest.mark.parametrize("t", [1, 2])
+def test_after_a_kept_raise_a_lower_override_still_above_the_running_level_is_a_raise(t: int) -> None:
+    # the kept plan runs at 30 %: 100 % -> 60 % is no reduction for it, and 60 % is out of reach too
+    tr = raise_late(t, 900.0, 1.0)
+    k = len(tr.rows)
+    tr.until(lambda r: r["SetPos"] >= 950.0)
+    power(tr.core, override=600_000)
+    tr.settle()
+    assert tr.col("SetVelo")[k:].max() <= 300.0 + 1e-6, "the unreachable level was partly applied"
+    assert tr.col("SetPos")[-1] == 1000.0
+
+
+@pytest.mark.parametrize("t", [1, 2])
 def test_instantaneous_types_apply_a_raise_they_can_reach_and_every_reduction(t: int) -> None:
     tr = raise_late(t, 100.0, 0.5)
     tr.until(lambda r: r["SetPos"] >= 500.0)

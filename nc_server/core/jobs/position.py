@@ -236,6 +236,7 @@ class PositionKind(JobKind):
         return fallback if fallback is not None else core.plan(plan_position, start, target, dyn, 0.0)
 
     def replan(self, core: CoreContext, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+        job.data.pop("ov_kept", None)  # (a new plan runs at ``override``: no kept raise any more)
         if job.continuous:  # past the target: a velocity job now
             return core.plan(plan_velocity, start, job.end_velocity * override, job.dyn)
         return self._plan(core, i, job, start, override)
@@ -362,13 +363,17 @@ class PositionKind(JobKind):
                         new: float) -> Plan | None:
         """The plan after an override change. Types 1 and 2 (instantaneous): a raise whose new plan's peak
         stays below the new level is not achievable: None, the running plan stays (the job unchanged)."""
-        if job.continuous or job.held or not 0.0 < old < new or core.params[i].AxisOverrideType not in (1.0, 2.0):
+        kept = job.data.get("ov_kept", old)  # (the level the running plan was made for, after a kept raise)
+        if job.continuous or job.held or not 0.0 < kept < new or core.params[i].AxisOverrideType not in (1.0, 2.0):
+            job.data.pop("ov_kept", None)
             return self.replan(core, i, job, start, new)
         trial = job.trial()  # (planning notes its ramp in data: adopted only with the plan)
         plan = self.replan(core, i, trial, start, new)
         if plan is not None and plan.peak_velocity < self._travel_dyn(core, i, trial, new).velocity * (1 - 1e-9):
+            job.data["ov_kept"] = kept
             return None
         job.data = trial.data
+        job.data.pop("ov_kept", None)
         return plan
 
     def goal(self, job: Job) -> float | None:
