@@ -21,7 +21,7 @@ DOC = Path(__file__).resolve().parent.parent / "docs" / "ads.md"
 #: payload and NC command of each 0x4200 function (a FUNCTIONS key without an entry fails the doc test)
 FUNCTION_DOC: dict[int, tuple[str, str]] = {
     0x01: ("none (or a BOOL)", "Reset"),
-    0x02: ("none (or a BOOL)", "Halt (AxisDec; no MC_Stop lock)"),
+    0x02: ("none (or a BOOL)", "Halt (the running job's deceleration and jerk, as MC_Halt with 0s; no MC_Stop lock)"),
     0x04: ("REAL64 dec, REAL64 jerk (16)", "Halt with that Deceleration/Jerk"),
     0x05: ("REAL64 dec, REAL64 jerk (16)", "Halt with that Deceleration/Jerk"),
     0x09: ("REAL64 modulo pos, REAL64 dec, REAL64 jerk (24)", "OrientedStop"),

@@ -217,11 +217,12 @@ class MC_BufferMode(IntEnum):
 
 
 class E_JogMode(IntEnum):
-    """MC_Jog modes (Tc2_MC2 numbering from 0; INCHING_MODULO is Tc2_MC2 only)."""
+    """MC_Jog modes (Tc2_MC2 numbering from 0; INCHING_MODULO is Tc2_MC2 only). MC_JOGMODE_CONTINOUS is Tc2_MC2's spelling; MC_JOGMODE_CONTINUOUS is the same value (an alias)."""
 
     MC_JOGMODE_STANDARD_SLOW = 0
     MC_JOGMODE_STANDARD_FAST = 1
     MC_JOGMODE_CONTINOUS = 2
+    MC_JOGMODE_CONTINUOUS = 2
     MC_JOGMODE_INCHING = 3
     MC_JOGMODE_INCHING_MODULO = 4
 
@@ -550,6 +551,24 @@ class ErrorCodes:
     NC_BUFFERED_DIRECTION_INCONSISTENT: Final = 0x4296
     #: Axis locked for motion commands because a stop command is still active
     NC_AXIS_LOCKED_BY_STOP: Final = 0x42EF
+    #: Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)
+    NC_AXIS_DEAD_TIME_NOT_ALLOWED: Final = 0x430C
+    #: Override type not allowed (AxisOverrideType: 1..4)
+    NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED: Final = 0x430D
+    #: Pulse width in positive direction not allowed (AxisJogIncrementForward)
+    NC_AXIS_PULSE_WIDTH_POS_NOT_ALLOWED: Final = 0x4314
+    #: Pulse width in negative direction not allowed (AxisJogIncrementBackward)
+    NC_AXIS_PULSE_WIDTH_NEG_NOT_ALLOWED: Final = 0x4315
+    #: Motion monitoring not allowed (AxisEnMotionMonitoring: flag invalid)
+    NC_AXIS_MOTION_MONITORING_NOT_ALLOWED: Final = 0x4320
+    #: Loop not allowed: the value for the activation of the loop movement is not allowed (AxisEnLoopingDistance)
+    NC_AXIS_LOOP_NOT_ALLOWED: Final = 0x4323
+    #: Motion monitoring time not allowed (AxisMotionMonitoringTime)
+    NC_AXIS_MOTION_MONITORING_TIME_NOT_ALLOWED: Final = 0x4324
+    #: Loop movement not allowed: the value for the loop movement is not allowed (AxisLoopingDistance)
+    NC_AXIS_LOOP_DISTANCE_NOT_ALLOWED: Final = 0x4328
+    #: Motion monitoring window not allowed (AxisMotionMonitoringWindow)
+    NC_AXIS_MOTION_MONITORING_WINDOW_NOT_ALLOWED: Final = 0x4330
     #: Controller enable missing
     NC_AXIS_CONTROLLER_ENABLE: Final = 0x4356
     #: Feed enable minus missing while moving in negative direction
@@ -560,6 +579,12 @@ class ErrorCodes:
     NC_AXIS_SET_VELOCITY: Final = 0x4359
     #: Target position window not reached within the in-target timeout (PEH time monitoring)
     NC_AXIS_PEH_TIMEOUT: Final = 0x435C
+    #: Motion monitoring: the actual position changed too little within the monitoring time while the axis should move
+    NC_AXIS_MOTION_MONITORING: Final = 0x435D
+    #: Actual position correction not allowed (AxisEnActPosCorrection: flag invalid)
+    NC_ENCODER_POS_CORRECTION_NOT_ALLOWED: Final = 0x440E
+    #: Filter time for the actual position correction not allowed (AxisActPosCorrectionFilterTime)
+    NC_ENCODER_POS_CORRECTION_FILTER_TIME_NOT_ALLOWED: Final = 0x440F
     #: Software end location minimum (axis start)
     NC_SOFT_LIMIT_MIN_START: Final = 0x4460
     #: Software end location maximum (axis start)
@@ -586,6 +611,8 @@ class ErrorCodes:
     NC_DRIVE_STALL: Final = 0x4636
     #: Drive hardware not ready to operate
     NC_DRIVE_NOT_READY: Final = 0x4650
+    #: Invalid IO data for more than n continuous NC cycles (EtherCAT WcState / Lightbus CdlState; zenoh-nc: 3 cycles)
+    NC_DRIVE_IO_DATA_INVALID: Final = 0x4655
     #: Axis was stopped
     MC_AXIS_STOPPED: Final = 0x4B00
     #: Axis cannot be started (axis in error, executing another command, or not ready)
@@ -683,11 +710,23 @@ ERRORS: Final[dict[int, tuple[str, str, str]]] = {
     0x4292: ('NC_COMMAND_BUFFER_FULL', 'group', 'Command buffer full'),
     0x4296: ('NC_BUFFERED_DIRECTION_INCONSISTENT', 'group', 'Positioning direction inconsistent with the buffered command'),
     0x42EF: ('NC_AXIS_LOCKED_BY_STOP', 'group', 'Axis locked for motion commands because a stop command is still active'),
+    0x430C: ('NC_AXIS_DEAD_TIME_NOT_ALLOWED', 'axis', 'Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)'),
+    0x430D: ('NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED', 'axis', 'Override type not allowed (AxisOverrideType: 1..4)'),
+    0x4314: ('NC_AXIS_PULSE_WIDTH_POS_NOT_ALLOWED', 'axis', 'Pulse width in positive direction not allowed (AxisJogIncrementForward)'),
+    0x4315: ('NC_AXIS_PULSE_WIDTH_NEG_NOT_ALLOWED', 'axis', 'Pulse width in negative direction not allowed (AxisJogIncrementBackward)'),
+    0x4320: ('NC_AXIS_MOTION_MONITORING_NOT_ALLOWED', 'axis', 'Motion monitoring not allowed (AxisEnMotionMonitoring: flag invalid)'),
+    0x4323: ('NC_AXIS_LOOP_NOT_ALLOWED', 'axis', 'Loop not allowed: the value for the activation of the loop movement is not allowed (AxisEnLoopingDistance)'),
+    0x4324: ('NC_AXIS_MOTION_MONITORING_TIME_NOT_ALLOWED', 'axis', 'Motion monitoring time not allowed (AxisMotionMonitoringTime)'),
+    0x4328: ('NC_AXIS_LOOP_DISTANCE_NOT_ALLOWED', 'axis', 'Loop movement not allowed: the value for the loop movement is not allowed (AxisLoopingDistance)'),
+    0x4330: ('NC_AXIS_MOTION_MONITORING_WINDOW_NOT_ALLOWED', 'axis', 'Motion monitoring window not allowed (AxisMotionMonitoringWindow)'),
     0x4356: ('NC_AXIS_CONTROLLER_ENABLE', 'axis', 'Controller enable missing'),
     0x4357: ('NC_AXIS_FEED_ENABLE_MINUS', 'axis', 'Feed enable minus missing while moving in negative direction'),
     0x4358: ('NC_AXIS_FEED_ENABLE_PLUS', 'axis', 'Feed enable plus missing while moving in positive direction'),
     0x4359: ('NC_AXIS_SET_VELOCITY', 'axis', 'Set velocity not allowed'),
     0x435C: ('NC_AXIS_PEH_TIMEOUT', 'axis', 'Target position window not reached within the in-target timeout (PEH time monitoring)'),
+    0x435D: ('NC_AXIS_MOTION_MONITORING', 'axis', 'Motion monitoring: the actual position changed too little within the monitoring time while the axis should move'),
+    0x440E: ('NC_ENCODER_POS_CORRECTION_NOT_ALLOWED', 'encoder', 'Actual position correction not allowed (AxisEnActPosCorrection: flag invalid)'),
+    0x440F: ('NC_ENCODER_POS_CORRECTION_FILTER_TIME_NOT_ALLOWED', 'encoder', 'Filter time for the actual position correction not allowed (AxisActPosCorrectionFilterTime)'),
     0x4460: ('NC_SOFT_LIMIT_MIN_START', 'encoder', 'Software end location minimum (axis start)'),
     0x4461: ('NC_SOFT_LIMIT_MAX_START', 'encoder', 'Software end location maximum (axis start)'),
     0x4462: ('NC_SOFT_LIMIT_MIN_POSITIONING', 'encoder', 'Software end location minimum (positioning)'),
@@ -701,6 +740,7 @@ ERRORS: Final[dict[int, tuple[str, str, str]]] = {
     0x4635: ('NC_DRIVE_OVERCURRENT_B', 'drive', 'Overcurrent in phase B (drive or terminal)'),
     0x4636: ('NC_DRIVE_STALL', 'drive', 'Torque overload (stall): also set by MC_PowerStepper PwStMode_SetError / PwStMode_SetErrNonRef'),
     0x4650: ('NC_DRIVE_NOT_READY', 'drive', 'Drive hardware not ready to operate'),
+    0x4655: ('NC_DRIVE_IO_DATA_INVALID', 'drive', 'Invalid IO data for more than n continuous NC cycles (EtherCAT WcState / Lightbus CdlState; zenoh-nc: 3 cycles)'),
     0x4B00: ('MC_AXIS_STOPPED', 'nc-plc', 'Axis was stopped'),
     0x4B01: ('MC_AXIS_CANNOT_BE_STARTED', 'nc-plc', 'Axis cannot be started (axis in error, executing another command, or not ready)'),
     0x4B02: ('MC_CONTROL_MODE_NOT_PERMITTED', 'nc-plc', 'Control mode not permitted'),

@@ -81,6 +81,8 @@ class ParamEntry:
         ads: its ADS address (None where no source gives one).
         field: the ST_AxisParameterSet member that holds it (None: not in the set).
         doc: what it is.
+        code: the TwinCAT error code of a bad value of this parameter (TwinCAT's axis error list, e.g. 0x4328
+            for AxisLoopingDistance); None: 0x70B.
     """
 
     number: int
@@ -99,6 +101,7 @@ class ParamEntry:
     ads: AdsAddress | None
     field: str | None
     doc: str
+    code: int | None = None
 
     @property
     def is_bool(self) -> bool:
@@ -128,7 +131,8 @@ def _entry(d: Mapping[str, Any]) -> ParamEntry:
     return ParamEntry(number=int(d["number"]), name=d["name"], type=d["type"], unit=d["unit"],
                       writable=bool(d["writable"]), when=d.get("when"), min=d.get("min"), max=d.get("max"),
                       min_exclusive=bool(d.get("min_exclusive", False)), source=d["source"], store=d.get("store"),
-                      status=d.get("status"), fixed=d.get("fixed"), ads=ads, field=d.get("field"), doc=d["doc"])
+                      status=d.get("status"), fixed=d.get("fixed"), ads=ads, field=d.get("field"), doc=d["doc"],
+                      code=int(d["code"], 16) if "code" in d else None)
 
 
 class ParameterTable:

@@ -27,7 +27,8 @@ parameter set of MC_ReadParameterSet and the ADS door's index group 0x4000+ID. T
   with 0x422F, a software limit that the running command's target or the set position lies beyond with
   0x4222.
 * **Errors**: a number TcMC does not define 0x703 (ADS "invalid index offset"), a write of a read-only
-  number 0x704, a value of the wrong type or outside the range 0x70B (nothing changes). The blocks add
+  number 0x704, a value of the wrong type or outside the range 0x70B (nothing changes; a bad value of a
+  parameter whose table entry names TwinCAT's own code gets that code: see its *What*). The blocks add
   0x4B05 for a parameter of the other type (MC_ReadBoolParameter on an LREAL parameter, ...).
 * **ADS**: the index offset in the axis's object (axis = index group 0x4000+ID; encoder, controller, drive
   are its sub-objects, which Tc2_MC2 addresses as offsets 0x0001_xxxx, 0x0002_xxxx, 0x0003_xxxx of the axis

@@ -22,7 +22,10 @@ late replies, orphans) and the zenoh runtime. May import ``nc_schema`` and the c
 (sessions, liveliness, NC restarts); never ``nc_server`` (tests/test_import_graph.py). The in-process NC
 (``InProcessPlc``, ``run_cycles``, ``InProcessPort``: tests and simulations without zenoh) is ``nc_sim``.
 """
-from nc_schema import MC_AxisStates, MC_BufferMode, MC_Direction
+from nc_schema import (
+    E_CmdTypeNewTargPosAndVelo, E_JogMode, E_NcAxisType, E_NcDriveType, E_NcEncoderType, E_StartPosType, MC_AxisPara,
+    MC_AxisStates, MC_BufferMode, MC_Direction, MC_HomingMode,
+)
 
 from .axis_ref import AXIS_REF, ST_AxisStatus
 from .fb import (
@@ -34,6 +37,11 @@ from .fb import (
 from .port import CommandPort, PendingCommand
 from .program import ProgramArgs, ProgramArgsError, program_args
 from .records import NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF
+
+#: TcMC's names of the cyclic axis interface (the manual's blocks take ``Axis : NCTOPLC_AXLESTRUCT``): here
+#: the records of an AXIS_REF (``X.NcToPlc``, ``X.PlcToNc``); the blocks take the AXIS_REF that holds both
+NCTOPLC_AXLESTRUCT = NCTOPLC_AXIS_REF
+PLCTONC_AXLESTRUCT = PLCTONC_AXIS_REF
 from .task import PlcTask, current_task
 
 __all__ = [
@@ -44,6 +52,9 @@ __all__ = [
     "MC_ChangeDynParam", "MC_MoveAbsoluteOrRestart", "MC_MoveAdditive", "MC_MoveContinuousAbsolute",
     "MC_MoveContinuousRelative", "MC_NewPos", "MC_NewPosAndVelo", "MC_OrientedStop",
     "program_args", "ProgramArgs", "ProgramArgsError", "NCTOPLC_AXIS_REF", "PLCTONC_AXIS_REF",
+    # the data types the manual's blocks use, where a PLC programmer looks for them
+    "NCTOPLC_AXLESTRUCT", "PLCTONC_AXLESTRUCT", "E_JogMode", "E_CmdTypeNewTargPosAndVelo", "MC_AxisPara",
+    "MC_HomingMode", "E_StartPosType", "E_NcAxisType", "E_NcEncoderType", "E_NcDriveType",
 ]
 
 # homing, jogging, position administration, AXACT

@@ -322,6 +322,13 @@ class AXIS_REF:
     def valid(self) -> bool:
         return self.Status.Valid
 
+    def shows_cycle(self, cycle: int) -> bool:
+        """True once this PLC cycle's snapshot comes from a frame of NC cycle ``cycle`` or later, i.e.
+        the frame shows what the NC did in that cycle (a command whose reply carried
+        ``cycle``: :func:`plc_client.port.reply_cycle`). False without data of the current NC
+        instance (after a restart its cycles start again: a block that waits compares ``nc_epoch``)."""
+        return self._has_data and self.Status.NcCycleCounter >= cycle
+
     # -- convenience (TwinCAT-like) ------------------------------------------------------
     def ReadStatus(self) -> ST_AxisStatus:
         """Tc2_MC2 ``Axis.ReadStatus()``: the status is already refreshed every cycle."""

@@ -21,11 +21,25 @@ import collections
 import logging
 import time
 from abc import ABC, abstractmethod
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 from nc_schema import ErrorCodes, check_client_id, error_text, make_request
 
 log = logging.getLogger(__name__)
+
+
+def reply_cycle(reply: Mapping[str, Any] | None) -> int:
+    """The NC cycle whose frame first shows the effect of the command a reply answers: the reply's
+    ``cycle`` (the step in which the NC applied it), at least 1 (a reply without one then waits for any
+    frame); 0 without a reply.
+
+    Over a real network the reply arrives *before* that frame (the NC answers between two cycles, the
+    frame of the next one follows), so a block that judges the command by the axis's data waits for
+    ``AXIS_REF.shows_cycle(reply_cycle(reply))``: the one rule every block follows.
+    """
+    if reply is None:
+        return 0
+    return max(1, int(reply.get("cycle", 0) or 0))
 
 
 class PendingCommand:

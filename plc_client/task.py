@@ -72,7 +72,7 @@ _AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
 from .axis_ref import AXIS_REF
-from .port import CommandPort, PendingCommand
+from .port import CommandPort, PendingCommand, reply_cycle
 
 log = logging.getLogger(__name__)
 
@@ -483,7 +483,7 @@ class PlcTask:
             if p.cmd in _STOPS or not cmdno or p.cmd in _SLOT_COMMANDS or p.cmd in _AMENDS:
                 log.warning("late acceptance of %s on %r (CmdNo %d): left as is", p.cmd, ax, cmdno)
                 continue
-            self._orphans.append(_Orphan(ax, cmdno, int(p.reply.get("cycle", 0)), ax.nc_epoch, p.cmd))
+            self._orphans.append(_Orphan(ax, cmdno, reply_cycle(p.reply), ax.nc_epoch, p.cmd))
 
     def lost_command(self, ax: AXIS_REF, cmdno: int, cmd: str, nc_cycle: int) -> None:
         """A block stopped following motion command ``cmdno`` (``cmd``) on ``ax`` because the NC's data
@@ -524,7 +524,7 @@ class PlcTask:
             else:
                 if ax.nc_epoch != o.epoch:
                     continue
-                if not ax.Status.Valid or ax.Status.NcCycleCounter < o.cycle:
+                if not ax.Status.Valid or not ax.shows_cycle(o.cycle):
                     keep.append(o)
                     continue
             if self._still_running(o):

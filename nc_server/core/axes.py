@@ -69,6 +69,8 @@ class AxisTable:
         self.range_en, self.range_win = b(), f()
         self.target_en, self.target_win, self.target_time = b(), f(), f()
         self.peh_en, self.peh_time = b(), f()
+        self.mm_en, self.mm_win, self.mm_time = b(), f(), f()  # motion monitoring (0x435D)
+        self.mm_rows = np.zeros(0, dtype=np.intp)  # the axes with motion monitoring on
         self.modulo_factor = f()
         self.opmode = np.zeros(n, dtype=np.uint32)
         # set-point generator (the profile stage): set-points as rows of one matrix, so a cycle can
@@ -108,6 +110,7 @@ class AxisTable:
         self.since_end = np.full(n, -1.0)  # s since the logical end of a position job; -1: not watching
         self.changed: list[int] = []  # rows whose plan changed since the profile stage last looked
         self.in_target, self.in_area = b(), b()
+        self.mm_anchor, self.mm_timer = f(), f()  # motion monitoring: where the current window began, since when
         self.mon_dw = np.zeros(n, dtype=np.uint32)  # StateDWord bits from monitoring (windows, soft limits)
         for i, p in enumerate(params):
             self.load_params(i, p)
@@ -132,6 +135,11 @@ class AxisTable:
         self.target_en[i], self.target_win[i], self.target_time[i] = (
             p.AxisEnTargetPositionMonitoring, p.AxisTargetPositionWindow, p.AxisTargetPositionMonitoringTime)
         self.peh_en[i], self.peh_time[i] = p.AxisEnInTargetTimeout, p.AxisInTargetTimeout
+        if p.AxisEnMotionMonitoring and not self.mm_en[i]:
+            self.mm_anchor[i] = np.nan  # (switched on: its first window starts where the axis is then)
+        self.mm_en[i], self.mm_win[i], self.mm_time[i] = (
+            p.AxisEnMotionMonitoring, p.AxisMotionMonitoringWindow, p.AxisMotionMonitoringTime)
+        self.mm_rows = np.flatnonzero(self.mm_en)
         self.modulo_factor[i] = p.AxisEncoderModuloValue
         m = OpModeDWord(0)
         flags = [
@@ -139,6 +147,8 @@ class AxisTable:
             (p.AxisEnTargetPositionMonitoring, OpModeDWord.OpModeTargetPosMonitoring),
             (p.AxisEnMotionMonitoring, OpModeDWord.OpModeMotionMonitoring),
             (p.AxisEnInTargetTimeout, OpModeDWord.OpModePEHTimeMonitoring),
+            (p.AxisEnBacklashCompensation, OpModeDWord.OpModeBacklashCompensation),
+            (p.AxisEnActPosCorrection, OpModeDWord.OpModePosCorrection),
             (p.Modulo, OpModeDWord.OpModeModulo),
             (p.AxisEnPositionLagMonitoring, OpModeDWord.OpModePosLagMonitoring),
             (p.AxisEnMinSoftPosLimit, OpModeDWord.OpModeSoftLimitMinMonitoring),

@@ -10,6 +10,19 @@
 * InPositionArea: at logical standstill, |ActPos - TargetPos| <= AxisPositionRangeWindow.
 * PEH time (0x435C): with AxisEnInTargetTimeout, the target window not reached
   within AxisInTargetTimeout after the logical end of a positioning job.
+* Motion monitoring (0x435D): with AxisEnMotionMonitoring, while the set velocity is not 0, the
+  override above 0 and the controller enabled, the actual position must move by
+  AxisMotionMonitoringWindow within AxisMotionMonitoringTime (a blocked axis or a dead encoder).
+  Beckhoff's text of 0x435D: "actual position changed too little within the monitoring time"; its
+  hydraulics library's check of the same error: "whether the axis has traveled at least a MinDistance
+  within Filter" (https://infosys.beckhoff.com/content/1033/tcplclibhydraulics30/1599777931.html).
+  Decisions (the manual is silent): a window starts where the axis is when the watch begins and again
+  each time it moved by the window (in either direction); standing axes, override 0 and disabled
+  axes are not watched (a held job is not a blocked axis); reaching the target window in time stays
+  the PEH check (0x435C).
+
+The lag is measured against ``ref`` (the set position the controller uses: with a dead time,
+:mod:`.corrections`' delayed one).
 """
 from __future__ import annotations
 
@@ -24,19 +37,21 @@ _IN_AREA = np.uint32(int(StateDWord.InPositionArea))
 _IN_TARGET = np.uint32(int(StateDWord.InTargetPosition))
 _SOFT_MIN = np.uint32(int(StateDWord.SoftLimitMinExceeded))
 _SOFT_MAX = np.uint32(int(StateDWord.SoftLimitMaxExceeded))
+_EPS_V = 1e-9
 
 
 def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
-            watch: tuple[np.ndarray, np.ndarray, bool, bool]) -> list[tuple[int, int]]:
+            watch: tuple[np.ndarray, np.ndarray, bool, bool], ref: np.ndarray | None = None) -> list[tuple[int, int]]:
     """Update the monitoring state and ``a.mon_dw`` (its StateDWord bits); return new faults (row, code).
 
     Args:
         watch: (lag monitoring active, logical standstill, any soft limit enabled, any axis standing),
             derived by NcCore on events.
+        ref: the set position the lag is measured from (default: SetPos).
     """
     lag_on, standstill, limits, any_standing = watch
     faults: list[tuple[int, int]] = []
-    over = np.abs(a.set_pos - act_pos) > a.lag_max
+    over = np.abs((a.set_pos if ref is None else ref) - act_pos) > a.lag_max
     over &= lag_on
     a.lag_timer += dt
     a.lag_timer *= over  # reset where the lag is inside the window
@@ -86,4 +101,29 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
             if not a.error[i]:
                 faults.append((int(i), ErrorCodes.NC_AXIS_PEH_TIMEOUT))
             a.since_end[i] = -1.0
+    if a.mm_rows.size:
+        faults += _motion(a, act_pos, dt)
     return faults
+
+
+def _motion(a: AxisTable, act_pos: np.ndarray, dt: float) -> list[tuple[int, int]]:
+    """Motion monitoring of the axes that have it on (module docstring): 0x435D where the actual
+    position moved less than the window within the time while the axis should move."""
+    r = a.mm_rows
+    p = act_pos[r]
+    anchor = a.mm_anchor[r]
+    watched = a.enabled[r] & (np.abs(a.set_velo[r]) > _EPS_V) & (a.override[r] > 0)
+    restart = np.abs(p - anchor) >= a.mm_win[r]  # (a NaN anchor: False)
+    restart |= ~watched
+    restart |= np.isnan(anchor)
+    a.mm_anchor[r] = np.where(restart, p, anchor)
+    timer = np.where(restart, 0.0, a.mm_timer[r] + dt)
+    a.mm_timer[r] = timer
+    out: list[tuple[int, int]] = []
+    for k in np.flatnonzero(timer >= a.mm_time[r] - 1e-12).tolist():
+        i = int(r[k])
+        a.mm_timer[i] = 0.0
+        a.mm_anchor[i] = act_pos[i]
+        if not a.error[i]:
+            out.append((i, int(ErrorCodes.NC_AXIS_MOTION_MONITORING)))
+    return out

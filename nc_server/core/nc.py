@@ -44,6 +44,8 @@ from . import checks
 from .axes import AxisTable
 from .checks import MAX_POSITION
 from .commands import CORE_HANDLERS, core_command
+from .drive_monitor import DriveMonitor
+from .corrections import Corrections
 from .engine import KINDS_LIST, JobEngine
 from .jobs import KINDS, Job, JobKind, JobQueue
 from .jobs.stop import STOP
@@ -114,6 +116,11 @@ class NcCore:
         self.axis_ids = self.axes.ids
         self._index = {int(a): i for i, a in enumerate(ids)}
         self.drive = drive if drive is not None else SimDrive(self.params, self.cycle_time)
+        #: position correction, backlash, dead time between the set-point and the drive (corrections.py)
+        self.corrections = Corrections(self.axes, self.params, self.cycle_time)
+        #: the set position the controller compares with ActPos (PosDiff, lag): SetPos, or with a dead
+        #: time the delayed one (set by the drive stage)
+        self.pos_ref: np.ndarray = self.axes.set_pos
         self.queues = [JobQueue() for _ in ids]
         self.cycle = 0
         self.nc_time_ns = 0
@@ -150,6 +157,11 @@ class NcCore:
         self._dt_ns = int(round(self.cycle_time * 1e9))
         self.act_pos = self.drive.act_pos.copy()
         self.prev_act_pos = self.act_pos.copy()
+        self.drive_monitor = DriveMonitor(n)
+        #: called as hook(row, jump [u]) when an axis's actual position moved without motion (an encoder
+        #: parameter changed what the drive reports): what keeps a history of positions restarts there
+        self.position_jump_hooks: list[Callable[[int, float], None]] = []
+        self.position_jump_hooks.append(self.corrections.restart_history)  # (the dead-time history)
         self._in_dirty = True
         self.state_dirty = True  # derived state and records to recompute before their next use
         self.profile_idle = np.zeros(0, dtype=np.intp)
@@ -313,15 +325,18 @@ class NcCore:
             NcError: 0x703 unknown number, 0x704 read-only (status), 0x4251 another value than the fixed
                 one of a parameter without meaning here, 0x70B invalid value (type or range), 0x4220 a
                 parameter written only at standstill while the axis moves, 0x4B42 one written only while
-                disabled while the controller is enabled, 0x4221/0x422F/0x4222 a value that would
-                break the running motion (see :meth:`_check_running`).
+                disabled while the controller is enabled, the parameter's own TwinCAT code for a bad value where
+                the table gives one (``ParamEntry.code``: AxisLoopingDistance 0x4328, AxisOverrideType 0x430D,
+                ...), 0x4221/0x422F/0x4222 a value that would break the running motion (see
+                :meth:`_check_running`).
         """
         e = param_entry(number)
         if e.source == "status":
             raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDACCESS, f"parameter {number} ({e.name}) is read-only")
         if e.is_bool and not isinstance(value, bool):
             if value not in (0.0, 1.0):
-                raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{e.name} is boolean: 0/1 or true/false, got {value}")
+                raise NcError(e.code or ErrorCodes.ADSERR_DEVICE_INVALIDPARM,
+                              f"{e.name} is boolean: 0/1 or true/false, got {value}")
             value = bool(value)
         if e.source == "fixed":
             same = (bool(value) == bool(e.fixed)) if e.is_bool else (
@@ -339,16 +354,35 @@ class NcCore:
             raise NcError(ErrorCodes.MC_AXIS_IS_ENABLED, f"{e.name} can only be written while the controller is disabled")
         try:
             new = self.params[i].with_value(name, value)
-        except ConfigError as exc:
-            raise NcError(ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{exc.key}: {exc.message}") from None
+        except ConfigError as exc:  # (the parameter's own TwinCAT code where the table gives one)
+            raise NcError(exc.code or ErrorCodes.ADSERR_DEVICE_INVALIDPARM, f"{exc.key}: {exc.message}") from None
         if self._moves(i):
             self._check_running(i, new)
         self.params[i] = new
         self.configs[i].params = new
         self.axes.load_params(i, new)
+        before = float(self.drive.act_pos[i])
         self.drive.configure(i, new)
+        self.corrections.configure(i, new)
         self.coupling.invalidate()  # (its copies of the limits)
         self.state_dirty = True
+        jump = float(self.drive.act_pos[i]) - before
+        if jump:
+            self.position_jumped(i, jump)
+
+    def position_jumped(self, i: int, jump: float) -> None:
+        """Axis row ``i``'s actual position moved by ``jump`` [u] without motion (the drive reports it
+        otherwise now: an encoder parameter). The NC's copies follow at once (the set position of a disabled
+        axis follows its actual position), then every hook of :attr:`position_jump_hooks` is called."""
+        a = self.axes
+        self.act_pos = self.drive.act_pos + a.offset  # (a new array: the drive's may have changed in place)
+        self.prev_act_pos = self.prev_act_pos.copy()  # (a latch compares the last two: no motion)
+        self.prev_act_pos[i] += jump
+        if not a.enabled[i]:
+            a.set_pos[i] = a.target_pos[i] = self.act_pos[i]
+        self.state_dirty = True
+        for hook in self.position_jump_hooks:
+            hook(i, jump)
 
     def _moves(self, i: int) -> bool:
         """Whether axis row ``i`` moves or is driven: a job, a plan, a set velocity, a coupling, a
@@ -479,13 +513,15 @@ class NcCore:
         return Dynamics(float(a.vmax[i]), max(d.acceleration, dec_), dec_, jerk_)
 
     def stop_within(self, i: int, plan: Plan, running: Job | None) -> bool:
-        """The stop ``plan`` ends before the running job's target and an enabled soft limit
-        (TcMC 3.15: weaker stop dynamics are not used if the target would be exceeded)."""
+        """The stop ``plan`` ends before the running job's target (on the way out of a loop movement: its
+        loop point, where that motion heads) and an enabled soft limit (TcMC 3.15: weaker stop dynamics
+        are not used if the target would be exceeded)."""
         a = self.axes
         end = plan.end.p
         v0 = float(a.set_velo[i])
-        if running is not None and running.target is not None and not running.continuous and v0:
-            if (end - running.target) * v0 > 1e-9:
+        goal = running.kind.goal(running) if running is not None else None  # (a loop movement: its loop point)
+        if running is not None and goal is not None and not running.continuous and v0:
+            if (end - goal) * v0 > 1e-9:
                 return False
         if a.en_max[i] and v0 > 0 and end > max(float(a.max_lim[i]), float(a.set_pos[i])) + 1e-9:
             return False
@@ -534,6 +570,7 @@ class NcCore:
             self.external.fold(i, diff)
         a.offset[i] += diff
         a.set_pos[i] += diff
+        self.corrections.shift(i, diff)
         a.target_pos[i] += diff
         if a.traj_on[i]:
             a.origin[i] += diff
@@ -687,8 +724,13 @@ class NcCore:
         """The drive steps to this cycle's set-points (NC positions less the offset)."""
         a = self.axes
         self.prev_act_pos, prev = self.act_pos, self.act_pos
+        ref = a.set_pos
+        if self.corrections.active:  # (position correction, backlash, dead time: corrections.py)
+            ref = self.corrections.step(self)
+            self._has_offset = True
+        self.pos_ref = ref
         if self._has_offset:
-            self.drive.step(a.enabled, a.set_pos - a.offset, a.set_velo, a.set_acc)
+            self.drive.step(a.enabled, ref - a.offset, a.set_velo, a.set_acc)
             self.act_pos = self.drive.act_pos + a.offset
         else:
             self.drive.step(a.enabled, a.set_pos, a.set_velo, a.set_acc)
@@ -712,9 +754,11 @@ class NcCore:
         a = self.axes
         self._in_dirty = False
         ctrl = self.plctonc["ControlDWord"]
+        self.corrections.take_input(self.plctonc["PositionCorrection"])
         self._enable_in = (ctrl & _EN) != 0
         self._feed_plus = (ctrl & _FP) != 0
         self._feed_minus = (ctrl & _FM) != 0
+        self.drive.set_torque_offset(self.plctonc["ExtTorque"])  # (TorqueOffset; the drive judges the value)
         raw = self.plctonc["Override"]
         too_high = (raw > _OVERRIDE_MAX).nonzero()[0]
         for i in too_high.tolist():
@@ -725,13 +769,14 @@ class NcCore:
                 self.fault(i, ErrorCodes.NC_OVERRIDE_NOT_ALLOWED)
         ov = np.minimum(raw, _OVERRIDE_MAX) / float(_OVERRIDE_MAX)
         changed = (ov != a.override).nonzero()[0]
+        old_ov = a.override
         a.override = ov
         for i in changed.tolist():
             job = self.queues[i].active
             if job is not None and job.numbered and job.kind.follows_override and a.traj_on[i]:
                 held = ov[i] <= 0
-                try:
-                    plan = job.kind.replan(self, i, job, self.start_state(i), float(ov[i]))
+                try:  # (the kind applies AxisOverrideType: an instantaneous type may keep the running plan)
+                    plan = job.kind.override_replan(self, i, job, self.start_state(i), float(old_ov[i]), float(ov[i]))
                 except NcError:
                     # not plannable at this override from here (e.g. a tiny override while fast):
                     # the job waits at rest as at override 0 and is re-planned on the next change
@@ -758,6 +803,7 @@ class NcCore:
             for i in flips.tolist():
                 if enabled[i]:  # controller activation: set position := actual position
                     a.set_pos[i] = a.target_pos[i] = self.act_pos[i]
+                    self.corrections.restart_history(i)
                 else:
                     q = self.queues[i]
                     if q.waiting is not None:
@@ -811,7 +857,8 @@ class NcCore:
         self._has_offset = bool(np.count_nonzero(a.offset))
         self.has_origin = bool(np.count_nonzero(a.origin))
         out["ErrorCode"] = a.error
-        out["SafEntries"] = job
+        out["SafEntries"] = job  # (1 while a job runs; SvbEntries 1 while a command waits behind it)
+        out["SvbEntries"] = a.buffered
         out["OpModeDWord"] = a.opmode | self._opmode_sim
         out["CmdNo"] = a.cmd_no
         out["CmdState"] = a.cmd_state
@@ -895,6 +942,7 @@ def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     # TwinCAT: after a reset the set position is the actual position
     a.set_pos[i] = core.act_pos[i]
     a.target_pos[i] = a.set_pos[i]
+    core.corrections.restart_history(i)
     return {}
 
 

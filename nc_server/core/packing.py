@@ -85,6 +85,13 @@ class NctoplcPacker:
         f8 = NCTOPLC_DTYPE.fields
         assert f8["SetVelo"][1] == f8["SetPos"][1] + 8 and f8["SetAcc"][1] == f8["SetPos"][1] + 16
         self.out_sp = np.ndarray((n, 3), np.float64, nctoplc, f8["SetPos"][1], (NCTOPLC_DTYPE.itemsize, 8))
+        # the torque fields: SetTorque, ActTorque (136, 144) and ActTorqueDerivative .. TorqueOffset (192..216)
+        assert f8["ActTorque"][1] == f8["SetTorque"][1] + 8
+        assert [f8[k][1] - f8["ActTorqueDerivative"][1] for k in (
+            "SetTorqueDerivative", "AbsPhasingPos", "TorqueOffset")] == [8, 16, 24]
+        self.out_torque = np.ndarray((n, 2), np.float64, nctoplc, f8["SetTorque"][1], (NCTOPLC_DTYPE.itemsize, 8))
+        self.out_torque2 = np.ndarray((n, 4), np.float64, nctoplc, f8["ActTorqueDerivative"][1],
+                                      (NCTOPLC_DTYPE.itemsize, 8))
 
     def fill(self, core: Any, event_dw: np.ndarray, loop_dw: np.ndarray) -> None:
         """This cycle's values from the axis table, the drive and the set-point words of ``core``."""
@@ -99,8 +106,12 @@ class NctoplcPacker:
         o["ActPos"][...] = act
         np.divmod(act, period, out=(o["ModuloActTurns"], o["ModuloActPos"]), casting="unsafe")  # // and %
         o["ActVelo"][...] = d.act_velo
+        torque = d.torque_fields()
+        if torque is not None:  # (None: all 0 and shown so already)
+            self.out_torque[...] = torque[:2].T
+            self.out_torque2[...] = torque[2:].T
         o["ActAcc"][...] = d.act_acc
-        np.subtract(a.set_pos, act, out=o["PosDiff"])
+        np.subtract(core.pos_ref, act, out=o["PosDiff"])  # (with a dead time: the delayed set position)
         self.out_sp[...] = a.S[:3].T  # SetPos, SetVelo, SetAcc: adjacent fields, one copy
         o["SetJerk"][...] = a.set_jerk
         if np.count_nonzero(a.continuous):
@@ -108,6 +119,7 @@ class NctoplcPacker:
             a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
         np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
-        o["ActPosWithoutPosCorrection"][...] = act
+        corr = core.corrections  # (ActPos less the filtered PLCTONC.PositionCorrection)
+        o["ActPosWithoutPosCorrection"][...] = act - corr.pc if corr.any_pc else act
         o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState
         o["DcTimeStamp"][...] = core.nc_time_ns & 0xFFFFFFFF

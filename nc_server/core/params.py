@@ -24,7 +24,8 @@ class ConfigError(ValueError):
 
     Codes (zenoh-nc choice): an axis entry that the NC would refuse the same way at run time carries the
     code it gets there, whatever the source (config file, overlay, ``--set``): a parameter value of the
-    wrong type or out of range 0x070B (what MC_WriteParameter answers), an unknown parameter name 0x0703
+    wrong type or out of range 0x070B (what MC_WriteParameter answers; a bad value of a parameter whose
+    table entry names TwinCAT's own code, e.g. AxisLoopingDistance 0x4328, that code), an unknown parameter name 0x0703
     (what an undefined MC_AxisPara number gets), an AxisId that is not configured or not 1..65535 0x4012
     (NC_AXIS_ID_NOT_ALLOWED). Keys TwinCAT has no error code for (``[nc]``, ``[zenoh]``, files, TOML
     syntax, a duplicate axis) carry none.
@@ -48,7 +49,9 @@ class ConfigError(ValueError):
 
 
 def _p(default: Any, kind: str, doc: str) -> Any:
-    """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite)."""
+    """A parameter field; ``kind`` is checked by ``_check``: "bool", "pos" (> 0), "nonneg" (>= 0), "real" (finite),
+    "mask" (2^k - 1, k = 1..32),
+    "int" (a whole number, held as a float: MC_AxisPara carries it as an LREAL)."""
     return field(default=default, metadata={"kind": kind, "doc": doc})
 
 
@@ -70,8 +73,14 @@ class AxisParams:
         True, "bool", "TwinCAT 'Invert direction of calibration cam search': True = search the cam in negative direction")
     AxisInvertSyncPulseSearchDirection: bool = _p(
         False, "bool", "TwinCAT 'Invert direction towards sync impulse': False = leave the cam in positive direction")
-    AxisJogIncrementForward: float = _p(1.0, "nonneg", "inching distance forward [u]")
-    AxisJogIncrementBackward: float = _p(1.0, "nonneg", "inching distance backward [u]")
+    AxisJogIncrementForward: float = _p(
+        1.0, "nonneg", "inching distance forward [u] (MC_AxisPara 1013): MC_Jog MC_JOGMODE_INCHING(_MODULO) with "
+        "Position 0 moves forward by it; 0: such a jog is refused (0x4B06; E_JogMode, "
+        "https://infosys.beckhoff.com/content/1033/tcplclib_tc2_mc2/70142987.html). Bad value: 0x4314 (TwinCAT's "
+        "'pulse width in positive direction', taken to be this parameter)")
+    AxisJogIncrementBackward: float = _p(
+        1.0, "nonneg", "inching distance backward [u] (MC_AxisPara 1014): as AxisJogIncrementForward, backward. Bad "
+        "value: 0x4315 (TwinCAT's 'pulse width in negative direction')")
     AxisEnMinSoftPosLimit: bool = _p(False, "bool", "minimum software limit enabled")
     AxisMinSoftPosLimit: float = _p(-1000.0, "real", "minimum software limit [u]")
     AxisEnMaxSoftPosLimit: bool = _p(False, "bool", "maximum software limit enabled")
@@ -86,9 +95,22 @@ class AxisParams:
     AxisTargetPositionMonitoringTime: float = _p(0.02, "nonneg", "time inside the window before InTargetPosition [s]")
     AxisEnInTargetTimeout: bool = _p(False, "bool", "PEH time monitoring enabled (0x435C)")
     AxisInTargetTimeout: float = _p(5.0, "pos", "PEH time: target window must be reached within [s]")
-    AxisEnMotionMonitoring: bool = _p(False, "bool", "motion monitoring enabled (stored; the simulation cannot stall)")
+    AxisEnMotionMonitoring: bool = _p(
+        False, "bool", "motion monitoring enabled: 0x435D when the actual position moves less than "
+        "AxisMotionMonitoringWindow within AxisMotionMonitoringTime while the axis should move (monitoring.py)")
     AxisMotionMonitoringWindow: float = _p(0.1, "pos", "motion monitoring window [u]")
     AxisMotionMonitoringTime: float = _p(0.5, "pos", "motion monitoring time [s]")
+    # the set-point / actual position chain (corrections.py)
+    AxisDelayTimeVeloPosition: float = _p(
+        0.0, "nonneg", "dead time between set-point and actual position: the controller and PosDiff use the set "
+        "position this long ago (whole NC cycles, rounded; at most 0.1) [s]")
+    AxisEnBacklashCompensation: bool = _p(
+        False, "bool", "backlash compensation: AxisBacklash added on the negative side at each reversal")
+    AxisBacklash: float = _p(0.0, "nonneg", "backlash (play) compensated by AxisEnBacklashCompensation [u]")
+    AxisEnActPosCorrection: bool = _p(
+        False, "bool", "actual position correction: PLCTONC.PositionCorrection added to the actual position")
+    AxisActPosCorrectionFilterTime: float = _p(
+        0.0, "nonneg", "P-T1 filter time of the actual position correction (0: unfiltered) [s]")
     AxisEncoderModuloValue: float = _p(360.0, "pos", "modulo factor (period) for Modulo* positions [u]")
     AxisModuloToleranceWindow: float = _p(0.0, "nonneg", "modulo tolerance window (TcMC 3.5) [u]")
     Modulo: bool = _p(False, "bool", "modulo axis (OpModeDWord.OpModeModulo, modulo display)")
@@ -98,9 +120,12 @@ class AxisParams:
     AxisAllowMotionCmdToExtSetAxis: bool = _p(
         False, "bool", "TwinCAT 'Allow motion commands to external setpoint axis' (OpModeDWord.OpModeAllowExtSetAxisCommands): "
         "a motion command disables the external set-point generator; off: refused with 0x4B08")
-    AxisEncoderScalingFactor: float = _p(1.0, "pos", "encoder scaling (stored)")
-    AxisEncoderOffset: float = _p(0.0, "real", "encoder offset (stored)")
-    AxisEncoderDirectionInverse: bool = _p(False, "bool", "encoder direction inverted (stored)")
+    # the encoder chain of the simulated drive (nc_server/drives/encoder.py):
+    # ActPos = +-(increments & AxisEncoderEncoderMask) * AxisEncoderScalingFactor + AxisEncoderOffset
+    AxisEncoderScalingFactor: float = _p(1.0, "pos", "encoder scaling factor [u/inc]")
+    AxisEncoderOffset: float = _p(0.0, "real", "encoder position offset [u]")
+    AxisEncoderDirectionInverse: bool = _p(False, "bool", "encoder counting direction inverted")
+    AxisEncoderEncoderMask: float = _p(4294967295.0, "mask", "encoder mask (maximum encoder value), 2^k - 1 [inc]")
     SimTimeConstant: float = _p(0.001, "nonneg", "simulated drive: first-order position lag [s]")
     SimSyncPulseSpacing: float = _p(1.0, "pos", "simulated encoder: distance between sync (zero) pulses [u]")
     SimSyncPulseOffset: float = _p(0.0, "real", "simulated encoder: position of one sync pulse [u]")
@@ -116,10 +141,34 @@ class AxisParams:
         False, "bool", "simulated drive: a stepper motor on a KL2531/KL2541 terminal (MC_PowerStepper): it can be made "
         "to stall (command SimStall) and reports the terminal's status byte/word (NCJOBS DriveStatus); "
         "MC_ReadAxisComponents/MC_ReadParameterSet report the KL2531 encoder and drive types")
+    # the simulated drive's mechanics (nc_server/drives/mechanics.py): torque = SimLoadInertia * a +
+    # SimViscousFriction * v + SimCoulombFriction * sign(v), shown in % of SimRatedTorque (NCTOPLC SetTorque, ActTorque)
+    SimLoadInertia: float = _p(1e-4, "nonneg", "simulated mechanics: load inertia seen by the motor [N*m*s^2/u]")
+    SimViscousFriction: float = _p(1e-4, "nonneg", "simulated mechanics: viscous friction [N*m*s/u]")
+    SimCoulombFriction: float = _p(0.02, "nonneg", "simulated mechanics: Coulomb (dry) friction [N*m]")
+    SimRatedTorque: float = _p(1.0, "pos", "simulated motor: rated torque, 100 % of the torque fields [N*m]")
     Homed: bool = _p(False, "bool", "axis starts referenced (StateDWord.Homed)")
     AxisEnDataPersistence: bool = _p(
         False, "bool", "TwinCAT 'Data persistence' (MC_AxisPara 1037): with [nc] retain_file the NC keeps the "
         "axis's actual position and homed flag across a restart (nc_server/server/retain.py)")
+    # loop movement and override type (MC_AxisPara 1033, 1034, 1039; their effect: jobs/position.py). Bad values
+    # get TwinCAT's axis errors 0x4323, 0x4328, 0x430D (Axis Errors,
+    # https://infosys.beckhoff.com/content/1033/tc3ncerrcode/513133323.html).
+    AxisEnLoopingDistance: bool = _p(
+        False, "bool", "TwinCAT 'Loop' (MC_AxisPara 1033, ADS axis 0x13, bEnableLoop): loop movement enabled. With a "
+        "non-zero AxisLoopingDistance a positioning that ends at rest and would reach its target from the other side "
+        "goes on to the loop point (target + AxisLoopingDistance), stops there and returns to the target")
+    AxisLoopingDistance: float = _p(
+        0.0, "real", "TwinCAT 'Loop distance (+/-)' (MC_AxisPara 1034, ADS axis 0x14, fLoopDistance) [u]: its sign is "
+        "the side the target is approached from (> 0: from above, the last leg runs in negative direction), its size the "
+        "distance of the loop point beyond the target; 0: no loop")
+    AxisOverrideType: float = _p(
+        4.0, "int", "TwinCAT 'Velocity Override Type' (MC_AxisPara 1039; Setpoint Generator, "
+        "https://infosys.beckhoff.com/content/1033/tc3_system/3396207115.html): 1 reduced (instantaneous), 2 original "
+        "(instantaneous), 3 reduced (iterated), 4 original (iterated). Reduced: the override refers to the peak "
+        "velocity of the command's profile at 100 %; original: to its commanded velocity. Instantaneous: an override "
+        "raise that the new profile cannot reach (its peak stays below the new level) is not applied. Default 4, "
+        "how this NC behaved before the parameter acted (TwinCAT's own default seems to be 3)")
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -163,27 +212,35 @@ class AxisParams:
         return _KINDS[name]
 
 
+_MASK_MAX = float(2 ** 32 - 1)  # a 32-bit encoder (UDINT)
 _BAD_VALUE = int(ErrorCodes.ADSERR_DEVICE_INVALIDPARM)  # 0x70B, as WriteParameter refuses the same value
 
 
 def _check(name: str, kind: str, value: Any, key: str) -> Any:
+    # a bad value gets the parameter's own TwinCAT code where the table gives one (a number for a BOOL
+    # counts as a bad value, a non-number for a number as the wrong type: 0x70B)
+    bad = _CODES.get(name, _BAD_VALUE)
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(key, f"must be true or false, got {value!r}", _BAD_VALUE)
+            raise ConfigError(key, f"must be true or false, got {value!r}", bad)
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(key, f"must be a number, got {value!r}", _BAD_VALUE)
     value = float(value)
     if not math.isfinite(value):
-        raise ConfigError(key, f"must be finite, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be finite, got {value}", bad)
     if kind == "pos" and value <= 0:
-        raise ConfigError(key, f"must be > 0, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be > 0, got {value}", bad)
     if kind == "nonneg" and value < 0:
-        raise ConfigError(key, f"must be >= 0, got {value}", _BAD_VALUE)
+        raise ConfigError(key, f"must be >= 0, got {value}", bad)
+    if kind == "mask" and not (value.is_integer() and 1.0 <= value <= _MASK_MAX and (int(value) & (int(value) + 1)) == 0):
+        # an encoder mask is the maximum value of a k-bit counter (Infosys: 'Encoder Mask (maximum encoder value)')
+        raise ConfigError(key, f"must be 2^k - 1 for k = 1..32 (a k-bit encoder), got {value:g}", bad)
+    if kind == "int" and value != math.floor(value):
+        raise ConfigError(key, f"must be a whole number, got {value:g}", bad)
     entry = _RANGES.get(name)
     if entry is not None and not entry.in_range(value):
-        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}",
-                          _BAD_VALUE)
+        raise ConfigError(key, f"must be {entry.range_text()} (MC_AxisPara {entry.number}), got {value:g}", bad)
     return value
 
 
@@ -203,6 +260,9 @@ for _e in PARAMETERS:
     if _e.source == "param" and _e.store is not None and (_e.min is not None or _e.max is not None):
         if _e.store not in _RANGES or _e.name == _e.store:
             _RANGES[_e.store] = _e
+
+#: AxisParams field -> the TwinCAT code of a bad value (the table's ``code``; fields without one: 0x70B)
+_CODES: dict[str, int] = {e.store: e.code for e in PARAMETERS if e.source == "param" and e.store and e.code is not None}
 
 #: Read-only status parameters, answered from the live axis state by NcCore.
 STATUS_PARAMS = frozenset(e.number for e in PARAMETERS if e.source == "status")

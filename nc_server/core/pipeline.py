@@ -168,7 +168,8 @@ class Probe(_Stage):
 
 
 class Monitoring(_Stage):
-    """Position lag, target windows, software limits: new faults stop their axes from the next cycle."""
+    """Position lag, target windows, software limits, the drive's I/O and device state: new faults stop their
+    axes from the next cycle."""
 
     name = "monitoring"
 
@@ -182,8 +183,14 @@ class Monitoring(_Stage):
             st = watch[1].copy()
             st[r] = (np.abs(a.set_velo[r]) <= _EPS_V) & a.enabled[r]
             watch = (watch[0], st, watch[2], True)
-        for i, code in monitor(a, core.act_pos, core.cycle_time, watch):
+        for i, code in monitor(a, core.act_pos, core.cycle_time, watch, core.pos_ref):
             core.fault(i, code)
+        dm = core.drive_monitor
+        if dm.active or core.drive.faulty:  # the drive's I/O and device state (.drive_monitor)
+            for i, code in dm.run(core.drive, a.enabled, a.error):
+                core.fault(i, code)
+            if dm.active:
+                a.mon_dw |= dm.dw
         if core.state_dirty:
             core.derive_state()
 

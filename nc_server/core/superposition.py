@@ -11,6 +11,11 @@ that fits in it:
 * ADDITIVE (1, 3): ``Length`` is the reference's travel, T = |Length| / |v|; the axis travels
   Length + Distance. LIMITED (2, 4): ``Length`` is the axis's own travel, |v| T + D = |Length|
   (D counted in the direction of travel), T = (|Length| - D) / |v|.
+* The process velocity v is VelocityProcess, which TcMC requires to be non-zero ("absolute value
+  > 0", 3.9/3.10): there is always a finite window. Decision for a standing axis (``standing``:
+  its basic motion has no velocity, so LIMITEDMOTION's "the axis's own travel" holds no process
+  travel): every mode uses T = |Length| / |VelocityProcess|, and ActualLength of a LIMITED mode is
+  the axis's own travel, |Distance applied|.
 
 If even the fastest move of the full Distance does not fit, the largest distance that fits is
 applied and the result is flagged incomplete (the NC reports 0x4243). The offset profile uses the
@@ -46,8 +51,7 @@ class SuperPlan:
         velocity_diff: ActualVelocityDiff: peak |v| of the offset profile [u/s].
         length: ActualLength: travel during the superposition [u] (ADDITIVE: the reference's,
             LIMITED: the axis's own).
-        window: the time window T the mode allowed for the applied distance [s] (math.inf when
-            the process stands).
+        window: the time window T the mode allowed for the applied distance [s].
         incomplete: the full Distance did not fit (the NC reports 0x4243); the most that fits was
             applied.
     """
@@ -62,7 +66,7 @@ class SuperPlan:
 
 def plan_superposition(mode: int, distance: float, velocity_diff: float, dyn_acc: float, dyn_dec: float,
                        jerk: float, v_process: float, length: float,
-                       start: StartState = StartState(0.0)) -> SuperPlan:
+                       start: StartState = StartState(0.0), standing: bool = False) -> SuperPlan:
     """Plan a superimposed move of ``distance`` on top of a motion at ``v_process``.
 
     Args:
@@ -72,11 +76,13 @@ def plan_superposition(mode: int, distance: float, velocity_diff: float, dyn_acc
         dyn_acc, dyn_dec: acceleration / deceleration of the offset profile, towards its goal
             (speeding up / slowing down, as in :func:`.planning.plan_position`) [u/s^2].
         jerk: jerk limit [u/s^3].
-        v_process: mean process velocity of the reference (signed) [u/s]; 0: the process stands,
-            the window is unlimited and every mode plans the fastest move.
+        v_process: mean process velocity of the reference (signed, != 0: VelocityProcess; its sign
+            is the direction of travel) [u/s].
         length: Length (sign ignored, != 0) [u]; its meaning depends on ``mode``.
         start: the offset profile's current state (a running superposition re-triggered: its
             offset, velocity and acceleration now; the window starts now).
+        standing: the axis's basic motion stands: the window is |Length| / |v_process| in every
+            mode (see the module docstring).
 
     When the full distance does not fit, the largest distance that fits (bisection, with the
     fastest move's duration against the window) is applied. In LIMITED modes the window shrinks
@@ -87,19 +93,18 @@ def plan_superposition(mode: int, distance: float, velocity_diff: float, dyn_acc
 
     Raises:
         ValueError: unknown mode, distance 0 or not finite, |velocity_diff| or |length| not > 0,
-            dyn_acc, dyn_dec or jerk not > 0, v_process not finite.
+            dyn_acc, dyn_dec or jerk not > 0, |v_process| not > 0 or not finite.
         PlanningError: ruckig failed.
     """
     _check(mode, distance, velocity_diff, dyn_acc, dyn_dec, jerk, v_process, length)
     dyn = Dynamics(abs(velocity_diff), dyn_acc, dyn_dec, jerk)
     speed = abs(v_process)
-    s = -1.0 if v_process < 0 else 1.0  # direction of travel (+1 for a standing process)
+    s = -1.0 if v_process < 0 else 1.0  # direction of travel
     limited = mode in (MODE_VELO_LIMITED, MODE_LENGTH_LIMITED)
+    travels = limited and not standing  # the axis's own travel includes the process's
 
     def window(d: float) -> float:
-        if speed == 0.0:
-            return math.inf
-        return (abs(length) - d * s) / speed if limited else abs(length) / speed
+        return (abs(length) - d * s) / speed if travels else abs(length) / speed
 
     def fastest(d: float) -> Plan | None:
         """The time-optimal move of ``d``, None if it does not fit in its window."""
@@ -124,7 +129,7 @@ def plan_superposition(mode: int, distance: float, velocity_diff: float, dyn_acc
                 plan = _at_rest(stop, stop.end.p)
                 plan = Plan(plan.seg, plan.duration, min(start.p, plan.end.p), max(start.p, plan.end.p), plan.end)
             d = plan.end.p - start.p
-            return _result(plan, d, max(window(d), 0.0), speed, s, limited)
+            return _result(plan, d, max(window(d), 0.0), speed, s, limited, standing=standing)
         hi = 1.0
         for _ in range(_BISECT):
             mid = 0.5 * (lo + hi)
@@ -137,14 +142,14 @@ def plan_superposition(mode: int, distance: float, velocity_diff: float, dyn_acc
     if mode in (MODE_VELO_ADDITIVE, MODE_VELO_LIMITED) and math.isfinite(win) and best.duration < win:
         # use the whole window: ruckig stretches the move to exactly T at the lowest velocity
         best = _move(start, applied, dyn, win)
-    return _result(best, applied, win, speed, s, limited, applied != distance)
+    return _result(best, applied, win, speed, s, limited, applied != distance, standing)
 
 
 def _result(plan: Plan, applied: float, win: float, speed: float, s: float, limited: bool,
-            incomplete: bool = True) -> SuperPlan:
+            incomplete: bool = True, standing: bool = False) -> SuperPlan:
     if limited:
-        # the axis's own travel: the reference's plus the offset (standing process: the offset)
-        length = speed * plan.duration + applied * s if speed else abs(applied)
+        # the axis's own travel: the reference's plus the offset (standing axis: the offset)
+        length = speed * plan.duration + applied * s if not standing else abs(applied)
     else:
         length = speed * plan.duration
     return SuperPlan(plan, applied, plan.peak_velocity, length, win, incomplete)
@@ -189,5 +194,5 @@ def _check(mode: int, distance: float, velocity_diff: float, dyn_acc: float, dyn
     for name, value in (("Acceleration", dyn_acc), ("Deceleration", dyn_dec), ("Jerk", jerk)):
         if not value > 0 or not math.isfinite(value):
             raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    if not math.isfinite(v_process):
-        raise ValueError(f"VelocityProcess must be finite, got {v_process!r}")
+    if not abs(v_process) > 0 or not math.isfinite(v_process):
+        raise ValueError(f"|VelocityProcess| must be finite and > 0, got {v_process!r}")

@@ -22,6 +22,12 @@ class DriveABC(ABC):
         act_velo: actual velocities [u/s].
         act_acc: actual accelerations [u/s^2].
         ready: drive ready to be enabled (False: the NC refuses starts with 0x4225).
+        io_valid: the drive's I/O data are valid (False: e.g. EtherCAT WcState; the NC shows
+            StateDWord.IoDataInvalid, ErrorPropagationDelayed for 3 cycles, then axis error 0x4655).
+        device_error: the drive hardware reports an error (StateDWord.DriveDeviceError; axis error
+            0x4650 on an enabled axis; such a drive is not ``ready``).
+        faulty: any axis has invalid I/O data or a device error (a plain bool: the NC's drive monitor
+            does nothing while it is False).
         simulated: True for simulated drives (OpModeDWord.OpModeSimulationAxis).
     """
 
@@ -34,10 +40,17 @@ class DriveABC(ABC):
         self.act_velo = np.zeros(n)
         self.act_acc = np.zeros(n)
         self.ready = np.ones(n, dtype=bool)
+        self.io_valid = np.ones(n, dtype=bool)
+        self.device_error = np.zeros(n, dtype=bool)
+        self.faulty = False
 
     @abstractmethod
     def configure(self, index: int, params: AxisParams) -> None:
-        """Apply (changed) parameters of one axis."""
+        """Apply (changed) parameters of one axis.
+
+        An encoder parameter may change the position the drive reports without any motion (``act_pos[index]``
+        jumps; the NC notices by comparing it and tells its position jump hooks). The NC changes encoder
+        parameters only while the axis's controller is disabled."""
 
     @abstractmethod
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
@@ -47,6 +60,18 @@ class DriveABC(ABC):
             enabled: controller enable per axis (False: drive disabled, holds).
             set_pos, set_velo, set_acc: set-points of this cycle.
         """
+
+    # -- torque (NCTOPLC SetTorque, ActTorque, their derivatives, TorqueOffset) ------------------------------
+
+    def set_torque_offset(self, values: np.ndarray) -> None:
+        """The additive torque per axis [% of rated torque], PLCTONC.ExtTorque as the PLC sent it (the NC
+        calls this when a PLCTONC changed; non-finite values are the drive's to judge). Default: ignored."""
+
+    def torque_fields(self) -> np.ndarray | None:
+        """The torque fields of every axis: a (6, n) array, rows SetTorque, ActTorque [%], ActTorqueDerivative,
+        SetTorqueDerivative [%/s], AbsPhasingPos (0), TorqueOffset [%] (NCTOPLC order); None: nothing changed
+        since the last call that gave all zeros (default: a drive that reports no torque, always None)."""
+        return None
 
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         """The encoder's sync (zero) pulse latch, for homing.

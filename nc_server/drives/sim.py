@@ -20,6 +20,15 @@ away: a growing following error) and the status byte shows LoadAngle 7, until th
 set velocity is 0 (at rest the motor latches in again and the position controller - the first-order lag -
 brings it to the set position). Terminal errors (status word bits, :meth:`SimDrive.set_terminal_error`)
 set the status byte's Error bit; Ready is the controller enable without an error, Idle a set velocity 0.
+
+Encoder (:mod:`.encoder`): the position the drive reports goes through the encoder chain of
+AxisEncoderScalingFactor, AxisEncoderOffset, AxisEncoderDirectionInverse and AxisEncoderEncoderMask; changing
+one moves the reported position, not the motor. Mechanics (:mod:`.mechanics`): the torque fields of NCTOPLC.
+The sensor pattern and the sync pulses are positions as the encoder reports them (the drive position).
+
+Injectable drive states (for tests and simulations; no wire command sets them yet): :meth:`SimDrive.set_io_invalid`
+(the drive's I/O data invalid: the NC reads the last valid values, the motor gets no new set-points and holds),
+:meth:`SimDrive.set_device_error` (a drive hardware error: not ready, no torque, the motor holds).
 """
 from __future__ import annotations
 
@@ -30,6 +39,8 @@ import numpy as np
 
 from ..core.params import AxisParams
 from .base import DriveABC
+from .encoder import EncoderChain
+from .mechanics import Mechanics
 
 
 _EPS_V = 1e-9
@@ -62,10 +73,18 @@ class SimDrive(DriveABC):
         self._status_word = np.zeros(n, dtype=np.uint32)  # the terminal's error bits (status word)
         self._terminal = np.zeros(n, dtype=np.uint32)  # the DriveStatus of the last step
         self._any_stepper = False
+        self.encoder = EncoderChain(n)
+        self.mechanics = Mechanics(n, cycle_time)
         for i, p in enumerate(params):
             self.configure(i, p)
 
     def configure(self, index: int, params: AxisParams) -> None:
+        self.mechanics.configure(index, params)
+        pos = float(self.act_pos[index])
+        new = self.encoder.configure(index, params, pos)
+        if new != pos:  # the same increments read through another chain: the position jumps, the motor stands
+            self.act_pos = self.act_pos.copy()  # (the NC may hold this array: it compares before and after)
+            self.act_pos[index] = new
         t = params.SimTimeConstant
         self._alpha[index] = 1.0 if t <= 0 else 1.0 - math.exp(-self.cycle_time / t)
         self._pulse_spacing[index] = getattr(params, "SimSyncPulseSpacing", 1.0)
@@ -99,18 +118,64 @@ class SimDrive(DriveABC):
 
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         dt = self.cycle_time
-        new_pos = self.act_pos + (self._alpha * enabled) * (set_pos - self.act_pos)  # disabled: hold
+        delivering = enabled
+        if self.faulty:  # a drive not ready or without valid I/O data holds (no set-point reaches it)
+            delivering = enabled & self.ready & self.io_valid
+        new_pos = self.act_pos + (self._alpha * delivering) * (set_pos - self.act_pos)  # disabled: hold
         if self._any_stepper:
             self._stalled &= np.abs(set_velo) > _EPS_V  # at rest the motor latches in again
             if self._stalled.any():
                 new_pos = np.where(self._stalled, self.act_pos, new_pos)  # a stalled motor stands
             self._terminal = self._status(enabled, set_velo)
         new_velo = (new_pos - self.act_pos) / dt
-        self.act_acc = (new_velo - self.act_velo) / dt
+        new_acc = (new_velo - self.act_velo) / dt
+        if self.faulty:  # invalid I/O data: the NC reads the last valid values
+            stale = ~self.io_valid
+            new_velo[stale] = self.act_velo[stale]
+            new_acc[stale] = self.act_acc[stale]
+        self.act_acc = new_acc
         self.act_velo = new_velo
         self.act_pos = new_pos
+        self.mechanics.step(delivering, set_velo, set_acc, new_velo, new_acc)
         if self._probe_pending or self._probe_edges:  # no work at all without commanded probe signals
             self._probe_edges = self._apply_probe_signals()
+
+    # -- torque, encoder, injectable drive states ------------------------------------------------------------
+
+    def set_torque_offset(self, values: np.ndarray) -> None:
+        """PLCTONC.ExtTorque [%]: non-finite values keep the last value, |value| clipped to 1000 %
+        (:meth:`.mechanics.Mechanics.set_offset`)."""
+        self.mechanics.set_offset(np.asarray(values, dtype=float))
+
+    def torque_fields(self) -> np.ndarray | None:
+        """The mechanics' torque fields (:class:`.mechanics.Mechanics`); None while it rests (all 0 shown)."""
+        return None if self.mechanics.resting else self.mechanics.fields
+
+    def encoder_count(self, index: int) -> float:
+        """The hardware counter of axis ``index``'s encoder: increments & mask [inc] (not rounded)."""
+        return self.encoder.hardware_count(index, float(self.act_pos[index]))
+
+    def set_io_invalid(self, index: int, invalid: bool) -> None:
+        """Axis ``index``'s I/O data become invalid (``invalid`` False: valid again) from the next step: the
+        reported values stay the last valid ones and the motor holds (no set-point reaches it)."""
+        self._check_index(index)
+        self.io_valid[index] = not invalid
+        self._faults_changed()
+
+    def set_device_error(self, index: int, error: bool) -> None:
+        """Axis ``index``'s drive hardware reports an error (``error`` False: it is gone): the drive is not
+        ready, delivers no torque and holds."""
+        self._check_index(index)
+        self.device_error[index] = bool(error)
+        self.ready[index] = not error
+        self._faults_changed()
+
+    def _faults_changed(self) -> None:
+        self.faulty = bool(np.count_nonzero(~self.io_valid) or np.count_nonzero(self.device_error))
+
+    def _check_index(self, index: int) -> None:
+        if not 0 <= int(index) < len(self.act_pos):
+            raise IndexError(f"no axis index {index}")
 
     # -- stepper terminal ----------------------------------------------------------------------------------
 
@@ -148,8 +213,7 @@ class SimDrive(DriveABC):
         self._status_word[index] = int(status_word)
 
     def _check_stepper(self, index: int) -> None:
-        if not 0 <= int(index) < len(self.act_pos):
-            raise IndexError(f"no axis index {index}")
+        self._check_index(index)
         if not self._stepper[index]:
             raise NotImplementedError(f"axis index {index} is not a simulated stepper (SimStepper = false)")
 

@@ -23,8 +23,13 @@ Choices where the manuals are silent (zenoh-nc):
 * MC_Reset is Done when the NC accepted the reset and the first frame of the reset's cycle
   shows no axis error; if the error is still there (its cause persists): Error with the
   axis ErrorCode.
-* MC_ReadAxisError: Tc2_MC2 outputs (Valid, Busy, Error, ErrorID for the block itself,
-  AxisErrorID for the axis) plus TcMC's Done (= Valid).
+* MC_ReadAxisError (TcMC 4.5: "The error code for an axis is displayed"): while Enable and the
+  axis's data is valid, ErrorID = the axis's NCTOPLC.ErrorCode and Error = (ErrorCode != 0), Done
+  TRUE (the state was read: Done and Error are both TRUE while the axis has an error). AxisErrorID
+  (Tc2_MC2's output) carries the same code and stays; Valid (= Done) and Busy (= Enable) are kept as
+  Tc2_MC2 extras. The block's own failure (stale data, an unbound axis) is Error with its code
+  (0x4B0F, 0x4012), Done/Valid FALSE, AxisErrorID 0 (no axis error known). Enable FALSE resets every
+  output, AxisErrorID included.
 * MC_ReadStatus: Tc2_MC2 ``Status`` (a copy of AXIS_REF.Status) plus the TcMC flat outputs
   (Errorstop, Stopping, StandStill, ...).
 """
@@ -231,10 +236,21 @@ class MC_ReadStatus(EnableBlock):
 
 
 class MC_ReadAxisError(EnableBlock):
-    """Axis error code (TcMC 4.5 / Tc2_MC2). Outputs: Valid, Done, Busy, Error, ErrorID, AxisErrorID."""
+    """Axis error code (TcMC 4.5 / Tc2_MC2; the module docstring has the rules).
+
+    Input: Enable. Outputs: Done, Error, ErrorID (TcMC: the axis's NCTOPLC.ErrorCode, Error = code != 0),
+    AxisErrorID (Tc2_MC2: the same code), Valid (= Done) and Busy (= Enable).
+    """
 
     _OUTPUTS = {**EnableBlock._OUTPUTS, "AxisErrorID": 0}
     AxisErrorID: int
 
+    def _cycle(self) -> None:
+        super()._cycle()
+        if not self.Done:
+            self.AxisErrorID = 0  # Enable FALSE, or no valid axis data: no axis error known
+
     def _read(self, ax: AXIS_REF) -> None:
-        self.AxisErrorID = int(ax.NcToPlc["ErrorCode"])
+        code = int(ax.NcToPlc["ErrorCode"])
+        self.AxisErrorID = self.ErrorID = code
+        self.Error = code != 0

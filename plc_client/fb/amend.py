@@ -84,7 +84,9 @@ class MC_NewPosAndVelo(_AmendBlock):
 
     Done as soon as the NC accepted it (manual: "if the command was issued successfully"; also
     for the switching-position modes, whose change happens later at ActivationPos - the block
-    does not wait for it). Mode defaults to CHANGE_POSANDVELO (3), as protocol.json does
+    does not wait for it). The switching-position modes work on positionings and on
+    MC_MoveVelocity (the change applies when the set position passes ActivationPos in the
+    direction of travel); an ActivationPos already passed is refused by the NC with 0x427F. Mode defaults to CHANGE_POSANDVELO (3), as protocol.json does
     (zenoh-nc choice: the manual gives no default). A Mode that is not an integer is refused
     locally with 0x4B06; which integers are valid is the NC's decision. CommandAborted is never
     set (see MC_NewPos).

@@ -12,12 +12,22 @@ MC_Power of whatever PLC holds the axis; AXACT only sends commands, as ADS does.
 
 Edges and outputs (spec): a rising edge of START sends the start command of MODE, a rising edge
 of STOP sends a stop; if both rise in the same cycle, STOP wins (the START edge is dropped).
-BUSY is TRUE from the edge until the NC has answered - it monitors the *acceptance*, not the
-motion (follow ``HasJob`` in the axis's cyclic data for that) - and at most TMOUT: no answer
-within TMOUT gives ERR with ERRID 0x745. While BUSY no edge is accepted - a STOP edge too (spec:
-"no new command will be accepted"; BUSY lasts one round trip, a few ms). ERR/ERRID keep the
-result of the last command and are reset by the next accepted edge. A refused command: ERR
-with the NC's code.
+BUSY is TRUE from the edge until the NC has accepted the command *and* the axis's cyclic data shows
+it - it monitors the *acceptance*, not the motion (follow ``HasJob`` for that). The spec: "as soon
+as BUSY goes FALSE, the bit 'axis has transport instruction' is set"; over a real network the NC's
+reply arrives before the frame of the cycle in which the command took effect, so BUSY falls on the
+first frame with Cycle >= the reply's cycle (the rule of every block: :func:`plc_client.port.reply_cycle`,
+:meth:`plc_client.axis_ref.AXIS_REF.shows_cycle`); in the PLC cycle BUSY falls, ``HasJob`` of a
+started motion is TRUE (unless the motion already ended). A STOP (Halt) follows the same rule.
+BUSY lasts at most TMOUT, which bounds the wait for the reply *and* for that frame: no answer, or no
+frame showing the accepted command, within TMOUT gives ERR with ERRID 0x745 (zenoh-nc choice: a command
+the NC accepted keeps running; only its confirmation is missing). An NC restart seen between the edge
+and that frame (``AXIS_REF.nc_epoch`` changed: the new instance's cycles cannot confirm the old one's
+reply) gives ERR 0x4B0F at once; a request still unanswered is abandoned then, so if the new instance
+accepts it anyway the task stops that motion (the task's late-reply rule). While BUSY no edge is
+accepted - a STOP edge too (spec: "no new command will be accepted"; BUSY lasts one round trip and a
+frame, a few ms). ERR/ERRID keep the result of the last command and are reset by the next accepted
+edge. A refused command: ERR with the NC's code.
 
 STOP sends ``Halt`` (a normal stop with the axis's deceleration; the axis can be started again
 at once). Not ``Stop``: MC_Stop's command locks the axis until a release that AXACT, having no
@@ -71,7 +81,7 @@ import numpy as np
 from nc_schema import E_JogMode, ErrorCodes, MC_AxisPara, MC_Direction
 
 from ..axis_ref import AXIS_REF
-from ..port import PendingCommand
+from ..port import PendingCommand, reply_cycle
 from ..task import PlcTask, current_task
 from .base import FunctionBlock
 
@@ -180,6 +190,8 @@ class AXACT(FunctionBlock):
         self._build: _Build | None = None
         self._inputs: tuple[float, float] = (0.0, 0.0)
         self._pending: PendingCommand | None = None
+        self._epoch = 0       # the axis's nc_epoch at the edge
+        self._shows = 0       # the accepted command's reply cycle: BUSY until a frame of it (0: no reply yet)
 
     def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> Self:
         if Axis is not None:
@@ -231,6 +243,7 @@ class AXACT(FunctionBlock):
             ax = self._axes[key] = task.axis(self.nc, int(axid))
         self._task_ref, self._ax, self._t0, self._tmout = task, ax, task.now, tmout
         self._reads, self._pending, self._build = {}, None, None
+        self._epoch, self._shows = ax.nc_epoch, 0
         if stop:
             self._pending = task.send(ax, "Halt")
             return
@@ -262,7 +275,15 @@ class AXACT(FunctionBlock):
 
     # -- waiting for the NC ----------------------------------------------------------------
     def _progress(self) -> None:
-        if self._reads:
+        ax = self._ax
+        if ax is not None and ax.nc_epoch != self._epoch:
+            self._fail(ErrorCodes.MC_NO_NC_CYCLE_UPDATE)  # the NC restarted: nothing can confirm the command
+            return
+        if self._shows:
+            if ax is not None and ax.shows_cycle(self._shows):
+                self.BUSY = False  # accepted and shown: HasJob is in this cycle's data
+                return
+        elif self._reads:
             if all(p.done for p in self._reads.values()):
                 values: dict[int, Any] = {}
                 for n, p in self._reads.items():
@@ -277,13 +298,15 @@ class AXACT(FunctionBlock):
                     return
                 self._send_final(values)
         elif self._pending is not None and self._pending.done:
-            err = self._pending.error
-            self._pending = None
+            p, self._pending = self._pending, None
+            err = p.error
             if err:
                 self._fail(err)
-            else:
-                self.BUSY = False
-            return
+                return
+            self._shows = reply_cycle(p.reply)
+            if ax is not None and ax.shows_cycle(self._shows):
+                self.BUSY = False  # (the frame of the reply's cycle came with it)
+                return
         task = self._task_ref
         if task is not None and task.now - self._t0 >= self._tmout - 1e-9:  # (float noise of now)
             self._fail(ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT)

@@ -25,33 +25,76 @@ Execute blocks:
 
 Timeouts: ``timeout`` (constructor argument, seconds, default the task's
 ``command_timeout``, 1 s) bounds the wait for the NC's reply: no reply -> Error 0x745.
+
+When a command shows (one rule for every block, AXACT included): the NC's reply carries ``cycle``, the NC
+cycle whose frame first shows the command's effect; over a real network the reply arrives before that
+frame. A block reads the axis's data for its command only from the first frame with
+``Cycle >= reply cycle`` (:func:`plc_client.port.reply_cycle`, :meth:`plc_client.axis_ref.AXIS_REF.shows_cycle`),
+so its outputs never contradict the axis's data (a Busy that fell while HasJob is still FALSE).
+
+Names (Structured Text ignores case; zenoh-nc's rules, :class:`FunctionBlock`): every declared input and
+output answers in any case: ``fb.ErrorId is fb.ErrorID``, ``fb(execute=True)``. The exact spelling costs
+nothing extra (the ordinary attribute lookup finds it); another spelling is resolved on a miss
+(``__getattr__``) and, for call keywords, when the name is not a declared input. An attribute *written* in
+another case (``fb.execute = True``) takes effect at the block's next call (checking every write would
+double a simple block's cost); until then reading that spelling returns what was written. ``Axis``,
+``Master``, ``Slave`` and ``TriggerInput`` (VAR_IN_OUT, the calls' own keywords) stay case-sensitive. Two
+declared names that differ only in case are refused when the class is defined (TypeError). The type
+checker still sees only the declared spelling, so mypy flags a misspelling in typed code.
 """
 from __future__ import annotations
 
 import math
 import numbers
-from typing import Any, ClassVar, Self
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 import numpy as np
 
 from nc_schema import ErrorCodes, cmdno_newer
 
 from ..axis_ref import AXIS_REF
-from ..port import PendingCommand
+from ..port import PendingCommand, reply_cycle
 from ..task import PlcTask, current_task
 
 
+def _fold_maps(cls: type[FunctionBlock]) -> tuple[dict[str, str], dict[str, str]]:
+    """(lower-case name -> declared name) of ``cls``'s inputs and outputs, and of its inputs alone.
+
+    Raises:
+        TypeError: two declared names differ only in case (ST could not tell them apart).
+    """
+    every: dict[str, str] = {}
+    inputs: dict[str, str] = {}
+    for table, names in ((inputs, cls._INPUTS), (every, cls._INPUTS), (every, cls._OUTPUTS)):
+        for name in names:
+            seen = table.setdefault(name.lower(), name)
+            if seen != name:
+                raise TypeError(f"{cls.__qualname__}: {seen!r} and {name!r} differ only in case "
+                                "(Structured Text names ignore case)")
+    return every, inputs
+
+
 class FunctionBlock:
-    """Base of all blocks: input handling and the Axis binding.
+    """Base of all blocks: input handling, names in any case and the Axis binding.
 
     Subclasses declare ``_INPUTS`` (name -> default) and ``_OUTPUTS`` (name -> reset value), and
     annotate each of those names in the class body (``Execute: bool``) so that the type checker
     knows the attributes ``__init__`` creates from the two maps (tests/plc/test_declarations.py
-    checks that none is missing).
+    checks that none is missing). Every declared name also answers in any case (the module
+    docstring, "Names"); ``__init_subclass__`` builds the class's case maps and refuses two declared
+    names that differ only in case (TypeError).
     """
 
     _INPUTS: ClassVar[dict[str, Any]] = {}
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Error": False, "ErrorID": 0}
+    #: lower-case name -> declared name of every input and output (built per class)
+    _FOLD: ClassVar[dict[str, str]] = {}
+    #: the same for the inputs alone (call keywords)
+    _FOLD_INPUTS: ClassVar[dict[str, str]] = {}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls._FOLD, cls._FOLD_INPUTS = _fold_maps(cls)
 
     def __init__(self, timeout: float | None = None) -> None:
         if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
@@ -61,22 +104,59 @@ class FunctionBlock:
         for k, v in self._INPUTS.items():
             setattr(self, k, v)
         self._reset_outputs()
+        self._n_attrs = -1  # attributes of the instance at the last call (-1: look at the next call)
 
     def _reset_outputs(self) -> None:
         for k, v in self._OUTPUTS.items():
             setattr(self, k, v)
+
+    if not TYPE_CHECKING:  # (hidden from mypy: it keeps flagging misspellings in typed code)
+        def __getattr__(self, name: str) -> Any:
+            """A declared input/output read in another case (called only when the exact lookup fails)."""
+            real = type(self)._FOLD.get(name.lower())
+            if real is None or real == name:
+                raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+            return getattr(self, real)
 
     def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> Self:
         if Axis is not None:
             if not isinstance(Axis, AXIS_REF):
                 raise TypeError(f"{type(self).__name__}: Axis must be an AXIS_REF, got {type(Axis).__name__}")
             self.Axis = Axis
-        for k, v in inputs.items():
-            if k not in self._INPUTS:
-                raise TypeError(f"{type(self).__name__} has no input {k!r} (inputs: {', '.join(self._INPUTS)})")
-            setattr(self, k, v)
+        self._set_inputs(inputs)
         self._cycle()
         return self
+
+    def _set_inputs(self, inputs: dict[str, Any]) -> None:
+        """Apply the call's inputs (any case) after the attributes written in another case since the last call.
+
+        Raises:
+            TypeError: an unknown input, or one given twice in different cases (a program bug).
+        """
+        if len(self.__dict__) != self._n_attrs:  # an attribute appeared: maybe ``fb.execute = ...``
+            self._fold_writes()
+        for k, v in inputs.items():
+            if k not in self._INPUTS:
+                k = self._input_name(k, inputs)
+            setattr(self, k, v)
+
+    def _input_name(self, k: str, inputs: dict[str, Any]) -> str:
+        low = k.lower()
+        real = self._FOLD_INPUTS.get(low)
+        if real is None:
+            raise TypeError(f"{type(self).__name__} has no input {k!r} (inputs: {', '.join(self._INPUTS)})")
+        same = [j for j in inputs if j.lower() == low]
+        if len(same) > 1:
+            raise TypeError(f"{type(self).__name__}: input {real!r} given twice ({', '.join(same)})")
+        return real
+
+    def _fold_writes(self) -> None:
+        """Move attributes written in another case than declared (``fb.execute = True``) onto the declared ones."""
+        d = self.__dict__
+        fold = self._FOLD
+        for k in [k for k in d if k.lower() in fold and fold[k.lower()] != k]:
+            setattr(self, fold[k.lower()], d.pop(k))
+        self._n_attrs = len(d)
 
     def _cycle(self) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -119,6 +199,9 @@ class FunctionBlock:
     def __repr__(self) -> str:
         outs = ", ".join(f"{k}={getattr(self, k)!r}" for k in self._OUTPUTS if getattr(self, k))
         return f"{type(self).__name__}({outs})"
+
+
+FunctionBlock._FOLD, FunctionBlock._FOLD_INPUTS = _fold_maps(FunctionBlock)
 
 
 class ExecuteBlock(FunctionBlock):
@@ -245,9 +328,9 @@ class ExecuteBlock(FunctionBlock):
             reply = self._await_reply()
             if reply is None:
                 return False
-            self._cycle_no = max(1, int(reply.get("cycle", 0)))
+            self._cycle_no = reply_cycle(reply)
             self._pending = None
-        return self.Axis is not None and self.Axis.Status.NcCycleCounter >= self._cycle_no
+        return self.Axis is not None and self.Axis.shows_cycle(self._cycle_no)
 
     def _own_slot(self, no_field: str, state_field: str, no: int, cycle: int) -> tuple[int, Any] | None:
         """(state, job record) of this block's command ``no`` in a slot of the axis's job record
@@ -259,7 +342,7 @@ class ExecuteBlock(FunctionBlock):
             return None
         ax = self.Axis
         assert ax is not None
-        if ax.Status.NcCycleCounter < cycle:
+        if not ax.shows_cycle(cycle):
             return None  # the frame does not show the command yet
         jobs = ax.NcJobs
         if not int(jobs["AxisId"]):
@@ -287,7 +370,7 @@ class ExecuteBlock(FunctionBlock):
             self._finish("Error", ErrorCodes.MC_CMD_NUMBER_ZERO)
             return None
         self._pending = None
-        return no, int(reply.get("cycle", 0)), reply
+        return no, reply_cycle(reply), reply
 
     def _await_reply(self) -> dict[str, Any] | None:
         """The reply once it arrived (error 0); finishes with Error on rejection/timeout, or at

@@ -68,6 +68,7 @@ import numpy as np
 from nc_schema import AxisState, E_DecoupleMode, ErrorCodes, StateDWord
 
 from ..axis_ref import AXIS_REF
+from ..port import reply_cycle
 from ..task import current_task
 from .base import ExecuteBlock
 from .motion import MotionBlock
@@ -423,11 +424,11 @@ class MC_GearOutExt(_SlaveCall, MotionBlock):
             cmdno = int(reply.get("CmdNo", 0))
             if not cmdno:
                 self._standing = True
-                self._cycle_no = max(1, int(reply.get("cycle", 0)))
+                self._cycle_no = reply_cycle(reply)
             else:
-                self._cmdno, self._cmd_cycle = cmdno, int(reply.get("cycle", 0))
+                self._cmdno, self._cmd_cycle = cmdno, reply_cycle(reply)
         if self._standing:
-            if not self._lost_axis() and self.Axis is not None and self.Axis.Status.NcCycleCounter >= self._cycle_no:
+            if not self._lost_axis() and self.Axis is not None and self.Axis.shows_cycle(self._cycle_no):
                 self._finish("Done")
             return
         self._follow()

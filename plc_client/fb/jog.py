@@ -15,7 +15,8 @@ What the block sends (wire contract, ``schema/protocol.json``):
 * the mode decides which inputs go with it: MC_JOGMODE_STANDARD_SLOW/FAST send only Mode and
   Direction (the NC uses AxisVeloManSlow/AxisVeloManFast and the axis dynamics; the block's
   Position/Velocity/dynamics are ignored and not checked, as the manual says they need not be
-  specified); MC_JOGMODE_CONTINOUS sends Velocity and the dynamics (not Position: "no effect");
+  specified); MC_JOGMODE_CONTINOUS (Tc2_MC2's spelling; ``E_JogMode.MC_JOGMODE_CONTINUOUS`` is the
+  same value) sends Velocity and the dynamics (not Position: "no effect");
   MC_JOGMODE_INCHING and MC_JOGMODE_INCHING_MODULO send Position too. The inputs are latched at
   the edge;
 * continuous modes (STANDARD_SLOW, STANDARD_FAST, CONTINOUS): when the key that started the
@@ -27,7 +28,9 @@ What the block sends (wire contract, ``schema/protocol.json``):
   dynamics");
 * inching modes (INCHING, INCHING_MODULO): the NC moves by Position (INCHING_MODULO: the end is
   rounded to a multiple of Position, Tc2_MC2) and stops by itself; releasing the key changes
-  nothing; Done follows the appendix 7.1 rule of the positioning blocks (target window).
+  nothing; Done follows the appendix 7.1 rule of the positioning blocks (target window). Position 0
+  (the default) moves by the axis's jog increment of the direction, AxisJogIncrementForward /
+  AxisJogIncrementBackward (the NC's choice; an increment of 0: 0x4B06).
 
 The command is followed as every motion block follows its own (``MotionBlock``, see
 :mod:`plc_client.fb.motion`): Error with the NC's code, CommandAborted when another command
@@ -44,8 +47,8 @@ edge (of either key).
 
 Mode not an E_JogMode value (or not an integer): Error 0x4B04 (MC_INVALID_MODE), nothing sent.
 A non-finite Position/Velocity/dynamics value in a mode that uses it: Error 0x4B06. The NC checks
-the values themselves (e.g. Velocity <= 0 in CONTINOUS/inching: 0x4221; an inching Position <= 0:
-0x4B06; no enable: 0x4223).
+the values themselves (e.g. Velocity <= 0 in CONTINOUS/inching: 0x4221; an inching Position < 0, or Position 0 with a
+jog increment of 0: 0x4B06; no enable: 0x4223).
 """
 from __future__ import annotations
 

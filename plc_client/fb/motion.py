@@ -191,7 +191,7 @@ class MotionBlock(ExecuteBlock):
             return
         ax = self.Axis
         assert ax is not None
-        if ax.Status.NcCycleCounter < self._cmd_cycle:
+        if not ax.shows_cycle(self._cmd_cycle):
             return  # the frame does not show the command's effect yet
         jobs = ax.NcJobs
         if int(jobs["AxisId"]):
@@ -384,6 +384,12 @@ def _int_or_invalid(v: Any) -> int:
 class MC_MoveVelocity(MotionBlock):
     """Endless motion at Velocity [u/s] (> 0) in Direction (TcMC 3.3), BufferMode (Tc2_MC2).
 
+    Direction (MC_Direction): MC_Positive_Direction, MC_Negative_Direction, or
+    MC_Current_Direction: the direction of the axis's set velocity when the NC accepts the command
+    (a running superposition included; buffered: the direction of the job it follows); at rest
+    the NC refuses it with 0x4B05, as MC_Shortest_Way (an endless move has no target to be short
+    to). The block sends the value; the NC decides.
+
     Outputs: InVelocity (instead of Done), Busy, Active, CommandAborted, Error, ErrorID.
     InVelocity: the NC shows this command active with ConstantVelocity; the block is then
     finished (Tc2_MC2: no further monitoring).
@@ -526,7 +532,9 @@ class MC_MoveAbsoluteOrRestart(MotionBlock):
 class MC_Halt(MotionBlock):
     """Controlled stop as a normal motion command (no lock; Tc2_MC2 MC_Halt).
 
-    Inputs: Execute, Deceleration [u/s^2], Jerk [u/s^3] (0 = axis default), BufferMode.
+    Inputs: Execute, Deceleration [u/s^2], Jerk [u/s^3] (as MC_Stop's: 0 = the effective value of
+    the job it stops; buffered: of the job it follows; a lone value used; negative: 0x4230 /
+    0x422E), BufferMode.
     Outputs: Done, Busy, Active, CommandAborted, Error, ErrorID. Done at the logical standstill.
     """
 
@@ -566,8 +574,12 @@ class MC_OrientedStop(MotionBlock):
 class MC_Stop(MotionBlock):
     """Stop and lock the axis (TcMC 3.15; see the module docstring for the lock rules).
 
-    Inputs: Execute, Deceleration [u/s^2], Jerk [u/s^3] (0 = axis default; a non-zero value
-    counts only together with the other: a lone one is ignored and the axis defaults apply).
+    Inputs: Execute, Deceleration [u/s^2], Jerk [u/s^3]: 0 = the effective value of the job it
+    stops (its input, or the axis default where that was 0; a coupling, external set-points or
+    no job: AxisDec/AxisJerk). A lone non-zero value is used with the stopped job's other one
+    (zenoh-nc decision; TcMC: "only accepted together"); a negative one is refused by the NC
+    (0x4230 / 0x422E) and the axis is not locked. The NC keeps TcMC 3.15's exceptions (never
+    weaker than a running stop, never past the target).
     Outputs: Done, Busy, Active, CommandAborted, Error, ErrorID.
     """
 

@@ -77,11 +77,8 @@ class MC_OverrideFilter(FunctionBlock):
         return int(self.ErrorId)
 
     def __call__(self, Axis: Any = None, **inputs: Any) -> Self:
-        """Call with the inputs (no Axis: the block computes only; an Axis passed is ignored)."""
-        for k, v in inputs.items():
-            if k not in self._INPUTS:
-                raise TypeError(f"MC_OverrideFilter has no input {k!r} (inputs: {', '.join(self._INPUTS)})")
-            setattr(self, k, v)
+        """Call with the inputs, in any case (no Axis: the block computes only; an Axis passed is ignored)."""
+        self._set_inputs(inputs)
         self._cycle()
         return self
 

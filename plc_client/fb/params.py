@@ -45,7 +45,7 @@ from nc_schema import (
 )
 from nc_schema.params import StructLayout
 
-from ..port import PendingCommand
+from ..port import PendingCommand, reply_cycle
 from .base import ExecuteBlock, FunctionBlock
 
 
@@ -348,8 +348,8 @@ class _WriteParam(FunctionBlock):
             if err:
                 self._end(err)
                 return
-            self._cycle_no = max(1, int(p.reply.get("cycle", 0)))
-        if ax is not None and ax.Status.NcCycleCounter >= self._cycle_no:
+            self._cycle_no = reply_cycle(p.reply)
+        if ax is not None and ax.shows_cycle(self._cycle_no):
             self._end(0)
 
     def _end(self, code: int) -> None:

@@ -47,7 +47,7 @@ from nc_schema import PARAMETERS, E_DestallDetectMode, E_DestallMode, ErrorCodes
 from nc_schema.params import STEPPER_TERMINAL
 
 from ..axis_ref import AXIS_REF
-from ..port import PendingCommand
+from ..port import PendingCommand, reply_cycle
 from .admin import MC_Power
 from .base import FunctionBlock
 
@@ -275,12 +275,12 @@ class MC_PowerStepper(FunctionBlock):
                 self._report_error, self._reported = err, 0
             else:
                 assert p.reply is not None  # (no reply: err is set)
-                self._report_cycle = max(1, int(p.reply.get("cycle", 0)))
+                self._report_cycle = reply_cycle(p.reply)
         if self._report_error:
             return self._report_error
         if not self._reported:
             return 0
-        if self._report is not None or ax is None or not ax.Status.Valid or ax.Status.NcCycleCounter < self._report_cycle:
+        if self._report is not None or ax is None or not ax.Status.Valid or not ax.shows_cycle(self._report_cycle):
             return self._reported  # (sent; the frames do not show it yet)
         if int(ax.NcToPlc["ErrorCode"]) == self._reported:
             return self._reported

@@ -3,8 +3,8 @@
 
 A superimposed motion is added to whatever moves the axis (its own command, a coupling, the
 external set-point generator, or standstill). The ``MoveSuperImposed`` request goes to the
-axis's own key with {Mode, Distance, VelocityDiff, Acceleration, Deceleration, Jerk,
-VelocityProcess, Length}; the reply's CmdNo is the superposition's own number, which is **not**
+axis's own key with {Mode, Distance, VelocityDiff, Acceleration, Deceleration, VelocityProcess,
+Length}; the reply's CmdNo is the superposition's own number, which is **not**
 the axis's ActiveCmdNo but its superposition slot in the job record: ``NCJOBS.SuperCmdNo`` /
 ``SuperState`` / ``SuperErrorId``. The reply's Value is {ActualDistance, ActualVelocityDiff,
 ActualLength}.
@@ -38,9 +38,16 @@ Actual* values are the NC's answer (the reply's Value; the NCJOBS Super* values 
 frame showing the superposition if the reply had none); they are cleared by the next rising edge
 only, so they can still be read after Execute fell.
 
+Jerk: TcMC 3.9/3.10 "the jerk value is not used": the input exists (TcMC declares it) but the
+block neither checks nor sends it; the NC limits the superimposed part with AxisJerk.
+
+VelocityProcess [u/s]: the mean process velocity, |value| > 0 (TcMC). Its default is 0 as in the
+TcMC declaration, which the NC refuses with 0x4B06: a program must set it (e.g. the axis's or the
+master's velocity during the correction). With Length it gives the correction's time window.
+
 Input checks, nothing sent on failure: a value that is not a finite number -> Error 0x4B06; a
-Mode that is not an integer 1..4 -> 0x4B04. The NC checks the rest (Distance 0, VelocityDiff or
-Length not > 0, ...).
+Mode that is not an integer 1..4 -> 0x4B04. The NC checks the rest (Distance 0, VelocityDiff,
+Length or VelocityProcess not > 0, ...).
 
 MC_AbortSuperposition sends ``AbortSuperposition`` and is Done once the NC accepted it and a
 frame of the reply's cycle arrived (the superimposed part brakes to its standstill; the running
@@ -68,7 +75,8 @@ class _SuperBlock(ExecuteBlock):
 
     _OUTPUTS: ClassVar[dict[str, Any]] = {"Done": False, "Busy": False, "CommandAborted": False, "Error": False,
                                           "ErrorID": 0}
-    _REALS: ClassVar[tuple[str, ...]] = ("Distance", "VelocityDiff", "Acceleration", "Deceleration", "Jerk",
+    #: the real inputs checked and sent (not Jerk: TcMC does not use it)
+    _REALS: ClassVar[tuple[str, ...]] = ("Distance", "VelocityDiff", "Acceleration", "Deceleration",
                                          "VelocityProcess")
     #: the block has the Actual* outputs (MC_MoveSuperImposedExt)
     _ACTUAL_OUTPUTS: ClassVar[bool] = False
@@ -154,9 +162,9 @@ class MC_MoveSuperImposed(_SuperBlock):
     """Superimposed relative motion (TcMC 3.9): Mode 4 LENGTHREDUCTION_LIMITEDMOTION, Length = MaxDistance.
 
     Inputs: Execute, Distance [u] (<> 0), VelocityDiff [u/s] (|.| > 0), Acceleration,
-    Deceleration (0 = axis default), Jerk (0 = axis jerk), VelocityProcess [u/s] (0 = the
-    reference's set velocity at the start), MaxDistance [u] (|.| > 0: the most travel the
-    correction may take). Outputs: Done, Busy, CommandAborted, Error, ErrorID (0x4243: the
+    Deceleration [u/s^2] (0 = axis default), Jerk (not used: AxisJerk; neither checked nor sent),
+    VelocityProcess [u/s] (|.| > 0, the mean process velocity; 0 is refused by the NC with
+    0x4B06), MaxDistance [u] (|.| > 0: the most travel the correction may take). Outputs: Done, Busy, CommandAborted, Error, ErrorID (0x4243: the
     correction was incomplete, see the module docstring).
     """
 
@@ -178,8 +186,9 @@ class MC_MoveSuperImposedExt(_SuperBlock):
     """Superimposed relative motion with a Mode (TcMC 3.10).
 
     Inputs: Execute, Mode (E_SuperpositionMode 1..4, default 4), Distance, VelocityDiff,
-    Acceleration, Deceleration, Jerk, VelocityProcess, Length [u] (|.| > 0; its meaning depends
-    on Mode). Outputs: Done, Busy, CommandAborted, Error, ErrorID, ActualVelocityDiff [u/s],
+    Acceleration, Deceleration, Jerk (not used: AxisJerk; neither checked nor sent),
+    VelocityProcess [u/s] (|.| > 0; 0: NC error 0x4B06), Length [u] (|.| > 0; its meaning
+    depends on Mode). Outputs: Done, Busy, CommandAborted, Error, ErrorID, ActualVelocityDiff [u/s],
     ActualDistance [u], ActualLength [u].
     """
 

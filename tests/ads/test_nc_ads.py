@@ -123,7 +123,9 @@ def _primary_entries() -> list[Any]:
 def _new_value(e: Any, old: float | bool) -> float | bool:
     if e.is_bool:
         return not old
-    for v in (old + 1.0, old - 1.0, old * 0.5):
+    if e.name == "AxisEncoderEncoderMask":  # (2^k - 1 only: one bit less)
+        return (old - 1.0) / 2.0
+    for v in (old + 1.0, old - 1.0, old * 0.5, old + 0.01):  # (+0.01: the dead time, at most 0.1 s)
         if e.in_range(v) and v != old:
             return v
     raise AssertionError(f"no test value for {e.name}")

@@ -101,7 +101,7 @@ def test_inching_modulo_ends_at_a_multiple_of_the_distance(start, direction, ste
     (dict(Mode=9, Direction=POS, Velocity=10.0), E.MC_INVALID_MODE),
     (dict(Mode=CONT, Direction=2, Velocity=10.0), E.MC_COMMAND_NOT_PERMITTED),
     (dict(Mode=CONT, Direction=POS, Velocity=0.0), E.NC_VELOCITY_NOT_ALLOWED),
-    (dict(Mode=INCH, Direction=POS, Velocity=10.0, Position=0.0), E.MC_PARAMETER_NOT_CORRECT),
+    (dict(Mode=INCH, Direction=POS, Velocity=10.0, Position=-0.5), E.MC_PARAMETER_NOT_CORRECT),  # (0: the jog increment)
     (dict(Mode=INCH_MOD, Direction=NEG, Velocity=10.0, Position=-1.0), E.MC_PARAMETER_NOT_CORRECT),
 ])
 def test_jog_refusals_change_nothing(args, code):

@@ -419,7 +419,7 @@ def test_superposition_on_top_of_fed_set_points():
     core, _ = enabled_at()
     x = lambda t: (100.0 * t, 100.0, 0.0)  # noqa: E731
     run_feeds(core, x, 4, 100)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=1000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=1000.0, VelocityProcess=100.0)
     assert r["error"] == 0, r
     rows = []
     for k in range(100, 800):
@@ -440,7 +440,7 @@ def test_disable_during_a_superposition_brakes_the_total_motion():
     core, _ = enabled_at()
     x = lambda t: (100.0 * t, 100.0, 0.0)  # noqa: E731
     rows = [(r[2], r[3]) for r in run_feeds(core, x, 4, 100)]
-    assert cmd(core, "MoveSuperImposed", Mode=3, Distance=50.0, VelocityDiff=100.0, Length=1000.0)["error"] == 0
+    assert cmd(core, "MoveSuperImposed", Mode=3, Distance=50.0, VelocityDiff=100.0, Length=1000.0, VelocityProcess=100.0)["error"] == 0
     for k in range(100, 300):
         if k % 4 == 0:
             feed(core, *x(k * CT))

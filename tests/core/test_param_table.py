@@ -15,6 +15,8 @@ def _valid_value(e, current):
     """A value different from ``current`` inside the entry's range (a bool: its negation)."""
     if e.is_bool:
         return not current
+    if e.name == "AxisEncoderEncoderMask":  # 2^k - 1: one bit less
+        return float((int(current) + 1) // 2 - 1)
     v = current * 1.5 if current else 1.0
     if e.max is not None and v > e.max:
         v = current / 2.0
@@ -29,7 +31,7 @@ def test_every_number_is_readable_with_its_type():
         assert isinstance(r["Value"], bool) == e.is_bool, (e.name, r["Value"])
     assert cmd(core, "ReadParameter", ParameterNumber=1000)["Value"] == 1.0
     assert cmd(core, "ReadParameter", ParameterNumber=1015)["Value"] is True
-    assert cmd(core, "ReadParameter", ParameterNumber=1043)["Value"] == 4294967295.0  # fixed encoder mask
+    assert cmd(core, "ReadParameter", ParameterNumber=1043)["Value"] == 4294967295.0  # encoder mask: 32 bits
     assert cmd(core, "ReadParameter", ParameterNumber=1039)["Value"] == 4.0  # override type
 
 
@@ -56,9 +58,7 @@ def test_every_writable_number_round_trips_and_its_aliases_follow():
     (1000, 7.0, E.ADSERR_DEVICE_INVALIDACCESS),       # AxisId
     (2001, 0.0, E.ADSERR_DEVICE_INVALIDACCESS),
     (1038, 100.0, E.ADSERR_DEVICE_INVALIDACCESS),     # AxisRefVeloOnRefOutput: status
-    (1035, True, E.NC_FUNCTION_NOT_SUPPORTED),        # backlash compensation: fixed FALSE
-    (1036, 0.5, E.NC_FUNCTION_NOT_SUPPORTED),
-    (1039, 3.0, E.NC_FUNCTION_NOT_SUPPORTED),         # override type: fixed 4
+    (1039, 5.0, E.NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED),  # override type: 1..4
     (1003, 0.0, E.ADSERR_DEVICE_INVALIDPARM),         # below the table's min
     (1003, 2e9, E.ADSERR_DEVICE_INVALIDPARM),         # above its max
     (1006, 1e13, E.ADSERR_DEVICE_INVALIDPARM),
@@ -78,7 +78,7 @@ def test_refused_writes_change_nothing(number, value, code):
 def test_fixed_value_written_back_is_accepted():
     core = powered()
     before = snapshot(core)
-    for number, value in ((1035, False), (1036, 0.0), (1039, 4.0), (1043, 4294967295.0), (1033, 0.0)):
+    for number, value in ((1035, False), (1036, 0.0), (1039, 4.0), (1033, 0.0)):
         assert cmd(core, "WriteParameter", ParameterNumber=number, Value=value)["error"] == 0
     assert snapshot(core) == before
 

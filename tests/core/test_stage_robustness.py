@@ -22,7 +22,8 @@ def test_a_failing_stage_faults_its_axes_and_the_cycle_goes_on(monkeypatch: pyte
     elif stage == "superposition":
         for _ in range(100):
             core.step()
-        assert not cmd(core, "MoveSuperImposed", 1, Mode=4, Distance=5.0, VelocityDiff=20.0, Length=100.0)["error"]
+        assert not cmd(core, "MoveSuperImposed", 1, Mode=4, Distance=5.0, VelocityDiff=20.0, Length=100.0,
+                       VelocityProcess=100.0)["error"]
         monkeypatch.setattr(core.superposition, "evaluate", _raise)
         victims = [0]
     else:
@@ -48,7 +49,7 @@ def test_superposition_on_a_slave_runs_after_its_coupling() -> None:
     assert not cmd(core, "MoveVelocity", 1, Velocity=100.0, Direction=1)["error"]
     for _ in range(200):
         core.step()
-    r = cmd(core, "MoveSuperImposed", 2, Mode=1, Distance=10.0, VelocityDiff=50.0, Length=100.0)
+    r = cmd(core, "MoveSuperImposed", 2, Mode=1, Distance=10.0, VelocityDiff=50.0, Length=100.0, VelocityProcess=100.0)
     assert not r["error"], r
     p0, m0 = float(core.nctoplc["SetPos"][1]), float(core.nctoplc["SetPos"][0])
     for _ in range(1500):
@@ -56,5 +57,5 @@ def test_superposition_on_a_slave_runs_after_its_coupling() -> None:
     gained = float(core.nctoplc["SetPos"][1]) - p0 - 0.5 * (float(core.nctoplc["SetPos"][0]) - m0)
     assert gained == pytest.approx(10.0, abs=1e-9)
     assert int(core.ncjobs["SuperState"][1]) == 2 and int(core.nctoplc["ErrorCode"][1]) == 0
-    # Length of an ADDITIVEMOTION on a slave is its master's travel (VelocityProcess 0: the master's velocity)
+    # Length of an ADDITIVEMOTION on a slave is its master's travel (VelocityProcess: the master's velocity)
     assert float(core.ncjobs["SuperLength"][1]) == pytest.approx(100.0)

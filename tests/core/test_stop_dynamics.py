@@ -63,13 +63,14 @@ def test_set_override_command_takes_effect():
 
 
 def test_stop_with_a_lone_deceleration_still_stops():
+    """A lone Deceleration is used with the stopped job's jerk (issue 17's decision; before: ignored)."""
     core = powered()
     cmd(core, "MoveVelocity", Velocity=500.0, Direction=1)
     for _ in range(200):
         core.step()
     rep = cmd(core, "Stop", Deceleration=100.0)
     assert rep["error"] == 0
-    run_until(core, lambda: core.nctoplc[0]["CmdState"] == CmdState.DONE, 2000)  # axis defaults: fast
+    run_until(core, lambda: core.nctoplc[0]["CmdState"] == CmdState.DONE, 7000)  # 500 u/s at 100 u/s^2: ~5 s
     assert core.nctoplc[0]["SetVelo"] == 0.0
 
 

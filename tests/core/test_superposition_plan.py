@@ -196,13 +196,20 @@ def test_limited_distance_beyond_length_does_not_raise():
     assert not back.incomplete and back.window == pytest.approx(900.0 / 200.0)
 
 
-def test_standing_process_plans_the_fastest_move():
+def test_a_standing_axis_gets_the_window_of_velocity_process():
+    """Issue 17: VelocityProcess is never 0 (TcMC: |value| > 0), so there is always a finite window; on a
+    standing axis (``standing``) it is |Length| / |VelocityProcess| in every mode: the LENGTHREDUCTION modes
+    fit the fastest move into it, the VELOREDUCTION modes stretch the move over all of it. LIMITEDMOTION's
+    ActualLength is the axis's own travel, |Distance|."""
     for mode in (MODE_VELO_ADDITIVE, MODE_VELO_LIMITED, MODE_LENGTH_ADDITIVE, MODE_LENGTH_LIMITED):
-        sp = plan_superposition(mode, -300.0, 500.0, 5000.0, 5000.0, 50000.0, 0.0, 1000.0)
+        sp = plan_superposition(mode, -300.0, 500.0, 5000.0, 5000.0, 50000.0, 100.0, 1000.0, standing=True)
         check(sp, StartState(0.0), 5000.0, 5000.0, 50000.0, 500.0)
-        assert sp.window == math.inf and not sp.incomplete and sp.distance == -300.0
-        assert sp.plan.duration == pytest.approx(300.0 / 500.0 + 0.2, rel=1e-9)
-        assert sp.length == (300.0 if mode in (MODE_VELO_LIMITED, MODE_LENGTH_LIMITED) else 0.0)
+        assert sp.window == pytest.approx(10.0, rel=1e-12) and not sp.incomplete and sp.distance == -300.0
+        velo = mode in (MODE_VELO_ADDITIVE, MODE_VELO_LIMITED)
+        want = 10.0 if velo else 300.0 / 500.0 + 0.2
+        assert sp.plan.duration == pytest.approx(want, rel=1e-9)
+        limited = mode in (MODE_VELO_LIMITED, MODE_LENGTH_LIMITED)
+        assert sp.length == pytest.approx(300.0 if limited else 100.0 * want, rel=1e-9)
 
 
 def test_the_window_is_not_left_in_the_shared_planner():
@@ -247,6 +254,7 @@ def test_retrigger_incomplete_from_a_moving_state():
     {"mode": 0}, {"mode": 5}, {"distance": 0.0}, {"distance": math.inf}, {"distance": math.nan},
     {"velocity_diff": 0.0}, {"velocity_diff": math.nan}, {"length": 0.0}, {"length": math.inf},
     {"dyn_acc": 0.0}, {"dyn_dec": -1.0}, {"jerk": 0.0}, {"jerk": math.nan}, {"v_process": math.inf},
+    {"v_process": 0.0}, {"v_process": math.nan},
 ])
 def test_invalid_input_raises_value_error(kw):
     args = dict(mode=MODE_VELO_LIMITED, distance=300.0, velocity_diff=500.0, dyn_acc=5000.0, dyn_dec=5000.0,

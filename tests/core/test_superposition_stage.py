@@ -127,7 +127,7 @@ def test_conveyor_gap_limited_motion_travels_length_and_gains_distance(distance)
     500 mm/s: over the correction the belt travels exactly Length while it gains (belt 1 faster) or
     loses (belt 2 slower, VelocityDiff = its set velocity) 300 against the uncorrected motion."""
     core, twin = twins(lambda: cruising(500.0, AxisVeloMax=2000.0))
-    r = cmd(core, "MoveSuperImposed", Mode=2, Distance=distance, VelocityDiff=500.0, Length=1000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=2, Distance=distance, VelocityDiff=500.0, Length=1000.0, VelocityProcess=500.0)
     assert r["error"] == 0, r
     val = r["Value"]
     assert val["ActualDistance"] == distance and val["Incomplete"] is False
@@ -152,6 +152,26 @@ def test_conveyor_gap_limited_motion_travels_length_and_gains_distance(distance)
     assert_continuous(rec, 2000.0, 10000.0)
 
 
+@pytest.mark.parametrize("jerk", [0.0, 500.0, 1e6, -5.0])
+def test_the_jerk_input_is_not_used(jerk):
+    """TcMC 3.9/3.10 "Jerk: the jerk value is not used" (issue 17's case): a belt at 300 u/s, Mode 2,
+    Distance 300, VelocityDiff 500, Length 1000: whatever Jerk (even a negative one: not checked), the
+    correction is limited by AxisJerk and ends DONE with the full 300 (before: Jerk 500 ended at 247 with
+    0x4243, a negative Jerk was refused)."""
+    core, twin = twins(lambda: cruising(300.0))
+    r = cmd(core, "MoveSuperImposed", Mode=2, Distance=300.0, VelocityDiff=500.0, Length=1000.0,
+            VelocityProcess=300.0, Jerk=jerk)
+    assert r["error"] == 0, r
+    assert r["Value"]["ActualDistance"] == 300.0 and r["Value"]["Incomplete"] is False
+    rec = Rec(core, twin)
+    rec.until(lambda: slot(core)[1] != ACTIVE)
+    assert slot(core)[1:3] == (DONE, 0)
+    rec.step(2)
+    assert rec.diff[-1] == pytest.approx(300.0, abs=1e-9)
+    jerks = np.abs(np.diff([row[2] for row in rec.rows])) / CT
+    assert np.max(jerks) <= 50000.0 * (1 + 1e-6) and np.max(jerks) > 1000.0  # AxisJerk, not the input
+
+
 # -- TcMC 3.11: phase shift of a print roller ---------------------------------------------------------
 ROLLER = dict(AxisVeloMax=200.0, AxisAcc=1000.0, AxisDec=1000.0, AxisJerk=10000.0, Modulo=True,
               AxisEncoderModuloValue=360.0)
@@ -161,7 +181,7 @@ def test_print_roller_fast_correction():
     """Mode 4 (LENGTHREDUCTION_LIMITEDMOTION), 7.1 deg within 360 deg at 30 deg/s: the time-optimal
     profile (30 deg/s reached, jerk-limited ramps), done long before a revolution."""
     core, twin = twins(lambda: cruising(100.0, **ROLLER))
-    r = cmd(core, "MoveSuperImposed", Mode=4, Distance=7.1, VelocityDiff=30.0, Length=360.0)
+    r = cmd(core, "MoveSuperImposed", Mode=4, Distance=7.1, VelocityDiff=30.0, Length=360.0, VelocityProcess=100.0)
     assert r["error"] == 0, r
     t_opt = 7.1 / 30.0 + 2.0 * math.sqrt(30.0 / 10000.0)
     val = r["Value"]
@@ -185,7 +205,7 @@ def test_print_roller_slow_correction_uses_the_whole_revolution():
     """Mode 2 (VELOREDUCTION_LIMITEDMOTION): the roller travels exactly one revolution (360 deg) during
     the correction and its velocity rises as little as that allows."""
     core, twin = twins(lambda: cruising(100.0, **ROLLER))
-    r = cmd(core, "MoveSuperImposed", Mode=2, Distance=7.1, VelocityDiff=30.0, Length=360.0)
+    r = cmd(core, "MoveSuperImposed", Mode=2, Distance=7.1, VelocityDiff=30.0, Length=360.0, VelocityProcess=100.0)
     assert r["error"] == 0, r
     assert r["Value"]["ActualLength"] == pytest.approx(360.0, rel=1e-9)
     T = (360.0 - 7.1) / 100.0
@@ -221,7 +241,7 @@ def test_drilling_unit_on_a_geared_slave(mode, T):
     the whole 2 s, while the workpiece travels 400 the drilling unit travels 650. Afterwards the unit
     runs synchronous with the workpiece again, 250 further on."""
     core = drilling_pair()
-    r = cmd(core, "MoveSuperImposed", axis=2, Mode=mode, Distance=250.0, VelocityDiff=500.0, Length=400.0)
+    r = cmd(core, "MoveSuperImposed", axis=2, Mode=mode, Distance=250.0, VelocityDiff=500.0, Length=400.0, VelocityProcess=200.0)
     assert r["error"] == 0, r
     val = r["Value"]
     assert val["ActualDistance"] == 250.0
@@ -246,14 +266,13 @@ def test_drilling_unit_on_a_geared_slave(mode, T):
     assert state(core, 1) == MC_AxisStates.MC_AXISSTATE_SYNCHRONIZEDMOTION
 
 
-@pytest.mark.parametrize("mode,vp,D,T", [(1, 0.0, 250.0, 2.0), (1, 400.0, 250.0, 1.0),
-                                         (2, 0.0, 50.0, (400.0 - 50.0) / 400.0)])
+@pytest.mark.parametrize("mode,vp,D,T", [(1, 200.0, 250.0, 2.0), (1, 400.0, 250.0, 1.0),
+                                         (2, 400.0, 50.0, (400.0 - 50.0) / 400.0)])
 def test_velocity_process_of_a_geared_slave(mode, vp, D, T):
-    """Ratio 2:1, workpiece at 200, the slave at 400, Distance D, Length 400. VelocityProcess 0 is the
-    reference's set velocity: ADDITIVE (mode 1) on a slave its master's (TcMC 6.5: Length is the travel
-    of the reference without superimposed motion), a 2 s window in which the workpiece travels 400;
-    LIMITED (mode 2) the slave's own basic velocity, the slave travels Length. Given explicitly (400 =
-    the slave's): a 1 s window."""
+    """Ratio 2:1, workpiece at 200, the slave at 400, Distance D, Length 400. VelocityProcess is the
+    reference's velocity: for ADDITIVE (mode 1) the workpiece's 200 (TcMC 6.5: Length is the travel of
+    the reference without superimposed motion), a 2 s window in which the workpiece travels 400; the
+    slave's 400: a 1 s window. LIMITED (mode 2) with the slave's own 400: the slave travels Length."""
     core = powered(2, AxisVeloMax=3000.0)
     assert cmd(core, "GearIn", axis=2, Master=1, RatioNumerator=2, RatioDenominator=1)["error"] == 0
     core.step()
@@ -269,7 +288,7 @@ def test_velocity_process_of_a_geared_slave(mode, vp, D, T):
     master, slave = sp_of(core, 0)[0] - m0, sp_of(core, 1)[0] - s0
     assert master == pytest.approx(200.0 * T, abs=1e-6)
     assert slave == pytest.approx(2.0 * master + D, abs=1e-6)
-    if mode == 1 and vp == 0.0:
+    if mode == 1 and vp == 200.0:
         assert master == pytest.approx(400.0, abs=1e-6)
     if mode == 2:
         assert slave == pytest.approx(400.0, abs=1e-6)
@@ -352,7 +371,7 @@ def test_slot_reply_and_compensating_bit():
     core = cruising(500.0, AxisVeloMax=2000.0)
     job = (int(core.nctoplc[0]["CmdNo"]), int(core.nctoplc[0]["CmdState"]))
     assert not dword(core) & COMP and slot(core)[:2] == (0, 0)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=1000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=1000.0, VelocityProcess=500.0)
     assert r["error"] == 0 and r["CmdNo"] > job[0]
     no, st, err, d, vd, ln = slot(core)  # at once, with the reply
     assert (no, st, err) == (r["CmdNo"], ACTIVE, 0)
@@ -371,7 +390,7 @@ def test_slot_reply_and_compensating_bit():
 
 def test_newest_cmd_no_shows_the_superposition_number():
     core = cruising(200.0)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=1000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=1000.0, VelocityProcess=200.0)
     assert r["error"] == 0
     core.step()
     assert int(core.ncjobs[0]["NewestCmdNo"]) == r["CmdNo"] == int(core.ncjobs[0]["SuperCmdNo"])
@@ -382,7 +401,7 @@ def test_incomplete_compensation_applies_what_fits_and_ends_0x4243():
     The reply says so (ActualDistance < Distance), the slot ends ERROR 0x4243, and exactly
     ActualDistance was applied."""
     core, twin = twins(lambda: cruising(100.0))
-    r = cmd(core, "MoveSuperImposed", Mode=1, Distance=100.0, VelocityDiff=10.0, Length=100.0)
+    r = cmd(core, "MoveSuperImposed", Mode=1, Distance=100.0, VelocityDiff=10.0, Length=100.0, VelocityProcess=100.0)
     assert r["error"] == 0, r
     ad = r["Value"]["ActualDistance"]
     assert r["Value"]["Incomplete"] is True and 0.0 < ad < 100.0
@@ -401,7 +420,7 @@ def test_incomplete_compensation_applies_what_fits_and_ends_0x4243():
 # -- MC_AbortSuperposition ----------------------------------------------------------------------------
 def test_abort_superposition_brakes_the_offset_and_the_basic_motion_goes_on():
     core, twin = twins(lambda: cruising(500.0, AxisVeloMax=2000.0))
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=1000.0, VelocityDiff=400.0, Length=5000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=1000.0, VelocityDiff=400.0, Length=5000.0, VelocityProcess=500.0)
     assert r["error"] == 0
     rec = Rec(core, twin)
     rec.until(lambda: sp_of(core)[1] == pytest.approx(900.0))
@@ -429,7 +448,7 @@ def test_abort_superposition_brakes_the_offset_and_the_basic_motion_goes_on():
 
 def test_abort_superposition_brakes_with_its_deceleration():
     core = cruising(500.0, AxisVeloMax=2000.0)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=1000.0, VelocityDiff=400.0, Length=5000.0,
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=1000.0, VelocityDiff=400.0, Length=5000.0, VelocityProcess=500.0,
             Acceleration=1000.0, Deceleration=1000.0)
     assert r["error"] == 0
     run_until(core, lambda: sp_of(core)[1] == pytest.approx(900.0))
@@ -444,12 +463,12 @@ def test_abort_superposition_brakes_with_its_deceleration():
 # -- a second superposition, MC_Stop -------------------------------------------------------------------
 def test_second_superposition_takes_over_from_the_running_one():
     core, twin = twins(lambda: cruising(500.0, AxisVeloMax=2000.0))
-    first = cmd(core, "MoveSuperImposed", Mode=3, Distance=300.0, VelocityDiff=300.0, Length=5000.0)
+    first = cmd(core, "MoveSuperImposed", Mode=3, Distance=300.0, VelocityDiff=300.0, Length=5000.0, VelocityProcess=500.0)
     rec = Rec(core, twin)
     rec.step(400)  # mid-cruise of the first (1.2 s long)
     applied = rec.diff[-1]
     assert 50.0 < applied < 250.0 and slot(core)[1] == ACTIVE
-    second = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=300.0, Length=5000.0)
+    second = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=300.0, Length=5000.0, VelocityProcess=500.0)
     assert second["error"] == 0 and second["CmdNo"] != first["CmdNo"]
     assert slot(core)[:2] == (second["CmdNo"], ACTIVE)  # the slot shows the new one (the first: ABORTED)
     assert second["Value"]["ActualDistance"] == 100.0
@@ -462,7 +481,7 @@ def test_second_superposition_takes_over_from_the_running_one():
 
 def test_stop_during_a_superposition_brakes_the_total_motion():
     core = cruising(500.0, AxisVeloMax=2000.0)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=500.0, VelocityDiff=300.0, Length=5000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=500.0, VelocityDiff=300.0, Length=5000.0, VelocityProcess=500.0)
     rec = Rec(core)
     rec.step(300)
     v_total = sp_of(core)[1]
@@ -481,12 +500,14 @@ def test_stop_during_a_superposition_brakes_the_total_motion():
 
 
 # -- a standing axis ------------------------------------------------------------------------------------
-@pytest.mark.parametrize("mode", [1, 2, 3, 4])
+@pytest.mark.parametrize("mode", [3, 4])
 def test_superposition_on_a_standing_axis_is_a_relative_move(mode):
-    """The process stands (no basic motion): the fastest move of Distance at VelocityDiff, cycle by
-    cycle the same set-points as MoveRelative(Distance, Velocity=VelocityDiff)."""
+    """The axis stands (no basic motion), LENGTHREDUCTION with a window that fits (|Length| /
+    VelocityProcess = 50 s): the fastest move of Distance at VelocityDiff, cycle by cycle the same
+    set-points as MoveRelative(Distance, Velocity=VelocityDiff)."""
     core, twin = twins(lambda: powered(1))
-    assert cmd(core, "MoveSuperImposed", Mode=mode, Distance=-120.0, VelocityDiff=300.0, Length=50.0)["error"] == 0
+    assert cmd(core, "MoveSuperImposed", Mode=mode, Distance=-120.0, VelocityDiff=300.0, Length=50.0,
+               VelocityProcess=1.0)["error"] == 0
     assert cmd(twin, "MoveRelative", Distance=-120.0, Velocity=300.0)["error"] == 0
     rec = Rec(core, twin)
     rec.step(3)
@@ -502,9 +523,35 @@ def test_superposition_on_a_standing_axis_is_a_relative_move(mode):
     assert dword(core) & NOT_MOVING
 
 
+@pytest.mark.parametrize("mode", [1, 2])
+def test_velo_reduction_on_a_standing_axis_uses_the_window_of_velocity_process(mode):
+    """Decision (issue 17): VelocityProcess is never 0, so a standing axis gets the finite window
+    |Length| / |VelocityProcess| in every Mode (LIMITEDMOTION too: the axis has no process travel of its
+    own): Distance 120, Length 600, VelocityProcess 100 -> the correction takes exactly 6 s (before: the
+    fastest move, ~0.5 s). ActualLength of LIMITEDMOTION is the axis's own travel, |Distance|."""
+    core = powered(1)
+    r = cmd(core, "MoveSuperImposed", Mode=mode, Distance=120.0, VelocityDiff=300.0, Length=600.0,
+            VelocityProcess=100.0)
+    assert r["error"] == 0 and r["Value"]["Incomplete"] is False, r
+    assert r["Value"]["ActualLength"] == pytest.approx(120.0 if mode == 2 else 600.0, rel=1e-9)
+    k = run_until(core, lambda: slot(core)[1] != ACTIVE, 10_000)
+    assert slot(core)[1] == DONE
+    assert k * CT == pytest.approx(6.0, abs=2 * CT)
+    assert sp_of(core)[0] == pytest.approx(120.0, abs=1e-9)
+
+
+def test_velocity_process_0_is_refused_with_0x4b06_and_changes_nothing():
+    """TcMC 3.9/3.10: "VelocityProcess: ... (absolute value > 0)" (before: 0 = the reference's set velocity)."""
+    for core in (powered(1), cruising(200.0)):
+        snap = snapshot(core)
+        r = cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=100.0, VelocityProcess=0.0)
+        assert r["error"] == int(E.MC_PARAMETER_NOT_CORRECT), r
+        assert snapshot(core) == snap
+
+
 def test_superposition_on_a_standing_axis_is_not_standstill():
     core = powered(1)
-    assert cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=300.0, Length=50.0)["error"] == 0
+    assert cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=300.0, Length=50.0, VelocityProcess=1.0)["error"] == 0
     for _ in range(50):
         core.step()
     assert sp_of(core)[1] > 0
@@ -514,17 +561,18 @@ def test_superposition_on_a_standing_axis_is_not_standstill():
 
 # -- refusals -------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("args,code", [
-    (dict(Distance=0.0, VelocityDiff=100.0, Length=100.0), E.MC_PARAMETER_NOT_CORRECT),
-    (dict(Distance=10.0, VelocityDiff=0.0, Length=100.0), E.MC_PARAMETER_NOT_CORRECT),
-    (dict(Distance=10.0, VelocityDiff=100.0, Length=0.0), E.MC_PARAMETER_NOT_CORRECT),
-    (dict(Distance=10.0, VelocityDiff=100.0, Length=100.0, Mode=9), E.MC_INVALID_MODE),
-    (dict(Distance=10.0, VelocityDiff=100.0, Length=100.0, Mode=0), E.MC_INVALID_MODE),
+    (dict(Distance=0.0, VelocityDiff=100.0, Length=100.0, VelocityProcess=100.0), E.MC_PARAMETER_NOT_CORRECT),
+    (dict(Distance=10.0, VelocityDiff=0.0, Length=100.0, VelocityProcess=100.0), E.MC_PARAMETER_NOT_CORRECT),
+    (dict(Distance=10.0, VelocityDiff=100.0, Length=0.0, VelocityProcess=100.0), E.MC_PARAMETER_NOT_CORRECT),
+    (dict(Distance=10.0, VelocityDiff=100.0, Length=100.0, VelocityProcess=0.0), E.MC_PARAMETER_NOT_CORRECT),
+    (dict(Distance=10.0, VelocityDiff=100.0, Length=100.0, VelocityProcess=100.0, Mode=9), E.MC_INVALID_MODE),
+    (dict(Distance=10.0, VelocityDiff=100.0, Length=100.0, VelocityProcess=100.0, Mode=0), E.MC_INVALID_MODE),
 ])
 @pytest.mark.parametrize("moving", [False, True])
 def test_refused_superposition_changes_nothing(args, code, moving):
     core = cruising(200.0) if moving else powered(1)
     if moving:  # also with one running
-        assert cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=1000.0)["error"] == 0
+        assert cmd(core, "MoveSuperImposed", Mode=3, Distance=10.0, VelocityDiff=100.0, Length=1000.0, VelocityProcess=200.0)["error"] == 0
         core.step()
     snap = snapshot(core)
     r = cmd(core, "MoveSuperImposed", **args)
@@ -538,9 +586,10 @@ def test_refused_on_an_axis_in_error_or_disabled():
     power(core, 1, ctrl=0)
     core.step()
     snap = snapshot(core)
-    r = cmd(core, "MoveSuperImposed", axis=1, Mode=3, Distance=10.0, VelocityDiff=100.0, Length=100.0)
+    r = cmd(core, "MoveSuperImposed", axis=1, Mode=3, Distance=10.0, VelocityDiff=100.0, Length=100.0, VelocityProcess=100.0)
     assert r["error"] == int(E.MC_AXIS_CANNOT_BE_STARTED)
-    r = cmd(core, "MoveSuperImposed", axis=2, Mode=3, Distance=10.0, VelocityDiff=100.0, Length=100.0)
+    r = cmd(core, "MoveSuperImposed", axis=2, Mode=3, Distance=10.0, VelocityDiff=100.0, Length=100.0,
+            VelocityProcess=100.0)
     assert r["error"] == int(E.NC_NO_ENABLE)
     assert snapshot(core) == snap
 
@@ -550,7 +599,7 @@ def test_total_velocity_above_axis_velo_max_is_an_axis_error_and_a_stop():
     motion is raised to 550: the total passes 600 -> axis error 0x4359 (set velocity not allowed),
     the superposition ends ABORTED, the axis brakes from the total state to a standstill, no jump."""
     core = cruising(400.0, AxisVeloMax=600.0)
-    assert cmd(core, "MoveSuperImposed", Mode=3, Distance=300.0, VelocityDiff=150.0, Length=5000.0)["error"] == 0
+    assert cmd(core, "MoveSuperImposed", Mode=3, Distance=300.0, VelocityDiff=150.0, Length=5000.0, VelocityProcess=400.0)["error"] == 0
     rec = Rec(core)
     rec.step(20)
     assert cmd(core, "MoveVelocity", Velocity=550.0, Direction=1)["error"] == 0
@@ -569,7 +618,7 @@ def test_a_superposition_that_would_exceed_axis_velo_max_is_refused():
     600 u/s axis is refused with 0x4221 (velocity not allowed) and nothing changes."""
     core = cruising(500.0, AxisVeloMax=600.0)
     snap = snapshot(core)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=300.0, VelocityDiff=500.0, Length=5000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=300.0, VelocityDiff=500.0, Length=5000.0, VelocityProcess=500.0)
     assert r["error"] == int(E.NC_VELOCITY_NOT_ALLOWED)
     assert snapshot(core) == snap
 
@@ -579,7 +628,7 @@ def test_move_absolute_during_a_superposition_leaves_it_running():
     """A MoveAbsolute replaces the basic motion (planned from the basic state): the superposition runs on
     and ends DONE; the move ends at its target + the superimposed distance, without a jump."""
     core = cruising(300.0)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=5000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=5000.0, VelocityProcess=300.0)
     rec = Rec(core)
     rec.step(200)
     m = cmd(core, "MoveAbsolute", Position=400.0, Velocity=300.0)
@@ -596,7 +645,7 @@ def test_move_absolute_during_a_superposition_leaves_it_running():
 
 def test_enable_false_aborts_the_superposition():
     core = cruising(300.0)
-    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=5000.0)
+    r = cmd(core, "MoveSuperImposed", Mode=3, Distance=100.0, VelocityDiff=200.0, Length=5000.0, VelocityProcess=300.0)
     for _ in range(100):
         core.step()
     power(core, ctrl=0)

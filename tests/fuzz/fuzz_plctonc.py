@@ -51,7 +51,7 @@ SCENARIOS: tuple[tuple[tuple[int, str, dict[str, object]], ...], ...] = (
     ((1, "TouchProbe", dict(EncoderID=1)), (1, "MoveAbsolute", dict(Position=200.0, Velocity=100.0))),
     ((4, "MoveModulo", dict(Position=270.0, Velocity=180.0, Direction=1)),),
     ((1, "MoveVelocity", dict(Velocity=100.0)),
-     (1, "MoveSuperImposed", dict(Mode=1, Distance=10.0, VelocityDiff=20.0, Length=100.0))),
+     (1, "MoveSuperImposed", dict(Mode=1, Distance=10.0, VelocityDiff=20.0, Length=100.0, VelocityProcess=100.0))),
 )
 RAW, STRUCT, FIELD, STEPS, SILENT, COMMAND = range(6)
 N_OPS = 6

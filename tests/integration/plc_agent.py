@@ -20,7 +20,7 @@ stdin (one JSON object per line), applied at the start of the next PLC cycle:
 
 stdout: ``{"c": <plc cycle>, "n": <name>, "o": {<outputs>}, "a": {<axis data>}}`` whenever a
 block's outputs or its axis's Valid/MotionState/Locked/ErrorId/Homed change (the record also
-carries ActPos, SetPos, SetVelo, the snapshot's NC cycle and AXIS_REF.nc_epoch as Epoch), and a
+carries ActPos, SetPos, SetVelo, HasJob, the snapshot's NC cycle and AXIS_REF.nc_epoch as Epoch), and a
 ``{"c": n, "tick": true}`` line every 50 cycles (liveness).
 """
 from __future__ import annotations
@@ -70,7 +70,8 @@ def _data(ax: AXIS_REF, state: dict[str, Any]) -> dict[str, Any]:
     """``state`` plus the positions, velocity and NC cycle of the snapshot (reported, not compared)."""
     rec = ax.NcToPlc
     return {**state, "ActPos": float(rec["ActPos"]), "SetPos": float(rec["SetPos"]),
-            "SetVelo": float(rec["SetVelo"]), "NcCycle": ax.Status.NcCycleCounter, "Epoch": ax.nc_epoch}
+            "SetVelo": float(rec["SetVelo"]), "HasJob": ax.Status.HasJob, "NcCycle": ax.Status.NcCycleCounter,
+            "Epoch": ax.nc_epoch}
 
 
 class Program:

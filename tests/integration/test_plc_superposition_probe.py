@@ -56,7 +56,8 @@ def test_move_superimposed_ext_adds_distance_to_a_constant_velocity(xp: ExtPlc) 
     v0, dist, length = 50.0, 10.0, 50.0
     ref = cruise(xp, v0)
     # VELOREDUCTION_ADDITIVEMOTION: the correction takes the whole window Length / v0 = 1 s
-    xp.set("sup", "MC_MoveSuperImposedExt", Execute=True, Mode=1, Distance=dist, VelocityDiff=50.0, Length=length)
+    xp.set("sup", "MC_MoveSuperImposedExt", Execute=True, Mode=1, Distance=dist, VelocityDiff=50.0, Length=length,
+           VelocityProcess=v0)
     busy = xp.wait("sup", lambda r: r.o["Busy"] or ended(r), T)
     done = xp.wait("sup", ended, T)
     assert done.o["Done"], (done, xp.history("sup"))
@@ -100,7 +101,8 @@ def test_move_superimposed_and_the_incomplete_compensation(xp: ExtPlc) -> None:
     the largest possible distance applied (TcMC 3.9)."""
     v0 = 50.0
     ref = cruise(xp, v0)
-    xp.set("sup", "MC_MoveSuperImposed", Execute=True, Distance=5.0, VelocityDiff=20.0, MaxDistance=200.0)
+    xp.set("sup", "MC_MoveSuperImposed", Execute=True, Distance=5.0, VelocityDiff=20.0, MaxDistance=200.0,
+           VelocityProcess=v0)
     done = xp.wait("sup", ended, T)
     assert done.o["Done"], (done, xp.history("sup"))
     clean(xp.history("sup"))
@@ -110,7 +112,8 @@ def test_move_superimposed_and_the_incomplete_compensation(xp: ExtPlc) -> None:
     xp.set("sup", Execute=False)
     xp.wait("sup", lambda r: not ended(r), T)
     ref2 = xp.wait_trace(1, lambda s: s.c > done.c + 2, T)
-    xp.set("sx", "MC_MoveSuperImposedExt", Execute=True, Mode=4, Distance=50.0, VelocityDiff=5.0, Length=20.0)
+    xp.set("sx", "MC_MoveSuperImposedExt", Execute=True, Mode=4, Distance=50.0, VelocityDiff=5.0, Length=20.0,
+           VelocityProcess=v0)
     r = xp.wait("sx", ended, T)
     assert r.o["Error"] and r.o["ErrorID"] == 0x4243, (r, xp.history("sx"))
     gained = r.o["ActualDistance"]
@@ -124,7 +127,8 @@ def test_abort_superposition(xp: ExtPlc) -> None:
     v0, dist = 50.0, 10.0
     ref = cruise(xp, v0)
     # a slow correction: a window of 400 / 50 = 8 s
-    xp.set("sup", "MC_MoveSuperImposedExt", Execute=True, Mode=1, Distance=dist, VelocityDiff=50.0, Length=400.0)
+    xp.set("sup", "MC_MoveSuperImposedExt", Execute=True, Mode=1, Distance=dist, VelocityDiff=50.0, Length=400.0,
+           VelocityProcess=v0)
     xp.wait("sup", lambda r: r.o["Busy"] or ended(r), T)
     s = xp.wait_trace(1, lambda s: offset(ref, s, v0) > 0.05, T)
     assert not ended(xp.last("sup")), xp.last("sup")

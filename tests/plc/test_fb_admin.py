@@ -1,4 +1,5 @@
-"""MC_Power, MC_Reset, MC_SetOverride and the MC_Read* blocks against a real NcCore."""
+"""MC_Power, MC_Reset, MC_SetOverride and the MC_Read* blocks against a real NcCore (MC_ReadAxisError's
+rules also against a scripted NC)."""
 from __future__ import annotations
 
 import math
@@ -8,7 +9,7 @@ from plc_client import (
     MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC_ReadActualPosition, MC_ReadAxisError, MC_ReadStatus, MC_Reset,
     MC_SetOverride,
 )
-from znc_testing.plc_rig import Rig, powered
+from znc_testing.plc_rig import IDLE, Rig, ScriptNc, StateDWord, powered
 
 
 def test_power_on_and_off(rig: Rig) -> None:
@@ -97,7 +98,8 @@ def test_reset_clears_an_axis_error(rig: Rig) -> None:
     calls["body"] = body
     rig.core.fault(0, ErrorCodes.NC_POSITION_LAG)
     rig.run(2)
-    assert err.Valid and err.Done and err.AxisErrorID == ErrorCodes.NC_POSITION_LAG and not err.Error
+    assert err.Valid and err.Done and err.AxisErrorID == ErrorCodes.NC_POSITION_LAG
+    assert err.Error and err.ErrorID == ErrorCodes.NC_POSITION_LAG, "TcMC 4.5: ErrorID is the axis's error code"
     assert ax.Status.ErrorStop and ax.Status.Error and ax.Status.ErrorId == 0x4550
     st["mv"] = True
     rig.run_until(lambda: not mv.Busy, 5)
@@ -107,6 +109,7 @@ def test_reset_clears_an_axis_error(rig: Rig) -> None:
     assert rst.Busy
     rig.run_until(lambda: rst.Done, 5)
     assert err.AxisErrorID == 0 and ax.Status.StandStill
+    assert not err.Error and err.ErrorID == 0 and err.Done
     st["mv"] = False
     rig.run(1)
     st["mv"] = True
@@ -190,3 +193,31 @@ def test_status_flags_follow_motion_state(rig: Rig) -> None:
     assert s.Moving and s.PositiveDirection and not s.NegativeDirection and s.HasJob
     # the snapshot of this PLC cycle was taken before the NC ran its 10 cycles
     assert s.NcCycleCounter == rig.core.cycle - 10 and s.CycleCounter == ax.task.cycle and s.Valid
+
+
+def test_read_axis_error_shows_the_axis_error_code(nc: ScriptNc) -> None:
+    """TcMC 4.5 "The error code for an axis is displayed": while Enable, ErrorID = NCTOPLC.ErrorCode and
+    Error = (ErrorCode != 0), Done TRUE (read); AxisErrorID (Tc2_MC2) the same; Valid = Done, Busy = Enable."""
+    err = MC_ReadAxisError()
+    st = {"Enable": True}
+    nc.calls.append(lambda: err(Axis=nc.ax, **st))
+    nc.cycle_once()
+    assert (err.Done, err.Valid, err.Busy, err.Error, err.ErrorID, err.AxisErrorID) == (True, True, True, False, 0, 0)
+    nc.state(IDLE | int(StateDWord.Error), ErrorCode=ErrorCodes.NC_POSITION_LAG)
+    nc.cycle_once()
+    assert err.Error and err.ErrorID == err.AxisErrorID == ErrorCodes.NC_POSITION_LAG == 0x4550
+    assert err.Done and err.Valid and err.Busy
+    st["Enable"] = False
+    nc.cycle_once()
+    assert (err.Done, err.Valid, err.Busy, err.Error, err.ErrorID, err.AxisErrorID) == (False,) * 4 + (0, 0)
+    st["Enable"] = True
+    nc.cycle_once()
+    assert err.Error and err.ErrorID == 0x4550
+    nc.state(IDLE, ErrorCode=0)  # reset
+    nc.cycle_once()
+    assert not err.Error and err.ErrorID == 0 and err.Done
+    nc.state(IDLE | int(StateDWord.Error), ErrorCode=0x4550)
+    for _ in range(nc.stale_cycles + 1):
+        nc.step()  # no newer frame: the data turns stale
+    assert err.Error and err.ErrorID == ErrorCodes.MC_NO_NC_CYCLE_UPDATE, "the block's own error"
+    assert not err.Done and not err.Valid and err.AxisErrorID == 0

@@ -11,7 +11,7 @@ import pytest
 from nc_schema import ErrorCodes, make_reply
 from nc_server.core import AxisParams
 from plc_client import AXACT, AXIS_REF
-from znc_testing.plc_rig import Rig, ScriptNc, powered
+from znc_testing.plc_rig import ACTIVE, MOVING, Rig, ScriptNc, powered
 
 P = AxisParams()
 
@@ -135,6 +135,70 @@ def test_contract_read_error_and_bad_value() -> None:
     nc.port._deliver(p, make_reply(p.id, p.cmd, 0, cycle=nc.nc_cycle, value=True))  # not a number
     nc.cycle_once()
     assert fb.ERR and fb.ERRID == ErrorCodes.MC_PARAMETER_NOT_CORRECT and len(nc.port.sent) == 2
+
+
+# ---- BUSY and the frames, in the order the network delivers them (issue 17) ---------------------------
+def _started(nc: ScriptNc, fb: AXACT, st: dict) -> Any:
+    """AXACT called with ``st`` every cycle; the edge's request (already sent)."""
+    axact_on(nc, fb, st)
+    nc.cycle_once()
+    assert fb.BUSY
+    return nc.port.sent[-1]
+
+
+@pytest.mark.parametrize("st", [{"START": True, "MODE": 1, "VELOCITY": V, "TARGPOS": X}, {"STOP": True}],
+                         ids=["start", "stop"])
+def test_busy_falls_with_the_frame_of_the_reply_cycle(nc: ScriptNc, st: dict) -> None:
+    """TcMC AXACT: "as soon as BUSY goes FALSE, the bit 'axis has transport instruction' is set". The reply
+    arrives first, the frame of its cycle one PLC cycle later: BUSY falls with that frame (HasJob TRUE)."""
+    fb = AXACT()
+    p = _started(nc, fb, {"AXID": 1, **st})
+    effect = nc.nc_cycle + 10  # the frame after the next one shows it
+    nc.port.answer(p, cycle=effect, cmdno=5)
+    nc.cycle_once()  # the reply is here, the frame is the one before the command's cycle
+    assert fb.axis is not None and not fb.axis.Status.HasJob and fb.axis.Status.NcCycleCounter < effect
+    assert fb.BUSY and not fb.ERR, "BUSY falls only with a frame that shows the command"
+    nc.state(MOVING)  # the NC's frame of that cycle: the axis has its job
+    nc.set_jobs(active=(5, ACTIVE))
+    nc.cycle_once()
+    assert fb.axis.Status.NcCycleCounter >= effect
+    assert not fb.BUSY and not fb.ERR and fb.axis.Status.HasJob
+
+
+def test_reply_and_frame_together_busy_falls_at_once(nc: ScriptNc) -> None:
+    fb = AXACT()
+    p = _started(nc, fb, {"AXID": 1, "START": True, "MODE": 3, "VELOCITY": V})
+    nc.port.answer(p, cycle=nc.nc_cycle, cmdno=5)
+    nc.state(MOVING)
+    nc.cycle_once()
+    assert not fb.BUSY and not fb.ERR and fb.axis is not None and fb.axis.Status.HasJob
+
+
+def test_tmout_bounds_the_wait_for_the_frame(nc: ScriptNc) -> None:
+    """Accepted, but no frame shows it within TMOUT: ERR 0x745; the accepted command is left running."""
+    fb = AXACT()
+    p = _started(nc, fb, {"AXID": 1, "START": True, "MODE": 3, "VELOCITY": V, "TMOUT": 0.1})
+    nc.port.answer(p, cycle=nc.nc_cycle + 10_000, cmdno=5)  # frames of that cycle never come in time
+    nc.cycle_once(8)
+    assert fb.BUSY and not fb.ERR
+    nc.cycle_once(3)
+    assert not fb.BUSY and fb.ERR and fb.ERRID == ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT == 0x745
+    nc.cycle_once(5)
+    assert [q.cmd for q in nc.port.sent] == ["MoveVelocity"], "nothing stops the accepted command"
+
+
+@pytest.mark.parametrize("answered", [True, False], ids=["accepted", "unanswered"])
+def test_nc_restart_before_the_frame_gives_4b0f(nc: ScriptNc, answered: bool) -> None:
+    fb = AXACT()
+    p = _started(nc, fb, {"AXID": 1, "START": True, "MODE": 1, "VELOCITY": V, "TARGPOS": X, "TMOUT": 5.0})
+    if answered:
+        nc.port.answer(p, cycle=nc.nc_cycle + 10, cmdno=5)
+        nc.cycle_once()
+        assert fb.BUSY
+    nc.nc_cycle = 1  # a new NC instance: its frames start again
+    nc.cycle_once()
+    assert not fb.BUSY and fb.ERR and fb.ERRID == ErrorCodes.MC_NO_NC_CYCLE_UPDATE == 0x4B0F
+    assert p.abandoned != answered, "an unanswered request is abandoned (a late acceptance gets stopped)"
 
 
 # ---- against the real NC ------------------------------------------------------------------------------

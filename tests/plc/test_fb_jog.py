@@ -285,6 +285,24 @@ def test_inching_moves_by_position_per_press(rig: Rig) -> None:
     assert not jog.Done, "the key was released during the step: Done for one cycle"
 
 
+def test_inching_with_position_0_moves_by_the_axis_jog_increments() -> None:
+    """Position 0 (the block's default): the NC moves by AxisJogIncrementForward / AxisJogIncrementBackward;
+    an increment of 0 refuses the jog with 0x4B06 (the block reports it, nothing moves)."""
+    rig = Rig(params=AxisParams(AxisJogIncrementForward=1.25, AxisJogIncrementBackward=0.0))
+    ax, _, calls = powered(rig)
+    jog = rig.watch(MC_Jog())
+    st = {"f": True}
+    calls["body"] = keys(jog, ax, st, Mode=INCH, Velocity=20.0)  # Position left at 0
+    rig.run_until(lambda: jog.Done, 200)
+    assert math.isclose(ax.ActPos, 1.25, abs_tol=0.02) and ax.Status.InTargetPosition
+    st["f"] = False
+    rig.run(1)
+    st["b"] = True
+    rig.run_until(lambda: not jog.Busy, 5)
+    assert jog.Error and jog.ErrorID == ErrorCodes.MC_PARAMETER_NOT_CORRECT
+    assert math.isclose(ax.ActPos, 1.25, abs_tol=0.02) and ax.Status.StandStill
+
+
 def test_inching_modulo_ends_on_multiples_of_position(rig: Rig) -> None:
     ax, _, calls = powered(rig)
     mv, jog = rig.watch(MC_MoveAbsolute(), MC_Jog())

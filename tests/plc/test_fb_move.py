@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from nc_schema import CmdState, ErrorCodes, MC_BufferMode, StateDWord
+from nc_server.core import AxisParams
 from plc_client import MC_Halt, MC_MoveAbsolute, MC_MoveModulo, MC_MoveRelative, MC_MoveVelocity, MC_Power
 from plc_client.fb import DONE_WINDOW_TIMEOUT
 from znc_testing.plc_rig import OffsetDrive, Rig, powered
@@ -290,3 +291,24 @@ def test_numpy_scalar_inputs_are_numbers() -> None:
 
     assert FunctionBlock._is_real(np.float32(1.5)) and FunctionBlock._is_real(np.int64(3))
     assert not FunctionBlock._is_real(np.bool_(True)) and not FunctionBlock._is_real(float("nan"))
+
+
+def test_a_loop_movement_is_one_command_done_at_the_target_after_the_return() -> None:
+    """AxisEnLoopingDistance/AxisLoopingDistance: MC_MoveAbsolute from below with a positive looping distance
+    passes its target to the loop point and returns; the block stays Busy/Active (no Done while passing the
+    target on the way out) and is Done at the target."""
+    rig = Rig(params=AxisParams(AxisEnLoopingDistance=True, AxisLoopingDistance=5.0))
+    ax, _, calls = powered(rig)
+    mv = rig.watch(MC_MoveAbsolute())
+    calls["body"] = lambda p: mv(Axis=ax, Execute=True, Position=20.0, Velocity=100.0)
+    peak = 0.0
+
+    def tracking() -> bool:
+        nonlocal peak
+        peak = max(peak, ax.ActPos)
+        assert not mv.Done or peak > 24.9, "Done before the loop point was reached"
+        return bool(mv.Done)
+
+    rig.run_until(tracking, 400)
+    assert peak > 24.9 and math.isclose(ax.ActPos, 20.0, abs_tol=0.02) and not mv.Error
+    assert all(o["Busy"] for o in rig.outputs(mv)[1:-1])

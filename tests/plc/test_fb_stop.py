@@ -92,8 +92,8 @@ def test_stop_at_standstill_and_second_stop(rig: Rig) -> None:
 
 
 def test_stop_rejected_dynamics(rig: Rig) -> None:
-    """Out-of-range stop dynamics are refused with their NC code; a lone Deceleration is not
-    (TcMC 3.15: it only counts together with Jerk, and a stop is never refused for that)."""
+    """Out-of-range stop dynamics are refused with their NC code; a lone Deceleration is not (issue 17's
+    decision: it is used with the stopped job's jerk; here the axis stands, so the stop is Done at once)."""
     ax, _, calls = powered(rig)
     stop = rig.watch(MC_Stop())
     calls["body"] = lambda p: stop(Axis=ax, Execute=True, Deceleration=1e11, Jerk=1e13)

@@ -55,7 +55,8 @@ def test_move_superimposed_request_and_done(moving: ScriptNc) -> None:
     st = start(nc, fb, 3, value=ACTUALS, MaxDistance=100.0, **SUPER)
     p = nc.last_sent("MoveSuperImposed")
     assert p.axis_id == 1
-    assert p.args == {"Mode": 4, "Length": 100.0, **SUPER}, "Mode 4 LENGTHREDUCTION_LIMITEDMOTION, Length=MaxDistance"
+    sent = {k: v for k, v in SUPER.items() if k != "Jerk"}
+    assert p.args == {"Mode": 4, "Length": 100.0, **sent}, "Mode 4 LENGTHREDUCTION_LIMITEDMOTION, Length=MaxDistance"
     assert p.args["Mode"] == E_SuperpositionMode.SUPERPOSITIONMODE_LENGTHREDUCTION_LIMITEDMOTION
     super_slot(nc, 3, ACTIVE)
     nc.cycle_once(3)
@@ -191,6 +192,20 @@ def test_non_finite_input_refused_locally(moving: ScriptNc, bad: dict) -> None:
     drive(nc, fb, Execute=True, **{**SUPER, "MaxDistance": 10.0, **bad})
     nc.cycle_once()
     assert fb.Error and fb.ErrorID == 0x4B06 and not nc.port.sent
+
+
+@pytest.mark.parametrize("cls, extra", [(MC_MoveSuperImposed, {"MaxDistance": 10.0}),
+                                        (MC_MoveSuperImposedExt, {"Mode": 2, "Length": 10.0})])
+@pytest.mark.parametrize("jerk", [500.0, -1.0, math.nan, "x"])
+def test_jerk_is_neither_checked_nor_sent(moving: ScriptNc, cls: Any, extra: dict, jerk: Any) -> None:
+    """TcMC 3.9/3.10 "Jerk: the jerk value is not used" (before: sent, and a bad one refused locally)."""
+    nc = moving
+    fb = cls()
+    drive(nc, fb, Execute=True, **{**SUPER, **extra, "Jerk": jerk})
+    nc.cycle_once()
+    assert fb.Busy and not fb.Error
+    p = nc.last_sent("MoveSuperImposed")
+    assert "Jerk" not in p.args and p.args["VelocityProcess"] == 50.0
 
 
 @pytest.mark.parametrize("mode", [0, 5, True, 4.0, "4", None])

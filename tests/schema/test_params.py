@@ -52,6 +52,15 @@ def test_entries_are_consistent():
         assert e.doc, e
 
 
+def test_bad_value_codes_are_known_nc_errors_of_stored_parameters():
+    coded = {e.name: e.code for e in PARAMETERS if e.code is not None}
+    assert coded["AxisLoopingDistance"] == 0x4328 and coded["AxisOverrideType"] == 0x430D
+    for e in PARAMETERS:
+        if e.code is not None:
+            assert e.source == "param" and e.code in s.ERRORS, e
+            assert 0x4000 <= e.code <= 0x4FFF, e
+
+
 def test_entries_of_one_store_share_type_and_range():
     for store, entries in PARAMETERS.stores().items():
         assert len({(e.type, e.min, e.max, e.min_exclusive, e.when) for e in entries}) == 1, store

@@ -221,7 +221,7 @@ def test_a_lost_commanders_superposition_stops_the_axis() -> None:
     r.ok("b", "MoveVelocity", 1, Velocity=50.0)
     r.run(100)
     r.ok("a", "MoveSuperImposed", 1, Mode=4, Distance=10.0, VelocityDiff=20.0, Acceleration=100.0,
-         Deceleration=100.0, Jerk=1000.0, Length=1000.0)
+         Deceleration=100.0, Jerk=1000.0, Length=1000.0, VelocityProcess=50.0)
     r.run(5)
     assert r.core.commanders(0) == {"a", "b"}
     r.gone("a")

@@ -301,8 +301,11 @@ def test_the_body_bound_fits_what_the_nc_writes(tmp_path: Path) -> None:
     core.step()
     k = RetainKeeper(tmp_path / "r", "nc1", core)
     changed = {f: (not v if isinstance(v, bool) else v + 1.0) for f, v in vars(core.params[0]).items()}
+    changed["AxisEncoderEncoderMask"] = 2147483647.0  # (2^k - 1 only: one bit less, as many digits)
+    changed["AxisDelayTimeVeloPosition"] = 0.05  # (at most 0.1 s: its default 0 + 1 is not one)
     core.params[0] = AxisParams(**{**changed, "AxisEnDataPersistence": True,
-                                   "AxisEnMinSoftPosLimit": False, "AxisEnMaxSoftPosLimit": False})
+                                   "AxisEnMinSoftPosLimit": False, "AxisEnMaxSoftPosLimit": False,
+                                   "AxisOverrideType": 3.0})  # (1..4: its default 4 + 1 is not one)
     raw = encode_retain(k.data_of(k._snapshot(core)))
     assert len(raw) - 46 < BODY_PER_AXIS, len(raw)
     assert parse_retain(raw, "nc1", [1]).axes[1].name == name

@@ -151,6 +151,17 @@ class JobKind:
         """A new plan after an override change or a new end velocity (blending); None: keep."""
         return None
 
+    def override_replan(self, core: CoreContext, i: int, job: Job, start: StartState, old: float,
+                        new: float) -> Plan | None:
+        """A new plan after the override changed from ``old`` to ``new`` (0..1); None: keep the running one.
+        Default: :meth:`replan` at ``new`` (positionings apply AxisOverrideType here)."""
+        return self.replan(core, i, job, start, new)
+
+    def goal(self, job: Job) -> float | None:
+        """Where the running plan of ``job`` heads for (NC position): its target; a positioning's loop point on
+        the way out of a loop movement. None: no target."""
+        return job.target
+
     def watch(self, core: CoreContext, rows: np.ndarray) -> None:
         """Per-cycle checks of the running jobs of this kind in ``rows`` (after the set-points)."""
 
@@ -190,9 +201,10 @@ class JobKind:
         plan = self.replan(core, i, trial, start, core.override(i))
         if plan is None:
             raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, f"a {self.name} command has no dynamics to change")
-        if job.target is not None:
-            sense = 1.0 if job.target >= start.p else -1.0
-            beyond = plan.p_max - job.target if sense > 0 else job.target - plan.p_min
+        goal = self.goal(job)  # (the loop point on the way out of a loop movement)
+        if goal is not None:
+            sense = 1.0 if goal >= start.p else -1.0
+            beyond = plan.p_max - goal if sense > 0 else goal - plan.p_min
             if beyond > 1e-9:
                 raise NcError(ErrorCodes.NC_NEW_TARGET_OVERRUN, "the target would be passed with these dynamics")
             back = start.p - plan.p_min if sense > 0 else plan.p_max - start.p

@@ -10,10 +10,42 @@ to the target of the discrete motion it aborts).
 Amendments (NewPos, NewPosAndVelo): a new target and/or velocity, at once, at a switching
 position (the set position passes ActivationPos in the direction of travel), or "reach the new
 velocity at ActivationPos" (the change starts the braking/accelerating distance before it).
+
+Loop movement (MC_AxisPara 1033 AxisEnLoopingDistance, 1034 AxisLoopingDistance; TwinCAT's 'Loop' and
+'Loop distance (+/-)', ADS axis 0x13/0x14). Beckhoff documents the parameters (TcMC 6.1, the NC ADS table) and
+their range errors (0x4323, 0x4328: https://infosys.beckhoff.com/content/1033/tc3ncerrcode/513133323.html) but
+not the motion; this NC's decisions: the sign of AxisLoopingDistance is the side the target is approached
+from (> 0: from above). A positioning that ends at rest (no blending or end velocity) and would reach its
+target from the other side goes on to the loop point (target + AxisLoopingDistance), stops there and
+returns to the target (one command: Busy/Active throughout, Done at the target). The loop is decided when
+the positioning is planned for its command (start, NewPos/NewPosAndVelo), from the set position then; a
+parameter written while it runs acts from the next positioning. The loop point must lie inside the enabled
+software limits (0x4222) and the return needs the feed enable of its direction (0x4223): otherwise the
+command is refused. A blending successor commanded on the way out starts after the return, as Buffered
+(the way out has no blending point). The loop point moves with MC_SetActualPositionOnTheFly / SetPosition
+(:meth:`PositionKind.shift`). Override 0 on the way out holds the axis there; a raise goes on to the loop
+point.
+
+Override type (MC_AxisPara 1039 AxisOverrideType; TwinCAT's 'Velocity Override Type', Setpoint Generator:
+https://infosys.beckhoff.com/content/1033/tc3_system/3396207115.html): 4 original (iterated, the default and
+how this NC behaved): the override scales the commanded Velocity and every change re-plans; 3 reduced
+(iterated): it scales the peak velocity of the command's profile at 100 % (a short move commanded at 1000 u/s
+that peaks at 700 u/s runs at 350 u/s at 50 %; type 4 at 500 u/s, and at 80 % still at its 700 u/s); 1 reduced and
+2 original (instantaneous): as 3 and 4, but an override raise whose new plan cannot reach the new level (its
+peak stays below it: the remaining way is too short) is not applied, the running profile stays (TwinCAT NC
+Master Axes, https://infosys.beckhoff.com/content/1033/tcncptp/3449220235.html: "'Override on x%' causes a
+new runtime table to be calculated and activated ... In case of failure, the function is not called again
+automatically"; only that
+raise: a later ChangeDynParam, blending or NewPosAndVelo plans as always). The reduced reference is taken
+when the positioning is planned for its command (start, new target or velocity, the return of a loop); a
+type written while a positioning runs acts from its next override change (a reduced type from the next
+positioning). Endless motions (MoveVelocity, a continuous move past its target) reach their velocity, so
+reduced and original are the same there.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
@@ -116,6 +148,7 @@ class PositionKind(JobKind):
             job.end_velocity = self.end_velocity_of(core, i, job.args, job.target, start.p)
         sense = job.target - start.p
         core.check_feed(i, sense if sense else job.end_velocity)
+        self.prepare(core, i, job, start)  # loop point, reduced velocity (AxisEnLoopingDistance, AxisOverrideType)
         plan = self._plan(core, i, job, start, core.override(i))
         core.check_target(i, start.p, job.target, plan)
         if sense:
@@ -143,7 +176,10 @@ class PositionKind(JobKind):
         job.data.pop("ramp", None)
         if ov <= 0:  # override 0: start as a hold, the job waits for override
             return core.plan(plan_velocity, start, 0.0, job.dyn)
-        dyn = job.dyn.scaled(ov)
+        dyn = self._travel_dyn(core, i, job, ov)
+        loop = job.data.get("loop")
+        if loop is not None:  # the way out of a loop movement: to the loop point, at rest
+            return self._plan_to_target(core, replace(job, target=loop, end_velocity=0.0), start, dyn, 0.0)
         ve = job.end_velocity * ov
         if abs(ve) > dyn.velocity:
             sense = 1.0 if ve > 0 else -1.0
@@ -200,6 +236,7 @@ class PositionKind(JobKind):
         return fallback if fallback is not None else core.plan(plan_position, start, target, dyn, 0.0)
 
     def replan(self, core: CoreContext, i: int, job: Job, start: StartState, override: float) -> Plan | None:
+        job.data.pop("ov_kept", None)  # (a new plan runs at ``override``: no kept raise any more)
         if job.continuous:  # past the target: a velocity job now
             return core.plan(plan_velocity, start, job.end_velocity * override, job.dyn)
         return self._plan(core, i, job, start, override)
@@ -207,6 +244,8 @@ class PositionKind(JobKind):
     def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         if job.held:
             return "steady"  # override 0: waiting, not the end
+        if self.loop_back(core, i, job):
+            return "continue"
         if self.start_ramp(core, i, job):
             return "continue"
         if job.end_velocity and not core.queues[i].waiting:
@@ -227,13 +266,15 @@ class PositionKind(JobKind):
 
     def shift(self, job: Job, diff: float) -> None:
         super().shift(job, diff)
+        if "loop" in job.data:  # the loop point moves with the axis (as the target)
+            job.data["loop"] += diff
         if "switch" in job.data:  # the switching position and a new target move with the axis
             mode, at, new_pos, new_velo = job.data["switch"]
             job.data["switch"] = (mode, at + diff, new_pos + diff, new_velo)
 
     def blend_point(self, job: Job) -> tuple[float, float, float] | None:
-        if job.target is None or job.dyn is None or job.continuous:
-            return None
+        if job.target is None or job.dyn is None or job.continuous or "loop" in job.data:
+            return None  # (on the way out of a loop a blending successor waits for the return: as Buffered)
         start = job.data.get("start", job.target)
         sense = 1.0 if job.target >= start else -1.0
         return job.target, sense, job.dyn.velocity
@@ -254,8 +295,7 @@ class PositionKind(JobKind):
             core.check_target(i, core.nc_set_pos(i), new_pos)
         if mode in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
             return self.apply_change(core, i, job, base, new_pos, new_velo)
-        # at a switching position: armed now, applied by watch()
-        job.data["switch"] = (mode, float(at), float(new_pos), float(new_velo))
+        arm_switch(core, i, job, mode, at, new_pos, new_velo)  # applied by watch()
         return None
 
     def apply_change(self, core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
@@ -271,6 +311,7 @@ class PositionKind(JobKind):
             trial.dyn = trial.dyn.with_(velocity=float(new_velo))
         if trial.target is None:
             trial.target = start.p
+        self.prepare(core, i, trial, start)  # a new profile: the loop and the reduced velocity decided again
         plan = self._plan(core, i, trial, start, core.override(i))
         core.check_target(i, start.p, trial.target, plan)
         core.check_feed(i, trial.target - start.p)
@@ -283,6 +324,73 @@ class PositionKind(JobKind):
     def end_velocity_after_change(self, job: Job, target: float, p: float) -> float:
         """The end velocity after a new target: at rest (a blending successor blends again)."""
         return 0.0
+
+    # -- loop movement and override type (module docstring) ----------------------------------------
+    def prepare(self, core: CoreContext, i: int, job: Job, start: StartState) -> None:
+        """Decide what the parameters make of the positioning planned now from ``start``: its loop point
+        (``job.data["loop"]``) and, for a reduced override type, the peak velocity of its profile at 100 %
+        (``job.data["v_red"]``).
+
+        Raises:
+            NcError: 0x4222 (0x4460/0x4461) the loop point beyond an enabled software limit, 0x4223 no feed
+                enable for the return.
+        """
+        assert job.target is not None and job.dyn is not None
+        job.data.pop("loop", None)
+        job.data.pop("v_red", None)
+        p = core.params[i]
+        dist = p.AxisLoopingDistance
+        sense = job.target - start.p
+        if p.AxisEnLoopingDistance and dist and not job.end_velocity and not job.continuous and sense * dist > 0:
+            loop = job.target + dist  # reached from the other side: on to the loop point, then back
+            core.check_target(i, start.p, loop)
+            core.check_feed(i, -sense)
+            job.data["loop"] = loop
+        if p.AxisOverrideType in (1.0, 3.0):
+            job.data["v_red"] = min(self._plan(core, i, job, start, 1.0).peak_velocity, job.dyn.velocity)
+
+    def _travel_dyn(self, core: CoreContext, i: int, job: Job, ov: float) -> Dynamics:
+        """The job's dynamics at override ``ov`` (> 0): the velocity is ``ov`` x the commanded one (original
+        types), x the peak of its profile at 100 % (reduced types, below 100 %)."""
+        assert job.dyn is not None
+        dyn = job.dyn.scaled(ov)
+        v_red = job.data.get("v_red")
+        if v_red is not None and ov < 1.0 and core.params[i].AxisOverrideType in (1.0, 3.0):
+            dyn = dyn.with_(velocity=min(dyn.velocity, ov * v_red))
+        return dyn
+
+    def override_replan(self, core: CoreContext, i: int, job: Job, start: StartState, old: float,
+                        new: float) -> Plan | None:
+        """The plan after an override change. Types 1 and 2 (instantaneous): a raise whose new plan's peak
+        stays below the new level is not achievable: None, the running plan stays (the job unchanged)."""
+        kept = job.data.get("ov_kept", old)  # (the level the running plan was made for, after a kept raise)
+        if job.continuous or job.held or not 0.0 < kept < new or core.params[i].AxisOverrideType not in (1.0, 2.0):
+            job.data.pop("ov_kept", None)
+            return self.replan(core, i, job, start, new)
+        trial = job.trial()  # (planning notes its ramp in data: adopted only with the plan)
+        plan = self.replan(core, i, trial, start, new)
+        if plan is not None and plan.peak_velocity < self._travel_dyn(core, i, trial, new).velocity * (1 - 1e-9):
+            job.data["ov_kept"] = kept
+            return None
+        job.data = trial.data
+        job.data.pop("ov_kept", None)
+        return plan
+
+    def goal(self, job: Job) -> float | None:
+        return job.data.get("loop", job.target)
+
+    def loop_back(self, core: CoreContext, i: int, job: Job) -> bool:
+        """At the end of the way out of a loop movement (at rest at the loop point): plan the return to the
+        target. False: the job has no loop (pending)."""
+        if job.data.pop("loop", None) is None:
+            return False
+        end, _ = core.plan_end_state(i)
+        job.data["start"] = end.p  # (the return's direction: blending, MC_Current_Direction)
+        if "v_red" in job.data:
+            assert job.dyn is not None
+            job.data["v_red"] = min(self._plan(core, i, job, end, 1.0).peak_velocity, job.dyn.velocity)
+        core.continue_plan(i, self._plan(core, i, job, end, core.override(i)))
+        return True
 
 
 class RelativeKind(PositionKind):
@@ -357,6 +465,8 @@ class ContinuousKind(PositionKind):
             return end_velocity(core, i, job)
         if job.held:
             return "steady"
+        if self.loop_back(core, i, job):  # (EndVelocity 0: a positioning that ends at rest may loop)
+            return "continue"
         if self.start_ramp(core, i, job):
             return "continue"
         if job.end_velocity:
@@ -408,8 +518,43 @@ def _turns(plan: Plan, sense: float) -> bool:
     return lo < -1e-9 if sense > 0 else hi > 1e-9
 
 
+def travel_sense(core: CoreContext, i: int, job: Job) -> float:
+    """The direction of travel (+1/-1) of row ``i``'s running ``job``: of the set velocity, and where
+    that is 0 (all but standing, e.g. at override 0) the direction the job heads in (its target, or
+    a velocity job's velocity)."""
+    v = float(core.axes.set_velo[i])
+    if abs(v) > 1e-9:
+        return 1.0 if v > 0 else -1.0
+    if job.target is None:
+        return -1.0 if job.velocity < 0 else 1.0
+    return 1.0 if job.target >= float(core.axes.set_pos[i]) else -1.0
+
+
+def arm_switch(core: CoreContext, i: int, job: Job, mode: int, at: float, new_pos: float, new_velo: float) -> None:
+    """Arm a NewPosAndVelo switching-position change (modes 9, 10, 11, 14) on the running ``job``
+    of any kind with an ``apply_change`` (positionings, MoveVelocity): the kind's watch applies it
+    when the set position passes ``at`` [u] in the direction of travel (:func:`_switch_reached`).
+
+    Decision (TcMC 3.8 is silent): an ActivationPos the set position has already passed in the
+    direction of travel is refused with 0x427F "new target position has been /
+    would be overrun" (the closest code of TwinCAT's NC list: the switching point lies behind the
+    axis) and changes nothing; exactly at ActivationPos counts as not passed (applied at once in the
+    next watch). Before, a passed ActivationPos switched at once.
+
+    Raises:
+        NcError: 0x427F ActivationPos already passed.
+    """
+    sense = travel_sense(core, i, job)
+    p = float(core.axes.set_pos[i])
+    if (p - at) * sense > 0:
+        raise NcError(ErrorCodes.NC_NEW_TARGET_OVERRUN,
+                      f"ActivationPos {at:g} has already been passed (set position {p:g}, direction {sense:+g})")
+    job.data["switch"] = (int(mode), float(at), float(new_pos), float(new_velo))
+
+
 def _switch_reached(core: CoreContext, rows: np.ndarray) -> None:
-    """Apply NewPosAndVelo changes armed at a switching position (PositionKind.watch)."""
+    """Apply NewPosAndVelo changes armed at a switching position (the watch of positionings and of
+    MoveVelocity: :func:`arm_switch`)."""
     a = core.axes
     for i in rows.tolist():
         job = core.queues[i].active
@@ -418,10 +563,7 @@ def _switch_reached(core: CoreContext, rows: np.ndarray) -> None:
         mode, at, new_pos, new_velo = job.data["switch"]
         v = float(a.set_velo[i])
         p = float(a.set_pos[i])
-        if abs(v) > 1e-9:
-            sense = 1.0 if v > 0 else -1.0
-        else:  # (all but standing: the direction the job heads in)
-            sense = 1.0 if job.target is None or job.target >= p else -1.0
+        sense = travel_sense(core, i, job)
         if mode == int(NPV.REACH_VELO_AT_POS):
             # start the change so that the new velocity is reached at ActivationPos
             assert job.dyn is not None

@@ -2,9 +2,24 @@
 reachable modulo position), and the NC's own ramps without a CmdNo (after an error; after a
 buffered job that could not start).
 
-MC_Stop (TcMC 3.15): accepted in every state; Deceleration and Jerk count only together (a lone
-one is ignored and the axis defaults apply: a stop is never refused); a stop is never weaker than
-a stop already running, and its jerk never lets an accelerating axis overshoot its velocity.
+MC_Stop (TcMC 3.15, https://infosys.beckhoff.com/content/1033/tcplclibmc/10988428555.html):
+accepted in every state. Deceleration [u/s^2] and Jerk [u/s^3] 0 mean "from the move command":
+the *effective* values of the job it stops (that job's inputs, or the axis defaults AxisDec /
+AxisJerk where the job's were 0, as :func:`stopped_dynamics` reads them from the job). A job
+without dynamics of its own (a coupling, the external set-point generator) and an axis without
+a job: AxisDec/AxisJerk. MC_Halt does the same; a buffered MC_Halt takes them from the job it
+follows. 3.15's exceptions hold: a stop is never weaker than a stop already running, its jerk
+never lets an accelerating axis overshoot its velocity nor a braking one reverse, and weaker
+dynamics that would pass the target (or an enabled software limit) are not used.
+
+Decisions where the manual is silent or unclear:
+
+* "A non zero value will only be accepted if a Jerk value is passed as well": a **lone non-zero
+  Deceleration or Jerk is used**, with the stopped job's effective other value (ignoring it loses
+  what was asked; refusing it would be an MC_Stop that does not stop).
+* A negative (or out of range) Deceleration / Jerk is refused with 0x4230 / 0x422E and changes
+  nothing, as for MC_Halt and every move (bad input gets its code; the block shows Error).
+
 On an axis at rest it ends DONE in its first cycle (and locks).
 """
 from __future__ import annotations
@@ -21,6 +36,22 @@ if TYPE_CHECKING:
     from ..context import CoreContext
 
 _EPS_V = 1e-9
+
+
+def stopped_dynamics(core: CoreContext, i: int, followed: Job | None, dec: float, jerk: float) -> tuple[float, float]:
+    """Deceleration [u/s^2] and jerk [u/s^3] of a stop: the non-zero inputs ``dec``/``jerk``, 0 =
+    the effective value of ``followed`` (the job it stops, or that a buffered MC_Halt follows: its
+    ``dyn`` holds its inputs with the axis defaults filled in). ``followed`` None, without
+    dynamics, or driven by a set-point stage (coupling, external generator): AxisDec/AxisJerk.
+
+    Raises:
+        NcError: 0x4230 / 0x422E a negative or out of range value (:func:`..checks.command_dynamics`).
+    """
+    d = core.dynamics(i, {"Deceleration": dec, "Jerk": jerk}, None)  # (the range checks)
+    ref = followed.dyn if followed is not None and followed.kind.source is None else None
+    if ref is None:
+        return d.deceleration, d.jerk
+    return (dec or ref.deceleration), (jerk or ref.jerk)
 
 
 def _stop_plan(core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
@@ -52,11 +83,8 @@ class StopKind(JobKind):
     always_allowed = True
 
     def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
-        dec, jerk = req.get("Deceleration", 0.0), req.get("Jerk", 0.0)
-        if (dec > 0) != (jerk > 0):
-            dec = jerk = 0.0  # TcMC 3.15: only together; a stop is never refused
-        if dec < 0 or jerk < 0:
-            dec = jerk = 0.0
+        # the job it stops: whatever runs (also an NC ramp; stop_dynamics keeps the stronger one)
+        dec, jerk = stopped_dynamics(core, i, core.queues[i].active, req.get("Deceleration", 0.0), req.get("Jerk", 0.0))
         return Job(self, dict(req), dyn=core.stop_dynamics(i, dec, jerk))
 
     def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
@@ -76,7 +104,9 @@ class StopKind(JobKind):
 
 
 class HaltKind(JobKind):
-    """MC_Halt: a discrete motion to rest (no lock; Done at standstill; may be buffered)."""
+    """MC_Halt: a discrete motion to rest (no lock; Done at standstill; may be buffered). Deceleration
+    and Jerk as MC_Stop's (the module docstring): 0 = the stopped job's effective value (a buffered
+    MC_Halt: of the job it follows), a lone value used, a negative one refused."""
 
     name = "Halt"
     commands = ("Halt",)
@@ -86,8 +116,10 @@ class HaltKind(JobKind):
     braking = True
 
     def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
-        d = core.dynamics(i, {"Deceleration": req.get("Deceleration", 0.0), "Jerk": req.get("Jerk", 0.0)}, None)
-        return Job(self, dict(req), dyn=d)
+        # 0 = the effective value of the job it stops (Aborting) or follows (buffered: ``prev``)
+        followed = prev if req.get("BufferMode", 0) != 0 and prev is not None else core.queues[i].active
+        dec, jerk = stopped_dynamics(core, i, followed, req.get("Deceleration", 0.0), req.get("Jerk", 0.0))
+        return Job(self, dict(req), dyn=Dynamics(float(core.axes.vmax[i]), max(float(core.axes.acc[i]), dec), dec, jerk))
 
     def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         assert job.dyn is not None
@@ -117,9 +149,9 @@ class OrientedStopKind(JobKind):
     def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
         if abs(start.v) <= _EPS_V:
             raise NcError(ErrorCodes.MC_AXIS_NOT_MOVING, "the axis is not moving: use MC_MoveModulo to position it")
-        running = core.queues[i].active
-        d = running.dyn if running is not None and running.dyn is not None else core.dynamics(i, {}, None)
-        sd = core.stop_dynamics(i, d.deceleration, d.jerk)
+        # the running motion's effective dynamics (a coupling, external set-points: AxisDec/AxisJerk)
+        dec, jerk = stopped_dynamics(core, i, core.queues[i].active, 0.0, 0.0)
+        sd = core.stop_dynamics(i, dec, jerk)
         natural = core.plan(plan_velocity, start, 0.0, sd).end.p
         period = core.params[i].AxisEncoderModuloValue
         sense = 1.0 if start.v > 0 else -1.0

@@ -19,13 +19,15 @@ from nc_schema import E_JogMode, ErrorCodes, MC_Direction, NcError
 from ..planning import Dynamics, Plan, StartState, plan_position, plan_velocity
 from ..profile import stopping_distance
 from .base import ALL_MODES, Job, JobKind
-from .position import PositionKind
+from .position import PositionKind, _switch_reached, arm_switch
 
 if TYPE_CHECKING:
     from ..context import CoreContext
 
 _POS = int(MC_Direction.MC_Positive_Direction)
 _NEG = int(MC_Direction.MC_Negative_Direction)
+_CUR = int(MC_Direction.MC_Current_Direction)
+_EPS_V = 1e-9
 #: Job.phase of a velocity job that is being stopped at a software limit
 LIMIT_MAX, LIMIT_MIN = 1, -1
 
@@ -44,7 +46,38 @@ def direction_sense(d: int) -> float:
                   f"Direction {d}: continuous motion needs MC_Positive_Direction (1) or MC_Negative_Direction (3)")
 
 
+def current_sense(core: CoreContext, i: int, followed: Job | None) -> float:
+    """MC_Current_Direction of MC_MoveVelocity (TcMC 3.3 / 6.2): +1/-1, the direction of the current
+    set velocity, fixed when the command is accepted. Decisions where the manual is silent: the set
+    velocity is the axis's total one (a running superposition included: the direction the axis
+    moves in); a command buffered behind ``followed`` takes the direction ``followed`` travels in
+    (its velocity, end velocity, or the way to its target), as MC_MoveModulo does.
+
+    Raises:
+        NcError: 0x4B05 no direction: the axis is at rest (or the job it follows has none).
+    """
+    v = float(core.axes.set_velo[i])
+    if followed is not None:
+        start = followed.data.get("start")
+        if followed.velocity:
+            v = followed.velocity
+        elif followed.end_velocity:
+            v = followed.end_velocity
+        elif followed.target is not None and followed.data.get("loop") is not None:
+            v = followed.target - followed.data["loop"]  # (a loop movement ends on its return leg)
+        elif followed.target is not None and start is not None and followed.target != start:
+            v = followed.target - start
+    if abs(v) <= _EPS_V:
+        raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED,
+                      "MC_Current_Direction: the axis is at rest, there is no current direction")
+    return 1.0 if v > 0 else -1.0
+
+
 class VelocityKind(JobKind):
+    """MC_MoveVelocity (TcMC 3.3). Direction: MC_Positive_Direction, MC_Negative_Direction,
+    MC_Current_Direction (:func:`current_sense`; at rest 0x4B05). MC_Shortest_Way is refused with
+    0x4B05 (decision: an endless move has no target to be short to)."""
+
     name = "MoveVelocity"
     commands = ("MoveVelocity",)
     buffer_modes = ALL_MODES
@@ -52,7 +85,12 @@ class VelocityKind(JobKind):
     def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
         v = req["Velocity"]
         core.check_velocity(i, v)
-        sense = direction_sense(req["Direction"])
+        d = req["Direction"]
+        if d == _CUR:
+            queued = prev is not None and req.get("BufferMode", 0) != 0
+            sense = current_sense(core, i, prev if queued else None)
+        else:
+            sense = direction_sense(d)
         return Job(self, dict(req), dyn=core.dynamics(i, req, v), velocity=sense * v, continuous=True)
 
     def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
@@ -70,36 +108,64 @@ class VelocityKind(JobKind):
         return bool(job.data.get("steady")) and not job.held
 
     def wants_watch(self, job: Job) -> bool:
-        return bool(job.data.get("limits")) and not job.phase
+        return "switch" in job.data or (bool(job.data.get("limits")) and not job.phase)
 
     def watch(self, core: CoreContext, rows: np.ndarray) -> None:
-        limit_approach(core, rows)
+        queues = core.queues
+        switch = np.array([("switch" in queues[i].active.data) for i in rows.tolist()], dtype=bool)
+        if switch.any():
+            _switch_reached(core, rows[switch])
+        # (a row whose switch just made it a positioning is no velocity job any more)
+        rest = [i for i in rows.tolist() if (j := queues[i].active) is not None and j.kind is self
+                and j.data.get("limits") and not j.phase]
+        if rest:  # stop exactly at an enabled software limit
+            limit_approach(core, np.array(rest, dtype=np.intp))
 
     def amend(self, core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
         return amend_velocity(core, i, job, req)
+
+    def apply_change(self, core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
+        """A switching-position change reached (:func:`.position._switch_reached`)."""
+        return apply_velocity_change(core, i, job, base, new_pos, new_velo)
 
 
 _TO_POSITION = PositionKind("MoveAbsolute")  # what an endless move becomes with a new target
 
 
-def amend_velocity(core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
+def amend_velocity(core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
     """MC_NewPos / MC_NewPosAndVelo on an endless move (TcMC 3.7/3.8: "an axis in motion"):
     CHANGE_VELO gives it a new velocity (same direction); NewPos, CHANGE_POS and CHANGE_POSANDVELO
     turn it into a positioning to NewPos (same CmdNo, then Done there). The switching-position
-    modes (9, 10, 11, 14) need a target to switch on and are refused with 0x4B05 here."""
+    modes 9, 10, 11 (the same at ActivationPos) and 14 (NewVelo reached at ActivationPos) are armed
+    as on a positioning and applied when the set position passes ActivationPos in the job's direction
+    of travel (:func:`.position.arm_switch`: an ActivationPos already passed is refused with 0x427F).
+    The values are checked when it is armed (0x4221 velocity, 0x4222 target), and once more when it
+    is applied (a failure then is an axis error with that code, as on a positioning)."""
     if req["cmd"] == "NewPos":
-        mode, new_pos, new_velo = int(NPV.CHANGE_POS), req["NewPos"], 0.0
+        mode, new_pos, new_velo, at = int(NPV.CHANGE_POS), req["NewPos"], 0.0, 0.0
     else:
-        mode, new_pos, new_velo = req["Mode"], req["NewPos"], req["NewVelo"]
+        mode, new_pos, new_velo, at = req["Mode"], req["NewPos"], req["NewVelo"], req["ActivationPos"]
     if mode not in {int(m) for m in NPV}:
         raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_CmdTypeNewTargPosAndVelo")
     if job.phase:
         raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, "the axis is being stopped at a software limit")
-    if mode not in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
-        raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED,
-                      f"Mode {mode}: a switching position needs a target; an endless move has none")
+    base = mode & 3 if mode != int(NPV.REACH_VELO_AT_POS) else int(NPV.CHANGE_VELO)
+    if base & int(NPV.CHANGE_VELO):
+        core.check_velocity(i, new_velo)
+    if base & int(NPV.CHANGE_POS):
+        core.check_target(i, core.nc_set_pos(i), new_pos)
+    if mode in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
+        return apply_velocity_change(core, i, job, base, new_pos, new_velo)
+    arm_switch(core, i, job, mode, at, new_pos, new_velo)  # applied by the kind's watch
+    return None
+
+
+def apply_velocity_change(core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
+    """The change of an endless move (now, or at its switching position): ``base`` CHANGE_VELO a new
+    velocity [u/s] in the same direction; with CHANGE_POS a positioning to ``new_pos`` [u] (at
+    ``new_velo`` with CHANGE_POSANDVELO), the same CmdNo."""
     assert job.dyn is not None
-    if mode == int(NPV.CHANGE_VELO):
+    if base == int(NPV.CHANGE_VELO):
         core.check_velocity(i, new_velo)
         sense = 1.0 if job.velocity > 0 else -1.0
         dyn = job.dyn.with_(velocity=float(new_velo))
@@ -111,10 +177,11 @@ def amend_velocity(core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) 
         return plan
     trial = job.trial()
     trial.kind, trial.continuous, trial.velocity = _TO_POSITION, False, 0.0
-    if mode == int(NPV.CHANGE_POSANDVELO):
+    trial.data.pop("switch", None)
+    if base & int(NPV.CHANGE_VELO):
         core.check_velocity(i, new_velo)
     core.check_target(i, core.nc_set_pos(i), new_pos)
-    plan = _TO_POSITION.apply_change(core, i, trial, mode & 3, new_pos, new_velo)
+    plan = _TO_POSITION.apply_change(core, i, trial, base, new_pos, new_velo)
     for name in ("kind", "target", "dyn", "end_velocity", "continuous", "velocity", "data"):
         setattr(job, name, getattr(trial, name))
     return plan
@@ -192,7 +259,13 @@ class JogKind(JobKind):
     with the block's Velocity and dynamics; INCHING: relative by Position (> 0) in Direction;
     INCHING_MODULO (Tc2_MC2): relative, the end rounded to the next multiple of Position in the
     direction of travel (from a multiple: exactly Position). Continuous jogs run until a Halt
-    (the block sends it when the key is released) or any other command."""
+    (the block sends it when the key is released) or any other command.
+
+    Inching with Position 0 (zenoh-nc decision; the manual says only "relative distance"): the axis's jog
+    increment of the direction, AxisJogIncrementForward / AxisJogIncrementBackward (MC_AxisPara 1013/1014,
+    TwinCAT's inching distances), is the distance; an increment of 0 then refuses the jog with 0x4B06, as a
+    Position <= 0 is. An inching jog is a positioning: it loops as any (AxisEnLoopingDistance) and follows
+    AxisOverrideType."""
 
     name = "Jog"
     commands = ("Jog",)
@@ -218,6 +291,11 @@ class JogKind(JobKind):
         if mode == int(E_JogMode.MC_JOGMODE_CONTINOUS):
             return Job(self, dict(req), dyn=dyn, velocity=sense * v, continuous=True, data={"via": "velocity"})
         step = req["Position"]
+        if step == 0:  # the axis's jog increment of this direction (taken when the jog is accepted)
+            name = "AxisJogIncrementForward" if sense > 0 else "AxisJogIncrementBackward"
+            step = getattr(p, name)
+            if not step > 0:
+                raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"Position 0 and {name} is 0: no inching distance")
         if not step > 0:
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"inching distance Position {step} must be > 0")
         start = core.nc_set_pos(i)
@@ -237,6 +315,21 @@ class JogKind(JobKind):
         if job.data["via"] == "velocity":
             return None if job.phase else core.plan(plan_velocity, start, job.velocity * override, job.dyn)
         return self._pos.replan(core, i, job, start, override)
+
+    def override_replan(self, core: CoreContext, i: int, job: Job, start: StartState, old: float,
+                        new: float) -> Plan | None:
+        if job.data["via"] == "velocity":
+            return self.replan(core, i, job, start, new)
+        return self._pos.override_replan(core, i, job, start, old, new)  # (inching: AxisOverrideType)
+
+    def goal(self, job: Job) -> float | None:
+        return self._pos.goal(job) if job.data["via"] == "position" else job.target
+
+    def shift(self, job: Job, diff: float) -> None:
+        if job.data["via"] == "position":
+            self._pos.shift(job, diff)  # (a loop point moves with the axis)
+        else:
+            super().shift(job, diff)
 
     def on_end(self, core: CoreContext, i: int, job: Job) -> str:
         if job.data["via"] == "velocity":

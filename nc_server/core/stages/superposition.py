@@ -182,13 +182,19 @@ _INCOMPLETE = int(ErrorCodes.NC_COMPENSATION_INCOMPLETE)
 
 @core_command("MoveSuperImposed", motion=True)
 def cmd_move_superimposed(core: CoreContext, i: int, req: dict[str, Any]) -> dict[str, Any]:
-    """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt): plan and start the offset
-    profile. The reference velocity for Length is |VelocityProcess|, or (0) the set velocity now of
-    the reference: for ADDITIVEMOTION on a slave its master's, else the axis's basic motion's.
+    """MoveSuperImposed (MC_MoveSuperImposed / MC_MoveSuperImposedExt, TcMC 3.9/3.10: Infosys
+    https://infosys.beckhoff.com/content/1033/tcplclibmc/10988419339.html and .../10988420875.html):
+    plan and start the offset profile. The reference velocity for Length is |VelocityProcess|
+    ("absolute value > 0": 0 is refused with 0x4B06), in the direction the basic motion travels
+    (a standing axis: positive, and the window |Length| / |VelocityProcess| in every mode:
+    :func:`..superposition.plan_superposition`).
+    "Jerk: the jerk value is not used": the offset profile is limited by AxisJerk whatever the
+    request's Jerk (no check either); Acceleration/Deceleration 0 = AxisAcc/AxisDec.
 
     Raises:
         NcError: the start checks of any motion; 0x4B04 unknown Mode; 0x4B06 Distance 0,
-            VelocityDiff or Length not > 0; 0x422F/0x4230/0x422E bad dynamics; 0x427E unplannable.
+            VelocityDiff, Length or VelocityProcess not > 0; 0x422F/0x4230 bad dynamics; 0x427E
+            unplannable.
     """
     from ..superposition import plan_superposition  # (pure planning, like ..planning)
 
@@ -200,20 +206,20 @@ def cmd_move_superimposed(core: CoreContext, i: int, req: dict[str, Any]) -> dic
     mode = req.get("Mode", 4)
     if mode not in (1, 2, 3, 4):
         raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_SuperpositionMode (1..4)")
-    dyn = core.dynamics(i, req, None)
+    # (no Jerk: TcMC does not use it; AxisJerk)
+    dyn = core.dynamics(i, {"Acceleration": req.get("Acceleration", 0.0), "Deceleration": req.get("Deceleration", 0.0)},
+                        None)
     base = core.start_state(i)
     vp = abs(float(req.get("VelocityProcess", 0.0) or 0.0))
-    if not vp:
-        # TcMC 6.5: ADDITIVEMOTION's Length is the reference's travel "without superimposed motion
-        # (e.g. master axis)": a slave's master; LIMITEDMOTION's is the axis's own
-        m = int(core.coupling.master[i])
-        vp = abs(float(core.axes.set_velo[m])) if mode in (1, 3) and m >= 0 else abs(base.v)
+    if not vp > 0:
+        raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, "VelocityProcess must be non-zero (TcMC: absolute value > 0)")
+    standing = abs(base.v) <= _EPS_V
     v_ref = vp if base.v >= 0 else -vp
     stage = core.superposition
     start = stage.offset_state(i) if stage.on[i] else StartState(0.0)
     try:
         sp = plan_superposition(int(mode), float(req["Distance"]), abs(float(req["VelocityDiff"])), dyn.acceleration,
-                                dyn.deceleration, dyn.jerk, v_ref, float(req["Length"]), start)
+                                dyn.deceleration, dyn.jerk, v_ref, float(req["Length"]), start, standing)
     except ValueError as exc:
         raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, str(exc)) from None
     except Exception as exc:  # (planning.PlanningError)

@@ -1,0 +1,106 @@
+"""The simulated drive's mechanics: the motor torque its motion takes, in % of the rated torque (as TwinCAT shows
+NCTOPLC SetTorque / ActTorque).
+
+    torque [N*m] = SimLoadInertia * a + SimViscousFriction * v + SimCoulombFriction * sign(v)
+    torque [%]   = 100 * torque [N*m] / SimRatedTorque
+
+* SetTorque: of the set-point (SetVelo, SetAcc) plus TorqueOffset; ActTorque: of the measured motion (ActVelo,
+  ActAcc). SetTorqueDerivative / ActTorqueDerivative: their change per second [%/s] (the difference of two
+  cycles over the cycle time).
+* TorqueOffset: PLCTONC.ExtTorque [%], the additive torque the PLC asks for (:attr:`Mechanics.offset`, set by
+  the NC when a PLCTONC arrives: a non-finite value keeps the last one, |value| is clipped to 1000 %).
+
+Decisions (the manual is silent): Coulomb friction as sign(v) (0 at rest: a standing axis needs no torque); the
+additive torque shows in SetTorque only (the model's motion is the position controller's, which the torque
+does not change: the model never limits the motion, it reports what the motion takes); a drive that delivers
+no torque (controller disabled, drive not ready or faulted, invalid I/O data) shows 0 in every torque field,
+TorqueOffset included; defaults 1e-4 N*m*s^2/u, 1e-4 N*m*s/u, 0.02 N*m, 1 N*m (a small servo: 1000 u/s
+takes 12 % of its rated torque against friction).
+
+Cost: a few vector operations per cycle for all axes at once; while no drive delivers torque the model rests
+after two steps (the fields fall to 0, then their derivatives) and does no numpy work at all.
+
+It may import: numpy, nc_server.core.params.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.params import AxisParams
+
+#: |TorqueOffset| at most this [%] (a PLC value beyond is clipped, as a drive limits its additive torque)
+OFFSET_LIMIT = 1000.0
+
+
+class Mechanics:
+    """Torques of all axes (columns indexed like the drive's axes).
+
+    Attributes:
+        offset: the additive torque per axis [%] (PLCTONC.ExtTorque as applied).
+        fields: (6, n): rows SetTorque, ActTorque, ActTorqueDerivative, SetTorqueDerivative, AbsPhasingPos
+            (always 0), TorqueOffset -- the order of their NCTOPLC offsets 136, 144 and 192..216 [% and %/s].
+    """
+
+    def __init__(self, n: int, cycle_time: float) -> None:
+        self.inv_dt = 1.0 / float(cycle_time)
+        self.inertia = np.zeros(n)   # [% s^2/u]: already scaled by 100 / SimRatedTorque
+        self.viscous = np.zeros(n)   # [% s/u]
+        self.coulomb = np.zeros(n)   # [%]
+        self.offset = np.zeros(n)
+        self.fields = np.zeros((6, n))
+        self._n = n
+        self._offset_on = False  # some offset is not 0 (else the offset's rows need no work)
+        self._offset_dirty = False  # the offsets changed since the last step
+        self._rest = 0  # steps in a row without any drive delivering torque (3: at rest, nothing to do)
+
+    def configure(self, i: int, params: AxisParams) -> None:
+        k = 100.0 / float(params.SimRatedTorque)
+        self.inertia[i] = float(params.SimLoadInertia) * k
+        self.viscous[i] = float(params.SimViscousFriction) * k
+        self.coulomb[i] = float(params.SimCoulombFriction) * k
+
+    def set_offset(self, values: np.ndarray) -> None:
+        """The additive torque [%] per axis: non-finite values keep the last value, |value| clipped to 1000 %."""
+        ok = np.isfinite(values)
+        self.offset[ok] = np.clip(values[ok], -OFFSET_LIMIT, OFFSET_LIMIT)
+        self._offset_on = bool(np.count_nonzero(self.offset))
+        self._offset_dirty = True
+
+    @property
+    def resting(self) -> bool:
+        """No drive delivers torque and every field was 0 in the last step already (nothing to copy)."""
+        return self._rest >= 3
+
+    def step(self, delivering: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray,
+             act_velo: np.ndarray, act_acc: np.ndarray) -> None:
+        """This cycle's torques from the set-point and the measured motion.
+
+        Args:
+            delivering: bool per axis: the drive delivers torque (enabled, ready, valid I/O).
+            set_velo, set_acc: the set-point [u/s, u/s^2]; act_velo, act_acc: the measured motion.
+        """
+        f = self.fields
+        k = np.count_nonzero(delivering)  # (far cheaper than ndarray.any here)
+        if not k:
+            if self._rest < 3:
+                self._rest += 1
+                if self._rest < 3:  # 1: the fields fall to 0 within this cycle, 2: their derivatives
+                    f[2:4] = f[1::-1] * -self.inv_dt
+                    f[[0, 1, 5]] = 0.0
+            return
+        self._rest = 0
+        v = np.array((set_velo, act_velo))
+        t = self.inertia * np.array((set_acc, act_acc))
+        t += self.viscous * v
+        t += self.coulomb * np.sign(v)
+        if self._offset_on:
+            t[0] += self.offset
+        if k < self._n:
+            t *= delivering
+        # derivatives from the values shown last cycle (rows 0, 1), in NCTOPLC's order (act, set)
+        np.subtract(t[::-1], f[1::-1], out=f[2:4])
+        f[2:4] *= self.inv_dt
+        f[0:2] = t
+        if self._offset_on or self._offset_dirty:
+            np.multiply(self.offset, delivering, out=f[5])
+            self._offset_dirty = False
