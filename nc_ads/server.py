@@ -1011,9 +1011,10 @@ class AdsServer:
         if not sessions:
             return
         first = self._rr % len(sessions)
-        # a connection the last rounds did not reach goes first (none is starved, whatever the others ask
-        # for); then light ones before heavy ones; equal ones rotate (sorted() is stable)
-        order = sorted(sessions[first:] + sessions[:first], key=lambda sw: (-sw[0].waited, sw[0].load))
+        # a connection the last round did not reach goes first (none is starved, whatever the others ask
+        # for), however long it waited: among those, light ones before heavy ones (a light one left out once
+        # must not queue behind fifty heavy ones left out longer); equal ones rotate (sorted() is stable)
+        order = sorted(sessions[first:] + sessions[:first], key=lambda sw: (-min(sw[0].waited, 1), sw[0].load))
         now = time.monotonic()
         filetime = ams.filetime_now()
         cache: dict[tuple, bytes | None] = {}

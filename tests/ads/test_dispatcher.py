@@ -499,6 +499,34 @@ def test_a_round_that_runs_out_of_time_serves_the_connections_it_left_out_first(
     assert w_light.frames >= 3 and w_heavy.frames >= 3, (w_light.frames, w_heavy.frames)
 
 
+def test_a_light_connection_left_out_once_goes_before_heavy_ones_left_out_longer(
+        dev: FakeDevice, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Fifty-to-one in the abuse tests: a light connection (one notification) among many heavy ones that the
+    round budget cannot all serve is reached at least every other round, not only after every heavy one that
+    waited longer; and still no heavy one is starved."""
+    import asyncio
+    monkeypatch.setattr(server, "NOTIFY_BUDGET_SHARE", 0.0)   # every round ends after its first connection
+    srv = server.AdsServer({501: dev}, NETID, ("127.0.0.1", 0), tick_ms=10)
+    d = srv.dispatcher
+    light = Session(1, "x:1")
+    add(d, light, 0x4101, 0, 8, mode=3, cycle=1)
+    heavies = [Session(2 + n, f"x:{2 + n}") for n in range(10)]
+    for h in heavies:
+        for k in range(20):
+            add(d, h, 0x4002, 8 * k, 8, mode=3, cycle=1)
+    sessions = [light, *heavies]
+    for sess in sessions:
+        for sub in sess.subs.values():
+            sub.not_before = 0.0   # no first-sample delay (pitfall 5) in this test
+    writers = {sess.conn_id: _Writer() for sess in sessions}
+    srv._sessions = {sess.conn_id: (sess, writers[sess.conn_id]) for sess in sessions}
+    for tick in range(1, 41):
+        asyncio.run(srv._round(tick, only_on_change=False))
+    served = {c: w.frames for c, w in writers.items()}
+    assert served[1] >= 18, served                      # every other round (before: about one round in eleven)
+    assert all(served[h.conn_id] >= 1 for h in heavies), served
+
+
 def test_a_refused_write_logs_its_rule_once_per_host_not_per_connection(dev: FakeDevice,
                                                                         caplog: pytest.LogCaptureFixture) -> None:
     server._DENIED_LOGGED.clear()
