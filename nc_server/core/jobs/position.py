@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
@@ -281,22 +281,7 @@ class PositionKind(JobKind):
 
     # -- amendments ----------------------------------------------------------------------------
     def amend(self, core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan | None:
-        if req["cmd"] == "NewPos":
-            mode, new_pos, new_velo, at = int(NPV.CHANGE_POS), req["NewPos"], 0.0, 0.0
-        else:
-            mode, new_pos, new_velo, at = req["Mode"], req["NewPos"], req["NewVelo"], req["ActivationPos"]
-        valid = {int(m) for m in NPV}
-        if mode not in valid:
-            raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_CmdTypeNewTargPosAndVelo")
-        base = mode & 3 if mode != int(NPV.REACH_VELO_AT_POS) else int(NPV.CHANGE_VELO)
-        if base & int(NPV.CHANGE_VELO):
-            core.check_velocity(i, new_velo)
-        if base & int(NPV.CHANGE_POS):
-            core.check_target(i, core.nc_set_pos(i), new_pos)
-        if mode in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
-            return self.apply_change(core, i, job, base, new_pos, new_velo)
-        arm_switch(core, i, job, mode, at, new_pos, new_velo)  # applied by watch()
-        return None
+        return change_or_arm(core, i, job, *npv_request(req), self.apply_change)
 
     def apply_change(self, core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
         """A new target and/or velocity from the current set-point state (the job keeps its CmdNo)."""
@@ -528,6 +513,37 @@ def travel_sense(core: CoreContext, i: int, job: Job) -> float:
     if job.target is None:
         return -1.0 if job.velocity < 0 else 1.0
     return 1.0 if job.target >= float(core.axes.set_pos[i]) else -1.0
+
+
+def npv_request(req: Mapping[str, Any]) -> tuple[int, float, float, float]:
+    """(Mode, NewPos [u], NewVelo [u/s], ActivationPos [u]) of an MC_NewPos / MC_NewPosAndVelo request
+    (MC_NewPos: CHANGE_POS).
+
+    Raises:
+        NcError: MC_INVALID_MODE, Mode is not an E_CmdTypeNewTargPosAndVelo.
+    """
+    if req["cmd"] == "NewPos":
+        return int(NPV.CHANGE_POS), req["NewPos"], 0.0, 0.0
+    mode = req["Mode"]
+    if mode not in {int(m) for m in NPV}:
+        raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_CmdTypeNewTargPosAndVelo")
+    return mode, req["NewPos"], req["NewVelo"], req["ActivationPos"]
+
+
+def change_or_arm(core: CoreContext, i: int, job: Job, mode: int, new_pos: float, new_velo: float, at: float,
+                  apply: Callable[[CoreContext, int, Job, int, float, float], Plan]) -> Plan | None:
+    """An amendment of the running ``job`` (any kind with an ``apply_change``): the new values checked
+    (0x4221 velocity, 0x4222 target), then ``apply(core, i, job, base, new_pos, new_velo)`` now
+    (modes 1, 2, 3) or armed for its switching position (9, 10, 11, 14: :func:`arm_switch`, None)."""
+    base = mode & 3 if mode != int(NPV.REACH_VELO_AT_POS) else int(NPV.CHANGE_VELO)
+    if base & int(NPV.CHANGE_VELO):
+        core.check_velocity(i, new_velo)
+    if base & int(NPV.CHANGE_POS):
+        core.check_target(i, core.nc_set_pos(i), new_pos)
+    if mode in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
+        return apply(core, i, job, base, new_pos, new_velo)
+    arm_switch(core, i, job, mode, at, new_pos, new_velo)  # applied by the kind's watch
+    return None
 
 
 def arm_switch(core: CoreContext, i: int, job: Job, mode: int, at: float, new_pos: float, new_velo: float) -> None:

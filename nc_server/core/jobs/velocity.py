@@ -19,7 +19,7 @@ from nc_schema import E_JogMode, ErrorCodes, MC_Direction, NcError
 from ..planning import Dynamics, Plan, StartState, plan_position, plan_velocity
 from ..profile import stopping_distance
 from .base import ALL_MODES, Job, JobKind
-from .position import PositionKind, _switch_reached, arm_switch
+from .position import PositionKind, _switch_reached, change_or_arm, npv_request
 
 if TYPE_CHECKING:
     from ..context import CoreContext
@@ -141,23 +141,10 @@ def amend_velocity(core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) 
     of travel (:func:`.position.arm_switch`: an ActivationPos already passed is refused with 0x427F).
     The values are checked when it is armed (0x4221 velocity, 0x4222 target), and once more when it
     is applied (a failure then is an axis error with that code, as on a positioning)."""
-    if req["cmd"] == "NewPos":
-        mode, new_pos, new_velo, at = int(NPV.CHANGE_POS), req["NewPos"], 0.0, 0.0
-    else:
-        mode, new_pos, new_velo, at = req["Mode"], req["NewPos"], req["NewVelo"], req["ActivationPos"]
-    if mode not in {int(m) for m in NPV}:
-        raise NcError(ErrorCodes.MC_INVALID_MODE, f"Mode {mode} is not an E_CmdTypeNewTargPosAndVelo")
+    mode, new_pos, new_velo, at = npv_request(req)
     if job.phase:
         raise NcError(ErrorCodes.MC_COMMAND_NOT_PERMITTED, "the axis is being stopped at a software limit")
-    base = mode & 3 if mode != int(NPV.REACH_VELO_AT_POS) else int(NPV.CHANGE_VELO)
-    if base & int(NPV.CHANGE_VELO):
-        core.check_velocity(i, new_velo)
-    if base & int(NPV.CHANGE_POS):
-        core.check_target(i, core.nc_set_pos(i), new_pos)
-    if mode in (int(NPV.CHANGE_POS), int(NPV.CHANGE_VELO), int(NPV.CHANGE_POSANDVELO)):
-        return apply_velocity_change(core, i, job, base, new_pos, new_velo)
-    arm_switch(core, i, job, mode, at, new_pos, new_velo)  # applied by the kind's watch
-    return None
+    return change_or_arm(core, i, job, mode, new_pos, new_velo, at, apply_velocity_change)
 
 
 def apply_velocity_change(core: CoreContext, i: int, job: Job, base: int, new_pos: float, new_velo: float) -> Plan:
