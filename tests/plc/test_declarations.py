@@ -10,6 +10,7 @@ import pytest
 import plc_client.fb  # noqa: F401  (imports every block module)
 from plc_client.axis_ref import _BIT_FIELDS, _STATE_FLAGS, ST_AxisStatus
 from plc_client.fb.base import FunctionBlock
+from znc_testing.plc_rig import all_blocks
 from plc_client.records import (
     _NC_MEMBERS, _PLC_MEMBERS, NCTOPLC_AXIS_REF, NCTOPLC_FIELDS, PLCTONC_AXIS_REF, PLCTONC_FIELDS,
 )
@@ -23,15 +24,6 @@ def _annotations(cls: type) -> dict[str, str]:
     return out
 
 
-def _all_blocks() -> list[type[FunctionBlock]]:
-    out: list[type[FunctionBlock]] = []
-    todo = list(FunctionBlock.__subclasses__())
-    while todo:
-        c = todo.pop()
-        if c not in out:
-            out.append(c)
-            todo.extend(c.__subclasses__())
-    return sorted(out, key=lambda c: c.__qualname__)
 
 
 def _type_name(default: Any) -> str | None:
@@ -42,7 +34,7 @@ def _type_name(default: Any) -> str | None:
     return None
 
 
-@pytest.mark.parametrize("block", _all_blocks(), ids=lambda c: c.__qualname__)
+@pytest.mark.parametrize("block", all_blocks(), ids=lambda c: c.__qualname__)
 def test_every_input_and_output_is_declared(block: type[FunctionBlock]) -> None:
     ann = _annotations(block)
     for table in ("_INPUTS", "_OUTPUTS"):
@@ -54,7 +46,7 @@ def test_every_input_and_output_is_declared(block: type[FunctionBlock]) -> None:
 
 
 def test_the_blocks_are_found() -> None:
-    names = {c.__name__ for c in _all_blocks()}
+    names = {c.__name__ for c in all_blocks()}
     assert {"MC_Power", "MC_MoveAbsolute", "MC_GearOut", "AXACT", "MC_OverrideFilter", "MC_PowerStepper"} <= names
 
 

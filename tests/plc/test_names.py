@@ -13,24 +13,15 @@ import plc_client
 from nc_schema import E_JogMode
 from plc_client import AXIS_REF, MC_GearIn, MC_MoveAbsolute, MC_MoveVelocity, MC_TouchProbe
 from plc_client.fb.base import ExecuteBlock, FunctionBlock
-from znc_testing.plc_rig import Rig, powered
+from znc_testing.plc_rig import Rig, all_blocks, powered
 
 
-def _all_blocks() -> list[type[FunctionBlock]]:
-    out: list[type[FunctionBlock]] = []
-    todo = list(FunctionBlock.__subclasses__())
-    while todo:
-        c = todo.pop()
-        if c not in out:
-            out.append(c)
-            todo.extend(c.__subclasses__())
-    return sorted(out, key=lambda c: c.__qualname__)
 
 
 def _instances() -> list[FunctionBlock]:
     """One instance of every concrete block (the abstract helpers that cannot be built are left out)."""
     out = []
-    for c in _all_blocks():
+    for c in all_blocks():
         try:
             out.append(c())
         except Exception:  # (an abstract base: built only through its subclasses)

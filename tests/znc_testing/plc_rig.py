@@ -19,6 +19,7 @@ from nc_server.drives.sim import SimDrive
 from nc_sim import InProcessPlc
 from plc_client import AXIS_REF, MC_Power, PlcTask
 from plc_client.port import CommandPort
+from plc_client.fb.base import FunctionBlock
 from znc_testing.until import step_until
 
 NC_CYCLE = 0.001
@@ -248,3 +249,16 @@ def run_move(nc: ScriptNc, fb: Any, cmdno: int, **inputs: Any) -> None:
     nc.set_jobs(active=(cmdno, ACTIVE))
     nc.cycle_once()
     assert fb.Busy and fb.Active
+
+
+def all_blocks() -> list[type[FunctionBlock]]:
+    """Every function block class of plc_client (each subclass of FunctionBlock, by qualified name)."""
+    import plc_client.fb  # noqa: F401  (imports every block module: their classes exist)
+    out: list[type[FunctionBlock]] = []
+    todo = list(FunctionBlock.__subclasses__())
+    while todo:
+        c = todo.pop()
+        if c not in out:
+            out.append(c)
+            todo.extend(c.__subclasses__())
+    return sorted(out, key=lambda c: c.__qualname__)
