@@ -1,0 +1,119 @@
+"""Issue 19: a PLC client pays only for its own axes. It declares its view (a liveliness token
+``nc/<nc>/select/<client>/<P>ms/<axes>``) and the NC's frame publisher puts the frame of those axes only on
+``nc/<nc>/view/<client>``; the view follows the client's AXIS_REFs, ends with the token, and a malformed
+token is ignored."""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+import zenoh
+
+from nc_schema import decode_frame, frame_header
+from plc_client import AXIS_REF
+from plc_client.runtime import PlcRuntime
+from znc_testing import NcServerProcess, start_nc_server, wait_until, zenoh_client_config
+
+T = 30.0
+
+CONFIG = "[nc]\nname = \"nc1\"\ncycle_time = 0.001\n" + "".join(
+    f"[[axis]]\nAxisId = {a}\nName = \"A{a}\"\n" for a in range(1, 9))
+
+
+class ViewWatch:
+    """A separate session that takes ``nc/nc1/view/<client>`` (AxisIds and Cycle of each frame)."""
+
+    def __init__(self, port: int, client: str) -> None:
+        self.session = zenoh.open(zenoh_client_config(port))
+        self.frames: list[tuple[int, list[int]]] = []
+        self._lock = threading.Lock()
+        self.sub = self.session.declare_subscriber(f"nc/nc1/view/{client}", self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        h, recs, _ = decode_frame(data)
+        with self._lock:
+            self.frames.append((int(h["Cycle"]), [int(a) for a in recs["AxisId"]]))
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self.frames)
+
+    def last_ids(self) -> list[int] | None:
+        with self._lock:
+            return self.frames[-1][1] if self.frames else None
+
+    def close(self) -> None:
+        self.sub.undeclare()
+        self.session.close()  # type: ignore[no-untyped-call]
+
+
+@pytest.fixture
+def nc(tmp_path: Path) -> Iterator[NcServerProcess]:
+    proc = start_nc_server(tmp_path, CONFIG)
+    try:
+        yield proc
+    finally:
+        proc.stop()
+
+
+def test_client_receives_only_its_axes_and_follows_new_ones(nc: NcServerProcess) -> None:
+    watch = ViewWatch(nc.port, "viewplc")
+    plc = PlcRuntime(None, {"nc1": nc.endpoint}, client_id="viewplc",
+                     axes=[AXIS_REF("nc1", 5), AXIS_REF("nc1", 2)])
+    try:
+        assert plc.links["nc1"].view_period == 5
+        plc.start()
+        wait_until(lambda: watch.last_ids() == [2, 5], T, "view frames of axes 2 and 5")
+        ax2 = plc.axes[1] if plc.axes[1].axis_id == 2 else plc.axes[0]
+        wait_until(lambda: ax2.NcToPlc["AxisId"] == 2 and ax2.Status.Disabled, T, "axis 2's data in the task")
+        # a frame every 5 ms of NC time, not every cycle: (1 ms cycle) far fewer frames than cycles
+        n0, c0 = watch.count(), watch.frames[-1][0]
+        wait_until(lambda: watch.frames[-1][0] - c0 >= 200, T, "200 NC cycles of view frames")
+        got = watch.count() - n0
+        cycles = watch.frames[-1][0] - c0
+        assert 0 < got <= cycles // 5 + 2, (got, cycles)
+        # an AXIS_REF bound later joins the view; the task reads it
+        ax7 = plc.axis("nc1", 7)
+        wait_until(lambda: watch.last_ids() == [2, 5, 7], T, "the view with axis 7")
+        wait_until(lambda: ax7.NcToPlc["AxisId"] == 7, T, "axis 7's data in the task")
+    finally:
+        plc.stop()
+        watch.close()
+
+
+def test_view_ends_with_its_token_and_bad_tokens_are_ignored(nc: NcServerProcess) -> None:
+    watch = ViewWatch(nc.port, "tok")
+    bad = ViewWatch(nc.port, "bad")
+    s = zenoh.open(zenoh_client_config(nc.port))
+    try:
+        for key in ("nc/nc1/select/bad/3ms/1", "nc/nc1/select/bad/5ms/2,1", "nc/nc1/select/bad/5ms/01",
+                    "nc/nc1/select/bad/5ms/x", "nc/nc1/select/bad/5ms/1/2"):
+            s.liveliness().declare_token(key)
+        token = s.liveliness().declare_token("nc/nc1/select/tok/0ms/3,99")  # 99: not on this NC
+        wait_until(lambda: watch.count() >= 50, T, "view frames of tok")
+        assert watch.last_ids() == [3]
+        # every NC cycle (0 ms): consecutive Cycles
+        cycles = [c for c, _ in watch.frames[-20:]]
+        assert max(b - a for a, b in zip(cycles, cycles[1:])) <= 3, cycles
+        token.undeclare()
+        # the view ends: no frame for 0.5 s (within the deadline)
+        state = {"n": watch.count(), "since": 0.0}
+        import time
+
+        def quiet() -> bool:
+            n = watch.count()
+            now = time.monotonic()
+            if n != state["n"] or not state["since"]:
+                state["n"], state["since"] = n, now
+                return False
+            return now - state["since"] >= 0.5
+        wait_until(quiet, T, "the view to stop after its token went")
+        assert bad.count() == 0, "a malformed view token must be ignored"
+        assert nc.proc.poll() is None
+    finally:
+        s.close()  # type: ignore[no-untyped-call]
+        watch.close()
+        bad.close()
