@@ -14,7 +14,7 @@ import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
-    VIEW_PERIODS_MS, ErrorCodes, Keys, NcInstance, make_request, parse_alive_instance, parse_reply, unpack,
+    MAX_VIEW_AXES, VIEW_PERIODS_MS, ErrorCodes, Keys, NcInstance, make_request, parse_alive_instance, parse_reply, unpack,
 )
 from nc_schema.zenoh_config import DEFAULT_LEASE_MS
 
@@ -68,8 +68,9 @@ class NcLink:
 
     Attributes:
         keys: the NC's key builder. ready: the session is open and declared. session: the zenoh session.
-        frames, alive_sub, instance_sub, claims_sub, token, pub, view_token: the declarations (None before
-            :meth:`open`). view_axes: the axes of the view (:meth:`select`).
+        frames, alive_sub, instance_sub, claims_sub, token, pub: the declarations (None before :meth:`open`).
+        view_tokens: the view's liveliness tokens (one per MAX_VIEW_AXES axes). view_axes: the axes of the view
+            (:meth:`select`).
         instance: the NC instance followed (:class:`nc_schema.NcInstance`).
         nc_alive_seen, nc_gone: the NC's liveliness token was seen / is gone now.
         last_error: why the last :meth:`open` failed.
@@ -94,8 +95,8 @@ class NcLink:
             raise ValueError(f"view period {view_period!r} ms: use one of {VIEW_PERIODS_MS}")
         self.view_period = view_period
         self.view_axes: tuple[int, ...] = ()
-        self.view_token: Any = None
-        self._view_key = ""
+        self.view_tokens: list[Any] = []
+        self._view_keys: list[str] = []
         self._view_lock = threading.Lock()  # select() on the PLC thread, open() on the reconnect thread
         self.session: zenoh.Session | None = None
         self.frames: Any = None
@@ -148,43 +149,57 @@ class NcLink:
         self.session = s
         self.ready = True
         if self.view_period is not None:
-            self.view_token, self._view_key = None, ""  # (a token of an earlier session went with it)
+            self.view_tokens, self._view_keys = [], []  # (the tokens of an earlier session went with it)
             self._declare_view()
         return True
 
     # ---- the view -----------------------------------------------------------------------------------------------
     def select(self, axes: Iterable[int]) -> None:
         """The axes of this client's view (with ``view_period``): from now on the NC sends the frames of these
-        axes only (a new token is declared before the old one goes, so no frame is missed). Does nothing
-        without ``view_period`` or when the set is unchanged.
+        axes only (the new tokens are declared before the old ones go, so no frame is missed; more than
+        ``nc_schema.MAX_VIEW_AXES`` axes take several tokens, which the NC joins). Does nothing without
+        ``view_period`` or when the set is unchanged.
 
         Raises:
-            ValueError: a negative id or more than ``nc_schema.MAX_VIEW_AXES`` axes.
+            ValueError: a negative id.
         """
         ids = tuple(sorted({int(a) for a in axes}))
         if self.view_period is None or ids == self.view_axes:
             return
-        self.keys.view_select(self.client_id, self.view_period, ids)  # (checked before anything changes)
+        if ids and ids[0] < 0:
+            raise ValueError(f"invalid axis id {ids[0]}")
         self.view_axes = ids
         if self.ready:
             self._declare_view()
 
-    def _declare_view(self) -> None:
+    def _view_token_keys(self) -> list[str]:
         assert self.view_period is not None
+        ids, n = self.view_axes, MAX_VIEW_AXES
+        chunks = [ids[i:i + n] for i in range(0, len(ids), n)] or [()]
+        return [self.keys.view_select(self.client_id, self.view_period, c) for c in chunks]
+
+    def _declare_view(self) -> None:
         with self._view_lock:
-            key = self.keys.view_select(self.client_id, self.view_period, self.view_axes)
+            keys = self._view_token_keys()
             s = self.session
-            if s is None or key == self._view_key:
+            if s is None or keys == self._view_keys:
                 return
+            tokens: list[Any] = []
             try:
-                token = s.liveliness().declare_token(key)
+                for key in keys:
+                    tokens.append(s.liveliness().declare_token(key))
             except Exception as exc:  # session closing
                 self.last_error = str(exc)
+                for t in tokens:
+                    try:
+                        t.undeclare()
+                    except Exception:
+                        pass
                 return
-            old, self.view_token, self._view_key = self.view_token, token, key
-            if old is not None:
+            old, self.view_tokens, self._view_keys = self.view_tokens, tokens, keys
+            for t in old:
                 try:
-                    old.undeclare()
+                    t.undeclare()
                 except Exception:
                     pass
 
@@ -193,7 +208,7 @@ class NcLink:
         which closing the session ends) and close the session. Idempotent, never raises."""
         self.ready = False
         if undeclare:
-            for d in (self.view_token, self.token, self.pub, self.alive_sub, self.instance_sub, self.claims_sub,
+            for d in (*self.view_tokens, self.token, self.pub, self.alive_sub, self.instance_sub, self.claims_sub,
                       self.frames):
                 if d is not None:
                     try:
@@ -201,7 +216,7 @@ class NcLink:
                     except Exception:
                         pass
             self.token = self.pub = self.alive_sub = self.instance_sub = self.claims_sub = self.frames = None
-            self.view_token, self._view_key = None, ""
+            self.view_tokens, self._view_keys = [], []
         if self.session is not None:
             try:
                 self.session.close()  # type: ignore[no-untyped-call]  # (zenoh's stub leaves close() unannotated)

@@ -328,7 +328,7 @@ class PlcRuntime(PlcTask):
             if link is not None:
                 try:
                     link.select(a for n, a in self._refs if n == nc)
-                except ValueError as exc:  # more than MAX_VIEW_AXES axes of one NC, a negative id: the old view stays
+                except ValueError as exc:  # (AXIS_REF ids are 1..65535: not expected) the old view stays
                     log.error("NC %s: view not changed: %s", nc, exc)
 
     def _on_new_axis(self, ax: AXIS_REF) -> None:
