@@ -37,8 +37,9 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the test helpers (znc_testing)
+from bench.common import Busy, use_this_tree, verdict  # noqa: E402
 
+use_this_tree()  # this checkout and its test helpers (znc_testing), also for nc-server and nc-ads
 from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
 from znc_testing import NcTestClient, free_port, start_nc_server, wait_until  # noqa: E402
@@ -109,6 +110,7 @@ def main() -> int:
             return (time.perf_counter_ns() - t0) / 1000.0
 
         state_t = pyads.PLCTYPE_BYTE * 256
+        busy_rt = Busy()
         for _ in range(100):  # warm-up
             zget(raw_cl.session, RAW_KEY, b"x")
             ads_read(0x4101, 0, state_t)
@@ -120,6 +122,7 @@ def main() -> int:
             res["ADS 0x4101 state read"] += [ads_read(0x4101, 0, state_t) for _ in range(n_block)]
             res["ADS parameter read"] += [ads_read(0x4001, 0x27, pyads.PLCTYPE_LREAL) for _ in range(n_block)]
 
+        busy_rt.stop()
         # ---- notification latency on a moving axis ----
         plc.write(0x4301, 0x01, 0x7, pyads.PLCTYPE_UDINT)  # Enable + feed enables (claims axis 1)
         wait_until(lambda: struct.unpack_from("<I", bytes(plc.read(0x4101, 0, state_t)), 104)[0] & (1 << 20), 20,
@@ -149,7 +152,9 @@ def main() -> int:
         sub = cl.session.declare_subscriber("nc/nc1/frame/2ms", on_frame)
         attr = pyads.NotificationAttrib(256, pyads.ADSTRANS_SERVERONCHA, 0, 1)
         handles = plc.add_device_notification((0x4301, 0x80), attr, on_nctoplc)
+        busy_nt = Busy()
         time.sleep(args.seconds)
+        busy_nt.stop()
         plc.del_device_notification(*handles)  # before close (pyads segfaults otherwise)
         sub.undeclare()
         plc.write(0x4201, 0x02, None, None)  # stop
@@ -175,8 +180,10 @@ def main() -> int:
         print(f"{'':>22}  ADS p50 {np.percentile(notif_age, 50) / np.percentile(raw_age, 50):4.1f}x the raw zenoh "
               "frame age (nc-ads takes nc/nc1/frame/2ms and pushes on-change samples when a frame arrives "
               "(not on its 2 ms tick))")
+    print(f"the machine during the round trips: {busy_rt.text()}; during the notifications: {busy_nt.text()}")
     print(f"before: {floor0}")
     print(f"after:  {floor1}")
+    verdict("ads_rtt", [], f"{busy_rt.share:.0f} % / {busy_nt.share:.0f} % busy")
     return 0
 
 

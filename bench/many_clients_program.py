@@ -168,6 +168,9 @@ class Program:
         self._stopping = stopping
         for a in self.axes:
             a.cycle(stopping)
+        if HOLD and not self._all_powered and all(a.power.Status for a in self.axes):
+            self._all_powered = True
+            self.next_report = 0.0  # report it now (bench/subscribers.py waits for it)
         now = time.monotonic()
         done = not HOLD and stopping and all(not a.execute and not a.reqs and not a.task_pending() for a in self.axes)
         if (now >= self.next_report and not self.final) or (done and not self.final):
@@ -181,3 +184,4 @@ class Program:
             os.replace(tmp, REPORT)
 
     _stopping = False
+    _all_powered = False
