@@ -128,18 +128,30 @@ class _TapSession:
         return getattr(self._s, name)
 
     def get(self, key: Any, handler: Any = None, **kw: Any) -> Any:
-        if "/cmd/" not in str(key) or handler is None or callable(handler) or isinstance(handler, tuple):
+        k = str(key)
+        if "/cmd/" not in k or handler is None:
             return self._s.get(key, handler, **kw)
-        rx = _TapRx()
-        on_reply, k = self._on_reply, str(key)
+        on_reply = self._on_reply
 
-        def arrived(reply: Any) -> None:
+        def note(reply: Any) -> None:
             t = time.perf_counter()
             try:
                 r = msgpack.unpackb(reply.ok.payload.to_bytes(), strict_map_key=False) if reply.ok is not None else None
             except Exception:
                 r = None
             on_reply(k, r if isinstance(r, dict) else None, t)
+
+        if isinstance(handler, tuple) and len(handler) == 2 and callable(handler[0]):  # (callback, handler object)
+            cb0 = handler[0]
+            return self._s.get(key, (lambda reply: (note(reply), cb0(reply))[1], handler[1]), **kw)
+        if callable(handler) and not isinstance(handler, zenoh.handlers.Callback):  # a plain Python callback
+            return self._s.get(key, lambda reply: (note(reply), handler(reply))[1], **kw)
+        if not isinstance(handler, (zenoh.handlers.FifoChannel, zenoh.handlers.RingChannel)):
+            return self._s.get(key, handler, **kw)  # not one we can stand in for: untapped
+        rx = _TapRx()
+
+        def arrived(reply: Any) -> None:
+            note(reply)
             rx.items.append(reply)
 
         def dropped() -> None:

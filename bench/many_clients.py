@@ -199,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
     tree = Path(args.tree).resolve() if args.tree else REPO
     env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(tree))
     stop_file = tmp / "stop"
-    print(f"many_clients: {n} plc-run x {AXES_PER_CLIENT} axes, NC {n * AXES_PER_CLIENT} axes at 1 ms, "
+    print(f"many_clients: {n} plc-run x {AXES_PER_CLIENT} axes, NC {n_axes} axes at 1 ms, "
           f"PLC {args.plc_cycle * 1e3:g} ms, window {args.seconds:g} s"
           f"{'' if args.isolate_cpu is None else f'; NC cycle thread alone on CPU {args.isolate_cpu}, clients on the others'}"
           f"; code under test {tree}; logs in {tmp}", flush=True)
@@ -327,7 +327,10 @@ def run(args: argparse.Namespace) -> int:
             obs = json.loads(observer.stdout.readline())
         fb = None
         if args.fb_trials:  # the clients still move: the fb latency under their load
-            fb = fb_under_load(endpoint, n * AXES_PER_CLIENT + 1, args.fb_trials, args.plc_cycle)
+            try:
+                fb = fb_under_load(endpoint, n * AXES_PER_CLIENT + 1, args.fb_trials, args.plc_cycle)
+            except Exception as exc:  # the load's verdict stands without it
+                fb = {"error": f"{exc.__class__.__name__}: {exc}"}
 
         # ---- stop sending, wait for the final reports ----------------------------------------------
         stop_file.touch()
@@ -511,7 +514,10 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
          f"-> {mark(pl_mean <= PLC_CPU_MAX)}", pl_mean <= PLC_CPU_MAX),
     ]
     fb_goals: list[tuple[str, bool]] = []
-    if r.get("fb"):
+    if r.get("fb") and "error" in r["fb"]:
+        print(f"FB latency under the load: CRASHED: {r['fb']['error']}")
+        fb_goals = [("goal: FB latency under the load: not measured (crashed) -> NOT MET", False)]
+    elif r.get("fb"):
         from bench.fb_latency import report as fb_report
         f = r["fb"]
         print(f"== FB latency under the load ({n_cl} clients moving; MC_MoveRelative on axis {f['axis']} from this "
