@@ -720,10 +720,10 @@ def ratio(a: float, b: float) -> str:
 
 def goal_summary(res: dict[tuple[str, str, int], Point]) -> bool:
     """The issue's goals, each as the same-run ratio new p99 / floor p99 with the figures beside it; True if all met."""
-    from common import goal_line, verdict  # bench/ is this script's sys.path[0]
+    from common import goal_line, mark  # bench/ is this script's sys.path[0]
     print()
     print("== goals (issue 19): work p99 of the new engine / the same run's floor p99 ==")
-    lines: list[tuple[str, bool]] = []
+    met: list[bool] = []
     missing = []
     for (load, n), g in GOALS.items():
         pn, pf = res.get(("new", load, n)), res.get(("floor", load, n))
@@ -739,11 +739,12 @@ def goal_summary(res: dict[tuple[str, str, int], Point]) -> bool:
         text, ok = goal_line(what, a / f, g, f"new p99 {a:.0f} us, floor p99 {f:.0f} us; machine "
                              f"{pn.busy():.0f} % / {pf.busy():.0f} % busy in the new / floor windows"
                              + (f"; start_rejected {bad}: NOT a valid point" if bad else ""))
-        lines.append((text, ok and not bad))
-    ok = verdict("nc_cycle", lines)
-    if missing:
-        print(f"nc_cycle: {len(missing)} goal point(s) NOT MEASURED: {'; '.join(missing)}")
-    return ok and not missing
+        print(text)
+        met.append(ok and not bad)
+    ok = all(met) and not missing
+    print(f"nc_cycle: goals {sum(met)} of {len(GOALS)} met" + (f", {len(missing)} NOT MEASURED" if missing else "")
+          + f" -> {mark(ok)}")
+    return ok
 
 
 def report(res: dict[tuple[str, str, int], Point], engines: list[str], labels: dict[str, str],
