@@ -151,14 +151,15 @@ def run(args: argparse.Namespace) -> int:
     print()
     print(f"== the NC's CPU by subscribing clients (NC {n_axes} axes, 1 ms; % of one core over {args.seconds:g} s) ==")
     print(f"{'subscribers':>11} | {'NC proc':>7} {'publisher':>9} {'sum':>6} | {'sum / at 1':>10} {'per client':>10} | "
-          f"{'plc-run':>7} | {'missed':>7} {'machine busy':>12}")
+          f"{'plc-run':>7} | {'missed':>7} {'faults':>6} {'machine busy':>12}")
     base = next((r for r in rows if r["subs"] == 0), None)
     one = next((r for r in rows if r["subs"] == 1), None)
     for r in rows:
         rel = f"{r['total'] / one['total']:9.2f}x" if one and one["total"] > 0 else f"{'-':>10}"
         per = (f"{(r['total'] - base['total']) / r['subs']:9.2f} %" if base and r["subs"] else f"{'-':>10}")
-        print(f"{r['subs']:>11} | {r['nc']:7.1f} {r['pub']:9.1f} {r['total']:6.1f} | {rel} {per} | {r['plc']:7.2f} | "
-              f"{100.0 * r['missed'] / max(1, r['due']):6.2f}% {r['busy']:11.0f}%")
+        plc = f"{r['plc']:7.2f}" if r["subs"] else f"{'-':>7}"
+        print(f"{r['subs']:>11} | {r['nc']:7.1f} {r['pub']:9.1f} {r['total']:6.1f} | {rel} {per} | {plc} | "
+              f"{100.0 * r['missed'] / max(1, r['due']):6.2f}% {r['faults']:6d} {r['busy']:11.0f}%")
     print("(sum / at 1: the NC's CPU (process + publisher children) at N subscribers over its CPU at 1, same run; per client: "
           "(sum at N - sum at 0) / N; machine busy: /proc/stat over the window, of "
           f"{100 * (os.cpu_count() or 1)} %)")
