@@ -23,6 +23,8 @@ from typing import Iterable
 
 REPO = Path(__file__).resolve().parents[1]
 TESTS = REPO / "tests"
+#: when this bench started (its first import of this module): the summary line says how long it ran
+T0 = time.monotonic()
 
 
 def use_this_tree() -> None:
@@ -129,11 +131,17 @@ def verdict(bench: str, goals: Iterable[tuple[str, bool]], busy: str = "") -> bo
         print(text)
     ok = all(g for _, g in goals)
     n_met = sum(1 for _, g in goals if g)
+    tail = f" (machine {busy}; run {elapsed():.0f} s)" if busy else f" (run {elapsed():.0f} s)"
     if goals:
-        print(f"{bench}: goals {n_met} of {len(goals)} met -> {mark(ok)}" + (f" (machine {busy})" if busy else ""))
+        print(f"{bench}: goals {n_met} of {len(goals)} met -> {mark(ok)}{tail}")
     else:
-        print(f"{bench}: no goal set (figures only)" + (f" (machine {busy})" if busy else ""))
+        print(f"{bench}: no goal set (figures only){tail}")
     return ok
+
+
+def elapsed() -> float:
+    """Seconds since this bench started (T0)."""
+    return time.monotonic() - T0
 
 
 def pct(xs: Iterable[float], p: float) -> float:

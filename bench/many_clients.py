@@ -84,7 +84,7 @@ import numpy as np
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
 sys.path.insert(0, str(REPO))
-from bench.common import Busy, children, cpu_ticks, goal_line, machine_ticks, mark, use_this_tree  # noqa: E402,F401
+from bench.common import Busy, children, cpu_ticks, elapsed, goal_line, machine_ticks, mark, use_this_tree  # noqa: E402,F401
 
 use_this_tree()
 from bench.noise_floor import calibrate, run_floor  # noqa: E402
@@ -540,6 +540,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
           f"{mark(all(g for _, g in cpu_goals))}")
     if fb_goals:
         print(f"many_clients: FB latency goals under the load {mark(all(g for _, g in fb_goals))}")
+    print(f"(many_clients: run {elapsed():.0f} s)")
     return 0 if ok or not args.strict else 1
 
 
