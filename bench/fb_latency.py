@@ -211,9 +211,10 @@ def measure(endpoint: str, axis_id: int, trials: int, plc_cycle: float, nc: str 
             st["settle"] += 1
             if st["settle"] < 3:  # a few cycles at standstill between trials
                 return
-            st.update(got=False, reply_seen=False, t_edge=time.perf_counter())
+            # "wait" before the call: the request goes out inside it, and its reply may arrive (zenoh's thread)
+            # before the call returns
+            st.update(got=False, reply_seen=False, phase="wait", t_edge=time.perf_counter())
             move(Axis=X, Execute=True, Distance=5.0 * st["sign"], Velocity=400.0)
-            st["phase"] = "wait"
             return
         move(Axis=X)
         now = time.perf_counter()
@@ -268,8 +269,9 @@ def report(raw: list[float], raw_busy: Busy, m: dict[str, Any], plc_cycle: float
     print(f"Execute edge -> the PLC task has the reply:        {fmt(m['seen_reply'])}  (collected at its cycle start)")
     print(f"Execute edge -> block Active (its command runs):   {fmt(m['active'])}")
     ref = m["refused"]
+    unseen = m["trials"] - len(m["accept"]) - sum(ref.values())
     print(f"trials {m['trials']}: replies accepted {len(m['accept'])}, refused {sum(ref.values())}"
-          + "".join(f", 0x{c:04X} x{n}" for c, n in sorted(ref.items()))
+          + "".join(f", 0x{c:04X} x{n}" for c, n in sorted(ref.items())) + f", not seen by the tap {unseen}"
           + f"; reply tap on {m['tapped']} link(s){'' if m['tapped'] else ' (NONE: no reply times)'}; "
           f"machine during the trials {m['busy'].text()}")
     print(f"(NC cycle {NC_CYCLE_S * 1e3:g} ms, PLC cycle {plc_cycle * 1e3:g} ms: a block sees frames and replies only "
