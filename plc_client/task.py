@@ -611,14 +611,13 @@ class PlcTask:
         index = self._index_cache.get(nc)
         if index is None or index[0] != key:  # the NC's axes rarely change: keep the AxisId -> row map
             index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
-        frame = self._frames[nc] = (int(cycle), records, index[1], jobs)
-        self._frame_bytes[nc] = (frame, records.tobytes(), None if jobs is None else jobs.tobytes())
+        self._frames[nc] = (int(cycle), records, index[1], jobs)
 
     def _bytes_of(self, nc: str, frame: _FrameEntry) -> tuple[_FrameEntry, bytes, bytes | None]:
         """(frame, its NCTOPLC records' bytes, its NCJOBS records' bytes or None): one copy of each per frame
-        (made by :meth:`_set_frame`; again here for a frame entry put in ``_frames`` otherwise), from which
-        the axes' snapshots are sliced: immutable, so nothing the NC or the transport does to its arrays
-        afterwards reaches them."""
+        entry of ``_frames``, made when the first axis takes its snapshot of it (a task without axes copies
+        nothing), from which the axes' snapshots are sliced: immutable, so nothing the NC or the transport
+        does to its arrays afterwards reaches them."""
         got = self._frame_bytes.get(nc)
         if got is None or got[0] is not frame:
             jobs = frame[3]
