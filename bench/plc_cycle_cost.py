@@ -69,7 +69,7 @@ class Axis:
                 self.step = 0
 
 
-axes = [Axis(k) for k in range(N_CLIENT)] if mode == "prog" else []
+axes = [Axis(k) for k in range(N_CLIENT)] if mode in ("prog", "bound") else []
 
 
 def program(plc):
@@ -88,7 +88,7 @@ class Bench(InProcessPlc):
         self.out = (frame, axes)
 
 
-plc = Bench(core, program if mode == "prog" else None, axes=[a.ax for a in axes])
+plc = Bench(core, program if mode == "prog" else None, axes=[a.ax for a in axes])  # bound: axes, no program
 
 
 def wire():
@@ -159,7 +159,7 @@ def main() -> None:
     ap.add_argument("--frame-axes", default="64,4", help="records per status frame (comma list)")
     ap.add_argument("--cycles", type=int, default=3000)
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--modes", default="prog,idle", help="prog (the 4-axis program), idle (no program, no axes)")
+    ap.add_argument("--modes", default="prog,idle", help="prog (the 4-axis program), idle (no program, no axes), bound (the 4 axes bound, no program)")
     ap.add_argument("--profile", type=int, default=0, help="cProfile this many cycles (program, first frame size)")
     a = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1])
