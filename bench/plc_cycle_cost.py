@@ -6,13 +6,15 @@ MC_MoveAbsolute back and forth, axis 4 an MC_MoveVelocity alternating its direct
 no axes). Only ``task.step()`` is timed, and the transport's own parts are done as the zenoh runtime
 does them: the status frame is taken from the bytes of an encoded frame (``decode_frame``, as
 ``PlcRuntime._take_frames``: ``--frame-axes`` records in it, 64 as the bench NC sends today, 4 with a
-per-client selection) and the PLCTONC frame is the runtime's own (``plc_client.runtime.plc_frame``),
-handed to the NC after the timed step. The in-process port runs the NC's handler inside ``send`` (a
-few times a second); ``--profile`` shows how much of the total that is.
+per-client selection) and the PLCTONC frame is the one the runtime sends (``PlcTask.plc_frame``; before it,
+``plc_client.runtime.plc_frame``),
+handed to the NC after the timed step, as are the commands the blocks send (the in-process port would run
+the NC's handler inside ``send``).
 
     .venv/bin/python bench/plc_cycle_cost.py                  # figures: us per step p50/p99, thread CPU
     .venv/bin/python bench/plc_cycle_cost.py --profile 2000   # cProfile of 2000 cycles, top functions
     .venv/bin/python bench/plc_cycle_cost.py --tree /work/main   # also another checkout, interleaved
+    .venv/bin/python bench/plc_cycle_cost.py --instructions 200 --tree /work/main  # instructions per step (valgrind)
 
 NC 1 ms, PLC 10 ms (10 NC steps per PLC cycle, not timed).
 """
@@ -23,6 +25,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 WORKER = r"""
@@ -89,6 +92,10 @@ class Bench(InProcessPlc):
 
 
 plc = Bench(core, program if mode == "prog" else None, axes=[a.ax for a in axes])  # bound: axes, no program
+# requests reach the NC after the timed step (a real client's send is a zenoh get: the NC's work is not the PLC's)
+_sent = []
+_transmit = plc.port._transmit
+plc.port._transmit = lambda pending, payload: _sent.append((pending, payload))
 
 
 def wire():
@@ -98,6 +105,8 @@ def wire():
 
 
 def nc_side():
+    while _sent:
+        _transmit(*_sent.pop(0))
     out = getattr(plc, "out", None)
     if out is not None:
         frame, ax = out
@@ -124,7 +133,15 @@ def run(n, timed):
     return wall, cpu
 
 
-run(300, False)  # powered, moving
+run(300 if profile >= 0 else 80, False)  # powered, moving
+if profile < 0:  # under callgrind (--instructions): the steps run inside operator.call, the only code it counts
+    import operator
+    for _ in range(-profile):
+        wire()
+        operator.call(plc.step)
+        nc_side()
+    print(json.dumps({"cycles": -profile, "moves": sum(a.n for a in axes)}))
+    sys.exit(0)
 if profile:
     pr = cProfile.Profile(time.thread_time_ns, 1e-9)
     orig = plc.step
@@ -153,6 +170,20 @@ def run(tree: str, mode: str, frame_axes: int, cycles: int, profile: int = 0) ->
                           cwd=tree, capture_output=True, text=True, check=True).stdout
 
 
+def instructions(tree: str, mode: str, frame_axes: int, cycles: int) -> float:
+    """Instructions per PLC step (valgrind's callgrind, counting only inside the steps): what a step costs,
+    whatever else the machine runs (thread CPU times on a loaded machine vary by 2x and more)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "cg.out"
+        subprocess.run(["valgrind", "--tool=callgrind", "--toggle-collect=_operator_call", f"--callgrind-out-file={out}",
+                        sys.executable, "-c", WORKER, mode, str(frame_axes), "0", str(-cycles)],
+                       env=dict(os.environ, PYTHONPATH=tree), cwd=tree, capture_output=True, text=True, check=True)
+        for line in out.read_text().splitlines():
+            if line.startswith(("summary:", "totals:")):
+                return int(line.split()[1]) / cycles
+    raise RuntimeError("callgrind wrote no totals")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tree", help="another checkout to measure in the same run")
@@ -161,9 +192,20 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--modes", default="prog,idle", help="prog (the 4-axis program), idle (no program, no axes), bound (the 4 axes bound, no program)")
     ap.add_argument("--profile", type=int, default=0, help="cProfile this many cycles (program, first frame size)")
+    ap.add_argument("--instructions", type=int, default=0, metavar="CYCLES",
+                    help="instead: instructions per step under valgrind (callgrind), CYCLES steps per mode and tree")
     a = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1])
     sizes = [int(x) for x in a.frame_axes.split(",")]
+    trees0 = [("this", here)] + ([("other", a.tree)] if a.tree else [])
+    if a.instructions:
+        print(f"instructions per PLC step (callgrind, {a.instructions} steps each; load-independent)")
+        for n in sizes:
+            for mode in a.modes.split(","):
+                for name, tree in trees0:
+                    print(f"{name:6} {mode:6} frame {n:3d}: {instructions(tree, mode, n, a.instructions) / 1e3:9.1f} k",
+                          flush=True)
+        return
     if a.profile:
         print(run(here, "prog", sizes[0], 0, a.profile))
         return

@@ -246,8 +246,9 @@ class AXIS_REF:
             ``X.NcToPlc.SetPos`` ... as plain Python values; ``X.NcToPlc["SetPos"]`` is the same).
         PlcToNc: writable PLCTONC record published for a controlled axis
             (:class:`~plc_client.records.PLCTONC_AXIS_REF`: ``X.PlcToNc.Override = 500000``).
-        NcJobs: read-only NCJOBS_AXIS_REF snapshot (zenoh-nc): the axis's command queue and the
-            fates of its last ended commands, so a block sees how its own command ended.
+        NcJobs: read-only NCJOBS_AXIS_REF snapshot (zenoh-nc, a numpy record): the axis's command queue
+            and the fates of its last ended commands, so a block sees how its own command ended (the
+            blocks read the same record as plain values, ``_jobs``: :class:`~plc_client.records.NcJobsValues`).
         Status: :class:`ST_AxisStatus`, refreshed every PLC cycle.
         nc_epoch: incremented once each time the NC is seen to restart (a new instance in the
             frames: its cycle went back).

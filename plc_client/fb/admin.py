@@ -125,8 +125,10 @@ class MC_Power(FunctionBlock):
                 cdw |= _FM
         if cdw != old:  # (the same value every cycle but when the enables change)
             plctonc.ControlDWord = cdw
-        ov_ok = _valid_override(self.Override)
-        if ov_ok and self.Override != self._written_override:
+        ov = self.Override
+        # (the very object written last was checked then: a float or an int does not change)
+        ov_ok = (ov is self._written_override and type(ov) in (float, int)) or _valid_override(ov)
+        if ov_ok and ov != self._written_override:
             plctonc.Override = override_to_plctonc(self.Override)
             self._written_override = self.Override
         if not en:

@@ -200,7 +200,7 @@ class FunctionBlock:
     def _axis_problem(self) -> int:
         """0 if the Axis has valid data, else the error code to report."""
         ax = self.Axis
-        if ax is None or self._task() is None:
+        if ax is None or (ax._task is None and self._task() is None):  # (bound: no call)
             return ErrorCodes.MC_NO_NC_CYCLE_UPDATE
         if ax.missing:
             return ErrorCodes.NC_AXIS_ID_NOT_ALLOWED
