@@ -379,7 +379,8 @@ class PlcRuntime(PlcTask):
         if link is None or not link.ready:
             return
         try:
-            link.publish(plc_frame(self.cycle, axes))
+            # the task's preallocated frame; bytes(): NcLink.publish takes bytes (zenoh would copy a bytearray too)
+            link.publish(bytes(self.plc_frame(nc, axes)))
         except Exception as exc:  # session closing
             log.debug("PLCTONC put failed: %s", exc)
 

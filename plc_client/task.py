@@ -60,8 +60,8 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from nc_schema import (COMMAND_SPECS, MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, NcInstance, StateDWord,
-                       error_text)
+from nc_schema import (COMMAND_SPECS, MOTION_COMMANDS, NCJOBS_SIZE, NCTOPLC_SIZE, CmdState, ControlDWord, ErrorCodes,
+                       NcInstance, StateDWord, error_text)
 
 # The command sets come from the contract's command properties (protocol.json, nc_schema.COMMAND_SPECS).
 #: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): ``slot``
@@ -72,6 +72,7 @@ _AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
 from .axis_ref import AXIS_REF
+from .plcframe import PlcFrameBuffer
 from .port import CommandPort, PendingCommand, reply_cycle
 
 log = logging.getLogger(__name__)
@@ -92,6 +93,10 @@ HANDOVER_POLL = 0.05
 LOST_COMMAND_TTL = 600.0
 #: what stops a motion command nobody follows any more, where it is not the default Halt: ``undo``
 _UNDO = {n: s.undo for n, s in COMMAND_SPECS.items() if s.motion and not s.stop and s.undo != ("Halt",)}
+
+
+#: a frame as the task keeps it: (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None)
+_FrameEntry = tuple[int, np.ndarray, dict[int, int], "np.ndarray | None"]
 
 
 def current_task() -> PlcTask | None:
@@ -229,10 +234,16 @@ class PlcTask:
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
         #: NC -> (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None) of its newest frame
-        self._frames: dict[str, tuple[int, np.ndarray, dict[int, int], np.ndarray | None]] = {}
+        self._frames: dict[str, _FrameEntry] = {}
+        #: NC -> (its ``_frames`` entry, the bytes of its records): :meth:`_bytes_of`
+        self._frame_bytes: dict[str, tuple[_FrameEntry, bytes, bytes | None]] = {}
         #: each NC's instance as its instance token and frames show it: the restart rule (nc_schema.instance)
         self._instances: dict[str, NcInstance] = {}
         self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
+        #: the controlled axes by NC, as :meth:`_publish_all` sends them (None: rebuild, they changed)
+        self._plan: list[tuple[str, list[AXIS_REF]]] | None = None
+        #: NC -> its PLC frame's buffer (:meth:`plc_frame`)
+        self._frame_bufs: dict[str, PlcFrameBuffer] = {}
         self._initial_axes = list(axes)  # bound by bind_axes() once the subclass has its transport
 
     def bind_axes(self, axes: Iterable[AXIS_REF] | None = None) -> list[AXIS_REF]:
@@ -308,7 +319,10 @@ class PlcTask:
             if prev is not None:
                 log.warning("%r: a second AXIS_REF object controls the same axis; the newest one is published", ax)
             self._controlled[key] = ax
-        c = self._claims.setdefault(key, ClaimState())
+            self._plan = None
+        c = self._claims.get(key)
+        if c is None:
+            c = self._claims[key] = ClaimState()
         if not self.reachable(ax.nc):
             return c  # claimed as soon as the NC can be reached
         if c.state == "handed":
@@ -333,8 +347,8 @@ class PlcTask:
         """We enable the axis, the NC shows it neither enabled nor in error, for claim_retry."""
         if not ax.Status.Valid or self.now - c.since < self.claim_retry:
             return False
-        sd = int(ax.NcToPlc["StateDWord"])
-        enabling = int(ax.PlcToNc["ControlDWord"]) & _ENABLE
+        sd = ax.NcToPlc.StateDWord
+        enabling = ax.PlcToNc.ControlDWord & _ENABLE
         return bool(enabling) and not sd & (_CLC | _ERROR)
 
     def reachable(self, nc: str) -> bool:
@@ -378,7 +392,8 @@ class PlcTask:
             c = self._claims.get(key)
             if c is None:
                 continue
-            code = int(ax.NcToPlc["ErrorCode"]) if ax.Status.Valid and ax.Status.Error else 0
+            st = ax.Status
+            code = ax.NcToPlc.ErrorCode if st.Valid and st.Error else 0
             lost = code in _CLAIM_FAULTS
             if lost and not c.fault_seen and c.state == "held":
                 log.warning("%r: the NC dropped our claim (0x%X %s); claiming again", ax, code, error_text(code))
@@ -429,6 +444,8 @@ class PlcTask:
         self._handovers.append(req)
 
     def _update_handovers(self) -> None:
+        if not self._handovers:
+            return
         keep = []
         for req in self._handovers:
             p = req.pending
@@ -450,6 +467,7 @@ class PlcTask:
             if req.to != self.client_id:
                 c.state, c.error, c.pending, c.since = "handed", 0, None, self.now
                 self._controlled.pop(key, None)  # its frames no longer count: stop sending them
+                self._plan = None
                 log.info("%s/%d handed over to %s", req.nc, req.axis_id, req.to)
         self._handovers = keep
 
@@ -511,6 +529,8 @@ class PlcTask:
         return int(rec["CmdNo"]) == o.cmdno and int(rec["CmdState"]) == CmdState.ACTIVE
 
     def _check_orphans(self) -> None:
+        if not self._orphans:
+            return
         keep = []
         for o in self._orphans:
             ax = o.ax
@@ -537,6 +557,8 @@ class PlcTask:
         self._orphans = keep
 
     def _check_detached(self) -> None:
+        if not self._detached:
+            return
         keep = []
         for p, what in self._detached:
             if not p.done:
@@ -591,21 +613,38 @@ class PlcTask:
             index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
         self._frames[nc] = (int(cycle), records, index[1], jobs)
 
+    def _bytes_of(self, nc: str, frame: _FrameEntry) -> tuple[_FrameEntry, bytes, bytes | None]:
+        """(frame, its NCTOPLC records' bytes, its NCJOBS records' bytes or None): one copy of each per frame
+        entry of ``_frames``, made when the first axis takes its snapshot of it (a task without axes copies
+        nothing), from which the axes' snapshots are sliced: immutable, so nothing the NC or the transport
+        does to its arrays afterwards reaches them."""
+        got = self._frame_bytes.get(nc)
+        if got is None or got[0] is not frame:
+            jobs = frame[3]
+            got = self._frame_bytes[nc] = (frame, frame[1].tobytes(), None if jobs is None else jobs.tobytes())
+        return got
+
     def _snapshot_all(self) -> None:
         for refs in self._refs.values():
             for ax in refs:
                 self._snapshot_one(ax)
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
-        frame = self._frames.get(ax.nc)
-        stale = 0 if ax.nc in self._nc_down else self.stale_cycles  # 0: invalid at once
+        nc = ax.nc
+        frame = self._frames.get(nc)
+        stale = 0 if nc in self._nc_down else self.stale_cycles  # 0: invalid at once
         if frame is None:
             ax._snapshot(None, None, self.cycle, self.cycle_time, stale)
-        else:
-            cyc, recs, index, jobs = frame
-            i = index.get(ax.axis_id)
-            ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, stale,
-                         None if i is None or jobs is None else jobs[i])
+            return
+        i = frame[2].get(ax.axis_id)
+        if i is None:
+            ax._snapshot(None, frame[0], self.cycle, self.cycle_time, stale)
+            return
+        _, recs, jobs = self._bytes_of(nc, frame)
+        o = i * NCTOPLC_SIZE
+        j = i * NCJOBS_SIZE
+        ax._snapshot(recs[o:o + NCTOPLC_SIZE], frame[0], self.cycle, self.cycle_time, stale,
+                     None if jobs is None else jobs[j:j + NCJOBS_SIZE])
 
     def nc_token_gone(self, nc: str) -> None:
         """The liveliness token of NC ``nc`` disappeared (transports that watch it call this).
@@ -657,17 +696,31 @@ class PlcTask:
                     ax._has_data = False  # (its snapshot is the old instance's)
         self._forget_claims(nc)
         self._frames.pop(nc, None)
+        self._frame_bytes.pop(nc, None)
         log.warning("NC %s restarted (%s): commands of the old instance are no longer followed", nc, why)
 
     def _publish_all(self) -> None:
-        by_nc: dict[str, list[AXIS_REF]] = {}
-        for (nc, _), ax in self._controlled.items():
-            by_nc.setdefault(nc, []).append(ax)
-        for nc, axes in by_nc.items():
+        plan = self._plan
+        if plan is None:  # the controlled axes changed (rarely): group them by NC again
+            by_nc: dict[str, list[AXIS_REF]] = {}
+            for (nc, _), ax in self._controlled.items():
+                by_nc.setdefault(nc, []).append(ax)
+            plan = self._plan = list(by_nc.items())
+        for nc, axes in plan:
             self._publish(nc, axes)
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
-        """Send one PLCTONC frame for ``axes`` of ``nc`` (subclass)."""
+        """Send one PLCTONC frame for ``axes`` of ``nc`` (subclass; :meth:`plc_frame` makes it)."""
+
+    def plc_frame(self, nc: str, axes: list[AXIS_REF]) -> bytearray:
+        """This cycle's PLC frame of ``axes`` of NC ``nc`` (the list :meth:`_publish` is given), the bytes of
+        ``nc_schema.encode_plc_records(self.cycle, ...)``: packed into that NC's buffer, kept while the
+        controlled axes stay the same (:class:`plc_client.plcframe.PlcFrameBuffer`). Valid until the next
+        call for ``nc``; the transport copies it when it sends it."""
+        w = self._frame_bufs.get(nc)
+        if w is None or w.axes is not axes:
+            w = self._frame_bufs[nc] = PlcFrameBuffer(axes)
+        return w.frame(self.cycle)
 
     def disable_all(self) -> None:
         """Clear Enable/feed enables of every controlled axis (shutdown)."""
