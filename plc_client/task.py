@@ -625,9 +625,35 @@ class PlcTask:
         return got
 
     def _snapshot_all(self) -> None:
-        for refs in self._refs.values():
+        """:meth:`_snapshot_one` of every bound axis, the frame of each NC looked up once."""
+        cycle, cycle_time, frames = self.cycle, self.cycle_time, self._frames
+        last: str | None = None
+        frame: _FrameEntry | None = None
+        recs = b""
+        jobs: bytes | None = None
+        stale = 0
+        for (nc, axis_id), refs in self._refs.items():
+            if nc != last:
+                last = nc
+                frame = frames.get(nc)
+                stale = 0 if nc in self._nc_down else self.stale_cycles  # 0: invalid at once
+                if frame is not None:
+                    _, recs, jobs = self._bytes_of(nc, frame)
+            if frame is None:
+                for ax in refs:
+                    ax._snapshot(None, None, cycle, cycle_time, stale)
+                continue
+            i = frame[2].get(axis_id)
+            if i is None:
+                for ax in refs:
+                    ax._snapshot(None, frame[0], cycle, cycle_time, stale)
+                continue
+            o = i * NCTOPLC_SIZE
+            j = i * NCJOBS_SIZE
+            rec = recs[o:o + NCTOPLC_SIZE]
+            job = None if jobs is None else jobs[j:j + NCJOBS_SIZE]
             for ax in refs:
-                self._snapshot_one(ax)
+                ax._snapshot(rec, frame[0], cycle, cycle_time, stale, job)
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
         nc = ax.nc
