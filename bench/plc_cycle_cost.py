@@ -29,7 +29,7 @@ import tempfile
 from pathlib import Path
 
 WORKER = r"""
-import cProfile, io, json, pstats, sys, time
+import cProfile, io, json, os, pstats, sys, time
 import numpy as np
 from nc_schema import encode_frame, decode_plc_frame
 from nc_server.core import AxisConfig, AxisParams, NcCore
@@ -39,6 +39,7 @@ from plc_client import (AXIS_REF, MC_MoveAbsolute, MC_MoveVelocity, MC_Power, MC
 from plc_client.runtime import plc_frame
 from plc_client.task import PlcTask
 NEW_FRAME = hasattr(PlcTask, "plc_frame")  # (a tree with the task's preallocated PLC frame)
+BYTES_PATH = os.environ.get("PLC_FRAME_PATH") == "bytes" and hasattr(PlcTask, "_set_frame_bytes")
 
 mode, frame_axes, cycles, profile = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
 N_CLIENT = 4
@@ -82,6 +83,9 @@ def program(plc):
 
 class Bench(InProcessPlc):
     def _take_frames(self):  # as PlcRuntime._take_frames: a frame's bytes decoded
+        if BYTES_PATH:  # (--frame-path bytes: the task takes the bytes itself, no numpy)
+            self._set_frame_bytes(self.nc, self.wire)
+            return
         from nc_schema import decode_frame
         h, recs, jobs = decode_frame(self.wire)
         self._set_frame(self.nc, int(h["Cycle"]), recs, jobs)
@@ -192,9 +196,13 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--modes", default="prog,idle", help="prog (the 4-axis program), idle (no program, no axes), bound (the 4 axes bound, no program)")
     ap.add_argument("--profile", type=int, default=0, help="cProfile this many cycles (program, first frame size)")
+    ap.add_argument("--frame-path", choices=("decode", "bytes"), default="decode",
+                    help="decode: decode_frame + _set_frame (what PlcRuntime does); bytes: PlcTask._set_frame_bytes "
+                         "(where the tree has it)")
     ap.add_argument("--instructions", type=int, default=0, metavar="CYCLES",
                     help="instead: instructions per step under valgrind (callgrind), CYCLES steps per mode and tree")
     a = ap.parse_args()
+    os.environ["PLC_FRAME_PATH"] = a.frame_path
     here = str(Path(__file__).resolve().parents[1])
     sizes = [int(x) for x in a.frame_axes.split(",")]
     trees0 = [("this", here)] + ([("other", a.tree)] if a.tree else [])

@@ -54,14 +54,15 @@ import collections
 import inspect
 import logging
 import math
+import struct
 import threading
 import time
 from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from nc_schema import (COMMAND_SPECS, MOTION_COMMANDS, NCJOBS_SIZE, NCTOPLC_SIZE, CmdState, ControlDWord, ErrorCodes,
-                       NcInstance, StateDWord, error_text)
+from nc_schema import (COMMAND_SPECS, JOB_RECORDS, MOTION_COMMANDS, NCJOBS_SIZE, NCTOPLC_DTYPE, NCTOPLC_SIZE, CmdState,
+                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, frame_header, member_struct)
 
 # The command sets come from the contract's command properties (protocol.json, nc_schema.COMMAND_SPECS).
 #: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): ``slot``
@@ -95,8 +96,23 @@ LOST_COMMAND_TTL = 600.0
 _UNDO = {n: s.undo for n, s in COMMAND_SPECS.items() if s.motion and not s.stop and s.undo != ("Halt",)}
 
 
-#: a frame as the task keeps it: (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None)
-_FrameEntry = tuple[int, np.ndarray, dict[int, int], "np.ndarray | None"]
+#: a frame as the task keeps it: (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None); the arrays
+#: are None for a frame taken as bytes (PlcTask._set_frame_bytes: its bytes are in PlcTask._frame_bytes)
+_FrameEntry = tuple[int, "np.ndarray | None", dict[int, int], "np.ndarray | None"]
+#: where an NCTOPLC record keeps its AxisId, and its struct code
+_AXIS_ID_OFFSET, _AXIS_ID = member_struct(NCTOPLC_DTYPE, "AxisId")
+_AXIS_IDS: dict[int, struct.Struct] = {}
+
+
+def _axis_ids_struct(n: int) -> struct.Struct:
+    """The struct that reads the AxisIds of ``n`` consecutive NCTOPLC records (from the first one's start)."""
+    st = _AXIS_IDS.get(n)
+    if st is None:
+        if len(_AXIS_IDS) >= 64:
+            _AXIS_IDS.clear()
+        code, pad = _AXIS_ID.format[-1], NCTOPLC_SIZE - _AXIS_ID.size
+        st = _AXIS_IDS[n] = struct.Struct("<" + (f"{_AXIS_ID_OFFSET}x{code}{pad - _AXIS_ID_OFFSET}x" * n))
+    return st
 
 
 def current_task() -> PlcTask | None:
@@ -235,11 +251,12 @@ class PlcTask:
         self._epochs: dict[str, int] = {}
         #: NC -> (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None) of its newest frame
         self._frames: dict[str, _FrameEntry] = {}
-        #: NC -> (its ``_frames`` entry, the bytes of its records): :meth:`_bytes_of`
-        self._frame_bytes: dict[str, tuple[_FrameEntry, bytes, bytes | None]] = {}
+        #: NC -> (its ``_frames`` entry, the bytes of its records and where they start): :meth:`_bytes_of`
+        self._frame_bytes: dict[str, tuple[_FrameEntry, bytes, int, bytes | None, int]] = {}
         #: each NC's instance as its instance token and frames show it: the restart rule (nc_schema.instance)
         self._instances: dict[str, NcInstance] = {}
-        self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
+        #: NC -> (its frames' AxisIds as last seen: bytes or a tuple, AxisId -> row)
+        self._index_cache: dict[str, tuple[bytes | tuple[int, ...], dict[int, int]]] = {}
         #: the controlled axes by NC, as :meth:`_publish_all` sends them (None: rebuild, they changed)
         self._plan: list[tuple[str, list[AXIS_REF]]] | None = None
         #: NC -> its PLC frame's buffer (:meth:`plc_frame`)
@@ -613,21 +630,71 @@ class PlcTask:
             index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
         self._frames[nc] = (int(cycle), records, index[1], jobs)
 
-    def _bytes_of(self, nc: str, frame: _FrameEntry) -> tuple[_FrameEntry, bytes, bytes | None]:
-        """(frame, its NCTOPLC records' bytes, its NCJOBS records' bytes or None): one copy of each per frame
-        entry of ``_frames``, made when the first axis takes its snapshot of it (a task without axes copies
-        nothing), from which the axes' snapshots are sliced: immutable, so nothing the NC or the transport
-        does to its arrays afterwards reaches them."""
+    def _set_frame_bytes(self, nc: str, data: bytes) -> None:
+        """Take a status frame as received: its bytes (``sample.payload.to_bytes()``), what
+        :meth:`_set_frame` takes after ``nc_schema.decode_frame``, without numpy: the header is checked and
+        unpacked with one ``struct`` call (``nc_schema.frame_header``), the AxisIds with another, and the axes'
+        records are slices of ``data`` (immutable: kept as they are). For a transport's ``_take_frames``.
+
+        Raises:
+            ValueError: not a status frame (wrong magic, version or sizes), as ``decode_frame``.
+        """
+        h = frame_header(data)
+        cycle, hs, n = h.Cycle, h.HeaderSize, h.AxisCount
+        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
+        if why is not None:
+            self.nc_restarted(nc, why)
+        ids = _axis_ids_struct(n).unpack_from(data, hs)
+        index = self._index_cache.get(nc)
+        if index is None or index[0] != ids:  # the NC's axes rarely change: keep the AxisId -> row map
+            index = self._index_cache[nc] = (ids, {a: i for i, a in enumerate(ids)})
+        frame: _FrameEntry = (cycle, None, index[1], None)
+        self._frames[nc] = frame
+        self._frame_bytes[nc] = (frame, data, hs, data if h.Flags & JOB_RECORDS else None, hs + n * NCTOPLC_SIZE)
+
+    def _bytes_of(self, nc: str, frame: _FrameEntry) -> tuple[_FrameEntry, bytes, int, bytes | None, int]:
+        """(frame, the bytes its NCTOPLC records start in, where they start, the same of its NCJOBS records or
+        None): the frame's own bytes (:meth:`_set_frame_bytes`), or one copy of each array per frame entry of
+        ``_frames``, made when the first axis takes its snapshot of it (a task without axes copies nothing).
+        The axes' snapshots are slices of them: immutable, so nothing the NC or the transport does to its
+        arrays afterwards reaches them."""
         got = self._frame_bytes.get(nc)
         if got is None or got[0] is not frame:
-            jobs = frame[3]
-            got = self._frame_bytes[nc] = (frame, frame[1].tobytes(), None if jobs is None else jobs.tobytes())
+            recs, jobs = frame[1], frame[3]
+            assert recs is not None  # (a frame entry without arrays comes with its bytes: _set_frame_bytes)
+            got = self._frame_bytes[nc] = (frame, recs.tobytes(), 0, None if jobs is None else jobs.tobytes(), 0)
         return got
 
     def _snapshot_all(self) -> None:
-        for refs in self._refs.values():
+        """:meth:`_snapshot_one` of every bound axis, the frame of each NC looked up once."""
+        cycle, cycle_time, frames = self.cycle, self.cycle_time, self._frames
+        last: str | None = None
+        frame: _FrameEntry | None = None
+        recs = b""
+        jobs: bytes | None = None
+        stale = rbase = jbase = 0
+        for (nc, axis_id), refs in self._refs.items():
+            if nc != last:
+                last = nc
+                frame = frames.get(nc)
+                stale = 0 if nc in self._nc_down else self.stale_cycles  # 0: invalid at once
+                if frame is not None:
+                    _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
+            if frame is None:
+                for ax in refs:
+                    ax._snapshot(None, None, cycle, cycle_time, stale)
+                continue
+            i = frame[2].get(axis_id)
+            if i is None:
+                for ax in refs:
+                    ax._snapshot(None, frame[0], cycle, cycle_time, stale)
+                continue
+            o = rbase + i * NCTOPLC_SIZE
+            j = jbase + i * NCJOBS_SIZE
+            rec = recs[o:o + NCTOPLC_SIZE]
+            job = None if jobs is None else jobs[j:j + NCJOBS_SIZE]
             for ax in refs:
-                self._snapshot_one(ax)
+                ax._snapshot(rec, frame[0], cycle, cycle_time, stale, job)
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
         nc = ax.nc
@@ -640,9 +707,9 @@ class PlcTask:
         if i is None:
             ax._snapshot(None, frame[0], self.cycle, self.cycle_time, stale)
             return
-        _, recs, jobs = self._bytes_of(nc, frame)
-        o = i * NCTOPLC_SIZE
-        j = i * NCJOBS_SIZE
+        _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
+        o = rbase + i * NCTOPLC_SIZE
+        j = jbase + i * NCJOBS_SIZE
         ax._snapshot(recs[o:o + NCTOPLC_SIZE], frame[0], self.cycle, self.cycle_time, stale,
                      None if jobs is None else jobs[j:j + NCJOBS_SIZE])
 

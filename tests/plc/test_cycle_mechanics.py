@@ -1,7 +1,8 @@
 """The cheap per-cycle mechanics of the PLC task (issue 19) give what the plain ways gave: the preallocated
 PLC frame is encode_plc_records' bytes, the blocks' NCJOBS values are the numpy record's, a snapshot is
-the frame of its cycle whatever the NC does to its arrays afterwards, and the blocks' one-update input and
-output paths fall back to setattr where a class has a property of that name."""
+the frame of its cycle whatever the NC does to its arrays afterwards, a frame taken as bytes gives what
+decode_frame's arrays give, and the blocks' one-update input and output paths fall back to setattr where a
+class has a property of that name."""
 from __future__ import annotations
 
 from typing import Any, ClassVar
@@ -9,10 +10,11 @@ from typing import Any, ClassVar
 import numpy as np
 import pytest
 
-from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE, encode_plc_records
-from plc_client import AXIS_REF, MC_Power, MC_ReadStatus
+from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE, decode_frame, encode_frame, encode_plc_records
+from plc_client import AXIS_REF, MC_Power, MC_ReadStatus, PlcTask
 from plc_client.fb.base import ExecuteBlock, FunctionBlock
 from plc_client.plcframe import PlcFrameBuffer
+from plc_client.port import CommandPort
 from plc_client.records import NO_JOBS, NcJobsValues
 from znc_testing.plc_rig import Rig, ScriptNc
 
@@ -160,3 +162,57 @@ def test_inputs_in_another_case_and_unknown_inputs_still_work() -> None:
     assert FunctionBlock._is_real(1) and FunctionBlock._is_real(np.float32(2.0))
     assert not FunctionBlock._is_real(float("nan")) and not FunctionBlock._is_real(True)
     assert not FunctionBlock._is_real("1") and not FunctionBlock._is_real(float("inf"))
+
+
+def _task_with(ids: tuple[int, ...]) -> tuple[PlcTask, dict[int, AXIS_REF]]:
+    class _Port(CommandPort):
+        def _transmit(self, pending: Any, payload: bytes) -> None:
+            pass
+
+    t = PlcTask(None, client_id="t")
+    t.port = _Port("t")
+    t._take_frames = lambda: None  # type: ignore[method-assign]
+    return t, {a: t.axis("nc1", a) for a in ids}
+
+
+def _frame(cycle: int, ids: list[int], rng: np.random.Generator, jobs: bool = True) -> tuple[bytes, np.ndarray,
+                                                                                           np.ndarray | None]:
+    recs = np.zeros(len(ids), dtype=NCTOPLC_DTYPE)
+    recs["AxisId"] = ids
+    recs["StateDWord"] = rng.integers(0, 2**32, len(ids))
+    recs["SetPos"], recs["SetVelo"], recs["SetAcc"] = rng.normal(size=(3, len(ids)))
+    recs["CmdNo"] = rng.integers(0, 2**16, len(ids))
+    jr = None
+    if jobs:
+        jr = np.zeros(len(ids), dtype=NCJOBS_DTYPE)
+        jr["AxisId"] = ids
+        jr["ActiveCmdNo"] = rng.integers(0, 2**16, len(ids))
+        jr["Ended"]["ErrorId"] = rng.integers(0, 2**32, (len(ids), 4))
+    return encode_frame(cycle, 7, recs, jobs=jr), recs, jr
+
+
+def test_a_frame_taken_as_bytes_gives_what_decode_frame_gives() -> None:
+    """_set_frame_bytes (the frame's bytes, no numpy) and _set_frame(decode_frame(...)) give every axis the
+    same NcToPlc, NcJobs and Status: with and without job records, an axis the frame lacks (missing), the
+    axis set changing, and the NC restarting (its cycle going back)."""
+    rng = np.random.default_rng(11)
+    ids = (2, 9, 7)
+    a, axes_a = _task_with(ids)
+    b, axes_b = _task_with(ids)
+    frames = [(10, [5, 2, 9], True), (20, [5, 2, 9], True), (30, [5, 2, 9], False), (40, [9, 2], True),
+              (50, [9, 2], True), (5, [2, 9, 7], True), (15, [2, 9, 7], True)]
+    for cycle, in_frame, with_jobs in frames:
+        data, _, _ = _frame(cycle, in_frame, rng, with_jobs)
+        h, recs, jobs = decode_frame(data)
+        a._set_frame("nc1", int(h["Cycle"]), recs, jobs)
+        b._set_frame_bytes("nc1", data)
+        a.step()
+        b.step()
+        for k in ids:
+            xa, xb = axes_a[k], axes_b[k]
+            assert xa.NcToPlc == xb.NcToPlc and xa.NcJobs.tobytes() == xb.NcJobs.tobytes(), (cycle, k)
+            assert xa.Status.as_dict() == xb.Status.as_dict() and xa.missing == xb.missing, (cycle, k)
+            assert xa.nc_epoch == xb.nc_epoch
+    assert axes_b[7].Status.Valid and axes_b[7].nc_epoch == 1  # (the restart at cycle 5)
+    with pytest.raises(ValueError):
+        b._set_frame_bytes("nc1", b"\0" * 40)
