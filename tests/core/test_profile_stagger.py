@@ -45,20 +45,23 @@ def _command(rng: random.Random, p: float) -> tuple[str, dict]:
 
 
 def _cores(n: int, variants: list[tuple[int, int | None]]) -> list[NcCore]:
+    """One core per (lookahead, groups); the first (the reference) evaluates every refill in full (no
+    steady groups: ``ProfileStage.steady`` False), the others with steady groups."""
     cores = []
     for lookahead, groups in variants:
         core = NcCore([AxisConfig(i + 1, f"A{i + 1}", AxisParams(**PARAMS)) for i in range(n)], 0.001,
                       lookahead=lookahead)
         if groups is not None:
             core.profile.set_groups(groups)
+        core.profile.steady = bool(cores)
         cores.append(core)
     return cores
 
 
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("n, variants", [
-    (7, [(1, None), (16, None), (4, None), (16, 4), (16, 1)]),   # fewer axes than the lookahead
-    (37, [(1, None), (4, None), (16, None), (8, 2), (16, 1)]),   # uneven groups; large blocks
+    (7, [(1, None), (1, None), (16, None), (4, None), (16, 4), (16, 1)]),   # fewer axes than the lookahead
+    (37, [(1, None), (1, None), (4, None), (16, None), (8, 2), (16, 1)]),   # uneven groups; large blocks
 ])
 def test_staggered_lookahead_gives_the_set_points_of_lookahead_1(seed, n, variants):
     rng = random.Random(seed)
@@ -114,7 +117,7 @@ def test_staggered_lookahead_on_long_steady_motions():
     """Large refill blocks where most rows stay in one segment for the whole window (the segment
     search looks only at the rows that reach their next segment)."""
     n = 40
-    cores = _cores(n, [(1, None), (16, 1), (16, 4), (4, 1)])
+    cores = _cores(n, [(1, None), (1, None), (16, 1), (16, 4), (16, 16), (4, 1)])
     ids = iter(range(1, 10**6))
     for core in cores:
         for i in range(n):
@@ -132,3 +135,5 @@ def test_staggered_lookahead_on_long_steady_motions():
             core.step()
         for core in cores[1:]:
             assert core.nctoplc.tobytes() == ref.nctoplc.tobytes(), (cycle, core.profile.lookahead, core.profile.groups)
+    for core in cores[1:]:
+        assert core.profile.steady_refills > 0  # (the steady groups took over in the long stretches)

@@ -5,6 +5,7 @@ group of axes per cycle; the stages after it (:mod:`.`) read the set-points it p
 """
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
@@ -112,47 +113,80 @@ def default_groups(n: int, lookahead: int) -> int:
     return lookahead
 
 
+class _Steady:
+    """A group whose rows all stay in a steady segment (no jerk, no acceleration, a velocity) for its
+    next refills: their positions are the only thing a refill computes (velocity, acceleration,
+    jerk and the set-point words are the segment's constants, in the buffer already).
+
+    Attributes:
+        until: the last stage cycle whose refill stays inside every row's segment (may be inf).
+        t0, v0, p0: each row's segment start time, velocity and position, (m,).
+    """
+
+    __slots__ = ("until", "t0", "v0", "p0")
+
+    def __init__(self, until: float, t0: np.ndarray, v0: np.ndarray, p0: np.ndarray) -> None:
+        self.until, self.t0, self.v0, self.p0 = until, t0, v0, p0
+
+
 class ProfileStage:
     """The profile generator: set-points of the axes that follow a plan (``axes.traj_on``).
 
     Set-points (and their StateDWord bits and AxisState) are evaluated ``lookahead`` cycles ahead.
-    Buffer column ``c % lookahead`` holds the set-points of the stage's cycle ``c`` for every row,
-    so a cycle copies one column (basic indexing). The refills are staggered: row ``r`` belongs to
-    group ``r % groups``; every ``lookahead // groups`` cycles one group is refilled for the next
-    ``lookahead`` cycles (``groups == lookahead``: one group every cycle, each cycle about the same
-    work; ``groups == 1``: all rows every ``lookahead``-th cycle). A row whose plan (or job flags)
-    changed (:meth:`refresh`) is evaluated for the next ``lookahead`` cycles at the next run, in
-    the same evaluation as that cycle's group.
+    Buffer column ``c % lookahead`` (``buf[:, c % lookahead]``, one contiguous row per set-point)
+    holds the set-points of the stage's cycle ``c`` for every row, so a cycle copies one column. The
+    refills are staggered: row ``r`` belongs to group ``r % groups``; every ``lookahead // groups``
+    cycles one group is refilled for the next ``lookahead`` cycles (``groups == lookahead``: one
+    group every cycle, each cycle about the same work; ``groups == 1``: all rows every
+    ``lookahead``-th cycle). A row whose plan (or job flags) changed (:meth:`refresh`) is evaluated
+    for the next ``lookahead`` cycles at the next run, in the same evaluation as that cycle's group.
+
+    Steady groups: when every row of a group stays in a segment without jerk and acceleration for a
+    whole window, and no row of the group changed since its last refill, the group's later refills
+    (until a row could reach its next segment) compute the positions only, with the arithmetic of
+    the full evaluation for such a segment (``p0 + v0 * tau`` is what its Horner scheme gives, bit
+    for bit): the other set-points and the words of those columns are the segment's constants and
+    in the buffer already. A change of any of its rows (or of the rows that follow a plan) ends it.
 
     Plan times advance by repeated addition of the cycle time, exactly as ``axes.traj_t``; a sample
     is therefore the same whenever it is evaluated: set-points do not depend on the lookahead or on
     the refill pattern (bit for bit the set-points of ``lookahead=1``).
+
+    Args:
+        steady: use steady groups (False: every refill evaluates in full, the reference).
     """
 
     name = "profile"
 
-    def __init__(self, core: CoreContext, lookahead: int, groups: int | None = None) -> None:
+    def __init__(self, core: CoreContext, lookahead: int, groups: int | None = None, steady: bool = True) -> None:
         n = core.axes.n
         L = lookahead
         self.n = n
         self.lookahead = L
         self.dt = core.cycle_time
-        self.buf = np.zeros((4, n, L))        # set-points, column = stage cycle % lookahead
-        self.buf_words = np.zeros((2, n, L), dtype=np.uint32)  # their StateDWord bits and AxisState
+        self.steady = steady
+        self.buf = np.zeros((4, L, n))        # set-points, column = stage cycle % lookahead
+        self.buf_words = np.zeros((2, L, n), dtype=np.uint32)  # their StateDWord bits and AxisState
         self.c = 0  # stage cycles run: the next run produces the set-points of stage cycle c
         self.pending: set[int] = set()  # rows to evaluate at the next run (plans changed)
         self.refills = 0  # runs that evaluated rows (groups or pending)
         self.refill_rows = 0  # rows evaluated by the last run
+        self.steady_refills = 0  # refills of steady groups (positions only)
         # the segment table as evaluated: axes.seg's t0, p, v, a, j and a/2 (copied when a plan changes)
         self.seg = np.zeros((6, n, N_SEGMENTS))
         self.seg[0] = np.inf
         self._seg_flat = self.seg.reshape(6, -1)
-        self._row_base = (np.arange(n) * N_SEGMENTS)[:, None]  # each row's offset into the flat table
-        self._times = np.full((n, L), self.dt)  # each sample one cycle time after the one before
-        self._res = np.empty((4, n, L))
-        self._flag_bytes = np.zeros((n, L, 8), dtype=bool)
+        self._row_base = np.arange(n) * N_SEGMENTS  # each row's offset into the flat table
+        # plan times of a window: row 0 the time before it (traj_t), then one cycle time each (never written);
+        # accumulated into _t_out (the additions the cycle makes)
+        self._t_in = np.full((L + 1, n), self.dt)
+        self._t_out = np.empty((L + 1, n))
+        self._times1 = np.full(L, self.dt)
+        self._res = np.empty((4, L, n))
+        self._flag_bytes = np.zeros((L, n, 8), dtype=bool)
         self._on_key: np.ndarray | None = None
         self._on_groups: list[np.ndarray] = []
+        self._on_seen = np.zeros(0, dtype=np.intp)  # the rows following a plan the steady groups were made for
         self.set_groups(default_groups(n, L) if groups is None else groups)
 
     def set_groups(self, groups: int) -> None:
@@ -169,6 +203,8 @@ class ProfileStage:
         self._all_groups = [np.arange(g, n, groups) for g in range(groups)]
         self._bases = [self._row_base[g::groups] for g in range(groups)]
         self._on_key = None
+        self._steady: list[_Steady | None] = [None] * groups
+        self._busy = [False] * groups  # a row of the group changed since the group's last refill
         self.pending = set(range(n))  # every row from the next run on (whatever ran before)
 
     def run(self, core: CoreContext) -> np.ndarray:
@@ -178,13 +214,17 @@ class ProfileStage:
         if not on.size:
             self.pending.clear()  # (nothing runs: rows that start later are refreshed then)
             return on
+        if on is not self._on_seen:
+            self._rows_changed(on)
         c = self.c
         self.c = c + 1
         L = self.lookahead
         col = c % L
         rows: np.ndarray | slice | None = None  # the rows to evaluate (basic indexing where possible)
-        base: np.ndarray | None = None  # and their offsets into the flat segment table, (m, 1)
+        base: np.ndarray | None = None  # and their offsets into the flat segment table, (m,)
         group = -1
+        if self.pending:
+            self._drop_steady()
         if c % self.period == 0:
             group = (c // self.period) % self.groups
             if core.all_on:
@@ -194,28 +234,58 @@ class ProfileStage:
                 idx = self._group_rows(on, group)
                 if idx.size:
                     rows, base = idx, self._row_base[idx]
+            st = self._steady[group]
+            if st is not None and rows is not None:
+                if c <= st.until:
+                    self._refill_steady(core, rows, st, col)
+                    rows = base = None
+                else:
+                    self._steady[group] = None
+        group_rows = rows
         if self.pending:
             rows, base = self._take_pending(a, rows, base, group)
         if rows is not None:
             if type(rows) is slice and rows.step is None:  # one row (a command)
                 self._eval_row(core, rows, base, col)  # type: ignore[arg-type]  # (base is set with rows)
             else:
-                self._eval(core, rows, base, col)  # type: ignore[arg-type]  # (base is set with rows)
+                steady = -1  # (the group alone, not changed since its last refill: it may be steady)
+                if rows is group_rows and self.steady:
+                    if self._busy[group]:
+                        self._busy[group] = False
+                    else:
+                        steady = group
+                self._eval(core, rows, base, col, steady)  # type: ignore[arg-type]  # (base is set with rows)
         dt = self.dt
         if core.all_on:
             a.traj_t += dt
-            a.S[:] = self.buf[:, :, col]
-            core.sp_words[:] = self.buf_words[:, :, col]  # (sp_dw, axis_state)
+            a.S[:] = self.buf[:, col]
+            core.sp_words[:] = self.buf_words[:, col]  # (sp_dw, axis_state)
             return (a.traj_t >= a.traj_dur).nonzero()[0]
         a.traj_t[on] += dt
-        a.S[:, on] = self.buf[:, on, col]
-        core.sp_words[:, on] = self.buf_words[:, on, col]
+        a.S[:, on] = self.buf[:, col, on]
+        core.sp_words[:, on] = self.buf_words[:, col, on]
         ended: np.ndarray = on[a.traj_t[on] >= a.traj_dur[on]]
         return ended
 
     def refresh(self, core: CoreContext, rows: Iterable[int]) -> None:
         """Rows whose plan (or whose job's hold/HasJob) changed: evaluated afresh at the next run."""
         self.pending.update(rows)
+
+    def _rows_changed(self, on: np.ndarray) -> None:
+        """``core.on_rows`` is a new array: if other rows follow a plan now, the groups are other row sets
+        (no steady group stays)."""
+        if not np.array_equal(on, self._on_seen):
+            self._steady = [None] * self.groups
+        self._on_seen = on
+
+    def _drop_steady(self) -> None:
+        """The groups of the pending rows are not steady (their rows changed)."""
+        G = self.groups
+        steady, busy = self._steady, self._busy
+        for r in self.pending:
+            g = r % G
+            steady[g] = None
+            busy[g] = True
 
     def _take_pending(self, a: Any, rows: np.ndarray | slice | None, base: np.ndarray | None,
                       group: int) -> tuple[np.ndarray | slice | None, np.ndarray | None]:
@@ -241,7 +311,7 @@ class ProfileStage:
         else:
             seg[5, idx] = seg[3, idx] * 0.5
         G = self.groups
-        extra = [r for r in todo if r % G != group]
+        extra = [r for r in todo if r % G != group] if rows is not None else todo
         if not extra:
             return rows, base
         if rows is None and len(extra) == 1:  # (a command: basic indexing)
@@ -260,6 +330,33 @@ class ProfileStage:
             self._on_groups = [on[g == k] for k in range(self.groups)]
         return self._on_groups[group]
 
+    def _refill_steady(self, core: CoreContext, rows: np.ndarray | slice, st: _Steady, col: int) -> None:
+        """The positions of a steady group's rows for the stage cycles from this one on (the rest of
+        their set-points and words are in the buffer): ``p0 + v0 * tau``, the arithmetic :meth:`_eval`
+        does for a segment without jerk and acceleration and with a velocity, bit for bit."""
+        a = core.axes
+        m = st.t0.shape[0]
+        self.refills += 1
+        self.steady_refills += 1
+        self.refill_rows = m
+        t_in = self._t_in[:, :m]
+        t_in[0] = a.traj_t[rows]
+        t = self._t_out[:, :m]
+        np.add.accumulate(t_in, axis=0, out=t)
+        tau = t[1:]
+        np.subtract(tau, st.t0, out=tau)
+        np.multiply(tau, st.v0, out=tau)
+        np.add(tau, st.p0, out=tau)
+        if core.has_origin:
+            tau += a.origin[rows]
+        pos = self.buf[0]
+        if col:
+            n1 = self.lookahead - col
+            pos[col:, rows] = tau[:n1]
+            pos[:col, rows] = tau[n1:]
+        else:
+            pos[:, rows] = tau
+
     def _eval_row(self, core: CoreContext, rows: slice, base: np.ndarray, col: int) -> None:
         """:meth:`_eval` for one row ``rows = slice(r, r + 1)``: when one segment serves all its
         samples (the common case), with that segment's coefficients as scalars (fewer calls; the
@@ -268,7 +365,7 @@ class ProfileStage:
         a = core.axes
         L = self.lookahead
         seg = self.seg
-        t = self._times[0].copy()
+        t = self._times1.copy()
         t[0] += a.traj_t[r]
         np.add.accumulate(t, out=t)
         starts = seg[0, r].tolist()
@@ -279,16 +376,16 @@ class ProfileStage:
                 k = j
                 break
         if not tl < starts[k + 1]:  # it reaches the next segment in the window
-            self._eval(core, rows, base, col)
+            self._eval(core, rows, base, col, -1)
             return
         self.refills += 1
         self.refill_rows = 1
         t0, p0, v0, a0, j, ah = seg[:, r, k].tolist()
         tau = np.subtract(t, t0, out=t)
         tj = tau * j
-        res = self._res[:, 0]
+        res = self._res[:, :, 0]
         pv = res[:2]
-        np.multiply(tj, _SIXTH_HALF[:, 0], out=pv)
+        np.multiply(tj, _SIXTH_HALF[:, :, 0], out=pv)
         pv[0] += ah
         pv[1] += a0
         pv *= tau
@@ -307,19 +404,20 @@ class ProfileStage:
         buf, bw = self.buf, self.buf_words
         if col:
             n1 = L - col
-            buf[:, r, col:] = res[:, :n1]
-            buf[:, r, :col] = res[:, n1:]
-            bw[:, r, col:] = words[:, :n1]
-            bw[:, r, :col] = words[:, n1:]
+            buf[:, col:, r] = res[:, :n1]
+            buf[:, :col, r] = res[:, n1:]
+            bw[:, col:, r] = words[:, :n1]
+            bw[:, :col, r] = words[:, n1:]
         else:
-            buf[:, r] = res
-            bw[:, r] = words
+            buf[:, :, r] = res
+            bw[:, :, r] = words
 
-    def _eval(self, core: CoreContext, rows: np.ndarray | slice, base: np.ndarray, col: int) -> None:
-        """Evaluate ``rows`` (offsets ``base`` into the flat segment table, (m, 1)) for the stage
-        cycles from this one on, into columns col, col+1, ... (mod L).
+    def _eval(self, core: CoreContext, rows: np.ndarray | slice, base: np.ndarray, col: int, group: int) -> None:
+        """Evaluate ``rows`` (offsets ``base`` into the flat segment table, (m,)) for the stage
+        cycles from this one on, into columns col, col+1, ... (mod L); samples as (L, m) blocks.
 
         The arithmetic of :func:`.profile.evaluate`, bit for bit, arranged for blocks of samples.
+        ``group`` >= 0: ``rows`` are that group's; make it steady if it is (:class:`_Steady`).
         """
         a = core.axes
         L = self.lookahead
@@ -328,28 +426,35 @@ class ProfileStage:
         self.refill_rows = m
         seg = self.seg
         # plan times of the next L cycles: traj_t + dt, + dt, ... (the additions the cycle makes)
-        t = self._times[:m].copy()
-        t[:, 0] += a.traj_t[rows]
-        np.add.accumulate(t, axis=1, out=t)
+        t_in = self._t_in[:, :m]
+        t_in[0] = a.traj_t[rows]
+        t = self._t_out[:, :m]
+        np.add.accumulate(t_in, axis=0, out=t)
+        t = t[1:]
         # the segment in force is the one before the first that starts later: with t0[0] = 0 < t,
         # the first of t0[1:] that starts later (the sentinel never starts) -- evaluate()'s k
         starts = seg[0, rows, 1:]
         if m * L <= _SMALL_BLOCK:
-            k = np.argmax(starts[:, None, :] > t[:, :, None], axis=2)
+            k = np.argmax(starts > t[:, :, None], axis=2)
             k += base
+            k1: np.ndarray | None = k[0] if group >= 0 and np.array_equal(k[0], k[-1]) else None
         else:  # the first sample's segment; only rows reaching their next segment in the window look again
-            k = np.argmax(starts > t[:, :1], axis=1)[:, None]
+            k = np.argmax(starts > t[0][:, None], axis=1)
             k += base
-            cross = (t[:, -1:] >= self._seg_flat[0, k + 1]).nonzero()[0]
+            cross = (t[-1] >= self._seg_flat[0, k + 1]).nonzero()[0]
+            k1 = k
             if cross.size:
-                k = np.repeat(k, L, axis=1)
-                kc = np.argmax(starts[cross][:, None, :] > t[cross][:, :, None], axis=2)
+                k1 = None
+                k = np.repeat(k[None, :], L, axis=0)
+                kc = np.argmax(starts[cross] > t[:, cross, None], axis=2)
                 kc += base[cross]
-                k[cross] = kc
-        t0, p0, v0, a0, j, ah = self._seg_flat[:, k]  # one gather, (m, L) or (m, 1) each
+                k[:, cross] = kc
+        t0, p0, v0, a0, j, ah = self._seg_flat[:, k]  # one gather, (L, m) or (m,) each
+        if group >= 0 and k1 is not None:
+            self._make_steady(group, k1, t[-1])
         tau = np.subtract(t, t0, out=t)
         tj = tau * j
-        res = self._res[:, :m]
+        res = self._res[:, :, :m]
         pv = res[:2]
         # position p0 + tau * (v0 + tau * (a0 / 2 + tau * j / 6)), velocity v0 + tau * (a0 + tau * j / 2)
         np.multiply(tj, _SIXTH_HALF, out=pv)
@@ -363,15 +468,15 @@ class ProfileStage:
         np.add(a0, tj, out=res[2])
         res[3] = j  # (broadcast when one segment serves all of a row's samples)
         if core.has_origin:
-            pos += a.origin[rows][:, None]
+            pos += a.origin[rows]
         # set-point bits and AxisState: one flag byte per sample (two table lookups when copied)
         v, acc = res[1], res[2]
         rp = a.sp_row[rows]
         if m * L <= _SMALL_BLOCK:
-            code = _CLASS_CODES[rp[:, None], np.searchsorted(_V_EDGES, v, "right"),
+            code = _CLASS_CODES[rp, np.searchsorted(_V_EDGES, v, "right"),
                                 np.searchsorted(_A_EDGES, acc, "right"), np.searchsorted(_AV_EDGES, acc * v, "right")]
         else:
-            flags = self._flag_bytes[:m]
+            flags = self._flag_bytes[:, :m]
             np.less(np.abs(acc), 1e-9, out=flags[:, :, 1])
             av = acc * v
             np.greater(av, 0, out=flags[:, :, 2])
@@ -380,19 +485,35 @@ class ProfileStage:
             np.less(v, -_EPS_V, out=flags[:, :, 5])
             code = flags.view(np.uint64)[:, :, 0] * _PACK
             code >>= _SHIFT
-            code |= _ROW_BITS[rp][:, None]
+            code |= _ROW_BITS[rp]
         # columns col.. L-1 take the first samples, 0 .. col-1 the rest
         words = _SP_WORDS[:, code]
         buf, bw = self.buf, self.buf_words
         if col:
             n1 = L - col
-            buf[:, rows, col:] = res[:, :, :n1]
-            buf[:, rows, :col] = res[:, :, n1:]
-            bw[:, rows, col:] = words[:, :, :n1]
-            bw[:, rows, :col] = words[:, :, n1:]
+            buf[:, col:, rows] = res[:, :n1]
+            buf[:, :col, rows] = res[:, n1:]
+            bw[:, col:, rows] = words[:, :n1]
+            bw[:, :col, rows] = words[:, n1:]
         else:
-            buf[:, rows] = res
-            bw[:, rows] = words
+            buf[:, :, rows] = res
+            bw[:, :, rows] = words
+
+    def _make_steady(self, group: int, k: np.ndarray, t_last: np.ndarray) -> None:
+        """The group's rows stay in segments ``k`` (flat indices, (m,)) for the window ending at plan times
+        ``t_last``: steady if none of them has jerk or acceleration and each has a velocity."""
+        sf = self._seg_flat
+        if np.count_nonzero(sf[4, k]) or np.count_nonzero(sf[3, k]) or np.count_nonzero(sf[2, k]) < k.size:
+            return
+        left = float(np.min(sf[0, k + 1] - t_last))  # until the first row reaches its next segment [s]
+        c = self.c - 1  # (this refill's stage cycle)
+        if left == np.inf:
+            until = np.inf
+        elif left > 0:  # the window's last sample moves on by a cycle time per cycle: with a margin for the
+            until = c + math.floor(left / self.dt * 0.999) - 2  # rounding of the repeated additions
+        else:
+            return
+        self._steady[group] = _Steady(float(until), sf[0, k], sf[2, k], sf[1, k])
 
 
 _SIXTH_HALF = np.array([1.0 / 6.0, 0.5]).reshape(2, 1, 1)
