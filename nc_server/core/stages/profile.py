@@ -187,6 +187,7 @@ class ProfileStage:
         self._on_key: np.ndarray | None = None
         self._on_groups: list[np.ndarray] = []
         self._on_seen = np.zeros(0, dtype=np.intp)  # the rows following a plan the steady groups were made for
+        self._on_mask = np.zeros(n, dtype=bool)  # and as a mask
         self.set_groups(default_groups(n, L) if groups is None else groups)
 
     def set_groups(self, groups: int) -> None:
@@ -261,11 +262,13 @@ class ProfileStage:
             a.S[:] = self.buf[:, col]
             core.sp_words[:] = self.buf_words[:, col]  # (sp_dw, axis_state)
             return (a.traj_t >= a.traj_dur).nonzero()[0]
-        a.traj_t[on] += dt
-        a.S[:, on] = self.buf[:, col, on]
-        core.sp_words[:, on] = self.buf_words[:, col, on]
-        ended: np.ndarray = on[a.traj_t[on] >= a.traj_dur[on]]
-        return ended
+        mask = self._on_mask  # (the rows of ``on``: whole rows under a mask cost less than gathers)
+        np.add(a.traj_t, dt, out=a.traj_t, where=mask)
+        np.copyto(a.S, self.buf[:, col], where=mask)
+        np.copyto(core.sp_words, self.buf_words[:, col], where=mask)
+        ended = a.traj_t >= a.traj_dur
+        ended &= mask
+        return ended.nonzero()[0]
 
     def refresh(self, core: CoreContext, rows: Iterable[int]) -> None:
         """Rows whose plan (or whose job's hold/HasJob) changed: evaluated afresh at the next run."""
@@ -276,6 +279,8 @@ class ProfileStage:
         (no steady group stays)."""
         if not np.array_equal(on, self._on_seen):
             self._steady = [None] * self.groups
+            self._on_mask = np.zeros(self.n, dtype=bool)
+            self._on_mask[on] = True
         self._on_seen = on
 
     def _drop_steady(self) -> None:
