@@ -92,10 +92,6 @@ class NctoplcPacker:
         self.out_torque = np.ndarray((n, 2), np.float64, nctoplc, f8["SetTorque"][1], (NCTOPLC_DTYPE.itemsize, 8))
         self.out_torque2 = np.ndarray((n, 4), np.float64, nctoplc, f8["ActTorqueDerivative"][1],
                                       (NCTOPLC_DTYPE.itemsize, 8))
-        # the modulo pairs are divided into these first (np.divmod straight into the strided record fields,
-        # the turns cast to int32 on the way, costs several times as much at 1024 axes)
-        self._turns = np.empty(n)
-        self._rest = np.empty(n)
 
     def fill(self, core: Any, event_dw: np.ndarray, loop_dw: np.ndarray) -> None:
         """This cycle's values from the axis table, the drive and the set-point words of ``core``."""
@@ -107,11 +103,8 @@ class NctoplcPacker:
         o["StateDWord"][...] = sd
         o["AxisState"][...] = core.axis_state
         period = a.modulo_factor
-        turns, rest = self._turns, self._rest
         o["ActPos"][...] = act
-        np.divmod(act, period, out=(turns, rest))  # // and %
-        o["ModuloActTurns"][...] = turns
-        o["ModuloActPos"][...] = rest
+        np.divmod(act, period, out=(o["ModuloActTurns"], o["ModuloActPos"]), casting="unsafe")  # // and %
         o["ActVelo"][...] = d.act_velo
         torque = d.torque_fields()
         if torque is not None:  # (None: all 0 and shown so already)
@@ -124,9 +117,7 @@ class NctoplcPacker:
         if np.count_nonzero(a.continuous):
             np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
-        np.divmod(a.set_pos, period, out=(turns, rest))
-        o["ModuloSetTurns"][...] = turns
-        o["ModuloSetPos"][...] = rest
+        np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
         corr = core.corrections  # (ActPos less the filtered PLCTONC.PositionCorrection)
         o["ActPosWithoutPosCorrection"][...] = act - corr.pc if corr.any_pc else act
         o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState
