@@ -212,7 +212,7 @@ class CouplingStage:
         sv: np.ndarray | None = None  # the slaves' set-points, (4, s.size), if they are still in hand
         for rows, masters, r, sb, mb, dyn, syncing, state in levels:
             if not (dyn or syncing):  # (fixed ratios, all locked: one gather and one scatter, the same values)
-                sv = S[:, masters]
+                sv = S.take(masters, axis=1)  # (C order: S[:, masters] gives F order, slower to compute on)
                 pos = sv[0]
                 pos -= mb
                 pos *= r

@@ -454,7 +454,7 @@ class ProfileStage:
                 kc = np.argmax(starts[cross] > t[:, cross, None], axis=2)
                 kc += base[cross]
                 k[:, cross] = kc
-        t0, p0, v0, a0, j, ah = self._seg_flat[:, k]  # one gather, (L, m) or (m,) each
+        t0, p0, v0, a0, j, ah = self._seg_flat.take(k, axis=1)  # one gather, (L, m) or (m,) each (C order)
         if group >= 0 and k1 is not None:
             self._make_steady(group, k1, t[-1])
         tau = np.subtract(t, t0, out=t)
