@@ -188,6 +188,8 @@ class ProfileStage:
         self._on_groups: list[np.ndarray] = []
         self._on_seen = np.zeros(0, dtype=np.intp)  # the rows following a plan the steady groups were made for
         self._on_mask = np.zeros(n, dtype=bool)  # and as a mask
+        self._ends_from = 0.0  # the stage cycle from which running plans may end (looked for every cycle)
+        self._ends_dirty = True  # plans changed: _ends_from is found again
         self.set_groups(default_groups(n, L) if groups is None else groups)
 
     def set_groups(self, groups: int) -> None:
@@ -226,6 +228,7 @@ class ProfileStage:
         group = -1
         if self.pending:
             self._drop_steady()
+            self._ends_dirty = True
         if c % self.period == 0:
             group = (c // self.period) % self.groups
             if core.all_on:
@@ -261,14 +264,26 @@ class ProfileStage:
             a.traj_t += dt
             a.S[:] = self.buf[:, col]
             core.sp_words[:] = self.buf_words[:, col]  # (sp_dw, axis_state)
-            return (a.traj_t >= a.traj_dur).nonzero()[0]
-        mask = self._on_mask  # (the rows of ``on``: whole rows under a mask cost less than gathers)
-        np.add(a.traj_t, dt, out=a.traj_t, where=mask)
-        np.copyto(a.S, self.buf[:, col], where=mask)
-        np.copyto(core.sp_words, self.buf_words[:, col], where=mask)
-        ended = a.traj_t >= a.traj_dur
-        ended &= mask
-        return ended.nonzero()[0]
+            if self._ends_dirty:
+                self._next_ends(c, np.min(a.traj_dur - a.traj_t))
+            if c < self._ends_from:
+                return _NO_ROWS
+            ended: np.ndarray = (a.traj_t >= a.traj_dur).nonzero()[0]
+        else:
+            mask = self._on_mask  # (the rows of ``on``: whole rows under a mask cost less than gathers)
+            np.add(a.traj_t, dt, out=a.traj_t, where=mask)
+            np.copyto(a.S, self.buf[:, col], where=mask)
+            np.copyto(core.sp_words, self.buf_words[:, col], where=mask)
+            if self._ends_dirty:
+                self._next_ends(c, np.min(a.traj_dur - a.traj_t, where=mask, initial=np.inf))
+            if c < self._ends_from:
+                return _NO_ROWS
+            over = a.traj_t >= a.traj_dur
+            over &= mask
+            ended = over.nonzero()[0]
+        if ended.size:
+            self._ends_dirty = True  # (their jobs end or go on steady: the next end is another)
+        return ended
 
     def refresh(self, core: CoreContext, rows: Iterable[int]) -> None:
         """Rows whose plan (or whose job's hold/HasJob) changed: evaluated afresh at the next run."""
@@ -277,11 +292,24 @@ class ProfileStage:
     def _rows_changed(self, on: np.ndarray) -> None:
         """``core.on_rows`` is a new array: if other rows follow a plan now, the groups are other row sets
         (no steady group stays)."""
+        self._ends_dirty = True
         if not np.array_equal(on, self._on_seen):
             self._steady = [None] * self.groups
             self._on_mask = np.zeros(self.n, dtype=bool)
             self._on_mask[on] = True
         self._on_seen = on
+
+    def _next_ends(self, c: int, left: float) -> None:
+        """The first stage cycle at which a running plan may end, ``left`` [s] of plan time after this
+        cycle's (the minimum over the rows that follow a plan): the ends are looked for from then on
+        (plan times move on by a cycle time per cycle; a margin for the rounding of the additions)."""
+        self._ends_dirty = False
+        if left == np.inf:
+            self._ends_from = np.inf
+        elif left > 0:
+            self._ends_from = c + math.floor(left / self.dt * 0.999) - 1
+        else:  # (one ends now, or NaN: look every cycle)
+            self._ends_from = c
 
     def _drop_steady(self) -> None:
         """The groups of the pending rows are not steady (their rows changed)."""
@@ -522,3 +550,4 @@ class ProfileStage:
 
 
 _SIXTH_HALF = np.array([1.0 / 6.0, 0.5]).reshape(2, 1, 1)
+_NO_ROWS = np.zeros(0, dtype=np.intp)
