@@ -113,22 +113,6 @@ def default_groups(n: int, lookahead: int) -> int:
     return lookahead
 
 
-class _Steady:
-    """A group whose rows all stay in a steady segment (no jerk, no acceleration, a velocity) for its
-    next refills: their positions are the only thing a refill computes (velocity, acceleration,
-    jerk and the set-point words are the segment's constants, in the buffer already).
-
-    Attributes:
-        until: the last stage cycle whose refill stays inside every row's segment (may be inf).
-        t0, v0, p0: each row's segment start time, velocity and position, (m,).
-    """
-
-    __slots__ = ("until", "t0", "v0", "p0")
-
-    def __init__(self, until: float, t0: np.ndarray, v0: np.ndarray, p0: np.ndarray) -> None:
-        self.until, self.t0, self.v0, self.p0 = until, t0, v0, p0
-
-
 class ProfileStage:
     """The profile generator: set-points of the axes that follow a plan (``axes.traj_on``).
 
@@ -142,11 +126,13 @@ class ProfileStage:
     for the next ``lookahead`` cycles at the next run, in the same evaluation as that cycle's group.
 
     Steady groups: when every row of a group stays in a segment without jerk and acceleration for a
-    whole window, and no row of the group changed since its last refill, the group's later refills
-    (until a row could reach its next segment) compute the positions only, with the arithmetic of
-    the full evaluation for such a segment (``p0 + v0 * tau`` is what its Horner scheme gives, bit
-    for bit): the other set-points and the words of those columns are the segment's constants and
-    in the buffer already. A change of any of its rows (or of the rows that follow a plan) ends it.
+    whole window, and no row of the group changed since its last refill, the group needs no refills
+    until a row could reach its next segment: its velocity, acceleration, jerk and words are the
+    segment's constants, in every column of the buffer already, and its positions are computed every
+    cycle for all steady rows at once from the plan time (``p0 + v0 * (traj_t - t0)``: the arithmetic
+    of the full evaluation for such a segment, bit for bit; three calls per cycle instead of a refill).
+    A changed row leaves at once (its new plan is evaluated); the other rows of its group, and a group
+    whose time is up, at the group's next refill.
 
     Plan times advance by repeated addition of the cycle time, exactly as ``axes.traj_t``; a sample
     is therefore the same whenever it is evaluated: set-points do not depend on the lookahead or on
@@ -171,7 +157,7 @@ class ProfileStage:
         self.pending: set[int] = set()  # rows to evaluate at the next run (plans changed)
         self.refills = 0  # runs that evaluated rows (groups or pending)
         self.refill_rows = 0  # rows evaluated by the last run
-        self.steady_refills = 0  # refills of steady groups (positions only)
+        self.steady_refills = 0  # refills a steady group did not need
         # the segment table as evaluated: axes.seg's t0, p, v, a, j and a/2 (copied when a plan changes)
         self.seg = np.zeros((6, n, N_SEGMENTS))
         self.seg[0] = np.inf
@@ -189,6 +175,11 @@ class ProfileStage:
         self._on_seen = np.zeros(0, dtype=np.intp)  # the rows following a plan the steady groups were made for
         self._on_mask = np.zeros(n, dtype=bool)  # and as a mask
         self._ends_from = 0.0  # the stage cycle from which running plans may end (looked for every cycle)
+        # steady rows: their positions come from p0 + v0 * (traj_t - t0) every cycle
+        self._st_mask = np.zeros(n, dtype=bool)
+        self._st_t0, self._st_v0, self._st_p0 = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._st_tau = np.empty(n)
+        self.n_steady = 0  # rows in _st_mask
         self._ends_dirty = True  # plans changed: _ends_from is found again
         self.set_groups(default_groups(n, L) if groups is None else groups)
 
@@ -206,8 +197,11 @@ class ProfileStage:
         self._all_groups = [np.arange(g, n, groups) for g in range(groups)]
         self._bases = [self._row_base[g::groups] for g in range(groups)]
         self._on_key = None
-        self._steady: list[_Steady | None] = [None] * groups
+        self._until = [-math.inf] * groups  # a steady group's last refill cycle it can skip
+        self._g_steady = [0] * groups  # its rows in _st_mask
         self._busy = [False] * groups  # a row of the group changed since the group's last refill
+        self._st_mask[:] = False  # (every row is evaluated afresh below)
+        self.n_steady = 0
         self.pending = set(range(n))  # every row from the next run on (whatever ran before)
 
     def run(self, core: CoreContext) -> np.ndarray:
@@ -216,6 +210,11 @@ class ProfileStage:
         on = core.on_rows
         if not on.size:
             self.pending.clear()  # (nothing runs: rows that start later are refreshed then)
+            if self.n_steady:
+                self._st_mask[:] = False
+                self.n_steady = 0
+                self._g_steady = [0] * self.groups
+                self._until = [-math.inf] * self.groups
             return on
         if on is not self._on_seen:
             self._rows_changed(on)
@@ -238,13 +237,11 @@ class ProfileStage:
                 idx = self._group_rows(on, group)
                 if idx.size:
                     rows, base = idx, self._row_base[idx]
-            st = self._steady[group]
-            if st is not None and rows is not None:
-                if c <= st.until:
-                    self._refill_steady(core, rows, st, col)
-                    rows = base = None
-                else:
-                    self._steady[group] = None
+            if rows is not None and c <= self._until[group]:
+                rows = base = None  # steady: nothing to refill (its positions come every cycle)
+                self.steady_refills += 1
+            elif self._g_steady[group]:
+                self._leave_steady(group, rows)  # (its rows are evaluated in full below)
         group_rows = rows
         if self.pending:
             rows, base = self._take_pending(a, rows, base, group)
@@ -264,6 +261,8 @@ class ProfileStage:
             a.traj_t += dt
             a.S[:] = self.buf[:, col]
             core.sp_words[:] = self.buf_words[:, col]  # (sp_dw, axis_state)
+            if self.n_steady:
+                self._steady_positions(core)
             if self._ends_dirty:
                 self._next_ends(c, np.min(a.traj_dur - a.traj_t))
             if c < self._ends_from:
@@ -274,6 +273,8 @@ class ProfileStage:
             np.add(a.traj_t, dt, out=a.traj_t, where=mask)
             np.copyto(a.S, self.buf[:, col], where=mask)
             np.copyto(core.sp_words, self.buf_words[:, col], where=mask)
+            if self.n_steady:
+                self._steady_positions(core)
             if self._ends_dirty:
                 self._next_ends(c, np.min(a.traj_dur - a.traj_t, where=mask, initial=np.inf))
             if c < self._ends_from:
@@ -294,7 +295,7 @@ class ProfileStage:
         (no steady group stays)."""
         self._ends_dirty = True
         if not np.array_equal(on, self._on_seen):
-            self._steady = [None] * self.groups
+            self._until = [-math.inf] * self.groups  # (each group leaves steady at its next refill)
             self._on_mask = np.zeros(self.n, dtype=bool)
             self._on_mask[on] = True
         self._on_seen = on
@@ -312,13 +313,41 @@ class ProfileStage:
             self._ends_from = c
 
     def _drop_steady(self) -> None:
-        """The groups of the pending rows are not steady (their rows changed)."""
+        """The pending rows are not steady from now on (their plans changed: evaluated afresh), the rest of
+        their groups from the groups' next refills."""
         G = self.groups
-        steady, busy = self._steady, self._busy
+        until, busy, mask, count = self._until, self._busy, self._st_mask, self._g_steady
         for r in self.pending:
             g = r % G
-            steady[g] = None
+            until[g] = -math.inf
             busy[g] = True
+            if mask[r]:
+                mask[r] = False
+                count[g] -= 1
+                self.n_steady -= 1
+
+    def _leave_steady(self, group: int, rows: np.ndarray | slice | None) -> None:
+        """The steady rows of ``group`` (its rows ``rows``) are evaluated in full from this refill on."""
+        if rows is not None:
+            self._st_mask[rows] = False
+        self.n_steady -= self._g_steady[group]
+        self._g_steady[group] = 0
+        self._until[group] = -math.inf
+
+    def _steady_positions(self, core: CoreContext) -> None:
+        """This cycle's positions of the steady rows: ``p0 + v0 * tau`` at their plan time, the arithmetic
+        :meth:`_eval` does for a segment without jerk and acceleration and with a velocity, bit for bit."""
+        a = core.axes
+        tau = self._st_tau
+        np.subtract(a.traj_t, self._st_t0, out=tau)
+        np.multiply(tau, self._st_v0, out=tau)
+        if self.n_steady == self.n and not core.has_origin:
+            np.add(tau, self._st_p0, out=a.S[0])
+            return
+        tau += self._st_p0
+        if core.has_origin:
+            tau += a.origin
+        np.copyto(a.S[0], tau, where=self._st_mask)
 
     def _take_pending(self, a: Any, rows: np.ndarray | slice | None, base: np.ndarray | None,
                       group: int) -> tuple[np.ndarray | slice | None, np.ndarray | None]:
@@ -362,33 +391,6 @@ class ProfileStage:
             g = on % self.groups
             self._on_groups = [on[g == k] for k in range(self.groups)]
         return self._on_groups[group]
-
-    def _refill_steady(self, core: CoreContext, rows: np.ndarray | slice, st: _Steady, col: int) -> None:
-        """The positions of a steady group's rows for the stage cycles from this one on (the rest of
-        their set-points and words are in the buffer): ``p0 + v0 * tau``, the arithmetic :meth:`_eval`
-        does for a segment without jerk and acceleration and with a velocity, bit for bit."""
-        a = core.axes
-        m = st.t0.shape[0]
-        self.refills += 1
-        self.steady_refills += 1
-        self.refill_rows = m
-        t_in = self._t_in[:, :m]
-        t_in[0] = a.traj_t[rows]
-        t = self._t_out[:, :m]
-        np.add.accumulate(t_in, axis=0, out=t)
-        tau = t[1:]
-        np.subtract(tau, st.t0, out=tau)
-        np.multiply(tau, st.v0, out=tau)
-        np.add(tau, st.p0, out=tau)
-        if core.has_origin:
-            tau += a.origin[rows]
-        pos = self.buf[0]
-        if col:
-            n1 = self.lookahead - col
-            pos[col:, rows] = tau[:n1]
-            pos[:col, rows] = tau[n1:]
-        else:
-            pos[:, rows] = tau
 
     def _eval_row(self, core: CoreContext, rows: slice, base: np.ndarray, col: int) -> None:
         """:meth:`_eval` for one row ``rows = slice(r, r + 1)``: when one segment serves all its
@@ -450,7 +452,7 @@ class ProfileStage:
         cycles from this one on, into columns col, col+1, ... (mod L); samples as (L, m) blocks.
 
         The arithmetic of :func:`.profile.evaluate`, bit for bit, arranged for blocks of samples.
-        ``group`` >= 0: ``rows`` are that group's; make it steady if it is (:class:`_Steady`).
+        ``group`` >= 0: ``rows`` are that group's; make it steady if it is.
         """
         a = core.axes
         L = self.lookahead
@@ -484,7 +486,7 @@ class ProfileStage:
                 k[:, cross] = kc
         t0, p0, v0, a0, j, ah = self._seg_flat.take(k, axis=1)  # one gather, (L, m) or (m,) each (C order)
         if group >= 0 and k1 is not None:
-            self._make_steady(group, k1, t[-1])
+            self._make_steady(group, rows, k1, t[-1])
         tau = np.subtract(t, t0, out=t)
         tj = tau * j
         res = self._res[:, :, :m]
@@ -532,9 +534,9 @@ class ProfileStage:
             buf[:, :, rows] = res
             bw[:, :, rows] = words
 
-    def _make_steady(self, group: int, k: np.ndarray, t_last: np.ndarray) -> None:
-        """The group's rows stay in segments ``k`` (flat indices, (m,)) for the window ending at plan times
-        ``t_last``: steady if none of them has jerk or acceleration and each has a velocity."""
+    def _make_steady(self, group: int, rows: np.ndarray | slice, k: np.ndarray, t_last: np.ndarray) -> None:
+        """The group's rows ``rows`` stay in segments ``k`` (flat indices, (m,)) for the window ending at plan
+        times ``t_last``: steady if none of them has jerk or acceleration and each has a velocity."""
         sf = self._seg_flat
         if np.count_nonzero(sf[4, k]) or np.count_nonzero(sf[3, k]) or np.count_nonzero(sf[2, k]) < k.size:
             return
@@ -546,7 +548,11 @@ class ProfileStage:
             until = c + math.floor(left / self.dt * 0.999) - 2  # rounding of the repeated additions
         else:
             return
-        self._steady[group] = _Steady(float(until), sf[0, k], sf[2, k], sf[1, k])
+        self._until[group] = float(until)
+        self._st_mask[rows] = True
+        self._st_t0[rows], self._st_v0[rows], self._st_p0[rows] = sf[0, k], sf[2, k], sf[1, k]
+        self._g_steady[group] = k.size
+        self.n_steady += k.size
 
 
 _SIXTH_HALF = np.array([1.0 / 6.0, 0.5]).reshape(2, 1, 1)
