@@ -102,7 +102,9 @@ _CLASS_CODES, _ROW_BITS = _class_codes()
 #: Staggering: up to this many axes, one group of a quarter of them is refilled every 4th cycle (blocks of
 #: up to 1024 samples with a lookahead of 16: cheaper per sample, and 3 of 4 cycles refill nothing);
 #: above, one group every cycle (a block per cycle of about as many samples as there are axes).
-#: Measured with bench/nc_cycle.py (docs/ARCHITECTURE.md, "How the core keeps a cycle cheap").
+#: Measured with bench/nc_cycle.py (docs/ARCHITECTURE.md, "How the core keeps a cycle cheap"), before the
+#: steady groups: they skip the refills of steady motion whatever the grouping, so the choice now only
+#: matters for motion that is not steady.
 PERIOD_4_UP_TO = 256
 
 
