@@ -36,7 +36,7 @@ from nc_server.security.exposure import exposure
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
-from .handler import MAX_REQUEST_BYTES, CycleInputs, RequestHandler
+from .handler import MAX_REQUEST_BYTES, NO_NC_CYCLE, CycleInputs, PendingReply, RequestHandler
 from .retain import RetainKeeper
 from .frame_ring import RingCounters
 from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
@@ -49,6 +49,9 @@ log = logging.getLogger("nc_server.server")
 
 #: Queries executed per cycle at most (the rest wait for the next cycle).
 MAX_QUERIES_PER_CYCLE = 32
+#: Queries taken from the channel per call at most (those that wait for a prepared command on their axis
+#: included).
+QUERY_CHANNEL_TAKE = 128
 #: ... and no new one once this much of the cycle went into requests [ns] (a flood cannot stall the NC).
 QUERY_BUDGET_NS = 250_000
 #: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
@@ -81,6 +84,13 @@ QUERY_COST_EVERY = 16
 QUERY_RESERVE_MIN_NS = 50_000
 QUERY_RESERVE_MAX_NS = 600_000
 QUERY_MAX_WAIT_NS = 20_000_000
+#: A prepared command whose prediction failed at its activation (the axis changed between its preparation
+#: and the cycle: a watchdog fault, a PLCTONC enable or override change) is prepared again this many times,
+#: then refused (0x4220); it is never activated stale.
+MAX_REPREPARE = 2
+#: request waits kept for the stats' request_wait_us_p50/p99 (from when the cycle thread took the query to
+#: when its reply was handed over)
+WAIT_WINDOW = 512
 
 
 def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
@@ -90,6 +100,24 @@ def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
     s = sorted(costs)
     q = s[min(len(s) - 1, int(len(s) * QUERY_COST_QUANTILE))]
     return int(min(QUERY_RESERVE_MAX_NS, max(QUERY_RESERVE_MIN_NS, q)))
+
+
+def key_class(key: str) -> str:
+    """The cost class of a request from its key alone (no parsing): ``read``, ``op`` or ``eng`` (the key's
+    command class); anything else ``?``."""
+    head, _, _ = key.rpartition("/")
+    return head.rpartition("/")[2] or "?"
+
+
+def key_axis(key: str) -> int | None:
+    """The AxisId of an axis command key ``nc/<nc>/axis/<id>/cmd/...``; None for any other key."""
+    parts = key.split("/", 4)
+    if len(parts) > 3 and parts[2] == "axis":
+        try:
+            return int(parts[3])
+        except ValueError:
+            return None
+    return None
 
 
 class NcServer:
@@ -159,6 +187,19 @@ class NcServer:
         self._idle_ran = False      # an idle call ran since the last cycle (it ran the requests)
         self._query_costs: collections.deque[int] = collections.deque(maxlen=QUERY_COST_WINDOW)  # [ns]
         self._reserve_ns = QUERY_RESERVE_MIN_NS * 4  # until costs are known
+        #: per cost class (key_class): the recent costs [ns] and the reserve made of them (none yet: _reserve_ns)
+        self._class_costs: dict[str, collections.deque[int]] = {}
+        self._class_reserve: dict[str, int] = {}
+        #: prepared requests (SVB), activated at the next cycle's start (SAF): (query, pending, first seen [ns])
+        self._pending: list[tuple[Any, PendingReply, int]] = []
+        self._pending_axes: set[int] = set()  # their axes: a later request on one waits for the activation
+        self._activated: list[tuple[Any, bytes, int]] = []  # replies of this cycle's activations (sent after it)
+        self._prepared_again: dict[int, int] = {}  # id(query) -> preparations whose prediction failed
+        self._first_seen: dict[int, int] = {}  # id(query) -> when the cycle thread first took it [ns]
+        self._waits: collections.deque[int] = collections.deque(maxlen=WAIT_WINDOW)  # [ns]
+        self.prepared = 0  # motion commands prepared (SVB) for activation at a cycle start
+        self.prepared_again = 0  # preparations repeated because the axis changed before the activation
+        self.not_activated = 0  # refused after MAX_REPREPARE failed predictions (0x4220) or a long NC stall
         self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
@@ -280,7 +321,13 @@ class NcServer:
                             core.ncjobs, core.plctonc)
         except Exception as exc:
             log.warning("final frame: %s", exc)
-        # Queries still queued get no execution; finalize them so queriers do not wait.
+        # Queries still queued (or prepared, not activated) get no execution; finalize them so queriers do not wait.
+        for q, _, _ in self._pending:
+            try:
+                q.drop()
+            except Exception:
+                pass
+        self._pending.clear()
         while True:
             q = self.transport.try_recv_query()
             if q is None:
@@ -338,6 +385,10 @@ class NcServer:
         # watchdog (lost clients, stale PLCTONC): the same code the in-process port runs.
         self.inputs.apply(t.pop_plc_frames(), now)
 
+        # the commands prepared between cycles start now (SAF), if their prediction still holds
+        if self._pending:
+            self._activate_pending(now)
+
         if self._shutdown.is_set():
             self._stop_moving_axes()
         try:
@@ -349,6 +400,9 @@ class NcServer:
                 core.fault(i, ErrorCodes.NC_INTERNAL)
 
         self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)
+        if self._activated:  # their replies after the cycle's work (the I/O thread takes the GIL to send them)
+            self.io.submit_replies(self._activated)
+            self._activated = []
         if self.retain is not None:
             self.retain.tick(core)  # a snapshot every 100 ms for the retain thread (no I/O here)
         self._claims_changed()
@@ -434,44 +488,63 @@ class NcServer:
         """Run queued requests, hand their replies to the I/O thread; how many ran.
 
         At most ``limit``, none after QUERY_BUDGET_NS of this call, and (from the ``at_least``-th on) none
-        that would, at the recent cost of a request (:func:`query_reserve`), end after
-        ``until_ns`` [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must
-        start on time. A request that does not fit goes back to the front of the queue (``transport.queries``).
+        that would, at the recent cost of a request of its class (:meth:`_reserve`), end after ``until_ns``
+        [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must start on
+        time. A request that does not fit goes back to the front of the queue (``transport.queries``).
+
+        A motion command that starts now is only prepared here (TwinCAT's SVB: checked and planned from
+        the state the next cycle starts from, nothing changed); the next cycle activates it at its start
+        (:meth:`_activate_pending`, SAF) and its reply goes out after that cycle's work. A request on an
+        axis with a prepared command waits for that activation (each axis's commands run in order).
         """
         t = self.transport
         h = self.handler
         clock = time.monotonic_ns
         budget_end = clock() + QUERY_BUDGET_NS
-        costs = self._query_costs
+        first_seen = self._first_seen
         replies: list[tuple[Any, bytes, bool]] = []  # (query, reply, held until kept: handler.durable)
-        n = 0
-        while n < limit:
+        later: list[Any] = []  # requests on axes with a prepared command: after its activation, in order
+        n = taken = 0
+        while n < limit and taken < QUERY_CHANNEL_TAKE:
             q = t.try_recv_query()
             if q is None:
                 self._waiting_since = None
                 break
-            if n >= at_least and until_ns is not None and clock() + self._reserve_ns > until_ns:
+            taken += 1
+            t0 = clock()
+            first_seen.setdefault(id(q), t0)
+            key = str(q.key_expr)
+            axis = key_axis(key) if self._pending_axes else None
+            if axis is not None and axis in self._pending_axes:
+                later.append(q)
+                continue
+            cls = key_class(key)
+            if n >= at_least and until_ns is not None and t0 + self._reserve(cls) > until_ns:
                 t.queries.appendleft(q)  # first in line next time
                 if self._waiting_since is None:
-                    self._waiting_since = clock()
+                    self._waiting_since = t0
                 break
-            t0 = clock()
             p = q.payload
             if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
-                reply = h.too_large(len(p))
+                reply: bytes | PendingReply = h.too_large(len(p))
             elif now < self._refuse_until:
-                reply = h.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
+                reply = h.handle_after_stall(key, p.to_bytes() if p is not None else b"", now)
             else:
-                reply = h.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
-            replies.append((q, reply, h.durable))
+                reply = h.prepare(key, p.to_bytes() if p is not None else b"", now)
             n += 1
+            if isinstance(reply, PendingReply):
+                self._pending.append((q, reply, first_seen.pop(id(q), t0)))
+                self._pending_axes.add(reply.axis_id)
+                self.prepared += 1
+            else:
+                replies.append((q, reply, h.durable))
             t1 = clock()
             self._waiting_since = None
-            costs.append(t1 - t0)
-            if len(costs) % QUERY_COST_EVERY == 0:
-                self._reserve_ns = query_reserve(costs)
+            self._cost(cls, t1 - t0)
             if t1 > budget_end:
                 break
+        if later:  # (before a request put back above: they were taken before it)
+            t.queries.extendleft(reversed(later))
         if replies:
             # a Claim's holder must count before its reply goes out: the client's next PLCTONC frame,
             # decoded between cycles, would otherwise be dropped as a non-holder's
@@ -479,8 +552,66 @@ class NcServer:
             # acknowledged means kept: the replies of durable commands wait for the retain file (one snapshot
             # for all of them, written by the retain thread; the I/O thread sends them once it is fsync'ed)
             commit = self.retain.commit(self.core) if self.retain is not None and any(r[2] for r in replies) else 0
+            end = clock()
+            for q, _, _ in replies:
+                self._waits.append(end - first_seen.pop(id(q), end))
+                self._prepared_again.pop(id(q), None)
             self.io.submit_replies([(q, r, commit if d else 0) for q, r, d in replies])  # (never on this thread)
         return n
+
+    def _reserve(self, cls: str) -> int:
+        """The time [ns] to keep free for one more request of cost class ``cls`` (:func:`key_class`)."""
+        return self._class_reserve.get(cls, self._reserve_ns)
+
+    def _cost(self, cls: str, ns: int) -> None:
+        """Record what a request of class ``cls`` took [ns]; its class's reserve follows (:func:`query_reserve`)."""
+        self._query_costs.append(ns)
+        costs = self._class_costs.get(cls)
+        if costs is None:
+            if len(self._class_costs) >= 8:  # (keys are checked later: a flood of odd ones shares one class)
+                cls = "?"
+            costs = self._class_costs.setdefault(cls, collections.deque(maxlen=QUERY_COST_WINDOW))
+        costs.append(ns)
+        if len(costs) % QUERY_COST_EVERY == 0:
+            self._class_reserve[cls] = query_reserve(costs)
+        if len(self._query_costs) % QUERY_COST_EVERY == 0:
+            self._reserve_ns = query_reserve(self._query_costs)
+
+    def _activate_pending(self, now: float) -> None:
+        """At the start of a cycle, before its step: activate the commands prepared since the last one, in
+        order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
+        holds is prepared again (first in line, at most MAX_REPREPARE times, then refused 0x4220); after a
+        long NC stall they are refused (0x4B0F) as the queued ones are. Their replies go out after the cycle's
+        work, with ``cycle`` = this cycle."""
+        h = self.handler
+        clock = time.monotonic_ns
+        again: list[Any] = []
+        stalled = now < self._refuse_until
+        for q, pending, seen in self._pending:
+            reply = None
+            if stalled:
+                reply = h.refuse_stale(pending, NO_NC_CYCLE, "the NC stalled: a motion command prepared before the "
+                                                             "stall is refused, not executed late")
+                self.not_activated += 1
+            else:
+                reply = h.activate(pending)
+                if reply is None:
+                    k = self._prepared_again.get(id(q), 0) + 1
+                    self.prepared_again += 1
+                    if k <= MAX_REPREPARE:
+                        self._prepared_again[id(q)] = k
+                        self._first_seen[id(q)] = seen
+                        again.append(q)
+                        continue
+                    reply = h.refuse_stale(pending)
+                    self.not_activated += 1
+            self._prepared_again.pop(id(q), None)
+            self._waits.append(clock() - seen)
+            self._activated.append((q, reply, 0))
+        self._pending.clear()
+        self._pending_axes.clear()
+        if again:
+            self.transport.queries.extendleft(reversed(again))
 
     def _take_liveliness(self, now: float | None = None) -> None:
         """Liveliness: PUT = client present, DELETE = gone (the watchdog reacts: CycleInputs)."""
@@ -531,6 +662,16 @@ class NcServer:
     def _info_extra(self) -> dict[str, Any]:
         return {"timing": self.loop.stats.timing, "watchdog_timeout": self.config.watchdog_timeout}
 
+    def _wait_percentiles(self) -> dict[str, float]:
+        """p50/p99 of the last WAIT_WINDOW request waits [us]: from when the cycle thread took the query to
+        when its reply was handed over (a prepared one: after its activation). (Any thread: a copy, then a sort
+        of at most WAIT_WINDOW ints.)"""
+        w = sorted(self._waits.copy())
+        if not w:
+            return {"request_wait_us_p50": 0.0, "request_wait_us_p99": 0.0}
+        return {"request_wait_us_p50": round(w[len(w) // 2] / 1000.0, 1),
+                "request_wait_us_p99": round(w[min(len(w) - 1, int(len(w) * 0.99))] / 1000.0, 1)}
+
     def stats(self) -> dict[str, Any]:
         """The stats map published on ``nc/<nc>/stats`` (protocol.json ``stats``)."""
         st = self.loop.stats
@@ -551,5 +692,7 @@ class NcServer:
                   "publisher_standby": self.publisher.standby_ready if self.publisher is not None else False,
                   "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors,
                   "replies_held": self.io.replies_held, "replies_not_kept": self.io.replies_not_kept,
+                  "requests_prepared": self.prepared, "requests_prepared_again": self.prepared_again,
+                  "requests_not_activated": self.not_activated, **self._wait_percentiles(),
                   "stages": self.core.stage_times()})
         return d

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence, TypeVar
 
 import numpy as np
@@ -101,6 +102,8 @@ class CoreLike(Protocol):
 
     def index(self, axis_id: int) -> int: ...
     def execute(self, request: dict[str, Any], axis_id: int) -> dict[str, Any]: ...
+    def prepare(self, request: dict[str, Any], axis_id: int) -> Any: ...
+    def activate(self, prepared: Any) -> dict[str, Any] | None: ...
     def default_plctonc(self) -> Any: ...
     def set_plctonc(self, i: int, record: Any) -> None: ...
     def info(self) -> dict[str, Any]: ...
@@ -163,6 +166,30 @@ class ReplyCache:
         for k in keys:
             del self._d[k]
         return len(keys)
+
+
+#: the refusal of a prepared command whose prediction failed at activation this many times in a row
+#: (NcServer.MAX_REPREPARE): the axis changed under it every time (0x4220: not ready for a new task)
+NOT_READY = int(ErrorCodes.NC_GROUP_NOT_READY)
+
+
+@dataclass(eq=False, slots=True)
+class PendingReply:
+    """A request whose core command was prepared (:meth:`RequestHandler.prepare`, TwinCAT's SVB) and
+    whose reply is made when it is activated at the start of its cycle (:meth:`RequestHandler.activate`).
+
+    Attributes:
+        prepared: the core's preparation (``nc_server.core.nc.Prepared``).
+        axis_id, client, rid, cmd: the request's.
+        packed: its reply packed in advance (it goes out as it is when the activation is as predicted).
+    """
+
+    prepared: Any
+    axis_id: int
+    client: str
+    rid: Any
+    cmd: str
+    packed: bytes
 
 
 class RequestHandler:
@@ -252,6 +279,7 @@ class RequestHandler:
         self.durable = False
         try:
             reply = self._handle(key, payload, now)
+            assert isinstance(reply, bytes)  # (prepare=False: always the packed reply)
         except Exception as exc:  # a bug: answer it, keep cycling
             self.internal_errors += 1
             log.exception("internal error handling request on %s", str(key)[:200])
@@ -307,7 +335,55 @@ class RequestHandler:
         return self._error(req["id"], req["cmd"], NcError(NO_NC_CYCLE, "the NC stalled: a motion command queued "
                                                                        "across the stall is refused, not executed late"))
 
-    def _handle(self, key: str, payload: bytes, now: float) -> bytes:
+    def prepare(self, key: str, payload: bytes, now: float) -> bytes | PendingReply:
+        """:meth:`handle` in two phases (nc-server's cycle thread): a motion command that starts now is only
+        prepared (``core.prepare``: checked and planned, nothing changed) and returned as a
+        :class:`PendingReply` for :meth:`activate` at the start of the next cycle; every other request
+        runs now and its packed reply is returned. Never raises."""
+        self.requests += 1
+        self.durable = False
+        try:
+            return self._handle(key, payload, now, prepare=True)
+        except Exception as exc:  # a bug: answer it, keep cycling
+            self.internal_errors += 1
+            log.exception("internal error handling request on %s", str(key)[:200])
+            return pack(make_reply(None, None, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
+                                   cycle=self.core.cycle + 1))
+
+    def activate(self, pending: PendingReply) -> bytes | None:
+        """Activate a prepared request at the start of its cycle (``core.activate``); its packed reply
+        (cached for a retry, with ``cycle`` = the step in which it takes effect), or None when its
+        prediction no longer holds (nothing changed: prepare it again, or :meth:`refuse_stale`)."""
+        try:
+            reply = self.core.activate(pending.prepared)
+        except Exception as exc:  # a bug: answer it, keep cycling
+            self.internal_errors += 1
+            log.exception("internal error activating %s", pending.cmd)
+            reply = make_reply(pending.rid, pending.cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
+                               cycle=self.core.cycle + 1)
+        if reply is None:
+            return None
+        if reply is pending.prepared.reply:
+            packed = pending.packed
+        else:
+            packed = pack(reply)
+        if reply.get("error"):
+            self.errors += 1
+        else:
+            self.last_command[pending.axis_id] = (pending.client, pending.cmd, int(reply.get("cycle", self.core.cycle + 1)))
+            self.commands_version += 1
+        self.cache.put(pending.client, pending.rid, packed)
+        return packed
+
+    def refuse_stale(self, pending: PendingReply, code: int = NOT_READY, text: str = "") -> bytes:
+        """The refusal of a prepared request that is not activated (nothing changed; cached for a retry):
+        by default 0x4220, its axis changed under it each time it was prepared."""
+        packed = self._error(pending.rid, pending.cmd, NcError(code, text or (
+            f"{pending.cmd}: the axis changed each time the command was prepared; not activated (nothing changed)")))
+        self.cache.put(pending.client, pending.rid, packed)
+        return packed
+
+    def _handle(self, key: str, payload: bytes, now: float, prepare: bool = False) -> bytes | PendingReply:
         if len(payload) > MAX_REQUEST_BYTES:
             return self.too_large(len(payload))
         try:
@@ -329,7 +405,10 @@ class RequestHandler:
         if cached is not None:
             self.durable = durable  # (an error reply held too: harmless, and no unpacking here)
             return cached
-        reply = self._execute(axis_id, req, now)
+        reply = self._execute(axis_id, req, now, prepare and not durable)
+        if not isinstance(reply, dict):  # prepared: its reply is made when it is activated
+            assert axis_id is not None
+            return PendingReply(reply, axis_id, client, rid, cmd, pack(reply.reply))
         self.durable = durable and not reply.get("error")
         if axis_id is not None and not reply.get("error"):
             self.last_command[axis_id] = (client, cmd, int(reply.get("cycle", self.core.cycle + 1)))
@@ -379,7 +458,8 @@ class RequestHandler:
         self.seen[client] = rank
         self.clients_version += 1
 
-    def _execute(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
+    def _execute(self, axis_id: int | None, req: dict[str, Any], now: float, prepare: bool = False) -> Any:
+        """The request's reply map; with ``prepare`` a motion command's preparation (``core.prepare``) instead."""
         rid, client, cmd = req["id"], req["client"], req["cmd"]
         if COMMAND_SPECS[cmd].scope == "axis" and axis_id is None:
             where = f"{self.keys.prefix}/axis/<id>/cmd/{COMMAND_CLASS[cmd]}/{client}"
@@ -399,7 +479,13 @@ class RequestHandler:
                 return self._error_reply(rid, cmd, err)
         # req["client"] (the key's) stays in the request: the core records it as the commander
         # of the motion job it starts.
-        reply = self.core.execute(req, axis_id)
+        if prepare:
+            got = self.core.prepare(req, axis_id)
+            if not isinstance(got, dict):
+                return got
+            reply = got
+        else:
+            reply = self.core.execute(req, axis_id)
         if reply.get("error"):
             self.errors += 1
         return reply
