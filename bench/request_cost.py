@@ -1,9 +1,11 @@
 """Where a request's time goes on the NC's cycle thread: parse, dedup, core.execute (accept, checks,
 planning (ruckig), begin/sync, packing), reply; in-process, no zenoh, thread CPU time.
 
-    .venv/bin/python bench/request_cost.py [--axes 4 64] [--n 400]
+    .venv/bin/python bench/request_cost.py [--axes 4 64] [--n 400] [--two-phase]
 
 Per command kind: p50 / p98 / max [us] of each part (inclusive: a part's children are inside it).
+``--two-phase``: the server's path instead (RequestHandler.prepare between cycles, RequestHandler.activate
+at the next cycle's start): "handle (total)" is then the preparation, "activate" the part in the cycle.
 """
 from __future__ import annotations
 
@@ -79,6 +81,8 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--axes", type=int, nargs="+", default=[4, 64])
     ap.add_argument("--n", type=int, default=400)
+    ap.add_argument("--two-phase", action="store_true")
+    ap.add_argument("--kinds", nargs="*", default=None)
     args = ap.parse_args()
     instrument()
     rid = iter(range(1, 10**9))
@@ -93,6 +97,8 @@ def main() -> int:
             "Halt (moving)": lambda k: ("op", {"cmd": "Halt"}),
         }
         for name, mk in kinds.items():
+            if args.kinds and not any(k in name for k in args.kinds):
+                continue
             T.clear()
             tot: list[int] = []
             for k in range(args.n):
@@ -114,8 +120,18 @@ def main() -> int:
                 key = f"nc/nc1/axis/{i + 1}/cmd/{cls}/c"
                 T.clear() if k == 0 else None
                 t0 = clock()
-                rep = h.handle(key, payload, time.monotonic())
-                tot.append(clock() - t0)
+                if args.two_phase:
+                    got = h.prepare(key, payload, time.monotonic())
+                    tot.append(clock() - t0)
+                    if isinstance(got, H.PendingReply):
+                        t1 = clock()
+                        rep = h.activate(got)
+                        T["activate (in the cycle)"].append(clock() - t1)
+                    else:
+                        rep = got
+                else:
+                    rep = h.handle(key, payload, time.monotonic())
+                    tot.append(clock() - t0)
                 core.step()
             r = H.unpack(rep)
             print(f"\n== {n} axes, {name} (last reply error 0x{r['error']:x} {r.get('text', '')[:60]})")

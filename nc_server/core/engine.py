@@ -281,8 +281,10 @@ class JobEngine:
         a.window_timer[i] = 0.0
         a.in_target[i] = a.in_area[i] = False
         self.sync(i)
-        job.kind.on_begin(core, i, job)
-        self.sync(i)
+        on_begin = job.kind.on_begin
+        if getattr(on_begin, "__func__", None) is not JobKind.on_begin:  # (the default does nothing: no second sync)
+            on_begin(core, i, job)
+            self.sync(i)
 
     def start_ramp(self, i: int, kind: JobKind, running: Job | None) -> None:
         """An internal stop ramp (no CmdNo) after an error or a job that could not take over."""
