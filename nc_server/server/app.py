@@ -5,7 +5,9 @@ claim holder and the watchdog (:class:`~nc_server.server.handler.CycleInputs`, s
 port); ``core.step()``; the frame and the applied PLCTONC into the frame ring (:mod:`.frame_ring`), which
 the frame publisher (:mod:`.publisher`, a child process by default) puts on zenoh. Between cycles
 (:meth:`NcServer.idle`): the requests, as many as fit before the next cycle; their replies go to the
-I/O thread.
+I/O thread. A motion command that starts now is only prepared there (TwinCAT's SVB: checks and plan,
+nothing changed) and activated at the start of the next cycle (SAF: ``NcServer._activate_pending``), its
+reply sent after that cycle's work with ``cycle`` = that cycle.
 With a retain file (:mod:`.retain`): locked and read before the cycle starts; the first cycle only
 steps the core once (the drive is read) and applies the file through the commands, before any
 command or PLCTONC is taken and without publishing a frame; then a snapshot every 100 ms (and on
