@@ -202,6 +202,7 @@ class NcServer:
         self.prepared = 0  # motion commands prepared (SVB) for activation at a cycle start
         self.prepared_again = 0  # preparations repeated because the axis changed before the activation
         self.not_activated = 0  # refused after MAX_REPREPARE failed predictions (0x4220) or a long NC stall
+        self.forced = 0  # requests run right after a cycle's work although their reserve did not fit (waited too long)
         self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
@@ -521,11 +522,13 @@ class NcServer:
                 later.append(q)
                 continue
             cls = key_class(key)
-            if n >= at_least and until_ns is not None and t0 + self._reserve(cls) > until_ns:
-                t.queries.appendleft(q)  # first in line next time
-                if self._waiting_since is None:
-                    self._waiting_since = t0
-                break
+            if until_ns is not None and t0 + self._reserve(cls) > until_ns:
+                if n >= at_least:
+                    t.queries.appendleft(q)  # first in line next time
+                    if self._waiting_since is None:
+                        self._waiting_since = t0
+                    break
+                self.forced += 1  # (it waited QUERY_MAX_WAIT_NS: runs although it may make the next cycle late)
             p = q.payload
             if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
                 reply: bytes | PendingReply = h.too_large(len(p))
@@ -695,6 +698,7 @@ class NcServer:
                   "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors,
                   "replies_held": self.io.replies_held, "replies_not_kept": self.io.replies_not_kept,
                   "requests_prepared": self.prepared, "requests_prepared_again": self.prepared_again,
-                  "requests_not_activated": self.not_activated, **self._wait_percentiles(),
+                  "requests_not_activated": self.not_activated, "requests_forced": self.forced,
+                  **self._wait_percentiles(),
                   "stages": self.core.stage_times()})
         return d
