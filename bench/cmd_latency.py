@@ -197,7 +197,7 @@ def main() -> int:
     try:
         nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
                                "--log-level", "WARNING"], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
-                              text=True, env=env, start_new_session=True)
+                              text=True, env=env, start_new_session=True, cwd=tree)
         procs.append(nc)
         line = nc.stdout.readline() if nc.stdout else ""
         if " ready: " not in line:
@@ -209,7 +209,7 @@ def main() -> int:
             p = subprocess.Popen([sys.executable, "-m", "plc_client.cli", str(PROGRAM), "--nc", f"nc1={endpoint}",
                                   "--client-id", f"plc{k}", "--cycle-time", str(args.plc_cycle), "--log-level", "WARNING"],
                                  stdout=subprocess.DEVNULL, stderr=open(tmp / f"plc{k}.err", "w"), env=cenv,
-                                 start_new_session=True)
+                                 start_new_session=True, cwd=tree)
             procs.append(p)
             t0 = time.monotonic()
             while not (tmp / f"plc{k}.json").exists():

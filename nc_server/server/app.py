@@ -73,13 +73,17 @@ STALL_GRACE = 0.05
 STALE_QUERY_WINDOW = 0.05
 
 
-#: A request starts between cycles only if the recent cost of one (the QUERY_COST_QUANTILE of the last
-#: QUERY_COST_WINDOW, recomputed every QUERY_COST_EVERY requests; between QUERY_RESERVE_MIN_NS and
-#: QUERY_RESERVE_MAX_NS) still fits before the next cycle: planning a move costs 0.1-0.2 ms on a quiet
-#: machine and 0.2-0.45 ms on a loaded one (p50-p99); run in the cycle or past the next deadline, they
-#: were what made the NC's cycles overrun (bench/many_clients.py). The cycle itself runs none (see
-#: cycle()); when none fitted for QUERY_MAX_WAIT_NS, one runs right after the cycle's work anyway
-#: (requests always progress; that cycle may start late).
+#: A request starts between cycles only if the recent cost of one of its class (the key's command class:
+#: read, op, eng; the QUERY_COST_QUANTILE of the last QUERY_COST_WINDOW of that class, recomputed every
+#: QUERY_COST_EVERY of them; between QUERY_RESERVE_MIN_NS and QUERY_RESERVE_MAX_NS) still fits before the
+#: next cycle: planning a move costs 0.1-0.2 ms on a quiet machine and 0.2-0.45 ms on a loaded one
+#: (p50-p99); run in the cycle or past the next deadline, they were what made the NC's cycles overrun
+#: (bench/many_clients.py). A cost is the cycle thread's CPU time for the request (thread_time), not its
+#: wall time: a preemption meanwhile (another process's real-time thread on a shared machine, the I/O
+#: thread holding the GIL) delays the cycle as much whether a request runs or not, and with wall times in
+#: the window of 64 such outliers made the reserve exceed the cycle's slack (commands waited for
+#: QUERY_MAX_WAIT_NS). The cycle itself runs none (see cycle()); when none fitted for QUERY_MAX_WAIT_NS,
+#: one runs right after the cycle's work anyway (requests always progress; the next cycle may start late).
 QUERY_COST_WINDOW = 64
 QUERY_COST_QUANTILE = 0.98
 QUERY_COST_EVERY = 16
@@ -503,6 +507,7 @@ class NcServer:
         t = self.transport
         h = self.handler
         clock = time.monotonic_ns
+        cpu = time.thread_time_ns  # a request's cost: the CPU it took, not the preemptions it suffered
         budget_end = clock() + QUERY_BUDGET_NS
         first_seen = self._first_seen
         replies: list[tuple[Any, bytes, bool]] = []  # (query, reply, held until kept: handler.durable)
@@ -515,6 +520,7 @@ class NcServer:
                 break
             taken += 1
             t0 = clock()
+            c0 = cpu()
             first_seen.setdefault(id(q), t0)
             key = str(q.key_expr)
             axis = key_axis(key) if self._pending_axes else None
@@ -545,7 +551,7 @@ class NcServer:
                 replies.append((q, reply, h.durable))
             t1 = clock()
             self._waiting_since = None
-            self._cost(cls, t1 - t0)
+            self._cost(cls, cpu() - c0)
             if t1 > budget_end:
                 break
         if later:  # (before a request put back above: they were taken before it)
