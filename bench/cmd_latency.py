@@ -252,7 +252,7 @@ def main() -> int:
           f"{s1.get('work_us_p50')}/{s1.get('work_us_p99')} us; request wait (NC side) p50/p99 "
           f"{s1.get('request_wait_us_p50', '-')}/{s1.get('request_wait_us_p99', '-')} us; prepared "
           f"{s1.get('requests_prepared', '-')}, prepared again {s1.get('requests_prepared_again', '-')}, "
-          f"not activated {s1.get('requests_not_activated', '-')}, forced {s1.get('requests_forced', '-')}")
+          f"not activated {s1.get('requests_not_activated', '-')}, forced {s1.get('requests_forced', '-')}, reserve {s1.get('request_reserve_us', '-')} us")
     return 0
 
 

@@ -82,14 +82,18 @@ STALE_QUERY_WINDOW = 0.05
 #: wall time: a preemption meanwhile (another process's real-time thread on a shared machine, the I/O
 #: thread holding the GIL) delays the cycle as much whether a request runs or not, and with wall times in
 #: the window of 64 such outliers made the reserve exceed the cycle's slack (commands waited for
-#: QUERY_MAX_WAIT_NS). The cycle itself runs none (see cycle()); when none fitted for QUERY_MAX_WAIT_NS,
-#: one runs right after the cycle's work anyway (requests always progress; the next cycle may start late).
+#: QUERY_MAX_WAIT_NS). The cycle itself runs none (see cycle()); when none fitted for QUERY_MAX_WAIT_NS
+#: (4 ms: 20 ms before, which was the commands' p99 on a loaded machine), one runs right after the cycle's
+#: work anyway (requests always progress; the next cycle may start late).
 QUERY_COST_WINDOW = 64
 QUERY_COST_QUANTILE = 0.98
 QUERY_COST_EVERY = 16
 QUERY_RESERVE_MIN_NS = 50_000
 QUERY_RESERVE_MAX_NS = 600_000
-QUERY_MAX_WAIT_NS = 20_000_000
+QUERY_MAX_WAIT_NS = 4_000_000
+#: The quantile of a class's recent CPU costs it reserves (a preparation that takes longer than its reserve
+#: eats into the spin before the deadline, 100-200 us, before it makes the cycle late).
+CLASS_COST_QUANTILE = 0.9
 #: A prepared command whose prediction failed at its activation (the axis changed between its preparation
 #: and the cycle: a watchdog fault, a PLCTONC enable or override change) is prepared again this many times,
 #: then refused (0x4220); it is never activated stale.
@@ -99,12 +103,12 @@ MAX_REPREPARE = 2
 WAIT_WINDOW = 512
 
 
-def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
+def query_reserve(costs: "collections.deque[int] | list[int]", quantile: float = QUERY_COST_QUANTILE) -> int:
     """The time [ns] to keep free for one more request, from the recent request costs [ns]."""
     if not costs:
         return QUERY_RESERVE_MAX_NS
     s = sorted(costs)
-    q = s[min(len(s) - 1, int(len(s) * QUERY_COST_QUANTILE))]
+    q = s[min(len(s) - 1, int(len(s) * quantile))]
     return int(min(QUERY_RESERVE_MAX_NS, max(QUERY_RESERVE_MIN_NS, q)))
 
 
@@ -584,7 +588,7 @@ class NcServer:
             costs = self._class_costs.setdefault(cls, collections.deque(maxlen=QUERY_COST_WINDOW))
         costs.append(ns)
         if len(costs) % QUERY_COST_EVERY == 0:
-            self._class_reserve[cls] = query_reserve(costs)
+            self._class_reserve[cls] = query_reserve(costs, CLASS_COST_QUANTILE)
         if len(self._query_costs) % QUERY_COST_EVERY == 0:
             self._reserve_ns = query_reserve(self._query_costs)
 
@@ -705,6 +709,7 @@ class NcServer:
                   "replies_held": self.io.replies_held, "replies_not_kept": self.io.replies_not_kept,
                   "requests_prepared": self.prepared, "requests_prepared_again": self.prepared_again,
                   "requests_not_activated": self.not_activated, "requests_forced": self.forced,
+                  "request_reserve_us": {c: round(v / 1000.0, 1) for c, v in list(self._class_reserve.items())},
                   **self._wait_percentiles(),
                   "stages": self.core.stage_times()})
         return d
