@@ -212,6 +212,7 @@ class NcServer:
         self.not_activated = 0  # refused after MAX_REPREPARE failed predictions (0x4220) or a long NC stall
         self.forced = 0  # requests run right after a cycle's work although their reserve did not fit (waited too long)
         self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
+        self._plan_waiting_since: int | None = None  # ... and a command in steps for time to be planned [ns]
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -503,10 +504,12 @@ class NcServer:
         [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must start on
         time. A request that does not fit goes back to the front of the queue (``transport.queries``).
 
-        A motion command that starts now is only prepared here (TwinCAT's SVB: checked and planned from
-        the state the next cycle starts from, nothing changed); the next cycle activates it at its start
-        (:meth:`_activate_pending`, SAF) and its reply goes out after that cycle's work. A request on an
-        axis with a prepared command waits for that activation (each axis's commands run in order).
+        A motion command that starts a job runs in steps (TwinCAT's SVB, then SAF): the handler's part
+        (parse, key, dedup) when it is taken; the core's part (checks, record, plan from the state the next
+        cycle starts from: :meth:`RequestHandler.plan`) in the gap before the cycle that activates it, as
+        soon as its class ``plan`` fits (first of all in each call, in order); the activation at that cycle's
+        start (:meth:`_activate_pending`), its reply after that cycle's work. A request on an axis with a
+        command in steps waits for its activation (each axis's commands run in order).
         """
         t = self.transport
         h = self.handler
@@ -515,9 +518,12 @@ class NcServer:
         budget_end = clock() + QUERY_BUDGET_NS
         first_seen = self._first_seen
         replies: list[tuple[Any, bytes, bool]] = []  # (query, reply, held until kept: handler.durable)
-        later: list[Any] = []  # requests on axes with a prepared command: after its activation, in order
-        n = taken = 0
-        while n < limit and taken < QUERY_CHANNEL_TAKE:
+        n = 0
+        if self._pending:  # the core's part of the commands in steps first (they came first)
+            n = self._plan_pending(replies, until_ns if at_least == 0 else None, budget_end)
+        later: list[Any] = []  # requests on axes with a command in steps: after its activation, in order
+        taken = 0
+        while n < limit and taken < QUERY_CHANNEL_TAKE and (n == 0 or clock() <= budget_end):
             q = t.try_recv_query()
             if q is None:
                 self._waiting_since = None
@@ -547,17 +553,15 @@ class NcServer:
             else:
                 reply = h.prepare(key, p.to_bytes() if p is not None else b"", now)
             n += 1
+            self._waiting_since = None
+            self._cost(cls, cpu() - c0)
             if isinstance(reply, PendingReply):
                 self._pending.append((q, reply, first_seen.pop(id(q), t0)))
                 self._pending_axes.add(reply.axis_id)
                 self.prepared += 1
+                self._plan_pending(replies, None if n <= at_least else until_ns, budget_end)
             else:
                 replies.append((q, reply, h.durable))
-            t1 = clock()
-            self._waiting_since = None
-            self._cost(cls, cpu() - c0)
-            if t1 > budget_end:
-                break
         if later:  # (before a request put back above: they were taken before it)
             t.queries.extendleft(reversed(later))
         if replies:
@@ -570,9 +574,43 @@ class NcServer:
             end = clock()
             for q, _, _ in replies:
                 self._waits.append(end - first_seen.pop(id(q), end))
-                self._prepared_again.pop(id(q), None)
             self.io.submit_replies([(q, r, commit if d else 0) for q, r, d in replies])  # (never on this thread)
         return n
+
+    def _plan_pending(self, replies: list[tuple[Any, bytes, bool]], until_ns: int | None, budget_end: int) -> int:
+        """The core's part of the commands in steps not planned yet, in order, each only if the class ``plan``
+        fits before ``until_ns`` (None: the first whatever it costs); a refused one (or one that ran at once: a
+        buffered move) goes to ``replies``. Returns how many were planned or answered."""
+        h = self.handler
+        clock = time.monotonic_ns
+        cpu = time.thread_time_ns
+        done = 0
+        keep: list[tuple[Any, PendingReply, int]] = []
+        for k, (q, pending, seen) in enumerate(self._pending):
+            if pending.prepared is not None:
+                keep.append((q, pending, seen))
+                continue
+            t0 = clock()
+            if (until_ns is not None and t0 + self._reserve("plan") > until_ns) or (done and t0 > budget_end):
+                keep += self._pending[k:]
+                if self._plan_waiting_since is None:
+                    self._plan_waiting_since = t0
+                break
+            if until_ns is None and self._plan_waiting_since is not None:
+                self.forced += 1  # (it waited QUERY_MAX_WAIT_NS: planned although it may make the next cycle late)
+            self._plan_waiting_since = None
+            c0 = cpu()
+            got = h.plan(pending)
+            self._cost("plan", cpu() - c0)
+            done += 1
+            if isinstance(got, PendingReply):
+                keep.append((q, got, seen))
+            else:  # refused, or ran at once (a buffered move): answered now
+                self._pending_axes.discard(pending.axis_id)
+                self._first_seen[id(q)] = seen
+                replies.append((q, got, False))
+        self._pending = keep
+        return done
 
     def _reserve(self, cls: str) -> int:
         """The time [ns] to keep free for one more request of cost class ``cls`` (:func:`key_class`)."""
@@ -593,21 +631,24 @@ class NcServer:
             self._reserve_ns = query_reserve(self._query_costs)
 
     def _activate_pending(self, now: float) -> None:
-        """At the start of a cycle, before its step: activate the commands prepared since the last one, in
+        """At the start of a cycle, before its step: activate the commands planned since the last one, in
         order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
-        holds is prepared again (first in line, at most MAX_REPREPARE times, then refused 0x4220); after a
-        long NC stall they are refused (0x4B0F) as the queued ones are. Their replies go out after the cycle's
-        work, with ``cycle`` = this cycle."""
+        holds is planned again (at most MAX_REPREPARE times, then refused 0x4220); after a long NC stall
+        every command in steps is refused (0x4B0F), as the queued ones are. The replies go out after the
+        cycle's work, with ``cycle`` = this cycle. Those not planned yet wait (their axis stays busy)."""
         h = self.handler
         clock = time.monotonic_ns
-        again: list[Any] = []
         stalled = now < self._refuse_until
+        keep: list[tuple[Any, PendingReply, int]] = []
         for q, pending, seen in self._pending:
-            reply = None
+            reply: bytes | None = None
             if stalled:
                 reply = h.refuse_stale(pending, NO_NC_CYCLE, "the NC stalled: a motion command prepared before the "
                                                              "stall is refused, not executed late")
                 self.not_activated += 1
+            elif pending.prepared is None:
+                keep.append((q, pending, seen))
+                continue
             else:
                 reply = h.activate(pending)
                 if reply is None:
@@ -615,18 +656,15 @@ class NcServer:
                     self.prepared_again += 1
                     if k <= MAX_REPREPARE:
                         self._prepared_again[id(q)] = k
-                        self._first_seen[id(q)] = seen
-                        again.append(q)
+                        keep.append((q, pending, seen))
                         continue
                     reply = h.refuse_stale(pending)
                     self.not_activated += 1
             self._prepared_again.pop(id(q), None)
+            self._pending_axes.discard(pending.axis_id)
             self._waits.append(clock() - seen)
             self._activated.append((q, reply, 0))
-        self._pending.clear()
-        self._pending_axes.clear()
-        if again:
-            self.transport.queries.extendleft(reversed(again))
+        self._pending = keep
 
     def _take_liveliness(self, now: float | None = None) -> None:
         """Liveliness: PUT = client present, DELETE = gone (the watchdog reacts: CycleInputs)."""
@@ -658,7 +696,7 @@ class NcServer:
         now = time.monotonic()
         self._tick(now)
         self._take_liveliness(now)
-        waiting = self._waiting_since
+        waiting = min((w for w in (self._waiting_since, self._plan_waiting_since) if w is not None), default=None)
         force = after_work and waiting is not None and time.monotonic_ns() - waiting > QUERY_MAX_WAIT_NS
         self._drain_queries(now, until_ns=deadline_ns, at_least=1 if force else 0)
         self.transport.take_plctonc()  # decoded now, applied at the next cycle start

@@ -175,21 +175,29 @@ NOT_READY = int(ErrorCodes.NC_GROUP_NOT_READY)
 
 @dataclass(eq=False, slots=True)
 class PendingReply:
-    """A request whose core command was prepared (:meth:`RequestHandler.prepare`, TwinCAT's SVB) and
-    whose reply is made when it is activated at the start of its cycle (:meth:`RequestHandler.activate`).
+    """A motion command in preparation (TwinCAT's SVB) and activation (SAF), in three steps of the cycle
+    thread: :meth:`RequestHandler.prepare` (parse, key, dedup: the handler's part, valid until it ends),
+    :meth:`RequestHandler.plan` (the core's checks, record and plan from the state the next cycle starts
+    from: in the gap before that cycle) and :meth:`RequestHandler.activate` (at that cycle's start).
 
     Attributes:
-        prepared: the core's preparation (``nc_server.core.nc.Prepared``).
+        req: the parsed request.
         axis_id, client, rid, cmd: the request's.
+        prepared: the core's preparation (``nc_server.core.nc.Prepared``) once planned, else None.
         packed: its reply packed in advance (it goes out as it is when the activation is as predicted).
     """
 
-    prepared: Any
+    req: dict[str, Any]
     axis_id: int
     client: str
     rid: Any
     cmd: str
-    packed: bytes
+    prepared: Any = None
+    packed: bytes = b""
+
+
+#: the motion commands that start a job of the queue: prepared and activated in two phases
+TWO_PHASE = frozenset(REGISTRY.kinds())
 
 
 class RequestHandler:
@@ -336,9 +344,9 @@ class RequestHandler:
                                                                        "across the stall is refused, not executed late"))
 
     def prepare(self, key: str, payload: bytes, now: float) -> bytes | PendingReply:
-        """:meth:`handle` in two phases (nc-server's cycle thread): a motion command that starts now is only
-        prepared (``core.prepare``: checked and planned, nothing changed) and returned as a
-        :class:`PendingReply` for :meth:`activate` at the start of the next cycle; every other request
+        """:meth:`handle` in steps (nc-server's cycle thread): a motion command that starts a job
+        (:data:`TWO_PHASE`) is parsed, checked against its key and the reply cache, and returned as a
+        :class:`PendingReply` for :meth:`plan` (the core's part) and :meth:`activate`; every other request
         runs now and its packed reply is returned. Never raises."""
         self.requests += 1
         self.durable = False
@@ -350,10 +358,27 @@ class RequestHandler:
             return pack(make_reply(None, None, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
                                    cycle=self.core.cycle + 1))
 
+    def plan(self, pending: PendingReply) -> bytes | PendingReply:
+        """The core's part of a prepared request (``core.prepare``: checks, record and plan from the state the
+        next step starts from, nothing changed), in the gap before the cycle that activates it: ``pending``
+        planned, or the packed reply of a command that is refused or ran at once (cached). Never raises."""
+        try:
+            got = self.core.prepare(pending.req, pending.axis_id)
+        except Exception as exc:  # a bug: answer it, keep cycling
+            self.internal_errors += 1
+            log.exception("internal error preparing %s", pending.cmd)
+            got = make_reply(pending.rid, pending.cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
+                             cycle=self.core.cycle + 1)
+        if isinstance(got, dict):
+            return self._done(pending, got)
+        pending.prepared = got
+        pending.packed = pack(got.reply)
+        return pending
+
     def activate(self, pending: PendingReply) -> bytes | None:
-        """Activate a prepared request at the start of its cycle (``core.activate``); its packed reply
+        """Activate a planned request at the start of its cycle (``core.activate``); its packed reply
         (cached for a retry, with ``cycle`` = the step in which it takes effect), or None when its
-        prediction no longer holds (nothing changed: prepare it again, or :meth:`refuse_stale`)."""
+        prediction no longer holds (nothing changed: plan it again, or :meth:`refuse_stale`)."""
         try:
             reply = self.core.activate(pending.prepared)
         except Exception as exc:  # a bug: answer it, keep cycling
@@ -362,8 +387,13 @@ class RequestHandler:
             reply = make_reply(pending.rid, pending.cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
                                cycle=self.core.cycle + 1)
         if reply is None:
+            pending.prepared = None
             return None
-        if reply is pending.prepared.reply:
+        return self._done(pending, reply)
+
+    def _done(self, pending: PendingReply, reply: dict[str, Any]) -> bytes:
+        """The end of a request in steps: counted, the last command noted, packed and cached."""
+        if pending.prepared is not None and reply is pending.prepared.reply:
             packed = pending.packed
         else:
             packed = pack(reply)
@@ -399,16 +429,19 @@ class RequestHandler:
         req["client"] = client  # the identity is the key's (the field, if given, equals it)
         self._saw(client, cls)
         if cls == "read":
-            return pack(self._execute(axis_id, req, now))
+            read = self._execute(axis_id, req, now)
+            assert read is not None  # (prepare=False: always a reply)
+            return pack(read)
         cached = self.cache.get(client, rid)
         durable = self.keeps(cmd, axis_id)
         if cached is not None:
             self.durable = durable  # (an error reply held too: harmless, and no unpacking here)
             return cached
-        reply = self._execute(axis_id, req, now, prepare and not durable)
-        if not isinstance(reply, dict):  # prepared: its reply is made when it is activated
+        two_phase = prepare and not durable and cmd in TWO_PHASE and axis_id is not None
+        reply = self._execute(axis_id, req, now, two_phase)
+        if reply is None:  # checked: the core's part follows (plan, activate)
             assert axis_id is not None
-            return PendingReply(reply, axis_id, client, rid, cmd, pack(reply.reply))
+            return PendingReply(req, axis_id, client, rid, cmd)
         self.durable = durable and not reply.get("error")
         if axis_id is not None and not reply.get("error"):
             self.last_command[axis_id] = (client, cmd, int(reply.get("cycle", self.core.cycle + 1)))
@@ -458,8 +491,9 @@ class RequestHandler:
         self.seen[client] = rank
         self.clients_version += 1
 
-    def _execute(self, axis_id: int | None, req: dict[str, Any], now: float, prepare: bool = False) -> Any:
-        """The request's reply map; with ``prepare`` a motion command's preparation (``core.prepare``) instead."""
+    def _execute(self, axis_id: int | None, req: dict[str, Any], now: float, prepare: bool = False) -> dict[str, Any] | None:
+        """The request's reply map; with ``prepare`` None once the handler's checks passed (the core's part
+        follows: :meth:`plan`)."""
         rid, client, cmd = req["id"], req["client"], req["cmd"]
         if COMMAND_SPECS[cmd].scope == "axis" and axis_id is None:
             where = f"{self.keys.prefix}/axis/<id>/cmd/{COMMAND_CLASS[cmd]}/{client}"
@@ -480,12 +514,8 @@ class RequestHandler:
         # req["client"] (the key's) stays in the request: the core records it as the commander
         # of the motion job it starts.
         if prepare:
-            got = self.core.prepare(req, axis_id)
-            if not isinstance(got, dict):
-                return got
-            reply = got
-        else:
-            reply = self.core.execute(req, axis_id)
+            return None
+        reply = self.core.execute(req, axis_id)
         if reply.get("error"):
             self.errors += 1
         return reply

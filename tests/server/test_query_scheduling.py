@@ -492,7 +492,7 @@ def test_a_command_whose_prediction_keeps_failing_is_refused_after_a_bounded_num
         server.cycle(time.monotonic_ns())
     (r,) = _replies_of(server)
     assert (r["id"], r["error"]) == (1, 0x4220) and not server.core.axes.has_job[0]
-    assert server.prepared == A.MAX_REPREPARE + 1 and server.not_activated == 1
+    assert server.prepared == 1 and server.prepared_again == A.MAX_REPREPARE + 1 and server.not_activated == 1
     assert not server.transport.queries and not server._pending and not server._first_seen
 
 
@@ -504,3 +504,31 @@ def test_a_prepared_command_across_a_long_stall_is_refused(server: NcServer) -> 
     server.cycle(time.monotonic_ns())
     (r,) = _replies_of(server)
     assert r["error"] == 0x4B0F and not server.core.axes.has_job[0]
+
+
+def test_the_core_part_waits_for_a_gap_it_fits_and_is_forced_after_the_wait_limit(
+        server: NcServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(A, "QUERY_MAX_WAIT_NS", 10_000_000_000)  # (moved by hand below)
+    _enable(server, 0)
+    server._class_reserve["plan"] = 400_000  # planning costs 0.4 ms lately
+    _move(server, 1)
+    server.idle(time.monotonic_ns() + 300_000, after_work=True)  # parsed and checked; its plan does not fit
+    assert server.prepared == 1 and server._pending and server._pending[0][1].prepared is None
+    server.cycle(time.monotonic_ns())  # nothing to activate yet: the axis waits, nothing answered
+    assert _replies_of(server) == [] and not server.core.axes.has_job[0] and server._pending_axes == {1}
+    assert server._plan_waiting_since is not None
+    server._plan_waiting_since -= A.QUERY_MAX_WAIT_NS + 1  # ... it has waited that long by now:
+    server.idle(time.monotonic_ns() + 300_000, after_work=False)  # not in a slice,
+    assert server._pending[0][1].prepared is None
+    server.idle(time.monotonic_ns() + 300_000, after_work=True)  # but right after the work it is planned anyway
+    assert server._pending[0][1].prepared is not None and server.forced == 1
+    server.cycle(time.monotonic_ns())
+    (r,) = _replies_of(server)
+    assert r["error"] == 0 and r["cycle"] == server.core.cycle and server.core.axes.has_job[0]
+    assert not server._pending and not server._pending_axes
+
+
+def test_every_job_command_runs_in_steps() -> None:
+    from nc_server.server.handler import TWO_PHASE
+    assert {"MoveAbsolute", "MoveRelative", "MoveVelocity", "Halt", "Stop", "Home", "GearIn"} <= TWO_PHASE
+    assert not TWO_PHASE & {"NewPos", "ReadParameter", "Reset", "SetOverride", "Claim", "WriteParameter"}
