@@ -82,15 +82,21 @@ STALE_QUERY_WINDOW = 0.05
 #: wall time: a preemption meanwhile (another process's real-time thread on a shared machine, the I/O
 #: thread holding the GIL) delays the cycle as much whether a request runs or not, and with wall times in
 #: the window of 64 such outliers made the reserve exceed the cycle's slack (commands waited for
-#: QUERY_MAX_WAIT_NS). The cycle itself runs none (see cycle()); when none fitted for QUERY_MAX_WAIT_NS
-#: (4 ms: 20 ms before, which was the commands' p99 on a loaded machine), one runs right after the cycle's
-#: work anyway (requests always progress; the next cycle may start late).
+#: QUERY_MAX_WAIT_NS). The cycle itself runs none (see cycle()); when none fitted for QUERY_MAX_WAIT_NS,
+#: one runs right after the cycle's work anyway (requests always progress; the next cycle may start late:
+#: with 4 ms instead of 20 on the loaded VM a fifth of the moves of bench/cmd_latency.py --clients 16 were
+#: forced, and the NC overran more).
 QUERY_COST_WINDOW = 64
 QUERY_COST_QUANTILE = 0.98
 QUERY_COST_EVERY = 16
 QUERY_RESERVE_MIN_NS = 50_000
 QUERY_RESERVE_MAX_NS = 600_000
-QUERY_MAX_WAIT_NS = 4_000_000
+QUERY_MAX_WAIT_NS = 20_000_000
+#: ... and one that waited QUERY_SPIN_WAIT_NS may also use the spin before the deadline but for
+#: QUERY_SPIN_MARGIN_NS (the cycle thread is awake in an idle call: the spin is there for a sleep's late
+#: wake-up, which does not come then).
+QUERY_SPIN_WAIT_NS = 3_000_000
+QUERY_SPIN_MARGIN_NS = 50_000
 #: The quantile of a class's recent CPU costs it reserves (a preparation that takes longer than its reserve
 #: eats into the spin before the deadline, 100-200 us, before it makes the cycle late).
 CLASS_COST_QUANTILE = 0.9
@@ -697,7 +703,11 @@ class NcServer:
         self._tick(now)
         self._take_liveliness(now)
         waiting = min((w for w in (self._waiting_since, self._plan_waiting_since) if w is not None), default=None)
-        force = after_work and waiting is not None and time.monotonic_ns() - waiting > QUERY_MAX_WAIT_NS
+        waited = 0 if waiting is None else time.monotonic_ns() - waiting
+        force = after_work and waited > QUERY_MAX_WAIT_NS
+        if deadline_ns is not None and waited > QUERY_SPIN_WAIT_NS:
+            # the cycle thread is awake: the spin kept for a sleep's late wake-up is free but for a margin
+            deadline_ns = max(deadline_ns, deadline_ns + self.loop.stats.spin_ns - QUERY_SPIN_MARGIN_NS)
         self._drain_queries(now, until_ns=deadline_ns, at_least=1 if force else 0)
         self.transport.take_plctonc()  # decoded now, applied at the next cycle start
 

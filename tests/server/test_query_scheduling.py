@@ -88,6 +88,10 @@ def test_a_request_that_would_not_fit_before_the_deadline_waits(server: NcServer
                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     # the wait limit is moved by hand below: a loaded machine's preemption between two calls must not do it
     monkeypatch.setattr(A, "QUERY_MAX_WAIT_NS", 10_000_000_000)
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 10**12)  # (the spin's use: its own test)
+    _queue(server, 1)
+    _run_all(server)  # (a first request warms the path up: cold, it took longer than QUERY_BUDGET_NS)
+    _replies(server)
     _queue(server, 3)
     server._reserve_ns = 400_000  # requests cost 0.4 ms lately
     soon = time.monotonic_ns() + 300_000
@@ -509,6 +513,7 @@ def test_a_prepared_command_across_a_long_stall_is_refused(server: NcServer) -> 
 def test_the_core_part_waits_for_a_gap_it_fits_and_is_forced_after_the_wait_limit(
         server: NcServer, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(A, "QUERY_MAX_WAIT_NS", 10_000_000_000)  # (moved by hand below)
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 10**12)
     _enable(server, 0)
     server._class_reserve["plan"] = 400_000  # planning costs 0.4 ms lately
     _move(server, 1)
@@ -532,3 +537,19 @@ def test_every_job_command_runs_in_steps() -> None:
     from nc_server.server.handler import TWO_PHASE
     assert {"MoveAbsolute", "MoveRelative", "MoveVelocity", "Halt", "Stop", "Home", "GearIn"} <= TWO_PHASE
     assert not TWO_PHASE & {"NewPos", "ReadParameter", "Reset", "SetOverride", "Claim", "WriteParameter"}
+
+
+def test_a_request_that_waited_may_use_the_spin_but_not_its_margin(server: NcServer,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(A, "QUERY_MAX_WAIT_NS", 10_000_000_000)
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 10_000_000_000)  # (moved by hand below)
+    server.loop.stats.spin_ns = 200_000
+    _queue(server, 1)
+    server._reserve_ns = 400_000
+    server.idle(time.monotonic_ns() + 300_000, after_work=False)  # 0.3 ms before the spin: does not fit
+    assert len(server.transport.queries) == 1 and server._waiting_since is not None
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 0)  # it waited long enough to use the spin (0.2 ms):
+    server.idle(time.monotonic_ns() + 100_000, after_work=False)  # 0.1 + 0.2 - 0.05 ms: still not
+    assert len(server.transport.queries) == 1
+    server.idle(time.monotonic_ns() + 300_000, after_work=False)  # 0.3 + 0.2 - 0.05 ms: it fits
+    assert not server.transport.queries and _replies(server) == 1
