@@ -219,6 +219,7 @@ class NcServer:
         self.forced = 0  # requests run right after a cycle's work although their reserve did not fit (waited too long)
         self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
         self._plan_waiting_since: int | None = None  # ... and a command in steps for time to be planned [ns]
+        self._forcing = False  # (idle: one runs whatever it costs: stats requests_forced)
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -526,7 +527,7 @@ class NcServer:
         replies: list[tuple[Any, bytes, bool]] = []  # (query, reply, held until kept: handler.durable)
         n = 0
         if self._pending:  # the core's part of the commands in steps first (they came first)
-            n = self._plan_pending(replies, until_ns if at_least == 0 else None, budget_end)
+            n = self._plan_pending(replies, until_ns if at_least == 0 else None, budget_end, limit)
         later: list[Any] = []  # requests on axes with a command in steps: after its activation, in order
         taken = 0
         while n < limit and taken < QUERY_CHANNEL_TAKE and (n == 0 or clock() <= budget_end):
@@ -565,7 +566,7 @@ class NcServer:
                 self._pending.append((q, reply, first_seen.pop(id(q), t0)))
                 self._pending_axes.add(reply.axis_id)
                 self.prepared += 1
-                self._plan_pending(replies, None if n <= at_least else until_ns, budget_end)
+                self._plan_pending(replies, None if n <= at_least else until_ns, budget_end, limit - n + 1)
             else:
                 replies.append((q, reply, h.durable))
         if later:  # (before a request put back above: they were taken before it)
@@ -583,10 +584,12 @@ class NcServer:
             self.io.submit_replies([(q, r, commit if d else 0) for q, r, d in replies])  # (never on this thread)
         return n
 
-    def _plan_pending(self, replies: list[tuple[Any, bytes, bool]], until_ns: int | None, budget_end: int) -> int:
-        """The core's part of the commands in steps not planned yet, in order, each only if the class ``plan``
-        fits before ``until_ns`` (None: the first whatever it costs); a refused one (or one that ran at once: a
-        buffered move) goes to ``replies``. Returns how many were planned or answered."""
+    def _plan_pending(self, replies: list[tuple[Any, bytes, bool]], until_ns: int | None, budget_end: int,
+                      most: int = MAX_QUERIES_PER_CYCLE) -> int:
+        """The core's part of the commands in steps not planned yet, in order, at most ``most``, each only if the
+        class ``plan`` fits before ``until_ns`` (None: whatever it costs; none after ``budget_end`` but the
+        first); a refused one (or one that ran at once: a buffered move) goes to ``replies``. Returns how many
+        were planned or answered."""
         h = self.handler
         clock = time.monotonic_ns
         cpu = time.thread_time_ns
@@ -597,12 +600,13 @@ class NcServer:
                 keep.append((q, pending, seen))
                 continue
             t0 = clock()
-            if (until_ns is not None and t0 + self._reserve("plan") > until_ns) or (done and t0 > budget_end):
+            if (until_ns is not None and t0 + self._reserve("plan") > until_ns) or (done and t0 > budget_end) \
+                    or done >= most:
                 keep += self._pending[k:]
                 if self._plan_waiting_since is None:
                     self._plan_waiting_since = t0
                 break
-            if until_ns is None and self._plan_waiting_since is not None:
+            if until_ns is None and self._forcing:
                 self.forced += 1  # (it waited QUERY_MAX_WAIT_NS: planned although it may make the next cycle late)
             self._plan_waiting_since = None
             c0 = cpu()
@@ -708,7 +712,9 @@ class NcServer:
         if deadline_ns is not None and waited > QUERY_SPIN_WAIT_NS:
             # the cycle thread is awake: the spin kept for a sleep's late wake-up is free but for a margin
             deadline_ns = max(deadline_ns, deadline_ns + self.loop.stats.spin_ns - QUERY_SPIN_MARGIN_NS)
+        self._forcing = force
         self._drain_queries(now, until_ns=deadline_ns, at_least=1 if force else 0)
+        self._forcing = False
         self.transport.take_plctonc()  # decoded now, applied at the next cycle start
 
     def _nc_time_ns(self, deadline_ns: int) -> int:
