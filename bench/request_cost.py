@@ -4,8 +4,9 @@ planning (ruckig), begin/sync, packing), reply; in-process, no zenoh, thread CPU
     .venv/bin/python bench/request_cost.py [--axes 4 64] [--n 400] [--two-phase]
 
 Per command kind: p50 / p98 / max [us] of each part (inclusive: a part's children are inside it).
-``--two-phase``: the server's path instead (RequestHandler.prepare between cycles, RequestHandler.activate
-at the next cycle's start): "handle (total)" is then the preparation, "activate" the part in the cycle.
+``--two-phase``: the server's path instead (RequestHandler.prepare when taken, RequestHandler.plan in the gap
+before the cycle, RequestHandler.activate at its start): "handle (total)" is then the handler's part, "plan"
+the core's part, "activate" the part in the cycle.
 """
 from __future__ import annotations
 
@@ -123,6 +124,10 @@ def main() -> int:
                 if args.two_phase:
                     got = h.prepare(key, payload, time.monotonic())
                     tot.append(clock() - t0)
+                    if isinstance(got, H.PendingReply):
+                        t1 = clock()
+                        got = h.plan(got)
+                        T["plan (the core's part)"].append(clock() - t1)
                     if isinstance(got, H.PendingReply):
                         t1 = clock()
                         rep = h.activate(got)
