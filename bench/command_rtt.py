@@ -48,7 +48,8 @@ from znc_testing import (  # noqa: E402
 CYCLE_US = 1000.0
 
 
-def rtt_us(session, key: str, payloads: list[bytes], check) -> list[float]:  # type: ignore[no-untyped-def]
+def _round_trips(session, key: str, payloads: list[bytes]) -> list[tuple[float, bytes]]:  # type: ignore[no-untyped-def]
+    """(round trip [us], the reply's payload) per request, one at a time; a missing reply raises."""
     out = []
     for p in payloads:
         t0 = time.perf_counter_ns()
@@ -56,23 +57,23 @@ def rtt_us(session, key: str, payloads: list[bytes], check) -> list[float]:  # t
         t1 = time.perf_counter_ns()
         if not replies or replies[0].ok is None:
             raise RuntimeError(f"no reply from {key}")
-        check(replies[0].ok.payload.to_bytes())
-        out.append((t1 - t0) / 1000.0)
+        out.append(((t1 - t0) / 1000.0, replies[0].ok.payload.to_bytes()))
+    return out
+
+
+def rtt_us(session, key: str, payloads: list[bytes], check) -> list[float]:  # type: ignore[no-untyped-def]
+    """Round trips [us], each reply passed to ``check`` (which raises on a wrong one)."""
+    out = []
+    for us, reply in _round_trips(session, key, payloads):
+        check(reply)
+        out.append(us)
     return out
 
 
 def rtt_outcomes(session, key: str, payloads: list[bytes]) -> list[tuple[float, int]]:  # type: ignore[no-untyped-def]
     """(round trip [us], the reply's error code) per request, one at a time; a missing reply raises."""
-    out = []
-    for p in payloads:
-        t0 = time.perf_counter_ns()
-        replies = list(session.get(key, payload=p, timeout=5.0))
-        t1 = time.perf_counter_ns()
-        if not replies or replies[0].ok is None:
-            raise RuntimeError(f"no reply from {key}")
-        r = msgpack.unpackb(replies[0].ok.payload.to_bytes(), strict_map_key=False)
-        out.append(((t1 - t0) / 1000.0, int(r.get("error", 0) or 0)))
-    return out
+    return [(us, int(msgpack.unpackb(reply, strict_map_key=False).get("error", 0) or 0))
+            for us, reply in _round_trips(session, key, payloads)]
 
 
 def fmt(name: str, xs: np.ndarray) -> str:

@@ -16,10 +16,12 @@ MET / NOT MET; :func:`verdict` the bench's summary of all its goals.
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable, Sequence
 
 REPO = Path(__file__).resolve().parents[1]
 TESTS = REPO / "tests"
@@ -150,3 +152,36 @@ def pct(xs: Iterable[float], p: float) -> float:
     if not s:
         return float("nan")
     return s[min(len(s) - 1, int(round(p / 100 * (len(s) - 1))))]
+
+
+def kill_group(proc: "subprocess.Popen[Any]", sig: int = signal.SIGKILL) -> None:
+    """Send ``sig`` to ``proc``'s process group (started with ``start_new_session``); gone already: nothing."""
+    try:
+        os.killpg(proc.pid, sig)
+    except ProcessLookupError:
+        pass
+
+
+def stop_processes(clients: "Sequence[subprocess.Popen[Any]]", nc: "subprocess.Popen[Any]",
+                   rest: "Sequence[subprocess.Popen[Any]]" = ()) -> None:
+    """The benches' orderly end: SIGTERM the clients (10 s for all of them), then the NC (10 s), then SIGKILL
+    every group, ``rest`` too, and reap them."""
+    for p in clients:
+        kill_group(p, signal.SIGTERM)
+    t_end = time.monotonic() + 10.0
+    for p in clients:
+        try:
+            p.wait(max(0.1, t_end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass
+    kill_group(nc, signal.SIGTERM)
+    try:
+        nc.wait(10)
+    except subprocess.TimeoutExpired:
+        pass
+    for p in [*clients, nc, *rest]:
+        kill_group(p)
+        try:
+            p.wait(5)
+        except subprocess.TimeoutExpired:
+            pass

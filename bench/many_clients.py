@@ -68,7 +68,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -84,7 +83,9 @@ import numpy as np
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
 sys.path.insert(0, str(REPO))
-from bench.common import Busy, children, cpu_ticks, elapsed, goal_line, machine_ticks, mark, use_this_tree  # noqa: E402,F401
+from bench.common import (  # noqa: E402,F401
+    Busy, children, cpu_ticks, elapsed, goal_line, machine_ticks, mark, stop_processes, use_this_tree,
+)
 
 use_this_tree()
 from bench.noise_floor import calibrate, run_floor  # noqa: E402
@@ -178,13 +179,6 @@ class Stats:
             self.session.close()
         except Exception:
             pass
-
-
-def _kill(proc: subprocess.Popen[Any], sig: int = signal.SIGKILL) -> None:
-    try:
-        os.killpg(proc.pid, sig)
-    except ProcessLookupError:
-        pass
 
 
 def run(args: argparse.Namespace) -> int:
@@ -355,25 +349,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if stats is not None:
             stats.close()
-        for p in clients + idle:
-            _kill(p, signal.SIGTERM)
-        t_end = time.monotonic() + 10.0
-        for p in clients + idle:
-            try:
-                p.wait(max(0.1, t_end - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                pass
-        _kill(nc, signal.SIGTERM)
-        try:
-            nc.wait(10)
-        except subprocess.TimeoutExpired:
-            pass
-        for p in procs:
-            _kill(p)
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                pass
+        stop_processes(clients + idle, nc, procs)
 
     # the NC never restarts during the run: every "NC ... restarted" a client logged is a false one (issue 18)
     result["false_restarts"] = {f"plc{k}": n for k in range(len(clients))

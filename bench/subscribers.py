@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -34,17 +33,10 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import REPO, Busy, ProcCpu, children, use_this_tree, verdict  # noqa: E402
+from bench.common import REPO, Busy, ProcCpu, children, stop_processes, use_this_tree, verdict  # noqa: E402
 
 use_this_tree()
 from bench.many_clients import AXES_PER_CLIENT, AXIS_TOML, NC_NAME, PROGRAM, Stats, free_port  # noqa: E402
-
-
-def _kill(proc: subprocess.Popen[Any], sig: int = signal.SIGKILL) -> None:
-    try:
-        os.killpg(proc.pid, sig)
-    except ProcessLookupError:
-        pass
 
 
 def run(args: argparse.Namespace) -> int:
@@ -128,25 +120,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if stats is not None:
             stats.close()
-        for p in clients:
-            _kill(p, signal.SIGTERM)
-        t_end = time.monotonic() + 10.0
-        for p in clients:
-            try:
-                p.wait(max(0.1, t_end - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                pass
-        _kill(nc, signal.SIGTERM)
-        try:
-            nc.wait(10)
-        except subprocess.TimeoutExpired:
-            pass
-        for p in [*clients, nc]:
-            _kill(p)
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                pass
+        stop_processes(clients, nc)
 
     print()
     print(f"== the NC's CPU by subscribing clients (NC {n_axes} axes, 1 ms; % of one core over {args.seconds:g} s) ==")

@@ -250,6 +250,15 @@ class NcCore:
             rows[index] = new
             self._in_dirty = True
 
+    def _refused(self, rid: Any, cmd: Any, exc: Exception, cycle: int) -> dict[str, Any]:
+        """The reply to a command that raised: an :class:`NcError`'s code and text, anything else (a bug)
+        logged with its traceback and answered NC_INTERNAL; the rows it touched are synced first."""
+        self._sync_refused()
+        if isinstance(exc, NcError):
+            return make_reply(rid, cmd, exc.code, str(exc), cycle)
+        _log.error("command %r failed", cmd, exc_info=exc)
+        return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
+
     def _sync_refused(self) -> None:
         """After a refused or failed command: the rows its hooks touched before it raised are synced too
         (records stay true; the next step would otherwise drop them unsynced). Never raises."""
@@ -274,13 +283,8 @@ class NcCore:
                 raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} needs an axis key (nc/<nc>/axis/<id>/cmd/<class>/<client>)")
             i = self.index(axis_id)
             out = self._dispatch(i, request)
-        except NcError as err:
-            self._sync_refused()
-            return make_reply(rid, cmd, err.code, str(err), cycle)
-        except Exception as exc:  # a bug must cost one command, never the NC cycle
-            _log.exception("command %r failed", cmd)
-            self._sync_refused()
-            return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
+        except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
+            return self._refused(rid, cmd, exc, cycle)
         # the engine's rule: records true after every command. Row i is synced unless its engine path
         # ended with that sync or the command only reads; then the other rows its hooks changed.
         engine = self.engine
@@ -313,13 +317,8 @@ class NcCore:
         try:
             i = self.index(axis_id)
             got = self.engine.prepare(i, kind, request)
-        except NcError as err:
-            self._sync_refused()
-            return make_reply(rid, cmd, err.code, str(err), cycle)
-        except Exception as exc:  # a bug must cost one command, never the NC cycle
-            _log.exception("command %r failed", cmd)
-            self._sync_refused()
-            return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
+        except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
+            return self._refused(rid, cmd, exc, cycle)
         if got is None:  # queued behind the running job: one step, now
             return self.execute(request, axis_id)
         job, plan = got
@@ -354,13 +353,8 @@ class NcCore:
         engine.touched.clear()
         try:
             engine.begin(i, job, p.plan)
-        except NcError as err:
-            self._sync_refused()
-            return make_reply(rid, cmd, err.code, str(err), p.cycle)
-        except Exception as exc:  # a bug must cost one command, never the NC cycle
-            _log.exception("command %r failed", cmd)
-            self._sync_refused()
-            return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", p.cycle)
+        except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
+            return self._refused(rid, cmd, exc, p.cycle)
         if engine.touched:
             engine.sync_touched({i: len(engine.touched)})
         engine.flush_slots()
