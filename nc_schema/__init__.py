@@ -33,7 +33,7 @@ from .instance import NcInstance, new_instance_id
 from .messages import (
     CLASSES, COMMAND_CLASS, COMMANDS, FRAME_PERIODS_MS, MAX_VIEW_AXES, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES,
     VIEW_PERIODS_MS, Keys, check_client_id, frame_period_ms, make_reply, make_request, pack, parse_alive_instance,
-    parse_reply, parse_request, parse_view_select, unpack, view_axes_chunk,
+    parse_reply, parse_request, parse_view_axes, parse_view_select, unpack, view_axes_chunk, view_axes_text,
 )
 from .params import (
     PARAMETERS, ST_AXIS_COMPONENTS, ST_AXIS_PARAMETER_SET, E_DestallDetectMode, E_DestallMode, E_NcAxisType,
@@ -63,6 +63,6 @@ __all__ = [
     "error_text", "frame_header", "frame_period_ms", "frame_records", "frame_stamp", "load_json", "make_reply",
     "make_request", "member_struct", "members", "motion_state", "motion_state_array", "new_instance_id",
     "next_cmdno", "pack", "pack_frame_header_into", "pack_value", "parse_alive_instance", "parse_reply",
-    "parse_request", "parse_view_select", "struct_of", "to_dict", "unpack", "unpack_value", "view_axes_chunk",
+    "parse_request", "parse_view_axes", "parse_view_select", "struct_of", "to_dict", "unpack", "unpack_value", "view_axes_chunk", "view_axes_text",
     "view_frame",
 ]

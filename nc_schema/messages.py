@@ -60,7 +60,30 @@ def view_axes_chunk(axes: Iterable[int]) -> str:
         raise ValueError(f"invalid axis id {ids[0]}")
     if len(ids) > MAX_VIEW_AXES:
         raise ValueError(f"a view lists at most {MAX_VIEW_AXES} axes, not {len(ids)}")
+    return view_axes_text(ids)
+
+
+def view_axes_text(axes: Iterable[int]) -> str:
+    """A view frame's attachment (protocol.json ``view``): every AxisId the client asked for, ascending, joined
+    by ',' (``none`` for no axis), whether the NC has it or not; no length limit (the union of its tokens)."""
+    ids = sorted({int(a) for a in axes})
     return ",".join(map(str, ids)) if ids else "none"
+
+
+def parse_view_axes(text: bytes | str) -> frozenset[int] | None:
+    """The AxisIds of a view frame's attachment (:func:`view_axes_text`); None if it is not one."""
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("ascii")
+        except UnicodeDecodeError:
+            return None
+    if text == "none":
+        return frozenset()
+    try:
+        ids = frozenset(int(a) for a in text.split(","))
+    except ValueError:
+        return None
+    return ids if all(0 <= a <= 0xFFFF for a in ids) else None
 
 
 def parse_view_select(key: object) -> tuple[str, str, int, tuple[int, ...]] | None:

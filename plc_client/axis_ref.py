@@ -276,6 +276,11 @@ class AXIS_REF:
         self.nc_epoch = 0
         #: True once frames arrived but this axis id was not in them (-> 0x4012).
         self.missing = False
+        #: True while the view frames of its NC do not cover it yet (bound after the client asked for its
+        #: view: the NC has not seen the new selection), for at most the task's command_timeout after binding;
+        #: a block called on it waits (:meth:`plc_client.fb.base.FunctionBlock.__call__`)
+        self.pending = False
+        self._pending_until = 0.0  # time.monotonic() when a binding's wait for the view ends
         self._task: PlcTask | None = None
         for refs in _collectors:
             refs.append(weakref.ref(self))
@@ -315,6 +320,7 @@ class AXIS_REF:
         task slices them from one copy of the frame's records (immutable, so a snapshot kept by the
         program keeps its values).
         """
+        self.pending = False
         if rec is not None and nc_cycle is not None:
             if not self._has_data or nc_cycle != self.Status.NcCycleCounter:
                 self._unchanged = 0  # a newer frame (or a restarted NC's: the task bumps nc_epoch)

@@ -25,6 +25,9 @@ those axes, once per P ms of NC time, P the longest of ``nc_schema.FRAME_PERIODS
 the cycle (5 ms at 10 ms; ``frame_period`` overrides it; 0 or a cycle shorter than 4 ms: every NC
 cycle). Each cycle still sees a newer frame, and a 4-axis client of a 64-axis NC receives and decodes
 1.6 kB instead of 24.6 kB (before views, 16 such clients cost the NC's transport ~5 % of a core each).
+Each view frame's attachment lists the axes it was cut for: an AXIS_REF bound later is not among them
+until the NC has seen the new token (a few ms), and meanwhile has no data and is ``pending`` (its blocks'
+calls wait, :mod:`plc_client.fb.base`), where one that is listed but absent is not on the NC (0x4012).
 ``view=False`` takes the whole frame on ``nc/<nc>/frame/<P>ms`` (or ``nc/<nc>/frame``) instead, as
 clients of protocol version 2 did.
 
@@ -90,7 +93,7 @@ from nc_link import CONNECT_RETRY, CONNECT_TIMEOUT_MS, DEFAULT_LEASE_MS, client_
 from nc_link.link import BACK, GONE, RESTART
 from nc_schema import (
     ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_records, frame_period_ms, make_reply,
-    parse_reply,
+    parse_reply, parse_view_axes,
 )
 
 from .axis_ref import AXIS_REF
@@ -241,6 +244,8 @@ class PlcRuntime(PlcTask):
         period = frame_period_ms(self.cycle_time) if frame_period is None else (frame_period or None)
         self.frame_period_ms = period
         self.links: dict[str, NcLink] = {}
+        #: NC -> its view frames' last attachment and its AxisIds (nc_schema.parse_view_axes)
+        self._view_attachment: dict[str, tuple[bytes, frozenset[int]]] = {}
         self._view_dirty: set[str] = set()  # NCs whose view must be declared again (an AXIS_REF was bound)
         for nc, ep in ncs.items():
             keys = Keys(nc)  # validates the name
@@ -358,7 +363,15 @@ class PlcRuntime(PlcTask):
                     self._warned.add(f"bad-frame-{nc}")
                     log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
                 continue
-            self._set_frame(nc, int(h["Cycle"]), recs, jobs)
+            covers = None
+            att = sample.attachment if link.view_period is not None else None
+            if att is not None:  # a view frame: the axes it was cut for (a malformed list: none of them)
+                raw = att.to_bytes()
+                last = self._view_attachment.get(nc)
+                if last is None or last[0] != raw:
+                    last = self._view_attachment[nc] = (raw, parse_view_axes(raw) or frozenset())
+                covers = last[1]
+            self._set_frame(nc, int(h["Cycle"]), recs, jobs, covers)
 
     def _liveliness(self, link: NcLink) -> None:
         """The NC's liveliness events (the link's): ``nc/<nc>/alive`` (reachable or not), then its instance tokens."""

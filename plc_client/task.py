@@ -251,6 +251,8 @@ class PlcTask:
         self._epochs: dict[str, int] = {}
         #: NC -> (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None) of its newest frame
         self._frames: dict[str, _FrameEntry] = {}
+        #: NC -> the AxisIds its newest frame was cut for (None: all, a whole frame): :meth:`_set_frame`
+        self._covers: dict[str, frozenset[int] | None] = {}
         #: NC -> (its ``_frames`` entry, the bytes of its records and where they start): :meth:`_bytes_of`
         self._frame_bytes: dict[str, tuple[_FrameEntry, bytes, int, bytes | None, int]] = {}
         #: each NC's instance as its instance token and frames show it: the restart rule (nc_schema.instance)
@@ -308,6 +310,7 @@ class PlcTask:
         if ax._task is not None:
             raise ValueError(f"{ax!r} is bound to another PLC task")
         ax._task = self
+        ax._pending_until = time.monotonic() + self.command_timeout
         self._refs.setdefault((ax.nc, ax.axis_id), []).append(ax)
         self._on_new_axis(ax)
         self._snapshot_one(ax)
@@ -616,10 +619,14 @@ class PlcTask:
     def _take_frames(self) -> None:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
-    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
+    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None,
+                   covers: frozenset[int] | None = None) -> None:
         """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent. A frame of a
         new NC instance (:class:`nc_schema.NcInstance`: its cycle counter went back) is a restart
-        (:meth:`nc_restarted`)."""
+        (:meth:`nc_restarted`). ``covers``: the AxisIds a view frame was cut for (its attachment,
+        ``nc_schema.parse_view_axes``; None: every axis of the NC, a whole frame). An axis outside them is not
+        yet in the view (bound after the view was asked for): no data yet, not 0x4012."""
+        self._covers[nc] = covers
         why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
         if why is not None:
             self.nc_restarted(nc, why)
@@ -630,7 +637,7 @@ class PlcTask:
             index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
         self._frames[nc] = (int(cycle), records, index[1], jobs)
 
-    def _set_frame_bytes(self, nc: str, data: bytes) -> None:
+    def _set_frame_bytes(self, nc: str, data: bytes, covers: frozenset[int] | None = None) -> None:
         """Take a status frame as received: its bytes (``sample.payload.to_bytes()``), what
         :meth:`_set_frame` takes after ``nc_schema.decode_frame``, without numpy: the header is checked and
         unpacked with one ``struct`` call (``nc_schema.frame_header``), the AxisIds with another, and the axes'
@@ -641,6 +648,7 @@ class PlcTask:
         """
         h = frame_header(data)
         cycle, hs, n = h.Cycle, h.HeaderSize, h.AxisCount
+        self._covers[nc] = covers
         why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
         if why is not None:
             self.nc_restarted(nc, why)
@@ -672,6 +680,7 @@ class PlcTask:
         frame: _FrameEntry | None = None
         recs = b""
         jobs: bytes | None = None
+        covers: frozenset[int] | None = None
         stale = rbase = jbase = 0
         for (nc, axis_id), refs in self._refs.items():
             if nc != last:
@@ -680,14 +689,18 @@ class PlcTask:
                 stale = 0 if nc in self._nc_down else self.stale_cycles  # 0: invalid at once
                 if frame is not None:
                     _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
+                    covers = self._covers.get(nc)
             if frame is None:
                 for ax in refs:
                     ax._snapshot(None, None, cycle, cycle_time, stale)
                 continue
             i = frame[2].get(axis_id)
             if i is None:
-                for ax in refs:
-                    ax._snapshot(None, frame[0], cycle, cycle_time, stale)
+                if covers is None or axis_id in covers:  # the NC has no such axis (0x4012)
+                    for ax in refs:
+                        ax._snapshot(None, frame[0], cycle, cycle_time, stale)
+                else:  # not yet in the view: no data yet
+                    self._not_in_view(refs, stale)
                 continue
             o = rbase + i * NCTOPLC_SIZE
             j = jbase + i * NCJOBS_SIZE
@@ -695,6 +708,14 @@ class PlcTask:
             job = None if jobs is None else jobs[j:j + NCJOBS_SIZE]
             for ax in refs:
                 ax._snapshot(rec, frame[0], cycle, cycle_time, stale, job)
+
+    def _not_in_view(self, refs: list[AXIS_REF], stale: int) -> None:
+        """The snapshot of axes that the view frames of their NC do not cover yet: no data; ``pending`` for at
+        most ``command_timeout`` after their binding (then their blocks report 0x4B0F)."""
+        now = time.monotonic()
+        for ax in refs:
+            ax._snapshot(None, None, self.cycle, self.cycle_time, stale)
+            ax.pending = now < ax._pending_until
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
         nc = ax.nc
@@ -705,7 +726,11 @@ class PlcTask:
             return
         i = frame[2].get(ax.axis_id)
         if i is None:
-            ax._snapshot(None, frame[0], self.cycle, self.cycle_time, stale)
+            covers = self._covers.get(nc)
+            if covers is None or ax.axis_id in covers:  # the NC has no such axis (0x4012)
+                ax._snapshot(None, frame[0], self.cycle, self.cycle_time, stale)
+            else:
+                self._not_in_view([ax], stale)
             return
         _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
         o = rbase + i * NCTOPLC_SIZE

@@ -62,7 +62,7 @@ import numpy as np
 
 from nc_schema import (
     FRAME_HEADER_SIZE, FRAME_PERIODS_MS, NCTOPLC_SIZE, PLCTONC_SIZE, FrameFlags, Keys, encode_stamp, frame_stamp,
-    parse_view_select, view_frame,
+    parse_view_select, view_axes_text, view_frame,
 )
 
 from .frame_ring import FrameRing, RingCounters, ring_bytes
@@ -105,11 +105,13 @@ _SHUTTING_DOWN = int(FrameFlags.ShuttingDown)
 class _View:
     """One client's view (protocol.json ``view``): its publisher, the frame rows of its axes, its period."""
 
-    __slots__ = ("pub", "rows", "period_ns", "window")
+    __slots__ = ("pub", "rows", "selected", "period_ns", "window")
 
     def __init__(self, pub: Any) -> None:
         self.pub = pub
         self.rows: list[int] = []
+        #: the attachment of its frames: every AxisId the client asked for (protocol.json ``view``)
+        self.selected = b"none"
         self.period_ns = 0
         self.window = -1
 
@@ -221,8 +223,10 @@ class FramePublisher:
                                                                               **self._view_opts))
         ids = sorted({a for _, _, axes in mine for a in axes})
         view.rows = [self._row_of[a] for a in ids if a in self._row_of]
+        view.selected = view_axes_text(ids).encode()
         view.period_ns = min(p for _, p, _ in mine) * 1_000_000
         view.window = -1  # the new selection goes out with the next frame
+        log.debug("view of %s: axes %s every %d ms", client, view.selected.decode(), view.period_ns // 1_000_000)
 
     def close(self) -> None:
         for v in self.views.values():
@@ -285,7 +289,7 @@ class FramePublisher:
                         if w == view.window and not final:
                             continue
                         view.window = w
-                    view.pub.put(view_frame(frame, n, view.rows))
+                    view.pub.put(view_frame(frame, n, view.rows), attachment=view.selected)
             now = time.monotonic()
             if now >= self._next_status or final:
                 self._next_status = now + STATUS_PERIOD

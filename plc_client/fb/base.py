@@ -16,6 +16,10 @@ Execute blocks:
   the end, the output is TRUE for exactly one cycle;
 * a rising edge while Busy is ignored (no feedback, no second command);
 * the outputs are reset on Execute falling when the block is not Busy;
+* an axis bound while the PLC runs (an AXIS_REF made or first used in a cycle) has no data until its NC's
+  view frames include it (``AXIS_REF.pending``, a few ms; at most the task's ``command_timeout``): a call
+  of a block on it in between is not evaluated (outputs unchanged; its inputs, edges included, are taken
+  by the first call with the data), as a PLC whose task waits for its I/O; past that time it is stale;
 * an axis whose data is stale (``AXIS_REF.Status.Valid`` False) makes a block that acts
   on it report Error 0x4B0F (0x4012 if frames arrive without that axis); a Busy block ends so
   as soon as it sees the data stale or the NC restarted (:meth:`ExecuteBlock._lost_axis`, the
@@ -144,8 +148,21 @@ class FunctionBlock:
                 raise TypeError(f"{type(self).__name__}: Axis must be an AXIS_REF, got {type(Axis).__name__}")
             self.Axis = Axis
         self._set_inputs(inputs)
+        if self._held():
+            return self
         self._cycle()
         return self
+
+    def _held(self) -> bool:
+        """True if the block waits for its axis's first data (``AXIS_REF.pending``: bound after the client
+        asked for its view, the NC has not sent it yet): the call is not evaluated, its outputs stay and its
+        inputs are taken, edges included, by the first call with the data. Binds an unbound Axis first."""
+        ax = self.Axis
+        if ax is None:
+            return False
+        if ax._task is None:
+            self._task()
+        return ax.pending
 
     def _set_inputs(self, inputs: dict[str, Any]) -> None:
         """Apply the call's inputs (any case) after the attributes written in another case since the last call.

@@ -30,6 +30,7 @@ class ViewWatch:
         self.session = zenoh.open(zenoh_client_config(port))
         self.frames: list[tuple[int, list[int]]] = []
         self.times: list[int] = []  # NcTimeNs of each frame
+        self.attachments: list[bytes | None] = []  # the axes each frame was cut for
         self._lock = threading.Lock()
         self.sub = self.session.declare_subscriber(f"nc/nc1/view/{client}", self._on)
 
@@ -39,6 +40,7 @@ class ViewWatch:
         with self._lock:
             self.frames.append((int(h["Cycle"]), [int(a) for a in recs["AxisId"]]))
             self.times.append(int(h["NcTimeNs"]))
+            self.attachments.append(None if sample.attachment is None else sample.attachment.to_bytes())
 
     def count(self) -> int:
         with self._lock:
@@ -70,6 +72,7 @@ def test_client_receives_only_its_axes_and_follows_new_ones(nc: NcServerProcess)
         assert plc.links["nc1"].view_period == 5
         plc.start()
         wait_until(lambda: watch.last_ids() == [2, 5], T, "view frames of axes 2 and 5")
+        assert watch.attachments[-1] == b"2,5"  # the axes the frame was cut for
         ax2 = plc.axes[1] if plc.axes[1].axis_id == 2 else plc.axes[0]
         wait_until(lambda: ax2.NcToPlc["AxisId"] == 2 and ax2.Status.Disabled, T, "axis 2's data in the task")
         # once per 5 ms of NC time, not every cycle: no two frames in one 5-ms window of NcTimeNs
@@ -97,6 +100,7 @@ def test_view_ends_with_its_token_and_bad_tokens_are_ignored(nc: NcServerProcess
         token = s.liveliness().declare_token("nc/nc1/select/tok/0ms/3,99")  # 99: not on this NC
         wait_until(lambda: watch.count() >= 100, T, "view frames of tok")
         assert watch.last_ids() == [3]
+        assert watch.attachments[-1] == b"3,99"  # asked for, though the NC has no axis 99
         # every NC cycle (0 ms): frames of consecutive cycles (the publisher puts the newest frame: a loaded
         # machine may skip some, never all)
         cycles = [c for c, _ in watch.frames[-100:]]
@@ -119,3 +123,33 @@ def test_view_ends_with_its_token_and_bad_tokens_are_ignored(nc: NcServerProcess
         s.close()  # type: ignore[no-untyped-call]
         watch.close()
         bad.close()
+
+
+def test_a_block_on_an_axis_bound_while_running_waits_for_its_view(nc: NcServerProcess) -> None:
+    """An AXIS_REF made in a cycle and used at once: the NC sends its data a few ms later (its view token
+    must reach the NC first); the block's call waits for it, so the command goes through; an axis the NC
+    lacks ends with 0x4012 (the view frames list it as asked for), never 0x4B0F."""
+    from plc_client import MC_ReadParameter
+
+    got: dict[int, tuple[bool, bool, int, float]] = {}
+    blocks: dict[int, tuple[AXIS_REF, MC_ReadParameter]] = {}
+    plc = PlcRuntime(None, {"nc1": nc.endpoint}, client_id="lateplc", axes=[AXIS_REF("nc1", 2)])
+
+    def program(task: object) -> None:
+        if plc.axes[0].valid:  # the first view is there: bind two more axes and use them in the same cycle
+            for a in (6, 99):
+                if a not in blocks:
+                    blocks[a] = (AXIS_REF("nc1", a), MC_ReadParameter())
+        for a, (ax, fb) in blocks.items():
+            fb(Axis=ax, Enable=True, ParameterNumber=1003)  # (MaxVelocity)
+            if a not in got and (fb.Done or fb.Error):
+                got[a] = (fb.Done, fb.Error, fb.ErrorID, float(fb.Value))
+
+    plc.program = program
+    try:
+        plc.start()
+        wait_until(lambda: len(got) == 2, T, "both reads to end")
+        assert got[6][:3] == (True, False, 0) and got[6][3] > 0, got
+        assert got[99][:3] == (False, True, 0x4012), got
+    finally:
+        plc.stop()
