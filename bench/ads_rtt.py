@@ -37,8 +37,9 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the test helpers (znc_testing)
+from bench.common import Busy, use_this_tree, verdict  # noqa: E402
 
+use_this_tree()  # this checkout and its test helpers (znc_testing), also for nc-server and nc-ads
 from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
 from znc_testing import NcTestClient, free_port, start_nc_server, wait_until  # noqa: E402
@@ -103,12 +104,20 @@ def main() -> int:
                 raise RuntimeError(f"no reply from {key}")
             return (t1 - t0) / 1000.0
 
-        def ads_read(ig: int, io: int, typ) -> float:  # type: ignore[no-untyped-def]
+        def ads_read(ig: int, io: int, typ) -> list[float]:  # type: ignore[no-untyped-def]
+            """[round trip us], or [] for a read answered with an ADS error (counted by code in ``failed``)."""
             t0 = time.perf_counter_ns()
-            plc.read(ig, io, typ)
-            return (time.perf_counter_ns() - t0) / 1000.0
+            try:
+                plc.read(ig, io, typ)
+            except pyads.ADSError as exc:
+                key = (f"0x{ig:04X}/0x{io:X}", int(getattr(exc, "err_code", 0) or 0))
+                failed[key] = failed.get(key, 0) + 1
+                return []
+            return [(time.perf_counter_ns() - t0) / 1000.0]
 
         state_t = pyads.PLCTYPE_BYTE * 256
+        failed: dict[tuple[str, int], int] = {}  # (index group/offset, ADS error code) -> reads answered so
+        busy_rt = Busy()
         for _ in range(100):  # warm-up
             zget(raw_cl.session, RAW_KEY, b"x")
             ads_read(0x4101, 0, state_t)
@@ -117,9 +126,10 @@ def main() -> int:
             res["raw zenoh RTT"] += [zget(raw_cl.session, RAW_KEY, b"x") for _ in range(n_block)]
             res["zenoh ReadParameter"] += [zget(cl.session, rp_key, msgpack.packb(
                 {"id": next(ids), "cmd": "ReadParameter", "ParameterNumber": 1003})) for _ in range(n_block)]
-            res["ADS 0x4101 state read"] += [ads_read(0x4101, 0, state_t) for _ in range(n_block)]
-            res["ADS parameter read"] += [ads_read(0x4001, 0x27, pyads.PLCTYPE_LREAL) for _ in range(n_block)]
+            res["ADS 0x4101 state read"] += [x for _ in range(n_block) for x in ads_read(0x4101, 0, state_t)]
+            res["ADS parameter read"] += [x for _ in range(n_block) for x in ads_read(0x4001, 0x27, pyads.PLCTYPE_LREAL)]
 
+        busy_rt.stop()
         # ---- notification latency on a moving axis ----
         plc.write(0x4301, 0x01, 0x7, pyads.PLCTYPE_UDINT)  # Enable + feed enables (claims axis 1)
         wait_until(lambda: struct.unpack_from("<I", bytes(plc.read(0x4101, 0, state_t)), 104)[0] & (1 << 20), 20,
@@ -149,7 +159,9 @@ def main() -> int:
         sub = cl.session.declare_subscriber("nc/nc1/frame/2ms", on_frame)
         attr = pyads.NotificationAttrib(256, pyads.ADSTRANS_SERVERONCHA, 0, 1)
         handles = plc.add_device_notification((0x4301, 0x80), attr, on_nctoplc)
+        busy_nt = Busy()
         time.sleep(args.seconds)
+        busy_nt.stop()
         plc.del_device_notification(*handles)  # before close (pyads segfaults otherwise)
         sub.undeclare()
         plc.write(0x4201, 0x02, None, None)  # stop
@@ -159,6 +171,9 @@ def main() -> int:
     print("round trips, one at a time (pyads -> nc-ads -> [zenoh -> nc-server]; raw: zenoh client -> router):")
     for k, v in a.items():
         print(fmt(k, v))
+    n_failed = sum(failed.values())
+    print(f"ADS reads answered with an error (counted, not measured): {n_failed}"
+          + "".join(f"; {where} error {code} (0x{code:X}) x{n}" for (where, code), n in sorted(failed.items())))
     raw50 = float(np.percentile(a["raw zenoh RTT"], 50))
     rp50 = float(np.percentile(a["zenoh ReadParameter"], 50))
     for k in ("ADS 0x4101 state read", "ADS parameter read"):
@@ -175,8 +190,10 @@ def main() -> int:
         print(f"{'':>22}  ADS p50 {np.percentile(notif_age, 50) / np.percentile(raw_age, 50):4.1f}x the raw zenoh "
               "frame age (nc-ads takes nc/nc1/frame/2ms and pushes on-change samples when a frame arrives "
               "(not on its 2 ms tick))")
+    print(f"the machine during the round trips: {busy_rt.text()}; during the notifications: {busy_nt.text()}")
     print(f"before: {floor0}")
     print(f"after:  {floor1}")
+    verdict("ads_rtt", [], f"{busy_rt.share:.0f} % / {busy_nt.share:.0f} % busy")
     return 0
 
 

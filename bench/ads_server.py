@@ -22,7 +22,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # the test helpers (znc_testing)
+from bench.common import Busy, use_this_tree, verdict  # noqa: E402
+
+use_this_tree()  # this checkout and its test helpers (znc_testing)
 import pyads  # noqa: E402
 
 from znc_testing.ads_testing import PyadsSession, netid_for, start_server_on_free_address  # noqa: E402
@@ -56,6 +58,7 @@ def main() -> None:
     _, srv = start_server_on_free_address(
         lambda h: (s := AdsServer({500: dev, 501: dev}, netid_for(h), (h, 48898), tick_ms=args.tick_ms)).start() or s)
     session = PyadsSession(srv)
+    busy = Busy()
     try:
         plc = session.open(501)
         L = pyads.PLCTYPE_LREAL
@@ -87,6 +90,8 @@ def main() -> None:
     finally:
         session.close()
         srv.close()
+    print(f"the machine during the measurements: {busy.text()}")
+    verdict("ads_server", [], busy.text())
 
 
 if __name__ == "__main__":

@@ -8,14 +8,17 @@ in interleaved blocks so machine noise hits both alike:
   * raw:           get on ``bench/raw``, reply b"ok" from a callback;
   * ReadParameter: AxisVeloMax of axis 1 (no motion);
   * MoveAbsolute:  re-targets of axis 1 (claimed, enabled by PLCTONC frames every 10 ms),
-                   alternating 500 / 600 mm (both ahead of the axis for the whole run), each one
-                   accepted and aborting the previous (targets behind a braking axis are refused
-                   at times with 0x4289: it would turn back on its way).
+                   alternating 900 / 950 mm at 10 mm/s (both ahead of the axis for the whole run: it
+                   covers at most ~600 mm in the run's minute), each one aborting the previous. A
+                   refusal (e.g. 0x4289, a target the axis would have to turn back for) is legitimate:
+                   it is counted and reported by code with its round trip, never a crash; the goal is
+                   measured on the accepted ones.
 
-Goal (not a test): NC p50 within 1.5 x raw p50 + one NC cycle. The NC answers in the cycle
-after the request arrives, so about half a cycle of waiting is expected on top of the raw trip.
-A same-run noise floor (bench/noise_floor.py: a fixed numpy workload in the NC cycle loop, before
-and after the round trips) says how loaded the machine was.
+Goal (not a test): the NC's p50 within 1.5 x raw p50 + one NC cycle, printed as the same-run ratio
+p50 / (1.5 x raw p50 + 1 cycle) (goal <= 1) with the figures beside it, MET / NOT MET, for
+ReadParameter and for the accepted MoveAbsolute re-targets. A same-run noise floor
+(bench/noise_floor.py: a fixed numpy workload in the NC cycle loop, before and after the round trips)
+and the machine's busy share over the round trips (/proc/stat) say how loaded the machine was.
 
     .venv/bin/python bench/command_rtt.py [--n 1500]
 """
@@ -32,7 +35,9 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (znc_testing)
+from bench.common import Busy, goal_line, use_this_tree, verdict  # noqa: E402
+
+use_this_tree()  # this checkout and its test helpers (znc_testing), also for the processes started
 from bench.noise_floor import floor_line  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
 from znc_testing import (  # noqa: E402
@@ -43,7 +48,8 @@ from znc_testing import (  # noqa: E402
 CYCLE_US = 1000.0
 
 
-def rtt_us(session, key: str, payloads: list[bytes], check) -> list[float]:  # type: ignore[no-untyped-def]
+def _round_trips(session, key: str, payloads: list[bytes]) -> list[tuple[float, bytes]]:  # type: ignore[no-untyped-def]
+    """(round trip [us], the reply's payload) per request, one at a time; a missing reply raises."""
     out = []
     for p in payloads:
         t0 = time.perf_counter_ns()
@@ -51,12 +57,28 @@ def rtt_us(session, key: str, payloads: list[bytes], check) -> list[float]:  # t
         t1 = time.perf_counter_ns()
         if not replies or replies[0].ok is None:
             raise RuntimeError(f"no reply from {key}")
-        check(replies[0].ok.payload.to_bytes())
-        out.append((t1 - t0) / 1000.0)
+        out.append(((t1 - t0) / 1000.0, replies[0].ok.payload.to_bytes()))
     return out
 
 
+def rtt_us(session, key: str, payloads: list[bytes], check) -> list[float]:  # type: ignore[no-untyped-def]
+    """Round trips [us], each reply passed to ``check`` (which raises on a wrong one)."""
+    out = []
+    for us, reply in _round_trips(session, key, payloads):
+        check(reply)
+        out.append(us)
+    return out
+
+
+def rtt_outcomes(session, key: str, payloads: list[bytes]) -> list[tuple[float, int]]:  # type: ignore[no-untyped-def]
+    """(round trip [us], the reply's error code) per request, one at a time; a missing reply raises."""
+    return [(us, int(msgpack.unpackb(reply, strict_map_key=False).get("error", 0) or 0))
+            for us, reply in _round_trips(session, key, payloads)]
+
+
 def fmt(name: str, xs: np.ndarray) -> str:
+    if len(xs) == 0:
+        return f"{name:>14}: no samples"
     p50, p99 = np.percentile(xs, (50, 99))
     return f"{name:>14}: p50 {p50:7.0f}  p99 {p99:7.0f}  max {xs.max():7.0f} us  (n={len(xs)})"
 
@@ -99,48 +121,73 @@ def main() -> int:
             if r["error"]:
                 raise RuntimeError(r)
 
+        def outcomes(kind: str, got: list[tuple[float, int]]) -> list[float]:
+            """The accepted ones' round trips; refusals counted by code (with their round trips)."""
+            acc = []
+            for us, code in got:
+                if code:
+                    refused.setdefault((kind, code), []).append(us)
+                else:
+                    acc.append(us)
+            return acc
+
         def read_param() -> list[bytes]:
             return [msgpack.packb({"id": next(ids), "client": "bench-rtt", "cmd": "ReadParameter",
                                    "ParameterNumber": 1003}) for _ in range(n_block)]
 
         def moves() -> list[bytes]:
             return [msgpack.packb({"id": next(ids), "client": "bench-rtt", "cmd": "MoveAbsolute",
-                                   "Position": 500.0 + 100.0 * (k % 2), "Velocity": 100.0}) for k in range(n_block)]
+                                   "Position": 900.0 + 50.0 * (k % 2), "Velocity": 10.0}) for k in range(n_block)]
 
         # warm-up (first queries, publisher and route setup)
         rtt_us(raw_cl.session, RAW_KEY, [b"x"] * 100, ok)
         rtt_us(cl.session, "nc/nc1/axis/1/cmd/read/bench-rtt", read_param()[:100], no_error)
         res: dict[str, list[float]] = {"raw": [], "ReadParameter": [], "MoveAbsolute": []}
+        refused: dict[tuple[str, int], list[float]] = {}
+        busy = Busy()
         for _ in range(args.blocks):
             if time.monotonic() > deadline - 5:
                 print("(stopping early to stay within the time bound)")
                 break
             res["raw"] += rtt_us(raw_cl.session, RAW_KEY, [b"x"] * n_block, ok)
-            res["ReadParameter"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd/read/bench-rtt", read_param(), no_error)
-            res["MoveAbsolute"] += rtt_us(cl.session, "nc/nc1/axis/1/cmd/op/bench-rtt", moves(), no_error)
+            res["ReadParameter"] += outcomes("ReadParameter", rtt_outcomes(
+                cl.session, "nc/nc1/axis/1/cmd/read/bench-rtt", read_param()))
+            res["MoveAbsolute"] += outcomes("MoveAbsolute", rtt_outcomes(
+                cl.session, "nc/nc1/axis/1/cmd/op/bench-rtt", moves()))
+        busy.stop()
         stats = cl.stats() or {}
         floor1, f1 = floor_line()  # the NC still runs: the machine as the round trips saw it
 
     a = {k: np.array(v) for k, v in res.items()}
     print()
-    print("command round trip (client -> router process -> reply), one at a time:")
+    print("command round trip (client -> router process -> reply), one at a time (MoveAbsolute: the accepted ones):")
     for k, v in a.items():
         print(fmt(k, v))
-    raw50 = float(np.percentile(a["raw"], 50))
-    goal = 1.5 * raw50 + CYCLE_US
-    print()
-    for k in ("ReadParameter", "MoveAbsolute"):
-        p50 = float(np.percentile(a[k], 50))
-        print(f"{k:>14}: p50 ratio to raw {p50 / raw50:4.1f}x; goal p50 <= 1.5 x raw + 1 cycle = {goal:.0f} us "
-              f"-> {'met' if p50 <= goal else 'NOT met'}")
+    sent = {k: len(v) + sum(len(r) for (kk, _), r in refused.items() if kk == k) for k, v in res.items() if k != "raw"}
+    for k, n_sent in sent.items():
+        ref = {code: r for (kk, code), r in refused.items() if kk == k}
+        print(f"{k:>14}: sent {n_sent} = accepted {len(res[k])} + refused {sum(len(r) for r in ref.values())}"
+              + "".join(f"; 0x{code:04X} x{len(r)} (round trip p50 {np.percentile(r, 50):.0f} us)"
+                        for code, r in sorted(ref.items())))
+    print(f"the machine during the round trips: {busy.text()}")
     if stats:
         print(f"NC during the run: timing {stats.get('timing')}, work p50/p99 {stats.get('work_us_p50')}/"
               f"{stats.get('work_us_p99')} us, missed {stats.get('missed_cycles')}, overruns {stats.get('overruns')}")
+    goals = []
+    raw50 = float(np.percentile(a["raw"], 50)) if len(a["raw"]) else float("nan")
+    budget = 1.5 * raw50 + CYCLE_US
+    for k in ("ReadParameter", "MoveAbsolute"):
+        p50 = float(np.percentile(a[k], 50)) if len(a[k]) else float("nan")
+        goals.append(goal_line(f"{k}{' (accepted)' if k == 'MoveAbsolute' else ''} p50 / (1.5 x raw p50 + 1 NC cycle)",
+                               p50 / budget, 1.0,
+                               f"p50 {p50:.0f} us vs 1.5 x {raw50:.0f} + {CYCLE_US:.0f} = {budget:.0f} us; "
+                               f"p50 / raw p50 {p50 / raw50:.1f}x"))
     print(f"before: {floor0}")
     print(f"after:  {floor1}")
     fl50 = (f0["p50_us"] + f1["p50_us"]) / 2
     print(f"in noise-floor units (p50 / floor p50 {fl50:.0f} us, comparable between runs): "
-          + ", ".join(f"{k} {float(np.percentile(v, 50)) / fl50:5.1f}" for k, v in a.items()))
+          + ", ".join(f"{k} {float(np.percentile(v, 50)) / fl50:5.1f}" for k, v in a.items() if len(v)))
+    verdict("command_rtt", goals, busy.text())
     return 0
 
 

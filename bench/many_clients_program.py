@@ -17,6 +17,14 @@ Halt that stops a move whose block gave up when the NC's data was lost or that w
 block timed out, plc_client/task.py "orphans"; the NC numbers them too), and frame reception: ``invalid`` (cycles with stale data
 after the first valid one), ``max_unchanged`` (most consecutive PLC cycles without a newer NC
 frame).
+
+A move's request stays counted until its answer comes, also when its block gave up waiting (0x745) and
+the next move went out meanwhile: the late answer is counted then (``pending`` while any is open; the
+final report waits for them).
+
+``MANY_HOLD=1`` (bench/subscribers.py): no moves at all; the axes are only powered (the client claims
+them and sends its PLCTONC every cycle, and takes the NC's frames); reports go on every second with
+``powered`` per axis, never final.
 """
 from __future__ import annotations
 
@@ -33,6 +41,7 @@ REPORT = os.environ["MANY_REPORT"]
 STOP = os.environ["MANY_STOP"]
 TARGETS = [float(x) for x in os.environ.get("MANY_TARGETS", "0,40").split(",")]
 VELOCITY = float(os.environ.get("MANY_VELOCITY", "100"))
+HOLD = os.environ.get("MANY_HOLD", "") == "1"
 REPORT_PERIOD = 1.0
 
 
@@ -45,7 +54,7 @@ class _Axis:
         self.execute = False
         self.busy = False
         self.sent = self.done = self.aborted = self.accepted = self.refused = 0
-        self.req = None  # the PendingCommand of the move in flight, until its reply
+        self.reqs: list = []  # PendingCommands of our moves not answered yet (a late answer counts too)
         self.errors: dict[str, int] = {}
         self.cmdno0: int | None = None
         self.invalid = 0
@@ -58,12 +67,16 @@ class _Axis:
 
     def cycle(self, stopping: bool) -> None:
         ax = self.ax
-        if self.req is not None and self.req.done:  # the NC's answer to our last move (also a late one)
-            if self.req.reply is not None and int(self.req.reply.get("error", 0)) == 0:
-                self.accepted += 1
-            else:
-                self.refused += 1
-            self.req = None
+        if self.reqs:
+            open_ = []
+            for req in self.reqs:  # the NC's answers to our moves (also a late one)
+                if not req.done:
+                    open_.append(req)
+                elif req.reply is not None and int(req.reply.get("error", 0)) == 0:
+                    self.accepted += 1
+                else:
+                    self.refused += 1
+            self.reqs = open_
         p = self.power(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
         st = ax.Status
         if st.Valid:
@@ -95,7 +108,7 @@ class _Axis:
             m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
             if m._pending is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
                 self.sent += 1
-                self.req = m._pending
+                self.reqs.append(m._pending)
         else:
             m = self.move(Axis=ax, Execute=True)
         if m.Done or m.Error or m.CommandAborted:
@@ -117,7 +130,8 @@ class _Axis:
         task_acc = sum(1 for p in self.task_cmds if p.reply is not None and int(p.reply.get("error", 0)) == 0
                        and int(p.reply.get("CmdNo", 0)))
         return {"task_sent": len(self.task_cmds), "task_accepted": task_acc, "task_pending": self.task_pending(),
-                "started": self.k, "sent": self.sent, "accepted": self.accepted, "refused": self.refused, "pending": self.req is not None,
+                "started": self.k, "sent": self.sent, "accepted": self.accepted, "refused": self.refused,
+                "pending": len(self.reqs), "powered": bool(self.power.Status),
                 "done": self.done, "aborted": self.aborted, "errors": self.errors,
                 "cmdno0": self.cmdno0, "cmdno": cmdno, "invalid": self.invalid,
                 "max_unchanged": self.max_unchanged, "idle": not self.execute}
@@ -150,12 +164,15 @@ class Program:
     def cycle(self, plc) -> None:  # type: ignore[no-untyped-def]
         if not self._hooked:
             self._hook(plc)
-        stopping = os.path.exists(STOP) if plc.cycle % 10 == 0 or self.final else self._stopping
+        stopping = HOLD or (os.path.exists(STOP) if plc.cycle % 10 == 0 or self.final else self._stopping)
         self._stopping = stopping
         for a in self.axes:
             a.cycle(stopping)
+        if HOLD and not self._all_powered and all(a.power.Status for a in self.axes):
+            self._all_powered = True
+            self.next_report = 0.0  # report it now (bench/subscribers.py waits for it)
         now = time.monotonic()
-        done = stopping and all(not a.execute and a.req is None and not a.task_pending() for a in self.axes)
+        done = not HOLD and stopping and all(not a.execute and not a.reqs and not a.task_pending() for a in self.axes)
         if (now >= self.next_report and not self.final) or (done and not self.final):
             self.next_report = now + REPORT_PERIOD
             self.final = done
@@ -167,3 +184,4 @@ class Program:
             os.replace(tmp, REPORT)
 
     _stopping = False
+    _all_powered = False

@@ -30,7 +30,9 @@ import msgpack
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (znc_testing)
+from bench.common import Busy, use_this_tree, verdict  # noqa: E402
+
+use_this_tree()  # this checkout and its test helpers (znc_testing), also for the processes started
 from bench.command_rtt import fmt, rtt_us  # noqa: E402
 from nc_server.server.retain import write_atomic  # noqa: E402
 from znc_testing import RETAIN_CONFIG, NcTestClient, start_nc_server  # noqa: E402
@@ -107,9 +109,11 @@ def main() -> int:
             cl.watch("nc/nc1/stats")
             clients[kind] = cl
             rtt_us(cl.session, KEY.format(axis=1), writes(ids, 50), no_error)  # warm-up
+        busy = Busy()
         for _ in range(args.blocks):
             for kind, cl in clients.items():
                 res[kind] += rtt_us(cl.session, KEY.format(axis=1), writes(ids, n_block), no_error)
+        busy.stop()
         for kind, cl in clients.items():
             rate[kind] = concurrent(cl, ids, max(1, min(4, args.writers)), 3.0)
             stats[kind] = cl.stats() or {}
@@ -129,6 +133,8 @@ def main() -> int:
     for k, s in stats.items():
         print(f"NC {k} --retain: missed cycles {s.get('missed_cycles')}, overruns {s.get('overruns')}, "
               f"work p99 {s.get('work_us_p99')} us")
+    print(f"the machine during the sequential round trips: {busy.text()}")
+    verdict("retain_ack", [], busy.text())
     return 0
 
 

@@ -8,12 +8,14 @@ import itertools
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterable
 
 import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
-from nc_schema import ErrorCodes, Keys, NcInstance, make_request, parse_alive_instance, parse_reply, unpack
+from nc_schema import (
+    MAX_VIEW_AXES, VIEW_PERIODS_MS, ErrorCodes, Keys, NcInstance, make_request, parse_alive_instance, parse_reply, unpack,
+)
 from nc_schema.zenoh_config import DEFAULT_LEASE_MS
 
 from .session import open_session, short_error
@@ -60,10 +62,15 @@ class NcLink:
         claims: subscribe to the NC's claims map (``nc/<nc>/claims``, :meth:`take_claims`).
         query_timeout: how long :meth:`request` waits for a reply [s].
         config: a zenoh config to open instead of the built one (tests).
+        view_period: take this client's view instead of whole frames (protocol.json ``view``): the frames of
+            the axes given to :meth:`select` only, once per ``view_period`` ms of NC time (0: every NC cycle;
+            one of ``nc_schema.VIEW_PERIODS_MS``); ``frame_key`` is then not used. None: whole frames.
 
     Attributes:
         keys: the NC's key builder. ready: the session is open and declared. session: the zenoh session.
         frames, alive_sub, instance_sub, claims_sub, token, pub: the declarations (None before :meth:`open`).
+        view_tokens: the view's liveliness tokens (one per MAX_VIEW_AXES axes). view_axes: the axes of the view
+            (:meth:`select`).
         instance: the NC instance followed (:class:`nc_schema.NcInstance`).
         nc_alive_seen, nc_gone: the NC's liveliness token was seen / is gone now.
         last_error: why the last :meth:`open` failed.
@@ -71,7 +78,8 @@ class NcLink:
 
     def __init__(self, nc: str, endpoint: str, client_id: str, lease_ms: int = DEFAULT_LEASE_MS,
                  tls_dir: str | None = None, frame_key: str | None = None, *, holder: bool = True,
-                 claims: bool = False, query_timeout: float = 1.5, config: Any = None) -> None:
+                 claims: bool = False, query_timeout: float = 1.5, config: Any = None,
+                 view_period: int | None = None) -> None:
         self.nc = nc
         self.endpoint = endpoint
         self.tls_dir = tls_dir
@@ -83,6 +91,13 @@ class NcLink:
         self.claims = claims
         self.query_timeout = float(query_timeout)
         self.config = config
+        if view_period is not None and view_period not in VIEW_PERIODS_MS:
+            raise ValueError(f"view period {view_period!r} ms: use one of {VIEW_PERIODS_MS}")
+        self.view_period = view_period
+        self.view_axes: tuple[int, ...] = ()
+        self.view_tokens: list[Any] = []
+        self._view_keys: list[str] = []
+        self._view_lock = threading.Lock()  # select() on the PLC thread, open() on the reconnect thread
         self.session: zenoh.Session | None = None
         self.frames: Any = None
         self.alive_sub: Any = None
@@ -112,7 +127,10 @@ class NcLink:
             self.last_error = short_error(exc)
             return False
         try:
-            self.frames = s.declare_subscriber(self.frame_key, RingChannel(1))
+            if self.view_period is None:
+                self.frames = s.declare_subscriber(self.frame_key, RingChannel(1))
+            else:
+                self.frames = s.declare_subscriber(self.keys.view(self.client_id), RingChannel(1))
             self.alive_sub = s.liveliness().declare_subscriber(self.keys.alive, FifoChannel(64), history=True)
             self.instance_sub = s.liveliness().declare_subscriber(self.keys.alive_instance_any, FifoChannel(64),
                                                                   history=True)
@@ -130,20 +148,75 @@ class NcLink:
             return False
         self.session = s
         self.ready = True
+        if self.view_period is not None:
+            self.view_tokens, self._view_keys = [], []  # (the tokens of an earlier session went with it)
+            self._declare_view()
         return True
+
+    # ---- the view -----------------------------------------------------------------------------------------------
+    def select(self, axes: Iterable[int]) -> None:
+        """The axes of this client's view (with ``view_period``): from now on the NC sends the frames of these
+        axes only (the new tokens are declared before the old ones go, so no frame is missed; more than
+        ``nc_schema.MAX_VIEW_AXES`` axes take several tokens, which the NC joins). Does nothing without
+        ``view_period`` or when the set is unchanged.
+
+        Raises:
+            ValueError: a negative id.
+        """
+        ids = tuple(sorted({int(a) for a in axes}))
+        if self.view_period is None or ids == self.view_axes:
+            return
+        if ids and ids[0] < 0:
+            raise ValueError(f"invalid axis id {ids[0]}")
+        self.view_axes = ids
+        if self.ready:
+            self._declare_view()
+
+    def _view_token_keys(self) -> list[str]:
+        assert self.view_period is not None
+        ids, n = self.view_axes, MAX_VIEW_AXES
+        chunks = [ids[i:i + n] for i in range(0, len(ids), n)] or [()]
+        return [self.keys.view_select(self.client_id, self.view_period, c) for c in chunks]
+
+    def _declare_view(self) -> None:
+        with self._view_lock:
+            keys = self._view_token_keys()
+            s = self.session
+            if s is None or keys == self._view_keys:
+                return
+            tokens: list[Any] = []
+            try:
+                for key in keys:
+                    tokens.append(s.liveliness().declare_token(key))
+            except Exception as exc:  # session closing
+                self.last_error = str(exc)
+                for t in tokens:
+                    try:
+                        t.undeclare()
+                    except Exception:
+                        pass
+                return
+            old, self.view_tokens, self._view_keys = self.view_tokens, tokens, keys
+            for t in old:
+                try:
+                    t.undeclare()
+                except Exception:
+                    pass
 
     def close(self, undeclare: bool = True) -> None:
         """Undeclare everything (unless ``undeclare`` is False: a thread may be blocked in ``frames.recv()``,
         which closing the session ends) and close the session. Idempotent, never raises."""
         self.ready = False
         if undeclare:
-            for d in (self.token, self.pub, self.alive_sub, self.instance_sub, self.claims_sub, self.frames):
+            for d in (*self.view_tokens, self.token, self.pub, self.alive_sub, self.instance_sub, self.claims_sub,
+                      self.frames):
                 if d is not None:
                     try:
                         d.undeclare()
                     except Exception:
                         pass
             self.token = self.pub = self.alive_sub = self.instance_sub = self.claims_sub = self.frames = None
+            self.view_tokens, self._view_keys = [], []
         if self.session is not None:
             try:
                 self.session.close()  # type: ignore[no-untyped-call]  # (zenoh's stub leaves close() unannotated)

@@ -25,14 +25,15 @@ from .codec import (
     MC_AxisPara, MC_AxisStates, MC_BufferMode, MC_Direction, MC_HomingMode, Member, NcJobsFlags, NcJobsSyncFlags,
     OpModeDWord, StateDWord, StateDWord2, StateDWord3, bit_names, decode, decode_frame, decode_plc_frame,
     decode_stamp, encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_header, frame_records,
-    frame_stamp, load_json, member_struct, members, pack_frame_header_into, struct_of, to_dict,
+    frame_stamp, load_json, member_struct, members, pack_frame_header_into, struct_of, to_dict, view_frame,
 )
 from .commands import COMMAND_SPECS, CommandSpec
 from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
 from .instance import NcInstance, new_instance_id
 from .messages import (
-    CLASSES, COMMAND_CLASS, COMMANDS, FRAME_PERIODS_MS, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES, Keys, check_client_id,
-    frame_period_ms, make_reply, make_request, pack, parse_alive_instance, parse_reply, parse_request, unpack,
+    CLASSES, COMMAND_CLASS, COMMANDS, FRAME_PERIODS_MS, MAX_VIEW_AXES, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES,
+    VIEW_PERIODS_MS, Keys, check_client_id, frame_period_ms, make_reply, make_request, pack, parse_alive_instance,
+    parse_reply, parse_request, parse_view_axes, parse_view_select, unpack, view_axes_chunk, view_axes_text,
 )
 from .params import (
     PARAMETERS, ST_AXIS_COMPONENTS, ST_AXIS_PARAMETER_SET, E_DestallDetectMode, E_DestallMode, E_NcAxisType,
@@ -49,18 +50,19 @@ __all__ = [
     "E_NcAxisType", "E_NcDriveType", "E_NcEncoderType", "E_ReadMode", "E_SignalEdge", "E_StartPosType",
     "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe", "E_TouchProbeState", "ErrorCodes", "FRAME_HEADER_DTYPE",
     "FRAME_HEADER_SIZE", "FRAME_HEADER_STRUCT", "FRAME_MAGIC", "FRAME_PERIODS_MS", "FrameFlags", "FrameHeader",
-    "HomingState", "JOB_RECORDS", "Keys", "MC_AxisPara", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
+    "HomingState", "JOB_RECORDS", "Keys", "MAX_VIEW_AXES", "MC_AxisPara", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
     "MC_HomingMode", "MOTION_COMMANDS", "Member", "NCJOBS_DTYPE", "NCJOBS_SIZE", "NCTOPLC_DTYPE", "NCTOPLC_SIZE",
     "NcError", "NcInstance", "NcJobsFlags", "NcJobsSyncFlags", "OpModeDWord", "PARAMETERS", "PLCTONC_DTYPE",
     "PLCTONC_SIZE", "PLC_AXIS_HEAD_STRUCT", "PLC_AXIS_RECORD_DTYPE", "PLC_AXIS_RECORD_SIZE",
     "PLC_FRAME_HEADER_DTYPE", "PLC_FRAME_HEADER_SIZE", "PLC_FRAME_HEADER_STRUCT", "PLC_FRAME_MAGIC", "PROTOCOL",
     "ParamEntry", "ROLE_CLASSES", "STAMP_DTYPE", "STAMP_SIZE", "STAMP_STRUCT", "STRUCTS", "ST_AXIS_COMPONENTS",
-    "ST_AXIS_PARAMETER_SET", "StateDWord", "StateDWord2", "StateDWord3", "WIRE_VERSION", "bit_names",
+    "ST_AXIS_PARAMETER_SET", "StateDWord", "StateDWord2", "StateDWord3", "VIEW_PERIODS_MS", "WIRE_VERSION", "bit_names",
     "check_client_id", "cmdno_newer", "decode", "decode_ads", "decode_axis_components", "decode_frame",
     "decode_parameter_set", "decode_plc_frame", "decode_stamp", "encode_ads", "encode_axis_components",
     "encode_frame", "encode_parameter_set", "encode_plc_frame", "encode_plc_records", "encode_stamp", "error_name",
     "error_text", "frame_header", "frame_period_ms", "frame_records", "frame_stamp", "load_json", "make_reply",
     "make_request", "member_struct", "members", "motion_state", "motion_state_array", "new_instance_id",
     "next_cmdno", "pack", "pack_frame_header_into", "pack_value", "parse_alive_instance", "parse_reply",
-    "parse_request", "struct_of", "to_dict", "unpack", "unpack_value",
+    "parse_request", "parse_view_axes", "parse_view_select", "struct_of", "to_dict", "unpack", "unpack_value", "view_axes_chunk", "view_axes_text",
+    "view_frame",
 ]

@@ -5,8 +5,8 @@ prints each sample as one JSON line with the TwinCAT field names.
 
 Every decoder takes ``(key, payload bytes)`` and returns one line of JSON; every encoder takes
 ``(key, text typed on the command line)`` and returns the payload bytes (zenoh-cli's plugin
-interface). Decoders: ``nctoplc``, ``plctonc`` (per-axis samples), ``ncframe`` (``nc/<nc>/frame`` and
-``nc/<nc>/status``), ``plcframe`` (``nc/<nc>/plctonc/<client>``), ``ncrequest`` / ``ncreply`` (command
+interface). Decoders: ``nctoplc``, ``plctonc`` (per-axis samples), ``ncframe`` (``nc/<nc>/frame``,
+``frame/<P>ms``, a client's ``view/<client>`` and ``nc/<nc>/status``), ``plcframe`` (``nc/<nc>/plctonc/<client>``), ``ncrequest`` / ``ncreply`` (command
 messages), ``msgpack`` (stats, claims, anything msgpack). Encoders: ``ncrequest`` (a checked
 request), ``msgpack`` (any JSON as msgpack, unchecked: for sending deliberately bad requests).
 """
@@ -66,7 +66,8 @@ def decode_plctonc(key: Any, value: bytes) -> str:
 
 
 def decode_frame(key: Any, value: bytes) -> str:
-    """A status frame (``nc/<nc>/frame`` or ``nc/<nc>/status``) -> ``{"header", "axes", ["jobs"]}``.
+    """A status frame (``nc/<nc>/frame``, a view ``nc/<nc>/view/<client>``, ``nc/<nc>/status``) ->
+    ``{"header", "axes", ["jobs"]}``.
 
     Raises:
         ValueError: wrong magic, version or sizes.

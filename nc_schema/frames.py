@@ -24,7 +24,7 @@ __all__ = [
     "FRAME_MAGIC", "PLC_FRAME_MAGIC", "WIRE_VERSION", "JOB_RECORDS", "FRAME_HEADER_STRUCT", "PLC_FRAME_HEADER_STRUCT",
     "PLC_AXIS_HEAD_STRUCT", "STAMP_STRUCT", "FrameHeader", "encode_frame", "pack_frame_header_into",
     "frame_header", "frame_stamp", "decode_frame", "frame_records", "encode_plc_records", "encode_plc_frame",
-    "decode_plc_frame",
+    "decode_plc_frame", "view_frame",
     "encode_stamp", "decode_stamp",
 ]
 
@@ -94,6 +94,21 @@ def encode_frame(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 
     return b"".join((FRAME_HEADER_STRUCT.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_SIZE, cycle, nc_time_ns,
                                               len(records), NCTOPLC_SIZE, flags | JOB_RECORDS),
                      records.tobytes(), jobs.tobytes()))
+
+
+def view_frame(frame: bytes | memoryview, axis_count: int, rows: Sequence[int]) -> bytes:
+    """The frame of ``rows`` only (a client's view, protocol.json ``view``) cut from an encoded frame of
+    ``axis_count`` axes written by this process (:func:`encode_frame`'s layout; unchecked): the same header
+    with AxisCount = ``len(rows)``, those rows' NCTOPLC records, then their NCJOBS records if the frame has
+    them. Byte slices and one join: no numpy, no decode."""
+    _, _, header_size, cycle, nc_time_ns, _, _, flags = FRAME_HEADER_STRUCT.unpack_from(frame)
+    parts: list[bytes | memoryview] = [FRAME_HEADER_STRUCT.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_SIZE, cycle,
+                                                                 nc_time_ns, len(rows), NCTOPLC_SIZE, flags)]
+    parts += [frame[o:o + NCTOPLC_SIZE] for o in (header_size + r * NCTOPLC_SIZE for r in rows)]
+    if flags & JOB_RECORDS:
+        jobs = header_size + axis_count * NCTOPLC_SIZE
+        parts += [frame[o:o + NCJOBS_SIZE] for o in (jobs + r * NCJOBS_SIZE for r in rows)]
+    return b"".join(parts)
 
 
 def frame_stamp(frame: bytes | bytearray | memoryview) -> tuple[int, int, int]:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Mapping, cast
+from typing import Any, Iterable, Mapping, cast
 
 import msgpack
 
@@ -42,6 +42,72 @@ def parse_alive_instance(key: object) -> tuple[str, str] | None:
     return parts[1], parts[3]
 
 
+#: Periods [ms] of a client's view (protocol.json ``view_select``): 0 = every NC cycle, else a frame_every period.
+VIEW_PERIODS_MS: tuple[int, ...] = (0,) + FRAME_PERIODS_MS
+#: At most this many axes in one view token (a key stays short; an NC has at most a few hundred axes a client reads).
+MAX_VIEW_AXES = 256
+_VIEW_AXES_RE = re.compile(rf"none|{_AXIS_RE}(?:,{_AXIS_RE}){{0,{MAX_VIEW_AXES - 1}}}")
+
+
+def view_axes_chunk(axes: Iterable[int]) -> str:
+    """The ``{axes}`` chunk of a view token: ascending distinct ids joined by ',' (``none`` for no axis).
+
+    Raises:
+        ValueError: a negative id or more than MAX_VIEW_AXES axes.
+    """
+    ids = sorted({int(a) for a in axes})
+    if ids and ids[0] < 0:
+        raise ValueError(f"invalid axis id {ids[0]}")
+    if len(ids) > MAX_VIEW_AXES:
+        raise ValueError(f"a view lists at most {MAX_VIEW_AXES} axes, not {len(ids)}")
+    return view_axes_text(ids)
+
+
+def view_axes_text(axes: Iterable[int]) -> str:
+    """A view frame's attachment (protocol.json ``view``): every AxisId the client asked for, ascending, joined
+    by ',' (``none`` for no axis), whether the NC has it or not; no length limit (the union of its tokens)."""
+    ids = sorted({int(a) for a in axes})
+    return ",".join(map(str, ids)) if ids else "none"
+
+
+def parse_view_axes(text: bytes | str) -> frozenset[int] | None:
+    """The AxisIds of a view frame's attachment (:func:`view_axes_text`); None if it is not one."""
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("ascii")
+        except UnicodeDecodeError:
+            return None
+    if text == "none":
+        return frozenset()
+    try:
+        ids = frozenset(int(a) for a in text.split(","))
+    except ValueError:
+        return None
+    return ids if all(0 <= a <= 0xFFFF for a in ids) else None
+
+
+def parse_view_select(key: object) -> tuple[str, str, int, tuple[int, ...]] | None:
+    """(NC, client, period [ms], axis ids) of a view token's key ``nc/<nc>/select/<client>/<P>ms/<axes>``;
+    None for anything else (a malformed token is ignored, never an error: the NC's publisher sees every
+    token of its prefix)."""
+    parts = str(key).split("/")
+    if len(parts) != 6 or parts[0] != "nc" or parts[2] != "select":
+        return None
+    nc, client, period, axes = parts[1], parts[3], parts[4], parts[5]
+    if not _NAME_RE.fullmatch(nc) or not _CLIENT_RE.fullmatch(client) or not period.endswith("ms"):
+        return None
+    try:
+        p = int(period[:-2])
+    except ValueError:
+        return None
+    if p not in VIEW_PERIODS_MS or str(p) + "ms" != period or not _VIEW_AXES_RE.fullmatch(axes):
+        return None
+    ids = () if axes == "none" else tuple(int(a) for a in axes.split(","))
+    if list(ids) != sorted(set(ids)):
+        return None
+    return nc, client, p, ids
+
+
 def frame_period_ms(cycle_time: float) -> int | None:
     """The ``frame_every`` period for a client reading once per ``cycle_time`` [s]: the longest one of at
     most half the cycle (each cycle then sees a newer frame), or None (take every frame: ``frame``)."""
@@ -52,7 +118,7 @@ def frame_period_ms(cycle_time: float) -> int | None:
 class Keys:
     """Key expressions of one NC (protocol.json ``keys``).
 
-    Commands (protocol version 2) carry their class and the sender's client id in the key:
+    Commands (protocol version 2 and later) carry their class and the sender's client id in the key:
     ``nc/<nc>/axis/<axis>/cmd/<class>/<client>`` and ``nc/<nc>/cmd/<class>/<client>``.
 
     Raises:
@@ -75,6 +141,8 @@ class Keys:
         self.alive_instance_any = f"{self.alive}/*"
         self.client_alive_any = f"{self.prefix}/client/*"
         self.plctonc_in_any = f"{self.prefix}/plctonc/*"
+        #: every view token of this NC (``view_select``): what its frame publisher watches
+        self.view_select_any = f"{self.prefix}/select/*/*/*"
         self._cmd_re = re.compile(re.escape(self.prefix) + rf"(?:/axis/({_AXIS_RE}))?/cmd/([a-z]+)/([A-Za-z0-9_.-]{{1,64}})")
 
     def frame_every(self, period_ms: int) -> str:
@@ -86,6 +154,20 @@ class Keys:
         if period_ms not in FRAME_PERIODS_MS:
             raise ValueError(f"frame period {period_ms!r} ms: use one of {FRAME_PERIODS_MS}")
         return f"{self.frame}/{int(period_ms)}ms"
+
+    def view(self, client: str) -> str:
+        """``nc/<nc>/view/<client>``: the frames of the axes ``client`` selected (:meth:`view_select`)."""
+        return f"{self.prefix}/view/{check_client_id(client)}"
+
+    def view_select(self, client: str, period_ms: int, axes: Iterable[int]) -> str:
+        """``nc/<nc>/select/<client>/<period_ms>ms/<axes>``: the liveliness token that asks for ``client``'s view.
+
+        Raises:
+            ValueError: invalid client id, a period not in VIEW_PERIODS_MS, a negative id, too many axes.
+        """
+        if period_ms not in VIEW_PERIODS_MS:
+            raise ValueError(f"view period {period_ms!r} ms: use one of {VIEW_PERIODS_MS}")
+        return f"{self.prefix}/select/{check_client_id(client)}/{int(period_ms)}ms/{view_axes_chunk(axes)}"
 
     def axis_nctoplc(self, axis: int) -> str:
         return f"{self.prefix}/axis/{int(axis)}/nctoplc"

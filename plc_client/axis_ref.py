@@ -41,9 +41,9 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
-from nc_schema import NCJOBS_DTYPE, MC_AxisStates, StateDWord, motion_state
+from nc_schema import MC_AxisStates, StateDWord, motion_state
 
-from .records import NCTOPLC_AXIS_REF, PLCTONC_AXIS_REF
+from .records import _NC_INDEX, NCTOPLC_AXIS_REF, NO_JOBS, PLCTONC_AXIS_REF, NcJobsValues
 
 if TYPE_CHECKING:  # pragma: no cover
     from .task import PlcTask
@@ -77,6 +77,10 @@ _STATE_FLAGS: dict[int, str] = {
     int(MC_AxisStates.MC_AXISSTATE_SYNCHRONIZEDMOTION): "SynchronizedMotion",
     int(MC_AxisStates.MC_AXISSTATE_HOMING): "Homing",
 }
+
+#: where ST_AxisStatus.update finds its members in an unpacked NCTOPLC record (scalars)
+_I_SDW, _I_CS, _I_ERR, _I_ACC, _I_VEL = (_NC_INDEX[n][0] for n in
+                                         ("StateDWord", "CoupleState", "ErrorCode", "SetAcc", "SetVelo"))
 
 #: |SetAcc| below this [u/s^2] counts as "not accelerating" (numerical noise of the profile).
 _ACC_EPS = 1e-9
@@ -180,8 +184,9 @@ class ST_AxisStatus:
 
     def update(self, rec: NCTOPLC_AXIS_REF, nc_cycle: int, plc_cycle: int, cycle_time: float, valid: bool) -> None:
         """Refresh every member from one NCTOPLC record (what MC_ReadStatus does)."""
-        s = rec.StateDWord
-        cs = rec.CoupleState
+        v = rec._v or rec._unpack()  # (one look at the unpacked values instead of five properties)
+        s = v[_I_SDW]
+        cs = v[_I_CS]
         self.CycleCounter = plc_cycle
         self.NcCycleCounter = nc_cycle
         self.UpdateCycleTime = cycle_time
@@ -190,8 +195,8 @@ class ST_AxisStatus:
         if flags is None:
             flags = _flags(s, cs)
         self.__dict__.update(flags)
-        self.ErrorId = rec.ErrorCode
-        acc, vel = rec.SetAcc, rec.SetVelo
+        self.ErrorId = v[_I_ERR]
+        acc, vel = v[_I_ACC], v[_I_VEL]
         if abs(acc) <= _ACC_EPS:
             self.Accelerating = self.Decelerating = False
         elif vel == 0.0:
@@ -203,7 +208,7 @@ class ST_AxisStatus:
 
     def copy(self) -> ST_AxisStatus:
         """An independent copy (MC_ReadStatus output)."""
-        c = ST_AxisStatus()
+        c = object.__new__(ST_AxisStatus)  # (every member is in __dict__: no __init__ needed)
         c.__dict__.update(self.__dict__)
         return c
 
@@ -241,8 +246,9 @@ class AXIS_REF:
             ``X.NcToPlc.SetPos`` ... as plain Python values; ``X.NcToPlc["SetPos"]`` is the same).
         PlcToNc: writable PLCTONC record published for a controlled axis
             (:class:`~plc_client.records.PLCTONC_AXIS_REF`: ``X.PlcToNc.Override = 500000``).
-        NcJobs: read-only NCJOBS_AXIS_REF snapshot (zenoh-nc): the axis's command queue and the
-            fates of its last ended commands, so a block sees how its own command ended.
+        NcJobs: read-only NCJOBS_AXIS_REF snapshot (zenoh-nc, a numpy record): the axis's command queue
+            and the fates of its last ended commands, so a block sees how its own command ended (the
+            blocks read the same record as plain values, ``_jobs``: :class:`~plc_client.records.NcJobsValues`).
         Status: :class:`ST_AxisStatus`, refreshed every PLC cycle.
         nc_epoch: incremented once each time the NC is seen to restart (a new instance in the
             frames: its cycle went back).
@@ -260,16 +266,21 @@ class AXIS_REF:
         self.axis_id = axis_id
         self.name = name or f"{nc}/{axis_id}"
         self.NcToPlc = NCTOPLC_AXIS_REF()
-        no_jobs = np.zeros(1, dtype=NCJOBS_DTYPE)
-        no_jobs.flags.writeable = False
-        self.NcJobs: np.void = no_jobs[0]
+        #: this cycle's NCJOBS as plain values (the blocks read these; ``NcJobs`` is its numpy record)
+        self._jobs: NcJobsValues = NO_JOBS
         self.PlcToNc = PLCTONC_AXIS_REF()
         self.PlcToNc.Override = 1_000_000
         self._plctonc = self.PlcToNc._arr  # a numpy view of the same bytes (the frame encoders take it)
+        self._plctonc_buf = self.PlcToNc._buf  # the same bytes (the task's preallocated PLC frame copies them)
         self.Status = ST_AxisStatus()
         self.nc_epoch = 0
         #: True once frames arrived but this axis id was not in them (-> 0x4012).
         self.missing = False
+        #: True while the view frames of its NC do not cover it yet (bound after the client asked for its
+        #: view: the NC has not seen the new selection), for at most the task's command_timeout after binding;
+        #: a block called on it waits (:meth:`plc_client.fb.base.FunctionBlock.__call__`)
+        self.pending = False
+        self._pending_until = 0.0  # time.monotonic() when a binding's wait for the view ends
         self._task: PlcTask | None = None
         for refs in _collectors:
             refs.append(weakref.ref(self))
@@ -293,30 +304,39 @@ class AXIS_REF:
         """True once an MC_Power block has been used on this axis (its PLCTONC is published)."""
         return self._task is not None and self._task.is_controlled(self)
 
+    @property
+    def NcJobs(self) -> np.void:
+        """The read-only NCJOBS_AXIS_REF record of this cycle (numpy; made on first use in a cycle)."""
+        return self._jobs.record
+
     # -- snapshot ----------------------------------------------------------------------
-    def _snapshot(self, rec: np.void | None, nc_cycle: int | None, plc_cycle: int, cycle_time: float,
-                  stale_cycles: int, jobs: np.void | None = None) -> None:
+    def _snapshot(self, rec: bytes | None, nc_cycle: int | None, plc_cycle: int, cycle_time: float,
+                  stale_cycles: int, jobs: bytes | None = None) -> None:
         """Take this cycle's snapshot (called by the task at the start of each PLC cycle).
 
-        ``rec`` is this axis's record in the newest frame of its NC (None if the frame
-        does not contain the axis or no frame was received yet).
+        ``rec`` is the bytes of this axis's NCTOPLC record in the newest frame of its NC (None if the
+        frame does not contain the axis or no frame was received yet), ``jobs`` those of its NCJOBS
+        record (None: the frame has none; the last ones are kept). Bytes, never copied again: the
+        task slices them from one copy of the frame's records (immutable, so a snapshot kept by the
+        program keeps its values).
         """
+        self.pending = False
         if rec is not None and nc_cycle is not None:
-            if not self._has_data or nc_cycle != int(self.Status.NcCycleCounter):
+            if not self._has_data or nc_cycle != self.Status.NcCycleCounter:
                 self._unchanged = 0  # a newer frame (or a restarted NC's: the task bumps nc_epoch)
             else:
                 self._unchanged += 1
-            self.NcToPlc = NCTOPLC_AXIS_REF._of(rec.tobytes())  # this cycle's copy, unpacked when read
+            self.NcToPlc = NCTOPLC_AXIS_REF._of(rec)  # this cycle's copy, unpacked when read
             if jobs is not None:
-                self.NcJobs = np.frombuffer(jobs.tobytes(), dtype=NCJOBS_DTYPE, count=1)[0]
+                self._jobs = NcJobsValues._of(jobs)
             self._has_data = True
             self.missing = False
         else:
             self._unchanged += 1
             self.missing = nc_cycle is not None  # frames arrive, but without this axis
-            nc_cycle = int(self.Status.NcCycleCounter)
+            nc_cycle = self.Status.NcCycleCounter
         valid = self._has_data and not self.missing and self._unchanged < stale_cycles
-        self.Status.update(self.NcToPlc, int(nc_cycle), plc_cycle, cycle_time, valid)
+        self.Status.update(self.NcToPlc, nc_cycle, plc_cycle, cycle_time, valid)
 
     @property
     def valid(self) -> bool:

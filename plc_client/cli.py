@@ -56,6 +56,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--arg", action="append", metavar="NAME=VALUE", dest="program_args",
                    help="an argument of the program, read with plc_client.program_args(NAME=default) and typed "
                         "like its default, e.g. --arg speed=300 --arg axis=2 (repeatable)")
+    p.add_argument("--whole-frames", action="store_true",
+                   help="take every axis's data (nc/<nc>/frame/<P>ms) instead of this client's view of its own axes "
+                        "(nc/<nc>/view/<client-id>): for an NC of protocol version 2")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     return p
 
@@ -99,7 +102,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--lease-ms must be 100..600000, got {args.lease_ms}")
         rt = PlcRuntime(loaded.program, ncs, axes=loaded.axes, cycle_time=args.cycle_time, client_id=args.client_id,
                         stale_cycles=args.stale_cycles, command_timeout=args.timeout, tls_dir=args.tls_dir,
-                        lease_ms=DEFAULT_LEASE_MS if args.lease_ms is None else args.lease_ms)
+                        lease_ms=DEFAULT_LEASE_MS if args.lease_ms is None else args.lease_ms,
+                        view=not args.whole_frames)
     except (ValueError, TypeError) as exc:
         print(f"plc-run: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -147,11 +147,9 @@ class CommandPort(ABC):
         arrived (the task decides what to do with an accepted late command).
         """
         late: list[PendingCommand] = []
-        while True:
-            try:
-                pending, reply, failed = self._inbox.popleft()
-            except IndexError:
-                break
+        inbox = self._inbox
+        while inbox:  # (only this thread pops: a non-empty inbox stays non-empty until popleft)
+            pending, reply, failed = inbox.popleft()
             if pending.done:
                 continue  # a second reply (e.g. duplicate queryable) or a failure after a reply
             pending.reply = reply

@@ -29,7 +29,9 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
-from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, Member, load_json, member_struct, members, struct_of
+from nc_schema import (NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, Member, load_json, member_struct, members,
+                       struct_of)
+from nc_schema.layout import flat_struct
 
 __all__ = ["NCTOPLC_AXIS_REF", "PLCTONC_AXIS_REF"]
 
@@ -348,3 +350,124 @@ def _plc_property(name: str, doc: str) -> property:
 _plc_docs = _docs("PLCTONC_AXIS_REF")
 for _name in PLCTONC_FIELDS:
     setattr(PLCTONC_AXIS_REF, _name, _plc_property(_name, _plc_docs.get(_name, "")))
+
+
+# ---- NCJOBS (the blocks' view) ------------------------------------------------------------------
+_JOBS_STRUCT = flat_struct(NCJOBS_DTYPE)  # every value of the record, the Ended entries flattened
+#: member -> (first index in the unpacked tuple, values of one element (0: a scalar), elements)
+_JOBS_INDEX: dict[str, tuple[int, int, int]] = {}
+_i = 0
+assert NCJOBS_DTYPE.names is not None and NCJOBS_DTYPE.fields is not None
+for _k, _name in enumerate(NCJOBS_DTYPE.names):
+    _fdt = NCJOBS_DTYPE.fields[_name][0]
+    _stop = NCJOBS_DTYPE.names[_k + 1] if _k + 1 < len(NCJOBS_DTYPE.names) else None
+    _n = len(flat_struct(NCJOBS_DTYPE, start=_name, stop=_stop).unpack(bytes(_fdt.itemsize)))
+    if _fdt.subdtype is None:
+        _JOBS_INDEX[_name] = (_i, 0, 0) if _n == 1 else (_i, _n, 1)
+    else:
+        _count = int(np.prod(_fdt.subdtype[1]))
+        _JOBS_INDEX[_name] = (_i, _n // _count, _count)
+    _i += _n
+_ZERO_NCJOBS = bytes(NCJOBS_DTYPE.itemsize)
+
+
+class NcJobsValues:
+    """One cycle's NCJOBS_AXIS_REF of an axis as plain values, for the function blocks and the task
+    (``AXIS_REF._jobs``): the record's bytes, unpacked with one ``struct.unpack`` at the first read, as
+    :class:`NCTOPLC_AXIS_REF` does; every member is an attribute (``.ActiveCmdNo``, ``.NewestCmdNo``, ...),
+    an array of structs a tuple of value tuples (``.Ended``: four ``(CmdNo, CmdState, ErrorId)``).
+
+    ``AXIS_REF.NcJobs`` (the public, numpy form) is :attr:`record`, made on first use: the blocks read a
+    few members every cycle, and a numpy record and its field accesses cost ~10x an unpack.
+    """
+
+    __slots__ = ("_raw", "_v", "_rec")
+    dtype = NCJOBS_DTYPE
+    # the members (properties set from the layout below), declared for the type checker
+    AxisId: int
+    ActiveCmdNo: int
+    ActiveState: int
+    BufferedCmdNo: int
+    BufferedMode: int
+    NewestCmdNo: int
+    Flags: int
+    Ended: tuple[tuple[int, int, int], ...]
+    MasterId: int
+    SyncFlags: int
+    GearRatio: float
+    SuperCmdNo: int
+    SuperState: int
+    SuperErrorId: int
+    SuperDistance: float
+    SuperVelocityDiff: float
+    SuperLength: float
+    ProbeCmdNo: int
+    ProbeState: int
+    ProbeCounter: int
+    RecordedPosition: float
+    RecordedTimeNs: int
+    ProbeErrorId: int
+    DriveStatus: int
+
+    def __init__(self, raw: bytes = _ZERO_NCJOBS) -> None:
+        if len(raw) != NCJOBS_DTYPE.itemsize:
+            raise ValueError(f"NCJOBS_AXIS_REF: {NCJOBS_DTYPE.itemsize} bytes expected, got {len(raw)}")
+        self._raw = bytes(raw)
+        self._v: tuple[Any, ...] | None = None
+        self._rec: np.void | None = None
+
+    @classmethod
+    def _of(cls, raw: bytes) -> NcJobsValues:
+        """A snapshot of ``raw`` (exactly one record's bytes, not copied again)."""
+        self = object.__new__(cls)
+        self._raw, self._v, self._rec = raw, None, None
+        return self
+
+    def _unpack(self) -> tuple[Any, ...]:
+        v = self._v = _JOBS_STRUCT.unpack(self._raw)
+        return v
+
+    def __getitem__(self, name: str) -> Any:
+        try:
+            get = _jobs_get[name]
+        except (KeyError, TypeError):
+            raise KeyError(f"NCJOBS_AXIS_REF has no member {name!r}") from None
+        return get(self)
+
+    def tobytes(self) -> bytes:
+        return self._raw
+
+    @property
+    def record(self) -> np.void:
+        """The snapshot as a read-only numpy record of ``NCJOBS_DTYPE`` (what ``AXIS_REF.NcJobs`` gives)."""
+        if self._rec is None:
+            self._rec = np.frombuffer(self._raw, dtype=NCJOBS_DTYPE, count=1)[0]
+        return self._rec
+
+    def __repr__(self) -> str:
+        return (f"NcJobsValues(AxisId={self.AxisId}, Active={self.ActiveCmdNo}/{self.ActiveState}, "
+                f"Buffered={self.BufferedCmdNo}, Newest={self.NewestCmdNo})")
+
+
+def _jobs_getter(name: str) -> Any:
+    i, per, count = _JOBS_INDEX[name]
+    if not per:
+        def get(self: NcJobsValues) -> Any:
+            return (self._v or self._unpack())[i]
+    elif count == 1:  # an array of scalars
+        def get(self: NcJobsValues) -> Any:
+            return (self._v or self._unpack())[i:i + per]
+    else:  # an array of structs: a tuple of value tuples
+        def get(self: NcJobsValues) -> Any:
+            v = self._v or self._unpack()
+            return tuple(v[j:j + per] for j in range(i, i + per * count, per))
+    get.__name__ = name
+    return get
+
+
+_jobs_get: dict[str, Any] = {}
+for _name in _JOBS_INDEX:
+    _jobs_get[_name] = _jobs_getter(_name)
+    setattr(NcJobsValues, _name, property(_jobs_get[_name]))
+#: the zero record (no job records yet): immutable, shared
+NO_JOBS = NcJobsValues()

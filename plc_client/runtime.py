@@ -18,12 +18,18 @@ unreachable NC at once) and ``nc/<nc>/alive/*`` (the NC process's instance token
 from live clients and drops them when the token disappears) and a publisher for
 ``nc/<nc>/plctonc/<client_id>``.
 
-Frames: the PLC reads one frame per cycle, so it subscribes to ``nc/<nc>/frame/<P>ms`` (the frame
-once per P ms of NC time, P the longest of ``nc_schema.FRAME_PERIODS_MS`` of at most half the
-cycle: 5 ms at 10 ms; ``frame_period`` overrides it), not to every NC cycle's ``nc/<nc>/frame``
-(a cycle shorter than 4 ms does). Each cycle still sees a newer frame, at a fifth of the traffic:
-at 64 axes a frame is 24.6 kB, and receiving all 1000 a second cost a client ~6 % of a core in
-zenoh's receive threads and the NC ~5 % per client in its transmit thread.
+Frames: the PLC reads one frame per cycle of its own axes only. It declares its view, the liveliness
+token ``nc/<nc>/select/<client_id>/<P>ms/<axes>`` (the AxisIds its AXIS_REFs name on that NC, updated
+when an AXIS_REF is bound later), and subscribes to ``nc/<nc>/view/<client_id>``: the NC's frame cut to
+those axes, once per P ms of NC time, P the longest of ``nc_schema.FRAME_PERIODS_MS`` of at most half
+the cycle (5 ms at 10 ms; ``frame_period`` overrides it; 0 or a cycle shorter than 4 ms: every NC
+cycle). Each cycle still sees a newer frame, and a 4-axis client of a 64-axis NC receives and decodes
+1.6 kB instead of 24.6 kB (before views, 16 such clients cost the NC's transport ~5 % of a core each).
+Each view frame's attachment lists the axes it was cut for: an AXIS_REF bound later is not among them
+until the NC has seen the new token (a few ms), and meanwhile has no data and is ``pending`` (its blocks'
+calls wait, :mod:`plc_client.fb.base`), where one that is listed but absent is not on the NC (0x4012).
+``view=False`` takes the whole frame on ``nc/<nc>/frame/<P>ms`` (or ``nc/<nc>/frame``) instead, as
+clients of protocol version 2 did.
 
 No Python code runs on zenoh's threads in a PLC client: frames, liveliness events and replies go
 through zenoh channels that the cycle polls. A Python callback there (a reply callback, as the
@@ -87,7 +93,7 @@ from nc_link import CONNECT_RETRY, CONNECT_TIMEOUT_MS, DEFAULT_LEASE_MS, client_
 from nc_link.link import BACK, GONE, RESTART
 from nc_schema import (
     ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_records, frame_period_ms, make_reply,
-    parse_reply,
+    parse_reply, parse_view_axes,
 )
 
 from .axis_ref import AXIS_REF
@@ -208,6 +214,8 @@ class PlcRuntime(PlcTask):
             None: the longest of at most half ``cycle_time`` (``nc_schema.frame_period_ms``); 0: every
             NC cycle's frame (``nc/<nc>/frame``).
         axes: AXIS_REFs to bind at once (see :class:`~plc_client.task.PlcTask`).
+        view: take this client's view (the frames of its own axes, see the module docstring); False: whole
+            frames.
 
     Attributes:
         frame_period_ms: the period of the frames taken [ms] (None: every NC cycle's).
@@ -225,7 +233,7 @@ class PlcRuntime(PlcTask):
                  query_timeout: float | None = None, lease_ms: int = DEFAULT_LEASE_MS, reconnect_period: float = 1.0,
                  shutdown_cycles: int = 3, claim_retry: float = 1.0, close_timeout: float = 2.0,
                  tls_dir: str | None = None, frame_period: int | None = None,
-                 axes: Iterable[AXIS_REF] = ()) -> None:
+                 axes: Iterable[AXIS_REF] = (), view: bool = True) -> None:
         cid = check_client_id(client_id or default_client_id())
         super().__init__(program, cycle_time=cycle_time, client_id=cid, stale_cycles=stale_cycles,
                          command_timeout=command_timeout, claim_retry=claim_retry, axes=axes)
@@ -236,10 +244,14 @@ class PlcRuntime(PlcTask):
         period = frame_period_ms(self.cycle_time) if frame_period is None else (frame_period or None)
         self.frame_period_ms = period
         self.links: dict[str, NcLink] = {}
+        #: NC -> its view frames' last attachment and its AxisIds (nc_schema.parse_view_axes)
+        self._view_attachment: dict[str, tuple[bytes, frozenset[int]]] = {}
+        self._view_dirty: set[str] = set()  # NCs whose view must be declared again (an AXIS_REF was bound)
         for nc, ep in ncs.items():
             keys = Keys(nc)  # validates the name
             link = self.links[nc] = NcLink(nc, ep, cid, lease_ms, tls_dir,
-                                           keys.frame if period is None else keys.frame_every(period))
+                                           keys.frame if period is None else keys.frame_every(period),
+                                           view_period=(period or 0) if view else None)
             # one restart rule per NC: the link's instance takes the tokens, the task's frames go to the same one
             self._instances[nc] = link.instance
         self.port = ZenohPort(cid, self.links, query_timeout or 5.0 * command_timeout)
@@ -260,6 +272,7 @@ class PlcRuntime(PlcTask):
         self._lock = threading.Lock()
         self._warned: set[str] = set()
         self.bind_axes()  # the program's declared axes (an unconfigured NC is named now, not at first use)
+        self._select_views()
 
     # -- sessions ----------------------------------------------------------------------
     def open(self, wait: float = 0.0) -> bool:
@@ -312,13 +325,27 @@ class PlcRuntime(PlcTask):
         link = self.links.get(nc)
         return bool(link and link.ready)
 
+    def _select_views(self) -> None:
+        """Give each link with a changed set of axes its view (:meth:`NcLink.select`)."""
+        dirty, self._view_dirty = self._view_dirty, set()
+        for nc in dirty:
+            link = self.links.get(nc)
+            if link is not None:
+                try:
+                    link.select(a for n, a in self._refs if n == nc)
+                except ValueError as exc:  # (AXIS_REF ids are 1..65535: not expected) the old view stays
+                    log.error("NC %s: view not changed: %s", nc, exc)
+
     def _on_new_axis(self, ax: AXIS_REF) -> None:
+        self._view_dirty.add(ax.nc)
         if ax.nc not in self.links and ax.nc not in self._warned:
             self._warned.add(ax.nc)
             log.warning("%r: NC %r is not configured (ncs=%s); its data stays invalid", ax, ax.nc, list(self.links))
 
     # -- the cycle hooks -----------------------------------------------------------------
     def _take_frames(self) -> None:
+        if self._view_dirty:
+            self._select_views()
         for nc, link in self.links.items():
             if not link.ready:
                 continue
@@ -336,7 +363,15 @@ class PlcRuntime(PlcTask):
                     self._warned.add(f"bad-frame-{nc}")
                     log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
                 continue
-            self._set_frame(nc, int(h["Cycle"]), recs, jobs)
+            covers = None
+            att = sample.attachment if link.view_period is not None else None
+            if att is not None:  # a view frame: the axes it was cut for (a malformed list: none of them)
+                raw = att.to_bytes()
+                last = self._view_attachment.get(nc)
+                if last is None or last[0] != raw:
+                    last = self._view_attachment[nc] = (raw, parse_view_axes(raw) or frozenset())
+                covers = last[1]
+            self._set_frame(nc, int(h["Cycle"]), recs, jobs, covers)
 
     def _liveliness(self, link: NcLink) -> None:
         """The NC's liveliness events (the link's): ``nc/<nc>/alive`` (reachable or not), then its instance tokens."""
@@ -357,7 +392,8 @@ class PlcRuntime(PlcTask):
         if link is None or not link.ready:
             return
         try:
-            link.publish(plc_frame(self.cycle, axes))
+            # the task's preallocated frame; bytes(): NcLink.publish takes bytes (zenoh would copy a bytearray too)
+            link.publish(bytes(self.plc_frame(nc, axes)))
         except Exception as exc:  # session closing
             log.debug("PLCTONC put failed: %s", exc)
 

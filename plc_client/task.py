@@ -54,14 +54,15 @@ import collections
 import inspect
 import logging
 import math
+import struct
 import threading
 import time
 from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from nc_schema import (COMMAND_SPECS, MOTION_COMMANDS, CmdState, ControlDWord, ErrorCodes, NcInstance, StateDWord,
-                       error_text)
+from nc_schema import (COMMAND_SPECS, JOB_RECORDS, MOTION_COMMANDS, NCJOBS_SIZE, NCTOPLC_DTYPE, NCTOPLC_SIZE, CmdState,
+                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, frame_header, member_struct)
 
 # The command sets come from the contract's command properties (protocol.json, nc_schema.COMMAND_SPECS).
 #: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): ``slot``
@@ -72,6 +73,7 @@ _AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
 from .axis_ref import AXIS_REF
+from .plcframe import PlcFrameBuffer
 from .port import CommandPort, PendingCommand, reply_cycle
 
 log = logging.getLogger(__name__)
@@ -92,6 +94,25 @@ HANDOVER_POLL = 0.05
 LOST_COMMAND_TTL = 600.0
 #: what stops a motion command nobody follows any more, where it is not the default Halt: ``undo``
 _UNDO = {n: s.undo for n, s in COMMAND_SPECS.items() if s.motion and not s.stop and s.undo != ("Halt",)}
+
+
+#: a frame as the task keeps it: (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None); the arrays
+#: are None for a frame taken as bytes (PlcTask._set_frame_bytes: its bytes are in PlcTask._frame_bytes)
+_FrameEntry = tuple[int, "np.ndarray | None", dict[int, int], "np.ndarray | None"]
+#: where an NCTOPLC record keeps its AxisId, and its struct code
+_AXIS_ID_OFFSET, _AXIS_ID = member_struct(NCTOPLC_DTYPE, "AxisId")
+_AXIS_IDS: dict[int, struct.Struct] = {}
+
+
+def _axis_ids_struct(n: int) -> struct.Struct:
+    """The struct that reads the AxisIds of ``n`` consecutive NCTOPLC records (from the first one's start)."""
+    st = _AXIS_IDS.get(n)
+    if st is None:
+        if len(_AXIS_IDS) >= 64:
+            _AXIS_IDS.clear()
+        code, pad = _AXIS_ID.format[-1], NCTOPLC_SIZE - _AXIS_ID.size
+        st = _AXIS_IDS[n] = struct.Struct("<" + (f"{_AXIS_ID_OFFSET}x{code}{pad - _AXIS_ID_OFFSET}x" * n))
+    return st
 
 
 def current_task() -> PlcTask | None:
@@ -229,10 +250,19 @@ class PlcTask:
         self._detached: list[tuple[PendingCommand, str]] = []
         self._epochs: dict[str, int] = {}
         #: NC -> (cycle, NCTOPLC records, AxisId -> row, NCJOBS records or None) of its newest frame
-        self._frames: dict[str, tuple[int, np.ndarray, dict[int, int], np.ndarray | None]] = {}
+        self._frames: dict[str, _FrameEntry] = {}
+        #: NC -> the AxisIds its newest frame was cut for (None: all, a whole frame): :meth:`_set_frame`
+        self._covers: dict[str, frozenset[int] | None] = {}
+        #: NC -> (its ``_frames`` entry, the bytes of its records and where they start): :meth:`_bytes_of`
+        self._frame_bytes: dict[str, tuple[_FrameEntry, bytes, int, bytes | None, int]] = {}
         #: each NC's instance as its instance token and frames show it: the restart rule (nc_schema.instance)
         self._instances: dict[str, NcInstance] = {}
-        self._index_cache: dict[str, tuple[bytes, dict[int, int]]] = {}
+        #: NC -> (its frames' AxisIds as last seen: bytes or a tuple, AxisId -> row)
+        self._index_cache: dict[str, tuple[bytes | tuple[int, ...], dict[int, int]]] = {}
+        #: the controlled axes by NC, as :meth:`_publish_all` sends them (None: rebuild, they changed)
+        self._plan: list[tuple[str, list[AXIS_REF]]] | None = None
+        #: NC -> its PLC frame's buffer (:meth:`plc_frame`)
+        self._frame_bufs: dict[str, PlcFrameBuffer] = {}
         self._initial_axes = list(axes)  # bound by bind_axes() once the subclass has its transport
 
     def bind_axes(self, axes: Iterable[AXIS_REF] | None = None) -> list[AXIS_REF]:
@@ -280,6 +310,7 @@ class PlcTask:
         if ax._task is not None:
             raise ValueError(f"{ax!r} is bound to another PLC task")
         ax._task = self
+        ax._pending_until = time.monotonic() + self.command_timeout
         self._refs.setdefault((ax.nc, ax.axis_id), []).append(ax)
         self._on_new_axis(ax)
         self._snapshot_one(ax)
@@ -308,7 +339,10 @@ class PlcTask:
             if prev is not None:
                 log.warning("%r: a second AXIS_REF object controls the same axis; the newest one is published", ax)
             self._controlled[key] = ax
-        c = self._claims.setdefault(key, ClaimState())
+            self._plan = None
+        c = self._claims.get(key)
+        if c is None:
+            c = self._claims[key] = ClaimState()
         if not self.reachable(ax.nc):
             return c  # claimed as soon as the NC can be reached
         if c.state == "handed":
@@ -333,8 +367,8 @@ class PlcTask:
         """We enable the axis, the NC shows it neither enabled nor in error, for claim_retry."""
         if not ax.Status.Valid or self.now - c.since < self.claim_retry:
             return False
-        sd = int(ax.NcToPlc["StateDWord"])
-        enabling = int(ax.PlcToNc["ControlDWord"]) & _ENABLE
+        sd = ax.NcToPlc.StateDWord
+        enabling = ax.PlcToNc.ControlDWord & _ENABLE
         return bool(enabling) and not sd & (_CLC | _ERROR)
 
     def reachable(self, nc: str) -> bool:
@@ -378,7 +412,8 @@ class PlcTask:
             c = self._claims.get(key)
             if c is None:
                 continue
-            code = int(ax.NcToPlc["ErrorCode"]) if ax.Status.Valid and ax.Status.Error else 0
+            st = ax.Status
+            code = ax.NcToPlc.ErrorCode if st.Valid and st.Error else 0
             lost = code in _CLAIM_FAULTS
             if lost and not c.fault_seen and c.state == "held":
                 log.warning("%r: the NC dropped our claim (0x%X %s); claiming again", ax, code, error_text(code))
@@ -429,6 +464,8 @@ class PlcTask:
         self._handovers.append(req)
 
     def _update_handovers(self) -> None:
+        if not self._handovers:
+            return
         keep = []
         for req in self._handovers:
             p = req.pending
@@ -450,6 +487,7 @@ class PlcTask:
             if req.to != self.client_id:
                 c.state, c.error, c.pending, c.since = "handed", 0, None, self.now
                 self._controlled.pop(key, None)  # its frames no longer count: stop sending them
+                self._plan = None
                 log.info("%s/%d handed over to %s", req.nc, req.axis_id, req.to)
         self._handovers = keep
 
@@ -511,6 +549,8 @@ class PlcTask:
         return int(rec["CmdNo"]) == o.cmdno and int(rec["CmdState"]) == CmdState.ACTIVE
 
     def _check_orphans(self) -> None:
+        if not self._orphans:
+            return
         keep = []
         for o in self._orphans:
             ax = o.ax
@@ -537,6 +577,8 @@ class PlcTask:
         self._orphans = keep
 
     def _check_detached(self) -> None:
+        if not self._detached:
+            return
         keep = []
         for p, what in self._detached:
             if not p.done:
@@ -577,10 +619,14 @@ class PlcTask:
     def _take_frames(self) -> None:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
-    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None) -> None:
+    def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None,
+                   covers: frozenset[int] | None = None) -> None:
         """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent. A frame of a
         new NC instance (:class:`nc_schema.NcInstance`: its cycle counter went back) is a restart
-        (:meth:`nc_restarted`)."""
+        (:meth:`nc_restarted`). ``covers``: the AxisIds a view frame was cut for (its attachment,
+        ``nc_schema.parse_view_axes``; None: every axis of the NC, a whole frame). An axis outside them is not
+        yet in the view (bound after the view was asked for): no data yet, not 0x4012."""
+        self._covers[nc] = covers
         why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
         if why is not None:
             self.nc_restarted(nc, why)
@@ -591,21 +637,106 @@ class PlcTask:
             index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
         self._frames[nc] = (int(cycle), records, index[1], jobs)
 
+    def _set_frame_bytes(self, nc: str, data: bytes, covers: frozenset[int] | None = None) -> None:
+        """Take a status frame as received: its bytes (``sample.payload.to_bytes()``), what
+        :meth:`_set_frame` takes after ``nc_schema.decode_frame``, without numpy: the header is checked and
+        unpacked with one ``struct`` call (``nc_schema.frame_header``), the AxisIds with another, and the axes'
+        records are slices of ``data`` (immutable: kept as they are). For a transport's ``_take_frames``.
+
+        Raises:
+            ValueError: not a status frame (wrong magic, version or sizes), as ``decode_frame``.
+        """
+        h = frame_header(data)
+        cycle, hs, n = h.Cycle, h.HeaderSize, h.AxisCount
+        self._covers[nc] = covers
+        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
+        if why is not None:
+            self.nc_restarted(nc, why)
+        ids = _axis_ids_struct(n).unpack_from(data, hs)
+        index = self._index_cache.get(nc)
+        if index is None or index[0] != ids:  # the NC's axes rarely change: keep the AxisId -> row map
+            index = self._index_cache[nc] = (ids, {a: i for i, a in enumerate(ids)})
+        frame: _FrameEntry = (cycle, None, index[1], None)
+        self._frames[nc] = frame
+        self._frame_bytes[nc] = (frame, data, hs, data if h.Flags & JOB_RECORDS else None, hs + n * NCTOPLC_SIZE)
+
+    def _bytes_of(self, nc: str, frame: _FrameEntry) -> tuple[_FrameEntry, bytes, int, bytes | None, int]:
+        """(frame, the bytes its NCTOPLC records start in, where they start, the same of its NCJOBS records or
+        None): the frame's own bytes (:meth:`_set_frame_bytes`), or one copy of each array per frame entry of
+        ``_frames``, made when the first axis takes its snapshot of it (a task without axes copies nothing).
+        The axes' snapshots are slices of them: immutable, so nothing the NC or the transport does to its
+        arrays afterwards reaches them."""
+        got = self._frame_bytes.get(nc)
+        if got is None or got[0] is not frame:
+            recs, jobs = frame[1], frame[3]
+            assert recs is not None  # (a frame entry without arrays comes with its bytes: _set_frame_bytes)
+            got = self._frame_bytes[nc] = (frame, recs.tobytes(), 0, None if jobs is None else jobs.tobytes(), 0)
+        return got
+
     def _snapshot_all(self) -> None:
-        for refs in self._refs.values():
+        """:meth:`_snapshot_one` of every bound axis, the frame of each NC looked up once."""
+        cycle, cycle_time, frames = self.cycle, self.cycle_time, self._frames
+        last: str | None = None
+        frame: _FrameEntry | None = None
+        recs = b""
+        jobs: bytes | None = None
+        covers: frozenset[int] | None = None
+        stale = rbase = jbase = 0
+        for (nc, axis_id), refs in self._refs.items():
+            if nc != last:
+                last = nc
+                frame = frames.get(nc)
+                stale = 0 if nc in self._nc_down else self.stale_cycles  # 0: invalid at once
+                if frame is not None:
+                    _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
+                    covers = self._covers.get(nc)
+            if frame is None:
+                for ax in refs:
+                    ax._snapshot(None, None, cycle, cycle_time, stale)
+                continue
+            i = frame[2].get(axis_id)
+            if i is None:
+                if covers is None or axis_id in covers:  # the NC has no such axis (0x4012)
+                    for ax in refs:
+                        ax._snapshot(None, frame[0], cycle, cycle_time, stale)
+                else:  # not yet in the view: no data yet
+                    self._not_in_view(refs, stale)
+                continue
+            o = rbase + i * NCTOPLC_SIZE
+            j = jbase + i * NCJOBS_SIZE
+            rec = recs[o:o + NCTOPLC_SIZE]
+            job = None if jobs is None else jobs[j:j + NCJOBS_SIZE]
             for ax in refs:
-                self._snapshot_one(ax)
+                ax._snapshot(rec, frame[0], cycle, cycle_time, stale, job)
+
+    def _not_in_view(self, refs: list[AXIS_REF], stale: int) -> None:
+        """The snapshot of axes that the view frames of their NC do not cover yet: no data; ``pending`` for at
+        most ``command_timeout`` after their binding (then their blocks report 0x4B0F)."""
+        now = time.monotonic()
+        for ax in refs:
+            ax._snapshot(None, None, self.cycle, self.cycle_time, stale)
+            ax.pending = now < ax._pending_until
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
-        frame = self._frames.get(ax.nc)
-        stale = 0 if ax.nc in self._nc_down else self.stale_cycles  # 0: invalid at once
+        nc = ax.nc
+        frame = self._frames.get(nc)
+        stale = 0 if nc in self._nc_down else self.stale_cycles  # 0: invalid at once
         if frame is None:
             ax._snapshot(None, None, self.cycle, self.cycle_time, stale)
-        else:
-            cyc, recs, index, jobs = frame
-            i = index.get(ax.axis_id)
-            ax._snapshot(None if i is None else recs[i], cyc, self.cycle, self.cycle_time, stale,
-                         None if i is None or jobs is None else jobs[i])
+            return
+        i = frame[2].get(ax.axis_id)
+        if i is None:
+            covers = self._covers.get(nc)
+            if covers is None or ax.axis_id in covers:  # the NC has no such axis (0x4012)
+                ax._snapshot(None, frame[0], self.cycle, self.cycle_time, stale)
+            else:
+                self._not_in_view([ax], stale)
+            return
+        _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
+        o = rbase + i * NCTOPLC_SIZE
+        j = jbase + i * NCJOBS_SIZE
+        ax._snapshot(recs[o:o + NCTOPLC_SIZE], frame[0], self.cycle, self.cycle_time, stale,
+                     None if jobs is None else jobs[j:j + NCJOBS_SIZE])
 
     def nc_token_gone(self, nc: str) -> None:
         """The liveliness token of NC ``nc`` disappeared (transports that watch it call this).
@@ -657,17 +788,31 @@ class PlcTask:
                     ax._has_data = False  # (its snapshot is the old instance's)
         self._forget_claims(nc)
         self._frames.pop(nc, None)
+        self._frame_bytes.pop(nc, None)
         log.warning("NC %s restarted (%s): commands of the old instance are no longer followed", nc, why)
 
     def _publish_all(self) -> None:
-        by_nc: dict[str, list[AXIS_REF]] = {}
-        for (nc, _), ax in self._controlled.items():
-            by_nc.setdefault(nc, []).append(ax)
-        for nc, axes in by_nc.items():
+        plan = self._plan
+        if plan is None:  # the controlled axes changed (rarely): group them by NC again
+            by_nc: dict[str, list[AXIS_REF]] = {}
+            for (nc, _), ax in self._controlled.items():
+                by_nc.setdefault(nc, []).append(ax)
+            plan = self._plan = list(by_nc.items())
+        for nc, axes in plan:
             self._publish(nc, axes)
 
     def _publish(self, nc: str, axes: list[AXIS_REF]) -> None:
-        """Send one PLCTONC frame for ``axes`` of ``nc`` (subclass)."""
+        """Send one PLCTONC frame for ``axes`` of ``nc`` (subclass; :meth:`plc_frame` makes it)."""
+
+    def plc_frame(self, nc: str, axes: list[AXIS_REF]) -> bytearray:
+        """This cycle's PLC frame of ``axes`` of NC ``nc`` (the list :meth:`_publish` is given), the bytes of
+        ``nc_schema.encode_plc_records(self.cycle, ...)``: packed into that NC's buffer, kept while the
+        controlled axes stay the same (:class:`plc_client.plcframe.PlcFrameBuffer`). Valid until the next
+        call for ``nc``; the transport copies it when it sends it."""
+        w = self._frame_bufs.get(nc)
+        if w is None or w.axes is not axes:
+            w = self._frame_bufs[nc] = PlcFrameBuffer(axes)
+        return w.frame(self.cycle)
 
     def disable_all(self) -> None:
         """Clear Enable/feed enables of every controlled axis (shutdown)."""

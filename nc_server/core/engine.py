@@ -61,6 +61,12 @@ def guarded(what: str, call: Callable[..., Any], rows: Callable[..., Iterable[in
         return FAILED
 
 
+def _buffered(checked: tuple[int, Job | None, str]) -> bool:
+    """A motion command with these (BufferMode, running numbered job, client) waits behind the running job."""
+    mode, running, _ = checked
+    return mode != ABORTING and running is not None and running.state == int(CmdState.ACTIVE)
+
+
 class JobEngine:
     """The queues' lifecycle for one :class:`~.nc.NcCore` (one per NC; it keeps no state but the
     rows changed during a hook)."""
@@ -74,6 +80,7 @@ class JobEngine:
         """Mirror row ``i``'s queue into the columns and its job record (on events only); a stage
         that drives the row without its job running any more lets it go."""
         core = self.core
+        core.row_version[i] += 1  # (a preparation made before this is stale: NcCore.activate)
         a, q = core.axes, core.queues[i]
         j = q.active
         source = j.kind.source if j is not None else None
@@ -144,6 +151,37 @@ class JobEngine:
     # -- commands ----------------------------------------------------------------------------
     def motion(self, i: int, kind: JobKind, req: dict[str, Any]) -> dict[str, Any]:
         """A motion command: accepted, then started now (Aborting) or queued behind the running job."""
+        checked = self._motion_checks(i, kind, req)
+        if _buffered(checked):
+            return self._buffer(i, kind, req, checked)
+        job, plan = self._prepare(i, kind, req, checked)
+        self.begin(i, job, plan)
+        return {"cmd_no": job.cmd_no}
+
+    def prepare(self, i: int, kind: JobKind, req: dict[str, Any]) -> tuple[Job, Plan | None] | None:
+        """The preparation of a motion command that starts now (SVB): its checks, its record and its plan
+        from the row's current set-point state, changing nothing; :meth:`begin` starts it (the
+        activation). None: it would be queued behind the running job (:meth:`motion` does that in one step).
+
+        Raises:
+            NcError: the TwinCAT code of the first failed check.
+        """
+        checked = self._motion_checks(i, kind, req)
+        if _buffered(checked):
+            return None
+        return self._prepare(i, kind, req, checked)
+
+    def _prepare(self, i: int, kind: JobKind, req: dict[str, Any],
+                 checked: tuple[int, Job | None, str]) -> tuple[Job, Plan | None]:
+        mode, running, client = checked
+        job = kind.accept(self.core, i, req, running)
+        job.client, job.buffer_mode = client, mode
+        # a stop brakes the total motion (a running superposition included)
+        plan = kind.activate(self.core, i, job, self.core.start_state(i, total=kind.braking))
+        return job, plan
+
+    def _motion_checks(self, i: int, kind: JobKind, req: dict[str, Any]) -> tuple[int, Job | None, str]:
+        """The checks every motion command passes first: (BufferMode, the running numbered job, client)."""
         core = self.core
         q = core.queues[i]
         mode = req.get("BufferMode", ABORTING)
@@ -156,8 +194,15 @@ class JobEngine:
         if (running is not None and running.kind.homing and mode == ABORTING and not kind.always_allowed
                 and running.state == int(CmdState.ACTIVE)):
             raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the axis is homing (PLCopen: Homing accepts only MC_Stop)")
-        client = str(req.get("client") or "")
-        if mode != ABORTING and running is not None and running.state == int(CmdState.ACTIVE):
+        return mode, running, str(req.get("client") or "")
+
+    def _buffer(self, i: int, kind: JobKind, req: dict[str, Any], checked: tuple[int, Job | None, str]) -> dict[str, Any]:
+        """A motion command queued behind the running job (a BufferMode other than Aborting): checked from
+        where it will start, numbered, BUFFERED; a blending one re-plans the running job."""
+        core = self.core
+        q = core.queues[i]
+        mode, running, client = checked
+        if running is not None:
             if q.waiting is not None:
                 raise NcError(ErrorCodes.NC_COMMAND_BUFFER_FULL,
                               f"command {q.waiting.cmd_no} is already waiting (one buffered command per axis)")
@@ -178,12 +223,7 @@ class JobEngine:
                 self.advance(i)
                 self.sync(i)
             return {"cmd_no": job.cmd_no}
-        job = kind.accept(core, i, req, running)
-        job.client, job.buffer_mode = client, mode
-        # a stop brakes the total motion (a running superposition included)
-        plan = kind.activate(core, i, job, core.start_state(i, total=kind.braking))
-        self.begin(i, job, plan)
-        return {"cmd_no": job.cmd_no}
+        raise AssertionError("_buffer(): only for a command queued behind a running job")
 
     def amend(self, i: int, req: dict[str, Any]) -> dict[str, Any]:
         """NewPos, NewPosAndVelo, ChangeDynParam: the running job changes (its kind decides how)."""
@@ -241,8 +281,10 @@ class JobEngine:
         a.window_timer[i] = 0.0
         a.in_target[i] = a.in_area[i] = False
         self.sync(i)
-        job.kind.on_begin(core, i, job)
-        self.sync(i)
+        on_begin = job.kind.on_begin
+        if getattr(on_begin, "__func__", None) is not JobKind.on_begin:  # (the default does nothing: no second sync)
+            on_begin(core, i, job)
+            self.sync(i)
 
     def start_ramp(self, i: int, kind: JobKind, running: Job | None) -> None:
         """An internal stop ramp (no CmdNo) after an error or a job that could not take over."""

@@ -51,13 +51,16 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
     """
     lag_on, standstill, limits, any_standing = watch
     faults: list[tuple[int, int]] = []
-    over = np.abs((a.set_pos if ref is None else ref) - act_pos) > a.lag_max
-    over &= lag_on
-    a.lag_timer += dt
-    a.lag_timer *= over  # reset where the lag is inside the window
-    for i in (a.lag_timer > a.lag_filter).nonzero()[0]:
-        if not a.error[i]:
-            faults.append((int(i), ErrorCodes.NC_POSITION_LAG))
+    if np.count_nonzero(lag_on):
+        over = np.abs((a.set_pos if ref is None else ref) - act_pos) > a.lag_max
+        over &= lag_on
+        a.lag_timer += dt
+        a.lag_timer *= over  # reset where the lag is inside the window
+        for i in (a.lag_timer > a.lag_filter).nonzero()[0]:
+            if not a.error[i]:
+                faults.append((int(i), ErrorCodes.NC_POSITION_LAG))
+    elif np.count_nonzero(a.lag_timer):  # (no axis watched: the timers as the full check leaves them)
+        a.lag_timer[:] = 0.0
 
     mon = a.mon_dw
     mon[:] = 0

@@ -29,6 +29,7 @@ the cycle :mod:`.pipeline`. NcCore is the front: execute, step, PLCTONC in, para
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence, cast
 
 import numpy as np
@@ -86,6 +87,31 @@ _ENGINE_SYNCED = frozenset(KINDS) | frozenset(n for n, s in COMMAND_SPECS.items(
 #: the read class (schema/protocol.json): they change nothing, so no row is synced after them
 _READS = frozenset(n for n, s in COMMAND_SPECS.items() if s.cls == "read")
 
+@dataclass(eq=False, slots=True)
+class Prepared:
+    """A motion command prepared for activation at the start of cycle :attr:`cycle` (TwinCAT's SVB:
+    :meth:`NcCore.prepare`); :meth:`NcCore.activate` starts it there (SAF) if its prediction still holds.
+
+    Attributes:
+        i: the axis row.
+        job: the accepted record (numbered when it begins).
+        plan: its plan from the row's set-point state at the start of ``cycle`` (None: a job of a set-point stage).
+        cycle: the step in which it takes effect (``core.cycle + 1`` when it was prepared).
+        rows: (row, :attr:`NcCore.row_version`) of every row the preparation read: the axis, a gearing's master.
+        inputs: the axis's applied PLCTONC ControlDWord and Override when it was prepared (the checks and the
+            plan's scale depend on them).
+        reply: the reply it gets when it is activated as predicted (cycle, CmdNo).
+    """
+
+    i: int
+    job: Job
+    plan: Plan | None
+    cycle: int
+    rows: tuple[tuple[int, int], ...]
+    inputs: tuple[int, int]
+    reply: dict[str, Any]
+
+
 class NcCore:
     """All axes of one NC, stepped one fixed cycle at a time.
 
@@ -122,6 +148,9 @@ class NcCore:
         #: time the delayed one (set by the drive stage)
         self.pos_ref: np.ndarray = self.axes.set_pos
         self.queues = [JobQueue() for _ in ids]
+        #: per row, bumped by every change of its job records (the engine's sync): a preparation made before
+        #: a change is stale (:meth:`activate`)
+        self.row_version = [0] * len(ids)
         self.cycle = 0
         self.nc_time_ns = 0
         n = len(ids)
@@ -221,6 +250,15 @@ class NcCore:
             rows[index] = new
             self._in_dirty = True
 
+    def _refused(self, rid: Any, cmd: Any, exc: Exception, cycle: int) -> dict[str, Any]:
+        """The reply to a command that raised: an :class:`NcError`'s code and text, anything else (a bug)
+        logged with its traceback and answered NC_INTERNAL; the rows it touched are synced first."""
+        self._sync_refused()
+        if isinstance(exc, NcError):
+            return make_reply(rid, cmd, exc.code, str(exc), cycle)
+        _log.error("command %r failed", cmd, exc_info=exc)
+        return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
+
     def _sync_refused(self) -> None:
         """After a refused or failed command: the rows its hooks touched before it raised are synced too
         (records stay true; the next step would otherwise drop them unsynced). Never raises."""
@@ -245,13 +283,8 @@ class NcCore:
                 raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} needs an axis key (nc/<nc>/axis/<id>/cmd/<class>/<client>)")
             i = self.index(axis_id)
             out = self._dispatch(i, request)
-        except NcError as err:
-            self._sync_refused()
-            return make_reply(rid, cmd, err.code, str(err), cycle)
-        except Exception as exc:  # a bug must cost one command, never the NC cycle
-            _log.exception("command %r failed", cmd)
-            self._sync_refused()
-            return make_reply(rid, cmd, ErrorCodes.NC_INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}", cycle)
+        except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
+            return self._refused(rid, cmd, exc, cycle)
         # the engine's rule: records true after every command. Row i is synced unless its engine path
         # ended with that sync or the command only reads; then the other rows its hooks changed.
         engine = self.engine
@@ -264,6 +297,70 @@ class NcCore:
             engine.sync_touched()
         engine.flush_slots()
         return make_reply(rid, cmd, 0, "", cycle, cmd_no=out.get("cmd_no"), value=out.get("value"))
+
+    def prepare(self, request: dict[str, Any], axis_id: int | None) -> Prepared | dict[str, Any]:
+        """Prepare one parsed request for activation at the start of the next step (TwinCAT's SVB): a
+        motion command that starts now is checked and planned from the state the next step starts from,
+        changing nothing; :meth:`activate` starts it (SAF). Any other command (and a motion command
+        queued behind the running job) runs now, as :meth:`execute`: its reply is returned.
+
+        Returns:
+            a :class:`Prepared`, or the reply map (a refusal: the TwinCAT code; never raises for bad input).
+        """
+        cmd = request.get("cmd")
+        kind = KINDS.get(cmd) if isinstance(cmd, str) else None
+        if kind is None or axis_id is None:
+            return self.execute(request, axis_id)
+        cycle = self.cycle + 1
+        rid = request.get("id")
+        self.engine.touched.clear()
+        try:
+            i = self.index(axis_id)
+            got = self.engine.prepare(i, kind, request)
+        except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
+            return self._refused(rid, cmd, exc, cycle)
+        if got is None:  # queued behind the running job: one step, now
+            return self.execute(request, axis_id)
+        job, plan = got
+        rows: tuple[tuple[int, int], ...] = ((i, self.row_version[i]),)
+        master = job.data.get("master")
+        if master is not None and int(master) != i:
+            rows += ((int(master), self.row_version[int(master)]),)
+        # (begin numbers it so: the queue is verified unchanged when it is activated)
+        cmd_no = job.cmd_no if (job.numbered or job.kind.internal) else next_cmdno(self.queues[i].newest)
+        return Prepared(i, job, plan, cycle, rows, self._inputs_of(i), make_reply(rid, cmd, 0, "", cycle, cmd_no=cmd_no))
+
+    def _inputs_of(self, i: int) -> tuple[int, int]:
+        return int(self.plctonc["ControlDWord"][i]), int(self.plctonc["Override"][i])
+
+    def holds(self, p: Prepared) -> bool:
+        """Whether ``p``'s prediction holds now: the step about to run is its cycle, and no row it read and
+        no input of its axis changed since it was prepared."""
+        return (self.cycle + 1 == p.cycle and all(self.row_version[r] == v for r, v in p.rows)
+                and self._inputs_of(p.i) == p.inputs)
+
+    def activate(self, p: Prepared) -> dict[str, Any] | None:
+        """Start a prepared command at the start of its cycle (TwinCAT's SAF: the plan row swapped in, the
+        running job aborted, the records synced). Returns its reply (``cycle`` = the step in which it
+        takes effect), or None when its prediction no longer holds (:meth:`holds`): nothing changed;
+        prepare it again or refuse it, never activate it stale."""
+        if not self.holds(p):
+            return None
+        i, job = p.i, p.job
+        rid, cmd = p.reply.get("id"), p.reply.get("cmd")
+        self.state_dirty = True
+        engine = self.engine
+        engine.touched.clear()
+        try:
+            engine.begin(i, job, p.plan)
+        except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
+            return self._refused(rid, cmd, exc, p.cycle)
+        if engine.touched:
+            engine.sync_touched({i: len(engine.touched)})
+        engine.flush_slots()
+        if job.cmd_no != p.reply.get("CmdNo"):  # (never expected: the queue was verified unchanged)
+            return make_reply(rid, cmd, 0, "", p.cycle, cmd_no=job.cmd_no)
+        return p.reply
 
     def fault(self, i: int, code: int) -> None:
         """Raise axis error ``code`` now and stop the axis with its deceleration.

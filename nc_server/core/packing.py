@@ -115,8 +115,7 @@ class NctoplcPacker:
         self.out_sp[...] = a.S[:3].T  # SetPos, SetVelo, SetAcc: adjacent fields, one copy
         o["SetJerk"][...] = a.set_jerk
         if np.count_nonzero(a.continuous):
-            cont = a.continuous
-            a.target_pos[cont] = a.set_pos[cont]  # endless motion: the target moves with the axis
+            np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
         np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
         corr = core.corrections  # (ActPos less the filtered PLCTONC.PositionCorrection)

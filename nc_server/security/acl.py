@@ -8,6 +8,8 @@ subject exactly the key expressions of its identity (docs/roles.md has the table
   period, what PLC clients take), ``nc/*/status``, ``nc/*/stats``, ``nc/*/claims``,
   ``nc/*/axis/*/nctoplc``, ``nc/*/axis/*/plctonc`` and the NCs' liveliness ``nc/*/alive`` and
   ``nc/*/alive/*`` (each NC process's instance token: how clients tell a restart from a flapping token);
+* every listed client declares its own view token ``nc/*/select/<id>/**`` and reads its own view
+  ``nc/*/view/<id>`` (the frames of the axes it listed);
 * a client queries only its own command keys ``nc/*/[axis/*/]cmd/<class>/<id>`` of the classes
   its role allows, and gets the replies on them;
 * operators and engineers also put their own PLCTONC ``nc/*/plctonc/<id>`` and declare their own
@@ -99,6 +101,12 @@ def access_control(roles: Roles) -> dict[str, Any]:
             # a declared querier (declare_querier) sends only while it sees a matching queryable
             share(_rule("see:queryables", "egress", ["declare_queryable"], ["nc/**"])),
         ]
+        # its own view (protocol.json view_select / view): the token that asks for it, the frames it gets
+        view = [f"nc/*/view/{client}"]
+        rules.append(_rule(f"client:{client}:view-token", "ingress", ["liveliness_token"], [f"nc/*/select/{client}/**"]))
+        rules.append(_rule(f"client:{client}:view-subscribe", "ingress", ["declare_subscriber"], view))
+        rules.append(_rule(f"client:{client}:view-receive", "egress", ["put", "delete"], view))
+        ids += [f"client:{client}:view-token", f"client:{client}:view-subscribe", f"client:{client}:view-receive"]
         keys = command_keys(client, classes)
         rules.append(_rule(f"client:{client}:query", "ingress", ["query"], keys))
         rules.append(_rule(f"client:{client}:reply", "egress", ["reply"], keys))

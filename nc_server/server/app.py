@@ -5,7 +5,9 @@ claim holder and the watchdog (:class:`~nc_server.server.handler.CycleInputs`, s
 port); ``core.step()``; the frame and the applied PLCTONC into the frame ring (:mod:`.frame_ring`), which
 the frame publisher (:mod:`.publisher`, a child process by default) puts on zenoh. Between cycles
 (:meth:`NcServer.idle`): the requests, as many as fit before the next cycle; their replies go to the
-I/O thread.
+I/O thread. A motion command that starts now is only prepared there (TwinCAT's SVB: checks and plan,
+nothing changed) and activated at the start of the next cycle (SAF: ``NcServer._activate_pending``), its
+reply sent after that cycle's work with ``cycle`` = that cycle.
 With a retain file (:mod:`.retain`): locked and read before the cycle starts; the first cycle only
 steps the core once (the drive is read) and applies the file through the commands, before any
 command or PLCTONC is taken and without publishing a frame; then a snapshot every 100 ms (and on
@@ -36,7 +38,7 @@ from nc_server.security.exposure import exposure
 from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
-from .handler import MAX_REQUEST_BYTES, CycleInputs, RequestHandler
+from .handler import MAX_REQUEST_BYTES, NO_NC_CYCLE, CycleInputs, PendingReply, RequestHandler
 from .retain import RetainKeeper
 from .frame_ring import RingCounters
 from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
@@ -49,6 +51,9 @@ log = logging.getLogger("nc_server.server")
 
 #: Queries executed per cycle at most (the rest wait for the next cycle).
 MAX_QUERIES_PER_CYCLE = 32
+#: Queries taken from the channel per call at most (those that wait for a prepared command on their axis
+#: included).
+QUERY_CHANNEL_TAKE = 128
 #: ... and no new one once this much of the cycle went into requests [ns] (a flood cannot stall the NC).
 QUERY_BUDGET_NS = 250_000
 #: At shutdown, moving axes get a stop ramp; the NC waits at most this long for standstill [s].
@@ -68,28 +73,67 @@ STALL_GRACE = 0.05
 STALE_QUERY_WINDOW = 0.05
 
 
-#: A request starts between cycles only if the recent cost of one (the QUERY_COST_QUANTILE of the last
-#: QUERY_COST_WINDOW, recomputed every QUERY_COST_EVERY requests; between QUERY_RESERVE_MIN_NS and
-#: QUERY_RESERVE_MAX_NS) still fits before the next cycle: planning a move costs 0.1-0.2 ms on a quiet
-#: machine and 0.2-0.45 ms on a loaded one (p50-p99); run in the cycle or past the next deadline, they
-#: were what made the NC's cycles overrun (bench/many_clients.py). The cycle itself runs none (see
-#: cycle()); when none fitted for QUERY_MAX_WAIT_NS, one runs right after the cycle's work anyway
-#: (requests always progress; that cycle may start late).
+#: A request starts between cycles only if the recent cost of one of its class (the key's command class:
+#: read, op, eng; the QUERY_COST_QUANTILE of the last QUERY_COST_WINDOW of that class, recomputed every
+#: QUERY_COST_EVERY of them; between QUERY_RESERVE_MIN_NS and QUERY_RESERVE_MAX_NS) still fits before the
+#: next cycle: planning a move costs 0.1-0.2 ms on a quiet machine and 0.2-0.45 ms on a loaded one
+#: (p50-p99); run in the cycle or past the next deadline, they were what made the NC's cycles overrun
+#: (bench/many_clients.py). A cost is the cycle thread's CPU time for the request (thread_time), not its
+#: wall time: a preemption meanwhile (another process's real-time thread on a shared machine, the I/O
+#: thread holding the GIL) delays the cycle as much whether a request runs or not, and with wall times in
+#: the window of 64 such outliers made the reserve exceed the cycle's slack (commands waited for
+#: QUERY_MAX_WAIT_NS). The cycle itself runs none (see cycle()); when none fitted for QUERY_MAX_WAIT_NS,
+#: one runs right after the cycle's work anyway (requests always progress; the next cycle may start late:
+#: with 4 ms instead of 20 on the loaded VM a fifth of the moves of bench/cmd_latency.py --clients 16 were
+#: forced, and the NC overran more).
 QUERY_COST_WINDOW = 64
 QUERY_COST_QUANTILE = 0.98
 QUERY_COST_EVERY = 16
 QUERY_RESERVE_MIN_NS = 50_000
 QUERY_RESERVE_MAX_NS = 600_000
 QUERY_MAX_WAIT_NS = 20_000_000
+#: ... and one that waited QUERY_SPIN_WAIT_NS may also use the spin before the deadline but for
+#: QUERY_SPIN_MARGIN_NS (the cycle thread is awake in an idle call: the spin is there for a sleep's late
+#: wake-up, which does not come then).
+QUERY_SPIN_WAIT_NS = 3_000_000
+QUERY_SPIN_MARGIN_NS = 50_000
+#: The quantile of a class's recent CPU costs it reserves (a preparation that takes longer than its reserve
+#: eats into the spin before the deadline, 100-200 us, before it makes the cycle late).
+CLASS_COST_QUANTILE = 0.9
+#: A prepared command whose prediction failed at its activation (the axis changed between its preparation
+#: and the cycle: a watchdog fault, a PLCTONC enable or override change) is prepared again this many times,
+#: then refused (0x4220); it is never activated stale.
+MAX_REPREPARE = 2
+#: request waits kept for the stats' request_wait_us_p50/p99 (from when the cycle thread took the query to
+#: when its reply was handed over)
+WAIT_WINDOW = 512
 
 
-def query_reserve(costs: "collections.deque[int] | list[int]") -> int:
+def query_reserve(costs: "collections.deque[int] | list[int]", quantile: float = QUERY_COST_QUANTILE) -> int:
     """The time [ns] to keep free for one more request, from the recent request costs [ns]."""
     if not costs:
         return QUERY_RESERVE_MAX_NS
     s = sorted(costs)
-    q = s[min(len(s) - 1, int(len(s) * QUERY_COST_QUANTILE))]
+    q = s[min(len(s) - 1, int(len(s) * quantile))]
     return int(min(QUERY_RESERVE_MAX_NS, max(QUERY_RESERVE_MIN_NS, q)))
+
+
+def key_class(key: str) -> str:
+    """The cost class of a request from its key alone (no parsing): ``read``, ``op`` or ``eng`` (the key's
+    command class); anything else ``?``."""
+    head, _, _ = key.rpartition("/")
+    return head.rpartition("/")[2] or "?"
+
+
+def key_axis(key: str) -> int | None:
+    """The AxisId of an axis command key ``nc/<nc>/axis/<id>/cmd/...``; None for any other key."""
+    parts = key.split("/", 4)
+    if len(parts) > 3 and parts[2] == "axis":
+        try:
+            return int(parts[3])
+        except ValueError:
+            return None
+    return None
 
 
 class NcServer:
@@ -159,7 +203,23 @@ class NcServer:
         self._idle_ran = False      # an idle call ran since the last cycle (it ran the requests)
         self._query_costs: collections.deque[int] = collections.deque(maxlen=QUERY_COST_WINDOW)  # [ns]
         self._reserve_ns = QUERY_RESERVE_MIN_NS * 4  # until costs are known
+        #: per cost class (key_class): the recent costs [ns] and the reserve made of them (none yet: _reserve_ns)
+        self._class_costs: dict[str, collections.deque[int]] = {}
+        self._class_reserve: dict[str, int] = {}
+        #: prepared requests (SVB), activated at the next cycle's start (SAF): (query, pending, first seen [ns])
+        self._pending: list[tuple[Any, PendingReply, int]] = []
+        self._pending_axes: set[int] = set()  # their axes: a later request on one waits for the activation
+        self._activated: list[tuple[Any, bytes, int]] = []  # replies of this cycle's activations (sent after it)
+        self._prepared_again: dict[int, int] = {}  # id(query) -> preparations whose prediction failed
+        self._first_seen: dict[int, int] = {}  # id(query) -> when the cycle thread first took it [ns]
+        self._waits: collections.deque[int] = collections.deque(maxlen=WAIT_WINDOW)  # [ns]
+        self.prepared = 0  # motion commands prepared (SVB) for activation at a cycle start
+        self.prepared_again = 0  # preparations repeated because the axis changed before the activation
+        self.not_activated = 0  # refused after MAX_REPREPARE failed predictions (0x4220) or a long NC stall
+        self.forced = 0  # requests run right after a cycle's work although their reserve did not fit (waited too long)
         self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
+        self._plan_waiting_since: int | None = None  # ... and a command in steps for time to be planned [ns]
+        self._forcing = False  # (idle: one runs whatever it costs: stats requests_forced)
         self.stalls = 0             # NC stalls of more than STALL_GRACE seen
         self.step_errors = 0  # core.step() raised (a bug): the axes were faulted, the cycle went on
         self._rt_offset = time.time_ns() - time.monotonic_ns()
@@ -280,7 +340,13 @@ class NcServer:
                             core.ncjobs, core.plctonc)
         except Exception as exc:
             log.warning("final frame: %s", exc)
-        # Queries still queued get no execution; finalize them so queriers do not wait.
+        # Queries still queued (or prepared, not activated) get no execution; finalize them so queriers do not wait.
+        for q, _, _ in self._pending:
+            try:
+                q.drop()
+            except Exception:
+                pass
+        self._pending.clear()
         while True:
             q = self.transport.try_recv_query()
             if q is None:
@@ -338,6 +404,10 @@ class NcServer:
         # watchdog (lost clients, stale PLCTONC): the same code the in-process port runs.
         self.inputs.apply(t.pop_plc_frames(), now)
 
+        # the commands prepared between cycles start now (SAF), if their prediction still holds
+        if self._pending:
+            self._activate_pending(now)
+
         if self._shutdown.is_set():
             self._stop_moving_axes()
         try:
@@ -349,6 +419,9 @@ class NcServer:
                 core.fault(i, ErrorCodes.NC_INTERNAL)
 
         self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)
+        if self._activated:  # their replies after the cycle's work (the I/O thread takes the GIL to send them)
+            self.io.submit_replies(self._activated)
+            self._activated = []
         if self.retain is not None:
             self.retain.tick(core)  # a snapshot every 100 ms for the retain thread (no I/O here)
         self._claims_changed()
@@ -434,44 +507,70 @@ class NcServer:
         """Run queued requests, hand their replies to the I/O thread; how many ran.
 
         At most ``limit``, none after QUERY_BUDGET_NS of this call, and (from the ``at_least``-th on) none
-        that would, at the recent cost of a request (:func:`query_reserve`), end after
-        ``until_ns`` [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must
-        start on time. A request that does not fit goes back to the front of the queue (``transport.queries``).
+        that would, at the recent cost of a request of its class (:meth:`_reserve`), end after ``until_ns``
+        [ns, monotonic]: a request costs 0.1-0.6 ms (planning a move), and the next cycle must start on
+        time. A request that does not fit goes back to the front of the queue (``transport.queries``).
+
+        A motion command that starts a job runs in steps (TwinCAT's SVB, then SAF): the handler's part
+        (parse, key, dedup) when it is taken; the core's part (checks, record, plan from the state the next
+        cycle starts from: :meth:`RequestHandler.plan`) in the gap before the cycle that activates it, as
+        soon as its class ``plan`` fits (first of all in each call, in order); the activation at that cycle's
+        start (:meth:`_activate_pending`), its reply after that cycle's work. A request on an axis with a
+        command in steps waits for its activation (each axis's commands run in order).
         """
         t = self.transport
         h = self.handler
         clock = time.monotonic_ns
+        cpu = time.thread_time_ns  # a request's cost: the CPU it took, not the preemptions it suffered
         budget_end = clock() + QUERY_BUDGET_NS
-        costs = self._query_costs
+        first_seen = self._first_seen
         replies: list[tuple[Any, bytes, bool]] = []  # (query, reply, held until kept: handler.durable)
         n = 0
-        while n < limit:
+        if self._pending:  # the core's part of the commands in steps first (they came first)
+            n = self._plan_pending(replies, until_ns if at_least == 0 else None, budget_end, limit)
+        later: list[Any] = []  # requests on axes with a command in steps: after its activation, in order
+        taken = 0
+        while n < limit and taken < QUERY_CHANNEL_TAKE and (n == 0 or clock() <= budget_end):
             q = t.try_recv_query()
             if q is None:
                 self._waiting_since = None
                 break
-            if n >= at_least and until_ns is not None and clock() + self._reserve_ns > until_ns:
-                t.queries.appendleft(q)  # first in line next time
-                if self._waiting_since is None:
-                    self._waiting_since = clock()
-                break
+            taken += 1
             t0 = clock()
+            c0 = cpu()
+            first_seen.setdefault(id(q), t0)
+            key = str(q.key_expr)
+            axis = key_axis(key) if self._pending_axes else None
+            if axis is not None and axis in self._pending_axes:
+                later.append(q)
+                continue
+            cls = key_class(key)
+            if until_ns is not None and t0 + self._reserve(cls) > until_ns:
+                if n >= at_least:
+                    t.queries.appendleft(q)  # first in line next time
+                    if self._waiting_since is None:
+                        self._waiting_since = t0
+                    break
+                self.forced += 1  # (it waited QUERY_MAX_WAIT_NS: runs although it may make the next cycle late)
             p = q.payload
             if p is not None and len(p) > MAX_REQUEST_BYTES:  # refuse before copying it onto this thread
-                reply = h.too_large(len(p))
+                reply: bytes | PendingReply = h.too_large(len(p))
             elif now < self._refuse_until:
-                reply = h.handle_after_stall(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
+                reply = h.handle_after_stall(key, p.to_bytes() if p is not None else b"", now)
             else:
-                reply = h.handle(str(q.key_expr), p.to_bytes() if p is not None else b"", now)
-            replies.append((q, reply, h.durable))
+                reply = h.prepare(key, p.to_bytes() if p is not None else b"", now)
             n += 1
-            t1 = clock()
             self._waiting_since = None
-            costs.append(t1 - t0)
-            if len(costs) % QUERY_COST_EVERY == 0:
-                self._reserve_ns = query_reserve(costs)
-            if t1 > budget_end:
-                break
+            self._cost(cls, cpu() - c0)
+            if isinstance(reply, PendingReply):
+                self._pending.append((q, reply, first_seen.pop(id(q), t0)))
+                self._pending_axes.add(reply.axis_id)
+                self.prepared += 1
+                self._plan_pending(replies, None if n <= at_least else until_ns, budget_end, limit - n + 1)
+            else:
+                replies.append((q, reply, h.durable))
+        if later:  # (before a request put back above: they were taken before it)
+            t.queries.extendleft(reversed(later))
         if replies:
             # a Claim's holder must count before its reply goes out: the client's next PLCTONC frame,
             # decoded between cycles, would otherwise be dropped as a non-holder's
@@ -479,8 +578,103 @@ class NcServer:
             # acknowledged means kept: the replies of durable commands wait for the retain file (one snapshot
             # for all of them, written by the retain thread; the I/O thread sends them once it is fsync'ed)
             commit = self.retain.commit(self.core) if self.retain is not None and any(r[2] for r in replies) else 0
+            end = clock()
+            for q, _, _ in replies:
+                self._waits.append(end - first_seen.pop(id(q), end))
             self.io.submit_replies([(q, r, commit if d else 0) for q, r, d in replies])  # (never on this thread)
         return n
+
+    def _plan_pending(self, replies: list[tuple[Any, bytes, bool]], until_ns: int | None, budget_end: int,
+                      most: int = MAX_QUERIES_PER_CYCLE) -> int:
+        """The core's part of the commands in steps not planned yet, in order, at most ``most``, each only if the
+        class ``plan`` fits before ``until_ns`` (None: whatever it costs; none after ``budget_end`` but the
+        first); a refused one (or one that ran at once: a buffered move) goes to ``replies``. Returns how many
+        were planned or answered."""
+        h = self.handler
+        clock = time.monotonic_ns
+        cpu = time.thread_time_ns
+        done = 0
+        keep: list[tuple[Any, PendingReply, int]] = []
+        for k, (q, pending, seen) in enumerate(self._pending):
+            if pending.prepared is not None:
+                keep.append((q, pending, seen))
+                continue
+            t0 = clock()
+            if (until_ns is not None and t0 + self._reserve("plan") > until_ns) or (done and t0 > budget_end) \
+                    or done >= most:
+                keep += self._pending[k:]
+                if self._plan_waiting_since is None:
+                    self._plan_waiting_since = t0
+                break
+            if until_ns is None and self._forcing:
+                self.forced += 1  # (it waited QUERY_MAX_WAIT_NS: planned although it may make the next cycle late)
+            self._plan_waiting_since = None
+            c0 = cpu()
+            got = h.plan(pending)
+            self._cost("plan", cpu() - c0)
+            done += 1
+            if isinstance(got, PendingReply):
+                keep.append((q, got, seen))
+            else:  # refused, or ran at once (a buffered move): answered now
+                self._pending_axes.discard(pending.axis_id)
+                self._first_seen[id(q)] = seen
+                replies.append((q, got, False))
+        self._pending = keep
+        return done
+
+    def _reserve(self, cls: str) -> int:
+        """The time [ns] to keep free for one more request of cost class ``cls`` (:func:`key_class`)."""
+        return self._class_reserve.get(cls, self._reserve_ns)
+
+    def _cost(self, cls: str, ns: int) -> None:
+        """Record what a request of class ``cls`` took [ns]; its class's reserve follows (:func:`query_reserve`)."""
+        self._query_costs.append(ns)
+        costs = self._class_costs.get(cls)
+        if costs is None:
+            if len(self._class_costs) >= 8:  # (keys are checked later: a flood of odd ones shares one class)
+                cls = "?"
+            costs = self._class_costs.setdefault(cls, collections.deque(maxlen=QUERY_COST_WINDOW))
+        costs.append(ns)
+        if len(costs) % QUERY_COST_EVERY == 0:
+            self._class_reserve[cls] = query_reserve(costs, CLASS_COST_QUANTILE)
+        if len(self._query_costs) % QUERY_COST_EVERY == 0:
+            self._reserve_ns = query_reserve(self._query_costs)
+
+    def _activate_pending(self, now: float) -> None:
+        """At the start of a cycle, before its step: activate the commands planned since the last one, in
+        order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
+        holds is planned again (at most MAX_REPREPARE times, then refused 0x4220); after a long NC stall
+        every command in steps is refused (0x4B0F), as the queued ones are. The replies go out after the
+        cycle's work, with ``cycle`` = this cycle. Those not planned yet wait (their axis stays busy)."""
+        h = self.handler
+        clock = time.monotonic_ns
+        stalled = now < self._refuse_until
+        keep: list[tuple[Any, PendingReply, int]] = []
+        for q, pending, seen in self._pending:
+            reply: bytes | None = None
+            if stalled:
+                reply = h.refuse_stale(pending, NO_NC_CYCLE, "the NC stalled: a motion command prepared before the "
+                                                             "stall is refused, not executed late")
+                self.not_activated += 1
+            elif pending.prepared is None:
+                keep.append((q, pending, seen))
+                continue
+            else:
+                reply = h.activate(pending)
+                if reply is None:
+                    k = self._prepared_again.get(id(q), 0) + 1
+                    self.prepared_again += 1
+                    if k <= MAX_REPREPARE:
+                        self._prepared_again[id(q)] = k
+                        keep.append((q, pending, seen))
+                        continue
+                    reply = h.refuse_stale(pending)
+                    self.not_activated += 1
+            self._prepared_again.pop(id(q), None)
+            self._pending_axes.discard(pending.axis_id)
+            self._waits.append(clock() - seen)
+            self._activated.append((q, reply, 0))
+        self._pending = keep
 
     def _take_liveliness(self, now: float | None = None) -> None:
         """Liveliness: PUT = client present, DELETE = gone (the watchdog reacts: CycleInputs)."""
@@ -512,9 +706,15 @@ class NcServer:
         now = time.monotonic()
         self._tick(now)
         self._take_liveliness(now)
-        waiting = self._waiting_since
-        force = after_work and waiting is not None and time.monotonic_ns() - waiting > QUERY_MAX_WAIT_NS
+        waiting = min((w for w in (self._waiting_since, self._plan_waiting_since) if w is not None), default=None)
+        waited = 0 if waiting is None else time.monotonic_ns() - waiting
+        force = after_work and waited > QUERY_MAX_WAIT_NS
+        if deadline_ns is not None and waited > QUERY_SPIN_WAIT_NS:
+            # the cycle thread is awake: the spin kept for a sleep's late wake-up is free but for a margin
+            deadline_ns = max(deadline_ns, deadline_ns + self.loop.stats.spin_ns - QUERY_SPIN_MARGIN_NS)
+        self._forcing = force
         self._drain_queries(now, until_ns=deadline_ns, at_least=1 if force else 0)
+        self._forcing = False
         self.transport.take_plctonc()  # decoded now, applied at the next cycle start
 
     def _nc_time_ns(self, deadline_ns: int) -> int:
@@ -530,6 +730,16 @@ class NcServer:
 
     def _info_extra(self) -> dict[str, Any]:
         return {"timing": self.loop.stats.timing, "watchdog_timeout": self.config.watchdog_timeout}
+
+    def _wait_percentiles(self) -> dict[str, float]:
+        """p50/p99 of the last WAIT_WINDOW request waits [us]: from when the cycle thread took the query to
+        when its reply was handed over (a prepared one: after its activation). (Any thread: a copy, then a sort
+        of at most WAIT_WINDOW ints.)"""
+        w = sorted(self._waits.copy())
+        if not w:
+            return {"request_wait_us_p50": 0.0, "request_wait_us_p99": 0.0}
+        return {"request_wait_us_p50": round(w[len(w) // 2] / 1000.0, 1),
+                "request_wait_us_p99": round(w[min(len(w) - 1, int(len(w) * 0.99))] / 1000.0, 1)}
 
     def stats(self) -> dict[str, Any]:
         """The stats map published on ``nc/<nc>/stats`` (protocol.json ``stats``)."""
@@ -551,5 +761,9 @@ class NcServer:
                   "publisher_standby": self.publisher.standby_ready if self.publisher is not None else False,
                   "gear_ratios_ignored": int(self.core.coupling.ignored_ratios), "step_errors": self.step_errors,
                   "replies_held": self.io.replies_held, "replies_not_kept": self.io.replies_not_kept,
+                  "requests_prepared": self.prepared, "requests_prepared_again": self.prepared_again,
+                  "requests_not_activated": self.not_activated, "requests_forced": self.forced,
+                  "request_reserve_us": {c: round(v / 1000.0, 1) for c, v in list(self._class_reserve.items())},
+                  **self._wait_percentiles(),
                   "stages": self.core.stage_times()})
         return d

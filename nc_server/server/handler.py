@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence, TypeVar
 
 import numpy as np
@@ -101,6 +102,8 @@ class CoreLike(Protocol):
 
     def index(self, axis_id: int) -> int: ...
     def execute(self, request: dict[str, Any], axis_id: int) -> dict[str, Any]: ...
+    def prepare(self, request: dict[str, Any], axis_id: int) -> Any: ...
+    def activate(self, prepared: Any) -> dict[str, Any] | None: ...
     def default_plctonc(self) -> Any: ...
     def set_plctonc(self, i: int, record: Any) -> None: ...
     def info(self) -> dict[str, Any]: ...
@@ -163,6 +166,38 @@ class ReplyCache:
         for k in keys:
             del self._d[k]
         return len(keys)
+
+
+#: the refusal of a prepared command whose prediction failed at activation this many times in a row
+#: (NcServer.MAX_REPREPARE): the axis changed under it every time (0x4220: not ready for a new task)
+NOT_READY = int(ErrorCodes.NC_GROUP_NOT_READY)
+
+
+@dataclass(eq=False, slots=True)
+class PendingReply:
+    """A motion command in preparation (TwinCAT's SVB) and activation (SAF), in three steps of the cycle
+    thread: :meth:`RequestHandler.prepare` (parse, key, dedup: the handler's part, valid until it ends),
+    :meth:`RequestHandler.plan` (the core's checks, record and plan from the state the next cycle starts
+    from: in the gap before that cycle) and :meth:`RequestHandler.activate` (at that cycle's start).
+
+    Attributes:
+        req: the parsed request.
+        axis_id, client, rid, cmd: the request's.
+        prepared: the core's preparation (``nc_server.core.nc.Prepared``) once planned, else None.
+        packed: its reply packed in advance (it goes out as it is when the activation is as predicted).
+    """
+
+    req: dict[str, Any]
+    axis_id: int
+    client: str
+    rid: Any
+    cmd: str
+    prepared: Any = None
+    packed: bytes = b""
+
+
+#: the motion commands that start a job of the queue: prepared and activated in two phases
+TWO_PHASE = frozenset(REGISTRY.kinds())
 
 
 class RequestHandler:
@@ -252,6 +287,7 @@ class RequestHandler:
         self.durable = False
         try:
             reply = self._handle(key, payload, now)
+            assert isinstance(reply, bytes)  # (prepare=False: always the packed reply)
         except Exception as exc:  # a bug: answer it, keep cycling
             self.internal_errors += 1
             log.exception("internal error handling request on %s", str(key)[:200])
@@ -307,7 +343,77 @@ class RequestHandler:
         return self._error(req["id"], req["cmd"], NcError(NO_NC_CYCLE, "the NC stalled: a motion command queued "
                                                                        "across the stall is refused, not executed late"))
 
-    def _handle(self, key: str, payload: bytes, now: float) -> bytes:
+    def prepare(self, key: str, payload: bytes, now: float) -> bytes | PendingReply:
+        """:meth:`handle` in steps (nc-server's cycle thread): a motion command that starts a job
+        (:data:`TWO_PHASE`) is parsed, checked against its key and the reply cache, and returned as a
+        :class:`PendingReply` for :meth:`plan` (the core's part) and :meth:`activate`; every other request
+        runs now and its packed reply is returned. Never raises."""
+        self.requests += 1
+        self.durable = False
+        try:
+            return self._handle(key, payload, now, prepare=True)
+        except Exception as exc:  # a bug: answer it, keep cycling
+            self.internal_errors += 1
+            log.exception("internal error handling request on %s", str(key)[:200])
+            return pack(make_reply(None, None, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
+                                   cycle=self.core.cycle + 1))
+
+    def plan(self, pending: PendingReply) -> bytes | PendingReply:
+        """The core's part of a prepared request (``core.prepare``: checks, record and plan from the state the
+        next step starts from, nothing changed), in the gap before the cycle that activates it: ``pending``
+        planned, or the packed reply of a command that is refused or ran at once (cached). Never raises."""
+        try:
+            got = self.core.prepare(pending.req, pending.axis_id)
+        except Exception as exc:  # a bug: answer it, keep cycling
+            self.internal_errors += 1
+            log.exception("internal error preparing %s", pending.cmd)
+            got = make_reply(pending.rid, pending.cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
+                             cycle=self.core.cycle + 1)
+        if isinstance(got, dict):
+            return self._done(pending, got)
+        pending.prepared = got
+        pending.packed = pack(got.reply)
+        return pending
+
+    def activate(self, pending: PendingReply) -> bytes | None:
+        """Activate a planned request at the start of its cycle (``core.activate``); its packed reply
+        (cached for a retry, with ``cycle`` = the step in which it takes effect), or None when its
+        prediction no longer holds (nothing changed: plan it again, or :meth:`refuse_stale`)."""
+        try:
+            reply = self.core.activate(pending.prepared)
+        except Exception as exc:  # a bug: answer it, keep cycling
+            self.internal_errors += 1
+            log.exception("internal error activating %s", pending.cmd)
+            reply = make_reply(pending.rid, pending.cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
+                               cycle=self.core.cycle + 1)
+        if reply is None:
+            pending.prepared = None
+            return None
+        return self._done(pending, reply)
+
+    def _done(self, pending: PendingReply, reply: dict[str, Any]) -> bytes:
+        """The end of a request in steps: counted, the last command noted, packed and cached."""
+        if pending.prepared is not None and reply is pending.prepared.reply:
+            packed = pending.packed
+        else:
+            packed = pack(reply)
+        if reply.get("error"):
+            self.errors += 1
+        else:
+            self.last_command[pending.axis_id] = (pending.client, pending.cmd, int(reply.get("cycle", self.core.cycle + 1)))
+            self.commands_version += 1
+        self.cache.put(pending.client, pending.rid, packed)
+        return packed
+
+    def refuse_stale(self, pending: PendingReply, code: int = NOT_READY, text: str = "") -> bytes:
+        """The refusal of a prepared request that is not activated (nothing changed; cached for a retry):
+        by default 0x4220, its axis changed under it each time it was prepared."""
+        packed = self._error(pending.rid, pending.cmd, NcError(code, text or (
+            f"{pending.cmd}: the axis changed each time the command was prepared; not activated (nothing changed)")))
+        self.cache.put(pending.client, pending.rid, packed)
+        return packed
+
+    def _handle(self, key: str, payload: bytes, now: float, prepare: bool = False) -> bytes | PendingReply:
         if len(payload) > MAX_REQUEST_BYTES:
             return self.too_large(len(payload))
         try:
@@ -323,13 +429,19 @@ class RequestHandler:
         req["client"] = client  # the identity is the key's (the field, if given, equals it)
         self._saw(client, cls)
         if cls == "read":
-            return pack(self._execute(axis_id, req, now))
+            read = self._execute(axis_id, req, now)
+            assert read is not None  # (prepare=False: always a reply)
+            return pack(read)
         cached = self.cache.get(client, rid)
         durable = self.keeps(cmd, axis_id)
         if cached is not None:
             self.durable = durable  # (an error reply held too: harmless, and no unpacking here)
             return cached
-        reply = self._execute(axis_id, req, now)
+        two_phase = prepare and not durable and cmd in TWO_PHASE and axis_id is not None
+        reply = self._execute(axis_id, req, now, two_phase)
+        if reply is None:  # checked: the core's part follows (plan, activate)
+            assert axis_id is not None
+            return PendingReply(req, axis_id, client, rid, cmd)
         self.durable = durable and not reply.get("error")
         if axis_id is not None and not reply.get("error"):
             self.last_command[axis_id] = (client, cmd, int(reply.get("cycle", self.core.cycle + 1)))
@@ -379,7 +491,9 @@ class RequestHandler:
         self.seen[client] = rank
         self.clients_version += 1
 
-    def _execute(self, axis_id: int | None, req: dict[str, Any], now: float) -> dict[str, Any]:
+    def _execute(self, axis_id: int | None, req: dict[str, Any], now: float, prepare: bool = False) -> dict[str, Any] | None:
+        """The request's reply map; with ``prepare`` None once the handler's checks passed (the core's part
+        follows: :meth:`plan`)."""
         rid, client, cmd = req["id"], req["client"], req["cmd"]
         if COMMAND_SPECS[cmd].scope == "axis" and axis_id is None:
             where = f"{self.keys.prefix}/axis/<id>/cmd/{COMMAND_CLASS[cmd]}/{client}"
@@ -399,6 +513,8 @@ class RequestHandler:
                 return self._error_reply(rid, cmd, err)
         # req["client"] (the key's) stays in the request: the core records it as the commander
         # of the motion job it starts.
+        if prepare:
+            return None
         reply = self.core.execute(req, axis_id)
         if reply.get("error"):
             self.errors += 1

@@ -114,17 +114,22 @@ class MC_Power(FunctionBlock):
             return
         claim = task.control(ax, retry=rising)
         # control word: written every cycle (the PLC owns these bits)
-        cdw = int(ax.PlcToNc["ControlDWord"]) & ~(_EN | _FP | _FM)
+        plctonc = ax.PlcToNc
+        old = plctonc.ControlDWord
+        cdw = old & ~(_EN | _FP | _FM)
         if en:
             cdw |= _EN
             if self.Enable_Positive:
                 cdw |= _FP
             if self.Enable_Negative:
                 cdw |= _FM
-        ax.PlcToNc["ControlDWord"] = cdw
-        ov_ok = _valid_override(self.Override)
-        if ov_ok and self.Override != self._written_override:
-            ax.PlcToNc["Override"] = override_to_plctonc(self.Override)
+        if cdw != old:  # (the same value every cycle but when the enables change)
+            plctonc.ControlDWord = cdw
+        ov = self.Override
+        # (the very object written last was checked then: a float or an int does not change)
+        ov_ok = (ov is self._written_override and type(ov) in (float, int)) or _valid_override(ov)
+        if ov_ok and ov != self._written_override:
+            plctonc.Override = override_to_plctonc(self.Override)
             self._written_override = self.Override
         if not en:
             self._reset_outputs()
@@ -142,7 +147,7 @@ class MC_Power(FunctionBlock):
         elif isinstance(self.BufferMode, bool) or not isinstance(self.BufferMode, int) or self.BufferMode != 0:
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
         self.Error, self.ErrorID = bool(code), int(code)
-        sdw = int(ax.NcToPlc["StateDWord"])
+        sdw = ax.NcToPlc.StateDWord
         self.Status = held and ax.Status.Valid and bool(sdw & _CLC) and not sdw & _ERR
 
 
@@ -199,7 +204,7 @@ class MC_ReadActualPosition(EnableBlock):
     Position: float
 
     def _read(self, ax: AXIS_REF) -> None:
-        self.Position = float(ax.NcToPlc["ActPos"])
+        self.Position = float(ax.NcToPlc.ActPos)
 
 
 class MC_ReadStatus(EnableBlock):
@@ -230,9 +235,14 @@ class MC_ReadStatus(EnableBlock):
         self.Status = ST_AxisStatus()
 
     def _read(self, ax: AXIS_REF) -> None:
-        self.Status = ax.Status.copy()
+        st = ax.Status
+        self.Status = st.copy()
+        if self._PLAIN_IO:  # (every ST_AxisStatus member is in its __dict__)
+            d = st.__dict__
+            self.__dict__.update({out: bool(d[field]) for out, field in self._FLAT.items()})
+            return
         for out, field in self._FLAT.items():
-            setattr(self, out, bool(getattr(ax.Status, field)))
+            setattr(self, out, bool(getattr(st, field)))
 
 
 class MC_ReadAxisError(EnableBlock):

@@ -16,6 +16,10 @@ Execute blocks:
   the end, the output is TRUE for exactly one cycle;
 * a rising edge while Busy is ignored (no feedback, no second command);
 * the outputs are reset on Execute falling when the block is not Busy;
+* an axis bound while the PLC runs (an AXIS_REF made or first used in a cycle) has no data until its NC's
+  view frames include it (``AXIS_REF.pending``, a few ms; at most the task's ``command_timeout``): a call
+  of a block on it in between is not evaluated (outputs unchanged; its inputs, edges included, are taken
+  by the first call with the data), as a PLC whose task waits for its I/O; past that time it is stale;
 * an axis whose data is stale (``AXIS_REF.Status.Valid`` False) makes a block that acts
   on it report Error 0x4B0F (0x4012 if frames arrive without that axis); a Busy block ends so
   as soon as it sees the data stale or the NC restarted (:meth:`ExecuteBlock._lost_axis`, the
@@ -74,6 +78,17 @@ def _fold_maps(cls: type[FunctionBlock]) -> tuple[dict[str, str], dict[str, str]
     return every, inputs
 
 
+def _plain_io(cls: type[FunctionBlock]) -> bool:
+    """Whether every declared input and output of ``cls`` is a plain instance attribute (see ``_PLAIN_IO``)."""
+    if cls.__setattr__ is not object.__setattr__:
+        return False
+    for name in (*cls._INPUTS, *cls._OUTPUTS):
+        for c in cls.__mro__:
+            if hasattr(type(c.__dict__.get(name)), "__set__"):  # a property, a slot, another data descriptor
+                return False
+    return True
+
+
 class FunctionBlock:
     """Base of all blocks: input handling, names in any case and the Axis binding.
 
@@ -92,9 +107,15 @@ class FunctionBlock:
     #: the same for the inputs alone (call keywords)
     _FOLD_INPUTS: ClassVar[dict[str, str]] = {}
 
+    #: the declared inputs and outputs are plain instance attributes (no property or other descriptor of
+    #: that name on the class, no ``__setattr__`` of its own): the per-cycle paths may write them with one
+    #: ``__dict__.update`` instead of a ``setattr`` each (built per class)
+    _PLAIN_IO: ClassVar[bool] = True
+
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         cls._FOLD, cls._FOLD_INPUTS = _fold_maps(cls)
+        cls._PLAIN_IO = _plain_io(cls)
 
     def __init__(self, timeout: float | None = None) -> None:
         if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
@@ -107,6 +128,9 @@ class FunctionBlock:
         self._n_attrs = -1  # attributes of the instance at the last call (-1: look at the next call)
 
     def _reset_outputs(self) -> None:
+        if self._PLAIN_IO:
+            self.__dict__.update(self._OUTPUTS)
+            return
         for k, v in self._OUTPUTS.items():
             setattr(self, k, v)
 
@@ -119,13 +143,26 @@ class FunctionBlock:
             return getattr(self, real)
 
     def __call__(self, Axis: AXIS_REF | None = None, **inputs: Any) -> Self:
-        if Axis is not None:
+        if Axis is not None and Axis is not self.Axis:
             if not isinstance(Axis, AXIS_REF):
                 raise TypeError(f"{type(self).__name__}: Axis must be an AXIS_REF, got {type(Axis).__name__}")
             self.Axis = Axis
         self._set_inputs(inputs)
+        if self._held():
+            return self
         self._cycle()
         return self
+
+    def _held(self) -> bool:
+        """True if the block waits for its axis's first data (``AXIS_REF.pending``: bound after the client
+        asked for its view, the NC has not sent it yet): the call is not evaluated, its outputs stay and its
+        inputs are taken, edges included, by the first call with the data. Binds an unbound Axis first."""
+        ax = self.Axis
+        if ax is None:
+            return False
+        if ax._task is None:
+            self._task()
+        return ax.pending
 
     def _set_inputs(self, inputs: dict[str, Any]) -> None:
         """Apply the call's inputs (any case) after the attributes written in another case since the last call.
@@ -135,6 +172,9 @@ class FunctionBlock:
         """
         if len(self.__dict__) != self._n_attrs:  # an attribute appeared: maybe ``fb.execute = ...``
             self._fold_writes()
+        if self._PLAIN_IO and inputs.keys() <= self._INPUTS.keys():  # every name as declared: one update
+            self.__dict__.update(inputs)
+            return
         for k, v in inputs.items():
             if k not in self._INPUTS:
                 k = self._input_name(k, inputs)
@@ -177,7 +217,7 @@ class FunctionBlock:
     def _axis_problem(self) -> int:
         """0 if the Axis has valid data, else the error code to report."""
         ax = self.Axis
-        if ax is None or self._task() is None:
+        if ax is None or (ax._task is None and self._task() is None):  # (bound: no call)
             return ErrorCodes.MC_NO_NC_CYCLE_UPDATE
         if ax.missing:
             return ErrorCodes.NC_AXIS_ID_NOT_ALLOWED
@@ -193,6 +233,9 @@ class FunctionBlock:
 
     @staticmethod
     def _is_real(v: Any) -> bool:
+        t = type(v)
+        if t is float or t is int:  # the usual inputs, without the ABC check below (slow: every cycle)
+            return math.isfinite(v)
         # numbers.Real also admits numpy scalars (np.float32 ...); BOOL is not a number here
         return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v)
 
@@ -344,8 +387,8 @@ class ExecuteBlock(FunctionBlock):
         assert ax is not None
         if not ax.shows_cycle(cycle):
             return None  # the frame does not show the command yet
-        jobs = ax.NcJobs
-        if not int(jobs["AxisId"]):
+        jobs = ax._jobs  # (plain values; subclasses read more members of it by name)
+        if not jobs.AxisId:
             self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)  # no job records: cannot be followed
             return None
         shown = int(jobs[no_field])

@@ -152,6 +152,20 @@ class _GearInBlock(MotionBlock):
         """The slave axis (VAR_IN_OUT; the block's Axis)."""
         return self.Axis
 
+    def _held(self) -> bool:
+        """The slave's wait for its first data (FunctionBlock._held), or the master's."""
+        if super()._held():
+            return True
+        m = self.Master
+        if m is None:
+            return False
+        if m._task is None:
+            t = current_task() or (self.Axis._task if self.Axis is not None else None)
+            if t is None:
+                return False
+            t.register(m)
+        return m.pending
+
     # -- start ---------------------------------------------------------------------------
     def _ratio_args(self) -> dict[str, Any] | None:
         """The ratio part of the request; None if an input is not valid (subclass)."""

@@ -77,6 +77,7 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, MC_Direction, OpModeDWord, StateDWord, cmdno_newer
 
+from ..records import NCTOPLC_AXIS_REF, NcJobsValues
 from .base import ExecuteBlock
 
 _ERR = int(StateDWord.Error)
@@ -193,51 +194,53 @@ class MotionBlock(ExecuteBlock):
         assert ax is not None
         if not ax.shows_cycle(self._cmd_cycle):
             return  # the frame does not show the command's effect yet
-        jobs = ax.NcJobs
-        if int(jobs["AxisId"]):
+        jobs = ax._jobs  # (plain values, unpacked once a cycle)
+        if jobs.AxisId:
             self._follow_job(ax.NcToPlc, jobs)
         else:
             self._follow_cmdno(ax.NcToPlc)
 
-    def _follow_job(self, rec: Any, jobs: Any) -> None:
+    def _follow_job(self, rec: NCTOPLC_AXIS_REF, jobs: NcJobsValues) -> None:
         """The table of schema/README.md: find our CmdNo in the axis's job records."""
         me = self._cmdno
-        if int(jobs["BufferedCmdNo"]) == me:
+        if jobs.BufferedCmdNo == me:
             self._set_active(False)  # waiting behind the active job
             return
-        if int(jobs["ActiveCmdNo"]) == me:
-            state = int(jobs["ActiveState"])
+        if jobs.ActiveCmdNo == me:
+            state = jobs.ActiveState
             if state in (_ACTIVE, _DONE_S, _ABORTED, _ERROR):
-                self._on_state(state, rec, self._ended_error(jobs, me, rec))
+                # the error code matters only for ERROR or an axis error (_on_state): looked up only then
+                err = (self._ended_error(jobs, me, rec) if state == _ERROR or rec.StateDWord & _ERR
+                       else ErrorCodes.MC_BUFFERED_CMD_ERROR)
+                self._on_state(state, rec, err)
             else:
                 self._set_active(False)  # BUFFERED/NONE under the active number: not started yet
             return
-        for fate in jobs["Ended"]:
-            if int(fate["CmdNo"]) != me:
+        for cmdno, state, error_id in jobs.Ended:
+            if cmdno != me:
                 continue
-            state = int(fate["CmdState"])
             if state == _DONE_S:
                 self._done_now()
             elif state == _ABORTED:
                 self._finish("CommandAborted")
             elif state == _ERROR:
-                self._finish("Error", int(fate["ErrorId"]) or ErrorCodes.MC_BUFFERED_CMD_ERROR)
+                self._finish("Error", error_id or ErrorCodes.MC_BUFFERED_CMD_ERROR)
             return  # (an Ended entry that is not ended cannot happen; keep waiting)
-        if cmdno_newer(int(jobs["NewestCmdNo"]), me):
+        if cmdno_newer(jobs.NewestCmdNo, me):
             self._finish("CommandAborted")  # pushed out of the record by newer commands
         else:
             self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)
 
     @staticmethod
-    def _ended_error(jobs: Any, me: int, rec: Any) -> int:
-        for fate in jobs["Ended"]:
-            if int(fate["CmdNo"]) == me and int(fate["ErrorId"]):
-                return int(fate["ErrorId"])
-        return int(rec["ErrorCode"]) or ErrorCodes.MC_BUFFERED_CMD_ERROR
+    def _ended_error(jobs: NcJobsValues, me: int, rec: NCTOPLC_AXIS_REF) -> int:
+        for cmdno, _, error_id in jobs.Ended:
+            if cmdno == me and error_id:
+                return error_id
+        return rec.ErrorCode or ErrorCodes.MC_BUFFERED_CMD_ERROR
 
-    def _follow_cmdno(self, rec: Any) -> None:
+    def _follow_cmdno(self, rec: NCTOPLC_AXIS_REF) -> None:
         """No job records: follow NcToPlc (CmdNo, CmdState) alone."""
-        cmdno, state, sdw = int(rec["CmdNo"]), int(rec["CmdState"]), int(rec["StateDWord"])
+        cmdno, state, sdw = rec.CmdNo, rec.CmdState, rec.StateDWord
         if cmdno != self._cmdno:
             if cmdno_newer(cmdno, self._cmdno):
                 self._finish("CommandAborted")
@@ -246,15 +249,16 @@ class MotionBlock(ExecuteBlock):
             else:
                 self._finish("Error", ErrorCodes.MC_CMD_NOT_ACTIVE)
             return
-        self._on_state(state, rec, int(rec["ErrorCode"]) or ErrorCodes.MC_AXIS_STOPPED)
+        self._on_state(state, rec, rec.ErrorCode or ErrorCodes.MC_AXIS_STOPPED)
 
-    def _on_state(self, state: int, rec: Any, error_code: int) -> None:
-        """Our command is the axis's active (or last) one, in ``state``."""
-        sdw = int(rec["StateDWord"])
+    def _on_state(self, state: int, rec: NCTOPLC_AXIS_REF, error_code: int) -> None:
+        """Our command is the axis's active (or last) one, in ``state``; ``error_code`` is used only for
+        ERROR or an axis error."""
+        sdw = rec.StateDWord
         if state == _ERROR:
             self._finish("Error", error_code)
         elif sdw & _ERR:
-            self._finish("Error", int(rec["ErrorCode"]) or error_code)
+            self._finish("Error", rec.ErrorCode or error_code)
         elif state == _ABORTED:
             self._finish("CommandAborted")
         elif state == _ACTIVE:
@@ -277,7 +281,7 @@ class MotionBlock(ExecuteBlock):
             if not sdw & _HASJOB:
                 self._finish(self._DONE)
             return
-        opmode = int(rec["OpModeDWord"])
+        opmode = rec.OpModeDWord
         if sdw & _HASJOB:
             ok = False
         elif opmode & _TGT_MON:

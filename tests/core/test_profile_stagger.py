@@ -45,20 +45,23 @@ def _command(rng: random.Random, p: float) -> tuple[str, dict]:
 
 
 def _cores(n: int, variants: list[tuple[int, int | None]]) -> list[NcCore]:
+    """One core per (lookahead, groups); the first (the reference) evaluates every refill in full (no
+    steady groups: ``ProfileStage.steady`` False), the others with steady groups."""
     cores = []
     for lookahead, groups in variants:
         core = NcCore([AxisConfig(i + 1, f"A{i + 1}", AxisParams(**PARAMS)) for i in range(n)], 0.001,
                       lookahead=lookahead)
         if groups is not None:
             core.profile.set_groups(groups)
+        core.profile.steady = bool(cores)
         cores.append(core)
     return cores
 
 
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("n, variants", [
-    (7, [(1, None), (16, None), (4, None), (16, 4), (16, 1)]),   # fewer axes than the lookahead
-    (37, [(1, None), (4, None), (16, None), (8, 2), (16, 1)]),   # uneven groups; large blocks
+    (7, [(1, None), (1, None), (16, None), (4, None), (16, 4), (16, 1)]),   # fewer axes than the lookahead
+    (37, [(1, None), (1, None), (4, None), (16, None), (8, 2), (16, 1)]),   # uneven groups; large blocks
 ])
 def test_staggered_lookahead_gives_the_set_points_of_lookahead_1(seed, n, variants):
     rng = random.Random(seed)
@@ -112,9 +115,11 @@ def test_staggered_lookahead_gives_the_set_points_of_lookahead_1(seed, n, varian
 
 def test_staggered_lookahead_on_long_steady_motions():
     """Large refill blocks where most rows stay in one segment for the whole window (the segment
-    search looks only at the rows that reach their next segment)."""
+    search looks only at the rows that reach their next segment); steady groups (positions only) while
+    no row changes, up to the end of a positioning's constant-velocity phase and from the start of a
+    velocity job's: the same set-points, bit for bit, as the full evaluation."""
     n = 40
-    cores = _cores(n, [(1, None), (16, 1), (16, 4), (4, 1)])
+    cores = _cores(n, [(1, None), (1, None), (16, 1), (16, 4), (16, 16), (4, 1), (16, 2)])
     ids = iter(range(1, 10**6))
     for core in cores:
         for i in range(n):
@@ -125,10 +130,18 @@ def test_staggered_lookahead_on_long_steady_motions():
     for cycle in range(450):
         if cycle % 150 == 1:  # every axis (again) at its own velocity, then long stretches without commands
             for i in range(n):
-                req = parse_request(make_request("MoveVelocity", next(ids), "test", Velocity=50.0 + 7.0 * i + cycle / 10,
-                                                 Direction=1 if (i + cycle) % 3 else 3))
+                v = 50.0 + 7.0 * i + cycle / 10
+                if i % 4 == 3:  # a positioning whose constant-velocity phase ends inside the stretch
+                    p = float(ref.nctoplc[i]["SetPos"]) + (1 if (i + cycle) % 3 else -1) * v * 0.12
+                    req = parse_request(make_request("MoveAbsolute", next(ids), "test", Position=p, Velocity=v))
+                else:
+                    req = parse_request(make_request("MoveVelocity", next(ids), "test", Velocity=v,
+                                                     Direction=1 if (i + cycle) % 3 else 3))
                 assert len({repr(core.execute(dict(req), i + 1)) for core in cores}) == 1
         for core in cores:
             core.step()
         for core in cores[1:]:
             assert core.nctoplc.tobytes() == ref.nctoplc.tobytes(), (cycle, core.profile.lookahead, core.profile.groups)
+    for core in cores[1:]:  # (a group is steady when all its rows are: the groups of only velocity jobs here)
+        if core.profile.groups >= 4:
+            assert core.profile.steady_refills > 0, (core.profile.lookahead, core.profile.groups)

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from nc_schema import ErrorCodes
-from znc_testing.plc_rig import Rig
+from znc_testing.plc_rig import Rig, ScriptNc
 
 PROGRAM = Path(__file__).resolve().parents[2] / "bench" / "many_clients_program.py"
 
@@ -53,3 +53,33 @@ def test_the_tasks_halt_of_an_orphaned_move_is_counted(program_module: Any, tmp_
     assert rep["refused"] == 0 and rep["sent"] == rep["accepted"], rep  # no doubled or lost move
     assert delta == rep["accepted"] + 1, rep  # what the old check reported as "progress = sent + 1"
     assert delta == rep["accepted"] + rep["task_accepted"], rep
+
+
+def test_a_late_answer_of_a_move_whose_block_gave_up_is_counted(program_module: Any) -> None:
+    """The block of a move without an answer gives up (0x745) and the program sends its next move; when
+    the first move's answer comes after all, it is counted: sent = accepted + refused + unanswered at every
+    moment (the old program kept one request per axis and lost the first)."""
+    nc = ScriptNc()
+    prog = program_module.Program()
+    nc.calls.append(lambda: prog.cycle(nc))
+    a = prog.axes[0]
+    claimed: set[int] = set()
+    for _ in range(20):  # the claim answered, then the first move goes out
+        nc.cycle_once()
+        for p in nc.port.sent:
+            if p.cmd == "Claim" and id(p) not in claimed:
+                nc.port.answer(p, cycle=nc.nc_cycle)
+                claimed.add(id(p))
+        if a.sent:
+            break
+    first = nc.last_sent("MoveAbsolute")
+    nc.cycle_once(150)  # no answer: the block times out, the next move goes out
+    assert a.errors.get("0x0745") == 1, a.errors
+    second = nc.last_sent("MoveAbsolute")
+    assert second is not first and a.sent == 2 and a.report()["pending"] == 2
+    nc.port.answer(first, cycle=nc.nc_cycle, cmdno=1)  # late
+    nc.port.answer(second, cycle=nc.nc_cycle, cmdno=2)
+    nc.cycle_once(3)
+    rep = a.report()
+    assert rep["accepted"] == 2, rep
+    assert rep["sent"] == rep["accepted"] + rep["refused"] + rep["pending"], rep

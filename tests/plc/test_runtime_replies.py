@@ -11,7 +11,7 @@ import pytest
 import zenoh
 from zenoh.handlers import Callback
 
-from nc_schema import FRAME_PERIODS_MS, ErrorCodes, Keys, encode_plc_frame, frame_period_ms, pack
+from nc_schema import FRAME_PERIODS_MS, MAX_VIEW_AXES, ErrorCodes, parse_view_select, Keys, encode_plc_frame, frame_period_ms, pack
 from plc_client import AXIS_REF
 from plc_client.runtime import PlcRuntime, ZenohPort, _NcLink, plc_frame
 
@@ -108,6 +108,31 @@ def test_frame_key_follows_the_plc_cycle() -> None:
     assert rt.links["nc1"].frame_key == k.frame
     with pytest.raises(ValueError):
         PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1"}, cycle_time=0.01, client_id="t5", frame_period=3)
+    # the view (issue 19) takes the same period (0: every NC cycle); whole frames only with view=False
+    assert [PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1"}, cycle_time=c, client_id="t6", frame_period=f)
+            .links["nc1"].view_period for c, f in ((0.01, None), (0.001, None), (0.01, 0), (0.2, 20))] == [5, 0, 0, 20]
+    assert PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1"}, client_id="t7", view=False).links["nc1"].view_period is None
+
+
+def test_the_view_lists_the_tasks_axes_of_each_nc() -> None:
+    """The view token names the AxisIds this task's AXIS_REFs use on that NC, updated when one is bound later (at the
+    next cycle's frame intake); more axes than one token may list take several tokens."""
+    rt = PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1", "nc2": "tcp/127.0.0.1:2"}, client_id="t8",
+                    axes=[AXIS_REF("nc1", 3), AXIS_REF("nc2", 1), AXIS_REF("nc1", 2), AXIS_REF("nc1", 3)])
+    assert rt.links["nc1"].view_axes == (2, 3) and rt.links["nc2"].view_axes == (1,)
+    rt.axis("nc2", 9)
+    assert rt.links["nc2"].view_axes == (1,)  # (applied with the next frames taken)
+    rt._take_frames()
+    assert rt.links["nc2"].view_axes == (1, 9) and rt.links["nc1"].view_axes == (2, 3)
+    for a in range(100, 100 + MAX_VIEW_AXES):  # more axes of one NC than one token lists: two tokens
+        rt.axis("nc1", a)
+    rt._take_frames()
+    link = rt.links["nc1"]
+    assert link.view_axes == (2, 3, *range(100, 100 + MAX_VIEW_AXES))
+    keys = link._view_token_keys()
+    assert len(keys) == 2 and all(parse_view_select(k) is not None for k in keys)
+    parsed = [parse_view_select(k) for k in keys]
+    assert tuple(a for p in parsed if p is not None for a in p[3]) == link.view_axes
 
 
 def test_plc_frame_is_encode_plc_frame_byte_for_byte() -> None:

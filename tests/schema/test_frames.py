@@ -95,3 +95,45 @@ def test_frame_header_refuses_a_header_size_below_the_header() -> None:
         s.frame_header(data)
     ok = s.FRAME_HEADER_STRUCT.pack(s.FRAME_MAGIC, s.WIRE_VERSION, 32, 1, 2, 1, s.NCTOPLC_SIZE, 0)
     assert s.frame_header(ok + bytes(s.NCTOPLC_SIZE)).AxisCount == 1
+
+
+@pytest.mark.parametrize("jobs", [False, True])
+def test_view_frame_is_the_frame_of_the_rows(jobs: bool) -> None:
+    """Issue 19: a client's view is the NC's frame cut to its axes: same header but AxisCount, the rows'
+    records (and job records) in the order given."""
+    rng = np.random.default_rng(7)
+    n = 9
+    recs = np.frombuffer(rng.integers(0, 256, n * s.NCTOPLC_SIZE, dtype=np.uint8).tobytes(), dtype=s.NCTOPLC_DTYPE)
+    recs = recs.copy()
+    recs["AxisId"] = np.arange(10, 10 + n)
+    jr = np.frombuffer(rng.integers(0, 256, n * s.NCJOBS_SIZE, dtype=np.uint8).tobytes(), dtype=s.NCJOBS_DTYPE)
+    frame = s.encode_frame(123, 456789, recs, int(s.FrameFlags.ShuttingDown), jr if jobs else None)
+    for rows in ([], [0], [2, 5, 8], list(range(n))):
+        v = s.view_frame(frame, n, rows)
+        h, got, gj = s.decode_frame(v)
+        assert (int(h["Cycle"]), int(h["NcTimeNs"]), int(h["AxisCount"])) == (123, 456789, len(rows))
+        assert int(h["Flags"]) & int(s.FrameFlags.ShuttingDown)
+        assert got.tobytes() == recs[rows].tobytes()
+        assert (gj is not None) == jobs
+        if jobs:
+            assert gj is not None and gj.tobytes() == jr[rows].tobytes()
+    assert s.view_frame(frame, n, list(range(n))) == frame
+
+
+def test_view_keys() -> None:
+    k = s.Keys("nc1")
+    assert k.view("plc1") == "nc/nc1/view/plc1"
+    assert k.view_select("plc1", 5, [3, 1, 2, 3]) == "nc/nc1/select/plc1/5ms/1,2,3"
+    assert k.view_select("plc1", 0, []) == "nc/nc1/select/plc1/0ms/none"
+    assert s.parse_view_select(k.view_select("plc1", 5, [3, 1])) == ("nc1", "plc1", 5, (1, 3))
+    assert s.parse_view_select("nc/nc1/select/plc1/0ms/none") == ("nc1", "plc1", 0, ())
+    for bad in ("nc/nc1/select/plc1/3ms/1", "nc/nc1/select/plc1/05ms/1", "nc/nc1/select/plc1/5ms/01",
+                "nc/nc1/select/plc1/5ms/2,1", "nc/nc1/select/plc1/5ms/1,1", "nc/nc1/select/plc1/5ms/",
+                "nc/nc1/select/plc1/5ms/a", "nc/nc1/select/p l/5ms/1", "nc/nc1/select/plc1/5/1",
+                "nc/nc1/select/plc1/5ms/1/2", "nc/nc1/view/plc1", "x/nc1/select/plc1/5ms/1",
+                "nc/nc1/select/plc1/5ms/" + ",".join(map(str, range(s.MAX_VIEW_AXES + 1)))):
+        assert s.parse_view_select(bad) is None, bad
+    assert s.parse_view_select("nc/nc1/select/plc1/5ms/" + ",".join(map(str, range(s.MAX_VIEW_AXES)))) is not None
+    for args in (("plc1", 3, [1]), ("plc1", 5, [-1]), ("p l", 5, [1]), ("plc1", 5, range(s.MAX_VIEW_AXES + 1))):
+        with pytest.raises(ValueError):
+            k.view_select(*args)  # type: ignore[arg-type]

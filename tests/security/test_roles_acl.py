@@ -80,10 +80,10 @@ def test_generated_access_control() -> None:
                              "router:router"}
     assert all(s["cert_common_names"] == [s["id"].split(":", 1)[1]] and set(s) == {"id", "cert_common_names"}
                for s in subjects.values())
-    # everybody reads the cyclic data
+    # everybody reads the cyclic data (and its own view: below)
     for c in ("plc1", "eng1", "status"):
-        assert allowed(acl, f"client:{c}", "ingress", "declare_subscriber") == set(READ_KEYS)
-        assert allowed(acl, f"client:{c}", "egress", "put") == set(READ_KEYS)
+        assert allowed(acl, f"client:{c}", "ingress", "declare_subscriber") >= set(READ_KEYS)
+        assert allowed(acl, f"client:{c}", "egress", "put") >= set(READ_KEYS)
         # the NCs' tokens: reachable, and each NC process's instance token (how a restart is told from a flap)
         for msg in ("declare_liveliness_subscriber", "liveliness_query"):
             assert allowed(acl, f"client:{c}", "ingress", msg) == {"nc/*/alive", "nc/*/alive/*"}
@@ -97,9 +97,13 @@ def test_generated_access_control() -> None:
         assert allowed(acl, f"client:{c}", "egress", "reply") >= allowed(acl, f"client:{c}", "ingress", "query")
     # PLCTONC and the liveliness token: operators/engineers, own keys only
     assert allowed(acl, "client:plc1", "ingress", "put") == {"nc/*/plctonc/plc1"}
-    assert allowed(acl, "client:plc1", "ingress", "liveliness_token") == {"nc/*/client/plc1"}
+    assert allowed(acl, "client:plc1", "ingress", "liveliness_token") == {"nc/*/client/plc1", "nc/*/select/plc1/**"}
     assert allowed(acl, "client:status", "ingress", "put") == set()
-    assert allowed(acl, "client:status", "ingress", "liveliness_token") == set()
+    # the view (issue 19): every listed client, its own token and its own view only
+    for c in ("status", "plc1", "eng1"):
+        assert allowed(acl, f"client:{c}", "ingress", "declare_subscriber") == set(READ_KEYS) | {f"nc/*/view/{c}"}
+        assert allowed(acl, f"client:{c}", "egress", "put") == set(READ_KEYS) | {f"nc/*/view/{c}"}
+    assert allowed(acl, "client:status", "ingress", "liveliness_token") == {"nc/*/select/status/**"}
     # gotcha: the declared PLCTONC publisher must see the NC's subscriber nc/<nc>/plctonc/* (inclusion)
     assert "nc/*/plctonc/*" in allowed(acl, "client:plc1", "egress", "declare_subscriber")
     # no client may declare a queryable (impersonate an NC)
@@ -174,6 +178,15 @@ def test_keys_of_the_acl_are_the_protocols() -> None:
     assert _includes("nc/*/alive/*", k.alive_instance_any)  # what the clients watch
     assert all(any(_includes(p, key) for p in READ_KEYS)
                for key in (k.frame, k.status, k.stats, k.claims, k.axis_nctoplc(2), k.axis_plctonc(2)))
+    # the view: a client's token and view keys are included in its own rules, never in another's
+    def zincludes(rule: str, key: str) -> bool:  # zenoh's own inclusion (the rules use "**")
+        return bool(zenoh.KeyExpr(rule).includes(zenoh.KeyExpr(key)))
+    assert zincludes("nc/*/select/plc1/**", k.view_select("plc1", 5, [1, 2, 300]))
+    assert zincludes("nc/*/select/plc1/**", k.view_select("plc1", 0, []))
+    assert not zincludes("nc/*/select/plc1/**", k.view_select("plc2", 5, [1]))
+    assert zincludes("nc/*/view/plc1", k.view("plc1")) and not zincludes("nc/*/view/plc1", k.view("plc2"))
+    assert zincludes("nc/nc1/**", k.view_select_any)  # what the NC's publisher watches: its own prefix
+    assert zincludes(k.view_select_any, k.view_select("plc1", 5, [1, 2]))
 
 
 def test_the_local_publisher_gets_exactly_its_ncs_rules() -> None:

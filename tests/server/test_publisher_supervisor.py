@@ -59,6 +59,7 @@ def _publisher() -> tuple[FramePublisher, _Pub]:
     p.status_pub, p._next_status = _Pub(), float("inf")
     p.every_pubs = [(ms * 1_000_000, _Pub()) for ms in FRAME_PERIODS_MS]
     p._windows = [-1] * len(FRAME_PERIODS_MS)
+    p._token_events, p.views = {}, {}  # no client views
     return p, p.every_pubs[FRAME_PERIODS_MS.index(10)][1]
 
 

@@ -88,6 +88,10 @@ def test_a_request_that_would_not_fit_before_the_deadline_waits(server: NcServer
                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     # the wait limit is moved by hand below: a loaded machine's preemption between two calls must not do it
     monkeypatch.setattr(A, "QUERY_MAX_WAIT_NS", 10_000_000_000)
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 10**12)  # (the spin's use: its own test)
+    _queue(server, 1)
+    _run_all(server)  # (a first request warms the path up: cold, it took longer than QUERY_BUDGET_NS)
+    _replies(server)
     _queue(server, 3)
     server._reserve_ns = 400_000  # requests cost 0.4 ms lately
     soon = time.monotonic_ns() + 300_000
@@ -398,3 +402,154 @@ def _wait(cond: Callable[[], bool], timeout: float, what: str) -> None:
     while not cond():
         assert time.monotonic() < end, f"{what}: not sent within {timeout} s"
         time.sleep(0.01)
+
+
+# ---- motion commands prepared between cycles (SVB), activated at the next cycle's start (SAF) --------------
+def _enable(srv: NcServer, *rows: int) -> None:
+    rec = srv.core.default_plctonc()
+    rec["ControlDWord"] = 7  # Enable, FeedEnablePlus, FeedEnableMinus
+    for i in rows:
+        srv.core.set_plctonc(i, rec)
+    srv.cycle(time.monotonic_ns())
+
+
+def _move(srv: NcServer, rid: int, axis: int = 1, client: str = "t", cmd: str = "MoveAbsolute", **args: object) -> None:
+    _send(srv, client, rid, cmd, axis=axis, cls="op",
+          **(({"Position": 100.0, "Velocity": 200.0} if cmd == "MoveAbsolute" else {}) | args))
+
+
+def _replies_of(srv: NcServer) -> list[dict]:
+    _flush(srv)
+    out = [msgpack.unpackb(p, strict_map_key=False) for p, _ in SENT]
+    SENT.clear()
+    return out
+
+
+def test_a_move_is_prepared_between_cycles_and_answered_after_the_cycle_that_activates_it(server: NcServer) -> None:
+    _enable(server, 0)
+    _move(server, 1)
+    c = server.core.cycle
+    server.idle(None)
+    assert _replies_of(server) == [] and server.prepared == 1  # prepared, not activated
+    assert not server.core.axes.has_job[0]
+    server.cycle(time.monotonic_ns())
+    (r,), = [_replies_of(server)]
+    assert r["error"] == 0 and r["cycle"] == c + 1 == server.core.cycle  # the frame of this cycle shows it
+    assert int(server.core.nctoplc[0]["CmdNo"]) == r["CmdNo"] and server.core.axes.has_job[0]
+    assert server.stats()["requests_prepared"] == 1
+
+
+def test_a_later_request_on_the_same_axis_waits_for_the_activation_others_do_not(server: NcServer) -> None:
+    _enable(server, 0, 1)
+    _move(server, 1)                     # axis 1
+    _move(server, 2, cmd="Halt")         # axis 1 again: after the move's activation
+    _move(server, 3, axis=2)             # axis 2: prepared now
+    server.transport.queries.append(FakeQuery("nc/nc1/cmd/read/t", {"id": 4, "client": "t", "cmd": "Info"}, SENT))
+    for _ in range(100):  # (a call stops after QUERY_BUDGET_NS: a loaded machine may need several)
+        server.idle(None)
+        if server.prepared == 2 and len(server.transport.queries) == 1:
+            break
+    assert [(r["cmd"], r["id"]) for r in _replies_of(server)] == [("Info", 4)]
+    assert len(server.transport.queries) == 1 and server.prepared == 2
+    server.cycle(time.monotonic_ns())
+    assert sorted((r["cmd"], r["id"], r["error"]) for r in _replies_of(server)) == [
+        ("MoveAbsolute", 1, 0), ("MoveAbsolute", 3, 0)]
+    _run_all(server)  # the Halt now, from the move's state
+    server.cycle(time.monotonic_ns())
+    (r,) = _replies_of(server)
+    assert (r["cmd"], r["id"], r["error"], r["cycle"]) == ("Halt", 2, 0, server.core.cycle)
+    assert server.core.queues[0].active is not None and server.core.queues[0].active.kind.name == "Halt"
+
+
+def test_a_retry_of_a_prepared_command_gets_its_reply_once(server: NcServer) -> None:
+    _enable(server, 0)
+    _move(server, 1)
+    _move(server, 1)  # the same id again (a retry) before the activation
+    server.idle(None)
+    server.cycle(time.monotonic_ns())
+    server.idle(None)
+    server.cycle(time.monotonic_ns())
+    a, b = _replies_of(server)
+    assert a == b and a["error"] == 0 and server.prepared == 1 and server.handler.cache.hits == 1
+
+
+def test_a_prediction_broken_at_the_cycle_start_is_prepared_again_and_refused_with_its_code(
+        server: NcServer) -> None:
+    _enable(server, 0)
+    _move(server, 1)
+    server.idle(None)
+    server.core.fault(0, 0x8F02)  # (what the watchdog at the cycle start does)
+    server.cycle(time.monotonic_ns())
+    assert _replies_of(server) == [] and server.prepared_again == 1  # not activated stale
+    server.idle(None)  # prepared again: the axis is in error now
+    (r,) = _replies_of(server)
+    assert r["error"] != 0 and not server.core.axes.has_job[0] and server.not_activated == 0
+
+
+def test_a_command_whose_prediction_keeps_failing_is_refused_after_a_bounded_number_of_preparations(
+        server: NcServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    _enable(server, 0)
+    monkeypatch.setattr(server.core, "holds", lambda p: False)
+    _move(server, 1)
+    for _ in range(A.MAX_REPREPARE + 1):
+        server.idle(None)
+        server.cycle(time.monotonic_ns())
+    (r,) = _replies_of(server)
+    assert (r["id"], r["error"]) == (1, 0x4220) and not server.core.axes.has_job[0]
+    assert server.prepared == 1 and server.prepared_again == A.MAX_REPREPARE + 1 and server.not_activated == 1
+    assert not server.transport.queries and not server._pending and not server._first_seen
+
+
+def test_a_prepared_command_across_a_long_stall_is_refused(server: NcServer) -> None:
+    _enable(server, 0)
+    _move(server, 1)
+    server.idle(None)
+    server._prev_tick -= server.config.watchdog_timeout + 1.0  # the cycle thread stood still that long
+    server.cycle(time.monotonic_ns())
+    (r,) = _replies_of(server)
+    assert r["error"] == 0x4B0F and not server.core.axes.has_job[0]
+
+
+def test_the_core_part_waits_for_a_gap_it_fits_and_is_forced_after_the_wait_limit(
+        server: NcServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(A, "QUERY_MAX_WAIT_NS", 10_000_000_000)  # (moved by hand below)
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 10**12)
+    _enable(server, 0)
+    server._class_reserve["plan"] = 400_000  # planning costs 0.4 ms lately
+    _move(server, 1)
+    server.idle(time.monotonic_ns() + 300_000, after_work=True)  # parsed and checked; its plan does not fit
+    assert server.prepared == 1 and server._pending and server._pending[0][1].prepared is None
+    server.cycle(time.monotonic_ns())  # nothing to activate yet: the axis waits, nothing answered
+    assert _replies_of(server) == [] and not server.core.axes.has_job[0] and server._pending_axes == {1}
+    assert server._plan_waiting_since is not None
+    server._plan_waiting_since -= A.QUERY_MAX_WAIT_NS + 1  # ... it has waited that long by now:
+    server.idle(time.monotonic_ns() + 300_000, after_work=False)  # not in a slice,
+    assert server._pending[0][1].prepared is None
+    server.idle(time.monotonic_ns() + 300_000, after_work=True)  # but right after the work it is planned anyway
+    assert server._pending[0][1].prepared is not None and server.forced == 1
+    server.cycle(time.monotonic_ns())
+    (r,) = _replies_of(server)
+    assert r["error"] == 0 and r["cycle"] == server.core.cycle and server.core.axes.has_job[0]
+    assert not server._pending and not server._pending_axes
+
+
+def test_every_job_command_runs_in_steps() -> None:
+    from nc_server.server.handler import TWO_PHASE
+    assert {"MoveAbsolute", "MoveRelative", "MoveVelocity", "Halt", "Stop", "Home", "GearIn"} <= TWO_PHASE
+    assert not TWO_PHASE & {"NewPos", "ReadParameter", "Reset", "SetOverride", "Claim", "WriteParameter"}
+
+
+def test_a_request_that_waited_may_use_the_spin_but_not_its_margin(server: NcServer,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(A, "QUERY_MAX_WAIT_NS", 10_000_000_000)
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 10_000_000_000)  # (moved by hand below)
+    server.loop.stats.spin_ns = 200_000
+    _queue(server, 1)
+    server._reserve_ns = 400_000
+    server.idle(time.monotonic_ns() + 300_000, after_work=False)  # 0.3 ms before the spin: does not fit
+    assert len(server.transport.queries) == 1 and server._waiting_since is not None
+    monkeypatch.setattr(A, "QUERY_SPIN_WAIT_NS", 0)  # it waited long enough to use the spin (0.2 ms):
+    server.idle(time.monotonic_ns() + 100_000, after_work=False)  # 0.1 + 0.2 - 0.05 ms: still not
+    assert len(server.transport.queries) == 1
+    server.idle(time.monotonic_ns() + 300_000, after_work=False)  # 0.3 + 0.2 - 0.05 ms: it fits
+    assert not server.transport.queries and _replies(server) == 1

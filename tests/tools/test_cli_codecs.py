@@ -164,6 +164,8 @@ def _first_line(cmd: list[str], timeout: float) -> str:
 
 def test_readme_zenoh_cli_lines(rig: Rig) -> None:
     rig.enable(1)  # t1 feeds PLCTONC for axis 1 and holds a client token
+    # t1's view of axis 1 (a PLC client's liveliness token): the NC then puts nc/nc1/view/t1
+    view = rig.cl.session.liveliness().declare_token(Keys("nc1").view_select("t1", 0, [1]))
     z, lines = _readme_lines()
     i = z.index("--connect")
     z[i + 1] = rig.endpoint
@@ -197,3 +199,4 @@ def test_readme_zenoh_cli_lines(rig: Rig) -> None:
                 "nc/nc1/axis/1/plctonc", "nc/nc1/plctonc/*", "nc/*/alive", "nc/nc1/client/*"):
         assert key in keys_seen, f"README has no zenoh-cli line for {key}"
     assert any("/cmd/" in k for k in keys_seen)
+    view.undeclare()

@@ -209,7 +209,23 @@ class CouplingStage:
         max(AxisAcc, AxisDec)."""
         S = core.axes.S
         levels, s, lim = self._levels(core)
+        sv: np.ndarray | None = None  # the slaves' set-points, (4, s.size), if they are still in hand
         for rows, masters, r, sb, mb, dyn, syncing, state in levels:
+            if not (dyn or syncing):  # (fixed ratios, all locked: one gather and one scatter, the same values)
+                sv = S.take(masters, axis=1)  # (C order: S[:, masters] gives F order, slower to compute on)
+                pos = sv[0]
+                pos -= mb
+                pos *= r
+                pos += sb  # sb + r * (pm - mb)
+                sv[1:] *= r
+                S[:, rows] = sv
+                core.sp_dw[rows] = motion_dwords(sv[1], sv[2])
+                core.axis_state[rows] = state
+                if after_level is not None:
+                    after_level(core, rows)
+                    sv = None
+                continue
+            sv = None
             pm = S[0, masters]
             if syncing:
                 sync = (self.state[rows] == SYNCHRONIZING).nonzero()[0]
@@ -235,6 +251,9 @@ class CouplingStage:
                 after_level(core, rows)
         # beyond AxisVeloMax: the fault ramp then takes the acceleration down with up to 4 x AxisJerk
         # (JobEngine.start_ramp)
+        if sv is not None and len(levels) == 1:  # (one level: its rows are the slaves, in order)
+            if not np.count_nonzero(np.abs(sv[1:3]) > lim):
+                return []
         v, acc = S[1, s], S[2, s]
         fast = np.abs(v) > lim[0]
         hard = np.abs(acc) > lim[1]

@@ -1,0 +1,138 @@
+"""CPU of one ``plc-run`` with 4 moving axes next to an idle ``plc-run`` (connected, no program), same run (issue 19:
+"CPU per plc-run <= 2x an idle plc-run measured in the same run, and <= 1.5 % of a core").
+
+Topology: one ``nc-server`` (``--nc-axes`` axes, 64 by default as in the issue's figure, 1 ms cycle, its own
+router on a free 127.0.0.1 port); per tree (this checkout, and ``--tree`` another one, e.g. /work/main, for a
+before/after in the same run) one ``plc-run bench/many_clients_program.py`` on 4 axes of its own (MC_Power +
+MC_MoveAbsolute back and forth on each, 10 ms cycle) and one idle ``plc-run`` (a program whose cycle does
+nothing, no axis). Every client is started, the program clients move, then CPU is read over the window
+(/proc/<pid>/stat utime + stime, all threads, in % of one core; clock ticks, so +-0.5 % at 10 s).
+
+    .venv/bin/python bench/plc_cpu.py                          # this tree, 20 s
+    .venv/bin/python bench/plc_cpu.py --tree /work/main        # and another checkout's clients, same NC, same run
+    .venv/bin/python bench/plc_cpu.py --seconds 30 --rounds 3  # three windows in a row
+
+Prints per client its CPU, the program/idle ratio per tree and MET / NOT MET against the goal (<= 2x idle and
+<= 1.5 % of a core).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+BENCH = Path(__file__).resolve().parent
+REPO = BENCH.parent
+sys.path.insert(0, str(REPO))
+from bench.many_clients import AXIS_TOML, NC_NAME, PROGRAM, cpu_ticks, free_port, machine_ticks  # noqa: E402
+
+IDLE_PROGRAM = "def cycle(plc):\n    pass\n"
+GOAL_RATIO, GOAL_CPU = 2.0, 1.5
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tree", help="another checkout whose plc-run clients run beside this one's")
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--nc-axes", type=int, default=64)
+    ap.add_argument("--plc-cycle", type=float, default=0.010)
+    a = ap.parse_args(argv)
+    trees = [("this", REPO)] + ([("other", Path(a.tree).resolve())] if a.tree else [])
+    assert a.nc_axes >= 4 * len(trees)
+    tmp = Path(tempfile.mkdtemp(prefix="plc-cpu-"))
+    cfg = tmp / "nc.toml"
+    cfg.write_text(f'[nc]\nname = "{NC_NAME}"\ncycle_time = 0.001\n\n[zenoh]\nmode = "router"\n'
+                   + "".join(AXIS_TOML.format(id=i + 1) for i in range(a.nc_axes)))
+    (tmp / "idle.py").write_text(IDLE_PROGRAM)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    procs: list[subprocess.Popen[Any]] = []
+    print(f"plc_cpu: NC {a.nc_axes} axes at 1 ms; per tree a 4-axis plc-run and an idle one, PLC "
+          f"{a.plc_cycle * 1e3:g} ms; window {a.seconds:g} s x {a.rounds}; logs in {tmp}", flush=True)
+    try:
+        nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
+                               "--log-level", "WARNING"], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
+                              text=True, env=dict(os.environ, PYTHONPATH=str(REPO)), start_new_session=True)
+        procs.append(nc)
+        line = nc.stdout.readline() if nc.stdout else ""
+        if " ready: " not in line:
+            raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / 'nc.err').read_text()[-2000:]}")
+        clients: dict[str, subprocess.Popen[Any]] = {}
+        for k, (name, tree) in enumerate(trees):
+            env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(tree))
+            axes = ",".join(str(4 * k + j + 1) for j in range(4))
+            for kind, prog in (("program", str(PROGRAM)), ("idle", str(tmp / "idle.py"))):
+                cid = f"{name}-{kind}"
+                cenv = dict(env, MANY_AXES=axes, MANY_REPORT=str(tmp / f"{cid}.json"), MANY_STOP=str(tmp / "stop"),
+                            MANY_NC=NC_NAME)
+                clients[cid] = subprocess.Popen(
+                    [sys.executable, "-m", "plc_client.cli", prog, "--nc", f"{NC_NAME}={endpoint}", "--client-id", cid,
+                     "--cycle-time", str(a.plc_cycle), "--log-level", "WARNING"],
+                    stdout=subprocess.DEVNULL, stderr=open(tmp / f"{cid}.err", "w"), env=cenv, cwd=str(tree),
+                    start_new_session=True)
+                procs.append(clients[cid])
+        deadline = time.monotonic() + 60.0
+        while True:  # every program client moving
+            ok = True
+            for name, _ in trees:
+                try:
+                    rep = json.loads((tmp / f"{name}-program.json").read_text())
+                    ok = ok and all(ax["sent"] > 0 for ax in rep["axes"].values())
+                except (OSError, ValueError):
+                    ok = False
+            for cid, p in clients.items():
+                if p.poll() is not None:
+                    raise RuntimeError(f"{cid} exited with {p.returncode}: {(tmp / f'{cid}.err').read_text()[-2000:]}")
+            if ok:
+                break
+            if time.monotonic() > deadline:
+                raise RuntimeError("the program clients are not moving after 60 s")
+            time.sleep(0.2)
+        time.sleep(2.0)  # settle
+        hz = os.sysconf("SC_CLK_TCK")
+        met = True
+        for r in range(a.rounds):
+            t0 = time.monotonic()
+            c0 = {cid: cpu_ticks(p.pid) for cid, p in clients.items()}
+            n0, m0 = cpu_ticks(nc.pid), machine_ticks()
+            time.sleep(a.seconds)
+            dt = time.monotonic() - t0
+            cpu = {cid: (cpu_ticks(p.pid) - c0[cid]) / hz / dt * 100.0 for cid, p in clients.items()}
+            m1 = machine_ticks()
+            busy = (m1[0] - m0[0]) / max(1, m1[1] - m0[1]) * 100.0 * os.cpu_count()  # type: ignore[operator]
+            nc_cpu = (cpu_ticks(nc.pid) - n0) / hz / dt * 100.0
+            print(f"round {r + 1}: nc-server {nc_cpu:.1f} %, machine {busy:.0f} % busy (of {os.cpu_count()} cores)")
+            for name, _ in trees:
+                p, i = cpu[f"{name}-program"], cpu[f"{name}-idle"]
+                ratio = p / i if i > 0 else float("inf")
+                ok = ratio <= GOAL_RATIO and p <= GOAL_CPU
+                met = met and (ok or name != "this")
+                print(f"  {name:5}: plc-run with 4 moving axes {p:5.2f} % of a core, idle plc-run {i:5.2f} %: "
+                      f"{ratio:.2f}x idle  (goal <= {GOAL_RATIO:g}x and <= {GOAL_CPU:g} %: {'MET' if ok else 'NOT MET'})")
+        for cid, p in clients.items():
+            if p.poll() is not None:
+                raise RuntimeError(f"{cid} exited with {p.returncode}: {(tmp / f'{cid}.err').read_text()[-2000:]}")
+        print("MET" if met else "NOT MET")
+        return 0
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                try:
+                    os.killpg(p.pid, 15)
+                except OSError:
+                    pass
+        for p in procs:
+            try:
+                p.wait(5.0)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, 9)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
