@@ -180,7 +180,8 @@ def stop_processes(clients: "Sequence[subprocess.Popen[Any]]", nc: "subprocess.P
     except subprocess.TimeoutExpired:
         pass
     for p in [*clients, nc, *rest]:
-        kill_group(p)
+        if p.returncode is None:  # (a reaped leader's pid, hence its group id, may belong to another process now)
+            kill_group(p)
         try:
             p.wait(5)
         except subprocess.TimeoutExpired:

@@ -146,10 +146,11 @@ class NcLink:
             except Exception:
                 pass
             return False
-        self.session = s
+        with self._view_lock:  # (select() on another thread declares on this session from here on)
+            self.view_tokens, self._view_keys = [], []  # (the tokens of an earlier session went with it)
+            self.session = s
         self.ready = True
         if self.view_period is not None:
-            self.view_tokens, self._view_keys = [], []  # (the tokens of an earlier session went with it)
             self._declare_view()
         return True
 
@@ -169,7 +170,7 @@ class NcLink:
         if ids and ids[0] < 0:
             raise ValueError(f"invalid axis id {ids[0]}")
         self.view_axes = ids
-        if self.ready:
+        if self.session is not None:
             self._declare_view()
 
     def _view_token_keys(self) -> list[str]:

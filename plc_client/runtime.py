@@ -104,6 +104,8 @@ log = logging.getLogger(__name__)
 
 #: Replies kept per query until the PLC cycle takes them (the NC sends one).
 REPLY_CHANNEL = 4
+#: A reachable NC that sends no view frame for this long [s] is worth a warning (_no_view_yet)
+NO_VIEW_WARNING = 5.0
 
 
 def plc_frame(plc_cycle: int, axes: list[AXIS_REF]) -> bytes:
@@ -246,6 +248,7 @@ class PlcRuntime(PlcTask):
         self.links: dict[str, NcLink] = {}
         #: NC -> its view frames' last attachment and its AxisIds (nc_schema.parse_view_axes)
         self._view_attachment: dict[str, tuple[bytes, frozenset[int]]] = {}
+        self._no_view_since: dict[str, float] = {}  # NC -> when a cycle first found no view frame of it
         self._view_dirty: set[str] = set()  # NCs whose view must be declared again (an AXIS_REF was bound)
         for nc, ep in ncs.items():
             keys = Keys(nc)  # validates the name
@@ -355,6 +358,8 @@ class PlcRuntime(PlcTask):
             except Exception:  # undeclared while closing
                 continue
             if sample is None:
+                if nc not in self._frames and link.view_period is not None and nc not in self._nc_down:
+                    self._no_view_yet(nc)
                 continue
             try:
                 h, recs, jobs = decode_frame(sample.payload.to_bytes())
@@ -372,6 +377,16 @@ class PlcRuntime(PlcTask):
                     last = self._view_attachment[nc] = (raw, parse_view_axes(raw) or frozenset())
                 covers = last[1]
             self._set_frame(nc, int(h["Cycle"]), recs, jobs, covers)
+
+    def _no_view_yet(self, nc: str) -> None:
+        """No view frame of a reachable NC yet: after NO_VIEW_WARNING s, say why that may be, once."""
+        now = time.monotonic()
+        since = self._no_view_since.setdefault(nc, now)
+        if now - since > NO_VIEW_WARNING and f"no-view-{nc}" not in self._warned:
+            self._warned.add(f"no-view-{nc}")
+            log.warning("NC %s: no view frame for %.0f s although its session is open: an NC of protocol version 2, "
+                        "or an access control made without the view rules (nc-acl of this version)? Whole frames: "
+                        "plc-run --whole-frames, PlcRuntime(view=False)", nc, now - since)
 
     def _liveliness(self, link: NcLink) -> None:
         """The NC's liveliness events (the link's): ``nc/<nc>/alive`` (reachable or not), then its instance tokens."""

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nc_schema import ErrorCodes, FrameFlags, Keys
+from nc_schema import CLASSES, ErrorCodes, FrameFlags, Keys
 
 
 from nc_server.security.acl import access_control, with_local_publisher
@@ -204,7 +204,9 @@ class NcServer:
         self._query_costs: collections.deque[int] = collections.deque(maxlen=QUERY_COST_WINDOW)  # [ns]
         self._reserve_ns = QUERY_RESERVE_MIN_NS * 4  # until costs are known
         #: per cost class (key_class): the recent costs [ns] and the reserve made of them (none yet: _reserve_ns)
-        self._class_costs: dict[str, collections.deque[int]] = {}
+        # the key classes' costs (and "plan": the core's part of a command in steps; "?": anything else)
+        self._class_costs: dict[str, collections.deque[int]] = {
+            c: collections.deque(maxlen=QUERY_COST_WINDOW) for c in (*CLASSES, "plan", "?")}
         self._class_reserve: dict[str, int] = {}
         #: prepared requests (SVB), activated at the next cycle's start (SAF): (query, pending, first seen [ns])
         self._pending: list[tuple[Any, PendingReply, int]] = []
@@ -400,13 +402,15 @@ class NcServer:
             self._drain_queries(now, limit=1)
         self._idle_ran = False
 
+        # the commands prepared between cycles start now (SAF), if their prediction still holds; before the
+        # PLCTONC and the watchdog, as a command executed between cycles: a move of a client lost meanwhile
+        # is a job of the queue when the watchdog reacts to the loss, and is stopped
+        if self._pending:
+            self._activate_pending(now)
+
         # PLCTONC (the newest frame of each client, applied to the axes it holds), then the
         # watchdog (lost clients, stale PLCTONC): the same code the in-process port runs.
         self.inputs.apply(t.pop_plc_frames(), now)
-
-        # the commands prepared between cycles start now (SAF), if their prediction still holds
-        if self._pending:
-            self._activate_pending(now)
 
         if self._shutdown.is_set():
             self._stop_moving_axes()
@@ -624,16 +628,14 @@ class NcServer:
 
     def _reserve(self, cls: str) -> int:
         """The time [ns] to keep free for one more request of cost class ``cls`` (:func:`key_class`)."""
-        return self._class_reserve.get(cls, self._reserve_ns)
+        return self._class_reserve.get(cls if cls in self._class_costs else "?", self._reserve_ns)
 
     def _cost(self, cls: str, ns: int) -> None:
         """Record what a request of class ``cls`` took [ns]; its class's reserve follows (:func:`query_reserve`)."""
         self._query_costs.append(ns)
         costs = self._class_costs.get(cls)
-        if costs is None:
-            if len(self._class_costs) >= 8:  # (keys are checked later: a flood of odd ones shares one class)
-                cls = "?"
-            costs = self._class_costs.setdefault(cls, collections.deque(maxlen=QUERY_COST_WINDOW))
+        if costs is None:  # (keys are checked later: every other class, a flood of odd ones too, shares "?")
+            costs = self._class_costs["?"]
         costs.append(ns)
         if len(costs) % QUERY_COST_EVERY == 0:
             self._class_reserve[cls] = query_reserve(costs, CLASS_COST_QUANTILE)
@@ -641,8 +643,8 @@ class NcServer:
             self._reserve_ns = query_reserve(self._query_costs)
 
     def _activate_pending(self, now: float) -> None:
-        """At the start of a cycle, before its step: activate the commands planned since the last one, in
-        order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
+        """At the start of a cycle, before its PLCTONC, watchdog and step: activate the commands planned since
+        the last one, in order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
         holds is planned again (at most MAX_REPREPARE times, then refused 0x4220); after a long NC stall
         every command in steps is refused (0x4B0F), as the queued ones are. The replies go out after the
         cycle's work, with ``cycle`` = this cycle. Those not planned yet wait (their axis stays busy)."""
@@ -663,8 +665,8 @@ class NcServer:
                 reply = h.activate(pending)
                 if reply is None:
                     k = self._prepared_again.get(id(q), 0) + 1
-                    self.prepared_again += 1
                     if k <= MAX_REPREPARE:
+                        self.prepared_again += 1
                         self._prepared_again[id(q)] = k
                         keep.append((q, pending, seen))
                         continue

@@ -169,15 +169,19 @@ class FramePublisher:
         self._row_of = {a: i for i, a in enumerate(self.axis_ids)}
         self._view_opts = opts
         self._session = s
-        self._tokens: dict[str, tuple[str, int, tuple[int, ...]]] = {}
+        self._tokens: dict[str, tuple[str, int, tuple[int, ...]]] = {}  # (changed under _token_lock)
         self._token_events: dict[str, bool] = {}  # token key -> alive
         self._token_lock = threading.Lock()
         self.views: dict[str, _View] = {}
         delete = zenoh.SampleKind.DELETE
 
         def on_token(sample: Any) -> None:  # on a zenoh thread: keep it tiny
+            key, alive = str(sample.key_expr), sample.kind != delete
             with self._token_lock:
-                self._token_events[str(sample.key_expr)] = sample.kind != delete
+                if not alive and key not in self._tokens:  # never applied: forget it (a standby takes none)
+                    self._token_events.pop(key, None)
+                else:
+                    self._token_events[key] = alive
 
         self.view_sub = s.liveliness().declare_subscriber(keys.view_select_any, Callback(on_token, indirect=False),
                                                           history=True)
@@ -189,20 +193,20 @@ class FramePublisher:
         publisher lives while it has a token."""
         if not self._token_events:
             return False
-        with self._token_lock:
-            events, self._token_events = self._token_events, {}
         changed: set[str] = set()
-        for key, alive in events.items():
-            if not alive:
-                old = self._tokens.pop(key, None)
-                if old is not None:
-                    changed.add(old[0])
-                continue
-            parsed = parse_view_select(key)
-            if parsed is None or parsed[0] != self.keys.nc:
-                continue  # a malformed token: ignored (nothing is sent for it)
-            self._tokens[key] = parsed[1:]
-            changed.add(parsed[1])
+        with self._token_lock:  # (on_token reads _tokens: a DELETE must not pass a PUT being applied)
+            events, self._token_events = self._token_events, {}
+            for key, alive in events.items():
+                if not alive:
+                    old = self._tokens.pop(key, None)
+                    if old is not None:
+                        changed.add(old[0])
+                    continue
+                parsed = parse_view_select(key)
+                if parsed is None or parsed[0] != self.keys.nc:
+                    continue  # a malformed token: ignored (nothing is sent for it)
+                self._tokens[key] = parsed[1:]
+                changed.add(parsed[1])
         for client in changed:
             self._rebuild_view(client)
         return bool(changed)

@@ -496,7 +496,7 @@ def test_a_command_whose_prediction_keeps_failing_is_refused_after_a_bounded_num
         server.cycle(time.monotonic_ns())
     (r,) = _replies_of(server)
     assert (r["id"], r["error"]) == (1, 0x4220) and not server.core.axes.has_job[0]
-    assert server.prepared == 1 and server.prepared_again == A.MAX_REPREPARE + 1 and server.not_activated == 1
+    assert server.prepared == 1 and server.prepared_again == A.MAX_REPREPARE and server.not_activated == 1
     assert not server.transport.queries and not server._pending and not server._first_seen
 
 
@@ -553,3 +553,55 @@ def test_a_request_that_waited_may_use_the_spin_but_not_its_margin(server: NcSer
     assert len(server.transport.queries) == 1
     server.idle(time.monotonic_ns() + 300_000, after_work=False)  # 0.3 + 0.2 - 0.05 ms: it fits
     assert not server.transport.queries and _replies(server) == 1
+
+
+def _hold(srv: NcServer, client: str, row: int) -> None:
+    """``client`` is alive and holds axis row ``row`` (Claim), and sends an enabling PLCTONC for it."""
+    srv.handler.client_alive(client, time.monotonic())
+    _send(srv, client, 900 + row, "Claim", axis=row + 1, cls="op")
+    _run_all(srv)
+    _feed(srv, client, row, 100.0)
+    srv.cycle(time.monotonic_ns())
+    _replies_of(srv)
+
+
+def _feed(srv: NcServer, client: str, row: int, override: float) -> None:
+    """A PLCTONC frame of ``client`` for axis row ``row`` (enabled, ``override`` %) in the transport's inbox."""
+    import numpy as np
+    from nc_schema import PLCTONC_DTYPE
+    rec = np.zeros(1, dtype=PLCTONC_DTYPE)
+    rec["ControlDWord"] = 7
+    rec["Override"] = int(override * 10_000)
+    srv.transport.plc_inbox[client] = T.PlcFrame(time.monotonic(), np.array([row + 1], dtype=np.uint32), rec)
+
+
+def test_a_new_override_between_preparation_and_activation_does_not_refuse_the_command(server: NcServer) -> None:
+    """A PLC whose override changes every cycle (a ramp, a slider): its frame that arrives after the preparation
+    is applied after the activation, as to a command executed between cycles, and the running job follows it."""
+    _hold(server, "plc", 0)
+    for k in range(5):
+        _move(server, 10 + k, client="plc", cmd="MoveVelocity", Velocity=10.0 + k)
+        server.idle(None)
+        _feed(server, "plc", 0, 90.0 - k)  # the next PLC frame: another override
+        server.cycle(time.monotonic_ns())
+        (r,) = _replies_of(server)
+        assert (r["id"], r["error"]) == (10 + k, 0), r
+    assert server.prepared_again == 0 and server.not_activated == 0
+
+
+def test_a_move_of_a_client_lost_before_its_activation_is_stopped_by_the_loss_reaction(server: NcServer) -> None:
+    """Client c commands a move on axis 1 (held by plc) and goes away before the activating cycle: the move is
+    activated and the watchdog of the same cycle reacts to c's loss as to any running command of a lost client."""
+    _hold(server, "plc", 0)
+    server.handler.client_alive("c", time.monotonic())
+    _move(server, 1, client="c", cmd="MoveVelocity", Velocity=50.0)
+    server.idle(None)
+    assert server.prepared == 1 and not server.core.axes.has_job[0]
+    server.handler.client_gone("c", time.monotonic())  # its token went: the next cycle's watchdog reacts
+    _feed(server, "plc", 0, 100.0)
+    server.cycle(time.monotonic_ns())
+    (r,) = _replies_of(server)
+    assert r["error"] == 0
+    q = server.core.queues[0]
+    # the endless move does not go on: it was stopped (a stop job or the axis's error), not left running
+    assert q.active is None or q.active.kind.name != "MoveVelocity", q.active
