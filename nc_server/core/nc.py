@@ -151,6 +151,8 @@ class NcCore:
         #: per row, bumped by every change of its job records (the engine's sync): a preparation made before
         #: a change is stale (:meth:`activate`)
         self.row_version = [0] * len(ids)
+        #: 1 for an axis with a command in preparation (a server's commands in steps, :meth:`set_preparing`)
+        self.preparing = np.zeros(len(ids), dtype=np.uint8)
         self.cycle = 0
         self.nc_time_ns = 0
         n = len(ids)
@@ -329,6 +331,14 @@ class NcCore:
         # (begin numbers it so: the queue is verified unchanged when it is activated)
         cmd_no = job.cmd_no if (job.numbered or job.kind.internal) else next_cmdno(self.queues[i].newest)
         return Prepared(i, job, plan, cycle, rows, self._inputs_of(i), make_reply(rid, cmd, 0, "", cycle, cmd_no=cmd_no))
+
+    def set_preparing(self, axis_id: int, on: bool) -> None:
+        """Whether a command on ``axis_id`` is in preparation (TwinCAT's SVB: from its request's handling to its
+        activation or refusal): NCTOPLC.SvbEntries counts it in the frames made meanwhile. Unknown ids: ignored."""
+        i = self._index.get(axis_id)
+        if i is not None and bool(self.preparing[i]) != on:
+            self.preparing[i] = on
+            self.state_dirty = True
 
     def _inputs_of(self, i: int) -> tuple[int, int]:
         return int(self.plctonc["ControlDWord"][i]), int(self.plctonc["Override"][i])
@@ -955,7 +965,7 @@ class NcCore:
         self.has_origin = bool(np.count_nonzero(a.origin))
         out["ErrorCode"] = a.error
         out["SafEntries"] = job  # (1 while a job runs; SvbEntries 1 while a command waits behind it)
-        out["SvbEntries"] = a.buffered
+        out["SvbEntries"] = a.buffered + self.preparing  # (waiting behind the job, or being prepared)
         out["OpModeDWord"] = a.opmode | self._opmode_sim
         out["CmdNo"] = a.cmd_no
         out["CmdState"] = a.cmd_state

@@ -569,6 +569,7 @@ class NcServer:
             if isinstance(reply, PendingReply):
                 self._pending.append((q, reply, first_seen.pop(id(q), t0)))
                 self._pending_axes.add(reply.axis_id)
+                self.core.set_preparing(reply.axis_id, True)
                 self.prepared += 1
                 self._plan_pending(replies, None if n <= at_least else until_ns, budget_end, limit - n + 1)
             else:
@@ -621,6 +622,7 @@ class NcServer:
                 keep.append((q, got, seen))
             else:  # refused, or ran at once (a buffered move): answered now
                 self._pending_axes.discard(pending.axis_id)
+                self.core.set_preparing(pending.axis_id, False)
                 self._first_seen[id(q)] = seen
                 replies.append((q, got, False))
         self._pending = keep
@@ -674,6 +676,7 @@ class NcServer:
                     self.not_activated += 1
             self._prepared_again.pop(id(q), None)
             self._pending_axes.discard(pending.axis_id)
+            self.core.set_preparing(pending.axis_id, False)
             self._waits.append(clock() - seen)
             self._activated.append((q, reply, 0))
         self._pending = keep

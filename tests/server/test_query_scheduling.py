@@ -521,6 +521,9 @@ def test_the_core_part_waits_for_a_gap_it_fits_and_is_forced_after_the_wait_limi
     assert server.prepared == 1 and server._pending and server._pending[0][1].prepared is None
     server.cycle(time.monotonic_ns())  # nothing to activate yet: the axis waits, nothing answered
     assert _replies_of(server) == [] and not server.core.axes.has_job[0] and server._pending_axes == {1}
+    # the frame of this cycle shows the command in preparation (SvbEntries), no job executing (SafEntries)
+    assert (int(server.core.nctoplc[0]["SvbEntries"]), int(server.core.nctoplc[0]["SafEntries"])) == (1, 0)
+    assert int(server.core.nctoplc[1]["SvbEntries"]) == 0
     assert server._plan_waiting_since is not None
     server._plan_waiting_since -= A.QUERY_MAX_WAIT_NS + 1  # ... it has waited that long by now:
     server.idle(time.monotonic_ns() + 300_000, after_work=False)  # not in a slice,
@@ -531,6 +534,7 @@ def test_the_core_part_waits_for_a_gap_it_fits_and_is_forced_after_the_wait_limi
     (r,) = _replies_of(server)
     assert r["error"] == 0 and r["cycle"] == server.core.cycle and server.core.axes.has_job[0]
     assert not server._pending and not server._pending_axes
+    assert (int(server.core.nctoplc[0]["SvbEntries"]), int(server.core.nctoplc[0]["SafEntries"])) == (0, 1)
 
 
 def test_every_job_command_runs_in_steps() -> None:
