@@ -14,9 +14,11 @@ in interleaved blocks so machine noise hits both alike:
                    it is counted and reported by code with its round trip, never a crash; the goal is
                    measured on the accepted ones.
 
-Goal (not a test): the NC's p50 within 1.5 x raw p50 + one NC cycle, printed as the same-run ratio
-p50 / (1.5 x raw p50 + 1 cycle) (goal <= 1) with the figures beside it, MET / NOT MET, for
-ReadParameter and for the accepted MoveAbsolute re-targets. A same-run noise floor
+Goal (not a test): the NC's p50 within 1.5 x raw p50 + one NC cycle for ReadParameter, + two NC cycles
+for the accepted MoveAbsolute re-targets (issue 19: a motion command is prepared between cycles and
+answered after the cycle that activates it, TwinCAT's SVB/SAF; fb_latency's goal became + 2 cycles for
+the same reason), printed as the same-run ratio p50 / budget (goal <= 1) with the figures beside it, MET /
+NOT MET. A same-run noise floor
 (bench/noise_floor.py: a fixed numpy workload in the NC cycle loop, before and after the round trips)
 and the machine's busy share over the round trips (/proc/stat) say how loaded the machine was.
 
@@ -175,12 +177,12 @@ def main() -> int:
               f"{stats.get('work_us_p99')} us, missed {stats.get('missed_cycles')}, overruns {stats.get('overruns')}")
     goals = []
     raw50 = float(np.percentile(a["raw"], 50)) if len(a["raw"]) else float("nan")
-    budget = 1.5 * raw50 + CYCLE_US
-    for k in ("ReadParameter", "MoveAbsolute"):
+    for k, cycles in (("ReadParameter", 1), ("MoveAbsolute", 2)):
+        budget = 1.5 * raw50 + cycles * CYCLE_US
         p50 = float(np.percentile(a[k], 50)) if len(a[k]) else float("nan")
-        goals.append(goal_line(f"{k}{' (accepted)' if k == 'MoveAbsolute' else ''} p50 / (1.5 x raw p50 + 1 NC cycle)",
-                               p50 / budget, 1.0,
-                               f"p50 {p50:.0f} us vs 1.5 x {raw50:.0f} + {CYCLE_US:.0f} = {budget:.0f} us; "
+        goals.append(goal_line(f"{k}{' (accepted)' if k == 'MoveAbsolute' else ''} p50 / (1.5 x raw p50 + "
+                               f"{cycles} NC cycle{'s' if cycles > 1 else ''})", p50 / budget, 1.0,
+                               f"p50 {p50:.0f} us vs 1.5 x {raw50:.0f} + {cycles * CYCLE_US:.0f} = {budget:.0f} us; "
                                f"p50 / raw p50 {p50 / raw50:.1f}x"))
     print(f"before: {floor0}")
     print(f"after:  {floor1}")
