@@ -92,7 +92,7 @@ from nc_link import NcLink, check_tls
 from nc_link import CONNECT_RETRY, CONNECT_TIMEOUT_MS, DEFAULT_LEASE_MS, client_config  # noqa: F401
 from nc_link.link import BACK, GONE, RESTART
 from nc_schema import (
-    ErrorCodes, Keys, check_client_id, decode_frame, encode_plc_records, frame_period_ms, make_reply,
+    ErrorCodes, Keys, check_client_id, encode_plc_records, frame_period_ms, make_reply,
     parse_reply, parse_view_axes,
 )
 
@@ -104,6 +104,8 @@ log = logging.getLogger(__name__)
 
 #: Replies kept per query until the PLC cycle takes them (the NC sends one).
 REPLY_CHANNEL = 4
+#: The longest wait between cycles taken as a plain sleep [s] (longer ones: on the stop event)
+SLEEP_MAX = 0.05
 #: A reachable NC that sends no view frame for this long [s] is worth a warning (_no_view_yet)
 NO_VIEW_WARNING = 5.0
 
@@ -361,13 +363,6 @@ class PlcRuntime(PlcTask):
                 if nc not in self._frames and link.view_period is not None and nc not in self._nc_down:
                     self._no_view_yet(nc)
                 continue
-            try:
-                h, recs, jobs = decode_frame(sample.payload.to_bytes())
-            except ValueError as exc:
-                if f"bad-frame-{nc}" not in self._warned:
-                    self._warned.add(f"bad-frame-{nc}")
-                    log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
-                continue
             covers = None
             att = sample.attachment if link.view_period is not None else None
             if att is not None:  # a view frame: the axes it was cut for (a malformed list: none of them)
@@ -376,7 +371,12 @@ class PlcRuntime(PlcTask):
                 if last is None or last[0] != raw:
                     last = self._view_attachment[nc] = (raw, parse_view_axes(raw) or frozenset())
                 covers = last[1]
-            self._set_frame(nc, int(h["Cycle"]), recs, jobs, covers)
+            try:  # as its bytes: header and AxisIds by struct, the records sliced (no numpy per frame)
+                self._set_frame_bytes(nc, sample.payload.to_bytes(), covers)
+            except ValueError as exc:
+                if f"bad-frame-{nc}" not in self._warned:
+                    self._warned.add(f"bad-frame-{nc}")
+                    log.error("NC %s: undecodable status frame ignored (%s)", nc, exc)
 
     def _no_view_yet(self, nc: str) -> None:
         """No view frame of a reachable NC yet: after NO_VIEW_WARNING s, say why that may be, once."""
@@ -441,7 +441,11 @@ class PlcRuntime(PlcTask):
                     self.overruns += 1
                     k = math.ceil((now - t0) / self.cycle_time)  # skip, never replay
                     deadline = t0 + k * self.cycle_time
-                self._stop.wait(max(0.0, deadline - time.monotonic()))
+                wait = deadline - time.monotonic()
+                if wait > SLEEP_MAX:
+                    self._stop.wait(wait)  # (a long cycle: stop() ends the wait)
+                elif wait > 0.0:
+                    time.sleep(wait)  # cheaper than Event.wait (0.3 % of a core at 100 Hz); stop() waits for it
         finally:
             self._shutdown()
 
