@@ -38,6 +38,7 @@ BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
+from bench.common import start_nc  # noqa: E402
 from bench.many_clients import AXIS_TOML, PROGRAM  # noqa: E402
 from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
 from znc_testing import free_port, zenoh_client_config  # noqa: E402
@@ -195,13 +196,8 @@ def main() -> int:
     print(f"cmd_latency: NC {probe_axis} axes at 1 ms, {n} plc-run x 4 moving axes, probe on axis {probe_axis}; "
           f"code under test {tree}; logs in {tmp}", flush=True)
     try:
-        nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
-                               "--log-level", "WARNING"], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
-                              text=True, env=env, start_new_session=True, cwd=tree)
+        nc = start_nc(cfg, endpoint, tmp, env, cwd=tree)
         procs.append(nc)
-        line = nc.stdout.readline() if nc.stdout else ""
-        if " ready: " not in line:
-            raise RuntimeError(f"nc-server did not start: {line!r}")
         for k in range(n):
             axes = ",".join(str(4 * k + j + 1) for j in range(4))
             cenv = dict(env, MANY_AXES=axes, MANY_REPORT=str(tmp / f"plc{k}.json"), MANY_STOP=str(tmp / "stop"),

@@ -154,6 +154,24 @@ def pct(xs: Iterable[float], p: float) -> float:
     return s[min(len(s) - 1, int(round(p / 100 * (len(s) - 1))))]
 
 
+def start_nc(cfg: Path, endpoint: str, tmp: Path, env: "dict[str, str] | None" = None, extra: Sequence[str] = (),
+             cwd: "Path | None" = None) -> "subprocess.Popen[Any]":
+    """``nc-server --config cfg --listen endpoint`` (own process group, stderr in ``tmp/nc.err``), started with
+    ``extra`` arguments; returns once it printed its ready line.
+
+    Raises:
+        RuntimeError: it ended or printed something else first (the process is killed; the text has its stderr).
+    """
+    nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
+                           "--log-level", "WARNING", *extra], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
+                          text=True, env=env, start_new_session=True, cwd=cwd)
+    line = nc.stdout.readline() if nc.stdout else ""
+    if " ready: " not in line:
+        kill_group(nc)
+        raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / 'nc.err').read_text()[-2000:]}")
+    return nc
+
+
 def kill_group(proc: "subprocess.Popen[Any]", sig: int = signal.SIGKILL) -> None:
     """Send ``sig`` to ``proc``'s process group (started with ``start_new_session``); gone already: nothing."""
     try:

@@ -84,7 +84,7 @@ BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
 sys.path.insert(0, str(REPO))
 from bench.common import (  # noqa: E402,F401
-    Busy, children, cpu_ticks, elapsed, goal_line, machine_ticks, mark, stop_processes, use_this_tree,
+    Busy, children, cpu_ticks, elapsed, goal_line, machine_ticks, mark, start_nc, stop_processes, use_this_tree,
 )
 
 use_this_tree()
@@ -210,9 +210,7 @@ def run(args: argparse.Namespace) -> int:
         isolate = ["--set", f"nc.cpu_affinity=[{args.isolate_cpu}]"]
         rest = sorted(os.sched_getaffinity(0) - {args.isolate_cpu})
         pin_clients = ["taskset", "-c", ",".join(map(str, rest))]
-    nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
-                           "--log-level", "WARNING", *isolate], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
-                          text=True, env=env, start_new_session=True)
+    nc = start_nc(cfg, endpoint, tmp, env, isolate)
     procs.append(nc)
     observer = None
     stats = None
@@ -220,9 +218,6 @@ def run(args: argparse.Namespace) -> int:
     idle: list[subprocess.Popen[Any]] = []
     result: dict[str, Any] = {}
     try:
-        line = nc.stdout.readline() if nc.stdout else ""
-        if " ready: " not in line:
-            raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / 'nc.err').read_text()[-2000:]}")
         stats = Stats(endpoint)
         stats.wait()
         if args.observer:

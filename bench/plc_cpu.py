@@ -30,6 +30,7 @@ from typing import Any
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
 sys.path.insert(0, str(REPO))
+from bench.common import start_nc  # noqa: E402
 from bench.many_clients import AXIS_TOML, NC_NAME, PROGRAM, cpu_ticks, free_port, machine_ticks  # noqa: E402
 
 IDLE_PROGRAM = "def cycle(plc):\n    pass\n"
@@ -56,13 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"plc_cpu: NC {a.nc_axes} axes at 1 ms; per tree a 4-axis plc-run and an idle one, PLC "
           f"{a.plc_cycle * 1e3:g} ms; window {a.seconds:g} s x {a.rounds}; logs in {tmp}", flush=True)
     try:
-        nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
-                               "--log-level", "WARNING"], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
-                              text=True, env=dict(os.environ, PYTHONPATH=str(REPO)), start_new_session=True)
+        nc = start_nc(cfg, endpoint, tmp, dict(os.environ, PYTHONPATH=str(REPO)))
         procs.append(nc)
-        line = nc.stdout.readline() if nc.stdout else ""
-        if " ready: " not in line:
-            raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / 'nc.err').read_text()[-2000:]}")
         clients: dict[str, subprocess.Popen[Any]] = {}
         for k, (name, tree) in enumerate(trees):
             env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(tree))

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import REPO, Busy, ProcCpu, children, stop_processes, use_this_tree, verdict  # noqa: E402
+from bench.common import REPO, Busy, ProcCpu, children, start_nc, stop_processes, use_this_tree, verdict  # noqa: E402
 
 use_this_tree()
 from bench.many_clients import AXES_PER_CLIENT, AXIS_TOML, NC_NAME, PROGRAM, Stats, free_port  # noqa: E402
@@ -51,16 +51,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"subscribers: NC {n_axes} axes at 1 ms; points {points} plc-run clients x {AXES_PER_CLIENT} powered axes "
           f"(no moves), PLC {args.plc_cycle * 1e3:g} ms; window {args.seconds:g} s per point; code under test {REPO}; "
           f"logs in {tmp}", flush=True)
-    nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
-                           "--log-level", "WARNING"], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
-                          text=True, env=env, start_new_session=True)
+    nc = start_nc(cfg, endpoint, tmp, env)
     clients: list[subprocess.Popen[Any]] = []
     stats = None
     rows: list[dict[str, Any]] = []
     try:
-        line = nc.stdout.readline() if nc.stdout else ""
-        if " ready: " not in line:
-            raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / 'nc.err').read_text()[-2000:]}")
         stats = Stats(endpoint)
         stats.wait()
         for want in points:
