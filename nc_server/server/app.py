@@ -120,9 +120,10 @@ def query_reserve(costs: "collections.deque[int] | list[int]", quantile: float =
 
 def key_class(key: str) -> str:
     """The cost class of a request from its key alone (no parsing): ``read``, ``op`` or ``eng`` (the key's
-    command class); anything else ``?``."""
+    command class); anything else ``?`` (keys are checked later: a flood of odd ones shares one class)."""
     head, _, _ = key.rpartition("/")
-    return head.rpartition("/")[2] or "?"
+    cls = head.rpartition("/")[2]
+    return cls if cls in CLASSES else "?"
 
 
 def key_axis(key: str) -> int | None:
@@ -204,7 +205,7 @@ class NcServer:
         self._query_costs: collections.deque[int] = collections.deque(maxlen=QUERY_COST_WINDOW)  # [ns]
         self._reserve_ns = QUERY_RESERVE_MIN_NS * 4  # until costs are known
         #: per cost class (key_class): the recent costs [ns] and the reserve made of them (none yet: _reserve_ns)
-        # the key classes' costs (and "plan": the core's part of a command in steps; "?": anything else)
+        # the cost classes (key_class's, and "plan": the core's part of a command in steps)
         self._class_costs: dict[str, collections.deque[int]] = {
             c: collections.deque(maxlen=QUERY_COST_WINDOW) for c in (*CLASSES, "plan", "?")}
         self._class_reserve: dict[str, int] = {}
@@ -630,14 +631,12 @@ class NcServer:
 
     def _reserve(self, cls: str) -> int:
         """The time [ns] to keep free for one more request of cost class ``cls`` (:func:`key_class`)."""
-        return self._class_reserve.get(cls if cls in self._class_costs else "?", self._reserve_ns)
+        return self._class_reserve.get(cls, self._reserve_ns)
 
     def _cost(self, cls: str, ns: int) -> None:
         """Record what a request of class ``cls`` took [ns]; its class's reserve follows (:func:`query_reserve`)."""
         self._query_costs.append(ns)
-        costs = self._class_costs.get(cls)
-        if costs is None:  # (keys are checked later: every other class, a flood of odd ones too, shares "?")
-            costs = self._class_costs["?"]
+        costs = self._class_costs[cls]
         costs.append(ns)
         if len(costs) % QUERY_COST_EVERY == 0:
             self._class_reserve[cls] = query_reserve(costs, CLASS_COST_QUANTILE)

@@ -609,3 +609,12 @@ def test_a_move_of_a_client_lost_before_its_activation_is_stopped_by_the_loss_re
     q = server.core.queues[0]
     # the endless move does not go on: it was stopped (a stop job or the axis's error), not left running
     assert q.active is None or q.active.kind.name != "MoveVelocity", q.active
+
+
+def test_odd_key_classes_share_one_cost_class(server: NcServer) -> None:
+    """A flood of requests on made-up classes neither grows the class tables nor takes a real class's reserve."""
+    assert A.key_class("nc/nc1/axis/1/cmd/op/t") == "op" and A.key_class("nc/nc1/cmd/zz/t") == "?"
+    for k in range(A.QUERY_COST_EVERY * 20):
+        server._cost(A.key_class(f"nc/nc1/axis/1/cmd/junk{k}/t"), 1_000_000)
+    assert set(server._class_costs) == {"read", "op", "eng", "plan", "?"}
+    assert set(server._class_reserve) == {"?"}
