@@ -626,16 +626,20 @@ class PlcTask:
         (:meth:`nc_restarted`). ``covers``: the AxisIds a view frame was cut for (its attachment,
         ``nc_schema.parse_view_axes``; None: every axis of the NC, a whole frame). An axis outside them is not
         yet in the view (bound after the view was asked for): no data yet, not 0x4012."""
-        self._covers[nc] = covers
-        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
-        if why is not None:
-            self.nc_restarted(nc, why)
+        self._frame_arrived(nc, cycle, covers)
         ids = records["AxisId"]
         key = ids.tobytes()
         index = self._index_cache.get(nc)
         if index is None or index[0] != key:  # the NC's axes rarely change: keep the AxisId -> row map
             index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
         self._frames[nc] = (int(cycle), records, index[1], jobs)
+
+    def _frame_arrived(self, nc: str, cycle: int, covers: frozenset[int] | None) -> None:
+        """What every frame taken does first: keep the axes it was cut for, and apply the restart rule."""
+        self._covers[nc] = covers
+        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
+        if why is not None:
+            self.nc_restarted(nc, why)
 
     def _set_frame_bytes(self, nc: str, data: bytes, covers: frozenset[int] | None = None) -> None:
         """Take a status frame as received: its bytes (``sample.payload.to_bytes()``), what
@@ -648,10 +652,7 @@ class PlcTask:
         """
         h = frame_header(data)
         cycle, hs, n = h.Cycle, h.HeaderSize, h.AxisCount
-        self._covers[nc] = covers
-        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
-        if why is not None:
-            self.nc_restarted(nc, why)
+        self._frame_arrived(nc, cycle, covers)
         ids = _axis_ids_struct(n).unpack_from(data, hs)
         index = self._index_cache.get(nc)
         if index is None or index[0] != ids:  # the NC's axes rarely change: keep the AxisId -> row map
@@ -674,8 +675,8 @@ class PlcTask:
         return got
 
     def _snapshot_all(self) -> None:
-        """:meth:`_snapshot_one` of every bound axis, the frame of each NC looked up once."""
-        cycle, cycle_time, frames = self.cycle, self.cycle_time, self._frames
+        """:meth:`_snapshot_refs` of every bound axis, the frame of each NC looked up once."""
+        frames = self._frames
         last: str | None = None
         frame: _FrameEntry | None = None
         recs = b""
@@ -690,53 +691,45 @@ class PlcTask:
                 if frame is not None:
                     _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
                     covers = self._covers.get(nc)
-            if frame is None:
-                for ax in refs:
-                    ax._snapshot(None, None, cycle, cycle_time, stale)
-                continue
-            i = frame[2].get(axis_id)
-            if i is None:
-                if covers is None or axis_id in covers:  # the NC has no such axis (0x4012)
-                    for ax in refs:
-                        ax._snapshot(None, frame[0], cycle, cycle_time, stale)
-                else:  # not yet in the view: no data yet
-                    self._not_in_view(refs, stale)
-                continue
-            o = rbase + i * NCTOPLC_SIZE
-            j = jbase + i * NCJOBS_SIZE
-            rec = recs[o:o + NCTOPLC_SIZE]
-            job = None if jobs is None else jobs[j:j + NCJOBS_SIZE]
-            for ax in refs:
-                ax._snapshot(rec, frame[0], cycle, cycle_time, stale, job)
+            self._snapshot_refs(refs, axis_id, frame, recs, rbase, jobs, jbase, covers, stale)
 
-    def _not_in_view(self, refs: list[AXIS_REF], stale: int) -> None:
-        """The snapshot of axes that the view frames of their NC do not cover yet: no data; ``pending`` for at
-        most ``command_timeout`` after their binding (then their blocks report 0x4B0F)."""
-        now = time.monotonic()
+    def _snapshot_refs(self, refs: list[AXIS_REF], axis_id: int, frame: _FrameEntry | None, recs: bytes, rbase: int,
+                       jobs: bytes | None, jbase: int, covers: frozenset[int] | None, stale: int) -> None:
+        """The snapshot of ``refs`` (the AXIS_REFs of ``axis_id``) from their NC's newest ``frame`` (None: none
+        yet) and its bytes (:meth:`_bytes_of`): its record; or no record, as an axis the NC lacks (0x4012) where
+        the frame covers it, as one not yet in the view (``pending`` for at most ``command_timeout`` after its
+        binding, then stale: 0x4B0F) where it does not."""
+        cycle, cycle_time = self.cycle, self.cycle_time
+        if frame is None:
+            for ax in refs:
+                ax._snapshot(None, None, cycle, cycle_time, stale)
+            return
+        i = frame[2].get(axis_id)
+        if i is None:
+            if covers is None or axis_id in covers:  # the NC has no such axis (0x4012)
+                for ax in refs:
+                    ax._snapshot(None, frame[0], cycle, cycle_time, stale)
+                return
+            now = time.monotonic()  # not yet in the view: no data yet
+            for ax in refs:
+                ax._snapshot(None, None, cycle, cycle_time, stale)
+                ax.pending = now < ax._pending_until
+            return
+        o = rbase + i * NCTOPLC_SIZE
+        j = jbase + i * NCJOBS_SIZE
+        rec = recs[o:o + NCTOPLC_SIZE]
+        job = None if jobs is None else jobs[j:j + NCJOBS_SIZE]
         for ax in refs:
-            ax._snapshot(None, None, self.cycle, self.cycle_time, stale)
-            ax.pending = now < ax._pending_until
+            ax._snapshot(rec, frame[0], cycle, cycle_time, stale, job)
 
     def _snapshot_one(self, ax: AXIS_REF) -> None:
         nc = ax.nc
         frame = self._frames.get(nc)
         stale = 0 if nc in self._nc_down else self.stale_cycles  # 0: invalid at once
-        if frame is None:
-            ax._snapshot(None, None, self.cycle, self.cycle_time, stale)
-            return
-        i = frame[2].get(ax.axis_id)
-        if i is None:
-            covers = self._covers.get(nc)
-            if covers is None or ax.axis_id in covers:  # the NC has no such axis (0x4012)
-                ax._snapshot(None, frame[0], self.cycle, self.cycle_time, stale)
-            else:
-                self._not_in_view([ax], stale)
-            return
-        _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
-        o = rbase + i * NCTOPLC_SIZE
-        j = jbase + i * NCJOBS_SIZE
-        ax._snapshot(recs[o:o + NCTOPLC_SIZE], frame[0], self.cycle, self.cycle_time, stale,
-                     None if jobs is None else jobs[j:j + NCJOBS_SIZE])
+        recs, rbase, jobs, jbase = b"", 0, None, 0
+        if frame is not None and ax.axis_id in frame[2]:
+            _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
+        self._snapshot_refs([ax], ax.axis_id, frame, recs, rbase, jobs, jbase, self._covers.get(nc), stale)
 
     def nc_token_gone(self, nc: str) -> None:
         """The liveliness token of NC ``nc`` disappeared (transports that watch it call this).
