@@ -283,17 +283,25 @@ class RequestHandler:
             payload: the msgpack request.
             now: monotonic time [s] (claim bookkeeping).
         """
+        reply = self._request(key, payload, now, prepare=False)
+        assert isinstance(reply, bytes)  # (prepare=False: always the packed reply)
+        return reply
+
+    def _request(self, key: str, payload: bytes, now: float, prepare: bool) -> bytes | PendingReply:
+        """:meth:`handle` or :meth:`prepare`: counted, and a bug answered, never raised."""
         self.requests += 1
         self.durable = False
         try:
-            reply = self._handle(key, payload, now)
-            assert isinstance(reply, bytes)  # (prepare=False: always the packed reply)
+            return self._handle(key, payload, now, prepare=prepare)
         except Exception as exc:  # a bug: answer it, keep cycling
-            self.internal_errors += 1
-            log.exception("internal error handling request on %s", str(key)[:200])
-            reply = pack(make_reply(None, None, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
-                                    cycle=self.core.cycle + 1))
-        return reply
+            return pack(self._internal(None, None, exc, f"handling request on {str(key)[:200]}"))
+
+    def _internal(self, rid: Any, cmd: str | None, exc: Exception, what: str) -> dict[str, Any]:
+        """The reply to a request that met a bug (``exc``, logged with its traceback): NC_INTERNAL."""
+        self.internal_errors += 1
+        log.error("internal error %s", what, exc_info=exc)
+        return make_reply(rid, cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
+                          cycle=self.core.cycle + 1)
 
     def _error(self, rid: Any, cmd: str | None, err: NcError) -> bytes:
         return pack(self._error_reply(rid, cmd, err))
@@ -348,15 +356,7 @@ class RequestHandler:
         (:data:`TWO_PHASE`) is parsed, checked against its key and the reply cache, and returned as a
         :class:`PendingReply` for :meth:`plan` (the core's part) and :meth:`activate`; every other request
         runs now and its packed reply is returned. Never raises."""
-        self.requests += 1
-        self.durable = False
-        try:
-            return self._handle(key, payload, now, prepare=True)
-        except Exception as exc:  # a bug: answer it, keep cycling
-            self.internal_errors += 1
-            log.exception("internal error handling request on %s", str(key)[:200])
-            return pack(make_reply(None, None, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
-                                   cycle=self.core.cycle + 1))
+        return self._request(key, payload, now, prepare=True)
 
     def plan(self, pending: PendingReply) -> bytes | PendingReply:
         """The core's part of a prepared request (``core.prepare``: checks, record and plan from the state the
@@ -365,10 +365,7 @@ class RequestHandler:
         try:
             got = self.core.prepare(pending.req, pending.axis_id)
         except Exception as exc:  # a bug: answer it, keep cycling
-            self.internal_errors += 1
-            log.exception("internal error preparing %s", pending.cmd)
-            got = make_reply(pending.rid, pending.cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
-                             cycle=self.core.cycle + 1)
+            got = self._internal(pending.rid, pending.cmd, exc, f"preparing {pending.cmd}")
         if isinstance(got, dict):
             return self._done(pending, got)
         pending.prepared = got
@@ -382,10 +379,7 @@ class RequestHandler:
         try:
             reply = self.core.activate(pending.prepared)
         except Exception as exc:  # a bug: answer it, keep cycling
-            self.internal_errors += 1
-            log.exception("internal error activating %s", pending.cmd)
-            reply = make_reply(pending.rid, pending.cmd, INTERNAL, f"internal error: {exc.__class__.__name__}: {exc}"[:200],
-                               cycle=self.core.cycle + 1)
+            reply = self._internal(pending.rid, pending.cmd, exc, f"activating {pending.cmd}")
         if reply is None:
             pending.prepared = None
             return None
