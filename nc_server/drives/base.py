@@ -7,11 +7,28 @@ there are. Positions in axis units, velocities in units/s, accelerations in unit
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..core.params import AxisParams
+
+
+@dataclass(frozen=True)
+class DriveContext:
+    """What a backend may need beyond its axes' parameters, given by the NC server when it builds the drives.
+
+    Attributes:
+        nc_name: the NC's name (``[nc] name``; key prefix ``nc/<name>``).
+        options: the backend's own section ``[drives.<backend>]`` of the NC's TOML (bus, channel, ...).
+        zenoh: the NC's session settings (``nc_server.server.config.ZenohSettings``; None in a pure core
+            test), for backends that reach their drives over zenoh.
+    """
+
+    nc_name: str = "nc1"
+    options: Mapping[str, Any] = field(default_factory=dict)
+    zenoh: Any = None
 
 
 class DriveABC(ABC):
@@ -26,8 +43,13 @@ class DriveABC(ABC):
             StateDWord.IoDataInvalid, ErrorPropagationDelayed for 3 cycles, then axis error 0x4655).
         device_error: the drive hardware reports an error (StateDWord.DriveDeviceError; axis error
             0x4650 on an enabled axis; such a drive is not ``ready``).
-        faulty: any axis has invalid I/O data or a device error (a plain bool: the NC's drive monitor
-            does nothing while it is False).
+        faulty: any axis has invalid I/O data, a device error, lost communication or does not follow (a
+            plain bool: the NC's drive monitor does nothing while it is False).
+        following: the drive follows the NC's set-points (CiA 402: Operation enabled). On an enabled axis
+            whose drive does not follow (it stopped itself after a fault, or is still being switched on), the NC
+            runs no ramp: its set-point follows the actual position.
+        comm_error: the drive's communication is lost (heartbeat, lease): axis error 0x4651.
+        error_code: the drive's own error code (CiA 402 0x603F; 0: none), shown in the stats and nc-status.
         simulated: True for simulated drives (OpModeDWord.OpModeSimulationAxis).
     """
 
@@ -42,7 +64,41 @@ class DriveABC(ABC):
         self.ready = np.ones(n, dtype=bool)
         self.io_valid = np.ones(n, dtype=bool)
         self.device_error = np.zeros(n, dtype=bool)
+        self.following = np.ones(n, dtype=bool)
+        self.comm_error = np.zeros(n, dtype=bool)
+        self.error_code = np.zeros(n, dtype=np.uint16)
         self.faulty = False
+
+    @classmethod
+    def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
+                    axis_options: Sequence[Mapping[str, Any]], context: DriveContext) -> DriveABC:
+        """The drives of ``params`` as the NC's TOML configures them.
+
+        Args:
+            params: the axes this backend serves, in order.
+            cycle_time: the NC cycle [s].
+            axis_options: per axis, its ``Drive`` table without ``backend`` (e.g. ``{"node_id": 2}``).
+            context: the backend's ``[drives.<name>]`` options and the NC's name and session settings.
+
+        Raises:
+            ConfigError: an option the backend does not know or a bad value (a start error of the NC).
+            Exception: the hardware cannot be opened (a missing bus or node: a clear start error, not a hang).
+
+        Default: a backend without options (``cls(params, cycle_time)``); any option is a ConfigError.
+        """
+        from ..core.params import ConfigError
+        for i, opts in enumerate(axis_options):
+            if opts:
+                raise ConfigError(f"axis[{i}].Drive", f"the {cls.__name__} backend takes no options, got "
+                                                      f"{', '.join(sorted(opts))}")
+        if context.options:
+            raise ConfigError("drives", f"the {cls.__name__} backend takes no options, got "
+                                        f"{', '.join(sorted(context.options))}")
+        return cls(params, cycle_time)
+
+    def reset(self, rows: np.ndarray) -> None:
+        """MC_Reset of these axes (int array): acknowledge their drive faults (CiA 402: a rising edge of the
+        controlword's fault reset bit). Default: nothing to acknowledge."""
 
     @abstractmethod
     def configure(self, index: int, params: AxisParams) -> None:
