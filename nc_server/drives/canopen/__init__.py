@@ -1,0 +1,1 @@
+"""CiA 402 drives on CANopen (python-canopen over python-can): see .drive."""
