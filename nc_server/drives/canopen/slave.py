@@ -163,6 +163,11 @@ class SimulatedSlaves:
         with self._lock:
             self.device.inject_fault(i, code)
 
+    @property
+    def applied(self) -> RxImage:
+        """The outputs the drives applied at the last SYNC (the RPDOs received before it)."""
+        return self._rx
+
     def nmt_state(self, i: int) -> str:
         return str(self.nodes[i].nmt.state)
 
