@@ -179,6 +179,7 @@ class CanopenLink(ProcessDataLink):
         self._closed = False
         self._lock = threading.Lock()
         self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.1  # the notifier's receive timeout: close() joins within it
         try:
             if can_bus is None:
                 can_bus = can.Bus(interface=bus.interface, channel=bus.channel, bitrate=bus.bitrate)

@@ -115,6 +115,7 @@ class SimulatedSlaves:
         self._operational = np.zeros(n, dtype=bool)
         self._closed = False
         self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.1  # the notifier's receive timeout: close() joins within it
         self.network.connect(interface="virtual", channel=channel)
         self.nodes: list[canopen.LocalNode] = []
         try:
@@ -216,7 +217,10 @@ class SimulatedSlaves:
                                 getattr(rx, f)[j] = v
             rx.cycle = self.syncs
             prev_err = self._tx.error_code
-            tx = self._tx = self.device.step(rx)
+            # a fresh image per step: the device may keep the last one (e.g. for the controlword's edges)
+            tx = self._tx = self.device.step(RxImage(rx.controlword.copy(), rx.mode.copy(),
+                                                     rx.target_position.copy(), rx.target_velocity.copy(),
+                                                     rx.probe_function.copy(), rx.cycle))
             cols: dict[str, list[int]] = {}
             for j in active:
                 for t in self._tpdos[j]:
