@@ -59,16 +59,18 @@ def rpdo_layout(csv: bool) -> dict[int, tuple[Entry, ...]]:
 TPDO_LAYOUT: dict[int, tuple[Entry, ...]] = {1: TPDO1, 2: TPDO2, 3: TPDO3}
 
 
-def struct_for(types: Sequence[int]) -> struct.Struct:
+def struct_for(types: Sequence[int | None]) -> struct.Struct:
     """The little-endian struct packing objects of these CANopen data types in a row (byte aligned).
 
     Raises:
         ValueError: a data type a PDO of the NC cannot carry.
     """
-    try:
-        return struct.Struct("<" + "".join(_FMT[t] for t in types))
-    except KeyError as e:
-        raise ValueError(f"data type 0x{e.args[0]:04X} cannot be mapped by the NC") from None
+    fmt = "<"
+    for t in types:
+        if t not in _FMT:
+            raise ValueError(f"data type {t!r} cannot be mapped by the NC")
+        fmt += _FMT[t]
+    return struct.Struct(fmt)
 
 
 def frame_bits(dlc: int) -> int:

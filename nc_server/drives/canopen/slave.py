@@ -60,6 +60,13 @@ _RANGES = {"b": (-(1 << 7), (1 << 7) - 1), "B": (0, (1 << 8) - 1), "h": (-(1 << 
            "H": (0, (1 << 16) - 1), "i": (-(1 << 31), (1 << 31) - 1), "I": (0, (1 << 32) - 1)}
 
 
+def _read(node: canopen.LocalNode, index: int) -> int:
+    """A VAR object of a local node's dictionary (its data store, else the EDS default)."""
+    var = node.object_dictionary[index]
+    assert isinstance(var, canopen.objectdictionary.ODVariable)
+    return int(var.decode_raw(node.get_data(index, 0)))
+
+
 class _Rpdo:
     def __init__(self, m: PdoMap) -> None:
         self.map = m
@@ -125,7 +132,7 @@ class SimulatedSlaves:
                 node.add_read_callback(self._reader(j))
                 node.add_write_callback(self._writer(j))
                 self.nodes.append(node)
-                self._rx.mode[j] = int(node.sdo[obj.MODES_OF_OPERATION].raw)
+                self._rx.mode[j] = _read(node, obj.MODES_OF_OPERATION)
             self.network.subscribe(_NMT, self._on_nmt)
             self.network.subscribe(_SYNC, self._on_sync)
             for node in self.nodes:  # power on: boot-up message, pre-operational
@@ -157,7 +164,7 @@ class SimulatedSlaves:
             self._silent[i] = False
             self.network.subscribe(node.sdo.rx_cobid, node.sdo.on_request)
             self.network.subscribe(_NMT, node.nmt.on_command)
-            node.nmt.start_heartbeat(int(node.sdo[0x1017].raw))
+            node.nmt.start_heartbeat(_read(node, 0x1017))
 
     def inject_fault(self, i: int, code: int) -> None:
         """Drive ``i`` (row) faults with 0x603F = ``code`` (its TPDOs and an EMCY show it at the next SYNC)."""
@@ -195,8 +202,8 @@ class SimulatedSlaves:
                     try:
                         node.rpdo.read()
                         node.tpdo.read()
-                        self._rpdos[j] = [_Rpdo(m) for m in node.rpdo.map.values() if m.enabled and m.map]
-                        self._tpdos[j] = [_Tpdo(m) for m in node.tpdo.map.values() if m.enabled and m.map]
+                        self._rpdos[j] = [_Rpdo(m) for m in node.rpdo.values() if m.enabled and m.map]
+                        self._tpdos[j] = [_Tpdo(m) for m in node.tpdo.values() if m.enabled and m.map]
                     except Exception as e:  # a mapping the simulation cannot serve: no PDOs (the NC sees age)
                         log.error("simulated node %d: PDO mapping: %s", node.id, e)
                         self._rpdos[j], self._tpdos[j] = [], []
@@ -241,7 +248,7 @@ class SimulatedSlaves:
                     t.last = payload
                     t.map.data = bytearray(payload)
                     t.map.transmit()
-            changed = np.flatnonzero(tx.error_code != prev_err)
+            changed = np.flatnonzero(tx.error_code != prev_err).tolist()
             for j in changed:
                 if not self._silent[j]:
                     code = int(tx.error_code[j])
