@@ -170,6 +170,9 @@ class CanopenLink(ProcessDataLink):
         self.period = interpolation_period(cycle_time)
         self.tx_errors = 0
         self.syncs = 0
+        #: a list to collect SYNC -> TPDO arrival delays [s] in (the bench sets it; None: not collected)
+        self.timing: list[float] | None = None
+        self._sync_t = 0.0
         #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
         self._stamp = {k: np.full(self.n, -1, dtype=np.int64) for k in pdo.TPDO_LAYOUT}
         self._hb_time = np.full(self.n, -math.inf)
@@ -270,6 +273,8 @@ class CanopenLink(ProcessDataLink):
     def _on_tpdo(self, stamp: np.ndarray, j: int) -> Any:
         def cb(_m: PdoMap) -> None:
             stamp[j] = self.syncs
+            if self.timing is not None:
+                self.timing.append(time.perf_counter() - self._sync_t)
         return cb
 
     def _on_heartbeat(self, j: int) -> Any:
@@ -331,6 +336,7 @@ class CanopenLink(ProcessDataLink):
                     m2.transmit()
                     node.last_rpdo2 = payload
             self.syncs += 1  # before the SYNC: a TPDO answering it is stamped with the new count
+            self._sync_t = time.perf_counter()
             self.network.sync.transmit()
         except can.CanError as e:
             self.tx_errors += 1
