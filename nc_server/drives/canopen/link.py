@@ -16,6 +16,9 @@ cycle k+1. So the actual values lag the targets by one NC cycle, as on any SYNC-
 
 Age: the link counts its SYNCs; a TPDO arriving after SYNC s was sent is stamped s. In cycle k (s = k SYNCs
 sent so far) a node whose cyclic TPDOs all answer the previous SYNC has age 0; each SYNC they missed adds 1.
+Where the bus stamps frames with the wall clock (virtual, socketcan: checked at start), a TPDO the notifier
+thread handles late is dated by its own timestamp (a frame sent before SYNC s answers an older one), so a
+receive thread that runs behind shows as age, not as fresh data.
 
 Decisions:
 
@@ -57,6 +60,7 @@ log = logging.getLogger(__name__)
 SIM_EDS = os.path.join(os.path.dirname(__file__), "cia402_sim.eds")
 NMT_OPERATIONAL = 5
 _DEVICE_TYPE = 0x1000
+_RING = 64
 _HEARTBEAT_TIME = 0x1017
 
 
@@ -173,6 +177,10 @@ class CanopenLink(ProcessDataLink):
         #: a list to collect SYNC -> TPDO arrival delays [s] in (the bench sets it; None: not collected)
         self.timing: list[float] | None = None
         self._sync_t = 0.0
+        #: wall-clock send time of the last SYNCs (SYNC s at [s % _RING]), to date late-handled TPDOs
+        self._sync_wall = np.zeros(_RING)
+        #: the bus stamps frames with time.time() (virtual, socketcan): checked on the first TPDOs at start
+        self._wall_clock_stamps = False
         #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
         self._stamp = {k: np.full(self.n, -1, dtype=np.int64) for k in pdo.TPDO_LAYOUT}
         self._hb_time = np.full(self.n, -math.inf)
@@ -230,10 +238,13 @@ class CanopenLink(ProcessDataLink):
                 m.add_callback(self._on_tpdo(self._stamp[k], j))
             node.remote.nmt.state = "OPERATIONAL"
         self._wait(lambda: self._hb_state == NMT_OPERATIONAL, "no operational heartbeat", where)
+        self._sync_wall[0] = time.time()
         self.syncs = 1
         self.network.sync.transmit()
         self._wait(lambda: np.minimum(self._stamp[1], self._stamp[2]) >= 1, "no TPDO answered the first SYNC",
                    where)
+        ts = self.nodes[0].tpdo[1].timestamp
+        self._wall_clock_stamps = ts is not None and abs(ts - time.time()) < 1.0
 
     def _configure(self, node: _Node) -> None:
         r, nid = node.remote, node.cfg.node_id
@@ -271,8 +282,15 @@ class CanopenLink(ProcessDataLink):
     # -- notifier thread callbacks (they only store) -----------------------------------------------------
 
     def _on_tpdo(self, stamp: np.ndarray, j: int) -> Any:
-        def cb(_m: PdoMap) -> None:
-            stamp[j] = self.syncs
+        def cb(m: PdoMap) -> None:
+            s = self.syncs
+            ts = m.timestamp
+            if self._wall_clock_stamps and ts is not None:
+                # a frame sent before SYNC s (we got to it late: this thread ran behind) answers an older SYNC
+                wall = self._sync_wall
+                while s > 1 and self.syncs - s < _RING - 1 and ts < wall[(s - 1) % _RING]:
+                    s -= 1
+            stamp[j] = s
             if self.timing is not None:
                 self.timing.append(time.perf_counter() - self._sync_t)
         return cb
@@ -335,6 +353,7 @@ class CanopenLink(ProcessDataLink):
                     m2.data[:] = payload
                     m2.transmit()
                     node.last_rpdo2 = payload
+            self._sync_wall[self.syncs % _RING] = time.time()
             self.syncs += 1  # before the SYNC: a TPDO answering it is stamped with the new count
             self._sync_t = time.perf_counter()
             self.network.sync.transmit()

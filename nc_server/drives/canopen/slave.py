@@ -21,7 +21,9 @@ Test hooks: :meth:`SimulatedSlaves.silence` (a node stops answering: no PDOs, no
 
 Decisions: the slaves are clocked by the SYNC (their time stands while no SYNC comes); the device is stepped
 for every row, also for a silenced or non-operational node (the drive runs on; only its communication is
-gone). python-can's virtual bus works inside one process only, so the slaves run in the NC's process
+gone). A SYNC older than one cycle when the slaves' notifier thread gets to it, with the master's next frames
+already waiting behind it (the thread ran behind: the GIL, a loaded machine), is dropped: not stepped, not answered, so the NC counts the missing TPDOs (their age) instead
+of the simulation running ever further behind the NC's cycle. python-can's virtual bus works inside one process only, so the slaves run in the NC's process
 (``simulate_slaves = true``) or in a test process, and share the GIL with the NC cycle (bench/canopen_cycle.py
 measures it).
 
@@ -110,7 +112,10 @@ class SimulatedSlaves:
                 device.configure(i, p)
         self.device = device
         self.node_ids = list(node_ids)
+        self.cycle_time = float(cycle_time)
         self.syncs = 0
+        #: SYNCs older than a cycle when the notifier got to them (the slaves ran behind): dropped, not answered
+        self.dropped_syncs = 0
         #: CPU seconds of the SYNC handler (all of it: RPDOs, device step, TPDOs; the notifier thread's CPU time,
         #: not wall time), for the bench
         self.busy_s = 0.0
@@ -210,7 +215,15 @@ class SimulatedSlaves:
                         self._rpdos[j], self._tpdos[j] = [], []
                 self._operational[j] = op
 
+    def _backlog(self) -> bool:
+        """Frames wait in this bus instance's receive queue (python-can's virtual bus)."""
+        q = getattr(self.network.bus, "queue", None)
+        return q is not None and q.qsize() > 0
+
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if time.time() - timestamp > self.cycle_time and self._backlog():  # the master's next cycle is queued
+            self.dropped_syncs += 1
+            return
         t0 = time.thread_time()
         with self._lock:
             self.syncs += 1
