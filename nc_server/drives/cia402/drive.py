@@ -160,7 +160,7 @@ class Cia402Drive(DriveABC):
         fault_state = (state == _FRA) | (state == _FLT)
         dropped = self._dropped
         if dropped.any() or np.count_nonzero(self.following & ~following):
-            dropped = want & ~following & (dropped | self.following)
+            dropped = want & alive & ~following & (dropped | self.following)  # (silent: unknown, 0x4651)
             self._dropped = dropped
         self.following = following
         self.device_error = fault_state | dropped
