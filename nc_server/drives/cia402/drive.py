@@ -182,6 +182,10 @@ class Cia402Drive(DriveABC):
             m.fields[2] = (act - shown) * m.inv_dt
             m.fields[1] = act
 
+    def encoder_count(self, index: int) -> float:
+        """The hardware counter of axis ``index``'s encoder as the NC's chain reads it: increments & mask [inc]."""
+        return self.encoder.hardware_count(index, float(self.act_pos[index]))
+
     # -- torque, homing -------------------------------------------------------------------------------------
 
     def set_torque_offset(self, values: np.ndarray) -> None:
