@@ -83,6 +83,10 @@ class Cia402Drive(DriveABC):
         self._dropped = np.zeros(n, dtype=bool)
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
+        self._no_probe = np.zeros(n, dtype=bool)
+        self._probe_new_any = False
+        self._any_dropped = False
+        self._any_reset = False
         self._cycle = 0
         self.following = np.zeros(n, dtype=bool)
         self.tx = TxImage.zeros(n)
@@ -104,7 +108,9 @@ class Cia402Drive(DriveABC):
         """A fault reset edge for these axes (MC_Reset)."""
         rows = np.asarray(rows, dtype=np.intp)
         self._reset_left[rows] = self.max_age + 4
+        self._any_reset = True
         self._dropped[rows] = False
+        self._any_dropped = bool(self._dropped.any())
 
     # -- the cycle ------------------------------------------------------------------------------------------
 
@@ -118,15 +124,14 @@ class Cia402Drive(DriveABC):
         self._torque(set_velo, set_acc)
 
     def _exchange(self, want: np.ndarray, target: np.ndarray | None, target_velo: np.ndarray) -> None:
-        en = want
-        if self._dropped.any():  # a drive that dropped out is not enabled again before a fault reset
-            en = en & ~self._dropped
-        if self._reset_left.any():
-            requested = self._reset_left > 0
-            cw = sm.nc_controlword(self.state, en, requested, self.controlword)
+        up = want
+        if self._any_dropped:  # a drive that dropped out is not enabled again before a fault reset
+            up = want & ~self._dropped
+        if self._any_reset:
+            cw = sm.nc_controlword(self.state, up, self._reset_left > 0, self.controlword)
             self._reset_left = np.maximum(self._reset_left - 1, 0)
         else:
-            cw = sm.nc_controlword(self.state, en)
+            cw = sm.nc_controlword(self.state, up)
         self._cycle += 1
         rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
                      self._cycle)
@@ -135,43 +140,59 @@ class Cia402Drive(DriveABC):
         self.tx = tx
         state = sm.decode(tx.statusword)
         self.state = state
-        follows = state == _OE
-        alive = tx.alive
+        following = state == _OE
         c = self.encoder
-        valid = tx.age <= self.max_age
-        all_valid = bool(valid.all())
         new_pos = c.sign * (tx.position_actual + c.base) * c.scaling + c.offset
         new_velo = tx.velocity_actual * c.scaling * c.sign
-        if not all_valid:  # stale inputs: the last valid values stay
-            new_pos = np.where(valid, new_pos, self.act_pos)
-            new_velo = np.where(valid, new_velo, self.act_velo)
         new_acc = (new_velo - self.act_velo) / self.cycle_time
-        if not all_valid:
-            new_acc = np.where(valid, new_acc, self.act_acc)
-        self._pos_inc = np.where(valid, tx.position_actual, self._pos_inc) if not all_valid else tx.position_actual
-        self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
-        self.io_valid = valid
-        if alive.all():
-            following = follows
-            self.comm_error = np.zeros(len(follows), dtype=bool)
-        else:
-            following = follows & alive
+        n = len(state)
+        degraded = np.count_nonzero(tx.age > self.max_age) or np.count_nonzero(tx.alive) < n
+        if degraded or self.faulty:  # (the steady state skips all of this)
+            valid = tx.age <= self.max_age
+            alive = tx.alive
+            if not valid.all():  # stale inputs: the last valid values stay
+                new_pos = np.where(valid, new_pos, self.act_pos)
+                new_velo = np.where(valid, new_velo, self.act_velo)
+                new_acc = np.where(valid, new_acc, self.act_acc)
+                self._pos_inc = np.where(valid, tx.position_actual, self._pos_inc)
+            else:
+                self._pos_inc = tx.position_actual
+            following = following & alive
+            fault_state = state >= _FRA
+            dropped = self._dropped
+            if self._any_dropped or np.count_nonzero(self.following & ~following):
+                dropped = want & alive & ~following & (dropped | self.following)  # (silent: unknown, 0x4651)
+                self._dropped = dropped
+                self._any_dropped = bool(dropped.any())
+            self.io_valid = valid
             self.comm_error = ~alive
-        fault_state = (state == _FRA) | (state == _FLT)
-        dropped = self._dropped
-        if dropped.any() or np.count_nonzero(self.following & ~following):
-            dropped = want & alive & ~following & (dropped | self.following)  # (silent: unknown, 0x4651)
-            self._dropped = dropped
+            self.device_error = fault_state | dropped
+            self.ready = ~fault_state & alive & (~want | following)
+            self.faulty = bool(degraded or self.device_error.any() or np.count_nonzero(want & ~following))
+        else:
+            self._pos_inc = tx.position_actual
+            if np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
+                    or np.count_nonzero(want & ~following):  # a change (then the full evaluation while faulty)
+                fault_state = state >= _FRA
+                dropped = want & ~following & self.following
+                self._dropped = dropped
+                self._any_dropped = bool(dropped.any())
+                self.device_error = fault_state | dropped
+                self.ready = ~fault_state & (~want | following)
+                self.faulty = bool(self.device_error.any() or np.count_nonzero(want & ~following))
         self.following = following
-        self.device_error = fault_state | dropped
-        self.ready = ~fault_state & alive & (~want | following)
+        self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
         self.error_code = tx.error_code
-        self.faulty = bool(not all_valid or self.device_error.any() or not alive.all()
-                           or np.count_nonzero(want & ~following))
-        if self._reset_left.any():
-            self._reset_left = np.where(fault_state, self._reset_left, 0)
-        self._probe_new = ((tx.probe_status ^ self._last_probe_status) & PROBE_STATUS_TOGGLE) != 0
-        self._last_probe_status = tx.probe_status
+        if self._any_reset:
+            self._reset_left = np.where(state == _FLT, self._reset_left, 0)
+            self._any_reset = bool(self._reset_left.any())
+        ps = tx.probe_status
+        if ps is not self._last_probe_status:
+            self._probe_new = ((ps ^ self._last_probe_status) & PROBE_STATUS_TOGGLE) != 0
+            self._last_probe_status = ps
+        elif self._probe_new_any:
+            self._probe_new = self._no_probe
+        self._probe_new_any = bool(self._probe_new.any())
 
     def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         m = self.mechanics
