@@ -256,3 +256,44 @@ def test_homing_latches_the_index_pulse_through_the_drives_probe() -> None:
     assert latched == [pytest.approx(-9.75)]  # the first index pulse off the cam, exactly
     assert core.nctoplc[0]["StateDWord"] & int(StateDWord.Homed)
     assert _err(core) == 0
+
+
+def test_csv_axes_reach_their_targets_through_the_ncs_position_loop() -> None:
+    p = [AxisParams(), AxisParams()]
+    from nc_server.drives.cia402.objects import Mode
+    drive = Cia402SimDrive(p, DT, mode=[Mode.CSV, Mode.CSP], kv=[100.0, 100.0])
+    core = _core(2, drive=drive)
+    power(core, 0)
+    power(core, 1)
+    core.step()
+    assert list(drive.device.rx.mode) == [9, 8]
+    for axis in (1, 2):
+        assert cmd(core, "MoveAbsolute", axis=axis, Position=50.0, Velocity=200.0)["error"] == 0
+    lag, lag_csp = [], []
+    for _ in range(3000):
+        core.step()
+        lag.append(abs(float(core.nctoplc[0]["PosDiff"])))
+        lag_csp.append(abs(float(core.nctoplc[1]["PosDiff"])))
+    assert core.nctoplc[0]["ActPos"] == pytest.approx(50.0, abs=1e-6)
+    assert core.nctoplc[1]["ActPos"] == pytest.approx(50.0, abs=1e-6)
+    # the loop follows the profile within two cycles of motion (CSP: the drive's lag of SimTimeConstant, less)
+    assert max(lag_csp) < max(lag) <= 200.0 * 2 * DT and _err(core, 0) == 0
+
+
+def test_from_config_options_and_their_errors() -> None:
+    from nc_server.core.params import ConfigError
+    from nc_server.drives.base import DriveContext
+    p = [AxisParams(), AxisParams()]
+    d = Cia402SimDrive.from_config(p, DT, [{"mode": "csv", "kv": 50}, {}], DriveContext(options={"max_age": 5}))
+    assert list(d._mode) == [9, 8] and list(d._kv) == [50.0, 100.0] and d.max_age == 5
+    for opts, ctx, key in [
+        ([{"mode": "pp"}, {}], {}, "axis[0].Drive.mode"),
+        ([{}, {"kv": 0}], {}, "axis[1].Drive.kv"),
+        ([{}, {"kv": "fast"}], {}, "axis[1].Drive.kv"),
+        ([{"node_id": 3}, {}], {}, "axis[0].Drive"),
+        ([{}, {}], {"max_age": -1}, "drives.cia402-sim.max_age"),
+        ([{}, {}], {"bus": "x"}, "drives.cia402-sim"),
+    ]:
+        with pytest.raises(ConfigError) as e:
+            Cia402SimDrive.from_config(p, DT, opts, DriveContext(options=ctx))
+        assert key in str(e.value), (opts, ctx, str(e.value))

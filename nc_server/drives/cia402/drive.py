@@ -33,16 +33,24 @@ Decisions:
   behaviour (its parameters, cam, directions, the NC's position set) on every backend and the drive stays in
   CSP. The probe is armed all the time (a drive latches in hardware at no cost to the NC); ``latch_sync_pulse``
   reports a latch that arrived in the cycle just stepped.
+* Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
+  drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
+  0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
+* The drive's own error code (0x603F, ``error_code``) is shown in the NC's stats (``drive_errors``) and by
+  nc-status next to the axis error, not in NCTOPLC: none of the 256 bytes fits (ErrorCode is the NC's axis
+  error, 0x4650/0x4651/0x4655 for drive errors, which PLC programs compare; the rest are TwinCAT's fields).
+* Disabling the controller sends Shutdown: the drive goes to Ready to switch on (no torque; its brake holds);
+  enabling from there is one cycle (0x000F: transitions 3 + 4).
 
 It may import: numpy, nc_server.core.params, nc_server.drives.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ...core.params import AxisParams
+from ...core.params import AxisParams, ConfigError
 from ..base import DriveABC
 from ..encoder import EncoderChain
 from ..mechanics import Mechanics
@@ -52,6 +60,41 @@ from .image import ProcessDataLink, RxImage, TxImage
 from .objects import Mode, State
 
 _OE, _FRA, _FLT = int(State.OPERATION_ENABLED), int(State.FAULT_REACTION_ACTIVE), int(State.FAULT)
+#: the NC's position loop gain in CSV [1/s] unless an axis sets ``kv``
+DEFAULT_KV = 100.0
+
+
+def axis_options(opts: Mapping[str, Any], where: str) -> tuple[Mode, float, dict[str, Any]]:
+    """The CiA 402 options of one axis's ``Drive`` table: ``mode`` ("csp" or "csv", default "csp") and ``kv``
+    (CSV's position loop gain [1/s], default :data:`DEFAULT_KV`); returns (mode, kv, the other options) for the
+    backend to judge.
+
+    Raises:
+        ConfigError: a bad ``mode`` or ``kv`` (``where``: the key path, e.g. ``axis[0].Drive``).
+    """
+    rest = dict(opts)
+    raw = rest.pop("mode", "csp")
+    mode = {"csp": Mode.CSP, "csv": Mode.CSV}.get(str(raw).lower()) if isinstance(raw, str) else None
+    if mode is None:
+        raise ConfigError(f"{where}.mode", f"must be \"csp\" or \"csv\", got {raw!r}")
+    kv = rest.pop("kv", DEFAULT_KV)
+    if isinstance(kv, bool) or not isinstance(kv, (int, float)) or not (np.isfinite(kv) and kv > 0):
+        raise ConfigError(f"{where}.kv", f"must be a number > 0 [1/s], got {kv!r}")
+    return mode, float(kv), rest
+
+
+def link_options(opts: Mapping[str, Any], where: str = "drives") -> tuple[int, dict[str, Any]]:
+    """``max_age`` (inputs older than this many NC cycles are invalid I/O data; default 3) of a backend's
+    ``[drives.<name>]`` table; returns (max_age, the other options).
+
+    Raises:
+        ConfigError: ``max_age`` not an integer >= 0.
+    """
+    rest = dict(opts)
+    max_age = rest.pop("max_age", 3)
+    if isinstance(max_age, bool) or not isinstance(max_age, int) or max_age < 0:
+        raise ConfigError(f"{where}.max_age", f"must be an integer >= 0 [NC cycles], got {max_age!r}")
+    return max_age, rest
 
 
 class Cia402Drive(DriveABC):
@@ -67,9 +110,34 @@ class Cia402Drive(DriveABC):
     """
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: ProcessDataLink, *,
-                 simulated: bool = False, max_age: int = 3, mode: Mode = Mode.CSP) -> None:
+                 simulated: bool = False, max_age: int = 3, mode: Mode | Sequence[Mode] = Mode.CSP,
+                 kv: float | Sequence[float] = DEFAULT_KV) -> None:
+        """
+        Args:
+            params: the axes' parameters (the encoder chain, the torque model).
+            cycle_time: the NC cycle [s].
+            link: the process data link of these axes (one column per axis, in order).
+            simulated: OpModeDWord.OpModeSimulationAxis.
+            max_age: inputs older than this [NC cycles] are invalid I/O data (0x4655 three cycles later).
+            mode: per axis (or for all) CSP (the default) or CSV.
+            kv: per axis (or for all) the NC's position loop gain in CSV [1/s] (target velocity = SetVelo +
+                kv * (SetPos - ActPos)); unused in CSP, where the drive closes the position loop.
+
+        Raises:
+            ValueError: a mode other than CSP/CSV, kv <= 0, max_age < 0.
+        """
         super().__init__(params, cycle_time)
         n = len(params)
+        modes = [mode] * n if isinstance(mode, (int, Mode)) else list(mode)
+        kvs = [kv] * n if isinstance(kv, (int, float)) else list(kv)
+        if len(modes) != n or len(kvs) != n:
+            raise ValueError(f"mode and kv need one value per axis ({n})")
+        if any(int(m) not in (Mode.CSP, Mode.CSV) for m in modes):
+            raise ValueError(f"mode must be CSP (8) or CSV (9), got {modes}")
+        if not all(float(k) > 0 and np.isfinite(float(k)) for k in kvs):
+            raise ValueError(f"kv must be > 0 [1/s], got {kvs}")
+        if int(max_age) < 0:
+            raise ValueError(f"max_age must be >= 0 cycles, got {max_age}")
         self.simulated = simulated
         self.link = link
         self.max_age = int(max_age)
@@ -77,7 +145,10 @@ class Cia402Drive(DriveABC):
         self.mechanics = Mechanics(n, cycle_time)
         self.state = np.full(n, int(State.NOT_READY_TO_SWITCH_ON), dtype=np.int8)
         self.controlword = np.zeros(n, dtype=np.uint16)
-        self._mode = np.full(n, int(mode), dtype=np.int8)
+        self._mode = np.array([int(m) for m in modes], dtype=np.int8)
+        self._csv = self._mode == int(Mode.CSV)
+        self._any_csv = bool(self._csv.any())
+        self._kv = np.array([float(k) for k in kvs])
         self._probe_fn = np.full(n, PROBE_SYNC_PULSE, dtype=np.uint16)
         self._reset_left = np.zeros(n, dtype=np.int64)
         self._dropped = np.zeros(n, dtype=bool)
@@ -120,7 +191,10 @@ class Cia402Drive(DriveABC):
         target = (set_pos - c.offset) / c.scaling * c.sign - c.base
         if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
             target = np.where(self.following, target, self._pos_inc)
-        self._exchange(en, target, set_velo / c.scaling * c.sign)
+        velo = set_velo / c.scaling * c.sign
+        if self._any_csv:  # the NC closes the position loop: feed forward + kv * the position error [inc/s]
+            velo = np.where(self._csv & self.following, velo + self._kv * (target - self._pos_inc), velo)
+        self._exchange(en, target, velo)
         self._torque(set_velo, set_acc)
 
     def _exchange(self, want: np.ndarray, target: np.ndarray | None, target_velo: np.ndarray) -> None:

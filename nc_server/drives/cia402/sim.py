@@ -19,14 +19,17 @@ It may import: numpy, nc_server.core.params, nc_server.drives.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ...core.params import AxisParams
+from ...core.params import AxisParams, ConfigError
+from ..base import DriveContext
 from .device import HARDWARE_ERROR_CODE, Cia402Device
-from .drive import Cia402Drive
+from .drive import DEFAULT_KV, Cia402Drive, link_options
+from .drive import axis_options as axis_options_of
 from .image import ProcessDataLink, RxImage, TxImage
+from .objects import Mode
 
 
 class LocalLink(ProcessDataLink):
@@ -84,11 +87,35 @@ class Cia402SimDrive(Cia402Drive):
         device: the simulated drives behind the link.
     """
 
-    def __init__(self, params: Sequence[AxisParams], cycle_time: float) -> None:
+    def __init__(self, params: Sequence[AxisParams], cycle_time: float, *, mode: Mode | Sequence[Mode] = Mode.CSP,
+                 kv: float | Sequence[float] = DEFAULT_KV, max_age: int = 3) -> None:
         self.device = Cia402Device(len(params), cycle_time)  # (configured by Cia402Drive.__init__)
         self._local = LocalLink(self.device)
-        super().__init__(params, cycle_time, self._local, simulated=True)
+        super().__init__(params, cycle_time, self._local, simulated=True, mode=mode, kv=kv, max_age=max_age)
         self._local.invalid_age = self.max_age + 1
+
+    @classmethod
+    def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
+                    axis_options: Sequence[Mapping[str, Any]], context: DriveContext) -> Cia402SimDrive:
+        """Per axis ``mode`` ("csp"/"csv") and ``kv`` (:func:`.drive.axis_options`); ``[drives.cia402-sim]``
+        ``max_age`` (:func:`.drive.link_options`).
+
+        Raises:
+            ConfigError: an unknown option or a bad value.
+        """
+        modes, kvs = [], []
+        for i, opts in enumerate(axis_options):
+            mode, kv, rest = axis_options_of(opts, f"axis[{i}].Drive")
+            if rest:
+                raise ConfigError(f"axis[{i}].Drive", f"the cia402-sim backend takes mode and kv, got "
+                                                      f"{', '.join(sorted(rest))}")
+            modes.append(mode)
+            kvs.append(kv)
+        max_age, rest = link_options(context.options, "drives.cia402-sim")
+        if rest:
+            raise ConfigError("drives.cia402-sim", f"the cia402-sim backend takes max_age, got {', '.join(sorted(rest))}")
+        n = len(params)
+        return cls(params, cycle_time, mode=modes or [Mode.CSP] * n, kv=kvs or [DEFAULT_KV] * n, max_age=max_age)
 
     def configure(self, index: int, params: AxisParams) -> None:
         super().configure(index, params)
