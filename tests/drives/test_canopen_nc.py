@@ -200,7 +200,8 @@ def test_a_missing_node_at_start_is_a_bounded_error() -> None:
     ({"node_id": 2}, {"sdo_timeout": -1}, "drives.canopen.sdo_timeout", "positive"),
     ({"node_id": 2}, {"heartbeat_period": 0.2, "heartbeat_timeout": 0.1}, "drives.canopen.heartbeat_timeout",
      "longer"),
-    ({"node_id": 2}, {"max_age": 0}, "drives.canopen.max_age", "integer >= 1"),
+    ({"node_id": 2}, {"max_age": -1}, "drives.canopen.max_age", "integer >= 0"),
+    ({"node_id": 2, "mode": "csv", "kv": 0}, {}, "axis[0].Drive.kv", "> 0"),
     ({"node_id": 2}, {"channel": ""}, "drives.canopen.channel", "non-empty"),
 ])
 def test_bad_options_are_config_errors(axis: dict[str, Any], options: dict[str, Any], key: str, text: str) -> None:

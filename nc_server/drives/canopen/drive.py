@@ -18,8 +18,9 @@ Configured in the NC's TOML (the ``Drive`` table of each axis and the backend's 
     AxisEncoderScalingFactor = 0.0001   # [mm/inc]: positions travel as INT32 increments
     Drive = { backend = "canopen", node_id = 2, mode = "csp", eds = "drives/servo.eds" }
 
-Per axis: ``node_id`` (required, 1..127, unique), ``mode`` ("csp", default, or "csv"), ``eds`` (the drive's
-EDS file; default the simulated drive's ``cia402_sim.eds``). A bad or unknown key is a
+Per axis: ``node_id`` (required, 1..127, unique), ``mode`` ("csp", default, or "csv"), ``kv`` (CSV: the NC's
+position loop gain [1/s]), ``eds`` (the drive's EDS file; default the simulated drive's ``cia402_sim.eds``; a
+relative path is taken from the working directory). A bad or unknown key is a
 :class:`~nc_server.core.params.ConfigError`; a missing bus or node a :class:`.link.CanopenStartError` (bounded by
 the SDO timeouts and ``start_timeout``).
 
@@ -34,7 +35,7 @@ from typing import Any, Mapping, Sequence
 
 from ...core.params import AxisParams, ConfigError
 from ..base import DriveABC, DriveContext
-from ..cia402.drive import Cia402Drive
+from ..cia402.drive import DEFAULT_KV, Cia402Drive, axis_options, link_options
 from ..cia402.objects import Mode
 from . import pdo
 from .link import BusConfig, CanopenLink, NodeConfig, interpolation_period
@@ -42,10 +43,9 @@ from .slave import SimulatedSlaves
 
 log = logging.getLogger(__name__)
 
-_MODES = {"csp": Mode.CSP, "csv": Mode.CSV}
-_AXIS_KEYS = {"node_id", "mode", "eds"}
+_AXIS_KEYS = {"node_id", "eds"}
 _BUS_KEYS = {"interface", "channel", "bitrate", "simulate_slaves", "sdo_timeout", "heartbeat_period",
-             "heartbeat_timeout", "start_timeout", "max_age"}
+             "heartbeat_timeout", "start_timeout"}
 _SECTION = "drives.canopen"
 
 
@@ -63,15 +63,9 @@ class CanopenDrive(Cia402Drive):
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: CanopenLink, *,
                  slaves: SimulatedSlaves | None = None, max_age: int = 3,
-                 modes: Sequence[Mode] | None = None) -> None:
+                 mode: Mode | Sequence[Mode] = Mode.CSP, kv: float | Sequence[float] = DEFAULT_KV) -> None:
         self.slaves = slaves
-        mode = Mode.CSP
-        if modes is not None and len(set(modes)) == 1:
-            mode = modes[0]
-        super().__init__(params, cycle_time, link, simulated=slaves is not None, max_age=max_age, mode=mode)
-        if modes is not None:
-            for i, m in enumerate(modes):
-                self._mode[i] = int(m)
+        super().__init__(params, cycle_time, link, simulated=slaves is not None, max_age=max_age, mode=mode, kv=kv)
 
     @classmethod
     def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
@@ -88,7 +82,8 @@ class CanopenDrive(Cia402Drive):
             interpolation_period(cycle_time)
         except ValueError as e:
             raise ConfigError("nc.cycle_time", f"the canopen backend: {e}") from None
-        nodes = [_node_options(i, o) for i, o in enumerate(axis_options)]
+        axes = [_node_options(i, o) for i, o in enumerate(axis_options)]
+        nodes = [n for n, _, _ in axes]
         if len(nodes) != len(params):
             raise ConfigError(_SECTION, f"{len(params)} axes, {len(nodes)} Drive tables")
         ids = [n.node_id for n in nodes]
@@ -105,8 +100,8 @@ class CanopenDrive(Cia402Drive):
             slaves = SimulatedSlaves(ids, params, cycle_time, channel=bus.channel, eds=[n.eds for n in nodes])
         try:
             link = CanopenLink(nodes, cycle_time, bus)
-            return cls(params, cycle_time, link, slaves=slaves, max_age=max_age,
-                       modes=[Mode.CSV if n.csv else Mode.CSP for n in nodes])
+            return cls(params, cycle_time, link, slaves=slaves, max_age=max_age, mode=[m for _, m, _ in axes],
+                       kv=[k for _, _, k in axes])
         except BaseException:
             if slaves is not None:
                 slaves.close()
@@ -120,9 +115,11 @@ class CanopenDrive(Cia402Drive):
 
 
 def _bus_options(opts: dict[str, Any]) -> tuple[BusConfig, bool, int]:
+    max_age, opts = link_options(opts, _SECTION)
     unknown = sorted(set(opts) - _BUS_KEYS)
     if unknown:
-        raise ConfigError(f"{_SECTION}.{unknown[0]}", f"unknown option (known: {', '.join(sorted(_BUS_KEYS))})")
+        raise ConfigError(f"{_SECTION}.{unknown[0]}", f"unknown option (known: "
+                                                      f"{', '.join(sorted(_BUS_KEYS | {'max_age'}))})")
     d = BusConfig()
     interface = _str(opts, "interface", d.interface)
     channel = _str(opts, "channel", d.channel)
@@ -142,30 +139,27 @@ def _bus_options(opts: dict[str, Any]) -> tuple[BusConfig, bool, int]:
         raise ConfigError(f"{_SECTION}.heartbeat_timeout",
                           f"must be longer than heartbeat_period ({period} s), got {timeout}")
     start_timeout = _float(opts, "start_timeout", d.start_timeout)
-    max_age = _int(opts, "max_age", 3, 1)
     return (BusConfig(interface, channel, bitrate, sdo_timeout, period, timeout, start_timeout), simulate,
             max_age)
 
 
-def _node_options(i: int, o: Mapping[str, Any]) -> NodeConfig:
+def _node_options(i: int, o: Mapping[str, Any]) -> tuple[NodeConfig, Mode, float]:
     key = f"axis[{i}].Drive"
-    unknown = sorted(set(o) - _AXIS_KEYS)
+    mode, kv, rest = axis_options(o, key)
+    unknown = sorted(set(rest) - _AXIS_KEYS)
     if unknown:
         raise ConfigError(f"{key}.{unknown[0]}", f"unknown option of the canopen backend (known: "
-                                                 f"{', '.join(sorted(_AXIS_KEYS))})")
-    if "node_id" not in o:
+                                                 f"{', '.join(sorted(_AXIS_KEYS | {'mode', 'kv'}))})")
+    if "node_id" not in rest:
         raise ConfigError(f"{key}.node_id", "required by the canopen backend (1..127)")
-    nid = o["node_id"]
+    nid = rest["node_id"]
     if isinstance(nid, bool) or not isinstance(nid, int) or not 1 <= nid <= 127:
         raise ConfigError(f"{key}.node_id", f"must be an integer 1..127, got {nid!r}")
-    mode = o.get("mode", "csp")
-    if mode not in _MODES:
-        raise ConfigError(f"{key}.mode", f"must be \"csp\" or \"csv\", got {mode!r}")
-    eds = o.get("eds")
+    eds = rest.get("eds")
     if eds is not None:
         if not isinstance(eds, str) or not os.path.isfile(eds):
             raise ConfigError(f"{key}.eds", f"no such EDS file: {eds!r}")
-    return NodeConfig(nid, _MODES[mode] == Mode.CSV, eds)
+    return NodeConfig(nid, mode == Mode.CSV, eds), mode, kv
 
 
 def _str(opts: Mapping[str, Any], k: str, default: str) -> str:
