@@ -22,10 +22,14 @@ Test hooks: :meth:`SimulatedSlaves.silence` (a node stops answering: no PDOs, no
 Decisions: the slaves are clocked by the SYNC (their time stands while no SYNC comes); the device is stepped
 for every row, also for a silenced or non-operational node (the drive runs on; only its communication is
 gone). A SYNC older than one cycle when the slaves' notifier thread gets to it, with the master's next frames
-already waiting behind it (the thread ran behind: the GIL, a loaded machine), is dropped: not stepped, not answered, so the NC counts the missing TPDOs (their age) instead
-of the simulation running ever further behind the NC's cycle. python-can's virtual bus works inside one process only, so the slaves run in the NC's process
+already waiting behind it (the thread ran behind: the GIL, a loaded machine), is dropped: neither stepped nor
+answered (the NC counts the missing TPDOs: their age), so the simulation catches up at once instead of running
+ever further behind (stepping the devices for the dropped SYNCs kept a starved thread from ever catching up).
+python-can's virtual bus works inside one process only, so the slaves run in the NC's process
 (``simulate_slaves = true``) or in a test process, and share the GIL with the NC cycle (bench/canopen_cycle.py
-measures it).
+measures it). Their notifier thread (like the link's) runs at normal priority: on a loaded machine it may be
+scheduled tens of ms late behind a SCHED_FIFO NC cycle and the other processes (the NC sees the ages); raising
+it to SCHED_FIFO next to the cycle thread was tried and made the GIL hand-over stall (priority inversion).
 
 It may import: numpy, can, canopen, nc_server.core.params, nc_server.drives.cia402, .link, .pdo.
 """
@@ -114,7 +118,7 @@ class SimulatedSlaves:
         self.node_ids = list(node_ids)
         self.cycle_time = float(cycle_time)
         self.syncs = 0
-        #: SYNCs older than a cycle when the notifier got to them (the slaves ran behind): dropped, not answered
+        #: SYNCs older than a cycle when the notifier got to them (the slaves ran behind): dropped
         self.dropped_syncs = 0
         #: CPU seconds of the SYNC handler (all of it: RPDOs, device step, TPDOs; the notifier thread's CPU time,
         #: not wall time), for the bench
@@ -123,6 +127,7 @@ class SimulatedSlaves:
         self._rx = RxImage.zeros(n)
         self._tx: TxImage = TxImage.zeros(n)
         self._silent = np.zeros(n, dtype=bool)
+        self._emcy_code = np.zeros(n, dtype=np.uint16)  # the 0x603F each node last sent an EMCY for
         self._rpdos: list[list[_Rpdo]] = [[] for _ in range(n)]
         self._tpdos: list[list[_Tpdo]] = [[] for _ in range(n)]
         self._operational = np.zeros(n, dtype=bool)
@@ -237,7 +242,6 @@ class SimulatedSlaves:
                             if f is not None:
                                 getattr(rx, f)[j] = v
             rx.cycle = self.syncs
-            prev_err = self._tx.error_code
             # a fresh image per step: the device may keep the last one (e.g. for the controlword's edges)
             tx = self._tx = self.device.step(RxImage(rx.controlword.copy(), rx.mode.copy(),
                                                      rx.target_position.copy(), rx.target_velocity.copy(),
@@ -262,10 +266,9 @@ class SimulatedSlaves:
                     t.last = payload
                     t.map.data = bytearray(payload)
                     t.map.transmit()
-            changed = np.flatnonzero(tx.error_code != prev_err).tolist()
-            for j in changed:
-                if not self._silent[j]:
-                    code = int(tx.error_code[j])
+            for j in np.flatnonzero(tx.error_code != self._emcy_code).tolist():
+                if j in active:
+                    code = self._emcy_code[j] = int(tx.error_code[j])
                     if code:
                         self.nodes[j].emcy.send(code, 0x01)
                     else:
