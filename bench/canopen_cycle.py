@@ -113,6 +113,7 @@ def run(backend: str, n: int, seconds: float) -> dict[str, Any]:
         if slaves is not None:
             ds = max(1, slaves.syncs - syncs0)
             out["slave_us"] = 1e6 * (slaves.busy_s - busy0) / ds
+            out["dropped"] = slaves.dropped_syncs
         if link is not None and hasattr(link, "timing"):
             link.timing = None  # type: ignore[union-attr]
         moving = int(np.count_nonzero(np.abs(core.nctoplc["ActVelo"]) > 1.0))
@@ -173,8 +174,9 @@ def main() -> None:
     print(f"  PDO timing: SYNC -> TPDO arrival p50 {1e6 * pct(timing, 50):.0f} us, p99 {1e6 * pct(timing, 99):.0f} us, "
           f"max {1e6 * max(timing, default=float('nan')):.0f} us ({len(timing)} TPDOs); slaves' SYNC handler CPU "
           f"{slave_us:.0f} us per SYNC ({slave_us / a.axes:.0f} us per axis)")
+    dropped = sum(x.get("dropped", 0) for x in res["canopen"])
     print(f"  ages seen by the NC (worst axis per cycle): 0: {hist[0]}, 1: {hist[1]}, 2: {hist[2]}, >2: {more} "
-          f"of {len(ages)} cycles")
+          f"of {len(ages)} cycles; SYNCs the slaves reached a cycle late and dropped: {dropped}")
     from nc_server.drives.canopen.pdo import bus_load
     print(f"  a real bus: the cyclic PDOs of {a.axes} axes at 1 Mbit/s take {100 * bus_load(a.axes, DT, 1_000_000):.0f} "
           f"% of a {DT * 1e3:g} ms cycle ({100 * bus_load(a.axes, 0.004, 1_000_000):.0f} % of 4 ms)")

@@ -22,7 +22,8 @@ Per axis: ``node_id`` (required, 1..127, unique), ``mode`` ("csp", default, or "
 position loop gain [1/s]), ``eds`` (the drive's EDS file; default the simulated drive's ``cia402_sim.eds``; a
 relative path is taken from the working directory). A bad or unknown key is a
 :class:`~nc_server.core.params.ConfigError`; a missing bus or node a :class:`.link.CanopenStartError` (bounded by
-the SDO timeouts and ``start_timeout``).
+the SDO timeouts and ``start_timeout``). python-canopen's own logger ("canopen") is set to WARNING unless
+something configured it (it logs every SDO transfer at INFO).
 
 It may import: numpy, can, canopen, nc_server.core.params, nc_server.drives, .link, .slave, .pdo.
 """
@@ -78,6 +79,9 @@ class CanopenDrive(Cia402Drive):
         """
         opts = dict(context.options)
         bus, simulate, max_age = _bus_options(opts)
+        quiet = logging.getLogger("canopen")
+        if quiet.level == logging.NOTSET:  # canopen logs every SDO, mapping entry and NMT change at INFO
+            quiet.setLevel(logging.WARNING)
         try:
             interpolation_period(cycle_time)
         except ValueError as e:
