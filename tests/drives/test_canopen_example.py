@@ -15,7 +15,7 @@ from znc_testing.plc_harness import EXAMPLES, run_example
 def test_example_10_canopen_axes(start_nc: Callable[..., NcServerProcess]) -> None:
     nc = start_nc(extra_args=("--config", str(EXAMPLES / "10_canopen_axes.toml")))
     assert "4 axes" in (nc.ready_line() or ""), nc.ready_line()
-    rc, out = run_example("10_canopen_axes.py", nc.endpoint, timeout=120.0)
+    rc, out = run_example("10_canopen_axes.py", nc.endpoint, timeout=150.0)
     assert rc == 0, f"example 10 exited {rc}:\n{out[-3000:]}\nnc-server stderr:\n{nc.stderr()[-2000:]}"
     assert "demo motion on CANopen drives done" in out, out
     for name in ("X", "Y", "Z", "C"):

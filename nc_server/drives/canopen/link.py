@@ -31,7 +31,7 @@ Decisions:
 * Close: NMT pre-operational for the nodes (their PDOs stop; a real drive sees the master go), then the
   network and the bus are shut down.
 
-It may import: numpy, can, canopen, nc_server.drives.cia402, .pdo.
+It may import: numpy, can, canopen, nc_server.drives.cia402, .pdo, .vbus.
 """
 from __future__ import annotations
 
@@ -53,6 +53,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from ..cia402 import objects as obj
 from ..cia402.image import ProcessDataLink, RxImage, TxImage
 from . import pdo
+from .vbus import open_bus
 
 log = logging.getLogger(__name__)
 
@@ -193,7 +194,7 @@ class CanopenLink(ProcessDataLink):
         self.network.NOTIFIER_CYCLE = 0.1  # the notifier's receive timeout: close() joins within it
         try:
             if can_bus is None:
-                can_bus = can.Bus(interface=bus.interface, channel=bus.channel, bitrate=bus.bitrate)
+                can_bus = open_bus(bus.interface, bus.channel, bus.bitrate)
         except Exception as e:  # python-can raises many kinds (CanInitializationError, OSError, ImportError)
             raise CanopenStartError(f"cannot open the CAN bus (interface {bus.interface!r}, channel "
                                     f"{bus.channel!r}): {e}") from e

@@ -1,7 +1,7 @@
 """Simulated CiA 402 slaves: python-canopen LocalNodes on a python-can virtual bus, one per drive.
 
 :class:`SimulatedSlaves` puts ``len(node_ids)`` LocalNodes (object dictionary from an EDS: the shipped
-``cia402_sim.eds`` or one per node) on their own bus instance of a virtual channel; the NC's
+``cia402_sim.eds`` or one per node) on their own bus instance of a virtual channel (:class:`.vbus.VirtualBus`); the NC's
 :class:`~.link.CanopenLink` opens another instance of the same channel. Each node is a row of one
 :class:`~..cia402.device.Cia402Device` (the simulated drives: state machine, CSP/CSV, quick stop, the
 mechanical model), stepped once per SYNC for all rows:
@@ -31,7 +31,7 @@ measures it). Their notifier thread (like the link's) runs at normal priority: o
 scheduled tens of ms late behind a SCHED_FIFO NC cycle and the other processes (the NC sees the ages); raising
 it to SCHED_FIFO next to the cycle thread was tried and made the GIL hand-over stall (priority inversion).
 
-It may import: numpy, can, canopen, nc_server.core.params, nc_server.drives.cia402, .link, .pdo.
+It may import: numpy, can, canopen, nc_server.core.params, nc_server.drives.cia402, .link, .pdo, .vbus.
 """
 from __future__ import annotations
 
@@ -49,6 +49,7 @@ from ..cia402 import objects as obj
 from ..cia402.image import RxImage, TxImage
 from . import pdo
 from .link import SIM_EDS
+from .vbus import VirtualBus
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +135,8 @@ class SimulatedSlaves:
         self._closed = False
         self.network = canopen.Network()
         self.network.NOTIFIER_CYCLE = 0.1  # the notifier's receive timeout: close() joins within it
-        self.network.connect(interface="virtual", channel=channel)
+        self.network.bus = VirtualBus(channel=channel)
+        self.network.connect()
         self.nodes: list[canopen.LocalNode] = []
         try:
             for j, nid in enumerate(node_ids):
