@@ -79,7 +79,7 @@ def test_the_entry_point_is_the_backend() -> None:
 def test_power_up_and_moves_in_csp_and_csv(rig: Rig) -> None:
     d, core = rig.drive, rig.core
     assert d.simulated and not d.following.any()
-    assert [int(s) for s in d.state] == [State.SWITCH_ON_DISABLED] * 2 or not d.following.any()
+    assert all(int(s) in (State.SWITCH_ON_DISABLED, State.READY_TO_SWITCH_ON) for s in d.state)
     _powered(rig)
     assert [int(s) for s in d.state] == [State.OPERATION_ENABLED] * 2
     for i in range(2):
@@ -133,16 +133,22 @@ def test_drive_fault_and_reset(rig: Rig) -> None:
     rig.until(lambda: int(core.nctoplc[0]["ErrorCode"]) != 0)
     assert int(core.nctoplc[0]["ErrorCode"]) == E.NC_DRIVE_NOT_READY == 0x4650
     assert int(d.error_code[0]) == 0x2310 and d.device_error[0] and not d.following[0]
-    # the drive stops itself on its fault reaction ramp, then is in Fault, the motor standing
+    # the drive stops itself on its fault reaction ramp, then is in Fault, the motor standing; the NC runs no ramp
+    # of its own: its set-point follows the actual position
     rig.until(lambda: int(d.state[0]) == State.FAULT)
-    rig.step()
-    assert abs(float(core.nctoplc[0]["ActVelo"])) < 1e-6
+    for _ in range(3):
+        rig.step()
+    r0 = core.nctoplc[0]
+    assert abs(float(r0["ActVelo"])) < 1e-6
+    assert abs(float(r0["SetPos"]) - float(r0["ActPos"])) < 2 * SCALE and float(r0["SetVelo"]) == 0.0
     assert d.link.emcy_code[0] == 0x2310  # the EMCY came too
     assert int(core.nctoplc[1]["ErrorCode"]) == 0  # the other axis is untouched
-    assert cmd(core, "Reset", 1)["error"] == 0
-    d.reset(np.array([0]))  # the fault reset edge MC_Reset asks for (the core's call of DriveABC.reset: issue 20's lead)
+    assert cmd(core, "Reset", 1)["error"] == 0  # MC_Reset: the NC's fault reset edge in the controlword
     rig.until(lambda: int(d.error_code[0]) == 0 and int(d.state[0]) != State.FAULT, max_cycles=2000)
+    # the drive's statusword shows the reset a bus cycle later than the NC cleared 0x4650, which the drive monitor
+    # raised again meanwhile (the drive was still in Fault): a second MC_Reset, now with the drive out of Fault
     if int(core.nctoplc[0]["ErrorCode"]):
+        assert int(core.nctoplc[0]["ErrorCode"]) == 0x4650
         assert cmd(core, "Reset", 1)["error"] == 0
     rig.until(lambda: int(core.nctoplc[0]["ErrorCode"]) == 0, max_cycles=2000)
     power(core, 0, ctrl=0)
