@@ -174,3 +174,26 @@ def test_interpolation_period_and_bus_load() -> None:
     # 8 axes of RPDO1 + TPDO1 + TPDO2 do not fit 1 ms at 1 Mbit/s; at 4 ms they do
     assert pdo.bus_load(8, 0.001, 1_000_000) > 1.0 > pdo.bus_load(8, 0.004, 1_000_000)
     assert np.isclose(pdo.frame_bits(8), 47 + 64 + 24)
+
+
+def test_slaves_that_ran_behind_drop_the_late_syncs_and_catch_up(rig: Rig) -> None:
+    """A stalled slave thread (here: its lock held for 0.1 s while the NC runs on in real time) answers no SYNC
+    it reaches a cycle late with newer frames queued: the NC sees the ages, and the slaves are current again
+    soon after instead of working through the backlog."""
+    link = rig.link
+    assert link is not None
+    link.exchange(_rx(2))
+    assert link.wait_answered(5.0)
+    with rig.slaves.stalled():  # the slaves' notifier thread blocks on its next SYNC
+        for _ in range(50):
+            link.exchange(_rx(2))
+            time.sleep(0.002)
+    sent = link.syncs
+
+    def current() -> object:
+        tx = link.exchange(_rx(2))
+        time.sleep(DT)
+        return tx.age.max() == 0 or f"age {tx.age}"
+    wait_until(current, 10.0, "the slaves current again")
+    assert rig.slaves.dropped_syncs > 0
+    assert rig.slaves.syncs < sent  # not every SYNC of the stall was stepped: the backlog was dropped

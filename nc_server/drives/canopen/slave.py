@@ -17,7 +17,7 @@ mechanical model), stepped once per SYNC for all rows:
 * heartbeat producer: canopen's NmtSlave (0x1017, started when the master writes it).
 
 Test hooks: :meth:`SimulatedSlaves.silence` (a node stops answering: no PDOs, no heartbeat, no SDO, no NMT),
-:meth:`SimulatedSlaves.revive`, :meth:`SimulatedSlaves.inject_fault`.
+:meth:`SimulatedSlaves.revive`, :meth:`SimulatedSlaves.inject_fault`, :meth:`SimulatedSlaves.stalled`.
 
 Decisions: the slaves are clocked by the SYNC (their time stands while no SYNC comes); the device is stepped
 for every row, also for a silenced or non-operational node (the drive runs on; only its communication is
@@ -38,7 +38,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any, Sequence
+from contextlib import contextmanager
+from typing import Any, Iterator, Sequence
 
 import canopen
 import numpy as np
@@ -183,6 +184,12 @@ class SimulatedSlaves:
         """Drive ``i`` (row) faults with 0x603F = ``code`` (its TPDOs and an EMCY show it at the next SYNC)."""
         with self._lock:
             self.device.inject_fault(i, code)
+
+    @contextmanager
+    def stalled(self) -> Iterator[None]:
+        """While inside: the slaves' SYNC handling blocks (a notifier thread that gets no CPU), for tests."""
+        with self._lock:
+            yield
 
     @property
     def applied(self) -> RxImage:
