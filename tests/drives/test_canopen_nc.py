@@ -169,7 +169,7 @@ def test_a_slave_that_stops_answering(rig: Rig) -> None:
     rig.wait = False  # its TPDOs will not come
     n = rig.until(lambda: int(core.nctoplc[1]["ErrorCode"]) != 0, max_cycles=5000)
     assert n >= d.max_age  # the inputs aged first (ErrorPropagationDelayed), then the axis error
-    assert int(core.nctoplc[1]["ErrorCode"]) in (E.NC_DRIVE_IO_DATA_INVALID, 0x4651)
+    assert int(core.nctoplc[1]["ErrorCode"]) == E.NC_DRIVE_IO_DATA_INVALID == 0x4655  # the ages come first
     assert not d.io_valid[1] and int(core.nctoplc[1]["StateDWord"]) & StateDWord.IoDataInvalid
     # the heartbeat consumer then reports the node lost
     rig.until(lambda: bool(d.comm_error[1]), max_cycles=5000)
@@ -234,3 +234,15 @@ def test_an_existing_eds_is_accepted_by_the_options(tmp_path: Path) -> None:
         assert np.all(r.drive.following)
     finally:
         r.close()
+
+
+def test_a_lost_heartbeat_is_a_communication_error(rig: Rig) -> None:
+    """The node's PDOs still come, its heartbeat stops (the consumer's loss detection): 0x4651, the drive's state
+    unknown, the other axis untouched."""
+    core, d = rig.core, rig.drive
+    _powered(rig)
+    assert d.slaves is not None
+    d.slaves.nodes[1].nmt.stop_heartbeat()
+    rig.until(lambda: int(core.nctoplc[1]["ErrorCode"]) != 0, max_cycles=5000)
+    assert int(core.nctoplc[1]["ErrorCode"]) == 0x4651 and d.comm_error[1] and d.io_valid[1]
+    assert int(core.nctoplc[0]["ErrorCode"]) == 0
