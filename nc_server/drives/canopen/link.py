@@ -1,0 +1,401 @@
+"""CiA 402 process data over CANopen: a :class:`~..cia402.image.ProcessDataLink` on a python-canopen network.
+
+:class:`CanopenLink` is the NMT master and SYNC producer of one CAN bus (python-can: ``interface``, ``channel``,
+``bitrate``). At start, per node: NMT pre-operational, a check that the node is a CiA 402 device (0x1000), the
+SDO configuration (the PDO mapping of :mod:`.pdo`, modes of operation 0x6060, interpolation time period 0x60C2
+from the NC cycle, producer heartbeat time 0x1017), then NMT operational for all, and one SYNC whose TPDOs
+every node must answer. Per NC cycle, :meth:`CanopenLink.exchange`:
+
+1. reads the newest TPDO payloads the canopen notifier thread stored (never waits on the bus), with per node
+   the age in SYNCs of its cyclic TPDOs and ``alive`` from the heartbeat consumer;
+2. sends the RPDOs with this cycle's outputs (positions rounded to INT32 increments), then one SYNC.
+
+Ordering: the RPDOs of cycle k go out before cycle k's SYNC; the drives apply them at that SYNC (the start of
+their cycle k+1: "the frames for cycle k+1 are sent in cycle k") and answer with TPDOs, which the NC uses in
+cycle k+1. So the actual values lag the targets by one NC cycle, as on any SYNC-clocked fieldbus.
+
+Age: the link counts its SYNCs; a TPDO arriving after SYNC s was sent is stamped s. In cycle k (s = k SYNCs
+sent so far) a node whose cyclic TPDOs all answer the previous SYNC has age 0; each SYNC they missed adds 1.
+Where the bus stamps frames with the wall clock (virtual, socketcan: checked at start), a TPDO the notifier
+thread handles late is dated by its own timestamp (a frame sent before SYNC s answers an older one), so a
+receive thread that runs behind shows as age, not as fresh data.
+
+Decisions:
+
+* Loss detection: the heartbeat (the node produces 0x1017 = ``heartbeat_period``, the link consumes it:
+  ``alive`` is False once no heartbeat came for ``heartbeat_timeout`` or the node reports an NMT state other
+  than operational). Node guarding is not used (CiA 301 recommends the heartbeat). The fast detection is the
+  TPDO age (``max_age`` cycles in :class:`~..cia402.drive.Cia402Drive`).
+* A CAN transmit error in a cycle (bus off, full transmit queue on real hardware) is counted
+  (:attr:`CanopenLink.tx_errors`) and logged once; it never raises into the cycle (the ages grow instead).
+* Close: NMT pre-operational for the nodes (their PDOs stop; a real drive sees the master go), then the
+  network and the bus are shut down.
+
+It may import: numpy, can, canopen, nc_server.drives.cia402, .pdo, .vbus.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import can
+import canopen
+import numpy as np
+from canopen.pdo.base import PdoMap
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from ..cia402 import objects as obj
+from ..cia402.image import ProcessDataLink, RxImage, TxImage
+from . import pdo
+from .vbus import open_bus
+
+log = logging.getLogger(__name__)
+
+#: the EDS of the simulated drive, used for a node without an EDS of its own
+SIM_EDS = os.path.join(os.path.dirname(__file__), "cia402_sim.eds")
+NMT_OPERATIONAL = 5
+_DEVICE_TYPE = 0x1000
+_RING = 64
+_HEARTBEAT_TIME = 0x1017
+
+
+class CanopenStartError(RuntimeError):
+    """The CAN bus cannot be opened, or a node does not answer or cannot be configured at start."""
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """One CiA 402 drive on the bus.
+
+    Attributes:
+        node_id: CANopen node id, 1..127.
+        csv: cyclic synchronous velocity (0x6060 = 9) instead of position (8).
+        eds: the drive's EDS file; None: the simulated drive's (``cia402_sim.eds``).
+    """
+
+    node_id: int
+    csv: bool = False
+    eds: str | None = None
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """The CAN bus and the master's timing.
+
+    Attributes:
+        interface: python-can interface ("virtual", "socketcan", "pcan", ...).
+        channel: python-can channel ("can0"; any name on the virtual bus).
+        bitrate: [bit/s] (ignored by the virtual bus).
+        sdo_timeout: [s] per SDO response at start (canopen retries once).
+        heartbeat_period: [s] producer heartbeat time written to each node (0x1017, whole ms).
+        heartbeat_timeout: [s] consumer time: no heartbeat for this long = the node is lost.
+        start_timeout: [s] for the heartbeat after NMT operational and the first TPDOs.
+    """
+
+    interface: str = "virtual"
+    channel: str = "can0"
+    bitrate: int = 1_000_000
+    sdo_timeout: float = 0.3
+    heartbeat_period: float = 0.1
+    heartbeat_timeout: float = 0.35
+    start_timeout: float = 2.0
+
+
+def interpolation_period(cycle_time: float) -> tuple[int, int]:
+    """0x60C2 (sub 1 value UINT8, sub 2 index INT8) with value * 10**index == cycle_time [s] exactly.
+
+    Raises:
+        ValueError: the cycle has no such representation (value <= 255, index -6..0).
+    """
+    for index in range(0, -7, -1):
+        value = cycle_time / 10.0 ** index
+        if abs(value - round(value)) < 1e-6 and 1 <= round(value) <= 255:
+            return int(round(value)), index
+    raise ValueError(f"cycle time {cycle_time} s cannot be written as 0x60C2 (value 1..255 x 10^-6..0 s)")
+
+
+class _Node:
+    """The master's view of one node: its canopen RemoteNode, PDO maps and the packing structs."""
+
+    def __init__(self, cfg: NodeConfig, remote: canopen.RemoteNode) -> None:
+        self.cfg = cfg
+        self.remote = remote
+        self.rpdo1: PdoMap = remote.rpdo[1]
+        self.rpdo2: PdoMap = remote.rpdo[2]
+        self.tpdo: dict[int, PdoMap] = {k: remote.tpdo[k] for k in pdo.TPDO_LAYOUT}
+        self.s_rpdo1 = _struct(remote, pdo.RPDO1)
+        self.s_rpdo2 = _struct(remote, pdo.rpdo_layout(cfg.csv)[2])
+        self.s_tpdo = {k: _struct(remote, m) for k, m in pdo.TPDO_LAYOUT.items()}
+        self.last_rpdo2 = b""
+
+
+def _struct(remote: canopen.RemoteNode, entries: Sequence[pdo.Entry]) -> struct.Struct:
+    types = []
+    for index, bits in entries:
+        if index not in remote.object_dictionary:
+            raise CanopenStartError(f"node {remote.id}: its EDS has no object 0x{index:04X}, which the NC maps")
+        var = remote.object_dictionary[index]
+        if not isinstance(var, canopen.objectdictionary.ODVariable) or len(var) != bits:
+            raise CanopenStartError(f"node {remote.id}: object 0x{index:04X} in its EDS is not a {bits}-bit "
+                                    f"variable")
+        types.append(var.data_type)
+    return pdo.struct_for(types)
+
+
+class CanopenLink(ProcessDataLink):
+    """The process data of ``len(nodes)`` CiA 402 drives on one CAN bus (column i = ``nodes[i]``).
+
+    Args:
+        nodes: the drives, in the NC's axis order (node ids unique).
+        cycle_time: the NC cycle [s] (0x60C2).
+        bus: the bus and the master's timing.
+        can_bus: an open python-can bus to use instead of opening one from ``bus`` (the link shuts it down).
+
+    Raises:
+        CanopenStartError: the bus cannot be opened; a node does not answer its SDOs (within
+            ``sdo_timeout`` per request), is no CiA 402 device, refuses its configuration, sends no
+            operational heartbeat or no TPDOs (within ``start_timeout``). The message names the node.
+        ValueError: the cycle cannot be written as 0x60C2.
+    """
+
+    def __init__(self, nodes: Sequence[NodeConfig], cycle_time: float, bus: BusConfig = BusConfig(),
+                 can_bus: can.BusABC | None = None) -> None:
+        ids = [c.node_id for c in nodes]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate node ids in {ids}")
+        self.n = len(nodes)
+        self.cycle_time = float(cycle_time)
+        self.bus_config = bus
+        self.period = interpolation_period(cycle_time)
+        self.tx_errors = 0
+        self.syncs = 0
+        #: a list to collect SYNC -> TPDO arrival delays [s] in (the bench sets it; None: not collected)
+        self.timing: list[float] | None = None
+        self._sync_t = 0.0
+        #: wall-clock send time of the last SYNCs (SYNC s at [s % _RING]), to date late-handled TPDOs
+        self._sync_wall = np.zeros(_RING)
+        #: the bus stamps frames with time.time() (virtual, socketcan): checked on the first TPDOs at start
+        self._wall_clock_stamps = False
+        #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
+        self._stamp = {k: np.full(self.n, -1, dtype=np.int64) for k in pdo.TPDO_LAYOUT}
+        self._hb_time = np.full(self.n, -math.inf)
+        self._hb_state = np.zeros(self.n, dtype=np.int64)
+        #: the last EMCY code per node (0: none or reset)
+        self.emcy_code = np.zeros(self.n, dtype=np.uint16)
+        self._closed = False
+        self._lock = threading.Lock()
+        self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.1  # the notifier's receive timeout: close() joins within it
+        try:
+            if can_bus is None:
+                can_bus = open_bus(bus.interface, bus.channel, bus.bitrate)
+        except Exception as e:  # python-can raises many kinds (CanInitializationError, OSError, ImportError)
+            raise CanopenStartError(f"cannot open the CAN bus (interface {bus.interface!r}, channel "
+                                    f"{bus.channel!r}): {e}") from e
+        self.network.bus = can_bus
+        try:
+            self.network.connect()
+            self.nodes = [self._add(c) for c in nodes]
+            self._start()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- start -------------------------------------------------------------------------------------------
+
+    def _add(self, cfg: NodeConfig) -> _Node:
+        if not 1 <= cfg.node_id <= 127:
+            raise ValueError(f"node id {cfg.node_id} outside 1..127")
+        try:
+            remote = canopen.RemoteNode(cfg.node_id, cfg.eds or SIM_EDS)
+        except Exception as e:
+            raise CanopenStartError(f"node {cfg.node_id}: cannot read its EDS {cfg.eds!r}: {e}") from e
+        remote.sdo.RESPONSE_TIMEOUT = self.bus_config.sdo_timeout
+        self.network.add_node(remote)
+        return _Node(cfg, remote)
+
+    def _start(self) -> None:
+        b = self.bus_config
+        where = f"on {b.interface} channel {b.channel!r}"
+        for node in self.nodes:
+            node.remote.nmt.state = "PRE-OPERATIONAL"
+            try:
+                self._configure(node)
+            except SdoCommunicationError as e:
+                raise CanopenStartError(f"node {node.cfg.node_id} does not answer {where} (no SDO response "
+                                        f"within {b.sdo_timeout} s: {e})") from e
+            except SdoAbortedError as e:
+                raise CanopenStartError(f"node {node.cfg.node_id} refused its configuration {where}: {e}") from e
+        for j, node in enumerate(self.nodes):
+            node.remote.nmt.add_heartbeat_callback(self._on_heartbeat(j))
+            node.remote.emcy.add_callback(self._on_emcy(j))
+            for k, m in node.tpdo.items():
+                m.add_callback(self._on_tpdo(self._stamp[k], j))
+            node.remote.nmt.state = "OPERATIONAL"
+        self._wait(lambda: self._hb_state == NMT_OPERATIONAL, "no operational heartbeat", where)
+        self._sync_wall[0] = time.time()
+        self.syncs = 1
+        self.network.sync.transmit()
+        self._wait(lambda: np.minimum(self._stamp[1], self._stamp[2]) >= 1, "no TPDO answered the first SYNC",
+                   where)
+        ts = self.nodes[0].tpdo[1].timestamp
+        self._wall_clock_stamps = ts is not None and abs(ts - time.time()) < 1.0
+
+    def _configure(self, node: _Node) -> None:
+        r, nid = node.remote, node.cfg.node_id
+        device_type = int(r.sdo[_DEVICE_TYPE].raw)
+        if device_type & 0xFFFF != 402:
+            raise CanopenStartError(f"node {nid} is no CiA 402 drive (device type 0x{device_type:08X})")
+        for k, entries in pdo.rpdo_layout(node.cfg.csv).items():
+            _map(r.rpdo[k], 0x200 + 0x100 * (k - 1) + nid, entries, pdo.SYNC_EVERY)
+        for k, entries in pdo.TPDO_LAYOUT.items():
+            _map(r.tpdo[k], 0x180 + 0x100 * (k - 1) + nid, entries, pdo.TPDO_TRANS[k])
+        for maps in (r.rpdo, r.tpdo):  # the node's other PDOs off
+            for k in maps:
+                if k not in (pdo.TPDO_LAYOUT if maps is r.tpdo else (1, 2)):
+                    m = maps[k]
+                    m.read()
+                    if m.enabled:
+                        m.enabled = False
+                        m.save()
+        r.sdo[obj.MODES_OF_OPERATION].raw = int(obj.Mode.CSV if node.cfg.csv else obj.Mode.CSP)
+        value, index = self.period
+        r.sdo[obj.INTERPOLATION_TIME_PERIOD][1].raw = value
+        r.sdo[obj.INTERPOLATION_TIME_PERIOD][2].raw = index
+        r.sdo[_HEARTBEAT_TIME].raw = max(1, round(self.bus_config.heartbeat_period * 1000))
+
+    def _wait(self, done: Any, what: str, where: str) -> None:
+        deadline = time.monotonic() + self.bus_config.start_timeout
+        while not np.all(done()):
+            if time.monotonic() > deadline:
+                missing = [n.cfg.node_id for n, ok in zip(self.nodes, done()) if not ok]
+                raise CanopenStartError(f"node{'s' if len(missing) > 1 else ''} "
+                                        f"{', '.join(map(str, missing))}: {what} within "
+                                        f"{self.bus_config.start_timeout} s {where}")
+            time.sleep(0.002)
+
+    # -- notifier thread callbacks (they only store) -----------------------------------------------------
+
+    def _on_tpdo(self, stamp: np.ndarray, j: int) -> Any:
+        def cb(m: PdoMap) -> None:
+            s = self.syncs
+            ts = m.timestamp
+            if self._wall_clock_stamps and ts is not None:
+                # a frame sent before SYNC s (we got to it late: this thread ran behind) answers an older SYNC
+                wall = self._sync_wall
+                while s > 1 and self.syncs - s < _RING - 1 and ts < wall[(s - 1) % _RING]:
+                    s -= 1
+            stamp[j] = s
+            if self.timing is not None:
+                self.timing.append(time.perf_counter() - self._sync_t)
+        return cb
+
+    def _on_heartbeat(self, j: int) -> Any:
+        def cb(state: int) -> None:
+            self._hb_time[j] = time.monotonic()
+            self._hb_state[j] = state
+        return cb
+
+    def _on_emcy(self, j: int) -> Any:
+        def cb(err: Any) -> None:
+            self.emcy_code[j] = err.code
+            if err.code:
+                log.warning("node %d: EMCY 0x%04X", self.nodes[j].cfg.node_id, err.code)
+        return cb
+
+    # -- the cycle ---------------------------------------------------------------------------------------
+
+    def exchange(self, rx: RxImage) -> TxImage:
+        """Return the newest inputs, then send this cycle's RPDOs and one SYNC (never waits on the bus)."""
+        tx = self._inputs()
+        self._outputs(rx)
+        return tx
+
+    def _inputs(self) -> TxImage:
+        n = self.n
+        t1 = np.empty((3, n), dtype=np.int64)
+        t2 = np.empty((3, n), dtype=np.int64)
+        t3 = np.empty((2, n), dtype=np.int64)
+        for j, node in enumerate(self.nodes):
+            for k, out in ((1, t1), (2, t2), (3, t3)):
+                data = node.tpdo[k].data
+                s = node.s_tpdo[k]
+                out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
+        k = self.syncs
+        age = k - np.minimum(self._stamp[1], self._stamp[2])
+        age[np.minimum(self._stamp[1], self._stamp[2]) < 0] = k + 1
+        alive = ((time.monotonic() - self._hb_time) <= self.bus_config.heartbeat_timeout) & \
+            (self._hb_state == NMT_OPERATIONAL)
+        return TxImage(statusword=t1[0].astype(np.uint16), mode_display=t2[2].astype(np.int8),
+                       position_actual=t1[1].astype(np.float64), velocity_actual=t2[0].astype(np.float64),
+                       torque_actual=t2[1].astype(np.float64), error_code=t1[2].astype(np.uint16),
+                       probe_status=t3[0].astype(np.uint16), probe_position=t3[1].astype(np.float64),
+                       age=age, alive=alive)
+
+    def _outputs(self, rx: RxImage) -> None:
+        pos = np.clip(np.rint(np.nan_to_num(rx.target_position)), pdo.INT32_MIN, pdo.INT32_MAX)
+        velo = np.clip(np.rint(np.nan_to_num(rx.target_velocity)), pdo.INT32_MIN, pdo.INT32_MAX)
+        cw, p, mode = rx.controlword.tolist(), pos.astype(np.int64).tolist(), rx.mode.tolist()
+        v, probe = velo.astype(np.int64).tolist(), rx.probe_function.tolist()
+        try:
+            for j, node in enumerate(self.nodes):
+                m = node.rpdo1
+                node.s_rpdo1.pack_into(m.data, 0, cw[j], p[j], mode[j])
+                m.transmit()
+                payload = node.s_rpdo2.pack(v[j], probe[j]) if node.cfg.csv else node.s_rpdo2.pack(probe[j])
+                if payload != node.last_rpdo2:
+                    m2 = node.rpdo2
+                    m2.data[:] = payload
+                    m2.transmit()
+                    node.last_rpdo2 = payload
+            self._sync_wall[self.syncs % _RING] = time.time()
+            self.syncs += 1  # before the SYNC: a TPDO answering it is stamped with the new count
+            self._sync_t = time.perf_counter()
+            self.network.sync.transmit()
+        except can.CanError as e:
+            self.tx_errors += 1
+            if self.tx_errors == 1:
+                log.error("CAN transmit error (counted in tx_errors, logged once): %s", e)
+
+    def wait_answered(self, timeout: float) -> bool:
+        """Wait until every node's cyclic TPDOs answered the last SYNC (True), or ``timeout`` [s] (False).
+
+        For tests and tools that step the NC faster or slower than real time; the NC cycle never waits."""
+        deadline = time.monotonic() + timeout
+        while np.any(np.minimum(self._stamp[1], self._stamp[2]) < self.syncs):
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.0001)
+        return True
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        for node in getattr(self, "nodes", []):
+            try:
+                node.remote.nmt.state = "PRE-OPERATIONAL"
+            except Exception:  # the bus may be gone already
+                pass
+        try:
+            self.network.disconnect()
+        except Exception as e:
+            log.warning("closing the CAN network: %s", e)
+
+
+def _map(m: PdoMap, cob_id: int, entries: Sequence[pdo.Entry], trans_type: int) -> None:
+    """Write one PDO's mapping and communication parameters over SDO (canopen's PdoMap.save)."""
+    m.clear()
+    for index, bits in entries:
+        m.add_variable(index, 0, bits)
+    m.cob_id = cob_id
+    m.trans_type = trans_type
+    m.enabled = True
+    m.save()

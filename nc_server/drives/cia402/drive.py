@@ -1,0 +1,302 @@
+"""The NC's drives over CiA 402: :class:`Cia402Drive`, a ``DriveABC`` on top of any :class:`.image.ProcessDataLink`.
+
+Per NC cycle (a few vector operations for all axes):
+
+1. the controlword from :func:`.statemachine.nc_controlword` (the last decoded state, the controller enable,
+   pending fault resets);
+2. the targets: 0x607A = the encoder chain's inverse of the set position [inc] (0x60FF the set velocity
+   [inc/s], CSP's velocity feed forward / CSV's target) -- while the drive is not in Operation enabled the
+   target is its actual position, so nothing jumps when it is enabled;
+3. ``link.exchange`` -> the newest inputs; ActPos through the encoder chain from 0x6064, ActVelo from 0x606C,
+   ActAcc their difference per cycle;
+4. the drive state the NC monitors (``following``, ``device_error``, ``comm_error``, ``io_valid``, ``ready``,
+   ``error_code``).
+
+Decisions:
+
+* ``ready``: not in Fault / Fault reaction active and alive; on an enabled axis only once Operation enabled
+  (a start during power up is refused with 0x4225, as for a drive that is not ready).
+* ``device_error``: Fault or Fault reaction active, or the drive left Operation enabled while the NC wanted it
+  enabled (e.g. its safe torque off: latched until the NC disables the axis or a fault reset is requested
+  (MC_Reset); meanwhile the NC does not enable that drive again).
+* ``io_valid``: the inputs are at most ``max_age`` NC cycles old; stale inputs keep the last valid ActVelo/ActAcc.
+* ``reset(rows)``: a fault reset edge (0x0000 then 0x0080) for these axes; the request is dropped once the
+  drive is out of Fault, or ``max_age + 4`` cycles after it was made (a refused reset is not repeated: the next
+  MC_Reset asks again).
+* Torque: ActTorque [%] = 0x6077 / 10 (per mille -> %), its derivative per cycle; SetTorque, its derivative and
+  TorqueOffset from the NC's own model of the axis (:class:`..mechanics.Mechanics` with the axis's Sim*
+  parameters: the feed-forward torque of the set-point, plus PLCTONC.ExtTorque), as CiA 402 has no torque
+  demand in the cyclic process data the NC maps.
+* Homing: the NC's own homing (MC_Home: cam search, sync pulse search) with the drive's touch probe latched on
+  the encoder's index pulse (0x60B8 = enabled, continuous, source zero impulse, positive edge; 0x60B9 bit 7
+  toggles with each new latch; 0x60BA the latched position), not the drive's homing mode 6: MC_Home keeps its
+  behaviour (its parameters, cam, directions, the NC's position set) on every backend and the drive stays in
+  CSP. The probe is armed all the time (a drive latches in hardware at no cost to the NC); ``latch_sync_pulse``
+  reports a latch that arrived in the cycle just stepped.
+* Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
+  drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
+  0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
+* The drive's own error code (0x603F, ``error_code``) is shown in the NC's stats (``drive_errors``) and by
+  nc-status next to the axis error, not in NCTOPLC: none of the 256 bytes fits (ErrorCode is the NC's axis
+  error, 0x4650/0x4651/0x4655 for drive errors, which PLC programs compare; the rest are TwinCAT's fields).
+* Disabling the controller sends Shutdown: the drive goes to Ready to switch on (no torque; its brake holds);
+  enabling from there is one cycle (0x000F: transitions 3 + 4).
+
+It may import: numpy, nc_server.core.params, nc_server.drives.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ...core.params import AxisParams, ConfigError
+from ..base import DriveABC
+from ..encoder import EncoderChain
+from ..mechanics import Mechanics
+from . import statemachine as sm
+from .device import PROBE_STATUS_TOGGLE, PROBE_SYNC_PULSE
+from .image import ProcessDataLink, RxImage, TxImage
+from .objects import Mode, State
+
+_OE, _FRA, _FLT = int(State.OPERATION_ENABLED), int(State.FAULT_REACTION_ACTIVE), int(State.FAULT)
+#: the NC's position loop gain in CSV [1/s] unless an axis sets ``kv``
+DEFAULT_KV = 100.0
+
+
+def axis_options(opts: Mapping[str, Any], where: str) -> tuple[Mode, float, dict[str, Any]]:
+    """The CiA 402 options of one axis's ``Drive`` table: ``mode`` ("csp" or "csv", default "csp") and ``kv``
+    (CSV's position loop gain [1/s], default :data:`DEFAULT_KV`); returns (mode, kv, the other options) for the
+    backend to judge.
+
+    Raises:
+        ConfigError: a bad ``mode`` or ``kv`` (``where``: the key path, e.g. ``axis[0].Drive``).
+    """
+    rest = dict(opts)
+    raw = rest.pop("mode", "csp")
+    mode = {"csp": Mode.CSP, "csv": Mode.CSV}.get(str(raw).lower()) if isinstance(raw, str) else None
+    if mode is None:
+        raise ConfigError(f"{where}.mode", f"must be \"csp\" or \"csv\", got {raw!r}")
+    kv = rest.pop("kv", DEFAULT_KV)
+    if isinstance(kv, bool) or not isinstance(kv, (int, float)) or not (np.isfinite(kv) and kv > 0):
+        raise ConfigError(f"{where}.kv", f"must be a number > 0 [1/s], got {kv!r}")
+    return mode, float(kv), rest
+
+
+def link_options(opts: Mapping[str, Any], where: str = "drives") -> tuple[int, dict[str, Any]]:
+    """``max_age`` (inputs older than this many NC cycles are invalid I/O data; default 3) of a backend's
+    ``[drives.<name>]`` table; returns (max_age, the other options).
+
+    Raises:
+        ConfigError: ``max_age`` not an integer >= 0.
+    """
+    rest = dict(opts)
+    max_age = rest.pop("max_age", 3)
+    if isinstance(max_age, bool) or not isinstance(max_age, int) or max_age < 0:
+        raise ConfigError(f"{where}.max_age", f"must be an integer >= 0 [NC cycles], got {max_age!r}")
+    return max_age, rest
+
+
+class Cia402Drive(DriveABC):
+    """CiA 402 drives behind a process data link (one column per axis).
+
+    Attributes:
+        link: the fieldbus.
+        state: the drives' power states as last decoded (int8 :class:`.objects.State`).
+        controlword: the controlwords sent last.
+        tx: the inputs of the last cycle.
+        encoder: the encoder chains (increments <-> axis units).
+        max_age: inputs older than this [NC cycles] are invalid I/O data.
+    """
+
+    def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: ProcessDataLink, *,
+                 simulated: bool = False, max_age: int = 3, mode: Mode | Sequence[Mode] = Mode.CSP,
+                 kv: float | Sequence[float] = DEFAULT_KV) -> None:
+        """
+        Args:
+            params: the axes' parameters (the encoder chain, the torque model).
+            cycle_time: the NC cycle [s].
+            link: the process data link of these axes (one column per axis, in order).
+            simulated: OpModeDWord.OpModeSimulationAxis.
+            max_age: inputs older than this [NC cycles] are invalid I/O data (0x4655 three cycles later).
+            mode: per axis (or for all) CSP (the default) or CSV.
+            kv: per axis (or for all) the NC's position loop gain in CSV [1/s] (target velocity = SetVelo +
+                kv * (SetPos - ActPos)); unused in CSP, where the drive closes the position loop.
+
+        Raises:
+            ValueError: a mode other than CSP/CSV, kv <= 0, max_age < 0.
+        """
+        super().__init__(params, cycle_time)
+        n = len(params)
+        modes = [mode] * n if isinstance(mode, (int, Mode)) else list(mode)
+        kvs = [kv] * n if isinstance(kv, (int, float)) else list(kv)
+        if len(modes) != n or len(kvs) != n:
+            raise ValueError(f"mode and kv need one value per axis ({n})")
+        if any(int(m) not in (Mode.CSP, Mode.CSV) for m in modes):
+            raise ValueError(f"mode must be CSP (8) or CSV (9), got {modes}")
+        if not all(float(k) > 0 and np.isfinite(float(k)) for k in kvs):
+            raise ValueError(f"kv must be > 0 [1/s], got {kvs}")
+        if int(max_age) < 0:
+            raise ValueError(f"max_age must be >= 0 cycles, got {max_age}")
+        self.simulated = simulated
+        self.link = link
+        self.max_age = int(max_age)
+        self.encoder = EncoderChain(n)
+        self.mechanics = Mechanics(n, cycle_time)
+        self.state = np.full(n, int(State.NOT_READY_TO_SWITCH_ON), dtype=np.int8)
+        self.controlword = np.zeros(n, dtype=np.uint16)
+        self._mode = np.array([int(m) for m in modes], dtype=np.int8)
+        self._csv = self._mode == int(Mode.CSV)
+        self._any_csv = bool(self._csv.any())
+        self._kv = np.array([float(k) for k in kvs])
+        self._probe_fn = np.full(n, PROBE_SYNC_PULSE, dtype=np.uint16)
+        self._reset_left = np.zeros(n, dtype=np.int64)
+        self._dropped = np.zeros(n, dtype=bool)
+        self._probe_new = np.zeros(n, dtype=bool)
+        self._last_probe_status = np.zeros(n, dtype=np.uint16)
+        self._no_probe = np.zeros(n, dtype=bool)
+        self._probe_new_any = False
+        self._any_dropped = False
+        self._any_reset = False
+        self._cycle = 0
+        self.following = np.zeros(n, dtype=bool)
+        self.tx = TxImage.zeros(n)
+        self._pos_inc = np.zeros(n)
+        for i, p in enumerate(params):
+            self.configure(i, p)
+        self._exchange(np.zeros(n, dtype=bool), None, np.zeros(n))  # read the drives' positions and states
+
+    def configure(self, index: int, params: AxisParams) -> None:
+        """The encoder chain (a parameter change moves the reported position, not the motor) and the torque model."""
+        self.mechanics.configure(index, params)
+        pos = float(self.act_pos[index])
+        new = self.encoder.configure(index, params, pos)
+        if new != pos:
+            self.act_pos = self.act_pos.copy()  # (the NC may hold this array: it compares before and after)
+            self.act_pos[index] = new
+
+    def reset(self, rows: np.ndarray) -> None:
+        """A fault reset edge for these axes (MC_Reset)."""
+        rows = np.asarray(rows, dtype=np.intp)
+        self._reset_left[rows] = self.max_age + 4
+        self._any_reset = True
+        self._dropped[rows] = False
+        self._any_dropped = bool(self._dropped.any())
+
+    # -- the cycle ------------------------------------------------------------------------------------------
+
+    def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
+        en = np.asarray(enabled, dtype=bool)
+        c = self.encoder
+        target = (set_pos - c.offset) / c.scaling * c.sign - c.base
+        if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
+            target = np.where(self.following, target, self._pos_inc)
+        velo = set_velo / c.scaling * c.sign
+        if self._any_csv:  # the NC closes the position loop: feed forward + kv * the position error [inc/s]
+            velo = np.where(self._csv & self.following, velo + self._kv * (target - self._pos_inc), velo)
+        self._exchange(en, target, velo)
+        self._torque(set_velo, set_acc)
+
+    def _exchange(self, want: np.ndarray, target: np.ndarray | None, target_velo: np.ndarray) -> None:
+        up = want
+        if self._any_dropped:  # a drive that dropped out is not enabled again before a fault reset
+            up = want & ~self._dropped
+        if self._any_reset:
+            cw = sm.nc_controlword(self.state, up, self._reset_left > 0, self.controlword)
+            self._reset_left = np.maximum(self._reset_left - 1, 0)
+        else:
+            cw = sm.nc_controlword(self.state, up)
+        self._cycle += 1
+        rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
+                     self._cycle)
+        self.controlword = cw
+        tx = self.link.exchange(rx)
+        self.tx = tx
+        state = sm.decode(tx.statusword)
+        self.state = state
+        following = state == _OE
+        c = self.encoder
+        new_pos = c.sign * (tx.position_actual + c.base) * c.scaling + c.offset
+        new_velo = tx.velocity_actual * c.scaling * c.sign
+        new_acc = (new_velo - self.act_velo) / self.cycle_time
+        n = len(state)
+        degraded = np.count_nonzero(tx.age > self.max_age) or np.count_nonzero(tx.alive) < n
+        if degraded or self.faulty:  # (the steady state skips all of this)
+            valid = tx.age <= self.max_age
+            alive = tx.alive
+            if not valid.all():  # stale inputs: the last valid values stay
+                new_pos = np.where(valid, new_pos, self.act_pos)
+                new_velo = np.where(valid, new_velo, self.act_velo)
+                new_acc = np.where(valid, new_acc, self.act_acc)
+                self._pos_inc = np.where(valid, tx.position_actual, self._pos_inc)
+            else:
+                self._pos_inc = tx.position_actual
+            following = following & alive
+            fault_state = state >= _FRA
+            dropped = self._dropped
+            if self._any_dropped or np.count_nonzero(self.following & ~following):
+                dropped = want & alive & ~following & (dropped | self.following)  # (silent: unknown, 0x4651)
+                self._dropped = dropped
+                self._any_dropped = bool(dropped.any())
+            self.io_valid = valid
+            self.comm_error = ~alive
+            self.device_error = fault_state | dropped
+            self.ready = ~fault_state & alive & (~want | following)
+            self.faulty = bool(degraded or self.device_error.any() or np.count_nonzero(want & ~following))
+        else:
+            self._pos_inc = tx.position_actual
+            if np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
+                    or np.count_nonzero(want & ~following):  # a change (then the full evaluation while faulty)
+                fault_state = state >= _FRA
+                dropped = want & ~following & self.following
+                self._dropped = dropped
+                self._any_dropped = bool(dropped.any())
+                self.device_error = fault_state | dropped
+                self.ready = ~fault_state & (~want | following)
+                self.faulty = bool(self.device_error.any() or np.count_nonzero(want & ~following))
+        self.following = following
+        self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
+        self.error_code = tx.error_code
+        if self._any_reset:
+            self._reset_left = np.where(state == _FLT, self._reset_left, 0)
+            self._any_reset = bool(self._reset_left.any())
+        ps = tx.probe_status
+        if ps is not self._last_probe_status:
+            self._probe_new = ((ps ^ self._last_probe_status) & PROBE_STATUS_TOGGLE) != 0
+            self._last_probe_status = ps
+        elif self._probe_new_any:
+            self._probe_new = self._no_probe
+        self._probe_new_any = bool(self._probe_new.any())
+
+    def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
+        m = self.mechanics
+        shown = m.fields[1].copy()
+        m.step(self.following, set_velo, set_acc, self.act_velo, self.act_acc)
+        if not m.resting:
+            act = self.tx.torque_actual * 0.1
+            m.fields[2] = (act - shown) * m.inv_dt
+            m.fields[1] = act
+
+    def encoder_count(self, index: int) -> float:
+        """The hardware counter of axis ``index``'s encoder as the NC's chain reads it: increments & mask [inc]."""
+        return self.encoder.hardware_count(index, float(self.act_pos[index]))
+
+    # -- torque, homing -------------------------------------------------------------------------------------
+
+    def set_torque_offset(self, values: np.ndarray) -> None:
+        """PLCTONC.ExtTorque [%]: shown as TorqueOffset and in SetTorque (:meth:`.mechanics.Mechanics.set_offset`)."""
+        self.mechanics.set_offset(np.asarray(values, dtype=float))
+
+    def torque_fields(self) -> np.ndarray | None:
+        """SetTorque from the NC's model, ActTorque from 0x6077 (see the module docstring); None while resting."""
+        return None if self.mechanics.resting else self.mechanics.fields
+
+    def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
+        """The index pulse the drive's touch probe latched in the cycle just stepped [u] (NaN: none)."""
+        rows = np.asarray(rows, dtype=np.intp)
+        c = self.encoder
+        pos = c.sign[rows] * (self.tx.probe_position[rows] + c.base[rows]) * c.scaling[rows] + c.offset[rows]
+        return np.where(self._probe_new[rows], pos, np.nan)
+
+    def close(self) -> None:
+        self.link.close()
