@@ -1,0 +1,272 @@
+"""Simulated CiA 402 drives: the device side of the process data, stepped at the device's own cycle.
+
+``Cia402Device(n, cycle_time)`` holds ``n`` drives as columns: the power state machine
+(:func:`.statemachine.device_next`), cyclic synchronous position (mode 8: the position controller is the
+first-order lag of ``SimTimeConstant``, as ``SimDrive`` had it) and cyclic synchronous velocity (mode 9: the
+same lag on the velocity), the quick stop and fault reaction ramps, the mechanical model
+(:class:`..mechanics.Mechanics` -> 0x6077 in per mille) and a touch probe on the encoder's index pulses.
+Used by ``cia402-sim`` (in process), the simulated CANopen slaves and ``nc-drive-sim``. All positions are
+increments (float: no quantisation), velocities inc/s.
+
+Decisions (where CiA 402 leaves the device free):
+
+* Power up: the device's self test is done at construction: it starts in Switch on disabled (transitions 0, 1).
+* Quick stop deceleration (0x6085) and the fault reaction's deceleration: the axis's ``AxisDec`` (converted to
+  inc/s^2 through AxisEncoderScalingFactor). Quick stop option code 6: the drive stops and stays in Quick stop
+  active. Fault reaction: the same ramp, then Fault (transition 14) once the motor stands.
+* Outside Operation enabled, Quick stop active and Fault reaction active the motor holds (a brake: velocity 0).
+* Faults (:meth:`Cia402Device.inject_fault`): a *transient* fault (default, e.g. 0x2310 overcurrent: the
+  cause is gone once the drive has stopped) is acknowledged by a fault reset; a *persistent* one
+  (``persistent=True``, e.g. a hardware error) blocks the fault reset until :meth:`Cia402Device.clear_fault`.
+  0x603F keeps the code of the fault until the reset succeeds (then 0).
+* Lost communication: ``timeout`` seconds without outputs (``step(None)``) is a fault with code 0x8130 (CiA 301
+  "life guard error / heartbeat error"): the drive stops on its quick-stop ramp and keeps its position; the
+  cause is gone as soon as outputs arrive again (then a fault reset acknowledges it).
+* Touch probe (0x60B8 / 0x60B9 / 0x60BA): probe 1 with trigger source "zero impulse" (bits 2-3 = 01) latches the
+  encoder's index pulses at SimSyncPulseOffset + k * SimSyncPulseSpacing (axis units as the encoder reports them,
+  like ``SimDrive``) into 0x60BA, whatever the direction of travel (bit 4 must be set). Within a device cycle the
+  motor moves linearly, so the latch is the exact pulse (the last one passed in the cycle). 0x60B9: bit 0 probe 1
+  enabled, bit 1 a position stored, bit 7 toggles with each new latch (continuous mode, bit 1 of 0x60B8; in
+  single mode only the first pulse after enabling is latched). Source "input 1" is not simulated.
+
+It may import: numpy, nc_server.core.params, nc_server.drives.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...core.params import AxisParams
+from ..encoder import EncoderChain
+from ..mechanics import Mechanics
+from . import statemachine as sm
+from .image import RxImage, TxImage
+from .objects import Mode, State
+
+#: 0x603F of a drive whose outputs stopped arriving (CiA 301: life guard error / heartbeat error)
+COMM_ERROR_CODE = 0x8130
+#: 0x603F of ``set_device_error``-style hardware errors (CiA 301: device hardware)
+HARDWARE_ERROR_CODE = 0x5000
+
+_OE, _QSA, _FRA, _FLT = int(State.OPERATION_ENABLED), int(State.QUICK_STOP_ACTIVE), \
+    int(State.FAULT_REACTION_ACTIVE), int(State.FAULT)
+_CSV = int(Mode.CSV)
+# 0x60B8 / 0x60B9 bits
+PROBE_ENABLE, PROBE_CONTINUOUS, PROBE_SOURCE_INDEX, PROBE_POSITIVE = 0x01, 0x02, 0x04, 0x10
+PROBE_STATUS_ENABLED, PROBE_STATUS_STORED, PROBE_STATUS_TOGGLE = 0x01, 0x02, 0x80
+#: the probe function the NC uses for the sync pulse: enabled, continuous, source index pulse, positive edge
+PROBE_SYNC_PULSE = PROBE_ENABLE | PROBE_CONTINUOUS | PROBE_SOURCE_INDEX | PROBE_POSITIVE
+
+
+class Cia402Device:
+    """``n`` simulated CiA 402 drives (columns), stepped once per device cycle.
+
+    Attributes:
+        cycle_time: the device cycle [s].
+        timeout: seconds without outputs before the communication fault (None: never).
+        state: power state per axis (int8 :class:`.objects.State`).
+        position, velocity, acceleration: the motor [inc, inc/s, inc/s^2].
+        error_code: 0x603F per axis.
+        rx: the outputs in effect (the last that arrived).
+        silent: seconds since outputs last arrived.
+    """
+
+    def __init__(self, n: int, cycle_time: float, timeout: float | None = None) -> None:
+        self.n = int(n)
+        self.cycle_time = float(cycle_time)
+        self.timeout = timeout
+        self.state = np.full(n, int(State.SWITCH_ON_DISABLED), dtype=np.int8)
+        self.position = np.zeros(n)
+        self._before = self.position  # the position at the start of the last step
+        self.velocity = np.zeros(n)
+        self.acceleration = np.zeros(n)
+        self.error_code = np.zeros(n, dtype=np.uint16)
+        self.rx = RxImage.zeros(n)
+        self.silent = 0.0
+        self._prev_cw = np.zeros(n, dtype=np.uint16)
+        self._prev_tv = np.zeros(n)
+        self._alpha = np.ones(n)
+        self._dec = np.full(n, 5000.0)       # quick stop / fault reaction deceleration [inc/s^2]
+        self._scale = np.ones(n)             # |AxisEncoderScalingFactor| [u/inc] (the mechanics work in u)
+        self._pulse_spacing = np.ones(n)     # [inc]
+        self._pulse_offset = np.zeros(n)     # [inc]
+        self._event = np.zeros(n, dtype=bool)      # a transient fault waiting for its reaction
+        self._event_code = np.zeros(n, dtype=np.uint16)
+        self._cause = np.zeros(n, dtype=bool)      # a persistent fault cause
+        self._cause_code = np.zeros(n, dtype=np.uint16)
+        self._comm_lost = False
+        self._probe_status = np.zeros(n, dtype=np.uint16)
+        self._probe_position = np.zeros(n)
+        self._prev_probe_fn = np.zeros(n, dtype=np.uint16)
+        self._chain = EncoderChain(n)
+        self.mechanics = Mechanics(n, cycle_time)
+        self._any_fault = False
+        self.tx = TxImage.zeros(n)
+        self._publish()
+
+    def configure(self, i: int, params: AxisParams) -> None:
+        """Axis ``i``'s simulation parameters: SimTimeConstant (the lag), AxisDec (the quick-stop ramp), the
+        mechanics (Sim*), the index pulses (SimSyncPulseSpacing/Offset) and the encoder scaling they need."""
+        self._chain.configure(i, params, self._chain.position(i, float(self.position[i])))
+        scale = abs(float(params.AxisEncoderScalingFactor))
+        self._scale[i] = scale
+        t = float(params.SimTimeConstant)
+        self._alpha[i] = 1.0 if t <= 0 else 1.0 - math.exp(-self.cycle_time / t)
+        self._dec[i] = float(params.AxisDec) / scale
+        self._pulse_spacing[i] = float(getattr(params, "SimSyncPulseSpacing", 1.0)) / scale
+        self._pulse_offset[i] = self._chain.increments(i, float(getattr(params, "SimSyncPulseOffset", 0.0)))
+        self.mechanics.configure(i, params)
+
+    # -- faults ---------------------------------------------------------------------------------------------
+
+    def inject_fault(self, i: int, code: int, persistent: bool = False) -> None:
+        """A fault of axis ``i`` with 0x603F ``code`` (e.g. 0x2310 overcurrent) from the next step: fault
+        reaction (the quick-stop ramp), then Fault. ``persistent``: the cause stays until :meth:`clear_fault`
+        (a fault reset before that is refused); else a fault reset acknowledges it.
+
+        Raises:
+            IndexError: no axis ``i``; ValueError: code outside 1..0xFFFF.
+        """
+        self._check(i)
+        if not 0 < int(code) <= 0xFFFF:
+            raise ValueError(f"error code must be in 1..0xFFFF, got {code}")
+        if persistent:
+            self._cause[i], self._cause_code[i] = True, int(code)
+        else:
+            self._event[i], self._event_code[i] = True, int(code)
+        self._any_fault = True
+
+    def clear_fault(self, i: int) -> None:
+        """The persistent fault cause of axis ``i`` has gone (a fault reset may now acknowledge it)."""
+        self._check(i)
+        self._cause[i] = False
+        self._cause_code[i] = 0
+        self._any_fault = bool(self._event.any() or self._cause.any())
+
+    def _check(self, i: int) -> None:
+        if not 0 <= int(i) < self.n:
+            raise IndexError(f"no axis index {i}")
+
+    # -- the cycle ------------------------------------------------------------------------------------------
+
+    def step(self, rx: RxImage | None) -> TxImage:
+        """One device cycle with the outputs that arrived (None: none arrived, the last ones stay in effect).
+
+        Returns:
+            the inputs of this cycle (a new :class:`TxImage`; age 0, alive).
+        """
+        dt = self.cycle_time
+        if rx is None:
+            self.silent += dt
+        else:
+            self.rx = rx
+            self.silent = 0.0
+        rx = self.rx
+        comm_lost = self.timeout is not None and self.silent >= self.timeout
+        self._comm_lost = comm_lost
+        state = self.state
+        cw = rx.controlword
+        if self._any_fault or comm_lost:
+            fault = self._event | self._cause
+            if comm_lost:
+                fault = np.ones(self.n, dtype=bool)
+            fresh = fault & (state != _FRA) & (state != _FLT)
+            if fresh.any():  # the code of the fault that starts the reaction
+                code = np.where(self._cause, self._cause_code, self._event_code)
+                if comm_lost:
+                    code = np.where(self._event | self._cause, code, COMM_ERROR_CODE)
+                self.error_code = np.where(fresh, code, self.error_code).astype(np.uint16)
+            new = sm.device_next(state, cw, self._prev_cw, fault, self.velocity == 0.0)
+            self._event &= ~((new == _FRA) | (new == _FLT))  # consumed by the reaction
+            self._any_fault = bool(self._event.any() or self._cause.any())
+        else:
+            new = sm.device_next(state, cw, self._prev_cw, False, self.velocity == 0.0)
+        reset = (state == _FLT) & (new != _FLT)
+        if reset.any():
+            self.error_code = np.where(reset, 0, self.error_code).astype(np.uint16)
+        self.state = new
+        self._prev_cw = cw
+        self._move(new, rx, dt)
+        self._latch(rx)
+        self._publish()
+        return self.tx
+
+    def _move(self, state: np.ndarray, rx: RxImage, dt: float) -> None:
+        pos, v = self.position, self.velocity
+        oe = state == _OE
+        n_oe = np.count_nonzero(oe)
+        csv = rx.mode == _CSV
+        if n_oe == self.n and not csv.any():  # the steady state: every drive follows its position target
+            new_pos = pos + self._alpha * (rx.target_position - pos)
+            stopping = None
+        else:
+            stopping = (state == _QSA) | (state == _FRA)
+            new_pos = pos.copy()
+            if n_oe:
+                p_csp = pos + self._alpha * (rx.target_position - pos)
+                v_csv = v + self._alpha * (rx.target_velocity - v)
+                new_pos = np.where(oe, np.where(csv, pos + v_csv * dt, p_csp), new_pos)
+            if stopping.any():
+                v_stop = np.sign(v) * np.maximum(np.abs(v) - self._dec * dt, 0.0)
+                new_pos = np.where(stopping, pos + v_stop * dt, new_pos)
+        new_v = (new_pos - pos) / dt
+        if stopping is not None and stopping.any():  # (exactly 0 at the end of the ramp: "stopped")
+            new_v = np.where(stopping & (np.abs(new_v) < 1e-12), 0.0, new_v)
+        new_a = (new_v - v) / dt
+        self._before = pos
+        self.position, self.velocity, self.acceleration = new_pos, new_v, new_a
+        delivering = oe if stopping is None else oe | stopping
+        tv = rx.target_velocity
+        s = self._scale
+        self.mechanics.step(delivering, tv * s, (tv - self._prev_tv) * (s / dt), new_v * s, new_a * s)
+        self._prev_tv = tv
+
+    def _latch(self, rx: RxImage) -> None:
+        fn = rx.probe_function
+        on = (fn & PROBE_ENABLE) != 0
+        if not on.any():
+            if self._probe_status.any():
+                self._probe_status = np.zeros(self.n, dtype=np.uint16)
+            self._prev_probe_fn = fn
+            return
+        started = on & ((self._prev_probe_fn & PROBE_ENABLE) == 0)
+        status = np.where(on, self._probe_status | PROBE_STATUS_ENABLED, 0).astype(np.uint16)
+        status = np.where(started, status & ~np.uint16(PROBE_STATUS_STORED), status).astype(np.uint16)
+        armed = on & ((fn & 0x0C) == PROBE_SOURCE_INDEX) & ((fn & PROBE_POSITIVE) != 0)
+        armed &= ((fn & PROBE_CONTINUOUS) != 0) | ((status & PROBE_STATUS_STORED) == 0)
+        if armed.any():
+            x = self.pulse_passed(self._before, self.position)
+            hit = armed & ~np.isnan(x)
+            if hit.any():
+                self._probe_position = np.where(hit, x, self._probe_position)
+                status = np.where(hit, (status | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, status).astype(np.uint16)
+        self._probe_status = status
+        self._prev_probe_fn = fn
+
+    def pulse_passed(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Per axis the last index pulse [inc] passed moving from ``a`` to ``b`` (NaN: none; a pulse exactly at
+        ``a`` does not count, one exactly at ``b`` does)."""
+        sp, off = self._pulse_spacing, self._pulse_offset
+        fa, fb = (a - off) / sp, (b - off) / sp
+        up = fb > fa
+        k = np.where(up, np.floor(fb), np.ceil(fb))
+        crossed = np.where(up, k > fa, k < fa) & (fa != fb)
+        return np.where(crossed, off + k * sp, np.nan)
+
+    def _publish(self) -> None:
+        oe = self.state == _OE
+        f = self.mechanics.fields
+        torque = f[1] * 10.0 if not self.mechanics.resting else np.zeros(self.n)
+        self.tx = TxImage(
+            statusword=sm.statusword(self.state, follows=oe),
+            mode_display=self.rx.mode.copy(),
+            position_actual=self.position,
+            velocity_actual=self.velocity,
+            torque_actual=torque,
+            error_code=self.error_code.copy(),
+            probe_status=self._probe_status.copy(),
+            probe_position=self._probe_position.copy(),
+            age=np.zeros(self.n, dtype=np.int64),
+            alive=np.ones(self.n, dtype=bool),
+        )

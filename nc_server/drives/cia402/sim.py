@@ -1,0 +1,122 @@
+"""The ``cia402-sim`` backend: simulated CiA 402 drives in the NC's process, exchanged with zero latency.
+
+:class:`LocalLink` steps a :class:`.device.Cia402Device` with each cycle's outputs and returns its inputs at once
+(age 0, alive). :class:`Cia402SimDrive` is a :class:`.drive.Cia402Drive` over it with the axes' parameters: it
+behaves like ``SimDrive`` (the same first-order lag, encoder chain and mechanics) plus the CiA 402 power state
+machine, drive faults and the touch probe latch of the index pulses.
+
+Decisions: at power up the device is in Switch on disabled and the first exchange (at construction) takes it to
+Ready to switch on, so an NC enable reaches Operation enabled in the same cycle (MC_Power.Status shows it only
+then). Injectable states for tests as ``SimDrive`` has them: :meth:`Cia402SimDrive.set_io_invalid` (the link
+stops carrying the axis: its outputs do not reach the device, its inputs stay the last, ``age`` grows) and
+:meth:`Cia402SimDrive.set_device_error` (a persistent hardware fault 0x5000 of the device: the drive stops on its
+quick-stop ramp and goes to Fault; clearing it lets the next MC_Reset acknowledge it -- unlike ``SimDrive``,
+where the error vanished by itself), plus :meth:`Cia402SimDrive.inject_fault` and :meth:`Cia402SimDrive.set_silent`
+(lost communication).
+
+It may import: numpy, nc_server.core.params, nc_server.drives.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ...core.params import AxisParams
+from .device import HARDWARE_ERROR_CODE, Cia402Device
+from .drive import Cia402Drive
+from .image import ProcessDataLink, RxImage, TxImage
+
+
+class LocalLink(ProcessDataLink):
+    """In process, zero latency: :meth:`exchange` steps the device with the outputs and returns its inputs.
+
+    Attributes:
+        device: the simulated drives.
+        invalid: per axis, the link does not carry this axis (its inputs stay, their age grows).
+        alive: per axis, the node answers (False: ``alive`` False in the inputs: lost communication).
+    """
+
+    def __init__(self, device: Cia402Device) -> None:
+        self.device = device
+        self.n = device.n
+        self.invalid = np.zeros(self.n, dtype=bool)
+        self.alive = np.ones(self.n, dtype=bool)
+        self._last_rx: RxImage | None = None
+        self._last_tx: TxImage | None = None
+        self._degraded = False
+
+    def degraded_changed(self) -> None:
+        self._degraded = bool(self.invalid.any() or not self.alive.all())
+
+    def exchange(self, rx: RxImage) -> TxImage:
+        if not self._degraded:
+            tx = self.device.step(rx)
+            self._last_rx, self._last_tx = rx, tx
+            return tx
+        last_rx, last_tx = self._last_rx or rx, self._last_tx or self.device.tx
+        bad = self.invalid | ~self.alive
+        if bad.all():
+            tx = self.device.step(None)  # nothing reaches the drives
+        else:
+            keep = {f: np.where(bad, getattr(last_rx, f), getattr(rx, f)) for f in
+                    ("controlword", "mode", "target_position", "target_velocity", "probe_function")}
+            tx = self.device.step(RxImage(cycle=rx.cycle, **keep))
+        out = TxImage(**{f: np.where(bad, getattr(last_tx, f), getattr(tx, f)).astype(getattr(tx, f).dtype)
+                         for f in ("statusword", "mode_display", "position_actual", "velocity_actual",
+                                   "torque_actual", "error_code", "probe_status", "probe_position")},
+                      age=np.where(bad, last_tx.age + 1, 0), alive=self.alive.copy())
+        self._last_rx = RxImage(cycle=rx.cycle, **{f: np.where(bad, getattr(last_rx, f), getattr(rx, f)) for f in
+                                                  ("controlword", "mode", "target_position", "target_velocity",
+                                                   "probe_function")})
+        self._last_tx = out
+        return out
+
+
+class Cia402SimDrive(Cia402Drive):
+    """Simulated CiA 402 drives in process (the ``cia402-sim`` backend).
+
+    Attributes:
+        device: the simulated drives behind the link.
+    """
+
+    def __init__(self, params: Sequence[AxisParams], cycle_time: float) -> None:
+        self.device = Cia402Device(len(params), cycle_time)  # (configured by Cia402Drive.__init__)
+        self._local = LocalLink(self.device)
+        super().__init__(params, cycle_time, self._local, simulated=True)
+
+    def configure(self, index: int, params: AxisParams) -> None:
+        super().configure(index, params)
+        if hasattr(self, "device"):
+            self.device.configure(index, params)
+
+    def set_io_invalid(self, index: int, invalid: bool) -> None:
+        """Axis ``index``'s I/O data become invalid (``invalid`` False: valid again) from the next step: the link
+        does not carry it (its outputs do not reach the drive, its inputs stay the last, their age grows past
+        ``max_age``)."""
+        self._check_index(index)
+        self._local.invalid[index] = bool(invalid)
+        self._local.degraded_changed()
+
+    def set_silent(self, index: int, silent: bool) -> None:
+        """Axis ``index``'s node stops answering (``alive`` False: lost communication) or answers again."""
+        self._check_index(index)
+        self._local.alive[index] = not silent
+        self._local.degraded_changed()
+
+    def set_device_error(self, index: int, error: bool) -> None:
+        """A persistent hardware fault (0x603F = 0x5000) of axis ``index``'s drive from the next step (``error``
+        False: the cause has gone; the drive stays in Fault until a fault reset, MC_Reset)."""
+        self._check_index(index)
+        if error:
+            self.device.inject_fault(index, HARDWARE_ERROR_CODE, persistent=True)
+        else:
+            self.device.clear_fault(index)
+
+    def inject_fault(self, index: int, code: int, persistent: bool = False) -> None:
+        """A drive fault with 0x603F ``code`` (:meth:`.device.Cia402Device.inject_fault`)."""
+        self.device.inject_fault(index, code, persistent)
+
+    def _check_index(self, index: int) -> None:
+        if not 0 <= int(index) < len(self.act_pos):
+            raise IndexError(f"no axis index {index}")
