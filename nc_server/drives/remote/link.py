@@ -3,9 +3,9 @@
 :class:`RemoteLink` has its own zenoh session (client mode, explicit endpoints, no scouting), so nothing of it
 touches the NC's own session or its declarations. Per NC cycle :meth:`RemoteLink.exchange`:
 
-1. takes what arrived since the last cycle, without waiting: the ``tx`` samples of every host from one zenoh
-   ring channel (one subscriber on ``nc/<nc>/drive/*/tx``, no Python thread of its own: the cycle thread
-   decodes, the newest sample per host wins) and the hosts' liveliness events from a FIFO channel;
+1. takes what arrived since the last cycle, without waiting: per host the newest ``tx`` sample from a zenoh ring
+   channel of one (a subscriber per host, no Python thread of its own: the cycle thread decodes) and, every
+   :data:`LIVELINESS_EVERY` cycles, the hosts' liveliness events from a FIFO channel;
 2. returns the newest inputs of every axis with their ``age`` in NC cycles (0: arrived during this cycle;
    counted by the link: +1 per exchange without a new sample of the axis's host) and ``alive`` (the host's
    liveliness token is there and it has sent inputs);
@@ -54,8 +54,9 @@ _TX_ATTRS = ("statusword", "mode_display", "position_actual", "velocity_actual",
 OPEN_RETRY = 0.1
 #: How long a DROP put waits for a full transmit queue before it drops the message [us] (zenoh's default: 1000).
 DROP_WAIT_US = 50
-#: tx samples kept between two exchanges (all hosts together; the newest per host is used).
-TX_CHANNEL = 256
+#: The hosts' liveliness events are taken every this many exchanges (a host that vanished is seen <= 5 ms later;
+#: each look costs a few microseconds).
+LIVELINESS_EVERY = 5
 #: Liveliness events kept between two exchanges.
 LIVELINESS_CHANNEL = 256
 #: The link's connect retry (as the NC's own sessions: nc_schema.zenoh_config.CONNECT_RETRY).
@@ -177,7 +178,9 @@ class RemoteLink(ProcessDataLink):
         self._missing_warn = int(missing_warn_cycles)
         self._since_open = 0
         self._rows = [np.asarray(h.rows, dtype=np.intp) for h in hosts]
-        self._ids = [np.asarray(h.ids, dtype=np.uint32) for h in hosts]
+        self._ids = [np.asarray(h.ids, dtype="<u4").tobytes() for h in hosts]
+        # a host serving every row in order (the usual single host): its columns are the image's, no copy
+        self._whole = [list(h.rows) == list(range(n)) for h in hosts]
         self._index = {h: i for i, h in enumerate(self.hosts)}
         self.sender = sender
         self._tx = TxImage.zeros(n)
@@ -194,7 +197,7 @@ class RemoteLink(ProcessDataLink):
         self._session: zenoh.Session | None = None
         self._ready = False  # set by the opener thread once everything is declared
         self._pubs: list[Any] = []
-        self._tx_sub: Any = None
+        self._tx_subs: list[Any] = []
         self._live_sub: Any = None
         self._mail: list[bytes | None] = [None] * len(hosts)
         self._mail_lock = threading.Lock()
@@ -207,7 +210,8 @@ class RemoteLink(ProcessDataLink):
     def _declare(self, s: zenoh.Session) -> None:
         self._pubs = [s.declare_publisher(wire.rx_key(self.nc_name, h), congestion_control=zenoh.CongestionControl.DROP,
                                           priority=zenoh.Priority.REAL_TIME) for h in self.hosts]
-        self._tx_sub = s.declare_subscriber(f"nc/{self.nc_name}/drive/*/tx", RingChannel(TX_CHANNEL))
+        # one ring of 1 per host: try_recv gives the newest sample (older ones were overwritten), no key to parse
+        self._tx_subs = [s.declare_subscriber(wire.tx_key(self.nc_name, h), RingChannel(1)) for h in self.hosts]
         self._live_sub = s.liveliness().declare_subscriber(f"nc/{self.nc_name}/drive/*/alive",
                                                            FifoChannel(LIVELINESS_CHANNEL), history=True)
         self._session = s
@@ -236,7 +240,8 @@ class RemoteLink(ProcessDataLink):
                 log.warning("drive link of %s: no inputs from drive host(s) %s since the link connected %d cycles ago "
                             "(is nc-drive-sim running with --host and this NC's name?)", self.nc_name,
                             ", ".join(h for h, seen in zip(self.hosts, self._host_seen) if not seen), self._since_open)
-            self._take_liveliness()
+            if self._since_open % LIVELINESS_EVERY == 1 or LIVELINESS_EVERY == 1:
+                self._take_liveliness()
             self._take_inputs(int(rx.cycle))
             self._send(rx)
         out = TxImage(**{a: getattr(tx, a) for a in _TX_ATTRS})
@@ -262,44 +267,44 @@ class RemoteLink(ProcessDataLink):
             self._tx.alive = alive
 
     def _take_inputs(self, nc_cycle: int) -> None:
-        newest: dict[int, Any] = {}
-        while True:
-            try:
-                s = self._tx_sub.try_recv()
-            except Exception:
-                break
-            if s is None:
-                break
-            i = self._index.get(wire.host_of(str(s.key_expr)))
-            if i is None:
-                continue  # another host (of another backend or NC config): not ours
-            newest[i] = s
-        if not newest:
-            return
         tx = self._tx
-        cols = {a: getattr(tx, a).copy() for a, _ in wire.TX_COLUMNS.values()}
-        age, alive, rtt = tx.age.copy(), tx.alive.copy(), self.round_trip.copy()
-        for i, s in newest.items():
+        cols: dict[str, np.ndarray] | None = None
+        for i, sub in enumerate(self._tx_subs):
             try:
-                msg = wire.decode_tx(s.payload.to_bytes())
+                s = sub.try_recv()
+            except Exception:  # the session is closing
+                return
+            if s is None:
+                continue
+            try:
+                new, _, rx_cycle = wire.decode_tx_columns(s.payload.to_bytes())
             except wire.WireError as exc:
                 self._malformed(i, str(exc))
                 continue
             rows = self._rows[i]
-            if len(msg.image.statusword) != len(rows):
-                self._malformed(i, f"{len(msg.image.statusword)} slots, the NC has {len(rows)} axes on it")
+            if len(new["statusword"]) != len(rows):
+                self._malformed(i, f"{len(new['statusword'])} slots, the NC has {len(rows)} axes on it")
                 continue
-            for attr, _ in wire.TX_COLUMNS.values():
-                cols[attr][rows] = getattr(msg.image, attr)
+            if cols is None:  # (new arrays: the drive may hold the last cycle's)
+                cols = {} if self._whole[i] else {a: getattr(tx, a).copy() for a, _ in wire.TX_COLUMNS.values()}
+                age, alive, rtt = tx.age.copy(), tx.alive, self.round_trip.copy()
+            if self._whole[i]:
+                cols.update(new)  # read-only views of the message: nobody writes into an input
+            else:
+                for a, c in new.items():
+                    cols[a][rows] = c
             age[rows] = 0
-            rtt[rows] = nc_cycle - msg.rx_cycle if msg.rx_cycle else -1
+            rtt[rows] = nc_cycle - rx_cycle if rx_cycle else -1
             self.received += 1
             if not self._host_seen[i]:
                 self._host_seen[i] = True
                 log.info("drive host %s of %s: inputs arrive", self.hosts[i], self.nc_name)
-            alive[rows] = self._host_alive[i]
-        for attr, col in cols.items():
-            setattr(tx, attr, col)
+                alive = alive.copy()
+                alive[rows] = self._host_alive[i]
+        if cols is None:
+            return
+        for a, c in cols.items():
+            setattr(tx, a, c)
         tx.age, tx.alive, self.round_trip = age, alive, rtt
 
     def _malformed(self, i: int, why: str) -> None:
@@ -309,7 +314,8 @@ class RemoteLink(ProcessDataLink):
                         self.malformed)
 
     def _send(self, rx: RxImage) -> None:
-        msgs = [wire.encode_rx(rx, rows, ids) for rows, ids in zip(self._rows, self._ids)]
+        msgs = [wire.encode_rx(rx, None if whole else rows, ids)
+                for rows, ids, whole in zip(self._rows, self._ids, self._whole)]
         if self.sender == "thread":
             with self._mail_lock:
                 self._mail = msgs  # one slot per host: a message not yet sent is replaced by the newer one

@@ -90,19 +90,20 @@ def check_host(host: Any, key: str = "host") -> str:
 _packer = msgpack.Packer()
 
 
-def encode_rx(rx: RxImage, rows: np.ndarray, ids: np.ndarray, epoch: int = 0) -> bytes:
+def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epoch: int = 0) -> bytes:
     """One host's outputs: the columns of ``rx`` at ``rows`` (the link's rows in the host's slot order).
 
     Args:
         rx: the NC's outputs for every axis of the link.
-        rows: link rows, slot order (int array).
-        ids: the AxisIds of the slots (uint32; 0 = not named).
+        rows: link rows, slot order (int array; None: every row in order).
+        ids: the AxisIds of the slots (uint32 array, or its ``<u4`` bytes; 0 = not named).
         epoch: the sending NC's epoch (issue 21; 0).
     """
-    m: dict[str, Any] = {"v": VERSION, "cycle": int(rx.cycle), "epoch": int(epoch), "n": len(rows),
-                         "ids": ids.astype("<u4").tobytes()}
+    idb = ids if isinstance(ids, bytes) else np.asarray(ids).astype("<u4").tobytes()
+    m: dict[str, Any] = {"v": VERSION, "cycle": int(rx.cycle), "epoch": int(epoch), "n": len(idb) // 4, "ids": idb}
     for k, (attr, dt) in RX_COLUMNS.items():
-        m[k] = getattr(rx, attr)[rows].astype(dt, copy=False).tobytes()
+        col = getattr(rx, attr)
+        m[k] = (col if rows is None else col[rows]).astype(dt, copy=False).tobytes()
     return _packer.pack(m)
 
 
@@ -139,11 +140,15 @@ def _map(payload: bytes | bytearray | memoryview) -> Mapping[Any, Any]:
     return m
 
 
+_SIZES = {dt: np.dtype(dt).itemsize for dt in ("<u2", "<i1", "<f8", "<u4")}
+
+
 def _column(m: Mapping[Any, Any], key: str, dt: str, n: int) -> np.ndarray:
+    """A column as a read-only view of the message's bytes (no copy)."""
     b = m.get(key)
-    if not isinstance(b, bytes) or len(b) != n * np.dtype(dt).itemsize:
+    if not isinstance(b, bytes) or len(b) != n * _SIZES[dt]:
         raise WireError(f"column {key!r}: expected {n} values of {dt}")
-    return np.frombuffer(b, dtype=dt).astype(dt[1:])  # native, writable
+    return np.frombuffer(b, dtype=dt)
 
 
 def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
@@ -154,11 +159,11 @@ def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
     """
     m = _map(payload)
     n = m["n"]
-    cols = {attr: _column(m, k, dt, n) for k, (attr, dt) in RX_COLUMNS.items()}
+    cols = {attr: _column(m, k, dt, n).copy() for k, (attr, dt) in RX_COLUMNS.items()}
     cycle, epoch = m.get("cycle"), m.get("epoch", 0)
     if not isinstance(cycle, int) or not isinstance(epoch, int):
         raise WireError("cycle and epoch must be integers")
-    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch)
+    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch)  # type: ignore[arg-type]
 
 
 def encode_tx(tx: TxImage, cycle: int, rx_cycle: int) -> bytes:
@@ -169,8 +174,9 @@ def encode_tx(tx: TxImage, cycle: int, rx_cycle: int) -> bytes:
     return _packer.pack(m)
 
 
-def decode_tx(payload: bytes | bytearray | memoryview) -> TxMessage:
-    """Decode a ``tx`` message.
+def decode_tx_columns(payload: bytes | bytearray | memoryview) -> tuple[dict[str, np.ndarray], int, int]:
+    """A ``tx`` message as {TxImage attribute: read-only column}, the host's cycle and ``rx_cycle`` (the link's
+    per-cycle path: no image built).
 
     Raises:
         WireError: see the module docstring.
@@ -181,5 +187,17 @@ def decode_tx(payload: bytes | bytearray | memoryview) -> TxMessage:
     cycle, rx_cycle = m.get("cycle"), m.get("rx_cycle", 0)
     if not isinstance(cycle, int) or not isinstance(rx_cycle, int):
         raise WireError("cycle and rx_cycle must be integers")
-    image = TxImage(age=np.zeros(n, dtype=np.int64), alive=np.ones(n, dtype=bool), **cols)
+    return cols, cycle, rx_cycle
+
+
+def decode_tx(payload: bytes | bytearray | memoryview) -> TxMessage:
+    """Decode a ``tx`` message (columns copied: writable).
+
+    Raises:
+        WireError: see the module docstring.
+    """
+    cols, cycle, rx_cycle = decode_tx_columns(payload)
+    n = len(cols["statusword"])
+    image = TxImage(age=np.zeros(n, dtype=np.int64), alive=np.ones(n, dtype=bool),
+                    **{a: c.astype(c.dtype.newbyteorder("=")) for a, c in cols.items()})
     return TxMessage(image, cycle, rx_cycle)
