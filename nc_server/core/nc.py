@@ -180,7 +180,8 @@ class NcCore:
         self._has_offset = False
         self._off_rows = np.arange(n)
         self.watch_rows: list[tuple[JobKind, np.ndarray]] = []
-        self._opmode_sim = np.uint32(int(OpModeDWord.OpModeSimulationAxis) if self.drive.simulated else 0)
+        #: OpModeSimulationAxis on the axes whose drive is simulated (a DriveGroup may mix backends)
+        self._opmode_sim = self.drive.simulated_axes.astype(np.uint32) * np.uint32(int(OpModeDWord.OpModeSimulationAxis))
         self.nctoplc = np.zeros(n, dtype=NCTOPLC_DTYPE)
         self.nctoplc["AxisId"] = self.axis_ids
         self.nctoplc["OpModeDWord"] = self.axes.opmode
@@ -506,7 +507,7 @@ class NcCore:
         """ST_AxisParameterSet of axis row ``i`` as a map of its members (MC_ReadParameterSet; the table's
         ``structs.ST_AxisParameterSet`` says where each value comes from)."""
         c, p = self.configs[i], self.params[i]
-        stepper = bool(p.SimStepper) and self.drive.simulated
+        stepper = bool(p.SimStepper) and bool(self.drive.simulated_axes[i])
         enc = E_NcEncoderType.NcEncoderType_KL2531_Stepper if stepper else E_NcEncoderType.NcEncoderType_Simulation
         drv = E_NcDriveType.NcDriveType_KL2531_Stepper if stepper else E_NcDriveType.NcDriveType_undefined
         core = {"AxisId": c.AxisId, "Name": c.Name, "CycleTime": self.cycle_time, "EncoderId": c.AxisId,

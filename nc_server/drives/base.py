@@ -96,6 +96,11 @@ class DriveABC(ABC):
                                         f"{', '.join(sorted(context.options))}")
         return cls(params, cycle_time)
 
+    @property
+    def simulated_axes(self) -> np.ndarray:
+        """Per axis: its drive is simulated (OpModeDWord.OpModeSimulationAxis); default: ``simulated`` for all."""
+        return np.full(len(self.act_pos), bool(self.simulated))
+
     def reset(self, rows: np.ndarray) -> None:
         """MC_Reset of these axes (int array): acknowledge their drive faults (CiA 402: a rising edge of the
         controlword's fault reset bit). Default: nothing to acknowledge."""

@@ -101,7 +101,7 @@ def _run(cfg: object) -> int:
     import zenoh
 
     from nc_server.core import NcCore
-    from nc_server.drives import drive_class
+    from nc_server.drives.group import build_drives
 
     from .app import NcServer
     from .config import ServerConfig
@@ -111,13 +111,16 @@ def _run(cfg: object) -> int:
 
     assert isinstance(cfg, ServerConfig)
     try:
-        # [nc] drive names the backend (checked against the installed ones by the config)
-        drive = drive_class(cfg.drive)([a.params for a in cfg.axes], cfg.cycle_time)
+        # each axis's Drive (default [nc] drive) names its backend, checked against the installed ones by the
+        # config; the backend checks its own options ([drives.<backend>], the axis's Drive table)
+        drives = cfg.axis_drives or tuple((cfg.drive, {}) for _ in cfg.axes)
+        drive = build_drives([a.params for a in cfg.axes], cfg.cycle_time, [b for b, _ in drives],
+                             [o for _, o in drives], cfg.drive_options, nc_name=cfg.name, zenoh=cfg.zenoh)
     except ConfigError as exc:
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2
     except Exception as exc:  # a backend that cannot load or open its hardware: a start failure
-        log.error("drive %r: %s: %s", cfg.drive, type(exc).__name__, exc)
+        log.error("drives: %s: %s", type(exc).__name__, exc)
         return 1
     try:
         core = NcCore(list(cfg.axes), cycle_time=cfg.cycle_time, drive=drive)

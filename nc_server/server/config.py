@@ -10,7 +10,8 @@ Layers, each over the one before (:func:`load_config`):
    AxisId: a new axis, appended). An overlay cannot remove an axis (use ``--config`` for that);
 3. ``--set KEY=VALUE`` (repeatable, in order): one value, ``axis.<AxisId>.<Parameter>`` (the axis must
    exist; e.g. ``axis.1.AxisVeloMax=300``, ``axis.2.Name=Spindle``), ``nc.<key>`` or ``zenoh.<key>``
-   (``nc.cycle_time=0.002``, ``zenoh.listen=["tcp/127.0.0.1:7500"]``). VALUE is read as a TOML value
+   (``nc.cycle_time=0.002``, ``zenoh.listen=["tcp/127.0.0.1:7500"]``) or ``drives.<backend>.<key>``
+   (``drives.canopen.channel=can0``; an axis's backend: ``axis.1.Drive=cia402-sim``). VALUE is read as a TOML value
    (``300``, ``1e3``, ``true``, ``[..]``), except for string-valued keys (Name, ClientLossReaction,
    nc.name/realtime/drive/retain_file, zenoh.mode/roles/tls_dir), which take the text as given, and
    zenoh.listen/connect, which also take plain endpoints, comma-separated
@@ -97,7 +98,13 @@ class ServerConfig:
         watchdog_timeout: maximum age of a claim holder's PLCTONC before 0x8F02 [s].
         realtime: ``"auto"``, ``"fifo"`` or ``"off"``.
         rt_priority: SCHED_FIFO priority (1..99) of the cycle thread.
-        drive: name of the drive backend (an entry point of group ``zenoh_nc.drives``; ``"sim"``).
+        drive: name of the default drive backend (an entry point of group ``zenoh_nc.drives``; ``"sim"``): the
+            backend of every axis without a ``Drive`` of its own.
+        axis_drives: per axis (configuration order), its backend and that backend's per-axis options: the
+            axis's ``Drive`` (``Drive = "cia402-sim"`` or ``Drive = { backend = "canopen", node_id = 2 }``;
+            without one: ``(drive, {})``).
+        drive_options: the ``[drives.<backend>]`` tables: options a backend shares among its axes (bus,
+            channel, ...), handed over as ``DriveContext.options``.
         retain_file: the retain file (positions of persistent axes, homed flags, parameters written at
             run time: :mod:`nc_server.server.retain`), an absolute path (a relative one is resolved
             against the working directory when the configuration is loaded, also in a config file),
@@ -133,6 +140,8 @@ class ServerConfig:
     loss_reactions: tuple[str, ...] = ()
     publisher: str = "process"
     cpu_affinity: tuple[int, ...] = ()
+    axis_drives: tuple[tuple[str, dict[str, Any]], ...] = ()
+    drive_options: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def _cpus(v: Any, key: str) -> tuple[int, ...]:
@@ -261,13 +270,15 @@ def _retain_path(v: Any, key: str) -> str:
     return str(p)
 
 
-def _axes(data: Mapping[str, Any]) -> tuple[tuple[AxisConfig, ...], tuple[str, ...]]:
-    """The [[axis]] tables: the axes and their ClientLossReaction (a server key, not an AxisParams one)."""
+def _axes(data: Mapping[str, Any], default_drive: str = "sim", known: Sequence[str] = ("sim",)
+          ) -> tuple[tuple[AxisConfig, ...], tuple[str, ...], tuple[tuple[str, dict[str, Any]], ...]]:
+    """The [[axis]] tables: the axes, their ClientLossReaction and their Drive (server keys, not AxisParams ones)."""
     tables = data.get("axis")
     if not isinstance(tables, list) or not tables:
         raise ConfigError("axis", "at least one [[axis]] table is required")
     axes: list[AxisConfig] = []
     reactions: list[str] = []
+    drives: list[tuple[str, dict[str, Any]]] = []
     ids: dict[int, int] = {}
     names: dict[str, int] = {}
     for i, t in enumerate(tables):
@@ -283,6 +294,7 @@ def _axes(data: Mapping[str, Any]) -> tuple[tuple[AxisConfig, ...], tuple[str, .
             raise ConfigError(f"{where}.Name", f"must be a string of at most 64 characters, got {name!r}")
         reactions.append(_choice(t.pop("ClientLossReaction", LOSS_REACTIONS[0]), f"{where}.ClientLossReaction",
                                  LOSS_REACTIONS))
+        drives.append(_axis_drive(t.pop("Drive", None), f"{where}.Drive", default_drive, known))
         params = AxisParams.from_mapping(t, where=where)
         try:
             ax = AxisConfig(AxisId=axis_id, Name=name, params=params)
@@ -295,7 +307,7 @@ def _axes(data: Mapping[str, Any]) -> tuple[tuple[AxisConfig, ...], tuple[str, .
         ids[ax.AxisId] = i
         names[ax.Name] = i
         axes.append(ax)
-    return tuple(axes), tuple(reactions)
+    return tuple(axes), tuple(reactions), tuple(drives)
 
 
 def _path(v: Any, key: str) -> str:
@@ -312,8 +324,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         ConfigError: the first problem found, with its key.
     """
     for k in data:
-        if k not in ("nc", "zenoh", "axis"):
-            raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis)")
+        if k not in ("nc", "zenoh", "axis", "drives"):
+            raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis, drives)")
     nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive",
                             "retain_file", "publisher", "cpu_affinity"})
     zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease", "roles", "tls_dir"})
@@ -363,11 +375,45 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
             raise ConfigError("zenoh.roles", str(exc)) from None
         if name not in roles.ncs:
             raise ConfigError("zenoh.roles", f"{roles.source}: NC {name!r} is not listed (add [nc.{name}])")
-    axes, reactions = _axes(data)
+    axes, reactions, axis_drives = _axes(data, drive, known)
+    drive_options = _drive_sections(data, known)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
                         zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
-                        loss_reactions=reactions, publisher=publisher, cpu_affinity=cpu_affinity)
+                        loss_reactions=reactions, publisher=publisher, cpu_affinity=cpu_affinity,
+                        axis_drives=axis_drives, drive_options=drive_options)
+
+
+def _drive_sections(data: Mapping[str, Any], known: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """The ``[drives.<backend>]`` tables: each backend's own options (the backend checks their keys)."""
+    sections = data.get("drives", {})
+    if not isinstance(sections, Mapping):
+        raise ConfigError("drives", "must be a table of [drives.<backend>] tables")
+    out: dict[str, dict[str, Any]] = {}
+    for backend, options in sections.items():
+        if backend not in known:
+            raise ConfigError(f"drives.{backend}", f"unknown drive backend (installed: {', '.join(known)})")
+        if not isinstance(options, Mapping):
+            raise ConfigError(f"drives.{backend}", "must be a table")
+        out[backend] = dict(options)
+    return out
+
+
+def _axis_drive(value: Any, where: str, default: str, known: Sequence[str]) -> tuple[str, dict[str, Any]]:
+    """An axis's ``Drive``: a backend name, or a table with ``backend`` (default ``[nc] drive``) and the
+    backend's per-axis options (e.g. ``{ backend = "canopen", node_id = 2 }``)."""
+    if value is None:
+        return default, {}
+    if isinstance(value, str):
+        value = {"backend": value}
+    if not isinstance(value, Mapping):
+        raise ConfigError(where, f"must be a backend name or a table with backend = ..., got {value!r}")
+    options = dict(value)
+    backend = options.pop("backend", default)
+    if backend not in known:
+        raise ConfigError(f"{where}.backend", f"unknown drive backend {backend!r} (installed: {', '.join(known)}; "
+                                              f"entry point group zenoh_nc.drives)")
+    return backend, options
 
 
 #: zenoh keys whose --set VALUE may also be plain endpoints, comma-separated (not only a TOML list)
@@ -429,6 +475,18 @@ def merge_overlay(data: dict[str, Any], overlay: Mapping[str, Any], origin: str,
     for section, value in overlay.items():
         if section == "axis":
             _merge_axes(data, value, origin, prov)
+        elif isinstance(value, Mapping) and section == "drives":
+            base = data.setdefault("drives", {})
+            if not isinstance(base, dict):
+                raise ConfigError("drives", "must be a table")
+            for backend, opts in value.items():
+                if isinstance(opts, Mapping) and isinstance(base.get(backend), dict):
+                    for k, v in opts.items():
+                        base[backend][k] = v
+                        prov.note(f"drives.{backend}.{k}", f"{origin}: drives.{backend}.{k}")
+                else:
+                    base[backend] = opts
+                    prov.note(f"drives.{backend}", f"{origin}: drives.{backend}")
         elif isinstance(value, Mapping) and section in ("nc", "zenoh"):
             base = data.setdefault(section, {})
             if not isinstance(base, dict):
@@ -536,8 +594,20 @@ def apply_set(data: dict[str, Any], item: str, prov: _Provenance | None = None) 
             value = [e.strip() for e in value.split(",")]  # --set zenoh.listen=tcp/a:1,tcp/b:2 (no TOML quoting)
         table[parts[1]] = value
         prov.note(f"{parts[0]}.{parts[1]}", label)
+    elif parts[0] == "drives":
+        if len(parts) != 3:
+            raise ConfigError(label, "expected drives.<backend>.<key>=VALUE, e.g. drives.canopen.channel=can0")
+        sections = data.setdefault("drives", {})
+        if not isinstance(sections, dict):
+            raise ConfigError("drives", "must be a table")
+        table = sections.setdefault(parts[1], {})
+        if not isinstance(table, dict):
+            raise ConfigError(f"drives.{parts[1]}", "must be a table")
+        table[parts[2]] = _set_value(text, False)
+        prov.note(f"drives.{parts[1]}.{parts[2]}", label)
     else:
-        raise ConfigError(label, "unknown section (allowed: axis.<AxisId>.<Parameter>, nc.<key>, zenoh.<key>)")
+        raise ConfigError(label, "unknown section (allowed: axis.<AxisId>.<Parameter>, nc.<key>, zenoh.<key>, "
+                                 "drives.<backend>.<key>)")
 
 
 def _set_value(text: str, string: bool) -> Any:

@@ -173,7 +173,7 @@ def test_drive_is_chosen_by_the_config(tmp_path: Path, monkeypatch: pytest.Monke
             raise OSError("no EtherCAT master")
 
     _install_drive(monkeypatch, "refusing", RefusingDrive)
-    assert drive_names() == ["refusing", "sim"] and drive_class("refusing") is RefusingDrive
+    assert {"refusing", "sim"} <= set(drive_names()) and drive_class("refusing") is RefusingDrive
     cfg = load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "refusing"')))
     assert cfg.drive == "refusing"
     assert cli._run(cfg) == 2 and built == [(4, 0.001)]
