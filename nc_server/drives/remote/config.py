@@ -5,7 +5,7 @@ In the NC's TOML::
     [drives.remote]                      # the backend's options (all optional)
     connect = ["tcp/127.0.0.1:7447"]     # where the NC's drive link connects (default: see link_endpoints)
     max_age = 20                         # NC cycles an axis's inputs may be old before 0x4655
-    sender = "cycle"                     # "cycle" | "thread": who puts the outputs (.link)
+    sender = "thread"                    # "thread" | "cycle": who puts the outputs (.link)
     lease_ms = 500                       # the link session's transport lease (default: the NC's)
 
     [[axis]]
@@ -42,7 +42,7 @@ from ...core.params import ConfigError
 from .link import HostSlots
 from .wire import check_host
 
-SENDERS = ("cycle", "thread")
+SENDERS = ("thread", "cycle")
 #: [drives.remote] keys and per-axis Drive keys (without ``backend``).
 BACKEND_KEYS = ("connect", "max_age", "sender", "lease_ms")
 AXIS_KEYS = ("host", "slot")
@@ -55,7 +55,7 @@ class RemoteOptions:
 
     connect: tuple[str, ...] = ()
     max_age: int = DEFAULT_MAX_AGE
-    sender: str = "cycle"
+    sender: str = "thread"
     lease_ms: int | None = None
 
 
@@ -89,7 +89,7 @@ def parse_options(options: Mapping[str, Any], where: str = "drives.remote") -> R
     max_age = options.get("max_age", DEFAULT_MAX_AGE)
     if isinstance(max_age, bool) or not isinstance(max_age, int) or not 1 <= max_age <= 100_000:
         raise ConfigError(f"{where}.max_age", f"must be an integer number of NC cycles 1..100000, got {max_age!r}")
-    sender = options.get("sender", "cycle")
+    sender = options.get("sender", "thread")
     if sender not in SENDERS:
         raise ConfigError(f"{where}.sender", f"must be one of {', '.join(map(repr, SENDERS))}, got {sender!r}")
     lease = options.get("lease_ms")

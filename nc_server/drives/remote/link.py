@@ -9,8 +9,8 @@ touches the NC's own session or its declarations. Per NC cycle :meth:`RemoteLink
 2. returns the newest inputs of every axis with their ``age`` in NC cycles (0: arrived during this cycle;
    counted by the link: +1 per exchange without a new sample of the axis's host) and ``alive`` (the host's
    liveliness token is there and it has sent inputs);
-3. hands each host its outputs (``rx``): put from the cycle thread (``sender = "cycle"``, default) or by a
-   sender thread through a one-slot mailbox (``sender = "thread"``).
+3. hands each host its outputs (``rx``, encoded in the cycle): to a sender thread through a one-slot mailbox
+   (``sender = "thread"``, default) or put from the cycle thread (``sender = "cycle"``).
 
 Decisions:
 
@@ -18,11 +18,12 @@ Decisions:
   is closed: the link usually connects to the NC's own listen endpoint, which opens only after the drives are
   built (the server builds the drives first), and a router or drive host may start later than the NC. Until then
   every host is not alive and nothing is sent.
-* A put from the cycle thread: the publisher uses ``CongestionControl.DROP`` with the session's drop wait cut to
-  :data:`DROP_WAIT_US` (zenoh's default waits up to 1 ms for a full queue), priority REAL_TIME, no express.
-  Measured on the 2-core VM (bench in the report of issue 20): one ~200-byte put from a 1 kHz loop costs a few
-  microseconds; the sender thread saves that but wakes another Python thread that competes for the GIL every
-  cycle. The cycle put is the default; the mailbox is there for links with many hosts.
+* The sender thread by default: the publishers use ``CongestionControl.DROP`` with the session's drop wait cut to
+  :data:`DROP_WAIT_US` (zenoh's default waits up to 1 ms for a full queue), priority REAL_TIME, no express; even
+  so one ~150-byte put from a 1 kHz loop on the 2-core VM cost 20-40 us p50 but 0.5-2 ms p99 (the NC's router
+  session in the same process, other processes busy): too long a tail for the cycle thread. The sender thread
+  takes the put (its Rust part runs without the GIL); a message it has not sent yet is replaced by the newer one
+  (the drive wants the newest target, not every one). ``sender = "cycle"`` puts from the cycle (one thread less).
 * ``rx`` carries the NC cycle; ``tx`` echoes the newest NC cycle the host applied (``rx_cycle``):
   :attr:`RemoteLink.round_trip` is the NC cycles between sending outputs and seeing them applied (a figure for
   the stats, not used for control).
@@ -147,7 +148,7 @@ class RemoteLink(ProcessDataLink):
         hosts: which rows each host serves (every row exactly once).
         config: a function returning the session's config (:func:`link_config`); None: no session (tests of the
             bookkeeping; every host stays not alive).
-        sender: ``"cycle"`` (put from :meth:`exchange`) or ``"thread"`` (one-slot mailbox, sender thread).
+        sender: ``"thread"`` (one-slot mailbox, sender thread) or ``"cycle"`` (put from :meth:`exchange`).
         missing_warn_cycles: a host not heard from this many exchanges after the session opened is logged (once).
 
     Attributes (read by the drive and the stats; written by the cycle thread only):
@@ -160,7 +161,7 @@ class RemoteLink(ProcessDataLink):
     """
 
     def __init__(self, nc_name: str, n: int, hosts: Sequence[HostSlots],
-                 config: Callable[[], zenoh.Config] | None, sender: str = "cycle",
+                 config: Callable[[], zenoh.Config] | None, sender: str = "thread",
                  missing_warn_cycles: int = 5000) -> None:
         if sender not in ("cycle", "thread"):
             raise ValueError(f"sender must be 'cycle' or 'thread', got {sender!r}")
