@@ -111,8 +111,10 @@ def test_link_without_session_ages_inputs_and_reports_no_host() -> None:
         rx = RxImage.zeros(2)
         a = link.exchange(rx)
         b = link.exchange(rx)
-        assert b.age.tolist() == [2, 2] and not b.alive.any()
-        assert a.age.tolist() == [1, 1], "an image handed out is not changed by the next exchange"
+        assert b.age.tolist() == [0, 0] and not b.alive.any(), "a host never heard from: not alive, data not aged"
+        link._seen_rows[:] = 1
+        c = link.exchange(rx)
+        assert c.age.tolist() == [1, 1] and b.age.tolist() == [0, 0], "an image handed out is not changed later"
     finally:
         link.close()
     with pytest.raises(ValueError, match="rows 0..1"):

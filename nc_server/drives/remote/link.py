@@ -7,8 +7,9 @@ touches the NC's own session or its declarations. Per NC cycle :meth:`RemoteLink
    channel of one (a subscriber per host, no Python thread of its own: the cycle thread decodes) and, every
    :data:`LIVELINESS_EVERY` cycles, the hosts' liveliness events from a FIFO channel;
 2. returns the newest inputs of every axis with their ``age`` in NC cycles (0: arrived during this cycle;
-   counted by the link: +1 per exchange without a new sample of the axis's host) and ``alive`` (the host's
-   liveliness token is there and it has sent inputs);
+   counted by the link: +1 per exchange without a new sample of the axis's host; 0 on a host never heard from:
+   its axes are not ready, not in an I/O error) and ``alive`` (the host's liveliness token is there and it has
+   sent inputs);
 3. hands each host its outputs (``rx``, encoded in the cycle): to a sender thread through a one-slot mailbox
    (``sender = "thread"``, default) or put from the cycle thread (``sender = "cycle"``).
 
@@ -189,6 +190,7 @@ class RemoteLink(ProcessDataLink):
         self._host_alive = np.zeros(len(hosts), dtype=bool)  # liveliness token present
         self._host_seen = np.zeros(len(hosts), dtype=bool)   # inputs arrived at least once
         self.round_trip = np.full(n, -1, dtype=np.int64)
+        self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
         self.sent = 0
@@ -234,7 +236,7 @@ class RemoteLink(ProcessDataLink):
         The image returned is new each cycle (its arrays are not changed later: a drive may keep them)."""
         self._cycle += 1
         tx = self._tx
-        tx.age = tx.age + 1
+        tx.age = tx.age + self._seen_rows  # (a host never heard from is not ready, its data not "old": no 0x4655)
         if self._ready:
             self._since_open += 1
             if self._since_open == self._missing_warn and not self._host_seen.all():
@@ -299,6 +301,8 @@ class RemoteLink(ProcessDataLink):
             self.received += 1
             if not self._host_seen[i]:
                 self._host_seen[i] = True
+                self._seen_rows = self._seen_rows.copy()
+                self._seen_rows[rows] = 1
                 log.info("drive host %s of %s: inputs arrive", self.hosts[i], self.nc_name)
                 alive = alive.copy()
                 alive[rows] = self._host_alive[i]
