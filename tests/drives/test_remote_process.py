@@ -199,9 +199,9 @@ def test_drive_process_killed_the_nc_reports_a_drive_error_and_cycles_on(rig: Ca
     try:
         power(cl, [1, 3])
         sim.kill()
-        rec = wait_until(lambda: (r := cl.nctoplc(1)) is not None and int(r["ErrorCode"]) in DRIVE_ERRORS and r, T,
-                         "axis 1 in a drive error")
-        assert not int(rec["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED or int(rec["ErrorCode"]) != 0
+        # (0x4650 today: the drive no longer follows; 0x4651 once the core maps comm_error; 0x4655 stale data)
+        wait_until(lambda: (r := cl.nctoplc(1)) is not None and int(r["ErrorCode"]) in DRIVE_ERRORS, T,
+                   "axis 1 in a drive error")
         # the cycle goes on: the sim axis on the same NC still moves
         assert cl.request("MoveAbsolute", axis=3, Position=10.0, Velocity=100.0)["error"] == 0
         wait_until(lambda: abs(float(cl.nctoplc(3)["ActPos"]) - 10.0) < 0.02, T, "axis 3 at 10.0")

@@ -323,7 +323,7 @@ class RemoteLink(ProcessDataLink):
                 for rows, ids, whole in zip(self._rows, self._ids, self._whole)]
         if self.sender == "thread":
             with self._mail_lock:
-                self._mail = msgs  # one slot per host: a message not yet sent is replaced by the newer one
+                self._mail = list(msgs)  # one slot per host: a message not yet sent is replaced by the newer one
             self._mail_event.set()
             return
         for pub, m in zip(self._pubs, msgs):

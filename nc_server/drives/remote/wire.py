@@ -163,7 +163,7 @@ def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
     cycle, epoch = m.get("cycle"), m.get("epoch", 0)
     if not isinstance(cycle, int) or not isinstance(epoch, int):
         raise WireError("cycle and epoch must be integers")
-    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch)  # type: ignore[arg-type]
+    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch)
 
 
 def encode_tx(tx: TxImage, cycle: int, rx_cycle: int) -> bytes:
