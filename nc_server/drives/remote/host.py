@@ -78,7 +78,7 @@ class _Zenoh:
 
 def load_axes(path: str, host: str) -> tuple[str, list[AxisParams], list[int], tuple[str, ...]]:
     """The NC name, the parameters and AxisIds (slot order) of the axes ``host`` serves, and the endpoints to
-    connect to, from the NC's TOML.
+    connect to (empty: the TOML names none), from the NC's TOML.
 
     Raises:
         ConfigError: unreadable file, bad TOML, no axis on ``host``, bad Drive tables or parameters.
@@ -122,7 +122,11 @@ def load_axes(path: str, host: str) -> tuple[str, list[AxisParams], list[int], t
         i, t = mine[row]
         p = {k: v for k, v in t.items() if k not in ("AxisId", "Name", "ClientLossReaction", "Drive")}
         params.append(AxisParams.from_mapping(p, where=f"axis[{i}]"))
-    return name, params, list(hs.ids), link_endpoints(opts, zs)
+    try:
+        endpoints = link_endpoints(opts, zs)
+    except ConfigError:  # nothing to derive them from: --connect must say it
+        endpoints = ()
+    return name, params, list(hs.ids), endpoints
 
 
 class DriveHost:
@@ -370,6 +374,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         nc = args.nc or nc
         if args.connect:
             endpoints = tuple(args.connect)
+        if not endpoints:
+            raise ConfigError("--connect", "missing: the NC's TOML names no endpoint to connect to")
         link_config(endpoints, args.lease_ms, args.tls_dir, args.host)  # zenoh checks the endpoints now
     except (ConfigError, ValueError) as exc:
         print(f"nc-drive-sim: configuration error: {exc}", file=sys.stderr, flush=True)
