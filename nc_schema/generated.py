@@ -611,6 +611,8 @@ class ErrorCodes:
     NC_DRIVE_STALL: Final = 0x4636
     #: Drive hardware not ready to operate
     NC_DRIVE_NOT_READY: Final = 0x4650
+    #: Cyclic communication error (life counter; zenoh-nc: the drive's heartbeat / node guarding / liveliness is lost)
+    NC_DRIVE_CYCLIC_COMM_ERROR: Final = 0x4651
     #: Invalid IO data for more than n continuous NC cycles (EtherCAT WcState / Lightbus CdlState; zenoh-nc: 3 cycles)
     NC_DRIVE_IO_DATA_INVALID: Final = 0x4655
     #: Axis was stopped
@@ -740,6 +742,7 @@ ERRORS: Final[dict[int, tuple[str, str, str]]] = {
     0x4635: ('NC_DRIVE_OVERCURRENT_B', 'drive', 'Overcurrent in phase B (drive or terminal)'),
     0x4636: ('NC_DRIVE_STALL', 'drive', 'Torque overload (stall): also set by MC_PowerStepper PwStMode_SetError / PwStMode_SetErrNonRef'),
     0x4650: ('NC_DRIVE_NOT_READY', 'drive', 'Drive hardware not ready to operate'),
+    0x4651: ('NC_DRIVE_CYCLIC_COMM_ERROR', 'drive', "Cyclic communication error (life counter; zenoh-nc: the drive's heartbeat / node guarding / liveliness is lost)"),
     0x4655: ('NC_DRIVE_IO_DATA_INVALID', 'drive', 'Invalid IO data for more than n continuous NC cycles (EtherCAT WcState / Lightbus CdlState; zenoh-nc: 3 cycles)'),
     0x4B00: ('MC_AXIS_STOPPED', 'nc-plc', 'Axis was stopped'),
     0x4B01: ('MC_AXIS_CANNOT_BE_STARTED', 'nc-plc', 'Axis cannot be started (axis in error, executing another command, or not ready)'),

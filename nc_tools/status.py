@@ -6,7 +6,8 @@ going back in its frames, ``nc_schema.NcInstance``; a liveliness token that goes
 none), cycle time, timing
 mode, missed cycles / overruns, work p99, the clients (and their roles) and the claims; per axis:
 AxisId, MotionState (PLCopen), AxisState, SetPos / ActPos / SetVelo, ErrorCode with its name
-(errors.json), the claim holder and the source of the last command.
+(errors.json) and the drive's own error code (CiA 402 0x603F, from the stats' drive_errors; shown as
+"(drive 0x2310)" after the axis error), the claim holder and the source of the last command.
 
 Usable over a slow link: it never subscribes to the 1 kHz ``nc/<nc>/frame``. It reads only
 
@@ -209,7 +210,8 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "instance", "restarts", "cycle_time", "timing",
         "missed_cycles", "overruns", "work_us_p99", "clients": {id: {"alive", "role"}}, "claims": {axis: id},
         "axes": [{"AxisId", "MotionState", "AxisState", "SetPos", "ActPos", "SetVelo", "ErrorCode",
-        "ErrorName", "Holder", "LastCommand"}], "problems": [str]}``.
+        "ErrorName", "DriveErrorCode", "Holder", "LastCommand"}], "problems": [str]}``; DriveErrorCode: the drive's own
+        error code (CiA 402 0x603F, stats ``drive_errors``; 0: none or not reported).
     """
     problems: list[str] = []
     st = _unpack(stats)
@@ -262,6 +264,14 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         for c in st.get("clients") or []:
             clients[str(c)] = {"alive": True, "role": None}
 
+    drive_errors: dict[str, int] = {}  # the drives' own codes (CiA 402 0x603F) from the stats
+    de = st.get("drive_errors") if st is not None else None
+    if isinstance(de, dict):
+        for a, c in de.items():
+            if isinstance(c, int) and not isinstance(c, bool):
+                drive_errors[axis_key(a)] = c
+    elif de is not None:
+        problems.append("stats: drive_errors is not a map")
     axes = []
     if frame is not None:
         for r in frame[1]:
@@ -277,6 +287,7 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
                 "AxisState": axis_state,
                 "SetPos": float(r["SetPos"]), "ActPos": float(r["ActPos"]), "SetVelo": float(r["SetVelo"]),
                 "ErrorCode": code, "ErrorName": _error(code),
+                "DriveErrorCode": drive_errors.get(str(aid), 0),
                 "Holder": holders.get(str(aid)),
                 "LastCommand": last.get(str(aid)),
             })
@@ -323,6 +334,8 @@ def render(snap: dict[str, Any]) -> str:
                        f"{'SetVelo':>10}  {'ErrorCode':<30} {'Holder':<12} Last command")
             for a in v["axes"]:
                 err = "0" if not a["ErrorCode"] else f"0x{a['ErrorCode']:04X} {a['ErrorName']}"
+                if a.get("DriveErrorCode"):
+                    err += f" (drive 0x{a['DriveErrorCode']:04X})"
                 lc = a["LastCommand"]
                 lct = "-" if not lc else f"{lc.get('cmd')} by {lc.get('client')} @{lc.get('cycle')}"
                 out.append(f"  {a['AxisId']:>4}  {a['MotionState'].removeprefix(_MOTION_PREFIX):<18} "

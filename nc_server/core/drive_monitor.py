@@ -7,12 +7,16 @@ StateDWord bits (twincat-nc-reference.md 1.1):
 * ErrorPropagationDelayed (bit 6, "a preliminary error warning"): invalid I/O data for 1..3 cycles in a row;
   in the 4th the axis error 0x4655 (NC_DRIVE_IO_DATA_INVALID, "invalid IO data for more than n continuous NC
   cycles") replaces it.
-* DriveDeviceError (bit 28): the drive hardware reports an error (``DriveABC.device_error``); an enabled axis
-  gets the axis error 0x4650 (NC_DRIVE_NOT_READY) at once; the drive is not ready, so a start is refused with
+* DriveDeviceError (bit 28): the drive hardware reports an error (``DriveABC.device_error``: a CiA 402 drive in
+  Fault / Fault reaction active, or one that left Operation enabled while the NC wanted it enabled); an enabled
+  axis gets the axis error 0x4650 (NC_DRIVE_NOT_READY) at once; the drive is not ready, so a start is refused with
   0x4225 (checks.check_startable) and ControlLoopClosed/Operational are off.
+* Lost communication (``DriveABC.comm_error``: heartbeat, node guarding, a remote drive's liveliness): the axis
+  error 0x4651 (NC_DRIVE_CYCLIC_COMM_ERROR, TwinCAT's "cyclic communication error"), enabled or not, before a
+  device error of the same axis (the drive's state is unknown while it does not answer).
 
-Decisions (Beckhoff leaves n open): n = 3 cycles (:data:`DELAY_CYCLES`); the I/O error is raised on a disabled
-axis too (the encoder's data are invalid whatever the controller does); after MC_Reset either error comes back
+Decisions (Beckhoff leaves n open): n = 3 cycles (:data:`DELAY_CYCLES`); the I/O and communication errors are
+raised on a disabled axis too (the encoder's data are invalid whatever the controller does); after MC_Reset either error comes back
 in the next cycle while its condition lasts (the error describes the drive, not an event). The monitor costs
 one flag check per cycle while no drive is faulty and none was in the last cycle.
 
@@ -69,7 +73,11 @@ class DriveMonitor:
         dw |= device * _DEVICE
         self.dw = dw
         self.active = True
+        free = (error == 0) & ~over
         faults = [(int(i), int(ErrorCodes.NC_DRIVE_IO_DATA_INVALID)) for i in np.flatnonzero(over & (error == 0))]
-        faults += [(int(i), int(ErrorCodes.NC_DRIVE_NOT_READY))
-                   for i in np.flatnonzero(device & enabled & (error == 0) & ~over)]
+        comm = drive.comm_error
+        if comm.any():
+            faults += [(int(i), int(ErrorCodes.NC_DRIVE_CYCLIC_COMM_ERROR)) for i in np.flatnonzero(comm & free)]
+            free &= ~comm
+        faults += [(int(i), int(ErrorCodes.NC_DRIVE_NOT_READY)) for i in np.flatnonzero(device & enabled & free)]
         return faults

@@ -331,7 +331,9 @@ class JobEngine:
         if running is not None:
             q.end(running, CmdState.ERROR, code)
         moving = bool(a.traj_on[i]) or abs(a.set_velo[i]) > 0
-        if moving and a.enabled[i]:
+        # a drive that does not follow (a CiA 402 fault: it has stopped itself) gets no ramp: the set-point
+        # follows its actual position (NcCore.take_inputs)
+        if moving and a.enabled[i] and core.drive.following[i]:
             try:
                 self.start_ramp(i, FAULT_RAMP, running)
             except Exception:  # never leave an axis in error moving

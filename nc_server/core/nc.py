@@ -813,6 +813,14 @@ class NcCore:
             self.engine.touched.clear()
         if self._off_rows.size:  # disabled axes: the set position follows the actual position
             self.axes.set_pos[self._off_rows] = self.act_pos[self._off_rows]
+        d = self.drive
+        if d.faulty:  # enabled axes whose drive does not follow (switching on, or stopped itself after a fault)
+            a = self.axes
+            idle = np.flatnonzero(a.enabled & ~d.following)
+            if idle.size:  # no ramp runs on them: the set-point is where the motor is, nothing jumps later
+                a.set_pos[idle] = self.act_pos[idle]
+                a.set_velo[idle] = 0.0
+                a.set_acc[idle] = 0.0
         sup = self.superposition
         if sup.active:
             sup.unapply(self)  # (the stages produce the basic motion; the offsets are added after it)
@@ -960,7 +968,7 @@ class NcCore:
         out["CoupleState"] = cpl.couple_state
         out["TouchProbeState"] = pr.touch_state()
         out["TouchProbeCounter"] = pr.counter
-        # ControlLoopClosed always, Operational only without an error (both need enable + drive ready)
+        # ControlLoopClosed always, Operational only without an error (both need enable, drive ready and following)
         self._loop_dw = self._loop_ok[err.view(np.uint8)]
         self._has_offset = bool(np.count_nonzero(a.offset))
         self.has_origin = bool(np.count_nonzero(a.origin))
@@ -1027,6 +1035,7 @@ def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, An
 def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
     a, q = core.axes, core.queues[i]
     core.probe.disarm_on_reset(i)
+    core.drive.reset(np.array([i]))  # the drive's fault reset (CiA 402: a rising edge of controlword bit 7)
     if core.coupling.is_slave(i) or core.external.on[i]:
         return {}  # a stage drives it (no error: an error ends the coupling/generator): nothing to reset
     if a.traj_on[i] or core.superposition.on[i]:

@@ -99,7 +99,7 @@ class NctoplcPacker:
         act = core.act_pos
         sd = event_dw | core.sp_dw
         sd |= a.mon_dw
-        sd |= (a.enabled & d.ready) * loop_dw
+        sd |= (a.enabled & d.ready & d.following) * loop_dw  # (MC_Power.Status: the drive follows)
         o["StateDWord"][...] = sd
         o["AxisState"][...] = core.axis_state
         period = a.modulo_factor

@@ -769,5 +769,13 @@ class NcServer:
                   "requests_not_activated": self.not_activated, "requests_forced": self.forced,
                   "request_reserve_us": {c: round(v / 1000.0, 1) for c, v in list(self._class_reserve.items())},
                   **self._wait_percentiles(),
+                  "drive_errors": self._drive_errors(),
                   "stages": self.core.stage_times()})
         return d
+
+    def _drive_errors(self) -> dict[int, int]:
+        """{AxisId: the drive's own error code (CiA 402 0x603F)} of the axes whose drive reports one (any thread:
+        the drive replaces its ``error_code`` array, it does not write into it)."""
+        codes = np.asarray(getattr(self.core.drive, "error_code", ()), dtype=np.int64)
+        ids = self.core.axis_ids
+        return {int(ids[i]): int(codes[i]) for i in np.flatnonzero(codes)}

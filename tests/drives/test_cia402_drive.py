@@ -114,11 +114,8 @@ def test_stale_inputs_are_invalid_after_max_age() -> None:
     _step(d, True, 0.0)
     _step(d, True, 1.0, 1000.0)
     d.set_io_invalid(0, True)
-    for k in range(3):
-        _step(d, True, 2.0 + k, 1000.0)
-        assert d.io_valid[0], k
     _step(d, True, 9.0, 1000.0)
-    assert not d.io_valid[0] and d.faulty
+    assert not d.io_valid[0] and d.faulty and int(d.tx.age[0]) == d.max_age + 1
     assert d.act_pos[0] == pytest.approx(1.0)  # the last valid value
     d.set_io_invalid(0, False)
     _step(d, True, 9.0)
@@ -158,3 +155,18 @@ def test_torque_fields_from_the_drive() -> None:
     assert f is not None
     assert f[1, 0] == pytest.approx(12.0, rel=1e-6)  # 1000 u/s against friction (mechanics defaults)
     assert f[0, 0] == pytest.approx(12.0, rel=1e-6)
+
+
+def test_inputs_that_age_are_valid_up_to_max_age() -> None:
+    d = _drive(SimTimeConstant=0.0)
+    d._local.invalid_age = 1  # a link that stops delivering: the age grows cycle by cycle
+    _step(d, True, 0.0)
+    _step(d, True, 1.0, 1000.0)
+    d.set_io_invalid(0, True)
+    d._local.invalid_age = 1
+    for k in range(d.max_age):
+        _step(d, True, 2.0 + k, 1000.0)
+        assert d.io_valid[0] and int(d.tx.age[0]) == k + 1, k
+    _step(d, True, 9.0, 1000.0)
+    assert not d.io_valid[0] and d.faulty
+    assert d.act_pos[0] == pytest.approx(1.0)  # the newest inputs that arrived

@@ -95,10 +95,16 @@ class Cia402Device:
         self._event_code = np.zeros(n, dtype=np.uint16)
         self._cause = np.zeros(n, dtype=bool)      # a persistent fault cause
         self._cause_code = np.zeros(n, dtype=np.uint16)
-        self._comm_lost = False
         self._probe_status = np.zeros(n, dtype=np.uint16)
         self._probe_position = np.zeros(n)
         self._prev_probe_fn = np.zeros(n, dtype=np.uint16)
+        self._probe_armed = np.zeros(n, dtype=bool)
+        self._probe_armed_any = False
+        self._probe_continuous = np.zeros(n, dtype=bool)
+        # (the TxImage's arrays are replaced, never written: these are shared by every TxImage)
+        self._no_torque = np.zeros(n)
+        self._age0 = np.zeros(n, dtype=np.int64)
+        self._alive = np.ones(n, dtype=bool)
         self._chain = EncoderChain(n)
         self.mechanics = Mechanics(n, cycle_time)
         self._any_fault = False
@@ -154,7 +160,7 @@ class Cia402Device:
         """One device cycle with the outputs that arrived (None: none arrived, the last ones stay in effect).
 
         Returns:
-            the inputs of this cycle (a new :class:`TxImage`; age 0, alive).
+            the inputs of this cycle (a new :class:`TxImage`, age 0, alive; its arrays are not written later).
         """
         dt = self.cycle_time
         if rx is None:
@@ -164,27 +170,29 @@ class Cia402Device:
             self.silent = 0.0
         rx = self.rx
         comm_lost = self.timeout is not None and self.silent >= self.timeout
-        self._comm_lost = comm_lost
         state = self.state
         cw = rx.controlword
+        faulted = np.count_nonzero(state >= _FRA)  # some drive in Fault reaction active or Fault
+        stopped: np.ndarray | bool = self.velocity == 0.0 if faulted else True
         if self._any_fault or comm_lost:
             fault = self._event | self._cause
             if comm_lost:
                 fault = np.ones(self.n, dtype=bool)
-            fresh = fault & (state != _FRA) & (state != _FLT)
+            fresh = fault & (state < _FRA)
             if fresh.any():  # the code of the fault that starts the reaction
                 code = np.where(self._cause, self._cause_code, self._event_code)
                 if comm_lost:
                     code = np.where(self._event | self._cause, code, COMM_ERROR_CODE)
                 self.error_code = np.where(fresh, code, self.error_code).astype(np.uint16)
-            new = sm.device_next(state, cw, self._prev_cw, fault, self.velocity == 0.0)
-            self._event &= ~((new == _FRA) | (new == _FLT))  # consumed by the reaction
+            new = sm.device_next(state, cw, self._prev_cw, fault, stopped)
+            self._event &= new < _FRA  # consumed by the reaction
             self._any_fault = bool(self._event.any() or self._cause.any())
         else:
-            new = sm.device_next(state, cw, self._prev_cw, False, self.velocity == 0.0)
-        reset = (state == _FLT) & (new != _FLT)
-        if reset.any():
-            self.error_code = np.where(reset, 0, self.error_code).astype(np.uint16)
+            new = sm.device_next(state, cw, self._prev_cw, False, stopped)
+        if faulted:
+            reset = (state == _FLT) & (new != _FLT)
+            if reset.any():
+                self.error_code = np.where(reset, 0, self.error_code).astype(np.uint16)
         self.state = new
         self._prev_cw = cw
         self._move(new, rx, dt)
@@ -197,9 +205,9 @@ class Cia402Device:
         oe = state == _OE
         n_oe = np.count_nonzero(oe)
         csv = rx.mode == _CSV
-        if n_oe == self.n and not csv.any():  # the steady state: every drive follows its position target
+        stopping: np.ndarray | None = None
+        if n_oe == self.n and not np.count_nonzero(csv):  # the steady state: every drive follows its position target
             new_pos = pos + self._alpha * (rx.target_position - pos)
-            stopping = None
         else:
             stopping = (state == _QSA) | (state == _FRA)
             new_pos = pos.copy()
@@ -210,8 +218,10 @@ class Cia402Device:
             if stopping.any():
                 v_stop = np.sign(v) * np.maximum(np.abs(v) - self._dec * dt, 0.0)
                 new_pos = np.where(stopping, pos + v_stop * dt, new_pos)
+            else:
+                stopping = None
         new_v = (new_pos - pos) / dt
-        if stopping is not None and stopping.any():  # (exactly 0 at the end of the ramp: "stopped")
+        if stopping is not None:  # (exactly 0 at the end of the ramp: "stopped")
             new_v = np.where(stopping & (np.abs(new_v) < 1e-12), 0.0, new_v)
         new_a = (new_v - v) / dt
         self._before = pos
@@ -224,24 +234,32 @@ class Cia402Device:
 
     def _latch(self, rx: RxImage) -> None:
         fn = rx.probe_function
+        if fn is not self._prev_probe_fn and not np.array_equal(fn, self._prev_probe_fn):
+            self._probe_changed(fn)
+        if self._probe_armed_any:
+            x = self.pulse_passed(self._before, self.position)
+            hit = self._probe_armed & (x == x)  # (not NaN)
+            if np.count_nonzero(hit):
+                self._probe_position = np.where(hit, x, self._probe_position)
+                st = np.where(hit, (self._probe_status | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, self._probe_status)
+                self._probe_status = st.astype(np.uint16)
+                if not self._probe_continuous.all():  # single mode: latched once
+                    self._probe_armed = self._probe_armed & (self._probe_continuous | ~hit)
+                    self._probe_armed_any = bool(self._probe_armed.any())
+
+    def _probe_changed(self, fn: np.ndarray) -> None:
+        """0x60B8 changed: probe 1 enabled (again) or off, its mode, source and edge."""
+        fn = np.asarray(fn, dtype=np.uint16)
         on = (fn & PROBE_ENABLE) != 0
-        if not on.any():
-            if self._probe_status.any():
-                self._probe_status = np.zeros(self.n, dtype=np.uint16)
-            self._prev_probe_fn = fn
-            return
         started = on & ((self._prev_probe_fn & PROBE_ENABLE) == 0)
         status = np.where(on, self._probe_status | PROBE_STATUS_ENABLED, 0).astype(np.uint16)
         status = np.where(started, status & ~np.uint16(PROBE_STATUS_STORED), status).astype(np.uint16)
-        armed = on & ((fn & 0x0C) == PROBE_SOURCE_INDEX) & ((fn & PROBE_POSITIVE) != 0)
-        armed &= ((fn & PROBE_CONTINUOUS) != 0) | ((status & PROBE_STATUS_STORED) == 0)
-        if armed.any():
-            x = self.pulse_passed(self._before, self.position)
-            hit = armed & ~np.isnan(x)
-            if hit.any():
-                self._probe_position = np.where(hit, x, self._probe_position)
-                status = np.where(hit, (status | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, status).astype(np.uint16)
         self._probe_status = status
+        self._probe_continuous = (fn & PROBE_CONTINUOUS) != 0
+        armed = on & ((fn & 0x0C) == PROBE_SOURCE_INDEX) & ((fn & PROBE_POSITIVE) != 0)
+        # single mode: armed until a position is stored (a new enable edge arms it again)
+        self._probe_armed = armed & (self._probe_continuous | ((status & PROBE_STATUS_STORED) == 0))
+        self._probe_armed_any = bool(self._probe_armed.any())
         self._prev_probe_fn = fn
 
     def pulse_passed(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -255,18 +273,7 @@ class Cia402Device:
         return np.where(crossed, off + k * sp, np.nan)
 
     def _publish(self) -> None:
-        oe = self.state == _OE
-        f = self.mechanics.fields
-        torque = f[1] * 10.0 if not self.mechanics.resting else np.zeros(self.n)
-        self.tx = TxImage(
-            statusword=sm.statusword(self.state, follows=oe),
-            mode_display=self.rx.mode.copy(),
-            position_actual=self.position,
-            velocity_actual=self.velocity,
-            torque_actual=torque,
-            error_code=self.error_code.copy(),
-            probe_status=self._probe_status.copy(),
-            probe_position=self._probe_position.copy(),
-            age=np.zeros(self.n, dtype=np.int64),
-            alive=np.ones(self.n, dtype=bool),
-        )
+        m = self.mechanics
+        torque = self._no_torque if m.resting else m.fields[1] * 10.0
+        self.tx = TxImage(sm.statusword(self.state, follows=True), self.rx.mode, self.position, self.velocity,
+                          torque, self.error_code, self._probe_status, self._probe_position, self._age0, self._alive)

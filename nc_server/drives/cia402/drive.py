@@ -33,16 +33,24 @@ Decisions:
   behaviour (its parameters, cam, directions, the NC's position set) on every backend and the drive stays in
   CSP. The probe is armed all the time (a drive latches in hardware at no cost to the NC); ``latch_sync_pulse``
   reports a latch that arrived in the cycle just stepped.
+* Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
+  drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
+  0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
+* The drive's own error code (0x603F, ``error_code``) is shown in the NC's stats (``drive_errors``) and by
+  nc-status next to the axis error, not in NCTOPLC: none of the 256 bytes fits (ErrorCode is the NC's axis
+  error, 0x4650/0x4651/0x4655 for drive errors, which PLC programs compare; the rest are TwinCAT's fields).
+* Disabling the controller sends Shutdown: the drive goes to Ready to switch on (no torque; its brake holds);
+  enabling from there is one cycle (0x000F: transitions 3 + 4).
 
 It may import: numpy, nc_server.core.params, nc_server.drives.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ...core.params import AxisParams
+from ...core.params import AxisParams, ConfigError
 from ..base import DriveABC
 from ..encoder import EncoderChain
 from ..mechanics import Mechanics
@@ -52,6 +60,41 @@ from .image import ProcessDataLink, RxImage, TxImage
 from .objects import Mode, State
 
 _OE, _FRA, _FLT = int(State.OPERATION_ENABLED), int(State.FAULT_REACTION_ACTIVE), int(State.FAULT)
+#: the NC's position loop gain in CSV [1/s] unless an axis sets ``kv``
+DEFAULT_KV = 100.0
+
+
+def axis_options(opts: Mapping[str, Any], where: str) -> tuple[Mode, float, dict[str, Any]]:
+    """The CiA 402 options of one axis's ``Drive`` table: ``mode`` ("csp" or "csv", default "csp") and ``kv``
+    (CSV's position loop gain [1/s], default :data:`DEFAULT_KV`); returns (mode, kv, the other options) for the
+    backend to judge.
+
+    Raises:
+        ConfigError: a bad ``mode`` or ``kv`` (``where``: the key path, e.g. ``axis[0].Drive``).
+    """
+    rest = dict(opts)
+    raw = rest.pop("mode", "csp")
+    mode = {"csp": Mode.CSP, "csv": Mode.CSV}.get(str(raw).lower()) if isinstance(raw, str) else None
+    if mode is None:
+        raise ConfigError(f"{where}.mode", f"must be \"csp\" or \"csv\", got {raw!r}")
+    kv = rest.pop("kv", DEFAULT_KV)
+    if isinstance(kv, bool) or not isinstance(kv, (int, float)) or not (np.isfinite(kv) and kv > 0):
+        raise ConfigError(f"{where}.kv", f"must be a number > 0 [1/s], got {kv!r}")
+    return mode, float(kv), rest
+
+
+def link_options(opts: Mapping[str, Any], where: str = "drives") -> tuple[int, dict[str, Any]]:
+    """``max_age`` (inputs older than this many NC cycles are invalid I/O data; default 3) of a backend's
+    ``[drives.<name>]`` table; returns (max_age, the other options).
+
+    Raises:
+        ConfigError: ``max_age`` not an integer >= 0.
+    """
+    rest = dict(opts)
+    max_age = rest.pop("max_age", 3)
+    if isinstance(max_age, bool) or not isinstance(max_age, int) or max_age < 0:
+        raise ConfigError(f"{where}.max_age", f"must be an integer >= 0 [NC cycles], got {max_age!r}")
+    return max_age, rest
 
 
 class Cia402Drive(DriveABC):
@@ -67,9 +110,34 @@ class Cia402Drive(DriveABC):
     """
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: ProcessDataLink, *,
-                 simulated: bool = False, max_age: int = 3, mode: Mode = Mode.CSP) -> None:
+                 simulated: bool = False, max_age: int = 3, mode: Mode | Sequence[Mode] = Mode.CSP,
+                 kv: float | Sequence[float] = DEFAULT_KV) -> None:
+        """
+        Args:
+            params: the axes' parameters (the encoder chain, the torque model).
+            cycle_time: the NC cycle [s].
+            link: the process data link of these axes (one column per axis, in order).
+            simulated: OpModeDWord.OpModeSimulationAxis.
+            max_age: inputs older than this [NC cycles] are invalid I/O data (0x4655 three cycles later).
+            mode: per axis (or for all) CSP (the default) or CSV.
+            kv: per axis (or for all) the NC's position loop gain in CSV [1/s] (target velocity = SetVelo +
+                kv * (SetPos - ActPos)); unused in CSP, where the drive closes the position loop.
+
+        Raises:
+            ValueError: a mode other than CSP/CSV, kv <= 0, max_age < 0.
+        """
         super().__init__(params, cycle_time)
         n = len(params)
+        modes = [mode] * n if isinstance(mode, (int, Mode)) else list(mode)
+        kvs = [kv] * n if isinstance(kv, (int, float)) else list(kv)
+        if len(modes) != n or len(kvs) != n:
+            raise ValueError(f"mode and kv need one value per axis ({n})")
+        if any(int(m) not in (Mode.CSP, Mode.CSV) for m in modes):
+            raise ValueError(f"mode must be CSP (8) or CSV (9), got {modes}")
+        if not all(float(k) > 0 and np.isfinite(float(k)) for k in kvs):
+            raise ValueError(f"kv must be > 0 [1/s], got {kvs}")
+        if int(max_age) < 0:
+            raise ValueError(f"max_age must be >= 0 cycles, got {max_age}")
         self.simulated = simulated
         self.link = link
         self.max_age = int(max_age)
@@ -77,12 +145,19 @@ class Cia402Drive(DriveABC):
         self.mechanics = Mechanics(n, cycle_time)
         self.state = np.full(n, int(State.NOT_READY_TO_SWITCH_ON), dtype=np.int8)
         self.controlword = np.zeros(n, dtype=np.uint16)
-        self._mode = np.full(n, int(mode), dtype=np.int8)
+        self._mode = np.array([int(m) for m in modes], dtype=np.int8)
+        self._csv = self._mode == int(Mode.CSV)
+        self._any_csv = bool(self._csv.any())
+        self._kv = np.array([float(k) for k in kvs])
         self._probe_fn = np.full(n, PROBE_SYNC_PULSE, dtype=np.uint16)
         self._reset_left = np.zeros(n, dtype=np.int64)
         self._dropped = np.zeros(n, dtype=bool)
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
+        self._no_probe = np.zeros(n, dtype=bool)
+        self._probe_new_any = False
+        self._any_dropped = False
+        self._any_reset = False
         self._cycle = 0
         self.following = np.zeros(n, dtype=bool)
         self.tx = TxImage.zeros(n)
@@ -104,7 +179,9 @@ class Cia402Drive(DriveABC):
         """A fault reset edge for these axes (MC_Reset)."""
         rows = np.asarray(rows, dtype=np.intp)
         self._reset_left[rows] = self.max_age + 4
+        self._any_reset = True
         self._dropped[rows] = False
+        self._any_dropped = bool(self._dropped.any())
 
     # -- the cycle ------------------------------------------------------------------------------------------
 
@@ -114,19 +191,21 @@ class Cia402Drive(DriveABC):
         target = (set_pos - c.offset) / c.scaling * c.sign - c.base
         if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
             target = np.where(self.following, target, self._pos_inc)
-        self._exchange(en, target, set_velo / c.scaling * c.sign)
+        velo = set_velo / c.scaling * c.sign
+        if self._any_csv:  # the NC closes the position loop: feed forward + kv * the position error [inc/s]
+            velo = np.where(self._csv & self.following, velo + self._kv * (target - self._pos_inc), velo)
+        self._exchange(en, target, velo)
         self._torque(set_velo, set_acc)
 
     def _exchange(self, want: np.ndarray, target: np.ndarray | None, target_velo: np.ndarray) -> None:
-        en = want
-        if self._dropped.any():  # a drive that dropped out is not enabled again before a fault reset
-            en = en & ~self._dropped
-        if self._reset_left.any():
-            requested = self._reset_left > 0
-            cw = sm.nc_controlword(self.state, en, requested, self.controlword)
+        up = want
+        if self._any_dropped:  # a drive that dropped out is not enabled again before a fault reset
+            up = want & ~self._dropped
+        if self._any_reset:
+            cw = sm.nc_controlword(self.state, up, self._reset_left > 0, self.controlword)
             self._reset_left = np.maximum(self._reset_left - 1, 0)
         else:
-            cw = sm.nc_controlword(self.state, en)
+            cw = sm.nc_controlword(self.state, up)
         self._cycle += 1
         rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
                      self._cycle)
@@ -135,43 +214,59 @@ class Cia402Drive(DriveABC):
         self.tx = tx
         state = sm.decode(tx.statusword)
         self.state = state
-        follows = state == _OE
-        alive = tx.alive
+        following = state == _OE
         c = self.encoder
-        valid = tx.age <= self.max_age
-        all_valid = bool(valid.all())
         new_pos = c.sign * (tx.position_actual + c.base) * c.scaling + c.offset
         new_velo = tx.velocity_actual * c.scaling * c.sign
-        if not all_valid:  # stale inputs: the last valid values stay
-            new_pos = np.where(valid, new_pos, self.act_pos)
-            new_velo = np.where(valid, new_velo, self.act_velo)
         new_acc = (new_velo - self.act_velo) / self.cycle_time
-        if not all_valid:
-            new_acc = np.where(valid, new_acc, self.act_acc)
-        self._pos_inc = np.where(valid, tx.position_actual, self._pos_inc) if not all_valid else tx.position_actual
-        self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
-        self.io_valid = valid
-        if alive.all():
-            following = follows
-            self.comm_error = np.zeros(len(follows), dtype=bool)
-        else:
-            following = follows & alive
+        n = len(state)
+        degraded = np.count_nonzero(tx.age > self.max_age) or np.count_nonzero(tx.alive) < n
+        if degraded or self.faulty:  # (the steady state skips all of this)
+            valid = tx.age <= self.max_age
+            alive = tx.alive
+            if not valid.all():  # stale inputs: the last valid values stay
+                new_pos = np.where(valid, new_pos, self.act_pos)
+                new_velo = np.where(valid, new_velo, self.act_velo)
+                new_acc = np.where(valid, new_acc, self.act_acc)
+                self._pos_inc = np.where(valid, tx.position_actual, self._pos_inc)
+            else:
+                self._pos_inc = tx.position_actual
+            following = following & alive
+            fault_state = state >= _FRA
+            dropped = self._dropped
+            if self._any_dropped or np.count_nonzero(self.following & ~following):
+                dropped = want & alive & ~following & (dropped | self.following)  # (silent: unknown, 0x4651)
+                self._dropped = dropped
+                self._any_dropped = bool(dropped.any())
+            self.io_valid = valid
             self.comm_error = ~alive
-        fault_state = (state == _FRA) | (state == _FLT)
-        dropped = self._dropped
-        if dropped.any() or np.count_nonzero(self.following & ~following):
-            dropped = want & ~following & (dropped | self.following)
-            self._dropped = dropped
+            self.device_error = fault_state | dropped
+            self.ready = ~fault_state & alive & (~want | following)
+            self.faulty = bool(degraded or self.device_error.any() or np.count_nonzero(want & ~following))
+        else:
+            self._pos_inc = tx.position_actual
+            if np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
+                    or np.count_nonzero(want & ~following):  # a change (then the full evaluation while faulty)
+                fault_state = state >= _FRA
+                dropped = want & ~following & self.following
+                self._dropped = dropped
+                self._any_dropped = bool(dropped.any())
+                self.device_error = fault_state | dropped
+                self.ready = ~fault_state & (~want | following)
+                self.faulty = bool(self.device_error.any() or np.count_nonzero(want & ~following))
         self.following = following
-        self.device_error = fault_state | dropped
-        self.ready = ~fault_state & alive & (~want | following)
+        self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
         self.error_code = tx.error_code
-        self.faulty = bool(not all_valid or self.device_error.any() or not alive.all()
-                           or np.count_nonzero(want & ~following))
-        if self._reset_left.any():
-            self._reset_left = np.where(fault_state, self._reset_left, 0)
-        self._probe_new = ((tx.probe_status ^ self._last_probe_status) & PROBE_STATUS_TOGGLE) != 0
-        self._last_probe_status = tx.probe_status
+        if self._any_reset:
+            self._reset_left = np.where(state == _FLT, self._reset_left, 0)
+            self._any_reset = bool(self._reset_left.any())
+        ps = tx.probe_status
+        if ps is not self._last_probe_status:
+            self._probe_new = ((ps ^ self._last_probe_status) & PROBE_STATUS_TOGGLE) != 0
+            self._last_probe_status = ps
+        elif self._probe_new_any:
+            self._probe_new = self._no_probe
+        self._probe_new_any = bool(self._probe_new.any())
 
     def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         m = self.mechanics
@@ -181,6 +276,10 @@ class Cia402Drive(DriveABC):
             act = self.tx.torque_actual * 0.1
             m.fields[2] = (act - shown) * m.inv_dt
             m.fields[1] = act
+
+    def encoder_count(self, index: int) -> float:
+        """The hardware counter of axis ``index``'s encoder as the NC's chain reads it: increments & mask [inc]."""
+        return self.encoder.hardware_count(index, float(self.act_pos[index]))
 
     # -- torque, homing -------------------------------------------------------------------------------------
 

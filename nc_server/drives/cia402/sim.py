@@ -8,7 +8,8 @@ machine, drive faults and the touch probe latch of the index pulses.
 Decisions: at power up the device is in Switch on disabled and the first exchange (at construction) takes it to
 Ready to switch on, so an NC enable reaches Operation enabled in the same cycle (MC_Power.Status shows it only
 then). Injectable states for tests as ``SimDrive`` has them: :meth:`Cia402SimDrive.set_io_invalid` (the link
-stops carrying the axis: its outputs do not reach the device, its inputs stay the last, ``age`` grows) and
+stops carrying the axis: its outputs do not reach the device, its inputs stay the last and are invalid at once,
+``age`` past ``max_age``, as with a bad EtherCAT WcState) and
 :meth:`Cia402SimDrive.set_device_error` (a persistent hardware fault 0x5000 of the device: the drive stops on its
 quick-stop ramp and goes to Fault; clearing it lets the next MC_Reset acknowledge it -- unlike ``SimDrive``,
 where the error vanished by itself), plus :meth:`Cia402SimDrive.inject_fault` and :meth:`Cia402SimDrive.set_silent`
@@ -18,14 +19,17 @@ It may import: numpy, nc_server.core.params, nc_server.drives.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ...core.params import AxisParams
+from ...core.params import AxisParams, ConfigError
+from ..base import DriveContext
 from .device import HARDWARE_ERROR_CODE, Cia402Device
-from .drive import Cia402Drive
+from .drive import DEFAULT_KV, Cia402Drive, link_options
+from .drive import axis_options as axis_options_of
 from .image import ProcessDataLink, RxImage, TxImage
+from .objects import Mode
 
 
 class LocalLink(ProcessDataLink):
@@ -35,6 +39,8 @@ class LocalLink(ProcessDataLink):
         device: the simulated drives.
         invalid: per axis, the link does not carry this axis (its inputs stay, their age grows).
         alive: per axis, the node answers (False: ``alive`` False in the inputs: lost communication).
+        invalid_age: the least age an invalid axis's inputs report (``Cia402SimDrive``: ``max_age + 1``, so the
+            data are invalid at once, as a bad EtherCAT WcState makes them; 1: they age cycle by cycle).
     """
 
     def __init__(self, device: Cia402Device) -> None:
@@ -42,6 +48,7 @@ class LocalLink(ProcessDataLink):
         self.n = device.n
         self.invalid = np.zeros(self.n, dtype=bool)
         self.alive = np.ones(self.n, dtype=bool)
+        self.invalid_age = 1
         self._last_rx: RxImage | None = None
         self._last_tx: TxImage | None = None
         self._degraded = False
@@ -65,7 +72,7 @@ class LocalLink(ProcessDataLink):
         out = TxImage(**{f: np.where(bad, getattr(last_tx, f), getattr(tx, f)).astype(getattr(tx, f).dtype)
                          for f in ("statusword", "mode_display", "position_actual", "velocity_actual",
                                    "torque_actual", "error_code", "probe_status", "probe_position")},
-                      age=np.where(bad, last_tx.age + 1, 0), alive=self.alive.copy())
+                      age=np.where(bad, np.maximum(last_tx.age + 1, self.invalid_age), 0), alive=self.alive.copy())
         self._last_rx = RxImage(cycle=rx.cycle, **{f: np.where(bad, getattr(last_rx, f), getattr(rx, f)) for f in
                                                   ("controlword", "mode", "target_position", "target_velocity",
                                                    "probe_function")})
@@ -80,10 +87,35 @@ class Cia402SimDrive(Cia402Drive):
         device: the simulated drives behind the link.
     """
 
-    def __init__(self, params: Sequence[AxisParams], cycle_time: float) -> None:
+    def __init__(self, params: Sequence[AxisParams], cycle_time: float, *, mode: Mode | Sequence[Mode] = Mode.CSP,
+                 kv: float | Sequence[float] = DEFAULT_KV, max_age: int = 3) -> None:
         self.device = Cia402Device(len(params), cycle_time)  # (configured by Cia402Drive.__init__)
         self._local = LocalLink(self.device)
-        super().__init__(params, cycle_time, self._local, simulated=True)
+        super().__init__(params, cycle_time, self._local, simulated=True, mode=mode, kv=kv, max_age=max_age)
+        self._local.invalid_age = self.max_age + 1
+
+    @classmethod
+    def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
+                    axis_options: Sequence[Mapping[str, Any]], context: DriveContext) -> Cia402SimDrive:
+        """Per axis ``mode`` ("csp"/"csv") and ``kv`` (:func:`.drive.axis_options`); ``[drives.cia402-sim]``
+        ``max_age`` (:func:`.drive.link_options`).
+
+        Raises:
+            ConfigError: an unknown option or a bad value.
+        """
+        modes, kvs = [], []
+        for i, opts in enumerate(axis_options):
+            mode, kv, rest = axis_options_of(opts, f"axis[{i}].Drive")
+            if rest:
+                raise ConfigError(f"axis[{i}].Drive", f"the cia402-sim backend takes mode and kv, got "
+                                                      f"{', '.join(sorted(rest))}")
+            modes.append(mode)
+            kvs.append(kv)
+        max_age, rest = link_options(context.options, "drives.cia402-sim")
+        if rest:
+            raise ConfigError("drives.cia402-sim", f"the cia402-sim backend takes max_age, got {', '.join(sorted(rest))}")
+        n = len(params)
+        return cls(params, cycle_time, mode=modes or [Mode.CSP] * n, kv=kvs or [DEFAULT_KV] * n, max_age=max_age)
 
     def configure(self, index: int, params: AxisParams) -> None:
         super().configure(index, params)
@@ -91,9 +123,9 @@ class Cia402SimDrive(Cia402Drive):
             self.device.configure(index, params)
 
     def set_io_invalid(self, index: int, invalid: bool) -> None:
-        """Axis ``index``'s I/O data become invalid (``invalid`` False: valid again) from the next step: the link
-        does not carry it (its outputs do not reach the drive, its inputs stay the last, their age grows past
-        ``max_age``)."""
+        """Axis ``index``'s I/O data become invalid (``invalid`` False: valid again) from the next step, as with a bad
+        EtherCAT WcState: the link does not carry it (its outputs do not reach the drive, its inputs stay the last)
+        and their age is past ``max_age`` at once."""
         self._check_index(index)
         self._local.invalid[index] = bool(invalid)
         self._local.degraded_changed()

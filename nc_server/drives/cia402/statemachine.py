@@ -63,6 +63,7 @@ _REMOTE = np.uint16(int(SW.REMOTE))
 _TARGET_REACHED = np.uint16(int(SW.TARGET_REACHED))
 _FOLLOWS = np.uint16(int(SW.DRIVE_FOLLOWS))
 _FAULT_RESET = np.uint16(int(CW.FAULT_RESET))
+_ENCODE_FOLLOWS = (_ENCODE | _REMOTE | np.where(np.arange(8) == _OE, _FOLLOWS, 0)).astype(np.uint16)
 
 
 def decode(statusword: np.ndarray) -> np.ndarray:
@@ -77,10 +78,13 @@ def statusword(states: np.ndarray, target_reached: np.ndarray | bool = False,
     Args:
         states: :class:`State` values.
         target_reached: bit 10 per axis (CSP/CSV: the drive stands at its target / velocity reached).
-        follows: bit 12 per axis (CSP/CSV: the drive follows the command value; only in Operation enabled).
+        follows: bit 12 per axis (CSP/CSV: the drive follows the command value; set only in Operation enabled):
+            True: wherever the drive is in Operation enabled.
         remote: bit 9 (the drive is controlled over the fieldbus).
     """
     s = np.asarray(states, dtype=np.intp)
+    if follows is True and remote:  # the simulated device's cycle: one look-up
+        return _ENCODE_FOLLOWS[s]
     w = _ENCODE[s]
     if remote:
         w = w | _REMOTE
@@ -88,7 +92,49 @@ def statusword(states: np.ndarray, target_reached: np.ndarray | bool = False,
         w = w | (np.asarray(target_reached, dtype=bool) * _TARGET_REACHED).astype(np.uint16)
     if np.any(follows):
         w = w | ((np.asarray(follows, dtype=bool) & (s == _OE)) * _FOLLOWS).astype(np.uint16)
-    return w.astype(np.uint16)
+    return w.astype(np.uint16, copy=False)
+
+
+def _command_next(state: int, cw: int) -> int:
+    """The device's transition for the command in controlword bits 0..3 (transitions 0..12 and 16; the fault
+    transitions 13..15 depend on more than the controlword and are applied by :func:`device_next`)."""
+    disable_voltage = cw & 0x2 == 0
+    quick_stop = cw & 0x6 == 0x2
+    shutdown = cw & 0x7 == 0x6
+    switch_on = cw & 0x7 == 0x7
+    enable_op = cw & 0xF == 0xF
+    disable_op = cw & 0xF == 0x7
+    if state == _NR:
+        return _SOD                                       # 0 + 1 (the self test is done)
+    if state == _SOD:
+        return _RTSO if shutdown else _SOD                # 2
+    if state == _RTSO:
+        if switch_on:
+            return _OE if enable_op else _SO              # 3 (+ 4)
+        return _SOD if disable_voltage or quick_stop else _RTSO  # 7
+    if state == _SO:
+        if enable_op:
+            return _OE                                    # 4
+        if shutdown:
+            return _RTSO                                  # 6
+        return _SOD if disable_voltage or quick_stop else _SO  # 10
+    if state == _OE:
+        if disable_op:
+            return _SO                                    # 5
+        if shutdown:
+            return _RTSO                                  # 8
+        if disable_voltage:
+            return _SOD                                   # 9
+        return _QSA if quick_stop else _OE                # 11
+    if state == _QSA:
+        if disable_voltage:
+            return _SOD                                   # 12
+        return _OE if enable_op else _QSA                 # 16
+    return state                                          # Fault reaction active, Fault: see device_next
+
+
+#: (state * 16 + controlword & 0xF) -> next state by the command alone
+_NEXT = np.array([_command_next(st, cw) for st in range(8) for cw in range(16)], dtype=np.int8)
 
 
 def device_next(states: np.ndarray, controlword: np.ndarray, prev_controlword: np.ndarray,
@@ -103,43 +149,18 @@ def device_next(states: np.ndarray, controlword: np.ndarray, prev_controlword: n
         stopped: per axis, the fault reaction is done (Fault reaction active -> Fault).
 
     Returns:
-        the new states (int8).
+        the new states (int8; a new array).
     """
     s = np.asarray(states, dtype=np.int8)
     cw = np.asarray(controlword, dtype=np.uint16)
-    fault = np.asarray(fault, dtype=bool)
-    low3 = cw & 0x7
-    low4 = cw & 0xF
-    disable_voltage = (cw & 0x2) == 0
-    quick_stop = (cw & 0x6) == 0x2
-    shutdown = low3 == 0x6
-    switch_on = low3 == 0x7
-    enable_op = low4 == 0xF
-    disable_op = low4 == 0x7
-    reset_edge = ((cw & _FAULT_RESET) != 0) & ((np.asarray(prev_controlword, dtype=np.uint16) & _FAULT_RESET) == 0)
-
-    n = s.copy()
-    n[s == _NR] = _SOD                                                                  # 0 + 1 (self test done)
-    n = np.where((s == _SOD) & shutdown, _RTSO, n)                                      # 2
-    rtso = s == _RTSO
-    n = np.where(rtso & switch_on, np.where(enable_op, _OE, _SO), n)                    # 3 (+ 4)
-    n = np.where(rtso & (disable_voltage | quick_stop), _SOD, n)                        # 7
-    so = s == _SO
-    n = np.where(so & enable_op, _OE, n)                                                # 4
-    n = np.where(so & shutdown, _RTSO, n)                                               # 6
-    n = np.where(so & (disable_voltage | quick_stop), _SOD, n)                          # 10
-    oe = s == _OE
-    n = np.where(oe & disable_op, _SO, n)                                               # 5
-    n = np.where(oe & shutdown, _RTSO, n)                                               # 8
-    n = np.where(oe & disable_voltage, _SOD, n)                                         # 9
-    n = np.where(oe & quick_stop, _QSA, n)                                              # 11
-    qsa = s == _QSA
-    n = np.where(qsa & disable_voltage, _SOD, n)                                        # 12
-    n = np.where(qsa & enable_op, _OE, n)                                               # 16
-    n = np.where((s == _FRA) & np.asarray(stopped, dtype=bool), _FLT, n)                # 14
-    n = np.where((s == _FLT) & reset_edge & ~fault, _SOD, n)                            # 15
-    n = np.where(fault & (s != _FRA) & (s != _FLT), _FRA, n)                            # 13
-    return n.astype(np.int8)
+    n = _NEXT[(s.astype(np.intp) << 4) | (cw & 0xF)]
+    if np.count_nonzero(s >= _FRA):  # (only then: the common cycle is one table look-up)
+        n = np.where((s == _FRA) & np.asarray(stopped, dtype=bool), np.int8(_FLT), n)                # 14
+        reset_edge = ((cw & _FAULT_RESET) != 0) & ((np.asarray(prev_controlword, dtype=np.uint16) & _FAULT_RESET) == 0)
+        n = np.where((s == _FLT) & reset_edge & ~np.asarray(fault, dtype=bool), np.int8(_SOD), n)  # 15
+    if fault is not False and np.count_nonzero(fault):
+        n = np.where(np.asarray(fault, dtype=bool) & (s < _FRA), np.int8(_FRA), n)                  # 13
+    return n.astype(np.int8, copy=False)
 
 
 def nc_controlword(states: np.ndarray, want_enabled: np.ndarray, reset_request: np.ndarray | bool = False,
@@ -162,21 +183,17 @@ def nc_controlword(states: np.ndarray, want_enabled: np.ndarray, reset_request: 
         uint16 controlwords.
     """
     s = np.asarray(states, dtype=np.intp)
-    want = np.asarray(want_enabled, dtype=bool)
-    up = _UP[s]
-    down = _DOWN[s]
-    cw = np.where(want, up, down)
-    fault = s == _FLT
-    if np.any(reset_request):
-        reset = fault & np.asarray(reset_request, dtype=bool)
+    cw = _WALK[(np.asarray(want_enabled, dtype=np.intp) << 3) | s]
+    if reset_request is not False and np.count_nonzero(reset_request):
+        reset = (s == _FLT) & np.asarray(reset_request, dtype=bool)
         if prev_controlword is not None:
             had = (np.asarray(prev_controlword, dtype=np.uint16) & _FAULT_RESET) != 0
             cw = np.where(reset & ~had, _FAULT_RESET, cw)
         else:
             cw = np.where(reset, _FAULT_RESET, cw)
-    return cw.astype(np.uint16)
+    return cw.astype(np.uint16, copy=False)
 
 
-# state -> controlword toward Operation enabled / toward Ready to switch on
-_UP = np.array([0x0006, 0x0006, 0x000F, 0x000F, 0x000F, 0x000F, 0x0000, 0x0000], dtype=np.uint16)
-_DOWN = np.array([0x0006, 0x0006, 0x0006, 0x0006, 0x0006, 0x0000, 0x0000, 0x0000], dtype=np.uint16)
+# (want << 3 | state) -> controlword: toward Ready to switch on (want 0), toward Operation enabled (want 1)
+_WALK = np.array([0x0006, 0x0006, 0x0006, 0x0006, 0x0006, 0x0000, 0x0000, 0x0000,
+                  0x0006, 0x0006, 0x000F, 0x000F, 0x000F, 0x000F, 0x0000, 0x0000], dtype=np.uint16)
