@@ -16,12 +16,12 @@ import zenoh
 from nc_server.security.acl import access_control
 from nc_server.security.roles import RolesError, load_roles, parse_roles
 from znc_testing import (
-    BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, free_port, nc_router_command, start_nc_server,
+    NcServerProcess, NcTestClient, free_port, nc_router_command, start_nc_server,
     wait_until,
 )
 from znc_testing.sec_testing import tls_config
 
-from test_remote_process import CONFIG, DriveSim  # noqa: E402  (tests/drives is on sys.path under pytest)
+from test_remote_process import CONFIG, DriveSim, power  # noqa: E402  (tests/drives is on sys.path under pytest)
 
 REPO = Path(__file__).resolve().parents[2]
 ROLES = REPO / "deploy" / "roles.toml"
@@ -103,17 +103,15 @@ def test_drives_behind_a_tls_router_with_access_control(tmp_path: Path, certs: P
     started.append(nc)
     cfg = tmp_path / "nc.toml"
     cfg.write_text(text)
-    sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", ep, "--tls-dir", str(certs)])
+    sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", ep, "--tls-dir", str(certs),
+                              "--timeout", "1.0"])
     started.append(sim)
     wait_until(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0, T,
                f"the drive host receives nc1's outputs through the router; stderr:\n{sim.stderr()}")
     # a PLC client (operator plc1) powers and moves the remote axis
     cl = NcTestClient(port, client_id="plc1", config=tls_config(port, certs, "plc1"))
     try:
-        cl.claim(1)
-        cl.feed_plctonc([1])
-        wait_until(lambda: (r := cl.nctoplc(1)) is not None and int(r["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED, T,
-                   "axis 1 enabled")
+        power(cl, [1])
         assert cl.request("MoveAbsolute", axis=1, Position=12.5, Velocity=100.0)["error"] == 0
         wait_until(lambda: abs(float(cl.nctoplc(1)["ActPos"]) - 12.5) < 0.02, T, "axis 1 at 12.5")
     finally:
