@@ -24,7 +24,8 @@ from typing import Any, Callable, Iterator
 import pytest
 
 from znc_testing import (
-    BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, free_port, kill_process_group, start_nc_server, wait_until,
+    BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, free_port, kill_process_group, start_nc_server, unpack,
+    wait_until,
 )
 
 T = 30.0  # generous deadlines: a loaded 2-core machine
@@ -170,6 +171,9 @@ def test_power_and_move_reach_the_target_on_the_remote_drive(rig: Callable[..., 
         assert abs(drive_axis(st, 1)["position"] - 25.0) < 0.02, st  # (AxisEncoderScalingFactor 1: inc = mm)
         assert abs(drive_axis(st, 2)["position"]) < 1e-9, st
         assert st["refused"] == 0 and not st["nc_silent"]
+        # the same status on zenoh (nc/<nc>/drive/<host>/status, msgpack), for tools and observers
+        wait_until(lambda: (v := cl.latest("nc/nc1/drive/drives1/status")) is not None
+                   and abs(drive_axis(unpack(v[0]), 1)["position"] - 25.0) < 0.02, T, "the status key")
     finally:
         cl.close()
 

@@ -348,6 +348,14 @@ class RemoteLink(ProcessDataLink):
                 if m is not None and not self._stop.is_set():
                     self._put(pub, m)
 
+    def stats(self) -> dict[str, Any]:
+        """Counters for the NC's stats (not wired there yet): per host alive / heard from, the axes' current input
+        age and round trip [NC cycles], tx samples used, malformed, rx sent, failed puts."""
+        return {"hosts": {h: {"alive": bool(a), "seen": bool(s)}
+                          for h, a, s in zip(self.hosts, self._host_alive, self._host_seen)},
+                "age": self._tx.age.tolist(), "round_trip": self.round_trip.tolist(), "received": self.received,
+                "malformed": self.malformed, "sent": self.sent, "send_errors": self.send_errors}
+
     # ---- teardown -------------------------------------------------------------------------------------
     def close(self) -> None:
         """Stop the exchange, close the session (idempotent; the hosts see the NC go silent)."""
