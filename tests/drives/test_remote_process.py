@@ -209,6 +209,9 @@ def test_nc_killed_during_a_move_the_drives_stop_and_keep_their_position(rig: Ca
     assert later["cycle"] > st["cycle"], "the drive process keeps running its cycle"
     assert sim.proc.poll() is None, sim.stderr()
     assert "0x8130" in sim.stderr() or "communication fault" in sim.stderr()
+    # it never exits because the NC went; SIGTERM ends it cleanly
+    sim.proc.send_signal(signal.SIGTERM)
+    assert sim.proc.wait(30) == 0, sim.stderr()
 
 
 def test_drive_process_killed_the_nc_reports_a_drive_error_and_cycles_on(rig: Callable[..., Any]) -> None:

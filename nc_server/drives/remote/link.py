@@ -25,6 +25,9 @@ Decisions:
   session in the same process, other processes busy): too long a tail for the cycle thread. The sender thread
   takes the put (its Rust part runs without the GIL); a message it has not sent yet is replaced by the newer one
   (the drive wants the newest target, not every one). ``sender = "cycle"`` puts from the cycle (one thread less).
+* No zenoh shared memory: a host's message is 100-700 bytes (8 axes: ~250), far below zenoh's SHM threshold
+  (3 KiB) and the size where it helped on this VM (it brought nothing for ~400-byte payloads,
+  zenoh-ruckig-notes.md A9); the cost per cycle is Python's (encode, decode), not the copy.
 * ``rx`` carries the NC cycle; ``tx`` echoes the newest NC cycle the host applied (``rx_cycle``):
   :attr:`RemoteLink.round_trip` is the NC cycles between sending outputs and seeing them applied (a figure for
   the stats, not used for control).
