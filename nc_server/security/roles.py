@@ -140,7 +140,7 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
             Keys(nc if isinstance(nc, str) else "")
         except ValueError as exc:
             raise RolesError(source, f"drive.{ident}.nc", f"the NC whose drives it hosts: {exc}") from None
-        drives[ident] = nc
+        drives[ident] = str(nc)
     if not clients and not ncs:
         raise RolesError(source, "", "lists no [client.<id>] and no [nc.<name>]")
     return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), drives=drives, source=source)
