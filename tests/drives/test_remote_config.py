@@ -77,6 +77,9 @@ def test_from_config_refuses_bad_options_before_opening_anything() -> None:
         RemoteDrive.from_config([AxisParams()], 0.001, [{"host": "d1"}], ctx)
     with pytest.raises(ConfigError, match=r"axis\[0\].Drive.host"):
         RemoteDrive.from_config([AxisParams()], 0.001, [{}], DriveContext("nc1", {}, ZenohSettings()))
+    with pytest.raises(ConfigError, match=r"axis\[0\].Drive.mode"):
+        RemoteDrive.from_config([AxisParams()], 0.001, [{"host": "d1", "mode": "pp"}],
+                                DriveContext("nc1", {}, ZenohSettings()))
 
 
 def test_wire_round_trip_and_slot_order() -> None:

@@ -56,7 +56,7 @@ Drive = {{ backend = "remote", host = "drives1" }}
 [[axis]]
 AxisId = 2
 Name = "Y"
-Drive = {{ backend = "remote", host = "drives1" }}
+Drive = {{ backend = "remote", host = "drives1", mode = "csv" }}
 
 [[axis]]
 AxisId = 3
@@ -169,11 +169,16 @@ def test_power_and_move_reach_the_target_on_the_remote_drive(rig: Callable[..., 
         t = time.time()
         st = wait_until(lambda: sim.fresh_status(t), T, "a fresh drive status")
         assert abs(drive_axis(st, 1)["position"] - 25.0) < 0.02, st  # (AxisEncoderScalingFactor 1: inc = mm)
-        assert abs(drive_axis(st, 2)["position"]) < 1e-9, st
+        assert abs(drive_axis(st, 2)["position"]) < 0.02, st
+        # axis 2 in cyclic synchronous velocity: the NC closes the position loop over the remote link
+        assert cl.request("MoveAbsolute", axis=2, Position=-7.5, Velocity=50.0)["error"] == 0
+        wait_until(lambda: abs(float(cl.nctoplc(2)["ActPos"]) + 7.5) < 0.02 and int(cl.nctoplc(2)["ErrorCode"]) == 0,
+                   T, "axis 2 (CSV) at -7.5 on the NC")
         assert st["refused"] == 0 and not st["nc_silent"]
         # the same status on zenoh (nc/<nc>/drive/<host>/status, msgpack), for tools and observers
         wait_until(lambda: (v := cl.latest("nc/nc1/drive/drives1/status")) is not None
-                   and abs(drive_axis(unpack(v[0]), 1)["position"] - 25.0) < 0.02, T, "the status key")
+                   and abs(drive_axis(unpack(v[0]), 1)["position"] - 25.0) < 0.02
+                   and abs(drive_axis(unpack(v[0]), 2)["position"] + 7.5) < 0.05, T, "the status key")
     finally:
         cl.close()
 

@@ -14,6 +14,7 @@ In the NC's TOML::
     [[axis]]
     AxisId = 2
     Drive = { backend = "remote", host = "drives1", slot = 1 }  # or an explicit slot
+    # mode = "csv", kv = 50.0: cyclic synchronous velocity, as for cia402-sim (cia402.drive.axis_options)
 
 Decisions:
 
@@ -119,7 +120,7 @@ def host_slots(axis_options: Sequence[Mapping[str, Any]], axis_ids: Sequence[int
         for k in opts:
             if k not in AXIS_KEYS:
                 raise ConfigError(f"{key}.{k}", f"unknown key for the remote backend (allowed: backend, "
-                                                f"{', '.join(AXIS_KEYS)})")
+                                                f"{', '.join(AXIS_KEYS)}, mode, kv)")
         if "host" not in opts:
             raise ConfigError(f"{key}.host", "missing: which drive host (nc-drive-sim --host) serves the axis")
         try:

@@ -30,7 +30,9 @@ from typing import Any, Mapping, Sequence
 
 from ...core.params import AxisParams, ConfigError
 from ..base import DriveContext
-from ..cia402.drive import Cia402Drive
+from ..cia402.drive import DEFAULT_KV, Cia402Drive
+from ..cia402.drive import axis_options as cia402_axis_options
+from ..cia402.objects import Mode
 from .config import RemoteOptions, host_slots, link_endpoints, parse_options
 from .link import HostSlots, RemoteLink, link_config
 
@@ -53,8 +55,9 @@ class RemoteDrive(Cia402Drive):
     link: RemoteLink
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: RemoteLink, *,
-                 max_age: int = 20) -> None:
-        super().__init__(params, cycle_time, link, simulated=False, max_age=max_age)
+                 max_age: int = 20, mode: Mode | Sequence[Mode] = Mode.CSP,
+                 kv: float | Sequence[float] = DEFAULT_KV) -> None:
+        super().__init__(params, cycle_time, link, simulated=False, max_age=max_age, mode=mode, kv=kv)
 
     @classmethod
     def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
@@ -68,7 +71,13 @@ class RemoteDrive(Cia402Drive):
             raise ConfigError("axis", f"{len(params)} axes but {len(axis_options)} Drive tables")
         opts: RemoteOptions = parse_options(context.options)
         ids = getattr(context, "axis_ids", None)  # (a context that names the AxisIds: the hosts check them)
-        hosts = host_slots(axis_options, ids)
+        modes, kvs, rest = [], [], []
+        for i, o in enumerate(axis_options):  # the CiA 402 options (mode, kv) as cia402-sim takes them
+            mode, kv, others = cia402_axis_options(o, f"axis[{i}].Drive")
+            modes.append(mode)
+            kvs.append(kv)
+            rest.append(others)
+        hosts = host_slots(rest, ids)
         endpoints = link_endpoints(opts, context.zenoh)
         z = context.zenoh
         lease = opts.lease_ms if opts.lease_ms is not None else int(getattr(z, "lease_ms", 500) or 500)
@@ -81,7 +90,7 @@ class RemoteDrive(Cia402Drive):
         link = RemoteLink(name, len(params), hosts, lambda: link_config(endpoints, lease, tls_dir, name),
                           sender=opts.sender, missing_warn_cycles=max(1, round(MISSING_WARN_S / cycle_time)))
         try:
-            return cls(params, cycle_time, link, max_age=opts.max_age)
+            return cls(params, cycle_time, link, max_age=opts.max_age, mode=modes, kv=kvs)
         except BaseException:
             link.close()
             raise

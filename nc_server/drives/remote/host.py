@@ -53,6 +53,7 @@ from zenoh.handlers import RingChannel
 
 from ...core.params import AxisParams, ConfigError
 from ..cia402.device import Cia402Device
+from ..cia402.drive import axis_options as cia402_axis_options
 from ..cia402.objects import State
 from . import wire
 from .config import RemoteOptions, host_slots, link_endpoints, parse_options
@@ -110,7 +111,9 @@ def load_axes(path: str, host: str) -> tuple[str, list[AxisParams], list[int], t
             mine.append((i, t))
     if not mine:
         raise ConfigError(f"{path}: axis", "no axis with Drive = { backend = \"remote\", ... }")
-    opts_list = [{k: v for k, v in t["Drive"].items() if k != "backend"} for _, t in mine]
+    # (mode and kv concern the NC's side: the mode travels in the outputs; checked as the NC checks them)
+    opts_list = [cia402_axis_options({k: v for k, v in t["Drive"].items() if k != "backend"}, f"axis[{i}].Drive")[2]
+                 for i, t in mine]
     hosts = host_slots(opts_list, [int(t.get("AxisId", 0)) for _, t in mine],
                        [f"axis[{i}].Drive" for i, _ in mine])
     hs = next((h for h in hosts if h.host == host), None)
