@@ -20,7 +20,7 @@ from nc_server.server.config import ZenohSettings
     ({"max_age": 0}, "drives.remote.max_age", "1..100000"),
     ({"max_age": 2.5}, "drives.remote.max_age", "integer"),
     ({"max_age": True}, "drives.remote.max_age", "integer"),
-    ({"sender": "fast"}, "drives.remote.sender", "'thread', 'cycle'"),
+    ({"sender": "fast"}, "drives.remote.sender", "'cycle', 'thread'"),
     ({"connect": ["tcp/nowhere"]}, "drives.remote.connect[0]", "invalid endpoint"),
     ({"connect": 7447}, "drives.remote.connect", "list of endpoints"),
     ({"lease_ms": 5}, "drives.remote.lease_ms", "100..3600000"),
@@ -33,7 +33,7 @@ def test_bad_backend_options_name_their_key(options: dict, key: str, text: str) 
 
 def test_backend_defaults() -> None:
     o = parse_options({})
-    assert (o.connect, o.max_age, o.sender, o.lease_ms) == ((), DEFAULT_MAX_AGE, "thread", None)
+    assert (o.connect, o.max_age, o.sender, o.lease_ms) == ((), DEFAULT_MAX_AGE, "cycle", None)
     assert parse_options({"connect": "tcp/10.0.0.5:7447"}).connect == ("tcp/10.0.0.5:7447",)
 
 

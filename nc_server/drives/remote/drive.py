@@ -55,7 +55,7 @@ class RemoteDrive(Cia402Drive):
     link: RemoteLink
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: RemoteLink, *,
-                 max_age: int = 20, mode: Mode | Sequence[Mode] = Mode.CSP,
+                 max_age: int = 50, mode: Mode | Sequence[Mode] = Mode.CSP,
                  kv: float | Sequence[float] = DEFAULT_KV) -> None:
         super().__init__(params, cycle_time, link, simulated=False, max_age=max_age, mode=mode, kv=kv)
 

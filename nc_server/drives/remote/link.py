@@ -10,8 +10,8 @@ touches the NC's own session or its declarations. Per NC cycle :meth:`RemoteLink
    counted by the link: +1 per exchange without a new sample of the axis's host; 0 on a host never heard from:
    its axes are not ready, not in an I/O error) and ``alive`` (the host's liveliness token is there and it has
    sent inputs);
-3. hands each host its outputs (``rx``, encoded in the cycle): to a sender thread through a one-slot mailbox
-   (``sender = "thread"``, default) or put from the cycle thread (``sender = "cycle"``).
+3. hands each host its outputs (``rx``, encoded in the cycle): put from the cycle thread (``sender = "cycle"``,
+   default) or by a sender thread through a one-slot mailbox (``sender = "thread"``).
 
 Decisions:
 
@@ -19,12 +19,13 @@ Decisions:
   is closed: the link usually connects to the NC's own listen endpoint, which opens only after the drives are
   built (the server builds the drives first), and a router or drive host may start later than the NC. Until then
   every host is not alive and nothing is sent.
-* The sender thread by default: the publishers use ``CongestionControl.DROP`` with the session's drop wait cut to
-  :data:`DROP_WAIT_US` (zenoh's default waits up to 1 ms for a full queue), priority REAL_TIME, no express; even
-  so one ~150-byte put from a 1 kHz loop on the 2-core VM cost 20-40 us p50 but 0.5-2 ms p99 (the NC's router
-  session in the same process, other processes busy): too long a tail for the cycle thread. The sender thread
-  takes the put (its Rust part runs without the GIL); a message it has not sent yet is replaced by the newer one
-  (the drive wants the newest target, not every one). ``sender = "cycle"`` puts from the cycle (one thread less).
+* The put from the cycle thread by default. The publishers use ``CongestionControl.DROP`` with the session's drop
+  wait cut to :data:`DROP_WAIT_US` (zenoh's default waits up to 1 ms for a full queue), priority REAL_TIME, no
+  express. Measured side by side in one run (bench/remote_drives.py, 4 axes, 2-core VM at load ~9): the drive's
+  step (Cia402Drive + exchange) p50 159 us with the cycle's put against 192 us with the sender thread, p99 5.5
+  against 6.7 ms, round trip p99 13 against 19 cycles, and the sender thread, competing for the GIL, put only
+  about every second cycle's outputs (its mailbox keeps the newest). A put's own tail (0.5-2 ms p99 in a loaded
+  process) shows in both. ``sender = "thread"`` stays for links with many hosts (one put each).
 * No zenoh shared memory: a host's message is 100-700 bytes (8 axes: ~250), far below zenoh's SHM threshold
   (3 KiB) and the size where it helped on this VM (it brought nothing for ~400-byte payloads,
   zenoh-ruckig-notes.md A9); the cost per cycle is Python's (encode, decode), not the copy.
@@ -152,7 +153,7 @@ class RemoteLink(ProcessDataLink):
         hosts: which rows each host serves (every row exactly once).
         config: a function returning the session's config (:func:`link_config`); None: no session (tests of the
             bookkeeping; every host stays not alive).
-        sender: ``"thread"`` (one-slot mailbox, sender thread) or ``"cycle"`` (put from :meth:`exchange`).
+        sender: ``"cycle"`` (put from :meth:`exchange`) or ``"thread"`` (one-slot mailbox, sender thread).
         missing_warn_cycles: a host not heard from this many exchanges after the session opened is logged (once).
 
     Attributes (read by the drive and the stats; written by the cycle thread only):
@@ -165,7 +166,7 @@ class RemoteLink(ProcessDataLink):
     """
 
     def __init__(self, nc_name: str, n: int, hosts: Sequence[HostSlots],
-                 config: Callable[[], zenoh.Config] | None, sender: str = "thread",
+                 config: Callable[[], zenoh.Config] | None, sender: str = "cycle",
                  missing_warn_cycles: int = 5000) -> None:
         if sender not in ("cycle", "thread"):
             raise ValueError(f"sender must be 'cycle' or 'thread', got {sender!r}")
