@@ -7,7 +7,8 @@
 #          healthy (ZNC_UP_TIMEOUT s, 240) and prints how to watch it.
 #   down   `docker-compose ... down` (containers and networks; images stay).
 #   ps     the services and their health.
-# Environment: ZNC_PROJECT (compose project, zenoh-nc), ZNC_TRANSPORT (tls, or tcp), ZNC_ROUTER_PORT
+# Environment: ZNC_DRIVES (1: also deploy/compose.drives.yaml: nc1's axes 1, 2 on drives in the container
+# nc-drives), ZNC_PROJECT (compose project, zenoh-nc), ZNC_TRANSPORT (tls, or tcp), ZNC_ROUTER_PORT
 # (7450: the router on 127.0.0.1 for status tools), ZNC_COMPOSE (the compose command: docker-compose,
 # else `docker compose`), PYTHON (for build.sh). Exit code 0 ok, 1 failure (what failed on stderr).
 set -euo pipefail
@@ -18,7 +19,8 @@ PROJECT="${ZNC_PROJECT:-zenoh-nc}"
 export ZNC_TRANSPORT="${ZNC_TRANSPORT:-tls}"
 export ZNC_ROUTER_PORT="${ZNC_ROUTER_PORT:-7450}"
 SERVICES=(router nc1 nc2 plc1 plc2)
-IDS=(nc1 nc2 plc1 plc2 status)   # one certificate each (+ router, always; status: an observer for tools)
+IDS=(nc1 nc2 plc1 plc2 status drives1)   # one certificate each (+ router, always; status: an observer for tools;
+                                         # drives1: the drive host of compose.drives.yaml)
 APP_UID=10001                           # the image's user (deploy/images/Dockerfile)
 
 log() { printf 'deploy.sh: %s\n' "$*" >&2; }
@@ -31,7 +33,12 @@ elif command -v docker-compose >/dev/null 2>&1; then
 else
     COMPOSE=(docker compose)
 fi
-compose() { "${COMPOSE[@]}" -f "$HERE/compose.yaml" -p "$PROJECT" "$@"; }
+FILES=(-f "$HERE/compose.yaml")
+if [[ ${ZNC_DRIVES:-0} == 1 ]]; then   # nc1's axes 1, 2 on remote drives in their own container
+    FILES+=(-f "$HERE/compose.drives.yaml")
+    SERVICES+=(nc-drives)
+fi
+compose() { "${COMPOSE[@]}" "${FILES[@]}" -p "$PROJECT" "$@"; }
 
 # certificates (mutual TLS, private CA) and the router's roles file, as the containers mount them
 prepare() {
@@ -41,7 +48,11 @@ prepare() {
     elif [[ $ZNC_TRANSPORT == tls ]]; then
         die "ZNC_TRANSPORT=tls needs deploy/roles.toml"
     fi
-    if [[ ! -s $BUILD/certs/ca.pem ]]; then
+    local id missing=0
+    for id in router "${IDS[@]}"; do
+        [[ -s $BUILD/certs/$id.pem ]] || missing=1   # (an older .build without drives1's: made now, same CA)
+    done
+    if [[ ! -s $BUILD/certs/ca.pem || $missing == 1 ]]; then
         if [[ -x $HERE/certs/make-certs.sh ]]; then
             log "making certificates (private CA) in $BUILD/certs for ${IDS[*]}"
             "$HERE/certs/make-certs.sh" "$BUILD/certs" "${IDS[@]}" >&2 || die "make-certs.sh failed"

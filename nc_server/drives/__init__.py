@@ -3,6 +3,9 @@ from __future__ import annotations
 
 from importlib.metadata import entry_points
 
+# the core first: it imports .base and .sim itself, so a process whose first import is a drive module (the
+# nc-drive-sim script: nc_server.drives.remote.host) does not meet them half initialised
+from .. import core as _core  # noqa: F401
 from .base import DriveABC
 from .sim import SimDrive
 

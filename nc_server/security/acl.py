@@ -17,7 +17,11 @@ subject exactly the key expressions of its identity (docs/roles.md has the table
 * an NC server ``[nc.<name>]`` may declare its queryable, publish, subscribe and declare liveliness
   (``nc/<name>/alive``, ``nc/<name>/alive/<instance>``) only below its own prefix ``nc/<name>/**``, and is
   sent the queries and PLCTONC for it;
-* a router ``[router.<id>]`` (another router connecting to this one) may forward everything below ``nc/**``.
+* a router ``[router.<id>]`` (another router connecting to this one) may forward everything below ``nc/**``;
+* a drive host ``[drive.<host>]`` (``nc-drive-sim --host <host>``) of NC ``<nc>`` subscribes to its outputs
+  ``nc/<nc>/drive/<host>/rx``, puts its inputs ``.../tx`` and its ``.../status`` and declares its token
+  ``.../alive``, nothing else (the NC reaches them through its own ``nc/<nc>/**`` rules); every listed client
+  may read the drive hosts' status ``nc/*/drive/*/status``.
 
 It respects what was verified on eclipse-zenoh 1.10.2 (../shared/reference/zenoh-security-notes.md):
 rules match by *inclusion* (a rule's key expression must include the message's or declaration's,
@@ -42,7 +46,7 @@ __all__ = ["access_control", "with_local_publisher", "READ_KEYS", "NC_ALIVE", "m
 
 #: What every listed client may subscribe to and receive.
 READ_KEYS: tuple[str, ...] = ("nc/*/frame", "nc/*/frame/*", "nc/*/status", "nc/*/stats", "nc/*/claims",
-                              "nc/*/axis/*/nctoplc", "nc/*/axis/*/plctonc")
+                              "nc/*/axis/*/nctoplc", "nc/*/axis/*/plctonc", "nc/*/drive/*/status")
 #: The NCs' liveliness tokens: reachable, and one per NC process (its instance id; a rule must *include*
 #: the watched key, so ``nc/*/alive`` alone would not let a client see ``nc/nc1/alive/<instance>``).
 NC_ALIVE: tuple[str, ...] = ("nc/*/alive", "nc/*/alive/*")
@@ -73,7 +77,7 @@ def access_control(roles: Roles) -> dict[str, Any]:
     Raises:
         ValueError: ``roles`` lists nothing (zenoh refuses an access control without subjects).
     """
-    if not roles.clients and not roles.ncs and not roles.routers:
+    if not roles.clients and not roles.ncs and not roles.routers and not roles.drives:
         raise ValueError(f"{roles.source}: no clients, NCs or routers listed")
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
@@ -130,6 +134,15 @@ def access_control(roles: Roles) -> dict[str, Any]:
         ids = [share(_rule("router:in", "ingress", _ALL_MESSAGES, ["nc/**"])),
                share(_rule("router:out", "egress", _ALL_MESSAGES, ["nc/**"]))]
         subject("router", router, ids)
+    for host, nc in roles.drives.items():
+        p = f"nc/{nc}/drive/{host}"
+        rules.append(_rule(f"drive:{host}:in-put", "ingress", ["put"], [f"{p}/tx", f"{p}/status"]))
+        rules.append(_rule(f"drive:{host}:in-sub", "ingress", ["declare_subscriber"], [f"{p}/rx"]))
+        rules.append(_rule(f"drive:{host}:token", "ingress", ["liveliness_token"], [f"{p}/alive"]))
+        rules.append(_rule(f"drive:{host}:out", "egress", ["put"], [f"{p}/rx"]))
+        # its declared publishers (tx, status) drop puts unless they see the NC's (and observers') subscribers
+        rules.append(_rule(f"drive:{host}:see", "egress", ["declare_subscriber"], [f"{p}/tx", f"{p}/status"]))
+        subject("drive", host, [f"drive:{host}:{r}" for r in ("in-put", "in-sub", "token", "out", "see")])
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 

@@ -10,6 +10,8 @@ A TOML file, e.g. ``deploy/roles.toml``::
     role = "observer"
     [nc.nc1]                 # an NC server (its certificate CN = its NC name)
     [router.router]          # a router that may connect to this one (router-to-router link)
+    [drive.drives1]          # a drive host (nc-drive-sim --host drives1) of NC nc1
+    nc = "nc1"
 
 The ids are the certificates' common names (``deploy/certs/make-certs.sh``), the client ids of
 ``plc-run --client-id`` and the NC names. Roles and the command classes they may send
@@ -53,12 +55,14 @@ class Roles:
         clients: client id -> role (``observer``, ``operator``, ``engineer``).
         ncs: the NC servers that may connect (their NC names = certificate CNs).
         routers: routers that may connect to this one (certificate CNs).
+        drives: drive host (certificate CN, ``nc-drive-sim --host``) -> the NC whose drives it hosts.
         source: where it was read from.
     """
 
     clients: Mapping[str, str] = field(default_factory=dict)
     ncs: tuple[str, ...] = ()
     routers: tuple[str, ...] = ()
+    drives: Mapping[str, str] = field(default_factory=dict)
     source: str = "<roles>"
 
     def role_of(self, client: str) -> str | None:
@@ -85,8 +89,9 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
             twice (a certificate CN names one identity), or nothing listed.
     """
     for k in data:
-        if k not in ("client", "nc", "router"):
-            raise RolesError(source, k, "unknown section (allowed: [client.<id>], [nc.<name>], [router.<id>])")
+        if k not in ("client", "nc", "router", "drive"):
+            raise RolesError(source, k, "unknown section (allowed: [client.<id>], [nc.<name>], [router.<id>], "
+                                        "[drive.<host>])")
     clients: dict[str, str] = {}
     owner: dict[str, str] = {}
 
@@ -123,9 +128,22 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
             if t:
                 raise RolesError(source, f"{section}.{ident}.{next(iter(t))}", "unknown key (the table takes none)")
             out.append(ident)
+    drives: dict[str, str] = {}
+    for ident, t in _table(data.get("drive", {}), source, "drive").items():
+        take("drive", ident)
+        t = _table(t, source, f"drive.{ident}")
+        for k in t:
+            if k != "nc":
+                raise RolesError(source, f"drive.{ident}.{k}", "unknown key (allowed: nc)")
+        nc = t.get("nc")
+        try:
+            Keys(nc if isinstance(nc, str) else "")
+        except ValueError as exc:
+            raise RolesError(source, f"drive.{ident}.nc", f"the NC whose drives it hosts: {exc}") from None
+        drives[ident] = str(nc)
     if not clients and not ncs:
         raise RolesError(source, "", "lists no [client.<id>] and no [nc.<name>]")
-    return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), source=source)
+    return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), drives=drives, source=source)
 
 
 def load_roles(path: str | Path) -> Roles:

@@ -77,7 +77,7 @@ def test_generated_access_control() -> None:
     assert len(ids) == len(set(ids))
     subjects = {s["id"]: s for s in acl["subjects"]}
     assert set(subjects) == {"client:plc1", "client:plc2", "client:eng1", "client:status", "nc:nc1", "nc:nc2",
-                             "router:router"}
+                             "router:router", "drive:drives1"}
     assert all(s["cert_common_names"] == [s["id"].split(":", 1)[1]] and set(s) == {"id", "cert_common_names"}
                for s in subjects.values())
     # everybody reads the cyclic data (and its own view: below)

@@ -1,0 +1,184 @@
+"""The configuration of remote drives, shared by the NC (``RemoteDrive.from_config``) and ``nc-drive-sim``.
+
+In the NC's TOML::
+
+    [drives.remote]                      # the backend's options (all optional)
+    connect = ["tcp/127.0.0.1:7447"]     # where the NC's drive link connects (default: see link_endpoints)
+    max_age = 50                         # NC cycles an axis's inputs may be old before 0x4655
+    sender = "cycle"                     # "cycle" | "thread": who puts the outputs (.link)
+    lease_ms = 500                       # the link session's transport lease (default: the NC's)
+
+    [[axis]]
+    AxisId = 1
+    Drive = { backend = "remote", host = "drives1" }            # slot: its order among drives1's axes
+    [[axis]]
+    AxisId = 2
+    Drive = { backend = "remote", host = "drives1", slot = 1 }  # or an explicit slot
+    # mode = "csv", kv = 50.0: cyclic synchronous velocity, as for cia402-sim (cia402.drive.axis_options)
+
+Decisions:
+
+* ``max_age`` default 50 NC cycles (50 ms at 1 ms): a drive host publishes every drive cycle, so inputs are
+  normally 0-2 cycles old (bench/remote_drives.py: p50 1, round trip p50 2 cycles), but on the 2-core VM under
+  load (load average 9) the age reached p99 ~20 and max ~40 cycles (both processes taken off the CPU for tens of
+  ms); 20 would have raised false 0x4655 there. 50 rides through that and still reports a drive whose data
+  stopped within 50 ms, half the drive's own silence timeout (100 ms by default): the NC knows before the drive
+  stops itself. A lost host (its token gone, 2-3 ms after a crash) is reported at once as 0x4651 anyway.
+* Slots: per host either every axis names its ``slot`` or none does (then the order of the axes in the file);
+  a host's slots are 0..k-1, each once.
+* The link's endpoints (:func:`link_endpoints`): ``connect`` if given; else the NC's own ``[zenoh] connect``
+  (an NC behind a router: the link and the drive hosts meet at that router); else the NC's listen endpoints
+  with a wildcard address replaced by loopback (the link is a client of the NC's own router session, on the same
+  machine). With TLS the link uses the NC's certificate; give ``connect`` with a name the router's certificate has.
+
+It may import: nc_server.core.params, nc_server.drives.remote.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+from ...core.params import ConfigError
+from .link import HostSlots
+from .wire import check_host
+
+SENDERS = ("cycle", "thread")
+#: [drives.remote] keys and per-axis Drive keys (without ``backend``).
+BACKEND_KEYS = ("connect", "max_age", "sender", "lease_ms")
+AXIS_KEYS = ("host", "slot")
+DEFAULT_MAX_AGE = 50
+
+
+@dataclass(frozen=True)
+class RemoteOptions:
+    """Checked ``[drives.remote]`` options (see the module docstring)."""
+
+    connect: tuple[str, ...] = ()
+    max_age: int = DEFAULT_MAX_AGE
+    sender: str = "cycle"
+    lease_ms: int | None = None
+
+
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):[0-9]{1,5}([?#].*)?$|^unixsock-stream/.+$")
+
+
+def _endpoint(ep: Any, key: str) -> str:
+    if not isinstance(ep, str) or not _ENDPOINT.match(ep):
+        raise ConfigError(key, f"invalid endpoint {ep!r}: expected e.g. 'tcp/127.0.0.1:7447' or "
+                               f"'unixsock-stream//run/nc.sock'")
+    return ep
+
+
+def parse_options(options: Mapping[str, Any], where: str = "drives.remote") -> RemoteOptions:
+    """Check the backend's ``[drives.remote]`` table.
+
+    Raises:
+        ConfigError: an unknown key or a bad value (the key names it, e.g. ``drives.remote.max_age``).
+    """
+    if not isinstance(options, Mapping):
+        raise ConfigError(where, f"must be a table, got {type(options).__name__}")
+    for k in options:
+        if k not in BACKEND_KEYS:
+            raise ConfigError(f"{where}.{k}", f"unknown key (allowed: {', '.join(BACKEND_KEYS)})")
+    connect = options.get("connect", [])
+    if isinstance(connect, str):
+        connect = [connect]
+    if not isinstance(connect, list):
+        raise ConfigError(f"{where}.connect", f"must be a list of endpoints, got {connect!r}")
+    eps = tuple(_endpoint(ep, f"{where}.connect[{i}]") for i, ep in enumerate(connect))
+    max_age = options.get("max_age", DEFAULT_MAX_AGE)
+    if isinstance(max_age, bool) or not isinstance(max_age, int) or not 1 <= max_age <= 100_000:
+        raise ConfigError(f"{where}.max_age", f"must be an integer number of NC cycles 1..100000, got {max_age!r}")
+    sender = options.get("sender", "cycle")
+    if sender not in SENDERS:
+        raise ConfigError(f"{where}.sender", f"must be one of {', '.join(map(repr, SENDERS))}, got {sender!r}")
+    lease = options.get("lease_ms")
+    if lease is not None and (isinstance(lease, bool) or not isinstance(lease, int) or not 100 <= lease <= 3_600_000):
+        raise ConfigError(f"{where}.lease_ms", f"must be an integer number of ms 100..3600000, got {lease!r}")
+    return RemoteOptions(eps, max_age, sender, lease)
+
+
+def host_slots(axis_options: Sequence[Mapping[str, Any]], axis_ids: Sequence[int] | None = None,
+               where: Sequence[str] | None = None) -> list[HostSlots]:
+    """The hosts and their slots from the axes' ``Drive`` tables (without ``backend``), in first-seen order.
+
+    Args:
+        axis_options: per axis (the backend's axes, in order) its ``Drive`` options.
+        axis_ids: their AxisIds (None: unknown, sent as 0: the host checks nothing).
+        where: per axis the config key of its Drive table (default ``axis[i].Drive``).
+
+    Raises:
+        ConfigError: a missing or bad ``host``, a bad or duplicate ``slot``, slots not 0..k-1, slots on some axes
+            of a host only, an unknown key.
+    """
+    keys = list(where) if where is not None else [f"axis[{i}].Drive" for i in range(len(axis_options))]
+    ids = list(axis_ids) if axis_ids is not None else [0] * len(axis_options)
+    per_host: dict[str, list[tuple[int | None, int]]] = {}
+    for i, opts in enumerate(axis_options):
+        key = keys[i]
+        for k in opts:
+            if k not in AXIS_KEYS:
+                raise ConfigError(f"{key}.{k}", f"unknown key for the remote backend (allowed: backend, "
+                                                f"{', '.join(AXIS_KEYS)}, mode, kv)")
+        if "host" not in opts:
+            raise ConfigError(f"{key}.host", "missing: which drive host (nc-drive-sim --host) serves the axis")
+        try:
+            host = check_host(opts["host"], f"{key}.host")
+        except ValueError as exc:
+            raise ConfigError(f"{key}.host", str(exc).split(": ", 1)[1]) from None
+        slot = opts.get("slot")
+        if slot is not None and (isinstance(slot, bool) or not isinstance(slot, int) or not 0 <= slot <= 4095):
+            raise ConfigError(f"{key}.slot", f"must be an integer 0..4095, got {slot!r}")
+        per_host.setdefault(host, []).append((slot, i))
+    out = []
+    for host, entries in per_host.items():
+        given = [s for s, _ in entries if s is not None]
+        if given and len(given) != len(entries):
+            i = next(i for s, i in entries if s is None)
+            raise ConfigError(f"{keys[i]}.slot", f"missing: the other axes of host {host!r} give their slot "
+                                                 f"(all or none)")
+        if given:
+            if sorted(given) != list(range(len(entries))):
+                i = entries[-1][1]
+                raise ConfigError(f"{keys[i]}.slot", f"the slots of host {host!r} must be 0..{len(entries) - 1}, "
+                                                     f"each once, got {sorted(given)}")
+            entries = sorted(entries, key=lambda e: e[0] if e[0] is not None else 0)
+        rows = tuple(i for _, i in entries)
+        out.append(HostSlots(host, rows, tuple(int(ids[i]) for i in rows)))
+    return out
+
+
+def link_endpoints(options: RemoteOptions, zenoh_settings: Any) -> tuple[str, ...]:
+    """Where the NC's drive link connects (see the module docstring).
+
+    Raises:
+        ConfigError: nothing to connect to (no ``connect``, the NC neither connects nor listens on a usable endpoint).
+    """
+    if options.connect:
+        return options.connect
+    if zenoh_settings is None:
+        raise ConfigError("drives.remote.connect", "missing: the NC has no zenoh settings to derive it from")
+    if zenoh_settings.connect:
+        return tuple(zenoh_settings.connect)
+    out = []
+    for ep in zenoh_settings.listen:
+        proto, _, addr = ep.partition("/")
+        if proto == "unixsock-stream":
+            out.append(ep)
+            continue
+        host, _, port = addr.partition("#")[0].partition("?")[0].rpartition(":")
+        if port in ("", "0"):
+            continue  # a random port: nothing to connect to
+        host = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}.get(host, host)
+        out.append(f"{proto}/{host}:{port}")
+    if not out:
+        raise ConfigError("drives.remote.connect", "missing: the NC listens on no endpoint the drive link can "
+                                                   "connect to (give [drives.remote] connect)")
+    return tuple(out)
+
+
+def cycles(seconds: float, cycle_time: float) -> int:
+    """``seconds`` in whole NC cycles (at least 1)."""
+    return max(1, math.ceil(seconds / cycle_time - 1e-9))

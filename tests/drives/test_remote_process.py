@@ -1,0 +1,295 @@
+"""Remote drives with real processes over real zenoh on 127.0.0.1: an ``nc-server`` whose axes 1 and 2 are on
+``remote`` drives of host ``drives1`` (axis 3 stays ``sim``) and an ``nc-drive-sim --config <the same TOML>
+--host drives1`` process (its status read from its ``--status-file``, also while the NC is gone).
+
+* power up and a move reach their target, on the NC and on the drive;
+* the NC killed (SIGKILL) during a move: the drive process keeps running, its drives see the silence, fault with
+  0x8130 and stop on their quick-stop ramp, then keep their position;
+* the drive process killed: the NC's axis gets a drive error, its cycle goes on (the sim axis still moves);
+* the drive host missing at start: the NC starts, the axes are not ready; once the host is there, MC_Reset and
+  MC_Power bring them up;
+* bad options: clear configuration errors (exit 2) from nc-server and nc-drive-sim.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import pytest
+
+from znc_testing import (
+    BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, free_port, kill_process_group, start_nc_server, unpack,
+    wait_until,
+)
+
+T = 30.0  # generous deadlines: a loaded 2-core machine
+
+#: lost communication (the host's token went: 2-3 ms after a kill) or invalid I/O data (its inputs older than
+#: max_age + 3 cycles, should the token be slower): what the NC raises when its drive host goes away
+DRIVE_ERRORS = {0x4651, 0x4655}
+
+CONFIG = """
+[nc]
+name = "nc1"
+watchdog_timeout = 5.0
+realtime = "off"
+publisher = "thread"
+
+[zenoh]
+listen = ["tcp/127.0.0.1:{port}"]
+
+[drives.remote]
+max_age = 200   # (generous: a loaded 2-core machine stalls processes for tens of ms; the default is 20)
+
+[[axis]]
+AxisId = 1
+Name = "X"
+AxisDec = 200.0
+Drive = {{ backend = "remote", host = "drives1" }}
+
+[[axis]]
+AxisId = 2
+Name = "Y"
+Drive = {{ backend = "remote", host = "drives1", mode = "csv" }}
+
+[[axis]]
+AxisId = 3
+Name = "Z"
+"""
+
+
+def drive_sim_command() -> list[str]:
+    script = Path(sys.executable).with_name("nc-drive-sim")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "nc_server.drives.remote.host"]
+
+
+class DriveSim:
+    """An ``nc-drive-sim`` process (its own process group) and its status file."""
+
+    def __init__(self, tmp: Path, args: list[str]) -> None:
+        self.status_path = tmp / f"drives-{os.getpid()}-{id(self)}.json"
+        self.err_path = tmp / f"drives-{id(self)}.stderr"
+        with open(self.err_path, "w") as err:
+            self.proc = subprocess.Popen([*drive_sim_command(), *args, "--status-file", str(self.status_path)],
+                                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err, text=True,
+                                         start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+
+    def stderr(self) -> str:
+        return self.err_path.read_text(errors="replace")
+
+    def status(self) -> dict[str, Any] | None:
+        try:
+            return json.loads(self.status_path.read_text())
+        except (OSError, ValueError):
+            return None
+
+    def fresh_status(self, after: float) -> dict[str, Any] | None:
+        """A status written after wall time ``after`` (None yet)."""
+        s = self.status()
+        return s if s is not None and s["time"] > after else None
+
+    def kill(self) -> None:
+        kill_process_group(self.proc)
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[Callable[..., Any]]:
+    """``rig(drives=True)`` -> (nc, drives or None, config path); everything killed at the end."""
+    started: list[Any] = []
+
+    def make(drives: bool = True) -> tuple[NcServerProcess, DriveSim | None, Path]:
+        port = free_port()
+        cfg = tmp_path / "nc.toml"
+        cfg.write_text(CONFIG.format(port=port))
+        # (the config names the port: start_nc_server's --listen says the same)
+        nc = start_nc_server(tmp_path / "nc", CONFIG.format(port=port), extra_args=["--listen", f"tcp/127.0.0.1:{port}"])
+        started.append(nc)
+        sim = start_drives(tmp_path, cfg, nc.port) if drives else None
+        if sim is not None:
+            started.append(sim)
+        return nc, sim, cfg
+
+    def start_drives(tmp: Path, cfg: Path, port: int) -> DriveSim:
+        # (a silence timeout of 1 s, not 100 ms: a loaded machine must not make the drive fault during a test move)
+        sim = DriveSim(tmp, ["--config", str(cfg), "--host", "drives1", "--connect", f"tcp/127.0.0.1:{port}",
+                             "--timeout", "1.0"])
+        started.append(sim)
+        wait_until(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0, T,
+                   f"nc-drive-sim connected and receiving outputs; stderr:\n{sim.stderr()}")
+        return sim
+
+    make.start_drives = start_drives  # type: ignore[attr-defined]
+    try:
+        yield make
+    finally:
+        for h in reversed(started):
+            h.kill()
+
+
+def power(cl: NcTestClient, axes: list[int]) -> None:
+    """Claim, enable and (MC_Reset while an error is shown: the NC started before its drive host, so its remote
+    axes began in 0x4651) wait until each axis is enabled without error."""
+    for a in axes:
+        cl.claim(a)
+    cl.feed_plctonc(axes)
+
+    def up(a: int) -> bool:
+        r = cl.nctoplc(a)
+        if r is None:
+            return False
+        if int(r["ErrorCode"]) != 0:
+            cl.request("Reset", axis=a)
+            return False
+        return bool(int(r["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED)
+
+    for a in axes:
+        wait_until(lambda a=a: up(a), T, f"axis {a} enabled without error", interval=0.1)
+
+
+def drive_axis(st: dict[str, Any], axis_id: int) -> dict[str, Any]:
+    return next(a for a in st["axes"] if a["AxisId"] == axis_id)
+
+
+def test_power_and_move_reach_the_target_on_the_remote_drive(rig: Callable[..., Any]) -> None:
+    nc, sim, _ = rig()
+    cl = NcTestClient(nc.port, client_id="t1")
+    try:
+        power(cl, [1, 2])
+        wait_until(lambda: (st := sim.status()) and all(drive_axis(st, a)["state"] == "OPERATION_ENABLED"
+                                                        for a in (1, 2)), T, "both drives in Operation enabled")
+        r = cl.request("MoveAbsolute", axis=1, Position=25.0, Velocity=100.0)
+        assert r["error"] == 0, r
+        wait_until(lambda: abs(float(cl.nctoplc(1)["ActPos"]) - 25.0) < 0.02, T, "axis 1 at 25.0 on the NC")
+        t = time.time()
+        st = wait_until(lambda: sim.fresh_status(t), T, "a fresh drive status")
+        assert abs(drive_axis(st, 1)["position"] - 25.0) < 0.02, st  # (AxisEncoderScalingFactor 1: inc = mm)
+        assert abs(drive_axis(st, 2)["position"]) < 0.02, st
+        # axis 2 in cyclic synchronous velocity: the NC closes the position loop over the remote link
+        assert cl.request("MoveAbsolute", axis=2, Position=-7.5, Velocity=50.0)["error"] == 0
+        wait_until(lambda: abs(float(cl.nctoplc(2)["ActPos"]) + 7.5) < 0.02 and int(cl.nctoplc(2)["ErrorCode"]) == 0,
+                   T, "axis 2 (CSV) at -7.5 on the NC")
+        assert st["refused"] == 0 and not st["nc_silent"]
+        # the same status on zenoh (nc/<nc>/drive/<host>/status, msgpack), for tools and observers
+        wait_until(lambda: (v := cl.latest("nc/nc1/drive/drives1/status")) is not None
+                   and abs(drive_axis(unpack(v[0]), 1)["position"] - 25.0) < 0.02
+                   and abs(drive_axis(unpack(v[0]), 2)["position"] + 7.5) < 0.05, T, "the status key")
+    finally:
+        cl.close()
+
+
+def test_nc_killed_during_a_move_the_drives_stop_and_keep_their_position(rig: Callable[..., Any]) -> None:
+    nc, sim, _ = rig()
+    cl = NcTestClient(nc.port, client_id="t1")
+    try:
+        power(cl, [1])
+        assert cl.request("MoveAbsolute", axis=1, Position=1000.0, Velocity=50.0)["error"] == 0
+        wait_until(lambda: float(cl.nctoplc(1)["ActPos"]) > 5.0, T, "axis 1 moving")
+    finally:
+        cl.close()
+    os.killpg(nc.proc.pid, signal.SIGKILL)
+    nc.proc.wait(10)
+    t_kill = time.time()
+
+    def stopped() -> dict[str, Any] | None:
+        st = sim.fresh_status(t_kill)
+        if st is None:
+            return None
+        ax = drive_axis(st, 1)
+        return st if st["nc_silent"] and ax["error_code"] == 0x8130 and ax["velocity"] == 0.0 else None
+
+    st = wait_until(stopped, T, "drive 1 stopped with 0x8130 after the NC vanished")
+    ax = drive_axis(st, 1)
+    assert ax["state"] == "FAULT", st
+    # the quick stop ramp (AxisDec 200 from 50 u/s: 6.25 u) took it beyond where it was, not to the target
+    assert 5.0 < ax["position"] < 1000.0, st
+    time.sleep(0.3)
+    later = wait_until(lambda: sim.fresh_status(time.time() - 0.05), T, "a later drive status")
+    assert drive_axis(later, 1)["position"] == ax["position"], (st, later)
+    assert later["cycle"] > st["cycle"], "the drive process keeps running its cycle"
+    assert sim.proc.poll() is None, sim.stderr()
+    assert "0x8130" in sim.stderr() or "communication fault" in sim.stderr()
+    # it never exits because the NC went; SIGTERM ends it cleanly
+    sim.proc.send_signal(signal.SIGTERM)
+    assert sim.proc.wait(30) == 0, sim.stderr()
+
+
+def test_drive_process_killed_the_nc_reports_a_drive_error_and_cycles_on(rig: Callable[..., Any]) -> None:
+    nc, sim, _ = rig()
+    cl = NcTestClient(nc.port, client_id="t1")
+    try:
+        power(cl, [1, 3])
+        sim.kill()
+        wait_until(lambda: (r := cl.nctoplc(1)) is not None and int(r["ErrorCode"]) in DRIVE_ERRORS, T,
+                   "axis 1 in a drive error")
+        # the cycle goes on: the sim axis on the same NC still moves
+        assert cl.request("MoveAbsolute", axis=3, Position=10.0, Velocity=100.0)["error"] == 0
+        wait_until(lambda: abs(float(cl.nctoplc(3)["ActPos"]) - 10.0) < 0.02, T, "axis 3 at 10.0")
+        assert int(cl.nctoplc(3)["ErrorCode"]) == 0
+        assert nc.proc.poll() is None, nc.stderr()
+        assert "drive host drives1 of nc1: gone" in nc.stderr()
+    finally:
+        cl.close()
+
+
+def test_drive_host_missing_at_start_then_there(rig: Callable[..., Any], tmp_path: Path) -> None:
+    nc, _, cfg = rig(drives=False)
+    cl = NcTestClient(nc.port, client_id="t1")
+    try:
+        for a in (1, 3):
+            cl.claim(a)
+        cl.feed_plctonc([1, 3])
+        wait_until(lambda: (r := cl.nctoplc(3)) is not None and int(r["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED, T,
+                   "the sim axis 3 enabled")
+        wait_until(lambda: cl.nctoplc(1) is not None, T, "NCTOPLC of axis 1")
+        time.sleep(0.5)
+        r1 = cl.nctoplc(1)
+        assert not int(r1["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED, "an axis without its drive host is not enabled"
+        assert int(r1["ErrorCode"]) == 0x4651, "no drive host: lost communication (documented in remote/drive.py)"
+        assert cl.request("MoveAbsolute", axis=1, Position=5.0, Velocity=10.0)["error"] != 0
+        rig.start_drives(tmp_path, cfg, nc.port)  # type: ignore[attr-defined]
+
+        def up() -> bool:
+            r = cl.nctoplc(1)
+            if int(r["ErrorCode"]) != 0:
+                cl.request("Reset", axis=1)
+                return False
+            return bool(int(r["StateDWord"]) & BIT_CONTROL_LOOP_CLOSED)
+
+        wait_until(up, T, "axis 1 enabled once its drive host is there", interval=0.2)
+        assert cl.request("MoveAbsolute", axis=1, Position=5.0, Velocity=100.0)["error"] == 0
+        wait_until(lambda: abs(float(cl.nctoplc(1)["ActPos"]) - 5.0) < 0.02, T, "axis 1 at 5.0")
+    finally:
+        cl.close()
+
+
+def test_bad_remote_options_are_configuration_errors(tmp_path: Path) -> None:
+    port = free_port()
+    bad = CONFIG.format(port=port).replace('Drive = { backend = "remote", host = "drives1" }',
+                                           'Drive = { backend = "remote", hots = "drives1" }', 1)
+    h = start_nc_server(tmp_path / "a", bad, extra_args=["--listen", f"tcp/127.0.0.1:{port}"], wait=False)
+    try:
+        assert h.proc.wait(60) == 2
+        assert "axis[0].Drive.hots: unknown key" in h.stderr(), h.stderr()
+    finally:
+        h.kill()
+    bad = CONFIG.format(port=port).replace("max_age = 200", "max_age = 0")
+    h = start_nc_server(tmp_path / "b", bad, extra_args=["--listen", f"tcp/127.0.0.1:{port}"], wait=False)
+    try:
+        assert h.proc.wait(60) == 2
+        assert "drives.remote.max_age" in h.stderr(), h.stderr()
+    finally:
+        h.kill()
+    cfg = tmp_path / "nc.toml"
+    cfg.write_text(CONFIG.format(port=port))
+    for args, text in ((["--config", str(cfg), "--host", "drives9"], "no axis with Drive.host = 'drives9'"),
+                       (["--config", str(cfg), "--host", "a/b"], "--host"),
+                       (["--axes", "2", "--host", "d1", "--timeout", "0.0001"], "--timeout"),
+                       (["--host", "d1"], "give --config")):
+        out = subprocess.run([*drive_sim_command(), *args], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2 and "configuration error" in out.stderr and text in out.stderr, (args, out.stderr)
