@@ -21,8 +21,12 @@ import getpass
 import logging
 import signal
 import sys
+from typing import TYPE_CHECKING
 
 from .users import ROLES, UsersError, add_user, load_users
+
+if TYPE_CHECKING:
+    from .server import OpcuaDoor
 
 PROG = "nc-opcua"
 
@@ -137,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     return asyncio.run(_run(door, a.listen))
 
 
-async def _run(door: "OpcuaDoor", url: str) -> int:  # noqa: F821 (imported in main)
+async def _run(door: OpcuaDoor, url: str) -> int:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -48,7 +48,7 @@ import contextvars
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any, Awaitable, Callable, Sequence
+from typing import Any, Awaitable, Callable, Sequence, cast
 
 import numpy as np
 from asyncua import Server, ua
@@ -148,7 +148,7 @@ class _Users(UserManager):
 def _arg(name: str, vt: ua.VariantType, doc: str = "") -> ua.Argument:
     a = ua.Argument()
     a.Name = name
-    a.DataType = ua.NodeId(vt.value)
+    a.DataType = ua.NodeId(cast(Any, vt.value))
     a.ValueRank = -1
     a.Description = ua.LocalizedText(doc)
     return a
@@ -189,7 +189,7 @@ def _bad_for(code: int) -> int:
 
 def _result(status: int, code: int = 0, text: str = "") -> ua.CallMethodResult:
     r = ua.CallMethodResult()
-    r.StatusCode = ua.StatusCode(status)
+    r.StatusCode = _status(status)
     r.OutputArguments = [ua.Variant(int(code), ua.VariantType.UInt32), ua.Variant(text, ua.VariantType.String)]
     return r
 
@@ -256,7 +256,7 @@ class OpcuaDoor:
         srv.iserver.max_session_timeout_ms = cfg.session_timeout * 1000
         self._hook_sessions()
         self.idx = await srv.register_namespace(NAMESPACE)
-        self._ncs_node = await srv.nodes.objects.add_folder(ua.NodeId("NCs", self.idx), ua.QualifiedName("NCs", self.idx))
+        self._ncs_node = await srv.nodes.objects.add_folder(_nid("NCs", self.idx), ua.QualifiedName("NCs", self.idx))
         srv.subscribe_server_callback(CallbackType.PreRead, self._pre_read)
         await srv.start()
         self._tasks.append(asyncio.create_task(self._update_loop()))
@@ -303,11 +303,12 @@ class OpcuaDoor:
                         for b in list(self.bridges.values()):
                             await asyncio.to_thread(b.session_gone, id(s))
 
-                s.call, s.close_session = call, close_session
+                setattr(s, "call", call)
+                setattr(s, "close_session", close_session)
                 self._sessions[id(s)] = s
             return s
 
-        iserver.create_session = create_session  # type: ignore[method-assign]
+        setattr(iserver, "create_session", create_session)
 
     def _role_of(self, session: Any) -> tuple[str, str | None]:
         """(effective role, user name) of ``session``: the users file's role capped by the door's."""
@@ -353,33 +354,33 @@ class OpcuaDoor:
             return
         self.bridges[nc] = b
         idx = self.idx
-        node = await self._ncs_node.add_object(ua.NodeId(nc, idx), ua.QualifiedName(nc, idx))
-        await node.add_variable(ua.NodeId(f"{nc}.Alive", idx), ua.QualifiedName("Alive", idx), False, _B)
-        await node.add_variable(ua.NodeId(f"{nc}.Cycle", idx), ua.QualifiedName("Cycle", idx), 0, ua.VariantType.UInt64)
-        await node.add_folder(ua.NodeId(f"{nc}.Axes", idx), ua.QualifiedName("Axes", idx))
+        node = await self._ncs_node.add_object(_nid(nc, idx), ua.QualifiedName(nc, idx))
+        await node.add_variable(_nid(f"{nc}.Alive", idx), ua.QualifiedName("Alive", idx), False, _B)
+        await node.add_variable(_nid(f"{nc}.Cycle", idx), ua.QualifiedName("Cycle", idx), 0, ua.VariantType.UInt64)
+        await node.add_folder(_nid(f"{nc}.Axes", idx), ua.QualifiedName("Axes", idx))
         log.info("serving NC %s", nc)
 
     async def _add_axis(self, nc: str, axis: int, name: str) -> None:
         idx = self.idx
-        axes = self.server.get_node(ua.NodeId(f"{nc}.Axes", idx))
+        axes = self.server.get_node(_nid(f"{nc}.Axes", idx))
         base = f"{nc}.{axis}"
-        obj = await axes.add_object(ua.NodeId(base, idx), ua.QualifiedName(name or f"Axis{axis}", idx))
-        await obj.add_property(ua.NodeId(f"{base}.AxisId", idx), ua.QualifiedName("AxisId", idx), axis,
+        obj = await axes.add_object(_nid(base, idx), ua.QualifiedName(name or f"Axis{axis}", idx))
+        await obj.add_property(_nid(f"{base}.AxisId", idx), ua.QualifiedName("AxisId", idx), axis,
                                ua.VariantType.UInt32)
         for var, (vt, _) in CNC_VARS.items():
-            await obj.add_variable(ua.NodeId(f"{base}.{var}", idx), ua.QualifiedName(var, idx), _zero(vt), vt)
-        f = await obj.add_folder(ua.NodeId(f"{base}.NcToPlc", idx), ua.QualifiedName("NcToPlc", idx))
+            await obj.add_variable(_nid(f"{base}.{var}", idx), ua.QualifiedName(var, idx), _zero(vt), vt)
+        f = await obj.add_folder(_nid(f"{base}.NcToPlc", idx), ua.QualifiedName("NcToPlc", idx))
         for field, vt in NCTOPLC_FIELDS.items():
             sub = NCTOPLC_DTYPE.fields[field][0]  # type: ignore[index]
             init: Any = [0] * int(np.prod(sub.shape)) if sub.subdtype else _zero(vt)
-            await f.add_variable(ua.NodeId(f"{base}.NcToPlc.{field}", idx), ua.QualifiedName(field, idx),
+            await f.add_variable(_nid(f"{base}.NcToPlc.{field}", idx), ua.QualifiedName(field, idx),
                                  ua.Variant(init, vt))
-        pf = await obj.add_folder(ua.NodeId(f"{base}.Parameters", idx), ua.QualifiedName("Parameters", idx))
+        pf = await obj.add_folder(_nid(f"{base}.Parameters", idx), ua.QualifiedName("Parameters", idx))
         for e in PARAMETERS:
-            nid = ua.NodeId(f"{base}.P.{e.name}", idx)
+            nid = _nid(f"{base}.P.{e.name}", idx)
             vt = _param_type(e.type)
             v = await pf.add_variable(nid, ua.QualifiedName(e.name, idx), _zero(vt), vt)
-            await self.server.write_attribute_value(nid, ua.DataValue(ua.Variant(_zero(vt), vt), StatusCode=ua.StatusCode(
+            await self.server.write_attribute_value(nid, ua.DataValue(ua.Variant(_zero(vt), vt), StatusCode=_status(
                 ua.StatusCodes.BadWaitingForInitialData)))  # until a client reads it (on demand)
             await v.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(
                 ua.LocalizedText(f"[{e.unit or '-'}] #{e.number}: {e.doc}"), ua.VariantType.LocalizedText)))
@@ -387,10 +388,10 @@ class OpcuaDoor:
                 eu = ua.EUInformation()
                 eu.DisplayName = ua.LocalizedText(e.unit)
                 eu.Description = ua.LocalizedText(e.unit)
-                await v.add_property(ua.NodeId(f"{base}.P.{e.name}.EU", idx), ua.QualifiedName("EngineeringUnits", 0), eu)
+                await v.add_property(_nid(f"{base}.P.{e.name}.EU", idx), ua.QualifiedName("EngineeringUnits", 0), eu)
             self._param_nodes[nid] = (nc, axis, e.number, vt)
         for mname, (_, inputs, doc) in METHODS.items():
-            m = await obj.add_method(ua.NodeId(f"{base}.{mname}", idx), ua.QualifiedName(mname, idx),
+            m = await obj.add_method(_nid(f"{base}.{mname}", idx), ua.QualifiedName(mname, idx),
                                      self._method(mname), inputs, _OUT)
             await m.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(
                 ua.LocalizedText(doc), ua.VariantType.LocalizedText)))
@@ -412,11 +413,11 @@ class OpcuaDoor:
         import time as _time
         img = b.image
         alive = img is not None and _time.monotonic() - img.received < max(1.0, 5 * self.cfg.sampling_ms / 1000)
-        await self._set(ua.NodeId(f"{nc}.Alive", self.idx), alive, _B)
+        await self._set(_nid(f"{nc}.Alive", self.idx), alive, _B)
         if img is None or seen.get(nc) == img.cycle:
             return
         seen[nc] = img.cycle
-        await self._set(ua.NodeId(f"{nc}.Cycle", self.idx), img.cycle, ua.VariantType.UInt64)
+        await self._set(_nid(f"{nc}.Cycle", self.idx), img.cycle, ua.VariantType.UInt64)
         new = [a for a in img.records if (nc, a) not in self._axis_nodes]
         if new:
             names = await asyncio.to_thread(b.axis_names)
@@ -430,7 +431,7 @@ class OpcuaDoor:
             base = f"{nc}.{a}"
             for field, vt in NCTOPLC_FIELDS.items():
                 v = rec[field]
-                await self._set(ua.NodeId(f"{base}.NcToPlc.{field}", self.idx), v.tolist() if v.shape else v.item(), vt)
+                await self._set(_nid(f"{base}.NcToPlc.{field}", self.idx), v.tolist() if v.shape else v.item(), vt)
             sdw, err = int(rec["StateDWord"]), int(rec["ErrorCode"])
             cnc = {"ActPos": float(rec["ActPos"]), "CmdPos": float(rec["SetPos"]), "ActSpeed": float(rec["ActVelo"]),
                    "CmdSpeed": float(rec["SetVelo"]), "RemDist": float(rec["TargetPos"] - rec["SetPos"]),
@@ -438,7 +439,7 @@ class OpcuaDoor:
                    "IsReferenced": bool(sdw & _HOMED), "Enabled": bool(sdw & _CLOSED), "ErrorCode": err,
                    "ErrorText": _error_text(err)}
             for var, value in cnc.items():
-                await self._set(ua.NodeId(f"{base}.{var}", self.idx), value, CNC_VARS[var][0])
+                await self._set(_nid(f"{base}.{var}", self.idx), value, CNC_VARS[var][0])
 
     async def _set(self, nid: ua.NodeId, value: Any, vt: ua.VariantType) -> None:
         if self._last.get(nid, _UNSET) == value:
@@ -464,14 +465,14 @@ class OpcuaDoor:
         try:
             value = await asyncio.to_thread(b.read_parameter, axis, number, refresh)
         except CommandError as exc:
-            await self.server.write_attribute_value(nid, ua.DataValue(StatusCode=ua.StatusCode(
+            await self.server.write_attribute_value(nid, ua.DataValue(StatusCode=_status(
                 ua.StatusCodes.BadCommunicationError if exc.code in (0x707, 0x719) else ua.StatusCodes.BadNotReadable)))
             return
         conv = {ua.VariantType.Boolean: bool, ua.VariantType.UInt32: int}.get(vt, float)
         try:
             v = ua.Variant(conv(value), vt)
         except (TypeError, ValueError):
-            await self.server.write_attribute_value(nid, ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadNotReadable)))
+            await self.server.write_attribute_value(nid, ua.DataValue(StatusCode=_status(ua.StatusCodes.BadNotReadable)))
             return
         await self.server.write_attribute_value(nid, ua.DataValue(v))
 
@@ -538,21 +539,30 @@ class OpcuaDoor:
             pos = float(args[0])
             await run(lambda: b.command("Home", axis, sender, sid, **({} if math.isnan(pos) else {"Position": pos})))
         elif mname == "WriteParameter":
-            e = PARAMETERS.by_name(str(args[0]))
-            if e is None:
+            p = PARAMETERS.by_name(str(args[0]))
+            if p is None:
                 raise _Refused(ua.StatusCodes.BadInvalidArgument, ErrorCodes.MC_PARAMETER_NOT_CORRECT,
                                f"unknown parameter {args[0]!r}")
-            value: Any = bool(args[1]) if e.is_bool else float(args[1])
+            value: Any = bool(args[1]) if p.is_bool else float(args[1])
             try:
-                await run(lambda: b.command("WriteParameter", axis, sender, sid, ParameterNumber=e.number, Value=value))
+                await run(lambda: b.command("WriteParameter", axis, sender, sid, ParameterNumber=p.number, Value=value))
             finally:  # refreshed after a write (also a refused one: the cache shows the NC's value)
-                await self._read_param(b, ua.NodeId(f"{nc}.{axis}.P.{e.name}", self.idx), axis, e.number, True)
+                await self._read_param(b, _nid(f"{nc}.{axis}.P.{p.name}", self.idx), axis, p.number, True)
         elif mname == "RefreshParameters":
             for e in PARAMETERS:
-                await self._read_param(b, ua.NodeId(f"{nc}.{axis}.P.{e.name}", self.idx), axis, e.number, True)
+                await self._read_param(b, _nid(f"{nc}.{axis}.P.{e.name}", self.idx), axis, e.number, True)
 
 
 _UNSET = object()
+
+
+def _nid(ident: str, idx: int) -> ua.NodeId:
+    """A string node id of namespace ``idx`` (asyncua's NewType'd constructor, typed once here)."""
+    return ua.NodeId(cast(Any, ident), cast(Any, idx))
+
+
+def _status(code: int) -> ua.StatusCode:
+    return ua.StatusCode(cast(Any, code))
 
 
 def _param_type(t: str) -> ua.VariantType:
