@@ -313,13 +313,20 @@ class NcBridge:
         """
         with self._lock:
             j = self.jogs.get(axis)
-            if j is not None and j.session == session and j.direction == direction:
+            if j is not None and j.session == session and j.direction == direction and self._has_job(axis):
                 j.deadline = time.monotonic() + timeout
                 return
         args: dict[str, Any] = {"Mode": 2, "Velocity": velocity} if velocity > 0 else {"Mode": 0}
         self.command("Jog", axis, sender, session, Direction=direction, **args)
         with self._lock:
             self.jogs[axis] = Jog(session, sender, time.monotonic() + timeout, direction)
+
+    def _has_job(self, axis: int) -> bool:
+        """The newest frame shows a job on ``axis`` (a renewed jog the NC ended, e.g. by an error or another
+        client's command, is started again instead of only extended)."""
+        img = self.image
+        rec = img.records.get(axis) if img is not None else None
+        return rec is not None and bool(struct.unpack_from("<I", rec, 0)[0] & _MOVING)
 
     def jog_stop(self, axis: int, sender: str, session: int) -> None:
         """JogStop: Halt (whoever's jog it was). Raises: CommandError."""

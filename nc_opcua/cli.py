@@ -19,6 +19,7 @@ import argparse
 import asyncio
 import getpass
 import logging
+import os
 import signal
 import sys
 from typing import TYPE_CHECKING
@@ -80,6 +81,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--security", default=None, metavar="LIST",
                    help="offered policies: none, sign, encrypt (Basic256Sha256), comma-separated "
                         "(default: sign,encrypt with --cert, else none)")
+    p.add_argument("--trust", metavar="DIR", help="trusted client application certificates (DER/PEM files; "
+                   "default: any client certificate)")
     p.add_argument("--app-uri", default=None, metavar="URI",
                    help="ApplicationUri (default: the certificate's subjectAltName URI, else urn:zenoh-nc:nc-opcua)")
     p.add_argument("--client-id", default="opcua", metavar="ID", help="the door's zenoh client id (default opcua)")
@@ -112,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     if bool(a.cert) != bool(a.key):
         print(f"{PROG}: --cert and --key go together", file=sys.stderr)
         return 2
+    if a.trust is not None and not os.path.isdir(a.trust):
+        print(f"{PROG}: --trust {a.trust}: not a directory", file=sys.stderr)
+        return 2
     security = [s.strip() for s in (a.security or ("sign,encrypt" if a.cert else "none")).split(",") if s.strip()]
     app_uri = a.app_uri
     if a.cert:
@@ -132,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = DoorConfig(connect=a.connect, door_id=a.client_id, ncs=a.nc, url=a.listen, users=users,
                      allow_anonymous=a.anonymous, role=a.role, sampling_ms=a.sampling_ms, cert=a.cert, key=a.key,
                      security=security, app_uri=app_uri or "urn:zenoh-nc:nc-opcua", tls_dir=a.tls_dir,
-                     session_timeout=a.session_timeout)
+                     session_timeout=a.session_timeout, trust=a.trust)
     try:
         door = OpcuaDoor(cfg)
     except ValueError as exc:

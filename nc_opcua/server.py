@@ -39,7 +39,10 @@ Sessions: a session's closing (CloseSession, or asyncua's session timeout after 
 ``session_timeout``) is its vanishing: :meth:`nc_opcua.bridge.NcBridge.session_gone` (0x8F01 on what it
 powered and on its motions, release, its jogs stop). A jog also stops at its own timeout unless renewed.
 
-May import: ``asyncua``, ``nc_link``, ``nc_schema`` and this package.
+Client application certificates: checked by asyncua's rules (time, ApplicationUri, key usages); with a trust
+directory (``trust``) only the certificates in it are accepted (:class:`_ClientCertificates`).
+
+May import: ``asyncua``, ``cryptography``, ``nc_link``, ``nc_schema`` and this package.
 """
 from __future__ import annotations
 
@@ -48,10 +51,15 @@ import contextvars
 import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Awaitable, Callable, Sequence, cast
 
 import numpy as np
 from asyncua import Server, ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes
 from asyncua.common.callback import CallbackType
 from asyncua.crypto.permission_rules import User as UaUser
 from asyncua.crypto.permission_rules import UserRole
@@ -111,6 +119,9 @@ class DoorConfig:
         session_timeout: the longest session timeout granted [s]: how long a session whose connection was lost
             lives on (then it vanishes: :meth:`NcBridge.session_gone`).
         max_jog_timeout: the largest JogStart Timeout accepted [s].
+        trust: a directory of trusted client application certificates (DER or PEM, each trusted as it is,
+            read at every new session); None: any client certificate (its time range, ApplicationUri and key
+            usages are checked either way when a client presents one).
     """
 
     connect: str
@@ -128,6 +139,42 @@ class DoorConfig:
     tls_dir: str | None = None
     session_timeout: float = 10.0
     max_jog_timeout: float = 30.0
+    trust: str | None = None
+
+
+class _ClientCertificates:
+    """The check of a client's application certificate at CreateSession: asyncua's (time range, ApplicationUri in
+    subjectAltName, key usages, EKU clientAuth), then, with a trust directory, its SHA-256 fingerprint among the
+    certificates there (re-read each time: a certificate added is trusted from the next session on).
+
+    Raises (to asyncua, which refuses the session): ServiceError BadCertificate*; BadCertificateUntrusted.
+    """
+
+    def __init__(self, trust: str | None) -> None:
+        self.trust = Path(trust) if trust else None
+        self.base = CertificateValidator(CertificateValidatorOptions.EXT_VALIDATION | CertificateValidatorOptions.PEER_CLIENT)
+
+    def trusted(self) -> set[bytes]:
+        out: set[bytes] = set()
+        assert self.trust is not None
+        for f in sorted(self.trust.iterdir()):
+            if f.suffix.lower() not in (".der", ".pem", ".crt"):
+                continue
+            try:
+                data = f.read_bytes()
+                c = x509.load_pem_x509_certificate(data) if data.startswith(b"-----") else x509.load_der_x509_certificate(data)
+            except (OSError, ValueError) as exc:
+                log.warning("trust directory: %s is not a certificate (%s)", f, exc)
+                continue
+            out.add(c.fingerprint(hashes.SHA256()))
+        return out
+
+    async def __call__(self, cert: x509.Certificate, app: ua.ApplicationDescription) -> None:
+        await self.base(cert, app)
+        if self.trust is not None and cert.fingerprint(hashes.SHA256()) not in self.trusted():
+            log.warning("client certificate %s (%s) is not in the trust directory %s: session refused",
+                        cert.subject.rfc4514_string(), app.ApplicationUri, self.trust)
+            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
 
 
 class _Users(UserManager):
@@ -254,6 +301,7 @@ class OpcuaDoor:
         srv.set_identity_tokens(tokens)
         srv.iserver.min_session_timeout_ms = 1000
         srv.iserver.max_session_timeout_ms = cfg.session_timeout * 1000
+        srv.set_certificate_validator(cast(Any, _ClientCertificates(cfg.trust)))
         self._hook_sessions()
         self.idx = await srv.register_namespace(NAMESPACE)
         self._ncs_node = await srv.nodes.objects.add_folder(_nid("NCs", self.idx), ua.QualifiedName("NCs", self.idx))

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Iterator
 
 import pytest
-from asyncua import ua
+from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from cryptography import x509
 
@@ -20,6 +20,7 @@ from znc_testing.opcua_testing import NcOpcuaProcess, call, client, opcua_comman
 
 SERVER_URI = "urn:zenoh-nc:nc-opcua:test"
 CLIENT_URI = "urn:zenoh-nc:test-client"
+STRANGER_URI = "urn:zenoh-nc:test-stranger"
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +41,43 @@ def secure(tmp_path_factory: pytest.TempPathFactory, nc: NcServerProcess, users_
         yield p
     finally:
         p.stop()
+
+
+@pytest.fixture(scope="module")
+def trusting(tmp_path_factory: pytest.TempPathFactory, nc: NcServerProcess, users_file: Path,
+             certs: Path) -> Iterator[NcOpcuaProcess]:
+    trust = tmp_path_factory.mktemp("trust")
+    (trust / "client.der").write_bytes((certs / "client.der").read_bytes())
+    make_app_certificate(certs, "stranger", STRANGER_URI)  # a valid certificate nobody put in the trust directory
+    p = start_nc_opcua(tmp_path_factory.mktemp("opcua-trust"), nc.endpoint,
+                       ["--users", str(users_file), "--cert", str(certs / "server.der"),
+                        "--key", str(certs / "server.key.pem"), "--security", "sign", "--trust", str(trust)])
+    try:
+        yield p
+    finally:
+        p.stop()
+
+
+async def _secure_client(url: str, certs: Path, name: str, uri: str, mode: ua.MessageSecurityMode) -> Client:
+    c = client(url, "bob", "bob-pw")
+    c.application_uri = uri
+    await c.set_security(SecurityPolicyBasic256Sha256, str(certs / f"{name}.der"), str(certs / f"{name}.key.pem"),
+                         server_certificate=str(certs / "server.der"), mode=mode)
+    return c
+
+
+def test_trust_directory_admits_only_its_certificates(trusting: NcOpcuaProcess, certs: Path) -> None:
+    async def body() -> None:
+        c = await _secure_client(trusting.url, certs, "client", CLIENT_URI, ua.MessageSecurityMode.Sign)
+        async with c:
+            assert isinstance(await value(c, "nc1.1.ActPos"), float)
+        stranger = await _secure_client(trusting.url, certs, "stranger", STRANGER_URI, ua.MessageSecurityMode.Sign)
+        with pytest.raises(ua.UaStatusCodeError) as err:
+            async with stranger:
+                await value(stranger, "nc1.1.ActPos")
+        assert err.value.code == ua.StatusCodes.BadCertificateUntrusted
+    asyncio.run(asyncio.wait_for(body(), 240))
+    assert "is not in the trust directory" in trusting.stderr()
 
 
 def test_certificate_carries_the_application_uri(certs: Path) -> None:
