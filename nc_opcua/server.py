@@ -20,7 +20,9 @@ ActStatus, IsReferenced), without its NodeSet (not importable here): plain BaseO
 BaseDataVariableType variables of the same names.
 
 Values are written every sampling interval (``sampling_ms``, default 100 ms; the frames are taken once per that
-period, ``nc/<nc>/frame/<P>ms``) only when they changed: clients see them through subscriptions.
+period, ``nc/<nc>/frame/<P>ms``) only when they changed: clients see them through subscriptions. Without a fresh
+frame (1 s, or 5 sampling intervals) the NC's ``Alive`` is False and its axes' values keep their last value with
+the status UncertainLastUsableValue until frames come back.
 
 Methods and roles: a method needs the command class of the NC command it sends (``nc_schema.COMMAND_CLASS``:
 ``op`` for power and motion, ``eng`` for WriteParameter, ``read`` for RefreshParameters); the OPC UA user's
@@ -316,14 +318,17 @@ class OpcuaDoor:
 
     async def stop(self) -> None:
         """Stop the tasks, release every claim (enables off), close the links and the server."""
+        import time as _time
+        t0 = _time.monotonic()
         self._stopping = True
         for t in self._tasks:
             t.cancel()
-        for b in list(self.bridges.values()):
-            await asyncio.to_thread(b.close)
+        await asyncio.gather(*(asyncio.to_thread(b.close) for b in list(self.bridges.values())))
+        t1 = _time.monotonic()
         if self._zsession is not None:
             await asyncio.to_thread(self._zsession.close)
         await self.server.stop()
+        log.info("stopped: NC links closed in %.2f s, server in %.2f s", t1 - t0, _time.monotonic() - t1)
 
     # ---- sessions -----------------------------------------------------------------------------------------------
     def _hook_sessions(self) -> None:
@@ -448,7 +453,7 @@ class OpcuaDoor:
     # ---- live values --------------------------------------------------------------------------------------------
     async def _update_loop(self) -> None:
         period = self.cfg.sampling_ms / 1000.0
-        seen: dict[str, int] = {}
+        seen: dict[str, tuple[int, bool]] = {}
         while True:
             await asyncio.sleep(period)
             for nc, b in list(self.bridges.items()):
@@ -457,15 +462,17 @@ class OpcuaDoor:
                 except Exception:
                     log.exception("NC %s: value update failed", nc)
 
-    async def _update_nc(self, nc: str, b: NcBridge, seen: dict[str, int]) -> None:
+    async def _update_nc(self, nc: str, b: NcBridge, seen: dict[str, tuple[int, bool]]) -> None:
         import time as _time
         img = b.image
         alive = img is not None and _time.monotonic() - img.received < max(1.0, 5 * self.cfg.sampling_ms / 1000)
         await self._set(_nid(f"{nc}.Alive", self.idx), alive, _B)
-        if img is None or seen.get(nc) == img.cycle:
+        if img is None or seen.get(nc) == (img.cycle, alive):
             return
-        seen[nc] = img.cycle
-        await self._set(_nid(f"{nc}.Cycle", self.idx), img.cycle, ua.VariantType.UInt64)
+        seen[nc] = (img.cycle, alive)
+        # no fresh frame: the last values stay, marked UncertainLastUsableValue until frames come back
+        st = ua.StatusCodes.Good if alive else ua.StatusCodes.UncertainLastUsableValue
+        await self._set(_nid(f"{nc}.Cycle", self.idx), img.cycle, ua.VariantType.UInt64, st)
         new = [a for a in img.records if (nc, a) not in self._axis_nodes]
         if new:
             names = await asyncio.to_thread(b.axis_names)
@@ -479,7 +486,7 @@ class OpcuaDoor:
             base = f"{nc}.{a}"
             for field, vt in NCTOPLC_FIELDS.items():
                 v = rec[field]
-                await self._set(_nid(f"{base}.NcToPlc.{field}", self.idx), v.tolist() if v.shape else v.item(), vt)
+                await self._set(_nid(f"{base}.NcToPlc.{field}", self.idx), v.tolist() if v.shape else v.item(), vt, st)
             sdw, err = int(rec["StateDWord"]), int(rec["ErrorCode"])
             cnc = {"ActPos": float(rec["ActPos"]), "CmdPos": float(rec["SetPos"]), "ActSpeed": float(rec["ActVelo"]),
                    "CmdSpeed": float(rec["SetVelo"]), "RemDist": float(rec["TargetPos"] - rec["SetPos"]),
@@ -487,13 +494,13 @@ class OpcuaDoor:
                    "IsReferenced": bool(sdw & _HOMED), "Enabled": bool(sdw & _CLOSED), "ErrorCode": err,
                    "ErrorText": _error_text(err)}
             for var, value in cnc.items():
-                await self._set(_nid(f"{base}.{var}", self.idx), value, CNC_VARS[var][0])
+                await self._set(_nid(f"{base}.{var}", self.idx), value, CNC_VARS[var][0], st)
 
-    async def _set(self, nid: ua.NodeId, value: Any, vt: ua.VariantType) -> None:
-        if self._last.get(nid, _UNSET) == value:
+    async def _set(self, nid: ua.NodeId, value: Any, vt: ua.VariantType, status: int = ua.StatusCodes.Good) -> None:
+        if self._last.get(nid, _UNSET) == (value, status):
             return
-        self._last[nid] = value
-        await self.server.write_attribute_value(nid, ua.DataValue(ua.Variant(value, vt)))
+        self._last[nid] = (value, status)
+        await self.server.write_attribute_value(nid, ua.DataValue(ua.Variant(value, vt), StatusCode=_status(status)))
 
     # ---- parameters ---------------------------------------------------------------------------------------------
     async def _pre_read(self, event: Any, dispatcher: Any) -> None:

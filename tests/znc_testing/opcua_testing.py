@@ -79,6 +79,7 @@ def opcua_command() -> list[str]:
 
 def start_nc_opcua(tmp_path: Path, nc_endpoint: str, args: Sequence[str] = (), wait: bool = True) -> NcOpcuaProcess:
     """Start nc-opcua for ``nc_endpoint`` on a free port (``--listen opc.tcp://127.0.0.1:<port>/zenoh-nc``)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
     def launch() -> NcOpcuaProcess:
         port = free_port()
         url = f"opc.tcp://127.0.0.1:{port}/zenoh-nc"
