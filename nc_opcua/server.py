@@ -254,6 +254,12 @@ class OpcuaDoor:
 
     def __init__(self, cfg: DoorConfig) -> None:
         check_client_id(cfg.door_id)
+        for name in cfg.users or {}:  # each user's client id <door>.<user> must be a valid id (at most 64)
+            try:
+                check_client_id(f"{cfg.door_id}.{name}")
+            except ValueError:
+                raise ValueError(f"user {name!r}: the client id {cfg.door_id}.{name} is longer than 64 characters "
+                                 "(a shorter --client-id or user name)") from None
         if cfg.role not in ROLE_CLASSES:
             raise ValueError(f"role must be one of {', '.join(ROLE_CLASSES)}, got {cfg.role!r}")
         self.cfg = cfg
@@ -373,13 +379,10 @@ class OpcuaDoor:
     # ---- NCs ----------------------------------------------------------------------------------------------------
     async def _discover_loop(self) -> None:
         cfg = self.cfg
-        if cfg.ncs:
-            for nc in cfg.ncs:
-                await self._add_nc(nc)
-            return
         while True:
             try:
-                names = await asyncio.to_thread(self._alive_ncs)
+                # named NCs: each until its link opened (an NC not there yet is tried again); else every NC seen
+                names = set(cfg.ncs) if cfg.ncs else await asyncio.to_thread(self._alive_ncs)
                 for nc in names - set(self.bridges):
                     await self._add_nc(nc)
             except Exception as exc:

@@ -16,7 +16,7 @@ from cryptography import x509
 from nc_opcua.certs import application_uri_of, make_app_certificate
 from nc_opcua.users import UsersError, add_user, hash_password, load_users, verify_password
 from znc_testing import NcServerProcess
-from znc_testing.opcua_testing import NcOpcuaProcess, call, client, opcua_command, start_nc_opcua, value
+from znc_testing.opcua_testing import NcOpcuaProcess, call, client, opcua_command, served, start_nc_opcua, value
 
 SERVER_URI = "urn:zenoh-nc:nc-opcua:test"
 CLIENT_URI = "urn:zenoh-nc:test-client"
@@ -70,6 +70,7 @@ def test_trust_directory_admits_only_its_certificates(trusting: NcOpcuaProcess, 
     async def body() -> None:
         c = await _secure_client(trusting.url, certs, "client", CLIENT_URI, ua.MessageSecurityMode.Sign)
         async with c:
+            await served(c, "nc1.1.ActPos")
             assert isinstance(await value(c, "nc1.1.ActPos"), float)
         stranger = await _secure_client(trusting.url, certs, "stranger", STRANGER_URI, ua.MessageSecurityMode.Sign)
         with pytest.raises(ua.UaStatusCodeError) as err:
@@ -98,6 +99,7 @@ def test_sign_and_encrypt_with_a_user(secure: NcOpcuaProcess, certs: Path) -> No
                              server_certificate=str(certs / "server.der"),
                              mode=ua.MessageSecurityMode.SignAndEncrypt)
         async with c:
+            await served(c, "nc1.1.ActPos")
             assert isinstance(await value(c, "nc1.1.ActPos"), float)
             assert (await call(c, "nc1.1", "Reset"))[0] == 0
         plain = client(secure.url, "alice", "alice-pw")  # no security: the endpoint does not offer it

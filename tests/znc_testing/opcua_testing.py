@@ -133,3 +133,14 @@ async def until(pred: Callable[[], Awaitable[Any]], timeout: float, what: str, i
             return last
         await asyncio.sleep(interval)
     raise AssertionError(f"{what}: not within {timeout} s (last {last!r})")
+
+
+async def served(c: Client, node: str, timeout: float = 60.0) -> None:
+    """Wait until ``node`` exists (nc-opcua adds an NC's axes after its first frame)."""
+    async def readable() -> bool:
+        try:
+            await value(c, node)
+            return True
+        except Exception:
+            return False
+    await until(readable, timeout, f"node {node} served")
