@@ -18,7 +18,8 @@ A vanished OPC UA session (:meth:`session_gone`): on each axis it powered (Enabl
 (ZNC_CLIENT_LOST, SetExternalError: the NC stops the axis with its deceleration), then the claim is released; on
 each axis whose last motion command the door sent for that session and that still moves, 0x8F01 too (the NC's
 rule for the motions of a lost client); its jogs stop. This is nc-ads's per-connection rule, per OPC UA
-session. If the door itself dies, its user ids' tokens vanish with its zenoh session and the NC's own
+session. When a user's last session is gone its id's liveliness token is undeclared as well (the NC then lists
+it as not alive; anything it still commanded falls under the NC's own client-loss rule). If the door itself dies, its user ids' tokens vanish with its zenoh session and the NC's own
 client-loss rules apply (ClientLossReaction, docs/arbitration.md).
 
 May import: ``nc_link``, ``nc_schema`` and the standard library.
@@ -367,9 +368,19 @@ class NcBridge:
             if moving and (by is None or by.startswith(self.door_id + ".")):
                 sender = by or next((ag.client_id for ag in agents), self.door_id)
                 self._quiet("SetExternalError", a, sender, ErrorCode=ErrorCodes.ZNC_CLIENT_LOST)
+        gone = []
         with self._lock:
             for ag in agents:
                 ag.sessions.discard(session)
+                if not ag.sessions and not ag.supplies:  # the user's last session: its id leaves the NC too
+                    del self.agents[ag.client_id]
+                    gone.append(ag)
+        for ag in gone:
+            for d in (ag.token, ag.pub):
+                try:
+                    d.undeclare()
+                except Exception:
+                    pass
 
     def _last_commands(self) -> dict[int, str]:
         """AxisId -> the client of the NC's newest accepted op/eng command (Info's arbitration map); {} if unknown."""

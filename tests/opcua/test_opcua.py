@@ -227,6 +227,9 @@ def test_a_vanished_client_s_jog_stops_and_its_claim_goes(opcua: NcOpcuaProcess,
                          "axis 4 stopped with 0x8F01")
         wait_until(lambda: (r := watch.nctoplc(4)) is not None and float(r["SetVelo"]) == 0.0, 30, "axis 4 at rest")
         wait_until(lambda: 4 not in claims(watch), 20, "axis 4 released")
+        # its user's last session: the id opcua.alice leaves the NC (its liveliness token is gone)
+        wait_until(lambda: not watch.request("Info")["Value"]["arbitration"]["clients"].get("opcua.alice", {})
+                   .get("alive"), 20, "opcua.alice no longer alive at the NC")
         assert rec is not None
     finally:
         kill_process_group(proc)

@@ -47,7 +47,7 @@ class NcOpcuaProcess:
         except OSError:
             return ""
 
-    def wait_ready(self, timeout: float = 90.0) -> None:  # imports alone take seconds on the loaded machine
+    def wait_ready(self, timeout: float = 240.0) -> None:  # importing asyncua took over 90 s on the loaded machine
         deadline = time.monotonic() + timeout
         while not any(ln.startswith("nc-opcua ready") for ln in self.stdout_lines):
             if self.proc.poll() is not None:
@@ -135,7 +135,7 @@ async def until(pred: Callable[[], Awaitable[Any]], timeout: float, what: str, i
     raise AssertionError(f"{what}: not within {timeout} s (last {last!r})")
 
 
-async def served(c: Client, node: str, timeout: float = 60.0) -> None:
+async def served(c: Client, node: str, timeout: float = 180.0) -> None:
     """Wait until ``node`` exists (nc-opcua adds an NC's axes after its first frame)."""
     async def readable() -> bool:
         try:
