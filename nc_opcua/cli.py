@@ -23,6 +23,7 @@ import os
 import signal
 import sys
 from typing import TYPE_CHECKING
+from urllib.parse import urlparse
 
 from .users import ROLES, UsersError, add_user, load_users
 
@@ -119,6 +120,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: --trust {a.trust}: not a directory", file=sys.stderr)
         return 2
     security = [s.strip() for s in (a.security or ("sign,encrypt" if a.cert else "none")).split(",") if s.strip()]
+    host = urlparse(a.listen).hostname or ""
+    if "none" in security and users and host not in ("127.0.0.1", "localhost", "::1"):
+        logging.getLogger(PROG).warning("listening on %s with security policy none: user passwords may cross the "
+                                        "network in clear (give --cert/--key and --security sign,encrypt)", host)
     app_uri = a.app_uri
     if a.cert:
         from .certs import application_uri_of
