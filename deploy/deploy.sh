@@ -18,9 +18,9 @@ BUILD="$HERE/.build"
 PROJECT="${ZNC_PROJECT:-zenoh-nc}"
 export ZNC_TRANSPORT="${ZNC_TRANSPORT:-tls}"
 export ZNC_ROUTER_PORT="${ZNC_ROUTER_PORT:-7450}"
-SERVICES=(router nc1 nc2 plc1 plc2)
-IDS=(nc1 nc2 plc1 plc2 status drives1)   # one certificate each (+ router, always; status: an observer for tools;
-                                         # drives1: the drive host of compose.drives.yaml)
+SERVICES=(router nc1 nc2 plc1 plc2 opcua)
+IDS=(nc1 nc2 plc1 plc2 status opcua drives1)   # one certificate each (+ router, always; status: an observer for tools;
+                                               # drives1: the drive host of compose.drives.yaml)
 APP_UID=10001                           # the image's user (deploy/images/Dockerfile)
 
 log() { printf 'deploy.sh: %s\n' "$*" >&2; }
@@ -69,6 +69,26 @@ prepare() {
     [[ ! -e $BUILD/certs/ca.key ]] || { chgrp root "$BUILD/certs/ca.key" && chmod 0600 "$BUILD/certs/ca.key"; }
 }
 
+# nc-opcua's users file (user `operator`, a random password kept in operator.password, 0600) and its OPC UA
+# application certificate (ApplicationUri urn:zenoh-nc:deploy:opcua), made once with the image's own nc-opcua
+prepare_opcua() {
+    local dir="$BUILD/opcua"
+    mkdir -p "$dir"
+    local run=(docker run --rm -i --user 0 -v "$dir:/out" "${ZNC_IMAGE:-zenoh-nc:latest}" python -m nc_opcua)
+    if [[ ! -s $dir/users.toml ]]; then
+        (umask 077 && openssl rand -base64 18 >"$dir/operator.password") || die "cannot make a password"
+        "${run[@]}" user /out/users.toml operator --role operator <"$dir/operator.password" >&2 \
+            || die "nc-opcua user failed"
+        log "nc-opcua user 'operator': password in $dir/operator.password"
+    fi
+    if [[ ! -s $dir/opcua.der ]]; then
+        "${run[@]}" cert /out --name opcua --uri urn:zenoh-nc:deploy:opcua --host localhost --host 127.0.0.1 \
+            --host opcua >&2 || die "nc-opcua cert failed"
+    fi
+    # the container runs as uid:gid $APP_UID: the users file and the key readable by that group only
+    chgrp "$APP_UID" "$dir/users.toml" "$dir/opcua.key.pem" && chmod 0640 "$dir/users.toml" "$dir/opcua.key.pem"
+}
+
 wait_healthy() {
     local deadline=$((SECONDS + ${ZNC_UP_TIMEOUT:-240})) s id state all
     while :; do
@@ -97,15 +117,18 @@ case "${1:-}" in
     up)
         prepare
         PYTHON="${PYTHON:-python3}" "$HERE/images/build.sh"
+        prepare_opcua
         compose up -d
         wait_healthy || die "the system did not become healthy"
         c="${COMPOSE[*]} -f deploy/compose.yaml -p $PROJECT"
         cat <<EOF
-zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): router, nc1, nc2, plc1, plc2.
+zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): router, nc1, nc2, plc1, plc2, opcua.
   $c ps                  # services and health
   $c logs -f plc1 plc2   # the PLC programs' events (moves, errors, power)
   $c logs -f nc1         # an NC server's log
   make deploy-down       # stop and remove it
+  OPC UA: opc.tcp://127.0.0.1:${ZNC_OPCUA_PORT:-4840}/zenoh-nc, user operator, password in deploy/.build/opcua/operator.password
+          (Basic256Sha256; the server certificate deploy/.build/opcua/opcua.der)
 EOF
         if [[ $ZNC_TRANSPORT == tcp ]]; then
             echo "  nc-status --connect tcp/127.0.0.1:$ZNC_ROUTER_PORT   # live table of the NCs (the router on the host's loopback)"

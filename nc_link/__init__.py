@@ -1,7 +1,7 @@
 """nc_link: the client link, one zenoh session of one client to one NC, below every client door.
 
 What a client of the NC needs besides its own logic lives here, once: the PLC runtime (``plc_client``),
-the ADS door (``nc_ads``) and the coming OPC UA and web doors use it.
+the ADS door (``nc_ads``), the OPC UA door (``nc_opcua``) and the coming web door use it.
 
 Public API (everything else is private to the package):
 
@@ -13,7 +13,9 @@ Public API (everything else is private to the package):
   ``nc/<nc>/client/<client_id>`` and the PLCTONC publisher. It follows the NC instance
   (:class:`nc_schema.NcInstance`): :meth:`NcLink.frame_cycle` and :meth:`NcLink.take_events` report a
   restart whichever evidence (frames, instance token) comes first, once. :meth:`NcLink.request` is the
-  blocking command of a door (raises :class:`CommandError` with the NC's or the transport's code).
+  blocking command of a door (raises :class:`CommandError` with the NC's or the transport's code); a door
+  that acts for its users sends as ``<door>.<user>`` (``request(..., sender=...)``) and declares that id's
+  liveliness token and PLCTONC publisher on its own session (:meth:`NcLink.declare_holder`; docs/roles.md).
 * :class:`LinkEvent` - what :meth:`NcLink.take_events` returns: the NC ``GONE`` (its liveliness token
   vanished: its data is invalid, no restart), ``BACK``, ``RESTART`` (a new NC instance, ``why``).
 * :class:`Supplies` - the claim/supply machine of a door: the axes the door holds, the PLCTONC record it

@@ -282,8 +282,23 @@ class NcLink:
         self.pub.put(payload)
 
     # ---- commands ---------------------------------------------------------------------------------------------
-    def request(self, cmd: str, axis: int | None, /, **args: Any) -> dict[str, Any]:
+    def declare_holder(self, client_id: str) -> tuple[Any, Any]:
+        """Declare, on this session, the liveliness token ``nc/<nc>/client/<client_id>`` and the PLCTONC publisher
+        ``nc/<nc>/plctonc/<client_id>`` of another client id this door acts for (a door's user, ``<door>.<user>``):
+        (token, publisher); undeclaring the token is that client's loss for the NC (docs/arbitration.md).
+
+        Raises:
+            ValueError: an invalid client id. CommandError: 0x707 no session.
+        """
+        s = self.session
+        if s is None:
+            raise CommandError(ErrorCodes.ADSERR_DEVICE_NOTREADY, f"not connected to NC {self.nc}")
+        token = s.liveliness().declare_token(self.keys.client_alive(client_id))
+        return token, s.declare_publisher(self.keys.plctonc_in(client_id))
+
+    def request(self, cmd: str, axis: int | None, /, *, sender: str | None = None, **args: Any) -> dict[str, Any]:
         """Send ``cmd`` (to axis ``axis``, None: the NC-level key) and wait for the reply (a door's thread).
+        ``sender``: the client id it is sent as (a door's user, ``<door>.<user>``); None: ``client_id``.
 
         Raises:
             CommandError: the NC's code; 0x707 no session, or zenoh ended the query without a reply early;
@@ -292,8 +307,9 @@ class NcLink:
         s = self.session
         if s is None:
             raise CommandError(ErrorCodes.ADSERR_DEVICE_NOTREADY, f"not connected to NC {self.nc}")
-        key = self.keys.command_key(cmd, axis, self.client_id)
-        payload = make_request(cmd, next(self._ids), self.client_id, **args)
+        client = sender or self.client_id
+        key = self.keys.command_key(cmd, axis, client)
+        payload = make_request(cmd, next(self._ids), client, **args)
         t0 = time.monotonic()
         try:
             replies = s.get(key, payload=payload, timeout=self.query_timeout,
@@ -320,4 +336,4 @@ class NcLink:
         # zenoh ended the query at once: no route to the NC, or the router's access control denied it (a denied
         # query is finalized without a reply; docs/roles.md): the two cannot be told apart from here
         raise CommandError(ErrorCodes.ADSERR_DEVICE_NOTREADY, f"{cmd}: no reply (NC {self.nc} unreachable, or access "
-                                                              f"control denied {self.client_id}'s query)")
+                                                              f"control denied {client}'s query)")

@@ -22,6 +22,8 @@ subject exactly the key expressions of its identity (docs/roles.md has the table
   ``nc/<nc>/drive/<host>/rx``, puts its inputs ``.../tx`` and its ``.../status`` and declares its token
   ``.../alive``, nothing else (the NC reaches them through its own ``nc/<nc>/**`` rules); every listed client
   may read the drive hosts' status ``nc/*/drive/*/status``.
+* a door (``door = true``, roles.py) also uses the command keys, PLCTONC and liveliness token of its users' ids
+  ``<id>.<user>`` (key expressions ``.../<id>.$*``), with its own role's classes.
 
 It respects what was verified on eclipse-zenoh 1.10.2 (../shared/reference/zenoh-security-notes.md):
 rules match by *inclusion* (a rule's key expression must include the message's or declaration's,
@@ -111,13 +113,17 @@ def access_control(roles: Roles) -> dict[str, Any]:
         rules.append(_rule(f"client:{client}:view-subscribe", "ingress", ["declare_subscriber"], view))
         rules.append(_rule(f"client:{client}:view-receive", "egress", ["put", "delete"], view))
         ids += [f"client:{client}:view-token", f"client:{client}:view-subscribe", f"client:{client}:view-receive"]
-        keys = command_keys(client, classes)
+        door = client in roles.doors
+        keys = command_keys(client, classes) + (command_keys(f"{client}.$*", classes) if door else [])
         rules.append(_rule(f"client:{client}:query", "ingress", ["query"], keys))
         rules.append(_rule(f"client:{client}:reply", "egress", ["reply"], keys))
         ids += [f"client:{client}:query", f"client:{client}:reply"]
         if "op" in classes:
-            rules.append(_rule(f"client:{client}:plctonc", "ingress", ["put"], [f"nc/*/plctonc/{client}"]))
-            rules.append(_rule(f"client:{client}:token", "ingress", ["liveliness_token"], [f"nc/*/client/{client}"]))
+            users = [f"{client}.$*"] if door else []
+            rules.append(_rule(f"client:{client}:plctonc", "ingress", ["put"],
+                               [f"nc/*/plctonc/{c}" for c in (client, *users)]))
+            rules.append(_rule(f"client:{client}:token", "ingress", ["liveliness_token"],
+                               [f"nc/*/client/{c}" for c in (client, *users)]))
             ids += [f"client:{client}:plctonc", f"client:{client}:token",
                     # its declared PLCTONC publisher drops puts unless it sees the NC's subscriber nc/<nc>/plctonc/*
                     share(_rule("see:plctonc-subscribers", "egress", ["declare_subscriber"], ["nc/*/plctonc/*"]))]

@@ -8,6 +8,9 @@ A TOML file, e.g. ``deploy/roles.toml``::
     role = "engineer"
     [client.status]
     role = "observer"
+    [client.opcua]
+    role = "engineer"
+    door = true              # acts for its users as opcua.<user>, never above its own role
     [nc.nc1]                 # an NC server (its certificate CN = its NC name)
     [router.router]          # a router that may connect to this one (router-to-router link)
     [drive.drives1]          # a drive host (nc-drive-sim --host drives1) of NC nc1
@@ -17,17 +20,23 @@ The ids are the certificates' common names (``deploy/certs/make-certs.sh``), the
 ``plc-run --client-id`` and the NC names. Roles and the command classes they may send
 (``nc_schema.ROLE_CLASSES``): observer ``read``; operator ``read``, ``op``; engineer ``read``,
 ``op``, ``eng``.
+
+Doors (``door = true``: nc-opcua, nc-web): a door acts for each of its users under the client id
+``<door>.<user>`` (``<door>`` followed by a dot and at least one more character). Such an id is not listed:
+it has the door's role (the door enforces each user's own, lower or equal, role itself); the generated access
+control lets the door's certificate use those ids' keys (command keys, PLCTONC, liveliness token) and no other
+certificate. An id that is listed itself keeps its own entry.
 """
 from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 from nc_schema import ROLE_CLASSES, Keys, check_client_id
 
-__all__ = ["Roles", "RolesError", "load_roles", "parse_roles", "ROLES"]
+__all__ = ["Roles", "RolesError", "ClientRoles", "load_roles", "parse_roles", "door_of", "ROLES"]
 
 #: The roles, lowest privilege first.
 ROLES: tuple[str, ...] = tuple(ROLE_CLASSES)
@@ -64,15 +73,52 @@ class Roles:
     routers: tuple[str, ...] = ()
     drives: Mapping[str, str] = field(default_factory=dict)
     source: str = "<roles>"
+    doors: tuple[str, ...] = ()
 
     def role_of(self, client: str) -> str | None:
-        """The client's role, None if it is not listed."""
-        return self.clients.get(client)
+        """The client's role (a door's user ``<door>.<user>``: the door's), None if it is not listed."""
+        return self.client_roles().get(client)
 
     def classes_of(self, client: str) -> tuple[str, ...]:
         """The command classes the client may send (none if unlisted)."""
-        role = self.clients.get(client)
+        role = self.role_of(client)
         return ROLE_CLASSES[role] if role else ()
+
+    def client_roles(self) -> "ClientRoles":
+        """client id -> role as the NC checks it (listed clients, and the users of doors)."""
+        return ClientRoles(dict(self.clients), self.doors)
+
+
+def door_of(client: str, doors: tuple[str, ...] | frozenset[str]) -> str | None:
+    """The door ``client`` is a user id of (``<door>.<user>``; the longest such door), None if none."""
+    best = None
+    for d in doors:
+        if len(client) > len(d) + 1 and client.startswith(d + ".") and (best is None or len(d) > len(best)):
+            best = d
+    return best
+
+
+class ClientRoles(Mapping[str, str]):
+    """The roles of the listed clients (iteration, ``len``), and for ``get``/``[]`` also of the door user ids
+    ``<door>.<user>`` (the door's role; see the module docstring)."""
+
+    def __init__(self, clients: dict[str, str], doors: tuple[str, ...] = ()) -> None:
+        self._clients, self._doors = clients, tuple(doors)
+
+    def __getitem__(self, client: str) -> str:
+        role = self._clients.get(client)
+        if role is None:
+            door = door_of(client, self._doors)
+            if door is None:
+                raise KeyError(client)
+            role = self._clients[door]
+        return role
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._clients)
+
+    def __len__(self) -> int:
+        return len(self._clients)
 
 
 def _table(v: Any, file: str, key: str) -> Mapping[str, Any]:
@@ -93,6 +139,7 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
             raise RolesError(source, k, "unknown section (allowed: [client.<id>], [nc.<name>], [router.<id>], "
                                         "[drive.<host>])")
     clients: dict[str, str] = {}
+    doors: list[str] = []
     owner: dict[str, str] = {}
 
     def take(section: str, ident: str) -> None:
@@ -111,8 +158,13 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
         take("client", ident)
         t = _table(t, source, f"client.{ident}")
         for k in t:
-            if k != "role":
-                raise RolesError(source, f"client.{ident}.{k}", "unknown key (allowed: role)")
+            if k not in ("role", "door"):
+                raise RolesError(source, f"client.{ident}.{k}", "unknown key (allowed: role, door)")
+        if "door" in t:
+            if not isinstance(t["door"], bool):
+                raise RolesError(source, f"client.{ident}.door", f"must be true or false, got {t['door']!r}")
+            if t["door"]:
+                doors.append(ident)
         if "role" not in t:
             raise RolesError(source, f"client.{ident}.role", f"missing (one of {', '.join(ROLES)})")
         role = t["role"]
@@ -143,7 +195,8 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
         drives[ident] = str(nc)
     if not clients and not ncs:
         raise RolesError(source, "", "lists no [client.<id>] and no [nc.<name>]")
-    return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), drives=drives, source=source)
+    return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), drives=drives, source=source,
+                 doors=tuple(doors))
 
 
 def load_roles(path: str | Path) -> Roles:

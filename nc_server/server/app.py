@@ -156,7 +156,7 @@ class NcServer:
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]
         # the NC's lease: a stall of half of it may have dropped every link (ClaimTable.grace)
         self.claims = ClaimTable(self.axis_ids, config.watchdog_timeout, lease=config.zenoh.lease_ms / 1000.0)
-        roles = dict(config.roles.clients) if config.roles is not None else None
+        roles = config.roles.client_roles() if config.roles is not None else None  # (door users included)
         acl = None
         if config.roles is not None and config.zenoh.tls_dir and config.zenoh.mode != "client":
             acl = access_control(config.roles)

@@ -241,7 +241,8 @@ class RequestHandler:
         self.info_extra = info_extra or (lambda: {})
         #: applies pending liveliness events (the server's); called before refusing an unknown client
         self.refresh_liveliness = refresh_liveliness or (lambda: None)
-        self.roles: dict[str, str] | None = None if roles is None else dict(roles)
+        # kept as given: a roles file's mapping also answers for the users of doors (<door>.<user>)
+        self.roles: Mapping[str, str] | None = roles
         for client, role in (self.roles or {}).items():
             if role not in ROLE_CLASSES:
                 raise ValueError(f"client {client!r}: unknown role {role!r} (one of {', '.join(ROLE_CLASSES)})")

@@ -69,7 +69,8 @@ def test_motion_on_its_own_accepts_a_command_sent_during_the_standstill_before_t
 
 def test_each_container_mounts_only_its_own_key_and_certificate() -> None:
     """deploy/compose.yaml: every service mounts ca.pem and its own <id>.pem/.key (never the whole
-    certs directory, the CA key or another identity's key); only the router the roles file."""
+    certs directory, the CA key or another identity's key); only the router the roles file, only nc-opcua
+    its users file and OPC UA application certificate."""
     import re
 
     text = (ROOT / "deploy" / "compose.yaml").read_text()
@@ -85,7 +86,8 @@ def test_each_container_mounts_only_its_own_key_and_certificate() -> None:
         mounts = re.findall(r"^\s+- \$\{ZNC_BUILD:-\./\.build\}/(\S+):(\S+):ro$", block, re.M)
         sources = sorted(src for src, _ in mounts)
         want = sorted(["certs/ca.pem", f"certs/{sid}.pem", f"certs/{sid}.key"]
-                      + (["etc/roles.toml"] if sid == "router" else []))
+                      + (["etc/roles.toml"] if sid == "router" else [])
+                      + (["opcua/opcua.der", "opcua/opcua.key.pem", "opcua/users.toml"] if sid == "opcua" else []))
         assert sources == want, (sid, sources)
-    assert seen == {"router", "nc1", "nc2", "plc1", "plc2"}
+    assert seen == {"router", "nc1", "nc2", "plc1", "plc2", "opcua"}
     assert re.search(r"\.build\}/certs:", text) is None  # no directory mount left (anchor included)

@@ -20,7 +20,9 @@ EXAMPLE = REPO / "deploy" / "roles.toml"
 
 def test_the_example_roles_file() -> None:
     r = load_roles(EXAMPLE)
-    assert dict(r.clients) == {"plc1": "operator", "plc2": "operator", "eng1": "engineer", "status": "observer"}
+    assert dict(r.clients) == {"plc1": "operator", "plc2": "operator", "eng1": "engineer", "status": "observer",
+                               "opcua": "engineer"}
+    assert r.doors == ("opcua",) and r.role_of("opcua.alice") == "engineer" and r.role_of("plc1.alice") is None
     assert r.ncs == ("nc1", "nc2") and r.routers == ("router",)
     assert r.role_of("plc1") == "operator" and r.role_of("nobody") is None
     assert r.classes_of("eng1") == ("read", "op", "eng") and r.classes_of("status") == ("read",)
@@ -76,8 +78,8 @@ def test_generated_access_control() -> None:
     ids = [r["id"] for r in acl["rules"]]
     assert len(ids) == len(set(ids))
     subjects = {s["id"]: s for s in acl["subjects"]}
-    assert set(subjects) == {"client:plc1", "client:plc2", "client:eng1", "client:status", "nc:nc1", "nc:nc2",
-                             "router:router", "drive:drives1"}
+    assert set(subjects) == {"client:plc1", "client:plc2", "client:eng1", "client:status", "client:opcua", "nc:nc1",
+                             "nc:nc2", "router:router", "drive:drives1"}
     assert all(s["cert_common_names"] == [s["id"].split(":", 1)[1]] and set(s) == {"id", "cert_common_names"}
                for s in subjects.values())
     # everybody reads the cyclic data (and its own view: below)
@@ -99,6 +101,10 @@ def test_generated_access_control() -> None:
     assert allowed(acl, "client:plc1", "ingress", "put") == {"nc/*/plctonc/plc1"}
     assert allowed(acl, "client:plc1", "ingress", "liveliness_token") == {"nc/*/client/plc1", "nc/*/select/plc1/**"}
     assert allowed(acl, "client:status", "ingress", "put") == set()
+    # a door (door = true): also its users' ids <id>.<user>, with its own role's classes (docs/roles.md)
+    assert allowed(acl, "client:opcua", "ingress", "query") == set(
+        command_keys("opcua", ["read", "op", "eng"]) + command_keys("opcua.$*", ["read", "op", "eng"]))
+    assert allowed(acl, "client:opcua", "ingress", "put") == {"nc/*/plctonc/opcua", "nc/*/plctonc/opcua.$*"}
     # the view (issue 19): every listed client, its own token and its own view only
     for c in ("status", "plc1", "eng1"):
         assert allowed(acl, f"client:{c}", "ingress", "declare_subscriber") == set(READ_KEYS) | {f"nc/*/view/{c}"}

@@ -1,0 +1,143 @@
+"""The users file of nc-opcua: OPC UA user names, their role and a salted scrypt hash of their password.
+
+A TOML file given by path (``nc-opcua --users FILE``), beside the NC's roles file::
+
+    [user.alice]
+    role = "operator"                       # observer | operator | engineer (docs/roles.md)
+    password = "scrypt$16384$8$1$<salt b64>$<hash b64>"
+
+Make an entry with ``nc-opcua user FILE NAME --role ROLE`` (the password is read from the terminal or
+stdin, never from the command line) or :func:`hash_password`.
+
+Decisions: the hash is ``hashlib.scrypt`` (RFC 7914; n=2**14, r=8, p=1, 16-byte random salt, 32-byte key),
+stored with its parameters so they can be raised later; verification is constant-time
+(``hmac.compare_digest``). A user name is also a client id suffix (``<door>.<user>``), so it follows the
+client id rule (letters, digits, ``_``, ``.``, ``-``; the door id and the name together at most 64).
+
+May import: ``nc_schema`` and the standard library.
+"""
+from __future__ import annotations
+
+import base64
+import hashlib
+import hmac
+import os
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+from nc_schema import ROLE_CLASSES
+
+__all__ = ["User", "UsersError", "hash_password", "verify_password", "load_users", "add_user", "ROLES", "role_min"]
+
+#: The roles, lowest privilege first.
+ROLES: tuple[str, ...] = tuple(ROLE_CLASSES)
+_NAME_RE = re.compile(r"[A-Za-z0-9_.\-]{1,48}")
+_N, _R, _P, _DKLEN = 2**14, 8, 1, 32
+
+
+class UsersError(ValueError):
+    """A users file that cannot be used (the message names the file and the entry)."""
+
+
+@dataclass(frozen=True)
+class User:
+    """One OPC UA user: ``name``, ``role`` (observer / operator / engineer), ``password_hash`` (see the module)."""
+
+    name: str
+    role: str
+    password_hash: str
+
+
+def role_min(a: str, b: str) -> str:
+    """The lower of two roles (a door never grants more than its own role)."""
+    return a if ROLES.index(a) <= ROLES.index(b) else b
+
+
+def hash_password(password: str, salt: bytes | None = None) -> str:
+    """The stored form of ``password``: ``scrypt$n$r$p$salt$hash`` (base64)."""
+    salt = salt if salt is not None else os.urandom(16)
+    dk = hashlib.scrypt(password.encode(), salt=salt, n=_N, r=_R, p=_P, dklen=_DKLEN)
+    b64 = lambda b: base64.b64encode(b).decode()  # noqa: E731
+    return f"scrypt${_N}${_R}${_P}${b64(salt)}${b64(dk)}"
+
+
+def verify_password(password: str, stored: str) -> bool:
+    """True if ``password`` matches ``stored`` (:func:`hash_password`'s form); False for a malformed entry."""
+    try:
+        scheme, n, r, p, salt, dk = stored.split("$")
+        if scheme != "scrypt":
+            return False
+        want = base64.b64decode(dk)
+        got = hashlib.scrypt(password.encode(), salt=base64.b64decode(salt), n=int(n), r=int(r), p=int(p),
+                             dklen=len(want), maxmem=128 * int(n) * int(r) * 2 + 1024 * 1024)
+    except (ValueError, TypeError):
+        return False
+    return hmac.compare_digest(got, want)
+
+
+def parse_users(data: Mapping[str, object], source: str = "<users>") -> dict[str, User]:
+    """The users of a parsed users file.
+
+    Raises:
+        UsersError: an unknown section, a bad name, role or password entry (the message names it).
+    """
+    extra = set(data) - {"user"}
+    if extra:
+        raise UsersError(f"{source}: unknown section(s) {sorted(extra)}: only [user.<name>] tables")
+    users: dict[str, User] = {}
+    table = data.get("user", {})
+    if not isinstance(table, Mapping):
+        raise UsersError(f"{source}: user: must be a table of [user.<name>]")
+    for name, entry in table.items():
+        key = f"user.{name}"
+        if not _NAME_RE.fullmatch(name):
+            raise UsersError(f"{source}: {key}: a user name is 1-48 of letters, digits, '_', '.', '-'")
+        if not isinstance(entry, Mapping):
+            raise UsersError(f"{source}: {key}: must be a table")
+        unknown = set(entry) - {"role", "password"}
+        if unknown:
+            raise UsersError(f"{source}: {key}: unknown key(s) {sorted(unknown)}")
+        role = entry.get("role")
+        if role not in ROLES:
+            raise UsersError(f"{source}: {key}.role: must be one of {', '.join(ROLES)}, got {role!r}")
+        pw = entry.get("password")
+        if not isinstance(pw, str) or not pw.startswith("scrypt$") or pw.count("$") != 5:
+            raise UsersError(f"{source}: {key}.password: a scrypt hash (nc-opcua user FILE NAME --role R makes one)")
+        users[name] = User(name, str(role), pw)
+    return users
+
+
+def load_users(path: str | Path) -> dict[str, User]:
+    """The users of the file ``path``.
+
+    Raises:
+        UsersError: unreadable, not TOML, or a bad entry.
+    """
+    try:
+        data = tomllib.loads(Path(path).read_text())
+    except OSError as exc:
+        raise UsersError(f"{path}: cannot read the users file: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise UsersError(f"{path}: not TOML: {exc}") from None
+    return parse_users(data, str(path))
+
+
+def add_user(path: str | Path, name: str, role: str, password: str) -> None:
+    """Add or replace user ``name`` in the users file ``path`` (created if missing, mode 0600).
+
+    Raises:
+        UsersError: a bad name or role, or the existing file is invalid.
+    """
+    p = Path(path)
+    users = load_users(p) if p.exists() else {}
+    users[name] = User(name, role, hash_password(password))
+    parse_users({"user": {u.name: {"role": u.role, "password": u.password_hash} for u in users.values()}}, str(p))
+    text = "# nc-opcua users (nc_opcua.users): role observer | operator | engineer, scrypt password hash\n"
+    for u in users.values():
+        text += f'\n[user.{u.name}]\nrole = "{u.role}"\npassword = "{u.password_hash}"\n'
+    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
