@@ -24,11 +24,14 @@ class DriveContext:
         options: the backend's own section ``[drives.<backend>]`` of the NC's TOML (bus, channel, ...).
         zenoh: the NC's session settings (``nc_server.server.config.ZenohSettings``; None in a pure core
             test), for backends that reach their drives over zenoh.
+        axis_ids: the AxisIds of the backend's axes, in order (None: not known, e.g. a test building a backend
+            alone); a remote drive host checks them against the axes it serves.
     """
 
     nc_name: str = "nc1"
     options: Mapping[str, Any] = field(default_factory=dict)
     zenoh: Any = None
+    axis_ids: tuple[int, ...] | None = None
 
 
 class DriveABC(ABC):

@@ -32,7 +32,7 @@ from .base import DriveABC, DriveContext
 
 def build_drives(params: Sequence[AxisParams], cycle_time: float, backends: Sequence[str],
                  axis_options: Sequence[Mapping[str, Any]], sections: Mapping[str, Mapping[str, Any]],
-                 nc_name: str = "nc1", zenoh: Any = None) -> DriveABC:
+                 nc_name: str = "nc1", zenoh: Any = None, axis_ids: Sequence[int] | None = None) -> DriveABC:
     """The drives of every axis, each axis on its configured backend.
 
     Args:
@@ -41,7 +41,7 @@ def build_drives(params: Sequence[AxisParams], cycle_time: float, backends: Sequ
         backends: per axis, the backend's entry point name (``"sim"``, ``"cia402-sim"``, ``"canopen"``, ...).
         axis_options: per axis, its ``Drive`` options without ``backend``.
         sections: the ``[drives.<backend>]`` tables.
-        nc_name, zenoh: the NC's name and session settings (:class:`.base.DriveContext`).
+        nc_name, zenoh, axis_ids: the NC's name, session settings and AxisIds (:class:`.base.DriveContext`).
 
     Raises:
         ConfigError: a backend refuses its options; its key names the axis (``axis[2].Drive...``) or the
@@ -67,7 +67,8 @@ def build_drives(params: Sequence[AxisParams], cycle_time: float, backends: Sequ
     try:
         for b in order:
             r = rows[b]
-            ctx = DriveContext(nc_name=nc_name, options=dict(sections.get(b, {})), zenoh=zenoh)
+            ids = tuple(int(axis_ids[i]) for i in r) if axis_ids is not None else None
+            ctx = DriveContext(nc_name=nc_name, options=dict(sections.get(b, {})), zenoh=zenoh, axis_ids=ids)
             try:
                 drive = drive_class(b).from_config([params[i] for i in r], cycle_time,
                                                    [axis_options[i] for i in r], ctx)

@@ -115,7 +115,8 @@ def _run(cfg: object) -> int:
         # config; the backend checks its own options ([drives.<backend>], the axis's Drive table)
         drives = cfg.axis_drives or tuple((cfg.drive, {}) for _ in cfg.axes)
         drive = build_drives([a.params for a in cfg.axes], cfg.cycle_time, [b for b, _ in drives],
-                             [o for _, o in drives], cfg.drive_options, nc_name=cfg.name, zenoh=cfg.zenoh)
+                             [o for _, o in drives], cfg.drive_options, nc_name=cfg.name, zenoh=cfg.zenoh,
+                             axis_ids=[a.AxisId for a in cfg.axes])
     except ConfigError as exc:
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -70,7 +70,7 @@ class RemoteDrive(Cia402Drive):
         if len(axis_options) != len(params):
             raise ConfigError("axis", f"{len(params)} axes but {len(axis_options)} Drive tables")
         opts: RemoteOptions = parse_options(context.options)
-        ids = getattr(context, "axis_ids", None)  # (a context that names the AxisIds: the hosts check them)
+        ids = context.axis_ids  # (None: not known, sent as 0; else the hosts check them)
         modes, kvs, rest = [], [], []
         for i, o in enumerate(axis_options):  # the CiA 402 options (mode, kv) as cia402-sim takes them
             mode, kv, others = cia402_axis_options(o, f"axis[{i}].Drive")
