@@ -290,6 +290,10 @@ class Cia402Drive(DriveABC):
             self._act_shown = a
             self._act_live = live or bool(np.count_nonzero(f[2]))  # (one more cycle: the derivative to 0)
 
+    def encoder_count(self, index: int) -> float:
+        """The hardware counter of axis ``index``'s encoder as the NC's chain reads it: increments & mask [inc]."""
+        return self.encoder.hardware_count(index, float(self.act_pos[index]))
+
     # -- torque, homing -------------------------------------------------------------------------------------
 
     def set_torque_offset(self, values: np.ndarray) -> None:
