@@ -7,6 +7,9 @@ Not rerun here, on purpose (their expectations differ with a CiA 402 drive; see 
 * test_drive_fields.py::test_a_device_error_on_an_enabled_axis_is_0x4650_at_once -- the drive stops itself (no
   NC ramp) and, the cause gone, still needs its fault reset: after ``set_device_error(0, False)`` the first
   MC_Reset acknowledges the drive, the axis follows again two cycles later (not in the same cycle).
+* test_drive_fields.py::test_a_drive_delivering_no_torque_shows_zero_in_every_torque_field[device error] -- a
+  CiA 402 drive brakes itself on its quick-stop ramp after a fault: ActTorque shows its braking torque (0x6077)
+  until it stands (SetTorque and TorqueOffset are 0 at once, as before).
 * the simulated probe input tests (test_probe_latch.py) -- Cia402SimDrive has no simulated probe input 1
   (``set_probe_signal``: 0x4251, DriveABC's default).
 * the stepper terminal tests -- SimStepper is a SimDrive feature.
@@ -67,6 +70,14 @@ test_invalid_io_data_warn_three_cycles_then_0x4655_and_the_values_hold = \
 test_io_data_valid_again_within_the_delay_is_no_error = _fields.test_io_data_valid_again_within_the_delay_is_no_error
 test_a_device_error_on_a_disabled_axis_shows_the_bit_and_a_start_is_refused_0x4225 = \
     _fields.test_a_device_error_on_a_disabled_axis_shows_the_bit_and_a_start_is_refused_0x4225
+test_the_model_rests_after_two_steps_without_any_drive_delivering_torque = \
+    _fields.test_the_model_rests_after_two_steps_without_any_drive_delivering_torque
+test_one_axis_delivering_keeps_the_others_at_zero = _fields.test_one_axis_delivering_keeps_the_others_at_zero
+
+
+@pytest.mark.parametrize("how", ["disabled", "invalid io"])  # (not "device error": see the module docstring)
+def test_a_drive_delivering_no_torque_shows_zero_in_every_torque_field(how: str) -> None:
+    _fields.test_a_drive_delivering_no_torque_shows_zero_in_every_torque_field(how)
 
 _encoder = _load("test_encoder_chain")
 for _name in dir(_encoder):

@@ -26,7 +26,9 @@ Decisions:
 * Torque: ActTorque [%] = 0x6077 / 10 (per mille -> %), its derivative per cycle; SetTorque, its derivative and
   TorqueOffset from the NC's own model of the axis (:class:`..mechanics.Mechanics` with the axis's Sim*
   parameters: the feed-forward torque of the set-point, plus PLCTONC.ExtTorque), as CiA 402 has no torque
-  demand in the cyclic process data the NC maps.
+  demand in the cyclic process data the NC maps. A drive that does not follow shows SetTorque and TorqueOffset 0;
+  its ActTorque is what it reports (a drive braking itself after a fault shows its braking torque); invalid I/O
+  data show 0 in every field (as SimDrive).
 * Homing: the NC's own homing (MC_Home: cam search, sync pulse search) with the drive's touch probe latched on
   the encoder's index pulse (0x60B8 = enabled, continuous, source zero impulse, positive edge; 0x60B9 bit 7
   toggles with each new latch; 0x60BA the latched position), not the drive's homing mode 6: MC_Home keeps its
@@ -158,6 +160,8 @@ class Cia402Drive(DriveABC):
         self._probe_new_any = False
         self._any_dropped = False
         self._any_reset = False
+        self._act_live = False  # ActTorque (0x6077) was not 0 in the last cycle, or its derivative
+        self._act_shown = np.zeros(n)  # the ActTorque shown last [%]
         self._cycle = 0
         self.following = np.zeros(n, dtype=bool)
         self.tx = TxImage.zeros(n)
@@ -270,12 +274,21 @@ class Cia402Drive(DriveABC):
 
     def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         m = self.mechanics
-        shown = m.fields[1].copy()
-        m.step(self.following, set_velo, set_acc, self.act_velo, self.act_acc)
-        if not m.resting:
-            act = self.tx.torque_actual * 0.1
-            m.fields[2] = (act - shown) * m.inv_dt
-            m.fields[1] = act
+        delivering = self.following if not self.faulty else self.following & self.io_valid
+        m.step(delivering, set_velo, set_acc, self.act_velo, self.act_acc)
+        act = self.tx.torque_actual
+        if self.faulty:  # invalid I/O data: no torque shown (the motor gets no set-points)
+            act = np.where(self.io_valid, act, 0.0)
+        live = bool(np.count_nonzero(act))
+        # ActTorque is the drive's (also while it brakes itself, the model resting), and so is its fall to 0
+        if live or self._act_live or not m.resting:
+            a = act * 0.1
+            f = m.fields
+            np.subtract(a, self._act_shown, out=f[2])
+            f[2] *= m.inv_dt
+            f[1] = a
+            self._act_shown = a
+            self._act_live = live or bool(np.count_nonzero(f[2]))  # (one more cycle: the derivative to 0)
 
     def encoder_count(self, index: int) -> float:
         """The hardware counter of axis ``index``'s encoder as the NC's chain reads it: increments & mask [inc]."""
@@ -289,7 +302,7 @@ class Cia402Drive(DriveABC):
 
     def torque_fields(self) -> np.ndarray | None:
         """SetTorque from the NC's model, ActTorque from 0x6077 (see the module docstring); None while resting."""
-        return None if self.mechanics.resting else self.mechanics.fields
+        return None if self.mechanics.resting and not self._act_live else self.mechanics.fields
 
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         """The index pulse the drive's touch probe latched in the cycle just stepped [u] (NaN: none)."""
