@@ -57,6 +57,9 @@ bench: $(STAMP)
 	$(PY) bench/subscribers.py $(SUBSCRIBERS_ARGS) || rc=1; \
 	$(PY) bench/ads_rtt.py || rc=1; \
 	$(PY) bench/ads_server.py || rc=1; \
+	$(PY) bench/canopen_cycle.py || rc=1; \
+	$(PY) bench/remote_drives.py || rc=1; \
+	$(PY) bench/opcua_latency.py || rc=1; \
 	exit $$rc
 
 # Containers (deploy/): images built locally (no registry, cached by content hash), the compose system.
