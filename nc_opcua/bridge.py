@@ -22,6 +22,12 @@ session. When a user's last session is gone its id's liveliness token is undecla
 it as not alive; anything it still commanded falls under the NC's own client-loss rule). If the door itself dies, its user ids' tokens vanish with its zenoh session and the NC's own
 client-loss rules apply (ClientLossReaction, docs/arbitration.md).
 
+A session that vanishes while its command waits for the NC's reply: :meth:`session_gone` first marks it gone
+(under the lock); :meth:`command`, :meth:`power` and :meth:`jog` refuse a gone session (0x8F01) and, after
+the NC's reply, look again under the lock: gone -> the loss reaction for that command (a Power's fresh claim
+is released, never supplied; a motion gets 0x8F01; a jog Halt) and CommandError 0x8F01. PLCTONC of one user
+id is published by one thread at a time (``UserAgent.publish_lock``: the supply thread and a command's).
+
 May import: ``nc_link``, ``nc_schema`` and the standard library.
 """
 from __future__ import annotations
@@ -71,6 +77,8 @@ class UserAgent:
     supplies: Supplies
     sessions: set[int] = field(default_factory=set)
     plc_cycle: int = 0
+    #: one publisher of this id's PLCTONC at a time (the supply thread and a command's worker thread publish)
+    publish_lock: threading.Lock = field(default_factory=threading.Lock)
 
 
 @dataclass
@@ -117,6 +125,7 @@ class NcBridge:
         self.commanded: dict[int, int] = {}  # AxisId -> the session whose motion command the door sent last
         self.params: dict[tuple[int, int], Any] = {}  # (AxisId, ParameterNumber) -> value (read on demand)
         self._lock = threading.RLock()
+        self._gone: set[int] = set()  # sessions that vanished (numbers are never reused): refused from then on
         self._closed = threading.Event()
         self._thread: threading.Thread | None = None
         self.on_restart: list[Callable[[], None]] = []
@@ -219,13 +228,14 @@ class NcBridge:
             cb()
 
     def _publish(self, ag: UserAgent) -> None:
-        items, release = ag.supplies.due()
-        if items:
-            ag.plc_cycle += 1
-            try:
-                ag.pub.put(encode_plc_records(ag.plc_cycle, items))
-            except Exception:
-                pass
+        with ag.publish_lock:  # due(), the PlcCycle and the put as one: two threads publish
+            items, release = ag.supplies.due()
+            if items:
+                ag.plc_cycle += 1
+                try:
+                    ag.pub.put(encode_plc_records(ag.plc_cycle, items))
+                except Exception:
+                    pass
         for a in release:
             threading.Thread(target=self._release, args=(ag, a, None), daemon=True).start()
 
@@ -258,9 +268,10 @@ class NcBridge:
         """The :class:`UserAgent` of ``client_id`` (declared on first use), with ``session`` among its sessions.
 
         Raises:
-            CommandError: 0x707 no session to the NC.
+            CommandError: 0x707 no session to the NC; 0x8F01 ``session`` already vanished.
         """
         with self._lock:
+            self._refuse_gone(session)
             ag = self.agents.get(client_id)
             if ag is None:
                 token, pub = self.link.declare_holder(client_id)
@@ -275,13 +286,23 @@ class NcBridge:
         Raises:
             CommandError: the NC's refusal (its ErrorID and text) or the transport's.
         """
-        self.agent(sender, session)  # its liveliness token first: a Claim needs it
+        self.agent(sender, session)  # its liveliness token first: a Claim needs it (refuses a vanished session)
         reply = self.link.request(cmd, axis, sender=sender, **args)
         if axis is not None and cmd not in ("Reset", "Halt", "Stop", "StopRelease", "Claim", "Release",
                                             "WriteParameter", "ReadParameter", "SetExternalError"):
             with self._lock:
-                self.commanded[axis] = session
+                gone = session in self._gone
+                if not gone:
+                    self.commanded[axis] = session
+            if gone:  # it vanished while the NC took the motion: the rule for a lost client's motions
+                self._quiet("SetExternalError", axis, sender, ErrorCode=ErrorCodes.ZNC_CLIENT_LOST)
+                self._refuse_gone(session)
         return reply
+
+    def _refuse_gone(self, session: int) -> None:
+        """Raises CommandError 0x8F01 if ``session`` vanished."""
+        if session in self._gone:
+            raise CommandError(ErrorCodes.ZNC_CLIENT_LOST, f"OPC UA session {session} is gone")
 
     def power(self, axis: int, sender: str, session: int, enable: bool, override: int) -> None:
         """Power (MC_Power): claim ``axis`` for ``sender`` if needed and supply Enable + feed enables and
@@ -301,7 +322,13 @@ class NcBridge:
         if ag.supplies.change(axis, change, session) is None:
             rec = default_plctonc(True, override)
             reply = self.link.request("Claim", axis, sender=sender)
-            ag.supplies.start(axis, rec, session, int(reply.get("cycle", 0)))
+            with self._lock:  # session_gone marks the session gone under this lock before it ends its supplies
+                gone = session in self._gone
+                if not gone:
+                    ag.supplies.start(axis, rec, session, int(reply.get("cycle", 0)))
+            if gone:  # it vanished while the NC took the claim: never supplied, only released
+                self._quiet("Release", axis, sender)
+                self._refuse_gone(session)
         self._publish(ag)
 
     def jog(self, axis: int, sender: str, session: int, direction: int, velocity: float, timeout: float) -> None:
@@ -320,7 +347,12 @@ class NcBridge:
         args: dict[str, Any] = {"Mode": 2, "Velocity": velocity} if velocity > 0 else {"Mode": 0}
         self.command("Jog", axis, sender, session, Direction=direction, **args)
         with self._lock:
-            self.jogs[axis] = Jog(session, sender, time.monotonic() + timeout, direction)
+            gone = session in self._gone
+            if not gone:
+                self.jogs[axis] = Jog(session, sender, time.monotonic() + timeout, direction)
+        if gone:  # vanished after command() recorded the jog: session_gone's 0x8F01 may have missed the start
+            self._quiet("Halt", axis, sender)
+            self._refuse_gone(session)
 
     def _has_job(self, axis: int) -> bool:
         """The newest frame shows a job on ``axis`` (a renewed jog the NC ended, e.g. by an error or another
@@ -338,6 +370,7 @@ class NcBridge:
     def session_gone(self, session: int) -> None:
         """OPC UA session ``session`` vanished or closed: see the module docstring (blocks: a worker thread)."""
         with self._lock:
+            self._gone.add(session)  # first: a command whose reply lands later sees it (command, power, jog)
             agents = [ag for ag in self.agents.values() if session in ag.sessions]
             jogs = [(a, j) for a, j in self.jogs.items() if j.session == session]
             for a, _ in jogs:

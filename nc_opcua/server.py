@@ -30,8 +30,12 @@ role (users file) capped by the door's own ``role`` (a door never grants more th
 else the call returns **BadUserAccessDenied** and nothing is sent. Every method has two output arguments,
 ``ErrorID`` (UInt32) and ``ErrorText`` (String): 0 and "" on success. Decisions: an NC refusal returns a Bad
 status *with* those outputs (the NC's ErrorID, e.g. 0x4221, and its text): BadInvalidState for the NC's own
-error codes, BadCommunicationError for 0x707 (NC unreachable), BadTimeout for 0x719; bad arguments
-(a non-finite number, an unknown parameter) BadInvalidArgument with ErrorID 0x706 / 0x4B06 and a text.
+error codes, BadCommunicationError for 0x707 (NC unreachable), BadTimeout for 0x719. Arguments are checked
+against the declared input types before anything is sent (:func:`_check_args`; asyncua does not):
+BadArgumentsMissing / BadTooManyArguments / BadTypeMismatch with ErrorID 0x706, bad values BadInvalidArgument
+with the NC's code where it has one (0x4221 a velocity, 0x4B05 a Direction), else 0x706 (non-finite) or 0x4B06
+(Override, Timeout, parameter name); a call on another object than the method's axis BadMethodInvalid;
+anything unforeseen BadInternalError with the text (never BadUnexpectedError).
 
 Client ids: the door connects as ``door_id``; what it commands or claims for user U is sent as
 ``<door_id>.<U>`` (nc_link: ``NcLink.request(sender=...)``, ``declare_holder``), so the NC's claims map,
@@ -40,6 +44,7 @@ commander records and logs name the user. Anonymous users (``allow_anonymous``) 
 Sessions: a session's closing (CloseSession, or asyncua's session timeout after its connection was lost,
 ``session_timeout``) is its vanishing: :meth:`nc_opcua.bridge.NcBridge.session_gone` (0x8F01 on what it
 powered and on its motions, release, its jogs stop). A jog also stops at its own timeout unless renewed.
+Sessions are numbered by the door (itertools.count, never reused; ``id()`` would be once a session is gone).
 
 Client application certificates: checked by asyncua's rules (time, ApplicationUri, key usages); with a trust
 directory (``trust``) only the certificates in it are accepted (:class:`_ClientCertificates`).
@@ -50,6 +55,7 @@ from __future__ import annotations
 
 import asyncio
 import contextvars
+import itertools
 import logging
 import math
 from dataclasses import dataclass
@@ -74,7 +80,7 @@ from nc_schema import (
 )
 
 from .bridge import OVERRIDE_100, NcBridge
-from .users import User, role_min, verify_password
+from .users import User, Verifier, role_min
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +88,7 @@ __all__ = ["OpcuaDoor", "DoorConfig", "NAMESPACE"]
 
 NAMESPACE = "urn:zenoh-nc:nc-opcua"
 _SESSION: contextvars.ContextVar[Any] = contextvars.ContextVar("nc_opcua_session", default=None)
+_NUMBER = "_nc_opcua_number"  # the attribute of an external asyncua session holding its number (the bridge's key)
 _HOMED = int(StateDWord.Homed)
 _CLOSED = int(StateDWord.ControlLoopClosed)
 #: the CNC variables: name -> (OPC UA type, NCTOPLC source field or None for a derived one)
@@ -180,15 +187,24 @@ class _ClientCertificates:
 
 
 class _Users(UserManager):
+    """asyncua's user manager: the users file's names and passwords (:class:`nc_opcua.users.Verifier`).
+
+    asyncua calls ``get_user`` synchronously inside ActivateSession (``InternalSession.activate_session`` is
+    not a coroutine), so a password check runs on the server's event loop: one scrypt (~0.1-1 s, machine
+    dependent) for a first login of a user, for a wrong password and for an unknown name (the same cost: the
+    time tells no names); a repeated successful login costs an HMAC only. Moving it off the loop would need
+    asyncua's session processing changed (not done: the cost stays, documented in docs/opcua.md).
+    """
+
     def __init__(self, users: dict[str, User], anonymous: bool) -> None:
         self.users, self.anonymous = users, anonymous
+        self.verifier = Verifier(users)
 
     def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
                  certificate: Any = None) -> UaUser | None:
         if not username:
             return UaUser(role=UserRole.User, name=None) if self.anonymous else None
-        u = self.users.get(username)
-        if u is None or not verify_password(password or "", u.password_hash):
+        if not self.verifier.check(username, password or ""):
             log.warning("OPC UA login of %r refused", username)
             return None
         return UaUser(role=UserRole.User, name=username)
@@ -270,7 +286,8 @@ class OpcuaDoor:
         self._axis_nodes: dict[tuple[str, int], Any] = {}
         self._last: dict[ua.NodeId, Any] = {}
         self._param_nodes: dict[ua.NodeId, tuple[str, int, int, ua.VariantType]] = {}
-        self._sessions: dict[int, Any] = {}
+        self._sessions: dict[int, Any] = {}  # session number -> asyncua session
+        self._numbers = itertools.count(1)
         self._tasks: list[asyncio.Task[Any]] = []
         self._zsession: Any = None
         self._stopping = False
@@ -356,15 +373,19 @@ class OpcuaDoor:
                         _SESSION.reset(tok)
 
                 async def close_session(delete_subs: bool = True) -> None:
-                    await close0(delete_subs)
-                    if self._sessions.pop(id(s), None) is not None and not self._stopping:
-                        log.info("OPC UA session %s of %s ended: its claims and motions end", s.name, s.user.name)
-                        for b in list(self.bridges.values()):
-                            await asyncio.to_thread(b.session_gone, id(s))
+                    try:
+                        await close0(delete_subs)
+                    finally:  # its claims and motions end even if asyncua's closing failed
+                        if self._sessions.pop(number, None) is not None and not self._stopping:
+                            log.info("OPC UA session %s of %s ended: its claims and motions end", s.name, s.user.name)
+                            for b in list(self.bridges.values()):
+                                await asyncio.to_thread(b.session_gone, number)
 
+                number = next(self._numbers)  # never reused (an id() is, once its object is gone)
                 setattr(s, "call", call)
                 setattr(s, "close_session", close_session)
-                self._sessions[id(s)] = s
+                setattr(s, _NUMBER, number)
+                self._sessions[number] = s
             return s
 
         setattr(iserver, "create_session", create_session)
@@ -448,7 +469,7 @@ class OpcuaDoor:
             self._param_nodes[nid] = (nc, axis, e.number, vt)
         for mname, (_, inputs, doc) in METHODS.items():
             m = await obj.add_method(_nid(f"{base}.{mname}", idx), ua.QualifiedName(mname, idx),
-                                     self._method(mname), inputs, _OUT)
+                                     self._method(mname, nc, axis), inputs, _OUT)
             await m.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(
                 ua.LocalizedText(doc), ua.VariantType.LocalizedText)))
         self._axis_nodes[(nc, axis)] = obj
@@ -535,18 +556,30 @@ class OpcuaDoor:
         await self.server.write_attribute_value(nid, ua.DataValue(v))
 
     # ---- methods ------------------------------------------------------------------------------------------------
-    def _method(self, mname: str) -> Callable[..., Awaitable[ua.CallMethodResult]]:
+    def _method(self, mname: str, nc: str, axis: int) -> Callable[..., Awaitable[ua.CallMethodResult]]:
+        """The callback of method ``mname`` of axis ``axis`` of NC ``nc`` (bound here, not taken from the call's
+        ObjectId: a call naming another object gets BadMethodInvalid). No input ends in BadUnexpectedError: an
+        unforeseen failure is BadInternalError with its text."""
+        own = _nid(f"{nc}.{axis}", self.idx)
+
         async def call(parent: ua.NodeId, *args: Any) -> ua.CallMethodResult:
             try:
-                await self._call(mname, parent, [a.Value if isinstance(a, ua.Variant) else a for a in args])
+                if parent != own:
+                    raise _Refused(ua.StatusCodes.BadMethodInvalid, ErrorCodes.ADSERR_DEVICE_INVALIDDATA,
+                                   f"{mname} of {nc}.{axis} called on another object ({parent})")
+                await self._call(mname, nc, axis, [a.Value if isinstance(a, ua.Variant) else a for a in args])
             except _Refused as r:
                 return _result(r.status, r.code, r.text)
             except CommandError as exc:
                 return _result(_bad_for(exc.code), exc.code, exc.message)
+            except Exception as exc:  # never BadUnexpectedError with a traceback to the client
+                log.exception("%s of %s.%d failed", mname, nc, axis)
+                return _result(ua.StatusCodes.BadInternalError, ErrorCodes.ADSERR_DEVICE_INVALIDDATA,
+                               f"{mname}: internal error: {type(exc).__name__}: {exc}")
             return _result(ua.StatusCodes.Good)
         return call
 
-    async def _call(self, mname: str, parent: ua.NodeId, args: list[Any]) -> None:
+    async def _call(self, mname: str, nc: str, axis: int, args: list[Any]) -> None:
         session = _SESSION.get()
         role, user = self._role_of(session)
         cmd, inputs, _ = METHODS[mname]
@@ -555,21 +588,16 @@ class OpcuaDoor:
             need = " or ".join(r for r, c in ROLE_CLASSES.items() if cls in c)
             raise _Refused(ua.StatusCodes.BadUserAccessDenied, ErrorCodes.ADSERR_DEVICE_ACCESSDENIED,
                            f"role: {user or 'anonymous'} is {role} here; {mname} needs {need}")
-        if len(args) != len(inputs):
-            raise _Refused(ua.StatusCodes.BadArgumentsMissing, ErrorCodes.ADSERR_DEVICE_INVALIDDATA,
-                           f"{mname} takes {len(inputs)} arguments")
-        for a in args:
-            if isinstance(a, float) and not math.isfinite(a) and not (mname == "Home" and math.isnan(a)):
-                raise _Refused(ua.StatusCodes.BadInvalidArgument, ErrorCodes.ADSERR_DEVICE_INVALIDDATA,
-                               f"{mname}: non-finite argument")
-        nc, axis_s = str(parent.Identifier).rsplit(".", 1)
-        axis = int(axis_s)
-        b = self.bridges[nc]
-        sid = id(session)
+        args = _check_args(mname, inputs, args)  # before anything is sent
+        b = self.bridges.get(nc)
+        if b is None:
+            raise _Refused(ua.StatusCodes.BadCommunicationError, ErrorCodes.ADSERR_DEVICE_NOTREADY,
+                           f"NC {nc} is not served")
+        sid = int(getattr(session, _NUMBER, 0))  # 0: no external session (not one a client can lose)
         sender = f"{self.cfg.door_id}.{user}"
         run = asyncio.to_thread
         if mname == "Power":
-            enable, override = bool(args[0]), float(args[1])
+            enable, override = args[0], args[1]
             if not 0.0 <= override <= 100.0:
                 raise _Refused(ua.StatusCodes.BadInvalidArgument, ErrorCodes.MC_PARAMETER_NOT_CORRECT,
                                f"Override {override} % outside 0..100")
@@ -577,16 +605,13 @@ class OpcuaDoor:
         elif mname in ("Reset", "Halt", "Stop"):
             await run(b.command, mname, axis, sender, sid)
         elif mname == "MoveAbsolute":
-            await run(lambda: b.command("MoveAbsolute", axis, sender, sid, Position=float(args[0]),
-                                        Velocity=float(args[1])))
+            await run(lambda: b.command("MoveAbsolute", axis, sender, sid, Position=args[0], Velocity=args[1]))
         elif mname == "MoveRelative":
-            await run(lambda: b.command("MoveRelative", axis, sender, sid, Distance=float(args[0]),
-                                        Velocity=float(args[1])))
+            await run(lambda: b.command("MoveRelative", axis, sender, sid, Distance=args[0], Velocity=args[1]))
         elif mname == "MoveVelocity":
-            await run(lambda: b.command("MoveVelocity", axis, sender, sid, Velocity=float(args[0]),
-                                        Direction=int(args[1])))
+            await run(lambda: b.command("MoveVelocity", axis, sender, sid, Velocity=args[0], Direction=args[1]))
         elif mname == "JogStart":
-            direction, velocity, timeout = int(args[0]), float(args[1]), float(args[2])
+            direction, velocity, timeout = args
             if not 0.0 < timeout <= self.cfg.max_jog_timeout:
                 raise _Refused(ua.StatusCodes.BadInvalidArgument, ErrorCodes.MC_PARAMETER_NOT_CORRECT,
                                f"Timeout {timeout} s outside (0, {self.cfg.max_jog_timeout:g}]")
@@ -594,14 +619,14 @@ class OpcuaDoor:
         elif mname == "JogStop":
             await run(b.jog_stop, axis, sender, sid)
         elif mname == "Home":
-            pos = float(args[0])
+            pos = args[0]
             await run(lambda: b.command("Home", axis, sender, sid, **({} if math.isnan(pos) else {"Position": pos})))
         elif mname == "WriteParameter":
-            p = PARAMETERS.by_name(str(args[0]))
+            p = PARAMETERS.by_name(args[0])
             if p is None:
                 raise _Refused(ua.StatusCodes.BadInvalidArgument, ErrorCodes.MC_PARAMETER_NOT_CORRECT,
                                f"unknown parameter {args[0]!r}")
-            value: Any = bool(args[1]) if p.is_bool else float(args[1])
+            value: Any = bool(args[1]) if p.is_bool else args[1]
             try:
                 await run(lambda: b.command("WriteParameter", axis, sender, sid, ParameterNumber=p.number, Value=value))
             finally:  # refreshed after a write (also a refused one: the cache shows the NC's value)
@@ -609,6 +634,69 @@ class OpcuaDoor:
         elif mname == "RefreshParameters":
             for e in PARAMETERS:
                 await self._read_param(b, _nid(f"{nc}.{axis}.P.{e.name}", self.idx), axis, e.number, True)
+
+
+#: method -> argument -> (the smallest value accepted, whether that value itself is accepted); other value rules:
+#: Direction in _DIRECTIONS, Home's Position may be NaN (AxisCalibrationValue)
+_MINIMA: dict[str, dict[str, tuple[float, bool]]] = {
+    "MoveAbsolute": {"Velocity": (0.0, False)}, "MoveRelative": {"Velocity": (0.0, False)},
+    "MoveVelocity": {"Velocity": (0.0, False)}, "JogStart": {"Velocity": (0.0, True)},
+}
+#: method -> the MC_Direction values the NC takes for it (1 positive, 3 negative, 4 current: MC_MoveVelocity)
+_DIRECTIONS: dict[str, tuple[int, ...]] = {"MoveVelocity": (1, 3, 4), "JogStart": (1, 3)}
+
+
+def _check_args(mname: str, inputs: list[ua.Argument], args: list[Any]) -> list[Any]:
+    """``args`` of method ``mname`` checked against its declared ``inputs`` (asyncua does not) and converted:
+    Boolean -> bool, Double -> float, Int32 -> int, String -> str.
+
+    Raises:
+        _Refused: BadArgumentsMissing / BadTooManyArguments (0x706) for a wrong count, BadTypeMismatch (0x706)
+            for a value of another type (a Boolean must be a bool, a Double an int or float, not a bool),
+            BadInvalidArgument for a bad value: non-finite (0x706; Home's NaN excepted), a velocity <= 0
+            (JogStart's < 0: 0x4221, as the NC), a Direction outside the method's (0x4B05, as the NC).
+    """
+    if len(args) != len(inputs):
+        status = ua.StatusCodes.BadArgumentsMissing if len(args) < len(inputs) else ua.StatusCodes.BadTooManyArguments
+        raise _Refused(status, ErrorCodes.ADSERR_DEVICE_INVALIDDATA,
+                       f"{mname} takes {len(inputs)} arguments, got {len(args)}")
+    out: list[Any] = []
+    for spec, a in zip(inputs, args):
+        name, vt = spec.Name, ua.VariantType(spec.DataType.Identifier)
+        mismatch = _Refused(ua.StatusCodes.BadTypeMismatch, ErrorCodes.ADSERR_DEVICE_INVALIDDATA,
+                            f"{mname}: {name} must be {vt.name}, got {type(a).__name__}")
+        invalid = lambda why, code=ErrorCodes.ADSERR_DEVICE_INVALIDDATA: _Refused(  # noqa: E731
+            ua.StatusCodes.BadInvalidArgument, code, f"{mname}: {name} {why}")
+        if vt == ua.VariantType.Boolean:
+            if not isinstance(a, bool):
+                raise mismatch
+            out.append(a)
+        elif vt == ua.VariantType.String:
+            if not isinstance(a, str):
+                raise mismatch
+            out.append(a)
+        elif vt == ua.VariantType.Int32:
+            if not isinstance(a, int) or isinstance(a, bool):
+                raise mismatch
+            allowed = _DIRECTIONS.get(mname, ())
+            if name == "Direction" and a not in allowed:
+                raise invalid(f"{a}: one of {', '.join(map(str, allowed))} (MC_Direction)",
+                              ErrorCodes.MC_COMMAND_NOT_PERMITTED)
+            out.append(a)
+        else:  # Double
+            if not isinstance(a, (int, float)) or isinstance(a, bool):
+                raise mismatch
+            try:
+                v = float(a)
+            except OverflowError:
+                raise invalid(f"{a} is not a finite Double") from None
+            if not math.isfinite(v) and not (mname == "Home" and math.isnan(v)):
+                raise invalid(f"{v} is not finite")
+            low = _MINIMA.get(mname, {}).get(name)
+            if low is not None and (v < low[0] or (v == low[0] and not low[1])):
+                raise invalid(f"{v} must be {'>=' if low[1] else '>'} {low[0]:g}", ErrorCodes.NC_VELOCITY_NOT_ALLOWED)
+            out.append(v)
+    return out
 
 
 _UNSET = object()

@@ -30,7 +30,8 @@ from typing import Mapping
 
 from nc_schema import ROLE_CLASSES
 
-__all__ = ["User", "UsersError", "hash_password", "verify_password", "load_users", "add_user", "ROLES", "role_min"]
+__all__ = ["User", "UsersError", "hash_password", "verify_password", "load_users", "add_user", "ROLES", "role_min",
+           "Verifier"]
 
 #: The roles, lowest privilege first.
 ROLES: tuple[str, ...] = tuple(ROLE_CLASSES)
@@ -76,6 +77,51 @@ def verify_password(password: str, stored: str) -> bool:
     except (ValueError, TypeError):
         return False
     return hmac.compare_digest(got, want)
+
+
+class Verifier:
+    """Password checks for logins (asyncua's ``get_user``): :meth:`check`.
+
+    * an unknown user name costs one scrypt of the default parameters too (:func:`dummy_verify`), so the time of
+      a refusal does not tell which names exist;
+    * a successful check is remembered as an HMAC-SHA256 of (user, password, stored hash) under a random key
+      that lives only in this object: the same user with the same password again costs no scrypt (a client that
+      reconnects, many sessions of one HMI). A wrong password always costs one scrypt.
+
+    Thread-safe enough for asyncua (one dict assignment per success).
+    """
+
+    def __init__(self, users: Mapping[str, User]) -> None:
+        self.users = users
+        self._key = os.urandom(32)
+        self._ok: dict[str, bytes] = {}
+
+    def _mac(self, name: str, password: str, stored: str) -> bytes:
+        return hmac.new(self._key, b"\0".join(x.encode() for x in (name, password, stored)), hashlib.sha256).digest()
+
+    def check(self, name: str, password: str) -> bool:
+        """True if ``name`` is a user and ``password`` is its password."""
+        u = self.users.get(name)
+        if u is None:
+            dummy_verify(password)
+            return False
+        mac = self._mac(name, password, u.password_hash)
+        known = self._ok.get(name)
+        if known is not None and hmac.compare_digest(known, mac):
+            return True
+        if not verify_password(password, u.password_hash):
+            return False
+        self._ok[name] = mac
+        return True
+
+
+def dummy_verify(password: str) -> bool:
+    """One scrypt of the default parameters with a random salt (the cost of :func:`verify_password` for an
+    entry :func:`hash_password` made), always False: the check of an unknown user name."""
+    got = hashlib.scrypt(password.encode(), salt=os.urandom(16), n=_N, r=_R, p=_P, dklen=_DKLEN,
+                         maxmem=128 * _N * _R * 2 + 1024 * 1024)
+    hmac.compare_digest(got, bytes(_DKLEN))
+    return False
 
 
 def parse_users(data: Mapping[str, object], source: str = "<users>") -> dict[str, User]:

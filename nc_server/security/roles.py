@@ -25,7 +25,10 @@ Doors (``door = true``: nc-opcua, nc-web): a door acts for each of its users und
 ``<door>.<user>`` (``<door>`` followed by a dot and at least one more character). Such an id is not listed:
 it has the door's role (the door enforces each user's own, lower or equal, role itself); the generated access
 control lets the door's certificate use those ids' keys (command keys, PLCTONC, liveliness token) and no other
-certificate. An id that is listed itself keeps its own entry.
+certificate. Decision: the roles file lists no identity under a door's prefix (``[client."opcua.visitor"]``,
+a door ``opcua.sub`` nested in door ``opcua``, an NC, router or drive host ``opcua.x``): the door's
+certificate may use every ``<door>.$*`` key, so such an entry would be one the door can act as (a narrowing
+of a door's user is the door's users file's job). :func:`parse_roles` refuses it.
 """
 from __future__ import annotations
 
@@ -195,6 +198,16 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
         drives[ident] = str(nc)
     if not clients and not ncs:
         raise RolesError(source, "", "lists no [client.<id>] and no [nc.<name>]")
+    for ident, key in owner.items():  # the door's certificate may use every <door>.$* id: none is listed
+        door = door_of(ident, tuple(doors))
+        if door is None:
+            continue
+        if ident in doors:
+            raise RolesError(source, key, f"a door nested in door {door!r}: {door!r}'s certificate could act as it "
+                                          "(a door's id must not start with another door's id and a dot)")
+        raise RolesError(source, key, f"{ident!r} is under door {door!r} (its users' ids {door}.<user>): the door "
+                                      "could act as it; narrow a door's user in the door's users file, or choose "
+                                      "an id outside the door's")
     return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), drives=drives, source=source,
                  doors=tuple(doors))
 

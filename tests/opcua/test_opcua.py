@@ -94,7 +94,16 @@ async def _true(f: Any) -> bool:
     return bool(f())
 
 
+def last_command(watch: NcTestClient, axis: int) -> Any:
+    arb = watch.request("Info")["Value"]["arbitration"]
+    return (arb.get("last_command") or {}).get(str(axis))
+
+
 def test_roles_are_enforced(opcua: NcOpcuaProcess, watch: NcTestClient) -> None:
+    velo_max = watch.request("ReadParameter", axis=2, ParameterNumber=1003)["Value"]
+    assert velo_max != pytest.approx(100.0)  # (the refused writes below would change it)
+    before = last_command(watch, 2)
+
     async def body() -> None:
         async with client(opcua.url, "bob", "bob-pw") as c:  # observer
             for m, args in (("Power", (True, 100.0)), ("MoveAbsolute", (1.0, 10.0)), ("Reset", ()),
@@ -111,7 +120,10 @@ def test_roles_are_enforced(opcua: NcOpcuaProcess, watch: NcTestClient) -> None:
         async with client(opcua.url, "alice", "alice-pw") as c:  # operator: no parameters
             status, out = await call(c, "nc1.2", "WriteParameter", "AxisVeloMax", 100.0)
             assert status == DENIED and "engineer" in out[1]
-        assert 2 not in claims(watch)  # nothing was sent for the refused calls
+        # nothing was sent for the refused calls: no claim, no command recorded, the parameter as it was
+        assert 2 not in claims(watch)
+        assert last_command(watch, 2) == before
+        assert watch.request("ReadParameter", axis=2, ParameterNumber=1003)["Value"] == velo_max
         with pytest.raises(Exception):
             async with client(opcua.url, "alice", "wrong") as c:
                 await value(c, "nc1.2.ActPos")

@@ -35,11 +35,10 @@ role = "observer"
 
 
 def test_door_rule_in_the_roles_file_and_the_acl() -> None:
-    r = parse_roles({"client": {"opcua": {"role": "operator", "door": True}, "plc1": {"role": "engineer"},
-                                "opcua.bob": {"role": "observer"}}, "nc": {"nc1": {}}})
+    r = parse_roles({"client": {"opcua": {"role": "operator", "door": True}, "plc1": {"role": "engineer"}},
+                     "nc": {"nc1": {}}})
     assert r.doors == ("opcua",)
     assert r.role_of("opcua.alice") == "operator" and r.classes_of("opcua.alice") == ("read", "op")
-    assert r.role_of("opcua.bob") == "observer"  # listed itself: its own entry
     assert r.role_of("plc1.x") is None and r.role_of("opcua.") is None and r.role_of("opcuax") is None
     assert door_of("a.b.c", ("a", "a.b")) == "a.b"
     with pytest.raises(RolesError, match=r"client\.opcua\.door: must be true or false"):

@@ -41,6 +41,15 @@ def test_the_example_roles_file() -> None:
     ("client = 3\n", "client", "must be a table"),
     ("[client]\na = 1\n", "client.a", "must be a table"),
     ("[nc.'n/1']\n", "nc.n/1", "invalid"),
+    # the door's certificate may use every opcua.$* id: none may be listed (it could act as it)
+    ("[client.opcua]\nrole = 'engineer'\ndoor = true\n[client.'opcua.visitor']\nrole = 'observer'\n",
+     "client.opcua.visitor", "under door 'opcua'"),
+    ("[client.'opcua.visitor']\nrole = 'engineer'\n[client.opcua]\nrole = 'observer'\ndoor = true\n",
+     "client.opcua.visitor", "under door 'opcua'"),
+    ("[client.opcua]\nrole = 'engineer'\ndoor = true\n[client.'opcua.web']\nrole = 'operator'\ndoor = true\n",
+     "client.opcua.web", "nested in door 'opcua'"),
+    ("[client.opcua]\nrole = 'engineer'\ndoor = true\n[drive.'opcua.h1']\nnc = 'nc1'\n",
+     "drive.opcua.h1", "under door 'opcua'"),
 ])
 def test_roles_errors_name_the_entry(tmp_path: Path, text: str, key: str, words: str) -> None:
     p = tmp_path / "roles.toml"
