@@ -11,67 +11,24 @@ Every process runs in its own process group and is killed at the end even on fai
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 from typing import Sequence
 
 from znc_testing.ads_testing import free_ads_address
-from znc_testing import kill_process_group
+from znc_testing.door_process import DoorProcess
 from znc_testing.nc_process import start_with_port_retry
 
-class NcAdsProcess:
+class NcAdsProcess(DoorProcess):
     """A running ``nc-ads`` (``python -m nc_ads.cli``) listening on ``host``:48898 with net id ``netid``."""
 
+    NAME, READY = "nc-ads", "nc-ads ready:"
+
     def __init__(self, proc: subprocess.Popen[str], host: str, netid: str, stderr_path: Path) -> None:
-        self.proc = proc
+        super().__init__(proc, stderr_path)
         self.host = host
         self.netid = netid
-        self.stderr_path = stderr_path
-        self.stdout_lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.stdout_lines.append(line.rstrip("\n"))
-
-    def stderr(self) -> str:
-        try:
-            return self.stderr_path.read_text(errors="replace")
-        except OSError:
-            return ""
-
-    def wait_ready(self, timeout: float = 90.0) -> None:  # importing numpy alone took 20 s on the loaded machine
-        deadline = time.monotonic() + timeout
-        while not any(ln.startswith("nc-ads ready:") for ln in self.stdout_lines):
-            if self.proc.poll() is not None:
-                self._reader.join(2)
-                raise RuntimeError(f"nc-ads exited with {self.proc.returncode}:\n{self.stderr()}")
-            if time.monotonic() > deadline:
-                raise AssertionError(f"nc-ads not ready after {timeout} s:\n{self.stderr()}")
-            time.sleep(0.01)
-
-    def stop(self, timeout: float = 10.0) -> int | None:
-        """SIGTERM, wait, then SIGKILL the group; the exit code if it ended by itself."""
-        rc = None
-        if self.proc.poll() is None:
-            try:
-                os.kill(self.proc.pid, signal.SIGTERM)
-                rc = self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                pass
-        else:
-            rc = self.proc.returncode
-        self.kill()
-        return rc
-
-    def kill(self) -> None:
-        kill_process_group(self.proc)
 
 
 def start_nc_ads(tmp_path: Path, endpoint: str, role: str = "operator", extra_args: Sequence[str] = (),

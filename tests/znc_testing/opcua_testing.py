@@ -14,63 +14,32 @@ import asyncio
 import os
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any, Awaitable, Callable, Sequence
 
 from asyncua import Client, ua
 
-from znc_testing import kill_process_group
+from znc_testing.door_process import DoorProcess
 from znc_testing.nc_process import free_port, start_with_port_retry
 
 NAMESPACE = "urn:zenoh-nc:nc-opcua"
 
 
-class NcOpcuaProcess:
+class NcOpcuaProcess(DoorProcess):
     """A running ``nc-opcua`` listening on ``url``."""
 
+    NAME, READY = "nc-opcua", "nc-opcua ready"
+
     def __init__(self, proc: subprocess.Popen[str], port: int, url: str, stderr_path: Path) -> None:
-        self.proc, self.port, self.url, self.stderr_path = proc, port, url, stderr_path
-        self.stdout_lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.stdout_lines.append(line.rstrip("\n"))
-
-    def stderr(self) -> str:
-        try:
-            return self.stderr_path.read_text(errors="replace")
-        except OSError:
-            return ""
+        super().__init__(proc, stderr_path)
+        self.port, self.url = port, url
 
     def wait_ready(self, timeout: float = 240.0) -> None:  # importing asyncua took over 90 s on the loaded machine
-        deadline = time.monotonic() + timeout
-        while not any(ln.startswith("nc-opcua ready") for ln in self.stdout_lines):
-            if self.proc.poll() is not None:
-                self._reader.join(2)
-                raise RuntimeError(f"nc-opcua exited with {self.proc.returncode}:\n{self.stderr()}")
-            if time.monotonic() > deadline:
-                raise AssertionError(f"nc-opcua not ready after {timeout} s:\n{self.stderr()}")
-            time.sleep(0.02)
-
-    def kill(self) -> None:
-        kill_process_group(self.proc)
+        super().wait_ready(timeout)
 
     def stop(self, timeout: float = 15.0) -> int | None:
-        """SIGTERM, wait, then SIGKILL the group; the exit code if it ended by itself."""
-        if self.proc.poll() is None:
-            try:
-                self.proc.terminate()
-                return self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                pass
-            finally:
-                kill_process_group(self.proc)
-        return self.proc.returncode
+        return super().stop(timeout)
 
 
 def opcua_command() -> list[str]:
