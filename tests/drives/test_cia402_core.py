@@ -359,3 +359,26 @@ def test_a_drive_leaving_operation_enabled_by_itself_is_still_0x4650() -> None:
     dev.state[0] = int(State.SWITCH_ON_DISABLED)  # e.g. its safe torque off
     run_until(core, lambda: _err(core) == 0x4650, 10)
     assert drive.device_error[0]
+
+
+def test_a_latch_from_behind_the_search_is_not_taken() -> None:
+    """The probe is armed all the time: a latch arriving late from before the sync pulse search (still on the
+    cam) lies behind the previous position in the direction of travel and is refused; one ahead is taken."""
+    core = _moving()
+    drive = core.drive
+    assert isinstance(drive, Cia402SimDrive)
+    core.step()
+    prev, now = float(core.prev_act_pos[0]), float(drive.act_pos[0])
+    assert now > prev  # moving forward
+    per_cycle = now - prev
+
+    def latch_at(pos: float) -> float:
+        c = drive.encoder
+        inc = (pos - c.offset[0]) / c.scaling[0] * c.sign[0] - c.base[0]
+        drive.tx = TxImage(**{**vars(drive.tx), "probe_position": np.array([inc])})
+        drive._probe_new = np.array([True])
+        return float(drive.latch_sync_pulse(np.array([0]), np.array([prev]))[0])
+
+    assert latch_at(prev + 0.5 * per_cycle) == pytest.approx(prev + 0.5 * per_cycle)
+    assert latch_at(prev - (drive.max_age - 0.5) * per_cycle) == pytest.approx(prev - (drive.max_age - 0.5) * per_cycle)
+    assert np.isnan(latch_at(prev - (drive.max_age + 2) * per_cycle))  # from before the window: refused

@@ -45,7 +45,7 @@ publisher = "thread"
 listen = ["tcp/127.0.0.1:{port}"]
 
 [drives.remote]
-max_age = 200   # (generous: a loaded 2-core machine stalls processes for tens of ms; the default is 20)
+max_age = 200   # (generous: a loaded 2-core machine stalls processes for tens of ms; the default is 50)
 
 [[axis]]
 AxisId = 1

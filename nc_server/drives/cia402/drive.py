@@ -39,7 +39,9 @@ Decisions:
   toggles with each new latch; 0x60BA the latched position), not the drive's homing mode 6: MC_Home keeps its
   behaviour (its parameters, cam, directions, the NC's position set) on every backend and the drive stays in
   CSP. The probe is armed all the time (a drive latches in hardware at no cost to the NC); ``latch_sync_pulse``
-  reports a latch that arrived in the cycle just stepped.
+  reports a latch that arrived in the cycle just stepped, at or beyond the previous cycle's position in the
+  direction of travel less ``max_age`` cycles' travel (a late latch from before the search was armed, e.g. still
+  on the cam, is not taken; one within that window is).
 * Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
   drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
   0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
@@ -327,11 +329,20 @@ class Cia402Drive(DriveABC):
         return None if self.mechanics.resting and not self._act_live else self.mechanics.fields
 
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
-        """The index pulse the drive's touch probe latched in the cycle just stepped [u] (NaN: none)."""
+        """The index pulse the drive's touch probe latched in the cycle just stepped [u] (NaN: none).
+
+        Only a latch at or beyond ``prev_pos`` in the direction of travel counts, less a window of ``max_age``
+        cycles' travel (inputs that came late carry a latch from a few cycles back): the probe is armed all the
+        time, and a latch from before homing armed its search (still on the cam) must not be taken."""
         rows = np.asarray(rows, dtype=np.intp)
+        new = self._probe_new[rows]
+        if not new.any():
+            return np.full(len(rows), np.nan)
         c = self.encoder
         pos = c.sign[rows] * (self.tx.probe_position[rows] + c.base[rows]) * c.scaling[rows] + c.offset[rows]
-        return np.where(self._probe_new[rows], pos, np.nan)
+        step = self.act_pos[rows] - np.asarray(prev_pos, dtype=float)
+        ahead = (pos - prev_pos) * np.sign(step) >= -np.abs(step) * self.max_age
+        return np.where(new & ahead, pos, np.nan)
 
     def close(self) -> None:
         self.link.close()
