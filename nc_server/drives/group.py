@@ -127,11 +127,18 @@ class DriveGroup(DriveABC):
     def _gather(self) -> None:
         n = len(self._owner)
         act_pos, act_velo, act_acc = np.empty(n), np.empty(n), np.empty(n)
+        # new arrays each cycle, as SimDrive's: the NC may hold last cycle's, its stats read them from another thread
+        ready, io_valid, device_error = (np.empty_like(self.ready), np.empty_like(self.io_valid),
+                                         np.empty_like(self.device_error))
+        following, comm_error, error_code = (np.empty_like(self.following), np.empty_like(self.comm_error),
+                                             np.empty_like(self.error_code))
         for d, r in self.parts:
             act_pos[r], act_velo[r], act_acc[r] = d.act_pos, d.act_velo, d.act_acc
-            self.ready[r], self.io_valid[r], self.device_error[r] = d.ready, d.io_valid, d.device_error
-            self.following[r], self.comm_error[r], self.error_code[r] = d.following, d.comm_error, d.error_code
-        self.act_pos, self.act_velo, self.act_acc = act_pos, act_velo, act_acc  # (new arrays, as SimDrive's)
+            ready[r], io_valid[r], device_error[r] = d.ready, d.io_valid, d.device_error
+            following[r], comm_error[r], error_code[r] = d.following, d.comm_error, d.error_code
+        self.act_pos, self.act_velo, self.act_acc = act_pos, act_velo, act_acc
+        self.ready, self.io_valid, self.device_error = ready, io_valid, device_error
+        self.following, self.comm_error, self.error_code = following, comm_error, error_code
         self.faulty = any(d.faulty for d, _ in self.parts)
 
     def _split(self, rows: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:

@@ -232,6 +232,7 @@ class NcServer:
         self._clients_dirty = False
         self._matched: tuple[int, np.ndarray | None, np.ndarray | None] = (-1, None, None)
         self.started = False
+        self._drive_closed = False
         self._shutdown = threading.Event()  # set by stop(): the cycle stops every moving axis
         self._retain_pending = False  # the first cycle has not applied the retain file yet
 
@@ -249,7 +250,11 @@ class NcServer:
             RetainLockError: another process uses the retain file (nothing was opened).
         """
         configure_interpreter()
-        self.load_retain()
+        try:
+            self.load_retain()
+        except BaseException:
+            self._close_drive()  # (the drive is open since NcCore: CANopen nodes operational, remote threads)
+            raise
         io_priority = raise_io_priority(self.config.realtime)  # zenoh's threads inherit it
         if self.config.publisher == "process" and self.config.zenoh.mode != "client":
             self.transport.internal, self._internal_socket = internal_endpoint()
@@ -301,6 +306,17 @@ class NcServer:
             self.publisher.stop()
         self.transport.close()  # (idempotent)
         self._cleanup_start()
+        self._close_drive()
+
+    def _close_drive(self) -> None:
+        """Release the drive (once; a failing close is logged: it must not hide why the server stops)."""
+        if self._drive_closed:
+            return
+        self._drive_closed = True
+        try:
+            self.core.drive.close()
+        except Exception as exc:
+            log.warning("drive close: %s", exc)
 
     def _cleanup_start(self) -> None:
         """Close the frame ring, remove the internal socket."""
@@ -333,10 +349,7 @@ class NcServer:
         self.loop.stop()
         if self.retain is not None:  # the cycle has ended: its final state goes into the file
             self.retain.stop(self.core)
-        try:
-            self.core.drive.close()
-        except Exception as exc:
-            log.warning("drive close: %s", exc)
+        self._close_drive()
         core = self.core
         try:  # the last frame, flagged ShuttingDown: the publisher puts it before it ends
             self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),

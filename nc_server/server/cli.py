@@ -129,6 +129,9 @@ def _run(cfg: object) -> int:
         drive.close()
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)
         return 2
+    except BaseException:
+        drive.close()  # (CANopen nodes back from OPERATIONAL, a remote link's threads ended)
+        raise
 
     stop = threading.Event()
 
@@ -141,7 +144,11 @@ def _run(cfg: object) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGHUP, on_signal)  # (a closed terminal or session: stop cleanly too)
 
-    server = NcServer(cfg, core)
+    try:
+        server = NcServer(cfg, core)
+    except BaseException:
+        drive.close()
+        raise
     try:
         server.start(cancel=stop)
     except OpenCancelled as exc:

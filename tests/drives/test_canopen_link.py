@@ -109,7 +109,18 @@ def test_the_cycle_never_waits_while_the_slaves_are_silent(rig: Rig) -> None:
     assert link.wait_answered(5.0)
     rig.slaves.silence(0)
     rig.slaves.silence(1)
-    time.sleep(0.05)  # let TPDOs already in flight land
+    # let TPDOs already in flight land: until the receive stamps stop changing (no SYNC is sent meanwhile)
+    def stamps() -> list[list[int]]:
+        return [link._stamp[k].tolist() for k in sorted(link._stamp)]
+
+    deadline, before = time.monotonic() + 10.0, stamps()
+    while True:
+        time.sleep(0.05)
+        now = stamps()
+        if now == before:
+            break
+        assert time.monotonic() < deadline, "TPDOs kept arriving from silenced slaves"
+        before = now
     ages, worst = [], 0.0
     for _ in range(50):
         t0 = time.perf_counter()

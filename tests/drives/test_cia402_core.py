@@ -174,7 +174,7 @@ def test_a_fault_whose_cause_lasts_comes_back_after_reset() -> None:
     run_until(core, lambda: int(drive.state[0]) == int(State.FAULT), 1000)
     assert _err(core) == 0x4650 and int(drive.error_code[0]) == 0x5000
     cmd(core, "Reset")
-    for _ in range(3):
+    for _ in range(drive.max_age + 5):  # the refused reset: 0x4650 again once its request has timed out
         core.step()
     assert _err(core) == 0x4650 and int(drive.state[0]) == int(State.FAULT)
     drive.set_device_error(0, False)
@@ -297,3 +297,88 @@ def test_from_config_options_and_their_errors() -> None:
         with pytest.raises(ConfigError) as e:
             Cia402SimDrive.from_config(p, DT, opts, DriveContext(options=ctx))
         assert key in str(e.value), (opts, ctx, str(e.value))
+
+
+def _delayed(params: dict[str, Any] | None = None) -> tuple[NcCore, Cia402Device, Cia402Drive]:
+    p = [AxisParams(**(params or {}))]
+    dev = Cia402Device(1, DT)
+    dev.configure(0, p[0])
+    drive = Cia402Drive(p, DT, DelayedLink(dev), simulated=True)
+    core = NcCore([AxisConfig(1, "A1", p[0])], DT, drive=drive)
+    power(core)
+    run_until(core, lambda: bool(_dw(core) & LOOP), 20)
+    return core, dev, drive
+
+
+@pytest.mark.parametrize("during_reaction", [False, True])
+def test_with_latency_one_reset_clears_a_fault(during_reaction: bool) -> None:
+    core, dev, drive = _delayed(dict(AxisDec=1000.0) if during_reaction else None)
+    assert cmd(core, "MoveVelocity", Velocity=200.0, Direction=1)["error"] == 0
+    run_until(core, lambda: abs(core.nctoplc[0]["ActVelo"] - 200.0) < 1e-3, 5000)
+    dev.inject_fault(0, 0x2310)
+    if during_reaction:  # MC_Reset while the drive still brakes (Fault reaction active): it is kept until Fault
+        run_until(core, lambda: int(drive.state[0]) == int(State.FAULT_REACTION_ACTIVE), 100)
+    else:
+        run_until(core, lambda: int(drive.state[0]) == int(State.FAULT) and int(dev.velocity[0]) == 0, 5000)
+    run_until(core, lambda: _err(core) == 0x4650, 10)
+    assert cmd(core, "Reset")["error"] == 0
+    for _ in range(20 if not during_reaction else 2000):
+        core.step()
+        if int(drive.state[0]) == int(State.FAULT):  # the reset is on its way: the axis is not ready meanwhile
+            assert not _dw(core) & LOOP and not drive.ready[0]  # (a start would be refused with 0x4225)
+        if int(drive.state[0]) == int(State.OPERATION_ENABLED):
+            break
+    for _ in range(5):
+        core.step()
+    assert int(drive.state[0]) == int(State.OPERATION_ENABLED)
+    assert _err(core) == 0 and _dw(core) & LOOP  # one MC_Reset sufficed
+    assert cmd(core, "MoveRelative", Distance=5.0, Velocity=100.0)["error"] == 0
+
+
+def test_with_latency_a_short_power_off_and_on_is_no_drive_error() -> None:
+    core, dev, drive = _delayed()
+    power(core, ctrl=0)
+    core.step()  # Shutdown sent for one cycle ...
+    power(core)  # ... then Enable operation again: the drive obeys the Shutdown a cycle or two later
+    states, loop = [], []
+    for _ in range(20):
+        core.step()
+        states.append(int(drive.state[0]))
+        loop.append(bool(_dw(core) & LOOP))
+        assert _err(core) == 0, f"cycle {len(states)}: {_err(core):#x}"
+        assert loop[-1] == (states[-1] == int(State.OPERATION_ENABLED))  # MC_Power's Status honest meanwhile
+    assert int(State.READY_TO_SWITCH_ON) in states  # the drive did leave Operation enabled
+    assert states[-1] == int(State.OPERATION_ENABLED) and not drive.device_error[0]
+    assert cmd(core, "MoveRelative", Distance=5.0, Velocity=100.0)["error"] == 0
+
+
+def test_a_drive_leaving_operation_enabled_by_itself_is_still_0x4650() -> None:
+    core, dev, drive = _delayed()
+    for _ in range(10):
+        core.step()
+    dev.state[0] = int(State.SWITCH_ON_DISABLED)  # e.g. its safe torque off
+    run_until(core, lambda: _err(core) == 0x4650, 10)
+    assert drive.device_error[0]
+
+
+def test_a_latch_from_behind_the_search_is_not_taken() -> None:
+    """The probe is armed all the time: a latch arriving late from before the sync pulse search (still on the
+    cam) lies behind the previous position in the direction of travel and is refused; one ahead is taken."""
+    core = _moving()
+    drive = core.drive
+    assert isinstance(drive, Cia402SimDrive)
+    core.step()
+    prev, now = float(core.prev_act_pos[0]), float(drive.act_pos[0])
+    assert now > prev  # moving forward
+    per_cycle = now - prev
+
+    def latch_at(pos: float) -> float:
+        c = drive.encoder
+        inc = (pos - c.offset[0]) / c.scaling[0] * c.sign[0] - c.base[0]
+        drive.tx = TxImage(**{**vars(drive.tx), "probe_position": np.array([inc])})
+        drive._probe_new = np.array([True])
+        return float(drive.latch_sync_pulse(np.array([0]), np.array([prev]))[0])
+
+    assert latch_at(prev + 0.5 * per_cycle) == pytest.approx(prev + 0.5 * per_cycle)
+    assert latch_at(prev - (drive.max_age - 0.5) * per_cycle) == pytest.approx(prev - (drive.max_age - 0.5) * per_cycle)
+    assert np.isnan(latch_at(prev - (drive.max_age + 2) * per_cycle))  # from before the window: refused

@@ -121,6 +121,19 @@ def test_fault_reaction_then_fault_and_reset() -> None:
     assert int(d.tx.error_code[0]) == 0
 
 
+def test_a_caller_reusing_its_arrays_keeps_the_controlword_edges() -> None:
+    d = _device(SimTimeConstant=0.0)
+    _enable(d)
+    d.inject_fault(0, 0x2310)
+    rx = _rx(1, 0x00)
+    for _ in range(5):
+        d.step(rx)
+    assert int(d.state[0]) == int(State.FAULT)
+    rx.controlword[:] = 0x80  # the same arrays, written in place: still an edge 0 -> 0x80
+    d.step(rx)
+    assert int(d.state[0]) == int(State.SWITCH_ON_DISABLED)
+
+
 def test_persistent_fault_blocks_the_reset_until_cleared() -> None:
     d = _device()
     _enable(d)

@@ -84,7 +84,8 @@ def test_fault_reset_and_error_code() -> None:
 
 def test_leaving_operation_enabled_unasked_is_a_device_error_until_reset() -> None:
     d = _drive()
-    _step(d, True, 0.0)
+    for _ in range(d.max_age + 2):  # (enabled for longer than the link's latency: see test_cia402_core)
+        _step(d, True, 0.0)
     d.device.state[0] = int(State.SWITCH_ON_DISABLED)  # the drive drops out by itself (e.g. safe torque off)
     _step(d, True, 0.0)
     assert d.device_error[0] and not d.following[0] and int(d.error_code[0]) == 0
@@ -99,7 +100,8 @@ def test_leaving_operation_enabled_unasked_is_a_device_error_until_reset() -> No
 
 def test_disabling_clears_the_drop() -> None:
     d = _drive()
-    _step(d, True, 0.0)
+    for _ in range(d.max_age + 2):  # (enabled for longer than the link's latency: see test_cia402_core)
+        _step(d, True, 0.0)
     d.device.state[0] = int(State.SWITCH_ON_DISABLED)
     _step(d, True, 0.0)
     assert d.device_error[0]

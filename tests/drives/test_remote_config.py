@@ -122,3 +122,80 @@ def test_link_without_session_ages_inputs_and_reports_no_host() -> None:
         link.close()
     with pytest.raises(ValueError, match="rows 0..1"):
         RemoteLink("nc1", 2, [HostSlots("d1", (0,), (1,))], None)
+
+
+def _tx_payload(**over: object) -> bytes:
+    tx = TxImage.zeros(2)
+    m = wire.msgpack.unpackb(wire.encode_tx(tx, 7, 42))
+    m.update(over)
+    return bytes(wire._packer.pack(m))
+
+
+_NAN2 = np.array([0.0, np.nan]).astype("<f8").tobytes()
+_INF2 = np.array([np.inf, 0.0]).astype("<f8").tobytes()
+
+
+@pytest.mark.parametrize("over", [
+    {"rx_cycle": 2 ** 64 - 1}, {"rx_cycle": 2 ** 63}, {"rx_cycle": -1}, {"cycle": True}, {"cycle": -5},
+    {"cycle": 1.5}, {"n": True}, {"pa": _NAN2}, {"va": _INF2}, {"ta": _NAN2}, {"pp": _INF2},
+])
+def test_tx_counters_out_of_range_and_floats_not_finite_are_wire_errors(over: dict) -> None:
+    with pytest.raises(wire.WireError):
+        wire.decode_tx(_tx_payload(**over))
+
+
+@pytest.mark.parametrize("over", [
+    {"cycle": 2 ** 63}, {"cycle": False}, {"epoch": -1}, {"epoch": 2 ** 64 - 1},
+    {"tp": np.array([np.nan]).astype("<f8").tobytes()}, {"tv": np.array([-np.inf]).astype("<f8").tobytes()},
+])
+def test_rx_counters_out_of_range_and_floats_not_finite_are_wire_errors(over: dict) -> None:
+    """The host refuses such outputs (host.py: a WireError is a refused message): NaN never reaches a motor."""
+    rx = RxImage.zeros(1)
+    m = wire.msgpack.unpackb(wire.encode_rx(rx, None, np.array([1])))
+    m.update(over)
+    with pytest.raises(wire.WireError):
+        wire.decode_rx(wire._packer.pack(m))
+    assert wire.decode_rx(wire.encode_rx(rx, None, np.array([1]))).image.cycle == 0  # (the unchanged one is fine)
+
+
+class _Sample:
+    def __init__(self, payload: bytes) -> None:
+        self.payload = self
+        self._b = payload
+
+    def to_bytes(self) -> bytes:
+        return self._b
+
+
+class _Sub:
+    def __init__(self, payloads: list[bytes]) -> None:
+        self.payloads = payloads
+
+    def try_recv(self) -> _Sample | None:
+        return _Sample(self.payloads.pop(0)) if self.payloads else None
+
+
+def test_a_malformed_host_message_is_counted_never_raised_into_the_cycle(monkeypatch: pytest.MonkeyPatch) -> None:
+    link = RemoteLink("nc1", 2, [HostSlots("d1", (0, 1), (1, 2))], None)
+    try:
+        link._tx_subs = [_Sub([_tx_payload(rx_cycle=2 ** 64 - 1)])]
+        link._take_inputs(4)
+        assert link.malformed == 1 and link.received == 0
+        good = TxImage.zeros(2)
+        good.position_actual[:] = [1.0, 2.0]
+        link._tx_subs = [_Sub([_tx_payload(pa=np.array([np.nan, 1.0]).astype("<f8").tobytes()),
+                               wire.encode_tx(good, 8, 1)])]
+        link._take_inputs(5)  # (the link's per-cycle read; one message per host and cycle)
+        assert link.malformed == 2 and not np.isnan(link._tx.position_actual).any()
+        link._take_inputs(6)
+        t = link._tx
+        assert link.received == 1 and t.position_actual.tolist() == [1.0, 2.0]
+
+        def boom(payload: bytes) -> None:
+            raise RuntimeError("a bug in a decoder")
+        monkeypatch.setattr(wire, "decode_tx_columns", boom)
+        link._tx_subs = [_Sub([wire.encode_tx(good, 9, 2)])]
+        link._take_inputs(7)
+        assert link.malformed == 3
+    finally:
+        link.close()

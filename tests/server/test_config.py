@@ -221,3 +221,41 @@ def test_publisher_and_cpu_affinity(tmp_path: Path) -> None:
     cfg = load_config(write(tmp_path, f"[nc]\npublisher = 'thread'\ncpu_affinity = [{cpu}, {cpu}]\n[[axis]]\nAxisId = 1\n"))
     assert cfg.publisher == "thread" and cfg.cpu_affinity == (cpu,)
     assert load_config(sets=[f"nc.cpu_affinity={cpu}", "nc.publisher=thread"]).cpu_affinity == (cpu,)
+
+
+def test_a_start_failure_closes_the_drive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The listen endpoint in use: nc-server exits 1 and releases its drive (a CANopen node left OPERATIONAL,
+    a remote link's opener thread retrying otherwise); so does a failure building the core."""
+    import signal
+    import socket
+
+    from nc_server.drives import SimDrive
+
+    closed: list[str] = []
+
+    class ClosingDrive(SimDrive):
+        def close(self) -> None:
+            closed.append("closed")
+            super().close()
+
+    _install_drive(monkeypatch, "closing", ClosingDrive)
+    monkeypatch.setattr(signal, "signal", lambda *a: None)  # (not _run's handlers in the test process)
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        cfg = load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "closing"')
+                                .replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{port}")
+                                .replace('realtime = "auto"', 'realtime = "off"')))
+        assert cfg.zenoh.listen == (f"tcp/127.0.0.1:{port}",)
+        assert cli._run(cfg) == 1
+    assert closed == ["closed"]
+
+    import nc_server.core
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("a bug building the core")
+    monkeypatch.setattr(nc_server.core, "NcCore", broken)
+    with pytest.raises(RuntimeError):
+        cli._run(load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "closing"'))))
+    assert closed == ["closed", "closed"]

@@ -189,6 +189,22 @@ def test_a_group_forwards_axis_methods_to_the_owner() -> None:
         group.set_stall(0, True)
 
 
+def test_a_group_hands_out_new_arrays_each_step() -> None:
+    """The NC's stats read ``error_code`` etc. from another thread: an array once handed out never changes."""
+    a, b = SimDrive(_params(1), 0.001), SimDrive(_params(2), 0.001)
+    group = DriveGroup(3, 0.001, [(a, np.array([1])), (b, np.array([0, 2]))])
+    on = np.ones(3, dtype=bool)
+    group.step(on, np.zeros(3), np.zeros(3), np.zeros(3))
+    names = ("ready", "io_valid", "device_error", "following", "comm_error", "error_code")
+    held = {k: getattr(group, k) for k in names}
+    before = {k: v.copy() for k, v in held.items()}
+    b.set_device_error(1, True)
+    group.step(on, np.zeros(3), np.zeros(3), np.zeros(3))
+    assert group.device_error.tolist() == [False, False, True]
+    for k in names:
+        assert np.array_equal(held[k], before[k]), f"{k} changed in place"
+
+
 def test_default_from_config_builds_the_backend() -> None:
     d = SimDrive.from_config(_params(2), 0.002, [{}, {}], DriveContext())
     assert isinstance(d, SimDrive) and d.cycle_time == 0.002

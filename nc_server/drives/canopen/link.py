@@ -363,12 +363,14 @@ class CanopenLink(ProcessDataLink):
             if self.tx_errors == 1:
                 log.error("CAN transmit error (counted in tx_errors, logged once): %s", e)
 
-    def wait_answered(self, timeout: float) -> bool:
-        """Wait until every node's cyclic TPDOs answered the last SYNC (True), or ``timeout`` [s] (False).
+    def wait_answered(self, timeout: float, rows: Sequence[int] | None = None) -> bool:
+        """Wait until every node's (``rows``: these axes' nodes') cyclic TPDOs answered the last SYNC (True), or
+        ``timeout`` [s] (False).
 
         For tests and tools that step the NC faster or slower than real time; the NC cycle never waits."""
         deadline = time.monotonic() + timeout
-        while np.any(np.minimum(self._stamp[1], self._stamp[2]) < self.syncs):
+        sel = slice(None) if rows is None else np.asarray(rows, dtype=np.intp)
+        while np.any(np.minimum(self._stamp[1][sel], self._stamp[2][sel]) < self.syncs):
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.0001)

@@ -165,8 +165,9 @@ class Cia402Device:
         dt = self.cycle_time
         if rx is None:
             self.silent += dt
-        else:
-            self.rx = rx
+        else:  # (copies: a caller reusing its arrays must not change the last controlword, which edges compare)
+            self.rx = RxImage(rx.controlword.copy(), rx.mode.copy(), rx.target_position.copy(),
+                              rx.target_velocity.copy(), rx.probe_function.copy(), rx.cycle)
             self.silent = 0.0
         rx = self.rx
         comm_lost = self.timeout is not None and self.silent >= self.timeout

@@ -18,11 +18,16 @@ Decisions:
   (a start during power up is refused with 0x4225, as for a drive that is not ready).
 * ``device_error``: Fault or Fault reaction active, or the drive left Operation enabled while the NC wanted it
   enabled (e.g. its safe torque off: latched until the NC disables the axis or a fault reset is requested
-  (MC_Reset); meanwhile the NC does not enable that drive again).
+  (MC_Reset); meanwhile the NC does not enable that drive again). Only once the NC has sent Enable operation
+  (0x000F) for more than ``max_age + 1`` cycles: before that the drive may still be obeying the Shutdown of a
+  short MC_Power off/on (the statusword comes back with the link's latency).
 * ``io_valid``: the inputs are at most ``max_age`` NC cycles old; stale inputs keep the last valid ActVelo/ActAcc.
-* ``reset(rows)``: a fault reset edge (0x0000 then 0x0080) for these axes; the request is dropped once the
-  drive is out of Fault, or ``max_age + 4`` cycles after it was made (a refused reset is not repeated: the next
-  MC_Reset asks again).
+* ``reset(rows)``: a fault reset edge (0x0000 then 0x0080) for these axes; the request is kept through Fault
+  reaction active and dropped once the drive is out of Fault, or ``max_age + 4`` cycles in Fault (a
+  refused reset is not repeated: the next MC_Reset asks again). While it is pending the drive's Fault is not
+  shown as ``device_error`` (the statusword shows Fault a while longer over a link with latency; one MC_Reset
+  suffices), but the axis is not ``ready``; a refused reset shows 0x4650 again after at most ``max_age + 4``
+  cycles.
 * Torque: ActTorque [%] = 0x6077 / 10 (per mille -> %), its derivative per cycle; SetTorque, its derivative and
   TorqueOffset from the NC's own model of the axis (:class:`..mechanics.Mechanics` with the axis's Sim*
   parameters: the feed-forward torque of the set-point, plus PLCTONC.ExtTorque), as CiA 402 has no torque
@@ -34,7 +39,9 @@ Decisions:
   toggles with each new latch; 0x60BA the latched position), not the drive's homing mode 6: MC_Home keeps its
   behaviour (its parameters, cam, directions, the NC's position set) on every backend and the drive stays in
   CSP. The probe is armed all the time (a drive latches in hardware at no cost to the NC); ``latch_sync_pulse``
-  reports a latch that arrived in the cycle just stepped.
+  reports a latch that arrived in the cycle just stepped, at or beyond the previous cycle's position in the
+  direction of travel less ``max_age`` cycles' travel (a late latch from before the search was armed, e.g. still
+  on the cam, is not taken; one within that window is).
 * Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
   drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
   0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
@@ -61,7 +68,8 @@ from .device import PROBE_STATUS_TOGGLE, PROBE_SYNC_PULSE
 from .image import ProcessDataLink, RxImage, TxImage
 from .objects import Mode, State
 
-_OE, _FRA, _FLT = int(State.OPERATION_ENABLED), int(State.FAULT_REACTION_ACTIVE), int(State.FAULT)
+_OE, _FRA = int(State.OPERATION_ENABLED), int(State.FAULT_REACTION_ACTIVE)
+_ENABLE_OPERATION = 0x000F
 #: the NC's position loop gain in CSV [1/s] unless an axis sets ``kv``
 DEFAULT_KV = 100.0
 
@@ -154,6 +162,7 @@ class Cia402Drive(DriveABC):
         self._probe_fn = np.full(n, PROBE_SYNC_PULSE, dtype=np.uint16)
         self._reset_left = np.zeros(n, dtype=np.int64)
         self._dropped = np.zeros(n, dtype=bool)
+        self._last_off = np.full(n, -(1 << 30), dtype=np.int64)  # the cycle of the last controlword not 0x000F
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
         self._no_probe = np.zeros(n, dtype=bool)
@@ -207,10 +216,14 @@ class Cia402Drive(DriveABC):
             up = want & ~self._dropped
         if self._any_reset:
             cw = sm.nc_controlword(self.state, up, self._reset_left > 0, self.controlword)
-            self._reset_left = np.maximum(self._reset_left - 1, 0)
+            # (the time limit runs once the drive is in Fault: its fault reaction (braking) may take long)
+            self._reset_left = np.where(self.state == _FRA, self._reset_left, np.maximum(self._reset_left - 1, 0))
         else:
             cw = sm.nc_controlword(self.state, up)
         self._cycle += 1
+        off = cw != _ENABLE_OPERATION
+        if np.count_nonzero(off):
+            self._last_off = np.where(off, self._cycle, self._last_off)
         rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
                      self._cycle)
         self.controlword = cw
@@ -239,30 +252,36 @@ class Cia402Drive(DriveABC):
             fault_state = state >= _FRA
             dropped = self._dropped
             if self._any_dropped or np.count_nonzero(self.following & ~following):
-                dropped = want & alive & ~following & (dropped | self.following)  # (silent: unknown, 0x4651)
+                dropped = want & alive & ~following & (dropped | (self.following & self._obeyed()))  # (silent: 0x4651)
                 self._dropped = dropped
                 self._any_dropped = bool(dropped.any())
             self.io_valid = valid
             self.comm_error = ~alive
-            self.device_error = fault_state | dropped
+            # a fault reset on its way: the statusword shows Fault a cycle or more (latency); the NC has cleared
+            # 0x4650 and must not raise it again meanwhile (the axis stays not ready: ``ready`` is the real state)
+            shown = fault_state & ~(self._reset_left > 0) if self._any_reset else fault_state
+            self.device_error = shown | dropped
             self.ready = ~fault_state & alive & (~want | following)
-            self.faulty = bool(degraded or self.device_error.any() or np.count_nonzero(want & ~following))
+            self.faulty = bool(degraded or self.device_error.any() or np.count_nonzero(want & ~following)
+                               or self._any_reset)
         else:
             self._pos_inc = tx.position_actual
             if np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
-                    or np.count_nonzero(want & ~following):  # a change (then the full evaluation while faulty)
+                    or np.count_nonzero(want & ~following) or self._any_reset:  # a change (then the full evaluation)
                 fault_state = state >= _FRA
-                dropped = want & ~following & self.following
+                dropped = want & ~following & self.following & self._obeyed()
                 self._dropped = dropped
                 self._any_dropped = bool(dropped.any())
-                self.device_error = fault_state | dropped
+                shown = fault_state & ~(self._reset_left > 0) if self._any_reset else fault_state
+                self.device_error = shown | dropped
                 self.ready = ~fault_state & (~want | following)
-                self.faulty = bool(self.device_error.any() or np.count_nonzero(want & ~following))
+                self.faulty = bool(self.device_error.any() or np.count_nonzero(want & ~following)
+                                   or self._any_reset)
         self.following = following
         self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
         self.error_code = tx.error_code
         if self._any_reset:
-            self._reset_left = np.where(state == _FLT, self._reset_left, 0)
+            self._reset_left = np.where(state >= _FRA, self._reset_left, 0)  # (kept through the fault reaction)
             self._any_reset = bool(self._reset_left.any())
         ps = tx.probe_status
         if ps is not self._last_probe_status:
@@ -271,6 +290,11 @@ class Cia402Drive(DriveABC):
         elif self._probe_new_any:
             self._probe_new = self._no_probe
         self._probe_new_any = bool(self._probe_new.any())
+
+    def _obeyed(self) -> np.ndarray:
+        """Per axis: the drive has had Enable operation (0x000F) for longer than the link's latency
+        (``max_age + 1`` cycles), so leaving Operation enabled is its own doing, not a Shutdown the NC sent."""
+        return (self._cycle - self._last_off) > self.max_age + 1
 
     def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         m = self.mechanics
@@ -305,11 +329,20 @@ class Cia402Drive(DriveABC):
         return None if self.mechanics.resting and not self._act_live else self.mechanics.fields
 
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
-        """The index pulse the drive's touch probe latched in the cycle just stepped [u] (NaN: none)."""
+        """The index pulse the drive's touch probe latched in the cycle just stepped [u] (NaN: none).
+
+        Only a latch at or beyond ``prev_pos`` in the direction of travel counts, less a window of ``max_age``
+        cycles' travel (inputs that came late carry a latch from a few cycles back): the probe is armed all the
+        time, and a latch from before homing armed its search (still on the cam) must not be taken."""
         rows = np.asarray(rows, dtype=np.intp)
+        new = self._probe_new[rows]
+        if not new.any():
+            return np.full(len(rows), np.nan)
         c = self.encoder
         pos = c.sign[rows] * (self.tx.probe_position[rows] + c.base[rows]) * c.scaling[rows] + c.offset[rows]
-        return np.where(self._probe_new[rows], pos, np.nan)
+        step = self.act_pos[rows] - np.asarray(prev_pos, dtype=float)
+        ahead = (pos - prev_pos) * np.sign(step) >= -np.abs(step) * self.max_age
+        return np.where(new & ahead, pos, np.nan)
 
     def close(self) -> None:
         self.link.close()

@@ -285,8 +285,8 @@ class RemoteLink(ProcessDataLink):
                 continue
             try:
                 new, _, rx_cycle = wire.decode_tx_columns(s.payload.to_bytes())
-            except wire.WireError as exc:
-                self._malformed(i, str(exc))
+            except Exception as exc:  # (WireError; anything else from a host's bytes must not stop the NC cycle)
+                self._malformed(i, str(exc) or type(exc).__name__)
                 continue
             rows = self._rows[i]
             if len(new["statusword"]) != len(rows):

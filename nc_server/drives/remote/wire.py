@@ -10,7 +10,8 @@ Keys below the NC's prefix, one drive host (an ``nc-drive-sim`` process, later a
 A message is a msgpack map; each column is a ``bin`` of little-endian values of a fixed dtype, one per slot of
 the host (slot order). Columns as bins cost the same for 4 or 64 axes (pack ~2.5 us, unpack ~6 us; msgpack
 lists cost 5 / 24 us to pack and 9 / 32 us to unpack for 8 / 64 axes). Unknown keys are ignored (room for issue
-21's lease), a missing column or a column of the wrong length makes the message malformed (:class:`WireError`).
+21's lease), a missing column or a column of the wrong length, a float column with NaN or inf, a ``cycle``,
+``rx_cycle`` or ``epoch`` that is not an integer in 0..2**63-1 make the message malformed (:class:`WireError`).
 
 Decisions: positions travel as float64 increments (as :class:`~nc_server.drives.cia402.image.RxImage`: no INT32
 rounding on zenoh); ``rx`` carries the AxisIds of the slots so a host configured for other axes refuses the
@@ -45,7 +46,8 @@ TX_COLUMNS: dict[str, tuple[str, str]] = {
 
 
 class WireError(ValueError):
-    """A drive message that cannot be used (not msgpack, wrong version, a column missing or of the wrong size)."""
+    """A drive message that cannot be used (not msgpack, wrong version, a column missing or of the wrong size, a
+    float not finite, a counter out of range)."""
 
 
 def prefix(nc: str, host: str) -> str:
@@ -135,7 +137,7 @@ def _map(payload: bytes | bytearray | memoryview) -> Mapping[Any, Any]:
     if m.get("v") != VERSION:
         raise WireError(f"wire version {m.get('v')!r}, expected {VERSION}")
     n = m.get("n")
-    if not isinstance(n, int) or not 0 <= n <= 4096:
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 4096:
         raise WireError(f"bad slot count {n!r}")
     return m
 
@@ -144,11 +146,25 @@ _SIZES = {dt: np.dtype(dt).itemsize for dt in ("<u2", "<i1", "<f8", "<u4")}
 
 
 def _column(m: Mapping[Any, Any], key: str, dt: str, n: int) -> np.ndarray:
-    """A column as a read-only view of the message's bytes (no copy)."""
+    """A column as a read-only view of the message's bytes (no copy); a float column must be all finite."""
     b = m.get(key)
     if not isinstance(b, bytes) or len(b) != n * _SIZES[dt]:
         raise WireError(f"column {key!r}: expected {n} values of {dt}")
-    return np.frombuffer(b, dtype=dt)
+    col = np.frombuffer(b, dtype=dt)
+    if dt == "<f8" and not np.isfinite(col).all():  # (NaN/inf would become ActPos or a motor's target)
+        raise WireError(f"column {key!r}: not finite")
+    return col
+
+
+_COUNTER_MAX = (1 << 63) - 1
+
+
+def _counter(m: Mapping[Any, Any], key: str, default: int | None = None) -> int:
+    """A cycle or epoch counter: an integer (not bool) in 0..2**63-1 (it is used in int64 arithmetic)."""
+    v = m.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= _COUNTER_MAX:
+        raise WireError(f"{key} must be an integer in 0..2**63-1, got {v!r}")
+    return v
 
 
 def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
@@ -160,9 +176,7 @@ def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
     m = _map(payload)
     n = m["n"]
     cols = {attr: _column(m, k, dt, n).copy() for k, (attr, dt) in RX_COLUMNS.items()}
-    cycle, epoch = m.get("cycle"), m.get("epoch", 0)
-    if not isinstance(cycle, int) or not isinstance(epoch, int):
-        raise WireError("cycle and epoch must be integers")
+    cycle, epoch = _counter(m, "cycle"), _counter(m, "epoch", 0)
     return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch)
 
 
@@ -184,9 +198,7 @@ def decode_tx_columns(payload: bytes | bytearray | memoryview) -> tuple[dict[str
     m = _map(payload)
     n = m["n"]
     cols = {attr: _column(m, k, dt, n) for k, (attr, dt) in TX_COLUMNS.items()}
-    cycle, rx_cycle = m.get("cycle"), m.get("rx_cycle", 0)
-    if not isinstance(cycle, int) or not isinstance(rx_cycle, int):
-        raise WireError("cycle and rx_cycle must be integers")
+    cycle, rx_cycle = _counter(m, "cycle"), _counter(m, "rx_cycle", 0)
     return cols, cycle, rx_cycle
 
 
