@@ -85,13 +85,13 @@ def test_exchange_packs_int32_targets_and_returns_the_newest_inputs(rig: Rig) ->
     link = rig.link
     assert link is not None
     rx = _rx(2)
-    rx.target_position[:] = [1234.4, -1e12]  # rounded; clipped to INT32
+    rx.target_position[:] = [1234.4, -1e12]  # rounded; modulo 2^32 (an INT32 on the wire)
     rx.target_velocity[:] = [0.0, -250.6]
     rx.mode[:] = [Mode.CSP, Mode.CSV]
     link.exchange(rx)
     assert link.wait_answered(5.0)
     dev_rx = rig.slaves.applied  # what the slaves applied at the SYNC
-    assert list(dev_rx.target_position) == [1234.0, float(pdo.INT32_MIN)]
+    assert list(dev_rx.target_position) == [1234.0, float(pdo.wrap32(np.array([-1e12]))[0])]
     assert list(dev_rx.controlword) == [CMD_SHUTDOWN, CMD_SHUTDOWN]
     assert dev_rx.target_velocity[1] == -251.0 and list(dev_rx.mode) == [Mode.CSP, Mode.CSV]
     tx = link.exchange(rx)
@@ -100,6 +100,39 @@ def test_exchange_packs_int32_targets_and_returns_the_newest_inputs(rig: Rig) ->
     assert all(int(sw) & 0x6F == 0x21 for sw in tx.statusword)
     # SDO reads of the actual values answer the device's last step (the same as the TPDO carried)
     assert rig.slaves.nodes[0].sdo[0x6041].raw == int(tx.statusword[0])
+
+
+def test_wrap32_and_unwrap32() -> None:
+    big = np.array([2**31 - 1, 2**31, -2**31 - 1, 5 * 2**32 + 7], dtype=np.int64)
+    assert pdo.wrap32(big).tolist() == [2**31 - 1, -2**31, 2**31 - 1, 7]
+    assert pdo.wrap32(np.array([1.6, np.nan, 1e300])).tolist()[:2] == [2, 0]
+    assert pdo.unwrap32(pdo.wrap32(big), big - 1000).tolist() == big.tolist()
+
+
+def test_an_endless_axis_crosses_the_int32_range_without_a_jump(rig: Rig) -> None:
+    """Positions travel modulo 2^32 (a drive's 32-bit counter): the target and the actual position cross
+    INT32_MAX continuously on both sides; clipping would stop the axis there and a raw reading would jump 2^32."""
+    link = rig.link
+    assert link is not None
+    start = float(pdo.INT32_MAX - 300)
+    rig.slaves.device.position[0] = start  # the motor stands near the end of the INT32 range
+    rx = _rx(2, start)
+    rx.mode[:] = [Mode.CSP, Mode.CSV]
+    for cw in (0x06, 0x07, 0x0F, 0x0F):  # shutdown, switch on, enable operation
+        rx.controlword[:] = cw
+        link.exchange(rx)
+        assert link.wait_answered(5.0)
+    seen = []
+    for k in range(1, 13):  # 50 increments per cycle across 2^31
+        rx.target_position[0] = start + 50 * k
+        tx = link.exchange(rx)
+        assert link.wait_answered(5.0)
+        seen.append(float(tx.position_actual[0]))
+    tx = link.exchange(rx)
+    final = float(tx.position_actual[0])
+    assert rig.slaves.device.position[0] > pdo.INT32_MAX  # the drive followed the target beyond the range
+    assert final > pdo.INT32_MAX and abs(final - rig.slaves.device.position[0]) < 2
+    assert all(0 <= b - a < 100 for a, b in zip(seen, seen[1:])), seen  # no 2^32 jump, never backwards
 
 
 def test_the_cycle_never_waits_while_the_slaves_are_silent(rig: Rig) -> None:

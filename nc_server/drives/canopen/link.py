@@ -8,7 +8,8 @@ every node must answer. Per NC cycle, :meth:`CanopenLink.exchange`:
 
 1. reads the newest TPDO payloads the canopen notifier thread stored (never waits on the bus), with per node
    the age in SYNCs of its cyclic TPDOs and ``alive`` from the heartbeat consumer;
-2. sends the RPDOs with this cycle's outputs (positions rounded to INT32 increments), then one SYNC.
+2. sends the RPDOs with this cycle's outputs (positions rounded to increments, modulo 2^32 as INT32: an endless
+   axis wraps, and the actual position read back is unwrapped, so ActPos stays continuous), then one SYNC.
 
 Ordering: the RPDOs of cycle k go out before cycle k's SYNC; the drives apply them at that SYNC (the start of
 their cycle k+1: "the frames for cycle k+1 are sent in cycle k") and answer with TPDOs, which the NC uses in
@@ -184,6 +185,8 @@ class CanopenLink(ProcessDataLink):
         self._wall_clock_stamps = False
         #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
         self._stamp = {k: np.full(self.n, -1, dtype=np.int64) for k in pdo.TPDO_LAYOUT}
+        self._pos = np.zeros(self.n, dtype=np.int64)  # the unwrapped actual positions [inc]
+        self._pos_seen = np.zeros(self.n, dtype=bool)
         self._hb_time = np.full(self.n, -math.inf)
         self._hb_state = np.zeros(self.n, dtype=np.int64)
         #: the last EMCY code per node (0: none or reset)
@@ -332,16 +335,20 @@ class CanopenLink(ProcessDataLink):
         age[np.minimum(self._stamp[1], self._stamp[2]) < 0] = k + 1
         alive = ((time.monotonic() - self._hb_time) <= self.bus_config.heartbeat_timeout) & \
             (self._hb_state == NMT_OPERATIONAL)
+        # INT32 positions wrap on an endless axis: continue from the last reading (the first one is taken as is)
+        pos = self._pos = np.where(self._pos_seen, pdo.unwrap32(t1[1], self._pos), t1[1])
+        self._pos_seen |= t1[0] != 0  # (a statusword of 0: nothing received yet)
+        probe = pdo.unwrap32(t3[1], pos)
         return TxImage(statusword=t1[0].astype(np.uint16), mode_display=t2[2].astype(np.int8),
-                       position_actual=t1[1].astype(np.float64), velocity_actual=t2[0].astype(np.float64),
+                       position_actual=pos.astype(np.float64), velocity_actual=t2[0].astype(np.float64),
                        torque_actual=t2[1].astype(np.float64), error_code=t1[2].astype(np.uint16),
-                       probe_status=t3[0].astype(np.uint16), probe_position=t3[1].astype(np.float64),
+                       probe_status=t3[0].astype(np.uint16), probe_position=probe.astype(np.float64),
                        age=age, alive=alive)
 
     def _outputs(self, rx: RxImage) -> None:
-        pos = np.clip(np.rint(np.nan_to_num(rx.target_position)), pdo.INT32_MIN, pdo.INT32_MAX)
+        pos = pdo.wrap32(rx.target_position)  # (modulo 2^32: an endless axis goes on; the drive unwraps)
         velo = np.clip(np.rint(np.nan_to_num(rx.target_velocity)), pdo.INT32_MIN, pdo.INT32_MAX)
-        cw, p, mode = rx.controlword.tolist(), pos.astype(np.int64).tolist(), rx.mode.tolist()
+        cw, p, mode = rx.controlword.tolist(), pos.tolist(), rx.mode.tolist()
         v, probe = velo.astype(np.int64).tolist(), rx.probe_function.tolist()
         try:
             for j, node in enumerate(self.nodes):

@@ -22,6 +22,8 @@ It may import: canopen (objectdictionary), nc_server.drives.cia402.
 """
 from __future__ import annotations
 
+import numpy as np
+
 import struct
 from typing import Sequence
 
@@ -45,6 +47,25 @@ SYNC_EVERY, SYNC_ACYCLIC = 1, 0
 TPDO_TRANS = {1: SYNC_EVERY, 2: SYNC_EVERY, 3: SYNC_ACYCLIC}
 
 INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
+_SPAN = 1 << 32
+#: |increments| beyond this are not taken from a float (int64 holds the rest of the arithmetic exactly)
+_FLOAT_LIMIT = float(1 << 62)
+
+
+def wrap32(x: np.ndarray) -> np.ndarray:
+    """Increments (int64, or float: rounded) as the INT32 a position object (0x607A, 0x6064, 0x60BA) carries:
+    modulo 2^32, so an endless axis wraps around instead of stopping at the range's end (as a drive's 32-bit
+    position counter does; the other side unwraps with :func:`unwrap32`)."""
+    if x.dtype.kind == "f":
+        x = np.rint(np.clip(np.nan_to_num(x), -_FLOAT_LIMIT, _FLOAT_LIMIT)).astype(np.int64)
+    return ((x.astype(np.int64) - INT32_MIN) % _SPAN) + INT32_MIN
+
+
+def unwrap32(raw: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """The int64 increments nearest to ``near`` (int64) whose INT32 is ``raw``: continuous positions from a wrapping
+    32-bit counter, as long as a value moves less than 2^31 increments between two readings."""
+    near = near.astype(np.int64)
+    return near + wrap32(raw.astype(np.int64) - wrap32(near))
 
 _FMT = {od.BOOLEAN: "B", od.INTEGER8: "b", od.UNSIGNED8: "B", od.INTEGER16: "h", od.UNSIGNED16: "H",
         od.INTEGER32: "i", od.UNSIGNED32: "I", od.INTEGER64: "q", od.UNSIGNED64: "Q", od.REAL32: "f",

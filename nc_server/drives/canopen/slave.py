@@ -59,6 +59,7 @@ _RX_FIELDS = {obj.CONTROLWORD: "controlword", obj.TARGET_POSITION: "target_posit
               obj.MODES_OF_OPERATION: "mode", obj.TARGET_VELOCITY: "target_velocity",
               obj.TOUCH_PROBE_FUNCTION: "probe_function"}
 #: TxImage field <- object (TPDO mapping and SDO reads)
+_WRAPPED = frozenset({"position_actual", "probe_position"})
 _TX_FIELDS = {obj.STATUSWORD: "statusword", obj.POSITION_ACTUAL: "position_actual",
               obj.VELOCITY_ACTUAL: "velocity_actual", obj.TORQUE_ACTUAL: "torque_actual",
               obj.ERROR_CODE: "error_code", obj.MODES_OF_OPERATION_DISPLAY: "mode_display",
@@ -204,7 +205,10 @@ class SimulatedSlaves:
     def _reader(self, j: int) -> Any:
         def read(index: int, subindex: int, od: Any) -> int | None:
             name = _TX_FIELDS.get(index)
-            return None if name is None else int(np.rint(getattr(self._tx, name)[j]))
+            if name is None:
+                return None
+            v = getattr(self._tx, name)[j:j + 1]
+            return int((pdo.wrap32(v) if name in _WRAPPED else np.rint(v))[0])
         return read
 
     def _writer(self, j: int) -> Any:
@@ -248,7 +252,10 @@ class SimulatedSlaves:
                     d = r.map.data
                     if len(d) >= r.struct.size:
                         for f, v in zip(r.fields, r.struct.unpack_from(d)):
-                            if f is not None:
+                            if f == "target_position":  # INT32 modulo 2^32: continue from the last target
+                                prev = np.array([int(np.rint(rx.target_position[j]))], dtype=np.int64)
+                                rx.target_position[j] = float(pdo.unwrap32(np.array([v]), prev)[0])
+                            elif f is not None:
                                 getattr(rx, f)[j] = v
             rx.cycle = self.syncs
             # a fresh image per step: the device may keep the last one (e.g. for the controlword's edges)
@@ -267,7 +274,9 @@ class SimulatedSlaves:
                             continue
                         col = cols.get(f)
                         if col is None:
-                            col = cols[f] = np.rint(getattr(tx, f)).astype(np.int64).tolist()
+                            v = getattr(tx, f)
+                            # positions wrap as a drive's 32-bit counter does; the others are clamped below
+                            col = cols[f] = (pdo.wrap32(v) if f in _WRAPPED else np.rint(v).astype(np.int64)).tolist()
                         vals.append(min(max(col[j], lo), hi))
                     payload = t.struct.pack(*vals)
                     if not t.every and payload == t.last:
