@@ -135,6 +135,25 @@ def test_an_endless_axis_crosses_the_int32_range_without_a_jump(rig: Rig) -> Non
     assert all(0 <= b - a < 100 for a, b in zip(seen, seen[1:])), seen  # no 2^32 jump, never backwards
 
 
+def test_closing_switches_the_drives_off_before_nmt(rig: Rig) -> None:
+    """close() sends Shutdown (and its SYNC) before NMT pre-operational: an enabled drive ends in Ready to switch
+    on, as commanded, not with a communication abort."""
+    from nc_server.drives.cia402.objects import State
+
+    link = rig.link
+    assert link is not None
+    rx = _rx(2)
+    rx.mode[:] = [Mode.CSP, Mode.CSV]
+    for cw in (0x06, 0x07, 0x0F, 0x0F):
+        rx.controlword[:] = cw
+        link.exchange(rx)
+        assert link.wait_answered(5.0)
+    assert rig.slaves.device.state.tolist() == [State.OPERATION_ENABLED] * 2
+    link.close()
+    wait_until(lambda: rig.slaves.device.state.tolist() == [State.READY_TO_SWITCH_ON] * 2, 10.0,
+               "both drives in Ready to switch on after close()")
+
+
 def test_the_cycle_never_waits_while_the_slaves_are_silent(rig: Rig) -> None:
     link = rig.link
     assert link is not None

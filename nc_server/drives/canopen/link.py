@@ -52,6 +52,7 @@ from canopen.pdo.base import PdoMap
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ..cia402 import objects as obj
+from ..cia402.objects import CMD_SHUTDOWN
 from ..cia402.image import ProcessDataLink, RxImage, TxImage
 from . import pdo
 from .vbus import open_bus
@@ -349,6 +350,7 @@ class CanopenLink(ProcessDataLink):
         pos = pdo.wrap32(rx.target_position)  # (modulo 2^32: an endless axis goes on; the drive unwraps)
         velo = np.clip(np.rint(np.nan_to_num(rx.target_velocity)), pdo.INT32_MIN, pdo.INT32_MAX)
         cw, p, mode = rx.controlword.tolist(), pos.tolist(), rx.mode.tolist()
+        self._last_out = (p, mode)
         v, probe = velo.astype(np.int64).tolist(), rx.probe_function.tolist()
         try:
             for j, node in enumerate(self.nodes):
@@ -388,6 +390,7 @@ class CanopenLink(ProcessDataLink):
             if self._closed:
                 return
             self._closed = True
+        self._shutdown_drives()
         for node in getattr(self, "nodes", []):
             try:
                 node.remote.nmt.state = "PRE-OPERATIONAL"
@@ -397,6 +400,24 @@ class CanopenLink(ProcessDataLink):
             self.network.disconnect()
         except Exception as e:
             log.warning("closing the CAN network: %s", e)
+
+
+    def _shutdown_drives(self) -> None:
+        """Before NMT leaves operational: one last RPDO with Shutdown (0x0006) at the last target, and its SYNC,
+        so a drive still in Operation enabled is switched off as commanded rather than reacting to a
+        communication abort (0x6007)."""
+        p_mode = getattr(self, "_last_out", None)
+        nodes = getattr(self, "nodes", [])
+        if p_mode is None or not nodes:
+            return
+        p, mode = p_mode
+        try:
+            for j, node in enumerate(nodes):
+                node.s_rpdo1.pack_into(node.rpdo1.data, 0, CMD_SHUTDOWN, p[j], mode[j])
+                node.rpdo1.transmit()
+            self.network.sync.transmit()
+        except Exception as e:  # the bus may be gone already
+            log.warning("CAN: the closing Shutdown could not be sent: %s", e)
 
 
 def _map(m: PdoMap, cob_id: int, entries: Sequence[pdo.Entry], trans_type: int) -> None:
