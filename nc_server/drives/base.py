@@ -53,6 +53,8 @@ class DriveABC(ABC):
             runs no ramp: its set-point follows the actual position.
         comm_error: the drive's communication is lost (heartbeat, lease): axis error 0x4651.
         error_code: the drive's own error code (CiA 402 0x603F; 0: none), shown in the stats and nc-status.
+        input_age: the age of the inputs used in the last step [NC cycles] (0: fresh; a fieldbus or a remote
+            drive delivers them a cycle or more late), shown in the stats (``drive_input_age``).
         simulated: True for simulated drives (OpModeDWord.OpModeSimulationAxis).
     """
 
@@ -70,6 +72,7 @@ class DriveABC(ABC):
         self.following = np.ones(n, dtype=bool)
         self.comm_error = np.zeros(n, dtype=bool)
         self.error_code = np.zeros(n, dtype=np.uint16)
+        self.input_age = np.zeros(n, dtype=np.int64)
         self.faulty = False
 
     @classmethod

@@ -132,13 +132,16 @@ class DriveGroup(DriveABC):
                                          np.empty_like(self.device_error))
         following, comm_error, error_code = (np.empty_like(self.following), np.empty_like(self.comm_error),
                                              np.empty_like(self.error_code))
+        age = np.empty_like(self.input_age)
         for d, r in self.parts:
+            age[r] = d.input_age
             act_pos[r], act_velo[r], act_acc[r] = d.act_pos, d.act_velo, d.act_acc
             ready[r], io_valid[r], device_error[r] = d.ready, d.io_valid, d.device_error
             following[r], comm_error[r], error_code[r] = d.following, d.comm_error, d.error_code
         self.act_pos, self.act_velo, self.act_acc = act_pos, act_velo, act_acc
         self.ready, self.io_valid, self.device_error = ready, io_valid, device_error
         self.following, self.comm_error, self.error_code = following, comm_error, error_code
+        self.input_age = age
         self.faulty = any(d.faulty for d, _ in self.parts)
 
     def _split(self, rows: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:

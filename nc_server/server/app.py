@@ -783,8 +783,16 @@ class NcServer:
                   "request_reserve_us": {c: round(v / 1000.0, 1) for c, v in list(self._class_reserve.items())},
                   **self._wait_percentiles(),
                   "drive_errors": self._drive_errors(),
+                  "drive_input_age": self._drive_input_age(),
                   "stages": self.core.stage_times()})
         return d
+
+    def _drive_input_age(self) -> dict[int, int]:
+        """{AxisId: the age [NC cycles] of the drive inputs used in the last cycle} of the axes whose inputs were not
+        fresh (any thread: the drive replaces its ``input_age`` array, it does not write into it)."""
+        ages = np.asarray(getattr(self.core.drive, "input_age", ()), dtype=np.int64)
+        ids = self.core.axis_ids
+        return {int(ids[i]): int(ages[i]) for i in np.flatnonzero(ages)}
 
     def _drive_errors(self) -> dict[int, int]:
         """{AxisId: the drive's own error code (CiA 402 0x603F)} of the axes whose drive reports one (any thread:

@@ -208,3 +208,25 @@ def test_a_group_hands_out_new_arrays_each_step() -> None:
 def test_default_from_config_builds_the_backend() -> None:
     d = SimDrive.from_config(_params(2), 0.002, [{}, {}], DriveContext())
     assert isinstance(d, SimDrive) and d.cycle_time == 0.002
+
+
+def test_the_age_of_the_drive_inputs_reaches_the_stats() -> None:
+    """Stale inputs (a fieldbus or a remote drive late) show in the stats' drive_input_age, fresh ones do not."""
+    from types import SimpleNamespace
+
+    from nc_server.drives.cia402.sim import Cia402SimDrive
+    from nc_server.server.app import NcServer
+
+    params = _params(3)
+    group = DriveGroup(3, 0.001, [(Cia402SimDrive([params[0], params[2]], 0.001), np.array([0, 2])),
+                                  (SimDrive([params[1]], 0.001), np.array([1]))])
+    core = _core(group)
+    core.step()
+    assert NcServer._drive_input_age(SimpleNamespace(core=core)) == {}  # type: ignore[arg-type]
+    group.parts[0][0].set_io_invalid(1, True)  # the group's axis 3: its inputs stop arriving
+    held = group.input_age
+    for _ in range(3):
+        core.step()
+    ages = NcServer._drive_input_age(SimpleNamespace(core=core))  # type: ignore[arg-type]
+    assert list(ages) == [3] and ages[3] > 0
+    assert held.tolist() == [0, 0, 0]  # an array handed out earlier never changes (another thread reads it)

@@ -280,6 +280,7 @@ class Cia402Drive(DriveABC):
         self.following = following
         self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
         self.error_code = tx.error_code
+        self.input_age = tx.age
         if self._any_reset:
             self._reset_left = np.where(state >= _FRA, self._reset_left, 0)  # (kept through the fault reaction)
             self._any_reset = bool(self._reset_left.any())
