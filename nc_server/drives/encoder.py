@@ -58,6 +58,14 @@ class EncoderChain:
         """The motor's increments [inc] at which axis ``i`` reads ``position`` [u] (the chain's inverse)."""
         return float((position - self.offset[i]) / self.scaling[i] * self.sign[i] - self.base[i])
 
+    def positions(self, increments: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """ActPos [u] of the axes ``rows`` at their motors' ``increments`` (:meth:`position`, vectorized)."""
+        return self.sign[rows] * (increments + self.base[rows]) * self.scaling[rows] + self.offset[rows]
+
+    def increments_at(self, positions: np.ndarray) -> np.ndarray:
+        """The increments [inc] at which every axis reads ``positions`` [u] (:meth:`increments`, vectorized)."""
+        return (positions - self.offset) / self.scaling * self.sign - self.base
+
     def hardware_count(self, i: int, position: float) -> float:
         """What the encoder's hardware counter holds at ``position`` [u]: increments & mask [inc] (not rounded)."""
         return float(np.mod(self.increments(i, position), self.period[i]))

@@ -201,7 +201,7 @@ class Cia402Drive(DriveABC):
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         en = np.asarray(enabled, dtype=bool)
         c = self.encoder
-        target = (set_pos - c.offset) / c.scaling * c.sign - c.base
+        target = c.increments_at(set_pos)
         if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
             target = np.where(self.following, target, self._pos_inc)
         velo = set_velo / c.scaling * c.sign
@@ -233,7 +233,7 @@ class Cia402Drive(DriveABC):
         self.state = state
         following = state == _OE
         c = self.encoder
-        new_pos = c.sign * (tx.position_actual + c.base) * c.scaling + c.offset
+        new_pos = c.positions(tx.position_actual)
         new_velo = tx.velocity_actual * c.scaling * c.sign
         new_acc = (new_velo - self.act_velo) / self.cycle_time
         n = len(state)
@@ -339,8 +339,7 @@ class Cia402Drive(DriveABC):
         new = self._probe_new[rows]
         if not new.any():
             return np.full(len(rows), np.nan)
-        c = self.encoder
-        pos = c.sign[rows] * (self.tx.probe_position[rows] + c.base[rows]) * c.scaling[rows] + c.offset[rows]
+        pos = self.encoder.positions(self.tx.probe_position[rows], rows)
         step = self.act_pos[rows] - np.asarray(prev_pos, dtype=float)
         ahead = (pos - prev_pos) * np.sign(step) >= -np.abs(step) * self.max_age
         return np.where(new & ahead, pos, np.nan)
