@@ -57,7 +57,9 @@ def test_lost_holder_each_reaction(start_nc: Callable[..., NcServerProcess], how
         print(f"\n[failsafe] holder {how}: axis 1 fault 0x{e1.err:X} after {(e1.t - t0) * 1e3:.0f} ms, "
               f"axis 2 after {(e2.t - t0) * 1e3:.0f} ms")
         if how == "SIGKILL":
-            assert e1.err == 0x8F01 and (e1.t - t0) < 5.0  # liveliness: no lease to wait for
+            # 0x8F01 (liveliness), not the 1 s watchdog's 0x8F02: the kill is seen without waiting for anything; the time
+                # is printed, bounded only against a hang (a CI run at load 29 took 5.5 s to show it)
+                assert e1.err == 0x8F01 and (e1.t - t0) < 30.0
         else:
             assert e1.err == 0x8F02
         # 1 stop_disable: stop ramp, then disabled
