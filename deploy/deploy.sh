@@ -120,12 +120,22 @@ case "${1:-}" in
         prepare_opcua
         compose up -d
         wait_healthy || die "the system did not become healthy"
-        c="${COMPOSE[*]} -f deploy/compose.yaml -p $PROJECT"
+        c="${COMPOSE[*]} -f deploy/compose.yaml"
+        [[ ${ZNC_DRIVES:-0} != 1 ]] || c+=" -f deploy/compose.drives.yaml"
+        c+=" -p $PROJECT"
         cat <<EOF
-zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): router, nc1, nc2, plc1, plc2, opcua.
+zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): ${SERVICES[*]}.
   $c ps                  # services and health
   $c logs -f plc1 plc2   # the PLC programs' events (moves, errors, power)
   $c logs -f nc1         # an NC server's log
+EOF
+        if [[ ${ZNC_DRIVES:-0} == 1 ]]; then
+            cat <<EOF
+  $c logs -f nc-drives   # the drive host (nc-drive-sim drives1: nc1's axes 1, 2); docker kill nc1 and its
+                         # drives stop on their quick-stop ramp (0x8130) after ZNC_DRIVE_TIMEOUT_S (0.1 s), positions kept
+EOF
+        fi
+        cat <<EOF
   make deploy-down       # stop and remove it
   OPC UA: opc.tcp://127.0.0.1:${ZNC_OPCUA_PORT:-4840}/zenoh-nc, user operator, password in deploy/.build/opcua/operator.password
           (Basic256Sha256; the server certificate deploy/.build/opcua/opcua.der)
@@ -133,8 +143,7 @@ EOF
         if [[ $ZNC_TRANSPORT == tcp ]]; then
             echo "  nc-status --connect tcp/127.0.0.1:$ZNC_ROUTER_PORT   # live table of the NCs (the router on the host's loopback)"
         else
-            echo "  router on the host: tls/127.0.0.1:$ZNC_ROUTER_PORT, observer certificate deploy/.build/certs/status.pem"
-            echo "  (nc-status speaks plain tcp only: ZNC_TRANSPORT=tcp make deploy to watch with it)"
+            echo "  nc-status --connect tls/127.0.0.1:$ZNC_ROUTER_PORT --tls-dir deploy/.build/certs   # as the observer 'status'"
         fi
         ;;
     down)

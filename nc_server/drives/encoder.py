@@ -89,6 +89,20 @@ class EncoderChain:
         return self.position(i, inc)
 
 
+def pulse_passed(a: np.ndarray, b: np.ndarray, spacing: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """The encoder's index (sync) pulses at ``offset + k * spacing``: per axis the last one passed moving from ``a``
+    to ``b``, NaN where none was. A pulse exactly at ``a`` does not count (it was passed in the cycle before), one
+    exactly at ``b`` does. Any consistent unit (SimDrive: axis units; the CiA 402 device: increments).
+
+    The one crossing rule of the simulated drives: ``SimDrive.latch_sync_pulse`` and ``Cia402Device``'s touch probe.
+    """
+    fa, fb = (a - offset) / spacing, (b - offset) / spacing
+    up = fb > fa
+    k = np.where(up, np.floor(fb), np.ceil(fb))  # the last pulse index reached in the direction of travel
+    crossed = np.where(up, k > fa, k < fa) & (fa != fb)
+    return np.where(crossed, offset + k * spacing, np.nan)
+
+
 def build(params: Sequence[AxisParams]) -> EncoderChain:
     """An encoder chain for ``params``, each axis's motor at 0 increments (ActPos = AxisEncoderOffset)."""
     chain = EncoderChain(len(params))

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..core.params import AxisParams
 from .base import DriveABC
-from .encoder import EncoderChain
+from .encoder import EncoderChain, pulse_passed
 from .mechanics import Mechanics
 
 
@@ -108,13 +108,9 @@ class SimDrive(DriveABC):
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         """Sync pulses at SimSyncPulseOffset + k * SimSyncPulseSpacing: the latch reports the exact
         pulse position (the interpolated crossing within the cycle, not the cycle's position)."""
-        sp, off = self._pulse_spacing[rows], self._pulse_offset[rows]
-        a, b = (prev_pos - off) / sp, (self.act_pos[rows] - off) / sp
-        up = b > a
-        k = np.where(up, np.floor(b), np.ceil(b))  # the last pulse index reached in the direction of travel
-        crossed = np.where(up, k > np.floor(a) + 0 * a, k < np.ceil(a)) & (a != b)
-        crossed &= np.where(up, k > a, k < a)
-        return np.where(crossed, off + k * sp, np.nan)
+        rows = np.asarray(rows, dtype=np.intp)
+        return pulse_passed(np.asarray(prev_pos, dtype=float), self.act_pos[rows], self._pulse_spacing[rows],
+                            self._pulse_offset[rows])
 
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         dt = self.cycle_time

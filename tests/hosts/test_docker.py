@@ -50,23 +50,37 @@ def tls_available() -> bool:
 
 
 class ComposeSystem:
-    """One compose project of deploy/compose.yaml for a test module."""
+    """One compose project of deploy/compose.yaml for a test module.
 
-    def __init__(self, image: str, workdir: Path) -> None:
+    Args:
+        image: the app image tag.
+        workdir: where the certificates and the roles file go (``ZNC_BUILD``).
+        files: the compose files (default deploy/compose.yaml alone; an override such as compose.drives.yaml after it).
+        services: the services started (and checked, diagnosed, stopped).
+        plcs: the PLC services whose event lines :meth:`events` reads.
+        identities: the certificates made besides the router's.
+        env: environment for compose over the defaults below.
+    """
+
+    def __init__(self, image: str, workdir: Path, files: Sequence[Path] = (COMPOSE_FILE,),
+                 services: Sequence[str] = SERVICES, plcs: Sequence[str] = PLCS,
+                 identities: Sequence[str] = ("nc1", "nc2", "plc1", "plc2", "status"),
+                 env: dict[str, str] | None = None) -> None:
         cmd = compose_command()
         assert cmd is not None
         self.project = f"znct{os.getpid()}{uuid.uuid4().hex[:6]}"
         self.port = free_port()
         self.workdir = workdir
+        self.services, self.plcs = tuple(services), tuple(plcs)
         self.transport = os.environ.get("ZNC_HOSTS_TRANSPORT") or ("tls" if tls_available() else "tcp")
-        self.compose_cmd = [*cmd, "-f", str(COMPOSE_FILE), "-p", self.project]
+        self.compose_cmd = [*cmd, *(a for f in files for a in ("-f", str(f))), "-p", self.project]
         (workdir / "certs").mkdir(parents=True, exist_ok=True)
         (workdir / "etc").mkdir(parents=True, exist_ok=True)
         # each container mounts ca.pem and its own certificate and key (and the router the roles file):
         # made for tcp too, as deploy.sh does (a missing file would be mounted as an empty directory)
         if (ROOT / "deploy" / "certs" / "make-certs.sh").exists():  # it always makes the router's too
-            subprocess.run([str(ROOT / "deploy" / "certs" / "make-certs.sh"), str(workdir / "certs"),
-                            "nc1", "nc2", "plc1", "plc2", "status"], check=True, capture_output=True, timeout=300)
+            subprocess.run([str(ROOT / "deploy" / "certs" / "make-certs.sh"), str(workdir / "certs"), *identities],
+                           check=True, capture_output=True, timeout=300)
             shutil.copy(ROOT / "deploy" / "roles.toml", workdir / "etc" / "roles.toml")
             for key in (workdir / "certs").glob("*.key"):
                 if key.name != "ca.key":  # the CA key stays unreadable to the containers
@@ -75,6 +89,7 @@ class ComposeSystem:
         self.env = dict(os.environ, ZNC_IMAGE=image, ZNC_ROUTER_PORT=str(self.port), ZNC_BUILD=str(workdir),
                         ZNC_TRANSPORT=self.transport, ZNC_RESTART="no", ZNC_REARM_S="0.5", ZNC_SHARE_S="6",
                         ZNC_WATCHDOG_S="2.0", ZNC_ROUTER_LEASE_MS="2000")  # lenient: a loaded 2-core machine (the cuts are seen by leases)
+        self.env.update(env or {})
         self.status: StatusClient | None = None
         self.ids: dict[str, str] = {}
 
@@ -124,7 +139,7 @@ class ComposeSystem:
         """One line (CI shows the first line of a failure): each service's state, restarts and last log lines;
         the full logs follow on the next lines."""
         parts, full = [], []
-        for sv in SERVICES:
+        for sv in self.services:
             restarts = self.docker("inspect", "-f", "{{.RestartCount}}", self.cid(sv), check=False)
             tail = [ln for ln in self.logs(sv).splitlines() if ln.strip()][-3:]
             parts.append(f"{sv}={self.health(sv)} restarts={restarts} log: {' | '.join(tail)[-400:]!r}")
@@ -132,7 +147,7 @@ class ComposeSystem:
         return "; ".join(parts) + "\n" + "\n".join(full)
 
     def events(self) -> list[Any]:
-        return [e for s in PLCS for e in parse_events(self.logs(s))]
+        return [e for s in self.plcs for e in parse_events(self.logs(s))]
 
     def status_tls(self) -> str | None:
         """The certificate directory for the test's status client (identity ``status``), None for tcp."""
@@ -140,24 +155,24 @@ class ComposeSystem:
 
     # -- life -----------------------------------------------------------------------------------
     def up(self) -> None:
-        r = self.compose("up", "-d", *SERVICES)  # (not the OPC UA door: no scenario of its own here)
+        r = self.compose("up", "-d", *self.services)  # (not the OPC UA door: no scenario of its own here)
         assert r.returncode == 0, f"compose up failed:\n{r.stdout}\n{r.stderr}"
 
         # running is enough here: the system's own state (cell_ok) is what the tests wait for; the
         # healthchecks (a zenoh session each) can time out on a loaded machine and are only noted
         def running() -> bool | str:
-            states = {s: self.health(s) for s in SERVICES}
+            states = {s: self.health(s) for s in self.services}
             return all(v in ("healthy", "starting", "running") for v in states.values()) or f"{states}"
         try:
             wait_until(running, UP_TIMEOUT, "every service running", interval=1.0)
         except AssertionError as exc:
-            logs = "\n".join(f"--- {s}\n{self.logs(s)[-1500:]}" for s in SERVICES)
+            logs = "\n".join(f"--- {s}\n{self.logs(s)[-1500:]}" for s in self.services)
             raise AssertionError(f"{exc}\n{logs}") from None
 
     def down(self) -> None:
         if self.status is not None:
             self.status.close()
-        for s in SERVICES:  # a paused container cannot be stopped
+        for s in self.services:  # a paused container cannot be stopped
             try:
                 if self.docker("inspect", "-f", "{{.State.Paused}}", self.cid(s), check=False) == "true":
                     self.docker("unpause", self.cid(s), check=False)

@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from ...core.params import AxisParams
-from ..encoder import EncoderChain
+from ..encoder import EncoderChain, pulse_passed
 from ..mechanics import Mechanics
 from . import statemachine as sm
 from .image import RxImage, TxImage
@@ -238,7 +238,7 @@ class Cia402Device:
         if fn is not self._prev_probe_fn and not np.array_equal(fn, self._prev_probe_fn):
             self._probe_changed(fn)
         if self._probe_armed_any:
-            x = self.pulse_passed(self._before, self.position)
+            x = pulse_passed(self._before, self.position, self._pulse_spacing, self._pulse_offset)
             hit = self._probe_armed & (x == x)  # (not NaN)
             if np.count_nonzero(hit):
                 self._probe_position = np.where(hit, x, self._probe_position)
@@ -262,16 +262,6 @@ class Cia402Device:
         self._probe_armed = armed & (self._probe_continuous | ((status & PROBE_STATUS_STORED) == 0))
         self._probe_armed_any = bool(self._probe_armed.any())
         self._prev_probe_fn = fn
-
-    def pulse_passed(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Per axis the last index pulse [inc] passed moving from ``a`` to ``b`` (NaN: none; a pulse exactly at
-        ``a`` does not count, one exactly at ``b`` does)."""
-        sp, off = self._pulse_spacing, self._pulse_offset
-        fa, fb = (a - off) / sp, (b - off) / sp
-        up = fb > fa
-        k = np.where(up, np.floor(fb), np.ceil(fb))
-        crossed = np.where(up, k > fa, k < fa) & (fa != fb)
-        return np.where(crossed, off + k * sp, np.nan)
 
     def _publish(self) -> None:
         m = self.mechanics
