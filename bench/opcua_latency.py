@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     import zenoh
 
-    from nc_opcua.users import add_user
+    from nc_link.users import add_user
     from nc_schema import frame_header
     from znc_testing.opcua_testing import start_nc_opcua
 

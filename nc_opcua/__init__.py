@@ -6,8 +6,8 @@ OPC UA subscriptions, the operator functions as methods allowed by the user's ro
 UA user authentication and Basic256Sha256 security. Modules:
 
 * :mod:`nc_opcua.server` - :class:`~nc_opcua.server.OpcuaDoor` (address space, values, methods, sessions);
-* :mod:`nc_opcua.bridge` - :class:`~nc_opcua.bridge.NcBridge`, the door's link to one NC (``nc_link``);
-* :mod:`nc_opcua.users` - the users file (scrypt password hashes);
+* :class:`nc_link.door.NcDoor` - the door's link to one NC (shared with nc-web);
+* :mod:`nc_link.users` - the users file (scrypt password hashes; shared with nc-web);
 * :mod:`nc_opcua.certs` - application instance certificates with the ApplicationUri;
 * :mod:`nc_opcua.cli` - the command line.
 

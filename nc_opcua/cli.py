@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import getpass
 import logging
 import os
 import signal
@@ -25,31 +24,12 @@ import sys
 from typing import TYPE_CHECKING
 from urllib.parse import urlparse
 
-from .users import ROLES, UsersError, add_user, load_users
+from nc_link.users import ROLES, UsersError, load_users, user_main
 
 if TYPE_CHECKING:
     from .server import OpcuaDoor
 
 PROG = "nc-opcua"
-
-
-def _user_main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"{PROG} user", description="add or replace a user of a users file")
-    p.add_argument("file")
-    p.add_argument("name")
-    p.add_argument("--role", required=True, choices=ROLES)
-    a = p.parse_args(argv)
-    pw = getpass.getpass(f"password for {a.name}: ") if sys.stdin.isatty() else sys.stdin.readline().rstrip("\n")
-    if not pw:
-        print(f"{PROG} user: empty password", file=sys.stderr)
-        return 2
-    try:
-        add_user(a.file, a.name, a.role, pw)
-    except UsersError as exc:
-        print(f"{PROG} user: {exc}", file=sys.stderr)
-        return 2
-    print(f"{a.file}: user {a.name} ({a.role})")
-    return 0
 
 
 def _cert_main(argv: list[str]) -> int:
@@ -97,7 +77,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "user":
-        return _user_main(argv[1:])
+        return user_main(PROG, argv[1:])
     if argv and argv[0] == "cert":
         return _cert_main(argv[1:])
     a = parse_args(argv)

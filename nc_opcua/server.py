@@ -42,7 +42,7 @@ Client ids: the door connects as ``door_id``; what it commands or claims for use
 commander records and logs name the user. Anonymous users (``allow_anonymous``) are observers.
 
 Sessions: a session's closing (CloseSession, or asyncua's session timeout after its connection was lost,
-``session_timeout``) is its vanishing: :meth:`nc_opcua.bridge.NcBridge.session_gone` (0x8F01 on what it
+``session_timeout``) is its vanishing: :meth:`nc_link.door.NcDoor.session_gone` (0x8F01 on what it
 powered and on its motions, release, its jogs stop). A jog also stops at its own timeout unless renewed.
 Sessions are numbered by the door (itertools.count, never reused; ``id()`` would be once a session is gone).
 
@@ -79,8 +79,8 @@ from nc_schema import (
     motion_state,
 )
 
-from .bridge import OVERRIDE_100, NcBridge
-from .users import User, Verifier, role_min
+from nc_link.door import OVERRIDE_100, NcDoor
+from nc_link.users import User, Verifier, role_min
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +118,7 @@ class DoorConfig:
         connect: the zenoh endpoint of the router (or an NC). door_id: the door's client id.
         ncs: the NC names to serve (empty: every NC found on the router, looked for every 2 s).
         url: the OPC UA endpoint, e.g. ``opc.tcp://127.0.0.1:4840/zenoh-nc``.
-        users: the users (nc_opcua.users). allow_anonymous: anonymous sessions, read-only.
+        users: the users (nc_link.users). allow_anonymous: anonymous sessions, read-only.
         role: the door's own role (caps every user's).
         sampling_ms: the value update period [ms] (one of nc_schema.FRAME_PERIODS_MS).
         cert, key: the application instance certificate (DER) and key (PEM); None: no security.
@@ -126,7 +126,7 @@ class DoorConfig:
         app_uri: the ApplicationUri (must be the certificate's subjectAltName URI).
         tls_dir: zenoh mutual TLS directory (certificate ``<tls_dir>/<door_id>.pem``) or None.
         session_timeout: the longest session timeout granted [s]: how long a session whose connection was lost
-            lives on (then it vanishes: :meth:`NcBridge.session_gone`).
+            lives on (then it vanishes: :meth:`NcDoor.session_gone`).
         max_jog_timeout: the largest JogStart Timeout accepted [s].
         trust: a directory of trusted client application certificates (DER or PEM, each trusted as it is,
             read at every new session); None: any client certificate (its time range, ApplicationUri and key
@@ -187,7 +187,7 @@ class _ClientCertificates:
 
 
 class _Users(UserManager):
-    """asyncua's user manager: the users file's names and passwords (:class:`nc_opcua.users.Verifier`).
+    """asyncua's user manager: the users file's names and passwords (:class:`nc_link.users.Verifier`).
 
     asyncua calls ``get_user`` synchronously inside ActivateSession (``InternalSession.activate_session`` is
     not a coroutine), so a password check runs on the server's event loop: one scrypt (~0.1-1 s, machine
@@ -280,7 +280,7 @@ class OpcuaDoor:
             raise ValueError(f"role must be one of {', '.join(ROLE_CLASSES)}, got {cfg.role!r}")
         self.cfg = cfg
         self.server = Server(user_manager=_Users(cfg.users or {}, cfg.allow_anonymous))
-        self.bridges: dict[str, NcBridge] = {}
+        self.bridges: dict[str, NcDoor] = {}
         self.idx = 0
         self._ncs_node: Any = None
         self._axis_nodes: dict[tuple[str, int], Any] = {}
@@ -423,7 +423,7 @@ class OpcuaDoor:
 
     async def _add_nc(self, nc: str) -> None:
         period = max([p for p in (2, 5, 10, 20, 50, 100) if p <= self.cfg.sampling_ms] or [2])
-        b = NcBridge(nc, self.cfg.connect, self.cfg.door_id, period, self.cfg.tls_dir)
+        b = NcDoor(nc, self.cfg.connect, self.cfg.door_id, period, self.cfg.tls_dir)
         try:
             await asyncio.to_thread(b.start)
         except ConnectionError as exc:
@@ -486,7 +486,7 @@ class OpcuaDoor:
                 except Exception:
                     log.exception("NC %s: value update failed", nc)
 
-    async def _update_nc(self, nc: str, b: NcBridge, seen: dict[str, tuple[int, bool]]) -> None:
+    async def _update_nc(self, nc: str, b: NcDoor, seen: dict[str, tuple[int, bool]]) -> None:
         import time as _time
         img = b.image
         alive = img is not None and _time.monotonic() - img.received < max(1.0, 5 * self.cfg.sampling_ms / 1000)
@@ -539,7 +539,7 @@ class OpcuaDoor:
                 continue
             await self._read_param(b, rv.NodeId, axis, number, refresh=False)
 
-    async def _read_param(self, b: NcBridge, nid: ua.NodeId, axis: int, number: int, refresh: bool) -> None:
+    async def _read_param(self, b: NcDoor, nid: ua.NodeId, axis: int, number: int, refresh: bool) -> None:
         vt = self._param_nodes[nid][3]
         try:
             value = await asyncio.to_thread(b.read_parameter, axis, number, refresh)

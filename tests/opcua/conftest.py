@@ -14,7 +14,7 @@ from typing import Iterator
 
 import pytest
 
-from nc_opcua.users import add_user
+from nc_link.users import add_user
 from znc_testing import NcServerProcess, NcTestClient, start_nc_server
 from znc_testing.opcua_testing import NcOpcuaProcess, client, served, start_nc_opcua
 

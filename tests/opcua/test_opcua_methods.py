@@ -15,9 +15,9 @@ import pytest
 from asyncua import ua
 
 from nc_link import CommandError
-from nc_opcua.bridge import NcBridge, default_plctonc
+from nc_link.door import NcDoor, default_plctonc
 from nc_opcua.server import _NUMBER, _SESSION, DoorConfig, OpcuaDoor, _nid
-from nc_opcua.users import User
+from nc_link.users import User
 from nc_schema import ErrorCodes
 from nc_schema.frames import PLC_FRAME_HEADER_DTYPE
 
@@ -159,14 +159,14 @@ class FakeLink:
 
 
 @pytest.fixture
-def bridge() -> tuple[NcBridge, FakeLink]:
-    b = NcBridge("nc1", "tcp/127.0.0.1:1", "opcua")
+def bridge() -> tuple[NcDoor, FakeLink]:
+    b = NcDoor("nc1", "tcp/127.0.0.1:1", "opcua")
     link = FakeLink()
     b.link = link  # type: ignore[assignment]
     return b, link
 
 
-def test_power_of_a_session_gone_during_the_claim_is_released_not_supplied(bridge: tuple[NcBridge, FakeLink]) -> None:
+def test_power_of_a_session_gone_during_the_claim_is_released_not_supplied(bridge: tuple[NcDoor, FakeLink]) -> None:
     b, link = bridge
     seen: list[Any] = []
     link.during["Claim"] = lambda: (seen.append(b.agents["opcua.eve"]), b.session_gone(3))
@@ -177,7 +177,7 @@ def test_power_of_a_session_gone_during_the_claim_is_released_not_supplied(bridg
     assert [c[0] for c in link.sent][-1] == "Release"
 
 
-def test_motion_of_a_session_gone_during_the_command_gets_the_loss_reaction(bridge: tuple[NcBridge, FakeLink]) -> None:
+def test_motion_of_a_session_gone_during_the_command_gets_the_loss_reaction(bridge: tuple[NcDoor, FakeLink]) -> None:
     b, link = bridge
     link.during["MoveVelocity"] = lambda: b.session_gone(4)
     with pytest.raises(CommandError):
@@ -187,7 +187,7 @@ def test_motion_of_a_session_gone_during_the_command_gets_the_loss_reaction(brid
     assert link.sent[-1][3] == {"ErrorCode": ErrorCodes.ZNC_CLIENT_LOST}
 
 
-def test_jog_of_a_session_gone_during_the_command_is_stopped(bridge: tuple[NcBridge, FakeLink]) -> None:
+def test_jog_of_a_session_gone_during_the_command_is_stopped(bridge: tuple[NcDoor, FakeLink]) -> None:
     b, link = bridge
     link.during["Jog"] = lambda: b.session_gone(5)
     with pytest.raises(CommandError):
@@ -196,7 +196,7 @@ def test_jog_of_a_session_gone_during_the_command_is_stopped(bridge: tuple[NcBri
     assert link.sent[-1][:2] == ("SetExternalError", 3)
 
 
-def test_a_gone_session_is_refused_before_anything_is_sent(bridge: tuple[NcBridge, FakeLink]) -> None:
+def test_a_gone_session_is_refused_before_anything_is_sent(bridge: tuple[NcDoor, FakeLink]) -> None:
     b, link = bridge
     b.session_gone(6)
     link.sent.clear()
@@ -209,7 +209,7 @@ def test_a_gone_session_is_refused_before_anything_is_sent(bridge: tuple[NcBridg
     assert link.sent == [] and "opcua.eve" not in b.agents
 
 
-def test_plctonc_is_published_by_one_thread_at_a_time(bridge: tuple[NcBridge, FakeLink]) -> None:
+def test_plctonc_is_published_by_one_thread_at_a_time(bridge: tuple[NcDoor, FakeLink]) -> None:
     b, _ = bridge
     ag = b.agent("opcua.eve", 1)
     ag.supplies.start(1, default_plctonc(True, 1_000_000), 1, 0)
@@ -247,7 +247,7 @@ def test_plctonc_is_published_by_one_thread_at_a_time(bridge: tuple[NcBridge, Fa
 def test_password_checks_cost_the_same_for_unknown_names_and_are_cached(monkeypatch: pytest.MonkeyPatch) -> None:
     import hashlib
 
-    from nc_opcua import users as users_mod
+    from nc_link import users as users_mod
     from nc_opcua.server import _Users
     monkeypatch.setattr(users_mod, "_N", 2 ** 4)  # cheap hashes for the test (the parameters are stored)
     real = hashlib.scrypt

@@ -14,7 +14,7 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from cryptography import x509
 
 from nc_opcua.certs import application_uri_of, make_app_certificate
-from nc_opcua.users import UsersError, add_user, hash_password, load_users, verify_password
+from nc_link.users import UsersError, add_user, hash_password, load_users, verify_password
 from znc_testing import NcServerProcess
 from znc_testing.opcua_testing import NcOpcuaProcess, call, client, opcua_command, served, start_nc_opcua, value
 

@@ -1,4 +1,4 @@
-"""The users file of nc-opcua: OPC UA user names, their role and a salted scrypt hash of their password.
+"""The users file of the user-facing doors (nc-opcua, nc-web): user names, their role and a salted scrypt hash of their password.
 
 A TOML file given by path (``nc-opcua --users FILE``), beside the NC's roles file::
 
@@ -6,7 +6,7 @@ A TOML file given by path (``nc-opcua --users FILE``), beside the NC's roles fil
     role = "operator"                       # observer | operator | engineer (docs/roles.md)
     password = "scrypt$16384$8$1$<salt b64>$<hash b64>"
 
-Make an entry with ``nc-opcua user FILE NAME --role ROLE`` (the password is read from the terminal or
+Make an entry with ``nc-opcua user FILE NAME --role ROLE`` or ``nc-web user ...`` (:func:`user_main`) (the password is read from the terminal or
 stdin, never from the command line) or :func:`hash_password`.
 
 Decisions: the hash is ``hashlib.scrypt`` (RFC 7914; n=2**14, r=8, p=1, 16-byte random salt, 32-byte key),
@@ -18,11 +18,14 @@ May import: ``nc_schema`` and the standard library.
 """
 from __future__ import annotations
 
+import argparse
 import base64
+import getpass
 import hashlib
 import hmac
 import os
 import re
+import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +34,7 @@ from typing import Mapping
 from nc_schema import ROLE_CLASSES
 
 __all__ = ["User", "UsersError", "hash_password", "verify_password", "load_users", "add_user", "ROLES", "role_min",
-           "Verifier"]
+           "Verifier", "user_main"]
 
 #: The roles, lowest privilege first.
 ROLES: tuple[str, ...] = tuple(ROLE_CLASSES)
@@ -61,8 +64,11 @@ def hash_password(password: str, salt: bytes | None = None) -> str:
     """The stored form of ``password``: ``scrypt$n$r$p$salt$hash`` (base64)."""
     salt = salt if salt is not None else os.urandom(16)
     dk = hashlib.scrypt(password.encode(), salt=salt, n=_N, r=_R, p=_P, dklen=_DKLEN)
-    b64 = lambda b: base64.b64encode(b).decode()  # noqa: E731
-    return f"scrypt${_N}${_R}${_P}${b64(salt)}${b64(dk)}"
+    return f"scrypt${_N}${_R}${_P}${_b64(salt)}${_b64(dk)}"
+
+
+def _b64(b: bytes) -> str:
+    return base64.b64encode(b).decode()
 
 
 def verify_password(password: str, stored: str) -> bool:
@@ -181,9 +187,30 @@ def add_user(path: str | Path, name: str, role: str, password: str) -> None:
     users = load_users(p) if p.exists() else {}
     users[name] = User(name, role, hash_password(password))
     parse_users({"user": {u.name: {"role": u.role, "password": u.password_hash} for u in users.values()}}, str(p))
-    text = "# nc-opcua users (nc_opcua.users): role observer | operator | engineer, scrypt password hash\n"
+    text = "# nc-opcua users (nc_link.users): role observer | operator | engineer, scrypt password hash\n"
     for u in users.values():
         text += f'\n[user.{u.name}]\nrole = "{u.role}"\npassword = "{u.password_hash}"\n'
     fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as f:
         f.write(text)
+
+
+def user_main(prog: str, argv: list[str]) -> int:
+    """``<prog> user FILE NAME --role R``: add or replace a user; the password from the terminal or stdin (never
+    the command line). Exit status 0, or 2 for an empty password or a bad file/name/role."""
+    p = argparse.ArgumentParser(prog=f"{prog} user", description="add or replace a user of a users file")
+    p.add_argument("file")
+    p.add_argument("name")
+    p.add_argument("--role", required=True, choices=ROLES)
+    a = p.parse_args(argv)
+    pw = getpass.getpass(f"password for {a.name}: ") if sys.stdin.isatty() else sys.stdin.readline().rstrip("\n")
+    if not pw:
+        print(f"{prog} user: empty password", file=sys.stderr)
+        return 2
+    try:
+        add_user(a.file, a.name, a.role, pw)
+    except UsersError as exc:
+        print(f"{prog} user: {exc}", file=sys.stderr)
+        return 2
+    print(f"{a.file}: user {a.name} ({a.role})")
+    return 0

@@ -1,9 +1,10 @@
-"""NcBridge: nc-opcua's link to one NC (frames, claims map, the users it acts for, their PLCTONC supply).
+"""NcDoor: a user-facing door's link to one NC (frames, claims map, the users it acts for, their PLCTONC supply).
 
-Built on the client link (``nc_link``): one :class:`nc_link.NcLink` per NC as the door's own client id (it takes
+The door logic shared by nc-opcua (an OPC UA session) and nc-web (a browser login): a door *session* is an
+int the door numbers (never reused). Built on the client link (:class:`nc_link.NcLink`): one :class:`nc_link.NcLink` per NC as the door's own client id (it takes
 the NC's frames once per sampling period, the NC's liveliness and instance, the claims map, and sends the door's
-own reads: Info, ReadParameter). What the door does *for an OPC UA user* it does as the client id
-``<door>.<user>`` (:meth:`NcBridge.command`): the NC records that id as the commander, the claim holder, in its
+own reads: Info, ReadParameter). What the door does *for one of its users* it does as the client id
+``<door>.<user>`` (:meth:`NcDoor.command`): the NC records that id as the commander, the claim holder, in its
 claims map; per user the door declares that id's liveliness token and PLCTONC publisher on the same session
 (:class:`UserAgent`, ``NcLink.declare_holder``) and supplies the PLCTONC of the axes the user powered with
 :class:`nc_link.Supplies` (one per user id: the NC's claims map is checked against that id).
@@ -11,13 +12,13 @@ claims map; per user the door declares that id's liveliness token and PLCTONC pu
 One thread per NC (``supply``): every ``supply_period`` it takes the newest frame, the NC's events (a new NC
 instance ends every supply, as in nc-ads) and claims map (a supply the NC no longer names the user the holder of
 ends), and publishes one PLC frame per user with supplied axes; an axis disabled by Power(FALSE) is released
-after a few enables-off periods. Commands (:meth:`command`) block and run on the caller's thread (the OPC UA
-server runs them in a worker thread).
+after a few enables-off periods. Commands (:meth:`command`) block and run on the caller's thread (the doors run
+them in a worker thread, never on their event loop).
 
-A vanished OPC UA session (:meth:`session_gone`): on each axis it powered (Enable supplied) the error 0x8F01
+A vanished door session (:meth:`session_gone`): on each axis it powered (Enable supplied) the error 0x8F01
 (ZNC_CLIENT_LOST, SetExternalError: the NC stops the axis with its deceleration), then the claim is released; on
 each axis whose last motion command the door sent for that session and that still moves, 0x8F01 too (the NC's
-rule for the motions of a lost client); its jogs stop. This is nc-ads's per-connection rule, per OPC UA
+rule for the motions of a lost client); its jogs stop. This is nc-ads's per-connection rule, per door
 session. When a user's last session is gone its id's liveliness token is undeclared as well (the NC then lists
 it as not alive; anything it still commanded falls under the NC's own client-loss rule). If the door itself dies, its user ids' tokens vanish with its zenoh session and the NC's own
 client-loss rules apply (ClientLossReaction, docs/arbitration.md).
@@ -28,7 +29,7 @@ the NC's reply, look again under the lock: gone -> the loss reaction for that co
 is released, never supplied; a motion gets 0x8F01; a jog Halt) and CommandError 0x8F01. PLCTONC of one user
 id is published by one thread at a time (``UserAgent.publish_lock``: the supply thread and a command's).
 
-May import: ``nc_link``, ``nc_schema`` and the standard library.
+May import: ``nc_schema``, this package and the standard library.
 """
 from __future__ import annotations
 
@@ -39,15 +40,16 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from nc_link import CommandError, NcLink, Supplies
-from nc_link.link import RESTART
+from .link import CommandError, NcLink
+from .supply import Supplies
+from .link import RESTART
 from nc_schema import (
     NCTOPLC_DTYPE, PLCTONC_DTYPE, PLCTONC_SIZE, ErrorCodes, StateDWord, encode_plc_records, frame_records,
 )
 
 log = logging.getLogger(__name__)
 
-__all__ = ["NcBridge", "AxisImage", "UserAgent", "OVERRIDE_100"]
+__all__ = ["NcDoor", "AxisImage", "UserAgent", "OVERRIDE_100"]
 
 OVERRIDE_100 = 1_000_000
 CONTROL_ENABLE_ALL = 0x7
@@ -98,8 +100,8 @@ def default_plctonc(enable: bool, override: int) -> bytearray:
     return rec
 
 
-class NcBridge:
-    """nc-opcua's link to NC ``nc`` (see the module docstring).
+class NcDoor:
+    """A door's link to NC ``nc`` (see the module docstring).
 
     Args:
         nc: the NC name. endpoint: its zenoh endpoint (or the router's). door_id: the door's client id.
@@ -142,7 +144,7 @@ class NcBridge:
             if time.monotonic() > deadline:
                 raise ConnectionError(f"NC {self.nc}: cannot connect ({self.link.last_error})")
             time.sleep(0.3)
-        self._thread = threading.Thread(target=self._loop, name=f"nc-opcua-{self.nc}", daemon=True)
+        self._thread = threading.Thread(target=self._loop, name=f"door-{self.door_id}-{self.nc}", daemon=True)
         self._thread.start()
 
     def close(self) -> None:
@@ -280,7 +282,7 @@ class NcBridge:
             return ag
 
     def command(self, cmd: str, axis: int | None, sender: str, session: int, **args: Any) -> dict[str, Any]:
-        """Send ``cmd`` as ``sender`` for OPC UA session ``session``; a motion command records the session as the
+        """Send ``cmd`` as ``sender`` for door session ``session``; a motion command records the session as the
         axis's commander (:meth:`session_gone`).
 
         Raises:
@@ -302,7 +304,7 @@ class NcBridge:
     def _refuse_gone(self, session: int) -> None:
         """Raises CommandError 0x8F01 if ``session`` vanished."""
         if session in self._gone:
-            raise CommandError(ErrorCodes.ZNC_CLIENT_LOST, f"OPC UA session {session} is gone")
+            raise CommandError(ErrorCodes.ZNC_CLIENT_LOST, f"door session {session} is gone")
 
     def power(self, axis: int, sender: str, session: int, enable: bool, override: int) -> None:
         """Power (MC_Power): claim ``axis`` for ``sender`` if needed and supply Enable + feed enables and
@@ -367,8 +369,20 @@ class NcBridge:
             self.jogs.pop(axis, None)
         self.command("Halt", axis, sender, session)
 
+    def end_jogs(self, session: int, axes: set[int] | None = None) -> list[int]:
+        """Halt the running jogs of ``session`` (on ``axes`` only, if given) now, not at their timeout: its
+        heartbeats' channel closed (nc-web: the page's WebSocket). Blocks (a worker thread). The axes halted."""
+        with self._lock:
+            due = [(a, j) for a, j in self.jogs.items() if j.session == session and (axes is None or a in axes)]
+            for a, _ in due:
+                del self.jogs[a]
+        for a, j in due:
+            log.info("NC %s axis %d: jog of %s ended with its heartbeats' channel: Halt", self.nc, a, j.client_id)
+            self._quiet("Halt", a, j.client_id)
+        return [a for a, _ in due]
+
     def session_gone(self, session: int) -> None:
-        """OPC UA session ``session`` vanished or closed: see the module docstring (blocks: a worker thread)."""
+        """Door session ``session`` vanished, closed or logged out: see the module docstring (blocks: a worker thread)."""
         with self._lock:
             self._gone.add(session)  # first: a command whose reply lands later sees it (command, power, jog)
             agents = [ag for ag in self.agents.values() if session in ag.sessions]

@@ -1,0 +1,55 @@
+"""Fixtures of the nc-web tests (helpers in znc_testing.web_testing), real processes, module scope:
+
+* ``users_file``: alice (operator), bob (observer), eve (engineer), passwords ``<name>-pw``;
+* ``nc``: an nc-server (the default 4 axes X, Y, Z, C of ``nc1``) on a free 127.0.0.1 port;
+* ``web``: nc-web in front of it (``--session-idle 3``), killed at teardown pass or fail;
+* ``watch``: a zenoh client ``watch`` of the NC without a token (Info, NCTOPLC, the claims in Info).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from nc_link.users import add_user
+from znc_testing import NcServerProcess, NcTestClient, start_nc_server
+from znc_testing.web_testing import NcWebProcess, start_nc_web
+
+USERS = {"alice": "operator", "bob": "observer", "eve": "engineer"}
+
+
+@pytest.fixture(scope="module")
+def users_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    p = tmp_path_factory.mktemp("users") / "users.toml"
+    for name, role in USERS.items():
+        add_user(p, name, role, f"{name}-pw")
+    return p
+
+
+@pytest.fixture(scope="module")
+def nc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcServerProcess]:
+    srv = start_nc_server(tmp_path_factory.mktemp("nc"))
+    try:
+        yield srv
+    finally:
+        srv.kill()
+
+
+@pytest.fixture(scope="module")
+def web(tmp_path_factory: pytest.TempPathFactory, nc: NcServerProcess, users_file: Path) -> Iterator[NcWebProcess]:
+    p = start_nc_web(tmp_path_factory.mktemp("web"), nc.endpoint, ["--users", str(users_file), "--session-idle", "3"])
+    try:
+        yield p
+    finally:
+        p.stop()
+
+
+@pytest.fixture(scope="module")
+def watch(nc: NcServerProcess) -> Iterator[NcTestClient]:
+    c = NcTestClient(nc.port, client_id="watch", token=False)
+    try:
+        yield c
+    finally:
+        c.close()
+

@@ -1,0 +1,163 @@
+"""nc-web without a browser: real nc-server and nc-web processes, plain HTTP and WebSocket clients
+(tests/web/conftest.py). Logins, refusals by role (HTTP 403) and by the NC (its ErrorID and text), bad input
+(nothing sent), hold-to-run over the WebSocket (heartbeats renew a jog; without them the door halts it; a closed
+socket halts it at once), logout and a vanished login releasing their claims. Waits are deadlines on conditions.
+"""
+from __future__ import annotations
+
+import json
+import time
+import urllib.parse
+from typing import Any
+
+import pytest
+
+from nc_schema import ErrorCodes, StateDWord, error_name
+from znc_testing import NcTestClient, wait_until
+from znc_testing.web_testing import NcWebProcess, claims, http, login, post, websocket
+
+HAS_JOB = int(StateDWord.HasJob)
+
+
+def set_velo(watch: NcTestClient, axis: int) -> float:
+    rec = watch.nctoplc(axis)
+    return 0.0 if rec is None else float(rec["SetVelo"])
+
+
+def has_job(watch: NcTestClient, axis: int) -> bool:
+    rec = watch.nctoplc(axis)
+    return rec is not None and bool(int(rec["StateDWord"]) & HAS_JOB)
+
+
+def power(web: NcWebProcess, cookie: str, axis: int, watch: NcTestClient, holder: str) -> None:
+    wait_until(lambda: watch.nctoplc(axis) is not None, 20, f"NCTOPLC of axis {axis}")  # (subscribed first)
+    status, reply = post(web.url, cookie, "nc1", axis, "Power", Enable=True, Override=100)
+    assert (status, reply["error"]) == (200, 0), reply
+    wait_until(lambda: claims(watch).get(axis) == holder, 20, f"axis {axis} held by {holder}")
+
+
+def test_pages_need_a_login_and_a_wrong_password_is_refused(web: NcWebProcess) -> None:
+    assert http(f"{web.url}/nc/nc1")[0] == 303
+    for user, pw in (("alice", "wrong"), ("mallory", "x"), ("", "")):
+        status, _, body = http(f"{web.url}/login", "POST", urllib.parse.urlencode({"user": user, "password": pw})
+                               .encode(), content_type="application/x-www-form-urlencoded")
+        assert status == 401 and b"Login failed" in body
+    forged = "ncweb=abc.0123"
+    assert http(f"{web.url}/nc/nc1", cookie=forged)[0] == 303
+    assert post(web.url, forged, "nc1", 1, "Reset")[0] == 401
+    assert post(web.url, None, "nc1", 1, "Reset")[0] == 401
+    cookie = login(web.url, "alice", "alice-pw")
+    status, _, page = http(f"{web.url}/nc/nc1", cookie=cookie)
+    assert status == 200 and b'id="jog-plus"' in page and b'id="setpos-btn"' not in page  # operator: no SetPos
+    assert http(f"{web.url}/nc/nope", cookie=cookie)[0] == 404
+
+
+def test_an_observer_is_refused_and_gets_no_buttons(web: NcWebProcess, watch: NcTestClient) -> None:
+    cookie = login(web.url, "bob", "bob-pw")
+    status, _, page = http(f"{web.url}/nc/nc1", cookie=cookie)
+    assert status == 200 and b'id="axis-table"' in page
+    for control in (b'id="enable"', b'id="jog-plus"', b'id="moveabs"', b'id="reset"', b">Write<"):
+        assert control not in page
+    status, reply = post(web.url, cookie, "nc1", 1, "Power", Enable=True)
+    assert status == 403 and reply["error"] == ErrorCodes.ADSERR_DEVICE_ACCESSDENIED and "observer" in reply["text"]
+    assert 1 not in claims(watch)  # nothing was sent
+    with websocket(web.url, cookie) as ws:
+        ws.send(json.dumps({"type": "jog", "axis": 1, "direction": 1, "velocity": 0}))
+        msgs = [json.loads(ws.recv(30)) for _ in range(40)]
+        errors = [m for m in msgs if m["type"] == "error"]
+        assert errors and errors[0]["error"] == ErrorCodes.ADSERR_DEVICE_ACCESSDENIED
+    assert not has_job(watch, 1)
+    status, _, body = http(f"{web.url}/api/nc/nc1/params/1", cookie=cookie)  # reading is an observer's right
+    assert status == 200 and json.loads(body)["params"][0]["error"] == 0
+
+
+def test_parameters_need_an_engineer_and_are_refreshed_after_a_write(web: NcWebProcess) -> None:
+    alice = login(web.url, "alice", "alice-pw")
+    status, reply = post(web.url, alice, "nc1", 4, "WriteParameter", Name="AxisVeloManSlow", Value=12.5)
+    assert status == 403 and "engineer" in reply["text"]
+    eve = login(web.url, "eve", "eve-pw")
+
+    def value(name: str) -> Any:
+        from nc_schema import PARAMETERS
+        p = PARAMETERS.by_name(name)
+        assert p is not None
+        body = json.loads(http(f"{web.url}/api/nc/nc1/params/4", cookie=eve)[2])
+        return next(x["value"] for x in body["params"] if x["number"] == p.number)
+    before = value("AxisVeloManSlow")
+    status, reply = post(web.url, eve, "nc1", 4, "WriteParameter", Name="AxisVeloManSlow", Value=before + 1.5)
+    assert (status, reply["error"]) == (200, 0), reply
+    assert value("AxisVeloManSlow") == pytest.approx(before + 1.5)  # the cache was refreshed by the write
+    status, reply = post(web.url, eve, "nc1", 4, "WriteParameter", Name="NoSuchParameter", Value=1)
+    assert status == 400 and reply["error"] == ErrorCodes.MC_PARAMETER_NOT_CORRECT
+
+
+def test_nc_refusals_carry_the_error_id_and_bad_input_sends_nothing(web: NcWebProcess, watch: NcTestClient) -> None:
+    cookie = login(web.url, "alice", "alice-pw")
+    status, reply = post(web.url, cookie, "nc1", 3, "MoveAbsolute", Position=10.0, Velocity=10.0)
+    assert status == 409 and reply["error"] == ErrorCodes.NC_NO_ENABLE, reply  # not powered
+    assert error_name(reply["error"]) in reply["text"]
+    bad: list[tuple[str, dict[str, Any], int]] = [
+        ("MoveAbsolute", {"Position": 1.0}, ErrorCodes.ADSERR_DEVICE_INVALIDDATA),
+        ("MoveAbsolute", {"Position": 1.0, "Velocity": 10.0, "Bogus": 1}, ErrorCodes.ADSERR_DEVICE_INVALIDDATA),
+        ("MoveAbsolute", {"Position": "x", "Velocity": 10.0}, ErrorCodes.ADSERR_DEVICE_INVALIDDATA),
+        ("MoveRelative", {"Distance": 1.0, "Velocity": 0.0}, ErrorCodes.NC_VELOCITY_NOT_ALLOWED),
+        ("Power", {"Enable": 1}, ErrorCodes.ADSERR_DEVICE_INVALIDDATA),
+        ("Power", {"Enable": True, "Override": 150.0}, ErrorCodes.MC_PARAMETER_NOT_CORRECT),
+    ]
+    for cmd, args, code in bad:
+        status, reply = post(web.url, cookie, "nc1", 3, cmd, **args)
+        assert status == 400 and reply["error"] == code, (cmd, args, reply)
+    status, _, body = http(f"{web.url}/api/nc/nc1/axis/3/MoveAbsolute", "POST", b"{not json", cookie)
+    assert status == 400 and json.loads(body)["error"] == ErrorCodes.ADSERR_DEVICE_INVALIDDATA
+    assert post(web.url, cookie, "nc1", 3, "Explode")[0] == 404
+    assert 3 not in claims(watch) and not has_job(watch, 3)  # nothing reached the NC
+
+
+def test_hold_to_run_moves_only_while_heartbeats_arrive(web: NcWebProcess, watch: NcTestClient) -> None:
+    cookie = login(web.url, "alice", "alice-pw")
+    power(web, cookie, 2, watch, "web.alice")
+    with websocket(web.url, cookie) as ws:
+        jog = json.dumps({"type": "jog", "axis": 2, "direction": 1, "velocity": 50.0})
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:  # the page's heartbeat (every 50 ms)
+            ws.send(jog)
+            time.sleep(0.05)
+        assert has_job(watch, 2) and set_velo(watch, 2) > 10.0  # moving while held
+        last = time.monotonic()  # heartbeats stop, the socket stays open (a stalled page, a cut network)
+        wait_until(lambda: not has_job(watch, 2) or set_velo(watch, 2) < 49.0, 5, "the door halting the jog",
+                   interval=0.005)
+        stopped_after = time.monotonic() - last
+        print(f"halt seen {stopped_after * 1000:.0f} ms after the last heartbeat (hold timeout 150 ms)")
+        assert stopped_after < 2.0  # generous on a loaded machine; bench/web_latency.py measures it
+        wait_until(lambda: not has_job(watch, 2), 10, "axis 2 standing still")
+        # held again, then the page goes away: the jog stops at once, not at its timeout
+        for _ in range(10):
+            ws.send(jog)
+            time.sleep(0.05)
+        wait_until(lambda: has_job(watch, 2), 5, "the second jog")
+    wait_until(lambda: not has_job(watch, 2), 5, "the jog halted when the socket closed")
+    # (a fresh login of the same user: this one may have ended already, its page closed for --session-idle)
+    assert post(web.url, login(web.url, "alice", "alice-pw"), "nc1", 2, "Power", Enable=False)[0] == 200
+    wait_until(lambda: 2 not in claims(watch), 20, "axis 2 released after Power(FALSE)")
+
+
+def test_logout_releases_the_claims_and_ends_the_login(web: NcWebProcess, watch: NcTestClient) -> None:
+    cookie = login(web.url, "alice", "alice-pw")
+    power(web, cookie, 1, watch, "web.alice")
+    status, headers, _ = http(f"{web.url}/logout", "POST", b"", cookie)
+    assert status == 303 and headers["location"] == "/login"
+    wait_until(lambda: 1 not in claims(watch), 20, "axis 1 released by the logout")
+    assert post(web.url, cookie, "nc1", 1, "Reset")[0] == 401  # the old cookie is dead
+    assert post(web.url, login(web.url, "alice", "alice-pw"), "nc1", 1, "Reset")[0] == 200
+
+
+def test_a_vanished_login_releases_its_claims(web: NcWebProcess, watch: NcTestClient) -> None:
+    """nc-web runs with --session-idle 3: a login without an open page for 3 s ends."""
+    cookie = login(web.url, "alice", "alice-pw")
+    with websocket(web.url, cookie) as ws:
+        power(web, cookie, 4, watch, "web.alice")
+        ws.recv(30)
+        time.sleep(4.0)  # the page is open: the login stays (the condition below must not have happened)
+        assert claims(watch).get(4) == "web.alice"
+    wait_until(lambda: 4 not in claims(watch), 30, "axis 4 released after the page went away")
+    assert post(web.url, cookie, "nc1", 4, "Reset")[0] == 401
