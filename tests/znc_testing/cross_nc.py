@@ -138,8 +138,10 @@ class Pair:
         self.nc2: NcServerProcess | None = None
         self.clients: list[NcTestClient] = []
         try:
-            self.nc1 = start_nc_server(tmp_path / "nc1", NC1, name="nc1")
-            self.nc2 = start_nc_server(tmp_path / "nc2", NC2.format(port=self.nc1.port, max_age=max_age), name="nc2")
+            # (generous: on the loaded shared machine a start took 20-60 s, nc2 connecting to nc1 the longer)
+            self.nc1 = start_nc_server(tmp_path / "nc1", NC1, name="nc1", ready_timeout=180)
+            self.nc2 = start_nc_server(tmp_path / "nc2", NC2.format(port=self.nc1.port, max_age=max_age), name="nc2",
+                                       ready_timeout=180)
             self.c1 = NcTestClient(self.nc1.port, client_id="m1", nc="nc1", lease_ms=5000)
             self.clients.append(self.c1)
             self.c2 = NcTestClient(self.nc2.port, client_id="s1", nc="nc2", lease_ms=5000)
