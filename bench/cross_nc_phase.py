@@ -51,11 +51,15 @@ def main(argv: list[str] | None = None) -> int:
                 return 1
             wait_until(lambda: (r := p.c2.nctoplc(1)) is not None
                        and int(r["AxisState"]) == int(AxisState.SLAVE_SYNCHRON), 60, "slave SYNCHRON")
+            p.c1.watch("nc/nc1/stats")
+            p.c2.watch("nc/nc2/stats")
             p.r1.clear()
             p.r2.clear()
             moves(p, tuple(40.0 if k % 2 == 0 else 0.0 for k in range(args.moves)))
             m, s, loc = p.r1.array(1), p.r2.array(1), p.r1.array(2)
+            wait_until(lambda: p.c1.stats() is not None and p.c2.stats() is not None, 30, "both NCs' stats")
             stats = p.c1.stats() or {}
+            stats2 = p.c2.stats() or {}
         finally:
             p.close()
     s = s[(s[:, 6] == int(AxisState.SLAVE_SYNCHRON)) & (s[:, 1] > m[0, 1] + 20e6) & (s[:, 1] < m[-1, 1])]
@@ -69,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     lm, ll = m[np.isin(m[:, 0], both)], loc[np.isin(loc[:, 0], both)]
     local_err = np.abs(ll[:, 2] - ll[0, 2] - RATIO * (lm[:, 2] - lm[0, 2])) if len(both) else np.zeros(0)
     print(f"cross-NC coupling, {len(e)} slave cycles while the master moved (nc1 frames recorded {len(m)}, "
-          f"nc1 missed cycles {stats.get('missed_cycles', '-')})")
+          f"missed cycles nc1 {stats.get('missed_cycles', '-')}, nc2 {stats2.get('missed_cycles', '-')})")
     print(f"  |phase error| [u]: p50 {pct(e, 50):.3g}  p90 {pct(e, 90):.3g}  p99 {pct(e, 99):.3g}  max {e.max(initial=0):.3g}")
     print(f"  bound |r| J tau^3/6 [u]: p50 {pct(b, 50):.3g}  p99 {pct(b, 99):.3g};  tau [us]: p50 {pct(tau, 50):.0f}  "
           f"p99 {pct(tau, 99):.0f}  max {tau.max(initial=0):.0f}")
