@@ -178,7 +178,8 @@ def gear_in(p: Pair, **args: Any) -> dict[str, Any]:
 
     def attempt() -> bool:
         out.clear()
-        out.update(p.c2.request("GearIn", 1, Master=1, MasterNc="nc1", RatioNumerator=1, RatioDenominator=2, **args))
+        out.update(p.c2.request("GearIn", 1, timeout=30.0, Master=1, MasterNc="nc1", RatioNumerator=1,
+                                RatioDenominator=2, **args))
         return not (out["error"] == E.NC_AXIS_ID_NOT_ALLOWED and "no sample" in out.get("text", ""))
 
     wait_until(attempt, 60, "nc2 receives nc1's samples")
@@ -188,7 +189,7 @@ def gear_in(p: Pair, **args: Any) -> dict[str, Any]:
 def moves(p: Pair, targets: tuple[float, ...] = (40.0, 0.0, 40.0)) -> None:
     """nc1's axis 1 moves to each target in turn (M_DYN: jerk-limited), each awaited at rest."""
     for target in targets:
-        rep = p.c1.request("MoveAbsolute", 1, Position=target, **M_DYN)
+        rep = p.c1.request("MoveAbsolute", 1, timeout=30.0, Position=target, **M_DYN)
         assert rep["error"] == 0, rep
         wait_until(lambda t=target: (r := p.c1.nctoplc(1)) is not None and abs(float(r["SetPos"]) - t) < 1e-9
                    and abs(float(r["SetVelo"])) < 1e-12, 60, f"master at {target}")
