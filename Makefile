@@ -47,6 +47,7 @@ NC_CYCLE_ARGS ?= --baseline none --axes 64 256 1024 --loads quiet coupled
 MANY_CLIENTS_ARGS ?= --seconds 20 --fb-trials 60
 # bench/subscribers.py: the NC's and its publisher's CPU with 0, 1, 4 and 16 subscribing plc-run clients.
 SUBSCRIBERS_ARGS ?= --seconds 6 --settle 1
+# bench/cross_nc_phase.py: a coupling across two NCs (~15 s): phase error vs its J tau^3/6 bound and vs no compensation.
 bench: $(STAMP)
 	@rc=0; \
 	$(PY) bench/nc_cycle.py $(NC_CYCLE_ARGS) || rc=1; \
@@ -60,6 +61,7 @@ bench: $(STAMP)
 	$(PY) bench/canopen_cycle.py || rc=1; \
 	$(PY) bench/remote_drives.py || rc=1; \
 	$(PY) bench/opcua_latency.py || rc=1; \
+	$(PY) bench/cross_nc_phase.py || rc=1; \
 	exit $$rc
 
 # Containers (deploy/): images built locally (no registry, cached by content hash), the compose system.

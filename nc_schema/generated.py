@@ -130,6 +130,7 @@ class NcJobsSyncFlags(IntFlag):
     ExtSetPointFollowing = 1 << 1
     GearInDyn = 1 << 2
     Synchronized = 1 << 3
+    RemoteMaster = 1 << 4
 
 
 # ---- enums.json ---------------------------------------------------------------------------------------------------
@@ -549,6 +550,8 @@ class ErrorCodes:
     NC_COMMAND_BUFFER_FULL: Final = 0x4292
     #: Positioning direction inconsistent with the buffered command
     NC_BUFFERED_DIRECTION_INCONSISTENT: Final = 0x4296
+    #: Group/axis consequential error: the master of this slave failed (zenoh-nc: a coupling across NCs whose remote master's set-points stopped arriving, older than [remote] max_age)
+    NC_CONSEQUENTIAL_ERROR: Final = 0x42A0
     #: Axis locked for motion commands because a stop command is still active
     NC_AXIS_LOCKED_BY_STOP: Final = 0x42EF
     #: Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)
@@ -711,6 +714,7 @@ ERRORS: Final[dict[int, tuple[str, str, str]]] = {
     0x4289: ('NC_ILLEGAL_REVERSAL', 'group', 'Illegal motion reversal (command not performed, state kept)'),
     0x4292: ('NC_COMMAND_BUFFER_FULL', 'group', 'Command buffer full'),
     0x4296: ('NC_BUFFERED_DIRECTION_INCONSISTENT', 'group', 'Positioning direction inconsistent with the buffered command'),
+    0x42A0: ('NC_CONSEQUENTIAL_ERROR', 'group', "Group/axis consequential error: the master of this slave failed (zenoh-nc: a coupling across NCs whose remote master's set-points stopped arriving, older than [remote] max_age)"),
     0x42EF: ('NC_AXIS_LOCKED_BY_STOP', 'group', 'Axis locked for motion commands because a stop command is still active'),
     0x430C: ('NC_AXIS_DEAD_TIME_NOT_ALLOWED', 'axis', 'Dead time compensation delay not allowed (AxisDelayTimeVeloPosition)'),
     0x430D: ('NC_AXIS_OVERRIDE_TYPE_NOT_ALLOWED', 'axis', 'Override type not allowed (AxisOverrideType: 1..4)'),

@@ -211,7 +211,9 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         "missed_cycles", "overruns", "work_us_p99", "clients": {id: {"alive", "role"}}, "claims": {axis: id},
         "axes": [{"AxisId", "MotionState", "AxisState", "SetPos", "ActPos", "SetVelo", "ErrorCode",
         "ErrorName", "DriveErrorCode", "Holder", "LastCommand"}], "problems": [str]}``; DriveErrorCode: the drive's own
-        error code (CiA 402 0x603F, stats ``drive_errors``; 0: none or not reported).
+        error code (CiA 402 0x603F, stats ``drive_errors``; 0: none or not reported); ``"remote_couplings"``: per
+        slave of a master on another NC, {"AxisId", "master", "state", "ratio", "age_us", "phase_err",
+        "phase_err_max", "phase_bound", "measured", "within"} (stats ``remote_couplings``).
     """
     problems: list[str] = []
     st = _unpack(stats)
@@ -272,6 +274,7 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
                 drive_errors[axis_key(a)] = c
     elif de is not None:
         problems.append("stats: drive_errors is not a map")
+    remote = _remote_couplings(st.get("remote_couplings") if st is not None else None, problems)
     axes = []
     if frame is not None:
         for r in frame[1]:
@@ -298,8 +301,23 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         "cycle_time": get("cycle_time"), "timing": get("timing"),
         "missed_cycles": get("missed_cycles"), "overruns": get("overruns"), "work_us_p99": get("work_us_p99"),
         "clients": clients, "claims": holders, "claims_source": "claims" if cl is not None else
-        ("stats" if st is not None else None), "axes": axes, "problems": problems,
+        ("stats" if st is not None else None), "axes": axes, "problems": problems, "remote_couplings": remote,
     }
+
+
+def _remote_couplings(rc: Any, problems: list[str]) -> list[dict[str, Any]]:
+    """The stats' ``remote_couplings`` (protocol 4: slaves of masters on other NCs) as a list by slave AxisId."""
+    if rc is None:
+        return []
+    if not isinstance(rc, dict):
+        problems.append("stats: remote_couplings is not a map")
+        return []
+    out = []
+    for a, v in sorted(rc.items(), key=lambda kv: str(kv[0])):
+        if isinstance(v, dict):
+            out.append({"AxisId": axis_key(a), **{k: v.get(k) for k in (
+                "master", "state", "ratio", "age_us", "phase_err", "phase_err_max", "phase_bound", "measured", "within")}})
+    return out
 
 
 # ---- text ----------------------------------------------------------------------------------------
@@ -343,6 +361,12 @@ def render(snap: dict[str, Any]) -> str:
                            f"{err:<30} {a['Holder'] or '-':<12} {lct}")
         else:
             out.append("  (no status frame yet)")
+        for r in v.get("remote_couplings") or []:  # coupling across NCs (docs/coupling-across-ncs.md)
+            n, w = r.get("measured") or 0, r.get("within") or 0
+            out.append(f"  remote coupling: axis {r['AxisId']} <- {r.get('master')} x {_num(r.get('ratio'), 'g')}  "
+                       f"AxisState {_num(r.get('state'), 'd')}  age {_num(r.get('age_us'), 'd')} us  "
+                       f"phase error {_num(r.get('phase_err'), '.3g')} (max {_num(r.get('phase_err_max'), '.3g')}, "
+                       f"bound {_num(r.get('phase_bound'), '.3g')}) u  within the bound {w}/{n}")
         out.append("")
     return "\n".join(out)
 

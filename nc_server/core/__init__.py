@@ -14,6 +14,8 @@ from .jobs import KINDS, Job, JobKind, JobQueue
 from .nc import NcCore
 from .params import ALIASES, AxisConfig, AxisParams, ConfigError, param_name
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_position, plan_velocity
+from .remote import MasterSample
 
 __all__ = ["NcCore", "AxisConfig", "AxisParams", "ConfigError", "ALIASES", "param_name", "KINDS", "Job", "JobKind",
-           "JobQueue", "Dynamics", "Plan", "PlanningError", "StartState", "plan_position", "plan_velocity"]
+           "JobQueue", "Dynamics", "Plan", "PlanningError", "StartState", "plan_position", "plan_velocity",
+           "MasterSample"]

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence, cast
+from typing import Any, Callable, Iterable, Mapping, Sequence, cast
 
 import numpy as np
 
@@ -54,6 +54,7 @@ from .packing import JobRecords, NctoplcPacker
 from .pipeline import Pipeline, Stage, default_pipeline, run_pipeline
 from .params import AxisConfig, AxisParams, ConfigError, param_entry
 from .planning import Dynamics, Plan, PlanningError, StartState, plan_velocity
+from .remote import MasterSample, RemoteMasters
 from .profile import evaluate
 from .stages import CouplingStage, ExternalStage, ProbeStage, ProfileStage, SuperpositionStage
 
@@ -239,6 +240,20 @@ class NcCore:
             self.plctonc[index] = record
             self._in_dirty = True
 
+    def configure_remote(self, own_nc: str, masters: Sequence[tuple[str, int]], max_age: float = 0.05) -> None:
+        """The masters on other NCs this NC's slaves may follow (``[remote] masters``), this NC's name (refused as
+        a MasterNc) and the largest age [s] of a master's newest sample a slave still follows (configuration; a
+        coupled slave's master stays where it is)."""
+        if not 0 < max_age <= 10.0:
+            raise ConfigError("remote.max_age", f"must be in (0, 10] s, got {max_age}")
+        self.coupling.sources = RemoteMasters(own_nc, masters, int(round(max_age * 1e9)))
+
+    def set_remote_samples(self, samples: Iterable[MasterSample]) -> None:
+        """The remote masters' samples that arrived since the last step (coupling across NCs): the cycle's one
+        input from other NCs, used from the next step; samples of masters not configured, older than the newest
+        one or not finite are ignored (counted in ``coupling.sources.ignored``)."""
+        self.coupling.sources.feed(samples)
+
     def inputs_changed(self) -> None:
         """The applied PLCTONC changed (e.g. SetOverride): decoded again at the next step."""
         self._in_dirty = True
@@ -327,7 +342,7 @@ class NcCore:
         job, plan = got
         rows: tuple[tuple[int, int], ...] = ((i, self.row_version[i]),)
         master = job.data.get("master")
-        if master is not None and int(master) != i:
+        if master is not None and 0 <= int(master) != i:  # (-1: a master on another NC, no row here)
             rows += ((int(master), self.row_version[int(master)]),)
         # (begin numbers it so: the queue is verified unchanged when it is activated)
         cmd_no = job.cmd_no if (job.numbered or job.kind.internal) else next_cmdno(self.queues[i].newest)
@@ -497,7 +512,7 @@ class NcCore:
         superposition or the external set-point generator."""
         a = self.axes
         return bool(a.has_job[i] or a.traj_on[i] or abs(a.set_velo[i]) > _EPS_V or self.queues[i].active is not None
-                    or self.coupling.master[i] >= 0 or self.superposition.on[i] or self.external.on[i])
+                    or self.coupling.slave[i] or self.superposition.on[i] or self.external.on[i])
 
     def _check_running(self, i: int, new: AxisParams) -> None:
         """Refuse parameters the running motion would violate (:func:`.checks.check_running`)."""
@@ -952,7 +967,7 @@ class NcCore:
         self.monitor_watch = (a.lag_en & enabled, standstill, bool(np.count_nonzero(a.en_max) or np.count_nonzero(a.en_min)),
                        bool(np.count_nonzero(standstill)))
         cpl, sup, ext, pr = self.coupling, self.superposition, self.external, self.probe
-        slaves = cpl.master >= 0
+        slaves = cpl.slave
         staged = slaves | ext.on | sup.on  # rows a set-point stage writes every cycle
         if not self.all_on:  # axes without a profile: AxisState INACTIVE, NotMoving unless a set velocity remains
             idle = ~(a.traj_on | staged)

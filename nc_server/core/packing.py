@@ -28,15 +28,18 @@ NCJOBS_QUEUE = flat_struct(NCJOBS_DTYPE, stop="MasterId")
 #: its slots part: MasterId, SyncFlags, GearRatio, SuperCmdNo, SuperState, SuperErrorId, SuperDistance,
 #: SuperVelocityDiff, SuperLength, ProbeCmdNo, ProbeState, ProbeCounter, RecordedPosition, RecordedTimeNs,
 #: ProbeErrorId, DriveStatus
-NCJOBS_SLOTS = flat_struct(NCJOBS_DTYPE, start="MasterId")
+NCJOBS_SLOTS = flat_struct(NCJOBS_DTYPE, start="MasterId", stop="PhaseError")
+#: the phase part (coupling across NCs): PhaseError, PhaseErrorMax, PhaseBound, MasterAgeUs, written as columns
+#: every cycle by the coupling stage while such a slave runs
+NCJOBS_PHASE = flat_struct(NCJOBS_DTYPE, start="PhaseError")
 NCJOBS_SIZE = NCJOBS_DTYPE.itemsize
 assert NCJOBS_DTYPE["Ended"].shape == (ENDED_KEPT,)
-assert NCJOBS_QUEUE.size + NCJOBS_SLOTS.size == NCJOBS_SIZE and NCJOBS_DTYPE.names == (
+assert NCJOBS_QUEUE.size + NCJOBS_SLOTS.size + NCJOBS_PHASE.size == NCJOBS_SIZE and NCJOBS_DTYPE.names == (
     "AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "BufferedMode", "NewestCmdNo", "Flags", "Ended",
     "MasterId", "SyncFlags", "GearRatio", "SuperCmdNo", "SuperState", "SuperErrorId", "SuperDistance",
     "SuperVelocityDiff", "SuperLength", "ProbeCmdNo", "ProbeState", "ProbeCounter", "RecordedPosition",
-    "RecordedTimeNs", "ProbeErrorId", "DriveStatus")
-SYNC_EXT_ENABLED, SYNC_EXT_FOLLOWING, SYNC_DYN, SYNC_SYNCHRON = 1, 2, 4, 8
+    "RecordedTimeNs", "ProbeErrorId", "DriveStatus", "PhaseError", "PhaseErrorMax", "PhaseBound", "MasterAgeUs", "_reserved3")
+SYNC_EXT_ENABLED, SYNC_EXT_FOLLOWING, SYNC_DYN, SYNC_SYNCHRON, SYNC_REMOTE = 1, 2, 4, 8, 16
 _NO_ENDED = [0, 0, 0] * ENDED_KEPT
 
 
@@ -63,11 +66,15 @@ class JobRecords:
     def pack_slots(self, i: int, c: CouplingStage, sp: SuperpositionStage, pr: ProbeStage, ex: ExternalStage) -> None:
         """Row ``i``'s coupling, superposition, touch probe and drive status part."""
         m = int(c.master[i])
+        k = int(c.remote[i])
+        slave = m >= 0 or k >= 0
+        master_id = self._ids[m] if m >= 0 else c.remote_master_id(k) if k >= 0 else 0
         flags = ((SYNC_EXT_ENABLED if ex.on[i] else 0) | (SYNC_EXT_FOLLOWING if ex.following[i] else 0)
-                 | (SYNC_DYN if c.dyn[i] else 0) | (SYNC_SYNCHRON if m >= 0 and c.state[i] == 13 else 0))
+                 | (SYNC_DYN if c.dyn[i] else 0) | (SYNC_SYNCHRON if slave and c.state[i] == 13 else 0)
+                 | (SYNC_REMOTE if k >= 0 else 0))
         o = i * NCJOBS_SIZE + NCJOBS_QUEUE.size
         self._bytes[o:o + NCJOBS_SLOTS.size] = NCJOBS_SLOTS.pack(
-            self._ids[m] if m >= 0 else 0, flags, float(c.ratio[i]) if m >= 0 else 0.0,
+            master_id, flags, float(c.ratio[i]) if slave else 0.0,
             int(sp.cmd_no[i]), int(sp.state[i]), int(sp.error[i]), *(float(x) for x in sp.actual[:, i]),
             int(pr.cmd_no[i]), int(pr.state[i]), int(pr.counter[i]), float(pr.recorded[i]), int(pr.recorded_ns[i]), int(pr.error[i]),
             int(self.drive_status[i]))

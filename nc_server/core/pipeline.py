@@ -114,7 +114,7 @@ class SetPoints(_Stage):
             over += ext.run(core)
         if sup.active:
             sup.evaluate()
-            sup.apply(core, sup.rows[cpl.master[sup.rows] < 0])  # (the slaves' after their coupling)
+            sup.apply(core, sup.rows[~cpl.slave[sup.rows]])  # (the slaves' after their coupling)
         if cpl.active:
             over += cpl.run(core, sup.apply if sup.active else None)  # (no closure built every cycle)
         if sup.active:
@@ -129,7 +129,7 @@ class SetPoints(_Stage):
 
     def rows_at_fault(self, core: NcCore) -> np.ndarray | None:
         cpl, sup, ext = core.coupling, core.superposition, core.external
-        return ((cpl.master >= 0) | ext.on | sup.on).nonzero()[0]
+        return (cpl.slave | ext.on | sup.on).nonzero()[0]
 
 
 class Jobs(_Stage):
@@ -289,7 +289,7 @@ def stage_soft_limits(core: NcCore) -> list[tuple[int, int]]:
         job = core.queues[i].running_numbered
         if job is not None and job.target is not None and not job.continuous:
             sup[i] = False  # (positioning + offset: checked against the limits when commanded)
-    rows = np.flatnonzero((core.coupling.master >= 0) | sup)  # (external rows: ExternalStage.run)
+    rows = np.flatnonzero(core.coupling.slave | sup)  # (external rows: ExternalStage.run)
     rows = rows[a.en_max[rows] | a.en_min[rows]]
     if not rows.size:
         return []

@@ -17,6 +17,8 @@ subject exactly the key expressions of its identity (docs/roles.md has the table
 * an NC server ``[nc.<name>]`` may declare its queryable, publish, subscribe and declare liveliness
   (``nc/<name>/alive``, ``nc/<name>/alive/<instance>``) only below its own prefix ``nc/<name>/**``, and is
   sent the queries and PLCTONC for it;
+* an NC with ``masters = ["nc1"]`` (coupling across NCs) may also subscribe to and receive the per-axis
+  samples ``nc/nc1/axis/*/nctoplc`` of those NCs, nothing else of theirs;
 * a router ``[router.<id>]`` (another router connecting to this one) may forward everything below ``nc/**``;
 * a drive host ``[drive.<host>]`` (``nc-drive-sim --host <host>``) of NC ``<nc>`` subscribes to its outputs
   ``nc/<nc>/drive/<host>/rx``, puts its inputs ``.../tx`` and its ``.../status`` and declares its token
@@ -135,6 +137,11 @@ def access_control(roles: Roles) -> dict[str, Any]:
         # its declared publishers (frame, stats, per axis) drop puts unless they see the subscribers
         ids = [f"nc:{nc}:in", f"nc:{nc}:out",
                share(_rule("see:subscribers", "egress", ["declare_subscriber"], ["nc/**"]))]
+        masters = [f"nc/{m}/axis/*/nctoplc" for m in roles.nc_masters.get(nc, ())]
+        if masters:  # coupling across NCs: the masters' per-axis samples
+            rules.append(_rule(f"nc:{nc}:masters-subscribe", "ingress", ["declare_subscriber"], masters))
+            rules.append(_rule(f"nc:{nc}:masters-receive", "egress", ["put"], masters))
+            ids += [f"nc:{nc}:masters-subscribe", f"nc:{nc}:masters-receive"]
         subject("nc", nc, ids)
     for router in roles.routers:
         ids = [share(_rule("router:in", "ingress", _ALL_MESSAGES, ["nc/**"])),

@@ -69,6 +69,8 @@ class Roles:
         routers: routers that may connect to this one (certificate CNs).
         drives: drive host (certificate CN, ``nc-drive-sim --host``) -> the NC whose drives it hosts.
         source: where it was read from.
+        nc_masters: NC -> the other NCs whose per-axis samples it may read (``[nc.nc2] masters = ["nc1"]``: its
+            slaves couple to axes of nc1, docs/coupling-across-ncs.md).
     """
 
     clients: Mapping[str, str] = field(default_factory=dict)
@@ -77,6 +79,7 @@ class Roles:
     drives: Mapping[str, str] = field(default_factory=dict)
     source: str = "<roles>"
     doors: tuple[str, ...] = ()
+    nc_masters: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
 
     def role_of(self, client: str) -> str | None:
         """The client's role (a door's user ``<door>.<user>``: the door's), None if it is not listed."""
@@ -176,12 +179,26 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
         clients[ident] = role
     ncs: list[str] = []
     routers: list[str] = []
+    nc_masters: dict[str, tuple[str, ...]] = {}
     for section, out in (("nc", ncs), ("router", routers)):
         for ident, t in _table(data.get(section, {}), source, section).items():
             take(section, ident)
-            t = _table(t, source, f"{section}.{ident}")
+            t = dict(_table(t, source, f"{section}.{ident}"))
+            if section == "nc" and "masters" in t:  # coupling across NCs: whose samples it reads
+                m = t.pop("masters")
+                if not isinstance(m, list) or not all(isinstance(x, str) for x in m):
+                    raise RolesError(source, f"nc.{ident}.masters", "must be a list of NC names")
+                for x in m:
+                    try:
+                        Keys(x)
+                    except ValueError as exc:
+                        raise RolesError(source, f"nc.{ident}.masters", str(exc)) from None
+                    if x == ident:
+                        raise RolesError(source, f"nc.{ident}.masters", "an NC reads its own axes without it")
+                nc_masters[ident] = tuple(m)
             if t:
-                raise RolesError(source, f"{section}.{ident}.{next(iter(t))}", "unknown key (the table takes none)")
+                allowed = "allowed: masters" if section == "nc" else "the table takes none"
+                raise RolesError(source, f"{section}.{ident}.{next(iter(t))}", f"unknown key ({allowed})")
             out.append(ident)
     drives: dict[str, str] = {}
     for ident, t in _table(data.get("drive", {}), source, "drive").items():
@@ -209,7 +226,7 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
                                       "could act as it; narrow a door's user in the door's users file, or choose "
                                       "an id outside the door's")
     return Roles(clients=clients, ncs=tuple(ncs), routers=tuple(routers), drives=drives, source=source,
-                 doors=tuple(doors))
+                 doors=tuple(doors), nc_masters=nc_masters)
 
 
 def load_roles(path: str | Path) -> Roles:

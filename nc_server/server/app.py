@@ -260,6 +260,8 @@ class NcServer:
             self.transport.internal, self._internal_socket = internal_endpoint()
         try:
             self.transport.open(cancel)
+            if self.config.remote_masters:  # coupling across NCs: their samples from the start
+                self.transport.declare_remote_masters(list(self.config.remote_masters))
         except BaseException:
             self._abort_start()
             raise
@@ -425,6 +427,8 @@ class NcServer:
         # PLCTONC (the newest frame of each client, applied to the axes it holds), then the
         # watchdog (lost clients, stale PLCTONC): the same code the in-process port runs.
         self.inputs.apply(t.pop_plc_frames(), now)
+        if t.remote_subs:  # the remote masters' samples (coupling across NCs): the core's one input from other NCs
+            core.set_remote_samples(t.pop_master_samples())
 
         if self._shutdown.is_set():
             self._stop_moving_axes()
@@ -784,6 +788,7 @@ class NcServer:
                   **self._wait_percentiles(),
                   "drive_errors": self._drive_errors(),
                   "drive_input_age": self._drive_input_age(),
+                  "remote_couplings": self.core.coupling.remote_stats(self.core.axis_ids),
                   "stages": self.core.stage_times()})
         return d
 

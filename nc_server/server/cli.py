@@ -125,6 +125,7 @@ def _run(cfg: object) -> int:
         return 1
     try:
         core = NcCore(list(cfg.axes), cycle_time=cfg.cycle_time, drive=drive)
+        core.configure_remote(cfg.name, cfg.remote_masters, cfg.remote_max_age)
     except ConfigError as exc:
         drive.close()
         print(f"nc-server: configuration error: {exc}", file=sys.stderr, flush=True)

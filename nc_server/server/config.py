@@ -125,6 +125,11 @@ class ServerConfig:
         publisher: where the frames are put on zenoh: ``"process"`` (default: a child process with its
             own interpreter, so its puts never hold the cycle thread's GIL) or ``"thread"``
             (:mod:`nc_server.server.publisher`).
+        remote_masters: ``[remote] masters``: the axes of other NCs this NC's slaves may couple to, as
+            (nc, AxisId) (``["nc1/1", "nc1/2"]``): the NC subscribes to their per-axis samples from the start
+            (docs/coupling-across-ncs.md).
+        remote_max_age: ``[remote] max_age`` [s]: a slave of a remote master whose newest sample is older
+            stops with 0x42A0; a master silent that long is refused at MC_GearIn (0x4012).
     """
 
     name: str = "nc1"
@@ -142,6 +147,8 @@ class ServerConfig:
     cpu_affinity: tuple[int, ...] = ()
     axis_drives: tuple[tuple[str, dict[str, Any]], ...] = ()
     drive_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    remote_masters: tuple[tuple[str, int], ...] = ()
+    remote_max_age: float = 0.05
 
 
 def _cpus(v: Any, key: str) -> tuple[int, ...]:
@@ -324,8 +331,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         ConfigError: the first problem found, with its key.
     """
     for k in data:
-        if k not in ("nc", "zenoh", "axis", "drives"):
-            raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis, drives)")
+        if k not in ("nc", "zenoh", "axis", "drives", "remote"):
+            raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis, drives, remote)")
     nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive",
                             "retain_file", "publisher", "cpu_affinity"})
     zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease", "roles", "tls_dir"})
@@ -377,11 +384,38 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
             raise ConfigError("zenoh.roles", f"{roles.source}: NC {name!r} is not listed (add [nc.{name}])")
     axes, reactions, axis_drives = _axes(data, drive, known)
     drive_options = _drive_sections(data, known)
+    remote_masters, remote_max_age = _remote(data, name)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
                         zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
                         loss_reactions=reactions, publisher=publisher, cpu_affinity=cpu_affinity,
-                        axis_drives=axis_drives, drive_options=drive_options)
+                        axis_drives=axis_drives, drive_options=drive_options, remote_masters=remote_masters,
+                        remote_max_age=remote_max_age)
+
+
+def _remote(data: Mapping[str, Any], own: str) -> tuple[tuple[tuple[str, int], ...], float]:
+    """``[remote]``: masters (``"<nc>/<AxisId>"`` of other NCs) and max_age [s]."""
+    rm = _table(data, "remote", {"masters", "max_age"})
+    max_age = _number(rm.get("max_age", 0.05), "remote.max_age", 0.001, 10.0)
+    masters = rm.get("masters", [])
+    if not isinstance(masters, list):
+        raise ConfigError("remote.masters", f'must be a list of "<nc>/<AxisId>", got {masters!r}')
+    out: list[tuple[str, int]] = []
+    for m in masters:
+        nc, _, ax = m.rpartition("/") if isinstance(m, str) else ("", "", "")
+        try:
+            Keys(nc)
+            axis = int(ax)
+            if not (ax.isdigit() and 0 < axis < 2**32):
+                raise ValueError(ax)
+        except ValueError:
+            raise ConfigError("remote.masters", f'{m!r} is not "<nc>/<AxisId>" (e.g. "nc1/1")') from None
+        if nc == own:
+            raise ConfigError("remote.masters", f"{m!r} is an axis of this NC ({own!r}): couple to it without MasterNc")
+        if (nc, axis) in out:
+            raise ConfigError("remote.masters", f"{m!r} is listed twice")
+        out.append((nc, axis))
+    return tuple(out), max_age
 
 
 def _drive_sections(data: Mapping[str, Any], known: Sequence[str]) -> dict[str, dict[str, Any]]:

@@ -41,12 +41,15 @@ import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
-    PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame,
+    NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame,
+    decode_stamp,
     new_instance_id, pack,
 )
 from nc_schema.zenoh_config import CONNECT_RETRY
 
 from nc_schema.tls import apply_tls
+
+from nc_server.core.remote import MasterSample
 
 from .config import ZenohSettings
 from .cycle import demote_other_threads, set_realtime
@@ -185,6 +188,28 @@ def decode_plctonc(payload: bytes | bytearray | memoryview, arrival: float, max_
     return PlcFrame(arrival, ids, plctonc)
 
 
+#: one remote master's samples kept between two cycles (the newest; more only after a stall)
+REMOTE_CHANNEL = 64
+_NCTOPLC_FIELDS = NCTOPLC_DTYPE.fields
+assert _NCTOPLC_FIELDS is not None
+
+
+def decode_master_sample(nc: str, axis: int, payload: bytes, attachment: bytes | None) -> MasterSample:
+    """A remote master's per-axis sample: its NCTOPLC (256 B) and STAMP attachment (Cycle, NcTimeNs).
+
+    Raises:
+        ValueError: wrong sizes, no STAMP, or the record of another axis.
+    """
+    if len(payload) != NCTOPLC_DTYPE.itemsize or attachment is None:
+        raise ValueError("not an NCTOPLC sample with its STAMP")
+    cycle, nc_time_ns = decode_stamp(attachment)
+    r = np.frombuffer(payload, dtype=NCTOPLC_DTYPE, count=1)[0]
+    if int(r["AxisId"]) != axis:
+        raise ValueError(f"the record of axis {int(r['AxisId'])} on the key of axis {axis}")
+    return MasterSample(nc, axis, int(cycle), int(nc_time_ns), float(r["SetPos"]), float(r["SetVelo"]),
+                        float(r["SetAcc"]), float(r["SetJerk"]), int(r["CoupleState"]))
+
+
 def liveliness_client(keys: Keys, key: str) -> str | None:
     """The client id of a client liveliness key ``nc/<nc>/client/<client>``; None for any other
     key or an invalid id (such a token is ignored: no valid request can name that client)."""
@@ -236,6 +261,8 @@ class Transport:
         self.plc_frames = 0
         self.plc_malformed = 0
         self.plc_ignored = 0  # frames from clients that hold no axis
+        self.remote_subs: list[tuple[str, int, Any]] = []  # (nc, AxisId, subscriber) of the remote masters
+        self.remote_malformed = 0
         self._max_plc_frame = PLC_FRAME_HEADER_DTYPE.itemsize + len(self.axis_ids) * PLC_AXIS_RECORD_DTYPE.itemsize
         self.session: zenoh.Session | None = None
         #: an extra listen endpoint for the NC's frame publisher (set before open(); None: none)
@@ -305,6 +332,8 @@ class Transport:
         items = [getattr(self, "token", None), getattr(self, "instance_token", None), *self._decl, getattr(self, "plc_sub", None),
                  getattr(self, "liveliness_sub", None), getattr(self, "queryable", None)]
         items += [getattr(self, "stats_pub", None), getattr(self, "claims_pub", None)]
+        items += [sub for _, _, sub in self.remote_subs]
+        self.remote_subs = []
         for d in items:
             if d is None:
                 continue
@@ -432,6 +461,34 @@ class Transport:
             return
         self.plc_frames += 1
         self.plc_inbox[client] = frame  # newest wins
+
+    # ---- remote masters (coupling across NCs): channels drained by the cycle thread ----------------
+    def declare_remote_masters(self, masters: list[tuple[str, int]]) -> None:
+        """Subscribe to the per-axis samples (``nc/<nc>/axis/<axis>/nctoplc``) of the masters on other NCs this
+        NC's slaves may follow (``[remote] masters``; after :meth:`open`)."""
+        assert self.session is not None
+        for nc, axis in masters:
+            sub = self.session.declare_subscriber(Keys(nc).axis_nctoplc(axis), RingChannel(REMOTE_CHANNEL))
+            self.remote_subs.append((nc, axis, sub))
+
+    def pop_master_samples(self) -> list[MasterSample]:
+        """The remote masters' samples that arrived since the last call (cycle thread; never blocks). A malformed
+        one is counted (``remote_malformed``) and dropped."""
+        out: list[MasterSample] = []
+        for nc, axis, sub in self.remote_subs:
+            while True:
+                try:
+                    sample = sub.try_recv()
+                except Exception:  # undeclared (closing)
+                    break
+                if sample is None:
+                    break
+                try:
+                    out.append(decode_master_sample(nc, axis, sample.payload.to_bytes(),
+                                                    None if sample.attachment is None else sample.attachment.to_bytes()))
+                except ValueError:
+                    self.remote_malformed += 1
+        return out
 
     def pop_plc_frames(self) -> list[tuple[str, PlcFrame]]:
         """Take the newest frame of each client that sent one since the last call (cycle thread)."""

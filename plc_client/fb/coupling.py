@@ -38,8 +38,10 @@ Input checks, nothing sent on failure: a ratio that is not a number of the manua
 1..65535 - 0 would be a division by zero -, GearRatio a finite number; BOOLs and integral
 floats such as 2.0 are not integers here), or a non-finite Acceleration/Deceleration/Jerk:
 Error 0x4B06. Master or Slave not given, unbound outside a PLC cycle or with stale data: 0x4B0F;
-an axis the frames do not contain: 0x4012; a Master on another NC than the slave: 0x4012 (the
-NC only couples its own axes). The master is checked when the command starts; afterwards only
+an axis the frames do not contain: 0x4012. A Master on another NC than the slave (the task reads both
+NCs): the request carries ``MasterNc`` and the slave's NC follows the master's samples over zenoh
+(coupling across NCs, docs/coupling-across-ncs.md; that NC must list the master in ``[remote] masters``,
+else 0x4012; MC_GearInDyn across NCs: 0x4B06). The master is checked when the command starts; afterwards only
 the slave (the coupling is the slave's job; an NC restart - ``nc_epoch`` - makes it 0x4B0F).
 Everything else (master == slave, a cycle of couplings, a slave already coupled, not at
 standstill, |ratio| > 1e6) is the NC's answer.
@@ -181,8 +183,6 @@ class _GearInBlock(MotionBlock):
             if t is None:
                 return ErrorCodes.MC_NO_NC_CYCLE_UPDATE
             t.register(m)
-        if s is not None and m.nc != s.nc:
-            return ErrorCodes.NC_AXIS_ID_NOT_ALLOWED  # the NC only couples its own axes
         if m.missing:
             return ErrorCodes.NC_AXIS_ID_NOT_ALLOWED
         if not m.Status.Valid:
@@ -202,8 +202,10 @@ class _GearInBlock(MotionBlock):
             self._finish("Error", code)
             return
         self._before_send()
-        assert self.Master is not None
-        self._send(self.CMD, Master=int(self.Master.axis_id), **ratio,
+        assert self.Master is not None and self.Axis is not None
+        # a Master on another NC: a coupling across NCs (the slave's NC follows the master's samples; protocol 4)
+        remote = {"MasterNc": self.Master.nc} if self.Master.nc != self.Axis.nc else {}
+        self._send(self.CMD, Master=int(self.Master.axis_id), **remote, **ratio,
                    **{k: float(getattr(self, k)) for k in _DYN_REALS})
 
     def _before_send(self) -> None:

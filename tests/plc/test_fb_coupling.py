@@ -218,7 +218,7 @@ def test_gear_in_float_main_path(gnc: ScriptNc) -> None:
 
 @pytest.mark.parametrize("which, code", [
     ("no master", ErrorCodes.MC_NO_NC_CYCLE_UPDATE),
-    ("master on another NC", ErrorCodes.NC_AXIS_ID_NOT_ALLOWED),
+    ("master on another NC without frames", ErrorCodes.MC_NO_NC_CYCLE_UPDATE),  # (with frames: MasterNc is sent)
     ("master not in the frames", ErrorCodes.NC_AXIS_ID_NOT_ALLOWED),
     ("no slave", ErrorCodes.MC_NO_NC_CYCLE_UPDATE),
     ("slave on an NC without frames", ErrorCodes.MC_NO_NC_CYCLE_UPDATE),
@@ -229,7 +229,7 @@ def test_gear_in_axis_problems(gnc: ScriptNc, which: str, code: int) -> None:
     slave: Any = gnc.ax
     if which == "no master":
         master = None
-    elif which == "master on another NC":
+    elif which == "master on another NC without frames":
         master = AXIS_REF(nc="nc2", axis_id=2)
     elif which == "master not in the frames":
         master = AXIS_REF(nc="nc1", axis_id=3)

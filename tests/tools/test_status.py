@@ -252,3 +252,23 @@ def test_restarts_count_new_nc_instances_not_a_token_that_comes_back(tmp_path) -
         kill_group(live)
         for h in reversed(procs):
             h.kill()
+
+
+def test_remote_coupling_line_from_the_stats() -> None:
+    """A slave of a master on another NC (stats remote_couplings, protocol 4): its line in the table, offline."""
+    import time as _time
+
+    import msgpack
+
+    from nc_tools.status import _Raw, nc_view, render
+
+    st = {"cycle": 10, "cycle_time": 0.001, "remote_couplings": {1: {
+        "master": "nc1/1", "state": 13, "ratio": 0.5, "age_us": 1830, "phase_err": 1.2e-6, "phase_err_max": 4e-5,
+        "phase_bound": 1.3e-6, "measured": 900, "within": 899, "rms": 1e-6}}}
+    now = _time.monotonic()
+    v = nc_view("nc2", True, None, _Raw(msgpack.packb(st), now), None, now)
+    assert v["remote_couplings"][0]["master"] == "nc1/1" and v["remote_couplings"][0]["AxisId"] == "1"
+    text = render({"time": "t", "ncs": [v]})
+    assert "remote coupling: axis 1 <- nc1/1 x 0.5" in text and "age 1830 us" in text and "899/900" in text
+    bad = nc_view("nc2", True, None, _Raw(msgpack.packb({"remote_couplings": [1]}), now), None, now)
+    assert "stats: remote_couplings is not a map" in bad["problems"]

@@ -61,6 +61,13 @@ class GearInKind(JobKind):
             ratio = float(req["GearRatio"])
             if not (math.isfinite(ratio) and abs(ratio) <= MAX_RATIO):
                 raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, f"GearRatio {ratio}: must be finite, |ratio| <= {MAX_RATIO:g}")
+        master_nc = str(req.get("MasterNc") or "")
+        if master_nc:  # a master on another NC (stages/coupling.py, remote.py)
+            if cmd == "GearInDyn":
+                raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT,
+                              "MC_GearInDyn with a master on another NC is not supported (MC_GearIn / MC_GearInFloat)")
+            k = core.coupling.sources.find(master_nc, int(req["Master"]))
+            return Job(self, dict(req), data={"master": -1, "remote": k, "ratio": ratio, "dyn": False, "rate": 0.0})
         m = core.index(req["Master"])
         if m == i:
             raise NcError(ErrorCodes.MC_PARAMETER_NOT_CORRECT, "an axis cannot be its own master")
@@ -72,11 +79,14 @@ class GearInKind(JobKind):
                 raise NcError(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED, f"Acceleration {acc} must be >= 0")
             # TcMC 3.19: the slave reaches Acceleration from ratio changes at the master's AxisVeloMax
             rate = (acc or float(core.axes.acc[i])) / float(core.axes.vmax[m])
-        return Job(self, dict(req), data={"master": m, "ratio": ratio, "dyn": dyn, "rate": rate})
+        return Job(self, dict(req), data={"master": m, "remote": -1, "ratio": ratio, "dyn": dyn, "rate": rate})
 
     def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan | None:
         a, cpl = core.axes, core.coupling
         m = int(job.data["master"])
+        if int(job.data["remote"]) >= 0:
+            self._check_remote(core, i, job, start)
+            return None
         if cpl.is_slave(i):
             if job.data["dyn"] and int(cpl.master[i]) == m:
                 return None  # MC_GearInDyn again (TcMC 3.19): it takes the coupling over at its ratio
@@ -95,8 +105,28 @@ class GearInKind(JobKind):
                           f"ratio x master velocity = {v:.6g} exceeds the slave's AxisVeloMax {float(a.vmax[i]):g}")
         return None
 
+    def _check_remote(self, core: CoreContext, i: int, job: Job, start: StartState) -> None:
+        """activate's checks for a master on another NC (nothing changes; on_begin couples)."""
+        a, cpl = core.axes, core.coupling
+        k = int(job.data["remote"])
+        if cpl.is_slave(i):
+            raise NcError(ErrorCodes.MC_AXIS_PROTECTED, f"axis {int(a.ids[i])} is already coupled (MC_GearOut first)")
+        t_next = core.nc_time_ns + int(round(core.cycle_time * 1e9))
+        cpl.sources.check_fresh(k, t_next)
+        if a.traj_on[i] or abs(start.v) > _EPS_V or abs(start.a) > 1e-9 or core.superposition.on[i]:
+            raise NcError(ErrorCodes.MC_AXIS_CANNOT_BE_STARTED, "the slave is moving: TcMC couples at standstill only")
+        st = cpl.sources.state(k, t_next)
+        assert st is not None  # (fresh)
+        v = abs(float(job.data["ratio"]) * st[1])
+        if v > float(a.vmax[i]) * (1 + 1e-9):
+            raise NcError(ErrorCodes.NC_VELOCITY_NOT_ALLOWED,
+                          f"ratio x master velocity = {v:.6g} exceeds the slave's AxisVeloMax {float(a.vmax[i]):g}")
+
     def on_begin(self, core: CoreContext, i: int, job: Job) -> None:
         d = job.data
+        if int(d["remote"]) >= 0:
+            core.coupling.couple_remote(core, i, int(d["remote"]), float(d["ratio"]))
+            return
         core.coupling.couple(core, i, int(d["master"]), float(d["ratio"]), bool(d["dyn"]), float(d["rate"]),
                              float(core.plctonc["GearRatio1"][i]))
 

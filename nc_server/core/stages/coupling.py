@@ -18,6 +18,14 @@ MC_GearInDyn: the ratio follows PLCTONC.GearRatio1 of the slave every cycle, cha
 reached when the master is moving at its maximum velocity"). A non-finite GearRatio1 or one
 beyond +/-MAX_RATIO is ignored (the last ratio stays) and counted in ``ignored_ratios``.
 
+A master on another NC (MC_GearIn with MasterNc, :mod:`..remote`): the slave's row has ``remote`` = the
+index of that master in ``sources`` (its ``master`` stays -1). Such slaves are evaluated before the levels,
+from the master's newest sample extrapolated to this cycle's NcTimeNs; their own slaves follow them in the
+levels as usual. A master whose samples stop (older than ``sources.max_age_ns``) faults the slave with
+0x42A0 (it stops on its own ramp from where it was going); the phase error is measured as later samples
+cover each cycle and shown in the job record (PhaseError, PhaseErrorMax, PhaseBound, MasterAgeUs) and the
+stats (:meth:`CouplingStage.remote_stats`).
+
 Which axes are coupled follows the jobs: a slave is coupled exactly while its running job is a
 coupling job (``JobEngine.sync`` releases the row when another job takes over), so every way a
 coupling can end (MC_GearOut, a motion command with AxisAllowMotionCmdToSlave, MC_Stop, an error,
@@ -25,6 +33,7 @@ Enable FALSE) goes through one place.
 """
 from __future__ import annotations
 
+import collections
 import math
 from typing import TYPE_CHECKING, Callable
 
@@ -33,6 +42,7 @@ from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ru
 
 from nc_schema import AxisState, CoupleState, ErrorCodes
 
+from ..remote import HISTORY, RemoteMasters
 from .profile import motion_dwords
 
 if TYPE_CHECKING:
@@ -71,6 +81,18 @@ class CouplingStage:
         self.m_base = np.zeros(n)
         self.m_last = np.zeros(n)  # the master's set position the slave followed last cycle
         self.state = np.zeros(n, dtype=np.uint32)
+        #: coupling across NCs: the master's index in ``sources`` (-1: none); ``slave``: master >= 0 or remote >= 0
+        self.remote = np.full(n, -1, dtype=np.intp)
+        self.slave = np.zeros(n, dtype=bool)
+        self.sources = RemoteMasters()
+        self.remote_rows: list[int] = []
+        #: per remote slave row: (slave NcTimeNs, master position extrapolated, NcTimeNs of the sample used)
+        self.pending: dict[int, collections.deque[tuple[int, float, int]]] = {}
+        self.phase = np.zeros((3, n))  # newest phase error, largest |phase error|, its bound [u]
+        self.age_us = np.zeros(n, dtype=np.int64)
+        self.measured = np.zeros(n, dtype=np.int64)
+        self.within = np.zeros(n, dtype=np.int64)
+        self.sq_sum = np.zeros(n)
         self.live = np.zeros(n, dtype=bool)  # MC_GearInDyn: GearRatio1 is the block's
         self.gr_seen = np.full(n, math.nan)
         self.couple_state = np.zeros(n, dtype=np.uint32)  # NCTOPLC.CoupleState
@@ -90,7 +112,11 @@ class CouplingStage:
         return bool(self.slaves.size)
 
     def is_slave(self, i: int) -> bool:
-        return bool(self.master[i] >= 0)
+        return bool(self.slave[i])
+
+    def remote_master_id(self, k: int) -> int:
+        """The AxisId (on its NC) of remote master ``k``."""
+        return self.sources.sources[k][1]
 
     def closes_cycle(self, slave: int, master: int) -> bool:
         """Coupling ``slave`` to ``master`` would make an axis its own master (directly or through a chain)."""
@@ -127,18 +153,37 @@ class CouplingStage:
         self.rate[i] = rate
         self.live[i] = not dyn
         self.gr_seen[i] = gear_ratio1
-        moving = abs(float(a.set_velo[m])) > _EPS_V or abs(float(a.set_acc[m])) > 1e-9
+        self._start(i, float(a.set_pos[m]), float(a.set_velo[m]), float(a.set_acc[m]), float(a.set_pos[i]))
+
+    def _start(self, i: int, mp: float, mv: float, ma: float, sp: float) -> None:
+        moving = abs(mv) > _EPS_V or abs(ma) > 1e-9
         self.state[i] = SYNCHRONIZING if moving else SYNCHRON
-        self.s_base[i] = float(a.set_pos[i])
-        self.m_base[i] = self.m_last[i] = float(a.set_pos[m])
+        self.s_base[i] = sp
+        self.m_base[i] = self.m_last[i] = mp
         self._rebuild()
+
+    def couple_remote(self, core: CoreContext, i: int, k: int, ratio: float) -> None:
+        """Make row ``i`` a slave of remote master ``k`` (``sources``) at a fixed ratio from this cycle on (the
+        caller checked that it may: slave standing, master fresh)."""
+        st = self.sources.state(k, core.nc_time_ns + int(round(self.dt * 1e9)))
+        assert st is not None  # (checked fresh)
+        self.remote[i] = k
+        self.ratio[i] = self.ratio_cmd[i] = ratio
+        self.dyn[i], self.rate[i], self.live[i] = False, 0.0, True
+        self.pending[i] = collections.deque(maxlen=HISTORY)
+        self.phase[:, i] = 0.0
+        self.age_us[i] = self.measured[i] = self.within[i] = 0
+        self.sq_sum[i] = 0.0
+        self._start(i, st[0], st[1], st[2], float(core.axes.set_pos[i]))
 
     def release(self, i: int) -> None:
         """Row ``i`` is no slave any more; it keeps this cycle's set-point state (the job that took
         over planned from it)."""
-        if self.master[i] < 0:
+        if not self.slave[i]:
             return
         self.master[i] = -1
+        self.remote[i] = -1
+        self.pending.pop(i, None)
         self.ratio[i] = self.ratio_cmd[i] = 0.0
         self.dyn[i] = False
         self.state[i] = 0
@@ -146,7 +191,7 @@ class CouplingStage:
 
     def shift(self, i: int, diff: float) -> None:
         """The NC positions of row ``i`` moved by ``diff`` (MC_SetActualPosition*): no slave may jump."""
-        if self.master[i] >= 0:
+        if self.slave[i]:
             self.s_base[i] += diff
         of = self.master == i
         self.m_base[of] += diff
@@ -161,20 +206,27 @@ class CouplingStage:
     def _rebuild(self) -> None:
         n = self.n
         depth = np.zeros(n, dtype=np.intp)
-        for i in range(n):  # (couplings change on commands only)
-            d, m = 0, int(self.master[i])
-            while m >= 0 and d <= n:
+        for i in range(n):  # (couplings change on commands only; a remote master is one level up)
+            d, r = 0, i
+            while d <= n:
+                m = int(self.master[r])
+                if m < 0:
+                    d += int(self.remote[r] >= 0)
+                    break
                 d += 1
-                m = int(self.master[m])
+                r = m
             depth[i] = d
+        local = self.master >= 0
         self.levels = []
         for d in range(1, int(depth.max(initial=0)) + 1):
-            rows = (depth == d).nonzero()[0]
-            self.levels.append((rows, self.master[rows].copy()))
-        self.slaves = (self.master >= 0).nonzero()[0]
+            rows = ((depth == d) & local).nonzero()[0]
+            if rows.size:
+                self.levels.append((rows, self.master[rows].copy()))
+        self.slave = slave = local | (self.remote >= 0)
+        self.slaves = slave.nonzero()[0]
+        self.remote_rows = (self.remote >= 0).nonzero()[0].tolist()
         is_master = np.zeros(n, dtype=bool)
-        is_master[self.master[self.slaves]] = True
-        slave = self.master >= 0
+        is_master[self.master[local]] = True
         cs = np.full(n, int(CoupleState.SINGLE), dtype=np.uint32)
         cs[is_master] = int(CoupleState.MASTER)
         cs[slave] = int(CoupleState.SLAVE)
@@ -210,6 +262,9 @@ class CouplingStage:
         S = core.axes.S
         levels, s, lim = self._levels(core)
         sv: np.ndarray | None = None  # the slaves' set-points, (4, s.size), if they are still in hand
+        lost: list[tuple[int, int]] = []
+        if self.remote_rows:
+            lost = self._run_remote(core, after_level)
         for rows, masters, r, sb, mb, dyn, syncing, state in levels:
             if not (dyn or syncing):  # (fixed ratios, all locked: one gather and one scatter, the same values)
                 sv = S.take(masters, axis=1)  # (C order: S[:, masters] gives F order, slower to compute on)
@@ -243,7 +298,8 @@ class CouplingStage:
                 S[2, rows] += accel
             if syncing:
                 for col, k in enumerate(sync.tolist()):
-                    self._synchronize(core, int(rows[k]), int(masters[k]), prev[:, col])
+                    m = int(masters[k])
+                    self._synchronize(core, int(rows[k]), float(S[0, m]), float(S[1, m]), float(S[2, m]), prev[:, col])
                 state = self.state[rows]
             core.sp_dw[rows] = motion_dwords(S[1, rows], S[2, rows])
             core.axis_state[rows] = state
@@ -251,16 +307,99 @@ class CouplingStage:
                 after_level(core, rows)
         # beyond AxisVeloMax: the fault ramp then takes the acceleration down with up to 4 x AxisJerk
         # (JobEngine.start_ramp)
-        if sv is not None and len(levels) == 1:  # (one level: its rows are the slaves, in order)
+        if sv is not None and len(levels) == 1 and not self.remote_rows:  # (one level: its rows are the slaves, in order)
             if not np.count_nonzero(np.abs(sv[1:3]) > lim):
                 return []
         v, acc = S[1, s], S[2, s]
         fast = np.abs(v) > lim[0]
         hard = np.abs(acc) > lim[1]
         if np.count_nonzero(fast) or np.count_nonzero(hard):
-            return [(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in s[fast].tolist()] + [
+            return lost + [(int(i), int(ErrorCodes.NC_AXIS_SET_VELOCITY)) for i in s[fast].tolist()] + [
                 (int(i), int(ErrorCodes.NC_ACCELERATION_NOT_ALLOWED)) for i in s[hard & ~fast].tolist()]
-        return []
+        return lost
+
+    def _run_remote(self, core: CoreContext, after_level: Callable[[CoreContext, np.ndarray], None] | None
+                    ) -> list[tuple[int, int]]:
+        """The slaves of remote masters (before the levels: their own slaves read them there). Returns (row,
+        0x42A0) of those whose master's newest sample is older than ``max_age_ns``: they go on from their own
+        set-point state for this cycle and the NC faults them (their own stop ramp)."""
+        a = core.axes
+        S = a.S
+        src = self.sources
+        t = core.nc_time_ns
+        lost: list[tuple[int, int]] = []
+        rows = self.remote_rows
+        dt = self.dt
+        for i in rows:
+            k = int(self.remote[i])
+            st = src.state(k, t)
+            if st is None or st[4] > src.max_age_ns:
+                p, v, acc = float(S[0, i]), float(S[1, i]), float(S[2, i])
+                S[0, i], S[1, i], S[3, i] = p + dt * (v + 0.5 * acc * dt), v + acc * dt, 0.0
+                lost.append((i, int(ErrorCodes.NC_CONSEQUENTIAL_ERROR)))
+                continue
+            mp, mv, ma, mj, age = st
+            self.age_us[i] = age // 1000
+            r = float(self.ratio[i])
+            if self.state[i] == SYNCHRONIZING:
+                self._synchronize(core, i, mp, mv, ma, S[:3, i].copy())
+                self.m_last[i] = mp
+                continue
+            S[0, i] = self.s_base[i] + r * (mp - self.m_base[i])
+            S[1, i], S[2, i], S[3, i] = r * mv, r * ma, r * mj
+            self.m_last[i] = mp
+            self.pending[i].append((t, mp, t - age))
+        rr = np.asarray(rows, dtype=np.intp)
+        core.sp_dw[rr] = motion_dwords(S[1, rr], S[2, rr])
+        core.axis_state[rr] = self.state[rr]
+        self._measure(core, rows)
+        if after_level is not None:
+            after_level(core, rr)
+        return lost
+
+    def _measure(self, core: CoreContext, rows: list[int]) -> None:
+        """The phase error of the cycles the masters' samples now cover (into the job records' phase part)."""
+        src = self.sources
+        jobs = core.ncjobs
+        for i in rows:
+            q = self.pending[i]
+            k = int(self.remote[i])
+            r = abs(float(self.ratio[i]))
+            while q:
+                t_s, p_est, since = q[0]
+                got = src.actual(k, t_s, since)
+                if got is None:
+                    break
+                q.popleft()
+                p_true, jmax = got
+                err = float(self.ratio[i]) * (p_est - p_true)
+                tau = abs(t_s - since) * 1e-9  # (a late slave cycle may have a sample newer than its time)
+                bound = r * jmax * tau ** 3 / 6.0
+                ph = self.phase
+                ph[0, i], ph[2, i] = err, bound
+                ph[1, i] = max(ph[1, i], abs(err))
+                self.measured[i] += 1
+                self.sq_sum[i] += err * err
+                if abs(err) <= bound + 1e-9:
+                    self.within[i] += 1
+            jobs["PhaseError"][i], jobs["PhaseErrorMax"][i], jobs["PhaseBound"][i] = self.phase[:, i]
+            jobs["MasterAgeUs"][i] = min(max(int(self.age_us[i]), 0), 0xFFFFFFFF)
+
+    def remote_stats(self, axis_ids: np.ndarray) -> dict[int, dict[str, object]]:
+        """{AxisId: ...} of the slaves of remote masters (the stats' ``remote_couplings``)."""
+        out: dict[int, dict[str, object]] = {}
+        for i in list(self.remote_rows):
+            k = int(self.remote[i])
+            if k < 0:
+                continue
+            n = int(self.measured[i])
+            out[int(axis_ids[i])] = {
+                "master": self.sources.name(k), "state": int(self.state[i]), "ratio": float(self.ratio[i]),
+                "age_us": int(self.age_us[i]), "phase_err": float(self.phase[0, i]),
+                "phase_err_max": float(self.phase[1, i]), "phase_bound": float(self.phase[2, i]),
+                "measured": n, "within": int(self.within[i]),
+                "rms": math.sqrt(float(self.sq_sum[i]) / n) if n else 0.0}
+        return out
 
     def _dyn_ratios(self, core: CoreContext, rows: np.ndarray, gr: np.ndarray) -> np.ndarray | None:
         """MC_GearInDyn rows of a level: the ratio moves towards PLCTONC.GearRatio1 within its rate;
@@ -300,7 +439,7 @@ class CouplingStage:
         except Exception:  # (ruckig raises on inputs it cannot take)
             return Result.Error
 
-    def _synchronize(self, core: CoreContext, i: int, m: int, prev: np.ndarray) -> None:
+    def _synchronize(self, core: CoreContext, i: int, mp: float, mv: float, ma: float, prev: np.ndarray) -> None:
         """One cycle of a synchronizing slave: towards ratio x the master's velocity and acceleration
         with the slave's own dynamics; locked in position once it got there."""
         a = core.axes
@@ -311,8 +450,8 @@ class CouplingStage:
         inp.current_acceleration = [float(prev[2])]
         acc_lim = float(max(a.acc[i], a.dec[i]))
         vmax = float(a.vmax[i])
-        inp.target_velocity = [max(-vmax, min(vmax, r * float(a.set_velo[m])))]  # (beyond: the limit check faults)
-        inp.target_acceleration = [max(-acc_lim, min(acc_lim, r * float(a.set_acc[m])))]
+        inp.target_velocity = [max(-vmax, min(vmax, r * mv))]  # (beyond: the limit check faults)
+        inp.target_acceleration = [max(-acc_lim, min(acc_lim, r * ma))]
         jerk = float(a.jerk[i])
         inp.max_velocity = [float(a.vmax[i])]
         inp.max_acceleration = [acc_lim]
@@ -333,12 +472,12 @@ class CouplingStage:
         a.set_jerk[i] = (acc - float(prev[2])) / dt
         # locked only where following the master is no step: velocity within a cycle of acceleration,
         # acceleration within a cycle of jerk of ratio x the master's
-        locked = (res == Result.Finished and abs(v - r * float(a.set_velo[m])) <= acc_lim * dt
-                  and abs(acc - r * float(a.set_acc[m])) <= jerk * dt)
+        locked = (res == Result.Finished and abs(v - r * mv) <= acc_lim * dt
+                  and abs(acc - r * ma) <= jerk * dt)
         if locked:
             self.state[i] = SYNCHRON
             self.s_base[i] = p
-            self.m_base[i] = self.m_last[i] = float(a.set_pos[m])
+            self.m_base[i] = self.m_last[i] = mp
             self.changed.append(i)
             self._cache = None
         if not math.isfinite(p):  # never hand a non-finite set-point on
