@@ -14,6 +14,8 @@ only (the ha keys' access rules: docs/standby.md); never unpickle data from anyo
 """
 from __future__ import annotations
 
+import collections
+import copy
 import hashlib
 import io
 import pickle
@@ -29,6 +31,10 @@ DRIVE_STATE = ("act_pos", "act_velo", "act_acc", "ready", "io_valid", "device_er
 DRIVE_CALLS = frozenset(("step", "configure", "reset", "set_torque_offset", "torque_fields", "latch_sync_pulse",
                          "probe_input", "latch_probe", "set_probe_signal", "terminal_status", "set_stall",
                          "set_terminal_error"))
+
+
+#: logs a follower keeps while it waits for a snapshot (a snapshot older than the newest of them is caught up)
+HELD_LOGS = 2048
 
 
 class ReplicationError(Exception):
@@ -201,19 +207,25 @@ class CoreRecorder:
     def __setattr__(self, name: str, value: Any) -> None:
         setattr(self.core, name, value)
 
+    def attach_drive(self, drive: RecordingDrive | None) -> None:
+        """The core's drive changed (a takeover: the real drives, recorded; a demotion: None, nothing recorded)."""
+        self.__dict__["drive"] = drive if drive is not None else RecordingDrive(None)
+
     def execute(self, request: dict[str, Any], axis_id: int | None) -> dict[str, Any]:
-        self.calls.append(("execute", (dict(request), axis_id)))
+        self.calls.append(("execute", (copy.deepcopy(request), axis_id)))
         return dict(self.core.execute(request, axis_id))
 
     def prepare(self, request: dict[str, Any], axis_id: int | None) -> Any:
         mark = len(self.drive.tape)
+        at = len(self.calls)
+        req = copy.deepcopy(request)  # (as it came: the core may add to it)
         got = self.core.prepare(request, axis_id)
         if isinstance(got, dict):  # it ran (or was refused) now: replay it the same way
-            self.calls.append(("prepare", (dict(request), axis_id)))
+            self.calls.insert(at, ("prepare", (req, axis_id)))
         elif len(self.drive.tape) != mark:  # (a preparation reads no drive; never expected)
             raise ReplicationError("a preparation called the drive")
         else:
-            self._prepared[id(got)] = (got, dict(request))
+            self._prepared[id(got)] = (got, req)
         return got
 
     def activate(self, prepared: Any) -> dict[str, Any] | None:
@@ -284,13 +296,15 @@ def replay(core: Any, log: CycleLog) -> None:
     for name, args in log.calls:
         if name == "activate":
             request, i = args
-            got = core.prepare(request, int(core.axis_ids[i]))
+            got = core.prepare(copy.deepcopy(request), int(core.axis_ids[i]))
             if isinstance(got, dict) or core.activate(got) is None:
                 raise ReplicationError(f"cycle {log.cycle}: {request.get('cmd')} did not activate as on the active NC")
         elif name == "set_plctonc_many":
             core.set_plctonc_many(*args)
         elif name == "step":
             core.step(args[0])
+        elif name in ("execute", "prepare"):
+            getattr(core, name)(copy.deepcopy(args[0]), args[1])
         else:
             getattr(core, name)(*args)
     if drive.pending():
@@ -321,7 +335,15 @@ def _memview(a: np.ndarray) -> memoryview:
 
 class _Pickler(pickle.Pickler):
     """Pickles an ndarray view as a view of its (pickled once) base: the core's aliases (columns of one table,
-    the job records' byte view) stay aliases after a snapshot."""
+    the job records' byte view) stay aliases after a snapshot. ``root`` (the core) is pickled as a reference: its
+    state is pickled beside it and loaded into whichever core the follower has (:func:`load_snapshot`)."""
+
+    def __init__(self, file: io.BytesIO, root: Any = None) -> None:
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.root = root
+
+    def persistent_id(self, obj: Any) -> Any:
+        return "core" if self.root is not None and obj is self.root else None
 
     def reducer_override(self, obj: Any) -> Any:
         if isinstance(obj, memoryview) and isinstance(obj.obj, np.ndarray):
@@ -329,21 +351,32 @@ class _Pickler(pickle.Pickler):
         if isinstance(obj, np.ndarray):
             base = _base(obj)
             if base is not None and base.flags.c_contiguous:
-                offset = obj.__array_interface__["data"][0] - base.__array_interface__["data"][0]
+                offset = obj.ctypes.data - base.ctypes.data
                 return _view, (base, offset, obj.shape, obj.strides, obj.dtype)
         return NotImplemented
 
 
-def dumps(obj: Any) -> bytes:
+class _Unpickler(pickle.Unpickler):
+    def __init__(self, file: io.BytesIO, root: Any) -> None:
+        super().__init__(file)
+        self.root = root
+
+    def persistent_load(self, pid: Any) -> Any:
+        if pid != "core":
+            raise pickle.UnpicklingError(f"unknown reference {pid!r}")
+        return self.root
+
+
+def dumps(obj: Any, root: Any = None) -> bytes:
     """Pickle ``obj`` keeping numpy views (see :class:`_Pickler`)."""
     buf = io.BytesIO()
-    _Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
+    _Pickler(buf, root).dump(obj)
     return buf.getvalue()
 
 
-def loads(data: bytes) -> Any:
+def loads(data: bytes, root: Any = None) -> Any:
     """The object of :func:`dumps` (only from the peer NC: it is pickle)."""
-    return pickle.loads(data)
+    return _Unpickler(io.BytesIO(data), root).load()
 
 
 @dataclass(slots=True)
@@ -354,24 +387,41 @@ class HandlerState:
         cache: reply-cache changes in order: ("put", client, id, packed) or ("forget", client).
         claims: the claim table when it changed (None: unchanged).
         seen, last_command: the handler's bookkeeping (None: unchanged).
+        instance: the NC instance id its clients follow (a snapshot's; a standby that takes over keeps it).
     """
 
     cache: list[tuple[Any, ...]] = field(default_factory=list)
     claims: Any = None
     seen: dict[str, int] | None = None
     last_command: dict[int, tuple[str, str, int]] | None = None
+    instance: str = ""
 
 
 def snapshot(core: Any, handler_state: Any = None) -> bytes:
     """A snapshot of ``core`` (unwrapped from its recorder; its drive as a :class:`ReplayDrive`) and the
-    handler's state (any picklable object), to start a follower from."""
+    handler's state (any picklable object), to start a follower from: the core's class, then its state and the
+    handler's (references to the core inside its state are loaded as the core that receives it)."""
     inner = getattr(core, "core", core)
     drive = inner.drive
     inner.drive = ReplayDrive.of(drive)
     try:
-        return dumps((inner, handler_state))
+        return pickle.dumps((type(inner), dumps((dict(inner.__dict__), handler_state), root=inner)),
+                            protocol=pickle.HIGHEST_PROTOCOL)
     finally:
         inner.drive = drive
+
+
+def load_snapshot(data: bytes, into: Any = None) -> tuple[Any, Any]:
+    """(core, handler state) of a :func:`snapshot`; the core's state goes into ``into`` (the same object stays the
+    core: whatever holds it, holds the snapshot's), else into a new core of the snapshot's class."""
+    cls, body = pickle.loads(data)
+    if into is not None and type(into) is not cls:
+        raise ReplicationError(f"a snapshot of a {cls.__name__}, the follower has a {type(into).__name__}")
+    core = into if into is not None else cls.__new__(cls)
+    state, hs = loads(body, root=core)
+    core.__dict__.clear()
+    core.__dict__.update(state)
+    return core, hs
 
 
 class Follower:
@@ -388,7 +438,9 @@ class Follower:
     """
 
     def __init__(self, on_resync: Callable[[str], None] | None = None,
-                 on_handler: Callable[[Any, bytes], None] | None = None) -> None:
+                 on_handler: Callable[[Any, bytes], None] | None = None, core: Any = None) -> None:
+        #: the core snapshots are loaded into (None: a new one at each snapshot)
+        self.into = core
         self.core: Any = None
         self.handler_state: Any = None
         self.on_resync = on_resync or (lambda reason: None)
@@ -399,21 +451,29 @@ class Follower:
         self.lag = 0
         self.epoch = 0
         self.waiting = True  # for a snapshot
+        #: logs that came while waiting for a snapshot, replayed after it (at most HELD_LOGS)
+        self._held: collections.deque[CycleLog] = collections.deque(maxlen=HELD_LOGS)
 
     def load(self, data: bytes) -> None:
         """Start from a snapshot (:func:`snapshot`)."""
-        core, hs = loads(data)
+        core, hs = load_snapshot(data, self.into)
         if not isinstance(core.drive, ReplayDrive):
             raise ReplicationError("a snapshot's drive must be a ReplayDrive")
         self.core, self.handler_state = core, hs
         self.resyncs += 1
         self.waiting = False
+        held = [lg for lg in self._held if lg.cycle > core.cycle]
+        self._held.clear()
+        for lg in held:
+            if not self.apply(lg):
+                break
 
     def apply(self, log: CycleLog) -> bool:
         """Replay one log; False when it was skipped (older than the core, or waiting for a snapshot) or the
         follower fell out of step (:attr:`waiting` then: ``on_resync`` was called)."""
         self.epoch = max(self.epoch, log.epoch)
         if self.waiting or self.core is None:
+            self._held.append(log)  # (the snapshot asked for may be older: these follow it)
             return False
         self.lag = log.cycle - int(self.core.cycle)
         if log.cycle <= self.core.cycle:
@@ -450,6 +510,7 @@ class HandlerRecorder:
         self.handler = handler
         handler.cache.journal = []
         self._versions = (-1, -1, -1)
+        self.instance = ""  # the NC instance id (nc_schema.instance), for snapshots
 
     def _now(self) -> tuple[int, int, int]:
         h = self.handler
@@ -461,7 +522,7 @@ class HandlerRecorder:
         h.cache.journal = []
         self._versions = self._now()
         return HandlerState([("put", c, rid, r) for (c, rid), r in h.cache.items()], h.claims, dict(h.seen),
-                            dict(h.last_command))
+                            dict(h.last_command), self.instance)
 
     def take(self) -> bytes:
         """The changes since the last call, pickled (b"": none)."""
