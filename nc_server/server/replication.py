@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import ctypes
 import hashlib
 import io
 import pickle
@@ -316,17 +317,20 @@ def replay(core: Any, log: CycleLog) -> None:
 
 # ---- snapshots: pickling that keeps numpy views views ----------------------------------------------------------
 
-def _base(a: np.ndarray) -> np.ndarray | None:
-    """The array that owns ``a``'s memory (None: not an ndarray's)."""
+def _owner(a: Any) -> Any:
+    """The object that owns ``a``'s memory (through numpy bases and memoryviews)."""
     b: Any = a
-    while isinstance(b, np.ndarray) and b.base is not None:
-        b = b.base
-    return b if isinstance(b, np.ndarray) and b is not a else None
+    while True:
+        if isinstance(b, memoryview):
+            b = b.obj
+        elif isinstance(b, np.ndarray) and b.base is not None:
+            b = b.base
+        else:
+            return b
 
 
-def _view(base: np.ndarray, offset: int, shape: tuple[int, ...], strides: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
-    return np.ndarray(shape, dtype, buffer=base.data if base.flags.c_contiguous else base, offset=offset,
-                      strides=strides)
+def _view(buf: bytearray, offset: int, shape: tuple[int, ...], strides: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+    return np.ndarray(shape, dtype, buffer=buf, offset=offset, strides=strides)
 
 
 def _memview(a: np.ndarray) -> memoryview:
@@ -334,13 +338,15 @@ def _memview(a: np.ndarray) -> memoryview:
 
 
 class _Pickler(pickle.Pickler):
-    """Pickles an ndarray view as a view of its (pickled once) base: the core's aliases (columns of one table,
-    the job records' byte view) stay aliases after a snapshot. ``root`` (the core) is pickled as a reference: its
-    state is pickled beside it and loaded into whichever core the follower has (:func:`load_snapshot`)."""
+    """Pickles every ndarray as a window on its memory owner's bytes, each owner's bytes once: arrays that share
+    memory (the core's columns of one table, the job records' byte view, views of views) share it after loading,
+    whatever generation of snapshot the core comes from. ``root`` (the core) is pickled as a reference: its state is
+    pickled beside it and loaded into whichever core the follower has (:func:`load_snapshot`)."""
 
     def __init__(self, file: io.BytesIO, root: Any = None) -> None:
         super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
         self.root = root
+        self._buffers: dict[int, tuple[bytearray, int, Any]] = {}  # id(owner) -> (its bytes, address, owner)
 
     def persistent_id(self, obj: Any) -> Any:
         return "core" if self.root is not None and obj is self.root else None
@@ -348,11 +354,20 @@ class _Pickler(pickle.Pickler):
     def reducer_override(self, obj: Any) -> Any:
         if isinstance(obj, memoryview) and isinstance(obj.obj, np.ndarray):
             return _memview, (obj.obj,)
-        if isinstance(obj, np.ndarray):
-            base = _base(obj)
-            if base is not None and base.flags.c_contiguous:
-                offset = obj.ctypes.data - base.ctypes.data
-                return _view, (base, offset, obj.shape, obj.strides, obj.dtype)
+        if isinstance(obj, np.ndarray) and obj.size and not obj.dtype.hasobject:
+            owner = _owner(obj)
+            got = self._buffers.get(id(owner))
+            if got is None:
+                if isinstance(owner, np.ndarray):
+                    if not (owner.flags.c_contiguous or owner.flags.f_contiguous):
+                        return NotImplemented
+                    addr, size = owner.ctypes.data, owner.nbytes
+                elif isinstance(owner, (bytearray, bytes)):
+                    addr, size = np.frombuffer(owner, dtype=np.uint8).ctypes.data, len(owner)
+                else:
+                    return NotImplemented
+                got = self._buffers[id(owner)] = (bytearray(ctypes.string_at(addr, size)), addr, owner)
+            return _view, (got[0], obj.ctypes.data - got[1], obj.shape, obj.strides, obj.dtype)
         return NotImplemented
 
 
@@ -462,9 +477,11 @@ class Follower:
         self.core, self.handler_state = core, hs
         self.resyncs += 1
         self.waiting = False
-        held = [lg for lg in self._held if lg.cycle > core.cycle]
+        held = list(self._held)
         self._held.clear()
         for lg in held:
+            if lg.cycle <= core.cycle:  # (older than the snapshot, or a repeat)
+                continue
             if not self.apply(lg):
                 break
 

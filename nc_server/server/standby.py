@@ -6,7 +6,7 @@ rest of the cycle) and :meth:`HotStandby.after_step` after the active NC's step 
 
 Keys (``nc/<nc>/ha/...``):
 
-* ``log``: the active NC's :class:`~.replication.CycleLog` of every cycle (pickled);
+* ``log``: every cycle, the active NC's :class:`~.replication.CycleLog` of its last LOG_REPEAT cycles (pickled);
 * ``snapshot``: queryable of the active NC: a snapshot to (re)start a follower from;
 * ``active/<node>``: liveliness token of the active NC (its loss is a takeover at once);
 * ``standby/<node>``: liveliness token of a standby in step (the active NC knows a peer can take over);
@@ -19,6 +19,7 @@ higher epoch (in a drive host's inputs, or another NC's log) stops driving and b
 """
 from __future__ import annotations
 
+import collections
 import hashlib
 import logging
 import os
@@ -42,6 +43,8 @@ log = logging.getLogger("nc_server.standby")
 
 #: logs the standby's channel holds (a replay that falls this far behind re-syncs from a snapshot)
 LOG_CHANNEL = 4096
+#: logs in each ``log`` sample (the newest last): a follower misses a log only when this many samples in a row are lost
+LOG_REPEAT = 8
 #: how long a standby waits for a snapshot before asking again [s]
 SNAPSHOT_RETRY_S = 1.0
 #: a standby that never followed anyone takes over only after this long without an active NC [s]
@@ -133,6 +136,7 @@ class HotStandby:
         self._token: Any = None
         self._next_status = 0.0
         self._excused = False  # the last cycle served a snapshot
+        self._recent: collections.deque[bytes] = collections.deque(maxlen=LOG_REPEAT)
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
 
@@ -142,7 +146,7 @@ class HotStandby:
         self._session = s = session
         k = self.keys
         self._log_pub = s.declare_publisher(f"{k}/log", congestion_control=zenoh.CongestionControl.DROP,
-                                            priority=zenoh.Priority.REAL_TIME)
+                                            priority=zenoh.Priority.DATA_HIGH)
         self._log_sub = s.declare_subscriber(f"{k}/log", FifoChannel(LOG_CHANNEL))
         self._status_pub = s.declare_publisher(f"{k}/status/{self.node}")
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
@@ -186,8 +190,9 @@ class HotStandby:
         """The active NC's log of the cycle just stepped; snapshots asked for (after the log: a follower starting
         from it replays the next one)."""
         lg = self.rec.take(self.hrec.take(), self.epoch)
-        try:
-            self._log_pub.put(pickle.dumps(lg, protocol=pickle.HIGHEST_PROTOCOL))
+        self._recent.append(pickle.dumps(lg, protocol=pickle.HIGHEST_PROTOCOL))
+        try:  # (the last LOG_REPEAT logs in each sample: a sample dropped on the way costs no re-sync)
+            self._log_pub.put(pickle.dumps(list(self._recent), protocol=pickle.HIGHEST_PROTOCOL))
             self.logs_out += 1
         except Exception as exc:
             log.debug("log put: %s", exc)
@@ -250,25 +255,37 @@ class HotStandby:
             if s is None:
                 break
             try:
-                lg: CycleLog = pickle.loads(s.payload.to_bytes())
+                batch: list[bytes] = pickle.loads(s.payload.to_bytes())
+                logs: list[CycleLog] = [pickle.loads(b) for b in batch]
             except Exception as exc:
                 log.warning("unusable ha log: %s", exc)
                 continue
+            for lg in logs:
+                if self._take_log(lg, now):
+                    return
+
+    def _take_log(self, lg: CycleLog, now: float) -> bool:
+        """One log of a sample; True: this NC stopped being active (the rest of the sample is not its)."""
+        if True:
             if lg.epoch > self.highest:
                 self.highest = lg.epoch
             if self.role == "active":
                 if lg.epoch > self.epoch:
                     self._become_standby(now, f"an NC of epoch {lg.epoch} is active")
-                else:
-                    continue  # (its own, or an older NC's: ignored)
+                    return True
+                return False  # (its own, or an older NC's: ignored)
             if lg.epoch < self.highest:
                 self.stale_logs += 1
-                continue
+                return False
+            core = self.follower.core
+            if core is not None and not self.follower.waiting and lg.cycle <= core.cycle:
+                return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
             self.logs_in += 1
             self._last_log = now
             if self.follower.apply(lg):
                 self.synced_once = True
                 self._declare_standby(True)
+        return False
 
     def _ask_snapshot(self, now: float) -> None:
         if self._session is None:

@@ -159,10 +159,9 @@ def start_move(a: NcServerProcess, b: NcServerProcess, sim: DriveSim, port: int,
         NcTestClient, Trace, dict[str, Any], dict[str, Any]]:
     cl = NcTestClient(port, client_id="plc1")
     tr = Trace(port)
-    wait_until(lambda: (s := ha_status(cl, "b")) is not None and s["in_step"] and s["role"] == "standby", T,
-               f"node b in step as the standby; b's stderr:\n{b.stderr()}")
-    wait_until(lambda: (s := ha_status(cl, "a")) is not None and s["role"] == "active", T,
-               f"node a active; a's stderr:\n{a.stderr()}")
+    wait_logged(lambda: (s := ha_status(cl, "b")) is not None and s["in_step"] and s["role"] == "standby",
+                "node b in step as the standby", a, b)
+    wait_logged(lambda: (s := ha_status(cl, "a")) is not None and s["role"] == "active", "node a active", a, b)
     wait_until(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0, T,
                f"the drive host receiving outputs; stderr:\n{sim.stderr()}")
     power(cl, [1])
@@ -226,7 +225,7 @@ def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Any]) -> None
         stt = sim.status()
         assert stt is not None and stt["epoch"] == st["epoch"]
         # a never drives again: the host's epoch stays b's, and a is back in step as a standby of b
-        wait_until(lambda: (s := ha_status(cl, "a")) is not None and s["in_step"], T, "a in step with b")
+        wait_logged(lambda: (s := ha_status(cl, "a")) is not None and s["in_step"], "a in step with b", a, b)
         assert (ha_status(cl, "a") or {})["role"] == "standby" and (ha_status(cl, "b") or {})["role"] == "active"
         assert tr.restarts == [], tr.restarts
     finally:

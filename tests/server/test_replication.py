@@ -209,3 +209,31 @@ def test_a_replay_that_does_not_fit_the_drive_tape_is_a_resync(bad: str) -> None
     else:
         log.drive = log.drive + log.drive  # a call left over
     assert not f.apply(log) and f.waiting and reasons
+
+
+def test_a_follower_that_took_over_is_followed_in_turn() -> None:
+    """A standby that took over (its core from a snapshot, the real drives now) is followed by the next standby
+    from a snapshot of its own: the snapshot of a snapshot keeps every array alias (the digests agree)."""
+    from nc_server.drives.sim import SimDrive
+    from nc_server.server.replication import RecordingDrive
+    act = Active()
+    act.handler.client_alive("plc", 0.0)
+    f, _ = follower(act)
+    act.request("Claim", 1, 1)
+    act.supply(7, ids=(1,))
+    for _ in range(3):
+        assert f.apply(act.cycle())
+    assert act.request("MoveAbsolute", 5, 1, Position=20.0, Velocity=50.0)["error"] == 0
+    for _ in range(50):
+        assert f.apply(act.cycle())
+    core = f.core
+    core.drive = RecordingDrive(SimDrive(core.params, core.cycle_time))  # the takeover: real drives
+    rec = CoreRecorder(core)
+    rec.attach_drive(core.drive)
+    reasons: list[str] = []
+    g = Follower(on_resync=reasons.append, on_handler=merge_handler)
+    g.load(snapshot(rec))
+    for _ in range(100):
+        rec.step()
+        assert g.apply(rec.take()), reasons
+    same(core, g.core)
