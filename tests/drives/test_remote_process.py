@@ -23,7 +23,7 @@ from typing import Any, Callable, Iterator
 import pytest
 
 from znc_testing import BIT_CONTROL_LOOP_CLOSED, NcServerProcess, NcTestClient, free_port, kill_process_group, start_nc_server, unpack, wait_until
-from znc_testing.remote_drives import DriveSim, drive_axis, drive_sim_command, power
+from znc_testing.remote_drives import DriveSim, drive_axis, drive_sim_command, enabled, power
 
 T = 30.0  # generous deadlines: a loaded 2-core machine
 
