@@ -302,6 +302,7 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         "missed_cycles": get("missed_cycles"), "overruns": get("overruns"), "work_us_p99": get("work_us_p99"),
         "clients": clients, "claims": holders, "claims_source": "claims" if cl is not None else
         ("stats" if st is not None else None), "axes": axes, "problems": problems, "remote_couplings": remote,
+        "ha": _ha(st),
     }
 
 
@@ -318,6 +319,15 @@ def _remote_couplings(rc: Any, problems: list[str]) -> list[dict[str, Any]]:
             out.append({"AxisId": axis_key(a), **{k: v.get(k) for k in (
                 "master", "state", "ratio", "age_us", "phase_err", "phase_err_max", "phase_bound", "measured", "within")}})
     return out
+
+
+def _ha(st: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The hot-standby part of the stats (docs/standby.md: role, epoch, replication lag, takeovers), or None."""
+    ha = st.get("ha") if st is not None else None
+    if not isinstance(ha, dict):
+        return None
+    keys = ("node", "role", "epoch", "peer_in_step", "lag_cycles", "takeovers", "takeover_ms", "demotions")
+    return {k: ha.get(k) for k in keys}
 
 
 # ---- text ----------------------------------------------------------------------------------------
@@ -337,6 +347,11 @@ def render(snap: dict[str, Any]) -> str:
                    f"missed {_num(v['missed_cycles'], 'd')}  overruns {_num(v['overruns'], 'd')}  "
                    f"work p99 {_num(v['work_us_p99'], '.0f')} us  instance {v['instance'] or '-'}  "
                    f"restarts {v['restarts']}")
+        ha = v.get("ha")
+        if ha:
+            out.append(f"  ha: {ha.get('role')} node {ha.get('node')} epoch {ha.get('epoch')}  standby in step "
+                       f"{'yes' if ha.get('peer_in_step') else 'no'}  takeovers {ha.get('takeovers')} (last "
+                       f"{ha.get('takeover_ms')} ms)  demotions {ha.get('demotions')}")
         if v["clients"]:
             parts = []
             for c, info in sorted(v["clients"].items()):

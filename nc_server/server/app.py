@@ -25,7 +25,7 @@ import logging
 import os
 import threading
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -39,6 +39,8 @@ from .claims import ClaimTable
 from .config import ServerConfig
 from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, raise_io_priority
 from .handler import MAX_REQUEST_BYTES, NO_NC_CYCLE, CycleInputs, PendingReply, RequestHandler
+from .replication import CoreRecorder
+from .standby import HotStandby
 from .retain import RetainKeeper
 from .frame_ring import RingCounters
 from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
@@ -151,6 +153,8 @@ class NcServer:
 
     def __init__(self, config: ServerConfig, core: NcCore) -> None:
         self.config = config
+        if config.redundancy.enabled:  # a hot-standby pair: every input of the core is noted (docs/standby.md)
+            core = cast("NcCore", CoreRecorder(core))
         self.core = core
         self.keys = Keys(config.name)
         self.axis_ids = [int(a) for a in np.asarray(core.axis_ids).tolist()]
@@ -181,6 +185,7 @@ class NcServer:
                                       refresh_liveliness=self._take_liveliness, roles=roles,
                                       keeps=None if retain is None else functools.partial(retain.keeps, core))
         self.inputs = CycleInputs(core, self.claims, config.loss_reactions or None)
+        self.ha: HotStandby | None = None  # made after the I/O thread (it sends the snapshots)
         #: (version, claims map) made by the cycle thread; the I/O thread publishes it
         self.claims_msg: tuple[int, dict[str, Any]] | None = None
         self._arb_seen: tuple[int, int, int] = (-1, -1, -1)
@@ -194,6 +199,8 @@ class NcServer:
                            not_kept=self.handler.not_kept)
         if retain is not None:
             retain.on_settled = self.io.wake  # held replies go out once their commit is in the file
+        if config.redundancy.enabled:
+            self.ha = HotStandby(self, config.redundancy)
         #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))
@@ -259,9 +266,11 @@ class NcServer:
         if self.config.publisher == "process" and self.config.zenoh.mode != "client":
             self.transport.internal, self._internal_socket = internal_endpoint()
         try:
-            self.transport.open(cancel)
+            self.transport.open(cancel, serve=self.ha is None)
             if self.config.remote_masters:  # coupling across NCs: their samples from the start
                 self.transport.declare_remote_masters(list(self.config.remote_masters))
+            if self.ha is not None and self.transport.session is not None:
+                self.ha.open(self.transport.session)  # (an active start: serve() from there)
         except BaseException:
             self._abort_start()
             raise
@@ -291,9 +300,11 @@ class NcServer:
         self.started = True
         # the ready line (cli) follows: the frames must be on zenoh by then, not a second later
         deadline = time.monotonic() + READY_TIMEOUT
+        if self.ha is not None and self.ha.role != "active":
+            deadline = 0.0  # (a standby puts no frames)
         while not self._publisher_counters().ready and time.monotonic() < deadline and self.loop.alive:
             time.sleep(0.01)
-        if not self._publisher_counters().ready:
+        if deadline and not self._publisher_counters().ready:
             log.warning("the frame publisher is not ready after %g s: starting without it", READY_TIMEOUT)
         log.info("cycle thread: %s; zenoh's threads: %s; I/O thread: %s; frames: %s publisher", self.loop.stats.timing_detail,
                  io_priority, self.io.priority, self.config.publisher)
@@ -316,7 +327,7 @@ class NcServer:
             return
         self._drive_closed = True
         try:
-            self.core.drive.close()
+            (self.ha.real_drive if self.ha is not None else self.core.drive).close()
         except Exception as exc:
             log.warning("drive close: %s", exc)
 
@@ -345,17 +356,22 @@ class NcServer:
         # Never leave a drive moving: stop every moving axis with its stop ramp, wait (bounded)
         # for standstill, then end the cycle and release the drive.
         self._shutdown.set()
+        # (a standby drives nothing and is not the NC its clients see: no stop ramp, no last frame)
+        serving = self.ha is None or self.ha.role == "active"
         deadline = time.monotonic() + SHUTDOWN_STOP_TIMEOUT
-        while self.loop.alive and bool(np.asarray(self.core.moving).any()) and time.monotonic() < deadline:
+        while serving and self.loop.alive and bool(np.asarray(self.core.moving).any()) and time.monotonic() < deadline:
             time.sleep(0.01)
         self.loop.stop()
         if self.retain is not None:  # the cycle has ended: its final state goes into the file
             self.retain.stop(self.core)
         self._close_drive()
+        if self.ha is not None:
+            self.ha.close()
         core = self.core
         try:  # the last frame, flagged ShuttingDown: the publisher puts it before it ends
-            self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),
-                            core.ncjobs, core.plctonc)
+            if serving:
+                self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),
+                                core.ncjobs, core.plctonc)
         except Exception as exc:
             log.warning("final frame: %s", exc)
         # Queries still queued (or prepared, not activated) get no execution; finalize them so queriers do not wait.
@@ -408,6 +424,14 @@ class NcServer:
             return
         claims = self.claims
         now = time.monotonic()
+        ha = self.ha
+        if ha is not None:
+            if self._prev_tick and ha.after_stall(now - self._prev_tick):
+                pass  # (replaced while it stalled: a standby now, nothing of the stall is its to handle)
+            if ha.before_cycle(now):  # a standby: it follows the active NC, drives and serves nothing
+                self._prev_tick = now
+                self._take_liveliness(now)  # (its channel drained: the events of the clients are kept current)
+                return
         self._tick(now)
 
         self._take_liveliness(now)
@@ -440,6 +464,8 @@ class NcServer:
             for i in range(len(core.axis_ids)):
                 core.fault(i, ErrorCodes.NC_INTERNAL)
 
+        if ha is not None:
+            ha.after_step()  # the log of this cycle to the standby
         self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)
         if self._activated:  # their replies after the cycle's work (the I/O thread takes the GIL to send them)
             self.io.submit_replies(self._activated)
@@ -451,6 +477,24 @@ class NcServer:
             self._clients_dirty = False
             self._clients_snapshot = claims.clients()
         self._update_claims_msg(now)
+
+    # ---- hot standby (docs/standby.md; the cycle thread) ------------------------------------------------------
+    def became_active(self, now: float) -> None:
+        """This NC drives from now on (HotStandby: a start as active, a takeover): serve its clients."""
+        self._prev_tick = now
+        self._claims_version = -1
+        self._claims_changed()  # (the holders whose PLCTONC frames count)
+        self.transport.serve()
+
+    def became_standby(self) -> None:
+        """This NC was replaced (HotStandby): it serves nothing; its prepared commands are dropped unanswered (a
+        client's retry reaches the active NC, whose reply cache has them if they ran)."""
+        self.transport.unserve()
+        for _, pending, _ in self._pending:
+            self.core.set_preparing(pending.axis_id, False)
+        self._pending.clear()
+        self._pending_axes.clear()
+        self._activated = []
 
     def _claims_changed(self) -> None:
         """After anything that may change the claims (the watchdog in the cycle, requests between cycles):
@@ -790,6 +834,8 @@ class NcServer:
                   "drive_input_age": self._drive_input_age(),
                   "remote_couplings": self.core.coupling.remote_stats(self.core.axis_ids),
                   "stages": self.core.stage_times()})
+        if self.ha is not None:
+            d["ha"] = self.ha.status()
         return d
 
     def _drive_input_age(self) -> dict[int, int]:

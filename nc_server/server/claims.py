@@ -172,6 +172,23 @@ class ClaimTable:
             window = max(window, self.lease_stall_grace)
         self._stall = (start, float(now), window)
 
+    def rebase(self, now: float) -> None:
+        """A hot standby took over this table at ``now`` [s] (docs/standby.md): its times were the other process's
+        clock (another host's, maybe). Every claim counts from ``now``, every client that sent PLCTONC as heard
+        from at ``now`` (its frames come to this process from now on), a token gone meanwhile gets the
+        reconnect window from ``now``."""
+        for cl in self._claims.values():
+            cl.since = float(now)
+            if cl.watch_from is not None:
+                cl.watch_from = float(now)
+        for c in self._clients.values():
+            if c.last_plctonc is not None:
+                c.last_plctonc = float(now)
+            if c.gone_at is not None:
+                c.gone_at = float(now)
+        self._stall = (float(now), float(now), self.reconnect_grace)
+        self.version += 1
+
     def _excused(self, gone_at: float, now: float) -> bool:
         """A token gone at ``gone_at`` is not a loss yet at ``now`` (an NC stall explains it)."""
         start, end, window = self._stall

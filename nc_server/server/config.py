@@ -88,6 +88,34 @@ class ZenohSettings:
     tls_dir: str | None = None
 
 
+#: how an NC of a redundant pair starts (docs/standby.md)
+REDUNDANCY_ROLES = ("standby", "active")
+
+
+@dataclass(frozen=True)
+class Redundancy:
+    """``[redundancy]``: a hot-standby pair of NCs of one name (docs/standby.md).
+
+    Attributes:
+        enabled: this NC is one of a pair (off: a single NC, nothing of this section applies).
+        start: ``"standby"`` (default: follow an active NC; take over when it is lost, or after
+            ``takeover_cycles`` with none at start) or ``"active"`` (drive from the start, unless an active NC
+            of a higher epoch is seen).
+        takeover_cycles: NC cycles without the active NC's log (or at once, its token gone) before a standby takes
+            over; the drive hosts' silence timeout must be longer.
+        catch_up_ms: at a takeover the core steps at once over the time the active NC was silent, at most this
+            long [ms]: the drive hosts extrapolated their targets that far (nc-drive-sim --extrapolate).
+        node: this process's name in the pair (the epoch's tie-break and the ha status key); default: the host
+            name and the process id.
+    """
+
+    enabled: bool = False
+    start: str = "standby"
+    takeover_cycles: int = 15
+    catch_up_ms: float = 10.0
+    node: str = ""
+
+
 @dataclass(frozen=True)
 class ServerConfig:
     """A checked server configuration.
@@ -149,6 +177,25 @@ class ServerConfig:
     drive_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     remote_masters: tuple[tuple[str, int], ...] = ()
     remote_max_age: float = 0.05
+    redundancy: Redundancy = field(default_factory=Redundancy)
+
+
+def _redundancy(data: Mapping[str, Any], retain_file: str | None) -> Redundancy:
+    """The ``[redundancy]`` section (docs/standby.md)."""
+    r = _table(data, "redundancy", {"enabled", "start", "takeover_cycles", "catch_up_ms", "node"})
+    enabled = r.get("enabled", False)
+    if not isinstance(enabled, bool):
+        raise ConfigError("redundancy.enabled", f"must be true or false, got {enabled!r}")
+    start = _choice(r.get("start", "standby"), "redundancy.start", REDUNDANCY_ROLES)
+    cycles = _integer(r.get("takeover_cycles", 15), "redundancy.takeover_cycles", 2, 100_000)
+    catch_up = _number(r.get("catch_up_ms", 10.0), "redundancy.catch_up_ms", 0.0, 1000.0)
+    node = r.get("node", "")
+    if not isinstance(node, str) or len(node) > 64 or not all(c.isascii() and (c.isalnum() or c in "-_") for c in node):
+        raise ConfigError("redundancy.node", f"0..64 characters of letters, digits, '-' and '_', got {node!r}")
+    if enabled and retain_file is not None:
+        raise ConfigError("redundancy.enabled", "a redundant NC pair with nc.retain_file is not supported yet "
+                                                "(docs/standby.md: retain files)")
+    return Redundancy(enabled, start, cycles, catch_up, node)
 
 
 def _cpus(v: Any, key: str) -> tuple[int, ...]:
@@ -331,8 +378,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
         ConfigError: the first problem found, with its key.
     """
     for k in data:
-        if k not in ("nc", "zenoh", "axis", "drives", "remote"):
-            raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis, drives, remote)")
+        if k not in ("nc", "zenoh", "axis", "drives", "remote", "redundancy"):
+            raise ConfigError(k, "unknown top-level key (allowed: nc, zenoh, axis, drives, remote, redundancy)")
     nc = _table(data, "nc", {"name", "cycle_time", "watchdog_timeout", "realtime", "rt_priority", "drive",
                             "retain_file", "publisher", "cpu_affinity"})
     zn = _table(data, "zenoh", {"mode", "listen", "connect", "lease", "roles", "tls_dir"})
@@ -390,7 +437,8 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
                         zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
                         loss_reactions=reactions, publisher=publisher, cpu_affinity=cpu_affinity,
                         axis_drives=axis_drives, drive_options=drive_options, remote_masters=remote_masters,
-                        remote_max_age=remote_max_age)
+                        remote_max_age=remote_max_age,
+                        redundancy=_redundancy(data, retain_file))
 
 
 def _remote(data: Mapping[str, Any], own: str) -> tuple[tuple[tuple[str, int], ...], float]:
@@ -454,6 +502,7 @@ def _axis_drive(value: Any, where: str, default: str, known: Sequence[str]) -> t
 _LIST_KEYS = {"listen", "connect"}
 #: keys whose --set VALUE is the text as given (not a TOML value)
 _STRING_KEYS = {"nc": {"name", "realtime", "drive", "retain_file", "publisher"}, "zenoh": {"mode", "roles", "tls_dir"},
+                "redundancy": {"start", "node"},
                 "axis": {"Name", "ClientLossReaction"}}
 
 
@@ -617,7 +666,7 @@ def apply_set(data: dict[str, Any], item: str, prov: _Provenance | None = None) 
             raise ConfigError(label, f"no axis with AxisId {axis_id} (configured: {_axis_ids(data)})", _NO_AXIS)
         _put_axis_key(data["axis"][i], name, _set_value(text, name in _STRING_KEYS["axis"]))
         prov.note(f"axis[{i}].{name}", label)
-    elif parts[0] in ("nc", "zenoh"):
+    elif parts[0] in ("nc", "zenoh", "redundancy"):
         if len(parts) != 2:
             raise ConfigError(label, f"expected {parts[0]}.<key>=VALUE, e.g. nc.cycle_time=0.002")
         table = data.setdefault(parts[0], {})
@@ -641,7 +690,7 @@ def apply_set(data: dict[str, Any], item: str, prov: _Provenance | None = None) 
         prov.note(f"drives.{parts[1]}.{parts[2]}", label)
     else:
         raise ConfigError(label, "unknown section (allowed: axis.<AxisId>.<Parameter>, nc.<key>, zenoh.<key>, "
-                                 "drives.<backend>.<key>)")
+                                 "redundancy.<key>, drives.<backend>.<key>)")
 
 
 def _set_value(text: str, string: bool) -> Any:

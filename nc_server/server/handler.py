@@ -140,6 +140,8 @@ class ReplyCache:
         self.maxsize = int(maxsize)
         self._d: OrderedDict[tuple[str, Any], bytes] = OrderedDict()
         self.hits = 0
+        #: the changes since the last look, for a hot standby (None: not noted; replication.HandlerRecorder)
+        self.journal: list[tuple[Any, ...]] | None = None
 
     def __len__(self) -> int:
         return len(self._d)
@@ -157,14 +159,22 @@ class ReplyCache:
         key = (client, rid)
         self._d[key] = reply
         self._d.move_to_end(key)
+        if self.journal is not None:
+            self.journal.append(("put", client, rid, reply))
         while len(self._d) > self.maxsize:
             self._d.popitem(last=False)
+
+    def items(self) -> list[tuple[tuple[str, Any], bytes]]:
+        """The entries, oldest first."""
+        return list(self._d.items())
 
     def forget_client(self, client: str) -> int:
         """Drop every entry of ``client`` (its session ended; a restarted client may reuse ids)."""
         keys = [k for k in self._d if k[0] == client]
         for k in keys:
             del self._d[k]
+        if self.journal is not None:
+            self.journal.append(("forget", client))
         return len(keys)
 
 

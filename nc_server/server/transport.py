@@ -274,7 +274,7 @@ class Transport:
         self.instance = new_instance_id()
 
     # ---- setup / teardown -------------------------------------------------------------------
-    def open(self, cancel: threading.Event | None = None) -> None:
+    def open(self, cancel: threading.Event | None = None, serve: bool = True) -> None:
         """Open the session and declare everything.
 
         An NC in client mode (behind a router) waits for its router: while no connect endpoint accepts,
@@ -310,19 +310,47 @@ class Transport:
                     time.sleep(ROUTER_RETRY_S)
         self._zid = str(s.info.zid())
         k = self.keys
-        # channels polled by the cycle thread: no Python callback (and no GIL) on zenoh's threads
-        self.queryable = s.declare_queryable(k.cmd_any, RingChannel(QUERY_CHANNEL), complete=True)
+        self.queryable: Any = None
+        self.token: Any = None
+        self.instance_token: Any = None
+        self.stats_pub: Any = None
+        self.claims_pub: Any = None
         self.liveliness_sub = s.liveliness().declare_subscriber(k.client_alive_any, FifoChannel(LIVELINESS_CHANNEL),
                                                                 history=True)
         # a channel drained by the cycle thread (take_plctonc), not a Python subscriber thread: that thread,
         # at normal priority and holding the GIL while decoding, made the SCHED_FIFO cycle thread wait
         # whenever the scheduler took it off the CPU (a loaded machine: NC cycles of tens of ms)
         self.plc_sub = s.declare_subscriber(k.plctonc_in_any, RingChannel(PLCTONC_CHANNEL))
+        if serve:
+            self.serve()
+
+    def serve(self) -> None:
+        """Declare what makes this process the NC its clients see: the command queryable, the stats and claims
+        publishers, the NC's liveliness and instance tokens (at open; a hot standby at its takeover, with the
+        active NC's instance id: docs/standby.md)."""
+        s, k = self.session, self.keys
+        if s is None or self.queryable is not None:
+            return
+        # channels polled by the cycle thread: no Python callback (and no GIL) on zenoh's threads
+        self.queryable = s.declare_queryable(k.cmd_any, RingChannel(QUERY_CHANNEL), complete=True)
         pub: dict[str, Any] = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.claims_pub = s.declare_publisher(k.claims)
         self.token = s.liveliness().declare_token(k.alive)
         self.instance_token = s.liveliness().declare_token(k.alive_instance(self.instance))
+
+    def unserve(self) -> None:
+        """Undeclare what :meth:`serve` declared (a replaced NC of a hot-standby pair; the tokens stay alive for the
+        clients while the active NC holds the same ones)."""
+        for name in ("queryable", "stats_pub", "claims_pub", "token", "instance_token"):
+            d = getattr(self, name, None)
+            setattr(self, name, None)
+            if d is not None:
+                try:
+                    d.undeclare()
+                except Exception:
+                    pass
+        self.queries.clear()
 
     def close(self) -> None:
         """Undeclare everything and close the session (idempotent, never raises)."""
@@ -695,6 +723,8 @@ class IoThread:
                 msg = {**msg, "cycle": int(self.cycle_source())}  # unchanged: republished as of now
             self._claims_version = version
             self._next_claims = now + CLAIMS_PERIOD
+            if self.t.claims_pub is None:  # (a standby NC: not serving)
+                return
             self.t.claims_pub.put(pack(msg))
             self.claims_sent += 1
         except Exception as exc:
@@ -702,6 +732,8 @@ class IoThread:
             log.debug("claims put failed: %s", exc)
 
     def _publish_stats(self) -> None:
+        if self.t.stats_pub is None:  # (a standby NC: not serving)
+            return
         try:
             self.t.stats_pub.put(pack(self.stats_source()))
         except Exception as exc:

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import collections
 import math
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
@@ -101,10 +101,22 @@ class CouplingStage:
         self.ignored_ratios = 0
         self.changed: list[int] = []  # slaves whose job record changed in a cycle (a synchronization locked)
         self._cache: tuple[list[_Level], np.ndarray, np.ndarray] | None = None
+        self._scratch(cycle_time)
+
+    def _scratch(self, cycle_time: float) -> None:
+        """ruckig's objects for a synchronizing slave: filled anew for every cycle (no state between cycles)."""
         self._otg = Ruckig(1, cycle_time)
         self._inp = InputParameter(1)
         self._out = OutputParameter(1)
         self._inp.control_interface = ControlInterface.Velocity
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without ruckig's scratch objects (they do not pickle; a standby's snapshot: docs/standby.md)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_otg", "_inp", "_out")}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._scratch(self.dt)
 
     # -- the table ----------------------------------------------------------------------------
     @property

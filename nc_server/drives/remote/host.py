@@ -159,6 +159,9 @@ class DriveHost:
         self.rx_cycle = 0          # the NC cycle of the outputs in effect
         self.rx_count = 0
         self.refused = 0
+        self.epoch = 0             # the highest NC epoch seen: outputs of a lower one are refused
+        self.stale_epoch = 0       # outputs refused for their epoch
+        self.takeovers = 0         # epochs followed (the first one included)
         self.overruns = 0
         self.silent_logged = True  # (nothing to report before the first outputs)
         self._last_tp = np.zeros(self.n)
@@ -178,7 +181,7 @@ class DriveHost:
 
     # ---- session ------------------------------------------------------------------------------------
     def _declare(self, s: zenoh.Session) -> None:
-        self._rx_sub = s.declare_subscriber(wire.rx_key(self.nc, self.host), RingChannel(4))
+        self._rx_sub = s.declare_subscriber(wire.rx_key(self.nc, self.host), RingChannel(8))
         self._tx_pub = s.declare_publisher(wire.tx_key(self.nc, self.host), congestion_control=zenoh.CongestionControl.DROP,
                                            priority=zenoh.Priority.REAL_TIME)
         self._status_pub = s.declare_publisher(wire.status_key(self.nc, self.host))
@@ -234,10 +237,11 @@ class DriveHost:
         self.write_status()
 
     def _take_rx(self) -> Any:
-        """The newest usable outputs that arrived since the last cycle (None: none)."""
+        """The newest usable outputs that arrived since the last cycle (None: none). Outputs of an NC epoch below the
+        highest seen are refused (a replaced NC: docs/standby.md); a higher epoch is followed from then on."""
         if not self._ready:
             return None
-        newest = None
+        best = None
         while True:
             try:
                 s = self._rx_sub.try_recv()
@@ -245,13 +249,26 @@ class DriveHost:
                 break
             if s is None:
                 break
-            newest = s
-        if newest is None:
+            try:
+                msg = wire.decode_rx(s.payload.to_bytes())
+            except wire.WireError as exc:
+                self._refuse(f"malformed outputs: {exc}")
+                continue
+            if msg.epoch < self.epoch:
+                self.stale_epoch += 1
+                if self.stale_epoch <= 3 or self.stale_epoch % 10000 == 0:
+                    log.warning("refused outputs of NC epoch %d (following epoch %d; %d refused)", msg.epoch,
+                                self.epoch, self.stale_epoch)
+                continue
+            if msg.epoch > self.epoch:
+                if self.rx_count:
+                    log.warning("NC epoch %d takes over from epoch %d", msg.epoch, self.epoch)
+                self.epoch = msg.epoch
+                self.takeovers += 1
+            best = msg  # (the newest of the highest epoch: the ring keeps arrival order)
+        if best is None:
             return None
-        try:
-            msg = wire.decode_rx(newest.payload.to_bytes())
-        except wire.WireError as exc:
-            return self._refuse(f"malformed outputs: {exc}")
+        msg = best
         if len(msg.ids) != self.n:
             return self._refuse(f"outputs for {len(msg.ids)} slots, this host has {self.n}")
         if self.ids.any() and msg.ids.any() and not np.array_equal(msg.ids, self.ids):
@@ -293,7 +310,7 @@ class DriveHost:
         self.cycle += 1
         if self._ready:
             try:
-                self._tx_pub.put(wire.encode_tx(tx, self.cycle, self.rx_cycle))
+                self._tx_pub.put(wire.encode_tx(tx, self.cycle, self.rx_cycle, self.epoch))
             except Exception as exc:  # the session closing
                 log.debug("put: %s", exc)
 
@@ -306,7 +323,7 @@ class DriveHost:
             "nc": self.nc, "host": self.host, "time": time.time(), "cycle": self.cycle, "connected": self._ready,
             "rx_cycle": self.rx_cycle, "rx_count": self.rx_count, "silent_s": round(dev.silent, 6),
             "nc_silent": bool(self.rx_count == 0 or dev.silent >= self.timeout), "refused": self.refused,
-            "overruns": self.overruns,
+            "overruns": self.overruns, "epoch": self.epoch, "stale_epoch": self.stale_epoch,
             "axes": [{"slot": i, "AxisId": int(self.ids[i]), "state": State(int(dev.state[i])).name,
                       "statusword": int(tx.statusword[i]), "error_code": int(dev.error_code[i]),
                       "position": float(dev.position[i]), "velocity": float(dev.velocity[i])}

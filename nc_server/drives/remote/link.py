@@ -194,6 +194,10 @@ class RemoteLink(ProcessDataLink):
         self._host_alive = np.zeros(len(hosts), dtype=bool)  # liveliness token present
         self._host_seen = np.zeros(len(hosts), dtype=bool)   # inputs arrived at least once
         self.round_trip = np.full(n, -1, dtype=np.int64)
+        #: the epoch sent with the outputs (a hot standby's, docs/standby.md; 0 without redundancy), and the highest
+        #: one a host reported following: above ``epoch``, another NC drives these hosts now
+        self.epoch = 0
+        self.host_epoch = 0
         self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
@@ -284,7 +288,7 @@ class RemoteLink(ProcessDataLink):
             if s is None:
                 continue
             try:
-                new, _, rx_cycle = wire.decode_tx_columns(s.payload.to_bytes())
+                new, _, rx_cycle, host_epoch = wire.decode_tx_columns(s.payload.to_bytes())
             except Exception as exc:  # (WireError; anything else from a host's bytes must not stop the NC cycle)
                 self._malformed(i, str(exc) or type(exc).__name__)
                 continue
@@ -302,6 +306,8 @@ class RemoteLink(ProcessDataLink):
                     cols[a][rows] = c
             age[rows] = 0
             rtt[rows] = nc_cycle - rx_cycle if rx_cycle else -1
+            if host_epoch > self.host_epoch:
+                self.host_epoch = host_epoch
             self.received += 1
             if not self._host_seen[i]:
                 self._host_seen[i] = True
@@ -323,7 +329,7 @@ class RemoteLink(ProcessDataLink):
                         self.malformed)
 
     def _send(self, rx: RxImage) -> None:
-        msgs = [wire.encode_rx(rx, None if whole else rows, ids)
+        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch)
                 for rows, ids, whole in zip(self._rows, self._ids, self._whole)]
         if self.sender == "thread":
             with self._mail_lock:

@@ -15,7 +15,9 @@ lists cost 5 / 24 us to pack and 9 / 32 us to unpack for 8 / 64 axes). Unknown k
 
 Decisions: positions travel as float64 increments (as :class:`~nc_server.drives.cia402.image.RxImage`: no INT32
 rounding on zenoh); ``rx`` carries the AxisIds of the slots so a host configured for other axes refuses the
-message instead of moving the wrong motor; ``epoch`` is 0 until a standby NC (issue 21) numbers its takeovers.
+message instead of moving the wrong motor; ``epoch`` is the sending NC's (0 without redundancy; a hot standby
+numbers its takeovers: docs/standby.md): a host follows the highest epoch it has seen only, and ``tx`` reports
+that epoch (``epoch``, 0 if absent) so an NC driving with a lower one learns it was replaced.
 
 It may import: numpy, msgpack, nc_server.drives.cia402.
 """
@@ -99,7 +101,7 @@ def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epo
         rx: the NC's outputs for every axis of the link.
         rows: link rows, slot order (int array; None: every row in order).
         ids: the AxisIds of the slots (uint32 array, or its ``<u4`` bytes; 0 = not named).
-        epoch: the sending NC's epoch (issue 21; 0).
+        epoch: the sending NC's epoch (docs/standby.md; 0 without redundancy).
     """
     idb = ids if isinstance(ids, bytes) else np.asarray(ids).astype("<u4").tobytes()
     m: dict[str, Any] = {"v": VERSION, "cycle": int(rx.cycle), "epoch": int(epoch), "n": len(idb) // 4, "ids": idb}
@@ -120,11 +122,13 @@ class RxMessage:
 
 @dataclass
 class TxMessage:
-    """A decoded ``tx``: the image (``age`` 0, ``alive`` True), the host's cycle and the NC cycle it last applied."""
+    """A decoded ``tx``: the image (``age`` 0, ``alive`` True), the host's cycle, the NC cycle it last applied and the
+    epoch it follows."""
 
     image: TxImage
     cycle: int
     rx_cycle: int
+    epoch: int = 0
 
 
 def _map(payload: bytes | bytearray | memoryview) -> Mapping[Any, Any]:
@@ -180,17 +184,19 @@ def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
     return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch)
 
 
-def encode_tx(tx: TxImage, cycle: int, rx_cycle: int) -> bytes:
-    """A host's inputs for the NC: every column of ``tx`` (slot order), the host's cycle, the NC cycle it applied last."""
-    m: dict[str, Any] = {"v": VERSION, "cycle": int(cycle), "rx_cycle": int(rx_cycle), "n": len(tx.statusword)}
+def encode_tx(tx: TxImage, cycle: int, rx_cycle: int, epoch: int = 0) -> bytes:
+    """A host's inputs for the NC: every column of ``tx`` (slot order), the host's cycle, the NC cycle it applied last,
+    the highest NC epoch it has seen (it follows no other)."""
+    m: dict[str, Any] = {"v": VERSION, "cycle": int(cycle), "rx_cycle": int(rx_cycle), "epoch": int(epoch),
+                         "n": len(tx.statusword)}
     for k, (attr, dt) in TX_COLUMNS.items():
         m[k] = np.asarray(getattr(tx, attr)).astype(dt, copy=False).tobytes()
     return _packer.pack(m)
 
 
-def decode_tx_columns(payload: bytes | bytearray | memoryview) -> tuple[dict[str, np.ndarray], int, int]:
-    """A ``tx`` message as {TxImage attribute: read-only column}, the host's cycle and ``rx_cycle`` (the link's
-    per-cycle path: no image built).
+def decode_tx_columns(payload: bytes | bytearray | memoryview) -> tuple[dict[str, np.ndarray], int, int, int]:
+    """A ``tx`` message as {TxImage attribute: read-only column}, the host's cycle, ``rx_cycle`` and ``epoch`` (the
+    link's per-cycle path: no image built).
 
     Raises:
         WireError: see the module docstring.
@@ -198,8 +204,8 @@ def decode_tx_columns(payload: bytes | bytearray | memoryview) -> tuple[dict[str
     m = _map(payload)
     n = m["n"]
     cols = {attr: _column(m, k, dt, n) for k, (attr, dt) in TX_COLUMNS.items()}
-    cycle, rx_cycle = _counter(m, "cycle"), _counter(m, "rx_cycle", 0)
-    return cols, cycle, rx_cycle
+    cycle, rx_cycle, epoch = _counter(m, "cycle"), _counter(m, "rx_cycle", 0), _counter(m, "epoch", 0)
+    return cols, cycle, rx_cycle, epoch
 
 
 def decode_tx(payload: bytes | bytearray | memoryview) -> TxMessage:
@@ -208,8 +214,8 @@ def decode_tx(payload: bytes | bytearray | memoryview) -> TxMessage:
     Raises:
         WireError: see the module docstring.
     """
-    cols, cycle, rx_cycle = decode_tx_columns(payload)
+    cols, cycle, rx_cycle, epoch = decode_tx_columns(payload)
     n = len(cols["statusword"])
     image = TxImage(age=np.zeros(n, dtype=np.int64), alive=np.ones(n, dtype=bool),
                     **{a: c.astype(c.dtype.newbyteorder("=")) for a, c in cols.items()})
-    return TxMessage(image, cycle, rx_cycle)
+    return TxMessage(image, cycle, rx_cycle, epoch)

@@ -1,0 +1,237 @@
+"""A hot-standby NC pair with real processes over real zenoh on 127.0.0.1 (docs/standby.md): an ``nc-router``, two
+``nc-server`` processes of NC ``nc1`` in client mode behind it (node ``a`` starts active, ``b`` standby), an
+``nc-drive-sim`` hosting the remote drives, a client moving axis 1 and an observer following the NC as the PLC
+runtime does (nc_link: its NC-restart detection).
+
+* kill -9 of the active NC mid-move: the standby takes over (ha status, a higher epoch on the drive host), the
+  set-points go on without a step beyond what the dynamics allow, the move reaches its target and ends Done with
+  the same CmdNo, a repeated request gets the replicated reply, the observer sees no NC restart; the takeover
+  time is measured;
+* SIGSTOP of the active NC mid-move, then SIGCONT: the standby takes over; the old NC comes back as a standby and
+  never drives again (the drive host refuses its epoch; nothing of it reaches the drives).
+"""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import msgpack
+import numpy as np
+import pytest
+
+# Not reliable yet on a heavily loaded machine (false takeovers at load average ~20 on 2 cores): run on request.
+pytestmark = pytest.mark.skipif(not os.environ.get("ZNC_STANDBY_TESTS"),
+                                reason="hot-standby process tests: set ZNC_STANDBY_TESTS=1 (docs/standby.md)")
+
+from nc_link import NcLink
+from nc_schema import NCTOPLC_DTYPE, decode_stamp, frame_stamp
+from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server, wait_until
+
+from znc_testing.remote_drives import DriveSim, drive_axis, power
+
+T = 30.0
+CYCLE = 0.002
+TAKEOVER_CYCLES = 100  # 200 ms: above the stalls of a loaded 2-core machine, well below the drive timeout (1 s)
+V, A, J = 50.0, 500.0, 5000.0  # the move's dynamics
+
+CONFIG = """
+[nc]
+name = "nc1"
+cycle_time = {cycle}
+watchdog_timeout = 5.0
+realtime = "off"
+publisher = "thread"
+
+[zenoh]
+mode = "client"
+connect = ["tcp/127.0.0.1:{port}"]
+
+[redundancy]
+enabled = true
+takeover_cycles = {takeover}
+
+[drives.remote]
+max_age = 200
+
+[[axis]]
+AxisId = 1
+Name = "X"
+AxisVeloMax = 200.0
+Drive = {{ backend = "remote", host = "drives1" }}
+"""
+
+
+class Trace:
+    """Every NCTOPLC sample of axis 1 (cycle, SetPos, SetVelo, CmdNo, CmdState), and the NC's frames through nc_link
+    (its NC-restart detection), gathered on the test's sessions."""
+
+    def __init__(self, port: int) -> None:
+        self.samples: list[tuple[int, float, float, int, int, float]] = []
+        self.cl = NcTestClient(port, client_id="observer", token=False)
+        self.sub = self.cl.session.declare_subscriber("nc/nc1/axis/1/nctoplc", self._on)
+        self.link = NcLink("nc1", f"tcp/127.0.0.1:{port}", "observer-link", holder=False)
+        self.link.open()
+        self.restarts: list[str] = []
+        self.frames = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _on(self, s: Any) -> None:
+        r = np.frombuffer(s.payload.to_bytes(), dtype=NCTOPLC_DTYPE, count=1)[0]
+        cycle = decode_stamp(s.attachment.to_bytes())[0] if s.attachment is not None else -1
+        self.samples.append((cycle, float(r["SetPos"]), float(r["SetVelo"]), int(r["CmdNo"]), int(r["CmdState"]),
+                             time.monotonic()))
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.002):
+            f = self.link.take_frame()
+            if f is not None:
+                self.frames += 1
+                why = self.link.frame_cycle(frame_stamp(f)[0])
+                if why:
+                    self.restarts.append(why)
+            for ev in self.link.take_events():
+                if ev.kind == "restart":
+                    self.restarts.append(ev.why)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.link.close()
+        self.cl.close()
+
+
+def wait_logged(pred: Callable[[], Any], what: str, *procs: Any, timeout: float = T) -> Any:
+    """wait_until, with the processes' stderr in the failure's message."""
+    try:
+        return wait_until(pred, timeout, what)
+    except AssertionError as exc:
+        logs = "\n".join(f"--- {getattr(p, 'name', 'drives')} {getattr(p, 'pid', '')}:\n{p.stderr()[-3000:]}"
+                         for p in procs)
+        raise AssertionError(f"{exc}\n{logs}") from None
+
+
+def ha_status(cl: NcTestClient, node: str) -> dict[str, Any] | None:
+    v = cl.latest(f"nc/nc1/ha/status/{node}")
+    return None if v is None else msgpack.unpackb(v[0], raw=False)
+
+
+@pytest.fixture
+def pair(tmp_path: Path) -> Iterator[Callable[[], tuple[NcServerProcess, NcServerProcess, DriveSim, int]]]:
+    started: list[Any] = []
+
+    def make() -> tuple[NcServerProcess, NcServerProcess, DriveSim, int]:
+        router = start_nc_router(tmp_path / "router")
+        started.append(router)
+        text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=TAKEOVER_CYCLES)
+        cfg = tmp_path / "nc.toml"
+        cfg.write_text(text)
+        a = start_nc_server(tmp_path / "a", text, name="nc1", connect=router.endpoint,
+                            extra_args=["--set", "redundancy.node=a", "--set", "redundancy.start=active"])
+        started.append(a)
+        b = start_nc_server(tmp_path / "b", text, name="nc1", connect=router.endpoint,
+                            extra_args=["--set", "redundancy.node=b"])
+        started.append(b)
+        sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
+                                  "--timeout", "1.0"])
+        started.append(sim)
+        return a, b, sim, router.port
+
+    try:
+        yield make
+    finally:
+        for h in reversed(started):
+            h.kill()
+
+
+def largest_step(samples: list[tuple[int, float, float, int, int, float]]) -> float:
+    """The largest |SetPos change| beyond v * (cycles between the samples) * CYCLE: a jump, not motion."""
+    worst = 0.0
+    for (c0, p0, v0, *_), (c1, p1, v1, *_) in zip(samples, samples[1:]):
+        if c1 <= c0:
+            continue
+        allowed = max(abs(v0), abs(v1)) * (c1 - c0) * CYCLE + 0.5 * A * ((c1 - c0) * CYCLE) ** 2
+        worst = max(worst, abs(p1 - p0) - allowed)
+    return worst
+
+
+def start_move(a: NcServerProcess, b: NcServerProcess, sim: DriveSim, port: int, target: float) -> tuple[
+        NcTestClient, Trace, dict[str, Any], dict[str, Any]]:
+    cl = NcTestClient(port, client_id="plc1")
+    tr = Trace(port)
+    wait_logged(lambda: (s := ha_status(cl, "b")) is not None and s["in_step"] and s["role"] == "standby",
+                "node b in step as the standby", a, b)
+    wait_logged(lambda: (s := ha_status(cl, "a")) is not None and s["role"] == "active", "node a active", a, b)
+    wait_until(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0, T,
+               f"the drive host receiving outputs; stderr:\n{sim.stderr()}")
+    power(cl, [1])
+    req = {"Position": target, "Velocity": V, "Acceleration": A, "Deceleration": A, "Jerk": J}
+    r = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)
+    assert r["error"] == 0, r
+    return cl, tr, r, req
+
+
+def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Any]) -> None:
+    a, b, sim, port = pair()
+    cl, tr, first, req = start_move(a, b, sim, port, 40.0)
+    try:
+        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0, "axis 1 past 10", a, b, sim)
+        epoch_a = ha_status(cl, "a")["epoch"]  # type: ignore[index]
+        kill_process_group(a.proc)  # kill -9 of the active NC (its process group)
+        t_kill = time.monotonic()
+        st = wait_until(lambda: (s := ha_status(cl, "b")) is not None and s["role"] == "active" and s, T,
+                        f"b took over; stderr:\n{b.stderr()}")
+        assert st["epoch"] > epoch_a and st["takeovers"] >= 1
+        wait_until(lambda: (s := sim.status()) is not None and s["epoch"] == st["epoch"], T, "drive host follows b")
+        r = wait_until(lambda: (x := cl.nctoplc(1)) is not None and int(x["CmdState"]) == 2 and x, T * 2,
+                       "the move ended Done")  # (CmdState 2: DONE)
+        assert abs(float(r["SetPos"]) - 40.0) < 1e-6 and int(r["CmdNo"]) == first["CmdNo"]
+        assert int(r["ErrorCode"]) == 0
+        # a repeated request (same client and id) gets the replicated reply: not executed twice
+        again = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)
+        assert again == first
+        assert tr.restarts == [], tr.restarts
+        step = largest_step(tr.samples)
+        after = [s for s in tr.samples if s[5] > t_kill]
+        assert after and after[0][0] > max(s[0] for s in tr.samples if s[5] <= t_kill) - 1  # the Cycle continued
+        assert step < 0.05 * V * TAKEOVER_CYCLES * CYCLE + 1e-3, step
+        print(f"takeover {st['takeover_ms']:.1f} ms ({st['takeover_cycles']} cycles of {CYCLE * 1e3:g} ms, detection "
+              f"included; caught up {st['catch_up_cycles']}), largest SetPos step beyond the dynamics {step:.6f}")
+        stt = sim.status()
+        assert stt is not None and drive_axis(stt, 1)["state"] == "OPERATION_ENABLED"
+    finally:
+        tr.close()
+        cl.close()
+
+
+def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Any]) -> None:
+    a, b, sim, port = pair()
+    cl, tr, first, _ = start_move(a, b, sim, port, 30.0)
+    try:
+        wait_until(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 8.0, T, "axis 1 past 8")
+        os.killpg(a.proc.pid, signal.SIGSTOP)
+        try:
+            st = wait_until(lambda: (s := ha_status(cl, "b")) is not None and s["role"] == "active" and s, T,
+                            f"b took over; stderr:\n{b.stderr()}")
+        finally:
+            os.killpg(a.proc.pid, signal.SIGCONT)
+        # the old NC comes back as a standby (it stalled with a standby in step, or it sees the higher epoch)
+        wait_until(lambda: (s := ha_status(cl, "a")) is not None and s["role"] == "standby" and s["demotions"] >= 1,
+                   T, f"a is a standby; stderr:\n{a.stderr()}")
+        r = wait_until(lambda: (x := cl.nctoplc(1)) is not None and int(x["CmdState"]) == 2 and x, T * 2,
+                       "the move ended Done")
+        assert abs(float(r["SetPos"]) - 30.0) < 1e-6 and int(r["CmdNo"]) == first["CmdNo"]
+        stt = sim.status()
+        assert stt is not None and stt["epoch"] == st["epoch"]
+        # a never drives again: the host's epoch stays b's, and a is back in step as a standby of b
+        wait_logged(lambda: (s := ha_status(cl, "a")) is not None and s["in_step"], "a in step with b", a, b)
+        assert (ha_status(cl, "a") or {})["role"] == "standby" and (ha_status(cl, "b") or {})["role"] == "active"
+        assert tr.restarts == [], tr.restarts
+    finally:
+        tr.close()
+        cl.close()

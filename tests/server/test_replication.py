@@ -1,0 +1,239 @@
+"""Hot-standby replication, cycle by cycle, with two cores in one process (no zenoh): the active NC's core
+behind a CoreRecorder, followers replaying its logs; digests, snapshot joins, re-syncs, the handler's state."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from nc_schema import PLCTONC_DTYPE, Keys, make_request, unpack
+from nc_server.core import AxisConfig, AxisParams, NcCore
+from nc_server.core.params import param_number
+from nc_server.server.claims import ClaimTable
+from nc_server.server.handler import CycleInputs, PendingReply, RequestHandler
+from nc_server.server.replication import (CycleLog, Follower, HandlerRecorder, HandlerState, ReplayDrive,
+                                          CoreRecorder, install_handler, merge_handler, snapshot, state_digest)
+
+KEYS = Keys("nc1")
+
+
+class Active:
+    """The active NC's pure part: core (recorded), handler, cycle inputs, as nc-server wires them."""
+
+    def __init__(self) -> None:
+        params = AxisParams()
+        self.core = NcCore([AxisConfig(1, "X", params), AxisConfig(2, "Y", params)], cycle_time=0.001)
+        self.rec = CoreRecorder(self.core)
+        self.claims = ClaimTable([1, 2], 0.5)
+        self.handler = RequestHandler(self.rec, self.claims, KEYS)
+        self.inputs = CycleInputs(self.rec, self.claims)
+        self.hrec = HandlerRecorder(self.handler)
+        self.now = 0.0
+        self.frames: list[tuple[str, Any]] = []
+
+    def request(self, cmd: str, rid: int, axis: int = 1, client: str = "plc", **args: Any) -> dict[str, Any]:
+        """One request the way the server's cycle thread runs it (motion commands in two phases)."""
+        got = self.handler.prepare(KEYS.command_key(cmd, axis, client), make_request(cmd, rid, client=client, **args),
+                                   self.now)
+        if isinstance(got, PendingReply):
+            self.rec.set_preparing(got.axis_id, True)
+            got = self.handler.plan(got)
+            if isinstance(got, PendingReply):
+                packed = self.handler.activate(got)
+                assert packed is not None
+                got = packed
+            self.rec.set_preparing(axis, False)
+        assert isinstance(got, bytes)
+        return dict(unpack(got))
+
+    def supply(self, control: int, ids: tuple[int, ...] = (1, 2), client: str = "plc") -> None:
+        recs = np.zeros(len(ids), dtype=PLCTONC_DTYPE)
+        recs["ControlDWord"] = control
+        recs["Override"] = 1_000_000
+        self.frames = [(client, SimpleNamespace(arrival=self.now, axis_ids=np.array(ids, dtype=np.uint32),
+                                                plctonc=recs))]
+
+    def cycle(self) -> CycleLog:
+        self.now += 0.001
+        for _, f in self.frames:
+            f.arrival = self.now  # (a PLC frame every cycle)
+        self.inputs.apply(self.frames, self.now)
+        self.rec.step()
+        return self.rec.take(self.hrec.take())
+
+    def snapshot(self) -> bytes:
+        return snapshot(self.rec, self.hrec.full())
+
+
+def follower(active: Active) -> tuple[Follower, list[str]]:
+    reasons: list[str] = []
+    f = Follower(on_resync=reasons.append, on_handler=merge_handler)
+    f.load(active.snapshot())
+    return f, reasons
+
+
+def same(a: NcCore, b: Any) -> None:
+    assert b.cycle == a.cycle
+    assert b.nctoplc.tobytes() == a.nctoplc.tobytes()
+    assert b.ncjobs.tobytes() == a.ncjobs.tobytes()
+
+
+def test_a_follower_steps_with_the_active_core_cycle_by_cycle() -> None:
+    act = Active()
+    act.handler.client_alive("plc", 0.0)
+    f0, reasons = follower(act)  # joins before anything happened
+    assert isinstance(f0.core.drive, ReplayDrive)
+    assert act.request("Claim", 1, 1)["error"] == 0 and act.request("Claim", 2, 2)["error"] == 0
+    act.supply(7)
+    late: Follower | None = None
+    script: dict[int, tuple[str, int, dict[str, Any]]] = {
+        3: ("MoveAbsolute", 1, {"Position": 40.0, "Velocity": 200.0, "Acceleration": 2000.0, "Deceleration": 2000.0,
+                                "Jerk": 20000.0}),
+        5: ("GearIn", 2, {"Master": 1, "RatioNumerator": 1, "RatioDenominator": 2}),
+        150: ("MoveAbsolute", 1, {"Position": 10.0, "Velocity": 100.0, "BufferMode": 1}),  # buffered behind
+        160: ("SetOverride", 1, {"Override": 50.0}),
+        200: ("WriteParameter", 1, {"ParameterNumber": param_number("AxisVeloMax"), "Value": 5000.0}),
+    }
+    rid = 10
+    cmd_nos: dict[str, int] = {}
+    for k in range(1, 900):
+        if k in script:
+            cmd, axis, args = script[k]
+            rid += 1
+            r = act.request(cmd, rid, axis, **args)
+            assert r["error"] == 0, r
+            cmd_nos[f"{cmd}{k}"] = r.get("CmdNo", 0)
+        log = act.cycle()
+        assert f0.apply(log), reasons
+        if k == 100:  # a second standby joins mid-move, from a snapshot of this cycle
+            late, late_reasons = follower(act)
+        elif late is not None:
+            assert late.apply(log), late_reasons
+        same(act.core, f0.core)
+        assert state_digest(f0.core) == log.digest
+    assert late is not None
+    same(act.core, late.core)
+    assert abs(float(act.core.nctoplc[0]["SetPos"]) - 10.0) < 1e-9  # both moves ran to their ends
+    assert f0.resyncs == 1 and f0.diverged == 0 and not reasons and f0.lag == 0
+
+
+def test_watchdog_faults_are_replayed() -> None:
+    act = Active()
+    act.handler.client_alive("plc", 0.0)
+    assert act.request("Claim", 1, 1)["error"] == 0
+    act.supply(7, ids=(1,))
+    f, reasons = follower(act)
+    act.request("MoveVelocity", 2, 1, Velocity=50.0, Acceleration=1000.0, Deceleration=1000.0, Jerk=10000.0)
+    for _ in range(50):
+        assert f.apply(act.cycle())
+    act.frames = []  # the PLC stops sending: 0x8F02 after the watchdog timeout, the axis stops
+    for _ in range(800):
+        assert f.apply(act.cycle()), reasons
+    assert int(act.core.nctoplc[0]["ErrorCode"]) != 0 and act.claims.holder(1) is None
+    same(act.core, f.core)
+
+
+def test_a_gap_or_a_different_digest_asks_for_a_snapshot() -> None:
+    act = Active()
+    act.handler.client_alive("plc", 0.0)
+    act.request("Claim", 1, 1)
+    act.supply(7, ids=(1,))
+    f, reasons = follower(act)
+    assert f.apply(act.cycle())
+    act.cycle()  # lost on the way
+    assert not f.apply(act.cycle()) and f.waiting and "follower is at" in reasons[-1]
+    assert not f.apply(act.cycle())  # waiting: logs are skipped until a snapshot comes
+    f.load(act.snapshot())
+    log = act.cycle()
+    log.digest ^= 1  # the active NC's state differs from the replay's
+    assert not f.apply(log) and f.diverged == 1 and "digest" in reasons[-1]
+    f.load(act.snapshot())
+    act.request("MoveRelative", 2, 1, Distance=1.0, Velocity=10.0)
+    for _ in range(30):
+        assert f.apply(act.cycle())
+    same(act.core, f.core)
+    assert f.resyncs == 3
+
+
+def test_a_log_older_than_the_snapshot_is_skipped() -> None:
+    act = Active()
+    old = act.cycle()
+    f, reasons = follower(act)
+    assert not f.apply(old) and not f.waiting and not reasons
+    assert f.apply(act.cycle())
+
+
+def test_after_a_takeover_a_repeated_request_gets_the_replicated_reply() -> None:
+    act = Active()
+    act.handler.client_alive("plc", 0.0)
+    act.request("Claim", 1, 1)
+    act.supply(7, ids=(1,))
+    f, _ = follower(act)
+    assert f.apply(act.cycle())
+    first = act.request("MoveRelative", 77, 1, Distance=5.0, Velocity=100.0)
+    assert first["error"] == 0 and first["CmdNo"] == 1
+    for _ in range(20):
+        assert f.apply(act.cycle())
+    # the active NC is gone; the standby's handler starts from the replicated state
+    assert isinstance(f.handler_state, HandlerState)
+    claims = ClaimTable([1, 2], 0.5)
+    h = RequestHandler(f.core, claims, KEYS)
+    install_handler(h, f.handler_state)
+    assert claims.holder(1) == "plc" and h.last_command[1][1] == "MoveRelative"
+    again = unpack(h.handle(KEYS.command_key("MoveRelative", 1, "plc"),
+                            make_request("MoveRelative", 77, client="plc", Distance=5.0, Velocity=100.0), 1.0))
+    assert dict(again) == first and h.cache.hits == 1
+    assert int(f.core.queues[0].newest) == first["CmdNo"]  # not executed a second time
+
+
+def test_a_snapshot_keeps_the_cores_array_views() -> None:
+    """The core keeps views (columns of one table, the job records' byte view); a snapshot keeps them views,
+    else the follower's core would write one copy and read another."""
+    act = Active()
+    f, _ = follower(act)
+    core = f.core
+    assert np.shares_memory(core.sp_dw, core.sp_words) and np.shares_memory(core.axis_state, core.sp_words)
+    assert isinstance(core.records._bytes, memoryview)
+    assert np.shares_memory(np.frombuffer(core.records._bytes, dtype=np.uint8), core.ncjobs)
+
+
+@pytest.mark.parametrize("bad", ["step", "nothing"])
+def test_a_replay_that_does_not_fit_the_drive_tape_is_a_resync(bad: str) -> None:
+    act = Active()
+    f, reasons = follower(act)
+    log = act.cycle()
+    if bad == "step":
+        log.drive = []  # the core's drive step finds nothing on the tape
+    else:
+        log.drive = log.drive + log.drive  # a call left over
+    assert not f.apply(log) and f.waiting and reasons
+
+
+def test_a_follower_that_took_over_is_followed_in_turn() -> None:
+    """A standby that took over (its core from a snapshot, the real drives now) is followed by the next standby
+    from a snapshot of its own: the snapshot of a snapshot keeps every array alias (the digests agree)."""
+    from nc_server.drives.sim import SimDrive
+    from nc_server.server.replication import RecordingDrive
+    act = Active()
+    act.handler.client_alive("plc", 0.0)
+    f, _ = follower(act)
+    act.request("Claim", 1, 1)
+    act.supply(7, ids=(1,))
+    for _ in range(3):
+        assert f.apply(act.cycle())
+    assert act.request("MoveAbsolute", 5, 1, Position=20.0, Velocity=50.0)["error"] == 0
+    for _ in range(50):
+        assert f.apply(act.cycle())
+    core = f.core
+    core.drive = RecordingDrive(SimDrive(core.params, core.cycle_time))  # the takeover: real drives
+    rec = CoreRecorder(core)
+    rec.attach_drive(core.drive)
+    reasons: list[str] = []
+    g = Follower(on_resync=reasons.append, on_handler=merge_handler)
+    g.load(snapshot(rec))
+    for _ in range(100):
+        rec.step()
+        assert g.apply(rec.take()), reasons
+    same(core, g.core)
