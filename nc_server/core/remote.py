@@ -114,8 +114,9 @@ class RemoteMasters:
         """Raises NcError 0x4012 when master ``k`` has no sample within ``max_age_ns``; 0x4B06 when it is a
         coupled slave itself (chains across NCs start at an uncoupled master: no cycle across NCs)."""
         age = self.age_ns(k, t_ns)
-        if age is None or age > self.max_age_ns:
-            what = "no sample yet" if age is None else f"newest sample {age / 1e6:.1f} ms old"
+        if age is None or abs(age) > self.max_age_ns:  # (from the future: the two NCs' clocks are apart)
+            what = ("no sample yet" if age is None else f"newest sample {age / 1e6:.1f} ms old" if age > 0 else
+                    f"newest sample {-age / 1e6:.1f} ms in the future (the NCs' clocks differ: docs/coupling-across-ncs.md)")
             raise NcError(ErrorCodes.NC_AXIS_ID_NOT_ALLOWED,
                           f"remote master {self.name(k)}: {what} (NC not running, no such axis, or not allowed "
                           f"to read it; max_age {self.max_age_ns / 1e6:g} ms)")

@@ -180,8 +180,8 @@ class CycleLog:
 
 
 #: the core methods that change it (the replayed ones); everything else is read through
-_RECORDED = ("execute", "prepare", "activate", "set_plctonc", "set_plctonc_many", "fault", "set_preparing",
-             "inputs_changed", "write_parameter", "step")
+_RECORDED = ("execute", "prepare", "activate", "set_plctonc", "set_plctonc_many", "set_remote_samples", "fault",
+             "set_preparing", "inputs_changed", "write_parameter", "step")
 
 
 class CoreRecorder:
@@ -248,6 +248,13 @@ class CoreRecorder:
     def set_plctonc_many(self, index: np.ndarray, records: np.ndarray) -> None:
         self.calls.append(("set_plctonc_many", (np.array(index), np.array(records))))
         self.core.set_plctonc_many(index, records)
+
+    def set_remote_samples(self, samples: Any) -> None:
+        # the remote masters' samples (coupling across NCs) are an input like PLCTONC: the standby gets them
+        # from the log, never from its own subscription (it would see other samples at other times)
+        samples = list(samples)
+        self.calls.append(("set_remote_samples", (samples,)))
+        self.core.set_remote_samples(samples)
 
     def fault(self, i: int, code: int) -> None:
         self.calls.append(("fault", (int(i), int(code))))

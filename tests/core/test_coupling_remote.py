@@ -215,3 +215,29 @@ def test_prepare_and_activate_as_the_server_does() -> None:
     assert rep is not None and rep["error"] == 0, rep
     pr.step(2)
     assert int(pr.s.nctoplc[0]["CoupleState"]) == int(CoupleState.SLAVE)
+
+
+def test_a_master_sample_from_the_future_is_no_master() -> None:
+    """Clocks seconds apart (the master's host ahead): its samples are refused as a master (0x4012) and, once
+    coupled, the slave stops with 0x42A0 instead of extrapolating the master far away."""
+    pr = Pair()
+    pr.m.execute  # (the master stands)
+    future = 5_000_000_000
+    pr.t += DT_NS
+    pr.m.step(pr.t + future)
+    pr.s.set_remote_samples([sample(pr.m)])
+    pr.s.step(pr.t)
+    before = snapshot(pr.s)
+    r = pr.gear_in()
+    assert r["error"] == E.NC_AXIS_ID_NOT_ALLOWED and "future" in r["text"], r
+    assert snapshot(pr.s) == before  # refused: nothing changed
+    # coupled with a sane clock, then the master's clock jumps ahead
+    pr2 = Pair()
+    pr2.step(5)
+    assert pr2.gear_in()["error"] == 0
+    pr2.step(20)
+    pr2.phase_ns -= future  # the slave's clock is now 5 s behind the master's
+    pr2.step(5)
+    s = pr2.s.nctoplc[0]
+    assert int(s["ErrorCode"]) == E.NC_CONSEQUENTIAL_ERROR, hex(int(s["ErrorCode"]))
+    assert abs(float(s["SetPos"])) < 1.0  # it did not jump

@@ -55,12 +55,12 @@ class Active:
         self.frames = [(client, SimpleNamespace(arrival=self.now, axis_ids=np.array(ids, dtype=np.uint32),
                                                 plctonc=recs))]
 
-    def cycle(self) -> CycleLog:
+    def cycle(self, nc_time_ns: int | None = None) -> CycleLog:
         self.now += 0.001
         for _, f in self.frames:
             f.arrival = self.now  # (a PLC frame every cycle)
         self.inputs.apply(self.frames, self.now)
-        self.rec.step()
+        self.rec.step(nc_time_ns)
         return self.rec.take(self.hrec.take())
 
     def snapshot(self) -> bytes:
@@ -237,3 +237,46 @@ def test_a_follower_that_took_over_is_followed_in_turn() -> None:
         rec.step()
         assert g.apply(rec.take()), reasons
     same(core, g.core)
+
+
+def test_a_slave_of_a_master_on_another_nc_is_replicated() -> None:
+    """The remote master's samples (coupling across NCs) are a recorded input: the standby's slave follows the
+    same samples at the same cycles, digests equal, and a snapshot carries the master's sample history."""
+    from nc_server.core import MasterSample
+    from znc_testing.nc_core import cmd, powered
+
+    master = powered(1)
+    act = Active()
+    act.core.configure_remote("nc1", [("ncm", 1)], 0.05)
+    act.handler.client_alive("plc", 0.0)
+    f0, reasons = follower(act)
+    assert act.request("Claim", 1, 1)["error"] == 0 and act.request("Claim", 2, 2)["error"] == 0
+    act.supply(7)
+    t = 1_700_000_000_000_000_000
+    late: Follower | None = None
+    late_reasons: list[str] = []
+    for k in range(1, 600):
+        t += 1_000_000
+        if k == 20:
+            assert cmd(master, "MoveAbsolute", 1, Position=30.0, Velocity=150.0, Acceleration=1500.0,
+                       Deceleration=1500.0, Jerk=15000.0)["error"] == 0
+        master.step(t)
+        r = master.nctoplc[0]
+        if k % 3 != 0:  # (late and bunched, as over a network)
+            act.rec.set_remote_samples([MasterSample("ncm", 1, master.cycle, master.nc_time_ns, float(r["SetPos"]),
+                                                     float(r["SetVelo"]), float(r["SetAcc"]), float(r["SetJerk"]))])
+        if k == 10:
+            g = act.request("GearIn", 100, 2, Master=1, MasterNc="ncm", RatioNumerator=1, RatioDenominator=2)
+            assert g["error"] == 0, g
+        log = act.cycle(t + 300_000)
+        assert f0.apply(log), reasons
+        if k == 150:  # joins mid-coupling from a snapshot
+            late, late_reasons = follower(act)
+        elif late is not None:
+            assert late.apply(log), late_reasons
+        same(act.core, f0.core)
+    assert late is not None
+    same(act.core, late.core)
+    slave = act.core.nctoplc[1]
+    assert abs(float(slave["SetPos"]) - 15.0) < 0.05 and float(slave["SetVelo"]) == 0.0  # about half the master's 30
+    assert f0.diverged == 0 and not reasons and not late_reasons

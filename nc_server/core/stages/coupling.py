@@ -333,7 +333,8 @@ class CouplingStage:
     def _run_remote(self, core: CoreContext, after_level: Callable[[CoreContext, np.ndarray], None] | None
                     ) -> list[tuple[int, int]]:
         """The slaves of remote masters (before the levels: their own slaves read them there). Returns (row,
-        0x42A0) of those whose master's newest sample is older than ``max_age_ns``: they go on from their own
+        0x42A0) of those whose master's newest sample is older than ``max_age_ns`` (or that much in the future: the
+        two NCs' clocks are apart): they go on from their own
         set-point state for this cycle and the NC faults them (their own stop ramp)."""
         a = core.axes
         S = a.S
@@ -345,7 +346,7 @@ class CouplingStage:
         for i in rows:
             k = int(self.remote[i])
             st = src.state(k, t)
-            if st is None or st[4] > src.max_age_ns:
+            if st is None or abs(st[4]) > src.max_age_ns:  # (a sample far in the future: clocks apart, no master)
                 p, v, acc = float(S[0, i]), float(S[1, i]), float(S[2, i])
                 S[0, i], S[1, i], S[3, i] = p + dt * (v + 0.5 * acc * dt), v + acc * dt, 0.0
                 lost.append((i, int(ErrorCodes.NC_CONSEQUENTIAL_ERROR)))
