@@ -60,6 +60,7 @@ bench: $(STAMP)
 	$(PY) bench/canopen_cycle.py || rc=1; \
 	$(PY) bench/remote_drives.py || rc=1; \
 	$(PY) bench/opcua_latency.py || rc=1; \
+	$(PY) bench/web_latency.py || rc=1; \
 	exit $$rc
 
 # Containers (deploy/): images built locally (no registry, cached by content hash), the compose system.
