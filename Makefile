@@ -62,6 +62,7 @@ bench: $(STAMP)
 	$(PY) bench/remote_drives.py || rc=1; \
 	$(PY) bench/opcua_latency.py || rc=1; \
 	$(PY) bench/cross_nc_phase.py || rc=1; \
+	$(PY) bench/web_latency.py || rc=1; \
 	exit $$rc
 
 # Containers (deploy/): images built locally (no registry, cached by content hash), the compose system.

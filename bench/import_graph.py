@@ -20,9 +20,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the repository's top-level Python packages
-PACKAGES = ("nc_schema", "nc_link", "plc_client", "nc_ads", "nc_tools", "nc_opcua", "nc_server", "nc_sim")
+PACKAGES = ("nc_schema", "nc_link", "plc_client", "nc_ads", "nc_tools", "nc_opcua", "nc_web", "nc_server", "nc_sim")
 #: packages that may never import nc_server (issue 16: no client -> server edge)
-CLIENTS = ("nc_schema", "nc_link", "plc_client", "nc_ads", "nc_tools", "nc_opcua")
+CLIENTS = ("nc_schema", "nc_link", "plc_client", "nc_ads", "nc_tools", "nc_opcua", "nc_web")
 FORBIDDEN = {(c, "nc_server") for c in CLIENTS}
 
 

@@ -18,8 +18,8 @@ BUILD="$HERE/.build"
 PROJECT="${ZNC_PROJECT:-zenoh-nc}"
 export ZNC_TRANSPORT="${ZNC_TRANSPORT:-tls}"
 export ZNC_ROUTER_PORT="${ZNC_ROUTER_PORT:-7450}"
-SERVICES=(router nc1 nc2 plc1 plc2 opcua)
-IDS=(nc1 nc2 plc1 plc2 status opcua drives1)   # one certificate each (+ router, always; status: an observer for tools;
+SERVICES=(router nc1 nc2 plc1 plc2 opcua web)
+IDS=(nc1 nc2 plc1 plc2 status opcua web drives1)   # one certificate each (+ router, always; status: an observer for tools;
                                                # drives1: the drive host of compose.drives.yaml)
 APP_UID=10001                           # the image's user (deploy/images/Dockerfile)
 
@@ -89,6 +89,21 @@ prepare_opcua() {
     chgrp "$APP_UID" "$dir/users.toml" "$dir/opcua.key.pem" && chmod 0640 "$dir/users.toml" "$dir/opcua.key.pem"
 }
 
+# nc-web's users file (user `operator`, a random password kept in operator.password, 0600), made once with the
+# image's own nc-web, and its cookie secret (32 random bytes, hex)
+prepare_web() {
+    local dir="$BUILD/web"
+    mkdir -p "$dir"
+    if [[ ! -s $dir/users.toml ]]; then
+        (umask 077 && openssl rand -base64 18 >"$dir/operator.password") || die "cannot make a password"
+        docker run --rm -i --user 0 -v "$dir:/out" "${ZNC_IMAGE:-zenoh-nc:latest}" python -m nc_web user \
+            /out/users.toml operator --role operator <"$dir/operator.password" >&2 || die "nc-web user failed"
+        log "nc-web user 'operator': password in $dir/operator.password"
+    fi
+    [[ -s $dir/secret ]] || (umask 077 && openssl rand -hex 32 >"$dir/secret") || die "cannot make nc-web's secret"
+    chgrp "$APP_UID" "$dir/users.toml" "$dir/secret" && chmod 0640 "$dir/users.toml" "$dir/secret"
+}
+
 wait_healthy() {
     local deadline=$((SECONDS + ${ZNC_UP_TIMEOUT:-240})) s id state all
     while :; do
@@ -118,6 +133,7 @@ case "${1:-}" in
         prepare
         PYTHON="${PYTHON:-python3}" "$HERE/images/build.sh"
         prepare_opcua
+        prepare_web
         compose up -d
         wait_healthy || die "the system did not become healthy"
         c="${COMPOSE[*]} -f deploy/compose.yaml"
@@ -139,6 +155,7 @@ EOF
   make deploy-down       # stop and remove it
   OPC UA: opc.tcp://127.0.0.1:${ZNC_OPCUA_PORT:-4840}/zenoh-nc, user operator, password in deploy/.build/opcua/operator.password
           (Basic256Sha256; the server certificate deploy/.build/opcua/opcua.der)
+  Web: http://127.0.0.1:${ZNC_WEB_PORT:-8080}/, user operator, password in deploy/.build/web/operator.password
 EOF
         if [[ $ZNC_TRANSPORT == tcp ]]; then
             echo "  nc-status --connect tcp/127.0.0.1:$ZNC_ROUTER_PORT   # live table of the NCs (the router on the host's loopback)"

@@ -26,6 +26,7 @@ import hmac
 import os
 import re
 import sys
+import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -101,12 +102,26 @@ class Verifier:
         self.users = users
         self._key = os.urandom(32)
         self._ok: dict[str, bytes] = {}
+        self._refused: dict[bytes, float] = {}  # (name, password) MACs :meth:`precheck` refused -> until when
+
+    def precheck(self, name: str, password: str) -> bool:
+        """:meth:`check` on a worker thread before a caller that must decide without blocking (asyncua's
+        ActivateSession): a success is remembered as by :meth:`check`; a refusal is remembered for one later
+        :meth:`check` of the same name and password within 30 s, which then costs no scrypt either."""
+        if self.check(name, password):
+            return True
+        now = time.monotonic()
+        self._refused = {m: t for m, t in self._refused.items() if t > now}
+        self._refused[self._mac(name, password, "")] = now + 30.0
+        return False
 
     def _mac(self, name: str, password: str, stored: str) -> bytes:
         return hmac.new(self._key, b"\0".join(x.encode() for x in (name, password, stored)), hashlib.sha256).digest()
 
     def check(self, name: str, password: str) -> bool:
         """True if ``name`` is a user and ``password`` is its password."""
+        if self._refused.pop(self._mac(name, password, ""), 0.0) > time.monotonic():
+            return False  # refused by :meth:`precheck` just before: no second scrypt
         u = self.users.get(name)
         if u is None:
             dummy_verify(password)

@@ -190,10 +190,10 @@ class _Users(UserManager):
     """asyncua's user manager: the users file's names and passwords (:class:`nc_link.users.Verifier`).
 
     asyncua calls ``get_user`` synchronously inside ActivateSession (``InternalSession.activate_session`` is
-    not a coroutine), so a password check runs on the server's event loop: one scrypt (~0.1-1 s, machine
-    dependent) for a first login of a user, for a wrong password and for an unknown name (the same cost: the
-    time tells no names); a repeated successful login costs an HMAC only. Moving it off the loop would need
-    asyncua's session processing changed (not done: the cost stays, documented in docs/opcua.md).
+    not a coroutine). The scrypt of a check (~0.1-1 s: a first login of a user, a wrong password, an unknown
+    name, all the same cost) must not stall the event loop, so :func:`_install_async_login` runs
+    :meth:`Verifier.precheck` on a worker thread before asyncua handles an ActivateSession with a user name
+    token; ``get_user`` then finds the result remembered (an HMAC, no scrypt).
     """
 
     def __init__(self, users: dict[str, User], anonymous: bool) -> None:
@@ -208,6 +208,35 @@ class _Users(UserManager):
             log.warning("OPC UA login of %r refused", username)
             return None
         return UaUser(role=UserRole.User, name=username)
+
+
+def _install_async_login() -> None:
+    """Run the password check of an ActivateSession on a worker thread (see :class:`_Users`): asyncua's
+    ``UaProcessor._process_message`` wrapped once per process; servers with another user manager are
+    untouched. The token is decoded from a copy of the request (asyncua decodes the original itself)."""
+    from asyncua.server import uaprocessor
+    from asyncua.ua.ua_binary import struct_from_binary
+
+    cls: Any = uaprocessor.UaProcessor
+    if getattr(cls, "_znc_async_login", False):
+        return
+    orig = cls._process_message
+    activate = ua.NodeId(cast(Any, ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary))
+
+    async def _process_message(self: Any, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
+        um = self.iserver.user_manager
+        if typeid == activate and isinstance(um, _Users) and self.session is not None:
+            try:
+                params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
+                token = params.UserIdentityToken
+                if isinstance(token, ua.UserNameIdentityToken):
+                    name, password = self.iserver.decrypt_user_token(self.session, token)
+                    await asyncio.to_thread(um.verifier.precheck, name or "", password or "")
+            except Exception:  # asyncua's own handling reports a bad request
+                pass
+        return await orig(self, typeid, requesthdr, seqhdr, body)
+    cls._process_message = _process_message
+    cls._znc_async_login = True
 
 
 def _arg(name: str, vt: ua.VariantType, doc: str = "") -> ua.Argument:
@@ -279,6 +308,7 @@ class OpcuaDoor:
         if cfg.role not in ROLE_CLASSES:
             raise ValueError(f"role must be one of {', '.join(ROLE_CLASSES)}, got {cfg.role!r}")
         self.cfg = cfg
+        _install_async_login()
         self.server = Server(user_manager=_Users(cfg.users or {}, cfg.allow_anonymous))
         self.bridges: dict[str, NcDoor] = {}
         self.idx = 0

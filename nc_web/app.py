@@ -23,7 +23,8 @@ Client ids: the door connects as ``door_id``; what it commands for user U is sen
 Logins and door sessions: a login is a door session (a number never reused). The cookie ``ncweb`` carries a
 random login id with an HMAC-SHA256 under the door's secret (read from a file or made at start), HttpOnly,
 SameSite=Strict (Secure under HTTPS). A login ends by logout, by its maximum age, or when none of its pages has
-had its WebSocket open for ``session_idle`` s (the tab closed, the network cut): then its claims are released
+had its WebSocket open for ``session_idle`` s (the tab closed, the network cut; before its first page opened, at
+least 60 s): then its claims are released
 and the axes it powered or moved stop (0x8F01, ``NcDoor.session_gone``), and the browser must log in again.
 
 Hold-to-run: a held jog button sends ``{"type": "jog", ...}`` on the page's WebSocket every ``heartbeat`` s;
@@ -111,8 +112,8 @@ class WebConfig:
     door_id: str = "web"
     tls_dir: str | None = None
     frame_ms: int = 50
-    hold_timeout: float = 0.15
-    heartbeat: float = 0.05
+    hold_timeout: float = 0.1
+    heartbeat: float = 0.03
     session_idle: float = 10.0
     login_max_age: float = 12 * 3600.0
     secure_cookie: bool = False
@@ -128,6 +129,7 @@ class Login:
     role: str
     started: float
     sockets: int = 0
+    paged: bool = False  # a page of it opened its WebSocket once
     idle_since: float = field(default_factory=time.monotonic)
     ended: bool = False
 
@@ -165,7 +167,7 @@ def axis_values(rec: bytes) -> dict[str, Any]:
             "SetVelo": float(r["SetVelo"]), "PosDiff": float(r["PosDiff"]), "StateDWord": sdw,
             "State": motion_state(sdw, int(r["CoupleState"])).name.removeprefix("MC_AXISSTATE_"),
             "Homed": bool(sdw & _HOMED), "Enabled": bool(sdw & _CLOSED), "ErrorCode": err,
-            "ErrorText": error_label(err)}
+            "ErrorText": error_label(err), "DcTimeStamp": int(r["DcTimeStamp"])}
 
 
 class WebDoor:
@@ -234,7 +236,9 @@ class WebDoor:
             await asyncio.sleep(min(1.0, self.cfg.session_idle / 4))
             now = time.monotonic()
             for sid, login in list(self.logins.items()):
-                if login.sockets == 0 and now - login.idle_since > self.cfg.session_idle:
+                # before its first page: the page's load may take a while on a slow client, so at least 60 s
+                idle = self.cfg.session_idle if login.paged else max(60.0, self.cfg.session_idle)
+                if login.sockets == 0 and now - login.idle_since > idle:
                     await self._end(login, f"no page open for {self.cfg.session_idle:g} s")
                 elif time.time() - login.started > self.cfg.login_max_age:
                     await self._end(login, "login too old")
@@ -415,6 +419,7 @@ class WebDoor:
             return
         await ws.accept()
         login.sockets += 1
+        login.paged = True
         jogged: set[int] = set()
         pending: set[int] = set()
         sender = asyncio.create_task(self._push(ws, nc, login))

@@ -4,7 +4,7 @@ Usage::
 
     nc-web --nc nc1=tcp/127.0.0.1:7447 [--nc nc2=...] --users users.toml [--listen 127.0.0.1:8080]
            [--role engineer] [--client-id web] [--tls-dir DIR] [--cert web.pem --key web.key.pem]
-           [--secret-file FILE] [--frame-ms 50] [--hold-timeout 0.15] [--session-idle 10]
+           [--secret-file FILE] [--frame-ms 50] [--hold-timeout 0.1] [--session-idle 10]
     nc-web --connect tcp/127.0.0.1:7447 --nc nc1 ...     # every --nc without '=' at the --connect endpoint
     nc-web user FILE NAME --role operator                # add/replace a user (the same file as nc-opcua's)
 
@@ -44,8 +44,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    "default: a new key at every start, logins end with a restart)")
     p.add_argument("--frame-ms", type=int, default=50, choices=FRAME_PERIODS_MS,
                    help="live value period [ms] (default 50: the NC's 50 ms frames)")
-    p.add_argument("--hold-timeout", type=float, default=0.15, metavar="S",
-                   help="a jog stops this long after the page's last heartbeat [s] (default 0.15)")
+    p.add_argument("--hold-timeout", type=float, default=0.1, metavar="S",
+                   help="a jog stops this long after the page's last heartbeat [s] (default 0.1; the page beats "
+                        "every 30 ms)")
     p.add_argument("--session-idle", type=float, default=10.0, metavar="S",
                    help="a login without an open page this long ends, its claims released [s] (default 10)")
     p.add_argument("--log-level", default="WARNING")
@@ -145,7 +146,7 @@ async def _serve(door: object, host: str, port: int, cert: str | None, key: str 
     from .app import WebDoor
     assert isinstance(door, WebDoor)
     config = uvicorn.Config(door.app, host=host, port=port, ssl_certfile=cert, ssl_keyfile=key, log_level=level.lower(),
-                            access_log=False, lifespan="on", ws_ping_interval=2.0, ws_ping_timeout=2.0)
+                            access_log=False, lifespan="on", ws_ping_interval=5.0, ws_ping_timeout=20.0)
     server = uvicorn.Server(config)
     task = asyncio.create_task(server.serve())
     while not server.started:

@@ -105,6 +105,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=None,
                     help="stop after S seconds (default: until Ctrl-C on a terminal, 20 s otherwise)")
     ap.add_argument("--port", type=int, default=None, help="listen on tcp/127.0.0.1:PORT instead of the default 7447")
+    ap.add_argument("--web", type=int, default=None, metavar="PORT",
+                    help="also start nc-web on http://127.0.0.1:PORT/ (a user 'demo', engineer, with a password made "
+                         "now and printed, unless --web-users)")
+    ap.add_argument("--web-users", metavar="FILE", help="nc-web's users file (nc-web user FILE NAME --role R)")
     args = ap.parse_args(argv)
     tty = sys.stdout.isatty()
     duration = args.duration if args.duration is not None else (None if tty else 20.0)
@@ -115,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     nc = Proc("nc-server", server_argv, out)
     plc: Proc | None = None
+    web: Proc | None = None
     first: dict[int, tuple[float, int]] = {}
     last: tuple[Any, np.ndarray] | None = None
     moved_turns: dict[int, float] = {}
@@ -129,10 +134,14 @@ def main(argv: list[str] | None = None) -> int:
                 return 1
         plc = Proc("plc", _bin("plc-run") + [demo_program.__file__, "--nc", f"nc1={endpoint}", "--client-id", "demo-plc"],
                    out)
+        if args.web is not None:
+            web = Proc("nc-web", _web_argv(args.web, args.web_users, endpoint, out), out)
         keys = Keys("nc1")
         with zenoh.open(_client_config(endpoint)) as session:
             sub = session.declare_subscriber(keys.frame, zenoh.handlers.RingChannel(1))
             nc.quiet = plc.quiet = tty  # the table redraws in place: no interleaved log lines
+            if web is not None:
+                web.quiet = tty
             names = {1: "X", 2: "Y", 3: "Z", 4: "C"}
             t0 = time.monotonic()
             next_draw = 0.0
@@ -174,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        for proc in (plc, nc):
+        for proc in (web, plc, nc):
             if proc is not None:
                 proc.quiet = False
                 proc.stop()
@@ -189,6 +198,22 @@ def main(argv: list[str] | None = None) -> int:
     ok = not errors and all(moved_turns.get(a, 0.0) > 1.0 for a in (1, 2, 3, 4)) and c_turns >= 2.0
     print("demo OK" if ok else "demo FAILED: not every axis moved, or an axis reported an error")
     return 0 if ok else 1
+
+
+def _web_argv(port: int, users: str | None, endpoint: str, out: IO[str]) -> list[str]:
+    """nc-web's command line for the demo; without ``users`` a users file with user ``demo`` (engineer) and a
+    random password (printed: nothing is stored in the source) in a temporary directory."""
+    if users is None:
+        import secrets
+        import tempfile
+
+        from nc_link.users import add_user
+        users = str(Path(tempfile.mkdtemp(prefix="zenoh-nc-demo-")) / "users.toml")
+        password = secrets.token_urlsafe(9)
+        add_user(users, "demo", "engineer", password)
+        print(f"nc-web: http://127.0.0.1:{port}/  user demo, password {password} (the demo PLC holds the axes: "
+              "watch them; commands get 0x723 until it lets go)", file=out, flush=True)
+    return _bin("nc-web") + ["--nc", f"nc1={endpoint}", "--listen", f"127.0.0.1:{port}", "--users", users]
 
 
 if __name__ == "__main__":

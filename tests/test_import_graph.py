@@ -49,7 +49,7 @@ def test_the_walk_sees_lazy_and_relative_imports(tmp_path: Path) -> None:
 def test_importing_the_clients_loads_no_nc_server_module() -> None:
     """At run time too: the client packages import without any nc_server module."""
     code = ("import sys, plc_client, plc_client.runtime, nc_ads.nc_device, nc_tools.status, nc_opcua.server,"
-            " nc_opcua.cli, nc_link, nc_schema;"
+            " nc_opcua.cli, nc_web.app, nc_web.cli, nc_link, nc_schema;"
             "print(sorted(m for m in sys.modules if m == 'nc_server' or m.startswith('nc_server.')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert out.returncode == 0, out.stderr

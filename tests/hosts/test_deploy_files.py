@@ -70,7 +70,7 @@ def test_motion_on_its_own_accepts_a_command_sent_during_the_standstill_before_t
 def test_each_container_mounts_only_its_own_key_and_certificate() -> None:
     """deploy/compose.yaml: every service mounts ca.pem and its own <id>.pem/.key (never the whole
     certs directory, the CA key or another identity's key); only the router the roles file, only nc-opcua
-    its users file and OPC UA application certificate."""
+    its users file and OPC UA application certificate, only nc-web its users file and cookie secret."""
     import re
 
     text = (ROOT / "deploy" / "compose.yaml").read_text()
@@ -87,7 +87,8 @@ def test_each_container_mounts_only_its_own_key_and_certificate() -> None:
         sources = sorted(src for src, _ in mounts)
         want = sorted(["certs/ca.pem", f"certs/{sid}.pem", f"certs/{sid}.key"]
                       + (["etc/roles.toml"] if sid == "router" else [])
-                      + (["opcua/opcua.der", "opcua/opcua.key.pem", "opcua/users.toml"] if sid == "opcua" else []))
+                      + (["opcua/opcua.der", "opcua/opcua.key.pem", "opcua/users.toml"] if sid == "opcua" else [])
+                      + (["web/secret", "web/users.toml"] if sid == "web" else []))
         assert sources == want, (sid, sources)
-    assert seen == {"router", "nc1", "nc2", "plc1", "plc2", "opcua"}
+    assert seen == {"router", "nc1", "nc2", "plc1", "plc2", "opcua", "web"}
     assert re.search(r"\.build\}/certs:", text) is None  # no directory mount left (anchor included)

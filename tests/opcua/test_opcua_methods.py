@@ -270,3 +270,33 @@ def test_password_checks_cost_the_same_for_unknown_names_and_are_cached(monkeypa
     assert scrypts("alice", "alice-pw") == (True, [])  # remembered: no scrypt
     assert scrypts("alice", "alice-pwx") == (False, [2 ** 4])  # a wrong one is never taken from the cache
     assert scrypts("alice", "alice-pw") == (True, [])
+
+
+def test_a_precheck_on_a_worker_thread_leaves_asyncuas_check_without_scrypt(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The login's scrypt runs in Verifier.precheck (a worker thread, before asyncua's ActivateSession); the
+    synchronous get_user on the event loop then costs no scrypt, for a success and for a refusal."""
+    import hashlib
+
+    from asyncua.server import uaprocessor
+
+    from nc_link import users as users_mod
+    from nc_opcua.server import _install_async_login, _Users
+    monkeypatch.setattr(users_mod, "_N", 2 ** 4)
+    real = hashlib.scrypt
+    runs: list[int] = []
+
+    def counting(*a: Any, **k: Any) -> bytes:
+        runs.append(int(k["n"]))
+        return real(*a, **k)
+    alice = users_mod.User("alice", "operator", users_mod.hash_password("alice-pw"))
+    monkeypatch.setattr(users_mod.hashlib, "scrypt", counting)
+    um = _Users({"alice": alice}, anonymous=False)
+    for name, pw, ok in (("alice", "alice-pw", True), ("alice", "wrong", False), ("mallory", "x", False)):
+        runs.clear()
+        assert um.verifier.precheck(name, pw) is ok and len(runs) == 1
+        runs.clear()
+        assert (um.get_user(None, username=name, password=pw) is not None) is ok and runs == []
+    runs.clear()
+    assert um.get_user(None, username="alice", password="wrong") is None and len(runs) == 1  # remembered once only
+    _install_async_login()
+    assert getattr(uaprocessor.UaProcessor, "_znc_async_login", False)
