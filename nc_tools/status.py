@@ -7,7 +7,9 @@ none), cycle time, timing
 mode, missed cycles / overruns, work p99, the clients (and their roles) and the claims; per axis:
 AxisId, MotionState (PLCopen), AxisState, SetPos / ActPos / SetVelo, ErrorCode with its name
 (errors.json) and the drive's own error code (CiA 402 0x603F, from the stats' drive_errors; shown as
-"(drive 0x2310)" after the axis error), the claim holder and the source of the last command.
+"(drive 0x2310)" after the axis error), the claim holder, the source of the last command and the link to its drive
+(stats drive_link: a CANopen node's NMT state, heartbeat age and missed TPDOs, a remote drive host's round trip and
+input age; shown on a line of its own below the axis).
 
 Usable over a slow link: it never subscribes to the 1 kHz ``nc/<nc>/frame``. It reads only
 
@@ -210,10 +212,11 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "instance", "restarts", "cycle_time", "timing",
         "missed_cycles", "overruns", "work_us_p99", "clients": {id: {"alive", "role"}}, "claims": {axis: id},
         "axes": [{"AxisId", "MotionState", "AxisState", "SetPos", "ActPos", "SetVelo", "ErrorCode",
-        "ErrorName", "DriveErrorCode", "Holder", "LastCommand"}], "problems": [str]}``; DriveErrorCode: the drive's own
-        error code (CiA 402 0x603F, stats ``drive_errors``; 0: none or not reported); ``"remote_couplings"``: per
-        slave of a master on another NC, {"AxisId", "master", "state", "ratio", "age_us", "phase_err",
-        "phase_err_max", "phase_bound", "measured", "within"} (stats ``remote_couplings``).
+        "ErrorName", "DriveErrorCode", "DriveLink", "Holder", "LastCommand"}], "problems": [str]}``; DriveErrorCode: the
+        drive's own error code (CiA 402 0x603F, stats ``drive_errors``; 0: none or not reported); DriveLink: the
+        figures of the link to its drive (stats ``drive_link``; None: no link, an in-process drive);
+        ``"remote_couplings"``: per slave of a master on another NC, {"AxisId", "master", "state", "ratio", "age_us",
+        "phase_err", "phase_err_max", "phase_bound", "measured", "within"} (stats ``remote_couplings``).
     """
     problems: list[str] = []
     st = _unpack(stats)
@@ -275,6 +278,14 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
     elif de is not None:
         problems.append("stats: drive_errors is not a map")
     remote = _remote_couplings(st.get("remote_couplings") if st is not None else None, problems)
+    links: dict[str, dict[str, Any]] = {}  # the links to the drives (CANopen, remote) from the stats
+    dl = st.get("drive_link") if st is not None else None
+    if isinstance(dl, dict):
+        for a, f in dl.items():
+            if isinstance(f, dict):
+                links[axis_key(a)] = f
+    elif dl is not None:
+        problems.append("stats: drive_link is not a map")
     axes = []
     if frame is not None:
         for r in frame[1]:
@@ -291,6 +302,7 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
                 "SetPos": float(r["SetPos"]), "ActPos": float(r["ActPos"]), "SetVelo": float(r["SetVelo"]),
                 "ErrorCode": code, "ErrorName": _error(code),
                 "DriveErrorCode": drive_errors.get(str(aid), 0),
+                "DriveLink": links.get(str(aid)),
                 "Holder": holders.get(str(aid)),
                 "LastCommand": last.get(str(aid)),
             })
@@ -331,6 +343,22 @@ def _ha(st: dict[str, Any] | None) -> dict[str, Any] | None:
 
 
 # ---- text ----------------------------------------------------------------------------------------
+def link_text(f: dict[str, Any]) -> str:
+    """One line for the figures of a drive's link (stats ``drive_link``)."""
+    def v(k: str, fmt: str = "") -> str:
+        x = f.get(k)
+        return "-" if x is None else format(x, fmt) if fmt and isinstance(x, (int, float)) else str(x)
+    kind = f.get("link")
+    if kind == "canopen":
+        return (f"canopen node {v('node_id')} {v('nmt')} ({v('monitoring')} {v('heartbeat_age_ms', '.0f')} ms ago"
+                f"{'' if f.get('alive') else ', LOST'}), TPDOs late {v('tpdo_late')} missed {v('tpdo_missed')}, "
+                f"set-ups {v('setups')}, bus tx errors {v('tx_errors')}")
+    if kind == "remote":
+        return (f"remote host {v('host')}{'' if f.get('alive') else ' LOST'}, round trip {v('round_trip')} cycles, "
+                f"input age {v('age')} cycles")
+    return ", ".join(f"{k} {x}" for k, x in sorted(f.items()))
+
+
 def _num(v: Any, fmt: str, none: str = "-") -> str:
     return none if v is None else format(v, fmt)
 
@@ -374,6 +402,8 @@ def render(snap: dict[str, Any]) -> str:
                 out.append(f"  {a['AxisId']:>4}  {a['MotionState'].removeprefix(_MOTION_PREFIX):<18} "
                            f"{a['AxisState']:<19} {a['SetPos']:>12.4f} {a['ActPos']:>12.4f} {a['SetVelo']:>10.3f}  "
                            f"{err:<30} {a['Holder'] or '-':<12} {lct}")
+                if a.get("DriveLink"):
+                    out.append(f"        drive link: {link_text(a['DriveLink'])}")
         else:
             out.append("  (no status frame yet)")
         for r in v.get("remote_couplings") or []:  # coupling across NCs (docs/coupling-across-ncs.md)

@@ -140,6 +140,13 @@ class DriveABC(ABC):
         since the last call that gave all zeros (default: a drive that reports no torque, always None)."""
         return None
 
+    def link_figures(self) -> dict[int, dict[str, Any]]:
+        """Per axis (index) the figures of the link to its drive, for the stats (``drive_link``) and nc-status: a
+        fieldbus's or a remote host's health (CANopen: NMT state, heartbeat age, missed TPDOs, transmit errors;
+        remote: round trip, input age). Called from the stats thread while the cycle runs: it only reads.
+        Default: no link (an in-process simulation), ``{}``."""
+        return {}
+
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         """The encoder's sync (zero) pulse latch, for homing.
 

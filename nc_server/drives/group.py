@@ -192,6 +192,9 @@ class DriveGroup(DriveABC):
                 out[r] = f
         return out
 
+    def link_figures(self) -> dict[int, dict[str, Any]]:
+        return {int(r[j]): f for d, r in self.parts for j, f in d.link_figures().items()}
+
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         out = np.full(len(rows), np.nan)
         for k, pos, local in self._split(rows):

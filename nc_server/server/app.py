@@ -833,10 +833,22 @@ class NcServer:
                   "drive_errors": self._drive_errors(),
                   "drive_input_age": self._drive_input_age(),
                   "remote_couplings": self.core.coupling.remote_stats(self.core.axis_ids),
+                  "drive_link": self._drive_link(),
                   "stages": self.core.stage_times()})
         if self.ha is not None:
             d["ha"] = self.ha.status()
         return d
+
+    def _drive_link(self) -> dict[int, dict[str, Any]]:
+        """{AxisId: the figures of the link to its drive} of the axes whose drive has a link (CANopen, remote; any
+        thread: the drive only reads for it). A drive that fails to give them costs the stats nothing else."""
+        try:
+            figures = self.core.drive.link_figures()
+        except Exception as exc:  # (a backend's bug must not stop the stats)
+            log.debug("drive link figures: %s", exc)
+            return {}
+        ids = self.core.axis_ids
+        return {int(ids[i]): f for i, f in figures.items() if f}
 
     def _drive_input_age(self) -> dict[int, int]:
         """{AxisId: the age [NC cycles] of the drive inputs used in the last cycle} of the axes whose inputs were not

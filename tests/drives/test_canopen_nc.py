@@ -32,12 +32,14 @@ DYN = dict(Velocity=100.0, Acceleration=1000.0, Deceleration=1000.0, Jerk=10000.
 class Rig:
     """An NcCore on ``CanopenDrive`` with in-process simulated slaves on a channel of its own."""
 
-    def __init__(self, axis_options: list[dict[str, Any]], **params: Any) -> None:
+    def __init__(self, axis_options: list[dict[str, Any]], options: dict[str, Any] | None = None,
+                 **params: Any) -> None:
         p = dict(AxisEncoderScalingFactor=SCALE)
         p.update(params)
         self.params = [AxisParams(**p) for _ in axis_options]
         # (heartbeat_timeout 1 s, not 0.35: a loaded machine must not lose the healthy node's heartbeat)
-        opts = {"simulate_slaves": True, "channel": f"test-{uuid.uuid4().hex[:10]}", "heartbeat_timeout": 1.0}
+        opts = {"simulate_slaves": True, "channel": f"test-{uuid.uuid4().hex[:10]}", "heartbeat_timeout": 1.0,
+                **(options or {})}
         drive = CanopenDrive.from_config(self.params, DT, axis_options, DriveContext(options=opts))
         assert isinstance(drive, CanopenDrive)
         self.drive = drive
@@ -219,6 +221,7 @@ def test_a_missing_node_at_start_is_a_bounded_error() -> None:
     ({"node_id": 2}, {"max_age": -1}, "drives.canopen.max_age", "integer >= 0"),
     ({"node_id": 2, "mode": "csv", "kv": 0}, {}, "axis[0].Drive.kv", "> 0"),
     ({"node_id": 2}, {"channel": ""}, "drives.canopen.channel", "non-empty"),
+    ({"node_id": 2}, {"monitoring": "lifeguard"}, "drives.canopen.monitoring", "node_guarding"),
 ])
 def test_bad_options_are_config_errors(axis: dict[str, Any], options: dict[str, Any], key: str, text: str) -> None:
     with pytest.raises(ConfigError, match=text) as e:
@@ -256,3 +259,98 @@ def test_a_lost_heartbeat_is_a_communication_error(rig: Rig) -> None:
     rig.until_time(lambda: int(core.nctoplc[1]["ErrorCode"]) != 0)
     assert int(core.nctoplc[1]["ErrorCode"]) == 0x4651 and d.comm_error[1] and d.io_valid[1]
     assert int(core.nctoplc[0]["ErrorCode"]) == 0
+
+
+def _usable_after_reset(r: Rig, i: int) -> None:
+    """MC_Reset, MC_Power off and on, a move of 5 mm: axis ``i`` works again, its error gone."""
+    core, d = r.core, r.drive
+    assert cmd(core, "Reset", i + 1)["error"] == 0
+    r.until(lambda: int(core.nctoplc[i]["ErrorCode"]) == 0 and not d.device_error[i], max_cycles=3000)
+    power(core, i, ctrl=0)
+    r.step()
+    power(core, i)
+    r.until(lambda: state(core, i) == S.MC_AXISSTATE_STANDSTILL and bool(d.following[i]), max_cycles=3000)
+    target = float(core.nctoplc[i]["ActPos"]) + 5.0
+    assert cmd(core, "MoveAbsolute", i + 1, Position=target, **DYN)["error"] == 0
+    r.until(lambda: abs(float(core.nctoplc[i]["ActPos"]) - target) < 1e-3)
+    assert int(core.nctoplc[i]["ErrorCode"]) == 0
+
+
+def test_a_rebooted_node_is_set_up_again(rig: Rig) -> None:
+    """A node that reboots (its configuration gone, a boot-up message): the link sets it up again (SDO, NMT start)
+    without the cycle waiting; the axis is in error until MC_Reset, then powers up and moves; the position kept."""
+    core, d = rig.core, rig.drive
+    _powered(rig)
+    assert cmd(core, "MoveAbsolute", 2, Position=3.0, **DYN)["error"] == 0
+    rig.until(lambda: state(core, 1) == S.MC_AXISSTATE_STANDSTILL and core.cycle > 60)
+    rig.until(lambda: abs(float(core.nctoplc[1]["ActPos"]) - 3.0) < 1e-3)
+    assert d.slaves is not None
+    slave = d.slaves.nodes[1]
+    assert slave.sdo[0x6060].raw == 9  # CSV, as the link configured it
+    d.slaves.reboot(1)
+    assert slave.sdo[0x6060].raw == 8 and slave.sdo[0x1017].raw == 0  # the EDS defaults: the configuration gone
+    rig.wait = [0]
+    rig.until(lambda: int(core.nctoplc[1]["ErrorCode"]) != 0)
+    assert int(core.nctoplc[1]["ErrorCode"]) in (0x4651, 0x4655)  # lost communication / invalid I/O data
+    assert int(core.nctoplc[0]["ErrorCode"]) == 0
+    rig.until_time(lambda: int(d.link.setups[1]) == 1 and bool(d.link.figures()[1]["alive"]))
+    rig.wait = True
+    assert d.slaves.nmt_state(1) == "OPERATIONAL"
+    assert slave.sdo[0x6060].raw == 9 and slave.sdo[0x1017].raw == 100  # configured again
+    assert [slave.sdo[0x1601][k].raw for k in range(3)] == [2, 0x60FF0020, 0x60B80010]
+    # the drive back in Switch on disabled (the NC's Shutdown may have taken it on to Ready to switch on)
+    rig.until(lambda: int(d.state[1]) in (State.SWITCH_ON_DISABLED, State.READY_TO_SWITCH_ON) and bool(d.io_valid[1]))
+    assert int(core.nctoplc[1]["ErrorCode"]) != 0  # still in error: the drive dropped out while enabled
+    assert abs(float(core.nctoplc[1]["ActPos"]) - 3.0) < 1e-3  # the motor where it was
+    _usable_after_reset(rig, 1)
+    f = d.link_figures()[1]
+    assert f["setups"] == 1 and f["nmt"] == "OPERATIONAL" and f["monitoring"] == "heartbeat" and f["node_id"] == 3
+    assert f["tpdo_late"] > 0 and f["tpdo_missed"] > 0  # its TPDOs were gone meanwhile
+
+
+def test_node_guarding_detects_a_lost_node_and_a_reboot() -> None:
+    """``monitoring = "node_guarding"``: the master polls, the simulated slaves answer (state + toggle); a silent
+    node is lost communication (0x4651); back with its configuration, MC_Reset suffices; after a reboot it is set
+    up again."""
+    r = Rig([{"node_id": 2}, {"node_id": 3}], options={"monitoring": "node_guarding", "heartbeat_period": 0.05})
+    try:
+        core, d = r.core, r.drive
+        assert d.slaves is not None
+        slave = d.slaves.nodes[1]
+        assert slave.sdo[0x1017].raw == 0 and slave.sdo[0x100C].raw == 50 and slave.sdo[0x100D].raw == 20
+        _powered(r)
+        f = d.link_figures()
+        assert [x["monitoring"] for x in f.values()] == ["node_guarding"] * 2 and all(x["alive"] for x in f.values())
+        assert all(x["heartbeat_age_ms"] is not None and x["nmt"] == "OPERATIONAL" for x in f.values())
+        d.slaves.silence(1)
+        r.wait = [0]
+        r.until_time(lambda: bool(d.comm_error[1]))
+        r.until(lambda: int(core.nctoplc[1]["ErrorCode"]) != 0)
+        assert int(core.nctoplc[1]["ErrorCode"]) in (0x4651, 0x4655) and int(core.nctoplc[0]["ErrorCode"]) == 0
+        assert not d.link_figures()[1]["alive"]
+        d.slaves.revive(1)  # back, configuration kept: checked, not set up again
+        r.until_time(lambda: not d.comm_error[1])
+        r.wait = True
+        _usable_after_reset(r, 1)
+        assert int(d.link.setups[1]) == 0
+        d.slaves.reboot(1)
+        r.wait = [0]
+        r.until_time(lambda: int(d.link.setups[1]) == 1 and not d.comm_error[1])
+        r.wait = True
+        assert slave.sdo[0x100C].raw == 50 and d.slaves.nmt_state(1) == "OPERATIONAL"
+        _usable_after_reset(r, 1)
+        assert int(core.nctoplc[0]["ErrorCode"]) == 0
+    finally:
+        r.close()
+
+
+def test_node_guarding_needs_the_guarding_objects(tmp_path: Path) -> None:
+    """An EDS without 0x100C / 0x100D: node guarding is a clear start error, naming the node."""
+    from nc_server.drives.canopen.link import SIM_EDS
+    text = Path(SIM_EDS).read_text()
+    for index in ("100C", "100D"):
+        text = text.replace(f"[{index}]", f"[{index}-removed]")
+    eds = tmp_path / "no_guarding.eds"
+    eds.write_text(text)
+    with pytest.raises(CanopenStartError, match="node 2: its EDS has no guard time"):
+        Rig([{"node_id": 2, "eds": str(eds)}], options={"monitoring": "node_guarding"})

@@ -118,6 +118,15 @@ def test_power_and_move_reach_the_target_on_the_remote_drive(rig: Callable[..., 
         wait_until(lambda: (v := cl.latest("nc/nc1/drive/drives1/status")) is not None
                    and abs(drive_axis(unpack(v[0]), 1)["position"] - 25.0) < 0.02
                    and abs(drive_axis(unpack(v[0]), 2)["position"] + 7.5) < 0.05, T, "the status key")
+        # the link's figures per axis in the NC's stats (drive_link): the host, alive, round trip and input age
+        def link_figures() -> Any:
+            v = cl.latest("nc/nc1/stats")
+            links = unpack(v[0]).get("drive_link", {}) if v is not None else {}
+            return links if all(links.get(a, {}).get("round_trip", -1) >= 0 for a in (1, 2)) else None
+        links = wait_until(link_figures, T, "drive_link in the NC's stats")
+        for a in (1, 2):
+            f = links[a]
+            assert (f["link"], f["host"], f["alive"]) == ("remote", "drives1", True) and f["age"] >= 0, links
     finally:
         cl.close()
 

@@ -230,3 +230,29 @@ def test_the_age_of_the_drive_inputs_reaches_the_stats() -> None:
     ages = NcServer._drive_input_age(SimpleNamespace(core=core))  # type: ignore[arg-type]
     assert list(ages) == [3] and ages[3] > 0
     assert held.tolist() == [0, 0, 0]  # an array handed out earlier never changes (another thread reads it)
+
+
+def test_the_links_of_the_drives_reach_the_stats() -> None:
+    """drive_link: {AxisId: figures} of the axes whose drive has a link, gathered through a DriveGroup to the right
+    AxisIds; in-process drives have none; a backend whose figures fail costs the stats nothing else."""
+    from types import SimpleNamespace
+
+    from nc_server.server.app import NcServer
+
+    class Linked(SimDrive):
+        def link_figures(self) -> dict[int, dict[str, Any]]:
+            return {1: {"link": "remote", "host": "h", "alive": True, "age": 0, "round_trip": 2}}
+
+    params = _params(3)
+    group = DriveGroup(3, 0.001, [(Linked([params[0], params[2]], 0.001), np.array([0, 2])),
+                                  (SimDrive([params[1]], 0.001), np.array([1]))])
+    core = _core(group)
+    core.step()
+    assert NcServer._drive_link(SimpleNamespace(core=core)) == {  # type: ignore[arg-type]
+        3: {"link": "remote", "host": "h", "alive": True, "age": 0, "round_trip": 2}}
+    assert NcServer._drive_link(SimpleNamespace(core=_core(SimDrive(params, 0.001)))) == {}  # type: ignore[arg-type]
+
+    class Broken(SimDrive):
+        def link_figures(self) -> dict[int, dict[str, Any]]:
+            raise RuntimeError("bug")
+    assert NcServer._drive_link(SimpleNamespace(core=_core(Broken(params, 0.001)))) == {}  # type: ignore[arg-type]

@@ -10,6 +10,7 @@ Configured in the NC's TOML (the ``Drive`` table of each axis and the backend's 
     sdo_timeout = 0.3            # [s] per SDO response at start; default 0.3
     heartbeat_period = 0.1       # [s] the nodes' producer heartbeat time (0x1017); default 0.1
     heartbeat_timeout = 0.35     # [s] no heartbeat for this long: the node is lost (0x4651); default 3.5 periods
+    monitoring = "heartbeat"     # or "node_guarding": the master polls every heartbeat_period (0x100C/0x100D)
     start_timeout = 2.0          # [s] for the operational heartbeat and the first TPDOs at start; default 2.0
     max_age = 3                  # [NC cycles] older inputs are invalid I/O data (0x4655); default 3
 
@@ -39,14 +40,14 @@ from ..base import DriveABC, DriveContext
 from ..cia402.drive import DEFAULT_KV, Cia402Drive, axis_options, link_options
 from ..cia402.objects import Mode
 from . import pdo
-from .link import BusConfig, CanopenLink, NodeConfig, interpolation_period
+from .link import MONITORING, BusConfig, CanopenLink, NodeConfig, interpolation_period
 from .slave import SimulatedSlaves
 
 log = logging.getLogger(__name__)
 
 _AXIS_KEYS = {"node_id", "eds"}
 _BUS_KEYS = {"interface", "channel", "bitrate", "simulate_slaves", "sdo_timeout", "heartbeat_period",
-             "heartbeat_timeout", "start_timeout"}
+             "heartbeat_timeout", "start_timeout", "monitoring"}
 _SECTION = "drives.canopen"
 
 
@@ -143,8 +144,12 @@ def _bus_options(opts: dict[str, Any]) -> tuple[BusConfig, bool, int]:
         raise ConfigError(f"{_SECTION}.heartbeat_timeout",
                           f"must be longer than heartbeat_period ({period} s), got {timeout}")
     start_timeout = _float(opts, "start_timeout", d.start_timeout)
-    return (BusConfig(interface, channel, bitrate, sdo_timeout, period, timeout, start_timeout), simulate,
-            max_age)
+    monitoring = opts.get("monitoring", d.monitoring)
+    if monitoring not in MONITORING:
+        raise ConfigError(f"{_SECTION}.monitoring", f"must be one of {', '.join(map(repr, MONITORING))}, "
+                                                    f"got {monitoring!r}")
+    return (BusConfig(interface, channel, bitrate, sdo_timeout, period, timeout, start_timeout, monitoring),
+            simulate, max_age)
 
 
 def _node_options(i: int, o: Mapping[str, Any]) -> tuple[NodeConfig, Mode, float]:

@@ -23,10 +23,24 @@ receive thread that runs behind shows as age, not as fresh data.
 
 Decisions:
 
-* Loss detection: the heartbeat (the node produces 0x1017 = ``heartbeat_period``, the link consumes it:
-  ``alive`` is False once no heartbeat came for ``heartbeat_timeout`` or the node reports an NMT state other
-  than operational). Node guarding is not used (CiA 301 recommends the heartbeat). The fast detection is the
-  TPDO age (``max_age`` cycles in :class:`~..cia402.drive.Cia402Drive`).
+* Loss detection (``monitoring``): the heartbeat by default (the node produces 0x1017 = ``heartbeat_period``, the
+  link consumes it: ``alive`` is False once no heartbeat came for ``heartbeat_timeout`` or the node reports an NMT
+  state other than operational), or node guarding (``"node_guarding"``, for drives without a heartbeat producer:
+  the link polls each node every ``heartbeat_period`` with a remote frame on 0x700 + id, the node answers with its
+  NMT state; 0x1017 = 0, guard time 0x100C = the period, life time factor 0x100D = timeout / period, so the node
+  can tell the master is gone; the same ``heartbeat_timeout`` and ``alive``). CiA 301 recommends the heartbeat (no
+  remote frames, half the frames). The fast detection is the TPDO age (``max_age`` cycles in
+  :class:`~..cia402.drive.Cia402Drive`).
+* A node that comes back is set up again: after its boot-up message (it rebooted: its SDO configuration is
+  gone), or when its heartbeat (guarding answer) reports a state other than operational (it rebooted unseen, or
+  was sent elsewhere). A heartbeat back after ``heartbeat_timeout`` without one that says operational (a cut
+  cable, a late notifier thread) is checked first: the node's heartbeat time (guard time) read over SDO, and the
+  node set up again only if it is not what the link wrote (its configuration is gone). A supervisor thread of the
+  link does this, never the cycle: NMT pre-operational, the start's SDO configuration, NMT operational; meanwhile
+  the cycle sends the node nothing and keeps its last inputs (aging: invalid I/O data; and not alive: lost
+  communication). The drive comes back in Switch on disabled; the axis keeps its error until MC_Reset, then
+  MC_Power enables it again. A failed set-up is retried every second. Counted per node (``setups``, the stats'
+  ``drive_link``).
 * A CAN transmit error in a cycle (bus off, full transmit queue on real hardware) is counted
   (:attr:`CanopenLink.tx_errors`) and logged once; it never raises into the cycle (the ages grow instead).
 * Close: NMT pre-operational for the nodes (their PDOs stop; a real drive sees the master go), then the
@@ -65,6 +79,11 @@ NMT_OPERATIONAL = 5
 _DEVICE_TYPE = 0x1000
 _RING = 64
 _HEARTBEAT_TIME = 0x1017
+_GUARD_TIME = 0x100C
+_LIFE_TIME_FACTOR = 0x100D
+MONITORING = ("heartbeat", "node_guarding")
+#: [s] between two tries of a node's set-up after it came back
+SETUP_RETRY = 1.0
 
 
 class CanopenStartError(RuntimeError):
@@ -95,9 +114,11 @@ class BusConfig:
         channel: python-can channel ("can0"; any name on the virtual bus).
         bitrate: [bit/s] (ignored by the virtual bus).
         sdo_timeout: [s] per SDO response at start (canopen retries once).
-        heartbeat_period: [s] producer heartbeat time written to each node (0x1017, whole ms).
-        heartbeat_timeout: [s] consumer time: no heartbeat for this long = the node is lost.
+        heartbeat_period: [s] producer heartbeat time written to each node (0x1017, whole ms); with node guarding
+            the guard time (0x100C) and the master's polling period.
+        heartbeat_timeout: [s] consumer time: no heartbeat (guarding answer) for this long = the node is lost.
         start_timeout: [s] for the heartbeat after NMT operational and the first TPDOs.
+        monitoring: "heartbeat" or "node_guarding" (module docstring).
     """
 
     interface: str = "virtual"
@@ -107,6 +128,7 @@ class BusConfig:
     heartbeat_period: float = 0.1
     heartbeat_timeout: float = 0.35
     start_timeout: float = 2.0
+    monitoring: str = "heartbeat"
 
 
 def interpolation_period(cycle_time: float) -> tuple[int, int]:
@@ -186,10 +208,31 @@ class CanopenLink(ProcessDataLink):
         self._wall_clock_stamps = False
         #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
         self._stamp = {k: np.full(self.n, -1, dtype=np.int64) for k in pdo.TPDO_LAYOUT}
+        #: per node: cycles whose inputs did not answer the last SYNC (late or missing TPDOs), and SYNCs whose TPDOs
+        #: never came (the newest answered SYNC jumped over them); the stats' ``drive_link``
+        self.tpdo_late = np.zeros(self.n, dtype=np.int64)
+        self.tpdo_missed = np.zeros(self.n, dtype=np.int64)
+        self._answered = np.zeros(self.n, dtype=np.int64)  # the newest SYNC answered by all cyclic TPDOs, as used
         self._pos = np.zeros(self.n, dtype=np.int64)  # the unwrapped actual positions [inc]
         self._pos_seen = np.zeros(self.n, dtype=bool)
         self._hb_time = np.full(self.n, -math.inf)
         self._hb_state = np.zeros(self.n, dtype=np.int64)
+        if bus.monitoring not in MONITORING:
+            raise ValueError(f"monitoring must be one of {', '.join(MONITORING)}, got {bus.monitoring!r}")
+        self._guarding = bus.monitoring == "node_guarding"
+        #: per node: set-ups after it came back (a reboot, a heartbeat back after its loss)
+        self.setups = np.zeros(self.n, dtype=np.int64)
+        self._todo = [""] * self.n  # per node: "setup", "check" (its configuration, after a silence) or ""
+        self._setup_why = [""] * self.n
+        self._grace_until = [0.0] * self.n  # after a set-up: heartbeats sent before its NMT start are not judged
+        self._configuring = [False] * self.n  # the supervisor sets the node up: the cycle leaves it alone
+        self._any_configuring = False
+        self._running = False  # started: a node coming back is set up again
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._supervisor: threading.Thread | None = None
+        #: the last TPDO payloads read, per TPDO (rows: the mapped objects), kept for a node being set up
+        self._t = {k: np.zeros((len(m), self.n), dtype=np.int64) for k, m in pdo.TPDO_LAYOUT.items()}
         #: the last EMCY code per node (0: none or reset)
         self.emcy_code = np.zeros(self.n, dtype=np.uint16)
         self._closed = False
@@ -242,6 +285,8 @@ class CanopenLink(ProcessDataLink):
             for k, m in node.tpdo.items():
                 m.add_callback(self._on_tpdo(self._stamp[k], j))
             node.remote.nmt.state = "OPERATIONAL"
+            if self._guarding:
+                node.remote.nmt.start_node_guarding(self.bus_config.heartbeat_period)
         self._wait(lambda: self._hb_state == NMT_OPERATIONAL, "no operational heartbeat", where)
         self._sync_wall[0] = time.time()
         self.syncs = 1
@@ -250,6 +295,9 @@ class CanopenLink(ProcessDataLink):
                    where)
         ts = self.nodes[0].tpdo[1].timestamp
         self._wall_clock_stamps = ts is not None and abs(ts - time.time()) < 1.0
+        self._running = True
+        self._supervisor = threading.Thread(target=self._supervise, name="canopen-nmt", daemon=True)
+        self._supervisor.start()
 
     def _configure(self, node: _Node) -> None:
         r, nid = node.remote, node.cfg.node_id
@@ -272,7 +320,17 @@ class CanopenLink(ProcessDataLink):
         value, index = self.period
         r.sdo[obj.INTERPOLATION_TIME_PERIOD][1].raw = value
         r.sdo[obj.INTERPOLATION_TIME_PERIOD][2].raw = index
-        r.sdo[_HEARTBEAT_TIME].raw = max(1, round(self.bus_config.heartbeat_period * 1000))
+        period_ms = max(1, round(self.bus_config.heartbeat_period * 1000))
+        if self._guarding:
+            if _GUARD_TIME not in r.object_dictionary or _LIFE_TIME_FACTOR not in r.object_dictionary:
+                raise CanopenStartError(f"node {nid}: its EDS has no guard time (0x100C) or life time factor "
+                                        f"(0x100D): node guarding needs them")
+            r.sdo[_HEARTBEAT_TIME].raw = 0
+            r.sdo[_GUARD_TIME].raw = period_ms
+            r.sdo[_LIFE_TIME_FACTOR].raw = min(255, math.ceil(self.bus_config.heartbeat_timeout
+                                                              / self.bus_config.heartbeat_period))
+        else:
+            r.sdo[_HEARTBEAT_TIME].raw = period_ms
 
     def _wait(self, done: Any, what: str, where: str) -> None:
         deadline = time.monotonic() + self.bus_config.start_timeout
@@ -302,9 +360,74 @@ class CanopenLink(ProcessDataLink):
 
     def _on_heartbeat(self, j: int) -> Any:
         def cb(state: int) -> None:
-            self._hb_time[j] = time.monotonic()
+            now = time.monotonic()
+            if self._running and not self._stop.is_set() and not self._configuring[j] and self._todo[j] != "setup":
+                if state == 0:
+                    self._todo[j], self._setup_why[j] = "setup", "its boot-up message"
+                elif state != NMT_OPERATIONAL and now > self._grace_until[j]:
+                    self._todo[j], self._setup_why[j] = "setup", f"its heartbeat reports NMT state {state}"
+                elif now - self._hb_time[j] > self.bus_config.heartbeat_timeout and not self._todo[j]:
+                    self._todo[j], self._setup_why[j] = "check", "its heartbeat came back"
+                if self._todo[j]:
+                    self._wake.set()
+            self._hb_time[j] = now
             self._hb_state[j] = state
         return cb
+
+    # -- a node that came back (supervisor thread) --------------------------------------------------------
+
+    def _supervise(self) -> None:
+        while not self._stop.is_set():
+            self._wake.wait(0.5)
+            self._wake.clear()
+            for j in range(self.n):
+                if self._todo[j] and not self._stop.is_set():
+                    if not self._setup_again(j):
+                        self._stop.wait(SETUP_RETRY)
+                        self._wake.set()
+
+    def _monitor_time(self) -> tuple[int, int]:
+        """The object that tells whether a node still has the link's configuration, and the value the link wrote."""
+        ms = max(1, round(self.bus_config.heartbeat_period * 1000))
+        return (_GUARD_TIME, ms) if self._guarding else (_HEARTBEAT_TIME, ms)
+
+    def _setup_again(self, j: int) -> bool:
+        """Node ``j`` came back: check it (``check``) or set it up as at start (NMT pre-operational, SDO
+        configuration, NMT operational); False: failed (tried again)."""
+        node = self.nodes[j]
+        nid = node.cfg.node_id
+        if self._todo[j] == "check":
+            index, value = self._monitor_time()
+            try:
+                kept = int(node.remote.sdo[index].raw) == value
+            except Exception as e:  # no SDO answer (gone again): the next heartbeat tells
+                log.warning("node %d: %s, its configuration not readable (%s)", nid, self._setup_why[j], e)
+                self._todo[j] = ""
+                return True
+            if kept:
+                log.info("node %d: %s, its configuration kept", nid, self._setup_why[j])
+                self._todo[j] = ""
+                return True
+            self._todo[j], self._setup_why[j] = "setup", f"{self._setup_why[j]} without its configuration"
+        self._configuring[j] = True
+        self._any_configuring = True
+        try:
+            log.warning("node %d: %s: setting it up again (SDO configuration, NMT start)", nid, self._setup_why[j])
+            node.remote.nmt.state = "PRE-OPERATIONAL"
+            self._configure(node)
+            node.last_rpdo2 = b""  # (the node lost what its RPDO2 carried: sent again in the next cycle)
+            self._grace_until[j] = time.monotonic() + self.bus_config.heartbeat_timeout
+            node.remote.nmt.state = "OPERATIONAL"
+            self.setups[j] += 1
+            self._todo[j] = ""
+            log.warning("node %d: operational again (set-up %d); the axis needs MC_Reset", nid, int(self.setups[j]))
+            return True
+        except Exception as e:  # SDO timeout or abort, a bus error: tried again
+            log.warning("node %d: its set-up failed (%s: %s); again in %g s", nid, type(e).__name__, e, SETUP_RETRY)
+            return False
+        finally:
+            self._configuring[j] = False
+            self._any_configuring = any(self._configuring)
 
     def _on_emcy(self, j: int) -> Any:
         def cb(err: Any) -> None:
@@ -322,18 +445,25 @@ class CanopenLink(ProcessDataLink):
         return tx
 
     def _inputs(self) -> TxImage:
-        n = self.n
-        t1 = np.empty((3, n), dtype=np.int64)
-        t2 = np.empty((3, n), dtype=np.int64)
-        t3 = np.empty((2, n), dtype=np.int64)
+        t1, t2, t3 = self._t[1], self._t[2], self._t[3]  # (written in place: the TxImage gets copies)
+        busy = self._configuring if self._any_configuring else None
         for j, node in enumerate(self.nodes):
+            if busy is not None and busy[j]:  # its PDO maps are being rewritten: its last inputs stay
+                continue
             for k, out in ((1, t1), (2, t2), (3, t3)):
                 data = node.tpdo[k].data
                 s = node.s_tpdo[k]
                 out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
         k = self.syncs
-        age = k - np.minimum(self._stamp[1], self._stamp[2])
-        age[np.minimum(self._stamp[1], self._stamp[2]) < 0] = k + 1
+        answered = np.minimum(self._stamp[1], self._stamp[2])
+        age = k - answered
+        age[answered < 0] = k + 1
+        if np.count_nonzero(age):  # (figures only; the steady state skips them)
+            self.tpdo_late = self.tpdo_late + (age > 0)
+        jump = answered - self._answered
+        if np.count_nonzero(jump > 1):
+            self.tpdo_missed = self.tpdo_missed + np.where(jump > 1, jump - 1, 0)
+        self._answered = np.maximum(answered, self._answered)
         alive = ((time.monotonic() - self._hb_time) <= self.bus_config.heartbeat_timeout) & \
             (self._hb_state == NMT_OPERATIONAL)
         # INT32 positions wrap on an endless axis: continue from the last reading (the first one is taken as is)
@@ -352,8 +482,11 @@ class CanopenLink(ProcessDataLink):
         cw, p, mode = rx.controlword.tolist(), pos.tolist(), rx.mode.tolist()
         self._last_out = (p, mode)
         v, probe = velo.astype(np.int64).tolist(), rx.probe_function.tolist()
+        busy = self._configuring if self._any_configuring else None
         try:
             for j, node in enumerate(self.nodes):
+                if busy is not None and busy[j]:  # being set up: its PDO maps are rewritten
+                    continue
                 m = node.rpdo1
                 node.s_rpdo1.pack_into(m.data, 0, cw[j], p[j], mode[j])
                 m.transmit()
@@ -385,11 +518,40 @@ class CanopenLink(ProcessDataLink):
             time.sleep(0.0001)
         return True
 
+    def figures(self) -> list[dict[str, Any]]:
+        """Per node for the NC's stats ``drive_link``: ``node_id``, ``monitoring``, ``nmt`` (the NMT state its last
+        heartbeat / guarding answer reported; None: none yet), ``alive``, ``heartbeat_age_ms`` (since it), the
+        counters ``tpdo_late`` (cycles whose inputs were older than the last SYNC), ``tpdo_missed`` (SYNCs it never
+        answered), ``setups`` (set up again after it came back) and the bus's ``tx_errors``."""
+        from canopen.nmt import NMT_STATES
+
+        now = time.monotonic()
+        hb_t, hb_s = self._hb_time.copy(), self._hb_state.copy()
+        late, missed, setups = self.tpdo_late.tolist(), self.tpdo_missed.tolist(), self.setups.tolist()
+        timeout = self.bus_config.heartbeat_timeout
+        out: list[dict[str, Any]] = []
+        for j, node in enumerate(self.nodes):
+            seen = math.isfinite(hb_t[j])
+            age = now - hb_t[j]
+            out.append({"link": "canopen", "node_id": node.cfg.node_id, "monitoring": self.bus_config.monitoring,
+                        "nmt": NMT_STATES.get(int(hb_s[j]), str(int(hb_s[j]))) if seen else None,
+                        "alive": bool(seen and age <= timeout and hb_s[j] == NMT_OPERATIONAL),
+                        "heartbeat_age_ms": round(age * 1e3, 1) if seen else None,
+                        "tpdo_late": int(late[j]), "tpdo_missed": int(missed[j]), "setups": int(setups[j]),
+                        "tx_errors": int(self.tx_errors)})
+        return out
+
     def close(self) -> None:
         with self._lock:
             if self._closed:
                 return
             self._closed = True
+        self._stop.set()
+        self._wake.set()
+        if self._supervisor is not None:
+            self._supervisor.join(5.0)
+        for node in getattr(self, "nodes", []):
+            node.remote.nmt.stop_node_guarding()
         self._shutdown_drives()
         for node in getattr(self, "nodes", []):
             try:

@@ -14,14 +14,18 @@ mechanical model), stepped once per SYNC for all rows:
   (type 1..240: every n-th SYNC; type 0: only when the payload changed); a changed 0x603F sends an EMCY;
 * SDO reads of the actual values (0x6041, 0x6064, 0x606C, 0x6077, 0x603F, 0x6061, 0x60B9, 0x60BA) answer
   the device's values of the last SYNC; an SDO write of 0x6060 sets the mode;
-* heartbeat producer: canopen's NmtSlave (0x1017, started when the master writes it).
+* heartbeat producer: canopen's NmtSlave (0x1017, started when the master writes it); node guarding: a remote
+  frame on 0x700 + id is answered with the NMT state and the toggle bit (python-canopen's NmtSlave does not; a
+  listener of the slave network's notifier does). Life guarding (0x100C x 0x100D without a guarding request) is
+  not simulated: the drive does not react to a master that stops guarding.
 
-Test hooks: :meth:`SimulatedSlaves.silence` (a node stops answering: no PDOs, no heartbeat, no SDO, no NMT),
-:meth:`SimulatedSlaves.revive`, :meth:`SimulatedSlaves.inject_fault`, :meth:`SimulatedSlaves.stalled`.
+Test hooks: :meth:`SimulatedSlaves.silence` (a node stops answering: no PDOs, no heartbeat or guarding answer, no
+SDO, no NMT), :meth:`SimulatedSlaves.revive`, :meth:`SimulatedSlaves.reboot` (a power cycle: the master's
+configuration gone, a boot-up message), :meth:`SimulatedSlaves.inject_fault`, :meth:`SimulatedSlaves.stalled`.
 
 Decisions: the slaves are clocked by the SYNC (their time stands while no SYNC comes); the device is stepped
 for every row, also for a silenced or non-operational node (the drive runs on; only its communication is
-gone). A SYNC older than one cycle when the slaves' notifier thread gets to it, with the master's next frames
+gone). A SYNC older than one cycle when the slaves' notifier thread gets to it, with the master's next SYNC
 already waiting behind it (the thread ran behind: the GIL, a loaded machine), is dropped: neither stepped nor
 answered (the NC counts the missing TPDOs: their age), so the simulation catches up at once instead of running
 ever further behind (stepping the devices for the dropped SYNCs kept a starved thread from ever catching up).
@@ -41,6 +45,7 @@ import time
 from contextlib import contextmanager
 from typing import Any, Iterator, Sequence
 
+import can
 import canopen
 import numpy as np
 from canopen.pdo.base import PdoMap
@@ -64,7 +69,7 @@ _TX_FIELDS = {obj.STATUSWORD: "statusword", obj.POSITION_ACTUAL: "position_actua
               obj.VELOCITY_ACTUAL: "velocity_actual", obj.TORQUE_ACTUAL: "torque_actual",
               obj.ERROR_CODE: "error_code", obj.MODES_OF_OPERATION_DISPLAY: "mode_display",
               obj.TOUCH_PROBE_STATUS: "probe_status", obj.TOUCH_PROBE_POS1_POS: "probe_position"}
-_SYNC, _NMT = 0x80, 0x000
+_SYNC, _NMT, _NMT_ERROR = 0x80, 0x000, 0x700
 _RANGES = {"b": (-(1 << 7), (1 << 7) - 1), "B": (0, (1 << 8) - 1), "h": (-(1 << 15), (1 << 15) - 1),
            "H": (0, (1 << 16) - 1), "i": (-(1 << 31), (1 << 31) - 1), "I": (0, (1 << 32) - 1)}
 
@@ -92,6 +97,17 @@ class _Tpdo:
         self.ranges = [_RANGES.get(c, (-(1 << 63), (1 << 63) - 1)) for c in fmt]
         self.every = int(m.trans_type or 0)  # 0: on change
         self.last = b""
+
+
+class _GuardingListener(can.Listener):
+    """Node guarding requests (remote frames, which canopen's own listener drops) to :meth:`SimulatedSlaves._guard`."""
+
+    def __init__(self, slaves: SimulatedSlaves) -> None:
+        self.slaves = slaves
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_remote_frame and _NMT_ERROR < msg.arbitration_id <= _NMT_ERROR + 127:
+            self.slaves._guard(msg.arbitration_id - _NMT_ERROR)
 
 
 class SimulatedSlaves:
@@ -134,6 +150,8 @@ class SimulatedSlaves:
         self._rpdos: list[list[_Rpdo]] = [[] for _ in range(n)]
         self._tpdos: list[list[_Tpdo]] = [[] for _ in range(n)]
         self._operational = np.zeros(n, dtype=bool)
+        self._toggle = [0] * n  # node guarding: the toggle bit of the next answer
+        self._row = {nid: j for j, nid in enumerate(node_ids)}
         self._closed = False
         self.network = canopen.Network()
         self.network.NOTIFIER_CYCLE = 0.1  # the notifier's receive timeout: close() joins within it
@@ -150,6 +168,8 @@ class SimulatedSlaves:
                 self._rx.mode[j] = _read(node, obj.MODES_OF_OPERATION)
             self.network.subscribe(_NMT, self._on_nmt)
             self.network.subscribe(_SYNC, self._on_sync)
+            assert self.network.notifier is not None
+            self.network.notifier.add_listener(_GuardingListener(self))
             for node in self.nodes:  # power on: boot-up message, pre-operational
                 node.nmt.send_command(0x81)
                 node.nmt.send_command(0x80)
@@ -178,8 +198,31 @@ class SimulatedSlaves:
                 return
             self._silent[i] = False
             self.network.subscribe(node.sdo.rx_cobid, node.sdo.on_request)
+            # (its NMT handler before ours again: ours reads the mapping of a node that just became operational)
+            self.network.unsubscribe(_NMT, self._on_nmt)
             self.network.subscribe(_NMT, node.nmt.on_command)
+            self.network.subscribe(_NMT, self._on_nmt)
             node.nmt.start_heartbeat(_read(node, 0x1017))
+
+    def reboot(self, i: int) -> None:
+        """Node ``i`` (row) restarts, as after a power cycle of its electronics: its object dictionary back to the EDS
+        defaults (the master's PDO mapping, mode, heartbeat time gone), the drive in Switch on disabled where the
+        motor is, a boot-up message, then pre-operational (no heartbeat until the master writes 0x1017 again)."""
+        with self._lock:
+            node = self.nodes[i]
+            node.nmt.stop_heartbeat()
+            node.data_store.clear()
+            self._operational[i] = False
+            self._rpdos[i], self._tpdos[i] = [], []
+            self._emcy_code[i] = 0
+            self._toggle[i] = 0
+            self.device.power_cycle(i)
+            rx = self._rx
+            rx.controlword[i], rx.target_velocity[i], rx.probe_function[i] = 0, 0.0, 0
+            rx.target_position[i] = float(self.device.position[i])
+            rx.mode[i] = _read(node, obj.MODES_OF_OPERATION)
+            node.nmt.send_command(0x81)  # (reset node) INITIALISING: the boot-up message
+            node.nmt.send_command(0x80)  # PRE-OPERATIONAL
 
     def inject_fault(self, i: int, code: int) -> None:
         """Drive ``i`` (row) faults with 0x603F = ``code`` (its TPDOs and an EMCY show it at the next SYNC)."""
@@ -201,6 +244,20 @@ class SimulatedSlaves:
         return str(self.nodes[i].nmt.state)
 
     # -- notifier thread ---------------------------------------------------------------------------------
+
+    def _guard(self, node_id: int) -> None:
+        """A node guarding request: the node answers with its NMT state and the toggle bit (CiA 301)."""
+        with self._lock:
+            j = self._row.get(node_id)
+            if j is None or self._silent[j] or self._closed:
+                return
+            node = self.nodes[j]
+            state = int(node.nmt._state) & 0x7F  # (python-canopen keeps the state code there; no public getter)
+            toggle, self._toggle[j] = self._toggle[j], self._toggle[j] ^ 0x80
+            try:
+                self.network.send_message(_NMT_ERROR + node_id, bytes([state | toggle]))
+            except can.CanError as e:
+                log.warning("simulated node %d: guarding answer: %s", node_id, e)
 
     def _reader(self, j: int) -> Any:
         def read(index: int, subindex: int, od: Any) -> int | None:
@@ -234,9 +291,14 @@ class SimulatedSlaves:
                 self._operational[j] = op
 
     def _backlog(self) -> bool:
-        """Frames wait in this bus instance's receive queue (python-can's virtual bus)."""
+        """The master's next SYNC waits in this bus instance's receive queue (python-can's virtual bus): this one is
+        superseded. (Other frames waiting, e.g. the SDO transfers of a node's set-up, do not make a SYNC stale: a
+        master that waits for the answer to its SYNC would wait forever.)"""
         q = getattr(self.network.bus, "queue", None)
-        return q is not None and q.qsize() > 0
+        if q is None or not q.qsize():
+            return False
+        with q.mutex:
+            return any(m.arbitration_id == _SYNC for m in q.queue)
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if time.time() - timestamp > self.cycle_time and self._backlog():  # the master's next cycle is queued

@@ -150,6 +150,32 @@ class Cia402Device:
         self._cause_code[i] = 0
         self._any_fault = bool(self._event.any() or self._cause.any())
 
+    def power_cycle(self, i: int) -> None:
+        """Drive ``i`` restarts (its electronics rebooted): Switch on disabled, no fault, the motor at rest where it
+        is (an absolute encoder: the position is kept), its outputs cleared until new ones arrive.
+
+        Raises:
+            IndexError: no axis ``i``.
+        """
+        self._check(i)
+
+        def put(a: np.ndarray, v: float) -> np.ndarray:  # (a new array: TxImages and callers may hold the old)
+            a = a.copy()
+            a[i] = v
+            return a
+        self.state = put(self.state, int(State.SWITCH_ON_DISABLED))
+        self.velocity, self.acceleration = put(self.velocity, 0.0), put(self.acceleration, 0.0)
+        self.error_code = put(self.error_code, 0)
+        self._event[i] = self._cause[i] = False
+        self._event_code[i] = self._cause_code[i] = 0
+        self._any_fault = bool(self._event.any() or self._cause.any())
+        self._prev_cw = put(self._prev_cw, 0)
+        rx = self.rx
+        self.rx = RxImage(put(rx.controlword, 0), rx.mode.copy(), put(rx.target_position, float(self.position[i])),
+                          put(rx.target_velocity, 0.0), put(rx.probe_function, 0), rx.cycle)
+        self._probe_status[i] = 0
+        self._publish()
+
     def _check(self, i: int) -> None:
         if not 0 <= int(i) < self.n:
             raise IndexError(f"no axis index {i}")

@@ -162,6 +162,7 @@ class Cia402Drive(DriveABC):
         self._probe_fn = np.full(n, PROBE_SYNC_PULSE, dtype=np.uint16)
         self._reset_left = np.zeros(n, dtype=np.int64)
         self._dropped = np.zeros(n, dtype=bool)
+        self._lost = np.zeros(n, dtype=bool)  # lost (not alive) while enabled: not enabled again before a reset
         self._last_off = np.full(n, -(1 << 30), dtype=np.int64)  # the cycle of the last controlword not 0x000F
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
@@ -194,7 +195,8 @@ class Cia402Drive(DriveABC):
         self._reset_left[rows] = self.max_age + 4
         self._any_reset = True
         self._dropped[rows] = False
-        self._any_dropped = bool(self._dropped.any())
+        self._lost[rows] = False
+        self._any_dropped = bool(self._dropped.any() or self._lost.any())
 
     # -- the cycle ------------------------------------------------------------------------------------------
 
@@ -212,8 +214,8 @@ class Cia402Drive(DriveABC):
 
     def _exchange(self, want: np.ndarray, target: np.ndarray | None, target_velo: np.ndarray) -> None:
         up = want
-        if self._any_dropped:  # a drive that dropped out is not enabled again before a fault reset
-            up = want & ~self._dropped
+        if self._any_dropped:  # a drive that dropped out or was lost is not enabled again before a fault reset
+            up = want & ~(self._dropped | self._lost)
         if self._any_reset:
             cw = sm.nc_controlword(self.state, up, self._reset_left > 0, self.controlword)
             # (the time limit runs once the drive is in Fault: its fault reaction (braking) may take long)
@@ -249,12 +251,16 @@ class Cia402Drive(DriveABC):
             else:
                 self._pos_inc = tx.position_actual
             following = following & alive
+            lost = want & self.following & ~alive
+            if np.count_nonzero(lost):  # (it may come back rebooted, in Switch on disabled: never re-enabled unasked)
+                self._lost = self._lost | lost
+                self._any_dropped = True
             fault_state = state >= _FRA
             dropped = self._dropped
             if self._any_dropped or np.count_nonzero(self.following & ~following):
                 dropped = want & alive & ~following & (dropped | (self.following & self._obeyed()))  # (silent: 0x4651)
                 self._dropped = dropped
-                self._any_dropped = bool(dropped.any())
+                self._any_dropped = bool(dropped.any() or self._lost.any())
             self.io_valid = valid
             self.comm_error = ~alive
             # a fault reset on its way: the statusword shows Fault a cycle or more (latency); the NC has cleared
@@ -271,7 +277,7 @@ class Cia402Drive(DriveABC):
                 fault_state = state >= _FRA
                 dropped = want & ~following & self.following & self._obeyed()
                 self._dropped = dropped
-                self._any_dropped = bool(dropped.any())
+                self._any_dropped = bool(dropped.any() or self._lost.any())
                 shown = fault_state & ~(self._reset_left > 0) if self._any_reset else fault_state
                 self.device_error = shown | dropped
                 self.ready = ~fault_state & (~want | following)
@@ -343,6 +349,10 @@ class Cia402Drive(DriveABC):
         step = self.act_pos[rows] - np.asarray(prev_pos, dtype=float)
         ahead = (pos - prev_pos) * np.sign(step) >= -np.abs(step) * self.max_age
         return np.where(new & ahead, pos, np.nan)
+
+    def link_figures(self) -> dict[int, dict[str, Any]]:
+        """The link's figures per axis (:meth:`.image.ProcessDataLink.figures`)."""
+        return dict(enumerate(self.link.figures()))
 
     def close(self) -> None:
         self.link.close()

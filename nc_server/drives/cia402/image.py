@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -89,6 +90,12 @@ class ProcessDataLink(ABC):
     @abstractmethod
     def exchange(self, rx: RxImage) -> TxImage:
         """Send this cycle's outputs, return the newest inputs (never blocks)."""
+
+    def figures(self) -> list[dict[str, Any]]:
+        """Per column the link's figures for the NC's stats (``drive_link``): plain values (msgpack), ``"link"``
+        naming the kind. Called from another thread while :meth:`exchange` runs: only reads. Default: none (an
+        in-process link), ``[]``."""
+        return []
 
     def close(self) -> None:
         """Stop the cyclic exchange and release the bus (idempotent)."""

@@ -358,9 +358,20 @@ class RemoteLink(ProcessDataLink):
                 if m is not None and not self._stop.is_set():
                     self._put(pub, m)
 
+    def figures(self) -> list[dict[str, Any]]:
+        """Per axis (row) for the NC's stats ``drive_link``: its ``host``, whether the host is ``alive`` (token there,
+        inputs seen), the ``age`` of its inputs and the ``round_trip`` of its outputs [NC cycles; -1: none yet]."""
+        age, rtt = self._tx.age.tolist(), self.round_trip.tolist()  # (arrays replaced by the cycle, not written)
+        out: list[dict[str, Any]] = [{} for _ in age]
+        for i, h in enumerate(self.hosts):
+            alive = bool(self._host_alive[i] and self._host_seen[i])
+            for r in self.host_slots[i].rows:
+                out[r] = {"link": "remote", "host": h, "alive": alive, "age": int(age[r]), "round_trip": int(rtt[r])}
+        return out
+
     def stats(self) -> dict[str, Any]:
-        """Counters for the NC's stats (not wired there yet): per host alive / heard from, the axes' current input
-        age and round trip [NC cycles], tx samples used, malformed, rx sent, failed puts."""
+        """Counters of the link as a whole: per host alive / heard from, the axes' current input age and round trip
+        [NC cycles], tx samples used, malformed, rx sent, failed puts (per axis: :meth:`figures`)."""
         return {"hosts": {h: {"alive": bool(a), "seen": bool(s)}
                           for h, a, s in zip(self.hosts, self._host_alive, self._host_seen)},
                 "age": self._tx.age.tolist(), "round_trip": self.round_trip.tolist(), "received": self.received,
