@@ -23,10 +23,6 @@ import msgpack
 import numpy as np
 import pytest
 
-# Not reliable yet on a heavily loaded machine (false takeovers at load average ~20 on 2 cores): run on request.
-pytestmark = pytest.mark.skipif(not os.environ.get("ZNC_STANDBY_TESTS"),
-                                reason="hot-standby process tests: set ZNC_STANDBY_TESTS=1 (docs/standby.md)")
-
 from nc_link import NcLink
 from nc_schema import NCTOPLC_DTYPE, decode_stamp, frame_stamp
 from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server, wait_until
@@ -35,7 +31,10 @@ from znc_testing.remote_drives import DriveSim, drive_axis, power
 
 T = 30.0
 CYCLE = 0.002
-TAKEOVER_CYCLES = 100  # 200 ms: above the stalls of a loaded 2-core machine, well below the drive timeout (1 s)
+# 500 ms: above the stalls of a loaded 2-core machine (false takeovers there are a matter of this setting, not of the
+# mechanism; bench/takeover.py measures the takeover time), well below the drive host's timeout (DRIVE_TIMEOUT)
+TAKEOVER_CYCLES = 250
+DRIVE_TIMEOUT = 3.0
 V, A, J = 50.0, 500.0, 5000.0  # the move's dynamics
 
 CONFIG = """
@@ -138,7 +137,7 @@ def pair(tmp_path: Path) -> Iterator[Callable[[], tuple[NcServerProcess, NcServe
                             extra_args=["--set", "redundancy.node=b"])
         started.append(b)
         sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
-                                  "--timeout", "1.0"])
+                                  "--timeout", str(DRIVE_TIMEOUT)])
         started.append(sim)
         return a, b, sim, router.port
 
