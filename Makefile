@@ -48,6 +48,9 @@ MANY_CLIENTS_ARGS ?= --seconds 20 --fb-trials 60
 # bench/subscribers.py: the NC's and its publisher's CPU with 0, 1, 4 and 16 subscribing plc-run clients.
 SUBSCRIBERS_ARGS ?= --seconds 6 --settle 1
 # bench/cross_nc_phase.py: a coupling across two NCs (~15 s): phase error vs its J tau^3/6 bound and vs no compensation.
+# bench/takeover.py: hot-standby takeovers (kill -9 of the active NC mid-move; ~5 s each); TAKEOVER_ARGS="--soak 100"
+# is the issue's 100-takeover loop (~10 min).
+TAKEOVER_ARGS ?= --kills 10
 bench: $(STAMP)
 	@rc=0; \
 	$(PY) bench/nc_cycle.py $(NC_CYCLE_ARGS) || rc=1; \
@@ -63,6 +66,7 @@ bench: $(STAMP)
 	$(PY) bench/opcua_latency.py || rc=1; \
 	$(PY) bench/cross_nc_phase.py || rc=1; \
 	$(PY) bench/web_latency.py || rc=1; \
+	$(PY) bench/takeover.py $(TAKEOVER_ARGS) || rc=1; \
 	exit $$rc
 
 # Containers (deploy/): images built locally (no registry, cached by content hash), the compose system.

@@ -41,7 +41,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, TextIO
+from typing import Any, Callable, Sequence, TextIO
 
 import zenoh
 
@@ -96,6 +96,7 @@ class NcWatch:
         s = self.session
         for what in ("status", "stats", "claims"):
             self._decl.append(s.declare_subscriber(f"nc/*/{what}", self._on_data(what)))
+        self._decl.append(s.declare_subscriber("nc/*/ha/status/*", self._on_ha))
         self._decl.append(s.liveliness().declare_subscriber("nc/*/alive", self._on_alive, history=True))
         self._decl.append(s.liveliness().declare_subscriber("nc/*/alive/*", self._on_instance, history=True))
         try:
@@ -158,6 +159,15 @@ class NcWatch:
                         self.instances.setdefault(nc, NcInstance()).frame(cycle)
         return on_sample
 
+    def _on_ha(self, sample: zenoh.Sample) -> None:
+        """A hot-standby node's status (``nc/<nc>/ha/status/<node>``): the standby's replication lag is there only."""
+        nc = nc_of(sample.key_expr)
+        if not self._wanted(nc):
+            return
+        node = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            self.raw[(nc, "ha:" + node)] = _Raw(sample.payload.to_bytes(), time.monotonic())
+
     # ---- reading -------------------------------------------------------------------------------
     def names(self) -> list[str]:
         """NC names seen so far (alive, gone or only by their data), sorted."""
@@ -183,8 +193,9 @@ class NcWatch:
             if not alive.get(nc, False) and now - newest > FORGET_AFTER:
                 continue
             n_restarts, instance = restarts.get(nc, (0, None))
+            nodes = [r for (n, w), r in sorted(raw.items()) if n == nc and w.startswith("ha:")]
             views.append(nc_view(nc, alive.get(nc), raw.get((nc, "status")), raw.get((nc, "stats")),
-                                 raw.get((nc, "claims")), now, n_restarts, instance))
+                                 raw.get((nc, "claims")), now, n_restarts, instance, nodes))
         return {"time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds"), "ncs": views}
 
 
@@ -203,7 +214,8 @@ def _error(code: int) -> str | None:
 
 
 def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None, claims: _Raw | None,
-            now: float, restarts: int = 0, instance: str | None = None) -> dict[str, Any]:
+            now: float, restarts: int = 0, instance: str | None = None,
+            ha_nodes: Sequence[_Raw] = ()) -> dict[str, Any]:
     """One NC's row set, decoded from its newest payloads (any of them may be missing or malformed);
     ``restarts``: the new NC instances seen so far; ``instance``: the id of the NC process followed
     (None: no instance token seen, e.g. an older NC).
@@ -314,7 +326,7 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         "missed_cycles": get("missed_cycles"), "overruns": get("overruns"), "work_us_p99": get("work_us_p99"),
         "clients": clients, "claims": holders, "claims_source": "claims" if cl is not None else
         ("stats" if st is not None else None), "axes": axes, "problems": problems, "remote_couplings": remote,
-        "ha": _ha(st),
+        "ha": _ha(st, ha_nodes, now),
     }
 
 
@@ -333,13 +345,23 @@ def _remote_couplings(rc: Any, problems: list[str]) -> list[dict[str, Any]]:
     return out
 
 
-def _ha(st: dict[str, Any] | None) -> dict[str, Any] | None:
-    """The hot-standby part of the stats (docs/standby.md: role, epoch, replication lag, takeovers), or None."""
+def _ha(st: dict[str, Any] | None, nodes: Sequence[_Raw] = (), now: float = 0.0) -> dict[str, Any] | None:
+    """The hot-standby part of the stats (docs/standby.md: role, epoch, takeovers), or None; with ``nodes``: the
+    other nodes' ha status (``nc/<nc>/ha/status/<node>``, newer than STALE_AFTER): node, role, in_step, lag_cycles
+    (the replication lag is the standby's figure: the active NC's stats do not have it)."""
     ha = st.get("ha") if st is not None else None
     if not isinstance(ha, dict):
         return None
     keys = ("node", "role", "epoch", "peer_in_step", "lag_cycles", "takeovers", "takeover_ms", "demotions")
-    return {k: ha.get(k) for k in keys}
+    out: dict[str, Any] = {k: ha.get(k) for k in keys}
+    peers = []
+    for r in nodes:
+        d = _unpack(r)
+        if d is None or d.get("node") == out["node"] or now - r.t > STALE_AFTER:
+            continue
+        peers.append({k: d.get(k) for k in ("node", "role", "in_step", "lag_cycles")})
+    out["standbys"] = peers
+    return out
 
 
 # ---- text ----------------------------------------------------------------------------------------
@@ -379,7 +401,9 @@ def render(snap: dict[str, Any]) -> str:
         if ha:
             out.append(f"  ha: {ha.get('role')} node {ha.get('node')} epoch {ha.get('epoch')}  standby in step "
                        f"{'yes' if ha.get('peer_in_step') else 'no'}  takeovers {ha.get('takeovers')} (last "
-                       f"{ha.get('takeover_ms')} ms)  demotions {ha.get('demotions')}")
+                       f"{ha.get('takeover_ms')} ms)  demotions {ha.get('demotions')}"
+                       + "".join(f"  {p.get('role')} {p.get('node')} lag {p.get('lag_cycles')} cycles"
+                                 f"{'' if p.get('in_step') else ' (not in step)'}" for p in ha.get("standbys") or []))
         if v["clients"]:
             parts = []
             for c, info in sorted(v["clients"].items()):

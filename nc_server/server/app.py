@@ -204,6 +204,8 @@ class NcServer:
         #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))
+        if config.redundancy.enabled:  # the fence: no frame older than a takeover goes out (docs/standby.md)
+            self.frames.ring.set_max_age(int(config.redundancy.takeover_cycles * config.cycle_time * 1e9))
         self._internal_socket: str | None = None  # the path of the publisher child's internal socket
         self.publisher: PublisherProcess | PublisherThread | None = None
         self._prev_tick = 0.0       # the cycle thread's last run (cycle start or idle slice) [s, monotonic]

@@ -15,7 +15,9 @@ memfd in the server):
   then the publisher's counters (written by the publisher only): Sent u64, Dropped u64,
   PutErrors u64, Ready u32 (1 once its publishers are declared), pad u32; Published u64 (the sequence
   number of the last slot the active publisher put: a standby publisher promoted after it died goes
-  on with the newest slot after it, skipping, and counting as dropped, the ones in between), then padding;
+  on with the newest slot after it, skipping, and counting as dropped, the ones in between), MaxAgeNs u64
+  (written by the NC: the fence of a hot-standby NC, 0 = none; the publisher drops a frame whose NcTimeNs is
+  older than that, docs/standby.md), Fenced u64 (frames so dropped, by the publisher), then padding;
 * ``Slots`` slots of ``SlotSize`` bytes: Seq u64 (0 while being written), FrameLen u32,
   PlcLen u32, then the frame bytes, then the PLCTONC bytes.
 
@@ -30,12 +32,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nc_schema import FRAME_HEADER_SIZE, NCJOBS_SIZE, NCTOPLC_SIZE, PLCTONC_SIZE, pack_frame_header_into
+from nc_schema import (
+    FRAME_HEADER_SIZE, NCJOBS_SIZE, NCTOPLC_SIZE, PLCTONC_SIZE, FrameFlags, frame_stamp, pack_frame_header_into,
+)
 
 __all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "slot_size_for"]
 
 RING_MAGIC = 0x4E435247  # "GRCN"
-RING_VERSION = 2
+RING_VERSION = 3
 #: Slots in the ring: the publisher has RING_SLOTS - 1 cycles to copy a slot out.
 RING_SLOTS = 16
 HEADER_SIZE = 128
@@ -50,6 +54,8 @@ _OFF_DROPPED = 40
 _OFF_PUT_ERRORS = 48
 _OFF_READY = 56
 _OFF_PUBLISHED = 64
+_OFF_MAX_AGE = 72
+_OFF_FENCED = 80
 def slot_size_for(n_axes: int) -> int:
     """Bytes of one slot for ``n_axes`` axes (frame with job records + PLCTONC), 64-byte aligned."""
     frame = FRAME_HEADER_SIZE + n_axes * (NCTOPLC_SIZE + NCJOBS_SIZE)
@@ -161,7 +167,35 @@ class FrameRing:
         """Ask the publisher to publish what is there and end."""
         _U32.pack_into(self.mv, _OFF_STOP, 1)
 
+    def set_max_age(self, ns: int) -> None:
+        """The fence: the publisher puts no frame whose NcTimeNs is more than ``ns`` older than its clock
+        (CLOCK_REALTIME); 0: no fence. A hot-standby NC sets its takeover time: a frame written before the NC
+        froze for longer than that may have been superseded by the standby's, and never goes out after it."""
+        _U64.pack_into(self.mv, _OFF_MAX_AGE, max(0, int(ns)))
+
     # ---- reader (the publisher) ---------------------------------------------------------------
+    @property
+    def max_age_ns(self) -> int:
+        return _U64.unpack_from(self.mv, _OFF_MAX_AGE)[0]
+
+    def stale(self, frame: bytes, now_ns: int) -> bool:
+        """Whether ``frame`` is beyond the fence at ``now_ns`` (CLOCK_REALTIME): older than MaxAgeNs, and not the NC's
+        last frame (flag ShuttingDown, which always goes out)."""
+        max_age = self.max_age_ns
+        if not max_age:
+            return False
+        _, nc_time_ns, flags = frame_stamp(frame)
+        return not flags & int(FrameFlags.ShuttingDown) and now_ns - nc_time_ns > max_age
+
+    @property
+    def fenced(self) -> int:
+        """Frames the publisher dropped as older than the fence."""
+        return _U64.unpack_from(self.mv, _OFF_FENCED)[0]
+
+    def count_fenced(self) -> None:
+        """Note one frame dropped as older than the fence (the publisher only)."""
+        _U64.pack_into(self.mv, _OFF_FENCED, self.fenced + 1)
+
     @property
     def stop_requested(self) -> bool:
         return bool(_U32.unpack_from(self.mv, _OFF_STOP)[0])

@@ -265,6 +265,12 @@ class FramePublisher:
             return False
         seq, frame, plc, skipped = got
         self.dropped += skipped
+        if self.ring.stale(frame, time.time_ns()):
+            self.dropped += 1
+            self.ring.count_fenced()
+            self.ring.set_published(seq)
+            self.ring.set_counters(self.sent, self.dropped, self.put_errors, True)
+            return True
         self.publish(frame, plc)
         self.ring.set_published(seq)
         self.ring.set_counters(self.sent, self.dropped, self.put_errors, True)

@@ -123,6 +123,7 @@ class HotStandby:
         self.peer_in_step = False  # (active) a standby in step is there
         self._peers: set[str] = set()
         self._last_log = 0.0       # monotonic time of the newest log taken
+        self._token_gone = False   # (standby) the active NC's liveliness token went since the last log
         self._started = 0.0
         self._asked = 0.0          # when the last snapshot query went out
         self._snap_replies: Any = None
@@ -238,7 +239,7 @@ class HotStandby:
                 if peers is None:
                     self.active_token_seen = present
                     if not present and self.role == "standby":
-                        self._last_log = -1e9  # the active NC's token went: take over now
+                        self._token_gone = True  # the active NC's token went: take over now
                 elif present:
                     peers.add(node)
                 else:
@@ -328,7 +329,7 @@ class HotStandby:
         quiet = now - self._last_log
         if not self.synced_once:
             return quiet > START_GRACE_S and not self.active_token_seen and now - self._started > START_GRACE_S
-        return quiet > self._silence and not self.follower.waiting
+        return (quiet > self._silence or self._token_gone) and not self.follower.waiting
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -346,6 +347,7 @@ class HotStandby:
     def _become_active(self, now: float, first: bool = False) -> None:
         srv = self.srv
         lost_at = self._last_log
+        self._token_gone = False
         self.epoch = next_epoch(max(self.highest, self.epoch), self.node)
         self.highest = self.epoch
         for lk in drive_links(self.real_drive):
@@ -417,7 +419,13 @@ class HotStandby:
                 "snapshots_served": self.snapshots_served, "takeovers": self.takeovers, "demotions": self.demotions,
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
                 "catch_up_cycles": self.catch_up, "takeover_limit_cycles": self.settings.takeover_cycles,
-                "peer_in_step": self.peer_in_step, "time": time.time()}
+                "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
+
+    def _fenced(self) -> int:
+        try:
+            return int(self.srv.frames.ring.fenced)
+        except (ValueError, AttributeError):  # (the ring is closed: the NC is stopping)
+            return 0
 
     def _publish_status(self) -> None:
         try:

@@ -14,96 +14,29 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-import msgpack
-import numpy as np
 import pytest
 
-# Not reliable yet on a heavily loaded machine (false takeovers at load average ~20 on 2 cores): run on request.
+# Opt-in (ZNC_STANDBY_TESTS=1): green 6 runs in a row at load average 5-7 on 2 cores, but at load average ~24 (a full
+# CI run beside) one run saw a 14.8 s log silence then a third epoch (the old node took over again), another a
+# command unanswered for 10 s: not reliable enough for make test yet (docs/standby.md).
 pytestmark = pytest.mark.skipif(not os.environ.get("ZNC_STANDBY_TESTS"),
                                 reason="hot-standby process tests: set ZNC_STANDBY_TESTS=1 (docs/standby.md)")
 
-from nc_link import NcLink
-from nc_schema import NCTOPLC_DTYPE, decode_stamp, frame_stamp
 from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server, wait_until
-
 from znc_testing.remote_drives import DriveSim, drive_axis, power
+from znc_testing.standby_rig import CONFIG, Trace, ha_status, largest_step
 
 T = 30.0
 CYCLE = 0.002
-TAKEOVER_CYCLES = 100  # 200 ms: above the stalls of a loaded 2-core machine, well below the drive timeout (1 s)
+# 500 ms: above the stalls of a loaded 2-core machine (false takeovers there are a matter of this setting, not of the
+# mechanism; bench/takeover.py measures the takeover time), well below the drive host's timeout (DRIVE_TIMEOUT)
+TAKEOVER_CYCLES = 250
+DRIVE_TIMEOUT = 3.0
 V, A, J = 50.0, 500.0, 5000.0  # the move's dynamics
-
-CONFIG = """
-[nc]
-name = "nc1"
-cycle_time = {cycle}
-watchdog_timeout = 5.0
-realtime = "off"
-publisher = "thread"
-
-[zenoh]
-mode = "client"
-connect = ["tcp/127.0.0.1:{port}"]
-
-[redundancy]
-enabled = true
-takeover_cycles = {takeover}
-
-[drives.remote]
-max_age = 200
-
-[[axis]]
-AxisId = 1
-Name = "X"
-AxisVeloMax = 200.0
-Drive = {{ backend = "remote", host = "drives1" }}
-"""
-
-
-class Trace:
-    """Every NCTOPLC sample of axis 1 (cycle, SetPos, SetVelo, CmdNo, CmdState), and the NC's frames through nc_link
-    (its NC-restart detection), gathered on the test's sessions."""
-
-    def __init__(self, port: int) -> None:
-        self.samples: list[tuple[int, float, float, int, int, float]] = []
-        self.cl = NcTestClient(port, client_id="observer", token=False)
-        self.sub = self.cl.session.declare_subscriber("nc/nc1/axis/1/nctoplc", self._on)
-        self.link = NcLink("nc1", f"tcp/127.0.0.1:{port}", "observer-link", holder=False)
-        self.link.open()
-        self.restarts: list[str] = []
-        self.frames = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _on(self, s: Any) -> None:
-        r = np.frombuffer(s.payload.to_bytes(), dtype=NCTOPLC_DTYPE, count=1)[0]
-        cycle = decode_stamp(s.attachment.to_bytes())[0] if s.attachment is not None else -1
-        self.samples.append((cycle, float(r["SetPos"]), float(r["SetVelo"]), int(r["CmdNo"]), int(r["CmdState"]),
-                             time.monotonic()))
-
-    def _run(self) -> None:
-        while not self._stop.wait(0.002):
-            f = self.link.take_frame()
-            if f is not None:
-                self.frames += 1
-                why = self.link.frame_cycle(frame_stamp(f)[0])
-                if why:
-                    self.restarts.append(why)
-            for ev in self.link.take_events():
-                if ev.kind == "restart":
-                    self.restarts.append(ev.why)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
-        self.link.close()
-        self.cl.close()
 
 
 def wait_logged(pred: Callable[[], Any], what: str, *procs: Any, timeout: float = T) -> Any:
@@ -114,11 +47,6 @@ def wait_logged(pred: Callable[[], Any], what: str, *procs: Any, timeout: float 
         logs = "\n".join(f"--- {getattr(p, 'name', 'drives')} {getattr(p, 'pid', '')}:\n{p.stderr()[-3000:]}"
                          for p in procs)
         raise AssertionError(f"{exc}\n{logs}") from None
-
-
-def ha_status(cl: NcTestClient, node: str) -> dict[str, Any] | None:
-    v = cl.latest(f"nc/nc1/ha/status/{node}")
-    return None if v is None else msgpack.unpackb(v[0], raw=False)
 
 
 @pytest.fixture
@@ -138,7 +66,7 @@ def pair(tmp_path: Path) -> Iterator[Callable[[], tuple[NcServerProcess, NcServe
                             extra_args=["--set", "redundancy.node=b"])
         started.append(b)
         sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
-                                  "--timeout", "1.0"])
+                                  "--timeout", str(DRIVE_TIMEOUT)])
         started.append(sim)
         return a, b, sim, router.port
 
@@ -147,17 +75,6 @@ def pair(tmp_path: Path) -> Iterator[Callable[[], tuple[NcServerProcess, NcServe
     finally:
         for h in reversed(started):
             h.kill()
-
-
-def largest_step(samples: list[tuple[int, float, float, int, int, float]]) -> float:
-    """The largest |SetPos change| beyond v * (cycles between the samples) * CYCLE: a jump, not motion."""
-    worst = 0.0
-    for (c0, p0, v0, *_), (c1, p1, v1, *_) in zip(samples, samples[1:]):
-        if c1 <= c0:
-            continue
-        allowed = max(abs(v0), abs(v1)) * (c1 - c0) * CYCLE + 0.5 * A * ((c1 - c0) * CYCLE) ** 2
-        worst = max(worst, abs(p1 - p0) - allowed)
-    return worst
 
 
 def start_move(a: NcServerProcess, b: NcServerProcess, sim: DriveSim, port: int, target: float) -> tuple[
@@ -196,7 +113,7 @@ def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Any]) -> None:
         again = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)
         assert again == first
         assert tr.restarts == [], tr.restarts
-        step = largest_step(tr.samples)
+        step = largest_step(tr.samples, CYCLE, A)
         after = [s for s in tr.samples if s[5] > t_kill]
         assert after and after[0][0] > max(s[0] for s in tr.samples if s[5] <= t_kill) - 1  # the Cycle continued
         assert step < 0.05 * V * TAKEOVER_CYCLES * CYCLE + 1e-3, step

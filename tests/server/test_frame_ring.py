@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nc_schema import (
-    FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, decode_frame, encode_frame,
+    FRAME_HEADER_DTYPE, NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, FrameFlags, decode_frame, encode_frame,
 )
 from nc_server.server.frame_ring import HEADER_SIZE, FrameRing, ring_bytes
 
@@ -135,3 +135,24 @@ def test_a_promoted_reader_takes_the_newest_slot_and_sees_the_last_frame_publish
     assert new is not None and decode_frame(new[1])[0]["Cycle"] == 4 and new[3] == 2
     w.write(5, 5_000_000, recs)  # (slot of the published frame, 4 slots later, overwritten)
     assert standby.published_frame() is None
+
+
+def test_the_fence_marks_frames_older_than_the_max_age_stale() -> None:
+    """A hot-standby NC's ring (docs/standby.md): a frame older than the takeover time, e.g. written before the NC
+    froze, is stale for the publisher (dropped, counted); the NC's last frame never is; no fence, nothing is."""
+    w, r = _pair(2)
+    recs = np.zeros(2, dtype=NCTOPLC_DTYPE)
+    w.write(1, 1_000_000_000, recs)
+    frame = r.read_newest()[1]  # type: ignore[index]
+    assert not r.stale(frame, 10**12)  # (no fence: MaxAgeNs 0)
+    w.set_max_age(200_000_000)
+    assert r.max_age_ns == 200_000_000
+    assert not r.stale(frame, 1_000_000_000 + 200_000_000)
+    assert r.stale(frame, 1_000_000_000 + 200_000_001)
+    w.write(2, 1_000_000_000, recs, flags=int(FrameFlags.ShuttingDown))
+    last = r.read_newest()[1]  # type: ignore[index]
+    assert not r.stale(last, 10**12)
+    assert r.fenced == 0
+    r.count_fenced()
+    r.count_fenced()
+    assert w.fenced == 2

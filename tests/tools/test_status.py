@@ -272,3 +272,25 @@ def test_remote_coupling_line_from_the_stats() -> None:
     assert "remote coupling: axis 1 <- nc1/1 x 0.5" in text and "age 1830 us" in text and "899/900" in text
     bad = nc_view("nc2", True, None, _Raw(msgpack.packb({"remote_couplings": [1]}), now), None, now)
     assert "stats: remote_couplings is not a map" in bad["problems"]
+
+
+def test_ha_line_shows_the_standby_and_its_replication_lag() -> None:
+    """A hot-standby pair: the active NC's stats give role and epoch, the standby's own ha status its lag; a stale or
+    the active's own ha status is not listed."""
+    import time as _time
+
+    import msgpack
+
+    from nc_tools.status import STALE_AFTER, _Raw, nc_view, render
+
+    now = _time.monotonic()
+    st = {"cycle": 10, "cycle_time": 0.002, "ha": {"node": "a", "role": "active", "epoch": 65541, "peer_in_step": True,
+                                                  "lag_cycles": 0, "takeovers": 0, "takeover_ms": 0.0, "demotions": 0}}
+    nodes = [_Raw(msgpack.packb({"node": "a", "role": "active", "in_step": True, "lag_cycles": 0}), now),
+             _Raw(msgpack.packb({"node": "b", "role": "standby", "in_step": True, "lag_cycles": 3}), now),
+             _Raw(msgpack.packb({"node": "c", "role": "standby", "in_step": False, "lag_cycles": 9}),
+                  now - STALE_AFTER - 1)]
+    v = nc_view("nc1", True, None, _Raw(msgpack.packb(st), now), None, now, ha_nodes=nodes)
+    assert v["ha"]["standbys"] == [{"node": "b", "role": "standby", "in_step": True, "lag_cycles": 3}]
+    text = render({"time": "t", "ncs": [v]})
+    assert "ha: active node a epoch 65541" in text and "standby b lag 3 cycles" in text and " c " not in text

@@ -11,7 +11,7 @@ Owns the helpers shared by the test directories; the front (this module) re-expo
 * per test directory: :mod:`~znc_testing.plc_rig` (tests/plc), :mod:`~znc_testing.plc_harness`,
   :mod:`~znc_testing.failsafe_support`, :mod:`~znc_testing.failsafe_recovery` (tests/integration),
   :mod:`~znc_testing.ads_testing`, :mod:`~znc_testing.nc_ads_testing` (tests/ads),
-  :mod:`~znc_testing.hostlib` (tests/hosts), :mod:`~znc_testing.sec_testing` (tests/security),
+  :mod:`~znc_testing.hostlib` (tests/hosts), :mod:`~znc_testing.standby_rig` (tests/drives, bench/takeover.py), :mod:`~znc_testing.sec_testing` (tests/security),
   :mod:`~znc_testing.tools_testing` (tests/tools), :mod:`~znc_testing.nc_core` and
   :mod:`~znc_testing.engine_check` (the core's tests). The programs the tests start as processes
   (``plc_agent.py``, ``failsafe_client.py``, ...) stay beside the tests that run them.

@@ -1,0 +1,100 @@
+"""A hot-standby NC pair's test rig (docs/standby.md): its config, the observer of its set-points and frames, the
+ha status and the SetPos-jump measure; shared by tests/drives/test_standby_process.py and bench/takeover.py."""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from nc_link import NcLink
+from nc_schema import NCTOPLC_DTYPE, decode_stamp, frame_stamp
+from znc_testing.nc_process import NcTestClient
+
+__all__ = ["CONFIG", "Trace", "ha_status", "largest_step"]
+
+CONFIG = """
+[nc]
+name = "nc1"
+cycle_time = {cycle}
+watchdog_timeout = 5.0
+realtime = "off"
+publisher = "thread"
+
+[zenoh]
+mode = "client"
+connect = ["tcp/127.0.0.1:{port}"]
+
+[redundancy]
+enabled = true
+takeover_cycles = {takeover}
+
+[drives.remote]
+max_age = 200
+
+[[axis]]
+AxisId = 1
+Name = "X"
+AxisVeloMax = 200.0
+Drive = {{ backend = "remote", host = "drives1" }}
+"""
+
+
+class Trace:
+    """Every NCTOPLC sample of axis 1 (cycle, SetPos, SetVelo, CmdNo, CmdState), and the NC's frames through nc_link
+    (its NC-restart detection), gathered on the test's sessions."""
+
+    def __init__(self, port: int) -> None:
+        self.samples: list[tuple[int, float, float, int, int, float]] = []
+        self.cl = NcTestClient(port, client_id="observer", token=False)
+        self.sub = self.cl.session.declare_subscriber("nc/nc1/axis/1/nctoplc", self._on)
+        self.link = NcLink("nc1", f"tcp/127.0.0.1:{port}", "observer-link", holder=False)
+        self.link.open()
+        self.restarts: list[str] = []
+        self.frames = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _on(self, s: Any) -> None:
+        r = np.frombuffer(s.payload.to_bytes(), dtype=NCTOPLC_DTYPE, count=1)[0]
+        cycle = decode_stamp(s.attachment.to_bytes())[0] if s.attachment is not None else -1
+        self.samples.append((cycle, float(r["SetPos"]), float(r["SetVelo"]), int(r["CmdNo"]), int(r["CmdState"]),
+                             time.monotonic()))
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.002):
+            f = self.link.take_frame()
+            if f is not None:
+                self.frames += 1
+                why = self.link.frame_cycle(frame_stamp(f)[0])
+                if why:
+                    self.restarts.append(why)
+            for ev in self.link.take_events():
+                if ev.kind == "restart":
+                    self.restarts.append(ev.why)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.link.close()
+        self.cl.close()
+
+
+def ha_status(cl: NcTestClient, node: str) -> dict[str, Any] | None:
+    v = cl.latest(f"nc/nc1/ha/status/{node}")
+    return None if v is None else msgpack.unpackb(v[0], raw=False)
+
+
+def largest_step(samples: list[tuple[int, float, float, int, int, float]], cycle: float, accel: float) -> float:
+    """The largest |SetPos change| beyond what ``v`` (the larger of the two samples' SetVelo) and ``accel`` allow over
+    the cycles between two samples (``cycle`` [s] each): a jump, not motion."""
+    worst = 0.0
+    for (c0, p0, v0, *_), (c1, p1, v1, *_) in zip(samples, samples[1:]):
+        if c1 <= c0:
+            continue
+        t = (c1 - c0) * cycle
+        worst = max(worst, abs(p1 - p0) - max(abs(v0), abs(v1)) * t - 0.5 * accel * t * t)
+    return worst
