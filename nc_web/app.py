@@ -154,6 +154,22 @@ def _http_status_of(code: int) -> int:
     return 409
 
 
+def cross_site(headers: Any, api: bool = False) -> str | None:
+    """Why a request is refused as another site's (CSRF), or None: an ``Origin`` that is not this server's
+    (``Host``), a ``Sec-Fetch-Site`` other than same-origin/none, and on ``/api/...`` a body that is not
+    ``application/json`` (a form or text/plain POST needs no CORS preflight; JSON does). Used by every POST and
+    the WebSocket."""
+    origin, host = headers.get("origin"), headers.get("host")
+    if origin is not None and (host is None or origin.split("://", 1)[-1].rstrip("/") != host):
+        return f"Origin {origin} is not this server's"
+    site = headers.get("sec-fetch-site")
+    if site is not None and site not in ("same-origin", "none"):
+        return f"Sec-Fetch-Site {site}"
+    if api and headers.get("content-type", "").split(";", 1)[0].strip().lower() != "application/json":
+        return "Content-Type must be application/json"
+    return None
+
+
 def error_label(code: int) -> str:
     """``NAME: text`` of an NC error code (the contract's errors.json), "" for 0."""
     return f"{error_name(code)}: {error_text(code)}" if code else ""
@@ -269,6 +285,8 @@ class WebDoor:
         return HTMLResponse(_login_html(""))
 
     async def login(self, request: Request) -> Response:
+        if (why := cross_site(request.headers)) is not None:
+            return Response(f"refused: {why}", status_code=403)
         form = parse_qs((await request.body()).decode(errors="replace"))
         user = (form.get("user") or [""])[0]
         password = (form.get("password") or [""])[0]
@@ -285,6 +303,8 @@ class WebDoor:
         return resp
 
     async def logout(self, request: Request) -> Response:
+        if (why := cross_site(request.headers)) is not None:
+            return Response(f"refused: {why}", status_code=403)
         login = self._login_of(request.cookies)
         if login is not None:
             await self._end(login, "logged out")
@@ -361,6 +381,8 @@ class WebDoor:
         login = self._login_of(request.cookies)
         if login is None:
             return _json_error(401, _ACCESS_DENIED, "not logged in")
+        if (why := cross_site(request.headers, api=True)) is not None:
+            return _json_error(403, _ACCESS_DENIED, f"refused: {why}")
         nc, axis, cmd = str(request.path_params["nc"]), int(request.path_params["axis"]), str(request.path_params["cmd"])
         try:
             if cmd not in COMMANDS:
@@ -409,8 +431,7 @@ class WebDoor:
     # ---- live values and hold-to-run ------------------------------------------------------------------------------
     async def live(self, ws: WebSocket) -> None:
         login = self._login_of(ws.cookies)
-        origin = ws.headers.get("origin")
-        if login is None or (origin is not None and origin.split("://", 1)[-1] != ws.headers.get("host")):
+        if login is None or cross_site(ws.headers) is not None:
             await ws.close(code=4401 if login is None else 4403)
             return
         nc = str(ws.path_params["nc"])

@@ -171,3 +171,30 @@ def test_a_vanished_login_releases_its_claims(web: NcWebProcess, watch: NcTestCl
         assert claims(watch).get(4) == "web.alice"
     wait_until(lambda: 4 not in claims(watch), 30, "axis 4 released after the page went away")
     assert post(web.url, cookie, "nc1", 4, "Reset")[0] == 401
+
+
+def test_another_site_cannot_drive_the_panel_through_a_logged_in_browser(web: NcWebProcess,
+                                                                          watch: NcTestClient) -> None:
+    """CSRF: a cross-origin POST (a form or text/plain body needs no CORS preflight) is refused with 403 and
+    changes nothing; the page's own requests (same origin, JSON) pass."""
+    cookie = login(web.url, "alice", "alice-pw")
+    host = web.url.split("://", 1)[1]
+    url = f"{web.url}/api/nc/nc1/axis/1/Power"
+    body = json.dumps({"Enable": True}).encode()
+    evil = {"Origin": "http://evil.example"}
+    for ctype, extra in (("text/plain", evil), ("application/json", evil), ("text/plain", {}),
+                         ("application/x-www-form-urlencoded", {}), ("application/json", {"Origin": "null"}),
+                         ("application/json", {"Sec-Fetch-Site": "cross-site"}),
+                         ("application/json", {"Sec-Fetch-Site": "same-site"})):
+        status, _, reply = http(url, "POST", body, cookie, content_type=ctype, headers=extra)
+        assert status == 403 and json.loads(reply)["error"] == ErrorCodes.ADSERR_DEVICE_ACCESSDENIED, (ctype, extra)
+    assert http(f"{web.url}/logout", "POST", b"", cookie, headers=evil)[0] == 403
+    assert http(f"{web.url}/login", "POST", urllib.parse.urlencode({"user": "alice", "password": "alice-pw"})
+                .encode(), content_type="application/x-www-form-urlencoded",
+                headers={"Sec-Fetch-Site": "cross-site"})[0] == 403
+    assert 1 not in claims(watch)  # nothing was sent
+    same = {"Origin": f"http://{host}", "Sec-Fetch-Site": "same-origin"}
+    status, _, reply = http(f"{web.url}/api/nc/nc1/axis/1/Reset", "POST", b"{}", cookie, headers=same)
+    assert status == 200, reply  # the login survived the cross-site logout, and the page's own POST passes
+    assert http(f"{web.url}/logout", "POST", b"", cookie, headers=same)[0] == 303
+    assert post(web.url, cookie, "nc1", 1, "Reset")[0] == 401
