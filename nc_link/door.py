@@ -33,12 +33,15 @@ May import: ``nc_schema``, this package and the standard library.
 """
 from __future__ import annotations
 
+import asyncio
+import functools
 import logging
 import struct
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
 from .link import CommandError, NcLink
 from .supply import Supplies
@@ -49,7 +52,24 @@ from nc_schema import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["NcDoor", "AxisImage", "UserAgent", "OVERRIDE_100"]
+__all__ = ["NcDoor", "AxisImage", "UserAgent", "OVERRIDE_100", "CommandPool"]
+
+_T = TypeVar("_T")
+
+
+class CommandPool:
+    """The threads a door's event loop runs its NC commands on (Stop, Halt, jogs and their renewals,
+    session_gone, ...): its own, not asyncio's default executor, so they never queue behind password checks
+    (:class:`nc_link.users.PasswordGate`) or parameter reads."""
+
+    def __init__(self, workers: int = 8) -> None:
+        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="nc-command")
+
+    async def run(self, fn: Callable[..., _T], *args: Any) -> _T:
+        return await asyncio.get_running_loop().run_in_executor(self._pool, functools.partial(fn, *args))
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
 
 OVERRIDE_100 = 1_000_000
 CONTROL_ENABLE_ALL = 0x7

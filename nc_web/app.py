@@ -60,8 +60,8 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from nc_link import CommandError
-from nc_link.door import OVERRIDE_100, NcDoor
-from nc_link.users import User, Verifier, role_min
+from nc_link.door import OVERRIDE_100, CommandPool, NcDoor
+from nc_link.users import LoginsBusy, PasswordGate, User, Verifier, role_min
 from nc_schema import (
     COMMAND_CLASS, NCTOPLC_DTYPE, PARAMETERS, ROLE_CLASSES, ErrorCodes, StateDWord, check_client_id, error_name,
     error_text, motion_state,
@@ -205,6 +205,8 @@ class WebDoor:
             check_client_id(nc)  # an NC name is a key chunk too
         self.cfg = cfg
         self.verifier = Verifier(cfg.users)
+        self.gate = PasswordGate(self.verifier)
+        self.commands = CommandPool()
         self._factory = door_factory or (lambda nc, ep: NcDoor(nc, ep, cfg.door_id, cfg.frame_ms, cfg.tls_dir))
         self.doors: dict[str, NcDoor] = {}
         self.logins: dict[str, Login] = {}
@@ -245,6 +247,8 @@ class WebDoor:
         for login in list(self.logins.values()):
             await self._end(login, "nc-web stops")
         await asyncio.gather(*(asyncio.to_thread(d.close) for d in self.doors.values()))
+        self.gate.close()
+        self.commands.close()
 
     async def _reaper(self) -> None:
         """End logins without an open page for ``session_idle`` s, or older than ``login_max_age``."""
@@ -267,7 +271,7 @@ class WebDoor:
             if lg is login:
                 del self.logins[sid]
         log.info("login %d of %s ended (%s): its claims and motions end", login.number, login.user, why)
-        await asyncio.gather(*(asyncio.to_thread(d.session_gone, login.number) for d in list(self.doors.values())))
+        await asyncio.gather(*(self.commands.run(d.session_gone, login.number) for d in list(self.doors.values())))
 
     # ---- logins -------------------------------------------------------------------------------------------------
     def _sign(self, sid: str) -> str:
@@ -290,7 +294,12 @@ class WebDoor:
         form = parse_qs((await request.body()).decode(errors="replace"))
         user = (form.get("user") or [""])[0]
         password = (form.get("password") or [""])[0]
-        ok = await run_in_threadpool(self.verifier.check, user, password)  # scrypt: never on the event loop
+        try:  # scrypt: on the gate's own threads, never on the event loop nor the NC commands' threads
+            ok = await self.gate.check(user, password)
+        except LoginsBusy:
+            log.warning("login of %r refused: too many logins at once", user)
+            return HTMLResponse(_login_html("Too many logins at once: try again."), status_code=429,
+                                headers={"Retry-After": "1"})
         if not ok:
             log.warning("login of %r refused", user)
             return HTMLResponse(_login_html("Login failed: unknown user or wrong password."), status_code=401)
@@ -405,7 +414,7 @@ class WebDoor:
 
     async def _run(self, d: NcDoor, login: Login, cmd: str, axis: int, args: dict[str, Any]) -> None:
         sender, sid = f"{self.cfg.door_id}.{login.user}", login.number
-        run: Callable[..., Awaitable[Any]] = asyncio.to_thread
+        run: Callable[..., Awaitable[Any]] = self.commands.run
         if cmd == "Power":
             override = float(args.get("Override", 100.0))
             if not 0.0 <= override <= 100.0:
@@ -457,7 +466,7 @@ class WebDoor:
                     d = self.doors.get(nc)
                     if d is not None and isinstance(axis, int) and axis in jogged:
                         jogged.discard(axis)
-                        asyncio.create_task(asyncio.to_thread(d.end_jogs, login.number, {axis}))
+                        asyncio.create_task(self.commands.run(d.end_jogs, login.number, {axis}))
         except (WebSocketDisconnect, ValueError, RuntimeError):
             pass
         finally:
@@ -466,7 +475,7 @@ class WebDoor:
             login.idle_since = time.monotonic()
             d = self.doors.get(nc)
             if d is not None and jogged:  # the page is gone: its jogs stop now, not at their timeout
-                await asyncio.to_thread(d.end_jogs, login.number, jogged)
+                await self.commands.run(d.end_jogs, login.number, jogged)
 
     async def _jog(self, ws: WebSocket, nc: str, login: Login, msg: dict[str, Any], jogged: set[int],
                    pending: set[int]) -> None:
@@ -491,7 +500,7 @@ class WebDoor:
 
         async def start() -> None:
             try:
-                await asyncio.to_thread(d.jog, axis, sender, login.number, int(direction), float(velocity),
+                await self.commands.run(d.jog, axis, sender, login.number, int(direction), float(velocity),
                                         self.cfg.hold_timeout)
             except CommandError as exc:
                 jogged.discard(axis)

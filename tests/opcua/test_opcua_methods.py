@@ -300,3 +300,40 @@ def test_a_precheck_on_a_worker_thread_leaves_asyncuas_check_without_scrypt(monk
     assert um.get_user(None, username="alice", password="wrong") is None and len(runs) == 1  # remembered once only
     _install_async_login()
     assert getattr(uaprocessor.UaProcessor, "_znc_async_login", False)
+
+
+def test_a_login_flood_is_refused_when_full_and_never_delays_a_stop(door: tuple[OpcuaDoor, FakeBridge],
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Password checks run on their own 2 threads behind a bound of 8 (more: LoginsBusy, which the ActivateSession
+    hook answers with BadTooManyOperations); NC commands on their own threads: a Stop completes while every
+    password thread and asyncio's default executor are blocked."""
+    from nc_link.users import LoginsBusy
+    d, fb = door
+    release = threading.Event()
+    started: list[str] = []
+
+    def slow(name: str, pw: str) -> bool:  # a scrypt that takes as long as the test wants
+        started.append(name)
+        release.wait(30)
+        return False
+    monkeypatch.setattr(d._users.verifier, "precheck", slow)
+    session = SimpleNamespace(user=SimpleNamespace(name="eve"), **{_NUMBER: 7})
+
+    async def run() -> tuple[int, int, Any]:
+        _SESSION.set(session)
+        loop = asyncio.get_running_loop()
+        blockers = [loop.run_in_executor(None, release.wait, 30) for _ in range(40)]  # default executor full
+        logins = [asyncio.ensure_future(d._users.gate.precheck(f"u{i}", "x")) for i in range(20)]
+        await asyncio.sleep(0.05)
+        refused = sum(1 for t in logins if t.done() and isinstance(t.exception(), LoginsBusy))
+        stop = await asyncio.wait_for(d._method("Stop", "nc1", 1)(_nid("nc1.1", d.idx)), 20)
+        running = len(started)
+        release.set()
+        await asyncio.gather(*logins, *blockers, return_exceptions=True)
+        return refused, running, stop
+    try:
+        refused, running, stop = asyncio.run(run())
+    finally:
+        release.set()
+    assert refused == 12 and running <= 2  # 8 admitted, at most 2 of them running
+    assert stop.StatusCode.is_good() and fb.calls == [("Stop", 1, "opcua.eve", 7, {})]

@@ -198,3 +198,21 @@ def test_another_site_cannot_drive_the_panel_through_a_logged_in_browser(web: Nc
     assert status == 200, reply  # the login survived the cross-site logout, and the page's own POST passes
     assert http(f"{web.url}/logout", "POST", b"", cookie, headers=same)[0] == 303
     assert post(web.url, cookie, "nc1", 1, "Reset")[0] == 401
+
+
+def test_a_login_flood_gets_429_and_commands_still_run(web: NcWebProcess) -> None:
+    """Password checks (scrypt) run on 2 threads of their own behind a bound of 8: a flood of logins is refused
+    with 429 beyond it, and a logged-in user's commands run on the NC commands' own threads meanwhile."""
+    from concurrent.futures import ThreadPoolExecutor
+    cookie = login(web.url, "alice", "alice-pw")
+    form = urllib.parse.urlencode({"user": "mallory", "password": "x"}).encode()
+
+    def attempt(_: int) -> int:
+        return http(f"{web.url}/login", "POST", form, content_type="application/x-www-form-urlencoded")[0]
+    with ThreadPoolExecutor(30) as pool:
+        flood = [pool.submit(attempt, i) for i in range(30)]
+        status, reply = post(web.url, cookie, "nc1", 3, "Reset")
+        codes = [f.result() for f in flood]
+    assert (status, reply["error"]) == (200, 0), reply
+    assert set(codes) <= {401, 429} and codes.count(429) >= 1 and codes.count(401) >= 1, codes
+    login(web.url, "alice", "alice-pw")  # the flood is over: logins work again
