@@ -581,12 +581,19 @@ class OpcuaDoor:
             await self._read_param(b, rv.NodeId, axis, number, refresh=False)
 
     async def _read_param(self, b: NcDoor, nid: ua.NodeId, axis: int, number: int, refresh: bool) -> None:
-        vt = self._param_nodes[nid][3]
         try:
             value = await asyncio.to_thread(b.read_parameter, axis, number, refresh)
         except CommandError as exc:
+            value = exc
+        await self._show_param(nid, value)
+
+    async def _show_param(self, nid: ua.NodeId, value: Any) -> None:
+        """The parameter node ``nid`` shows ``value`` (a CommandError: a Bad status)."""
+        vt = self._param_nodes[nid][3]
+        if isinstance(value, CommandError):
             await self.server.write_attribute_value(nid, ua.DataValue(StatusCode=_status(
-                ua.StatusCodes.BadCommunicationError if exc.code in (0x707, 0x719) else ua.StatusCodes.BadNotReadable)))
+                ua.StatusCodes.BadCommunicationError if value.code in (0x707, 0x719)
+                else ua.StatusCodes.BadNotReadable)))
             return
         conv = {ua.VariantType.Boolean: bool, ua.VariantType.UInt32: int}.get(vt, float)
         try:
@@ -672,9 +679,14 @@ class OpcuaDoor:
                 await run(lambda: b.command("WriteParameter", axis, sender, sid, ParameterNumber=p.number, Value=value))
             finally:  # refreshed after a write (also a refused one: the cache shows the NC's value)
                 await self._read_param(b, _nid(f"{nc}.{axis}.P.{p.name}", self.idx), axis, p.number, True)
-        elif mname == "RefreshParameters":
+        elif mname == "RefreshParameters":  # at most every REFRESH_INTERVAL per axis; ends at an unreachable NC
+            got = await asyncio.to_thread(b.read_parameters, axis, [e.number for e in PARAMETERS], True)
             for e in PARAMETERS:
-                await self._read_param(b, _nid(f"{nc}.{axis}.P.{e.name}", self.idx), axis, e.number, True)
+                if e.number in got:
+                    await self._show_param(_nid(f"{nc}.{axis}.P.{e.name}", self.idx), got[e.number])
+            unreachable = [v for v in got.values() if isinstance(v, CommandError) and v.code in (0x707, 0x719)]
+            if unreachable:
+                raise unreachable[0]
 
 
 #: method -> argument -> (the smallest value accepted, whether that value itself is accepted); other value rules:

@@ -53,7 +53,6 @@ from urllib.parse import parse_qs
 
 import numpy as np
 from starlette.applications import Starlette
-from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 from starlette.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from starlette.routing import Route, WebSocketRoute
@@ -367,17 +366,10 @@ class WebDoor:
         refresh = request.query_params.get("refresh") == "1"
 
         def read_all() -> list[dict[str, Any]]:
-            out = []
-            for p in PARAMETERS:
-                try:
-                    v = d.read_parameter(axis, p.number, refresh)
-                    out.append({"number": p.number, "value": v, "error": 0, "text": ""})
-                except CommandError as exc:
-                    out.append({"number": p.number, "value": None, "error": exc.code, "text": exc.message})
-                    if exc.code in (ErrorCodes.ADSERR_DEVICE_NOTREADY, ErrorCodes.ADSERR_DEVICE_TIMEOUT):
-                        break  # unreachable: do not wait once per parameter
-            return out
-        return JSONResponse({"axis": axis, "params": await run_in_threadpool(read_all)})
+            got = d.read_parameters(axis, [p.number for p in PARAMETERS], refresh)  # refresh: at most every 5 s
+            return [{"number": n, "value": None, "error": v.code, "text": v.message} if isinstance(v, CommandError)
+                    else {"number": n, "value": v, "error": 0, "text": ""} for n, v in got.items()]
+        return JSONResponse({"axis": axis, "params": await asyncio.to_thread(read_all)})
 
     # ---- commands -----------------------------------------------------------------------------------------------
     def _check_role(self, login: Login, what: str, nc_cmd: str) -> None:

@@ -337,3 +337,36 @@ def test_a_login_flood_is_refused_when_full_and_never_delays_a_stop(door: tuple[
         release.set()
     assert refused == 12 and running <= 2  # 8 admitted, at most 2 of them running
     assert stop.StatusCode.is_good() and fb.calls == [("Stop", 1, "opcua.eve", 7, {})]
+
+
+# ---- parameter refresh -----------------------------------------------------------------------------------------
+def test_a_parameter_refresh_is_throttled_shared_and_ends_at_an_unreachable_nc(bridge: tuple[NcDoor, FakeLink],
+                                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """RefreshParameters / the page's Refresh: one ReadParameter per parameter at most once per REFRESH_INTERVAL
+    per axis (concurrent refreshes share it), and the first 0x707/0x719 ends it."""
+    from nc_link import door as door_mod
+    b, link = bridge
+
+    def reads(axis: int) -> int:
+        return sum(1 for s in link.sent if s[0] == "ReadParameter" and s[1] == axis)
+    got = b.read_parameters(1, [1, 2, 3], refresh=True)
+    assert reads(1) == 3 and set(got) == {1, 2, 3}
+    for _ in range(5):  # an observer pressing Refresh again and again
+        b.read_parameters(1, [1, 2, 3], refresh=True)
+    assert reads(1) == 3
+    ts = [threading.Thread(target=b.read_parameters, args=(2, [1, 2, 3], True)) for _ in range(4)]
+    for t in ts:
+        t.start()
+    for t in ts:
+        t.join(30)
+    assert reads(2) == 3  # four at once: one refresh
+    monkeypatch.setattr(door_mod, "REFRESH_INTERVAL", 0.0)
+    b.read_parameters(1, [1, 2, 3], refresh=True)
+    assert reads(1) == 6  # the interval passed: read again
+
+    def unreachable(cmd: str, axis: Any, sender: str | None = None, **args: Any) -> dict[str, Any]:
+        link.sent.append((cmd, axis, sender, args))
+        raise CommandError(0x707, "NC not reachable")
+    link.request = unreachable  # type: ignore[method-assign]
+    got = b.read_parameters(3, list(range(1, 69)), refresh=True)
+    assert reads(3) == 1 and list(got) == [1] and isinstance(got[1], CommandError) and got[1].code == 0x707
