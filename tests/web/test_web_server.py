@@ -14,7 +14,7 @@ import pytest
 
 from nc_schema import ErrorCodes, StateDWord, error_name
 from znc_testing import NcTestClient, wait_until
-from znc_testing.web_testing import NcWebProcess, claims, http, login, post, websocket
+from znc_testing.web_testing import NcWebProcess, claims, http, login, post, start_nc_web, websocket
 
 HAS_JOB = int(StateDWord.HasJob)
 
@@ -216,3 +216,32 @@ def test_a_login_flood_gets_429_and_commands_still_run(web: NcWebProcess) -> Non
     assert (status, reply["error"]) == (200, 0), reply
     assert set(codes) <= {401, 429} and codes.count(429) >= 1 and codes.count(401) >= 1, codes
     login(web.url, "alice", "alice-pw")  # the flood is over: logins work again
+
+
+def test_a_closed_socket_halts_its_jog_at_once_not_at_the_hold_timeout(
+        tmp_path: Any, nc: Any, users_file: Any, watch: NcTestClient) -> None:
+    """With --hold-timeout 5 the halt after the page's WebSocket closes must come from the close (end_jogs),
+    not from the hold timeout: the NC's SetVelo falls well before 5 s (asserted < 1 s)."""
+    slow = start_nc_web(tmp_path / "web-slow", nc.endpoint, ["--users", str(users_file), "--hold-timeout", "5",
+                                                              "--client-id", "webslow"])
+    try:
+        cookie = login(slow.url, "alice", "alice-pw")
+        power(slow, cookie, 3, watch, "webslow.alice")
+        ws = websocket(slow.url, cookie)
+        try:
+            # negative: Z's soft limits are -300 .. 5, a jog ending at one would hide what this test is about
+            ws.send(json.dumps({"type": "jog", "axis": 3, "direction": 3, "velocity": 50.0}))
+            wait_until(lambda: has_job(watch, 3) and set_velo(watch, 3) < -49.0, 20, "axis 3 jogging at -50")
+        finally:
+            ws.close()
+        closed = time.monotonic()
+        wait_until(lambda: not has_job(watch, 3) or set_velo(watch, 3) > -49.0, 10, "the jog halted", interval=0.005)
+        after = time.monotonic() - closed
+        print(f"halt seen {after * 1000:.0f} ms after the socket closed (hold timeout 5 s)")
+        assert after < 1.0
+        wait_until(lambda: not has_job(watch, 3), 10, "axis 3 standing still")
+        assert int(watch.nctoplc(3)["ErrorCode"]) == 0  # type: ignore[index]  # halted, not stopped by an error
+        assert post(slow.url, login(slow.url, "alice", "alice-pw"), "nc1", 3, "Power", Enable=False)[0] == 200
+        wait_until(lambda: 3 not in claims(watch), 20, "axis 3 released")
+    finally:
+        slow.stop()
