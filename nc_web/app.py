@@ -128,6 +128,7 @@ class Login:
     role: str
     started: float
     sockets: int = 0
+    websockets: set[WebSocket] = field(default_factory=set)  # its pages' open WebSockets (closed when it ends)
     paged: bool = False  # a page of it opened its WebSocket once
     idle_since: float = field(default_factory=time.monotonic)
     ended: bool = False
@@ -255,12 +256,15 @@ class WebDoor:
             await asyncio.sleep(min(1.0, self.cfg.session_idle / 4))
             now = time.monotonic()
             for sid, login in list(self.logins.items()):
-                # before its first page: the page's load may take a while on a slow client, so at least 60 s
-                idle = self.cfg.session_idle if login.paged else max(60.0, self.cfg.session_idle)
-                if login.sockets == 0 and now - login.idle_since > idle:
-                    await self._end(login, f"no page open for {self.cfg.session_idle:g} s")
-                elif time.time() - login.started > self.cfg.login_max_age:
-                    await self._end(login, "login too old")
+                try:  # one failing end must not end the reaper: the other logins would never end
+                    # before its first page: the page's load may take a while on a slow client, so at least 60 s
+                    idle = self.cfg.session_idle if login.paged else max(60.0, self.cfg.session_idle)
+                    if login.sockets == 0 and now - login.idle_since > idle:
+                        await self._end(login, f"no page open for {self.cfg.session_idle:g} s")
+                    elif time.time() - login.started > self.cfg.login_max_age:
+                        await self._end(login, "login too old")
+                except Exception:
+                    log.exception("ending login %d of %s failed (tried again)", login.number, login.user)
 
     async def _end(self, login: Login, why: str) -> None:
         if login.ended:
@@ -270,6 +274,8 @@ class WebDoor:
             if lg is login:
                 del self.logins[sid]
         log.info("login %d of %s ended (%s): its claims and motions end", login.number, login.user, why)
+        for ws in list(login.websockets):  # its pages lose their live values and jogs with it
+            asyncio.create_task(_close_quietly(ws, 4401))
         await asyncio.gather(*(self.commands.run(d.session_gone, login.number) for d in list(self.doors.values())))
 
     # ---- logins -------------------------------------------------------------------------------------------------
@@ -440,7 +446,11 @@ class WebDoor:
             await ws.close(code=4404)
             return
         await ws.accept()
+        if login.ended:  # ended while the handshake ran
+            await ws.close(code=4401)
+            return
         login.sockets += 1
+        login.websockets.add(ws)
         login.paged = True
         jogged: set[int] = set()
         pending: set[int] = set()
@@ -464,6 +474,7 @@ class WebDoor:
         finally:
             sender.cancel()
             login.sockets -= 1
+            login.websockets.discard(ws)
             login.idle_since = time.monotonic()
             d = self.doors.get(nc)
             if d is not None and jogged:  # the page is gone: its jogs stop now, not at their timeout
@@ -472,6 +483,8 @@ class WebDoor:
     async def _jog(self, ws: WebSocket, nc: str, login: Login, msg: dict[str, Any], jogged: set[int],
                    pending: set[int]) -> None:
         axis, direction, velocity = msg.get("axis"), msg.get("direction"), msg.get("velocity", 0.0)
+        if login.ended:  # its socket is being closed: nothing more for it
+            return
         try:
             self._check_role(login, "Jog", "Jog")
             if not isinstance(axis, int) or isinstance(axis, bool) or direction not in (1, 3):
@@ -511,7 +524,7 @@ class WebDoor:
         last = -1
         names: dict[int, str] = {}
         try:
-            while True:
+            while not login.ended:
                 d = self.doors.get(nc)
                 img = d.image if d is not None else None
                 alive = img is not None and time.monotonic() - img.received < max(1.0, 5 * period)
@@ -530,6 +543,13 @@ class WebDoor:
             raise
         except Exception:  # the socket closed under us
             return
+
+
+async def _close_quietly(ws: WebSocket, code: int) -> None:
+    try:
+        await ws.close(code=code)
+    except Exception:  # closed already
+        pass
 
 
 def _check_args(cmd: str, args: Any) -> dict[str, Any]:

@@ -245,3 +245,46 @@ def test_a_closed_socket_halts_its_jog_at_once_not_at_the_hold_timeout(
         wait_until(lambda: 3 not in claims(watch), 20, "axis 3 released")
     finally:
         slow.stop()
+
+
+def test_an_ended_login_closes_its_pages_websockets(web: NcWebProcess) -> None:
+    """A logout (or any end of the login) closes the WebSockets of its pages: no more live values, no jog."""
+    from websockets.exceptions import ConnectionClosed
+    cookie = login(web.url, "alice", "alice-pw")
+    with websocket(web.url, cookie) as ws:
+        assert json.loads(ws.recv(30))["type"] == "frame"
+        assert http(f"{web.url}/logout", "POST", b"", cookie)[0] == 303
+        deadline = time.monotonic() + 20
+        with pytest.raises(ConnectionClosed):
+            while time.monotonic() < deadline:
+                ws.recv(deadline - time.monotonic())
+        assert ws.close_code == 4401
+
+
+def test_the_login_reaper_survives_a_failing_end() -> None:
+    """An exception while ending one login (a broken link, a bug) is logged and the reaper goes on."""
+    import asyncio
+
+    from nc_link.users import User
+    from nc_web.app import Login, WebConfig, WebDoor
+    w = WebDoor(WebConfig(ncs={"nc1": "tcp/127.0.0.1:1"}, users={"alice": User("alice", "operator", "scrypt$x")},
+                          secret=b"k" * 32, session_idle=0.2))
+    ended: list[int] = []
+    real_end = w._end
+
+    async def flaky_end(login: Login, why: str) -> None:
+        ended.append(login.number)
+        if len(ended) == 1:
+            raise RuntimeError("the first end fails")
+        await real_end(login, why)
+
+    async def run() -> None:
+        w._end = flaky_end  # type: ignore[method-assign]
+        w.logins["s1"] = Login(1, "alice", "operator", time.time(), paged=True, idle_since=time.monotonic() - 10)
+        task = asyncio.create_task(w._reaper())
+        deadline = time.monotonic() + 20
+        while "s1" in w.logins and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        task.cancel()
+    asyncio.run(run())
+    assert ended[:2] == [1, 1] and "s1" not in w.logins  # tried again after the failure, and ended
