@@ -13,9 +13,10 @@ Routes::
 
 Roles: a login's role is the users file's capped by the door's own (``role_min``); a command needs the class of
 the NC command it sends (``nc_schema.COMMAND_CLASS``: ``op`` for power and motion, ``eng`` for WriteParameter and
-SetActualPosition). A refusal by role is HTTP 403 with ``{"error": 0x705, "text": ...}`` and nothing is sent; the
+SetActualPosition). A refusal by role is HTTP 403 with ``{"error": 0x723, "text": ...}`` and nothing is sent; the
 page of an observer has no command buttons at all (rendered on the server). An NC refusal is HTTP 409 with the
-NC's ErrorID and text (``{"error": 0x4221, "text": ...}``), 502/504 for an unreachable / silent NC.
+NC's ErrorID and text (``{"error": 0x4221, "text": ...}``), 502/504 for an unreachable / silent NC, 404 for an
+NC this door does not serve. Every POST and the WebSocket pass :func:`cross_site` (CSRF).
 
 Client ids: the door connects as ``door_id``; what it commands for user U is sent as ``<door_id>.<U>``
 (:class:`nc_link.door.NcDoor`, the same rule as nc-opcua's, docs/roles.md).
@@ -101,7 +102,7 @@ class WebConfig:
     own role (caps every user's). door_id: its client id. tls_dir: zenoh mutual TLS as ``door_id``.
     frame_ms: the frames taken and pushed to the pages (``nc/<nc>/frame/<P>ms``). secret: the cookie key.
     hold_timeout: a jog stops this long after its last heartbeat [s]. session_idle: a login without an open
-    page this long ends [s]. login_max_age [s]. secure_cookie: HTTPS. max_jog_velocity: 0 = no door limit.
+    page this long ends [s]. login_max_age [s]. secure_cookie: HTTPS. heartbeat: the page's jog heartbeat [s].
     """
 
     ncs: dict[str, str]
@@ -168,6 +169,12 @@ def cross_site(headers: Any, api: bool = False) -> str | None:
     if api and headers.get("content-type", "").split(";", 1)[0].strip().lower() != "application/json":
         return "Content-Type must be application/json"
     return None
+
+
+def script_json(value: Any) -> str:
+    """``value`` as JSON to put inside ``<script type="application/json">``: a script's text is not HTML-decoded,
+    so ``<``, ``>`` and ``&`` are JSON escapes (``\\u003c`` ...), which also keeps ``</script>`` out of it."""
+    return json.dumps(value).replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
 
 
 def error_label(code: int) -> str:
@@ -349,7 +356,7 @@ class WebDoor:
                "params": [{"number": p.number, "name": p.name, "unit": p.unit or "", "writable": bool(p.writable),
                            "bool": p.is_bool, "doc": p.doc} for p in PARAMETERS]}
         body = _nc_body(nc, bool(cfg["op"]), bool(cfg["eng"]))
-        script = (f'<script id="cfg" type="application/json">{html.escape(json.dumps(cfg), quote=False)}</script>'
+        script = (f'<script id="cfg" type="application/json">{script_json(cfg)}</script>'
                   '<script src="/static/app.js"></script>')
         return HTMLResponse(_page(f"{nc} - zenoh-nc", body + script, login))
 
@@ -365,7 +372,10 @@ class WebDoor:
         login = self._login_of(request.cookies)
         if login is None:
             return _json_error(401, _ACCESS_DENIED, "not logged in")
-        d = self.doors.get(str(request.path_params["nc"]))
+        nc = str(request.path_params["nc"])
+        if nc not in self.cfg.ncs:
+            return _json_error(404, _INVALID, f"no NC {nc!r} here")
+        d = self.doors.get(nc)
         if d is None:
             return _json_error(502, int(ErrorCodes.ADSERR_DEVICE_NOTREADY), "NC not connected")
         axis = int(request.path_params["axis"])
@@ -394,6 +404,8 @@ class WebDoor:
         try:
             if cmd not in COMMANDS:
                 raise _Refused(404, _INVALID, f"unknown command {cmd!r}")
+            if nc not in self.cfg.ncs:
+                raise _Refused(404, _INVALID, f"no NC {nc!r} here")
             self._check_role(login, cmd, COMMANDS[cmd][0])
             try:
                 args = json.loads(await request.body() or b"{}")
@@ -457,7 +469,12 @@ class WebDoor:
         sender = asyncio.create_task(self._push(ws, nc, login))
         try:
             while True:
-                msg = json.loads(await ws.receive_text())
+                frame = await ws.receive()
+                if frame["type"] == "websocket.disconnect":
+                    raise WebSocketDisconnect(frame.get("code", 1000))
+                if frame.get("text") is None:  # a binary frame: not the page's
+                    continue
+                msg = json.loads(frame["text"])
                 if not isinstance(msg, dict):
                     continue
                 kind = msg.get("type")

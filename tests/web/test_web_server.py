@@ -288,3 +288,27 @@ def test_the_login_reaper_survives_a_failing_end() -> None:
         task.cancel()
     asyncio.run(run())
     assert ended[:2] == [1, 1] and "s1" not in w.logins  # tried again after the failure, and ended
+
+
+def test_the_page_config_survives_html_characters_binary_frames_and_unknown_ncs(web: NcWebProcess) -> None:
+    """The page's JSON config is JSON escapes, not HTML entities (a script's text is not HTML-decoded); a binary
+    WebSocket frame is ignored (the socket stays); an NC this door does not serve is 404, not 502."""
+    import re
+
+    from nc_schema import PARAMETERS
+    cookie = login(web.url, "alice", "alice-pw")
+    page = http(f"{web.url}/nc/nc1", cookie=cookie)[2].decode()
+    m = re.search(r'<script id="cfg" type="application/json">(.*?)</script>', page, re.S)
+    assert m and "&lt;" not in m.group(1) and "&amp;" not in m.group(1) and "<" not in m.group(1)
+    cfg = json.loads(m.group(1))
+    docs = {p.number: p.doc for p in PARAMETERS}
+    assert any(c in d for d in docs.values() for c in "<>&")  # the test means something
+    assert all(p["doc"] == docs[p["number"]] for p in cfg["params"])
+    with websocket(web.url, cookie) as ws:
+        ws.send(b"\x00\x01binary")
+        ws.send(json.dumps({"type": "jogstop", "axis": 1}))
+        for _ in range(3):
+            assert json.loads(ws.recv(30))["type"] == "frame"  # still open and pushing
+    status, reply = post(web.url, cookie, "nope", 1, "Reset")
+    assert status == 404, reply
+    assert http(f"{web.url}/api/nc/nope/params/1", cookie=cookie)[0] == 404
