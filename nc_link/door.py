@@ -33,12 +33,16 @@ May import: ``nc_schema``, this package and the standard library.
 """
 from __future__ import annotations
 
+import asyncio
+import functools
 import logging
+import math
 import struct
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
 from .link import CommandError, NcLink
 from .supply import Supplies
@@ -49,7 +53,30 @@ from nc_schema import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["NcDoor", "AxisImage", "UserAgent", "OVERRIDE_100"]
+__all__ = ["NcDoor", "AxisImage", "UserAgent", "OVERRIDE_100", "CommandPool", "REFRESH_INTERVAL"]
+
+#: an axis's parameters are refreshed from the NC at most once per this many seconds (RefreshParameters, the
+#: page's Refresh): each refresh is one ReadParameter per MC_AxisPara parameter, on the request budget every PLC
+#: shares, and any logged-in observer may ask for it
+REFRESH_INTERVAL = 5.0
+_UNREACHABLE = (int(ErrorCodes.ADSERR_DEVICE_NOTREADY), int(ErrorCodes.ADSERR_DEVICE_TIMEOUT))
+
+_T = TypeVar("_T")
+
+
+class CommandPool:
+    """The threads a door's event loop runs its NC commands on (Stop, Halt, jogs and their renewals,
+    session_gone, ...): its own, not asyncio's default executor, so they never queue behind password checks
+    (:class:`nc_link.users.PasswordGate`) or parameter reads."""
+
+    def __init__(self, workers: int = 8) -> None:
+        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="nc-command")
+
+    async def run(self, fn: Callable[..., _T], *args: Any) -> _T:
+        return await asyncio.get_running_loop().run_in_executor(self._pool, functools.partial(fn, *args))
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
 
 OVERRIDE_100 = 1_000_000
 CONTROL_ENABLE_ALL = 0x7
@@ -126,6 +153,8 @@ class NcDoor:
         self.jogs: dict[int, Jog] = {}
         self.commanded: dict[int, int] = {}  # AxisId -> the session whose motion command the door sent last
         self.params: dict[tuple[int, int], Any] = {}  # (AxisId, ParameterNumber) -> value (read on demand)
+        self._param_lock = threading.Lock()  # one parameter read at a time: concurrent readers share the cache
+        self._refreshed: dict[int, float] = {}  # AxisId -> when its parameters were last refreshed (monotonic)
         self._lock = threading.RLock()
         self._gone: set[int] = set()  # sessions that vanished (numbers are never reused): refused from then on
         self._closed = threading.Event()
@@ -455,8 +484,31 @@ class NcDoor:
             CommandError: the NC's refusal or the transport's.
         """
         key = (axis, number)
-        if not refresh and key in self.params:
-            return self.params[key]
-        value = self.link.request("ReadParameter", axis, ParameterNumber=number).get("Value")
-        self.params[key] = value
-        return value
+        with self._param_lock:  # a concurrent reader of the same key waits and takes the cached value
+            if not refresh and key in self.params:
+                return self.params[key]
+            value = self.link.request("ReadParameter", axis, ParameterNumber=number).get("Value")
+            self.params[key] = value
+            return value
+
+    def read_parameters(self, axis: int, numbers: list[int], refresh: bool = False) -> dict[int, Any]:
+        """Parameters ``numbers`` of ``axis`` (:meth:`read_parameter`): number -> value, or the CommandError of
+        its read. ``refresh`` reads them from the NC again, at most once per :data:`REFRESH_INTERVAL` per axis
+        (a refresh asked sooner, or while one runs, answers from the cache). The first 0x707/0x719 (NC
+        unreachable / silent) ends the reads: the numbers after it are missing from the result."""
+        if refresh:
+            with self._lock:
+                now = time.monotonic()
+                if now - self._refreshed.get(axis, -math.inf) < REFRESH_INTERVAL:
+                    refresh = False
+                else:
+                    self._refreshed[axis] = now
+        out: dict[int, Any] = {}
+        for n in numbers:
+            try:
+                out[n] = self.read_parameter(axis, n, refresh)
+            except CommandError as exc:
+                out[n] = exc
+                if exc.code in _UNREACHABLE:
+                    break  # do not wait once per parameter
+        return out

@@ -19,6 +19,7 @@ May import: ``nc_schema`` and the standard library.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import base64
 import getpass
 import hashlib
@@ -28,9 +29,10 @@ import re
 import sys
 import time
 import tomllib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Mapping
 
 from nc_schema import ROLE_CLASSES
 
@@ -134,6 +136,45 @@ class Verifier:
             return False
         self._ok[name] = mac
         return True
+
+
+class LoginsBusy(Exception):
+    """Too many password checks running or waiting: refused at once (HTTP 429, OPC UA BadTooManyOperations)."""
+
+
+class PasswordGate:
+    """A door's password checks (scrypt: ~16 MiB and 0.1-1 s each) on their own ``workers`` threads, apart from
+    asyncio's default executor and the NC commands' threads (a login flood never delays a Stop); at most
+    ``limit`` running or waiting, more are refused at once (:class:`LoginsBusy`). Used from one event loop."""
+
+    def __init__(self, verifier: Verifier, workers: int = 2, limit: int = 8) -> None:
+        self.verifier = verifier
+        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="password")
+        self._limit, self.pending = limit, 0
+
+    async def _run(self, fn: Callable[[str, str], bool], name: str, password: str) -> bool:
+        if self.pending >= self._limit:
+            raise LoginsBusy(f"{self.pending} password checks running or waiting")
+        self.pending += 1
+        try:
+            return await asyncio.get_running_loop().run_in_executor(self._pool, fn, name, password)
+        finally:
+            self.pending -= 1
+
+    async def check(self, name: str, password: str) -> bool:
+        """:meth:`Verifier.check` on the gate's threads.
+
+        Raises:
+            LoginsBusy: ``limit`` checks are running or waiting already.
+        """
+        return await self._run(self.verifier.check, name, password)
+
+    async def precheck(self, name: str, password: str) -> bool:
+        """:meth:`Verifier.precheck` on the gate's threads (raises as :meth:`check`)."""
+        return await self._run(self.verifier.precheck, name, password)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
 
 
 def dummy_verify(password: str) -> bool:

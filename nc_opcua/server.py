@@ -79,8 +79,8 @@ from nc_schema import (
     motion_state,
 )
 
-from nc_link.door import OVERRIDE_100, NcDoor
-from nc_link.users import User, Verifier, role_min
+from nc_link.door import OVERRIDE_100, CommandPool, NcDoor
+from nc_link.users import LoginsBusy, PasswordGate, User, Verifier, role_min
 
 log = logging.getLogger(__name__)
 
@@ -199,6 +199,7 @@ class _Users(UserManager):
     def __init__(self, users: dict[str, User], anonymous: bool) -> None:
         self.users, self.anonymous = users, anonymous
         self.verifier = Verifier(users)
+        self.gate = PasswordGate(self.verifier)
 
     def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
                  certificate: Any = None) -> UaUser | None:
@@ -226,14 +227,20 @@ def _install_async_login() -> None:
     async def _process_message(self: Any, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
         um = self.iserver.user_manager
         if typeid == activate and isinstance(um, _Users) and self.session is not None:
+            busy = False
             try:
                 params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
                 token = params.UserIdentityToken
                 if isinstance(token, ua.UserNameIdentityToken):
                     name, password = self.iserver.decrypt_user_token(self.session, token)
-                    await asyncio.to_thread(um.verifier.precheck, name or "", password or "")
+                    await um.gate.precheck(name or "", password or "")
+            except LoginsBusy:
+                busy = True
             except Exception:  # asyncua's own handling reports a bad request
                 pass
+            if busy:  # refused before any scrypt (asyncua answers a ServiceFault with this status)
+                log.warning("OPC UA login refused: too many logins at once")
+                raise ua.UaStatusCodeError(ua.StatusCodes.BadTooManyOperations)
         return await orig(self, typeid, requesthdr, seqhdr, body)
     cls._process_message = _process_message
     cls._znc_async_login = True
@@ -309,8 +316,10 @@ class OpcuaDoor:
             raise ValueError(f"role must be one of {', '.join(ROLE_CLASSES)}, got {cfg.role!r}")
         self.cfg = cfg
         _install_async_login()
-        self.server = Server(user_manager=_Users(cfg.users or {}, cfg.allow_anonymous))
+        self._users = _Users(cfg.users or {}, cfg.allow_anonymous)
+        self.server = Server(user_manager=self._users)
         self.bridges: dict[str, NcDoor] = {}
+        self.commands = CommandPool()  # NC commands: never behind password checks or parameter reads
         self.idx = 0
         self._ncs_node: Any = None
         self._axis_nodes: dict[tuple[str, int], Any] = {}
@@ -381,6 +390,8 @@ class OpcuaDoor:
         if self._zsession is not None:
             await asyncio.to_thread(self._zsession.close)
         await self.server.stop()
+        self.commands.close()
+        self._users.gate.close()
         log.info("stopped: NC links closed in %.2f s, server in %.2f s", t1 - t0, _time.monotonic() - t1)
 
     # ---- sessions -----------------------------------------------------------------------------------------------
@@ -409,7 +420,7 @@ class OpcuaDoor:
                         if self._sessions.pop(number, None) is not None and not self._stopping:
                             log.info("OPC UA session %s of %s ended: its claims and motions end", s.name, s.user.name)
                             for b in list(self.bridges.values()):
-                                await asyncio.to_thread(b.session_gone, number)
+                                await self.commands.run(b.session_gone, number)
 
                 number = next(self._numbers)  # never reused (an id() is, once its object is gone)
                 setattr(s, "call", call)
@@ -570,12 +581,19 @@ class OpcuaDoor:
             await self._read_param(b, rv.NodeId, axis, number, refresh=False)
 
     async def _read_param(self, b: NcDoor, nid: ua.NodeId, axis: int, number: int, refresh: bool) -> None:
-        vt = self._param_nodes[nid][3]
         try:
             value = await asyncio.to_thread(b.read_parameter, axis, number, refresh)
         except CommandError as exc:
+            value = exc
+        await self._show_param(nid, value)
+
+    async def _show_param(self, nid: ua.NodeId, value: Any) -> None:
+        """The parameter node ``nid`` shows ``value`` (a CommandError: a Bad status)."""
+        vt = self._param_nodes[nid][3]
+        if isinstance(value, CommandError):
             await self.server.write_attribute_value(nid, ua.DataValue(StatusCode=_status(
-                ua.StatusCodes.BadCommunicationError if exc.code in (0x707, 0x719) else ua.StatusCodes.BadNotReadable)))
+                ua.StatusCodes.BadCommunicationError if value.code in (0x707, 0x719)
+                else ua.StatusCodes.BadNotReadable)))
             return
         conv = {ua.VariantType.Boolean: bool, ua.VariantType.UInt32: int}.get(vt, float)
         try:
@@ -625,7 +643,7 @@ class OpcuaDoor:
                            f"NC {nc} is not served")
         sid = int(getattr(session, _NUMBER, 0))  # 0: no external session (not one a client can lose)
         sender = f"{self.cfg.door_id}.{user}"
-        run = asyncio.to_thread
+        run = self.commands.run
         if mname == "Power":
             enable, override = args[0], args[1]
             if not 0.0 <= override <= 100.0:
@@ -661,9 +679,14 @@ class OpcuaDoor:
                 await run(lambda: b.command("WriteParameter", axis, sender, sid, ParameterNumber=p.number, Value=value))
             finally:  # refreshed after a write (also a refused one: the cache shows the NC's value)
                 await self._read_param(b, _nid(f"{nc}.{axis}.P.{p.name}", self.idx), axis, p.number, True)
-        elif mname == "RefreshParameters":
+        elif mname == "RefreshParameters":  # at most every REFRESH_INTERVAL per axis; ends at an unreachable NC
+            got = await asyncio.to_thread(b.read_parameters, axis, [e.number for e in PARAMETERS], True)
             for e in PARAMETERS:
-                await self._read_param(b, _nid(f"{nc}.{axis}.P.{e.name}", self.idx), axis, e.number, True)
+                if e.number in got:
+                    await self._show_param(_nid(f"{nc}.{axis}.P.{e.name}", self.idx), got[e.number])
+            unreachable = [v for v in got.values() if isinstance(v, CommandError) and v.code in (0x707, 0x719)]
+            if unreachable:
+                raise unreachable[0]
 
 
 #: method -> argument -> (the smallest value accepted, whether that value itself is accepted); other value rules:

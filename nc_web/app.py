@@ -13,9 +13,10 @@ Routes::
 
 Roles: a login's role is the users file's capped by the door's own (``role_min``); a command needs the class of
 the NC command it sends (``nc_schema.COMMAND_CLASS``: ``op`` for power and motion, ``eng`` for WriteParameter and
-SetActualPosition). A refusal by role is HTTP 403 with ``{"error": 0x705, "text": ...}`` and nothing is sent; the
+SetActualPosition). A refusal by role is HTTP 403 with ``{"error": 0x723, "text": ...}`` and nothing is sent; the
 page of an observer has no command buttons at all (rendered on the server). An NC refusal is HTTP 409 with the
-NC's ErrorID and text (``{"error": 0x4221, "text": ...}``), 502/504 for an unreachable / silent NC.
+NC's ErrorID and text (``{"error": 0x4221, "text": ...}``), 502/504 for an unreachable / silent NC, 404 for an
+NC this door does not serve. Every POST and the WebSocket pass :func:`cross_site` (CSRF).
 
 Client ids: the door connects as ``door_id``; what it commands for user U is sent as ``<door_id>.<U>``
 (:class:`nc_link.door.NcDoor`, the same rule as nc-opcua's, docs/roles.md).
@@ -53,15 +54,14 @@ from urllib.parse import parse_qs
 
 import numpy as np
 from starlette.applications import Starlette
-from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 from starlette.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from nc_link import CommandError
-from nc_link.door import OVERRIDE_100, NcDoor
-from nc_link.users import User, Verifier, role_min
+from nc_link.door import OVERRIDE_100, CommandPool, NcDoor
+from nc_link.users import LoginsBusy, PasswordGate, User, Verifier, role_min
 from nc_schema import (
     COMMAND_CLASS, NCTOPLC_DTYPE, PARAMETERS, ROLE_CLASSES, ErrorCodes, StateDWord, check_client_id, error_name,
     error_text, motion_state,
@@ -102,7 +102,7 @@ class WebConfig:
     own role (caps every user's). door_id: its client id. tls_dir: zenoh mutual TLS as ``door_id``.
     frame_ms: the frames taken and pushed to the pages (``nc/<nc>/frame/<P>ms``). secret: the cookie key.
     hold_timeout: a jog stops this long after its last heartbeat [s]. session_idle: a login without an open
-    page this long ends [s]. login_max_age [s]. secure_cookie: HTTPS. max_jog_velocity: 0 = no door limit.
+    page this long ends [s]. login_max_age [s]. secure_cookie: HTTPS. heartbeat: the page's jog heartbeat [s].
     """
 
     ncs: dict[str, str]
@@ -129,6 +129,7 @@ class Login:
     role: str
     started: float
     sockets: int = 0
+    websockets: set[WebSocket] = field(default_factory=set)  # its pages' open WebSockets (closed when it ends)
     paged: bool = False  # a page of it opened its WebSocket once
     idle_since: float = field(default_factory=time.monotonic)
     ended: bool = False
@@ -152,6 +153,28 @@ def _http_status_of(code: int) -> int:
     if code == _ACCESS_DENIED:
         return 403
     return 409
+
+
+def cross_site(headers: Any, api: bool = False) -> str | None:
+    """Why a request is refused as another site's (CSRF), or None: an ``Origin`` that is not this server's
+    (``Host``), a ``Sec-Fetch-Site`` other than same-origin/none, and on ``/api/...`` a body that is not
+    ``application/json`` (a form or text/plain POST needs no CORS preflight; JSON does). Used by every POST and
+    the WebSocket."""
+    origin, host = headers.get("origin"), headers.get("host")
+    if origin is not None and (host is None or origin.split("://", 1)[-1].rstrip("/") != host):
+        return f"Origin {origin} is not this server's"
+    site = headers.get("sec-fetch-site")
+    if site is not None and site not in ("same-origin", "none"):
+        return f"Sec-Fetch-Site {site}"
+    if api and headers.get("content-type", "").split(";", 1)[0].strip().lower() != "application/json":
+        return "Content-Type must be application/json"
+    return None
+
+
+def script_json(value: Any) -> str:
+    """``value`` as JSON to put inside ``<script type="application/json">``: a script's text is not HTML-decoded,
+    so ``<``, ``>`` and ``&`` are JSON escapes (``\\u003c`` ...), which also keeps ``</script>`` out of it."""
+    return json.dumps(value).replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
 
 
 def error_label(code: int) -> str:
@@ -189,6 +212,8 @@ class WebDoor:
             check_client_id(nc)  # an NC name is a key chunk too
         self.cfg = cfg
         self.verifier = Verifier(cfg.users)
+        self.gate = PasswordGate(self.verifier)
+        self.commands = CommandPool()
         self._factory = door_factory or (lambda nc, ep: NcDoor(nc, ep, cfg.door_id, cfg.frame_ms, cfg.tls_dir))
         self.doors: dict[str, NcDoor] = {}
         self.logins: dict[str, Login] = {}
@@ -229,6 +254,8 @@ class WebDoor:
         for login in list(self.logins.values()):
             await self._end(login, "nc-web stops")
         await asyncio.gather(*(asyncio.to_thread(d.close) for d in self.doors.values()))
+        self.gate.close()
+        self.commands.close()
 
     async def _reaper(self) -> None:
         """End logins without an open page for ``session_idle`` s, or older than ``login_max_age``."""
@@ -236,12 +263,15 @@ class WebDoor:
             await asyncio.sleep(min(1.0, self.cfg.session_idle / 4))
             now = time.monotonic()
             for sid, login in list(self.logins.items()):
-                # before its first page: the page's load may take a while on a slow client, so at least 60 s
-                idle = self.cfg.session_idle if login.paged else max(60.0, self.cfg.session_idle)
-                if login.sockets == 0 and now - login.idle_since > idle:
-                    await self._end(login, f"no page open for {self.cfg.session_idle:g} s")
-                elif time.time() - login.started > self.cfg.login_max_age:
-                    await self._end(login, "login too old")
+                try:  # one failing end must not end the reaper: the other logins would never end
+                    # before its first page: the page's load may take a while on a slow client, so at least 60 s
+                    idle = self.cfg.session_idle if login.paged else max(60.0, self.cfg.session_idle)
+                    if login.sockets == 0 and now - login.idle_since > idle:
+                        await self._end(login, f"no page open for {self.cfg.session_idle:g} s")
+                    elif time.time() - login.started > self.cfg.login_max_age:
+                        await self._end(login, "login too old")
+                except Exception:
+                    log.exception("ending login %d of %s failed (tried again)", login.number, login.user)
 
     async def _end(self, login: Login, why: str) -> None:
         if login.ended:
@@ -251,7 +281,9 @@ class WebDoor:
             if lg is login:
                 del self.logins[sid]
         log.info("login %d of %s ended (%s): its claims and motions end", login.number, login.user, why)
-        await asyncio.gather(*(asyncio.to_thread(d.session_gone, login.number) for d in list(self.doors.values())))
+        for ws in list(login.websockets):  # its pages lose their live values and jogs with it
+            asyncio.create_task(_close_quietly(ws, 4401))
+        await asyncio.gather(*(self.commands.run(d.session_gone, login.number) for d in list(self.doors.values())))
 
     # ---- logins -------------------------------------------------------------------------------------------------
     def _sign(self, sid: str) -> str:
@@ -269,10 +301,17 @@ class WebDoor:
         return HTMLResponse(_login_html(""))
 
     async def login(self, request: Request) -> Response:
+        if (why := cross_site(request.headers)) is not None:
+            return Response(f"refused: {why}", status_code=403)
         form = parse_qs((await request.body()).decode(errors="replace"))
         user = (form.get("user") or [""])[0]
         password = (form.get("password") or [""])[0]
-        ok = await run_in_threadpool(self.verifier.check, user, password)  # scrypt: never on the event loop
+        try:  # scrypt: on the gate's own threads, never on the event loop nor the NC commands' threads
+            ok = await self.gate.check(user, password)
+        except LoginsBusy:
+            log.warning("login of %r refused: too many logins at once", user)
+            return HTMLResponse(_login_html("Too many logins at once: try again."), status_code=429,
+                                headers={"Retry-After": "1"})
         if not ok:
             log.warning("login of %r refused", user)
             return HTMLResponse(_login_html("Login failed: unknown user or wrong password."), status_code=401)
@@ -285,6 +324,8 @@ class WebDoor:
         return resp
 
     async def logout(self, request: Request) -> Response:
+        if (why := cross_site(request.headers)) is not None:
+            return Response(f"refused: {why}", status_code=403)
         login = self._login_of(request.cookies)
         if login is not None:
             await self._end(login, "logged out")
@@ -315,7 +356,7 @@ class WebDoor:
                "params": [{"number": p.number, "name": p.name, "unit": p.unit or "", "writable": bool(p.writable),
                            "bool": p.is_bool, "doc": p.doc} for p in PARAMETERS]}
         body = _nc_body(nc, bool(cfg["op"]), bool(cfg["eng"]))
-        script = (f'<script id="cfg" type="application/json">{html.escape(json.dumps(cfg), quote=False)}</script>'
+        script = (f'<script id="cfg" type="application/json">{script_json(cfg)}</script>'
                   '<script src="/static/app.js"></script>')
         return HTMLResponse(_page(f"{nc} - zenoh-nc", body + script, login))
 
@@ -331,24 +372,20 @@ class WebDoor:
         login = self._login_of(request.cookies)
         if login is None:
             return _json_error(401, _ACCESS_DENIED, "not logged in")
-        d = self.doors.get(str(request.path_params["nc"]))
+        nc = str(request.path_params["nc"])
+        if nc not in self.cfg.ncs:
+            return _json_error(404, _INVALID, f"no NC {nc!r} here")
+        d = self.doors.get(nc)
         if d is None:
             return _json_error(502, int(ErrorCodes.ADSERR_DEVICE_NOTREADY), "NC not connected")
         axis = int(request.path_params["axis"])
         refresh = request.query_params.get("refresh") == "1"
 
         def read_all() -> list[dict[str, Any]]:
-            out = []
-            for p in PARAMETERS:
-                try:
-                    v = d.read_parameter(axis, p.number, refresh)
-                    out.append({"number": p.number, "value": v, "error": 0, "text": ""})
-                except CommandError as exc:
-                    out.append({"number": p.number, "value": None, "error": exc.code, "text": exc.message})
-                    if exc.code in (ErrorCodes.ADSERR_DEVICE_NOTREADY, ErrorCodes.ADSERR_DEVICE_TIMEOUT):
-                        break  # unreachable: do not wait once per parameter
-            return out
-        return JSONResponse({"axis": axis, "params": await run_in_threadpool(read_all)})
+            got = d.read_parameters(axis, [p.number for p in PARAMETERS], refresh)  # refresh: at most every 5 s
+            return [{"number": n, "value": None, "error": v.code, "text": v.message} if isinstance(v, CommandError)
+                    else {"number": n, "value": v, "error": 0, "text": ""} for n, v in got.items()]
+        return JSONResponse({"axis": axis, "params": await asyncio.to_thread(read_all)})
 
     # ---- commands -----------------------------------------------------------------------------------------------
     def _check_role(self, login: Login, what: str, nc_cmd: str) -> None:
@@ -361,10 +398,14 @@ class WebDoor:
         login = self._login_of(request.cookies)
         if login is None:
             return _json_error(401, _ACCESS_DENIED, "not logged in")
+        if (why := cross_site(request.headers, api=True)) is not None:
+            return _json_error(403, _ACCESS_DENIED, f"refused: {why}")
         nc, axis, cmd = str(request.path_params["nc"]), int(request.path_params["axis"]), str(request.path_params["cmd"])
         try:
             if cmd not in COMMANDS:
                 raise _Refused(404, _INVALID, f"unknown command {cmd!r}")
+            if nc not in self.cfg.ncs:
+                raise _Refused(404, _INVALID, f"no NC {nc!r} here")
             self._check_role(login, cmd, COMMANDS[cmd][0])
             try:
                 args = json.loads(await request.body() or b"{}")
@@ -383,7 +424,7 @@ class WebDoor:
 
     async def _run(self, d: NcDoor, login: Login, cmd: str, axis: int, args: dict[str, Any]) -> None:
         sender, sid = f"{self.cfg.door_id}.{login.user}", login.number
-        run: Callable[..., Awaitable[Any]] = asyncio.to_thread
+        run: Callable[..., Awaitable[Any]] = self.commands.run
         if cmd == "Power":
             override = float(args.get("Override", 100.0))
             if not 0.0 <= override <= 100.0:
@@ -409,8 +450,7 @@ class WebDoor:
     # ---- live values and hold-to-run ------------------------------------------------------------------------------
     async def live(self, ws: WebSocket) -> None:
         login = self._login_of(ws.cookies)
-        origin = ws.headers.get("origin")
-        if login is None or (origin is not None and origin.split("://", 1)[-1] != ws.headers.get("host")):
+        if login is None or cross_site(ws.headers) is not None:
             await ws.close(code=4401 if login is None else 4403)
             return
         nc = str(ws.path_params["nc"])
@@ -418,14 +458,23 @@ class WebDoor:
             await ws.close(code=4404)
             return
         await ws.accept()
+        if login.ended:  # ended while the handshake ran
+            await ws.close(code=4401)
+            return
         login.sockets += 1
+        login.websockets.add(ws)
         login.paged = True
         jogged: set[int] = set()
         pending: set[int] = set()
         sender = asyncio.create_task(self._push(ws, nc, login))
         try:
             while True:
-                msg = json.loads(await ws.receive_text())
+                frame = await ws.receive()
+                if frame["type"] == "websocket.disconnect":
+                    raise WebSocketDisconnect(frame.get("code", 1000))
+                if frame.get("text") is None:  # a binary frame: not the page's
+                    continue
+                msg = json.loads(frame["text"])
                 if not isinstance(msg, dict):
                     continue
                 kind = msg.get("type")
@@ -436,20 +485,23 @@ class WebDoor:
                     d = self.doors.get(nc)
                     if d is not None and isinstance(axis, int) and axis in jogged:
                         jogged.discard(axis)
-                        asyncio.create_task(asyncio.to_thread(d.end_jogs, login.number, {axis}))
+                        asyncio.create_task(self.commands.run(d.end_jogs, login.number, {axis}))
         except (WebSocketDisconnect, ValueError, RuntimeError):
             pass
         finally:
             sender.cancel()
             login.sockets -= 1
+            login.websockets.discard(ws)
             login.idle_since = time.monotonic()
             d = self.doors.get(nc)
             if d is not None and jogged:  # the page is gone: its jogs stop now, not at their timeout
-                await asyncio.to_thread(d.end_jogs, login.number, jogged)
+                await self.commands.run(d.end_jogs, login.number, jogged)
 
     async def _jog(self, ws: WebSocket, nc: str, login: Login, msg: dict[str, Any], jogged: set[int],
                    pending: set[int]) -> None:
         axis, direction, velocity = msg.get("axis"), msg.get("direction"), msg.get("velocity", 0.0)
+        if login.ended:  # its socket is being closed: nothing more for it
+            return
         try:
             self._check_role(login, "Jog", "Jog")
             if not isinstance(axis, int) or isinstance(axis, bool) or direction not in (1, 3):
@@ -470,7 +522,7 @@ class WebDoor:
 
         async def start() -> None:
             try:
-                await asyncio.to_thread(d.jog, axis, sender, login.number, int(direction), float(velocity),
+                await self.commands.run(d.jog, axis, sender, login.number, int(direction), float(velocity),
                                         self.cfg.hold_timeout)
             except CommandError as exc:
                 jogged.discard(axis)
@@ -489,7 +541,7 @@ class WebDoor:
         last = -1
         names: dict[int, str] = {}
         try:
-            while True:
+            while not login.ended:
                 d = self.doors.get(nc)
                 img = d.image if d is not None else None
                 alive = img is not None and time.monotonic() - img.received < max(1.0, 5 * period)
@@ -508,6 +560,13 @@ class WebDoor:
             raise
         except Exception:  # the socket closed under us
             return
+
+
+async def _close_quietly(ws: WebSocket, code: int) -> None:
+    try:
+        await ws.close(code=code)
+    except Exception:  # closed already
+        pass
 
 
 def _check_args(cmd: str, args: Any) -> dict[str, Any]:

@@ -300,3 +300,73 @@ def test_a_precheck_on_a_worker_thread_leaves_asyncuas_check_without_scrypt(monk
     assert um.get_user(None, username="alice", password="wrong") is None and len(runs) == 1  # remembered once only
     _install_async_login()
     assert getattr(uaprocessor.UaProcessor, "_znc_async_login", False)
+
+
+def test_a_login_flood_is_refused_when_full_and_never_delays_a_stop(door: tuple[OpcuaDoor, FakeBridge],
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Password checks run on their own 2 threads behind a bound of 8 (more: LoginsBusy, which the ActivateSession
+    hook answers with BadTooManyOperations); NC commands on their own threads: a Stop completes while every
+    password thread and asyncio's default executor are blocked."""
+    from nc_link.users import LoginsBusy
+    d, fb = door
+    release = threading.Event()
+    started: list[str] = []
+
+    def slow(name: str, pw: str) -> bool:  # a scrypt that takes as long as the test wants
+        started.append(name)
+        release.wait(30)
+        return False
+    monkeypatch.setattr(d._users.verifier, "precheck", slow)
+    session = SimpleNamespace(user=SimpleNamespace(name="eve"), **{_NUMBER: 7})
+
+    async def run() -> tuple[int, int, Any]:
+        _SESSION.set(session)
+        loop = asyncio.get_running_loop()
+        blockers = [loop.run_in_executor(None, release.wait, 30) for _ in range(40)]  # default executor full
+        logins = [asyncio.ensure_future(d._users.gate.precheck(f"u{i}", "x")) for i in range(20)]
+        await asyncio.sleep(0.05)
+        refused = sum(1 for t in logins if t.done() and isinstance(t.exception(), LoginsBusy))
+        stop = await asyncio.wait_for(d._method("Stop", "nc1", 1)(_nid("nc1.1", d.idx)), 20)
+        running = len(started)
+        release.set()
+        await asyncio.gather(*logins, *blockers, return_exceptions=True)
+        return refused, running, stop
+    try:
+        refused, running, stop = asyncio.run(run())
+    finally:
+        release.set()
+    assert refused == 12 and running <= 2  # 8 admitted, at most 2 of them running
+    assert stop.StatusCode.is_good() and fb.calls == [("Stop", 1, "opcua.eve", 7, {})]
+
+
+# ---- parameter refresh -----------------------------------------------------------------------------------------
+def test_a_parameter_refresh_is_throttled_shared_and_ends_at_an_unreachable_nc(bridge: tuple[NcDoor, FakeLink],
+                                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """RefreshParameters / the page's Refresh: one ReadParameter per parameter at most once per REFRESH_INTERVAL
+    per axis (concurrent refreshes share it), and the first 0x707/0x719 ends it."""
+    from nc_link import door as door_mod
+    b, link = bridge
+
+    def reads(axis: int) -> int:
+        return sum(1 for s in link.sent if s[0] == "ReadParameter" and s[1] == axis)
+    got = b.read_parameters(1, [1, 2, 3], refresh=True)
+    assert reads(1) == 3 and set(got) == {1, 2, 3}
+    for _ in range(5):  # an observer pressing Refresh again and again
+        b.read_parameters(1, [1, 2, 3], refresh=True)
+    assert reads(1) == 3
+    ts = [threading.Thread(target=b.read_parameters, args=(2, [1, 2, 3], True)) for _ in range(4)]
+    for t in ts:
+        t.start()
+    for t in ts:
+        t.join(30)
+    assert reads(2) == 3  # four at once: one refresh
+    monkeypatch.setattr(door_mod, "REFRESH_INTERVAL", 0.0)
+    b.read_parameters(1, [1, 2, 3], refresh=True)
+    assert reads(1) == 6  # the interval passed: read again
+
+    def unreachable(cmd: str, axis: Any, sender: str | None = None, **args: Any) -> dict[str, Any]:
+        link.sent.append((cmd, axis, sender, args))
+        raise CommandError(0x707, "NC not reachable")
+    link.request = unreachable  # type: ignore[method-assign]
+    got = b.read_parameters(3, list(range(1, 69)), refresh=True)
+    assert reads(3) == 1 and list(got) == [1] and isinstance(got[1], CommandError) and got[1].code == 0x707

@@ -14,7 +14,7 @@ import pytest
 
 from nc_schema import ErrorCodes, StateDWord, error_name
 from znc_testing import NcTestClient, wait_until
-from znc_testing.web_testing import NcWebProcess, claims, http, login, post, websocket
+from znc_testing.web_testing import NcWebProcess, claims, http, login, post, start_nc_web, websocket
 
 HAS_JOB = int(StateDWord.HasJob)
 
@@ -171,3 +171,144 @@ def test_a_vanished_login_releases_its_claims(web: NcWebProcess, watch: NcTestCl
         assert claims(watch).get(4) == "web.alice"
     wait_until(lambda: 4 not in claims(watch), 30, "axis 4 released after the page went away")
     assert post(web.url, cookie, "nc1", 4, "Reset")[0] == 401
+
+
+def test_another_site_cannot_drive_the_panel_through_a_logged_in_browser(web: NcWebProcess,
+                                                                          watch: NcTestClient) -> None:
+    """CSRF: a cross-origin POST (a form or text/plain body needs no CORS preflight) is refused with 403 and
+    changes nothing; the page's own requests (same origin, JSON) pass."""
+    cookie = login(web.url, "alice", "alice-pw")
+    host = web.url.split("://", 1)[1]
+    url = f"{web.url}/api/nc/nc1/axis/1/Power"
+    body = json.dumps({"Enable": True}).encode()
+    evil = {"Origin": "http://evil.example"}
+    for ctype, extra in (("text/plain", evil), ("application/json", evil), ("text/plain", {}),
+                         ("application/x-www-form-urlencoded", {}), ("application/json", {"Origin": "null"}),
+                         ("application/json", {"Sec-Fetch-Site": "cross-site"}),
+                         ("application/json", {"Sec-Fetch-Site": "same-site"})):
+        status, _, reply = http(url, "POST", body, cookie, content_type=ctype, headers=extra)
+        assert status == 403 and json.loads(reply)["error"] == ErrorCodes.ADSERR_DEVICE_ACCESSDENIED, (ctype, extra)
+    assert http(f"{web.url}/logout", "POST", b"", cookie, headers=evil)[0] == 403
+    assert http(f"{web.url}/login", "POST", urllib.parse.urlencode({"user": "alice", "password": "alice-pw"})
+                .encode(), content_type="application/x-www-form-urlencoded",
+                headers={"Sec-Fetch-Site": "cross-site"})[0] == 403
+    assert 1 not in claims(watch)  # nothing was sent
+    same = {"Origin": f"http://{host}", "Sec-Fetch-Site": "same-origin"}
+    status, _, reply = http(f"{web.url}/api/nc/nc1/axis/1/Reset", "POST", b"{}", cookie, headers=same)
+    assert status == 200, reply  # the login survived the cross-site logout, and the page's own POST passes
+    assert http(f"{web.url}/logout", "POST", b"", cookie, headers=same)[0] == 303
+    assert post(web.url, cookie, "nc1", 1, "Reset")[0] == 401
+
+
+def test_a_login_flood_gets_429_and_commands_still_run(web: NcWebProcess) -> None:
+    """Password checks (scrypt) run on 2 threads of their own behind a bound of 8: a flood of logins is refused
+    with 429 beyond it, and a logged-in user's commands run on the NC commands' own threads meanwhile."""
+    from concurrent.futures import ThreadPoolExecutor
+    cookie = login(web.url, "alice", "alice-pw")
+    form = urllib.parse.urlencode({"user": "mallory", "password": "x"}).encode()
+
+    def attempt(_: int) -> int:
+        return http(f"{web.url}/login", "POST", form, content_type="application/x-www-form-urlencoded")[0]
+    with ThreadPoolExecutor(30) as pool:
+        flood = [pool.submit(attempt, i) for i in range(30)]
+        status, reply = post(web.url, cookie, "nc1", 3, "Reset")
+        codes = [f.result() for f in flood]
+    assert (status, reply["error"]) == (200, 0), reply
+    assert set(codes) <= {401, 429} and codes.count(429) >= 1 and codes.count(401) >= 1, codes
+    login(web.url, "alice", "alice-pw")  # the flood is over: logins work again
+
+
+def test_a_closed_socket_halts_its_jog_at_once_not_at_the_hold_timeout(
+        tmp_path: Any, nc: Any, users_file: Any, watch: NcTestClient) -> None:
+    """With --hold-timeout 5 the halt after the page's WebSocket closes must come from the close (end_jogs),
+    not from the hold timeout: the NC's SetVelo falls well before 5 s (asserted < 1 s)."""
+    slow = start_nc_web(tmp_path / "web-slow", nc.endpoint, ["--users", str(users_file), "--hold-timeout", "5",
+                                                              "--client-id", "webslow"])
+    try:
+        cookie = login(slow.url, "alice", "alice-pw")
+        power(slow, cookie, 3, watch, "webslow.alice")
+        ws = websocket(slow.url, cookie)
+        try:
+            # negative: Z's soft limits are -300 .. 5, a jog ending at one would hide what this test is about
+            ws.send(json.dumps({"type": "jog", "axis": 3, "direction": 3, "velocity": 50.0}))
+            wait_until(lambda: has_job(watch, 3) and set_velo(watch, 3) < -49.0, 20, "axis 3 jogging at -50")
+        finally:
+            ws.close()
+        closed = time.monotonic()
+        wait_until(lambda: not has_job(watch, 3) or set_velo(watch, 3) > -49.0, 10, "the jog halted", interval=0.005)
+        after = time.monotonic() - closed
+        print(f"halt seen {after * 1000:.0f} ms after the socket closed (hold timeout 5 s)")
+        assert after < 1.0
+        wait_until(lambda: not has_job(watch, 3), 10, "axis 3 standing still")
+        assert int(watch.nctoplc(3)["ErrorCode"]) == 0  # type: ignore[index]  # halted, not stopped by an error
+        assert post(slow.url, login(slow.url, "alice", "alice-pw"), "nc1", 3, "Power", Enable=False)[0] == 200
+        wait_until(lambda: 3 not in claims(watch), 20, "axis 3 released")
+    finally:
+        slow.stop()
+
+
+def test_an_ended_login_closes_its_pages_websockets(web: NcWebProcess) -> None:
+    """A logout (or any end of the login) closes the WebSockets of its pages: no more live values, no jog."""
+    from websockets.exceptions import ConnectionClosed
+    cookie = login(web.url, "alice", "alice-pw")
+    with websocket(web.url, cookie) as ws:
+        assert json.loads(ws.recv(30))["type"] == "frame"
+        assert http(f"{web.url}/logout", "POST", b"", cookie)[0] == 303
+        deadline = time.monotonic() + 20
+        with pytest.raises(ConnectionClosed):
+            while time.monotonic() < deadline:
+                ws.recv(deadline - time.monotonic())
+        assert ws.close_code == 4401
+
+
+def test_the_login_reaper_survives_a_failing_end() -> None:
+    """An exception while ending one login (a broken link, a bug) is logged and the reaper goes on."""
+    import asyncio
+
+    from nc_link.users import User
+    from nc_web.app import Login, WebConfig, WebDoor
+    w = WebDoor(WebConfig(ncs={"nc1": "tcp/127.0.0.1:1"}, users={"alice": User("alice", "operator", "scrypt$x")},
+                          secret=b"k" * 32, session_idle=0.2))
+    ended: list[int] = []
+    real_end = w._end
+
+    async def flaky_end(login: Login, why: str) -> None:
+        ended.append(login.number)
+        if len(ended) == 1:
+            raise RuntimeError("the first end fails")
+        await real_end(login, why)
+
+    async def run() -> None:
+        w._end = flaky_end  # type: ignore[method-assign]
+        w.logins["s1"] = Login(1, "alice", "operator", time.time(), paged=True, idle_since=time.monotonic() - 10)
+        task = asyncio.create_task(w._reaper())
+        deadline = time.monotonic() + 20
+        while "s1" in w.logins and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        task.cancel()
+    asyncio.run(run())
+    assert ended[:2] == [1, 1] and "s1" not in w.logins  # tried again after the failure, and ended
+
+
+def test_the_page_config_survives_html_characters_binary_frames_and_unknown_ncs(web: NcWebProcess) -> None:
+    """The page's JSON config is JSON escapes, not HTML entities (a script's text is not HTML-decoded); a binary
+    WebSocket frame is ignored (the socket stays); an NC this door does not serve is 404, not 502."""
+    import re
+
+    from nc_schema import PARAMETERS
+    cookie = login(web.url, "alice", "alice-pw")
+    page = http(f"{web.url}/nc/nc1", cookie=cookie)[2].decode()
+    m = re.search(r'<script id="cfg" type="application/json">(.*?)</script>', page, re.S)
+    assert m and "&lt;" not in m.group(1) and "&amp;" not in m.group(1) and "<" not in m.group(1)
+    cfg = json.loads(m.group(1))
+    docs = {p.number: p.doc for p in PARAMETERS}
+    assert any(c in d for d in docs.values() for c in "<>&")  # the test means something
+    assert all(p["doc"] == docs[p["number"]] for p in cfg["params"])
+    with websocket(web.url, cookie) as ws:
+        ws.send(b"\x00\x01binary")
+        ws.send(json.dumps({"type": "jogstop", "axis": 1}))
+        for _ in range(3):
+            assert json.loads(ws.recv(30))["type"] == "frame"  # still open and pushing
+    status, reply = post(web.url, cookie, "nope", 1, "Reset")
+    assert status == 404, reply
+    assert http(f"{web.url}/api/nc/nope/params/1", cookie=cookie)[0] == 404

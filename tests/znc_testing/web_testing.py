@@ -64,9 +64,10 @@ _OPENER = urllib.request.build_opener(_NoRedirect)
 
 
 def http(url: str, method: str = "GET", body: bytes | None = None, cookie: str | None = None,
-         content_type: str = "application/json", timeout: float = 30.0) -> tuple[int, dict[str, str], bytes]:
-    """(status, headers, body) of one request; no redirect is followed."""
-    req = urllib.request.Request(url, data=body, method=method)
+         content_type: str = "application/json", timeout: float = 30.0,
+         headers: dict[str, str] | None = None) -> tuple[int, dict[str, str], bytes]:
+    """(status, headers, body) of one request (``headers``: extra ones); no redirect is followed."""
+    req = urllib.request.Request(url, data=body, method=method, headers=headers or {})
     if body is not None:
         req.add_header("Content-Type", content_type)
     if cookie:
