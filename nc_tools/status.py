@@ -470,7 +470,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None, out: TextIO | None = None) -> int:
-    """Run nc-status; returns the exit status."""
+    """Run nc-status; returns the exit status. As the program (``argv`` None) it ends with ``os._exit`` once its
+    session is closed: the interpreter's own clean-up waited on zenoh's threads once (CI, under load, more than
+    60 s after Ctrl-C), and there is nothing left for it to do."""
+    rc = _main(argv, out)
+    if argv is None:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
+    return rc
+
+
+def _main(argv: list[str] | None, out: TextIO | None) -> int:
     a = parse_args(argv)
     out = out or sys.stdout
     wanted = set(a.nc) if a.nc else None
