@@ -216,6 +216,10 @@ def test_a_missing_node_at_start_is_a_bounded_error() -> None:
     ({"node_id": 2}, {"simulate_slaves": "yes"}, "drives.canopen.simulate_slaves", "true or false"),
     ({"node_id": 2}, {"bitrate": 0}, "drives.canopen.bitrate", "integer"),
     ({"node_id": 2}, {"sdo_timeout": -1}, "drives.canopen.sdo_timeout", "positive"),
+    ({"node_id": 2}, {"sdo_timeout": 1e9}, "drives.canopen.sdo_timeout", "at most 60"),
+    ({"node_id": 2}, {"start_timeout": 60.5}, "drives.canopen.start_timeout", "at most 60"),
+    ({"node_id": 2}, {"heartbeat_period": 65.6}, "drives.canopen.heartbeat_period", "UNSIGNED16"),
+    ({"node_id": 2}, {"heartbeat_period": 0.0005}, "drives.canopen.heartbeat_period", "0.001"),
     ({"node_id": 2}, {"heartbeat_period": 0.2, "heartbeat_timeout": 0.1}, "drives.canopen.heartbeat_timeout",
      "longer"),
     ({"node_id": 2}, {"max_age": -1}, "drives.canopen.max_age", "integer >= 0"),
@@ -227,6 +231,22 @@ def test_bad_options_are_config_errors(axis: dict[str, Any], options: dict[str, 
     with pytest.raises(ConfigError, match=text) as e:
         CanopenDrive.from_config([AxisParams()], DT, [axis], DriveContext(options=options))
     assert e.value.key == key
+
+
+@pytest.mark.parametrize("text,error", [("hello world\n", "not a readable EDS"),
+                                        ("[FileInfo]\nFileName=x\n", "lacks the objects 0x603F, 0x6040"),
+                                        ("[DeviceInfo]\nProductName=x\n", "lacks the objects 0x603F, 0x6040")])
+@pytest.mark.parametrize("simulate", [True, False])
+def test_a_file_that_is_no_drive_eds_is_a_config_error(tmp_path: Path, text: str, error: str,
+                                                       simulate: bool) -> None:
+    eds = tmp_path / "not.eds"
+    eds.write_text(text)
+    with pytest.raises(ConfigError, match=error) as e:
+        CanopenDrive.from_config([AxisParams()], DT, [{"node_id": 2, "eds": str(eds)}],
+                                 DriveContext(options={"simulate_slaves": simulate,
+                                                       "channel": f"test-{uuid.uuid4().hex[:10]}"}))
+    assert e.value.key == "axis[0].Drive.eds"
+    assert str(eds) in str(e.value)
 
 
 def test_duplicate_node_ids_and_an_unrepresentable_cycle() -> None:

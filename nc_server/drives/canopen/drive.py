@@ -7,11 +7,11 @@ Configured in the NC's TOML (the ``Drive`` table of each axis and the backend's 
     channel = "can0"             # python-can channel; default "can0"
     bitrate = 1000000            # [bit/s]; default 1000000 (the virtual bus ignores it)
     simulate_slaves = true       # simulated CiA 402 slaves in the NC's process (virtual bus only); default false
-    sdo_timeout = 0.3            # [s] per SDO response at start; default 0.3
-    heartbeat_period = 0.1       # [s] the nodes' producer heartbeat time (0x1017); default 0.1
+    sdo_timeout = 0.3            # [s] per SDO response at start; default 0.3, at most 60
+    heartbeat_period = 0.1       # [s] the nodes' producer heartbeat time (0x1017); default 0.1, 0.001..65.535
     heartbeat_timeout = 0.35     # [s] no heartbeat for this long: the node is lost (0x4651); default 3.5 periods
     monitoring = "heartbeat"     # or "node_guarding": the master polls every heartbeat_period (0x100C/0x100D)
-    start_timeout = 2.0          # [s] for the operational heartbeat and the first TPDOs at start; default 2.0
+    start_timeout = 2.0          # [s] for the operational heartbeat and the first TPDOs at start; default 2.0, at most 60
     max_age = 3                  # [NC cycles] older inputs are invalid I/O data (0x4655); default 3
 
     [[axis]]
@@ -35,10 +35,12 @@ import math
 import os
 from typing import Any, Mapping, Sequence
 
+import canopen
+
 from ...core.params import AxisParams, ConfigError
 from ..base import DriveABC, DriveContext
 from ..cia402.drive import DEFAULT_KV, Cia402Drive, axis_options, link_options
-from ..cia402.objects import Mode
+from ..cia402.objects import INTERPOLATION_TIME_PERIOD, Mode
 from . import pdo
 from .link import MONITORING, BusConfig, CanopenLink, NodeConfig, interpolation_period
 from .slave import SimulatedSlaves
@@ -46,6 +48,10 @@ from .slave import SimulatedSlaves
 log = logging.getLogger(__name__)
 
 _AXIS_KEYS = {"node_id", "eds"}
+#: upper bound of sdo_timeout and start_timeout: beyond it a missing node looks like a hung server
+_MAX_WAIT = 60.0
+#: heartbeat_period's upper bound: 0x1017 / 0x100C hold it in ms as UNSIGNED16
+_MAX_PERIOD = 65.535
 _BUS_KEYS = {"interface", "channel", "bitrate", "simulate_slaves", "sdo_timeout", "heartbeat_period",
              "heartbeat_timeout", "start_timeout", "monitoring"}
 _SECTION = "drives.canopen"
@@ -135,15 +141,16 @@ def _bus_options(opts: dict[str, Any]) -> tuple[BusConfig, bool, int]:
     if simulate and interface != "virtual":
         raise ConfigError(f"{_SECTION}.simulate_slaves",
                           f"simulated slaves need interface = \"virtual\", got {interface!r}")
-    sdo_timeout = _float(opts, "sdo_timeout", d.sdo_timeout)
+    sdo_timeout = _float(opts, "sdo_timeout", d.sdo_timeout, _MAX_WAIT)
     period = _float(opts, "heartbeat_period", d.heartbeat_period)
-    if period < 0.001:
-        raise ConfigError(f"{_SECTION}.heartbeat_period", f"must be at least 0.001 s (0x1017 counts ms), got {period}")
+    if not 0.001 <= period <= _MAX_PERIOD:
+        raise ConfigError(f"{_SECTION}.heartbeat_period", f"must be 0.001 .. {_MAX_PERIOD} s (0x1017 and 0x100C "
+                                                          f"are UNSIGNED16 ms), got {period}")
     timeout = _float(opts, "heartbeat_timeout", 3.5 * period)
     if timeout <= period:
         raise ConfigError(f"{_SECTION}.heartbeat_timeout",
                           f"must be longer than heartbeat_period ({period} s), got {timeout}")
-    start_timeout = _float(opts, "start_timeout", d.start_timeout)
+    start_timeout = _float(opts, "start_timeout", d.start_timeout, _MAX_WAIT)
     monitoring = opts.get("monitoring", d.monitoring)
     if monitoring not in MONITORING:
         raise ConfigError(f"{_SECTION}.monitoring", f"must be one of {', '.join(map(repr, MONITORING))}, "
@@ -168,7 +175,24 @@ def _node_options(i: int, o: Mapping[str, Any]) -> tuple[NodeConfig, Mode, float
     if eds is not None:
         if not isinstance(eds, str) or not os.path.isfile(eds):
             raise ConfigError(f"{key}.eds", f"no such EDS file: {eds!r}")
+        _check_eds(f"{key}.eds", eds, nid)
     return NodeConfig(nid, mode == Mode.CSV, eds), mode, kv
+
+
+#: what the link maps or writes by SDO: an EDS without them fails later with a raw KeyError or ValueError
+_EDS_OBJECTS = sorted({i for e in (pdo.RPDO1, pdo.RPDO2_CSV, pdo.TPDO1, pdo.TPDO2, pdo.TPDO3) for i, _ in e}
+                      | {INTERPOLATION_TIME_PERIOD})
+
+
+def _check_eds(key: str, eds: str, nid: int) -> None:
+    try:
+        od = canopen.import_od(eds, nid)
+    except Exception as e:  # configparser, ValueError, KeyError ...: whatever the file's defect, it is not an EDS
+        raise ConfigError(key, f"{eds!r} is not a readable EDS file: {type(e).__name__}: {e}") from None
+    missing = [f"0x{i:04X}" for i in _EDS_OBJECTS if i not in od]
+    if missing:
+        raise ConfigError(key, f"the EDS {eds!r} lacks the objects {', '.join(missing)} a CiA 402 drive of the "
+                               f"canopen backend needs")
 
 
 def _str(opts: Mapping[str, Any], k: str, default: str) -> str:
@@ -185,8 +209,10 @@ def _int(opts: Mapping[str, Any], k: str, default: int, lo: int) -> int:
     return v
 
 
-def _float(opts: Mapping[str, Any], k: str, default: float) -> float:
+def _float(opts: Mapping[str, Any], k: str, default: float, hi: float = math.inf) -> float:
     v = opts.get(k, default)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
         raise ConfigError(f"{_SECTION}.{k}", f"must be a positive number of seconds, got {v!r}")
+    if v > hi:
+        raise ConfigError(f"{_SECTION}.{k}", f"must be at most {hi:g} s (a longer wait is a hang), got {v!r}")
     return float(v)
