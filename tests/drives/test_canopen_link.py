@@ -102,6 +102,20 @@ def test_exchange_packs_int32_targets_and_returns_the_newest_inputs(rig: Rig) ->
     assert rig.slaves.nodes[0].sdo[0x6041].raw == int(tx.statusword[0])
 
 
+def test_a_node_whose_pdo_map_is_swapped_mid_cycle_does_not_break_the_cycle(rig: Rig) -> None:
+    link = rig.link
+    assert link is not None
+    syncs = link.syncs
+    errors = link.tx_errors
+    # what a re-setup by the supervisor (python-canopen clear()/add_variable()) can leave for a moment
+    link.nodes[0].rpdo1.data = bytearray(2)
+    link.exchange(_rx(2, 100.0))  # must not raise (struct.error) into the NC cycle
+    assert link.tx_errors == errors + 1
+    assert link.syncs == syncs + 1  # the SYNC and the other node's RPDOs still went out
+    assert link.wait_answered(5.0)
+    assert rig.slaves.applied.target_position[1] == 100.0
+
+
 def test_wrap32_and_unwrap32() -> None:
     big = np.array([2**31 - 1, 2**31, -2**31 - 1, 5 * 2**32 + 7], dtype=np.int64)
     assert pdo.wrap32(big).tolist() == [2**31 - 1, -2**31, 2**31 - 1, 7]

@@ -41,8 +41,10 @@ Decisions:
   communication). The drive comes back in Switch on disabled; the axis keeps its error until MC_Reset, then
   MC_Power enables it again. A failed set-up is retried every second. Counted per node (``setups``, the stats'
   ``drive_link``).
-* A CAN transmit error in a cycle (bus off, full transmit queue on real hardware) is counted
-  (:attr:`CanopenLink.tx_errors`) and logged once; it never raises into the cycle (the ages grow instead).
+* A CAN transmit error in a cycle (bus off, full transmit queue on real hardware), or any other failure packing or
+  sending one node's RPDOs (e.g. its PDO map replaced by the supervisor's re-setup), is counted
+  (:attr:`CanopenLink.tx_errors`) and logged once; it never raises into the cycle: the other nodes and the SYNC
+  are still sent (the ages grow instead).
 * Close: NMT pre-operational for the nodes (their PDOs stop; a real drive sees the master go), then the
   network and the bus are shut down.
 
@@ -483,10 +485,12 @@ class CanopenLink(ProcessDataLink):
         self._last_out = (p, mode)
         v, probe = velo.astype(np.int64).tolist(), rx.probe_function.tolist()
         busy = self._configuring if self._any_configuring else None
-        try:
-            for j, node in enumerate(self.nodes):
-                if busy is not None and busy[j]:  # being set up: its PDO maps are rewritten
-                    continue
+        for j, node in enumerate(self.nodes):
+            if busy is not None and busy[j]:  # being set up: its PDO maps are rewritten
+                continue
+            # per node and any exception: the supervisor's re-setup may swap PdoMap.data under us (struct.error),
+            # a CAN error hits one frame; the cycle goes on with the other nodes and the SYNC (the ages tell)
+            try:
                 m = node.rpdo1
                 node.s_rpdo1.pack_into(m.data, 0, cw[j], p[j], mode[j])
                 m.transmit()
@@ -496,14 +500,20 @@ class CanopenLink(ProcessDataLink):
                     m2.data[:] = payload
                     m2.transmit()
                     node.last_rpdo2 = payload
+            except Exception as e:
+                self._tx_error(e)
+        try:
             self._sync_wall[self.syncs % _RING] = time.time()
             self.syncs += 1  # before the SYNC: a TPDO answering it is stamped with the new count
             self._sync_t = time.perf_counter()
             self.network.sync.transmit()
-        except can.CanError as e:
-            self.tx_errors += 1
-            if self.tx_errors == 1:
-                log.error("CAN transmit error (counted in tx_errors, logged once): %s", e)
+        except Exception as e:
+            self._tx_error(e)
+
+    def _tx_error(self, e: Exception) -> None:
+        self.tx_errors += 1
+        if self.tx_errors == 1:
+            log.error("transmit error (counted in tx_errors, logged once): %s: %s", type(e).__name__, e)
 
     def wait_answered(self, timeout: float, rows: Sequence[int] | None = None) -> bool:
         """Wait until every node's (``rows``: these axes' nodes') cyclic TPDOs answered the last SYNC (True), or
