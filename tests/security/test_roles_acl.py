@@ -21,8 +21,9 @@ EXAMPLE = REPO / "deploy" / "roles.toml"
 def test_the_example_roles_file() -> None:
     r = load_roles(EXAMPLE)
     assert dict(r.clients) == {"plc1": "operator", "plc2": "operator", "eng1": "engineer", "status": "observer",
-                               "opcua": "engineer"}
-    assert r.doors == ("opcua",) and r.role_of("opcua.alice") == "engineer" and r.role_of("plc1.alice") is None
+                               "opcua": "engineer", "web": "engineer"}
+    assert r.doors == ("opcua", "web") and r.role_of("opcua.alice") == "engineer" and r.role_of("plc1.alice") is None
+    assert r.role_of("web.bob") == "engineer"
     assert r.ncs == ("nc1", "nc2") and r.routers == ("router",)
     assert r.role_of("plc1") == "operator" and r.role_of("nobody") is None
     assert r.classes_of("eng1") == ("read", "op", "eng") and r.classes_of("status") == ("read",)
@@ -89,8 +90,8 @@ def test_generated_access_control() -> None:
     ids = [r["id"] for r in acl["rules"]]
     assert len(ids) == len(set(ids))
     subjects = {s["id"]: s for s in acl["subjects"]}
-    assert set(subjects) == {"client:plc1", "client:plc2", "client:eng1", "client:status", "client:opcua", "nc:nc1",
-                             "nc:nc2", "router:router", "drive:drives1"}
+    assert set(subjects) == {"client:plc1", "client:plc2", "client:eng1", "client:status", "client:opcua", "client:web",
+                             "nc:nc1", "nc:nc2", "router:router", "drive:drives1"}
     assert all(s["cert_common_names"] == [s["id"].split(":", 1)[1]] and set(s) == {"id", "cert_common_names"}
                for s in subjects.values())
     # everybody reads the cyclic data (and its own view: below)

@@ -229,7 +229,7 @@ class PlcProcess:
                     raise AssertionError(f"{self.client_id}: only at cycle {self.cycle}, wanted {target}")
                 self._cv.wait(min(left, 0.1))
 
-    def wait_started(self, timeout: float = 15.0) -> None:
+    def wait_started(self, timeout: float = 60.0) -> None:  # (15 s was too short in a loaded CI run)
         deadline = time.monotonic() + timeout
         with self._cv:
             while not any(line.startswith("plc-run ") for line in self.lines):
