@@ -254,6 +254,14 @@ class DriveHost:
             except wire.WireError as exc:
                 self._refuse(f"malformed outputs: {exc}")
                 continue
+            # checked before its epoch counts: outputs of a misconfigured NC with a higher epoch must not lock out
+            # the right one
+            if len(msg.ids) != self.n:
+                self._refuse(f"outputs for {len(msg.ids)} slots, this host has {self.n}")
+                continue
+            if self.ids.any() and msg.ids.any() and not np.array_equal(msg.ids, self.ids):
+                self._refuse(f"outputs for AxisIds {msg.ids.tolist()}, this host serves {self.ids.tolist()}")
+                continue
             if msg.epoch < self.epoch:
                 self.stale_epoch += 1
                 if self.stale_epoch <= 3 or self.stale_epoch % 10000 == 0:
@@ -266,14 +274,7 @@ class DriveHost:
                 self.epoch = msg.epoch
                 self.takeovers += 1
             best = msg  # (the newest of the highest epoch: the ring keeps arrival order)
-        if best is None:
-            return None
-        msg = best
-        if len(msg.ids) != self.n:
-            return self._refuse(f"outputs for {len(msg.ids)} slots, this host has {self.n}")
-        if self.ids.any() and msg.ids.any() and not np.array_equal(msg.ids, self.ids):
-            return self._refuse(f"outputs for AxisIds {msg.ids.tolist()}, this host serves {self.ids.tolist()}")
-        return msg
+        return best
 
     def _refuse(self, why: str) -> None:
         self.refused += 1
