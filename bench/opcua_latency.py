@@ -100,13 +100,36 @@ async def _has(c: Any, node: str) -> bool:
         return False
 
 
+def zenoh_baselines(stack: contextlib.ExitStack, nc_port: int, n: int) -> tuple[list[float], list[float], NcTestClient]:
+    """The same-run references of the doors' benches, ``n`` each, in us: a raw zenoh get + reply against a trivial
+    queryable router (bench/raw_zenoh.py), and a Reset sent straight to the NC on ``nc_port`` until its reply; with the NC client used (closed by ``stack``)."""
+    import zenoh
+
+    raw_port = stack.enter_context(raw_queryable(free_port()))
+    raw = zenoh.open(zenoh_client_config(raw_port))
+    stack.callback(raw.close)
+    rtt = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        for r in raw.get(RAW_KEY, timeout=5.0):
+            assert r.ok is not None
+        rtt.append((time.perf_counter() - t0) * 1e6)
+    cl = NcTestClient(nc_port, client_id="bench-z", token=False)
+    stack.callback(cl.close)
+    cmd = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        assert cl.request("Reset", axis=2)["error"] == 0
+        cmd.append((time.perf_counter() - t0) * 1e6)
+    return rtt, cmd, cl
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=300, help="round trips per kind")
     ap.add_argument("--seconds", type=float, default=5.0, help="how long the value ages are collected")
     ap.add_argument("--sampling-ms", type=int, default=100, choices=(2, 5, 10, 20, 50, 100))
     a = ap.parse_args(argv)
-    import zenoh
 
     from nc_link.users import add_user
     from nc_schema import frame_header
@@ -121,22 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         ua_proc = start_nc_opcua(tmp, nc.endpoint, ["--users", str(tmp / "users.toml"), "--log-level", "WARNING",
                                                      "--sampling-ms", str(a.sampling_ms)])
         stack.callback(ua_proc.stop)
-        raw_port = stack.enter_context(raw_queryable(free_port()))
-        raw = zenoh.open(zenoh_client_config(raw_port))
-        stack.callback(raw.close)
-        rtt = []
-        for _ in range(a.n):
-            t0 = time.perf_counter()
-            for r in raw.get(RAW_KEY, timeout=5.0):
-                assert r.ok is not None
-            rtt.append((time.perf_counter() - t0) * 1e6)
-        cl = NcTestClient(nc.port, client_id="bench-z", token=False)
-        stack.callback(cl.close)
-        cmd = []
-        for _ in range(a.n):
-            t0 = time.perf_counter()
-            assert cl.request("Reset", axis=2)["error"] == 0
-            cmd.append((time.perf_counter() - t0) * 1e6)
+        rtt, cmd, cl = zenoh_baselines(stack, nc.port, a.n)
         frame_ages: list[float] = []
         lock = threading.Lock()
 

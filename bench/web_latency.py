@@ -39,9 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.common import Busy, mark, use_this_tree, verdict  # noqa: E402
 
 use_this_tree()
-from bench.opcua_latency import fmt, nc_time_of  # noqa: E402
-from bench.raw_zenoh import RAW_KEY, raw_queryable  # noqa: E402
-from znc_testing import NcTestClient, free_port, start_nc_server, wait_until, zenoh_client_config  # noqa: E402
+from bench.opcua_latency import fmt, nc_time_of, zenoh_baselines  # noqa: E402
+from znc_testing import start_nc_server, wait_until  # noqa: E402
 
 
 def post_ms(port: int, cookie: str, path: str, body: dict[str, Any]) -> tuple[float, int]:
@@ -63,8 +62,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frame-ms", type=int, default=50, choices=(2, 5, 10, 20, 50, 100))
     ap.add_argument("--jogs", type=int, default=10, help="hold-to-run trials")
     a = ap.parse_args(argv)
-    import zenoh
-
     from nc_link.users import add_user
     from nc_schema import NCTOPLC_DTYPE, frame_header
     from znc_testing.web_testing import login, post, start_nc_web, websocket
@@ -78,22 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         web = start_nc_web(tmp, nc.endpoint, ["--users", str(tmp / "users.toml"), "--log-level", "WARNING",
                                               "--frame-ms", str(a.frame_ms)])
         stack.callback(web.stop)
-        raw_port = stack.enter_context(raw_queryable(free_port()))
-        raw = zenoh.open(zenoh_client_config(raw_port))
-        stack.callback(raw.close)
-        rtt = []
-        for _ in range(a.n):
-            t0 = time.perf_counter()
-            for r in raw.get(RAW_KEY, timeout=5.0):
-                assert r.ok is not None
-            rtt.append((time.perf_counter() - t0) * 1e6)
-        cl = NcTestClient(nc.port, client_id="bench-z", token=False)
-        stack.callback(cl.close)
-        cmd = []
-        for _ in range(a.n):
-            t0 = time.perf_counter()
-            assert cl.request("Reset", axis=2)["error"] == 0
-            cmd.append((time.perf_counter() - t0) * 1e6)
+        rtt, cmd, cl = zenoh_baselines(stack, nc.port, a.n)
 
         cookie = login(web.url, "bench", "bench-pw")
         wait_until(lambda: post(web.url, cookie, "nc1", 2, "Reset")[0] == 200, 60, "nc-web serving nc1")

@@ -34,10 +34,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping
 
-from nc_schema import ROLE_CLASSES
+from nc_schema import ROLE_CLASSES, check_client_id
 
 __all__ = ["User", "UsersError", "hash_password", "verify_password", "load_users", "add_user", "ROLES", "role_min",
-           "Verifier", "user_main"]
+           "Verifier", "user_main", "check_door_config"]
 
 #: The roles, lowest privilege first.
 ROLES: tuple[str, ...] = tuple(ROLE_CLASSES)
@@ -61,6 +61,24 @@ class User:
 def role_min(a: str, b: str) -> str:
     """The lower of two roles (a door never grants more than its own role)."""
     return a if ROLES.index(a) <= ROLES.index(b) else b
+
+
+def check_door_config(door_id: str, users: Mapping[str, object], role: str) -> None:
+    """Check a user-facing door's identity before it starts (nc-opcua, nc-web).
+
+    Raises:
+        ValueError: the door id is no valid client id, a user's ``<door>.<user>`` client id is invalid (at most 64
+            characters), or ``role`` is no role of ROLE_CLASSES.
+    """
+    check_client_id(door_id)
+    for name in users:
+        try:
+            check_client_id(f"{door_id}.{name}")
+        except ValueError:
+            raise ValueError(f"user {name!r}: the client id {door_id}.{name} is not a valid client id "
+                             "(at most 64 characters: a shorter --client-id or user name)") from None
+    if role not in ROLE_CLASSES:
+        raise ValueError(f"role must be one of {', '.join(ROLE_CLASSES)}, got {role!r}")
 
 
 def hash_password(password: str, salt: bytes | None = None) -> str:

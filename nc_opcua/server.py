@@ -75,12 +75,12 @@ from asyncua.server.user_managers import UserManager
 
 from nc_link import CommandError, open_session
 from nc_schema import (
-    COMMAND_CLASS, NCTOPLC_DTYPE, PARAMETERS, ROLE_CLASSES, ErrorCodes, StateDWord, check_client_id, error_name, error_text,
+    COMMAND_CLASS, NCTOPLC_DTYPE, PARAMETERS, ROLE_CLASSES, ErrorCodes, StateDWord, error_name, error_text,
     motion_state,
 )
 
 from nc_link.door import OVERRIDE_100, CommandPool, NcDoor
-from nc_link.users import LoginsBusy, PasswordGate, User, Verifier, role_min
+from nc_link.users import LoginsBusy, PasswordGate, User, Verifier, check_door_config, role_min
 
 log = logging.getLogger(__name__)
 
@@ -305,15 +305,7 @@ class OpcuaDoor:
     """nc-opcua (see the module docstring): ``await start()``, ``await serve()`` / ``await stop()``."""
 
     def __init__(self, cfg: DoorConfig) -> None:
-        check_client_id(cfg.door_id)
-        for name in cfg.users or {}:  # each user's client id <door>.<user> must be a valid id (at most 64)
-            try:
-                check_client_id(f"{cfg.door_id}.{name}")
-            except ValueError:
-                raise ValueError(f"user {name!r}: the client id {cfg.door_id}.{name} is longer than 64 characters "
-                                 "(a shorter --client-id or user name)") from None
-        if cfg.role not in ROLE_CLASSES:
-            raise ValueError(f"role must be one of {', '.join(ROLE_CLASSES)}, got {cfg.role!r}")
+        check_door_config(cfg.door_id, cfg.users or {}, cfg.role)
         self.cfg = cfg
         _install_async_login()
         self._users = _Users(cfg.users or {}, cfg.allow_anonymous)

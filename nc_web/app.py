@@ -37,6 +37,7 @@ May import: ``starlette``, ``nc_link``, ``nc_schema``, the standard library and 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import hmac
 import html
@@ -49,7 +50,7 @@ import secrets
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Awaitable, Callable
+from typing import Any, AsyncIterator, Awaitable, Callable
 from urllib.parse import parse_qs
 
 import numpy as np
@@ -61,7 +62,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from nc_link import CommandError
 from nc_link.door import OVERRIDE_100, CommandPool, NcDoor
-from nc_link.users import LoginsBusy, PasswordGate, User, Verifier, role_min
+from nc_link.users import LoginsBusy, PasswordGate, User, Verifier, check_door_config, role_min
 from nc_schema import (
     COMMAND_CLASS, NCTOPLC_DTYPE, PARAMETERS, ROLE_CLASSES, ErrorCodes, StateDWord, check_client_id, error_name,
     error_text, motion_state,
@@ -197,15 +198,7 @@ class WebDoor:
     """nc-web (see the module docstring): ``app`` is the ASGI app; ``door_factory`` makes the NC links (tests)."""
 
     def __init__(self, cfg: WebConfig, door_factory: Callable[[str, str], NcDoor] | None = None) -> None:
-        check_client_id(cfg.door_id)
-        for name in cfg.users:
-            try:
-                check_client_id(f"{cfg.door_id}.{name}")
-            except ValueError:
-                raise ValueError(f"user {name!r}: the client id {cfg.door_id}.{name} is not a valid client id "
-                                 "(at most 64 characters: a shorter --client-id or user name)") from None
-        if cfg.role not in ROLE_CLASSES:
-            raise ValueError(f"role must be one of {', '.join(ROLE_CLASSES)}, got {cfg.role!r}")
+        check_door_config(cfg.door_id, cfg.users, cfg.role)
         if not cfg.ncs:
             raise ValueError("no NC (--nc NAME=ENDPOINT)")
         for nc in cfg.ncs:
@@ -227,9 +220,17 @@ class WebDoor:
             Route("/api/nc/{nc}/params/{axis:int}", self.params),
             Route("/api/nc/{nc}/axis/{axis:int}/{cmd}", self.command, methods=["POST"]),
             WebSocketRoute("/ws/nc/{nc}", self.live),
-        ], on_startup=[self.startup], on_shutdown=[self.shutdown])
+        ], lifespan=self._lifespan)
 
     # ---- lifecycle --------------------------------------------------------------------------------------------
+    @contextlib.asynccontextmanager
+    async def _lifespan(self, app: Starlette) -> AsyncIterator[None]:
+        await self.startup()
+        try:
+            yield
+        finally:
+            await self.shutdown()
+
     async def startup(self) -> None:
         for nc in self.cfg.ncs:
             self._tasks.append(asyncio.create_task(self._connect(nc)))

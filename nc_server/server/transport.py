@@ -34,7 +34,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import zenoh
@@ -220,6 +220,19 @@ def liveliness_client(keys: Keys, key: str) -> str | None:
         return check_client_id(client)
     except ValueError:
         return None
+
+
+def _drain(sub: Any) -> Iterator[Any]:
+    """The samples queued on a zenoh channel handler, without blocking; ends at the first empty poll or when the
+    handler is undeclared (closing)."""
+    while True:
+        try:
+            sample = sub.try_recv()
+        except Exception:  # undeclared (closing)
+            return
+        if sample is None:
+            return
+        yield sample
 
 
 _STOP = object()
@@ -418,14 +431,9 @@ class Transport:
         """Move the liveliness events that arrived into :attr:`liveliness_events`; whether any is
         queued (cycle thread; never blocks)."""
         sub = getattr(self, "liveliness_sub", None)
-        while sub is not None:
-            try:
-                sample = sub.try_recv()
-            except Exception:  # undeclared (closing)
-                break
-            if sample is None:
-                break
-            self._on_liveliness(sample)
+        if sub is not None:
+            for sample in _drain(sub):
+                self._on_liveliness(sample)
         return bool(self.liveliness_events)
 
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
@@ -504,13 +512,7 @@ class Transport:
         one is counted (``remote_malformed``) and dropped."""
         out: list[MasterSample] = []
         for nc, axis, sub in self.remote_subs:
-            while True:
-                try:
-                    sample = sub.try_recv()
-                except Exception:  # undeclared (closing)
-                    break
-                if sample is None:
-                    break
+            for sample in _drain(sub):
                 try:
                     out.append(decode_master_sample(nc, axis, sample.payload.to_bytes(),
                                                     None if sample.attachment is None else sample.attachment.to_bytes()))

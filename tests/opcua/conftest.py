@@ -1,4 +1,5 @@
-"""Fixtures of the nc-opcua tests (helpers in znc_testing.opcua_testing), real processes, module scope:
+"""Fixtures of the nc-opcua tests (helpers in znc_testing.opcua_testing; the shared ones in
+znc_testing.door_fixtures), real processes, module scope:
 
 * ``users_file``: alice (operator), bob (observer), eve (engineer), passwords ``<name>-pw``;
 * ``nc``: an nc-server (the default 4 axes X, Y, Z, C of ``nc1``) on a free 127.0.0.1 port;
@@ -14,28 +15,9 @@ from typing import Iterator
 
 import pytest
 
-from nc_link.users import add_user
-from znc_testing import NcServerProcess, NcTestClient, start_nc_server
+from znc_testing import NcServerProcess
+from znc_testing.door_fixtures import nc, nc_config, users_file, watch  # noqa: F401 (fixtures)
 from znc_testing.opcua_testing import NcOpcuaProcess, client, served, start_nc_opcua
-
-USERS = {"alice": "operator", "bob": "observer", "eve": "engineer"}
-
-
-@pytest.fixture(scope="module")
-def users_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    p = tmp_path_factory.mktemp("users") / "users.toml"
-    for name, role in USERS.items():
-        add_user(p, name, role, f"{name}-pw")
-    return p
-
-
-@pytest.fixture(scope="module")
-def nc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcServerProcess]:
-    srv = start_nc_server(tmp_path_factory.mktemp("nc"))
-    try:
-        yield srv
-    finally:
-        srv.kill()
 
 
 @pytest.fixture(scope="module")
@@ -53,12 +35,3 @@ async def _axes_served(url: str) -> None:
     async with client(url) as c:
         for a in (1, 2, 3, 4):
             await served(c, f"nc1.{a}.ActPos")
-
-
-@pytest.fixture(scope="module")
-def watch(nc: NcServerProcess) -> Iterator[NcTestClient]:
-    c = NcTestClient(nc.port, client_id="watch", token=False)
-    try:
-        yield c
-    finally:
-        c.close()

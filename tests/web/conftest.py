@@ -1,4 +1,5 @@
-"""Fixtures of the nc-web tests (helpers in znc_testing.web_testing), real processes, module scope:
+"""Fixtures of the nc-web tests (helpers in znc_testing.web_testing; the shared ones in
+znc_testing.door_fixtures), real processes, module scope:
 
 * ``users_file``: alice (operator), bob (observer), eve (engineer), passwords ``<name>-pw``;
 * ``nc``: an nc-server (the default 4 axes X, Y, Z, C of ``nc1``, its PLCTONC watchdog 3 s instead of 0.5 s: on
@@ -15,31 +16,18 @@ from typing import Iterator
 
 import pytest
 
-from nc_link.users import add_user
-from znc_testing import NcServerProcess, NcTestClient, start_nc_server
+from znc_testing import NcServerProcess
+from znc_testing.door_fixtures import nc, users_file, watch  # noqa: F401 (fixtures)
 from znc_testing.web_testing import NcWebProcess, start_nc_web
 
-USERS = {"alice": "operator", "bob": "observer", "eve": "engineer"}
 #: the embedded default configuration with a 3 s PLCTONC watchdog
 LENIENT = re.sub(r"(?m)^watchdog_timeout = .*$", "watchdog_timeout = 3.0",
                  (Path(__file__).resolve().parents[2] / "nc_server" / "server" / "default.toml").read_text())
 
 
 @pytest.fixture(scope="module")
-def users_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    p = tmp_path_factory.mktemp("users") / "users.toml"
-    for name, role in USERS.items():
-        add_user(p, name, role, f"{name}-pw")
-    return p
-
-
-@pytest.fixture(scope="module")
-def nc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NcServerProcess]:
-    srv = start_nc_server(tmp_path_factory.mktemp("nc"), LENIENT)
-    try:
-        yield srv
-    finally:
-        srv.kill()
+def nc_config() -> str | None:
+    return LENIENT
 
 
 @pytest.fixture(scope="module")
@@ -49,13 +37,3 @@ def web(tmp_path_factory: pytest.TempPathFactory, nc: NcServerProcess, users_fil
         yield p
     finally:
         p.stop()
-
-
-@pytest.fixture(scope="module")
-def watch(nc: NcServerProcess) -> Iterator[NcTestClient]:
-    c = NcTestClient(nc.port, client_id="watch", token=False)
-    try:
-        yield c
-    finally:
-        c.close()
-
