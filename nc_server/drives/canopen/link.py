@@ -206,6 +206,8 @@ class CanopenLink(ProcessDataLink):
         self._sync_t = 0.0
         #: wall-clock send time of the last SYNCs (SYNC s at [s % _RING]), to date late-handled TPDOs
         self._sync_wall = np.zeros(_RING)
+        #: the NC cycle (RxImage.cycle) of the RPDOs sent before SYNC s, at [s % _RING]: what a TPDO stamped s answers
+        self._sync_cycle = np.zeros(_RING, dtype=np.int64)
         #: the bus stamps frames with time.time() (virtual, socketcan): checked on the first TPDOs at start
         self._wall_clock_stamps = False
         #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
@@ -448,6 +450,9 @@ class CanopenLink(ProcessDataLink):
 
     def _inputs(self) -> TxImage:
         t1, t2, t3 = self._t[1], self._t[2], self._t[3]  # (written in place: the TxImage gets copies)
+        # the stamps before the payloads: a TPDO1 arriving in between makes the data newer than the stamp, never older
+        # (a statusword is never taken to answer newer outputs than it does)
+        s1 = self._stamp[1].copy()
         busy = self._configuring if self._any_configuring else None
         for j, node in enumerate(self.nodes):
             if busy is not None and busy[j]:  # its PDO maps are being rewritten: its last inputs stay
@@ -472,11 +477,13 @@ class CanopenLink(ProcessDataLink):
         pos = self._pos = np.where(self._pos_seen, pdo.unwrap32(t1[1], self._pos), t1[1])
         self._pos_seen |= t1[0] != 0  # (a statusword of 0: nothing received yet)
         probe = pdo.unwrap32(t3[1], pos)
+        # the NC cycle the statusword (TPDO1) answers: the RPDOs sent before the SYNC it answered (0: unknown)
+        rx_cycle = np.where((s1 >= 1) & (k - s1 < _RING - 1), self._sync_cycle[s1 % _RING], 0)
         return TxImage(statusword=t1[0].astype(np.uint16), mode_display=t2[2].astype(np.int8),
                        position_actual=pos.astype(np.float64), velocity_actual=t2[0].astype(np.float64),
                        torque_actual=t2[1].astype(np.float64), error_code=t1[2].astype(np.uint16),
                        probe_status=t3[0].astype(np.uint16), probe_position=probe.astype(np.float64),
-                       age=age, alive=alive)
+                       age=age, alive=alive, rx_cycle=rx_cycle)
 
     def _outputs(self, rx: RxImage) -> None:
         pos = pdo.wrap32(rx.target_position)  # (modulo 2^32: an endless axis goes on; the drive unwraps)
@@ -505,6 +512,7 @@ class CanopenLink(ProcessDataLink):
         try:
             self._sync_wall[self.syncs % _RING] = time.time()
             self.syncs += 1  # before the SYNC: a TPDO answering it is stamped with the new count
+            self._sync_cycle[self.syncs % _RING] = rx.cycle
             self._sync_t = time.perf_counter()
             self.network.sync.transmit()
         except Exception as e:

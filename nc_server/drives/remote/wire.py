@@ -217,5 +217,6 @@ def decode_tx(payload: bytes | bytearray | memoryview) -> TxMessage:
     cols, cycle, rx_cycle, epoch = decode_tx_columns(payload)
     n = len(cols["statusword"])
     image = TxImage(age=np.zeros(n, dtype=np.int64), alive=np.ones(n, dtype=bool),
+                    rx_cycle=np.full(n, rx_cycle, dtype=np.int64),
                     **{a: c.astype(c.dtype.newbyteorder("=")) for a, c in cols.items()})
     return TxMessage(image, cycle, rx_cycle, epoch)
