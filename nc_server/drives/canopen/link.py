@@ -540,12 +540,14 @@ class CanopenLink(ProcessDataLink):
         """Per node for the NC's stats ``drive_link``: ``node_id``, ``monitoring``, ``nmt`` (the NMT state its last
         heartbeat / guarding answer reported; None: none yet), ``alive``, ``heartbeat_age_ms`` (since it), the
         counters ``tpdo_late`` (cycles whose inputs were older than the last SYNC), ``tpdo_missed`` (SYNCs it never
-        answered), ``setups`` (set up again after it came back) and the bus's ``tx_errors``."""
+        answered), ``setups`` (set up again after it came back), the bus's ``tx_errors`` and ``emcy``, the error code
+        of the node's last EMCY (0: none, or its EMCY reset)."""
         from canopen.nmt import NMT_STATES
 
         now = time.monotonic()
         hb_t, hb_s = self._hb_time.copy(), self._hb_state.copy()
         late, missed, setups = self.tpdo_late.tolist(), self.tpdo_missed.tolist(), self.setups.tolist()
+        emcy = self.emcy_code.tolist()
         timeout = self.bus_config.heartbeat_timeout
         out: list[dict[str, Any]] = []
         for j, node in enumerate(self.nodes):
@@ -556,7 +558,7 @@ class CanopenLink(ProcessDataLink):
                         "alive": bool(seen and age <= timeout and hb_s[j] == NMT_OPERATIONAL),
                         "heartbeat_age_ms": round(age * 1e3, 1) if seen else None,
                         "tpdo_late": int(late[j]), "tpdo_missed": int(missed[j]), "setups": int(setups[j]),
-                        "tx_errors": int(self.tx_errors)})
+                        "tx_errors": int(self.tx_errors), "emcy": int(emcy[j])})
         return out
 
     def close(self) -> None:

@@ -48,9 +48,13 @@ Decisions:
 * Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
   drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
   0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
-* The drive's own error code (0x603F, ``error_code``) is shown in the NC's stats (``drive_errors``) and by
-  nc-status next to the axis error, not in NCTOPLC: none of the 256 bytes fits (ErrorCode is the NC's axis
-  error, 0x4650/0x4651/0x4655 for drive errors, which PLC programs compare; the rest are TwinCAT's fields).
+* The drive's own error code (0x603F, ``error_code``) is shown in the NC's stats (``drive_errors``, and with the
+  link's figures in ``drive_link``, CANopen's last EMCY code too) and by nc-status (next to the axis error and on
+  the axis's drive line), not in NCTOPLC: none of the 256 bytes fits. ErrorCode is the NC's axis error
+  (0x4650/0x4651/0x4655 for drive errors, which PLC programs compare); ``_reserved2`` is TwinCAT's hidden member;
+  UserData is TwinCAT's "configurable axis state parameter", whose choices are the NC's own axis states (e.g.
+  the master's motion state), not a drive object -- taking it over would change what a TwinCAT PLC program
+  configured there reads; the rest are TwinCAT's fields with their own meaning.
 * Disabling the controller sends Shutdown: the drive goes to Ready to switch on (no torque; its brake holds);
   enabling from there is one cycle (0x000F: transitions 3 + 4).
 
@@ -365,8 +369,15 @@ class Cia402Drive(DriveABC):
         return np.where(new & ahead, pos, np.nan)
 
     def link_figures(self) -> dict[int, dict[str, Any]]:
-        """The link's figures per axis (:meth:`.image.ProcessDataLink.figures`)."""
-        return dict(enumerate(self.link.figures()))
+        """The link's figures per axis (:meth:`.image.ProcessDataLink.figures`) with the drive's own error code
+        ``error_code`` (0x603F of the inputs used last; 0: none): where a user reads the link (stats ``drive_link``,
+        nc-status's drive line). A link without figures (in process) gives ``{"link": "local", "error_code": ..}``
+        for the axes whose drive reports an error only."""
+        codes = self.error_code.tolist()  # (the cycle replaces the array, it does not write into it)
+        figures = self.link.figures()
+        if not figures:
+            return {i: {"link": "local", "error_code": int(c)} for i, c in enumerate(codes) if c}
+        return {i: {**f, "error_code": int(codes[i])} if i < len(codes) else f for i, f in enumerate(figures)}
 
     def close(self) -> None:
         self.link.close()
