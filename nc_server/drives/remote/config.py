@@ -7,6 +7,7 @@ In the NC's TOML::
     max_age = 50                         # NC cycles an axis's inputs may be old before 0x4655
     sender = "cycle"                     # "cycle" | "thread": who puts the outputs (.link)
     lease_ms = 500                       # the link session's transport lease (default: the NC's)
+    timeout_ms = 100                     # the drive hosts' silence timeout (nc-drive-sim --timeout; default 100)
 
     [[axis]]
     AxisId = 1
@@ -24,6 +25,16 @@ Decisions:
   ms); 20 would have raised false 0x4655 there. 50 rides through that and still reports a drive whose data
   stopped within 50 ms, half the drive's own silence timeout (100 ms by default): the NC knows before the drive
   stops itself. A lost host (its token gone, 2-3 ms after a crash) is reported at once as 0x4651 anyway.
+* ``timeout_ms``: the drive hosts' silence timeout, read by ``nc-drive-sim --config`` (its ``--timeout`` overrides
+  it) and by the NC, so that both check it against a hot-standby pair's takeover where the TOML has
+  ``[redundancy] enabled``: it must be longer than :func:`takeover_bound` (``takeover_cycles + 1`` NC cycles: the
+  log silence a standby waits and the cycle that notices it; docs/standby.md), else every takeover would find the
+  drives quick-stopped (0x8130). A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit
+  code 2) where both are known: the NC with ``timeout_ms`` in its TOML, nc-drive-sim with ``--config`` (the
+  timeout it will use: ``--timeout``, else ``timeout_ms``, else 100 ms). The NC without ``timeout_ms`` cannot know a
+  drive host's ``--timeout``: it warns when the default 100 ms would be too short. nc-drive-sim without ``--config``
+  learns the bound from the NC's outputs (``rx`` ``takeover_ms``, 0 without redundancy) and warns once (its status
+  ``timeout_short``): it is running already and stopping it would stop the drives.
 * Slots: per host either every axis names its ``slot`` or none does (then the order of the axes in the file);
   a host's slots are 0..k-1, each once.
 * The link's endpoints (:func:`link_endpoints`): ``connect`` if given; else the NC's own ``[zenoh] connect``
@@ -46,9 +57,13 @@ from .wire import check_host
 
 SENDERS = ("cycle", "thread")
 #: [drives.remote] keys and per-axis Drive keys (without ``backend``).
-BACKEND_KEYS = ("connect", "max_age", "sender", "lease_ms")
+BACKEND_KEYS = ("connect", "max_age", "sender", "lease_ms", "timeout_ms")
 AXIS_KEYS = ("host", "slot")
 DEFAULT_MAX_AGE = 50
+#: the drive hosts' silence timeout unless ``timeout_ms`` or nc-drive-sim's ``--timeout`` say otherwise [s]
+DEFAULT_TIMEOUT = 0.1
+#: ``[redundancy] takeover_cycles`` unless set (nc_server.server.config)
+DEFAULT_TAKEOVER_CYCLES = 15
 
 
 @dataclass(frozen=True)
@@ -59,6 +74,7 @@ class RemoteOptions:
     max_age: int = DEFAULT_MAX_AGE
     sender: str = "cycle"
     lease_ms: int | None = None
+    timeout_ms: float | None = None
 
 
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):[0-9]{1,5}([?#].*)?$|^unixsock-stream/.+$")
@@ -97,7 +113,11 @@ def parse_options(options: Mapping[str, Any], where: str = "drives.remote") -> R
     lease = options.get("lease_ms")
     if lease is not None and (isinstance(lease, bool) or not isinstance(lease, int) or not 100 <= lease <= 3_600_000):
         raise ConfigError(f"{where}.lease_ms", f"must be an integer number of ms 100..3600000, got {lease!r}")
-    return RemoteOptions(eps, max_age, sender, lease)
+    timeout = options.get("timeout_ms")
+    if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
+                                or not 1.0 <= timeout <= 3_600_000.0):
+        raise ConfigError(f"{where}.timeout_ms", f"must be a number of ms 1..3600000, got {timeout!r}")
+    return RemoteOptions(eps, max_age, sender, lease, None if timeout is None else float(timeout))
 
 
 def host_slots(axis_options: Sequence[Mapping[str, Any]], axis_ids: Sequence[int] | None = None,
@@ -182,3 +202,25 @@ def link_endpoints(options: RemoteOptions, zenoh_settings: Any) -> tuple[str, ..
 def cycles(seconds: float, cycle_time: float) -> int:
     """``seconds`` in whole NC cycles (at least 1)."""
     return max(1, math.ceil(seconds / cycle_time - 1e-9))
+
+
+def takeover_bound(takeover_cycles: int, cycle_time: float) -> float:
+    """The longest a hot-standby pair leaves its drives without outputs at a takeover [s]: the standby waits
+    ``takeover_cycles`` NC cycles without the active NC's log (a freeze, a cut link; a crash is seen at once) and
+    notices at the start of the next cycle, whose outputs go out (docs/standby.md, the ha status's
+    ``takeover_limit_cycles``)."""
+    return (int(takeover_cycles) + 1) * float(cycle_time)
+
+
+def check_timeout(timeout: float, takeover_cycles: int, cycle_time: float, key: str) -> None:
+    """A drive host's silence timeout [s] must be longer than the pair's :func:`takeover_bound`.
+
+    Raises:
+        ConfigError: on ``key``, naming both figures.
+    """
+    bound = takeover_bound(takeover_cycles, cycle_time)
+    if not timeout > bound:
+        raise ConfigError(key, f"the drive hosts' silence timeout ({timeout * 1e3:g} ms) must be longer than the "
+                               f"standby NC's takeover ({takeover_cycles} + 1 cycles of {cycle_time * 1e3:g} ms = "
+                               f"{bound * 1e3:g} ms, [redundancy] takeover_cycles): the drives would stop with 0x8130 "
+                               f"at every takeover")

@@ -199,6 +199,9 @@ class RemoteLink(ProcessDataLink):
         #: one a host reported following: above ``epoch``, another NC drives these hosts now
         self.epoch = 0
         self.host_epoch = 0
+        #: the takeover bound of a hot-standby pair [ms] (0: none), sent with the outputs: a drive host warns when its
+        #: silence timeout is not longer (nc_server.server.standby sets it)
+        self.takeover_ms = 0.0
         self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
@@ -331,7 +334,7 @@ class RemoteLink(ProcessDataLink):
                         self.malformed)
 
     def _send(self, rx: RxImage) -> None:
-        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch)
+        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch, self.takeover_ms)
                 for rows, ids, whole in zip(self._rows, self._ids, self._whole)]
         if self.sender == "thread":
             with self._mail_lock:
