@@ -41,8 +41,12 @@ Decisions:
   communication). The drive comes back in Switch on disabled; the axis keeps its error until MC_Reset, then
   MC_Power enables it again. A failed set-up is retried every second. Counted per node (``setups``, the stats'
   ``drive_link``).
+* The cycle and the supervisor's re-setup share nothing canopen rewrites: the cycle sends its RPDOs itself
+  (``Network.send_message`` with payloads it packs), reads the TPDO payloads the link's own subscriptions store
+  (one reference per TPDO and node), and takes a node's COB-IDs and structs from one :class:`_Cyclic` object that
+  a re-setup replaces whole (None meanwhile) -- no lock the cycle could wait on.
 * A CAN transmit error in a cycle (bus off, full transmit queue on real hardware), or any other failure packing or
-  sending one node's RPDOs (e.g. its PDO map replaced by the supervisor's re-setup), is counted
+  sending one node's RPDOs, is counted
   (:attr:`CanopenLink.tx_errors`) and logged once; it never raises into the cycle: the other nodes and the SYNC
   are still sent (the ages grow instead).
 * Close: NMT pre-operational for the nodes (their PDOs stop; a real drive sees the master go), then the
@@ -58,8 +62,8 @@ import os
 import struct
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
 
 import can
 import canopen
@@ -146,8 +150,28 @@ def interpolation_period(cycle_time: float) -> tuple[int, int]:
     raise ValueError(f"cycle time {cycle_time} s cannot be written as 0x60C2 (value 1..255 x 10^-6..0 s)")
 
 
+@dataclass(frozen=True)
+class _Cyclic:
+    """All the cycle uses of one node's set-up: its RPDO COB-IDs and the packing structs. Built after each SDO
+    configuration and replaced whole (``_Node.cyclic``: one reference, read once per node and cycle), so the cycle
+    never sees half of an old and half of a new set-up and never touches canopen's PdoMap objects, which the
+    supervisor's re-setup rewrites (clear, add_variable: ``PdoMap.data`` replaced, shorter for a moment).
+
+    Attributes:
+        sent_rpdo2: ``[payload]`` of the RPDO2 last sent (b"": none since this set-up; the cycle's alone).
+    """
+
+    rpdo1_cob: int
+    rpdo2_cob: int
+    s_rpdo1: struct.Struct
+    s_rpdo2: struct.Struct
+    s_tpdo: Mapping[int, struct.Struct]
+    sent_rpdo2: list[bytes] = field(default_factory=lambda: [b""])
+
+
 class _Node:
-    """The master's view of one node: its canopen RemoteNode, PDO maps and the packing structs."""
+    """The master's view of one node: its canopen RemoteNode and PDO maps (the SDO configuration's, the supervisor
+    thread's) and the cycle's :class:`_Cyclic` (None while it is being set up: the cycle leaves it alone)."""
 
     def __init__(self, cfg: NodeConfig, remote: canopen.RemoteNode) -> None:
         self.cfg = cfg
@@ -155,10 +179,14 @@ class _Node:
         self.rpdo1: PdoMap = remote.rpdo[1]
         self.rpdo2: PdoMap = remote.rpdo[2]
         self.tpdo: dict[int, PdoMap] = {k: remote.tpdo[k] for k in pdo.TPDO_LAYOUT}
-        self.s_rpdo1 = _struct(remote, pdo.RPDO1)
-        self.s_rpdo2 = _struct(remote, pdo.rpdo_layout(cfg.csv)[2])
-        self.s_tpdo = {k: _struct(remote, m) for k, m in pdo.TPDO_LAYOUT.items()}
-        self.last_rpdo2 = b""
+        self.cyclic: _Cyclic | None = None
+        self.cyclic = self.make_cyclic()  # (checks the EDS has the mapped objects at start)
+
+    def make_cyclic(self) -> _Cyclic:
+        r, nid = self.remote, self.cfg.node_id
+        return _Cyclic(rpdo1_cob=0x200 + nid, rpdo2_cob=0x300 + nid, s_rpdo1=_struct(r, pdo.RPDO1),
+                       s_rpdo2=_struct(r, pdo.rpdo_layout(self.cfg.csv)[2]),
+                       s_tpdo={k: _struct(r, m) for k, m in pdo.TPDO_LAYOUT.items()})
 
 
 def _struct(remote: canopen.RemoteNode, entries: Sequence[pdo.Entry]) -> struct.Struct:
@@ -212,6 +240,9 @@ class CanopenLink(ProcessDataLink):
         self._wall_clock_stamps = False
         #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
         self._stamp = {k: np.full(self.n, -1, dtype=np.int64) for k in pdo.TPDO_LAYOUT}
+        #: per TPDO and node the payload last received (the notifier thread replaces the reference, the cycle reads it)
+        self._tpdo_data: dict[int, list[bytes]] = {k: [b""] * self.n for k in pdo.TPDO_LAYOUT}
+        self._tpdo1_ts: float | None = None  # the bus's timestamp of the last TPDO1 (the wall clock check at start)
         #: per node: cycles whose inputs did not answer the last SYNC (late or missing TPDOs), and SYNCs whose TPDOs
         #: never came (the newest answered SYNC jumped over them); the stats' ``drive_link``
         self.tpdo_late = np.zeros(self.n, dtype=np.int64)
@@ -286,8 +317,8 @@ class CanopenLink(ProcessDataLink):
         for j, node in enumerate(self.nodes):
             node.remote.nmt.add_heartbeat_callback(self._on_heartbeat(j))
             node.remote.emcy.add_callback(self._on_emcy(j))
-            for k, m in node.tpdo.items():
-                m.add_callback(self._on_tpdo(self._stamp[k], j))
+            for k in node.tpdo:  # (the link's own subscriptions: the frames' payloads, not canopen's PdoMap.data)
+                self.network.subscribe(0x180 + 0x100 * (k - 1) + node.cfg.node_id, self._on_tpdo(k, j))
             node.remote.nmt.state = "OPERATIONAL"
             if self._guarding:
                 node.remote.nmt.start_node_guarding(self.bus_config.heartbeat_period)
@@ -297,7 +328,7 @@ class CanopenLink(ProcessDataLink):
         self.network.sync.transmit()
         self._wait(lambda: np.minimum(self._stamp[1], self._stamp[2]) >= 1, "no TPDO answered the first SYNC",
                    where)
-        ts = self.nodes[0].tpdo[1].timestamp
+        ts = self._tpdo1_ts
         self._wall_clock_stamps = ts is not None and abs(ts - time.time()) < 1.0
         self._running = True
         self._supervisor = threading.Thread(target=self._supervise, name="canopen-nmt", daemon=True)
@@ -348,10 +379,14 @@ class CanopenLink(ProcessDataLink):
 
     # -- notifier thread callbacks (they only store) -----------------------------------------------------
 
-    def _on_tpdo(self, stamp: np.ndarray, j: int) -> Any:
-        def cb(m: PdoMap) -> None:
+    def _on_tpdo(self, k: int, j: int) -> Any:
+        stamp, data_k = self._stamp[k], self._tpdo_data[k]
+
+        def cb(can_id: int, data: bytearray, ts: float | None) -> None:
+            data_k[j] = bytes(data)  # (before the stamp: the cycle reads the stamp first, then the payload)
+            if k == 1:
+                self._tpdo1_ts = ts
             s = self.syncs
-            ts = m.timestamp
             if self._wall_clock_stamps and ts is not None:
                 # a frame sent before SYNC s (we got to it late: this thread ran behind) answers an older SYNC
                 wall = self._sync_wall
@@ -415,11 +450,13 @@ class CanopenLink(ProcessDataLink):
             self._todo[j], self._setup_why[j] = "setup", f"{self._setup_why[j]} without its configuration"
         self._configuring[j] = True
         self._any_configuring = True
+        node.cyclic = None  # the cycle leaves the node alone from its next read (one that read it goes on: harmless)
         try:
             log.warning("node %d: %s: setting it up again (SDO configuration, NMT start)", nid, self._setup_why[j])
             node.remote.nmt.state = "PRE-OPERATIONAL"
             self._configure(node)
-            node.last_rpdo2 = b""  # (the node lost what its RPDO2 carried: sent again in the next cycle)
+            # the new set-up for the cycle, whole (its RPDO2 not yet sent: the node lost what RPDO2 carried)
+            node.cyclic = node.make_cyclic()
             self._grace_until[j] = time.monotonic() + self.bus_config.heartbeat_timeout
             node.remote.nmt.state = "OPERATIONAL"
             self.setups[j] += 1
@@ -453,13 +490,14 @@ class CanopenLink(ProcessDataLink):
         # the stamps before the payloads: a TPDO1 arriving in between makes the data newer than the stamp, never older
         # (a statusword is never taken to answer newer outputs than it does)
         s1 = self._stamp[1].copy()
-        busy = self._configuring if self._any_configuring else None
+        d1, d2, d3 = self._tpdo_data[1], self._tpdo_data[2], self._tpdo_data[3]
         for j, node in enumerate(self.nodes):
-            if busy is not None and busy[j]:  # its PDO maps are being rewritten: its last inputs stay
+            cyc = node.cyclic
+            if cyc is None:  # being set up: its last inputs stay
                 continue
-            for k, out in ((1, t1), (2, t2), (3, t3)):
-                data = node.tpdo[k].data
-                s = node.s_tpdo[k]
+            for k, out, d in ((1, t1, d1), (2, t2, d2), (3, t3, d3)):
+                data = d[j]
+                s = cyc.s_tpdo[k]
                 out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
         k = self.syncs
         answered = np.minimum(self._stamp[1], self._stamp[2])
@@ -491,22 +529,19 @@ class CanopenLink(ProcessDataLink):
         cw, p, mode = rx.controlword.tolist(), pos.tolist(), rx.mode.tolist()
         self._last_out = (p, mode)
         v, probe = velo.astype(np.int64).tolist(), rx.probe_function.tolist()
-        busy = self._configuring if self._any_configuring else None
+        send = self.network.send_message
         for j, node in enumerate(self.nodes):
-            if busy is not None and busy[j]:  # being set up: its PDO maps are rewritten
+            cyc = node.cyclic  # (one reference: a re-setup replaces it whole)
+            if cyc is None:  # being set up
                 continue
-            # per node and any exception: the supervisor's re-setup may swap PdoMap.data under us (struct.error),
-            # a CAN error hits one frame; the cycle goes on with the other nodes and the SYNC (the ages tell)
+            # per node and any exception (a CAN error hits one frame): the cycle goes on with the other nodes and
+            # the SYNC (the ages tell)
             try:
-                m = node.rpdo1
-                node.s_rpdo1.pack_into(m.data, 0, cw[j], p[j], mode[j])
-                m.transmit()
-                payload = node.s_rpdo2.pack(v[j], probe[j]) if node.cfg.csv else node.s_rpdo2.pack(probe[j])
-                if payload != node.last_rpdo2:
-                    m2 = node.rpdo2
-                    m2.data[:] = payload
-                    m2.transmit()
-                    node.last_rpdo2 = payload
+                send(cyc.rpdo1_cob, cyc.s_rpdo1.pack(cw[j], p[j], mode[j]))
+                payload = cyc.s_rpdo2.pack(v[j], probe[j]) if node.cfg.csv else cyc.s_rpdo2.pack(probe[j])
+                if payload != cyc.sent_rpdo2[0]:
+                    send(cyc.rpdo2_cob, payload)
+                    cyc.sent_rpdo2[0] = payload
             except Exception as e:
                 self._tx_error(e)
         try:
@@ -595,8 +630,9 @@ class CanopenLink(ProcessDataLink):
         p, mode = p_mode
         try:
             for j, node in enumerate(nodes):
-                node.s_rpdo1.pack_into(node.rpdo1.data, 0, CMD_SHUTDOWN, p[j], mode[j])
-                node.rpdo1.transmit()
+                cyc = node.cyclic
+                if cyc is not None:
+                    self.network.send_message(cyc.rpdo1_cob, cyc.s_rpdo1.pack(CMD_SHUTDOWN, p[j], mode[j]))
             self.network.sync.transmit()
         except Exception as e:  # the bus may be gone already
             log.warning("CAN: the closing Shutdown could not be sent: %s", e)
