@@ -123,3 +123,26 @@ def test_the_wire_carries_takeover_ms() -> None:
     m["takeover_ms"] = "x"
     with pytest.raises(wire.WireError):
         wire.decode_rx(msgpack.packb(m))
+
+
+def test_max_age_as_a_time() -> None:
+    """``[drives.remote] max_age_ms``: the same limit as a time, in whole NC cycles (rounded up), not with max_age."""
+    o = parse_options({"max_age_ms": 50})
+    assert o.max_age_cycles(0.001) == 50 and o.max_age_cycles(0.002) == 25 and o.max_age_cycles(0.004) == 13
+    assert parse_options({"max_age_ms": 0.3}).max_age_cycles(0.001) == 1
+    assert parse_options({"max_age": 7}).max_age_cycles(0.002) == 7
+    for bad, text in (({"max_age_ms": 50, "max_age": 50}, "not both"), ({"max_age_ms": 0}, "> 0"),
+                      ({"max_age_ms": "50"}, "> 0"), ({"max_age_ms": True}, "> 0")):
+        with pytest.raises(ConfigError) as e:
+            parse_options(bad)
+        assert e.value.key == "drives.remote.max_age_ms" and text in e.value.message
+    from nc_server.drives.base import DriveContext
+    from nc_server.drives.remote.drive import RemoteDrive
+    from nc_server.server.config import ZenohSettings
+    d = RemoteDrive.from_config([AxisParams()], 0.002, [{"host": "d1"}],
+                                DriveContext(options={"max_age_ms": 30, "connect": ["tcp/127.0.0.1:17999"]},
+                                             zenoh=ZenohSettings()))
+    try:
+        assert d.max_age == 15
+    finally:
+        d.close()
