@@ -9,7 +9,8 @@ AxisId, MotionState (PLCopen), AxisState, SetPos / ActPos / SetVelo, ErrorCode w
 (errors.json) and the drive's own error code (CiA 402 0x603F, from the stats' drive_errors; shown as
 "(drive 0x2310)" after the axis error), the claim holder, the source of the last command and the link to its drive
 (stats drive_link: a CANopen node's NMT state, heartbeat age and missed TPDOs, a remote drive host's round trip and
-input age; shown on a line of its own below the axis).
+input age, and the drive's own 0x603F and last EMCY code when it has one; shown on a line of its own below the
+axis).
 
 Usable over a slow link: it never subscribes to the 1 kHz ``nc/<nc>/frame``. It reads only
 
@@ -370,14 +371,20 @@ def link_text(f: dict[str, Any]) -> str:
     def v(k: str, fmt: str = "") -> str:
         x = f.get(k)
         return "-" if x is None else format(x, fmt) if fmt and isinstance(x, (int, float)) else str(x)
+    def code(k: str, what: str) -> str:  # the drive's own codes (0x603F, EMCY): shown when there is one
+        x = f.get(k)
+        return f", {what} 0x{x:04X}" if isinstance(x, int) and not isinstance(x, bool) and x else ""
     kind = f.get("link")
+    drive = code("error_code", "drive error") + code("emcy", "EMCY")
     if kind == "canopen":
         return (f"canopen node {v('node_id')} {v('nmt')} ({v('monitoring')} {v('heartbeat_age_ms', '.0f')} ms ago"
                 f"{'' if f.get('alive') else ', LOST'}), TPDOs late {v('tpdo_late')} missed {v('tpdo_missed')}, "
-                f"set-ups {v('setups')}, bus tx errors {v('tx_errors')}")
+                f"set-ups {v('setups')}, bus tx errors {v('tx_errors')}{drive}")
     if kind == "remote":
         return (f"remote host {v('host')}{'' if f.get('alive') else ' LOST'}, round trip {v('round_trip')} cycles, "
-                f"input age {v('age')} cycles")
+                f"input age {v('age')} cycles{drive}")
+    if kind == "local":
+        return f"in-process drive{drive}"
     return ", ".join(f"{k} {x}" for k, x in sorted(f.items()))
 
 

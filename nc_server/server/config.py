@@ -33,6 +33,7 @@ name, 0x4012 for an AxisId that is not configured.
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -432,13 +433,43 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     axes, reactions, axis_drives = _axes(data, drive, known)
     drive_options = _drive_sections(data, known)
     remote_masters, remote_max_age = _remote(data, name)
+    redundancy = _redundancy(data, retain_file)
+    _check_drive_timeout(redundancy, cycle_time, axis_drives, drive_options)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
                         zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
                         loss_reactions=reactions, publisher=publisher, cpu_affinity=cpu_affinity,
                         axis_drives=axis_drives, drive_options=drive_options, remote_masters=remote_masters,
                         remote_max_age=remote_max_age,
-                        redundancy=_redundancy(data, retain_file))
+                        redundancy=redundancy)
+
+
+def _check_drive_timeout(redundancy: Redundancy, cycle_time: float,
+                         axis_drives: Sequence[tuple[str, Mapping[str, Any]]],
+                         drive_options: Mapping[str, Mapping[str, Any]]) -> None:
+    """A hot-standby pair on remote drives: the drive hosts' silence timeout must be longer than the takeover
+    (nc_server.drives.remote.config: ``timeout_ms``). Refused when ``[drives.remote] timeout_ms`` says it; without
+    it the NC cannot know a drive host's ``--timeout`` (nc-drive-sim checks that itself): a warning when its default
+    would be too short.
+
+    Raises:
+        ConfigError: ``drives.remote.timeout_ms`` not longer than the takeover bound.
+    """
+    if not redundancy.enabled or not any(b == "remote" for b, _ in axis_drives):
+        return
+    from nc_server.drives.remote.config import DEFAULT_TIMEOUT, check_timeout, parse_options, takeover_bound
+
+    opts = parse_options(drive_options.get("remote", {}))
+    if opts.timeout_ms is not None:
+        check_timeout(opts.timeout_ms / 1000.0, redundancy.takeover_cycles, cycle_time, "drives.remote.timeout_ms")
+        return
+    bound = takeover_bound(redundancy.takeover_cycles, cycle_time)
+    if not DEFAULT_TIMEOUT > bound:
+        logging.getLogger("nc_server.config").warning(
+            "[redundancy] takeover_cycles %d at %g ms: a takeover may take %g ms, not less than nc-drive-sim's default "
+            "silence timeout (%g ms): start the drive hosts with a longer --timeout, or give [drives.remote] "
+            "timeout_ms (then checked here)", redundancy.takeover_cycles, cycle_time * 1e3, bound * 1e3,
+            DEFAULT_TIMEOUT * 1e3)
 
 
 def _remote(data: Mapping[str, Any], own: str) -> tuple[tuple[tuple[str, int], ...], float]:

@@ -32,6 +32,8 @@ import msgpack
 import zenoh
 from zenoh.handlers import FifoChannel
 
+from nc_server.drives.remote.config import takeover_bound
+
 from .config import Redundancy
 from .replication import (CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive, ReplayDrive,
                           install_handler, merge_handler, snapshot)
@@ -140,6 +142,10 @@ class HotStandby:
         self._recent: collections.deque[bytes] = collections.deque(maxlen=LOG_REPEAT)
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
+        # the drive hosts learn the pair's takeover bound with the outputs (they warn if their timeout is shorter)
+        self.takeover_limit_ms = bound_ms = takeover_bound(settings.takeover_cycles, self._dt) * 1e3
+        for lk in drive_links(self.real_drive):
+            lk.takeover_ms = bound_ms
 
     # ---- session (start, before the cycle thread) ---------------------------------------------------------------
     def open(self, session: zenoh.Session) -> None:
@@ -419,6 +425,7 @@ class HotStandby:
                 "snapshots_served": self.snapshots_served, "takeovers": self.takeovers, "demotions": self.demotions,
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
                 "catch_up_cycles": self.catch_up, "takeover_limit_cycles": self.settings.takeover_cycles,
+                "takeover_limit_ms": round(self.takeover_limit_ms, 3),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
 
     def _fenced(self) -> int:

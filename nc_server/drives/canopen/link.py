@@ -41,8 +41,12 @@ Decisions:
   communication). The drive comes back in Switch on disabled; the axis keeps its error until MC_Reset, then
   MC_Power enables it again. A failed set-up is retried every second. Counted per node (``setups``, the stats'
   ``drive_link``).
+* The cycle and the supervisor's re-setup share nothing canopen rewrites: the cycle sends its RPDOs itself
+  (``Network.send_message`` with payloads it packs), reads the TPDO payloads the link's own subscriptions store
+  (one reference per TPDO and node), and takes a node's COB-IDs and structs from one :class:`_Cyclic` object that
+  a re-setup replaces whole (None meanwhile) -- no lock the cycle could wait on.
 * A CAN transmit error in a cycle (bus off, full transmit queue on real hardware), or any other failure packing or
-  sending one node's RPDOs (e.g. its PDO map replaced by the supervisor's re-setup), is counted
+  sending one node's RPDOs, is counted
   (:attr:`CanopenLink.tx_errors`) and logged once; it never raises into the cycle: the other nodes and the SYNC
   are still sent (the ages grow instead).
 * Close: NMT pre-operational for the nodes (their PDOs stop; a real drive sees the master go), then the
@@ -58,8 +62,8 @@ import os
 import struct
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
 
 import can
 import canopen
@@ -146,8 +150,28 @@ def interpolation_period(cycle_time: float) -> tuple[int, int]:
     raise ValueError(f"cycle time {cycle_time} s cannot be written as 0x60C2 (value 1..255 x 10^-6..0 s)")
 
 
+@dataclass(frozen=True)
+class _Cyclic:
+    """All the cycle uses of one node's set-up: its RPDO COB-IDs and the packing structs. Built after each SDO
+    configuration and replaced whole (``_Node.cyclic``: one reference, read once per node and cycle), so the cycle
+    never sees half of an old and half of a new set-up and never touches canopen's PdoMap objects, which the
+    supervisor's re-setup rewrites (clear, add_variable: ``PdoMap.data`` replaced, shorter for a moment).
+
+    Attributes:
+        sent_rpdo2: ``[payload]`` of the RPDO2 last sent (b"": none since this set-up; the cycle's alone).
+    """
+
+    rpdo1_cob: int
+    rpdo2_cob: int
+    s_rpdo1: struct.Struct
+    s_rpdo2: struct.Struct
+    s_tpdo: Mapping[int, struct.Struct]
+    sent_rpdo2: list[bytes] = field(default_factory=lambda: [b""])
+
+
 class _Node:
-    """The master's view of one node: its canopen RemoteNode, PDO maps and the packing structs."""
+    """The master's view of one node: its canopen RemoteNode and PDO maps (the SDO configuration's, the supervisor
+    thread's) and the cycle's :class:`_Cyclic` (None while it is being set up: the cycle leaves it alone)."""
 
     def __init__(self, cfg: NodeConfig, remote: canopen.RemoteNode) -> None:
         self.cfg = cfg
@@ -155,10 +179,14 @@ class _Node:
         self.rpdo1: PdoMap = remote.rpdo[1]
         self.rpdo2: PdoMap = remote.rpdo[2]
         self.tpdo: dict[int, PdoMap] = {k: remote.tpdo[k] for k in pdo.TPDO_LAYOUT}
-        self.s_rpdo1 = _struct(remote, pdo.RPDO1)
-        self.s_rpdo2 = _struct(remote, pdo.rpdo_layout(cfg.csv)[2])
-        self.s_tpdo = {k: _struct(remote, m) for k, m in pdo.TPDO_LAYOUT.items()}
-        self.last_rpdo2 = b""
+        self.cyclic: _Cyclic | None = None
+        self.cyclic = self.make_cyclic()  # (checks the EDS has the mapped objects at start)
+
+    def make_cyclic(self) -> _Cyclic:
+        r, nid = self.remote, self.cfg.node_id
+        return _Cyclic(rpdo1_cob=0x200 + nid, rpdo2_cob=0x300 + nid, s_rpdo1=_struct(r, pdo.RPDO1),
+                       s_rpdo2=_struct(r, pdo.rpdo_layout(self.cfg.csv)[2]),
+                       s_tpdo={k: _struct(r, m) for k, m in pdo.TPDO_LAYOUT.items()})
 
 
 def _struct(remote: canopen.RemoteNode, entries: Sequence[pdo.Entry]) -> struct.Struct:
@@ -206,10 +234,15 @@ class CanopenLink(ProcessDataLink):
         self._sync_t = 0.0
         #: wall-clock send time of the last SYNCs (SYNC s at [s % _RING]), to date late-handled TPDOs
         self._sync_wall = np.zeros(_RING)
+        #: the NC cycle (RxImage.cycle) of the RPDOs sent before SYNC s, at [s % _RING]: what a TPDO stamped s answers
+        self._sync_cycle = np.zeros(_RING, dtype=np.int64)
         #: the bus stamps frames with time.time() (virtual, socketcan): checked on the first TPDOs at start
         self._wall_clock_stamps = False
         #: per node: the SYNC count when each cyclic TPDO last arrived (-1: never)
         self._stamp = {k: np.full(self.n, -1, dtype=np.int64) for k in pdo.TPDO_LAYOUT}
+        #: per TPDO and node the payload last received (the notifier thread replaces the reference, the cycle reads it)
+        self._tpdo_data: dict[int, list[bytes]] = {k: [b""] * self.n for k in pdo.TPDO_LAYOUT}
+        self._tpdo1_ts: float | None = None  # the bus's timestamp of the last TPDO1 (the wall clock check at start)
         #: per node: cycles whose inputs did not answer the last SYNC (late or missing TPDOs), and SYNCs whose TPDOs
         #: never came (the newest answered SYNC jumped over them); the stats' ``drive_link``
         self.tpdo_late = np.zeros(self.n, dtype=np.int64)
@@ -284,8 +317,8 @@ class CanopenLink(ProcessDataLink):
         for j, node in enumerate(self.nodes):
             node.remote.nmt.add_heartbeat_callback(self._on_heartbeat(j))
             node.remote.emcy.add_callback(self._on_emcy(j))
-            for k, m in node.tpdo.items():
-                m.add_callback(self._on_tpdo(self._stamp[k], j))
+            for k in node.tpdo:  # (the link's own subscriptions: the frames' payloads, not canopen's PdoMap.data)
+                self.network.subscribe(0x180 + 0x100 * (k - 1) + node.cfg.node_id, self._on_tpdo(k, j))
             node.remote.nmt.state = "OPERATIONAL"
             if self._guarding:
                 node.remote.nmt.start_node_guarding(self.bus_config.heartbeat_period)
@@ -295,7 +328,7 @@ class CanopenLink(ProcessDataLink):
         self.network.sync.transmit()
         self._wait(lambda: np.minimum(self._stamp[1], self._stamp[2]) >= 1, "no TPDO answered the first SYNC",
                    where)
-        ts = self.nodes[0].tpdo[1].timestamp
+        ts = self._tpdo1_ts
         self._wall_clock_stamps = ts is not None and abs(ts - time.time()) < 1.0
         self._running = True
         self._supervisor = threading.Thread(target=self._supervise, name="canopen-nmt", daemon=True)
@@ -346,10 +379,14 @@ class CanopenLink(ProcessDataLink):
 
     # -- notifier thread callbacks (they only store) -----------------------------------------------------
 
-    def _on_tpdo(self, stamp: np.ndarray, j: int) -> Any:
-        def cb(m: PdoMap) -> None:
+    def _on_tpdo(self, k: int, j: int) -> Any:
+        stamp, data_k = self._stamp[k], self._tpdo_data[k]
+
+        def cb(can_id: int, data: bytearray, ts: float | None) -> None:
+            data_k[j] = bytes(data)  # (before the stamp: the cycle reads the stamp first, then the payload)
+            if k == 1:
+                self._tpdo1_ts = ts
             s = self.syncs
-            ts = m.timestamp
             if self._wall_clock_stamps and ts is not None:
                 # a frame sent before SYNC s (we got to it late: this thread ran behind) answers an older SYNC
                 wall = self._sync_wall
@@ -413,11 +450,13 @@ class CanopenLink(ProcessDataLink):
             self._todo[j], self._setup_why[j] = "setup", f"{self._setup_why[j]} without its configuration"
         self._configuring[j] = True
         self._any_configuring = True
+        node.cyclic = None  # the cycle leaves the node alone from its next read (one that read it goes on: harmless)
         try:
             log.warning("node %d: %s: setting it up again (SDO configuration, NMT start)", nid, self._setup_why[j])
             node.remote.nmt.state = "PRE-OPERATIONAL"
             self._configure(node)
-            node.last_rpdo2 = b""  # (the node lost what its RPDO2 carried: sent again in the next cycle)
+            # the new set-up for the cycle, whole (its RPDO2 not yet sent: the node lost what RPDO2 carried)
+            node.cyclic = node.make_cyclic()
             self._grace_until[j] = time.monotonic() + self.bus_config.heartbeat_timeout
             node.remote.nmt.state = "OPERATIONAL"
             self.setups[j] += 1
@@ -448,13 +487,17 @@ class CanopenLink(ProcessDataLink):
 
     def _inputs(self) -> TxImage:
         t1, t2, t3 = self._t[1], self._t[2], self._t[3]  # (written in place: the TxImage gets copies)
-        busy = self._configuring if self._any_configuring else None
+        # the stamps before the payloads: a TPDO1 arriving in between makes the data newer than the stamp, never older
+        # (a statusword is never taken to answer newer outputs than it does)
+        s1 = self._stamp[1].copy()
+        d1, d2, d3 = self._tpdo_data[1], self._tpdo_data[2], self._tpdo_data[3]
         for j, node in enumerate(self.nodes):
-            if busy is not None and busy[j]:  # its PDO maps are being rewritten: its last inputs stay
+            cyc = node.cyclic
+            if cyc is None:  # being set up: its last inputs stay
                 continue
-            for k, out in ((1, t1), (2, t2), (3, t3)):
-                data = node.tpdo[k].data
-                s = node.s_tpdo[k]
+            for k, out, d in ((1, t1, d1), (2, t2, d2), (3, t3, d3)):
+                data = d[j]
+                s = cyc.s_tpdo[k]
                 out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
         k = self.syncs
         answered = np.minimum(self._stamp[1], self._stamp[2])
@@ -472,11 +515,13 @@ class CanopenLink(ProcessDataLink):
         pos = self._pos = np.where(self._pos_seen, pdo.unwrap32(t1[1], self._pos), t1[1])
         self._pos_seen |= t1[0] != 0  # (a statusword of 0: nothing received yet)
         probe = pdo.unwrap32(t3[1], pos)
+        # the NC cycle the statusword (TPDO1) answers: the RPDOs sent before the SYNC it answered (0: unknown)
+        rx_cycle = np.where((s1 >= 1) & (k - s1 < _RING - 1), self._sync_cycle[s1 % _RING], 0)
         return TxImage(statusword=t1[0].astype(np.uint16), mode_display=t2[2].astype(np.int8),
                        position_actual=pos.astype(np.float64), velocity_actual=t2[0].astype(np.float64),
                        torque_actual=t2[1].astype(np.float64), error_code=t1[2].astype(np.uint16),
                        probe_status=t3[0].astype(np.uint16), probe_position=probe.astype(np.float64),
-                       age=age, alive=alive)
+                       age=age, alive=alive, rx_cycle=rx_cycle)
 
     def _outputs(self, rx: RxImage) -> None:
         pos = pdo.wrap32(rx.target_position)  # (modulo 2^32: an endless axis goes on; the drive unwraps)
@@ -484,27 +529,25 @@ class CanopenLink(ProcessDataLink):
         cw, p, mode = rx.controlword.tolist(), pos.tolist(), rx.mode.tolist()
         self._last_out = (p, mode)
         v, probe = velo.astype(np.int64).tolist(), rx.probe_function.tolist()
-        busy = self._configuring if self._any_configuring else None
+        send = self.network.send_message
         for j, node in enumerate(self.nodes):
-            if busy is not None and busy[j]:  # being set up: its PDO maps are rewritten
+            cyc = node.cyclic  # (one reference: a re-setup replaces it whole)
+            if cyc is None:  # being set up
                 continue
-            # per node and any exception: the supervisor's re-setup may swap PdoMap.data under us (struct.error),
-            # a CAN error hits one frame; the cycle goes on with the other nodes and the SYNC (the ages tell)
+            # per node and any exception (a CAN error hits one frame): the cycle goes on with the other nodes and
+            # the SYNC (the ages tell)
             try:
-                m = node.rpdo1
-                node.s_rpdo1.pack_into(m.data, 0, cw[j], p[j], mode[j])
-                m.transmit()
-                payload = node.s_rpdo2.pack(v[j], probe[j]) if node.cfg.csv else node.s_rpdo2.pack(probe[j])
-                if payload != node.last_rpdo2:
-                    m2 = node.rpdo2
-                    m2.data[:] = payload
-                    m2.transmit()
-                    node.last_rpdo2 = payload
+                send(cyc.rpdo1_cob, cyc.s_rpdo1.pack(cw[j], p[j], mode[j]))
+                payload = cyc.s_rpdo2.pack(v[j], probe[j]) if node.cfg.csv else cyc.s_rpdo2.pack(probe[j])
+                if payload != cyc.sent_rpdo2[0]:
+                    send(cyc.rpdo2_cob, payload)
+                    cyc.sent_rpdo2[0] = payload
             except Exception as e:
                 self._tx_error(e)
         try:
             self._sync_wall[self.syncs % _RING] = time.time()
             self.syncs += 1  # before the SYNC: a TPDO answering it is stamped with the new count
+            self._sync_cycle[self.syncs % _RING] = rx.cycle
             self._sync_t = time.perf_counter()
             self.network.sync.transmit()
         except Exception as e:
@@ -532,12 +575,14 @@ class CanopenLink(ProcessDataLink):
         """Per node for the NC's stats ``drive_link``: ``node_id``, ``monitoring``, ``nmt`` (the NMT state its last
         heartbeat / guarding answer reported; None: none yet), ``alive``, ``heartbeat_age_ms`` (since it), the
         counters ``tpdo_late`` (cycles whose inputs were older than the last SYNC), ``tpdo_missed`` (SYNCs it never
-        answered), ``setups`` (set up again after it came back) and the bus's ``tx_errors``."""
+        answered), ``setups`` (set up again after it came back), the bus's ``tx_errors`` and ``emcy``, the error code
+        of the node's last EMCY (0: none, or its EMCY reset)."""
         from canopen.nmt import NMT_STATES
 
         now = time.monotonic()
         hb_t, hb_s = self._hb_time.copy(), self._hb_state.copy()
         late, missed, setups = self.tpdo_late.tolist(), self.tpdo_missed.tolist(), self.setups.tolist()
+        emcy = self.emcy_code.tolist()
         timeout = self.bus_config.heartbeat_timeout
         out: list[dict[str, Any]] = []
         for j, node in enumerate(self.nodes):
@@ -548,7 +593,7 @@ class CanopenLink(ProcessDataLink):
                         "alive": bool(seen and age <= timeout and hb_s[j] == NMT_OPERATIONAL),
                         "heartbeat_age_ms": round(age * 1e3, 1) if seen else None,
                         "tpdo_late": int(late[j]), "tpdo_missed": int(missed[j]), "setups": int(setups[j]),
-                        "tx_errors": int(self.tx_errors)})
+                        "tx_errors": int(self.tx_errors), "emcy": int(emcy[j])})
         return out
 
     def close(self) -> None:
@@ -585,8 +630,9 @@ class CanopenLink(ProcessDataLink):
         p, mode = p_mode
         try:
             for j, node in enumerate(nodes):
-                node.s_rpdo1.pack_into(node.rpdo1.data, 0, CMD_SHUTDOWN, p[j], mode[j])
-                node.rpdo1.transmit()
+                cyc = node.cyclic
+                if cyc is not None:
+                    self.network.send_message(cyc.rpdo1_cob, cyc.s_rpdo1.pack(CMD_SHUTDOWN, p[j], mode[j]))
             self.network.sync.transmit()
         except Exception as e:  # the bus may be gone already
             log.warning("CAN: the closing Shutdown could not be sent: %s", e)

@@ -293,4 +293,5 @@ class Cia402Device:
         m = self.mechanics
         torque = self._no_torque if m.resting else m.fields[1] * 10.0
         self.tx = TxImage(sm.statusword(self.state, follows=True), self.rx.mode, self.position, self.velocity,
-                          torque, self.error_code, self._probe_status, self._probe_position, self._age0, self._alive)
+                          torque, self.error_code, self._probe_status, self._probe_position, self._age0, self._alive,
+                          np.full(self.n, self.rx.cycle, dtype=np.int64))  # (the outputs these inputs answer)

@@ -18,9 +18,12 @@ Decisions:
   (a start during power up is refused with 0x4225, as for a drive that is not ready).
 * ``device_error``: Fault or Fault reaction active, or the drive left Operation enabled while the NC wanted it
   enabled (e.g. its safe torque off: latched until the NC disables the axis or a fault reset is requested
-  (MC_Reset); meanwhile the NC does not enable that drive again). Only once the NC has sent Enable operation
-  (0x000F) for more than ``max_age + 1`` cycles: before that the drive may still be obeying the Shutdown of a
-  short MC_Power off/on (the statusword comes back with the link's latency).
+  (MC_Reset); meanwhile the NC does not enable that drive again). Judged by the cycle the statusword answers
+  (``TxImage.rx_cycle``, stamped by the link): once a statusword answering outputs sent after the NC's last
+  controlword other than Enable operation (0x000F) shows Operation enabled, any later statusword that does not is
+  the drive's own doing -- however soon after the enable, whatever the link's latency. A statusword answering
+  older outputs may still show the drive obeying the Shutdown of a short MC_Power off/on: not a drop. A link
+  that cannot stamp (``rx_cycle`` empty) is taken to answer ``max_age + 1`` cycles late.
 * ``io_valid``: the inputs are at most ``max_age`` NC cycles old; stale inputs keep the last valid ActVelo/ActAcc.
 * ``reset(rows)``: a fault reset edge (0x0000 then 0x0080) for these axes; the request is kept through Fault
   reaction active and dropped once the drive is out of Fault, or ``max_age + 4`` cycles in Fault (a
@@ -45,9 +48,13 @@ Decisions:
 * Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
   drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
   0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
-* The drive's own error code (0x603F, ``error_code``) is shown in the NC's stats (``drive_errors``) and by
-  nc-status next to the axis error, not in NCTOPLC: none of the 256 bytes fits (ErrorCode is the NC's axis
-  error, 0x4650/0x4651/0x4655 for drive errors, which PLC programs compare; the rest are TwinCAT's fields).
+* The drive's own error code (0x603F, ``error_code``) is shown in the NC's stats (``drive_errors``, and with the
+  link's figures in ``drive_link``, CANopen's last EMCY code too) and by nc-status (next to the axis error and on
+  the axis's drive line), not in NCTOPLC: none of the 256 bytes fits. ErrorCode is the NC's axis error
+  (0x4650/0x4651/0x4655 for drive errors, which PLC programs compare); ``_reserved2`` is TwinCAT's hidden member;
+  UserData is TwinCAT's "configurable axis state parameter", whose choices are the NC's own axis states (e.g.
+  the master's motion state), not a drive object -- taking it over would change what a TwinCAT PLC program
+  configured there reads; the rest are TwinCAT's fields with their own meaning.
 * Disabling the controller sends Shutdown: the drive goes to Ready to switch on (no torque; its brake holds);
   enabling from there is one cycle (0x000F: transitions 3 + 4).
 
@@ -164,6 +171,9 @@ class Cia402Drive(DriveABC):
         self._dropped = np.zeros(n, dtype=bool)
         self._lost = np.zeros(n, dtype=bool)  # lost (not alive) while enabled: not enabled again before a reset
         self._last_off = np.full(n, -(1 << 30), dtype=np.int64)  # the cycle of the last controlword not 0x000F
+        # Operation enabled shown by a statusword answering a 0x000F sent after the last other controlword: leaving
+        # it from now on is the drive's own doing (cleared by the next controlword other than 0x000F)
+        self._confirmed = np.zeros(n, dtype=bool)
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
         self._no_probe = np.zeros(n, dtype=bool)
@@ -226,6 +236,7 @@ class Cia402Drive(DriveABC):
         off = cw != _ENABLE_OPERATION
         if np.count_nonzero(off):
             self._last_off = np.where(off, self._cycle, self._last_off)
+            self._confirmed = self._confirmed & ~off
         rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
                      self._cycle)
         self.controlword = cw
@@ -234,6 +245,9 @@ class Cia402Drive(DriveABC):
         state = sm.decode(tx.statusword)
         self.state = state
         following = state == _OE
+        pending = following & ~self._confirmed
+        if np.count_nonzero(pending):  # (the steady state: every following axis confirmed, nothing to do)
+            self._confirmed = self._confirmed | (pending & (self._answered(tx) > self._last_off))
         c = self.encoder
         new_pos = c.positions(tx.position_actual)
         new_velo = tx.velocity_actual * c.scaling * c.sign
@@ -258,7 +272,7 @@ class Cia402Drive(DriveABC):
             fault_state = state >= _FRA
             dropped = self._dropped
             if self._any_dropped or np.count_nonzero(self.following & ~following):
-                dropped = want & alive & ~following & (dropped | (self.following & self._obeyed()))  # (silent: 0x4651)
+                dropped = want & alive & ~following & (dropped | (self.following & self._confirmed))  # (silent: 0x4651)
                 self._dropped = dropped
                 self._any_dropped = bool(dropped.any() or self._lost.any())
             self.io_valid = valid
@@ -275,7 +289,7 @@ class Cia402Drive(DriveABC):
             if np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
                     or np.count_nonzero(want & ~following) or self._any_reset:  # a change (then the full evaluation)
                 fault_state = state >= _FRA
-                dropped = want & ~following & self.following & self._obeyed()
+                dropped = want & ~following & self.following & self._confirmed
                 self._dropped = dropped
                 self._any_dropped = bool(dropped.any() or self._lost.any())
                 shown = fault_state & ~(self._reset_left > 0) if self._any_reset else fault_state
@@ -298,10 +312,14 @@ class Cia402Drive(DriveABC):
             self._probe_new = self._no_probe
         self._probe_new_any = bool(self._probe_new.any())
 
-    def _obeyed(self) -> np.ndarray:
-        """Per axis: the drive has had Enable operation (0x000F) for longer than the link's latency
-        (``max_age + 1`` cycles), so leaving Operation enabled is its own doing, not a Shutdown the NC sent."""
-        return (self._cycle - self._last_off) > self.max_age + 1
+    def _answered(self, tx: TxImage) -> np.ndarray:
+        """Per axis the NC cycle whose outputs the statusword in ``tx`` answers: the link's stamp; a stamp from the
+        future (e.g. the echo of another NC's cycle count after a standby takeover) counts as none (0); a link
+        without stamps: the worst case, ``max_age + 1`` cycles before the inputs arrived."""
+        rc = tx.rx_cycle
+        if len(rc) == len(tx.statusword):
+            return np.where(rc <= self._cycle, rc, 0)
+        return self._cycle - tx.age - (self.max_age + 1)
 
     def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         m = self.mechanics
@@ -351,8 +369,15 @@ class Cia402Drive(DriveABC):
         return np.where(new & ahead, pos, np.nan)
 
     def link_figures(self) -> dict[int, dict[str, Any]]:
-        """The link's figures per axis (:meth:`.image.ProcessDataLink.figures`)."""
-        return dict(enumerate(self.link.figures()))
+        """The link's figures per axis (:meth:`.image.ProcessDataLink.figures`) with the drive's own error code
+        ``error_code`` (0x603F of the inputs used last; 0: none): where a user reads the link (stats ``drive_link``,
+        nc-status's drive line). A link without figures (in process) gives ``{"link": "local", "error_code": ..}``
+        for the axes whose drive reports an error only."""
+        codes = self.error_code.tolist()  # (the cycle replaces the array, it does not write into it)
+        figures = self.link.figures()
+        if not figures:
+            return {i: {"link": "local", "error_code": int(c)} for i, c in enumerate(codes) if c}
+        return {i: {**f, "error_code": int(codes[i])} if i < len(codes) else f for i, f in enumerate(figures)}
 
     def close(self) -> None:
         self.link.close()

@@ -58,6 +58,10 @@ class TxImage:
         age: NC cycles since this axis's inputs last arrived (0: fresh in this cycle; the link counts).
         alive: the node answers (CANopen heartbeat / node guarding, a remote drive's liveliness);
             False: lost communication.
+        rx_cycle: per axis the NC cycle (``RxImage.cycle``) of the outputs this statusword answers: the ones the
+            drive had applied when it produced these inputs (int64; 0: none yet). Each link stamps it (the device
+            itself, the CANopen SYNC the TPDO answers, the remote host's echo); empty: the link cannot tell (the
+            drive then assumes the worst latency, ``max_age + 1`` cycles).
     """
 
     statusword: np.ndarray
@@ -70,11 +74,12 @@ class TxImage:
     probe_position: np.ndarray
     age: np.ndarray
     alive: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    rx_cycle: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @classmethod
     def zeros(cls, n: int) -> TxImage:
         return cls(_z(n, np.uint16), np.full(n, 8, dtype=np.int8), _z(n), _z(n), _z(n), _z(n, np.uint16),
-                   _z(n, np.uint16), _z(n), _z(n, np.int64), np.ones(n, dtype=bool))
+                   _z(n, np.uint16), _z(n), _z(n, np.int64), np.ones(n, dtype=bool), _z(n, np.int64))
 
 
 class ProcessDataLink(ABC):

@@ -71,7 +71,7 @@ class LocalLink(ProcessDataLink):
             tx = self.device.step(RxImage(cycle=rx.cycle, **keep))
         out = TxImage(**{f: np.where(bad, getattr(last_tx, f), getattr(tx, f)).astype(getattr(tx, f).dtype)
                          for f in ("statusword", "mode_display", "position_actual", "velocity_actual",
-                                   "torque_actual", "error_code", "probe_status", "probe_position")},
+                                   "torque_actual", "error_code", "probe_status", "probe_position", "rx_cycle")},
                       age=np.where(bad, np.maximum(last_tx.age + 1, self.invalid_age), 0), alive=self.alive.copy())
         self._last_rx = RxImage(cycle=rx.cycle, **{f: np.where(bad, getattr(last_rx, f), getattr(rx, f)) for f in
                                                   ("controlword", "mode", "target_position", "target_velocity",

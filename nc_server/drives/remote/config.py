@@ -5,8 +5,10 @@ In the NC's TOML::
     [drives.remote]                      # the backend's options (all optional)
     connect = ["tcp/127.0.0.1:7447"]     # where the NC's drive link connects (default: see link_endpoints)
     max_age = 50                         # NC cycles an axis's inputs may be old before 0x4655
+    # max_age_ms = 50.0                  # or the same as a time [ms] (whole NC cycles, rounded up; not both)
     sender = "cycle"                     # "cycle" | "thread": who puts the outputs (.link)
     lease_ms = 500                       # the link session's transport lease (default: the NC's)
+    timeout_ms = 100                     # the drive hosts' silence timeout (nc-drive-sim --timeout; default 100)
 
     [[axis]]
     AxisId = 1
@@ -24,6 +26,20 @@ Decisions:
   ms); 20 would have raised false 0x4655 there. 50 rides through that and still reports a drive whose data
   stopped within 50 ms, half the drive's own silence timeout (100 ms by default): the NC knows before the drive
   stops itself. A lost host (its token gone, 2-3 ms after a crash) is reported at once as 0x4651 anyway.
+* ``timeout_ms``: the drive hosts' silence timeout, read by ``nc-drive-sim --config`` (its ``--timeout`` overrides
+  it) and by the NC, so that both check it against a hot-standby pair's takeover where the TOML has
+  ``[redundancy] enabled``: it must be longer than :func:`takeover_bound` (``takeover_cycles + 1`` NC cycles: the
+  log silence a standby waits and the cycle that notices it; docs/standby.md), else every takeover would find the
+  drives quick-stopped (0x8130). A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit
+  code 2) where both are known: the NC with ``timeout_ms`` in its TOML, nc-drive-sim with ``--config`` (the
+  timeout it will use: ``--timeout``, else ``timeout_ms``, else 100 ms). The NC without ``timeout_ms`` cannot know a
+  drive host's ``--timeout``: it warns when the default 100 ms would be too short. nc-drive-sim without ``--config``
+  learns the bound from the NC's outputs (``rx`` ``takeover_ms``, 0 without redundancy) and warns once (its status
+  ``timeout_short``): it is running already and stopping it would stop the drives.
+* ``max_age`` counts NC cycles, as the link counts the inputs' age (+1 per exchange without new inputs) and as
+  TwinCAT counts its "n continuous NC cycles" of invalid I/O data; ``max_age_ms`` gives it as a time, as the
+  section's other times (``lease_ms``, ``timeout_ms``), turned into whole NC cycles (rounded up, at least 1) by
+  the NC, which knows its cycle: the same drive host then gets the same time whatever the NC's cycle.
 * Slots: per host either every axis names its ``slot`` or none does (then the order of the axes in the file);
   a host's slots are 0..k-1, each once.
 * The link's endpoints (:func:`link_endpoints`): ``connect`` if given; else the NC's own ``[zenoh] connect``
@@ -46,9 +62,13 @@ from .wire import check_host
 
 SENDERS = ("cycle", "thread")
 #: [drives.remote] keys and per-axis Drive keys (without ``backend``).
-BACKEND_KEYS = ("connect", "max_age", "sender", "lease_ms")
+BACKEND_KEYS = ("connect", "max_age", "max_age_ms", "sender", "lease_ms", "timeout_ms")
 AXIS_KEYS = ("host", "slot")
 DEFAULT_MAX_AGE = 50
+#: the drive hosts' silence timeout unless ``timeout_ms`` or nc-drive-sim's ``--timeout`` say otherwise [s]
+DEFAULT_TIMEOUT = 0.1
+#: ``[redundancy] takeover_cycles`` unless set (nc_server.server.config)
+DEFAULT_TAKEOVER_CYCLES = 15
 
 
 @dataclass(frozen=True)
@@ -59,6 +79,12 @@ class RemoteOptions:
     max_age: int = DEFAULT_MAX_AGE
     sender: str = "cycle"
     lease_ms: int | None = None
+    timeout_ms: float | None = None
+    max_age_ms: float | None = None
+
+    def max_age_cycles(self, cycle_time: float) -> int:
+        """``max_age`` in NC cycles: ``max_age_ms`` in whole cycles (rounded up, at least 1) if given."""
+        return self.max_age if self.max_age_ms is None else cycles(self.max_age_ms / 1000.0, cycle_time)
 
 
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):[0-9]{1,5}([?#].*)?$|^unixsock-stream/.+$")
@@ -91,13 +117,25 @@ def parse_options(options: Mapping[str, Any], where: str = "drives.remote") -> R
     max_age = options.get("max_age", DEFAULT_MAX_AGE)
     if isinstance(max_age, bool) or not isinstance(max_age, int) or not 1 <= max_age <= 100_000:
         raise ConfigError(f"{where}.max_age", f"must be an integer number of NC cycles 1..100000, got {max_age!r}")
+    max_age_ms = options.get("max_age_ms")
+    if max_age_ms is not None:
+        if "max_age" in options:
+            raise ConfigError(f"{where}.max_age_ms", "give max_age (NC cycles) or max_age_ms, not both")
+        if isinstance(max_age_ms, bool) or not isinstance(max_age_ms, (int, float)) or \
+                not 0.0 < max_age_ms <= 3_600_000.0:
+            raise ConfigError(f"{where}.max_age_ms", f"must be a number of ms > 0 (at most 3600000), got {max_age_ms!r}")
     sender = options.get("sender", "cycle")
     if sender not in SENDERS:
         raise ConfigError(f"{where}.sender", f"must be one of {', '.join(map(repr, SENDERS))}, got {sender!r}")
     lease = options.get("lease_ms")
     if lease is not None and (isinstance(lease, bool) or not isinstance(lease, int) or not 100 <= lease <= 3_600_000):
         raise ConfigError(f"{where}.lease_ms", f"must be an integer number of ms 100..3600000, got {lease!r}")
-    return RemoteOptions(eps, max_age, sender, lease)
+    timeout = options.get("timeout_ms")
+    if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
+                                or not 1.0 <= timeout <= 3_600_000.0):
+        raise ConfigError(f"{where}.timeout_ms", f"must be a number of ms 1..3600000, got {timeout!r}")
+    return RemoteOptions(eps, max_age, sender, lease, None if timeout is None else float(timeout),
+                         None if max_age_ms is None else float(max_age_ms))
 
 
 def host_slots(axis_options: Sequence[Mapping[str, Any]], axis_ids: Sequence[int] | None = None,
@@ -182,3 +220,25 @@ def link_endpoints(options: RemoteOptions, zenoh_settings: Any) -> tuple[str, ..
 def cycles(seconds: float, cycle_time: float) -> int:
     """``seconds`` in whole NC cycles (at least 1)."""
     return max(1, math.ceil(seconds / cycle_time - 1e-9))
+
+
+def takeover_bound(takeover_cycles: int, cycle_time: float) -> float:
+    """The longest a hot-standby pair leaves its drives without outputs at a takeover [s]: the standby waits
+    ``takeover_cycles`` NC cycles without the active NC's log (a freeze, a cut link; a crash is seen at once) and
+    notices at the start of the next cycle, whose outputs go out (docs/standby.md, the ha status's
+    ``takeover_limit_cycles``)."""
+    return (int(takeover_cycles) + 1) * float(cycle_time)
+
+
+def check_timeout(timeout: float, takeover_cycles: int, cycle_time: float, key: str) -> None:
+    """A drive host's silence timeout [s] must be longer than the pair's :func:`takeover_bound`.
+
+    Raises:
+        ConfigError: on ``key``, naming both figures.
+    """
+    bound = takeover_bound(takeover_cycles, cycle_time)
+    if not timeout > bound:
+        raise ConfigError(key, f"the drive hosts' silence timeout ({timeout * 1e3:g} ms) must be longer than the "
+                               f"standby NC's takeover ({takeover_cycles} + 1 cycles of {cycle_time * 1e3:g} ms = "
+                               f"{bound * 1e3:g} ms, [redundancy] takeover_cycles): the drives would stop with 0x8130 "
+                               f"at every takeover")

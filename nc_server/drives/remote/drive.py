@@ -90,7 +90,8 @@ class RemoteDrive(Cia402Drive):
         link = RemoteLink(name, len(params), hosts, lambda: link_config(endpoints, lease, tls_dir, name),
                           sender=opts.sender, missing_warn_cycles=max(1, round(MISSING_WARN_S / cycle_time)))
         try:
-            return cls(params, cycle_time, link, max_age=opts.max_age, mode=modes, kv=kvs)
+            return cls(params, cycle_time, link, max_age=min(opts.max_age_cycles(cycle_time), 100_000), mode=modes,
+                       kv=kvs)
         except BaseException:
             link.close()
             raise

@@ -14,11 +14,15 @@ Decisions:
 * Between two outputs of the NC the drive extrapolates its target with the NC's target velocity (0x60FF, CSP's
   velocity feed forward) for at most ``--extrapolate`` (10 ms), then holds it: a late NC cycle (zenoh, the
   scheduler) does not make the motor stop and jump, and an NC that is gone does not run it away.
-* Silence timeout ``--timeout`` (default :data:`DEFAULT_TIMEOUT` = 100 ms): no outputs for that long is the
-  drive's communication fault 0x8130: each drive stops on its own quick-stop ramp (the axis's AxisDec) and keeps
-  its position. It must be longer than a standby NC's takeover (issue 21: the standby sees the active NC's token
-  vanish in 2-3 ms after a crash and about 0.75 x its lease after a freeze) and than the longest stalls seen on
-  a loaded 2-core VM (1-6 ms, zenoh spikes 3-5 ms); 100 ms is 20x the worst stall and still a short coast.
+* Silence timeout ``--timeout`` (default: the TOML's ``[drives.remote] timeout_ms``, else :data:`DEFAULT_TIMEOUT`
+  = 100 ms): no outputs for that long is the drive's communication fault 0x8130: each drive stops on its own
+  quick-stop ramp (the axis's AxisDec) and keeps its position. It must be longer than a standby NC's takeover
+  (docs/standby.md: ``takeover_cycles + 1`` NC cycles at a freeze or a cut link, a crash is seen at once) and than
+  the longest stalls seen on a loaded 2-core VM (1-6 ms, zenoh spikes 3-5 ms); 100 ms is 20x the worst stall and
+  still a short coast. With ``--config`` and ``[redundancy] enabled`` in the TOML a timeout not longer than the
+  takeover bound is a configuration error (exit code 2); without ``--config`` the bound is learnt from the NC's
+  outputs (``takeover_ms``): a timeout not longer is logged once as a warning and shown in the status
+  (``timeout_short``), not refused (the drives are running by then).
   When outputs come back the fault stays until the NC's MC_Reset (a fault reset), as on any drive.
 * The process never exits because the NC went away; SIGTERM, SIGINT and SIGHUP end it (exit code 0) after the
   last status is written; its token is undeclared, so the NC sees the host go.
@@ -56,13 +60,14 @@ from ..cia402.device import Cia402Device
 from ..cia402.drive import axis_options as cia402_axis_options
 from ..cia402.objects import State
 from . import wire
-from .config import RemoteOptions, host_slots, link_endpoints, parse_options
+from .config import (DEFAULT_TAKEOVER_CYCLES, RemoteOptions, check_timeout, host_slots, link_endpoints,
+                     parse_options)
 from .link import link_config, open_retrying
 
 log = logging.getLogger("nc_drive_sim")
 
 DEFAULT_CYCLE = 0.001
-DEFAULT_TIMEOUT = 0.1
+DEFAULT_TIMEOUT = 0.1  # (= config.DEFAULT_TIMEOUT)
 DEFAULT_EXTRAPOLATE = 0.01
 #: Status key and file period [s].
 STATUS_PERIOD = 0.1
@@ -79,10 +84,22 @@ class _Zenoh:
 
 def load_axes(path: str, host: str) -> tuple[str, list[AxisParams], list[int], tuple[str, ...]]:
     """The NC name, the parameters and AxisIds (slot order) of the axes ``host`` serves, and the endpoints to
-    connect to (empty: the TOML names none), from the NC's TOML.
+    connect to (empty: the TOML names none), from the NC's TOML (:func:`load_config` with the timing too).
 
     Raises:
         ConfigError: unreadable file, bad TOML, no axis on ``host``, bad Drive tables or parameters.
+    """
+    name, params, ids, endpoints, _, _ = load_config(path, host)
+    return name, params, ids, endpoints
+
+
+def load_config(path: str, host: str) -> tuple[str, list[AxisParams], list[int], tuple[str, ...], float | None,
+                                               tuple[int, float] | None]:
+    """:func:`load_axes` plus the TOML's ``[drives.remote] timeout_ms`` [s] (None: not given) and, with
+    ``[redundancy] enabled``, the pair's ``(takeover_cycles, [nc] cycle_time)`` (None: no redundancy).
+
+    Raises:
+        ConfigError: as :func:`load_axes`; a bad ``[redundancy]`` or ``[nc] cycle_time``.
     """
     try:
         data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
@@ -129,7 +146,23 @@ def load_axes(path: str, host: str) -> tuple[str, list[AxisParams], list[int], t
         endpoints = link_endpoints(opts, zs)
     except ConfigError:  # nothing to derive them from: --connect must say it
         endpoints = ()
-    return name, params, list(hs.ids), endpoints
+    return name, params, list(hs.ids), endpoints, \
+        None if opts.timeout_ms is None else opts.timeout_ms / 1000.0, _redundancy(data)
+
+
+def _redundancy(data: Mapping[str, Any]) -> tuple[int, float] | None:
+    """``(takeover_cycles, cycle_time)`` of the TOML's ``[redundancy]`` if enabled (checked as the NC checks them)."""
+    r = data.get("redundancy", {})
+    if not isinstance(r, Mapping) or r.get("enabled") is not True:
+        return None
+    cycles = r.get("takeover_cycles", DEFAULT_TAKEOVER_CYCLES)
+    if isinstance(cycles, bool) or not isinstance(cycles, int) or not 2 <= cycles <= 100_000:
+        raise ConfigError("redundancy.takeover_cycles", f"must be an integer 2..100000, got {cycles!r}")
+    nc = data.get("nc", {})
+    ct = nc.get("cycle_time", 0.001) if isinstance(nc, Mapping) else 0.001
+    if isinstance(ct, bool) or not isinstance(ct, (int, float)) or not 0.0001 <= ct <= 1.0:
+        raise ConfigError("nc.cycle_time", f"must be a number 0.0001..1 [s], got {ct!r}")
+    return cycles, float(ct)
 
 
 class DriveHost:
@@ -163,6 +196,8 @@ class DriveHost:
         self.stale_epoch = 0       # outputs refused for their epoch
         self.takeovers = 0         # epochs followed (the first one included)
         self.overruns = 0
+        self.takeover_ms = 0.0     # the NC's takeover bound, as its outputs say (0: no redundancy)
+        self.timeout_short = False  # the silence timeout is not longer than that bound (warned once)
         self.silent_logged = True  # (nothing to report before the first outputs)
         self._last_tp = np.zeros(self.n)
         self._last_tv = np.zeros(self.n)
@@ -276,6 +311,16 @@ class DriveHost:
             best = msg  # (the newest of the highest epoch: the ring keeps arrival order)
         return best
 
+    def _takeover_bound(self, bound_ms: float) -> None:
+        """The NC's outputs name its takeover bound: a silence timeout not longer is warned about once per value."""
+        self.takeover_ms = bound_ms
+        short = bound_ms > 0 and not self.timeout * 1e3 > bound_ms
+        if short and not self.timeout_short:
+            log.warning("the silence timeout (%g ms, --timeout) is not longer than the takeover bound of %s's "
+                        "hot-standby pair (%g ms): a takeover will find the drives stopped (0x8130); start with a "
+                        "longer --timeout", self.timeout * 1e3, self.nc, bound_ms)
+        self.timeout_short = short
+
     def _refuse(self, why: str) -> None:
         self.refused += 1
         if self.refused <= 3 or self.refused % 10000 == 0:
@@ -294,6 +339,8 @@ class DriveHost:
             self.silent_logged = False
             self.rx_cycle = int(rx.cycle)
             self.rx_count += 1
+            if msg.takeover_ms != self.takeover_ms:
+                self._takeover_bound(msg.takeover_ms)
             tx = dev.step(rx)
         else:
             if self.rx_count and dev.silent + self.cycle_time < self.extrapolate:
@@ -325,6 +372,7 @@ class DriveHost:
             "rx_cycle": self.rx_cycle, "rx_count": self.rx_count, "silent_s": round(dev.silent, 6),
             "nc_silent": bool(self.rx_count == 0 or dev.silent >= self.timeout), "refused": self.refused,
             "overruns": self.overruns, "epoch": self.epoch, "stale_epoch": self.stale_epoch,
+            "timeout_s": self.timeout, "takeover_ms": self.takeover_ms, "timeout_short": self.timeout_short,
             "axes": [{"slot": i, "AxisId": int(self.ids[i]), "state": State(int(dev.state[i])).name,
                       "statusword": int(tx.statusword[i]), "error_code": int(dev.error_code[i]),
                       "position": float(dev.position[i]), "velocity": float(dev.velocity[i])}
@@ -359,8 +407,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--connect", action="append", help="zenoh endpoint to connect to (repeatable; default: from "
                                                       "the TOML, else tcp/127.0.0.1:7447)")
     p.add_argument("--cycle-time", type=float, default=DEFAULT_CYCLE, help="drive cycle [s] (0.001)")
-    p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT,
-                   help="silence timeout [s]: no outputs for this long -> fault 0x8130 and quick stop (0.1)")
+    p.add_argument("--timeout", type=float, default=None,
+                   help="silence timeout [s]: no outputs for this long -> fault 0x8130 and quick stop (default: the "
+                        "TOML's [drives.remote] timeout_ms, else 0.1); longer than a hot-standby pair's takeover")
     p.add_argument("--extrapolate", type=float, default=DEFAULT_EXTRAPOLATE,
                    help="longest extrapolation of the target between outputs [s] (0.01)")
     p.add_argument("--lease-ms", type=int, default=500, help="the session's transport lease [ms] (500)")
@@ -377,22 +426,30 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(asctime)s nc-drive-sim %(levelname)s %(message)s", stream=sys.stderr)
     try:
         wire.check_host(args.host, "--host")
-        for name, v, lo, hi in (("--cycle-time", args.cycle_time, 1e-4, 1.0), ("--timeout", args.timeout, 1e-3, 3600.0),
-                                ("--extrapolate", args.extrapolate, 0.0, 3600.0)):
-            if not lo <= v <= hi:
-                raise ConfigError(name, f"must be within {lo:g}..{hi:g}, got {v:g}")
-        if args.timeout < 2 * args.cycle_time:
-            raise ConfigError("--timeout", f"must be at least two drive cycles ({2 * args.cycle_time:g} s)")
+        toml_timeout: float | None = None
+        pair: tuple[int, float] | None = None
         if args.config:
             if args.axes is not None:
                 raise ConfigError("--axes", "give either --config or --axes")
-            nc, params, ids, endpoints = load_axes(args.config, args.host)
+            nc, params, ids, endpoints, toml_timeout, pair = load_config(args.config, args.host)
         else:
             if args.axes is None or not 1 <= args.axes <= 4096:
                 raise ConfigError("--axes", "give --config (the NC's TOML) or --axes N (1..4096)")
             nc, params, ids, endpoints = "nc1", [AxisParams() for _ in range(args.axes)], [0] * args.axes, \
                 ("tcp/127.0.0.1:7447",)
         nc = args.nc or nc
+        timeout_key = "--timeout" if args.timeout is not None else \
+            "drives.remote.timeout_ms" if toml_timeout is not None else f"--timeout (default {DEFAULT_TIMEOUT:g} s)"
+        args.timeout = args.timeout if args.timeout is not None else \
+            toml_timeout if toml_timeout is not None else DEFAULT_TIMEOUT
+        for name, v, lo, hi in (("--cycle-time", args.cycle_time, 1e-4, 1.0), ("--timeout", args.timeout, 1e-3, 3600.0),
+                                ("--extrapolate", args.extrapolate, 0.0, 3600.0)):
+            if not lo <= v <= hi:
+                raise ConfigError(name, f"must be within {lo:g}..{hi:g}, got {v:g}")
+        if args.timeout < 2 * args.cycle_time:
+            raise ConfigError("--timeout", f"must be at least two drive cycles ({2 * args.cycle_time:g} s)")
+        if pair is not None:  # a hot-standby pair (the TOML's [redundancy]): the timeout must outlast its takeover
+            check_timeout(args.timeout, pair[0], pair[1], timeout_key)
         if args.connect:
             endpoints = tuple(args.connect)
         if not endpoints:

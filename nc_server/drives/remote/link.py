@@ -31,7 +31,8 @@ Decisions:
   zenoh-ruckig-notes.md A9); the cost per cycle is Python's (encode, decode), not the copy.
 * ``rx`` carries the NC cycle; ``tx`` echoes the newest NC cycle the host applied (``rx_cycle``):
   :attr:`RemoteLink.round_trip` is the NC cycles between sending outputs and seeing them applied (a figure for
-  the stats, not used for control).
+  the stats), and ``TxImage.rx_cycle`` per axis tells the drive which outputs a statusword answers (a drive
+  leaving Operation enabled is judged by it, whatever the latency).
 
 It may import: numpy, zenoh, nc_schema, nc_server.drives.cia402, nc_server.drives.remote.
 """
@@ -54,7 +55,7 @@ from . import wire
 log = logging.getLogger("nc_server.drives.remote")
 
 _TX_ATTRS = ("statusword", "mode_display", "position_actual", "velocity_actual", "torque_actual", "error_code",
-             "probe_status", "probe_position", "age", "alive")
+             "probe_status", "probe_position", "age", "alive", "rx_cycle")
 
 #: How often the link tries to open its session until it is open [s].
 OPEN_RETRY = 0.1
@@ -198,6 +199,9 @@ class RemoteLink(ProcessDataLink):
         #: one a host reported following: above ``epoch``, another NC drives these hosts now
         self.epoch = 0
         self.host_epoch = 0
+        #: the takeover bound of a hot-standby pair [ms] (0: none), sent with the outputs: a drive host warns when its
+        #: silence timeout is not longer (nc_server.server.standby sets it)
+        self.takeover_ms = 0.0
         self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
@@ -298,13 +302,14 @@ class RemoteLink(ProcessDataLink):
                 continue
             if cols is None:  # (new arrays: the drive may hold the last cycle's)
                 cols = {} if self._whole[i] else {a: getattr(tx, a).copy() for a, _ in wire.TX_COLUMNS.values()}
-                age, alive, rtt = tx.age.copy(), tx.alive, self.round_trip.copy()
+                age, alive, rtt, answered = tx.age.copy(), tx.alive, self.round_trip.copy(), tx.rx_cycle.copy()
             if self._whole[i]:
                 cols.update(new)  # read-only views of the message: nobody writes into an input
             else:
                 for a, c in new.items():
                     cols[a][rows] = c
             age[rows] = 0
+            answered[rows] = rx_cycle  # (the statusword answers these outputs: the drive judges drops by it)
             rtt[rows] = nc_cycle - rx_cycle if rx_cycle else -1
             if host_epoch > self.host_epoch:
                 self.host_epoch = host_epoch
@@ -320,7 +325,7 @@ class RemoteLink(ProcessDataLink):
             return
         for a, c in cols.items():
             setattr(tx, a, c)
-        tx.age, tx.alive, self.round_trip = age, alive, rtt
+        tx.age, tx.alive, self.round_trip, tx.rx_cycle = age, alive, rtt, answered
 
     def _malformed(self, i: int, why: str) -> None:
         self.malformed += 1
@@ -329,7 +334,7 @@ class RemoteLink(ProcessDataLink):
                         self.malformed)
 
     def _send(self, rx: RxImage) -> None:
-        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch)
+        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch, self.takeover_ms)
                 for rows, ids, whole in zip(self._rows, self._ids, self._whole)]
         if self.sender == "thread":
             with self._mail_lock:

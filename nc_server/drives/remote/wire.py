@@ -17,7 +17,9 @@ Decisions: positions travel as float64 increments (as :class:`~nc_server.drives.
 rounding on zenoh); ``rx`` carries the AxisIds of the slots so a host configured for other axes refuses the
 message instead of moving the wrong motor; ``epoch`` is the sending NC's (0 without redundancy; a hot standby
 numbers its takeovers: docs/standby.md): a host follows the highest epoch it has seen only, and ``tx`` reports
-that epoch (``epoch``, 0 if absent) so an NC driving with a lower one learns it was replaced.
+that epoch (``epoch``, 0 if absent) so an NC driving with a lower one learns it was replaced. ``rx`` also carries the
+sending NC's ``takeover_ms`` (a hot-standby pair's takeover bound, nc_server.drives.remote.config.takeover_bound;
+0 or absent without redundancy): a drive host checks its silence timeout against it.
 
 It may import: numpy, msgpack, nc_server.drives.cia402.
 """
@@ -94,7 +96,8 @@ def check_host(host: Any, key: str = "host") -> str:
 _packer = msgpack.Packer()
 
 
-def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epoch: int = 0) -> bytes:
+def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epoch: int = 0,
+              takeover_ms: float = 0.0) -> bytes:
     """One host's outputs: the columns of ``rx`` at ``rows`` (the link's rows in the host's slot order).
 
     Args:
@@ -102,9 +105,12 @@ def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epo
         rows: link rows, slot order (int array; None: every row in order).
         ids: the AxisIds of the slots (uint32 array, or its ``<u4`` bytes; 0 = not named).
         epoch: the sending NC's epoch (docs/standby.md; 0 without redundancy).
+        takeover_ms: the sending NC's takeover bound (0: no redundancy; then not sent).
     """
     idb = ids if isinstance(ids, bytes) else np.asarray(ids).astype("<u4").tobytes()
     m: dict[str, Any] = {"v": VERSION, "cycle": int(rx.cycle), "epoch": int(epoch), "n": len(idb) // 4, "ids": idb}
+    if takeover_ms:
+        m["takeover_ms"] = float(takeover_ms)
     for k, (attr, dt) in RX_COLUMNS.items():
         col = getattr(rx, attr)
         m[k] = (col if rows is None else col[rows]).astype(dt, copy=False).tobytes()
@@ -113,11 +119,13 @@ def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epo
 
 @dataclass
 class RxMessage:
-    """A decoded ``rx``: the image (one column per slot), the slots' AxisIds and the NC's epoch."""
+    """A decoded ``rx``: the image (one column per slot), the slots' AxisIds, the NC's epoch and takeover bound
+    [ms] (0: none)."""
 
     image: RxImage
     ids: np.ndarray
     epoch: int
+    takeover_ms: float = 0.0
 
 
 @dataclass
@@ -181,7 +189,10 @@ def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
     n = m["n"]
     cols = {attr: _column(m, k, dt, n).copy() for k, (attr, dt) in RX_COLUMNS.items()}
     cycle, epoch = _counter(m, "cycle"), _counter(m, "epoch", 0)
-    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch)
+    tk = m.get("takeover_ms", 0.0)
+    if isinstance(tk, bool) or not isinstance(tk, (int, float)) or not 0.0 <= tk < 1e12:
+        raise WireError(f"takeover_ms must be a number >= 0, got {tk!r}")
+    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch, float(tk))
 
 
 def encode_tx(tx: TxImage, cycle: int, rx_cycle: int, epoch: int = 0) -> bytes:
@@ -217,5 +228,6 @@ def decode_tx(payload: bytes | bytearray | memoryview) -> TxMessage:
     cols, cycle, rx_cycle, epoch = decode_tx_columns(payload)
     n = len(cols["statusword"])
     image = TxImage(age=np.zeros(n, dtype=np.int64), alive=np.ones(n, dtype=bool),
+                    rx_cycle=np.full(n, rx_cycle, dtype=np.int64),
                     **{a: c.astype(c.dtype.newbyteorder("=")) for a, c in cols.items()})
     return TxMessage(image, cycle, rx_cycle, epoch)
