@@ -105,7 +105,8 @@ class NctoplcPacker:
         a, d, o = core.axes, core.drive, self.out
         act = core.act_pos
         sd = event_dw | core.sp_dw
-        sd |= a.mon_dw
+        if not a.mon_clear:  # (all 0 otherwise)
+            sd |= a.mon_dw
         sd |= (a.enabled & d.ready & d.following) * loop_dw  # (MC_Power.Status: the drive follows)
         o["StateDWord"][...] = sd
         o["AxisState"][...] = core.axis_state
