@@ -112,6 +112,12 @@ class AxisTable:
         self.in_target, self.in_area = b(), b()
         self.mm_anchor, self.mm_timer = f(), f()  # motion monitoring: where the current window began, since when
         self.mon_dw = np.zeros(n, dtype=np.uint32)  # StateDWord bits from monitoring (windows, soft limits)
+        # what monitoring knows without looking (each array is written elsewhere only to its resting value,
+        # so a cycle need not look again until monitoring itself changes it): no lag timer runs, no window
+        # flag is set, no row watches a job's end (engine: since_end >= 0 sets end_watch)
+        self.lag_clear = self.windows_clear = True
+        self.mon_clear = True  # mon_dw is all 0 (False where monitoring or the drive monitor may have set bits)
+        self.end_watch = False
         for i, p in enumerate(params):
             self.load_params(i, p)
             self.homed[i] = p.Homed

@@ -451,6 +451,7 @@ class JobEngine:
                     a.set_pos[i] = job.target  # exact end
                     a.target_pos[i] = job.target
                     a.since_end[i] = 0.0
+                    a.end_watch = True  # (monitoring looks at since_end from now on)
                 elif q.waiting is None:
                     a.target_pos[i] = a.set_pos[i]
                 self.finish(i, job)

@@ -38,6 +38,7 @@ _IN_TARGET = np.uint32(int(StateDWord.InTargetPosition))
 _SOFT_MIN = np.uint32(int(StateDWord.SoftLimitMinExceeded))
 _SOFT_MAX = np.uint32(int(StateDWord.SoftLimitMaxExceeded))
 _EPS_V = 1e-9
+_NO_ROWS = np.zeros(0, dtype=np.intp)
 
 
 def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
@@ -56,15 +57,21 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
         over &= lag_on
         a.lag_timer += dt
         a.lag_timer *= over  # reset where the lag is inside the window
+        a.lag_clear = False
         for i in (a.lag_timer > a.lag_filter).nonzero()[0]:
             if not a.error[i]:
                 faults.append((int(i), ErrorCodes.NC_POSITION_LAG))
-    elif np.count_nonzero(a.lag_timer):  # (no axis watched: the timers as the full check leaves them)
-        a.lag_timer[:] = 0.0
+    elif not a.lag_clear:  # (no axis watched: the timers as the full check leaves them; then known 0)
+        if np.count_nonzero(a.lag_timer):
+            a.lag_timer[:] = 0.0
+        a.lag_clear = True
 
     mon = a.mon_dw
-    mon[:] = 0
+    if not a.mon_clear:
+        mon[:] = 0
+        a.mon_clear = True
     if limits:
+        a.mon_clear = False
         min_ex = a.en_min & (act_pos < a.min_lim)
         max_ex = a.en_max & (act_pos > a.max_lim)
         mon |= min_ex * _SOFT_MIN
@@ -80,6 +87,7 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
                 faults.append((int(i), ErrorCodes.NC_SOFT_LIMIT_MIN_POSITIONING))
 
     if any_standing:  # the windows only apply at logical standstill
+        a.mon_clear = False
         dist = np.abs(act_pos - a.target_pos)
         inside = standstill & a.target_en & (dist <= a.target_win)
         a.window_timer += dt
@@ -88,13 +96,18 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
         a.in_area = standstill & a.range_en & (dist <= a.range_win)
         mon |= a.in_area * _IN_AREA
         mon |= a.in_target * _IN_TARGET
-    elif np.count_nonzero(a.in_target) or np.count_nonzero(a.in_area):  # (far cheaper than ndarray.any)
-        a.in_target[:] = False
-        a.in_area[:] = False
-        a.window_timer[:] = 0.0
+        a.windows_clear = False
+    elif not a.windows_clear:  # (then known False until some axis stands again)
+        if np.count_nonzero(a.in_target) or np.count_nonzero(a.in_area):  # (far cheaper than ndarray.any)
+            a.in_target[:] = False
+            a.in_area[:] = False
+            a.window_timer[:] = 0.0
+        a.windows_clear = True
 
-    watching = (a.since_end >= 0).nonzero()[0]
-    if watching.size:
+    watching = (a.since_end >= 0).nonzero()[0] if a.end_watch else _NO_ROWS
+    if not watching.size:
+        a.end_watch = False
+    else:
         w = watching
         reached = a.in_target[w]
         a.since_end[w] += dt * standstill[w]

@@ -196,6 +196,9 @@ class NcCore:
         self.position_jump_hooks: list[Callable[[int, float], None]] = []
         self.position_jump_hooks.append(self.corrections.restart_history)  # (the dead-time history)
         self._in_dirty = True
+        #: counts the changes of ``plctonc`` (set_plctonc, set_plctonc_many, inputs_changed: a direct write must
+        #: call inputs_changed to be applied); the frame ring copies PLCTONC into a slot only when it changed
+        self.plctonc_version = 0
         self.state_dirty = True  # derived state and records to recompute before their next use
         self.profile_idle = np.zeros(0, dtype=np.intp)
         self.plan_ended = self.profile_idle  # the profile stage's rows whose plan ended this cycle
@@ -239,6 +242,7 @@ class NcCore:
         if self.plctonc[index].tobytes() != np.asarray(record, dtype=PLCTONC_DTYPE).tobytes():
             self.plctonc[index] = record
             self._in_dirty = True
+            self.plctonc_version += 1
 
     def configure_remote(self, own_nc: str, masters: Sequence[tuple[str, int]], max_age: float = 0.05) -> None:
         """The masters on other NCs this NC's slaves may follow (``[remote] masters``), this NC's name (refused as
@@ -257,6 +261,7 @@ class NcCore:
     def inputs_changed(self) -> None:
         """The applied PLCTONC changed (e.g. SetOverride): decoded again at the next step."""
         self._in_dirty = True
+        self.plctonc_version += 1
 
     def set_plctonc_many(self, index: np.ndarray, records: np.ndarray) -> None:
         """Apply PLCTONC records to several axis rows at once (vectorized :meth:`set_plctonc`)."""
@@ -267,6 +272,7 @@ class NcCore:
         if not np.array_equal(rows[index], new):
             rows[index] = new
             self._in_dirty = True
+            self.plctonc_version += 1
 
     def _refused(self, rid: Any, cmd: Any, exc: Exception, cycle: int) -> dict[str, Any]:
         """The reply to a command that raised: an :class:`NcError`'s code and text, anything else (a bug)
@@ -784,6 +790,11 @@ class NcCore:
         running hook returns."""
         self.engine.touched.append(i)
 
+    def jobs_written(self) -> None:
+        """Columns of ``ncjobs`` were written directly (not through the engine's sync): counted in
+        ``records.version``, so the next frame carries them."""
+        self.records.version += 1
+
     # -- step ---------------------------------------------------------------------------------
     def step(self, nc_time_ns: int | None = None) -> None:
         """Run one NC cycle of ``cycle_time`` seconds: the stages of :attr:`pipeline`, in order.
@@ -870,6 +881,7 @@ class NcCore:
         ds = self.drive.terminal_status()
         if ds is not None:
             self.records.drive_status[:] = ds
+            self.records.version += 1
 
     def derive_state(self) -> None:
         """Recompute what only changes on events (commands, inputs, faults, job ends)."""

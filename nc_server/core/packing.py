@@ -52,6 +52,9 @@ class JobRecords:
         self._bytes = ncjobs.view(np.uint8).data  # (= memoryview(...), which numpy types as a buffer on 3.12+ only)
         self._ids = [int(x) for x in axis_ids]
         self.drive_status = ncjobs["DriveStatus"]  # (a view: a simulated stepper terminal's status)
+        #: counts the writes into ``ncjobs`` (every writer bumps it: the frame ring copies the records into a
+        #: slot only when they changed since that slot's last frame)
+        self.version = 0
 
     def pack_queue(self, i: int, q: JobQueue, cmd_no: int, cmd_state: int, amended: bool) -> None:
         """Row ``i``'s queue part: the shown job (``cmd_no``, ``cmd_state``), the waiting one, the ended ones."""
@@ -59,6 +62,7 @@ class JobRecords:
         ended = [x for e in q.ended for x in (e.cmd_no, e.state, e.error_id)]
         ended += _NO_ENDED[len(ended):]
         o = i * NCJOBS_SIZE
+        self.version += 1
         self._bytes[o:o + NCJOBS_QUEUE.size] = NCJOBS_QUEUE.pack(
             self._ids[i], cmd_no, cmd_state, w.cmd_no if w is not None else 0,
             w.buffer_mode if w is not None else 0, q.newest, 1 if amended else 0, *ended)
@@ -73,6 +77,7 @@ class JobRecords:
                  | (SYNC_DYN if c.dyn[i] else 0) | (SYNC_SYNCHRON if slave and c.state[i] == 13 else 0)
                  | (SYNC_REMOTE if k >= 0 else 0))
         o = i * NCJOBS_SIZE + NCJOBS_QUEUE.size
+        self.version += 1
         self._bytes[o:o + NCJOBS_SLOTS.size] = NCJOBS_SLOTS.pack(
             master_id, flags, float(c.ratio[i]) if slave else 0.0,
             int(sp.cmd_no[i]), int(sp.state[i]), int(sp.error[i]), *(float(x) for x in sp.actual[:, i]),
@@ -105,7 +110,8 @@ class NctoplcPacker:
         a, d, o = core.axes, core.drive, self.out
         act = core.act_pos
         sd = event_dw | core.sp_dw
-        sd |= a.mon_dw
+        if not a.mon_clear:  # (all 0 otherwise)
+            sd |= a.mon_dw
         sd |= (a.enabled & d.ready & d.following) * loop_dw  # (MC_Power.Status: the drive follows)
         o["StateDWord"][...] = sd
         o["AxisState"][...] = core.axis_state

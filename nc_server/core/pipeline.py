@@ -191,6 +191,7 @@ class Monitoring(_Stage):
                 core.fault(i, code)
             if dm.active:
                 a.mon_dw |= dm.dw
+                a.mon_clear = False
         if core.state_dirty:
             core.derive_state()
 

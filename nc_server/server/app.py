@@ -468,7 +468,9 @@ class NcServer:
 
         if ha is not None:
             ha.after_step()  # the log of this cycle to the standby
-        self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc)
+        # (the job records and PLCTONC change on events: a ring slot that holds them at these counts keeps them)
+        self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc,
+                        (core.records.version, core.plctonc_version))
         if self._activated:  # their replies after the cycle's work (the I/O thread takes the GIL to send them)
             self.io.submit_replies(self._activated)
             self._activated = []

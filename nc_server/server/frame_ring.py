@@ -123,6 +123,8 @@ class FrameRing:
                 raise ValueError("frame ring: the shared buffer holds no ring of this layout")
         self.seq = _U64.unpack_from(self.mv, _OFF_NEWEST)[0]
         self._last_read = self.seq
+        #: per slot, the (array, version) whose job records / PLCTONC it holds (write(): versions given)
+        self._held: list[list[tuple[np.ndarray, int] | None]] = [[None, None] for _ in range(self.slots)]
 
     def release(self) -> None:
         """Drop the view (before the underlying mmap is closed)."""
@@ -130,8 +132,14 @@ class FrameRing:
 
     # ---- writer (the cycle thread) ------------------------------------------------------------
     def write(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0,
-              jobs: np.ndarray | None = None, plctonc: np.ndarray | None = None) -> int:
+              jobs: np.ndarray | None = None, plctonc: np.ndarray | None = None,
+              versions: tuple[int, int] | None = None) -> int:
         """Write one cycle's frame (``nc_schema.encode_frame`` byte for byte) and PLCTONC; its sequence number.
+
+        Args:
+            versions: the change counts of ``jobs`` and ``plctonc`` (``JobRecords.version``,
+                ``NcCore.plctonc_version``): a slot that holds the same array at the same count already
+                keeps those bytes (the same bytes: no copy). None: both copied.
 
         Raises:
             ValueError: more axes than the ring was made for.
@@ -141,6 +149,7 @@ class FrameRing:
             raise ValueError(f"frame ring: {n} axes, made for {self.n_axes}")
         seq = self.seq + 1
         mv = self.mv
+        held = self._held[seq % self.slots]
         off = HEADER_SIZE + (seq % self.slots) * self.slot_size
         _U64.pack_into(mv, off, 0)  # being written
         p = off + _SLOT_HEAD.size
@@ -150,18 +159,33 @@ class FrameRing:
         p += len(rb)
         if jobs is not None:
             jb = _as_bytes(jobs)
-            mv[p:p + len(jb)] = jb
-            p += len(jb)
+            p = self._put(held, 0, jobs, versions[0] if versions is not None else None, jb, p)
+        else:
+            held[0] = held[1] = None  # (what follows the records moved)
         flen = p - off - _SLOT_HEAD.size
         plen = 0
         if plctonc is not None:
             pb = _as_bytes(plctonc)
             plen = len(pb)
-            mv[p:p + plen] = pb
+            self._put(held, 1, plctonc, versions[1] if versions is not None else None, pb, p)
+        else:
+            held[1] = None
         _SLOT_HEAD.pack_into(mv, off, seq, flen, plen)
         _U64.pack_into(mv, _OFF_NEWEST, seq)
         self.seq = seq
         return seq
+
+    def _put(self, held: list[tuple[np.ndarray, int] | None], k: int, arr: np.ndarray, version: int | None,
+             data: memoryview | bytes, p: int) -> int:
+        """Copy ``data`` (of ``arr`` at ``version``) to ``p`` unless the slot holds it there already; returns
+        the end. (A slot is only ever written here, at the same offsets for the same layout: the bytes it
+        holds for the same array at the same version are the bytes a copy would write.)"""
+        end = p + len(data)
+        h = held[k]
+        if version is None or h is None or h[0] is not arr or h[1] != version or not arr.flags.c_contiguous:
+            self.mv[p:end] = data
+            held[k] = (arr, version) if version is not None else None
+        return end
 
     def request_stop(self) -> None:
         """Ask the publisher to publish what is there and end."""

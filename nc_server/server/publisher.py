@@ -554,9 +554,10 @@ class FrameOutput:
         return r
 
     def put(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int, jobs: np.ndarray | None,
-            plctonc: np.ndarray | None) -> None:
-        """Write one cycle's frame into the ring (:meth:`FrameRing.write`) and wake the publisher (cycle thread)."""
-        self.ring.write(cycle, nc_time_ns, records, flags, jobs, plctonc)
+            plctonc: np.ndarray | None, versions: tuple[int, int] | None = None) -> None:
+        """Write one cycle's frame into the ring (:meth:`FrameRing.write`, ``versions`` as there) and wake the
+        publisher (cycle thread)."""
+        self.ring.write(cycle, nc_time_ns, records, flags, jobs, plctonc, versions)
         self.signal()
 
     def signal(self) -> None:

@@ -156,3 +156,34 @@ def test_the_fence_marks_frames_older_than_the_max_age_stale() -> None:
     r.count_fenced()
     r.count_fenced()
     assert w.fenced == 2
+
+
+def test_job_records_and_plctonc_at_an_unchanged_version_are_kept_not_copied_byte_identical() -> None:
+    """With ``versions`` a slot keeps the job records / PLCTONC it holds at the same count (the cycle copies
+    them only after a change): every frame read is still byte for byte encode_frame's, through slot
+    wrap-arounds, changes counted between writes, a frame without job records, and other arrays."""
+    rng = np.random.default_rng(5)
+    n, slots = 8, 4
+    w, r = _pair(n, slots)
+    recs, jobs, plc = _random(NCTOPLC_DTYPE, n, rng), _random(NCJOBS_DTYPE, n, rng), _random(PLCTONC_DTYPE, n, rng)
+    jv = pv = 0
+    for k in range(40):
+        recs.view(np.uint8)[:] = rng.integers(0, 256, recs.nbytes, dtype=np.uint8)
+        if k % 7 == 3:  # a job record changed (counted)
+            jobs.view(np.uint8)[k % jobs.nbytes] ^= 0xFF
+            jv += 1
+        if k % 5 == 1:  # a PLCTONC changed (counted)
+            plc.view(np.uint8)[k % plc.nbytes] ^= 0x5A
+            pv += 1
+        if k == 20:  # other arrays (a core replaced) at the same counts
+            jobs, plc = _random(NCJOBS_DTYPE, n, rng), _random(PLCTONC_DTYPE, n, rng)
+        if k == 30:
+            w.write(k, k, recs, 0)  # a frame without job records and PLCTONC in between
+            got = r.read_newest()
+            assert got is not None and got[1] == encode_frame(k, k, recs, 0) and got[2] is None
+            continue
+        w.write(k, k, recs, 0, jobs, plc, (jv, pv))
+        got = r.read_newest()
+        assert got is not None
+        assert got[1] == encode_frame(k, k, recs, 0, jobs), k
+        assert got[2] == plc.tobytes(), k

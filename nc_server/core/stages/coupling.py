@@ -397,6 +397,7 @@ class CouplingStage:
                     self.within[i] += 1
             jobs["PhaseError"][i], jobs["PhaseErrorMax"][i], jobs["PhaseBound"][i] = self.phase[:, i]
             jobs["MasterAgeUs"][i] = min(max(int(self.age_us[i]), 0), 0xFFFFFFFF)
+        core.jobs_written()
 
     def remote_stats(self, axis_ids: np.ndarray) -> dict[int, dict[str, object]]:
         """{AxisId: ...} of the slaves of remote masters (the stats' ``remote_couplings``)."""
@@ -442,6 +443,7 @@ class CouplingStage:
         self.ratio[dm] = new[moved]
         self._cache = None
         core.ncjobs["GearRatio"][dm] = new[moved]
+        core.jobs_written()
         acc = np.zeros(rows.size)
         acc[np.searchsorted(rows, dm)] = (new[moved] - old[moved]) / self.dt * S[1, self.master[dm]]  # (rows ascend)
         return acc
