@@ -879,9 +879,9 @@ class NcCore:
             self.act_pos = self.drive.act_pos
         del prev
         ds = self.drive.terminal_status()
-        if ds is not None:
+        if ds is not None and not np.array_equal(self.records.drive_status, ds):
             self.records.drive_status[:] = ds
-            self.records.version += 1
+            self.records.version += 1  # (only on a change: the frame ring copies NCJOBS when it counts one)
 
     def derive_state(self) -> None:
         """Recompute what only changes on events (commands, inputs, faults, job ends)."""
