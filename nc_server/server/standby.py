@@ -51,6 +51,71 @@ SNAPSHOT_RETRY_S = 1.0
 START_GRACE_S = 2.0
 #: ha status period [s]
 STATUS_PERIOD_S = 0.1
+#: the loss detector (LossDetector): how long the gaps between the active NC's logs are remembered [s], the factor
+#: on the largest one, the warm-up after a standby comes in step and its floor, and the cap of the limit [s]
+GAP_WINDOW_S = 10.0
+GAP_FACTOR = 2.0
+WARMUP_S = 3.0
+WARMUP_FLOOR_S = 0.5
+LIMIT_CAP_S = 1.0
+
+
+class LossDetector:
+    """When a standby deems the active NC lost by the silence of its logs (a freeze, a link cut; a kill is seen at
+    once from the active NC's liveliness token), and the limit it publishes (ha status ``takeover_limit_cycles``).
+
+    The limit is ``takeover_cycles`` while the logs come on time; a loaded machine makes them late (the active NC's
+    cycle thread, zenoh's threads or the standby's own cycle thread descheduled: 150 ms seen at load average 20 with
+    realtime off), so the limit follows GAP_FACTOR x the largest gap between logs of the last GAP_WINDOW_S, capped
+    at LIMIT_CAP_S: a late log is no loss, a missing one is. For WARMUP_S after the standby came in step (no gap
+    history yet; the active NC has just built a snapshot) it is at least WARMUP_FLOOR_S. And a silence is judged
+    only in a cycle of the standby that is itself on time, or the second in a row: after its own stall the logs may
+    still be on their way through zenoh's threads.
+
+    Args:
+        base_s: ``takeover_cycles`` x the cycle time [s].
+    """
+
+    def __init__(self, base_s: float) -> None:
+        self.base = base_s
+        self.last = 0.0       # when the newest log was taken
+        self.since = -1e9     # when the standby came in step (the warm-up's start)
+        self.gaps: collections.deque[tuple[float, float]] = collections.deque(maxlen=256)
+        self._prev_cycle = 0.0
+        self._deferred = False
+
+    def restart(self, now: float) -> None:
+        """In step from a snapshot (or a new role): no gap history, the warm-up starts."""
+        self.last = self.since = now
+        self.gaps.clear()
+        self._deferred = False
+
+    def log(self, now: float) -> None:
+        """A log of the active NC was taken at ``now``."""
+        gap = now - self.last
+        self.last = now
+        if gap > self.base / 4:  # (gaps within a quarter of the base never raise the limit)
+            self.gaps.append((now, gap))
+
+    def limit(self, now: float) -> float:
+        """The silence [s] that is a loss now."""
+        g = self.gaps
+        while g and now - g[0][0] > GAP_WINDOW_S:
+            g.popleft()
+        lim = max(self.base, GAP_FACTOR * max((x for _, x in g), default=0.0))
+        if now - self.since < WARMUP_S:
+            lim = max(lim, WARMUP_FLOOR_S)
+        return max(self.base, min(lim, LIMIT_CAP_S))
+
+    def silent(self, now: float) -> bool:
+        """The logs have been missing longer than :meth:`limit` (call once per standby cycle, at its start)."""
+        own = now - self._prev_cycle
+        self._prev_cycle = now
+        if own > self.base / 2 and not self._deferred:  # this cycle is late itself: the next one judges
+            self._deferred = True
+            return False
+        self._deferred = False
+        return now - self.last > self.limit(now)
 
 
 def node_name(configured: str) -> str:
@@ -140,6 +205,10 @@ class HotStandby:
         self._recent: collections.deque[bytes] = collections.deque(maxlen=LOG_REPEAT)
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
+        self.detector = LossDetector(self._silence)
+        self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
+        self._status_sub: Any = None
+        self._grace = START_GRACE_S  # (standby, never in step) no active NC this long: take over
 
     # ---- session (start, before the cycle thread) ---------------------------------------------------------------
     def open(self, session: zenoh.Session) -> None:
@@ -152,6 +221,7 @@ class HotStandby:
         self._status_pub = s.declare_publisher(f"{k}/status/{self.node}")
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
+        self._status_sub = s.declare_subscriber(f"{k}/status/*", FifoChannel(64))
         self._started = self._last_log = time.monotonic()
         if self.settings.start == "active":
             self._become_active(time.monotonic(), first=True)
@@ -162,7 +232,7 @@ class HotStandby:
 
     def close(self) -> None:
         for d in (self._token, self._snap_q, self._log_sub, self._log_pub, self._status_pub, self._active_sub,
-                  self._standby_sub):
+                  self._standby_sub, self._status_sub):
             if d is not None:
                 try:
                     d.undeclare()
@@ -217,10 +287,35 @@ class HotStandby:
         """The active NC's cycle thread stalled ``gap`` [s]: longer than a takeover, with a standby in step, this
         NC must assume it was replaced (it stops driving before anything goes out). True: it is a standby now."""
         excused, self._excused = self._excused, False
-        if self.role == "active" and self.peer_in_step and gap > self._silence and not excused:
-            self._become_standby(time.monotonic(), f"stalled {gap:.3f} s with a standby in step")
+        limit = self.peer_limit(time.monotonic())
+        if self.role == "active" and self.peer_in_step and gap > limit and not excused:
+            self._become_standby(time.monotonic(), f"stalled {gap:.3f} s (the standby's limit {limit:.3f} s) with a "
+                                 "standby in step")
+            # (if the standby did not take over after all, e.g. the stall was close to its limit, no NC would drive:
+            # this one takes over again after a short grace without an active NC)
+            self._grace = min(START_GRACE_S, 2 * limit + 0.1)
             return True
         return False
+
+    def peer_limit(self, now: float) -> float:
+        """(active) The silence a standby in step takes for a loss now [s]: the largest limit of the fresh ha
+        statuses of the other nodes (their LossDetector's), at least ``takeover_cycles``."""
+        sub = self._status_sub
+        while sub is not None:
+            try:
+                s = sub.try_recv()
+            except Exception:
+                break
+            if s is None:
+                break
+            try:
+                st = msgpack.unpackb(s.payload.to_bytes(), raw=False)
+                if st.get("node") != self.node and st.get("role") == "standby" and st.get("in_step"):
+                    self._peer_limits[str(st["node"])] = (float(st["takeover_limit_cycles"]) * self._dt, now)
+            except Exception:
+                continue
+        fresh = [lim for lim, t in self._peer_limits.values() if now - t < 5 * STATUS_PERIOD_S + 1.0]
+        return max([self._silence, *fresh])
 
     # ---- the parts ----------------------------------------------------------------------------------------------
     def _take_tokens(self) -> None:
@@ -261,6 +356,8 @@ class HotStandby:
             except Exception as exc:
                 log.warning("unusable ha log: %s", exc)
                 continue
+            if self.role == "standby":
+                self.detector.log(now)
             for lg in logs:
                 if self._take_log(lg, now):
                     return
@@ -311,7 +408,10 @@ class HotStandby:
                     self.follower.load(reply.ok.payload.to_bytes())
                     self._snap_replies = None
                     log.info("standby %s: in step from cycle %d (snapshot)", self.node, self.core.cycle)
-                    self._last_log = now
+                    # (after the load, which takes a while: the silence counts from now; the active NC's cycle that
+                    # built the snapshot was late too: the detector's warm-up)
+                    self._last_log = time.monotonic()
+                    self.detector.restart(self._last_log)
                     return
                 except Exception as exc:
                     log.warning("unusable snapshot: %s", exc)
@@ -326,10 +426,12 @@ class HotStandby:
     def _lost(self, now: float) -> bool:
         """The active NC is lost: its token went, or no log for ``takeover_cycles`` (a standby that never followed
         one: none for START_GRACE_S and no active token)."""
-        quiet = now - self._last_log
         if not self.synced_once:
-            return quiet > START_GRACE_S and not self.active_token_seen and now - self._started > START_GRACE_S
-        return (quiet > self._silence or self._token_gone) and not self.follower.waiting
+            g = self._grace
+            return now - self._last_log > g and not self.active_token_seen and now - self._started > g
+        if self.follower.waiting:
+            return False
+        return self._token_gone or self.detector.silent(now)
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -348,6 +450,7 @@ class HotStandby:
         srv = self.srv
         lost_at = self._last_log
         self._token_gone = False
+        self._grace = START_GRACE_S
         self.epoch = next_epoch(max(self.highest, self.epoch), self.node)
         self.highest = self.epoch
         for lk in drive_links(self.real_drive):
@@ -418,8 +521,15 @@ class HotStandby:
                 "logs_out": self.logs_out, "resyncs": f.resyncs, "diverged": f.diverged,
                 "snapshots_served": self.snapshots_served, "takeovers": self.takeovers, "demotions": self.demotions,
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
-                "catch_up_cycles": self.catch_up, "takeover_limit_cycles": self.settings.takeover_cycles,
+                "catch_up_cycles": self.catch_up, "takeover_limit_cycles": self._limit_cycles(),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
+
+    def _limit_cycles(self, now: float | None = None) -> int:
+        """The published bound of a takeover after a freeze or link cut [cycles]: the standby's loss detector's
+        limit (the active NC's: what its standby last published, at least ``takeover_cycles``)."""
+        now = time.monotonic() if now is None else now
+        lim = self.detector.limit(now) if self.role == "standby" else self.peer_limit(now)
+        return int(-(-lim // self._dt))
 
     def _fenced(self) -> int:
         try:
