@@ -298,8 +298,9 @@ class HotStandby:
         return False
 
     def peer_limit(self, now: float) -> float:
-        """(active) The silence a standby in step takes for a loss now [s]: the largest limit of the fresh ha
-        statuses of the other nodes (their LossDetector's), at least ``takeover_cycles``."""
+        """(active) The silence a standby in step takes for a loss now [s]: the largest limit of the ha statuses of
+        the other nodes of the last GAP_WINDOW_S (their LossDetector's), at least ``takeover_cycles``; none: the
+        detector's cap."""
         sub = self._status_sub
         while sub is not None:
             try:
@@ -314,8 +315,10 @@ class HotStandby:
                     self._peer_limits[str(st["node"])] = (float(st["takeover_limit_cycles"]) * self._dt, now)
             except Exception:
                 continue
-        fresh = [lim for lim, t in self._peer_limits.values() if now - t < 5 * STATUS_PERIOD_S + 1.0]
-        return max([self._silence, *fresh])
+        # (a status some seconds old still holds: a loaded machine delays them too; none yet: the cap, the most a
+        # standby ever waits)
+        fresh = [lim for lim, t in self._peer_limits.values() if now - t < GAP_WINDOW_S]
+        return max([self._silence, *fresh]) if fresh else max(self._silence, LIMIT_CAP_S)
 
     # ---- the parts ----------------------------------------------------------------------------------------------
     def _take_tokens(self) -> None:
