@@ -179,6 +179,9 @@ class HotStandby:
         self.takeover_s = 0.0
         self.takeover_cycles = 0  # NC cycles of the last takeover (detection included)
         self.catch_up = 0         # cycles stepped at once at the last takeover
+        self.detect_s = self.work_s = self.serve_s = 0.0  # the last takeover's parts (docs/standby.md)
+        self._serve_pending = False
+        self._lost_at = self._detected_at = 0.0
         self.logs_in = 0
         self.logs_out = 0
         self.snapshots_served = 0
@@ -260,6 +263,8 @@ class HotStandby:
     def after_step(self) -> None:
         """The active NC's log of the cycle just stepped; snapshots asked for (after the log: a follower starting
         from it replays the next one)."""
+        if self._serve_pending:
+            self._finish_takeover()
         lg = self.rec.take(self.hrec.take(), self.epoch)
         self._recent.append(pickle.dumps(lg, protocol=pickle.HIGHEST_PROTOCOL))
         try:  # (the last LOG_REPEAT logs in each sample: a sample dropped on the way costs no re-sync)
@@ -430,6 +435,12 @@ class HotStandby:
         """The active NC is lost: its token went, or no log for ``takeover_cycles`` (a standby that never followed
         one: none for START_GRACE_S and no active token)."""
         if not self.synced_once:
+            # an NC that drove (an epoch) and saw a higher one since (a log, a drive host's inputs) is behind its
+            # successor: its core is stale, it waits for a snapshot (a takeover from it would be a jump); else (nobody
+            # else took over since: its own state is the newest) it takes over after the grace without an active NC
+            seen = max([self.highest, *(lk.host_epoch for lk in drive_links(self.real_drive))])
+            if self.epoch and seen > self.epoch:
+                return False
             g = self._grace
             return now - self._last_log > g and not self.active_token_seen and now - self._started > g
         if self.follower.waiting:
@@ -468,30 +479,53 @@ class HotStandby:
             if hs.instance:
                 srv.transport.instance = self.hrec.instance = hs.instance
         srv.claims.rebase(now)
+        self.role = "active"
+        if first or not self.synced_once:
+            self._serve()
+            srv.became_active(now)
+            log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
+            return
+        srv.became_active(now, serve=False)
+        # the zenoh declarations (the active token, the snapshot and command queryables, the stats and claims
+        # publishers, the NC's tokens: 7 calls, milliseconds on a loaded machine) come after the first step, whose
+        # set-point is the first thing the drives need (after_step)
+        self._serve_pending = True
+        self._lost_at, self._detected_at = lost_at, now
+        # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
+        # steps over that time at once, so its first set-point is where the drives' targets are now
+        quiet = max(0.0, now - lost_at) if lost_at > 0 else 0.0
+        k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt)
+        self.catch_up = k
+        self.takeovers += 1
+        for _ in range(max(0, k - 1)):
+            self.rec.step()
+            self.after_step()
+
+    def _serve(self) -> None:
+        """Declare what the active NC of the pair declares (its token, the snapshot queryable, the NC's keys)."""
         if self._token is not None:
             self._token.undeclare()
         self._token = self._session.liveliness().declare_token(f"{self.keys}/active/{self.node}") \
             if self._session is not None else None
         self._snap_q = self._session.declare_queryable(f"{self.keys}/snapshot", FifoChannel(16)) \
             if self._session is not None else None
-        self.role = "active"
-        srv.became_active(now)
-        if first or not self.synced_once:
-            log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
-            return
-        # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
-        # steps over that time at once, so its first set-point is where the drives' targets are now
-        quiet = max(0.0, now - lost_at) if lost_at > 0 else 0.0
-        k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt)
-        for _ in range(max(0, k - 1)):
-            self.rec.step()
-            self.after_step()
-        self.catch_up = k
-        self.takeovers += 1
-        self.takeover_s = time.monotonic() - lost_at if lost_at > 0 else 0.0
+
+    def _finish_takeover(self) -> None:
+        """After the takeover's first step (its set-point is out): the times, then the declarations."""
+        self._serve_pending = False
+        t = time.monotonic()
+        lost_at, srv = self._lost_at, self.srv
+        self.takeover_s = t - lost_at if lost_at > 0 else 0.0
         self.takeover_cycles = int(round(self.takeover_s / self._dt)) if lost_at > 0 else 0
-        log.warning("NC %s: took over at cycle %d (epoch %d, node %s): %.1f ms after the last log, %d cycles "
-                    "caught up", srv.config.name, core.cycle, self.epoch, self.node, self.takeover_s * 1e3, k)
+        self.detect_s = self._detected_at - lost_at if lost_at > 0 else 0.0
+        self.work_s = t - self._detected_at
+        self._serve()
+        srv.transport.serve()
+        self.serve_s = time.monotonic() - t
+        log.warning("NC %s: took over at cycle %d (epoch %d, node %s): first set-point %.1f ms after the last log "
+                    "(detection %.1f ms, then %.1f ms to the first step; %d cycles caught up; declarations %.1f ms "
+                    "after it)", srv.config.name, self.core.cycle, self.epoch, self.node, self.takeover_s * 1e3,
+                    self.detect_s * 1e3, self.work_s * 1e3, self.catch_up, self.serve_s * 1e3)
 
     def _become_standby(self, now: float, why: str) -> None:
         srv = self.srv
@@ -524,6 +558,8 @@ class HotStandby:
                 "logs_out": self.logs_out, "resyncs": f.resyncs, "diverged": f.diverged,
                 "snapshots_served": self.snapshots_served, "takeovers": self.takeovers, "demotions": self.demotions,
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
+                "takeover_detect_ms": round(self.detect_s * 1e3, 3), "takeover_work_ms": round(self.work_s * 1e3, 3),
+                "takeover_serve_ms": round(self.serve_s * 1e3, 3),
                 "catch_up_cycles": self.catch_up, "takeover_limit_cycles": self._limit_cycles(),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
 

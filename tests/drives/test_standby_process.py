@@ -138,7 +138,8 @@ def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Procs]) -> None:
     cl, tr = setup(p, [1])
     try:
         first, req = move(cl, 1, 40.0, request_id=4242)
-        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0, "axis 1 past 10", servers(p))
+        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0, "axis 1 past 10",
+                    servers(p))
         _, new, epoch = kill_active(p, cl)
         t_kill = time.monotonic()
         st = took_over(p, cl, new, epoch)
