@@ -19,7 +19,9 @@ counts that must be 0: double drivers, jumps, blocks not ended Done, NC restarts
 from __future__ import annotations
 
 import argparse
+import datetime
 import random
+import re
 import sys
 import tempfile
 import time
@@ -43,6 +45,13 @@ PAUSE_CYCLES = 3
 T = 30.0
 
 
+def drive_epoch_time(log: str, epoch: int) -> float:
+    """The wall time [s] the drive host logged the first outputs of ``epoch`` ("NC epoch E takes over"; its log's
+    millisecond timestamps, local time as the logging module writes them): the first set-point at the drives."""
+    m = re.search(r"^(\S+ \S+) nc-drive-sim \w+ NC epoch %d takes over" % epoch, log, re.M)
+    return datetime.datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp() if m else float("nan")
+
+
 def count_line(what: str, n: int) -> tuple[str, bool]:
     return f"goal: {what}: {n} (goal 0) -> {mark(n == 0)}", n == 0
 
@@ -54,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--takeover-cycles", type=int, default=15,
                     help="[redundancy] takeover_cycles (15, the default): the log silence that is a loss")
     ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--realtime", choices=("off", "auto", "fifo"), default="off",
+                    help="the NCs' [nc] realtime (off, as the tests: other work on the machine is not starved)")
     args = ap.parse_args(argv)
     kills = args.soak or args.kills
     rng = random.Random(args.seed)
@@ -67,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         router = start_nc_router(tmp / "router")
         started.append(router)
-        text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=args.takeover_cycles)
+        text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=args.takeover_cycles).replace(
+            'realtime = "off"', f'realtime = "{args.realtime}"')
         cfg = tmp / "nc.toml"
         cfg.write_text(text)
 
@@ -110,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
             before = [s[0] for s in tr.samples]
             last_cycle = max(before) if before else -1
             n_before = len(before)
-            t_kill = time.monotonic()
+            limit_before = (ha_status(cl, standby) or {}).get("takeover_limit_cycles")
+            t_kill, t_kill_wall = time.monotonic(), time.time()
             kill_process_group(nodes[active].proc)
             epochs = [s0.get("epoch")]
             st = None
@@ -144,8 +157,11 @@ def main(argv: list[str] | None = None) -> int:
             s1 = sim.status() or {}
             ep = [e for e in epochs if e is not None]
             rows.append({"ms": (first[5] - t_kill) * 1e3 if first else float("nan"),
+                         "drive_ms": (drive_epoch_time(sim.stderr(), st["epoch"]) - t_kill_wall) * 1e3,
                          "nc_cycles": st["takeover_cycles"], "nc_ms": st["takeover_ms"],
-                         "catch_up": st["catch_up_cycles"],
+                         "catch_up": st["catch_up_cycles"], "detect_ms": st.get("takeover_detect_ms", float("nan")),
+                         "work_ms": st.get("takeover_work_ms", float("nan")),
+                         "limit": limit_before,
                          "double": int(len(ep) > 2 or any(b < a for a, b in zip(ep, ep[1:]))),
                          "stale": int(s1.get("stale_epoch", 0)) - int(s0.get("stale_epoch", 0)),
                          "done": done is not None and abs(float(done["SetPos"]) - target) < 1e-6})
@@ -166,17 +182,33 @@ def main(argv: list[str] | None = None) -> int:
     busy.stop()
     ms = [r["ms"] for r in rows if r["ms"] == r["ms"]]
     cyc = [m / (CYCLE * 1e3) for m in ms]
+    dms = [r["drive_ms"] for r in rows if r["drive_ms"] == r["drive_ms"]]
+    dcyc = [m / (CYCLE * 1e3) for m in dms]
     nc_c = [r["nc_cycles"] for r in rows]
-    print(f"takeovers: {len(rows)} (cycle {CYCLE * 1e3:g} ms, takeover_cycles {args.takeover_cycles})")
+    print(f"takeovers: {len(rows)} (cycle {CYCLE * 1e3:g} ms, takeover_cycles {args.takeover_cycles}, realtime "
+          f"{args.realtime})")
     print(f"  kill -> first set-point seen: p50 {pct(ms, 50):.1f} ms ({pct(cyc, 50):.1f} cycles), p95 "
           f"{pct(ms, 95):.1f} ms ({pct(cyc, 95):.1f} cycles), max {max(ms, default=float('nan')):.1f} ms")
+    print(f"  kill -> first set-point at the drive host (its log, ms resolution): p50 {pct(dms, 50):.1f} ms "
+          f"({pct(dcyc, 50):.1f} cycles), p95 {pct(dms, 95):.1f} ms ({pct(dcyc, 95):.1f} cycles), max "
+          f"{max(dms, default=float('nan')):.1f} ms ({max(dcyc, default=float('nan')):.1f} cycles)")
     print(f"  the NC's figure (last log -> takeover): p50 {pct(nc_c, 50):.0f} cycles, p95 {pct(nc_c, 95):.0f}, max "
           f"{max(nc_c, default=0)}; caught up p50 {pct([r['catch_up'] for r in rows], 50):.0f} cycles")
+    det = [r["detect_ms"] / (CYCLE * 1e3) for r in rows]
+    work = [r["work_ms"] / (CYCLE * 1e3) for r in rows]
+    print(f"  its parts: detection (last log -> the cycle that takes over) p50 {pct(det, 50):.1f} / p95 {pct(det, 95):.1f}"
+          f" / max {max(det, default=float('nan')):.1f} cycles; then to the first step p50 {pct(work, 50):.1f} / p95 "
+          f"{pct(work, 95):.1f} / max {max(work, default=float('nan')):.1f} cycles")
+    lims = [r["limit"] for r in rows if r["limit"] is not None]
+    print(f"  published limit for a freeze (the standby's takeover_limit_cycles at each kill): "
+          f"min {min(lims, default=0)} max {max(lims, default=0)} cycles")
     print(f"  largest SetPos step beyond the dynamics {step:.6f} u; drive host refused outputs (stale_epoch) "
           f"{sum(r['stale'] for r in rows)}")
     goals = [
-        goal_line(f"p95 takeover (kill -> first set-point) / {GOAL_CYCLES} NC cycles", pct(cyc, 95) / GOAL_CYCLES, 1.0,
-                  f"{pct(ms, 95):.1f} ms vs {GOAL_CYCLES * CYCLE * 1e3:g} ms"),
+        goal_line(f"p95 takeover (kill -> first set-point at the drives) / {GOAL_CYCLES} NC cycles",
+                  pct(dcyc, 95) / GOAL_CYCLES, 1.0, f"{pct(dms, 95):.1f} ms vs {GOAL_CYCLES * CYCLE * 1e3:g} ms"),
+        goal_line(f"p95 takeover (kill -> first set-point seen by a client) / {GOAL_CYCLES} NC cycles",
+                  pct(cyc, 95) / GOAL_CYCLES, 1.0, f"{pct(ms, 95):.1f} ms vs {GOAL_CYCLES * CYCLE * 1e3:g} ms"),
         goal_line("largest SetPos step beyond the dynamics / one cycle at full velocity", step / (V * CYCLE), 0.01,
                   f"{step:.6f} u vs {V * CYCLE:g} u"),
         count_line("double drivers (drive host epoch history)", sum(r["double"] for r in rows)),
