@@ -4,8 +4,8 @@ an nc-drive-sim hosting axis 1 and an observer of the set-points and frames (tes
 tests/drives/test_standby_process.py). After each takeover the killed node is started again as the standby; the
 next kill hits the other node.
 
-Per takeover: the time from the kill to the first set-point of the new active NC seen by the observer (its NCTOPLC
-samples; zenoh delivery included) and the NC's own figure (last log of the lost NC to the end of the takeover,
+Per takeover: the time from the kill to the first set-point of the new active NC at the drive host (its log's epoch
+change, ms resolution) and seen by the observer (its NCTOPLC samples; zenoh delivery included), the NC's own figure (last log of the lost NC to the end of the takeover,
 ha status ``takeover_cycles``); whether the move ended Done with its CmdNo; the drive host's epoch history (one
 new epoch per kill, never back) and its refused outputs (``stale_epoch``). Over the run: the largest SetPos step
 beyond the dynamics, the NC restarts the observer's nc_link saw, false takeovers (a role change without a kill).
@@ -14,14 +14,19 @@ Same-run ratios with MET / NOT MET: p95 takeover time / (20 NC cycles) (the issu
 within 20 cycles of the loss, detection included) and the largest SetPos step / (one cycle at full velocity);
 counts that must be 0: double drivers, jumps, blocks not ended Done, NC restarts seen, false takeovers.
 
-    .venv/bin/python bench/takeover.py [--kills 10] [--soak 100] [--takeover-cycles 15] [--seed S]
+    .venv/bin/python bench/takeover.py [--kills 10] [--soak 100] [--freeze] [--takeover-cycles 15] [--seed S]
+                                       [--realtime off|auto|fifo]
+
+``--freeze``: SIGSTOP instead of kill -9 (SIGCONT after the takeover; the old NC comes back as the standby).
 """
 from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import random
 import re
+import signal
 import sys
 import tempfile
 import time
@@ -37,6 +42,7 @@ from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start
 from znc_testing.remote_drives import DriveSim, enabled, power  # noqa: E402
 from znc_testing.standby_rig import CONFIG, Trace, ha_status, largest_step  # noqa: E402
 from znc_testing.until import wait_until  # noqa: E402
+from nc_server.server.standby import WARMUP_S  # noqa: E402
 
 CYCLE = 0.002
 V, A, J = 50.0, 500.0, 5000.0
@@ -63,6 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--takeover-cycles", type=int, default=15,
                     help="[redundancy] takeover_cycles (15, the default): the log silence that is a loss")
     ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--freeze", action="store_true",
+                    help="SIGSTOP the active NC instead of kill -9 (SIGCONT after the takeover: it comes back as the "
+                         "standby); each round waits for the standby's loss detection to leave its warm-up")
     ap.add_argument("--realtime", choices=("off", "auto", "fifo"), default="off",
                     help="the NCs' [nc] realtime (off, as the tests: other work on the machine is not starved)")
     args = ap.parse_args(argv)
@@ -73,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     busy = Busy()
     rows: list[dict[str, Any]] = []
     false_takeovers = 0
+    stopped = 0  # the process group SIGSTOP'd (--freeze)
     tr: Trace | None = None
     cl: NcTestClient | None = None
     try:
@@ -107,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
                 roles = now_roles
             active = next(n for n, r in roles.items() if r == "active")
             standby = next(n for n in nodes if n != active)
+            if args.freeze:  # (the published limit after the warm-up: what a freeze is detected by)
+                time.sleep(WARMUP_S + 0.3)
             if i == 0:
                 power(cl, [1])
             wait_until(enabled(cl, 1), T, "axis 1 enabled without error", interval=0.1)
@@ -124,7 +136,11 @@ def main(argv: list[str] | None = None) -> int:
             n_before = len(before)
             limit_before = (ha_status(cl, standby) or {}).get("takeover_limit_cycles")
             t_kill, t_kill_wall = time.monotonic(), time.time()
-            kill_process_group(nodes[active].proc)
+            if args.freeze:
+                stopped = nodes[active].proc.pid
+                os.killpg(stopped, signal.SIGSTOP)
+            else:
+                kill_process_group(nodes[active].proc)
             epochs = [s0.get("epoch")]
             st = None
             deadline = time.monotonic() + T
@@ -139,6 +155,9 @@ def main(argv: list[str] | None = None) -> int:
                 time.sleep(0.01)
             else:
                 raise RuntimeError(f"no takeover by {standby}:\n{nodes[standby].stderr()[-3000:]}")
+            if stopped:
+                os.killpg(stopped, signal.SIGCONT)
+                stopped = 0
             # the new NC's first set-point: the first sample after the takeover's pause (a gap of more than
             # PAUSE_CYCLES in reception after the kill; the lost NC's samples in flight come before it), else the
             # first sample after the kill (a takeover faster than that)
@@ -168,11 +187,14 @@ def main(argv: list[str] | None = None) -> int:
             print(f"takeover {i + 1}/{kills}: {active} -> {standby}: first set-point {rows[-1]['ms']:.1f} ms after "
                   f"the kill, NC {st['takeover_cycles']} cycles ({st['takeover_ms']} ms, {st['catch_up_cycles']} "
                   f"caught up), move Done {rows[-1]['done']}", flush=True)
-            nodes[active] = start(active, i + 1)
+            if not args.freeze:
+                nodes[active] = start(active, i + 1)
             roles = {active: "standby", standby: "active"}
         step = largest_step(tr.samples, CYCLE, A)
         restarts = list(tr.restarts)
     finally:
+        if stopped:
+            os.killpg(stopped, signal.SIGCONT)
         if tr is not None:
             tr.close()
         if cl is not None:
@@ -185,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     dms = [r["drive_ms"] for r in rows if r["drive_ms"] == r["drive_ms"]]
     dcyc = [m / (CYCLE * 1e3) for m in dms]
     nc_c = [r["nc_cycles"] for r in rows]
-    print(f"takeovers: {len(rows)} (cycle {CYCLE * 1e3:g} ms, takeover_cycles {args.takeover_cycles}, realtime "
+    print(f"takeovers ({'SIGSTOP' if args.freeze else 'kill -9'}): {len(rows)} (cycle {CYCLE * 1e3:g} ms, takeover_cycles {args.takeover_cycles}, realtime "
           f"{args.realtime})")
     print(f"  kill -> first set-point seen: p50 {pct(ms, 50):.1f} ms ({pct(cyc, 50):.1f} cycles), p95 "
           f"{pct(ms, 95):.1f} ms ({pct(cyc, 95):.1f} cycles), max {max(ms, default=float('nan')):.1f} ms")
