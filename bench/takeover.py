@@ -40,7 +40,7 @@ use_this_tree()
 
 from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server  # noqa: E402
 from znc_testing.remote_drives import DriveSim, enabled, power  # noqa: E402
-from znc_testing.standby_rig import CONFIG, Trace, ha_status, largest_step  # noqa: E402
+from znc_testing.standby_rig import CONFIG, LEASE_MS, Trace, ha_status, largest_step  # noqa: E402
 from znc_testing.until import wait_until  # noqa: E402
 from nc_server.server.standby import WARMUP_S  # noqa: E402
 
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     tr: Trace | None = None
     cl: NcTestClient | None = None
     try:
-        router = start_nc_router(tmp / "router")
+        router = start_nc_router(tmp / "router", ["--lease-ms", str(LEASE_MS)])
         started.append(router)
         text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=args.takeover_cycles).replace(
             'realtime = "off"', f'realtime = "{args.realtime}"')
@@ -101,9 +101,9 @@ def main(argv: list[str] | None = None) -> int:
 
         nodes = {"a": start("a", 0, first=True), "b": start("b", 0)}
         sim = DriveSim(tmp, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
-                             "--timeout", "1.0"])
+                             "--timeout", "1.0", "--lease-ms", str(LEASE_MS)])
         started.append(sim)
-        cl = NcTestClient(router.port, client_id="plc1")
+        cl = NcTestClient(router.port, client_id="plc1", lease_ms=LEASE_MS)
         tr = Trace(router.port)
         wait_until(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0, T, "drive host")
         roles = {"a": "active", "b": "standby"}

@@ -58,6 +58,8 @@ GAP_FACTOR = 2.0
 WARMUP_S = 3.0
 WARMUP_FLOOR_S = 0.5
 LIMIT_CAP_S = 1.0
+#: an active NC that stalled longer than this share of its standby's limit (or of its lease) demotes itself
+STALL_MARGIN = 0.75
 
 
 class LossDetector:
@@ -209,6 +211,8 @@ class HotStandby:
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
         self.detector = LossDetector(self._silence)
+        zn = getattr(server.config, "zenoh", None)
+        self._lease = float(getattr(zn, "lease_ms", 500)) / 1000.0  # (a freeze this long drops this NC's tokens)
         self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
         self._status_sub: Any = None
         self._grace = START_GRACE_S  # (standby, never in step) no active NC this long: take over
@@ -292,7 +296,12 @@ class HotStandby:
         """The active NC's cycle thread stalled ``gap`` [s]: longer than a takeover, with a standby in step, this
         NC must assume it was replaced (it stops driving before anything goes out). True: it is a standby now."""
         excused, self._excused = self._excused, False
-        limit = self.peer_limit(time.monotonic())
+        # the standby took over after the published limit from its last log, or when this NC's session lease ran
+        # out (its tokens go: a freeze longer than the lease): a stall a bit shorter than that may have been one
+        # too (the last log reached the standby late); a demotion without a takeover costs a takeover by the standby,
+        # not demoting after one costs frames of this NC after the new one's (the clients' Cycle goes back)
+        limit = min(self.peer_limit(time.monotonic()), self._lease)
+        limit = max(self._silence, STALL_MARGIN * limit)
         if self.role == "active" and self.peer_in_step and gap > limit and not excused:
             self._become_standby(time.monotonic(), f"stalled {gap:.3f} s (the standby's limit {limit:.3f} s) with a "
                                  "standby in step")
@@ -567,7 +576,8 @@ class HotStandby:
         """The published bound of a takeover after a freeze or link cut [cycles]: the standby's loss detector's
         limit (the active NC's: what its standby last published, at least ``takeover_cycles``)."""
         now = time.monotonic() if now is None else now
-        lim = self.detector.limit(now) if self.role == "standby" else self.peer_limit(now)
+        # (a freeze of the active NC longer than its lease drops its token: a takeover then at the latest)
+        lim = min(self.detector.limit(now) if self.role == "standby" else self.peer_limit(now), self._lease)
         return int(-(-lim // self._dt))
 
     def _fenced(self) -> int:

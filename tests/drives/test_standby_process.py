@@ -30,7 +30,7 @@ import pytest
 
 from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server, wait_until
 from znc_testing.remote_drives import DriveSim, drive_axis, power
-from znc_testing.standby_rig import AXIS2, CONFIG, Trace, active_node, ha_status, largest_step
+from znc_testing.standby_rig import AXIS2, CONFIG, LEASE_MS, Trace, active_node, ha_status, largest_step
 
 T = 60.0  # generous deadlines: a loaded 2-core machine
 CYCLE = 0.002
@@ -58,7 +58,7 @@ def pair(tmp_path: Path) -> Iterator[Callable[..., Procs]]:
     started: list[Any] = []
 
     def make(axes: int = 1) -> Procs:
-        router = start_nc_router(tmp_path / "router")
+        router = start_nc_router(tmp_path / "router", ["--lease-ms", str(LEASE_MS)])
         started.append(router)
         text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=TAKEOVER_CYCLES) + (AXIS2 if axes > 1 else "")
         cfg = tmp_path / "nc.toml"
@@ -70,7 +70,7 @@ def pair(tmp_path: Path) -> Iterator[Callable[..., Procs]]:
                             extra_args=["--set", "redundancy.node=b"])
         started.append(b)
         sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
-                                  "--timeout", str(DRIVE_TIMEOUT)])
+                                  "--timeout", str(DRIVE_TIMEOUT), "--lease-ms", str(LEASE_MS)])
         started.append(sim)
         return {"a": a, "b": b, "drives": sim, "port": router.port}
 
@@ -87,7 +87,7 @@ def servers(p: Procs) -> Procs:
 
 def setup(p: Procs, axes: list[int]) -> tuple[NcTestClient, Trace]:
     """The client (axes powered) and the observer, once the pair is up: one node active, the other in step."""
-    cl = NcTestClient(p["port"], client_id="plc1")
+    cl = NcTestClient(p["port"], client_id="plc1", lease_ms=LEASE_MS)
     tr = Trace(p["port"], tuple(axes))
     sim = p["drives"]
     wait_logged(lambda: active_node(cl) is not None, "one node active, the other a standby in step", servers(p))

@@ -13,7 +13,10 @@ from nc_link import NcLink
 from nc_schema import NCTOPLC_DTYPE, decode_frame, decode_stamp, frame_stamp
 from znc_testing.nc_process import NcTestClient
 
-__all__ = ["AXIS2", "CONFIG", "Trace", "active_node", "ha_status", "largest_step"]
+__all__ = ["AXIS2", "CONFIG", "LEASE_MS", "Trace", "active_node", "ha_status", "largest_step"]
+
+#: the zenoh lease of every process of the rig (the router's --lease-ms, the drive host's --lease-ms, CONFIG's)
+LEASE_MS = 3000
 
 CONFIG = """
 [nc]
@@ -26,6 +29,9 @@ publisher = "thread"
 [zenoh]
 mode = "client"
 connect = ["tcp/127.0.0.1:{port}"]
+# (LEASE_MS: a starved process's session is not dropped on a loaded machine, and a freeze is detected by the
+# standby's loss detection, not by the session's lease; a kill drops the token at once whatever the lease)
+lease = 3000
 
 [redundancy]
 enabled = true
