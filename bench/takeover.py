@@ -4,8 +4,9 @@ an nc-drive-sim hosting axis 1 and an observer of the set-points and frames (tes
 tests/drives/test_standby_process.py). After each takeover the killed node is started again as the standby; the
 next kill hits the other node.
 
-Per takeover: the time from the kill to the first set-point of the new active NC at the drive host (its log's epoch
-change, ms resolution) and seen by the observer (its NCTOPLC samples; zenoh delivery included), the NC's own figure (last log of the lost NC to the end of the takeover,
+Per takeover: the time from the kill to the first set-point of the new active NC at the drive host (its log's
+epoch change, ms resolution) and seen by the observer (its NCTOPLC samples; zenoh delivery included), the NC's own
+figure (last log of the lost NC to the end of the takeover,
 ha status ``takeover_cycles``); whether the move ended Done with its CmdNo; the drive host's epoch history (one
 new epoch per kill, never back) and its refused outputs (``stale_epoch``). Over the run: the largest SetPos step
 beyond the dynamics, the NC restarts the observer's nc_link saw, false takeovers (a role change without a kill).
@@ -207,7 +208,9 @@ def main(argv: list[str] | None = None) -> int:
     dms = [r["drive_ms"] for r in rows if r["drive_ms"] == r["drive_ms"]]
     dcyc = [m / (CYCLE * 1e3) for m in dms]
     nc_c = [r["nc_cycles"] for r in rows]
-    print(f"takeovers ({'SIGSTOP' if args.freeze else 'kill -9'}): {len(rows)} (cycle {CYCLE * 1e3:g} ms, takeover_cycles {args.takeover_cycles}, realtime "
+    kind = "SIGSTOP" if args.freeze else "kill -9"
+    print(f"takeovers ({kind}): {len(rows)} (cycle {CYCLE * 1e3:g} ms, takeover_cycles {args.takeover_cycles}, "
+          f"realtime "
           f"{args.realtime})")
     print(f"  kill -> first set-point seen: p50 {pct(ms, 50):.1f} ms ({pct(cyc, 50):.1f} cycles), p95 "
           f"{pct(ms, 95):.1f} ms ({pct(cyc, 95):.1f} cycles), max {max(ms, default=float('nan')):.1f} ms")
@@ -218,8 +221,9 @@ def main(argv: list[str] | None = None) -> int:
           f"{max(nc_c, default=0)}; caught up p50 {pct([r['catch_up'] for r in rows], 50):.0f} cycles")
     det = [r["detect_ms"] / (CYCLE * 1e3) for r in rows]
     work = [r["work_ms"] / (CYCLE * 1e3) for r in rows]
-    print(f"  its parts: detection (last log -> the cycle that takes over) p50 {pct(det, 50):.1f} / p95 {pct(det, 95):.1f}"
-          f" / max {max(det, default=float('nan')):.1f} cycles; then to the first step p50 {pct(work, 50):.1f} / p95 "
+    print(f"  its parts: detection (last log -> the cycle that takes over) p50 {pct(det, 50):.1f} / p95 "
+          f"{pct(det, 95):.1f} / max {max(det, default=float('nan')):.1f} cycles; then to the first step p50 "
+          f"{pct(work, 50):.1f} / p95 "
           f"{pct(work, 95):.1f} / max {max(work, default=float('nan')):.1f} cycles")
     lims = [r["limit"] for r in rows if r["limit"] is not None]
     print(f"  published limit for a freeze (the standby's takeover_limit_cycles at each kill): "

@@ -187,6 +187,7 @@ class HotStandby:
         self.logs_in = 0
         self.logs_out = 0
         self.snapshots_served = 0
+        self.snapshot_s = 0.0  # the longest snapshot built in the cycle thread (it makes that cycle late)
         self.stale_logs = 0
         self.synced_once = False
         self.active_token_seen = False
@@ -286,7 +287,10 @@ class HotStandby:
                 if query is None:
                     break
                 try:  # (sent by the I/O thread: a reply may block on a slow querier)
-                    self.srv.io.submit_replies([(query, snapshot(self.rec, self.hrec.full()))])
+                    t0 = time.perf_counter()
+                    data = snapshot(self.rec, self.hrec.full())
+                    self.snapshot_s = max(self.snapshot_s, time.perf_counter() - t0)
+                    self.srv.io.submit_replies([(query, data)])
                     self.snapshots_served += 1
                     self._excused = True  # (tens of ms: the gap it makes is no stall, see after_stall)
                 except Exception as exc:
@@ -565,7 +569,9 @@ class HotStandby:
                 "in_step": self.role == "active" or (not f.waiting and self.synced_once),
                 "cycle": int(self.core.cycle), "lag_cycles": int(f.lag), "logs_in": self.logs_in,
                 "logs_out": self.logs_out, "resyncs": f.resyncs, "diverged": f.diverged,
-                "snapshots_served": self.snapshots_served, "takeovers": self.takeovers, "demotions": self.demotions,
+                "snapshots_served": self.snapshots_served,
+                "snapshot_max_ms": round(self.snapshot_s * 1e3, 3), "takeovers": self.takeovers,
+                "demotions": self.demotions,
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
                 "takeover_detect_ms": round(self.detect_s * 1e3, 3), "takeover_work_ms": round(self.work_s * 1e3, 3),
                 "takeover_serve_ms": round(self.serve_s * 1e3, 3),

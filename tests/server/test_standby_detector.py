@@ -2,7 +2,10 @@
 missing one is; the limit the standby publishes follows what it saw. HotStandby over a server without zenoh."""
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
+
+import pytest
 
 import nc_server.core  # noqa: F401  (before nc_server.drives: circular import otherwise)
 from nc_server.server.config import Redundancy
@@ -94,3 +97,29 @@ def test_the_standbys_own_late_cycle_defers_the_judgement_once() -> None:
     # the standby's cycle thread was descheduled 200 ms: the logs may be queued in zenoh; the next cycle judges
     assert not d.silent(0.2)
     assert d.silent(0.202)
+
+
+def test_an_nc_that_drove_and_saw_a_higher_epoch_never_takes_over_without_a_snapshot() -> None:
+    # a SIGCONT'd active NC demoted itself; its session recovered without logs for a second: it must not take over
+    # from its own core, which is behind its successor's (a SetPos jump)
+    hs = standby()
+    hs.epoch = hs.highest = 5 << 16
+    hs.synced_once = False
+    hs._grace = 0.2
+    hs._started = hs._last_log = 0.0
+    assert hs._lost(1.0)  # nobody else took over: its own state is the newest, it takes over again
+    hs.highest = 6 << 16  # a log of epoch 6 came (the standby took over)
+    assert not hs._lost(1.0) and not hs._lost(100.0)
+    hs.epoch = 0  # a fresh standby (never drove): the start rule, its core is a fresh NC's
+    assert hs._lost(3.0)
+
+
+def test_the_active_nc_demotes_itself_for_a_stall_near_its_standbys_limit() -> None:
+    hs = standby()
+    hs.srv.became_standby = lambda: None  # type: ignore[attr-defined]
+    hs.role, hs.peer_in_step, hs.epoch = "active", True, 1 << 16
+    hs._peer_limits["a"] = (0.300, time.monotonic())  # the standby's published limit
+    assert not hs.after_stall(0.200)  # forgiven by the standby: it goes on
+    assert hs.role == "active"
+    assert hs.after_stall(0.240)  # > 0.75 x 0.3: the standby may have taken over (its last log came late)
+    assert hs.role == "standby" and hs._grace == pytest.approx(min(2.0, 2 * 0.225 + 0.1))
