@@ -60,6 +60,10 @@ WARMUP_FLOOR_S = 0.5
 LIMIT_CAP_S = 1.0
 #: an active NC that stalled longer than this share of its standby's limit (or of its lease) demotes itself
 STALL_MARGIN = 0.75
+#: an active NC that stalled longer than this share of that limit (but not long enough to demote itself) listens for
+#: HOLD_S [s] for a log of a higher epoch before its cycle goes on
+HOLD_SHARE = 0.5
+HOLD_S = 0.01
 
 
 class LossDetector:
@@ -184,6 +188,7 @@ class HotStandby:
         self.detect_s = self.work_s = self.serve_s = 0.0  # the last takeover's parts (docs/standby.md)
         self._serve_pending = False
         self._lost_at = self._detected_at = 0.0
+        self._lost_why = ""
         self.logs_in = 0
         self.logs_out = 0
         self.snapshots_served = 0
@@ -304,15 +309,29 @@ class HotStandby:
         # out (its tokens go: a freeze longer than the lease): a stall a bit shorter than that may have been one
         # too (the last log reached the standby late); a demotion without a takeover costs a takeover by the standby,
         # not demoting after one costs frames of this NC after the new one's (the clients' Cycle goes back)
-        limit = min(self.peer_limit(time.monotonic()), self._lease)
-        limit = max(self._silence, STALL_MARGIN * limit)
-        if self.role == "active" and self.peer_in_step and gap > limit and not excused:
+        raw = min(self.peer_limit(time.monotonic()), self._lease)
+        limit = max(self._silence, STALL_MARGIN * raw)
+        if self.role != "active" or not self.peer_in_step or excused:
+            return False
+        if gap > limit:
             self._become_standby(time.monotonic(), f"stalled {gap:.3f} s (the standby's limit {limit:.3f} s) with a "
                                  "standby in step")
             # (if the standby did not take over after all, e.g. the stall was close to its limit, no NC would drive:
             # this one takes over again after a short grace without an active NC)
             self._grace = min(START_GRACE_S, 2 * limit + 0.1)
             return True
+        if gap > max(self._silence, HOLD_SHARE * raw):
+            # a stall not far below the standby's limit: if it took over, its logs (a higher epoch) may still be in
+            # this NC's zenoh threads, which resumed with it; listen for them for HOLD_S before anything of this
+            # cycle goes out (frames of this NC after the new one's: the clients' Cycle would go back)
+            end = time.monotonic() + HOLD_S
+            while True:
+                self._take_logs(time.monotonic())  # (a log of a higher epoch demotes this NC: _take_log)
+                if self.role != "active":
+                    return True
+                if time.monotonic() >= end:
+                    return False
+                time.sleep(0.0005)
         return False
 
     def peer_limit(self, now: float) -> float:
@@ -458,7 +477,14 @@ class HotStandby:
             return now - self._last_log > g and not self.active_token_seen and now - self._started > g
         if self.follower.waiting:
             return False
-        return self._token_gone or self.detector.silent(now)
+        if self._token_gone:
+            self._lost_why = "its token went"
+            return True
+        if self.detector.silent(now):
+            self._lost_why = (f"no log for {(now - self.detector.last) * 1e3:.0f} ms, limit "
+                              f"{self.detector.limit(now) * 1e3:.0f}")
+            return True
+        return False
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -535,10 +561,11 @@ class HotStandby:
         self._serve()
         srv.transport.serve()
         self.serve_s = time.monotonic() - t
-        log.warning("NC %s: took over at cycle %d (epoch %d, node %s): first set-point %.1f ms after the last log "
-                    "(detection %.1f ms, then %.1f ms to the first step; %d cycles caught up; declarations %.1f ms "
-                    "after it)", srv.config.name, self.core.cycle, self.epoch, self.node, self.takeover_s * 1e3,
-                    self.detect_s * 1e3, self.work_s * 1e3, self.catch_up, self.serve_s * 1e3)
+        log.warning("NC %s: took over at cycle %d (epoch %d, node %s; the active NC lost: %s): first set-point %.1f ms "
+                    "after the last log (detection %.1f ms, then %.1f ms to the first step; %d cycles caught up; "
+                    "declarations %.1f ms after it)", srv.config.name, self.core.cycle, self.epoch, self.node,
+                    self._lost_why, self.takeover_s * 1e3, self.detect_s * 1e3, self.work_s * 1e3, self.catch_up,
+                    self.serve_s * 1e3)
 
     def _become_standby(self, now: float, why: str) -> None:
         srv = self.srv
