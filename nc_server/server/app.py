@@ -483,12 +483,14 @@ class NcServer:
         self._update_claims_msg(now)
 
     # ---- hot standby (docs/standby.md; the cycle thread) ------------------------------------------------------
-    def became_active(self, now: float) -> None:
-        """This NC drives from now on (HotStandby: a start as active, a takeover): serve its clients."""
+    def became_active(self, now: float, serve: bool = True) -> None:
+        """This NC drives from now on (HotStandby: a start as active, a takeover): serve its clients (``serve``
+        False: the caller declares the NC's keys later, transport.serve())."""
         self._prev_tick = now
         self._claims_version = -1
         self._claims_changed()  # (the holders whose PLCTONC frames count)
-        self.transport.serve()
+        if serve:
+            self.transport.serve()
 
     def became_standby(self) -> None:
         """This NC was replaced (HotStandby): it serves nothing; its prepared commands are dropped unanswered (a

@@ -53,6 +53,77 @@ SNAPSHOT_RETRY_S = 1.0
 START_GRACE_S = 2.0
 #: ha status period [s]
 STATUS_PERIOD_S = 0.1
+#: the loss detector (LossDetector): how long the gaps between the active NC's logs are remembered [s], the factor
+#: on the largest one, the warm-up after a standby comes in step and its floor, and the cap of the limit [s]
+GAP_WINDOW_S = 10.0
+GAP_FACTOR = 2.0
+WARMUP_S = 3.0
+WARMUP_FLOOR_S = 0.5
+LIMIT_CAP_S = 1.0
+#: an active NC that stalled longer than this share of its standby's limit (or of its lease) demotes itself
+STALL_MARGIN = 0.75
+#: an active NC that stalled longer than this share of that limit (but not long enough to demote itself) listens for
+#: HOLD_S [s] for a log of a higher epoch before its cycle goes on
+HOLD_SHARE = 0.5
+HOLD_S = 0.01
+
+
+class LossDetector:
+    """When a standby deems the active NC lost by the silence of its logs (a freeze, a link cut; a kill is seen at
+    once from the active NC's liveliness token), and the limit it publishes (ha status ``takeover_limit_cycles``).
+
+    The limit is ``takeover_cycles`` while the logs come on time; a loaded machine makes them late (the active NC's
+    cycle thread, zenoh's threads or the standby's own cycle thread descheduled: 150 ms seen at load average 20 with
+    realtime off), so the limit follows GAP_FACTOR x the largest gap between logs of the last GAP_WINDOW_S, capped
+    at LIMIT_CAP_S: a late log is no loss, a missing one is. For WARMUP_S after the standby came in step (no gap
+    history yet; the active NC has just built a snapshot) it is at least WARMUP_FLOOR_S. And a silence is judged
+    only in a cycle of the standby that is itself on time, or the second in a row: after its own stall the logs may
+    still be on their way through zenoh's threads.
+
+    Args:
+        base_s: ``takeover_cycles`` x the cycle time [s].
+    """
+
+    def __init__(self, base_s: float) -> None:
+        self.base = base_s
+        self.last = 0.0       # when the newest log was taken
+        self.since = -1e9     # when the standby came in step (the warm-up's start)
+        self.gaps: collections.deque[tuple[float, float]] = collections.deque(maxlen=256)
+        self._prev_cycle = 0.0
+        self._deferred = False
+
+    def restart(self, now: float) -> None:
+        """In step from a snapshot (or a new role): no gap history, the warm-up starts."""
+        self.last = self.since = now
+        self.gaps.clear()
+        self._deferred = False
+
+    def log(self, now: float) -> None:
+        """A log of the active NC was taken at ``now``."""
+        gap = now - self.last
+        self.last = now
+        if gap > self.base / 4:  # (gaps within a quarter of the base never raise the limit)
+            self.gaps.append((now, gap))
+
+    def limit(self, now: float) -> float:
+        """The silence [s] that is a loss now."""
+        g = self.gaps
+        while g and now - g[0][0] > GAP_WINDOW_S:
+            g.popleft()
+        lim = max(self.base, GAP_FACTOR * max((x for _, x in g), default=0.0))
+        if now - self.since < WARMUP_S:
+            lim = max(lim, WARMUP_FLOOR_S)
+        return max(self.base, min(lim, LIMIT_CAP_S))
+
+    def silent(self, now: float) -> bool:
+        """The logs have been missing longer than :meth:`limit` (call once per standby cycle, at its start)."""
+        own = now - self._prev_cycle
+        self._prev_cycle = now
+        if own > self.base / 2 and not self._deferred:  # this cycle is late itself: the next one judges
+            self._deferred = True
+            return False
+        self._deferred = False
+        return now - self.last > self.limit(now)
 
 
 def node_name(configured: str) -> str:
@@ -116,9 +187,14 @@ class HotStandby:
         self.takeover_s = 0.0
         self.takeover_cycles = 0  # NC cycles of the last takeover (detection included)
         self.catch_up = 0         # cycles stepped at once at the last takeover
+        self.detect_s = self.work_s = self.serve_s = 0.0  # the last takeover's parts (docs/standby.md)
+        self._serve_pending = False
+        self._lost_at = self._detected_at = 0.0
+        self._lost_why = ""
         self.logs_in = 0
         self.logs_out = 0
         self.snapshots_served = 0
+        self.snapshot_s = 0.0  # the longest snapshot built in the cycle thread (it makes that cycle late)
         self.stale_logs = 0
         self.synced_once = False
         self.active_token_seen = False
@@ -142,10 +218,17 @@ class HotStandby:
         self._recent: collections.deque[bytes] = collections.deque(maxlen=LOG_REPEAT)
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
-        # the drive hosts learn the pair's takeover bound with the outputs (they warn if their timeout is shorter)
+        # the drive hosts learn the pair's takeover bound with the outputs (they warn if their timeout is shorter);
+        # the limit in force follows the loss detector (status())
         self.takeover_limit_ms = bound_ms = takeover_bound(settings.takeover_cycles, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
             lk.takeover_ms = bound_ms
+        self.detector = LossDetector(self._silence)
+        zn = getattr(server.config, "zenoh", None)
+        self._lease = float(getattr(zn, "lease_ms", 500)) / 1000.0  # (a freeze this long drops this NC's tokens)
+        self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
+        self._status_sub: Any = None
+        self._grace = START_GRACE_S  # (standby, never in step) no active NC this long: take over
 
     # ---- session (start, before the cycle thread) ---------------------------------------------------------------
     def open(self, session: zenoh.Session) -> None:
@@ -158,6 +241,7 @@ class HotStandby:
         self._status_pub = s.declare_publisher(f"{k}/status/{self.node}")
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
+        self._status_sub = s.declare_subscriber(f"{k}/status/*", FifoChannel(64))
         self._started = self._last_log = time.monotonic()
         if self.settings.start == "active":
             self._become_active(time.monotonic(), first=True)
@@ -168,7 +252,7 @@ class HotStandby:
 
     def close(self) -> None:
         for d in (self._token, self._snap_q, self._log_sub, self._log_pub, self._status_pub, self._active_sub,
-                  self._standby_sub):
+                  self._standby_sub, self._status_sub):
             if d is not None:
                 try:
                     d.undeclare()
@@ -196,6 +280,8 @@ class HotStandby:
     def after_step(self) -> None:
         """The active NC's log of the cycle just stepped; snapshots asked for (after the log: a follower starting
         from it replays the next one)."""
+        if self._serve_pending:
+            self._finish_takeover()
         lg = self.rec.take(self.hrec.take(), self.epoch)
         self._recent.append(pickle.dumps(lg, protocol=pickle.HIGHEST_PROTOCOL))
         try:  # (the last LOG_REPEAT logs in each sample: a sample dropped on the way costs no re-sync)
@@ -213,7 +299,10 @@ class HotStandby:
                 if query is None:
                     break
                 try:  # (sent by the I/O thread: a reply may block on a slow querier)
-                    self.srv.io.submit_replies([(query, snapshot(self.rec, self.hrec.full()))])
+                    t0 = time.perf_counter()
+                    data = snapshot(self.rec, self.hrec.full())
+                    self.snapshot_s = max(self.snapshot_s, time.perf_counter() - t0)
+                    self.srv.io.submit_replies([(query, data)])
                     self.snapshots_served += 1
                     self._excused = True  # (tens of ms: the gap it makes is no stall, see after_stall)
                 except Exception as exc:
@@ -223,10 +312,57 @@ class HotStandby:
         """The active NC's cycle thread stalled ``gap`` [s]: longer than a takeover, with a standby in step, this
         NC must assume it was replaced (it stops driving before anything goes out). True: it is a standby now."""
         excused, self._excused = self._excused, False
-        if self.role == "active" and self.peer_in_step and gap > self._silence and not excused:
-            self._become_standby(time.monotonic(), f"stalled {gap:.3f} s with a standby in step")
+        # the standby took over after the published limit from its last log, or when this NC's session lease ran
+        # out (its tokens go: a freeze longer than the lease): a stall a bit shorter than that may have been one
+        # too (the last log reached the standby late); a demotion without a takeover costs a takeover by the standby,
+        # not demoting after one costs frames of this NC after the new one's (the clients' Cycle goes back)
+        raw = min(self.peer_limit(time.monotonic()), self._lease)
+        limit = max(self._silence, STALL_MARGIN * raw)
+        if self.role != "active" or not self.peer_in_step or excused:
+            return False
+        if gap > limit:
+            self._become_standby(time.monotonic(), f"stalled {gap:.3f} s (the standby's limit {limit:.3f} s) with a "
+                                 "standby in step")
+            # (if the standby did not take over after all, e.g. the stall was close to its limit, no NC would drive:
+            # this one takes over again after a short grace without an active NC)
+            self._grace = min(START_GRACE_S, 2 * limit + 0.1)
             return True
+        if gap > max(self._silence, HOLD_SHARE * raw):
+            # a stall not far below the standby's limit: if it took over, its logs (a higher epoch) may still be in
+            # this NC's zenoh threads, which resumed with it; listen for them for HOLD_S before anything of this
+            # cycle goes out (frames of this NC after the new one's: the clients' Cycle would go back)
+            end = time.monotonic() + HOLD_S
+            while True:
+                self._take_logs(time.monotonic())  # (a log of a higher epoch demotes this NC: _take_log)
+                if self.role != "active":
+                    return True
+                if time.monotonic() >= end:
+                    return False
+                time.sleep(0.0005)
         return False
+
+    def peer_limit(self, now: float) -> float:
+        """(active) The silence a standby in step takes for a loss now [s]: the largest limit of the ha statuses of
+        the other nodes of the last GAP_WINDOW_S (their LossDetector's), at least ``takeover_cycles``; none: the
+        detector's cap."""
+        sub = self._status_sub
+        while sub is not None:
+            try:
+                s = sub.try_recv()
+            except Exception:
+                break
+            if s is None:
+                break
+            try:
+                st = msgpack.unpackb(s.payload.to_bytes(), raw=False)
+                if st.get("node") != self.node and st.get("role") == "standby" and st.get("in_step"):
+                    self._peer_limits[str(st["node"])] = (float(st["takeover_limit_cycles"]) * self._dt, now)
+            except Exception:
+                continue
+        # (a status some seconds old still holds: a loaded machine delays them too; none yet: the cap, the most a
+        # standby ever waits)
+        fresh = [lim for lim, t in self._peer_limits.values() if now - t < GAP_WINDOW_S]
+        return max([self._silence, *fresh]) if fresh else max(self._silence, LIMIT_CAP_S)
 
     # ---- the parts ----------------------------------------------------------------------------------------------
     def _take_tokens(self) -> None:
@@ -267,6 +403,8 @@ class HotStandby:
             except Exception as exc:
                 log.warning("unusable ha log: %s", exc)
                 continue
+            if self.role == "standby":
+                self.detector.log(now)
             for lg in logs:
                 if self._take_log(lg, now):
                     return
@@ -317,7 +455,10 @@ class HotStandby:
                     self.follower.load(reply.ok.payload.to_bytes())
                     self._snap_replies = None
                     log.info("standby %s: in step from cycle %d (snapshot)", self.node, self.core.cycle)
-                    self._last_log = now
+                    # (after the load, which takes a while: the silence counts from now; the active NC's cycle that
+                    # built the snapshot was late too: the detector's warm-up)
+                    self._last_log = time.monotonic()
+                    self.detector.restart(self._last_log)
                     return
                 except Exception as exc:
                     log.warning("unusable snapshot: %s", exc)
@@ -332,10 +473,25 @@ class HotStandby:
     def _lost(self, now: float) -> bool:
         """The active NC is lost: its token went, or no log for ``takeover_cycles`` (a standby that never followed
         one: none for START_GRACE_S and no active token)."""
-        quiet = now - self._last_log
         if not self.synced_once:
-            return quiet > START_GRACE_S and not self.active_token_seen and now - self._started > START_GRACE_S
-        return (quiet > self._silence or self._token_gone) and not self.follower.waiting
+            # an NC that drove (an epoch) and saw a higher one since (a log, a drive host's inputs) is behind its
+            # successor: its core is stale, it waits for a snapshot (a takeover from it would be a jump); else (nobody
+            # else took over since: its own state is the newest) it takes over after the grace without an active NC
+            seen = max([self.highest, *(lk.host_epoch for lk in drive_links(self.real_drive))])
+            if self.epoch and seen > self.epoch:
+                return False
+            g = self._grace
+            return now - self._last_log > g and not self.active_token_seen and now - self._started > g
+        if self.follower.waiting:
+            return False
+        if self._token_gone:
+            self._lost_why = "its token went"
+            return True
+        if self.detector.silent(now):
+            self._lost_why = (f"no log for {(now - self.detector.last) * 1e3:.0f} ms, limit "
+                              f"{self.detector.limit(now) * 1e3:.0f}")
+            return True
+        return False
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -354,6 +510,7 @@ class HotStandby:
         srv = self.srv
         lost_at = self._last_log
         self._token_gone = False
+        self._grace = START_GRACE_S
         self.epoch = next_epoch(max(self.highest, self.epoch), self.node)
         self.highest = self.epoch
         for lk in drive_links(self.real_drive):
@@ -368,30 +525,54 @@ class HotStandby:
             if hs.instance:
                 srv.transport.instance = self.hrec.instance = hs.instance
         srv.claims.rebase(now)
+        self.role = "active"
+        if first or not self.synced_once:
+            self._serve()
+            srv.became_active(now)
+            log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
+            return
+        srv.became_active(now, serve=False)
+        # the zenoh declarations (the active token, the snapshot and command queryables, the stats and claims
+        # publishers, the NC's tokens: 7 calls, milliseconds on a loaded machine) come after the first step, whose
+        # set-point is the first thing the drives need (after_step)
+        self._serve_pending = True
+        self._lost_at, self._detected_at = lost_at, now
+        # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
+        # steps over that time at once, so its first set-point is where the drives' targets are now
+        quiet = max(0.0, now - lost_at) if lost_at > 0 else 0.0
+        k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt)
+        self.catch_up = k
+        self.takeovers += 1
+        for _ in range(max(0, k - 1)):
+            self.rec.step()
+            self.after_step()
+
+    def _serve(self) -> None:
+        """Declare what the active NC of the pair declares (its token, the snapshot queryable, the NC's keys)."""
         if self._token is not None:
             self._token.undeclare()
         self._token = self._session.liveliness().declare_token(f"{self.keys}/active/{self.node}") \
             if self._session is not None else None
         self._snap_q = self._session.declare_queryable(f"{self.keys}/snapshot", FifoChannel(16)) \
             if self._session is not None else None
-        self.role = "active"
-        srv.became_active(now)
-        if first or not self.synced_once:
-            log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
-            return
-        # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
-        # steps over that time at once, so its first set-point is where the drives' targets are now
-        quiet = max(0.0, now - lost_at) if lost_at > 0 else 0.0
-        k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt)
-        for _ in range(max(0, k - 1)):
-            self.rec.step()
-            self.after_step()
-        self.catch_up = k
-        self.takeovers += 1
-        self.takeover_s = time.monotonic() - lost_at if lost_at > 0 else 0.0
+
+    def _finish_takeover(self) -> None:
+        """After the takeover's first step (its set-point is out): the times, then the declarations."""
+        self._serve_pending = False
+        t = time.monotonic()
+        lost_at, srv = self._lost_at, self.srv
+        self.takeover_s = t - lost_at if lost_at > 0 else 0.0
         self.takeover_cycles = int(round(self.takeover_s / self._dt)) if lost_at > 0 else 0
-        log.warning("NC %s: took over at cycle %d (epoch %d, node %s): %.1f ms after the last log, %d cycles "
-                    "caught up", srv.config.name, core.cycle, self.epoch, self.node, self.takeover_s * 1e3, k)
+        self.detect_s = self._detected_at - lost_at if lost_at > 0 else 0.0
+        self.work_s = t - self._detected_at
+        self._serve()
+        srv.transport.serve()
+        self.serve_s = time.monotonic() - t
+        log.warning("NC %s: took over at cycle %d (epoch %d, node %s; the active NC lost: %s): first set-point %.1f ms "
+                    "after the last log (detection %.1f ms, then %.1f ms to the first step; %d cycles caught up; "
+                    "declarations %.1f ms after it)", srv.config.name, self.core.cycle, self.epoch, self.node,
+                    self._lost_why, self.takeover_s * 1e3, self.detect_s * 1e3, self.work_s * 1e3, self.catch_up,
+                    self.serve_s * 1e3)
 
     def _become_standby(self, now: float, why: str) -> None:
         srv = self.srv
@@ -418,15 +599,32 @@ class HotStandby:
     def status(self) -> dict[str, Any]:
         """The ha status (``nc/<nc>/ha/status/<node>``, the stats' ``ha``)."""
         f = self.follower
+        limit = self._limit_cycles()
+        # the limit in force (it grows with the log gaps under load) goes to the drive hosts with the outputs
+        self.takeover_limit_ms = takeover_bound(limit, self._dt) * 1e3
+        for lk in drive_links(self.real_drive):
+            lk.takeover_ms = self.takeover_limit_ms
         return {"node": self.node, "role": self.role, "epoch": self.epoch, "highest_epoch": self.highest,
                 "in_step": self.role == "active" or (not f.waiting and self.synced_once),
                 "cycle": int(self.core.cycle), "lag_cycles": int(f.lag), "logs_in": self.logs_in,
                 "logs_out": self.logs_out, "resyncs": f.resyncs, "diverged": f.diverged,
-                "snapshots_served": self.snapshots_served, "takeovers": self.takeovers, "demotions": self.demotions,
+                "snapshots_served": self.snapshots_served,
+                "snapshot_max_ms": round(self.snapshot_s * 1e3, 3), "takeovers": self.takeovers,
+                "demotions": self.demotions,
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
-                "catch_up_cycles": self.catch_up, "takeover_limit_cycles": self.settings.takeover_cycles,
+                "takeover_detect_ms": round(self.detect_s * 1e3, 3), "takeover_work_ms": round(self.work_s * 1e3, 3),
+                "takeover_serve_ms": round(self.serve_s * 1e3, 3),
+                "catch_up_cycles": self.catch_up, "takeover_limit_cycles": limit,
                 "takeover_limit_ms": round(self.takeover_limit_ms, 3),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
+
+    def _limit_cycles(self, now: float | None = None) -> int:
+        """The published bound of a takeover after a freeze or link cut [cycles]: the standby's loss detector's
+        limit (the active NC's: what its standby last published, at least ``takeover_cycles``)."""
+        now = time.monotonic() if now is None else now
+        # (a freeze of the active NC longer than its lease drops its token: a takeover then at the latest)
+        lim = min(self.detector.limit(now) if self.role == "standby" else self.peer_limit(now), self._lease)
+        return int(-(-lim // self._dt))
 
     def _fenced(self) -> int:
         try:

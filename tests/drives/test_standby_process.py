@@ -1,6 +1,6 @@
 """A hot-standby NC pair with real processes over real zenoh on 127.0.0.1 (docs/standby.md): an ``nc-router``, two
 ``nc-server`` processes of NC ``nc1`` in client mode behind it (node ``a`` starts active, ``b`` standby), an
-``nc-drive-sim`` hosting the remote drives, a client moving axis 1 and an observer following the NC as the PLC
+``nc-drive-sim`` hosting the remote drives, a client moving the axes and an observer following the NC as the PLC
 runtime does (nc_link: its NC-restart detection).
 
 * kill -9 of the active NC mid-move: the standby takes over (ha status, a higher epoch on the drive host), the
@@ -8,7 +8,15 @@ runtime does (nc_link: its NC-restart detection).
   the same CmdNo, a repeated request gets the replicated reply, the observer sees no NC restart; the takeover
   time is measured;
 * SIGSTOP of the active NC mid-move, then SIGCONT: the standby takes over; the old NC comes back as a standby and
-  never drives again (the drive host refuses its epoch; nothing of it reaches the drives).
+  never drives again (the drive host refuses its epoch; nothing of it reaches the drives);
+* kill -9 during a coupling (MC_GearIn 1:2, master and slave on this NC): no jump on either axis, the slave in
+  ratio at every cycle seen, the master's move Done, the GearIn block still coupled with its CmdNo;
+* kill -9 during a superposition (MC_MoveSuperImposed on a moving axis): no jump, the superposition ends DONE with
+  its CmdNo and its full distance, the basic motion goes on.
+
+Reliable on a loaded 2-core machine (checked 3 runs in a row and under bench/cpu_burner.py; the SIGSTOP test is
+opt-in, see its reason): every wait is a condition with a generous deadline; the node killed is the one active at that moment (a false takeover before it,
+which the loss detection should prevent, is not what these tests check); no speed is asserted.
 """
 from __future__ import annotations
 
@@ -20,43 +28,39 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-# Opt-in (ZNC_STANDBY_TESTS=1): green 6 runs in a row at load average 5-7 on 2 cores, but at load average ~24 (a full
-# CI run beside) one run saw a 14.8 s log silence then a third epoch (the old node took over again), another a
-# command unanswered for 10 s: not reliable enough for make test yet (docs/standby.md).
-pytestmark = pytest.mark.skipif(not os.environ.get("ZNC_STANDBY_TESTS"),
-                                reason="hot-standby process tests: set ZNC_STANDBY_TESTS=1 (docs/standby.md)")
-
 from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server, wait_until
 from znc_testing.remote_drives import DriveSim, drive_axis, power
-from znc_testing.standby_rig import CONFIG, Trace, ha_status, largest_step
+from znc_testing.standby_rig import AXIS2, CONFIG, LEASE_MS, Trace, active_node, ha_status, largest_step
 
-T = 30.0
+T = 60.0  # generous deadlines: a loaded 2-core machine
 CYCLE = 0.002
-# 500 ms: above the stalls of a loaded 2-core machine (false takeovers there are a matter of this setting, not of the
-# mechanism; bench/takeover.py measures the takeover time), well below the drive host's timeout (DRIVE_TIMEOUT)
-TAKEOVER_CYCLES = 250
-DRIVE_TIMEOUT = 3.0
-V, A, J = 50.0, 500.0, 5000.0  # the move's dynamics
+# the default (15 = 30 ms): the standby's loss detection raises the limit it applies (and publishes) when the logs
+# come late on a loaded machine (docs/standby.md, "Loss detection"); a kill is seen at once from the token anyway
+TAKEOVER_CYCLES = 15
+DRIVE_TIMEOUT = 3.0  # above the loss detection's cap (1 s)
+V, A, J = 50.0, 500.0, 5000.0  # the moves' dynamics
+DONE, ABORTED, ERROR = 2, 3, 4
+
+Procs = dict[str, Any]
 
 
-def wait_logged(pred: Callable[[], Any], what: str, *procs: Any, timeout: float = T) -> Any:
+def wait_logged(pred: Callable[[], Any], what: str, procs: Procs, timeout: float = T) -> Any:
     """wait_until, with the processes' stderr in the failure's message."""
     try:
-        return wait_until(pred, timeout, what)
+        return wait_until(pred, timeout, what, interval=0.02)
     except AssertionError as exc:
-        logs = "\n".join(f"--- {getattr(p, 'name', 'drives')} {getattr(p, 'pid', '')}:\n{p.stderr()[-3000:]}"
-                         for p in procs)
+        logs = "\n".join(f"--- {n}:\n{p.stderr()[-3000:]}" for n, p in procs.items())
         raise AssertionError(f"{exc}\n{logs}") from None
 
 
 @pytest.fixture
-def pair(tmp_path: Path) -> Iterator[Callable[[], tuple[NcServerProcess, NcServerProcess, DriveSim, int]]]:
+def pair(tmp_path: Path) -> Iterator[Callable[..., Procs]]:
     started: list[Any] = []
 
-    def make() -> tuple[NcServerProcess, NcServerProcess, DriveSim, int]:
-        router = start_nc_router(tmp_path / "router")
+    def make(axes: int = 1) -> Procs:
+        router = start_nc_router(tmp_path / "router", ["--lease-ms", str(LEASE_MS)])
         started.append(router)
-        text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=TAKEOVER_CYCLES)
+        text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=TAKEOVER_CYCLES) + (AXIS2 if axes > 1 else "")
         cfg = tmp_path / "nc.toml"
         cfg.write_text(text)
         a = start_nc_server(tmp_path / "a", text, name="nc1", connect=router.endpoint,
@@ -66,9 +70,9 @@ def pair(tmp_path: Path) -> Iterator[Callable[[], tuple[NcServerProcess, NcServe
                             extra_args=["--set", "redundancy.node=b"])
         started.append(b)
         sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
-                                  "--timeout", str(DRIVE_TIMEOUT)])
+                                  "--timeout", str(DRIVE_TIMEOUT), "--lease-ms", str(LEASE_MS)])
         started.append(sim)
-        return a, b, sim, router.port
+        return {"a": a, "b": b, "drives": sim, "port": router.port}
 
     try:
         yield make
@@ -77,41 +81,75 @@ def pair(tmp_path: Path) -> Iterator[Callable[[], tuple[NcServerProcess, NcServe
             h.kill()
 
 
-def start_move(a: NcServerProcess, b: NcServerProcess, sim: DriveSim, port: int, target: float) -> tuple[
-        NcTestClient, Trace, dict[str, Any], dict[str, Any]]:
-    cl = NcTestClient(port, client_id="plc1")
-    tr = Trace(port)
-    wait_logged(lambda: (s := ha_status(cl, "b")) is not None and s["in_step"] and s["role"] == "standby",
-                "node b in step as the standby", a, b)
-    wait_logged(lambda: (s := ha_status(cl, "a")) is not None and s["role"] == "active", "node a active", a, b)
-    wait_until(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0, T,
-               f"the drive host receiving outputs; stderr:\n{sim.stderr()}")
-    # the pair's takeover bound reaches the drive host with the outputs: (250 + 1) cycles of 2 ms, below its 3 s
-    st0 = wait_until(lambda: (s := sim.status()) is not None and s["takeover_ms"] > 0 and s, T, "takeover_ms")
-    assert st0["takeover_ms"] == pytest.approx((TAKEOVER_CYCLES + 1) * CYCLE * 1e3) and not st0["timeout_short"]
-    power(cl, [1])
+def servers(p: Procs) -> Procs:
+    return {n: p[n] for n in ("a", "b", "drives")}
+
+
+def setup(p: Procs, axes: list[int]) -> tuple[NcTestClient, Trace]:
+    """The client (axes powered) and the observer, once the pair is up: one node active, the other in step."""
+    cl = NcTestClient(p["port"], client_id="plc1", lease_ms=LEASE_MS)
+    tr = Trace(p["port"], tuple(axes))
+    sim = p["drives"]
+    wait_logged(lambda: active_node(cl) is not None, "one node active, the other a standby in step", servers(p))
+    wait_logged(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0,
+                "the drive host receiving outputs", servers(p))
+    # the pair's takeover limit reaches the drive host with the outputs: at least (15 + 1) cycles of 2 ms, at most
+    # the loss detection's cap (1 s) + 1 cycle, below the host's 3 s
+    st = wait_logged(lambda: (s := sim.status()) is not None and s["takeover_ms"] > 0 and s, "takeover_ms", servers(p))
+    assert (TAKEOVER_CYCLES + 1) * CYCLE * 1e3 - 1e-6 <= st["takeover_ms"] <= 1e3 + 2 * CYCLE * 1e3, st
+    assert not st["timeout_short"], st
+    power(cl, axes)
+    return cl, tr
+
+
+def move(cl: NcTestClient, axis: int, target: float, request_id: int | None = None) -> tuple[dict[str, Any], dict]:
     req = {"Position": target, "Velocity": V, "Acceleration": A, "Deceleration": A, "Jerk": J}
-    r = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)
+    r = cl.request("MoveAbsolute", axis=axis, request_id=request_id, **req)
     assert r["error"] == 0, r
-    return cl, tr, r, req
+    return r, req
 
 
-def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Any]) -> None:
-    a, b, sim, port = pair()
-    cl, tr, first, req = start_move(a, b, sim, port, 40.0)
+def kill_active(p: Procs, cl: NcTestClient, sig: int = signal.SIGKILL) -> tuple[str, str, int]:
+    """Signal the node active now (its process group): (that node, the other, its epoch)."""
+    act = wait_logged(lambda: (n := active_node(cl)) is not None and (n,), "one node active, the other a standby in "
+                      "step", servers(p))[0]
+    other = "b" if act == "a" else "a"
+    epoch = int((ha_status(cl, act) or {})["epoch"])
+    if sig == signal.SIGKILL:
+        kill_process_group(p[act].proc)
+    else:
+        os.killpg(p[act].proc.pid, sig)
+    return act, other, epoch
+
+
+def took_over(p: Procs, cl: NcTestClient, node: str, epoch: int) -> dict[str, Any]:
+    st = wait_logged(lambda: (s := ha_status(cl, node)) is not None and s["role"] == "active" and s["epoch"] > epoch
+                     and s, f"{node} took over", servers(p))
+    wait_logged(lambda: (s := p["drives"].status()) is not None and s["epoch"] == st["epoch"],
+                "the drive host follows the new active NC", servers(p))
+    return st
+
+
+def done(p: Procs, cl: NcTestClient, axis: int, cmd_no: int, target: float) -> Any:
+    r = wait_logged(lambda: (x := cl.nctoplc(axis)) is not None and int(x["CmdNo"]) == cmd_no
+                    and int(x["CmdState"]) in (DONE, ABORTED, ERROR) and x, f"axis {axis}'s move ended", servers(p))
+    assert int(r["CmdState"]) == DONE and int(r["ErrorCode"]) == 0, (int(r["CmdState"]), hex(int(r["ErrorCode"])))
+    assert abs(float(r["SetPos"]) - target) < 1e-6
+    return r
+
+
+def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Procs]) -> None:
+    p = pair()
+    cl, tr = setup(p, [1])
     try:
-        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0, "axis 1 past 10", a, b, sim)
-        epoch_a = ha_status(cl, "a")["epoch"]  # type: ignore[index]
-        kill_process_group(a.proc)  # kill -9 of the active NC (its process group)
+        first, req = move(cl, 1, 40.0, request_id=4242)
+        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0, "axis 1 past 10",
+                    servers(p))
+        _, new, epoch = kill_active(p, cl)
         t_kill = time.monotonic()
-        st = wait_until(lambda: (s := ha_status(cl, "b")) is not None and s["role"] == "active" and s, T,
-                        f"b took over; stderr:\n{b.stderr()}")
-        assert st["epoch"] > epoch_a and st["takeovers"] >= 1
-        wait_until(lambda: (s := sim.status()) is not None and s["epoch"] == st["epoch"], T, "drive host follows b")
-        r = wait_until(lambda: (x := cl.nctoplc(1)) is not None and int(x["CmdState"]) == 2 and x, T * 2,
-                       "the move ended Done")  # (CmdState 2: DONE)
-        assert abs(float(r["SetPos"]) - 40.0) < 1e-6 and int(r["CmdNo"]) == first["CmdNo"]
-        assert int(r["ErrorCode"]) == 0
+        st = took_over(p, cl, new, epoch)
+        assert st["takeovers"] >= 1
+        done(p, cl, 1, first["CmdNo"], 40.0)
         # a repeated request (same client and id) gets the replicated reply: not executed twice
         again = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)
         assert again == first
@@ -119,39 +157,113 @@ def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Any]) -> None:
         step = largest_step(tr.samples, CYCLE, A)
         after = [s for s in tr.samples if s[5] > t_kill]
         assert after and after[0][0] > max(s[0] for s in tr.samples if s[5] <= t_kill) - 1  # the Cycle continued
-        assert step < 0.05 * V * TAKEOVER_CYCLES * CYCLE + 1e-3, step
+        assert step < 0.05 * V * CYCLE + 1e-6, step
         print(f"takeover {st['takeover_ms']:.1f} ms ({st['takeover_cycles']} cycles of {CYCLE * 1e3:g} ms, detection "
               f"included; caught up {st['catch_up_cycles']}), largest SetPos step beyond the dynamics {step:.6f}")
-        stt = sim.status()
+        stt = p["drives"].status()
         assert stt is not None and drive_axis(stt, 1)["state"] == "OPERATION_ENABLED"
     finally:
         tr.close()
         cl.close()
 
 
-def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Any]) -> None:
-    a, b, sim, port = pair()
-    cl, tr, first, _ = start_move(a, b, sim, port, 30.0)
+# Opt-in (ZNC_STANDBY_TESTS=1): green in every run at load average 3-10 (9 runs), but under bench/cpu_burner.py 3 of 6
+# runs failed: with realtime off the NCs' cycle threads stall 0.25-1.5 s there, so after the takeover the pair may
+# change roles again (a stall beyond the standby's limit: legitimate, but not what this test asserts), and once the
+# resumed NC put a frame before the new NC's log reached it (the clients' Cycle went back; docs/standby.md, "Not
+# there yet"). The kill -9 tests above and below are reliable under the burner.
+@pytest.mark.skipif(not os.environ.get("ZNC_STANDBY_TESTS"),
+                    reason="SIGSTOP of the active NC: unreliable with every core busy (role changes after stalls of "
+                           "0.25-1.5 s, a frame of the resumed NC after the new one's); set ZNC_STANDBY_TESTS=1 "
+                           "(docs/standby.md)")
+def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Procs]) -> None:
+    p = pair()
+    cl, tr = setup(p, [1])
     try:
-        wait_until(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 8.0, T, "axis 1 past 8")
-        os.killpg(a.proc.pid, signal.SIGSTOP)
+        first, _ = move(cl, 1, 30.0)
+        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 8.0, "axis 1 past 8", servers(p))
+        old, new, epoch = kill_active(p, cl, signal.SIGSTOP)
         try:
-            st = wait_until(lambda: (s := ha_status(cl, "b")) is not None and s["role"] == "active" and s, T,
-                            f"b took over; stderr:\n{b.stderr()}")
+            st = took_over(p, cl, new, epoch)
         finally:
-            os.killpg(a.proc.pid, signal.SIGCONT)
+            os.killpg(p[old].proc.pid, signal.SIGCONT)
         # the old NC comes back as a standby (it stalled with a standby in step, or it sees the higher epoch)
-        wait_until(lambda: (s := ha_status(cl, "a")) is not None and s["role"] == "standby" and s["demotions"] >= 1,
-                   T, f"a is a standby; stderr:\n{a.stderr()}")
-        r = wait_until(lambda: (x := cl.nctoplc(1)) is not None and int(x["CmdState"]) == 2 and x, T * 2,
-                       "the move ended Done")
-        assert abs(float(r["SetPos"]) - 30.0) < 1e-6 and int(r["CmdNo"]) == first["CmdNo"]
-        stt = sim.status()
+        wait_logged(lambda: (s := ha_status(cl, old)) is not None and s["role"] == "standby" and s["demotions"] >= 1,
+                    f"{old} is a standby", servers(p))
+        done(p, cl, 1, first["CmdNo"], 30.0)
+        stt = p["drives"].status()
         assert stt is not None and stt["epoch"] == st["epoch"]
-        # a never drives again: the host's epoch stays b's, and a is back in step as a standby of b
-        wait_logged(lambda: (s := ha_status(cl, "a")) is not None and s["in_step"], "a in step with b", a, b)
-        assert (ha_status(cl, "a") or {})["role"] == "standby" and (ha_status(cl, "b") or {})["role"] == "active"
+        # the old NC never drives again: the host's epoch stays the new one's, and it is back in step as a standby
+        wait_logged(lambda: (s := ha_status(cl, old)) is not None and s["in_step"] and time.time() - s["time"] < 1.0,
+                    f"{old} in step with {new}", servers(p))
+        assert (ha_status(cl, old) or {})["role"] == "standby" and (ha_status(cl, new) or {})["role"] == "active"
+        assert (p["drives"].status() or {})["epoch"] == st["epoch"]
         assert tr.restarts == [], tr.restarts
+        assert largest_step(tr.samples, CYCLE, A) < 0.05 * V * CYCLE + 1e-6
+    finally:
+        tr.close()
+        cl.close()
+
+
+def test_kill_9_during_a_coupling(pair: Callable[..., Procs]) -> None:
+    p = pair(axes=2)
+    cl, tr = setup(p, [1, 2])
+    try:
+        m0, s0 = float(cl.nctoplc(1)["SetPos"]), float(cl.nctoplc(2)["SetPos"])  # type: ignore[index]
+        gear = cl.request("GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=2)
+        assert gear["error"] == 0, gear
+        wait_logged(lambda: (j := tr.jobs.get(2)) is not None and int(j["MasterId"]) == 1, "axis 2 coupled", servers(p))
+        first, _ = move(cl, 1, m0 + 40.0)
+        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > m0 + 10.0, "master past 10",
+                    servers(p))
+        _, new, epoch = kill_active(p, cl)
+        took_over(p, cl, new, epoch)
+        done(p, cl, 1, first["CmdNo"], m0 + 40.0)
+        r2 = wait_logged(lambda: (x := cl.nctoplc(2)) is not None and abs(float(x["SetPos"]) - s0 - 20.0) < 1e-6
+                         and x, "the slave at its ratio's end position", servers(p))
+        # the GearIn block goes on: its CmdNo, no error, still coupled to axis 1 (TwinCAT: InGear until decoupled)
+        assert int(r2["CmdNo"]) == gear["CmdNo"] and int(r2["ErrorCode"]) == 0
+        assert int(r2["CmdState"]) not in (ABORTED, ERROR)
+        assert int(tr.jobs[2]["MasterId"]) == 1
+        # in ratio at every cycle both were seen, across the takeover
+        master = {c: pos for c, pos, *_ in tr.by_axis[1]}
+        pairs = [(master[c], pos) for c, pos, *_ in tr.by_axis[2] if c in master]
+        assert len(pairs) > 100
+        worst = max(abs((sp - s0) - 0.5 * (mp - m0)) for mp, sp in pairs)
+        assert worst < 1e-6, worst
+        for a in (1, 2):
+            assert largest_step(tr.by_axis[a], CYCLE, A) < 0.05 * V * CYCLE + 1e-6, a
+        assert tr.restarts == [], tr.restarts
+    finally:
+        tr.close()
+        cl.close()
+
+
+def test_kill_9_during_a_superposition(pair: Callable[..., Procs]) -> None:
+    p = pair()
+    cl, tr = setup(p, [1])
+    try:
+        r = cl.request("MoveVelocity", axis=1, Velocity=20.0, Acceleration=A, Deceleration=A, Jerk=J, Direction=1)
+        assert r["error"] == 0, r
+        wait_logged(lambda: (x := cl.nctoplc(1)) is not None and abs(float(x["SetVelo"]) - 20.0) < 1e-9,
+                    "axis 1 at 20 u/s", servers(p))
+        # mode 1 (VELOREDUCTION_ADDITIVE): 5 u more over 20 u of process travel, i.e. over 1 s
+        sup = cl.request("MoveSuperImposed", axis=1, Mode=1, Distance=5.0, VelocityDiff=20.0, Length=20.0,
+                         VelocityProcess=20.0)
+        assert sup["error"] == 0 and sup["Value"]["ActualDistance"] == 5.0, sup
+        wait_logged(lambda: (j := tr.jobs.get(1)) is not None and int(j["SuperCmdNo"]) == sup["CmdNo"]
+                    and float(j["SuperDistance"]) == 5.0, "the superposition running", servers(p))
+        time.sleep(0.3)  # (well into its 1 s)
+        _, new, epoch = kill_active(p, cl)
+        took_over(p, cl, new, epoch)
+        j = wait_logged(lambda: (j := tr.jobs.get(1)) is not None and int(j["SuperCmdNo"]) == sup["CmdNo"]
+                        and int(j["SuperState"]) in (DONE, ABORTED, ERROR) and j, "the superposition ended", servers(p))
+        assert int(j["SuperState"]) == DONE and int(j["SuperErrorId"]) == 0
+        x = cl.nctoplc(1)
+        assert x is not None and int(x["ErrorCode"]) == 0 and abs(float(x["SetVelo"]) - 20.0) < 1e-9  # goes on
+        assert tr.restarts == [], tr.restarts
+        assert largest_step(tr.samples, CYCLE, A) < 0.05 * V * CYCLE + 1e-6
+        cl.request("Halt", axis=1, Deceleration=A, Jerk=J)
     finally:
         tr.close()
         cl.close()

@@ -10,10 +10,13 @@ import msgpack
 import numpy as np
 
 from nc_link import NcLink
-from nc_schema import NCTOPLC_DTYPE, decode_stamp, frame_stamp
+from nc_schema import NCTOPLC_DTYPE, decode_frame, decode_stamp, frame_stamp
 from znc_testing.nc_process import NcTestClient
 
-__all__ = ["CONFIG", "Trace", "ha_status", "largest_step"]
+__all__ = ["AXIS2", "CONFIG", "LEASE_MS", "Trace", "active_node", "ha_status", "largest_step"]
+
+#: the zenoh lease of every process of the rig (the router's --lease-ms, the drive host's --lease-ms, CONFIG's)
+LEASE_MS = 3000
 
 CONFIG = """
 [nc]
@@ -26,6 +29,9 @@ publisher = "thread"
 [zenoh]
 mode = "client"
 connect = ["tcp/127.0.0.1:{port}"]
+# (LEASE_MS: a starved process's session is not dropped on a loaded machine, and a freeze is detected by the
+# standby's loss detection, not by the session's lease; a kill drops the token at once whatever the lease)
+lease = 3000
 
 [redundancy]
 enabled = true
@@ -41,15 +47,28 @@ AxisVeloMax = 200.0
 Drive = {{ backend = "remote", host = "drives1" }}
 """
 
+#: a second axis on the same drive host (append to CONFIG: a coupling of two axes of the NC)
+AXIS2 = """
+[[axis]]
+AxisId = 2
+Name = "Y"
+AxisVeloMax = 200.0
+Drive = { backend = "remote", host = "drives1" }
+"""
+
 
 class Trace:
-    """Every NCTOPLC sample of axis 1 (cycle, SetPos, SetVelo, CmdNo, CmdState), and the NC's frames through nc_link
-    (its NC-restart detection), gathered on the test's sessions."""
+    """Every NCTOPLC sample of ``axes`` (cycle, SetPos, SetVelo, CmdNo, CmdState, monotonic time; :attr:`samples` is
+    axis 1's, :attr:`by_axis` every axis's), and the NC's frames through nc_link (its NC-restart detection; the
+    newest NCJOBS record of each axis in :attr:`jobs`), gathered on the test's sessions."""
 
-    def __init__(self, port: int) -> None:
-        self.samples: list[tuple[int, float, float, int, int, float]] = []
+    def __init__(self, port: int, axes: tuple[int, ...] = (1,)) -> None:
+        self.by_axis: dict[int, list[tuple[int, float, float, int, int, float]]] = {a: [] for a in axes}
+        self.samples = self.by_axis.setdefault(1, [])
+        self.jobs: dict[int, Any] = {}
         self.cl = NcTestClient(port, client_id="observer", token=False)
-        self.sub = self.cl.session.declare_subscriber("nc/nc1/axis/1/nctoplc", self._on)
+        self.subs = [self.cl.session.declare_subscriber(f"nc/nc1/axis/{a}/nctoplc",
+                                                        lambda s, a=a: self._on(s, a)) for a in axes]
         self.link = NcLink("nc1", f"tcp/127.0.0.1:{port}", "observer-link", holder=False)
         self.link.open()
         self.restarts: list[str] = []
@@ -58,10 +77,10 @@ class Trace:
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
-    def _on(self, s: Any) -> None:
+    def _on(self, s: Any, axis: int) -> None:
         r = np.frombuffer(s.payload.to_bytes(), dtype=NCTOPLC_DTYPE, count=1)[0]
         cycle = decode_stamp(s.attachment.to_bytes())[0] if s.attachment is not None else -1
-        self.samples.append((cycle, float(r["SetPos"]), float(r["SetVelo"]), int(r["CmdNo"]), int(r["CmdState"]),
+        self.by_axis[axis].append((cycle, float(r["SetPos"]), float(r["SetVelo"]), int(r["CmdNo"]), int(r["CmdState"]),
                              time.monotonic()))
 
     def _run(self) -> None:
@@ -72,6 +91,13 @@ class Trace:
                 why = self.link.frame_cycle(frame_stamp(f)[0])
                 if why:
                     self.restarts.append(why)
+                try:
+                    _, recs, jobs = decode_frame(bytes(f))
+                    if jobs is not None:
+                        for rec, job in zip(recs, jobs):
+                            self.jobs[int(rec["AxisId"])] = job.copy()
+                except ValueError:
+                    pass
             for ev in self.link.take_events():
                 if ev.kind == "restart":
                     self.restarts.append(ev.why)
@@ -86,6 +112,17 @@ class Trace:
 def ha_status(cl: NcTestClient, node: str) -> dict[str, Any] | None:
     v = cl.latest(f"nc/nc1/ha/status/{node}")
     return None if v is None else msgpack.unpackb(v[0], raw=False)
+
+
+def active_node(cl: NcTestClient, nodes: tuple[str, ...] = ("a", "b")) -> str | None:
+    """The node whose fresh ha status says active while the others' say standby in step (None: not so now)."""
+    st = {n: ha_status(cl, n) for n in nodes}
+    if any(s is None or time.time() - s["time"] > 1.0 for s in st.values()):
+        return None
+    act = [n for n, s in st.items() if s is not None and s["role"] == "active"]
+    if len(act) != 1 or not all(s is not None and s["in_step"] for s in st.values()):
+        return None
+    return act[0]
 
 
 def largest_step(samples: list[tuple[int, float, float, int, int, float]], cycle: float, accel: float) -> float:

@@ -1,0 +1,125 @@
+"""The hot standby's loss detection (docs/standby.md, "Loss detection"): a late log of the active NC is no loss, a
+missing one is; the limit the standby publishes follows what it saw. HotStandby over a server without zenoh."""
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+
+import pytest
+
+import nc_server.core  # noqa: F401  (before nc_server.drives: circular import otherwise)
+from nc_server.server.config import Redundancy
+from nc_server.server.standby import GAP_FACTOR, LIMIT_CAP_S, WARMUP_FLOOR_S, WARMUP_S, HotStandby, LossDetector
+
+from test_replication import Active
+
+DT = 0.002
+TAKEOVER = 15  # the default takeover_cycles: 30 ms
+
+
+def standby() -> HotStandby:
+    act = Active()
+    srv = SimpleNamespace(core=act.rec, handler=act.handler, config=SimpleNamespace(name="nc1", cycle_time=DT),
+                          transport=SimpleNamespace(instance="i1"))
+    hs = HotStandby(srv, Redundancy(True, "standby", TAKEOVER, 10.0, "b"))  # type: ignore[arg-type]
+    return hs
+
+
+def in_step(hs: HotStandby, now: float) -> None:
+    """As _take_snapshot then the first log: in step from a snapshot at ``now``."""
+    hs.follower.waiting = False
+    hs.synced_once = True
+    hs._last_log = now
+    hs.detector.restart(now)
+
+
+def run(hs: HotStandby, t0: float, t1: float, log_gaps: dict[float, float]) -> float | None:
+    """The standby's cycles from t0 to t1 (every DT); the active NC's logs every DT but for the gaps (start -> length)
+    given. The time the standby deems the active NC lost, or None."""
+    t, next_log = t0, t0
+    while t < t1:
+        if t >= next_log:
+            hs.detector.log(t)
+            hs._last_log = t
+            gap = next((g for s, g in log_gaps.items() if s <= t < s + DT), 0.0)
+            next_log = t + DT + gap
+        if hs._lost(t):
+            return t
+        t += DT
+    return None
+
+
+def test_a_late_cycle_of_the_active_nc_at_the_start_is_no_takeover() -> None:
+    # the false takeover of bench/takeover.py under bench/cpu_burner.py: the standby came in step, then the active NC
+    # (realtime off, both cores busy) sent no log for 157 ms; with a fixed limit of takeover_cycles (30 ms) the
+    # standby took over, the active NC demoted itself and the drives saw two epochs change hands without any fault
+    hs = standby()
+    in_step(hs, 0.0)
+    assert run(hs, 0.0, WARMUP_S + 0.2, {0.5: 0.157, 1.2: 0.060}) is None
+    # the gap raised the published limit (after the warm-up): GAP_FACTOR x 157 ms
+    lim = hs.detector.limit(WARMUP_S + 0.2)
+    assert abs(lim - GAP_FACTOR * (0.157 + DT)) < 3 * DT, lim
+    assert hs._limit_cycles(WARMUP_S + 0.2) == int(-(-lim // DT))
+
+
+def test_a_frozen_active_nc_is_lost_within_the_published_limit() -> None:
+    hs = standby()
+    in_step(hs, 0.0)
+    # after the warm-up, with logs on time: the limit is takeover_cycles
+    assert run(hs, 0.0, WARMUP_S + 0.5, {}) is None
+    t0 = WARMUP_S + 0.5
+    assert hs._limit_cycles(t0) == TAKEOVER
+    lost = run(hs, t0, t0 + 1.0, {t0: 10.0})  # the active NC freezes
+    assert lost is not None and TAKEOVER * DT < lost - t0 <= (TAKEOVER + 2) * DT, lost - t0
+    # during the warm-up the floor holds
+    hs2 = standby()
+    in_step(hs2, 0.0)
+    lost = run(hs2, 0.0, 2.0, {0.1: 10.0})
+    assert lost is not None and WARMUP_FLOOR_S < lost - 0.1 <= WARMUP_FLOOR_S + 3 * DT
+
+
+def test_the_limit_is_capped_and_forgets_old_gaps() -> None:
+    d = LossDetector(TAKEOVER * DT)
+    d.restart(0.0)
+    d.log(0.0)
+    d.log(5.0)  # a 5 s gap
+    assert d.limit(5.0) == LIMIT_CAP_S
+    d.log(5.002)
+    assert d.limit(20.0) == TAKEOVER * DT  # 10 s later: forgotten, warm-up over
+
+
+def test_the_standbys_own_late_cycle_defers_the_judgement_once() -> None:
+    d = LossDetector(TAKEOVER * DT)
+    d.restart(-10.0)
+    for k in range(5001):  # logs on time for 10 s
+        d.log(-10.0 + k * DT)
+        d.silent(-10.0 + k * DT)
+    # the standby's cycle thread was descheduled 200 ms: the logs may be queued in zenoh; the next cycle judges
+    assert not d.silent(0.2)
+    assert d.silent(0.202)
+
+
+def test_an_nc_that_drove_and_saw_a_higher_epoch_never_takes_over_without_a_snapshot() -> None:
+    # a SIGCONT'd active NC demoted itself; its session recovered without logs for a second: it must not take over
+    # from its own core, which is behind its successor's (a SetPos jump)
+    hs = standby()
+    hs.epoch = hs.highest = 5 << 16
+    hs.synced_once = False
+    hs._grace = 0.2
+    hs._started = hs._last_log = 0.0
+    assert hs._lost(1.0)  # nobody else took over: its own state is the newest, it takes over again
+    hs.highest = 6 << 16  # a log of epoch 6 came (the standby took over)
+    assert not hs._lost(1.0) and not hs._lost(100.0)
+    hs.epoch = 0  # a fresh standby (never drove): the start rule, its core is a fresh NC's
+    assert hs._lost(3.0)
+
+
+def test_the_active_nc_demotes_itself_for_a_stall_near_its_standbys_limit() -> None:
+    hs = standby()
+    hs.srv.became_standby = lambda: None  # type: ignore[attr-defined]
+    hs.role, hs.peer_in_step, hs.epoch = "active", True, 1 << 16
+    hs._peer_limits["a"] = (0.300, time.monotonic())  # the standby's published limit
+    assert not hs.after_stall(0.200)  # forgiven by the standby: it goes on
+    assert hs.role == "active"
+    assert hs.after_stall(0.240)  # > 0.75 x 0.3: the standby may have taken over (its last log came late)
+    assert hs.role == "standby" and hs._grace == pytest.approx(min(2.0, 2 * 0.225 + 0.1))
