@@ -29,7 +29,7 @@ def test_compose_file_is_valid_for_the_installed_compose() -> None:
 
 def test_standby_compose_files_are_valid_together() -> None:
     """deploy/compose.standby.yaml over compose.yaml and compose.drives.yaml: both nodes of nc1 read the pair's TOML,
-    node a starts active and b standby, and the drive host's timeout default is longer than the takeover bound."""
+    both start as standby (a restarted container must not start active), and the drive host's timeout default is longer than the takeover bound."""
     cmd = compose_command()
     if cmd is None:
         pytest.skip("no compose tool (docker-compose or docker compose)")
@@ -38,7 +38,7 @@ def test_standby_compose_files_are_valid_together() -> None:
     r = subprocess.run([*cmd, *files, "config"], capture_output=True, text=True, timeout=300,
                        env={"PATH": "/usr/bin:/bin:/usr/local/bin", "ZNC_BUILD": "/nonexistent"})
     assert r.returncode == 0, r.stderr
-    for needle in ("redundancy.node=a", "redundancy.start=active", "redundancy.node=b", "redundancy.start=standby",
+    for needle in ("redundancy.node=a", "redundancy.node=b", "redundancy.start=standby",
                    "standby/nc1.toml:/etc/zenoh-nc/nc1.toml:ro"):
         assert needle in r.stdout, needle
     from nc_server.drives.remote.config import takeover_bound
