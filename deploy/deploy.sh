@@ -8,7 +8,8 @@
 #   down   `docker-compose ... down` (containers and networks; images stay).
 #   ps     the services and their health.
 # Environment: ZNC_DRIVES (1: also deploy/compose.drives.yaml: nc1's axes 1, 2 on drives in the container
-# nc-drives), ZNC_PROJECT (compose project, zenoh-nc), ZNC_TRANSPORT (tls, or tcp), ZNC_ROUTER_PORT
+# nc-drives), ZNC_STANDBY (1: also deploy/compose.standby.yaml over compose.drives.yaml: nc1 as a hot-standby pair,
+# services nc1 (node a) and nc1b (node b), docs/standby.md; implies ZNC_DRIVES=1), ZNC_PROJECT (compose project, zenoh-nc), ZNC_TRANSPORT (tls, or tcp), ZNC_ROUTER_PORT
 # (7450: the router on 127.0.0.1 for status tools), ZNC_COMPOSE (the compose command: docker-compose,
 # else `docker compose`), PYTHON (for build.sh). Exit code 0 ok, 1 failure (what failed on stderr).
 set -euo pipefail
@@ -34,9 +35,14 @@ else
     COMPOSE=(docker compose)
 fi
 FILES=(-f "$HERE/compose.yaml")
+[[ ${ZNC_STANDBY:-0} != 1 ]] || ZNC_DRIVES=1   # the pair needs drives that outlive either NC
 if [[ ${ZNC_DRIVES:-0} == 1 ]]; then   # nc1's axes 1, 2 on remote drives in their own container
     FILES+=(-f "$HERE/compose.drives.yaml")
     SERVICES+=(nc-drives)
+fi
+if [[ ${ZNC_STANDBY:-0} == 1 ]]; then  # nc1's second node (standby) in its own container
+    FILES+=(-f "$HERE/compose.standby.yaml")
+    SERVICES+=(nc1b)
 fi
 compose() { "${COMPOSE[@]}" "${FILES[@]}" -p "$PROJECT" "$@"; }
 
@@ -138,6 +144,7 @@ case "${1:-}" in
         wait_healthy || die "the system did not become healthy"
         c="${COMPOSE[*]} -f deploy/compose.yaml"
         [[ ${ZNC_DRIVES:-0} != 1 ]] || c+=" -f deploy/compose.drives.yaml"
+        [[ ${ZNC_STANDBY:-0} != 1 ]] || c+=" -f deploy/compose.standby.yaml"
         c+=" -p $PROJECT"
         cat <<EOF
 zenoh-nc is up (project $PROJECT, transport $ZNC_TRANSPORT): ${SERVICES[*]}.
@@ -149,6 +156,12 @@ EOF
             cat <<EOF
   $c logs -f nc-drives   # the drive host (nc-drive-sim drives1: nc1's axes 1, 2); docker kill nc1 and its
                          # drives stop on their quick-stop ramp (0x8130) after ZNC_DRIVE_TIMEOUT_S (0.1 s), positions kept
+EOF
+        fi
+        if [[ ${ZNC_STANDBY:-0} == 1 ]]; then
+            cat <<EOF
+  $c logs -f nc1 nc1b    # the hot-standby pair (nodes a, b); docker kill / pause the active one's container:
+                         # the other takes over (nc-status: the ha: line), the drives go on (ZNC_DRIVE_TIMEOUT_S 1 s)
 EOF
         fi
         cat <<EOF

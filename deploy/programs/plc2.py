@@ -9,7 +9,8 @@ import os
 from plc_client import AXIS_REF
 from shuttle import Shuttle, env_float
 
-own = Shuttle(AXIS_REF(nc="nc1", axis_id=2), 0.0, 200.0, velocity=300.0)
+# ZNC_PLC2_VELOCITY: its moves' velocity [u/s] (300; slower moves give a fault injected "during a move" more time)
+own = Shuttle(AXIS_REF(nc="nc1", axis_id=2), 0.0, 200.0, velocity=env_float("ZNC_PLC2_VELOCITY", 300.0))
 # a move of the shared axis every ZNC_SHARE_S seconds (0: never)
 share_period = env_float("ZNC_SHARE_S", 10.0)
 shared = Shuttle(AXIS_REF(nc="nc1", axis_id=1), 25.0, 75.0, velocity=100.0, dwell=share_period,

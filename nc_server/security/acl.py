@@ -7,7 +7,8 @@ subject exactly the key expressions of its identity (docs/roles.md has the table
 * every listed client reads the NCs' cyclic data: ``nc/*/frame``, ``nc/*/frame/*`` (the frame once per
   period, what PLC clients take), ``nc/*/status``, ``nc/*/stats``, ``nc/*/claims``,
   ``nc/*/axis/*/nctoplc``, ``nc/*/axis/*/plctonc`` and the NCs' liveliness ``nc/*/alive`` and
-  ``nc/*/alive/*`` (each NC process's instance token: how clients tell a restart from a flapping token);
+  ``nc/*/alive/*`` (each NC process's instance token: how clients tell a restart from a flapping token) and
+  the hot-standby nodes' status ``nc/*/ha/status/*`` (nc-status's ``ha:`` line; docs/standby.md);
 * every listed client declares its own view token ``nc/*/select/<id>/**`` and reads its own view
   ``nc/*/view/<id>`` (the frames of the axes it listed);
 * a client queries only its own command keys ``nc/*/[axis/*/]cmd/<class>/<id>`` of the classes
@@ -16,7 +17,8 @@ subject exactly the key expressions of its identity (docs/roles.md has the table
   liveliness token ``nc/*/client/<id>``;
 * an NC server ``[nc.<name>]`` may declare its queryable, publish, subscribe and declare liveliness
   (``nc/<name>/alive``, ``nc/<name>/alive/<instance>``) only below its own prefix ``nc/<name>/**``, and is
-  sent the queries and PLCTONC for it;
+  sent the queries and PLCTONC for it; the one query it may send is ``nc/<name>/ha/snapshot`` (a hot-standby
+  node asking the active node of its NC for a snapshot, docs/standby.md);
 * an NC with ``masters = ["nc1"]`` (coupling across NCs) may also subscribe to and receive the per-axis
   samples ``nc/nc1/axis/*/nctoplc`` of those NCs, nothing else of theirs;
 * a router ``[router.<id>]`` (another router connecting to this one) may forward everything below ``nc/**``;
@@ -50,7 +52,8 @@ __all__ = ["access_control", "with_local_publisher", "READ_KEYS", "NC_ALIVE", "m
 
 #: What every listed client may subscribe to and receive.
 READ_KEYS: tuple[str, ...] = ("nc/*/frame", "nc/*/frame/*", "nc/*/status", "nc/*/stats", "nc/*/claims",
-                              "nc/*/axis/*/nctoplc", "nc/*/axis/*/plctonc", "nc/*/drive/*/status")
+                              "nc/*/axis/*/nctoplc", "nc/*/axis/*/plctonc", "nc/*/drive/*/status",
+                              "nc/*/ha/status/*")
 #: The NCs' liveliness tokens: reachable, and one per NC process (its instance id; a rule must *include*
 #: the watched key, so ``nc/*/alive`` alone would not let a client see ``nc/nc1/alive/<instance>``).
 NC_ALIVE: tuple[str, ...] = ("nc/*/alive", "nc/*/alive/*")
@@ -135,7 +138,9 @@ def access_control(roles: Roles) -> dict[str, Any]:
         rules.append(_rule(f"nc:{nc}:in", "ingress", [m for m in _ALL_MESSAGES if m != "query"], own))
         rules.append(_rule(f"nc:{nc}:out", "egress", ["put", "delete", "query", "liveliness_token", "reply"], own))
         # its declared publishers (frame, stats, per axis) drop puts unless they see the subscribers
-        ids = [f"nc:{nc}:in", f"nc:{nc}:out",
+        # a hot-standby node (docs/standby.md) asks the active node of its NC for a snapshot: its one query
+        rules.append(_rule(f"nc:{nc}:ha-query", "ingress", ["query"], [f"nc/{nc}/ha/snapshot"]))
+        ids = [f"nc:{nc}:in", f"nc:{nc}:out", f"nc:{nc}:ha-query",
                share(_rule("see:subscribers", "egress", ["declare_subscriber"], ["nc/**"]))]
         masters = [f"nc/{m}/axis/*/nctoplc" for m in roles.nc_masters.get(nc, ())]
         if masters:  # coupling across NCs: the masters' per-axis samples

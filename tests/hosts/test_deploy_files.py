@@ -27,6 +27,28 @@ def test_compose_file_is_valid_for_the_installed_compose() -> None:
     assert r.returncode == 0, r.stderr
 
 
+def test_standby_compose_files_are_valid_together() -> None:
+    """deploy/compose.standby.yaml over compose.yaml and compose.drives.yaml: both nodes of nc1 read the pair's TOML,
+    both start as standby (a restarted container must not start active), and the drive host's timeout default is longer than the takeover bound."""
+    cmd = compose_command()
+    if cmd is None:
+        pytest.skip("no compose tool (docker-compose or docker compose)")
+    files = [a for f in ("compose.yaml", "compose.drives.yaml", "compose.standby.yaml")
+             for a in ("-f", str(ROOT / "deploy" / f))]
+    r = subprocess.run([*cmd, *files, "config"], capture_output=True, text=True, timeout=300,
+                       env={"PATH": "/usr/bin:/bin:/usr/local/bin", "ZNC_BUILD": "/nonexistent"})
+    assert r.returncode == 0, r.stderr
+    for needle in ("redundancy.node=a", "redundancy.node=b", "redundancy.start=standby",
+                   "standby/nc1.toml:/etc/zenoh-nc/nc1.toml:ro"):
+        assert needle in r.stdout, needle
+    from nc_server.drives.remote.config import takeover_bound
+    from nc_server.server.config import load_config
+
+    cfg = load_config(ROOT / "deploy" / "standby" / "nc1.toml")
+    assert cfg.redundancy.enabled and cfg.name == "nc1"
+    assert takeover_bound(cfg.redundancy.takeover_cycles, cfg.cycle_time) < 1.0  # ZNC_DRIVE_TIMEOUT_S default 1 s
+
+
 def test_scripts_parse() -> None:
     for sh in ("deploy/images/build.sh", "deploy/deploy.sh"):
         r = subprocess.run(["bash", "-n", str(ROOT / sh)], capture_output=True, text=True, timeout=30)

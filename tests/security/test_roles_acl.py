@@ -131,7 +131,9 @@ def test_generated_access_control() -> None:
     assert allowed(acl, "nc:nc1", "ingress", "declare_queryable") == {"nc/nc1/**"}
     assert allowed(acl, "nc:nc1", "ingress", "put") == {"nc/nc1/**"}
     assert allowed(acl, "nc:nc1", "egress", "query") == {"nc/nc1/**"}
-    assert allowed(acl, "nc:nc1", "ingress", "query") == set()
+    # its one query: a hot-standby node's snapshot from the active node of its own NC (docs/standby.md)
+    assert allowed(acl, "nc:nc1", "ingress", "query") == {"nc/nc1/ha/snapshot"}
+    assert allowed(acl, "nc:nc2", "ingress", "query") == {"nc/nc2/ha/snapshot"}
     assert allowed(acl, "nc:nc1", "egress", "declare_subscriber") == {"nc/**"}
     # its liveliness tokens nc/nc1/alive and nc/nc1/alive/<instance>: below its own prefix only
     assert allowed(acl, "nc:nc1", "ingress", "liveliness_token") == {"nc/nc1/**"}
