@@ -334,13 +334,21 @@ class PlcTask:
         elapsed while Enable is TRUE).
         """
         key = (ax.nc, ax.axis_id)
+        c = self._claims.get(key)
+        if c is not None and c.state == "held" and not retry and self._controlled.get(key) is ax:
+            # the usual call (MC_Power every cycle of an axis held): what the rest below does for it, the
+            # cheap tests first (a closed loop or an axis error shows the claim is not lost)
+            if (not ax.NcToPlc.StateDWord & (_CLC | _ERROR) and ax.Status.Valid
+                    and self.now - c.since >= self.claim_retry and self.reachable(ax.nc)
+                    and self._claim_looks_lost(ax, c)):
+                self._send_claim(ax, c)
+            return c
         prev = self._controlled.get(key)
         if prev is not ax:
             if prev is not None:
                 log.warning("%r: a second AXIS_REF object controls the same axis; the newest one is published", ax)
             self._controlled[key] = ax
             self._plan = None
-        c = self._claims.get(key)
         if c is None:
             c = self._claims[key] = ClaimState()
         if not self.reachable(ax.nc):
