@@ -691,6 +691,9 @@ class PlcTask:
         jobs: bytes | None = None
         covers: frozenset[int] | None = None
         stale = rbase = jbase = 0
+        index: dict[int, int] = {}
+        fcycle = 0
+        cycle, cycle_time = self.cycle, self.cycle_time
         for (nc, axis_id), refs in self._refs.items():
             if nc != last:
                 last = nc
@@ -699,7 +702,21 @@ class PlcTask:
                 if frame is not None:
                     _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
                     covers = self._covers.get(nc)
-            self._snapshot_refs(refs, axis_id, frame, recs, rbase, jobs, jbase, covers, stale)
+                    fcycle, index = frame[0], frame[2]
+            i = index.get(axis_id) if frame is not None else None
+            if i is None:  # no frame yet, or the axis is not in it: _snapshot_refs tells which
+                self._snapshot_refs(refs, axis_id, frame, recs, rbase, jobs, jbase, covers, stale)
+                continue
+            # (the usual case, as _snapshot_refs does it, without its call)
+            o = rbase + i * NCTOPLC_SIZE
+            rec = recs[o:o + NCTOPLC_SIZE]
+            if jobs is None:
+                job = None
+            else:
+                j = jbase + i * NCJOBS_SIZE
+                job = jobs[j:j + NCJOBS_SIZE]
+            for ax in refs:
+                ax._snapshot(rec, fcycle, cycle, cycle_time, stale, job)
 
     def _snapshot_refs(self, refs: list[AXIS_REF], axis_id: int, frame: _FrameEntry | None, recs: bytes, rbase: int,
                        jobs: bytes | None, jbase: int, covers: frozenset[int] | None, stale: int) -> None:
