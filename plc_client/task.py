@@ -691,6 +691,8 @@ class PlcTask:
         jobs: bytes | None = None
         covers: frozenset[int] | None = None
         stale = rbase = jbase = 0
+        if not self._refs:
+            return  # (a task without axes: nothing to set up)
         index: dict[int, int] = {}
         fcycle = 0
         cycle, cycle_time = self.cycle, self.cycle_time
