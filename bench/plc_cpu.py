@@ -11,6 +11,7 @@ nothing, no axis). Every client is started, the program clients move, then CPU i
     .venv/bin/python bench/plc_cpu.py                          # this tree, 20 s
     .venv/bin/python bench/plc_cpu.py --tree /work/main        # and another checkout's clients, same NC, same run
     .venv/bin/python bench/plc_cpu.py --seconds 30 --rounds 3  # three windows in a row
+    .venv/bin/python bench/plc_cpu.py --threads                # and per client thread: CPU and wakeups per second
 
 Prints per client its CPU, the program/idle ratio per tree and MET / NOT MET against the goal (<= 2x idle and
 <= 1.5 % of a core).
@@ -37,6 +38,28 @@ IDLE_PROGRAM = "def cycle(plc):\n    pass\n"
 GOAL_RATIO, GOAL_CPU = 2.0, 1.5
 
 
+def thread_stats(pid: int) -> dict[str, tuple[int, int]]:
+    """Per thread name of process ``pid`` (threads of one name summed: zenoh's rx-0, rx-1 ...): (utime + stime
+    clock ticks, context switches: voluntary + involuntary, i.e. about the times it was woken)."""
+    out: dict[str, tuple[int, int]] = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+            status = Path(f"/proc/{pid}/task/{tid}/status").read_text()
+        except OSError:
+            continue
+        name = stat[stat.index("(") + 1:stat.rindex(")")]
+        f = stat.rsplit(")", 1)[1].split()
+        sw = sum(int(line.split()[1]) for line in status.splitlines() if "ctxt_switches:" in line)
+        t, n = out.get(name, (0, 0))
+        out[name] = (t + int(f[11]) + int(f[12]), n + sw)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tree", help="another checkout whose plc-run clients run beside this one's")
@@ -44,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--nc-axes", type=int, default=64)
     ap.add_argument("--plc-cycle", type=float, default=0.010)
+    ap.add_argument("--threads", action="store_true",
+                    help="also per client thread (by name): CPU [% of a core] and context switches per second")
     a = ap.parse_args(argv)
     trees = [("this", REPO)] + ([("other", Path(a.tree).resolve())] if a.tree else [])
     assert a.nc_axes >= 4 * len(trees)
@@ -96,10 +121,12 @@ def main(argv: list[str] | None = None) -> int:
         for r in range(a.rounds):
             t0 = time.monotonic()
             c0 = {cid: cpu_ticks(p.pid) for cid, p in clients.items()}
+            th0 = {cid: thread_stats(p.pid) for cid, p in clients.items()} if a.threads else {}
             n0, m0 = cpu_ticks(nc.pid), machine_ticks()
             time.sleep(a.seconds)
             dt = time.monotonic() - t0
             cpu = {cid: (cpu_ticks(p.pid) - c0[cid]) / hz / dt * 100.0 for cid, p in clients.items()}
+            th1 = {cid: thread_stats(p.pid) for cid, p in clients.items()} if a.threads else {}
             m1 = machine_ticks()
             busy = (m1[0] - m0[0]) / max(1, m1[1] - m0[1]) * 100.0 * os.cpu_count()  # type: ignore[operator]
             nc_cpu = (cpu_ticks(nc.pid) - n0) / hz / dt * 100.0
@@ -111,6 +138,12 @@ def main(argv: list[str] | None = None) -> int:
                 met = met and (ok or name != "this")
                 print(f"  {name:5}: plc-run with 4 moving axes {p:5.2f} % of a core, idle plc-run {i:5.2f} %: "
                       f"{ratio:.2f}x idle  (goal <= {GOAL_RATIO:g}x and <= {GOAL_CPU:g} %: {'MET' if ok else 'NOT MET'})")
+            for cid in th1:
+                rows = []
+                for tname, (t, n) in sorted(th1[cid].items()):
+                    t0_, n0_ = th0[cid].get(tname, (0, 0))
+                    rows.append(f"{tname} {(t - t0_) / hz / dt * 100.0:.2f} % {(n - n0_) / dt:.0f}/s")
+                print(f"    {cid:14} threads: " + ", ".join(rows))
         for cid, p in clients.items():
             if p.poll() is not None:
                 raise RuntimeError(f"{cid} exited with {p.returncode}: {(tmp / f'{cid}.err').read_text()[-2000:]}")

@@ -334,13 +334,21 @@ class PlcTask:
         elapsed while Enable is TRUE).
         """
         key = (ax.nc, ax.axis_id)
+        c = self._claims.get(key)
+        if c is not None and c.state == "held" and not retry and self._controlled.get(key) is ax:
+            # the usual call (MC_Power every cycle of an axis held): what the rest below does for it, the
+            # cheap tests first (a closed loop or an axis error shows the claim is not lost)
+            if (not ax.NcToPlc.StateDWord & (_CLC | _ERROR) and ax.Status.Valid
+                    and self.now - c.since >= self.claim_retry and self.reachable(ax.nc)
+                    and self._claim_looks_lost(ax, c)):
+                self._send_claim(ax, c)
+            return c
         prev = self._controlled.get(key)
         if prev is not ax:
             if prev is not None:
                 log.warning("%r: a second AXIS_REF object controls the same axis; the newest one is published", ax)
             self._controlled[key] = ax
             self._plan = None
-        c = self._claims.get(key)
         if c is None:
             c = self._claims[key] = ClaimState()
         if not self.reachable(ax.nc):
@@ -683,6 +691,11 @@ class PlcTask:
         jobs: bytes | None = None
         covers: frozenset[int] | None = None
         stale = rbase = jbase = 0
+        if not self._refs:
+            return  # (a task without axes: nothing to set up)
+        index: dict[int, int] = {}
+        fcycle = 0
+        cycle, cycle_time = self.cycle, self.cycle_time
         for (nc, axis_id), refs in self._refs.items():
             if nc != last:
                 last = nc
@@ -691,7 +704,21 @@ class PlcTask:
                 if frame is not None:
                     _, recs, rbase, jobs, jbase = self._bytes_of(nc, frame)
                     covers = self._covers.get(nc)
-            self._snapshot_refs(refs, axis_id, frame, recs, rbase, jobs, jbase, covers, stale)
+                    fcycle, index = frame[0], frame[2]
+            i = index.get(axis_id) if frame is not None else None
+            if i is None:  # no frame yet, or the axis is not in it: _snapshot_refs tells which
+                self._snapshot_refs(refs, axis_id, frame, recs, rbase, jobs, jbase, covers, stale)
+                continue
+            # (the usual case, as _snapshot_refs does it, without its call)
+            o = rbase + i * NCTOPLC_SIZE
+            rec = recs[o:o + NCTOPLC_SIZE]
+            if jobs is None:
+                job = None
+            else:
+                j = jbase + i * NCJOBS_SIZE
+                job = jobs[j:j + NCJOBS_SIZE]
+            for ax in refs:
+                ax._snapshot(rec, fcycle, cycle, cycle_time, stale, job)
 
     def _snapshot_refs(self, refs: list[AXIS_REF], axis_id: int, frame: _FrameEntry | None, recs: bytes, rbase: int,
                        jobs: bytes | None, jbase: int, covers: frozenset[int] | None, stale: int) -> None:

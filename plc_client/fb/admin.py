@@ -35,6 +35,7 @@ Choices where the manuals are silent (zenoh-nc):
 """
 from __future__ import annotations
 
+import operator
 from typing import Any, ClassVar
 
 from nc_schema import ControlDWord, ErrorCodes, StateDWord
@@ -105,8 +106,10 @@ class MC_Power(FunctionBlock):
         en = bool(self.Enable)
         rising = en and not self._prev_enable
         self._prev_enable = en
-        task = self._task()
         ax = self.Axis
+        task = ax._task if ax is not None else None
+        if task is None:
+            task = self._task()
         if task is None or ax is None:
             self._reset_outputs()
             if en:
@@ -137,14 +140,16 @@ class MC_Power(FunctionBlock):
         self.Busy = True
         held = claim.state == "held"
         self.Active = held
-        code = self._axis_problem()
+        # (_axis_problem's answer for a bound axis with valid data, without the call)
+        code = 0 if ax._task is not None and not ax.missing and ax.Status.Valid else self._axis_problem()
         if code:
             pass
         elif claim.state == "refused":
             code = claim.error
         elif not ov_ok:
             code = ErrorCodes.MC_PARAMETER_NOT_CORRECT
-        elif isinstance(self.BufferMode, bool) or not isinstance(self.BufferMode, int) or self.BufferMode != 0:
+        elif (type(bm := self.BufferMode) is not int or bm != 0) and (  # (a plain int 0: no isinstance calls)
+                isinstance(bm, bool) or not isinstance(bm, int) or bm != 0):
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
         self.Error, self.ErrorID = bool(code), int(code)
         sdw = ax.NcToPlc.StateDWord
@@ -218,6 +223,9 @@ class MC_ReadStatus(EnableBlock):
              "SynchronizedMotion": "SynchronizedMotion", "Homing": "Homing", "ConstantVelocity": "ConstantVelocity",
              "Accelerating": "Accelerating", "Decelerating": "Decelerating"}
     _OUTPUTS: ClassVar[dict[str, Any]] = {**EnableBlock._OUTPUTS, **{k: False for k in _FLAT}}
+    #: the outputs of _FLAT and a getter of their ST_AxisStatus members (one C call instead of a comprehension)
+    _FLAT_OUT: ClassVar[tuple[str, ...]] = tuple(_FLAT)
+    _FLAT_GET: ClassVar[operator.itemgetter[Any]] = operator.itemgetter(*_FLAT.values())  # (no descriptor)
     Status: ST_AxisStatus
     Errorstop: bool
     Stopping: bool
@@ -238,8 +246,7 @@ class MC_ReadStatus(EnableBlock):
         st = ax.Status
         self.Status = st.copy()
         if self._PLAIN_IO:  # (every ST_AxisStatus member is in its __dict__)
-            d = st.__dict__
-            self.__dict__.update({out: bool(d[field]) for out, field in self._FLAT.items()})
+            self.__dict__.update(zip(self._FLAT_OUT, map(bool, self._FLAT_GET(st.__dict__))))
             return
         for out, field in self._FLAT.items():
             setattr(self, out, bool(getattr(st, field)))
