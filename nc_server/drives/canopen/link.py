@@ -485,6 +485,10 @@ class CanopenLink(ProcessDataLink):
         self._outputs(rx)
         return tx
 
+    def peek(self) -> TxImage:
+        """The newest inputs the notifier thread stored, no RPDO or SYNC sent."""
+        return self._inputs()
+
     def _inputs(self) -> TxImage:
         t1, t2, t3 = self._t[1], self._t[2], self._t[3]  # (written in place: the TxImage gets copies)
         # the stamps before the payloads: a TPDO1 arriving in between makes the data newer than the stamp, never older

@@ -208,6 +208,47 @@ class Cia402Drive(DriveABC):
         self._lost[rows] = False
         self._any_dropped = bool(self._dropped.any() or self._lost.any())
 
+    def resync(self, latched: np.ndarray | None = None) -> None:
+        """A takeover (:meth:`..base.DriveABC.resync`): the drives' power state, position and error code from the
+        link's newest inputs (:meth:`.image.ProcessDataLink.peek`; nothing is sent). A drive in Operation enabled is
+        taken as confirmed (the other NC enabled it: leaving it from now on is the drive's own doing), its target the
+        NC's set-point from the first step on; one that is not is walked up by the controlword of its real state.
+        This drive's cycle count continues after the newest cycle the drives answer (the other NC's numbering), so
+        the stamps of the outputs it sends are newer than every stamp the drives showed before."""
+        tx = self.link.peek()
+        if tx is None:
+            return
+        n = len(self.state)
+        rc = tx.rx_cycle
+        if len(rc) == n and n:
+            self._cycle = max(self._cycle, int(rc.max()))
+        state = sm.decode(tx.statusword)
+        alive = tx.alive if len(tx.alive) == n else np.ones(n, dtype=bool)
+        valid = tx.age <= self.max_age
+        following = (state == _OE) & alive
+        fault_state = state >= _FRA
+        c = self.encoder
+        self._pos_inc = np.where(valid, tx.position_actual, self._pos_inc)
+        self.act_pos = np.where(valid, c.positions(tx.position_actual), self.act_pos)
+        self.act_velo = np.where(valid, tx.velocity_actual * c.scaling * c.sign, self.act_velo)
+        self.act_acc = np.zeros(n)
+        self.tx, self.state, self.following = tx, state, following
+        self._confirmed = following.copy()
+        self._lost = np.zeros(n, dtype=bool)
+        keep = np.zeros(n, dtype=bool) if latched is None else np.asarray(latched, dtype=bool)
+        self._dropped = keep & ~following & ~fault_state
+        self._any_dropped = bool(self._dropped.any())
+        self._reset_left = np.zeros(n, dtype=np.int64)
+        self._any_reset = False
+        self._last_probe_status = tx.probe_status
+        self._probe_new = self._no_probe
+        self._probe_new_any = False
+        self.io_valid, self.comm_error = valid, ~alive
+        self.device_error = fault_state | self._dropped
+        self.ready = ~fault_state & alive
+        self.error_code, self.input_age = tx.error_code, tx.age
+        self.faulty = True  # (the first step evaluates everything)
+
     # -- the cycle ------------------------------------------------------------------------------------------
 
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:

@@ -56,6 +56,10 @@ class LocalLink(ProcessDataLink):
     def degraded_changed(self) -> None:
         self._degraded = bool(self.invalid.any() or not self.alive.all())
 
+    def peek(self) -> TxImage:
+        """The device's inputs of its last step (an axis the link does not carry: the last it carried)."""
+        return self._last_tx if self._degraded and self._last_tx is not None else self.device.tx
+
     def exchange(self, rx: RxImage) -> TxImage:
         if not self._degraded:
             tx = self.device.step(rx)

@@ -262,6 +262,15 @@ class RemoteLink(ProcessDataLink):
         out = TxImage(**{a: getattr(tx, a) for a in _TX_ATTRS})
         return out
 
+    def peek(self) -> TxImage:
+        """The newest inputs (the hosts' liveliness and newest ``tx``, which the link's subscriptions keep receiving
+        also while nothing is sent, e.g. on a standby NC), sending nothing; the age of inputs that arrived since the
+        last exchange is 0."""
+        if self._ready:
+            self._take_liveliness()
+            self._take_inputs(None)
+        return TxImage(**{a: getattr(self._tx, a) for a in _TX_ATTRS})
+
     def _take_liveliness(self) -> None:
         while True:
             try:
@@ -281,7 +290,9 @@ class RemoteLink(ProcessDataLink):
             alive[self._rows[i]] = present and self._host_seen[i]
             self._tx.alive = alive
 
-    def _take_inputs(self, nc_cycle: int) -> None:
+    def _take_inputs(self, nc_cycle: int | None) -> None:
+        """The newest ``tx`` of each host (``nc_cycle``: this exchange's NC cycle, for the round trip; None: a peek,
+        no round trip)."""
         tx = self._tx
         cols: dict[str, np.ndarray] | None = None
         for i, sub in enumerate(self._tx_subs):
@@ -310,7 +321,7 @@ class RemoteLink(ProcessDataLink):
                     cols[a][rows] = c
             age[rows] = 0
             answered[rows] = rx_cycle  # (the statusword answers these outputs: the drive judges drops by it)
-            rtt[rows] = nc_cycle - rx_cycle if rx_cycle else -1
+            rtt[rows] = nc_cycle - rx_cycle if rx_cycle and nc_cycle is not None else -1
             if host_epoch > self.host_epoch:
                 self.host_epoch = host_epoch
             self.received += 1
