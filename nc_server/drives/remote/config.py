@@ -9,6 +9,8 @@ In the NC's TOML::
     sender = "cycle"                     # "cycle" | "thread": who puts the outputs (.link)
     lease_ms = 500                       # the link session's transport lease (default: the NC's)
     timeout_ms = 100                     # the drive hosts' silence timeout (nc-drive-sim --timeout; default 100)
+    reaction_margin = 0                  # NC cycles a drive's state machine may lag its host's echo (gateways to
+                                         # real drives: 2; Cia402Drive's docstring); default 0 (nc-drive-sim)
 
     [[axis]]
     AxisId = 1
@@ -57,12 +59,13 @@ from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 from ...core.params import ConfigError
+from ..cia402.drive import reaction_margin_option
 from .link import HostSlots
 from .wire import check_host
 
 SENDERS = ("cycle", "thread")
 #: [drives.remote] keys and per-axis Drive keys (without ``backend``).
-BACKEND_KEYS = ("connect", "max_age", "max_age_ms", "sender", "lease_ms", "timeout_ms")
+BACKEND_KEYS = ("connect", "max_age", "max_age_ms", "sender", "lease_ms", "timeout_ms", "reaction_margin")
 AXIS_KEYS = ("host", "slot")
 DEFAULT_MAX_AGE = 50
 #: the drive hosts' silence timeout unless ``timeout_ms`` or nc-drive-sim's ``--timeout`` say otherwise [s]
@@ -81,6 +84,7 @@ class RemoteOptions:
     lease_ms: int | None = None
     timeout_ms: float | None = None
     max_age_ms: float | None = None
+    reaction_margin: int = 0
 
     def max_age_cycles(self, cycle_time: float) -> int:
         """``max_age`` in NC cycles: ``max_age_ms`` in whole cycles (rounded up, at least 1) if given."""
@@ -134,8 +138,9 @@ def parse_options(options: Mapping[str, Any], where: str = "drives.remote") -> R
     if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
                                 or not 1.0 <= timeout <= 3_600_000.0):
         raise ConfigError(f"{where}.timeout_ms", f"must be a number of ms 1..3600000, got {timeout!r}")
+    margin, _ = reaction_margin_option({k: v for k, v in options.items() if k == "reaction_margin"}, where, 0)
     return RemoteOptions(eps, max_age, sender, lease, None if timeout is None else float(timeout),
-                         None if max_age_ms is None else float(max_age_ms))
+                         None if max_age_ms is None else float(max_age_ms), margin)
 
 
 def host_slots(axis_options: Sequence[Mapping[str, Any]], axis_ids: Sequence[int] | None = None,

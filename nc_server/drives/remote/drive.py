@@ -56,8 +56,9 @@ class RemoteDrive(Cia402Drive):
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: RemoteLink, *,
                  max_age: int = 50, mode: Mode | Sequence[Mode] = Mode.CSP,
-                 kv: float | Sequence[float] = DEFAULT_KV) -> None:
-        super().__init__(params, cycle_time, link, simulated=False, max_age=max_age, mode=mode, kv=kv)
+                 kv: float | Sequence[float] = DEFAULT_KV, reaction_margin: int = 0) -> None:
+        super().__init__(params, cycle_time, link, simulated=False, max_age=max_age, mode=mode, kv=kv,
+                         reaction_margin=reaction_margin)
 
     @classmethod
     def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
@@ -91,7 +92,7 @@ class RemoteDrive(Cia402Drive):
                           sender=opts.sender, missing_warn_cycles=max(1, round(MISSING_WARN_S / cycle_time)))
         try:
             return cls(params, cycle_time, link, max_age=min(opts.max_age_cycles(cycle_time), 100_000), mode=modes,
-                       kv=kvs)
+                       kv=kvs, reaction_margin=opts.reaction_margin)
         except BaseException:
             link.close()
             raise
