@@ -87,8 +87,8 @@ def start_move(a: NcServerProcess, b: NcServerProcess, sim: DriveSim, port: int,
     wait_until(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0, T,
                f"the drive host receiving outputs; stderr:\n{sim.stderr()}")
     # the pair's takeover bound reaches the drive host with the outputs: (250 + 1) cycles of 2 ms, below its 3 s
-    st0 = wait_until(lambda: (s := sim.status()) is not None and s["takeover_ms"] > 0 and s, T, "takeover_ms")
-    assert st0["takeover_ms"] == pytest.approx((TAKEOVER_CYCLES + 1) * CYCLE * 1e3) and not st0["timeout_short"]
+    st0 = wait_until(lambda: (s := sim.status()) is not None and s["takeover_limit_ms"] > 0 and s, T, "takeover_limit_ms")
+    assert st0["takeover_limit_ms"] == pytest.approx((TAKEOVER_CYCLES + 1) * CYCLE * 1e3) and not st0["timeout_short"]
     power(cl, [1])
     req = {"Position": target, "Velocity": V, "Acceleration": A, "Deceleration": A, "Jerk": J}
     r = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)

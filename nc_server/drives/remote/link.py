@@ -199,9 +199,10 @@ class RemoteLink(ProcessDataLink):
         #: one a host reported following: above ``epoch``, another NC drives these hosts now
         self.epoch = 0
         self.host_epoch = 0
-        #: the takeover bound of a hot-standby pair [ms] (0: none), sent with the outputs: a drive host warns when its
-        #: silence timeout is not longer (nc_server.server.standby sets it)
-        self.takeover_ms = 0.0
+        #: the takeover limit of a hot-standby pair [ms] (0: none; its standby's limit in use, as its ha status's
+        #: ``takeover_limit_ms``), sent with the outputs: a drive host warns when its silence timeout does not exceed
+        #: it (nc_server.server.standby sets it)
+        self.takeover_limit_ms = 0.0
         self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
@@ -235,6 +236,15 @@ class RemoteLink(ProcessDataLink):
             self._sender.start()
         self._ready = True
         log.info("drive link of %s: connected, hosts %s", self.nc_name, ", ".join(self.hosts))
+
+    @property
+    def takeover_ms(self) -> float:
+        """The former name of :attr:`takeover_limit_ms` (kept for callers that set it)."""
+        return self.takeover_limit_ms
+
+    @takeover_ms.setter
+    def takeover_ms(self, value: float) -> None:
+        self.takeover_limit_ms = float(value)
 
     @property
     def connected(self) -> bool:
@@ -345,7 +355,7 @@ class RemoteLink(ProcessDataLink):
                         self.malformed)
 
     def _send(self, rx: RxImage) -> None:
-        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch, self.takeover_ms)
+        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch, self.takeover_limit_ms)
                 for rows, ids, whole in zip(self._rows, self._ids, self._whole)]
         if self.sender == "thread":
             with self._mail_lock:
