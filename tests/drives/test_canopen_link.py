@@ -331,3 +331,19 @@ def test_a_node_being_set_up_keeps_its_last_inputs_and_they_age(rig: Rig) -> Non
     rx.cycle = 11
     tx = link.exchange(rx)
     assert list(tx.age) == [0, 0] and list(tx.rx_cycle) == [10, 10]
+
+
+def test_peek_reads_the_newest_inputs_and_sends_nothing(rig: Rig) -> None:
+    """CanopenLink.peek (a standby's takeover, Cia402Drive.resync): the stored TPDOs, no RPDO, no SYNC."""
+    link = rig.link
+    assert link is not None
+    rx = _rx(2, 10.0)
+    rx.cycle = 7
+    link.exchange(rx)
+    assert link.wait_answered(5.0)
+    syncs, applied = link.syncs, rig.slaves.applied.target_position.copy()
+    tx = link.peek()
+    time.sleep(0.05)
+    assert link.syncs == syncs and list(rig.slaves.applied.target_position) == list(applied)
+    assert list(tx.rx_cycle) == [7, 7] and list(tx.age) == [0, 0]
+    assert all(int(sw) & 0x6F == 0x21 for sw in tx.statusword)

@@ -171,3 +171,21 @@ def test_the_remote_link_peeks_without_sending() -> None:
     drive.resync()
     assert not sent and drive.following[0] and drive._cycle >= 4711
     assert float(drive._pos_inc[0]) == pytest.approx(float(dev.position[0]))
+
+
+def test_cia402_sim_resyncs_from_its_device() -> None:
+    """cia402-sim (LocalLink.peek): the device's last inputs; a drive object with a stale state adopts them."""
+    from nc_server.drives.cia402.sim import Cia402SimDrive
+
+    d = Cia402SimDrive([AxisParams()], DT)
+    on = np.array([True])
+    for k in range(20):
+        d.step(on, np.full(1, k * 0.01), np.zeros(1), np.zeros(1))
+    assert d.following[0]
+    d.state[:] = int(State.SWITCH_ON_DISABLED)  # (as a standby's object that last exchanged long ago)
+    d.following = np.zeros(1, dtype=bool)
+    d._pos_inc = np.zeros(1)
+    d.resync()
+    assert d.following[0] and d._confirmed[0] and float(d._pos_inc[0]) == pytest.approx(float(d.device.position[0]))
+    d.step(on, np.full(1, 0.2), np.zeros(1), np.zeros(1))
+    assert int(d.controlword[0]) == 0x000F and d.following[0]
