@@ -111,6 +111,18 @@ class DriveABC(ABC):
         """MC_Reset of these axes (int array): acknowledge their drive faults (CiA 402: a rising edge of the
         controlword's fault reset bit). Default: nothing to acknowledge."""
 
+    def resync(self, latched: np.ndarray | None = None) -> None:
+        """Another NC drove these drives until now (a hot standby takes over, docs/standby.md): take their current
+        state from the newest inputs the link has, sending nothing, so that the first :meth:`step` continues from it
+        (its controlword from the drive's power state, its target from where the drive is, not from this object's
+        state of when it last exchanged). Called once, just before the first step of the new active NC.
+
+        Args:
+            latched: per axis, the NC showed a drive error there until now (the lost NC's 0x4650, replicated): a
+                drive out of Operation enabled there is not enabled again before MC_Reset. None: none.
+
+        Default: nothing (a drive in this process that no other NC drives)."""
+
     @abstractmethod
     def configure(self, index: int, params: AxisParams) -> None:
         """Apply (changed) parameters of one axis.

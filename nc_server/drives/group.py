@@ -164,6 +164,11 @@ class DriveGroup(DriveABC):
             d.step(enabled[r], set_pos[r], set_velo[r], set_acc[r])
         self._gather()
 
+    def resync(self, latched: np.ndarray | None = None) -> None:
+        for d, r in self.parts:
+            d.resync(None if latched is None else np.asarray(latched, dtype=bool)[r])
+        self._gather()
+
     def reset(self, rows: np.ndarray) -> None:
         for k, _, local in self._split(rows):
             self.parts[k][0].reset(local)

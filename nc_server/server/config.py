@@ -447,28 +447,31 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
 def _check_drive_timeout(redundancy: Redundancy, cycle_time: float,
                          axis_drives: Sequence[tuple[str, Mapping[str, Any]]],
                          drive_options: Mapping[str, Mapping[str, Any]]) -> None:
-    """A hot-standby pair on remote drives: the drive hosts' silence timeout must be longer than the takeover
-    (nc_server.drives.remote.config: ``timeout_ms``). Refused when ``[drives.remote] timeout_ms`` says it; without
+    """A hot-standby pair on remote drives: the drive hosts' silence timeout must be at least 2 x the nominal takeover
+    limit + 50 ms (nc_server.drives.remote.config: ``timeout_ms``, ``min_timeout``). Refused when ``[drives.remote] timeout_ms`` says it; without
     it the NC cannot know a drive host's ``--timeout`` (nc-drive-sim checks that itself): a warning when its default
     would be too short.
 
     Raises:
-        ConfigError: ``drives.remote.timeout_ms`` not longer than the takeover bound.
+        ConfigError: ``drives.remote.timeout_ms`` shorter than that.
     """
     if not redundancy.enabled or not any(b == "remote" for b, _ in axis_drives):
         return
-    from nc_server.drives.remote.config import DEFAULT_TIMEOUT, check_timeout, parse_options, takeover_bound
+    from nc_server.drives.remote.config import (DEFAULT_TIMEOUT, check_timeout, min_timeout, parse_options,
+                                                takeover_bound)
 
     opts = parse_options(drive_options.get("remote", {}))
     if opts.timeout_ms is not None:
         check_timeout(opts.timeout_ms / 1000.0, redundancy.takeover_cycles, cycle_time, "drives.remote.timeout_ms")
         return
     bound = takeover_bound(redundancy.takeover_cycles, cycle_time)
-    if not DEFAULT_TIMEOUT > bound:
+    least = min_timeout(redundancy.takeover_cycles, cycle_time)
+    if not DEFAULT_TIMEOUT >= least - 1e-9:
         logging.getLogger("nc_server.config").warning(
-            "[redundancy] takeover_cycles %d at %g ms: a takeover may take %g ms, not less than nc-drive-sim's default "
-            "silence timeout (%g ms): start the drive hosts with a longer --timeout, or give [drives.remote] "
-            "timeout_ms (then checked here)", redundancy.takeover_cycles, cycle_time * 1e3, bound * 1e3,
+            "[redundancy] takeover_cycles %d at %g ms: a nominal takeover limit of %g ms asks for a drive host silence "
+            "timeout of at least %g ms (2 x + 50 ms: the standby's limit grows under load), more than nc-drive-sim's "
+            "default (%g ms): start the drive hosts with a longer --timeout, or give [drives.remote] timeout_ms (then "
+            "checked here)", redundancy.takeover_cycles, cycle_time * 1e3, bound * 1e3, least * 1e3,
             DEFAULT_TIMEOUT * 1e3)
 
 

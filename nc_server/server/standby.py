@@ -517,6 +517,7 @@ class HotStandby:
             lk.epoch = self.epoch
         core = self.core
         if isinstance(core.drive, ReplayDrive):  # (a follower's): the real drives from now on
+            self.real_drive.resync(core.drive.device_error)  # (their state now, not at their last exchange)
             core.drive = RecordingDrive(self.real_drive)
         self.rec.attach_drive(core.drive)
         hs = self.follower.handler_state

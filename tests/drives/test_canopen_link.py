@@ -300,3 +300,50 @@ def test_slaves_that_ran_behind_drop_the_late_syncs_and_catch_up(rig: Rig) -> No
     wait_until(current, 10.0, "the slaves current again")
     assert rig.slaves.dropped_syncs > 0
     assert rig.slaves.syncs < sent  # not every SYNC of the stall was stepped: the backlog was dropped
+
+
+def test_a_node_being_set_up_keeps_its_last_inputs_and_they_age(rig: Rig) -> None:
+    """While ``node.cyclic`` is None (a re-setup, or one that failed) the cycle keeps the node's last payloads; their
+    age grows by one per cycle and their rx_cycle stays, though the notifier thread goes on stamping the node's
+    frames (here the slave still answers every SYNC): old inputs must not look fresh."""
+    link = rig.link
+    assert link is not None
+    rx = _rx(2, 10.0)
+    for c in range(1, 4):
+        rx.cycle = c
+        link.exchange(rx)
+        assert link.wait_answered(5.0)
+    rx.cycle = 4
+    tx = link.exchange(rx)
+    assert list(tx.age) == [0, 0] and list(tx.rx_cycle) == [3, 3]
+    assert link.wait_answered(5.0)
+    link.nodes[0].cyclic = None
+    for c in range(5, 10):
+        rx.cycle = c
+        tx = link.exchange(rx)
+        assert int(tx.age[0]) == c - 4 and int(tx.rx_cycle[0]) == 3  # (was: age 0, rx_cycle c - 1)
+        assert int(tx.age[1]) == 0 and int(tx.rx_cycle[1]) == c - 1
+        assert link.wait_answered(5.0)
+    link.nodes[0].cyclic = link.nodes[0].make_cyclic()
+    rx.cycle = 10
+    link.exchange(rx)
+    assert link.wait_answered(5.0)
+    rx.cycle = 11
+    tx = link.exchange(rx)
+    assert list(tx.age) == [0, 0] and list(tx.rx_cycle) == [10, 10]
+
+
+def test_peek_reads_the_newest_inputs_and_sends_nothing(rig: Rig) -> None:
+    """CanopenLink.peek (a standby's takeover, Cia402Drive.resync): the stored TPDOs, no RPDO, no SYNC."""
+    link = rig.link
+    assert link is not None
+    rx = _rx(2, 10.0)
+    rx.cycle = 7
+    link.exchange(rx)
+    assert link.wait_answered(5.0)
+    syncs, applied = link.syncs, rig.slaves.applied.target_position.copy()
+    tx = link.peek()
+    time.sleep(0.05)
+    assert link.syncs == syncs and list(rig.slaves.applied.target_position) == list(applied)
+    assert list(tx.rx_cycle) == [7, 7] and list(tx.age) == [0, 0]
+    assert all(int(sw) & 0x6F == 0x21 for sw in tx.statusword)

@@ -148,3 +148,90 @@ def test_the_remote_link_stamps_each_axis_with_its_hosts_echo() -> None:
     subs[1].q.append(Sample(wire.encode_tx(dev1.tx, 6, 20)))
     tx = link.exchange(RxImage.zeros(3))
     assert tx.rx_cycle.tolist() == [17, 20, 17] and tx.age.tolist() == [1, 0, 1]
+
+
+class LaggingLink(ProcessDataLink):
+    """Zero transport latency, honest stamps, but a drive whose state machine runs ``lag`` exchanges behind its
+    process data (a slower task): it acts on the controlword of ``lag`` cycles ago, so it shows Operation enabled
+    for ``lag - 1`` cycles after the statusword stamped with a Shutdown's cycle."""
+
+    def __init__(self, device: Cia402Device, lag: int) -> None:
+        self.device, self.n = device, device.n
+        self._cw: deque[np.ndarray] = deque([np.zeros(device.n, dtype=np.uint16)] * lag)
+
+    def exchange(self, rx: RxImage) -> TxImage:
+        self._cw.append(rx.controlword)
+        return self.device.step(RxImage(self._cw.popleft(), rx.mode, rx.target_position, rx.target_velocity,
+                                        rx.probe_function, rx.cycle))
+
+
+def _lagging(lag: int, margin: int) -> tuple[NcCore, Cia402Device, Cia402Drive]:
+    p = [AxisParams()]
+    dev = Cia402Device(1, DT)
+    dev.configure(0, p[0])
+    drive = Cia402Drive(p, DT, LaggingLink(dev, lag), simulated=True, reaction_margin=margin)
+    core = NcCore([AxisConfig(1, "A1", p[0])], DT, drive=drive)
+    core.step()
+    power(core)
+    run_until(core, lambda: bool(drive.following[0]), 50)
+    for _ in range(lag + 5):
+        core.step()
+    return core, dev, drive
+
+
+def _off_on(core: NcCore, drive: Cia402Drive, off: int) -> list[int]:
+    power(core, ctrl=0)
+    for _ in range(off):
+        core.step()
+    power(core)
+    errors = []
+    for _ in range(40):
+        core.step()
+        errors.append(_err(core))
+    assert bool(drive.following[0])
+    return errors
+
+
+# (lag 1 with margin 0: the statusword stamped with the Shutdown's own cycle still shows Operation enabled -- the
+# comparison is strictly "after" (>), with >= it confirmed and then saw a false drop; lag 3 (Operation enabled for
+# 2 cycles after the Shutdown's stamp) needs the margin 2, CANopen's default)
+@pytest.mark.parametrize("lag,margin", [(1, 0), (2, 1), (3, 2)])
+@pytest.mark.parametrize("off", [1, 2])
+def test_a_drive_that_reacts_late_within_its_margin_gives_no_false_drop(lag: int, margin: int, off: int) -> None:
+    core, dev, drive = _lagging(lag, margin)
+    assert _off_on(core, drive, off) == [0] * 40
+
+
+def test_without_the_margin_a_late_drive_shows_a_false_drop() -> None:
+    """(What the margin is for: the same drive with margin 0.)"""
+    core, dev, drive = _lagging(3, 0)
+    assert 0x4650 in _off_on(core, drive, 1)
+
+
+@pytest.mark.parametrize("lag,margin", [(1, 0), (3, 2)])
+def test_a_drop_after_the_margin_is_still_0x4650(lag: int, margin: int) -> None:
+    core, dev, drive = _lagging(lag, margin)
+    dev.state[0] = int(State.SWITCH_ON_DISABLED)  # it drops out by itself
+    run_until(core, lambda: _err(core) == 0x4650, 20)
+    for _ in range(20):
+        core.step()
+        assert int(dev.state[0]) != int(State.OPERATION_ENABLED)
+
+
+def test_reaction_margin_options() -> None:
+    from nc_server.core.params import ConfigError
+    from nc_server.drives.base import DriveContext
+    from nc_server.drives.canopen.drive import DEFAULT_REACTION_MARGIN, _bus_options
+    from nc_server.drives.remote.config import parse_options
+
+    assert DEFAULT_REACTION_MARGIN == 2 and _bus_options({})[3] == 2 and _bus_options({"reaction_margin": 0})[3] == 0
+    assert parse_options({}).reaction_margin == 0 and parse_options({"reaction_margin": 3}).reaction_margin == 3
+    d = Cia402SimDrive.from_config([AxisParams()], DT, [{}], DriveContext(options={"reaction_margin": 1}))
+    assert d.reaction_margin == 1 and Cia402SimDrive([AxisParams()], DT).reaction_margin == 0
+    for bad in (-1, 1.5, True, 10_000):
+        with pytest.raises(ConfigError, match="reaction_margin"):
+            Cia402SimDrive.from_config([AxisParams()], DT, [{}], DriveContext(options={"reaction_margin": bad}))
+        with pytest.raises(ConfigError, match="drives.canopen.reaction_margin"):
+            _bus_options({"reaction_margin": bad})
+        with pytest.raises(ConfigError, match="drives.remote.reaction_margin"):
+            parse_options({"reaction_margin": bad})

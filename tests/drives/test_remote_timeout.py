@@ -15,7 +15,7 @@ import nc_server.core  # noqa: F401  (first: nc_server.drives imports the core, 
 from nc_server.core.params import AxisParams, ConfigError
 from nc_server.drives.cia402.image import RxImage
 from nc_server.drives.remote import host as host_mod, wire
-from nc_server.drives.remote.config import check_timeout, parse_options, takeover_bound
+from nc_server.drives.remote.config import check_timeout, min_timeout, parse_options, takeover_bound
 from nc_server.server.config import parse_config
 
 TOML = """
@@ -46,10 +46,16 @@ def _text(takeover: int | None = 100, timeout_ms: float | None = None, cycle: fl
 def test_the_bound_and_the_check() -> None:
     assert takeover_bound(15, 0.001) == pytest.approx(0.016)
     assert takeover_bound(250, 0.002) == pytest.approx(0.502)
+    # a minimum: 2 x the nominal limit + 50 ms (the standby's adaptive limit grows under load)
+    assert min_timeout(15, 0.001) == pytest.approx(0.082) and min_timeout(99, 0.001) == pytest.approx(0.25)
     check_timeout(0.1, 15, 0.001, "k")
+    check_timeout(0.082, 15, 0.001, "k")
+    with pytest.raises(ConfigError):
+        check_timeout(0.081, 15, 0.001, "k")
     with pytest.raises(ConfigError) as e:
-        check_timeout(0.1, 99, 0.001, "drives.remote.timeout_ms")  # 100 ms: not longer
-    assert e.value.key == "drives.remote.timeout_ms" and "100 ms" in e.value.message and "takeover" in e.value.message
+        check_timeout(0.2, 99, 0.001, "drives.remote.timeout_ms")  # longer than the 100 ms, not twice + 50 ms
+    assert e.value.key == "drives.remote.timeout_ms" and "100 ms" in e.value.message and "250 ms" in e.value.message
+    assert "takeover_limit_ms" in e.value.message
     assert parse_options({"timeout_ms": 250}).timeout_ms == 250.0 and parse_options({}).timeout_ms is None
     for bad in (0, -5, True, "100", 4e6):
         with pytest.raises(ConfigError) as e:
@@ -64,14 +70,19 @@ def test_the_nc_refuses_a_timeout_not_longer_than_its_takeover() -> None:
     with pytest.raises(ConfigError) as e:
         parse_config(tomllib.loads(_text(takeover=60, timeout_ms=120, cycle=0.002)))  # 122 ms at 2 ms cycles
     assert e.value.key == "drives.remote.timeout_ms"
-    parse_config(tomllib.loads(_text(takeover=100, timeout_ms=150)))
+    with pytest.raises(ConfigError) as e:
+        parse_config(tomllib.loads(_text(takeover=100, timeout_ms=251)))  # 2 x 101 + 50 = 252 ms
+    assert "252 ms" in e.value.message
+    parse_config(tomllib.loads(_text(takeover=100, timeout_ms=252)))
     parse_config(tomllib.loads(_text(takeover=None, timeout_ms=5)))  # no pair: nothing to outlast
 
 
 def test_the_nc_without_timeout_ms_warns_only_where_the_default_is_too_short(caplog: pytest.LogCaptureFixture) -> None:
     with caplog.at_level(logging.WARNING, logger="nc_server.config"):
-        parse_config(tomllib.loads(_text(takeover=15)))
+        parse_config(tomllib.loads(_text(takeover=15)))  # 2 x 16 + 50 = 82 ms <= 100 ms
         assert not caplog.records
+        parse_config(tomllib.loads(_text(takeover=30)))  # 2 x 31 + 50 = 112 ms > 100 ms: warned
+        assert any("112 ms" in r.getMessage() for r in caplog.records)
         parse_config(tomllib.loads(_text(takeover=100)))  # 101 ms > 100 ms default: the hosts need --timeout
     assert any("--timeout" in r.getMessage() and "101 ms" in r.getMessage() for r in caplog.records)
 
@@ -101,28 +112,63 @@ def test_nc_drive_sim_learns_the_bound_from_the_outputs_and_warns_once(caplog: p
     rx.cycle = 1
     msgs: list[wire.RxMessage] = []
     h._take_rx = lambda: msgs.pop(0) if msgs else None  # type: ignore[method-assign]
-    for bound in (16.0, 150.0, 150.0):
-        msgs.append(wire.decode_rx(wire.encode_rx(rx, None, np.array([1]), 0, bound)))
+    for limit in (16.0, 150.0, 150.0):
+        msgs.append(wire.decode_rx(wire.encode_rx(rx, None, np.array([1]), 0, limit)))
         with caplog.at_level(logging.WARNING, logger="nc_drive_sim"):
             h.step_once()
-    assert h.takeover_ms == 150.0 and h.timeout_short and h.status()["timeout_short"]
-    warned = [r for r in caplog.records if "takeover bound" in r.getMessage()]
+    assert h.takeover_limit_ms == 150.0 and h.timeout_short and h.status()["timeout_short"]
+    assert h.status()["takeover_limit_ms"] == 150.0
+    warned = [r for r in caplog.records if "takeover limit" in r.getMessage()]
     assert len(warned) == 1 and "150 ms" in warned[0].getMessage()
+    # a malformed diagnostic value: the outputs are applied, the value ignored (the last kept) and counted
+    import msgpack
+    m = msgpack.unpackb(wire.encode_rx(rx, None, np.array([1]), 0, 20.0), raw=False)
+    m["takeover_limit_ms"] = "x"
+    rx.cycle = 2
+    m["cycle"] = 2
+    msgs.append(wire.decode_rx(msgpack.packb(m)))
+    h.step_once()
+    assert h.rx_cycle == 2 and h.takeover_limit_ms == 150.0 and h.bad_diagnostics == 1
+    assert h.status()["bad_diagnostics"] == 1
     msgs.append(wire.decode_rx(wire.encode_rx(rx, None, np.array([1]), 0, 0.0)))  # no redundancy (any more)
     h.step_once()
-    assert h.takeover_ms == 0.0 and not h.timeout_short
+    assert h.takeover_limit_ms == 0.0 and not h.timeout_short
 
 
-def test_the_wire_carries_takeover_ms() -> None:
+def test_the_wire_carries_takeover_limit_ms() -> None:
     rx = RxImage.zeros(2)
     ids = np.array([1, 2])
-    assert wire.decode_rx(wire.encode_rx(rx, None, ids)).takeover_ms == 0.0
-    assert wire.decode_rx(wire.encode_rx(rx, None, ids, 3, 101.0)).takeover_ms == 101.0
+    assert wire.decode_rx(wire.encode_rx(rx, None, ids)).takeover_limit_ms == 0.0
+    assert wire.decode_rx(wire.encode_rx(rx, None, ids, 3, 101.0)).takeover_limit_ms == 101.0
     import msgpack
-    m = msgpack.unpackb(wire.encode_rx(rx, None, ids), raw=False)
-    m["takeover_ms"] = "x"
-    with pytest.raises(wire.WireError):
-        wire.decode_rx(msgpack.packb(m))
+    m = msgpack.unpackb(wire.encode_rx(rx, None, ids, 3, 101.0), raw=False)
+    assert "takeover_limit_ms" in m and "takeover_ms" not in m  # (not the ha status's measured takeover_ms)
+    for bad in ("x", -1.0, True, None, [1]):
+        m["takeover_limit_ms"] = bad
+        got = wire.decode_rx(msgpack.packb(m))  # a diagnostic: the outputs stay usable
+        assert got.takeover_limit_ms is None and got.epoch == 3
+
+
+def test_nc_drive_sim_names_where_a_too_short_timeout_came_from(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    rc, err = _sim(tmp_path, _text(takeover=None, timeout_ms=1.5), capsys=capsys)
+    assert rc == 2 and "drives.remote.timeout_ms" in err and "two drive cycles" in err, err
+    rc, err = _sim(tmp_path, _text(takeover=None), "--timeout", "0.0015", capsys=capsys)
+    assert rc == 2 and "--timeout" in err and "drives.remote.timeout_ms" not in err and "two drive cycles" in err, err
+
+
+def test_max_age_ms_beyond_the_cycle_limit_is_refused() -> None:
+    """``max_age_ms`` of more than 100000 NC cycles is a ConfigError, as ``max_age`` > 100000 is (was: capped)."""
+    from nc_server.drives.base import DriveContext
+    from nc_server.drives.remote.drive import RemoteDrive
+    from nc_server.server.config import ZenohSettings
+    with pytest.raises(ConfigError) as e:
+        RemoteDrive.from_config([AxisParams()], 0.001, [{"host": "d1"}],
+                                DriveContext(options={"max_age_ms": 200_000, "connect": ["tcp/127.0.0.1:17999"]},
+                                             zenoh=ZenohSettings()))
+    assert e.value.key == "drives.remote.max_age_ms" and "200000 NC cycles" in e.value.message
+    with pytest.raises(ConfigError):
+        parse_options({"max_age": 100_001})
 
 
 def test_max_age_as_a_time() -> None:

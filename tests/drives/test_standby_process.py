@@ -95,8 +95,8 @@ def setup(p: Procs, axes: list[int]) -> tuple[NcTestClient, Trace]:
                 "the drive host receiving outputs", servers(p))
     # the pair's takeover limit reaches the drive host with the outputs: at least (15 + 1) cycles of 2 ms, at most
     # the loss detection's cap (1 s) + 1 cycle, below the host's 3 s
-    st = wait_logged(lambda: (s := sim.status()) is not None and s["takeover_ms"] > 0 and s, "takeover_ms", servers(p))
-    assert (TAKEOVER_CYCLES + 1) * CYCLE * 1e3 - 1e-6 <= st["takeover_ms"] <= 1e3 + 2 * CYCLE * 1e3, st
+    st = wait_logged(lambda: (s := sim.status()) is not None and s["takeover_limit_ms"] > 0 and s, "takeover_limit_ms", servers(p))
+    assert (TAKEOVER_CYCLES + 1) * CYCLE * 1e3 - 1e-6 <= st["takeover_limit_ms"] <= 1e3 + 2 * CYCLE * 1e3, st
     assert not st["timeout_short"], st
     power(cl, axes)
     return cl, tr

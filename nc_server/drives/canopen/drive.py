@@ -13,6 +13,7 @@ Configured in the NC's TOML (the ``Drive`` table of each axis and the backend's 
     monitoring = "heartbeat"     # or "node_guarding": the master polls every heartbeat_period (0x100C/0x100D)
     start_timeout = 2.0          # [s] for the operational heartbeat and the first TPDOs at start; default 2.0, at most 60
     max_age = 3                  # [NC cycles] older inputs are invalid I/O data (0x4655); default 3
+    reaction_margin = 2          # [NC cycles] a drive's state machine may lag its TPDO's SYNC; default 2
 
     [[axis]]
     AxisId = 1
@@ -39,7 +40,7 @@ import canopen
 
 from ...core.params import AxisParams, ConfigError
 from ..base import DriveABC, DriveContext
-from ..cia402.drive import DEFAULT_KV, Cia402Drive, axis_options, link_options
+from ..cia402.drive import DEFAULT_KV, Cia402Drive, axis_options, link_options, reaction_margin_option
 from ..cia402.objects import INTERPOLATION_TIME_PERIOD, Mode
 from . import pdo
 from .link import MONITORING, BusConfig, CanopenLink, NodeConfig, interpolation_period
@@ -55,6 +56,9 @@ _MAX_PERIOD = 65.535
 _BUS_KEYS = {"interface", "channel", "bitrate", "simulate_slaves", "sdo_timeout", "heartbeat_period",
              "heartbeat_timeout", "start_timeout", "monitoring"}
 _SECTION = "drives.canopen"
+#: ``reaction_margin`` unless set: a real drive's state machine often runs in a slower task than its PDOs and shows
+#: Operation enabled for a cycle or two after the SYNC that brought a Shutdown (Cia402Drive's docstring)
+DEFAULT_REACTION_MARGIN = 2
 
 
 class CanopenDrive(Cia402Drive):
@@ -71,9 +75,11 @@ class CanopenDrive(Cia402Drive):
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: CanopenLink, *,
                  slaves: SimulatedSlaves | None = None, max_age: int = 3,
-                 mode: Mode | Sequence[Mode] = Mode.CSP, kv: float | Sequence[float] = DEFAULT_KV) -> None:
+                 mode: Mode | Sequence[Mode] = Mode.CSP, kv: float | Sequence[float] = DEFAULT_KV,
+                 reaction_margin: int = DEFAULT_REACTION_MARGIN) -> None:
         self.slaves = slaves
-        super().__init__(params, cycle_time, link, simulated=slaves is not None, max_age=max_age, mode=mode, kv=kv)
+        super().__init__(params, cycle_time, link, simulated=slaves is not None, max_age=max_age, mode=mode, kv=kv,
+                         reaction_margin=reaction_margin)
 
     @classmethod
     def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
@@ -85,7 +91,7 @@ class CanopenDrive(Cia402Drive):
             CanopenStartError: the bus cannot be opened or a node does not answer at start.
         """
         opts = dict(context.options)
-        bus, simulate, max_age = _bus_options(opts)
+        bus, simulate, max_age, margin = _bus_options(opts)
         quiet = logging.getLogger("canopen")
         if quiet.level == logging.NOTSET:  # canopen logs every SDO, mapping entry and NMT change at INFO
             quiet.setLevel(logging.WARNING)
@@ -112,7 +118,7 @@ class CanopenDrive(Cia402Drive):
         try:
             link = CanopenLink(nodes, cycle_time, bus)
             return cls(params, cycle_time, link, slaves=slaves, max_age=max_age, mode=[m for _, m, _ in axes],
-                       kv=[k for _, _, k in axes])
+                       kv=[k for _, _, k in axes], reaction_margin=margin)
         except BaseException:
             if slaves is not None:
                 slaves.close()
@@ -125,12 +131,13 @@ class CanopenDrive(Cia402Drive):
             self.slaves.close()
 
 
-def _bus_options(opts: dict[str, Any]) -> tuple[BusConfig, bool, int]:
+def _bus_options(opts: dict[str, Any]) -> tuple[BusConfig, bool, int, int]:
     max_age, opts = link_options(opts, _SECTION)
+    margin, opts = reaction_margin_option(opts, _SECTION, DEFAULT_REACTION_MARGIN)
     unknown = sorted(set(opts) - _BUS_KEYS)
     if unknown:
         raise ConfigError(f"{_SECTION}.{unknown[0]}", f"unknown option (known: "
-                                                      f"{', '.join(sorted(_BUS_KEYS | {'max_age'}))})")
+                                                      f"{', '.join(sorted(_BUS_KEYS | {'max_age', 'reaction_margin'}))})")
     d = BusConfig()
     interface = _str(opts, "interface", d.interface)
     channel = _str(opts, "channel", d.channel)
@@ -156,7 +163,7 @@ def _bus_options(opts: dict[str, Any]) -> tuple[BusConfig, bool, int]:
         raise ConfigError(f"{_SECTION}.monitoring", f"must be one of {', '.join(map(repr, MONITORING))}, "
                                                     f"got {monitoring!r}")
     return (BusConfig(interface, channel, bitrate, sdo_timeout, period, timeout, start_timeout, monitoring),
-            simulate, max_age)
+            simulate, max_age, margin)
 
 
 def _node_options(i: int, o: Mapping[str, Any]) -> tuple[NodeConfig, Mode, float]:

@@ -248,6 +248,9 @@ class CanopenLink(ProcessDataLink):
         self.tpdo_late = np.zeros(self.n, dtype=np.int64)
         self.tpdo_missed = np.zeros(self.n, dtype=np.int64)
         self._answered = np.zeros(self.n, dtype=np.int64)  # the newest SYNC answered by all cyclic TPDOs, as used
+        #: the age and rx_cycle of the inputs used last (a node being set up keeps its inputs: they age from these)
+        self._last_age = np.zeros(self.n, dtype=np.int64)
+        self._last_rx_cycle = np.zeros(self.n, dtype=np.int64)
         self._pos = np.zeros(self.n, dtype=np.int64)  # the unwrapped actual positions [inc]
         self._pos_seen = np.zeros(self.n, dtype=bool)
         self._hb_time = np.full(self.n, -math.inf)
@@ -485,15 +488,21 @@ class CanopenLink(ProcessDataLink):
         self._outputs(rx)
         return tx
 
+    def peek(self) -> TxImage:
+        """The newest inputs the notifier thread stored, no RPDO or SYNC sent."""
+        return self._inputs()
+
     def _inputs(self) -> TxImage:
         t1, t2, t3 = self._t[1], self._t[2], self._t[3]  # (written in place: the TxImage gets copies)
         # the stamps before the payloads: a TPDO1 arriving in between makes the data newer than the stamp, never older
         # (a statusword is never taken to answer newer outputs than it does)
         s1 = self._stamp[1].copy()
         d1, d2, d3 = self._tpdo_data[1], self._tpdo_data[2], self._tpdo_data[3]
+        held: list[int] = []
         for j, node in enumerate(self.nodes):
             cyc = node.cyclic
-            if cyc is None:  # being set up: its last inputs stay
+            if cyc is None:  # being set up (or its set-up failed): its last inputs stay, and age
+                held.append(j)
                 continue
             for k, out, d in ((1, t1, d1), (2, t2, d2), (3, t3, d3)):
                 data = d[j]
@@ -501,8 +510,12 @@ class CanopenLink(ProcessDataLink):
                 out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
         k = self.syncs
         answered = np.minimum(self._stamp[1], self._stamp[2])
+        if held:  # (the notifier may go on stamping its frames: not what the payloads kept here answer)
+            answered[held] = self._answered[held]
         age = k - answered
         age[answered < 0] = k + 1
+        if held:
+            age[held] = self._last_age[held] + 1
         if np.count_nonzero(age):  # (figures only; the steady state skips them)
             self.tpdo_late = self.tpdo_late + (age > 0)
         jump = answered - self._answered
@@ -517,6 +530,9 @@ class CanopenLink(ProcessDataLink):
         probe = pdo.unwrap32(t3[1], pos)
         # the NC cycle the statusword (TPDO1) answers: the RPDOs sent before the SYNC it answered (0: unknown)
         rx_cycle = np.where((s1 >= 1) & (k - s1 < _RING - 1), self._sync_cycle[s1 % _RING], 0)
+        if held:
+            rx_cycle[held] = self._last_rx_cycle[held]
+        self._last_age, self._last_rx_cycle = age, rx_cycle
         return TxImage(statusword=t1[0].astype(np.uint16), mode_display=t2[2].astype(np.int8),
                        position_actual=pos.astype(np.float64), velocity_actual=t2[0].astype(np.float64),
                        torque_actual=t2[1].astype(np.float64), error_code=t1[2].astype(np.uint16),

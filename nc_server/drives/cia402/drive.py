@@ -22,7 +22,11 @@ Decisions:
   (``TxImage.rx_cycle``, stamped by the link): once a statusword answering outputs sent after the NC's last
   controlword other than Enable operation (0x000F) shows Operation enabled, any later statusword that does not is
   the drive's own doing -- however soon after the enable, whatever the link's latency. A statusword answering
-  older outputs may still show the drive obeying the Shutdown of a short MC_Power off/on: not a drop. A link
+  older outputs may still show the drive obeying the Shutdown of a short MC_Power off/on: not a drop. A drive whose
+  state machine runs in a slower task than its PDOs shows Operation enabled for a cycle or two after the Shutdown's
+  stamp: ``reaction_margin`` (per backend, ``[drives.<name>] reaction_margin``: 0 for the simulated drives, whose
+  statusword shows the outputs it answers, cia402-sim and nc-drive-sim; 2 for CANopen) more cycles are required
+  (a drop in those first cycles after an enable is then seen as a drive that did not come up, not as a drop). A link
   that cannot stamp (``rx_cycle`` empty) is taken to answer ``max_age + 1`` cycles late.
 * ``io_valid``: the inputs are at most ``max_age`` NC cycles old; stale inputs keep the last valid ActVelo/ActAcc.
 * ``reset(rows)``: a fault reset edge (0x0000 then 0x0080) for these axes; the request is kept through Fault
@@ -114,6 +118,26 @@ def link_options(opts: Mapping[str, Any], where: str = "drives") -> tuple[int, d
     return max_age, rest
 
 
+#: the largest ``reaction_margin`` [NC cycles]
+MAX_REACTION_MARGIN = 1000
+
+
+def reaction_margin_option(opts: Mapping[str, Any], where: str, default: int) -> tuple[int, dict[str, Any]]:
+    """``reaction_margin`` of a backend's ``[drives.<name>]`` table (NC cycles a drive's state machine may react
+    after the outputs its statusword's stamp names, see :class:`Cia402Drive`; ``default`` the backend's); returns
+    (margin, the other options).
+
+    Raises:
+        ConfigError: not an integer 0..MAX_REACTION_MARGIN.
+    """
+    rest = dict(opts)
+    m = rest.pop("reaction_margin", default)
+    if isinstance(m, bool) or not isinstance(m, int) or not 0 <= m <= MAX_REACTION_MARGIN:
+        raise ConfigError(f"{where}.reaction_margin",
+                          f"must be an integer 0..{MAX_REACTION_MARGIN} [NC cycles], got {m!r}")
+    return m, rest
+
+
 class Cia402Drive(DriveABC):
     """CiA 402 drives behind a process data link (one column per axis).
 
@@ -124,11 +148,14 @@ class Cia402Drive(DriveABC):
         tx: the inputs of the last cycle.
         encoder: the encoder chains (increments <-> axis units).
         max_age: inputs older than this [NC cycles] are invalid I/O data.
+        reaction_margin: NC cycles the drive's state machine may react after the outputs its statusword answers
+            (by the link's stamp): Operation enabled is confirmed only by a statusword answering outputs more than
+            this many cycles after the last controlword other than 0x000F.
     """
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: ProcessDataLink, *,
                  simulated: bool = False, max_age: int = 3, mode: Mode | Sequence[Mode] = Mode.CSP,
-                 kv: float | Sequence[float] = DEFAULT_KV) -> None:
+                 kv: float | Sequence[float] = DEFAULT_KV, reaction_margin: int = 0) -> None:
         """
         Args:
             params: the axes' parameters (the encoder chain, the torque model).
@@ -139,9 +166,11 @@ class Cia402Drive(DriveABC):
             mode: per axis (or for all) CSP (the default) or CSV.
             kv: per axis (or for all) the NC's position loop gain in CSV [1/s] (target velocity = SetVelo +
                 kv * (SetPos - ActPos)); unused in CSP, where the drive closes the position loop.
+            reaction_margin: see the class (0: the drive's statusword shows the effect of the outputs it answers;
+                a real drive whose state machine runs in a slower task than its PDOs needs a cycle or two).
 
         Raises:
-            ValueError: a mode other than CSP/CSV, kv <= 0, max_age < 0.
+            ValueError: a mode other than CSP/CSV, kv <= 0, max_age < 0, reaction_margin < 0.
         """
         super().__init__(params, cycle_time)
         n = len(params)
@@ -155,6 +184,9 @@ class Cia402Drive(DriveABC):
             raise ValueError(f"kv must be > 0 [1/s], got {kvs}")
         if int(max_age) < 0:
             raise ValueError(f"max_age must be >= 0 cycles, got {max_age}")
+        if int(reaction_margin) < 0:
+            raise ValueError(f"reaction_margin must be >= 0 cycles, got {reaction_margin}")
+        self.reaction_margin = int(reaction_margin)
         self.simulated = simulated
         self.link = link
         self.max_age = int(max_age)
@@ -208,6 +240,47 @@ class Cia402Drive(DriveABC):
         self._lost[rows] = False
         self._any_dropped = bool(self._dropped.any() or self._lost.any())
 
+    def resync(self, latched: np.ndarray | None = None) -> None:
+        """A takeover (:meth:`..base.DriveABC.resync`): the drives' power state, position and error code from the
+        link's newest inputs (:meth:`.image.ProcessDataLink.peek`; nothing is sent). A drive in Operation enabled is
+        taken as confirmed (the other NC enabled it: leaving it from now on is the drive's own doing), its target the
+        NC's set-point from the first step on; one that is not is walked up by the controlword of its real state.
+        This drive's cycle count continues after the newest cycle the drives answer (the other NC's numbering), so
+        the stamps of the outputs it sends are newer than every stamp the drives showed before."""
+        tx = self.link.peek()
+        if tx is None:
+            return
+        n = len(self.state)
+        rc = tx.rx_cycle
+        if len(rc) == n and n:
+            self._cycle = max(self._cycle, int(rc.max()))
+        state = sm.decode(tx.statusword)
+        alive = tx.alive if len(tx.alive) == n else np.ones(n, dtype=bool)
+        valid = tx.age <= self.max_age
+        following = (state == _OE) & alive
+        fault_state = state >= _FRA
+        c = self.encoder
+        self._pos_inc = np.where(valid, tx.position_actual, self._pos_inc)
+        self.act_pos = np.where(valid, c.positions(tx.position_actual), self.act_pos)
+        self.act_velo = np.where(valid, tx.velocity_actual * c.scaling * c.sign, self.act_velo)
+        self.act_acc = np.zeros(n)
+        self.tx, self.state, self.following = tx, state, following
+        self._confirmed = following.copy()
+        self._lost = np.zeros(n, dtype=bool)
+        keep = np.zeros(n, dtype=bool) if latched is None else np.asarray(latched, dtype=bool)
+        self._dropped = keep & ~following & ~fault_state
+        self._any_dropped = bool(self._dropped.any())
+        self._reset_left = np.zeros(n, dtype=np.int64)
+        self._any_reset = False
+        self._last_probe_status = tx.probe_status
+        self._probe_new = self._no_probe
+        self._probe_new_any = False
+        self.io_valid, self.comm_error = valid, ~alive
+        self.device_error = fault_state | self._dropped
+        self.ready = ~fault_state & alive
+        self.error_code, self.input_age = tx.error_code, tx.age
+        self.faulty = True  # (the first step evaluates everything)
+
     # -- the cycle ------------------------------------------------------------------------------------------
 
     def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
@@ -247,7 +320,8 @@ class Cia402Drive(DriveABC):
         following = state == _OE
         pending = following & ~self._confirmed
         if np.count_nonzero(pending):  # (the steady state: every following axis confirmed, nothing to do)
-            self._confirmed = self._confirmed | (pending & (self._answered(tx) > self._last_off))
+            # (strictly after: a statusword stamped with the Shutdown's own cycle may not show it yet)
+            self._confirmed = self._confirmed | (pending & (self._answered(tx) - self.reaction_margin > self._last_off))
         c = self.encoder
         new_pos = c.positions(tx.position_actual)
         new_velo = tx.velocity_actual * c.scaling * c.sign

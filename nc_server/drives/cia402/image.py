@@ -96,6 +96,12 @@ class ProcessDataLink(ABC):
     def exchange(self, rx: RxImage) -> TxImage:
         """Send this cycle's outputs, return the newest inputs (never blocks)."""
 
+    def peek(self) -> TxImage | None:
+        """The newest inputs that have arrived, sending nothing (a standby NC that takes over the drives reads their
+        current state with it: :meth:`.drive.Cia402Drive.resync`). Never blocks. Default: None (the link cannot
+        read without sending)."""
+        return None
+
     def figures(self) -> list[dict[str, Any]]:
         """Per column the link's figures for the NC's stats (``drive_link``): plain values (msgpack), ``"link"``
         naming the kind. Called from another thread while :meth:`exchange` runs: only reads. Default: none (an

@@ -26,7 +26,7 @@ import numpy as np
 from ...core.params import AxisParams, ConfigError
 from ..base import DriveContext
 from .device import HARDWARE_ERROR_CODE, Cia402Device
-from .drive import DEFAULT_KV, Cia402Drive, link_options
+from .drive import DEFAULT_KV, Cia402Drive, link_options, reaction_margin_option
 from .drive import axis_options as axis_options_of
 from .image import ProcessDataLink, RxImage, TxImage
 from .objects import Mode
@@ -55,6 +55,10 @@ class LocalLink(ProcessDataLink):
 
     def degraded_changed(self) -> None:
         self._degraded = bool(self.invalid.any() or not self.alive.all())
+
+    def peek(self) -> TxImage:
+        """The device's inputs of its last step (an axis the link does not carry: the last it carried)."""
+        return self._last_tx if self._degraded and self._last_tx is not None else self.device.tx
 
     def exchange(self, rx: RxImage) -> TxImage:
         if not self._degraded:
@@ -88,17 +92,18 @@ class Cia402SimDrive(Cia402Drive):
     """
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, *, mode: Mode | Sequence[Mode] = Mode.CSP,
-                 kv: float | Sequence[float] = DEFAULT_KV, max_age: int = 3) -> None:
+                 kv: float | Sequence[float] = DEFAULT_KV, max_age: int = 3, reaction_margin: int = 0) -> None:
         self.device = Cia402Device(len(params), cycle_time)  # (configured by Cia402Drive.__init__)
         self._local = LocalLink(self.device)
-        super().__init__(params, cycle_time, self._local, simulated=True, mode=mode, kv=kv, max_age=max_age)
+        super().__init__(params, cycle_time, self._local, simulated=True, mode=mode, kv=kv, max_age=max_age,
+                         reaction_margin=reaction_margin)
         self._local.invalid_age = self.max_age + 1
 
     @classmethod
     def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
                     axis_options: Sequence[Mapping[str, Any]], context: DriveContext) -> Cia402SimDrive:
         """Per axis ``mode`` ("csp"/"csv") and ``kv`` (:func:`.drive.axis_options`); ``[drives.cia402-sim]``
-        ``max_age`` (:func:`.drive.link_options`).
+        ``max_age`` (:func:`.drive.link_options`) and ``reaction_margin`` (default 0).
 
         Raises:
             ConfigError: an unknown option or a bad value.
@@ -112,10 +117,13 @@ class Cia402SimDrive(Cia402Drive):
             modes.append(mode)
             kvs.append(kv)
         max_age, rest = link_options(context.options, "drives.cia402-sim")
+        margin, rest = reaction_margin_option(rest, "drives.cia402-sim", 0)
         if rest:
-            raise ConfigError("drives.cia402-sim", f"the cia402-sim backend takes max_age, got {', '.join(sorted(rest))}")
+            raise ConfigError("drives.cia402-sim", f"the cia402-sim backend takes max_age and reaction_margin, got "
+                                                   f"{', '.join(sorted(rest))}")
         n = len(params)
-        return cls(params, cycle_time, mode=modes or [Mode.CSP] * n, kv=kvs or [DEFAULT_KV] * n, max_age=max_age)
+        return cls(params, cycle_time, mode=modes or [Mode.CSP] * n, kv=kvs or [DEFAULT_KV] * n, max_age=max_age,
+                   reaction_margin=margin)
 
     def configure(self, index: int, params: AxisParams) -> None:
         super().configure(index, params)

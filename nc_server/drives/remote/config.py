@@ -9,6 +9,8 @@ In the NC's TOML::
     sender = "cycle"                     # "cycle" | "thread": who puts the outputs (.link)
     lease_ms = 500                       # the link session's transport lease (default: the NC's)
     timeout_ms = 100                     # the drive hosts' silence timeout (nc-drive-sim --timeout; default 100)
+    reaction_margin = 0                  # NC cycles a drive's state machine may lag its host's echo (gateways to
+                                         # real drives: 2; Cia402Drive's docstring); default 0 (nc-drive-sim)
 
     [[axis]]
     AxisId = 1
@@ -28,14 +30,16 @@ Decisions:
   stops itself. A lost host (its token gone, 2-3 ms after a crash) is reported at once as 0x4651 anyway.
 * ``timeout_ms``: the drive hosts' silence timeout, read by ``nc-drive-sim --config`` (its ``--timeout`` overrides
   it) and by the NC, so that both check it against a hot-standby pair's takeover where the TOML has
-  ``[redundancy] enabled``: it must be longer than :func:`takeover_bound` (``takeover_cycles + 1`` NC cycles: the
-  log silence a standby waits and the cycle that notices it; docs/standby.md), else every takeover would find the
-  drives quick-stopped (0x8130). A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit
+  ``[redundancy] enabled``: it must be at least :func:`min_timeout`, twice the nominal takeover limit
+  :func:`takeover_bound` (``takeover_cycles + 1`` NC cycles: the log silence a standby waits at least and the cycle
+  that notices it; docs/standby.md) plus 50 ms, since the standby's limit adapts to the log gaps it sees and can grow
+  to its cap under load; a timeout shorter than the limit in use would find the drives quick-stopped (0x8130) at a
+  takeover. A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit
   code 2) where both are known: the NC with ``timeout_ms`` in its TOML, nc-drive-sim with ``--config`` (the
   timeout it will use: ``--timeout``, else ``timeout_ms``, else 100 ms). The NC without ``timeout_ms`` cannot know a
   drive host's ``--timeout``: it warns when the default 100 ms would be too short. nc-drive-sim without ``--config``
-  learns the bound from the NC's outputs (``rx`` ``takeover_ms``, 0 without redundancy) and warns once (its status
-  ``timeout_short``): it is running already and stopping it would stop the drives.
+  learns the limit in use from the NC's outputs (``rx`` ``takeover_limit_ms``, 0 without redundancy) and warns once
+  when its timeout does not exceed it (its status ``timeout_short``): it is running already and stopping it would stop the drives.
 * ``max_age`` counts NC cycles, as the link counts the inputs' age (+1 per exchange without new inputs) and as
   TwinCAT counts its "n continuous NC cycles" of invalid I/O data; ``max_age_ms`` gives it as a time, as the
   section's other times (``lease_ms``, ``timeout_ms``), turned into whole NC cycles (rounded up, at least 1) by
@@ -57,14 +61,17 @@ from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 from ...core.params import ConfigError
+from ..cia402.drive import reaction_margin_option
 from .link import HostSlots
 from .wire import check_host
 
 SENDERS = ("cycle", "thread")
 #: [drives.remote] keys and per-axis Drive keys (without ``backend``).
-BACKEND_KEYS = ("connect", "max_age", "max_age_ms", "sender", "lease_ms", "timeout_ms")
+BACKEND_KEYS = ("connect", "max_age", "max_age_ms", "sender", "lease_ms", "timeout_ms", "reaction_margin")
 AXIS_KEYS = ("host", "slot")
 DEFAULT_MAX_AGE = 50
+#: the largest max_age [NC cycles] (also max_age_ms in cycles)
+MAX_AGE_CYCLES = 100_000
 #: the drive hosts' silence timeout unless ``timeout_ms`` or nc-drive-sim's ``--timeout`` say otherwise [s]
 DEFAULT_TIMEOUT = 0.1
 #: ``[redundancy] takeover_cycles`` unless set (nc_server.server.config)
@@ -81,6 +88,7 @@ class RemoteOptions:
     lease_ms: int | None = None
     timeout_ms: float | None = None
     max_age_ms: float | None = None
+    reaction_margin: int = 0
 
     def max_age_cycles(self, cycle_time: float) -> int:
         """``max_age`` in NC cycles: ``max_age_ms`` in whole cycles (rounded up, at least 1) if given."""
@@ -115,8 +123,9 @@ def parse_options(options: Mapping[str, Any], where: str = "drives.remote") -> R
         raise ConfigError(f"{where}.connect", f"must be a list of endpoints, got {connect!r}")
     eps = tuple(_endpoint(ep, f"{where}.connect[{i}]") for i, ep in enumerate(connect))
     max_age = options.get("max_age", DEFAULT_MAX_AGE)
-    if isinstance(max_age, bool) or not isinstance(max_age, int) or not 1 <= max_age <= 100_000:
-        raise ConfigError(f"{where}.max_age", f"must be an integer number of NC cycles 1..100000, got {max_age!r}")
+    if isinstance(max_age, bool) or not isinstance(max_age, int) or not 1 <= max_age <= MAX_AGE_CYCLES:
+        raise ConfigError(f"{where}.max_age", f"must be an integer number of NC cycles 1..{MAX_AGE_CYCLES}, "
+                                              f"got {max_age!r}")
     max_age_ms = options.get("max_age_ms")
     if max_age_ms is not None:
         if "max_age" in options:
@@ -134,8 +143,9 @@ def parse_options(options: Mapping[str, Any], where: str = "drives.remote") -> R
     if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
                                 or not 1.0 <= timeout <= 3_600_000.0):
         raise ConfigError(f"{where}.timeout_ms", f"must be a number of ms 1..3600000, got {timeout!r}")
+    margin, _ = reaction_margin_option({k: v for k, v in options.items() if k == "reaction_margin"}, where, 0)
     return RemoteOptions(eps, max_age, sender, lease, None if timeout is None else float(timeout),
-                         None if max_age_ms is None else float(max_age_ms))
+                         None if max_age_ms is None else float(max_age_ms), margin)
 
 
 def host_slots(axis_options: Sequence[Mapping[str, Any]], axis_ids: Sequence[int] | None = None,
@@ -223,22 +233,37 @@ def cycles(seconds: float, cycle_time: float) -> int:
 
 
 def takeover_bound(takeover_cycles: int, cycle_time: float) -> float:
-    """The longest a hot-standby pair leaves its drives without outputs at a takeover [s]: the standby waits
-    ``takeover_cycles`` NC cycles without the active NC's log (a freeze, a cut link; a crash is seen at once) and
-    notices at the start of the next cycle, whose outputs go out (docs/standby.md, the ha status's
-    ``takeover_limit_cycles``)."""
+    """The nominal takeover limit of a hot-standby pair [s]: the standby waits at least ``takeover_cycles`` NC cycles
+    without the active NC's log (a freeze, a cut link; a crash is seen at once) and notices at the start of the next
+    cycle, whose outputs go out (docs/standby.md). A minimum: the standby's limit adapts to the log gaps it sees (up
+    to its cap under load); what it uses now is published as ``takeover_limit_ms`` in its ha status and sent to the
+    drive hosts with the outputs."""
     return (int(takeover_cycles) + 1) * float(cycle_time)
 
 
+#: the drive hosts' silence timeout must be at least TIMEOUT_FACTOR x the nominal takeover limit + TIMEOUT_MARGIN_S
+TIMEOUT_FACTOR = 2.0
+TIMEOUT_MARGIN_S = 0.05
+
+
+def min_timeout(takeover_cycles: int, cycle_time: float) -> float:
+    """The shortest silence timeout [s] a drive host of a hot-standby pair may have: twice the nominal takeover limit
+    (:func:`takeover_bound`) plus 50 ms, room for the standby's adaptive limit to grow under load."""
+    return TIMEOUT_FACTOR * takeover_bound(takeover_cycles, cycle_time) + TIMEOUT_MARGIN_S
+
+
 def check_timeout(timeout: float, takeover_cycles: int, cycle_time: float, key: str) -> None:
-    """A drive host's silence timeout [s] must be longer than the pair's :func:`takeover_bound`.
+    """A drive host's silence timeout [s] must be at least :func:`min_timeout`.
 
     Raises:
-        ConfigError: on ``key``, naming both figures.
+        ConfigError: on ``key``, naming the figures.
     """
     bound = takeover_bound(takeover_cycles, cycle_time)
-    if not timeout > bound:
-        raise ConfigError(key, f"the drive hosts' silence timeout ({timeout * 1e3:g} ms) must be longer than the "
-                               f"standby NC's takeover ({takeover_cycles} + 1 cycles of {cycle_time * 1e3:g} ms = "
-                               f"{bound * 1e3:g} ms, [redundancy] takeover_cycles): the drives would stop with 0x8130 "
-                               f"at every takeover")
+    least = min_timeout(takeover_cycles, cycle_time)
+    if not timeout >= least - 1e-9:
+        raise ConfigError(key, f"the drive hosts' silence timeout ({timeout * 1e3:g} ms) must be at least "
+                               f"{TIMEOUT_FACTOR:g} x the standby NC's nominal takeover limit ({takeover_cycles} + 1 "
+                               f"cycles of {cycle_time * 1e3:g} ms = {bound * 1e3:g} ms, [redundancy] takeover_cycles) "
+                               f"+ {TIMEOUT_MARGIN_S * 1e3:g} ms = {least * 1e3:g} ms: the standby's limit grows under "
+                               f"load (its ha status's takeover_limit_ms), and a timeout shorter than it stops the "
+                               f"drives with 0x8130 at a takeover")

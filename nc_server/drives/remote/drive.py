@@ -33,7 +33,7 @@ from ..base import DriveContext
 from ..cia402.drive import DEFAULT_KV, Cia402Drive
 from ..cia402.drive import axis_options as cia402_axis_options
 from ..cia402.objects import Mode
-from .config import RemoteOptions, host_slots, link_endpoints, parse_options
+from .config import MAX_AGE_CYCLES, RemoteOptions, host_slots, link_endpoints, parse_options
 from .link import HostSlots, RemoteLink, link_config
 
 log = logging.getLogger("nc_server.drives.remote")
@@ -56,8 +56,9 @@ class RemoteDrive(Cia402Drive):
 
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, link: RemoteLink, *,
                  max_age: int = 50, mode: Mode | Sequence[Mode] = Mode.CSP,
-                 kv: float | Sequence[float] = DEFAULT_KV) -> None:
-        super().__init__(params, cycle_time, link, simulated=False, max_age=max_age, mode=mode, kv=kv)
+                 kv: float | Sequence[float] = DEFAULT_KV, reaction_margin: int = 0) -> None:
+        super().__init__(params, cycle_time, link, simulated=False, max_age=max_age, mode=mode, kv=kv,
+                         reaction_margin=reaction_margin)
 
     @classmethod
     def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
@@ -77,6 +78,11 @@ class RemoteDrive(Cia402Drive):
             modes.append(mode)
             kvs.append(kv)
             rest.append(others)
+        max_age = opts.max_age_cycles(cycle_time)
+        if max_age > MAX_AGE_CYCLES:  # (refused as max_age is, not capped silently)
+            raise ConfigError("drives.remote.max_age_ms", f"{opts.max_age_ms:g} ms is {max_age} NC cycles of "
+                                                          f"{cycle_time * 1e3:g} ms: at most {MAX_AGE_CYCLES} "
+                                                          f"(as max_age)")
         hosts = host_slots(rest, ids)
         endpoints = link_endpoints(opts, context.zenoh)
         z = context.zenoh
@@ -90,8 +96,8 @@ class RemoteDrive(Cia402Drive):
         link = RemoteLink(name, len(params), hosts, lambda: link_config(endpoints, lease, tls_dir, name),
                           sender=opts.sender, missing_warn_cycles=max(1, round(MISSING_WARN_S / cycle_time)))
         try:
-            return cls(params, cycle_time, link, max_age=min(opts.max_age_cycles(cycle_time), 100_000), mode=modes,
-                       kv=kvs)
+            return cls(params, cycle_time, link, max_age=max_age, mode=modes, kv=kvs,
+                       reaction_margin=opts.reaction_margin)
         except BaseException:
             link.close()
             raise

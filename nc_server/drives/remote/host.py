@@ -17,11 +17,12 @@ Decisions:
 * Silence timeout ``--timeout`` (default: the TOML's ``[drives.remote] timeout_ms``, else :data:`DEFAULT_TIMEOUT`
   = 100 ms): no outputs for that long is the drive's communication fault 0x8130: each drive stops on its own
   quick-stop ramp (the axis's AxisDec) and keeps its position. It must be longer than a standby NC's takeover
-  (docs/standby.md: ``takeover_cycles + 1`` NC cycles at a freeze or a cut link, a crash is seen at once) and than
+  (docs/standby.md: at least ``takeover_cycles + 1`` NC cycles at a freeze or a cut link, a crash is seen at once;
+  the standby's limit adapts and grows under load, up to its cap: at least 2 x that + 50 ms is required) and than
   the longest stalls seen on a loaded 2-core VM (1-6 ms, zenoh spikes 3-5 ms); 100 ms is 20x the worst stall and
   still a short coast. With ``--config`` and ``[redundancy] enabled`` in the TOML a timeout not longer than the
-  takeover bound is a configuration error (exit code 2); without ``--config`` the bound is learnt from the NC's
-  outputs (``takeover_ms``): a timeout not longer is logged once as a warning and shown in the status
+  minimum is a configuration error (exit code 2); without ``--config`` the limit in use is learnt from the NC's
+  outputs (``takeover_limit_ms``): a timeout not longer is logged once as a warning and shown in the status
   (``timeout_short``), not refused (the drives are running by then).
   When outputs come back the fault stays until the NC's MC_Reset (a fault reset), as on any drive.
 * The process never exits because the NC went away; SIGTERM, SIGINT and SIGHUP end it (exit code 0) after the
@@ -196,8 +197,9 @@ class DriveHost:
         self.stale_epoch = 0       # outputs refused for their epoch
         self.takeovers = 0         # epochs followed (the first one included)
         self.overruns = 0
-        self.takeover_ms = 0.0     # the NC's takeover bound, as its outputs say (0: no redundancy)
-        self.timeout_short = False  # the silence timeout is not longer than that bound (warned once)
+        self.takeover_limit_ms = 0.0  # the NC's takeover limit, as its outputs say (0: no redundancy)
+        self.timeout_short = False  # the silence timeout is not longer than that limit (warned once)
+        self.bad_diagnostics = 0    # outputs whose diagnostic fields (takeover_limit_ms) were ignored as malformed
         self.silent_logged = True  # (nothing to report before the first outputs)
         self._last_tp = np.zeros(self.n)
         self._last_tv = np.zeros(self.n)
@@ -311,14 +313,14 @@ class DriveHost:
             best = msg  # (the newest of the highest epoch: the ring keeps arrival order)
         return best
 
-    def _takeover_bound(self, bound_ms: float) -> None:
-        """The NC's outputs name its takeover bound: a silence timeout not longer is warned about once per value."""
-        self.takeover_ms = bound_ms
-        short = bound_ms > 0 and not self.timeout * 1e3 > bound_ms
+    def _takeover_limit(self, limit_ms: float) -> None:
+        """The NC's outputs name its takeover limit: a silence timeout not longer is warned about once per value."""
+        self.takeover_limit_ms = limit_ms
+        short = limit_ms > 0 and not self.timeout * 1e3 > limit_ms
         if short and not self.timeout_short:
-            log.warning("the silence timeout (%g ms, --timeout) is not longer than the takeover bound of %s's "
+            log.warning("the silence timeout (%g ms, --timeout) is not longer than the takeover limit of %s's "
                         "hot-standby pair (%g ms): a takeover will find the drives stopped (0x8130); start with a "
-                        "longer --timeout", self.timeout * 1e3, self.nc, bound_ms)
+                        "longer --timeout", self.timeout * 1e3, self.nc, limit_ms)
         self.timeout_short = short
 
     def _refuse(self, why: str) -> None:
@@ -339,8 +341,12 @@ class DriveHost:
             self.silent_logged = False
             self.rx_cycle = int(rx.cycle)
             self.rx_count += 1
-            if msg.takeover_ms != self.takeover_ms:
-                self._takeover_bound(msg.takeover_ms)
+            if msg.takeover_limit_ms is None:  # (a diagnostic: the outputs are used, the value is not)
+                self.bad_diagnostics += 1
+                if self.bad_diagnostics <= 3 or self.bad_diagnostics % 10000 == 0:
+                    log.warning("outputs with a malformed takeover_limit_ms (ignored; %d so far)", self.bad_diagnostics)
+            elif msg.takeover_limit_ms != self.takeover_limit_ms:
+                self._takeover_limit(msg.takeover_limit_ms)
             tx = dev.step(rx)
         else:
             if self.rx_count and dev.silent + self.cycle_time < self.extrapolate:
@@ -372,7 +378,8 @@ class DriveHost:
             "rx_cycle": self.rx_cycle, "rx_count": self.rx_count, "silent_s": round(dev.silent, 6),
             "nc_silent": bool(self.rx_count == 0 or dev.silent >= self.timeout), "refused": self.refused,
             "overruns": self.overruns, "epoch": self.epoch, "stale_epoch": self.stale_epoch,
-            "timeout_s": self.timeout, "takeover_ms": self.takeover_ms, "timeout_short": self.timeout_short,
+            "timeout_s": self.timeout, "takeover_limit_ms": self.takeover_limit_ms, "timeout_short": self.timeout_short,
+            "bad_diagnostics": self.bad_diagnostics,
             "axes": [{"slot": i, "AxisId": int(self.ids[i]), "state": State(int(dev.state[i])).name,
                       "statusword": int(tx.statusword[i]), "error_code": int(dev.error_code[i]),
                       "position": float(dev.position[i]), "velocity": float(dev.velocity[i])}
@@ -442,12 +449,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             "drives.remote.timeout_ms" if toml_timeout is not None else f"--timeout (default {DEFAULT_TIMEOUT:g} s)"
         args.timeout = args.timeout if args.timeout is not None else \
             toml_timeout if toml_timeout is not None else DEFAULT_TIMEOUT
-        for name, v, lo, hi in (("--cycle-time", args.cycle_time, 1e-4, 1.0), ("--timeout", args.timeout, 1e-3, 3600.0),
+        # (the timeout's errors name where it came from: --timeout, the TOML's timeout_ms, or the default)
+        for name, v, lo, hi in (("--cycle-time", args.cycle_time, 1e-4, 1.0), (timeout_key, args.timeout, 1e-3, 3600.0),
                                 ("--extrapolate", args.extrapolate, 0.0, 3600.0)):
             if not lo <= v <= hi:
-                raise ConfigError(name, f"must be within {lo:g}..{hi:g}, got {v:g}")
+                raise ConfigError(name, f"must be within {lo:g}..{hi:g} s, got {v:g} s")
         if args.timeout < 2 * args.cycle_time:
-            raise ConfigError("--timeout", f"must be at least two drive cycles ({2 * args.cycle_time:g} s)")
+            raise ConfigError(timeout_key, f"the silence timeout ({args.timeout:g} s) must be at least two drive "
+                                           f"cycles ({2 * args.cycle_time:g} s, --cycle-time)")
         if pair is not None:  # a hot-standby pair (the TOML's [redundancy]): the timeout must outlast its takeover
             check_timeout(args.timeout, pair[0], pair[1], timeout_key)
         if args.connect:

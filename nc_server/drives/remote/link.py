@@ -199,9 +199,10 @@ class RemoteLink(ProcessDataLink):
         #: one a host reported following: above ``epoch``, another NC drives these hosts now
         self.epoch = 0
         self.host_epoch = 0
-        #: the takeover bound of a hot-standby pair [ms] (0: none), sent with the outputs: a drive host warns when its
-        #: silence timeout is not longer (nc_server.server.standby sets it)
-        self.takeover_ms = 0.0
+        #: the takeover limit of a hot-standby pair [ms] (0: none; its standby's limit in use, as its ha status's
+        #: ``takeover_limit_ms``), sent with the outputs: a drive host warns when its silence timeout does not exceed
+        #: it (nc_server.server.standby sets it)
+        self.takeover_limit_ms = 0.0
         self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
@@ -237,6 +238,15 @@ class RemoteLink(ProcessDataLink):
         log.info("drive link of %s: connected, hosts %s", self.nc_name, ", ".join(self.hosts))
 
     @property
+    def takeover_ms(self) -> float:
+        """The former name of :attr:`takeover_limit_ms` (kept for callers that set it)."""
+        return self.takeover_limit_ms
+
+    @takeover_ms.setter
+    def takeover_ms(self, value: float) -> None:
+        self.takeover_limit_ms = float(value)
+
+    @property
     def connected(self) -> bool:
         """The session is open and declared."""
         return self._ready
@@ -262,6 +272,15 @@ class RemoteLink(ProcessDataLink):
         out = TxImage(**{a: getattr(tx, a) for a in _TX_ATTRS})
         return out
 
+    def peek(self) -> TxImage:
+        """The newest inputs (the hosts' liveliness and newest ``tx``, which the link's subscriptions keep receiving
+        also while nothing is sent, e.g. on a standby NC), sending nothing; the age of inputs that arrived since the
+        last exchange is 0."""
+        if self._ready:
+            self._take_liveliness()
+            self._take_inputs(None)
+        return TxImage(**{a: getattr(self._tx, a) for a in _TX_ATTRS})
+
     def _take_liveliness(self) -> None:
         while True:
             try:
@@ -281,7 +300,9 @@ class RemoteLink(ProcessDataLink):
             alive[self._rows[i]] = present and self._host_seen[i]
             self._tx.alive = alive
 
-    def _take_inputs(self, nc_cycle: int) -> None:
+    def _take_inputs(self, nc_cycle: int | None) -> None:
+        """The newest ``tx`` of each host (``nc_cycle``: this exchange's NC cycle, for the round trip; None: a peek,
+        no round trip)."""
         tx = self._tx
         cols: dict[str, np.ndarray] | None = None
         for i, sub in enumerate(self._tx_subs):
@@ -310,7 +331,7 @@ class RemoteLink(ProcessDataLink):
                     cols[a][rows] = c
             age[rows] = 0
             answered[rows] = rx_cycle  # (the statusword answers these outputs: the drive judges drops by it)
-            rtt[rows] = nc_cycle - rx_cycle if rx_cycle else -1
+            rtt[rows] = nc_cycle - rx_cycle if rx_cycle and nc_cycle is not None else -1
             if host_epoch > self.host_epoch:
                 self.host_epoch = host_epoch
             self.received += 1
@@ -334,7 +355,7 @@ class RemoteLink(ProcessDataLink):
                         self.malformed)
 
     def _send(self, rx: RxImage) -> None:
-        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch, self.takeover_ms)
+        msgs = [wire.encode_rx(rx, None if whole else rows, ids, self.epoch, self.takeover_limit_ms)
                 for rows, ids, whole in zip(self._rows, self._ids, self._whole)]
         if self.sender == "thread":
             with self._mail_lock:

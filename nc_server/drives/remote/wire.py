@@ -11,15 +11,17 @@ A message is a msgpack map; each column is a ``bin`` of little-endian values of 
 the host (slot order). Columns as bins cost the same for 4 or 64 axes (pack ~2.5 us, unpack ~6 us; msgpack
 lists cost 5 / 24 us to pack and 9 / 32 us to unpack for 8 / 64 axes). Unknown keys are ignored (room for issue
 21's lease), a missing column or a column of the wrong length, a float column with NaN or inf, a ``cycle``,
-``rx_cycle`` or ``epoch`` that is not an integer in 0..2**63-1 make the message malformed (:class:`WireError`).
+``rx_cycle`` or ``epoch`` that is not an integer in 0..2**63-1 make the message malformed (:class:`WireError`); a bad diagnostic field (``takeover_limit_ms``) does not.
 
 Decisions: positions travel as float64 increments (as :class:`~nc_server.drives.cia402.image.RxImage`: no INT32
 rounding on zenoh); ``rx`` carries the AxisIds of the slots so a host configured for other axes refuses the
 message instead of moving the wrong motor; ``epoch`` is the sending NC's (0 without redundancy; a hot standby
 numbers its takeovers: docs/standby.md): a host follows the highest epoch it has seen only, and ``tx`` reports
 that epoch (``epoch``, 0 if absent) so an NC driving with a lower one learns it was replaced. ``rx`` also carries the
-sending NC's ``takeover_ms`` (a hot-standby pair's takeover bound, nc_server.drives.remote.config.takeover_bound;
-0 or absent without redundancy): a drive host checks its silence timeout against it.
+sending NC's ``takeover_limit_ms`` (the takeover limit its standby uses now, as its ha status publishes it;
+nominally nc_server.drives.remote.config.takeover_bound; 0 or absent without redundancy): a drive host checks its
+silence timeout against it. A diagnostic field like this one that is not a number >= 0 does not make the outputs
+unusable: it is ignored (``RxMessage.takeover_limit_ms`` None; the host counts it).
 
 It may import: numpy, msgpack, nc_server.drives.cia402.
 """
@@ -97,7 +99,7 @@ _packer = msgpack.Packer()
 
 
 def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epoch: int = 0,
-              takeover_ms: float = 0.0) -> bytes:
+              takeover_limit_ms: float = 0.0) -> bytes:
     """One host's outputs: the columns of ``rx`` at ``rows`` (the link's rows in the host's slot order).
 
     Args:
@@ -105,12 +107,12 @@ def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epo
         rows: link rows, slot order (int array; None: every row in order).
         ids: the AxisIds of the slots (uint32 array, or its ``<u4`` bytes; 0 = not named).
         epoch: the sending NC's epoch (docs/standby.md; 0 without redundancy).
-        takeover_ms: the sending NC's takeover bound (0: no redundancy; then not sent).
+        takeover_limit_ms: the sending NC's takeover limit [ms] (0: no redundancy; then not sent).
     """
     idb = ids if isinstance(ids, bytes) else np.asarray(ids).astype("<u4").tobytes()
     m: dict[str, Any] = {"v": VERSION, "cycle": int(rx.cycle), "epoch": int(epoch), "n": len(idb) // 4, "ids": idb}
-    if takeover_ms:
-        m["takeover_ms"] = float(takeover_ms)
+    if takeover_limit_ms:
+        m["takeover_limit_ms"] = float(takeover_limit_ms)
     for k, (attr, dt) in RX_COLUMNS.items():
         col = getattr(rx, attr)
         m[k] = (col if rows is None else col[rows]).astype(dt, copy=False).tobytes()
@@ -119,13 +121,13 @@ def encode_rx(rx: RxImage, rows: np.ndarray | None, ids: np.ndarray | bytes, epo
 
 @dataclass
 class RxMessage:
-    """A decoded ``rx``: the image (one column per slot), the slots' AxisIds, the NC's epoch and takeover bound
-    [ms] (0: none)."""
+    """A decoded ``rx``: the image (one column per slot), the slots' AxisIds, the NC's epoch and takeover limit
+    [ms] (0: none; None: the message's value was not a number >= 0 and is ignored)."""
 
     image: RxImage
     ids: np.ndarray
     epoch: int
-    takeover_ms: float = 0.0
+    takeover_limit_ms: float | None = 0.0
 
 
 @dataclass
@@ -189,10 +191,9 @@ def decode_rx(payload: bytes | bytearray | memoryview) -> RxMessage:
     n = m["n"]
     cols = {attr: _column(m, k, dt, n).copy() for k, (attr, dt) in RX_COLUMNS.items()}
     cycle, epoch = _counter(m, "cycle"), _counter(m, "epoch", 0)
-    tk = m.get("takeover_ms", 0.0)
-    if isinstance(tk, bool) or not isinstance(tk, (int, float)) or not 0.0 <= tk < 1e12:
-        raise WireError(f"takeover_ms must be a number >= 0, got {tk!r}")
-    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch, float(tk))
+    tk = m.get("takeover_limit_ms", 0.0)
+    limit = None if isinstance(tk, bool) or not isinstance(tk, (int, float)) or not 0.0 <= tk < 1e12 else float(tk)
+    return RxMessage(RxImage(cycle=cycle, **cols), _column(m, "ids", "<u4", n), epoch, limit)
 
 
 def encode_tx(tx: TxImage, cycle: int, rx_cycle: int, epoch: int = 0) -> bytes:
