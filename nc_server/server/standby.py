@@ -532,20 +532,29 @@ class HotStandby:
             log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
             return
         srv.became_active(now, serve=False)
-        # the zenoh declarations (the active token, the snapshot and command queryables, the stats and claims
-        # publishers, the NC's tokens: 7 calls, milliseconds on a loaded machine) come after the first step, whose
-        # set-point is the first thing the drives need (after_step)
-        self._serve_pending = True
         self._lost_at, self._detected_at = lost_at, now
         # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
-        # steps over that time at once, so its first set-point is where the drives' targets are now
+        # steps over that time at once, so its first set-point is where the drives' targets are now. The catch-up
+        # steps send nothing to the drives (their set-points are behind the drives' targets: a step back, then
+        # forward); the cycle's own step after them sends the first outputs
         quiet = max(0.0, now - lost_at) if lost_at > 0 else 0.0
         k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt)
         self.catch_up = k
         self.takeovers += 1
-        for _ in range(max(0, k - 1)):
-            self.rec.step()
-            self.after_step()
+        links = drive_links(self.real_drive)
+        for lk in links:
+            lk.mute = True
+        try:
+            for _ in range(max(0, k - 1)):
+                self.rec.step()
+                self.after_step()
+        finally:
+            for lk in links:
+                lk.mute = False
+        # the zenoh declarations (the active token, the snapshot and command queryables, the stats and claims
+        # publishers, the NC's tokens: 7 calls, milliseconds on a loaded machine) come after the cycle's own step,
+        # whose set-point is the first thing the drives need (after_step)
+        self._serve_pending = True
 
     def _serve(self) -> None:
         """Declare what the active NC of the pair declares (its token, the snapshot queryable, the NC's keys)."""
