@@ -229,6 +229,10 @@ class HotStandby:
         self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
         self._status_sub: Any = None
         self._grace = START_GRACE_S  # (standby, never in step) no active NC this long: take over
+        # (active) until a drive host's inputs carry this NC's epoch: the inputs of another epoch taken since it
+        # became active (None: confirmed, or no remote drives); the links' input counts at the last look
+        self._unconfirmed: int | None = None
+        self._received: list[int] = []
 
     # ---- session (start, before the cycle thread) ---------------------------------------------------------------
     def open(self, session: zenoh.Session) -> None:
@@ -268,6 +272,9 @@ class HotStandby:
         if self.role == "active":
             if self._replaced():
                 self._become_standby(now, "a drive host follows a higher epoch")
+            elif self._unconfirmed_too_long():
+                self._become_standby(now, f"no drive host follows its epoch {self.epoch} after "
+                                          f"{self._unconfirmed} inputs of others")
         else:
             self._take_snapshot(now)
             if self._lost(now):
@@ -324,8 +331,9 @@ class HotStandby:
             self._become_standby(time.monotonic(), f"stalled {gap:.3f} s (the standby's limit {limit:.3f} s) with a "
                                  "standby in step")
             # (if the standby did not take over after all, e.g. the stall was close to its limit, no NC would drive:
-            # this one takes over again after a short grace without an active NC)
-            self._grace = min(START_GRACE_S, 2 * limit + 0.1)
+            # this one takes over again after a grace without an active NC, with the epoch it drove with: at least
+            # START_GRACE_S, for its session to come back and show a successor's token or logs, _lost, _become_active)
+            self._grace = max(START_GRACE_S, 2 * limit + 0.1)
             return True
         if gap > max(self._silence, HOLD_SHARE * raw):
             # a stall not far below the standby's limit: if it took over, its logs (a higher epoch) may still be in
@@ -496,6 +504,22 @@ class HotStandby:
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
 
+    def _unconfirmed_too_long(self) -> bool:
+        """(active) No drive host's inputs carried this NC's epoch since it became active, while more than the
+        takeover limit (in cycles, at least ``takeover_cycles``) of inputs with another epoch came: its outputs do
+        not reach the drives or are refused; a standby that reaches them takes over once this NC steps down."""
+        if self._unconfirmed is None:
+            return False
+        links = drive_links(self.real_drive)
+        if any(lk.input_epoch == self.epoch for lk in links):
+            self._unconfirmed = None
+            return False
+        counts = [lk.received for lk in links]
+        if counts != self._received:  # (new inputs, none of them with this NC's epoch)
+            self._received = counts
+            self._unconfirmed += 1
+        return self._unconfirmed > max(self.settings.takeover_cycles, self._limit_cycles())
+
     def _declare_standby(self, on: bool) -> None:
         s = self._session
         if s is None:
@@ -511,8 +535,18 @@ class HotStandby:
         lost_at = self._last_log
         self._token_gone = False
         self._grace = START_GRACE_S
-        self.epoch = next_epoch(max(self.highest, self.epoch), self.node)
-        self.highest = self.epoch
+        if self.epoch and not self.synced_once and not first:
+            # an NC that drove and demoted itself, in step with nobody since: it takes over again with the epoch it
+            # drove with (a new one could win the tie against a successor it does not see, its state older than the
+            # successor's); the drive hosts take it only if nobody took over meanwhile (else their epoch demotes it)
+            log.warning("NC %s (node %s): no active NC: drives again with its epoch %d", srv.config.name, self.node,
+                        self.epoch)
+        else:
+            self.epoch = next_epoch(max(self.highest, self.epoch), self.node)
+        self.highest = max(self.highest, self.epoch)
+        links = drive_links(self.real_drive)
+        self._unconfirmed = 0 if links else None
+        self._received = [lk.received for lk in links]
         for lk in drive_links(self.real_drive):
             lk.epoch = self.epoch
         core = self.core

@@ -130,3 +130,57 @@ def test_a_muted_remote_link_takes_inputs_but_sends_nothing() -> None:
     link.mute = False
     link.exchange(img)
     assert len(sent) == 2
+
+
+def active(hs: HotStandby, epoch: int) -> None:
+    hs.role, hs.epoch, hs.highest, hs.synced_once = "active", epoch, epoch, True
+    hs.follower.waiting = False
+
+
+def test_a_demoted_nc_retakes_only_after_the_grace_and_with_its_own_epoch() -> None:
+    # A froze past its standby's limit; B took over; A resumed, demoted itself and sees neither B's token nor its
+    # logs (its session reconnects slowly, or the link B->A is cut): with a new epoch of the same count as B's it
+    # could win the tie and the drive hosts would follow its second-old state
+    act, hs, drive = pair()
+    e = 5 << 16 | 7
+    active(hs, e)
+    hs.peer_in_step = True
+    hs._peer_limits["a"] = (0.030, time.monotonic())
+    assert hs.after_stall(0.5)
+    assert hs.role == "standby" and not hs.synced_once and hs._grace >= START_GRACE_S
+    t = time.monotonic()
+    hs._started = hs._last_log = t
+    assert not hs._lost(t + 0.2) and not hs._lost(t + START_GRACE_S - 0.01)
+    assert hs._lost(t + START_GRACE_S + 0.01)
+    hs._become_active(t + START_GRACE_S + 0.01)
+    assert hs.role == "active" and hs.epoch == e  # its own epoch: the hosts take it only if nobody took over
+    # B had taken over (count 6): the hosts refuse A's outputs and their inputs show B's epoch: A steps down
+    drive.link.host_epoch = drive.link.input_epoch = 6 << 16 | 1
+    assert hs.before_cycle(time.monotonic())
+    assert hs.role == "standby"
+
+
+def test_an_active_nc_whose_epoch_no_drive_host_confirms_steps_down() -> None:
+    act, hs, drive = pair()
+    hs.synced_once, hs.follower.waiting = True, False
+    hs._become_active(time.monotonic(), first=True)
+    e, lk = hs.epoch, drive.link
+    lk.input_epoch = 1  # (inputs of an older epoch: the hosts have not taken this NC's outputs yet)
+    limit = max(TAKEOVER, hs._limit_cycles())
+    for _ in range(limit):
+        lk.received += 1
+        assert not hs.before_cycle(time.monotonic())
+    for _ in range(10):  # no new inputs: nothing to judge
+        assert not hs.before_cycle(time.monotonic())
+    lk.received += 1
+    assert hs.before_cycle(time.monotonic()) and hs.role == "standby"
+    # the same, confirmed in time: active for good
+    act, hs, drive = pair()
+    hs.synced_once, hs.follower.waiting = True, False
+    hs._become_active(time.monotonic(), first=True)
+    lk = drive.link
+    for i in range(3 * limit):
+        lk.received += 1
+        lk.input_epoch = hs.epoch if i >= 3 else 0
+        assert not hs.before_cycle(time.monotonic())
+    assert hs.role == "active" and hs._unconfirmed is None
