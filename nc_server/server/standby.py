@@ -219,7 +219,7 @@ class HotStandby:
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
         # the drive hosts learn the pair's takeover bound with the outputs (they warn if their timeout is shorter);
-        # the limit in force follows the loss detector (status())
+        # the limit in force follows the loss detector (_refresh_limit, in the cycle thread)
         self.takeover_limit_ms = bound_ms = takeover_bound(settings.takeover_cycles, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
             lk.takeover_ms = bound_ms
@@ -228,6 +228,7 @@ class HotStandby:
         self._lease = float(getattr(zn, "lease_ms", 500)) / 1000.0  # (a freeze this long drops this NC's tokens)
         self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
         self._status_sub: Any = None
+        self._limit = settings.takeover_cycles  # the published limit [cycles] (_refresh_limit)
         self._grace = START_GRACE_S  # (standby, never in step) no active NC this long: take over
         # (active) until a drive host's inputs carry this NC's epoch: the inputs of another epoch taken since it
         # became active (None: confirmed, or no remote drives); the links' input counts at the last look
@@ -281,6 +282,7 @@ class HotStandby:
                 self._become_active(now)
         if now >= self._next_status:
             self._next_status = now + STATUS_PERIOD_S
+            self._refresh_limit(now)
             self._publish_status()
         return self.role != "active"
 
@@ -518,7 +520,7 @@ class HotStandby:
         if counts != self._received:  # (new inputs, none of them with this NC's epoch)
             self._received = counts
             self._unconfirmed += 1
-        return self._unconfirmed > max(self.settings.takeover_cycles, self._limit_cycles())
+        return self._unconfirmed > max(self.settings.takeover_cycles, self._limit)
 
     def _declare_standby(self, on: bool) -> None:
         s = self._session
@@ -639,14 +641,20 @@ class HotStandby:
         self._started = now
         self._ask_snapshot(now)
 
-    def status(self) -> dict[str, Any]:
-        """The ha status (``nc/<nc>/ha/status/<node>``, the stats' ``ha``)."""
-        f = self.follower
-        limit = self._limit_cycles()
-        # the limit in force (it grows with the log gaps under load) goes to the drive hosts with the outputs
+    def _refresh_limit(self, now: float) -> None:
+        """(cycle thread: the detector's gaps and the peers' statuses are the cycle thread's) The published limit,
+        for status(); the limit in force (it grows with the log gaps under load) goes to the drive hosts with the
+        outputs."""
+        self._limit = limit = self._limit_cycles(now)
         self.takeover_limit_ms = takeover_bound(limit, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
             lk.takeover_ms = self.takeover_limit_ms
+
+    def status(self) -> dict[str, Any]:
+        """The ha status (``nc/<nc>/ha/status/<node>``, the stats' ``ha``): read from the cycle thread and the I/O
+        thread (stats): it only reads what the cycle thread computed."""
+        f = self.follower
+        limit = self._limit
         return {"node": self.node, "role": self.role, "epoch": self.epoch, "highest_epoch": self.highest,
                 "in_step": self.role == "active" or (not f.waiting and self.synced_once),
                 "cycle": int(self.core.cycle), "lag_cycles": int(f.lag), "logs_in": self.logs_in,

@@ -166,7 +166,8 @@ def test_an_active_nc_whose_epoch_no_drive_host_confirms_steps_down() -> None:
     hs._become_active(time.monotonic(), first=True)
     e, lk = hs.epoch, drive.link
     lk.input_epoch = 1  # (inputs of an older epoch: the hosts have not taken this NC's outputs yet)
-    limit = max(TAKEOVER, hs._limit_cycles())
+    assert not hs.before_cycle(time.monotonic())
+    limit = max(TAKEOVER, hs._limit)
     for _ in range(limit):
         lk.received += 1
         assert not hs.before_cycle(time.monotonic())
@@ -184,3 +185,21 @@ def test_an_active_nc_whose_epoch_no_drive_host_confirms_steps_down() -> None:
         lk.input_epoch = hs.epoch if i >= 3 else 0
         assert not hs.before_cycle(time.monotonic())
     assert hs.role == "active" and hs._unconfirmed is None
+
+
+def test_the_status_read_by_another_thread_only_reads() -> None:
+    # status() runs in the I/O thread too (the stats): the detector's gaps and the peers' statuses are the cycle
+    # thread's (a deque changed while iterated: RuntimeError in the cycle thread, the end of its loop)
+    act, hs, drive = pair()
+
+    def boom(*_: Any) -> Any:
+        raise AssertionError("touched outside the cycle thread")
+
+    hs.before_cycle(time.monotonic())  # (the cycle thread computes the limit)
+    published = hs._limit
+    hs.detector.limit = boom  # type: ignore[method-assign]
+    hs._status_sub = SimpleNamespace(try_recv=boom)
+    st = hs.status()
+    assert st["takeover_limit_cycles"] == published
+    hs.role = "active"
+    assert hs.status()["role"] == "active"
