@@ -189,6 +189,7 @@ class HotStandby:
         self.catch_up = 0         # cycles stepped at once at the last takeover
         self.detect_s = self.work_s = self.serve_s = 0.0  # the last takeover's parts (docs/standby.md)
         self._serve_pending = False
+        self._serve_tries = 0  # (failed declarations of the takeover so far: retried every cycle)
         self._lost_at = self._detected_at = 0.0
         self._lost_why = ""
         self.logs_in = 0
@@ -562,9 +563,15 @@ class HotStandby:
                 srv.transport.instance = self.hrec.instance = hs.instance
         srv.claims.rebase(now)
         self.role = "active"
-        if first or not self.synced_once:
+        if first:
             self._serve()
             srv.became_active(now)
+            log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
+            return
+        if not self.synced_once:  # (a retake from its own core: no catch-up; the declarations after the step)
+            srv.became_active(now, serve=False)
+            self._lost_at, self._detected_at, self.catch_up = 0.0, now, 0
+            self._serve_pending, self._serve_tries = True, 0
             log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
             return
         srv.became_active(now, serve=False)
@@ -590,7 +597,7 @@ class HotStandby:
         # the zenoh declarations (the active token, the snapshot and command queryables, the stats and claims
         # publishers, the NC's tokens: 7 calls, milliseconds on a loaded machine) come after the cycle's own step,
         # whose set-point is the first thing the drives need (after_step)
-        self._serve_pending = True
+        self._serve_pending, self._serve_tries = True, 0
 
     def _serve(self) -> None:
         """Declare what the active NC of the pair declares (its token, the snapshot queryable, the NC's keys)."""
@@ -598,20 +605,35 @@ class HotStandby:
             self._token.undeclare()
         self._token = self._session.liveliness().declare_token(f"{self.keys}/active/{self.node}") \
             if self._session is not None else None
-        self._snap_q = self._session.declare_queryable(f"{self.keys}/snapshot", FifoChannel(16)) \
-            if self._session is not None else None
+        if self._snap_q is None and self._session is not None:
+            self._snap_q = self._session.declare_queryable(f"{self.keys}/snapshot", FifoChannel(16))
 
     def _finish_takeover(self) -> None:
-        """After the takeover's first step (its set-point is out): the times, then the declarations."""
-        self._serve_pending = False
+        """After the takeover's first step (its set-point is out): the times, then the declarations. A declaration
+        that fails (zenoh) is logged and tried again after the next cycle's step: the NC drives meanwhile."""
         t = time.monotonic()
         lost_at, srv = self._lost_at, self.srv
-        self.takeover_s = t - lost_at if lost_at > 0 else 0.0
-        self.takeover_cycles = int(round(self.takeover_s / self._dt)) if lost_at > 0 else 0
-        self.detect_s = self._detected_at - lost_at if lost_at > 0 else 0.0
-        self.work_s = t - self._detected_at
-        self._serve()
-        srv.transport.serve()
+        if self._serve_tries == 0:
+            self.takeover_s = t - lost_at if lost_at > 0 else 0.0
+            self.takeover_cycles = int(round(self.takeover_s / self._dt)) if lost_at > 0 else 0
+            self.detect_s = self._detected_at - lost_at if lost_at > 0 else 0.0
+            self.work_s = t - self._detected_at
+        self._serve_tries += 1
+        try:
+            self._serve()
+            srv.transport.serve()
+        except Exception as exc:
+            if self._serve_tries <= 3 or self._serve_tries % 1000 == 0:
+                log.error("NC %s: took over, but its declarations failed (try %d; again next cycle): %s",
+                          srv.config.name, self._serve_tries, exc)
+            try:  # (what transport.serve() declared before it failed: all of it again next time)
+                unserve = getattr(srv.transport, "unserve", None)
+                if unserve is not None:
+                    unserve()
+            except Exception:
+                pass
+            return
+        self._serve_pending = False
         self.serve_s = time.monotonic() - t
         log.warning("NC %s: took over at cycle %d (epoch %d, node %s; the active NC lost: %s): first set-point %.1f ms "
                     "after the last log (detection %.1f ms, then %.1f ms to the first step; %d cycles caught up; "
@@ -627,6 +649,7 @@ class HotStandby:
         self.rec.attach_drive(None)
         self.role = "standby"
         self.demotions += 1
+        self._serve_pending = False  # (a takeover whose declarations had not been made yet)
         for d in (self._snap_q, self._token):
             if d is not None:
                 try:

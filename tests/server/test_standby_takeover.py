@@ -203,3 +203,31 @@ def test_the_status_read_by_another_thread_only_reads() -> None:
     assert st["takeover_limit_cycles"] == published
     hs.role = "active"
     assert hs.status()["role"] == "active"
+
+
+def test_failed_declarations_of_a_takeover_are_tried_again_while_the_nc_drives() -> None:
+    events: list[tuple[str, float]] = []
+    act, hs, drive = pair(events)
+    moving(act)
+    hs.synced_once, hs.follower.waiting = True, False
+    fails = [RuntimeError("zenoh: declare failed"), RuntimeError("again")]
+    unserved: list[int] = []
+
+    def serve() -> None:
+        if fails:
+            raise fails.pop(0)
+        events.append(("serve", 0.0))
+
+    hs.srv.transport.serve = serve
+    hs.srv.transport.unserve = lambda: unserved.append(1)
+    events.clear()
+    now = time.monotonic()
+    hs._last_log = now - 0.005
+    hs._become_active(now)
+    for _ in range(3):  # the cycle goes on (no exception into the cycle thread); the third try succeeds
+        act.rec.step()
+        hs.after_step()
+    assert hs.role == "active" and not hs._serve_pending and len(unserved) == 2
+    assert [e for e, _ in events].count("serve") == 1
+    assert [e for e, _ in events][-1] == "serve" and len([e for e, _ in events if e == "out"]) == 3
+    assert hs.takeover_s > 0
