@@ -216,6 +216,7 @@ class HotStandby:
         self._token: Any = None
         self._next_status = 0.0
         self._excused = False  # the last cycle served a snapshot
+        self._current = False  # (_take_logs) the sample held a log of the highest epoch
         self._recent: collections.deque[bytes] = collections.deque(maxlen=LOG_REPEAT)
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
@@ -414,11 +415,14 @@ class HotStandby:
             except Exception as exc:
                 log.warning("unusable ha log: %s", exc)
                 continue
-            if self.role == "standby":
-                self.detector.log(now)
+            self._current = False
             for lg in logs:
                 if self._take_log(lg, now):
                     return
+            if self._current and self.role == "standby":
+                # (a sign of life of the NC followed: only logs of the highest epoch; a zombie of a lower one must
+                # not keep the standby from judging the silence of the active NC)
+                self.detector.log(now)
 
     def _take_log(self, lg: CycleLog, now: float) -> bool:
         """One log of a sample; True: this NC stopped being active (the rest of the sample is not its)."""
@@ -433,6 +437,7 @@ class HotStandby:
             if lg.epoch < self.highest:
                 self.stale_logs += 1
                 return False
+            self._current = True
             core = self.follower.core
             if core is not None and not self.follower.waiting and lg.cycle <= core.cycle:
                 return False  # (a repeat: the samples carry the last LOG_REPEAT logs)

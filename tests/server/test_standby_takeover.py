@@ -231,3 +231,38 @@ def test_failed_declarations_of_a_takeover_are_tried_again_while_the_nc_drives()
     assert [e for e, _ in events].count("serve") == 1
     assert [e for e, _ in events][-1] == "serve" and len([e for e, _ in events if e == "out"]) == 3
     assert hs.takeover_s > 0
+
+
+class FakeSub:
+    def __init__(self) -> None:
+        self.queue: list[Any] = []
+
+    def put(self, payload: bytes) -> None:
+        self.queue.append(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
+
+    def try_recv(self) -> Any:
+        return self.queue.pop(0) if self.queue else None
+
+
+def sample(epoch: int, cycle: int) -> bytes:
+    lg = SimpleNamespace(epoch=epoch, cycle=cycle)
+    return pickle.dumps([pickle.dumps(lg)])
+
+
+def test_logs_of_a_lower_epoch_do_not_reset_the_silence() -> None:
+    # a zombie NC of an older epoch still sends logs: the standby must still judge the active NC's silence
+    act, hs, drive = pair()
+    hs.highest = 6 << 16
+    hs.synced_once, hs.follower.waiting = True, False
+    sub = FakeSub()
+    hs._log_sub = sub
+    hs.detector.restart(0.0)
+    sub.put(sample(5 << 16, 10_000))
+    hs._take_logs(1.0)
+    assert hs.detector.last == 0.0 and hs.stale_logs == 1
+    # one of the followed epoch: a sign of life
+    hs.follower.apply = lambda lg: True  # type: ignore[method-assign]
+    hs._declare_standby = lambda on: None  # type: ignore[method-assign]
+    sub.put(sample(6 << 16, 10**9))
+    hs._take_logs(1.5)
+    assert hs.detector.last == 1.5
