@@ -22,6 +22,7 @@ from __future__ import annotations
 import collections
 import hashlib
 import logging
+import math
 import os
 import pickle
 import socket
@@ -32,7 +33,7 @@ import msgpack
 import zenoh
 from zenoh.handlers import FifoChannel
 
-from nc_server.drives.remote.config import takeover_bound
+from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 
 from .config import Redundancy
 from .replication import (CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive, ReplayDrive,
@@ -59,7 +60,7 @@ GAP_WINDOW_S = 10.0
 GAP_FACTOR = 2.0
 WARMUP_S = 3.0
 WARMUP_FLOOR_S = 0.5
-LIMIT_CAP_S = 1.0
+# (LIMIT_CAP_S: nc_server.drives.remote.config, whose timeout checks count with it)
 #: an active NC that stalled longer than this share of its standby's limit (or of its lease) demotes itself
 STALL_MARGIN = 0.75
 #: an active NC that stalled longer than this share of that limit (but not long enough to demote itself) listens for
@@ -82,10 +83,13 @@ class LossDetector:
 
     Args:
         base_s: ``takeover_cycles`` x the cycle time [s].
+        cap_s: the cap of the limit [s]: LIMIT_CAP_S, or the active NC's lease when shorter (its tokens go then: the
+            limit published and the one applied are the same).
     """
 
-    def __init__(self, base_s: float) -> None:
+    def __init__(self, base_s: float, cap_s: float = LIMIT_CAP_S) -> None:
         self.base = base_s
+        self.cap = cap_s
         self.last = 0.0       # when the newest log was taken
         self.since = -1e9     # when the standby came in step (the warm-up's start)
         self.gaps: collections.deque[tuple[float, float]] = collections.deque(maxlen=256)
@@ -113,7 +117,7 @@ class LossDetector:
         lim = max(self.base, GAP_FACTOR * max((x for _, x in g), default=0.0))
         if now - self.since < WARMUP_S:
             lim = max(lim, WARMUP_FLOOR_S)
-        return max(self.base, min(lim, LIMIT_CAP_S))
+        return max(self.base, min(lim, self.cap))
 
     def silent(self, now: float) -> bool:
         """The logs have been missing longer than :meth:`limit` (call once per standby cycle, at its start)."""
@@ -225,9 +229,9 @@ class HotStandby:
         self.takeover_limit_ms = bound_ms = takeover_bound(settings.takeover_cycles, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
             lk.takeover_ms = bound_ms
-        self.detector = LossDetector(self._silence)
         zn = getattr(server.config, "zenoh", None)
         self._lease = float(getattr(zn, "lease_ms", 500)) / 1000.0  # (a freeze this long drops this NC's tokens)
+        self.detector = LossDetector(self._silence, min(LIMIT_CAP_S, self._lease))
         self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
         self._status_sub: Any = None
         self._limit = settings.takeover_cycles  # the published limit [cycles] (_refresh_limit)
@@ -703,7 +707,7 @@ class HotStandby:
         now = time.monotonic() if now is None else now
         # (a freeze of the active NC longer than its lease drops its token: a takeover then at the latest)
         lim = min(self.detector.limit(now) if self.role == "standby" else self.peer_limit(now), self._lease)
-        return int(-(-lim // self._dt))
+        return math.ceil(lim / self._dt - 1e-9)  # (0.2 / 0.001 is 200.00000000000003)
 
     def _fenced(self) -> int:
         try:

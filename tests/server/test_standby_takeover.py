@@ -266,3 +266,22 @@ def test_logs_of_a_lower_epoch_do_not_reset_the_silence() -> None:
     sub.put(sample(6 << 16, 10**9))
     hs._take_logs(1.5)
     assert hs.detector.last == 1.5
+
+
+def test_the_silence_judged_is_capped_by_the_lease_like_the_published_limit() -> None:
+    # a lease of 200 ms: the published limit is at most 200 ms (the active NC's tokens go then); the detector must
+    # not wait longer than that (it waited up to LIMIT_CAP_S, 1 s, after long log gaps)
+    act, hs, drive = pair()
+    hs2 = HotStandby(SimpleNamespace(**{**vars(hs.srv), "config": SimpleNamespace(
+        name="nc1", cycle_time=DT, zenoh=SimpleNamespace(lease_ms=200))}),
+        Redundancy(True, "standby", TAKEOVER, 10.0, "b"))  # type: ignore[arg-type]
+    d = hs2.detector
+    d.restart(-20.0)
+    d.log(-10.0)
+    d.log(-9.4)  # a 600 ms gap 9.4 s ago: the limit would be 1 s
+    d.log(0.0)
+    d.silent(0.0)
+    assert hs2._limit_cycles(0.0) == 200
+    assert not d.silent(0.001 * 150) and not d.silent(0.001 * 151)
+    d.silent(0.208)  # (a late cycle of the standby itself defers the judgement once)
+    assert d.silent(0.209)

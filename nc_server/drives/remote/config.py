@@ -222,23 +222,48 @@ def cycles(seconds: float, cycle_time: float) -> int:
     return max(1, math.ceil(seconds / cycle_time - 1e-9))
 
 
+#: the most a hot-standby pair's standby waits for the active NC's logs before it takes over [s] (its loss
+#: detector's cap under load; nc_server.server.standby.LIMIT_CAP_S)
+LIMIT_CAP_S = 1.0
+#: the zenoh lease an NC announces by default [ms] ([zenoh] lease)
+DEFAULT_LEASE_MS = 500
+
+
 def takeover_bound(takeover_cycles: int, cycle_time: float) -> float:
-    """The longest a hot-standby pair leaves its drives without outputs at a takeover [s]: the standby waits
-    ``takeover_cycles`` NC cycles without the active NC's log (a freeze, a cut link; a crash is seen at once) and
+    """The longest a hot-standby pair leaves its drives without outputs at a takeover [s] when its standby's limit
+    is ``takeover_cycles`` NC cycles without the active NC's log (a freeze, a cut link; a crash is seen at once): it
     notices at the start of the next cycle, whose outputs go out (docs/standby.md, the ha status's
     ``takeover_limit_cycles``)."""
     return (int(takeover_cycles) + 1) * float(cycle_time)
 
 
-def check_timeout(timeout: float, takeover_cycles: int, cycle_time: float, key: str) -> None:
-    """A drive host's silence timeout [s] must be longer than the pair's :func:`takeover_bound`.
+def worst_takeover(takeover_cycles: int, cycle_time: float, lease_s: float) -> float:
+    """The longest takeover the pair may publish [s]: its standby's limit grows with the gaps between the active
+    NC's logs under load up to LIMIT_CAP_S, and the active NC's lease (its tokens go after a freeze that long: a
+    takeover then at the latest) bounds it too; at least ``takeover_cycles``; plus the cycle whose outputs go out."""
+    cycles = max(int(takeover_cycles), math.ceil(min(LIMIT_CAP_S, float(lease_s)) / float(cycle_time) - 1e-9))
+    return takeover_bound(cycles, cycle_time)
+
+
+def pair_default_timeout(takeover_cycles: int, cycle_time: float, lease_s: float) -> float:
+    """nc-drive-sim's silence timeout for a hot-standby pair when neither ``--timeout`` nor ``[drives.remote]
+    timeout_ms`` gives one [s]: the pair's :func:`worst_takeover` plus the usual default timeout (DEFAULT_TIMEOUT,
+    100 ms, is below any pair's worst case)."""
+    return worst_takeover(takeover_cycles, cycle_time, lease_s) + DEFAULT_TIMEOUT
+
+
+def check_timeout(timeout: float, takeover_cycles: int, cycle_time: float, key: str,
+                  lease_s: float = DEFAULT_LEASE_MS / 1000.0) -> None:
+    """A drive host's silence timeout [s] must be longer than the longest takeover the pair may publish
+    (:func:`worst_takeover`: ``min(LIMIT_CAP_S, lease)`` + 1 cycle, at least ``takeover_cycles`` + 1).
 
     Raises:
         ConfigError: on ``key``, naming both figures.
     """
-    bound = takeover_bound(takeover_cycles, cycle_time)
+    bound = worst_takeover(takeover_cycles, cycle_time, lease_s)
     if not timeout > bound:
         raise ConfigError(key, f"the drive hosts' silence timeout ({timeout * 1e3:g} ms) must be longer than the "
-                               f"standby NC's takeover ({takeover_cycles} + 1 cycles of {cycle_time * 1e3:g} ms = "
-                               f"{bound * 1e3:g} ms, [redundancy] takeover_cycles): the drives would stop with 0x8130 "
-                               f"at every takeover")
+                               f"standby NC's longest takeover ({bound * 1e3:g} ms: its limit grows under load up to "
+                               f"{LIMIT_CAP_S * 1e3:g} ms or the NC's lease of {lease_s * 1e3:g} ms, whichever is "
+                               f"shorter, at least [redundancy] takeover_cycles {takeover_cycles}, plus one cycle of "
+                               f"{cycle_time * 1e3:g} ms): the drives would stop with 0x8130 at a takeover")
