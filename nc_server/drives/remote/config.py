@@ -28,13 +28,15 @@ Decisions:
   stops itself. A lost host (its token gone, 2-3 ms after a crash) is reported at once as 0x4651 anyway.
 * ``timeout_ms``: the drive hosts' silence timeout, read by ``nc-drive-sim --config`` (its ``--timeout`` overrides
   it) and by the NC, so that both check it against a hot-standby pair's takeover where the TOML has
-  ``[redundancy] enabled``: it must be longer than :func:`takeover_bound` (``takeover_cycles + 1`` NC cycles: the
-  log silence a standby waits and the cycle that notices it; docs/standby.md), else every takeover would find the
-  drives quick-stopped (0x8130). A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit
-  code 2) where both are known: the NC with ``timeout_ms`` in its TOML, nc-drive-sim with ``--config`` (the
-  timeout it will use: ``--timeout``, else ``timeout_ms``, else 100 ms). The NC without ``timeout_ms`` cannot know a
-  drive host's ``--timeout``: it warns when the default 100 ms would be too short. nc-drive-sim without ``--config``
-  learns the bound from the NC's outputs (``rx`` ``takeover_ms``, 0 without redundancy) and warns once (its status
+  ``[redundancy] enabled``: it must be longer than :func:`worst_takeover` (the longest takeover the pair may
+  publish: ``max(takeover_cycles, min(LIMIT_CAP_S, [zenoh] lease)) + 1`` NC cycles: the log silence a standby waits
+  under load and the cycle that notices it; docs/standby.md), else a takeover would find the drives quick-stopped
+  (0x8130). A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit code 2) where both are
+  known: the NC with ``timeout_ms`` in its TOML, nc-drive-sim with ``--config`` (the timeout it will use:
+  ``--timeout``, else ``timeout_ms``, else for a pair :func:`pair_default_timeout`, that bound + 100 ms). The NC
+  without ``timeout_ms`` cannot know a drive host's ``--timeout``: it logs the bound. nc-drive-sim without
+  ``--config`` (default 100 ms: too short for any pair) learns the limit in force from the NC's outputs (``rx``
+  ``takeover_ms``, 0 without redundancy) and warns once (its status
   ``timeout_short``): it is running already and stopping it would stop the drives.
 * ``max_age`` counts NC cycles, as the link counts the inputs' age (+1 per exchange without new inputs) and as
   TwinCAT counts its "n continuous NC cycles" of invalid I/O data; ``max_age_ms`` gives it as a time, as the
