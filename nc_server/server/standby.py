@@ -517,9 +517,9 @@ class HotStandby:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
 
     def _unconfirmed_too_long(self) -> bool:
-        """(active) No drive host's inputs carried this NC's epoch since it became active, while more than the
-        takeover limit (in cycles, at least ``takeover_cycles``) of inputs with another epoch came: its outputs do
-        not reach the drives or are refused; a standby that reaches them takes over once this NC steps down."""
+        """(active) No drive host's inputs carried this NC's epoch since it became active, while more than
+        :meth:`_confirm_cycles` cycles with inputs of another epoch came: its outputs do not reach the drives or are
+        refused; a standby that reaches them takes over once this NC steps down."""
         if self._unconfirmed is None:
             return False
         links = drive_links(self.real_drive)
@@ -530,7 +530,13 @@ class HotStandby:
         if counts != self._received:  # (new inputs, none of them with this NC's epoch)
             self._received = counts
             self._unconfirmed += 1
-        return self._unconfirmed > max(self.settings.takeover_cycles, self._limit)
+        return self._unconfirmed > self._confirm_cycles()
+
+    def _confirm_cycles(self) -> int:
+        """Cycles with inputs of another epoch an active NC waits for its own (_unconfirmed_too_long): its limit,
+        at least LIMIT_CAP_S (a loaded machine delays the round trip through zenoh by 100s of ms: a false step-down
+        leaves the drives without an NC until a retake)."""
+        return max(self.settings.takeover_cycles, self._limit, math.ceil(LIMIT_CAP_S / self._dt - 1e-9))
 
     def _declare_standby(self, on: bool) -> None:
         s = self._session

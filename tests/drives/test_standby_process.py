@@ -152,7 +152,9 @@ def took_over(p: Procs, cl: NcTestClient, node: str, epoch: int) -> dict[str, An
 def done(p: Procs, cl: NcTestClient, axis: int, cmd_no: int, target: float) -> Any:
     r = wait_logged(lambda: (x := cl.nctoplc(axis)) is not None and int(x["CmdNo"]) == cmd_no
                     and int(x["CmdState"]) in (DONE, ABORTED, ERROR) and x, f"axis {axis}'s move ended", servers(p))
-    assert int(r["CmdState"]) == DONE and int(r["ErrorCode"]) == 0, (int(r["CmdState"]), hex(int(r["ErrorCode"])))
+    if not (int(r["CmdState"]) == DONE and int(r["ErrorCode"]) == 0):
+        logs = "\n".join(f"--- {n}:\n{x.stderr()[-4000:]}" for n, x in servers(p).items())
+        raise AssertionError(f"axis {axis}: CmdState {int(r['CmdState'])}, ErrorCode {hex(int(r['ErrorCode']))}\n{logs}")
     assert abs(float(r["SetPos"]) - target) < 1e-6
     return r
 
