@@ -286,7 +286,8 @@ class HotStandby:
             self._take_snapshot(now)
             if self._lost(now):
                 self._become_active(now)
-        if now >= self._next_status:
+        # (a takeover's figures come after its first step: no status before, unless its declarations failed)
+        if now >= self._next_status and not (self._serve_pending and self._serve_tries == 0):
             self._next_status = now + STATUS_PERIOD_S
             self._refresh_limit(now)
             self._publish_status()
@@ -649,6 +650,7 @@ class HotStandby:
                 pass
             return
         self._serve_pending = False
+        self._next_status = 0.0  # (the ha status with the takeover's figures: the next cycle)
         self.serve_s = time.monotonic() - t
         log.warning("NC %s: took over at cycle %d (epoch %d, node %s; the active NC lost: %s): first set-point %.1f ms "
                     "after the last log (detection %.1f ms, then %.1f ms to the first step; %d cycles caught up; "
