@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
 
         nodes = {"a": start("a", 0, first=True), "b": start("b", 0)}
         sim = DriveSim(tmp, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
-                             "--timeout", "1.0", "--lease-ms", str(LEASE_MS)])
+                             "--timeout", "1.2", "--lease-ms", str(LEASE_MS)])
         started.append(sim)
         cl = NcTestClient(router.port, client_id="plc1", lease_ms=LEASE_MS)
         tr = Trace(router.port)

@@ -434,7 +434,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     drive_options = _drive_sections(data, known)
     remote_masters, remote_max_age = _remote(data, name)
     redundancy = _redundancy(data, retain_file)
-    _check_drive_timeout(redundancy, cycle_time, axis_drives, drive_options)
+    _check_drive_timeout(redundancy, cycle_time, axis_drives, drive_options, lease)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,
                         zenoh=ZenohSettings(mode, listen, connect, lease, tls_dir), axes=axes, roles=roles,
@@ -446,33 +446,31 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
 
 def _check_drive_timeout(redundancy: Redundancy, cycle_time: float,
                          axis_drives: Sequence[tuple[str, Mapping[str, Any]]],
-                         drive_options: Mapping[str, Mapping[str, Any]]) -> None:
-    """A hot-standby pair on remote drives: the drive hosts' silence timeout must be at least 2 x the nominal takeover
-    limit + 50 ms (nc_server.drives.remote.config: ``timeout_ms``, ``min_timeout``). Refused when ``[drives.remote] timeout_ms`` says it; without
-    it the NC cannot know a drive host's ``--timeout`` (nc-drive-sim checks that itself): a warning when its default
-    would be too short.
+                         drive_options: Mapping[str, Mapping[str, Any]], lease_ms: int) -> None:
+    """A hot-standby pair on remote drives: the drive hosts' silence timeout must be longer than the longest
+    takeover the pair may publish (nc_server.drives.remote.config: ``worst_takeover``, from ``takeover_cycles``, the
+    loss detector's cap and ``[zenoh] lease``). Refused when ``[drives.remote] timeout_ms`` says it; without it the
+    NC cannot know a drive host's ``--timeout`` (nc-drive-sim --config checks it, and takes a long enough default).
 
     Raises:
-        ConfigError: ``drives.remote.timeout_ms`` shorter than that.
+        ConfigError: ``drives.remote.timeout_ms`` not longer than that bound.
     """
     if not redundancy.enabled or not any(b == "remote" for b, _ in axis_drives):
         return
-    from nc_server.drives.remote.config import (DEFAULT_TIMEOUT, check_timeout, min_timeout, parse_options,
-                                                takeover_bound)
+    from nc_server.drives.remote.config import (DEFAULT_TIMEOUT, check_timeout, pair_default_timeout, parse_options,
+                                                worst_takeover)
 
     opts = parse_options(drive_options.get("remote", {}))
     if opts.timeout_ms is not None:
-        check_timeout(opts.timeout_ms / 1000.0, redundancy.takeover_cycles, cycle_time, "drives.remote.timeout_ms")
+        check_timeout(opts.timeout_ms / 1000.0, redundancy.takeover_cycles, cycle_time, "drives.remote.timeout_ms",
+                      lease_ms / 1000.0)
         return
-    bound = takeover_bound(redundancy.takeover_cycles, cycle_time)
-    least = min_timeout(redundancy.takeover_cycles, cycle_time)
-    if not DEFAULT_TIMEOUT >= least - 1e-9:
-        logging.getLogger("nc_server.config").warning(
-            "[redundancy] takeover_cycles %d at %g ms: a nominal takeover limit of %g ms asks for a drive host silence "
-            "timeout of at least %g ms (2 x + 50 ms: the standby's limit grows under load), more than nc-drive-sim's "
-            "default (%g ms): start the drive hosts with a longer --timeout, or give [drives.remote] timeout_ms (then "
-            "checked here)", redundancy.takeover_cycles, cycle_time * 1e3, bound * 1e3, least * 1e3,
-            DEFAULT_TIMEOUT * 1e3)
+    bound = worst_takeover(redundancy.takeover_cycles, cycle_time, lease_ms / 1000.0)
+    logging.getLogger("nc_server.config").info(
+        "[redundancy]: a takeover may take up to %g ms (a loaded machine; the lease %d ms): the drive hosts' silence "
+        "timeout must be longer: nc-drive-sim --config with this file takes %g ms by default, with --axes %g ms "
+        "(too short: give --timeout); or give [drives.remote] timeout_ms (then checked here)", bound * 1e3, lease_ms,
+        pair_default_timeout(redundancy.takeover_cycles, cycle_time, lease_ms / 1000.0) * 1e3, DEFAULT_TIMEOUT * 1e3)
 
 
 def _remote(data: Mapping[str, Any], own: str) -> tuple[tuple[tuple[str, int], ...], float]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import collections
 import hashlib
 import logging
+import math
 import os
 import pickle
 import socket
@@ -32,7 +33,7 @@ import msgpack
 import zenoh
 from zenoh.handlers import FifoChannel
 
-from nc_server.drives.remote.config import takeover_bound
+from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 
 from .config import Redundancy
 from .replication import (CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive, ReplayDrive,
@@ -59,7 +60,7 @@ GAP_WINDOW_S = 10.0
 GAP_FACTOR = 2.0
 WARMUP_S = 3.0
 WARMUP_FLOOR_S = 0.5
-LIMIT_CAP_S = 1.0
+# (LIMIT_CAP_S: nc_server.drives.remote.config, whose timeout checks count with it)
 #: an active NC that stalled longer than this share of its standby's limit (or of its lease) demotes itself
 STALL_MARGIN = 0.75
 #: an active NC that stalled longer than this share of that limit (but not long enough to demote itself) listens for
@@ -82,10 +83,13 @@ class LossDetector:
 
     Args:
         base_s: ``takeover_cycles`` x the cycle time [s].
+        cap_s: the cap of the limit [s]: LIMIT_CAP_S, or the active NC's lease when shorter (its tokens go then: the
+            limit published and the one applied are the same).
     """
 
-    def __init__(self, base_s: float) -> None:
+    def __init__(self, base_s: float, cap_s: float = LIMIT_CAP_S) -> None:
         self.base = base_s
+        self.cap = cap_s
         self.last = 0.0       # when the newest log was taken
         self.since = -1e9     # when the standby came in step (the warm-up's start)
         self.gaps: collections.deque[tuple[float, float]] = collections.deque(maxlen=256)
@@ -113,7 +117,7 @@ class LossDetector:
         lim = max(self.base, GAP_FACTOR * max((x for _, x in g), default=0.0))
         if now - self.since < WARMUP_S:
             lim = max(lim, WARMUP_FLOOR_S)
-        return max(self.base, min(lim, LIMIT_CAP_S))
+        return max(self.base, min(lim, self.cap))
 
     def silent(self, now: float) -> bool:
         """The logs have been missing longer than :meth:`limit` (call once per standby cycle, at its start)."""
@@ -189,6 +193,7 @@ class HotStandby:
         self.catch_up = 0         # cycles stepped at once at the last takeover
         self.detect_s = self.work_s = self.serve_s = 0.0  # the last takeover's parts (docs/standby.md)
         self._serve_pending = False
+        self._serve_tries = 0  # (failed declarations of the takeover so far: retried every cycle)
         self._lost_at = self._detected_at = 0.0
         self._lost_why = ""
         self.logs_in = 0
@@ -215,20 +220,26 @@ class HotStandby:
         self._token: Any = None
         self._next_status = 0.0
         self._excused = False  # the last cycle served a snapshot
+        self._current = False  # (_take_logs) the sample held a log of the highest epoch
         self._recent: collections.deque[bytes] = collections.deque(maxlen=LOG_REPEAT)
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
         # the drive hosts learn the pair's takeover bound with the outputs (they warn if their timeout is shorter);
-        # the limit in force follows the loss detector (status())
+        # the limit in force follows the loss detector (_refresh_limit, in the cycle thread)
         self.takeover_limit_ms = bound_ms = takeover_bound(settings.takeover_cycles, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
             lk.takeover_ms = bound_ms
-        self.detector = LossDetector(self._silence)
         zn = getattr(server.config, "zenoh", None)
         self._lease = float(getattr(zn, "lease_ms", 500)) / 1000.0  # (a freeze this long drops this NC's tokens)
+        self.detector = LossDetector(self._silence, min(LIMIT_CAP_S, self._lease))
         self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
         self._status_sub: Any = None
+        self._limit = settings.takeover_cycles  # the published limit [cycles] (_refresh_limit)
         self._grace = START_GRACE_S  # (standby, never in step) no active NC this long: take over
+        # (active) until a drive host's inputs carry this NC's epoch: the inputs of another epoch taken since it
+        # became active (None: confirmed, or no remote drives); the links' input counts at the last look
+        self._unconfirmed: int | None = None
+        self._received: list[int] = []
 
     # ---- session (start, before the cycle thread) ---------------------------------------------------------------
     def open(self, session: zenoh.Session) -> None:
@@ -268,12 +279,17 @@ class HotStandby:
         if self.role == "active":
             if self._replaced():
                 self._become_standby(now, "a drive host follows a higher epoch")
+            elif self._unconfirmed_too_long():
+                self._become_standby(now, f"no drive host follows its epoch {self.epoch} after "
+                                          f"{self._unconfirmed} inputs of others")
         else:
             self._take_snapshot(now)
             if self._lost(now):
                 self._become_active(now)
-        if now >= self._next_status:
+        # (a takeover's figures come after its first step: no status before, unless its declarations failed)
+        if now >= self._next_status and not (self._serve_pending and self._serve_tries == 0):
             self._next_status = now + STATUS_PERIOD_S
+            self._refresh_limit(now)
             self._publish_status()
         return self.role != "active"
 
@@ -324,8 +340,9 @@ class HotStandby:
             self._become_standby(time.monotonic(), f"stalled {gap:.3f} s (the standby's limit {limit:.3f} s) with a "
                                  "standby in step")
             # (if the standby did not take over after all, e.g. the stall was close to its limit, no NC would drive:
-            # this one takes over again after a short grace without an active NC)
-            self._grace = min(START_GRACE_S, 2 * limit + 0.1)
+            # this one takes over again after a grace without an active NC, with the epoch it drove with: at least
+            # START_GRACE_S, for its session to come back and show a successor's token or logs, _lost, _become_active)
+            self._grace = max(START_GRACE_S, 2 * limit + 0.1)
             return True
         if gap > max(self._silence, HOLD_SHARE * raw):
             # a stall not far below the standby's limit: if it took over, its logs (a higher epoch) may still be in
@@ -403,11 +420,14 @@ class HotStandby:
             except Exception as exc:
                 log.warning("unusable ha log: %s", exc)
                 continue
-            if self.role == "standby":
-                self.detector.log(now)
+            self._current = False
             for lg in logs:
                 if self._take_log(lg, now):
                     return
+            if self._current and self.role == "standby":
+                # (a sign of life of the NC followed: only logs of the highest epoch; a zombie of a lower one must
+                # not keep the standby from judging the silence of the active NC)
+                self.detector.log(now)
 
     def _take_log(self, lg: CycleLog, now: float) -> bool:
         """One log of a sample; True: this NC stopped being active (the rest of the sample is not its)."""
@@ -422,6 +442,7 @@ class HotStandby:
             if lg.epoch < self.highest:
                 self.stale_logs += 1
                 return False
+            self._current = True
             core = self.follower.core
             if core is not None and not self.follower.waiting and lg.cycle <= core.cycle:
                 return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
@@ -496,6 +517,28 @@ class HotStandby:
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
 
+    def _unconfirmed_too_long(self) -> bool:
+        """(active) No drive host's inputs carried this NC's epoch since it became active, while more than
+        :meth:`_confirm_cycles` cycles with inputs of another epoch came: its outputs do not reach the drives or are
+        refused; a standby that reaches them takes over once this NC steps down."""
+        if self._unconfirmed is None:
+            return False
+        links = drive_links(self.real_drive)
+        if any(lk.input_epoch == self.epoch for lk in links):
+            self._unconfirmed = None
+            return False
+        counts = [lk.received for lk in links]
+        if counts != self._received:  # (new inputs, none of them with this NC's epoch)
+            self._received = counts
+            self._unconfirmed += 1
+        return self._unconfirmed > self._confirm_cycles()
+
+    def _confirm_cycles(self) -> int:
+        """Cycles with inputs of another epoch an active NC waits for its own (_unconfirmed_too_long): its limit,
+        at least LIMIT_CAP_S (a loaded machine delays the round trip through zenoh by 100s of ms: a false step-down
+        leaves the drives without an NC until a retake)."""
+        return max(self.settings.takeover_cycles, self._limit, math.ceil(LIMIT_CAP_S / self._dt - 1e-9))
+
     def _declare_standby(self, on: bool) -> None:
         s = self._session
         if s is None:
@@ -511,8 +554,18 @@ class HotStandby:
         lost_at = self._last_log
         self._token_gone = False
         self._grace = START_GRACE_S
-        self.epoch = next_epoch(max(self.highest, self.epoch), self.node)
-        self.highest = self.epoch
+        if self.epoch and not self.synced_once and not first:
+            # an NC that drove and demoted itself, in step with nobody since: it takes over again with the epoch it
+            # drove with (a new one could win the tie against a successor it does not see, its state older than the
+            # successor's); the drive hosts take it only if nobody took over meanwhile (else their epoch demotes it)
+            log.warning("NC %s (node %s): no active NC: drives again with its epoch %d", srv.config.name, self.node,
+                        self.epoch)
+        else:
+            self.epoch = next_epoch(max(self.highest, self.epoch), self.node)
+        self.highest = max(self.highest, self.epoch)
+        links = drive_links(self.real_drive)
+        self._unconfirmed = 0 if links else None
+        self._received = [lk.received for lk in links]
         for lk in drive_links(self.real_drive):
             lk.epoch = self.epoch
         core = self.core
@@ -527,26 +580,41 @@ class HotStandby:
                 srv.transport.instance = self.hrec.instance = hs.instance
         srv.claims.rebase(now)
         self.role = "active"
-        if first or not self.synced_once:
+        if first:
             self._serve()
             srv.became_active(now)
             log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
             return
+        if not self.synced_once:  # (a retake from its own core: no catch-up; the declarations after the step)
+            srv.became_active(now, serve=False)
+            self._lost_at, self._detected_at, self.catch_up = 0.0, now, 0
+            self._serve_pending, self._serve_tries = True, 0
+            log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
+            return
         srv.became_active(now, serve=False)
-        # the zenoh declarations (the active token, the snapshot and command queryables, the stats and claims
-        # publishers, the NC's tokens: 7 calls, milliseconds on a loaded machine) come after the first step, whose
-        # set-point is the first thing the drives need (after_step)
-        self._serve_pending = True
         self._lost_at, self._detected_at = lost_at, now
         # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
-        # steps over that time at once, so its first set-point is where the drives' targets are now
+        # steps over that time at once, so its first set-point is where the drives' targets are now. The catch-up
+        # steps send nothing to the drives (their set-points are behind the drives' targets: a step back, then
+        # forward); the cycle's own step after them sends the first outputs
         quiet = max(0.0, now - lost_at) if lost_at > 0 else 0.0
         k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt)
         self.catch_up = k
         self.takeovers += 1
-        for _ in range(max(0, k - 1)):
-            self.rec.step()
-            self.after_step()
+        links = drive_links(self.real_drive)
+        for lk in links:
+            lk.mute = True
+        try:
+            for _ in range(max(0, k - 1)):
+                self.rec.step()
+                self.after_step()
+        finally:
+            for lk in links:
+                lk.mute = False
+        # the zenoh declarations (the active token, the snapshot and command queryables, the stats and claims
+        # publishers, the NC's tokens: 7 calls, milliseconds on a loaded machine) come after the cycle's own step,
+        # whose set-point is the first thing the drives need (after_step)
+        self._serve_pending, self._serve_tries = True, 0
 
     def _serve(self) -> None:
         """Declare what the active NC of the pair declares (its token, the snapshot queryable, the NC's keys)."""
@@ -554,20 +622,36 @@ class HotStandby:
             self._token.undeclare()
         self._token = self._session.liveliness().declare_token(f"{self.keys}/active/{self.node}") \
             if self._session is not None else None
-        self._snap_q = self._session.declare_queryable(f"{self.keys}/snapshot", FifoChannel(16)) \
-            if self._session is not None else None
+        if self._snap_q is None and self._session is not None:
+            self._snap_q = self._session.declare_queryable(f"{self.keys}/snapshot", FifoChannel(16))
 
     def _finish_takeover(self) -> None:
-        """After the takeover's first step (its set-point is out): the times, then the declarations."""
-        self._serve_pending = False
+        """After the takeover's first step (its set-point is out): the times, then the declarations. A declaration
+        that fails (zenoh) is logged and tried again after the next cycle's step: the NC drives meanwhile."""
         t = time.monotonic()
         lost_at, srv = self._lost_at, self.srv
-        self.takeover_s = t - lost_at if lost_at > 0 else 0.0
-        self.takeover_cycles = int(round(self.takeover_s / self._dt)) if lost_at > 0 else 0
-        self.detect_s = self._detected_at - lost_at if lost_at > 0 else 0.0
-        self.work_s = t - self._detected_at
-        self._serve()
-        srv.transport.serve()
+        if self._serve_tries == 0:
+            self.takeover_s = t - lost_at if lost_at > 0 else 0.0
+            self.takeover_cycles = int(round(self.takeover_s / self._dt)) if lost_at > 0 else 0
+            self.detect_s = self._detected_at - lost_at if lost_at > 0 else 0.0
+            self.work_s = t - self._detected_at
+        self._serve_tries += 1
+        try:
+            self._serve()
+            srv.transport.serve()
+        except Exception as exc:
+            if self._serve_tries <= 3 or self._serve_tries % 1000 == 0:
+                log.error("NC %s: took over, but its declarations failed (try %d; again next cycle): %s",
+                          srv.config.name, self._serve_tries, exc)
+            try:  # (what transport.serve() declared before it failed: all of it again next time)
+                unserve = getattr(srv.transport, "unserve", None)
+                if unserve is not None:
+                    unserve()
+            except Exception:
+                pass
+            return
+        self._serve_pending = False
+        self._next_status = 0.0  # (the ha status with the takeover's figures: the next cycle)
         self.serve_s = time.monotonic() - t
         log.warning("NC %s: took over at cycle %d (epoch %d, node %s; the active NC lost: %s): first set-point %.1f ms "
                     "after the last log (detection %.1f ms, then %.1f ms to the first step; %d cycles caught up; "
@@ -583,6 +667,7 @@ class HotStandby:
         self.rec.attach_drive(None)
         self.role = "standby"
         self.demotions += 1
+        self._serve_pending = False  # (a takeover whose declarations had not been made yet)
         for d in (self._snap_q, self._token):
             if d is not None:
                 try:
@@ -597,14 +682,20 @@ class HotStandby:
         self._started = now
         self._ask_snapshot(now)
 
-    def status(self) -> dict[str, Any]:
-        """The ha status (``nc/<nc>/ha/status/<node>``, the stats' ``ha``)."""
-        f = self.follower
-        limit = self._limit_cycles()
-        # the limit in force (it grows with the log gaps under load) goes to the drive hosts with the outputs
+    def _refresh_limit(self, now: float) -> None:
+        """(cycle thread: the detector's gaps and the peers' statuses are the cycle thread's) The published limit,
+        for status(); the limit in force (it grows with the log gaps under load) goes to the drive hosts with the
+        outputs."""
+        self._limit = limit = self._limit_cycles(now)
         self.takeover_limit_ms = takeover_bound(limit, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
             lk.takeover_ms = self.takeover_limit_ms
+
+    def status(self) -> dict[str, Any]:
+        """The ha status (``nc/<nc>/ha/status/<node>``, the stats' ``ha``): read from the cycle thread and the I/O
+        thread (stats): it only reads what the cycle thread computed."""
+        f = self.follower
+        limit = self._limit
         return {"node": self.node, "role": self.role, "epoch": self.epoch, "highest_epoch": self.highest,
                 "in_step": self.role == "active" or (not f.waiting and self.synced_once),
                 "cycle": int(self.core.cycle), "lag_cycles": int(f.lag), "logs_in": self.logs_in,
@@ -625,7 +716,7 @@ class HotStandby:
         now = time.monotonic() if now is None else now
         # (a freeze of the active NC longer than its lease drops its token: a takeover then at the latest)
         lim = min(self.detector.limit(now) if self.role == "standby" else self.peer_limit(now), self._lease)
-        return int(-(-lim // self._dt))
+        return math.ceil(lim / self._dt - 1e-9)  # (0.2 / 0.001 is 200.00000000000003)
 
     def _fenced(self) -> int:
         try:

@@ -15,7 +15,8 @@ import nc_server.core  # noqa: F401  (first: nc_server.drives imports the core, 
 from nc_server.core.params import AxisParams, ConfigError
 from nc_server.drives.cia402.image import RxImage
 from nc_server.drives.remote import host as host_mod, wire
-from nc_server.drives.remote.config import check_timeout, min_timeout, parse_options, takeover_bound
+from nc_server.drives.remote.config import (check_timeout, pair_default_timeout, parse_options, takeover_bound,
+                                            worst_takeover)
 from nc_server.server.config import parse_config
 
 TOML = """
@@ -25,6 +26,7 @@ cycle_time = {cycle}
 
 [zenoh]
 listen = ["tcp/127.0.0.1:17999"]
+{lease}
 
 {redundancy}
 
@@ -38,24 +40,29 @@ Drive = {{ backend = "remote", host = "drives1" }}
 """
 
 
-def _text(takeover: int | None = 100, timeout_ms: float | None = None, cycle: float = 0.001) -> str:
+def _text(takeover: int | None = 100, timeout_ms: float | None = None, cycle: float = 0.001,
+          lease: int | None = None) -> str:
     red = "" if takeover is None else f"[redundancy]\nenabled = true\ntakeover_cycles = {takeover}\n"
-    return TOML.format(cycle=cycle, redundancy=red, timeout="" if timeout_ms is None else f"timeout_ms = {timeout_ms}")
+    return TOML.format(cycle=cycle, redundancy=red, timeout="" if timeout_ms is None else f"timeout_ms = {timeout_ms}",
+                       lease="" if lease is None else f"lease = {lease}")
 
 
 def test_the_bound_and_the_check() -> None:
     assert takeover_bound(15, 0.001) == pytest.approx(0.016)
     assert takeover_bound(250, 0.002) == pytest.approx(0.502)
-    # a minimum: 2 x the nominal limit + 50 ms (the standby's adaptive limit grows under load)
-    assert min_timeout(15, 0.001) == pytest.approx(0.082) and min_timeout(99, 0.001) == pytest.approx(0.25)
-    check_timeout(0.1, 15, 0.001, "k")
-    check_timeout(0.082, 15, 0.001, "k")
-    with pytest.raises(ConfigError):
-        check_timeout(0.081, 15, 0.001, "k")
+    # the longest takeover the pair may publish: its limit grows under load up to 1 s or the lease, + 1 cycle
+    assert worst_takeover(15, 0.001, 0.5) == pytest.approx(0.501)
+    assert worst_takeover(15, 0.001, 2.0) == pytest.approx(1.001)
+    assert worst_takeover(15, 0.002, 0.2) == pytest.approx(0.202)
+    assert worst_takeover(2000, 0.001, 0.5) == pytest.approx(2.001)  # (takeover_cycles beyond: that)
+    assert pair_default_timeout(15, 0.001, 0.5) == pytest.approx(0.601)
+    check_timeout(0.6, 15, 0.001, "k", 0.5)
+    check_timeout(0.25, 15, 0.001, "k", 0.2)
     with pytest.raises(ConfigError) as e:
-        check_timeout(0.2, 99, 0.001, "drives.remote.timeout_ms")  # longer than the 100 ms, not twice + 50 ms
-    assert e.value.key == "drives.remote.timeout_ms" and "100 ms" in e.value.message and "250 ms" in e.value.message
-    assert "takeover_limit_ms" in e.value.message
+        check_timeout(0.1, 15, 0.001, "drives.remote.timeout_ms", 0.5)  # the old check (16 ms) let it pass
+    assert e.value.key == "drives.remote.timeout_ms" and "100 ms" in e.value.message and "501 ms" in e.value.message
+    with pytest.raises(ConfigError) as e:
+        check_timeout(0.501, 15, 0.001, "k", 0.5)  # not longer
     assert parse_options({"timeout_ms": 250}).timeout_ms == 250.0 and parse_options({}).timeout_ms is None
     for bad in (0, -5, True, "100", 4e6):
         with pytest.raises(ConfigError) as e:
@@ -65,26 +72,23 @@ def test_the_bound_and_the_check() -> None:
 
 def test_the_nc_refuses_a_timeout_not_longer_than_its_takeover() -> None:
     with pytest.raises(ConfigError) as e:
-        parse_config(tomllib.loads(_text(takeover=100, timeout_ms=100)))
-    assert e.value.key == "drives.remote.timeout_ms" and "101 ms" in e.value.message
+        parse_config(tomllib.loads(_text(takeover=100, timeout_ms=150)))  # (the old bound: 101 ms)
+    assert e.value.key == "drives.remote.timeout_ms" and "501 ms" in e.value.message
     with pytest.raises(ConfigError) as e:
-        parse_config(tomllib.loads(_text(takeover=60, timeout_ms=120, cycle=0.002)))  # 122 ms at 2 ms cycles
-    assert e.value.key == "drives.remote.timeout_ms"
-    with pytest.raises(ConfigError) as e:
-        parse_config(tomllib.loads(_text(takeover=100, timeout_ms=251)))  # 2 x 101 + 50 = 252 ms
-    assert "252 ms" in e.value.message
-    parse_config(tomllib.loads(_text(takeover=100, timeout_ms=252)))
+        parse_config(tomllib.loads(_text(takeover=60, timeout_ms=300, cycle=0.002, lease=300)))  # 302 ms
+    assert e.value.key == "drives.remote.timeout_ms" and "302 ms" in e.value.message
+    parse_config(tomllib.loads(_text(takeover=100, timeout_ms=600)))
+    parse_config(tomllib.loads(_text(takeover=60, timeout_ms=310, cycle=0.002, lease=300)))
     parse_config(tomllib.loads(_text(takeover=None, timeout_ms=5)))  # no pair: nothing to outlast
 
 
-def test_the_nc_without_timeout_ms_warns_only_where_the_default_is_too_short(caplog: pytest.LogCaptureFixture) -> None:
-    with caplog.at_level(logging.WARNING, logger="nc_server.config"):
-        parse_config(tomllib.loads(_text(takeover=15)))  # 2 x 16 + 50 = 82 ms <= 100 ms
-        assert not caplog.records
-        parse_config(tomllib.loads(_text(takeover=30)))  # 2 x 31 + 50 = 112 ms > 100 ms: warned
-        assert any("112 ms" in r.getMessage() for r in caplog.records)
-        parse_config(tomllib.loads(_text(takeover=100)))  # 101 ms > 100 ms default: the hosts need --timeout
-    assert any("--timeout" in r.getMessage() and "101 ms" in r.getMessage() for r in caplog.records)
+def test_the_nc_without_timeout_ms_says_what_the_hosts_need(caplog: pytest.LogCaptureFixture) -> None:
+    # (nc-drive-sim --config with the pair's TOML takes a long enough default: no warning, the figures in the log)
+    with caplog.at_level(logging.INFO, logger="nc_server.config"):
+        parse_config(tomllib.loads(_text(takeover=15)))
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert any("501 ms" in r.getMessage() and "601 ms" in r.getMessage() and "--timeout" in r.getMessage()
+               for r in caplog.records)
 
 
 def _sim(tmp_path: Path, text: str, *args: str, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
@@ -96,14 +100,25 @@ def _sim(tmp_path: Path, text: str, *args: str, capsys: pytest.CaptureFixture[st
 
 @pytest.mark.parametrize("timeout_ms, args, key", [
     (None, ("--timeout", "0.05"), "--timeout"),
+    (None, ("--timeout", "0.3"), "--timeout"),  # (longer than takeover_cycles + 1, not than the worst case)
     (80, (), "drives.remote.timeout_ms"),
-    (None, (), "--timeout (default 0.1 s)"),
 ])
 def test_nc_drive_sim_with_the_pairs_toml_refuses_a_short_timeout(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], timeout_ms: float | None, args: tuple[str, ...],
         key: str) -> None:
     rc, err = _sim(tmp_path, _text(takeover=100, timeout_ms=timeout_ms), *args, capsys=capsys)
-    assert rc == 2 and "configuration error" in err and key in err and "101 ms" in err, err
+    assert rc == 2 and "configuration error" in err and key in err and "501 ms" in err, err
+
+
+def test_nc_drive_sim_with_the_pairs_toml_takes_a_longer_default_timeout(tmp_path: Path) -> None:
+    # (its default 100 ms is below any pair's longest takeover)
+    cfg = tmp_path / "nc.toml"
+    for lease, want in ((None, 0.601), (200, 0.301)):
+        cfg.write_text(_text(takeover=15, lease=lease))
+        *_, toml_timeout, pair = host_mod.load_config(str(cfg), "drives1")
+        assert toml_timeout is None and pair is not None
+        assert pair_default_timeout(*pair) == pytest.approx(want)
+        check_timeout(pair_default_timeout(*pair), pair[0], pair[1], "k", pair[2])
 
 
 def test_nc_drive_sim_learns_the_bound_from_the_outputs_and_warns_once(caplog: pytest.LogCaptureFixture) -> None:

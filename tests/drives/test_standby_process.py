@@ -15,8 +15,10 @@ runtime does (nc_link: its NC-restart detection).
   its CmdNo and its full distance, the basic motion goes on.
 
 Reliable on a loaded 2-core machine (checked 3 runs in a row and under bench/cpu_burner.py; the SIGSTOP test is
-opt-in, see its reason): every wait is a condition with a generous deadline; the node killed is the one active at that moment (a false takeover before it,
-which the loss detection should prevent, is not what these tests check); no speed is asserted.
+opt-in, see its reason): every wait is a condition with a generous deadline; the node killed is the one active at
+that moment (a false takeover before it, which the loss detection should prevent, is not what these tests check);
+the motion (the move, the coupling, the superposition) is asserted still running just before the kill; no speed is
+asserted.
 """
 from __future__ import annotations
 
@@ -109,17 +111,34 @@ def move(cl: NcTestClient, axis: int, target: float, request_id: int | None = No
     return r, req
 
 
-def kill_active(p: Procs, cl: NcTestClient, sig: int = signal.SIGKILL) -> tuple[str, str, int]:
-    """Signal the node active now (its process group): (that node, the other, its epoch)."""
+def kill_active(p: Procs, cl: NcTestClient, sig: int = signal.SIGKILL, ready: Callable[[], Any] | None = None,
+                still: Callable[[], Any] | None = None) -> tuple[str, str, int]:
+    """Signal the node active now (its process group): (that node, the other, its epoch). The active node is found
+    first (ha status queries: slow on a loaded machine), then ``ready()`` waits for the moment to kill, then
+    ``still()`` asserts on the NC's state read just before the signal (e.g. the axis still moving: a kill after the
+    move ended would prove nothing)."""
     act = wait_logged(lambda: (n := active_node(cl)) is not None and (n,), "one node active, the other a standby in "
                       "step", servers(p))[0]
     other = "b" if act == "a" else "a"
     epoch = int((ha_status(cl, act) or {})["epoch"])
+    if ready is not None:
+        ready()
+    if still is not None:
+        still()
     if sig == signal.SIGKILL:
         kill_process_group(p[act].proc)
     else:
         os.killpg(p[act].proc.pid, sig)
     return act, other, epoch
+
+
+def moving(cl: NcTestClient, axis: int, cmd_no: int, target: float | None) -> None:
+    """The axis is moving under block ``cmd_no`` (not ended; short of ``target``), read from the NC now."""
+    x = cl.nctoplc(axis)
+    assert x is not None and int(x["CmdNo"]) == cmd_no and int(x["CmdState"]) not in (DONE, ABORTED, ERROR), x
+    assert abs(float(x["SetVelo"])) > 1.0, float(x["SetVelo"])
+    if target is not None:
+        assert abs(target - float(x["SetPos"])) > 1.0, (float(x["SetPos"]), target)
 
 
 def took_over(p: Procs, cl: NcTestClient, node: str, epoch: int) -> dict[str, Any]:
@@ -133,7 +152,9 @@ def took_over(p: Procs, cl: NcTestClient, node: str, epoch: int) -> dict[str, An
 def done(p: Procs, cl: NcTestClient, axis: int, cmd_no: int, target: float) -> Any:
     r = wait_logged(lambda: (x := cl.nctoplc(axis)) is not None and int(x["CmdNo"]) == cmd_no
                     and int(x["CmdState"]) in (DONE, ABORTED, ERROR) and x, f"axis {axis}'s move ended", servers(p))
-    assert int(r["CmdState"]) == DONE and int(r["ErrorCode"]) == 0, (int(r["CmdState"]), hex(int(r["ErrorCode"])))
+    if not (int(r["CmdState"]) == DONE and int(r["ErrorCode"]) == 0):
+        logs = "\n".join(f"--- {n}:\n{x.stderr()[-4000:]}" for n, x in servers(p).items())
+        raise AssertionError(f"axis {axis}: CmdState {int(r['CmdState'])}, ErrorCode {hex(int(r['ErrorCode']))}\n{logs}")
     assert abs(float(r["SetPos"]) - target) < 1e-6
     return r
 
@@ -143,9 +164,10 @@ def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Procs]) -> None:
     cl, tr = setup(p, [1])
     try:
         first, req = move(cl, 1, 40.0, request_id=4242)
-        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0, "axis 1 past 10",
-                    servers(p))
-        _, new, epoch = kill_active(p, cl)
+        _, new, epoch = kill_active(
+            p, cl, ready=lambda: wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0,
+                                             "axis 1 past 10", servers(p)),
+            still=lambda: moving(cl, 1, first["CmdNo"], 40.0))
         t_kill = time.monotonic()
         st = took_over(p, cl, new, epoch)
         assert st["takeovers"] >= 1
@@ -181,8 +203,11 @@ def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Procs]) -> No
     cl, tr = setup(p, [1])
     try:
         first, _ = move(cl, 1, 30.0)
-        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 8.0, "axis 1 past 8", servers(p))
-        old, new, epoch = kill_active(p, cl, signal.SIGSTOP)
+        old, new, epoch = kill_active(
+            p, cl, signal.SIGSTOP,
+            ready=lambda: wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 8.0,
+                                      "axis 1 past 8", servers(p)),
+            still=lambda: moving(cl, 1, first["CmdNo"], 30.0))
         try:
             st = took_over(p, cl, new, epoch)
         finally:
@@ -214,9 +239,16 @@ def test_kill_9_during_a_coupling(pair: Callable[..., Procs]) -> None:
         assert gear["error"] == 0, gear
         wait_logged(lambda: (j := tr.jobs.get(2)) is not None and int(j["MasterId"]) == 1, "axis 2 coupled", servers(p))
         first, _ = move(cl, 1, m0 + 40.0)
-        wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > m0 + 10.0, "master past 10",
-                    servers(p))
-        _, new, epoch = kill_active(p, cl)
+
+        def coupled_moving() -> None:  # (the GearIn block may show Done once InGear: not ended, not aborted)
+            x = cl.nctoplc(2)
+            assert x is not None and int(x["CmdNo"]) == gear["CmdNo"] and int(x["CmdState"]) not in (ABORTED, ERROR)
+            assert abs(float(x["SetVelo"])) > 0.5 and int((tr.jobs.get(2) or {"MasterId": 0})["MasterId"]) == 1, x
+
+        _, new, epoch = kill_active(
+            p, cl, ready=lambda: wait_logged(lambda: (r := cl.nctoplc(1)) is not None
+                                             and float(r["SetPos"]) > m0 + 10.0, "master past 10", servers(p)),
+            still=lambda: (moving(cl, 1, first["CmdNo"], m0 + 40.0), coupled_moving()))
         took_over(p, cl, new, epoch)
         done(p, cl, 1, first["CmdNo"], m0 + 40.0)
         r2 = wait_logged(lambda: (x := cl.nctoplc(2)) is not None and abs(float(x["SetPos"]) - s0 - 20.0) < 1e-6
@@ -253,8 +285,22 @@ def test_kill_9_during_a_superposition(pair: Callable[..., Procs]) -> None:
         assert sup["error"] == 0 and sup["Value"]["ActualDistance"] == 5.0, sup
         wait_logged(lambda: (j := tr.jobs.get(1)) is not None and int(j["SuperCmdNo"]) == sup["CmdNo"]
                     and float(j["SuperDistance"]) == 5.0, "the superposition running", servers(p))
-        time.sleep(0.3)  # (well into its 1 s)
-        _, new, epoch = kill_active(p, cl)
+        base = tr.samples[-1]  # (cycle, SetPos, ...): the superposed distance is what SetPos gained beyond 20 u/s
+
+        def superposed() -> float:
+            c, pos = tr.samples[-1][:2]
+            return (pos - base[1]) - 20.0 * CYCLE * (c - base[0])
+
+        def super_running() -> None:
+            j, x = tr.jobs.get(1), cl.nctoplc(1)  # (the newest NCJOBS and NCTOPLC of axis 1)
+            assert j is not None and x is not None
+            assert int(j["SuperCmdNo"]) == sup["CmdNo"] and int(j["SuperState"]) not in (DONE, ABORTED, ERROR), j
+            assert float(x["SetVelo"]) > 20.0 + 1e-6 and superposed() < 4.5, (float(x["SetVelo"]), superposed())
+
+        _, new, epoch = kill_active(
+            p, cl, ready=lambda: wait_logged(lambda: superposed() > 1.0, "the superposition well under way (1 of 5 u)",
+                                             servers(p)),
+            still=super_running)
         took_over(p, cl, new, epoch)
         j = wait_logged(lambda: (j := tr.jobs.get(1)) is not None and int(j["SuperCmdNo"]) == sup["CmdNo"]
                         and int(j["SuperState"]) in (DONE, ABORTED, ERROR) and j, "the superposition ended", servers(p))

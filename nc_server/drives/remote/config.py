@@ -30,16 +30,16 @@ Decisions:
   stops itself. A lost host (its token gone, 2-3 ms after a crash) is reported at once as 0x4651 anyway.
 * ``timeout_ms``: the drive hosts' silence timeout, read by ``nc-drive-sim --config`` (its ``--timeout`` overrides
   it) and by the NC, so that both check it against a hot-standby pair's takeover where the TOML has
-  ``[redundancy] enabled``: it must be at least :func:`min_timeout`, twice the nominal takeover limit
-  :func:`takeover_bound` (``takeover_cycles + 1`` NC cycles: the log silence a standby waits at least and the cycle
-  that notices it; docs/standby.md) plus 50 ms, since the standby's limit adapts to the log gaps it sees and can grow
-  to its cap under load; a timeout shorter than the limit in use would find the drives quick-stopped (0x8130) at a
-  takeover. A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit
-  code 2) where both are known: the NC with ``timeout_ms`` in its TOML, nc-drive-sim with ``--config`` (the
-  timeout it will use: ``--timeout``, else ``timeout_ms``, else 100 ms). The NC without ``timeout_ms`` cannot know a
-  drive host's ``--timeout``: it warns when the default 100 ms would be too short. nc-drive-sim without ``--config``
-  learns the limit in use from the NC's outputs (``rx`` ``takeover_limit_ms``, 0 without redundancy) and warns once
-  when its timeout does not exceed it (its status ``timeout_short``): it is running already and stopping it would stop the drives.
+  ``[redundancy] enabled``: it must be longer than :func:`worst_takeover` (the longest takeover the pair may
+  publish: ``max(takeover_cycles, min(LIMIT_CAP_S, [zenoh] lease)) + 1`` NC cycles: the log silence a standby waits
+  under load and the cycle that notices it; docs/standby.md), else a takeover would find the drives quick-stopped
+  (0x8130). A refusal (``ConfigError`` on ``drives.remote.timeout_ms``, nc-drive-sim's exit code 2) where both are
+  known: the NC with ``timeout_ms`` in its TOML, nc-drive-sim with ``--config`` (the timeout it will use:
+  ``--timeout``, else ``timeout_ms``, else for a pair :func:`pair_default_timeout`, that bound + 100 ms). The NC
+  without ``timeout_ms`` cannot know a drive host's ``--timeout``: it logs the bound. nc-drive-sim without
+  ``--config`` (default 100 ms: too short for any pair) learns the limit in force from the NC's outputs (``rx``
+  ``takeover_limit_ms``, 0 without redundancy) and warns once (its status
+  ``timeout_short``): it is running already and stopping it would stop the drives.
 * ``max_age`` counts NC cycles, as the link counts the inputs' age (+1 per exchange without new inputs) and as
   TwinCAT counts its "n continuous NC cycles" of invalid I/O data; ``max_age_ms`` gives it as a time, as the
   section's other times (``lease_ms``, ``timeout_ms``), turned into whole NC cycles (rounded up, at least 1) by
@@ -232,38 +232,48 @@ def cycles(seconds: float, cycle_time: float) -> int:
     return max(1, math.ceil(seconds / cycle_time - 1e-9))
 
 
+#: the most a hot-standby pair's standby waits for the active NC's logs before it takes over [s] (its loss
+#: detector's cap under load; nc_server.server.standby.LIMIT_CAP_S)
+LIMIT_CAP_S = 1.0
+#: the zenoh lease an NC announces by default [ms] ([zenoh] lease)
+DEFAULT_LEASE_MS = 500
+
+
 def takeover_bound(takeover_cycles: int, cycle_time: float) -> float:
-    """The nominal takeover limit of a hot-standby pair [s]: the standby waits at least ``takeover_cycles`` NC cycles
-    without the active NC's log (a freeze, a cut link; a crash is seen at once) and notices at the start of the next
-    cycle, whose outputs go out (docs/standby.md). A minimum: the standby's limit adapts to the log gaps it sees (up
-    to its cap under load); what it uses now is published as ``takeover_limit_ms`` in its ha status and sent to the
-    drive hosts with the outputs."""
+    """The longest a hot-standby pair leaves its drives without outputs at a takeover [s] when its standby's limit
+    is ``takeover_cycles`` NC cycles without the active NC's log (a freeze, a cut link; a crash is seen at once): it
+    notices at the start of the next cycle, whose outputs go out (docs/standby.md, the ha status's
+    ``takeover_limit_cycles``)."""
     return (int(takeover_cycles) + 1) * float(cycle_time)
 
 
-#: the drive hosts' silence timeout must be at least TIMEOUT_FACTOR x the nominal takeover limit + TIMEOUT_MARGIN_S
-TIMEOUT_FACTOR = 2.0
-TIMEOUT_MARGIN_S = 0.05
+def worst_takeover(takeover_cycles: int, cycle_time: float, lease_s: float) -> float:
+    """The longest takeover the pair may publish [s]: its standby's limit grows with the gaps between the active
+    NC's logs under load up to LIMIT_CAP_S, and the active NC's lease (its tokens go after a freeze that long: a
+    takeover then at the latest) bounds it too; at least ``takeover_cycles``; plus the cycle whose outputs go out."""
+    cycles = max(int(takeover_cycles), math.ceil(min(LIMIT_CAP_S, float(lease_s)) / float(cycle_time) - 1e-9))
+    return takeover_bound(cycles, cycle_time)
 
 
-def min_timeout(takeover_cycles: int, cycle_time: float) -> float:
-    """The shortest silence timeout [s] a drive host of a hot-standby pair may have: twice the nominal takeover limit
-    (:func:`takeover_bound`) plus 50 ms, room for the standby's adaptive limit to grow under load."""
-    return TIMEOUT_FACTOR * takeover_bound(takeover_cycles, cycle_time) + TIMEOUT_MARGIN_S
+def pair_default_timeout(takeover_cycles: int, cycle_time: float, lease_s: float) -> float:
+    """nc-drive-sim's silence timeout for a hot-standby pair when neither ``--timeout`` nor ``[drives.remote]
+    timeout_ms`` gives one [s]: the pair's :func:`worst_takeover` plus the usual default timeout (DEFAULT_TIMEOUT,
+    100 ms, is below any pair's worst case)."""
+    return worst_takeover(takeover_cycles, cycle_time, lease_s) + DEFAULT_TIMEOUT
 
 
-def check_timeout(timeout: float, takeover_cycles: int, cycle_time: float, key: str) -> None:
-    """A drive host's silence timeout [s] must be at least :func:`min_timeout`.
+def check_timeout(timeout: float, takeover_cycles: int, cycle_time: float, key: str,
+                  lease_s: float = DEFAULT_LEASE_MS / 1000.0) -> None:
+    """A drive host's silence timeout [s] must be longer than the longest takeover the pair may publish
+    (:func:`worst_takeover`: ``min(LIMIT_CAP_S, lease)`` + 1 cycle, at least ``takeover_cycles`` + 1).
 
     Raises:
         ConfigError: on ``key``, naming the figures.
     """
-    bound = takeover_bound(takeover_cycles, cycle_time)
-    least = min_timeout(takeover_cycles, cycle_time)
-    if not timeout >= least - 1e-9:
-        raise ConfigError(key, f"the drive hosts' silence timeout ({timeout * 1e3:g} ms) must be at least "
-                               f"{TIMEOUT_FACTOR:g} x the standby NC's nominal takeover limit ({takeover_cycles} + 1 "
-                               f"cycles of {cycle_time * 1e3:g} ms = {bound * 1e3:g} ms, [redundancy] takeover_cycles) "
-                               f"+ {TIMEOUT_MARGIN_S * 1e3:g} ms = {least * 1e3:g} ms: the standby's limit grows under "
-                               f"load (its ha status's takeover_limit_ms), and a timeout shorter than it stops the "
-                               f"drives with 0x8130 at a takeover")
+    bound = worst_takeover(takeover_cycles, cycle_time, lease_s)
+    if not timeout > bound:
+        raise ConfigError(key, f"the drive hosts' silence timeout ({timeout * 1e3:g} ms) must be longer than the "
+                               f"standby NC's longest takeover ({bound * 1e3:g} ms: its limit grows under load up to "
+                               f"{LIMIT_CAP_S * 1e3:g} ms or the NC's lease of {lease_s * 1e3:g} ms, whichever is "
+                               f"shorter, at least [redundancy] takeover_cycles {takeover_cycles}, plus one cycle of "
+                               f"{cycle_time * 1e3:g} ms): the drives would stop with 0x8130 at a takeover")

@@ -16,14 +16,14 @@ Decisions:
   scheduler) does not make the motor stop and jump, and an NC that is gone does not run it away.
 * Silence timeout ``--timeout`` (default: the TOML's ``[drives.remote] timeout_ms``, else :data:`DEFAULT_TIMEOUT`
   = 100 ms): no outputs for that long is the drive's communication fault 0x8130: each drive stops on its own
-  quick-stop ramp (the axis's AxisDec) and keeps its position. It must be longer than a standby NC's takeover
-  (docs/standby.md: at least ``takeover_cycles + 1`` NC cycles at a freeze or a cut link, a crash is seen at once;
-  the standby's limit adapts and grows under load, up to its cap: at least 2 x that + 50 ms is required) and than
-  the longest stalls seen on a loaded 2-core VM (1-6 ms, zenoh spikes 3-5 ms); 100 ms is 20x the worst stall and
-  still a short coast. With ``--config`` and ``[redundancy] enabled`` in the TOML a timeout not longer than the
-  minimum is a configuration error (exit code 2); without ``--config`` the limit in use is learnt from the NC's
-  outputs (``takeover_limit_ms``): a timeout not longer is logged once as a warning and shown in the status
-  (``timeout_short``), not refused (the drives are running by then).
+  quick-stop ramp (the axis's AxisDec) and keeps its position. It must be longer than a standby NC's longest
+  takeover (docs/standby.md: its limit grows under load up to 1 s or the NC's lease, whichever is shorter, plus one
+  cycle: ``config.worst_takeover``; a crash is seen at once) and than the longest stalls seen on a loaded 2-core VM
+  (1-6 ms, zenoh spikes 3-5 ms); 100 ms is 20x the worst stall and still a short coast. With ``--config`` and
+  ``[redundancy] enabled`` in the TOML the default is that longest takeover + 100 ms (601 ms at 1 ms cycles and the
+  default lease), and a timeout not longer than the longest takeover is a configuration error (exit code 2); without
+  ``--config`` the bound in force is learnt from the NC's outputs (``takeover_limit_ms``): a timeout not longer is logged
+  once as a warning and shown in the status (``timeout_short``), not refused (the drives are running by then).
   When outputs come back the fault stays until the NC's MC_Reset (a fault reset), as on any drive.
 * The process never exits because the NC went away; SIGTERM, SIGINT and SIGHUP end it (exit code 0) after the
   last status is written; its token is undeclared, so the NC sees the host go.
@@ -61,8 +61,8 @@ from ..cia402.device import Cia402Device
 from ..cia402.drive import axis_options as cia402_axis_options
 from ..cia402.objects import State
 from . import wire
-from .config import (DEFAULT_TAKEOVER_CYCLES, RemoteOptions, check_timeout, host_slots, link_endpoints,
-                     parse_options)
+from .config import (DEFAULT_LEASE_MS, DEFAULT_TAKEOVER_CYCLES, RemoteOptions, check_timeout, host_slots, link_endpoints,
+                     pair_default_timeout, parse_options)
 from .link import link_config, open_retrying
 
 log = logging.getLogger("nc_drive_sim")
@@ -95,9 +95,10 @@ def load_axes(path: str, host: str) -> tuple[str, list[AxisParams], list[int], t
 
 
 def load_config(path: str, host: str) -> tuple[str, list[AxisParams], list[int], tuple[str, ...], float | None,
-                                               tuple[int, float] | None]:
+                                               tuple[int, float, float] | None]:
     """:func:`load_axes` plus the TOML's ``[drives.remote] timeout_ms`` [s] (None: not given) and, with
-    ``[redundancy] enabled``, the pair's ``(takeover_cycles, [nc] cycle_time)`` (None: no redundancy).
+    ``[redundancy] enabled``, the pair's ``(takeover_cycles, [nc] cycle_time, [zenoh] lease [s])`` (None: no
+    redundancy).
 
     Raises:
         ConfigError: as :func:`load_axes`; a bad ``[redundancy]`` or ``[nc] cycle_time``.
@@ -151,8 +152,9 @@ def load_config(path: str, host: str) -> tuple[str, list[AxisParams], list[int],
         None if opts.timeout_ms is None else opts.timeout_ms / 1000.0, _redundancy(data)
 
 
-def _redundancy(data: Mapping[str, Any]) -> tuple[int, float] | None:
-    """``(takeover_cycles, cycle_time)`` of the TOML's ``[redundancy]`` if enabled (checked as the NC checks them)."""
+def _redundancy(data: Mapping[str, Any]) -> tuple[int, float, float] | None:
+    """``(takeover_cycles, cycle_time, lease [s])`` of the TOML's ``[redundancy]`` if enabled (checked as the NC
+    checks them)."""
     r = data.get("redundancy", {})
     if not isinstance(r, Mapping) or r.get("enabled") is not True:
         return None
@@ -163,7 +165,11 @@ def _redundancy(data: Mapping[str, Any]) -> tuple[int, float] | None:
     ct = nc.get("cycle_time", 0.001) if isinstance(nc, Mapping) else 0.001
     if isinstance(ct, bool) or not isinstance(ct, (int, float)) or not 0.0001 <= ct <= 1.0:
         raise ConfigError("nc.cycle_time", f"must be a number 0.0001..1 [s], got {ct!r}")
-    return cycles, float(ct)
+    zn = data.get("zenoh", {})
+    lease = zn.get("lease", DEFAULT_LEASE_MS) if isinstance(zn, Mapping) else DEFAULT_LEASE_MS
+    if isinstance(lease, bool) or not isinstance(lease, int) or not 100 <= lease <= 600_000:
+        raise ConfigError("zenoh.lease", f"must be an integer 100..600000 [ms], got {lease!r}")
+    return cycles, float(ct), lease / 1000.0
 
 
 class DriveHost:
@@ -416,7 +422,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--cycle-time", type=float, default=DEFAULT_CYCLE, help="drive cycle [s] (0.001)")
     p.add_argument("--timeout", type=float, default=None,
                    help="silence timeout [s]: no outputs for this long -> fault 0x8130 and quick stop (default: the "
-                        "TOML's [drives.remote] timeout_ms, else 0.1); longer than a hot-standby pair's takeover")
+                        "TOML's [drives.remote] timeout_ms, else 0.1, for a hot-standby pair's TOML its longest "
+                        "takeover + 0.1); longer than a hot-standby pair's longest takeover")
     p.add_argument("--extrapolate", type=float, default=DEFAULT_EXTRAPOLATE,
                    help="longest extrapolation of the target between outputs [s] (0.01)")
     p.add_argument("--lease-ms", type=int, default=500, help="the session's transport lease [ms] (500)")
@@ -434,7 +441,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         wire.check_host(args.host, "--host")
         toml_timeout: float | None = None
-        pair: tuple[int, float] | None = None
+        pair: tuple[int, float, float] | None = None
         if args.config:
             if args.axes is not None:
                 raise ConfigError("--axes", "give either --config or --axes")
@@ -447,8 +454,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         nc = args.nc or nc
         timeout_key = "--timeout" if args.timeout is not None else \
             "drives.remote.timeout_ms" if toml_timeout is not None else f"--timeout (default {DEFAULT_TIMEOUT:g} s)"
+        # (a hot-standby pair's takeover may take up to a second under load: its default is longer, docs/standby.md)
+        default = DEFAULT_TIMEOUT if pair is None else pair_default_timeout(*pair)
+        if args.timeout is None and toml_timeout is None and pair is not None:
+            timeout_key = f"--timeout (default for this pair {default:g} s)"
         args.timeout = args.timeout if args.timeout is not None else \
-            toml_timeout if toml_timeout is not None else DEFAULT_TIMEOUT
+            toml_timeout if toml_timeout is not None else default
         # (the timeout's errors name where it came from: --timeout, the TOML's timeout_ms, or the default)
         for name, v, lo, hi in (("--cycle-time", args.cycle_time, 1e-4, 1.0), (timeout_key, args.timeout, 1e-3, 3600.0),
                                 ("--extrapolate", args.extrapolate, 0.0, 3600.0)):
@@ -458,7 +469,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ConfigError(timeout_key, f"the silence timeout ({args.timeout:g} s) must be at least two drive "
                                            f"cycles ({2 * args.cycle_time:g} s, --cycle-time)")
         if pair is not None:  # a hot-standby pair (the TOML's [redundancy]): the timeout must outlast its takeover
-            check_timeout(args.timeout, pair[0], pair[1], timeout_key)
+            check_timeout(args.timeout, pair[0], pair[1], timeout_key, pair[2])
         if args.connect:
             endpoints = tuple(args.connect)
         if not endpoints:

@@ -203,6 +203,11 @@ class RemoteLink(ProcessDataLink):
         #: ``takeover_limit_ms``), sent with the outputs: a drive host warns when its silence timeout does not exceed
         #: it (nc_server.server.standby sets it)
         self.takeover_limit_ms = 0.0
+        #: True: exchange() takes the inputs but sends nothing (a takeover's catch-up steps: only the last one's
+        #: outputs go to the drives, nc_server.server.standby)
+        self.mute = False
+        #: the epoch of the newest drive host inputs taken (host_epoch is the highest ever seen)
+        self.input_epoch = 0
         self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
@@ -268,7 +273,8 @@ class RemoteLink(ProcessDataLink):
             if self._since_open % LIVELINESS_EVERY == 1 or LIVELINESS_EVERY == 1:
                 self._take_liveliness()
             self._take_inputs(int(rx.cycle))
-            self._send(rx)
+            if not self.mute:
+                self._send(rx)
         out = TxImage(**{a: getattr(tx, a) for a in _TX_ATTRS})
         return out
 
@@ -334,6 +340,7 @@ class RemoteLink(ProcessDataLink):
             rtt[rows] = nc_cycle - rx_cycle if rx_cycle and nc_cycle is not None else -1
             if host_epoch > self.host_epoch:
                 self.host_epoch = host_epoch
+            self.input_epoch = host_epoch
             self.received += 1
             if not self._host_seen[i]:
                 self._host_seen[i] = True

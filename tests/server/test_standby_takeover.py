@@ -1,0 +1,288 @@
+"""The hot standby's takeover and role changes in one process (no zenoh; docs/standby.md): what reaches the drives
+at a takeover, the epoch of a retake after a demotion, the confirmation of a new epoch by the drive hosts, the
+declarations' failures, the status read from another thread, the logs of a lower epoch."""
+from __future__ import annotations
+
+import pickle
+import time
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+import nc_server.core  # noqa: F401  (before nc_server.drives: circular import otherwise)
+from nc_server.drives.sim import SimDrive
+from nc_server.server.config import Redundancy
+from nc_server.server.replication import RecordingDrive
+from nc_server.server.standby import START_GRACE_S, HotStandby
+
+from test_replication import Active
+
+DT = 0.001  # (Active's cycle)
+TAKEOVER = 15
+
+
+class FakeLink:
+    """What the standby sees of a remote drive link (drive_links): the epochs, the mute flag."""
+
+    def __init__(self) -> None:
+        self.epoch = 0
+        self.host_epoch = 0
+        self.input_epoch = 0
+        self.received = 0
+        self.takeover_ms = 0.0
+        self.mute = False
+
+
+class LinkedSim(SimDrive):
+    """A simulated drive behind a FakeLink: the set-points of axis 1 that went out (not muted) are noted in
+    ``events`` (the drive side's view), like the declarations of the takeover."""
+
+    def __init__(self, params: Any, cycle_time: float, events: list[tuple[str, float]]) -> None:
+        super().__init__(params, cycle_time)
+        self.link = FakeLink()
+        self.events = events
+
+    def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
+        super().step(enabled, set_pos, set_velo, set_acc)
+        if not self.link.mute:
+            self.events.append(("out", float(set_pos[0])))
+
+
+def pair(events: list[tuple[str, float]] | None = None) -> tuple[Active, HotStandby, LinkedSim]:
+    """An Active core on a LinkedSim (the stand-in for the follower's core in step) and the HotStandby over it."""
+    events = [] if events is None else events
+    act = Active()
+    drive = LinkedSim(act.core.params, act.core.cycle_time, events)
+    act.core.drive = RecordingDrive(drive)
+    act.rec.attach_drive(act.core.drive)
+    transport = SimpleNamespace(instance="i1", serve=lambda: events.append(("serve", 0.0)))
+    srv = SimpleNamespace(core=act.rec, handler=act.handler, claims=act.claims, transport=transport,
+                          config=SimpleNamespace(name="nc1", cycle_time=DT),
+                          became_active=lambda now, serve=True: None, became_standby=lambda: None)
+    hs = HotStandby(srv, Redundancy(True, "standby", TAKEOVER, 10.0, "b"))  # type: ignore[arg-type]
+    return act, hs, drive
+
+
+def moving(act: Active) -> None:
+    act.handler.client_alive("plc", 0.0)
+    act.request("Claim", 1, 1)
+    act.supply(7, ids=(1,))
+    for _ in range(3):
+        act.cycle()
+    assert act.request("MoveAbsolute", 5, 1, Position=100.0, Velocity=50.0)["error"] == 0
+    for _ in range(200):  # (at constant velocity)
+        act.cycle()
+
+
+def test_the_first_set_point_of_a_takeover_is_where_the_drives_extrapolated_to() -> None:
+    # the active NC froze: the drives extrapolated its last set-point with its velocity (nc-drive-sim --extrapolate)
+    # for the k cycles of silence; the takeover's catch-up steps over them at once. The drives must see no output
+    # of the catch-up steps before the last (behind their target: a step back, then forward), and the takeover's
+    # declarations (milliseconds) must not come before the first output
+    events: list[tuple[str, float]] = []
+    act, hs, drive = pair(events)
+    moving(act)
+    hs.synced_once, hs.follower.waiting = True, False
+    last = [p for e, p in events if e == "out"][-1]
+    v = float(act.core.nctoplc["SetVelo"][0])
+    assert v > 10.0
+    events.clear()
+    now = time.monotonic()
+    hs._last_log = now - 0.010  # 10 ms of silence: k = 10 catch-up cycles
+    hs._become_active(now)
+    assert hs.role == "active" and hs.catch_up == 10
+    act.rec.step()  # the cycle's own step, then after_step (the log; the declarations)
+    hs.after_step()
+    outs = [p for e, p in events if e == "out"]
+    assert len(outs) == 1, events  # only the takeover cycle's own set-point went out
+    extrapolated = last + v * hs.catch_up * DT
+    assert outs[0] >= extrapolated - 1e-6 * max(1.0, abs(extrapolated)), (outs[0], extrapolated)
+    assert [e for e, _ in events] == ["out", "serve"]  # the declarations after the first set-point
+    assert not hs._serve_pending
+    assert not drive.link.mute
+    # the drives go on from there, forward only
+    for _ in range(5):
+        act.rec.step()
+        hs.after_step()
+    outs = [p for e, p in events if e == "out"]
+    assert all(b >= a for a, b in zip(outs, outs[1:])), outs
+
+
+def test_a_muted_remote_link_takes_inputs_but_sends_nothing() -> None:
+    from nc_server.drives.cia402.image import RxImage
+    from nc_server.drives.remote.config import host_slots
+    from nc_server.drives.remote.link import RemoteLink
+
+    sent: list[bytes] = []
+    link = RemoteLink("nc1", 1, host_slots([{"host": "d1"}], None), None)
+    link._ready = True
+    link._pubs = [SimpleNamespace(put=sent.append)]
+    link._tx_subs = []
+    link._live_sub = SimpleNamespace(try_recv=lambda: None)
+    img = RxImage.zeros(1)
+    link.exchange(img)
+    assert len(sent) == 1
+    link.mute = True
+    link.exchange(img)
+    assert len(sent) == 1
+    link.mute = False
+    link.exchange(img)
+    assert len(sent) == 2
+
+
+def active(hs: HotStandby, epoch: int) -> None:
+    hs.role, hs.epoch, hs.highest, hs.synced_once = "active", epoch, epoch, True
+    hs.follower.waiting = False
+
+
+def test_a_demoted_nc_retakes_only_after_the_grace_and_with_its_own_epoch() -> None:
+    # A froze past its standby's limit; B took over; A resumed, demoted itself and sees neither B's token nor its
+    # logs (its session reconnects slowly, or the link B->A is cut): with a new epoch of the same count as B's it
+    # could win the tie and the drive hosts would follow its second-old state
+    act, hs, drive = pair()
+    e = 5 << 16 | 7
+    active(hs, e)
+    hs.peer_in_step = True
+    hs._peer_limits["a"] = (0.030, time.monotonic())
+    assert hs.after_stall(0.5)
+    assert hs.role == "standby" and not hs.synced_once and hs._grace >= START_GRACE_S
+    t = time.monotonic()
+    hs._started = hs._last_log = t
+    assert not hs._lost(t + 0.2) and not hs._lost(t + START_GRACE_S - 0.01)
+    assert hs._lost(t + START_GRACE_S + 0.01)
+    hs._become_active(t + START_GRACE_S + 0.01)
+    assert hs.role == "active" and hs.epoch == e  # its own epoch: the hosts take it only if nobody took over
+    # B had taken over (count 6): the hosts refuse A's outputs and their inputs show B's epoch: A steps down
+    drive.link.host_epoch = drive.link.input_epoch = 6 << 16 | 1
+    assert hs.before_cycle(time.monotonic())
+    assert hs.role == "standby"
+
+
+def test_an_active_nc_whose_epoch_no_drive_host_confirms_steps_down() -> None:
+    act, hs, drive = pair()
+    hs.synced_once, hs.follower.waiting = True, False
+    hs._become_active(time.monotonic(), first=True)
+    e, lk = hs.epoch, drive.link
+    lk.input_epoch = 1  # (inputs of an older epoch: the hosts have not taken this NC's outputs yet)
+    assert not hs.before_cycle(time.monotonic())
+    limit = hs._confirm_cycles()
+    assert limit >= 1000  # (LIMIT_CAP_S at 1 ms cycles: a loaded machine delays the round trip)
+    for _ in range(limit):
+        lk.received += 1
+        assert not hs.before_cycle(time.monotonic())
+    for _ in range(10):  # no new inputs: nothing to judge
+        assert not hs.before_cycle(time.monotonic())
+    lk.received += 1
+    assert hs.before_cycle(time.monotonic()) and hs.role == "standby"
+    # the same, confirmed in time: active for good
+    act, hs, drive = pair()
+    hs.synced_once, hs.follower.waiting = True, False
+    hs._become_active(time.monotonic(), first=True)
+    lk = drive.link
+    for i in range(3 * limit):
+        lk.received += 1
+        lk.input_epoch = hs.epoch if i >= 3 else 0
+        assert not hs.before_cycle(time.monotonic())
+    assert hs.role == "active" and hs._unconfirmed is None
+
+
+def test_the_status_read_by_another_thread_only_reads() -> None:
+    # status() runs in the I/O thread too (the stats): the detector's gaps and the peers' statuses are the cycle
+    # thread's (a deque changed while iterated: RuntimeError in the cycle thread, the end of its loop)
+    act, hs, drive = pair()
+
+    def boom(*_: Any) -> Any:
+        raise AssertionError("touched outside the cycle thread")
+
+    hs.before_cycle(time.monotonic())  # (the cycle thread computes the limit)
+    published = hs._limit
+    hs.detector.limit = boom  # type: ignore[method-assign]
+    hs._status_sub = SimpleNamespace(try_recv=boom)
+    st = hs.status()
+    assert st["takeover_limit_cycles"] == published
+    hs.role = "active"
+    assert hs.status()["role"] == "active"
+
+
+def test_failed_declarations_of_a_takeover_are_tried_again_while_the_nc_drives() -> None:
+    events: list[tuple[str, float]] = []
+    act, hs, drive = pair(events)
+    moving(act)
+    hs.synced_once, hs.follower.waiting = True, False
+    fails = [RuntimeError("zenoh: declare failed"), RuntimeError("again")]
+    unserved: list[int] = []
+
+    def serve() -> None:
+        if fails:
+            raise fails.pop(0)
+        events.append(("serve", 0.0))
+
+    hs.srv.transport.serve = serve
+    hs.srv.transport.unserve = lambda: unserved.append(1)
+    events.clear()
+    now = time.monotonic()
+    hs._last_log = now - 0.005
+    hs._become_active(now)
+    for _ in range(3):  # the cycle goes on (no exception into the cycle thread); the third try succeeds
+        act.rec.step()
+        hs.after_step()
+    assert hs.role == "active" and not hs._serve_pending and len(unserved) == 2
+    assert [e for e, _ in events].count("serve") == 1
+    assert [e for e, _ in events][-1] == "serve" and len([e for e, _ in events if e == "out"]) == 3
+    assert hs.takeover_s > 0
+
+
+class FakeSub:
+    def __init__(self) -> None:
+        self.queue: list[Any] = []
+
+    def put(self, payload: bytes) -> None:
+        self.queue.append(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
+
+    def try_recv(self) -> Any:
+        return self.queue.pop(0) if self.queue else None
+
+
+def sample(epoch: int, cycle: int) -> bytes:
+    lg = SimpleNamespace(epoch=epoch, cycle=cycle)
+    return pickle.dumps([pickle.dumps(lg)])
+
+
+def test_logs_of_a_lower_epoch_do_not_reset_the_silence() -> None:
+    # a zombie NC of an older epoch still sends logs: the standby must still judge the active NC's silence
+    act, hs, drive = pair()
+    hs.highest = 6 << 16
+    hs.synced_once, hs.follower.waiting = True, False
+    sub = FakeSub()
+    hs._log_sub = sub
+    hs.detector.restart(0.0)
+    sub.put(sample(5 << 16, 10_000))
+    hs._take_logs(1.0)
+    assert hs.detector.last == 0.0 and hs.stale_logs == 1
+    # one of the followed epoch: a sign of life
+    hs.follower.apply = lambda lg: True  # type: ignore[method-assign]
+    hs._declare_standby = lambda on: None  # type: ignore[method-assign]
+    sub.put(sample(6 << 16, 10**9))
+    hs._take_logs(1.5)
+    assert hs.detector.last == 1.5
+
+
+def test_the_silence_judged_is_capped_by_the_lease_like_the_published_limit() -> None:
+    # a lease of 200 ms: the published limit is at most 200 ms (the active NC's tokens go then); the detector must
+    # not wait longer than that (it waited up to LIMIT_CAP_S, 1 s, after long log gaps)
+    act, hs, drive = pair()
+    hs2 = HotStandby(SimpleNamespace(**{**vars(hs.srv), "config": SimpleNamespace(
+        name="nc1", cycle_time=DT, zenoh=SimpleNamespace(lease_ms=200))}),
+        Redundancy(True, "standby", TAKEOVER, 10.0, "b"))  # type: ignore[arg-type]
+    d = hs2.detector
+    d.restart(-20.0)
+    d.log(-10.0)
+    d.log(-9.4)  # a 600 ms gap 9.4 s ago: the limit would be 1 s
+    d.log(0.0)
+    d.silent(0.0)
+    assert hs2._limit_cycles(0.0) == 200
+    assert not d.silent(0.001 * 150) and not d.silent(0.001 * 151)
+    d.silent(0.208)  # (a late cycle of the standby itself defers the judgement once)
+    assert d.silent(0.209)
