@@ -100,8 +100,10 @@ class Redundancy:
     Attributes:
         enabled: this NC is one of a pair (off: a single NC, nothing of this section applies).
         start: ``"standby"`` (default: follow an active NC; take over when it is lost, or after
-            ``takeover_cycles`` with none at start) or ``"active"`` (drive from the start, unless an active NC
-            of a higher epoch is seen).
+            ``takeover_cycles`` with none at start) or ``"active"`` (drive from the start with a first epoch, at
+            once: where a peer drives already, with a higher epoch, the drive hosts refuse its outputs and it demotes
+            itself when it learns that epoch, but its frames went out meanwhile: a node that restarts by itself, a
+            container with a restart policy, starts as "standby"; docs/standby.md).
         takeover_cycles: NC cycles without the active NC's log (or at once, its token gone) before a standby takes
             over; the drive hosts' silence timeout must be longer.
         catch_up_ms: at a takeover the core steps at once over the time the active NC was silent, at most this

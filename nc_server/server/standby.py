@@ -399,6 +399,10 @@ class HotStandby:
                     self.active_token_seen = present
                     if not present and self.role == "standby":
                         self._token_gone = True  # the active NC's token went: take over now
+                    elif present:
+                        # (back: its session was dropped in a stall and re-established, the NC lives; a latched
+                        # "gone" would take over from a live NC as soon as this standby is in step)
+                        self._token_gone = False
                 elif present:
                     peers.add(node)
                 else:

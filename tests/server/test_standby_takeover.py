@@ -286,3 +286,32 @@ def test_the_silence_judged_is_capped_by_the_lease_like_the_published_limit() ->
     assert not d.silent(0.001 * 150) and not d.silent(0.001 * 151)
     d.silent(0.208)  # (a late cycle of the standby itself defers the judgement once)
     assert d.silent(0.209)
+
+
+class TokenSub:
+    """Liveliness events of ``nc/<nc>/ha/active/<node>`` as the standby takes them."""
+
+    def __init__(self, *events: tuple[str, bool]) -> None:
+        import zenoh
+        self.queue = [SimpleNamespace(key_expr=f"nc/nc1/ha/active/{node}",
+                                      kind=zenoh.SampleKind.PUT if up else zenoh.SampleKind.DELETE)
+                      for node, up in events]
+
+    def try_recv(self) -> Any:
+        return self.queue.pop(0) if self.queue else None
+
+
+def test_a_token_that_went_and_came_back_is_no_takeover() -> None:
+    # the router dropped the active NC's session in a long stall and it came back: the NC lives (found by the compose
+    # scenario: a latched "token gone" took over from a live NC as soon as the standby was in step)
+    act, hs, drive = pair()
+    hs.synced_once, hs.follower.waiting = True, False
+    hs.detector.restart(time.monotonic())
+    hs._standby_sub = TokenSub()
+    hs._active_sub = TokenSub(("a", False), ("a", True))
+    hs._take_tokens()
+    assert hs.active_token_seen and not hs._lost(time.monotonic())
+    # gone for good: a takeover at once
+    hs._active_sub = TokenSub(("a", False))
+    hs._take_tokens()
+    assert hs._lost(time.monotonic()) and hs._lost_why == "its token went"

@@ -49,7 +49,8 @@ def _standby(core: NcCore) -> HotStandby:
     """A HotStandby around ``core`` with the server parts _become_active touches (no zenoh: no session)."""
     srv: Any = SimpleNamespace(core=CoreRecorder(core), handler=SimpleNamespace(cache=SimpleNamespace(journal=None)),
                                transport=SimpleNamespace(instance="i"), config=SimpleNamespace(name="nc1", cycle_time=DT),
-                               claims=SimpleNamespace(rebase=lambda now: None), became_active=lambda now: None)
+                               claims=SimpleNamespace(rebase=lambda now: None),
+                               became_active=lambda now, serve=True: None)
     return HotStandby(srv, SimpleNamespace(node="b", takeover_cycles=10, catch_up_ms=0, start="standby"))
 
 
