@@ -41,6 +41,7 @@ from ..core.params import AxisParams
 from .base import DriveABC
 from .encoder import EncoderChain, pulse_passed
 from .mechanics import Mechanics
+from .probe_pattern import first_pattern_edge, pattern_level
 
 
 _EPS_V = 1e-9
@@ -220,9 +221,8 @@ class SimDrive(DriveABC):
         level = self._probe_level.copy()
         r = self._probe_rows
         if len(r):
-            period, width = self._probe_period[r], self._probe_width[r]
-            phase = np.mod(self.act_pos[r] - self._probe_offset[r], period)
-            level[r] = (phase < width) | (width >= period)  # (np.mod may round up to period itself)
+            level[r] = pattern_level(self.act_pos[r], self._probe_period[r], self._probe_offset[r],
+                                     self._probe_width[r])
         return level
 
     def set_probe_signal(self, index: int, level: bool, offset: float) -> None:
@@ -278,27 +278,10 @@ class SimDrive(DriveABC):
         return found, pos, frac
 
     def _first_pattern_edge(self, rows: np.ndarray, falling: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """The first pattern edge of the requested kind passed moving from a to b (a != b) [u], NaN if none.
-
-        The TRUE windows are [s, s + width) with s = SimProbeOffset + n * period. Moving positive the
-        input rises at s and falls at s + width; moving negative it rises at s + width (the window is
-        entered from above) and falls at s. An edge at x is passed if a < x <= b moving positive and
-        b < x <= a moving negative, which matches the half-open windows ``probe_input`` evaluates: an
-        edge reached exactly at the end of one cycle is reported then (fraction 1), not again in the next.
-        """
-        period, width = self._probe_period[rows], self._probe_width[rows]
-        neg = b < a
-        base = self._probe_offset[rows] + np.where(falling != neg, width, 0.0)
-        n = np.floor((a - base) / period)
-        x = base + np.where(neg, n, n + 1.0) * period  # the first such boundary beyond a in the direction of travel
-        # rounding of the division may pick the neighbouring boundary: enforce a < x <= a + period (positive),
-        # a - period < x <= a (negative)
-        up = ~neg
-        x = np.where(up & (x <= a), x + period, x)
-        x = np.where(up & (x - period > a), x - period, x)
-        x = np.where(neg & (x > a), x - period, x)
-        x = np.where(neg & (x + period <= a), x + period, x)
-        return np.where(np.where(neg, x > b, x <= b), x, np.nan)
+        """The first pattern edge of the requested kind passed moving from a to b (a != b) [u], NaN if none
+        (:func:`.probe_pattern.first_pattern_edge`)."""
+        return first_pattern_edge(falling, a, b, self._probe_period[rows], self._probe_offset[rows],
+                                  self._probe_width[rows])
 
     def _apply_probe_signals(self) -> dict[int, list[tuple[float, bool]]]:
         """Turn the pending set_probe_signal events into this cycle's edges; update the commanded levels."""

@@ -447,12 +447,12 @@ class CanopenLink(ProcessDataLink):
         return tx
 
     def _inputs(self) -> TxImage:
-        t1, t2, t3 = self._t[1], self._t[2], self._t[3]  # (written in place: the TxImage gets copies)
+        t1, t2, t3, t4 = self._t[1], self._t[2], self._t[3], self._t[4]  # (written in place: the TxImage gets copies)
         busy = self._configuring if self._any_configuring else None
         for j, node in enumerate(self.nodes):
             if busy is not None and busy[j]:  # its PDO maps are being rewritten: its last inputs stay
                 continue
-            for k, out in ((1, t1), (2, t2), (3, t3)):
+            for k, out in ((1, t1), (2, t2), (3, t3), (4, t4)):
                 data = node.tpdo[k].data
                 s = node.s_tpdo[k]
                 out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
@@ -476,7 +476,8 @@ class CanopenLink(ProcessDataLink):
                        position_actual=pos.astype(np.float64), velocity_actual=t2[0].astype(np.float64),
                        torque_actual=t2[1].astype(np.float64), error_code=t1[2].astype(np.uint16),
                        probe_status=t3[0].astype(np.uint16), probe_position=probe.astype(np.float64),
-                       age=age, alive=alive)
+                       probe2_pos=pdo.unwrap32(t4[0], pos).astype(np.float64),
+                       probe2_neg=pdo.unwrap32(t4[1], pos).astype(np.float64), age=age, alive=alive)
 
     def _outputs(self, rx: RxImage) -> None:
         pos = pdo.wrap32(rx.target_position)  # (modulo 2^32: an endless axis goes on; the drive unwraps)

@@ -71,7 +71,8 @@ class LocalLink(ProcessDataLink):
             tx = self.device.step(RxImage(cycle=rx.cycle, **keep))
         out = TxImage(**{f: np.where(bad, getattr(last_tx, f), getattr(tx, f)).astype(getattr(tx, f).dtype)
                          for f in ("statusword", "mode_display", "position_actual", "velocity_actual",
-                                   "torque_actual", "error_code", "probe_status", "probe_position")},
+                                   "torque_actual", "error_code", "probe_status", "probe_position", "probe2_pos",
+                                   "probe2_neg")},
                       age=np.where(bad, np.maximum(last_tx.age + 1, self.invalid_age), 0), alive=self.alive.copy())
         self._last_rx = RxImage(cycle=rx.cycle, **{f: np.where(bad, getattr(last_rx, f), getattr(rx, f)) for f in
                                                   ("controlword", "mode", "target_position", "target_velocity",
@@ -148,6 +149,11 @@ class Cia402SimDrive(Cia402Drive):
     def inject_fault(self, index: int, code: int, persistent: bool = False) -> None:
         """A drive fault with 0x603F ``code`` (:meth:`.device.Cia402Device.inject_fault`)."""
         self.device.inject_fault(index, code, persistent)
+
+    def set_probe_signal(self, index: int, level: bool, offset: float) -> None:
+        """Touch probe input 2 of the simulated drive (MC_TouchProbe's input 1): :meth:`.device.Cia402Device.set_probe_signal`
+        (NotImplementedError on an axis with a sensor pattern, ValueError for an offset outside the cycle)."""
+        self.device.set_probe_signal(index, level, offset)
 
     def _check_index(self, index: int) -> None:
         if not 0 <= int(index) < len(self.act_pos):
