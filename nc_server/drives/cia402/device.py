@@ -100,6 +100,8 @@ class Cia402Device:
         self.error_code = np.zeros(n, dtype=np.uint16)
         self.rx = RxImage.zeros(n)
         self.silent = 0.0
+        #: per axis, the motor stands whatever its target (a stalled stepper, ``cia402-sim``'s SimStall); None: none
+        self.stalled: np.ndarray | None = None
         self._prev_cw = np.zeros(n, dtype=np.uint16)
         self._prev_tv = np.zeros(n)
         self._alpha = np.ones(n)
@@ -289,6 +291,8 @@ class Cia402Device:
                 new_pos = np.where(stopping, pos + v_stop * dt, new_pos)
             else:
                 stopping = None
+        if self.stalled is not None:  # a stalled motor loses its field synchronism: it stands
+            new_pos = np.where(self.stalled, pos, new_pos)
         new_v = (new_pos - pos) / dt
         if stopping is not None:  # (exactly 0 at the end of the ramp: "stopped")
             new_v = np.where(stopping & (np.abs(new_v) < 1e-12), 0.0, new_v)

@@ -13,7 +13,8 @@ stops carrying the axis: its outputs do not reach the device, its inputs stay th
 :meth:`Cia402SimDrive.set_device_error` (a persistent hardware fault 0x5000 of the device: the drive stops on its
 quick-stop ramp and goes to Fault; clearing it lets the next MC_Reset acknowledge it -- unlike ``SimDrive``,
 where the error vanished by itself), plus :meth:`Cia402SimDrive.inject_fault` and :meth:`Cia402SimDrive.set_silent`
-(lost communication).
+(lost communication), and the simulated stepper terminal of ``SimStepper`` axes (:mod:`..stepper`, the same model
+as ``SimDrive``'s: SimStall makes the device's motor stand, SimTerminalError sets the status word).
 
 It may import: numpy, nc_server.core.params, nc_server.drives.
 """
@@ -25,6 +26,7 @@ import numpy as np
 
 from ...core.params import AxisParams, ConfigError
 from ..base import DriveContext
+from ..stepper import StepperTerminals
 from .device import HARDWARE_ERROR_CODE, Cia402Device
 from .drive import DEFAULT_KV, Cia402Drive, link_options
 from .drive import axis_options as axis_options_of
@@ -91,6 +93,7 @@ class Cia402SimDrive(Cia402Drive):
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, *, mode: Mode | Sequence[Mode] = Mode.CSP,
                  kv: float | Sequence[float] = DEFAULT_KV, max_age: int = 3) -> None:
         self.device = Cia402Device(len(params), cycle_time)  # (configured by Cia402Drive.__init__)
+        self.terminals = StepperTerminals(len(params))  # SimStepper axes: the motor stalls in the device
         self._local = LocalLink(self.device)
         super().__init__(params, cycle_time, self._local, simulated=True, mode=mode, kv=kv, max_age=max_age)
         self._local.invalid_age = self.max_age + 1
@@ -122,6 +125,29 @@ class Cia402SimDrive(Cia402Drive):
         super().configure(index, params)
         if hasattr(self, "device"):
             self.device.configure(index, params)
+            self.terminals.configure(index, params)
+
+    def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
+        t = self.terminals
+        if t.any:  # the stepper terminals (as SimDrive's): a stalled motor stands in the device
+            t.update(enabled, set_velo)
+            self.device.stalled = t.stalled if t.stalled.any() else None
+        super().step(enabled, set_pos, set_velo, set_acc)
+
+    # -- the simulated stepper terminal (MC_PowerStepper; :mod:`..stepper`) ------------------------------------
+
+    def terminal_status(self) -> np.ndarray | None:
+        """NCJOBS DriveStatus of every axis; None without SimStepper axes."""
+        return self.terminals.status if self.terminals.any else None
+
+    def set_stall(self, index: int, stall: bool) -> None:
+        """Stall the stepper of axis ``index`` now: the device's motor stands until the stall is lifted or the set
+        velocity is 0 (NotImplementedError: not a SimStepper, 0x4251)."""
+        self.terminals.set_stall(index, stall)
+
+    def set_terminal_error(self, index: int, status_word: int) -> None:
+        """The error bits of axis ``index``'s terminal status word (:meth:`..stepper.StepperTerminals.set_terminal_error`)."""
+        self.terminals.set_terminal_error(index, status_word)
 
     def set_io_invalid(self, index: int, invalid: bool) -> None:
         """Axis ``index``'s I/O data become invalid (``invalid`` False: valid again) from the next step, as with a bad
