@@ -113,13 +113,22 @@ class Prepared:
     reply: dict[str, Any]
 
 
+def default_drive(params: Sequence[AxisParams], cycle_time: float) -> DriveABC:
+    """The drives an NcCore builds when given none: ``SimDrive`` (``sim``, the first-order lag).
+
+    The one place to make simulated CiA 402 drives (``cia402-sim``) the default (issue 20): tests/core passes with
+    them (docs/drives.md "The default simulated drive"); the server's default is ``[nc] drive``
+    (nc_server/server/config.py, default.toml)."""
+    return SimDrive(params, cycle_time)
+
+
 class NcCore:
     """All axes of one NC, stepped one fixed cycle at a time.
 
     Args:
         axes: the configured axes (ids must be unique).
         cycle_time: NC cycle time [s] (> 0).
-        drive: the drives of all axes; default: a :class:`SimDrive`.
+        drive: the drives of all axes; default: :func:`default_drive`.
 
     Raises:
         ConfigError: duplicate axis ids, no axes, bad cycle time.
@@ -142,7 +151,7 @@ class NcCore:
         self.axes = AxisTable(ids, self.params)
         self.axis_ids = self.axes.ids
         self._index = {int(a): i for i, a in enumerate(ids)}
-        self.drive = drive if drive is not None else SimDrive(self.params, self.cycle_time)
+        self.drive = drive if drive is not None else default_drive(self.params, self.cycle_time)
         #: position correction, backlash, dead time between the set-point and the drive (corrections.py)
         self.corrections = Corrections(self.axes, self.params, self.cycle_time)
         #: the set position the controller compares with ActPos (PosDiff, lag): SetPos, or with a dead

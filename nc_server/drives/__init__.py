@@ -16,8 +16,8 @@ GROUP = "zenoh_nc.drives"
 
 
 def drive_names() -> list[str]:
-    """The names of the installed drive backends, sorted ("sim" always among them)."""
-    return sorted({ep.name for ep in entry_points(group=GROUP)} | {"sim"})
+    """The names of the installed drive backends, sorted ("sim" and "cia402-sim" always among them)."""
+    return sorted({ep.name for ep in entry_points(group=GROUP)} | {"sim", "cia402-sim"})
 
 
 def drive_class(name: str) -> type[DriveABC]:
@@ -31,4 +31,7 @@ def drive_class(name: str) -> type[DriveABC]:
             return ep.load()
     if name == "sim":  # works without installed metadata too
         return SimDrive
+    if name == "cia402-sim":  # (the default: also without installed metadata)
+        from .cia402.sim import Cia402SimDrive
+        return Cia402SimDrive
     raise ValueError(f"unknown drive backend {name!r} (installed: {', '.join(drive_names())})")

@@ -13,13 +13,10 @@ taken as moving linearly from the previous to the new actual position, so the la
 exact pattern edge (or the interpolated position at a commanded instant), as a hardware latch would.
 
 Stepper axes (``SimStepper``, for MC_PowerStepper): the motor sits on a simulated KL2531/KL2541 terminal
-whose status byte and word the drive reports (:meth:`SimDrive.terminal_status`, NCJOBS DriveStatus). It
-can be made to stall on demand (:meth:`SimDrive.set_stall`, NC command SimStall): a stalled motor loses its
-field synchronism, so its actual position stays where it is (the encoder sees it stand; the set-point runs
-away: a growing following error) and the status byte shows LoadAngle 7, until the stall is lifted or the
-set velocity is 0 (at rest the motor latches in again and the position controller - the first-order lag -
-brings it to the set position). Terminal errors (status word bits, :meth:`SimDrive.set_terminal_error`)
-set the status byte's Error bit; Ready is the controller enable without an error, Idle a set velocity 0.
+(:mod:`.stepper`, shared with ``cia402-sim``) whose status byte and word the drive reports
+(:meth:`SimDrive.terminal_status`, NCJOBS DriveStatus); it can be made to stall on demand
+(:meth:`SimDrive.set_stall`, NC command SimStall: the motor stands, the set-point runs away) and given terminal
+errors (:meth:`SimDrive.set_terminal_error`).
 
 Encoder (:mod:`.encoder`): the position the drive reports goes through the encoder chain of
 AxisEncoderScalingFactor, AxisEncoderOffset, AxisEncoderDirectionInverse and AxisEncoderEncoderMask; changing
@@ -41,13 +38,8 @@ from ..core.params import AxisParams
 from .base import DriveABC
 from .encoder import EncoderChain, pulse_passed
 from .mechanics import Mechanics
-
-
-_EPS_V = 1e-9
-#: the simulated terminal's status byte (schema/params.json stepper_terminal)
-_SB_READY, _SB_IDLE, _SB_ERROR = np.uint32(1), np.uint32(1 << 4), np.uint32(1 << 6)
-_LOAD_ANGLE_MAX = np.uint32(7)
-_PRESENT = np.uint32(1 << 31)
+from .probe_pattern import first_pattern_edge, pattern_level
+from .stepper import StepperTerminals
 
 
 class SimDrive(DriveABC):
@@ -68,11 +60,7 @@ class SimDrive(DriveABC):
         self._probe_pending: dict[int, list[tuple[float, bool]]] = {}
         #: the commanded edges of the cycle just stepped: axis -> [(fraction, new level)], in time order
         self._probe_edges: dict[int, list[tuple[float, bool]]] = {}
-        self._stepper = np.zeros(n, dtype=bool)  # SimStepper axes
-        self._stalled = np.zeros(n, dtype=bool)
-        self._status_word = np.zeros(n, dtype=np.uint32)  # the terminal's error bits (status word)
-        self._terminal = np.zeros(n, dtype=np.uint32)  # the DriveStatus of the last step
-        self._any_stepper = False
+        self.terminals = StepperTerminals(n)  # the SimStepper axes' terminals
         self.encoder = EncoderChain(n)
         self.mechanics = Mechanics(n, cycle_time)
         for i, p in enumerate(params):
@@ -98,12 +86,7 @@ class SimDrive(DriveABC):
             self._probe_pending.pop(index, None)
             self._probe_edges.pop(index, None)
         self._probe_rows = np.flatnonzero(self._probe_period > 0)
-        self._stepper[index] = bool(getattr(params, "SimStepper", False))
-        if not self._stepper[index]:
-            self._stalled[index] = False
-            self._status_word[index] = 0
-            self._terminal[index] = 0
-        self._any_stepper = bool(self._stepper.any())  # (a plain bool: the cycle checks it every step)
+        self.terminals.configure(index, params)
 
     def latch_sync_pulse(self, rows: np.ndarray, prev_pos: np.ndarray) -> np.ndarray:
         """Sync pulses at SimSyncPulseOffset + k * SimSyncPulseSpacing: the latch reports the exact
@@ -118,11 +101,11 @@ class SimDrive(DriveABC):
         if self.faulty:  # a drive not ready or without valid I/O data holds (no set-point reaches it)
             delivering = enabled & self.ready & self.io_valid
         new_pos = self.act_pos + (self._alpha * delivering) * (set_pos - self.act_pos)  # disabled: hold
-        if self._any_stepper:
-            self._stalled &= np.abs(set_velo) > _EPS_V  # at rest the motor latches in again
-            if self._stalled.any():
-                new_pos = np.where(self._stalled, self.act_pos, new_pos)  # a stalled motor stands
-            self._terminal = self._status(enabled, set_velo)
+        if self.terminals.any:
+            t = self.terminals
+            t.update(enabled, set_velo)  # (at rest the motor latches in again)
+            if t.stalled.any():
+                new_pos = np.where(t.stalled, self.act_pos, new_pos)  # a stalled motor stands
         new_velo = (new_pos - self.act_pos) / dt
         new_acc = (new_velo - self.act_velo) / dt
         if self.faulty:  # invalid I/O data: the NC reads the last valid values
@@ -175,43 +158,17 @@ class SimDrive(DriveABC):
 
     # -- stepper terminal ----------------------------------------------------------------------------------
 
-    def _status(self, enabled: np.ndarray, set_velo: np.ndarray) -> np.ndarray:
-        err = self._status_word != 0
-        sb = ((np.asarray(enabled, dtype=bool) & ~err).astype(np.uint32) * _SB_READY
-              | self._stalled.astype(np.uint32) * (_LOAD_ANGLE_MAX << 1)
-              | (np.abs(set_velo) <= _EPS_V).astype(np.uint32) * _SB_IDLE
-              | err.astype(np.uint32) * _SB_ERROR)
-        return np.where(self._stepper, sb | (self._status_word << 8) | _PRESENT, 0).astype(np.uint32)
-
     def terminal_status(self) -> np.ndarray | None:
-        """NCJOBS DriveStatus of every axis (see the module docstring); None without SimStepper axes."""
-        return self._terminal if self._any_stepper else None
+        """NCJOBS DriveStatus of every axis (:mod:`.stepper`); None without SimStepper axes."""
+        return self.terminals.status if self.terminals.any else None
 
     def set_stall(self, index: int, stall: bool) -> None:
-        """Stall the stepper of axis ``index`` now (``stall`` False: it follows again at once).
-
-        Raises:
-            IndexError: no axis ``index``.
-            NotImplementedError: the axis is not a SimStepper (the NC answers 0x4251).
-        """
-        self._check_stepper(index)
-        self._stalled[index] = bool(stall)
+        """Stall the stepper of axis ``index`` now (:meth:`.stepper.StepperTerminals.set_stall`)."""
+        self.terminals.set_stall(index, stall)
 
     def set_terminal_error(self, index: int, status_word: int) -> None:
-        """The error bits of axis ``index``'s terminal status word (0 clears them).
-
-        Raises:
-            IndexError, NotImplementedError: as :meth:`set_stall`; ValueError: outside 0..65535.
-        """
-        self._check_stepper(index)
-        if not 0 <= int(status_word) <= 0xFFFF:
-            raise ValueError(f"status word must be in 0..65535, got {status_word}")
-        self._status_word[index] = int(status_word)
-
-    def _check_stepper(self, index: int) -> None:
-        self._check_index(index)
-        if not self._stepper[index]:
-            raise NotImplementedError(f"axis index {index} is not a simulated stepper (SimStepper = false)")
+        """The error bits of axis ``index``'s terminal status word (:meth:`.stepper.StepperTerminals.set_terminal_error`)."""
+        self.terminals.set_terminal_error(index, status_word)
 
     # -- touch probe ---------------------------------------------------------------------------------------
 
@@ -220,9 +177,8 @@ class SimDrive(DriveABC):
         level = self._probe_level.copy()
         r = self._probe_rows
         if len(r):
-            period, width = self._probe_period[r], self._probe_width[r]
-            phase = np.mod(self.act_pos[r] - self._probe_offset[r], period)
-            level[r] = (phase < width) | (width >= period)  # (np.mod may round up to period itself)
+            level[r] = pattern_level(self.act_pos[r], self._probe_period[r], self._probe_offset[r],
+                                     self._probe_width[r])
         return level
 
     def set_probe_signal(self, index: int, level: bool, offset: float) -> None:
@@ -278,27 +234,10 @@ class SimDrive(DriveABC):
         return found, pos, frac
 
     def _first_pattern_edge(self, rows: np.ndarray, falling: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """The first pattern edge of the requested kind passed moving from a to b (a != b) [u], NaN if none.
-
-        The TRUE windows are [s, s + width) with s = SimProbeOffset + n * period. Moving positive the
-        input rises at s and falls at s + width; moving negative it rises at s + width (the window is
-        entered from above) and falls at s. An edge at x is passed if a < x <= b moving positive and
-        b < x <= a moving negative, which matches the half-open windows ``probe_input`` evaluates: an
-        edge reached exactly at the end of one cycle is reported then (fraction 1), not again in the next.
-        """
-        period, width = self._probe_period[rows], self._probe_width[rows]
-        neg = b < a
-        base = self._probe_offset[rows] + np.where(falling != neg, width, 0.0)
-        n = np.floor((a - base) / period)
-        x = base + np.where(neg, n, n + 1.0) * period  # the first such boundary beyond a in the direction of travel
-        # rounding of the division may pick the neighbouring boundary: enforce a < x <= a + period (positive),
-        # a - period < x <= a (negative)
-        up = ~neg
-        x = np.where(up & (x <= a), x + period, x)
-        x = np.where(up & (x - period > a), x - period, x)
-        x = np.where(neg & (x > a), x - period, x)
-        x = np.where(neg & (x + period <= a), x + period, x)
-        return np.where(np.where(neg, x > b, x <= b), x, np.nan)
+        """The first pattern edge of the requested kind passed moving from a to b (a != b) [u], NaN if none
+        (:func:`.probe_pattern.first_pattern_edge`)."""
+        return first_pattern_edge(falling, a, b, self._probe_period[rows], self._probe_offset[rows],
+                                  self._probe_width[rows])
 
     def _apply_probe_signals(self) -> dict[int, list[tuple[float, bool]]]:
         """Turn the pending set_probe_signal events into this cycle's edges; update the commanded levels."""

@@ -73,7 +73,7 @@ def test_start_configures_the_nodes_over_sdo(rig: Rig) -> None:
                 [(i << 16) | b for i, b in entries]
             assert sdo[0x1800 + k - 1][1].raw == 0x80 + 0x100 * k + node.id
             assert sdo[0x1800 + k - 1][2].raw == pdo.TPDO_TRANS[k]
-        assert sdo[0x1803][1].raw & (1 << 31)  # TPDO4 off
+        assert not sdo[0x1803][1].raw & (1 << 31)  # TPDO4 on: touch probe 2's positions (MC_TouchProbe)
         assert sdo[0x1400][1].raw == 0x200 + node.id and sdo[0x1400][2].raw == 1
         assert [sdo[0x1600][s].raw for s in (1, 2, 3)] == [0x60400010, 0x607A0020, 0x60600008]
     assert csp.sdo[0x6060].raw == Mode.CSP and csv.sdo[0x6060].raw == Mode.CSV

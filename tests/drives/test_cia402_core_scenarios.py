@@ -1,8 +1,10 @@
 """A representative subset of the core's scenario tests (tests/core), run again with the ``cia402-sim`` drives
-(Cia402SimDrive) in place of SimDrive: NcCore's default drive is swapped for the module (an autouse fixture), the
-tests themselves are the unchanged functions of their modules, collected here under the same names.
+(Cia402SimDrive): NcCore's default drive is pinned to it for the module (an autouse fixture; since issue 20's
+follow-up cia402-sim is NcCore's default anyway, so tests/core runs on it too), the tests themselves are the
+unchanged functions of their modules, collected here under the same names.
 
-Not rerun here, on purpose (their expectations differ with a CiA 402 drive; see the report of issue 20):
+Not rerun here, on purpose (their expectations differ with a CiA 402 drive; in tests/core they run on ``SimDrive``,
+pinned there):
 
 * test_drive_fields.py::test_a_device_error_on_an_enabled_axis_is_0x4650_at_once -- the drive stops itself (no
   NC ramp) and, the cause gone, still needs its fault reset: after ``set_device_error(0, False)`` the first
@@ -10,9 +12,9 @@ Not rerun here, on purpose (their expectations differ with a CiA 402 drive; see 
 * test_drive_fields.py::test_a_drive_delivering_no_torque_shows_zero_in_every_torque_field[device error] -- a
   CiA 402 drive brakes itself on its quick-stop ramp after a fault: ActTorque shows its braking torque (0x6077)
   until it stands (SetTorque and TorqueOffset are 0 at once, as before).
-* the simulated probe input tests (test_probe_latch.py) -- Cia402SimDrive has no simulated probe input 1
-  (``set_probe_signal``: 0x4251, DriveABC's default).
-* the stepper terminal tests -- SimStepper is a SimDrive feature.
+
+(The touch probe and the stepper terminal work on Cia402SimDrive now: tests/drives/test_touch_probe_cia402.py,
+tests/core/test_touch_probe.py and the stepper tests of tests/core run on it as the default drive.)
 """
 from __future__ import annotations
 
@@ -42,8 +44,8 @@ def _load(name: str) -> ModuleType:
 
 @pytest.fixture(autouse=True)
 def cia402_default_drive(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    """NcCore builds Cia402SimDrive where it built SimDrive."""
-    monkeypatch.setattr(nc_module, "SimDrive", Cia402SimDrive)
+    """NcCore builds Cia402SimDrive when given no drive."""
+    monkeypatch.setattr(nc_module, "default_drive", Cia402SimDrive)
     yield
 
 

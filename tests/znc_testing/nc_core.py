@@ -14,13 +14,16 @@ ALL_ENABLES = int(ControlDWord.Enable | ControlDWord.FeedEnablePlus | ControlDWo
 _ids = itertools.count(1)
 
 
-def make_core(n: int = 1, cycle_time: float = 0.001, **params: Any) -> NcCore:
-    return NcCore([AxisConfig(i + 1, f"A{i + 1}", AxisParams(**params)) for i in range(n)], cycle_time)
+def make_core(n: int = 1, cycle_time: float = 0.001, drive_cls: Any = None, **params: Any) -> NcCore:
+    """``n`` axes with ``params``; ``drive_cls``: the drive class (default: NcCore's default drive, cia402-sim)."""
+    p = [AxisParams(**params) for _ in range(n)]
+    drive = None if drive_cls is None else drive_cls(p, cycle_time)
+    return NcCore([AxisConfig(i + 1, f"A{i + 1}", p[i]) for i in range(n)], cycle_time, drive=drive)
 
 
-def powered(n: int = 1, cycle_time: float = 0.001, **params: Any) -> NcCore:
+def powered(n: int = 1, cycle_time: float = 0.001, drive_cls: Any = None, **params: Any) -> NcCore:
     """A core whose axes are all enabled (controller + both feeds) and stepped once: StandStill."""
-    core = make_core(n, cycle_time, **params)
+    core = make_core(n, cycle_time, drive_cls, **params)
     for i in range(n):
         power(core, i)
     core.step()

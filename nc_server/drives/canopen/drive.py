@@ -124,6 +124,18 @@ class CanopenDrive(Cia402Drive):
                 slaves.close()
             raise
 
+    def set_probe_signal(self, index: int, level: bool, offset: float) -> None:
+        """Touch probe input 2 of a simulated slave (MC_TouchProbe's input 1; :meth:`..cia402.device.Cia402Device.
+        set_probe_signal`, applied at the slave's next SYNC).
+
+        Raises:
+            NotImplementedError: real slaves (no simulated input), or an axis with a sensor pattern.
+            IndexError, ValueError: no axis ``index``; an offset outside the cycle.
+        """
+        if self.slaves is None:
+            raise NotImplementedError("a real CANopen drive's touch probe input cannot be simulated")
+        self.slaves.device.set_probe_signal(index, level, offset)
+
     def close(self) -> None:
         """Stop the network and the bus, then the simulated slaves (idempotent)."""
         self.link.close()
@@ -187,7 +199,7 @@ def _node_options(i: int, o: Mapping[str, Any]) -> tuple[NodeConfig, Mode, float
 
 
 #: what the link maps or writes by SDO: an EDS without them fails later with a raw KeyError or ValueError
-_EDS_OBJECTS = sorted({i for e in (pdo.RPDO1, pdo.RPDO2_CSV, pdo.TPDO1, pdo.TPDO2, pdo.TPDO3) for i, _ in e}
+_EDS_OBJECTS = sorted({i for e in (pdo.RPDO1, pdo.RPDO2_CSV, *pdo.TPDO_LAYOUT.values()) for i, _ in e}
                       | {INTERPOLATION_TIME_PERIOD})
 
 

@@ -493,18 +493,18 @@ class CanopenLink(ProcessDataLink):
         return self._inputs()
 
     def _inputs(self) -> TxImage:
-        t1, t2, t3 = self._t[1], self._t[2], self._t[3]  # (written in place: the TxImage gets copies)
+        t1, t2, t3, t4 = self._t[1], self._t[2], self._t[3], self._t[4]  # (written in place: the TxImage gets copies)
         # the stamps before the payloads: a TPDO1 arriving in between makes the data newer than the stamp, never older
         # (a statusword is never taken to answer newer outputs than it does)
         s1 = self._stamp[1].copy()
-        d1, d2, d3 = self._tpdo_data[1], self._tpdo_data[2], self._tpdo_data[3]
+        d1, d2, d3, d4 = (self._tpdo_data[k] for k in (1, 2, 3, 4))
         held: list[int] = []
         for j, node in enumerate(self.nodes):
             cyc = node.cyclic
             if cyc is None:  # being set up (or its set-up failed): its last inputs stay, and age
                 held.append(j)
                 continue
-            for k, out, d in ((1, t1, d1), (2, t2, d2), (3, t3, d3)):
+            for k, out, d in ((1, t1, d1), (2, t2, d2), (3, t3, d3), (4, t4, d4)):
                 data = d[j]
                 s = cyc.s_tpdo[k]
                 out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
@@ -537,7 +537,8 @@ class CanopenLink(ProcessDataLink):
                        position_actual=pos.astype(np.float64), velocity_actual=t2[0].astype(np.float64),
                        torque_actual=t2[1].astype(np.float64), error_code=t1[2].astype(np.uint16),
                        probe_status=t3[0].astype(np.uint16), probe_position=probe.astype(np.float64),
-                       age=age, alive=alive, rx_cycle=rx_cycle)
+                       probe2_pos=pdo.unwrap32(t4[0], pos).astype(np.float64),
+                       probe2_neg=pdo.unwrap32(t4[1], pos).astype(np.float64), age=age, alive=alive, rx_cycle=rx_cycle)
 
     def _outputs(self, rx: RxImage) -> None:
         pos = pdo.wrap32(rx.target_position)  # (modulo 2^32: an endless axis goes on; the drive unwraps)

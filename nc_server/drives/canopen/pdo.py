@@ -13,7 +13,11 @@ Decisions:
 * TPDO1 (synchronous, every SYNC): statusword 0x6041, position actual 0x6064, error code 0x603F (64 bits);
   TPDO2 (every SYNC): velocity actual 0x606C, torque actual 0x6077, modes of operation display 0x6061;
   TPDO3 (synchronous acyclic, type 0: sent at a SYNC only when changed): touch probe status 0x60B9 and
-  touch probe 1 position 0x60BA. The age of a node's inputs is counted on TPDO1 and TPDO2.
+  touch probe 1 position 0x60BA (the index pulse latch); TPDO4 (synchronous acyclic): touch probe 2 positive and
+  negative edge positions 0x60BC / 0x60BD (MC_TouchProbe; 64 bits, the 4th and last TPDO of the CiA 301 default
+  set; 0x60B9 in TPDO3 carries probe 2's status bits too). No SDO in the cycle: the probe's function bits travel in
+  RPDO2 (0x60B8 holds both probes), its status and positions in the on-change TPDO3/TPDO4, which cost the bus
+  nothing while nothing is latched. The age of a node's inputs is counted on TPDO1 and TPDO2.
 * Bus load: per axis and cycle RPDO1 + TPDO1 + TPDO2 (3 frames of 7-8 bytes, about 125 bits each with
   stuffing) plus one SYNC for all: at 1 Mbit/s about 2 axes fit a 1 ms cycle, 8 axes need a 4 ms cycle
   (:func:`bus_load`). The virtual bus has no bitrate.
@@ -41,10 +45,11 @@ TPDO1: tuple[Entry, ...] = ((obj.STATUSWORD, 16), (obj.POSITION_ACTUAL, 32), (ob
 TPDO2: tuple[Entry, ...] = ((obj.VELOCITY_ACTUAL, 32), (obj.TORQUE_ACTUAL, 16),
                             (obj.MODES_OF_OPERATION_DISPLAY, 8))
 TPDO3: tuple[Entry, ...] = ((obj.TOUCH_PROBE_STATUS, 16), (obj.TOUCH_PROBE_POS1_POS, 32))
+TPDO4: tuple[Entry, ...] = ((obj.TOUCH_PROBE_POS2_POS, 32), (obj.TOUCH_PROBE_POS2_NEG, 32))
 
 #: transmission types (0x1800 sub 2): 1 = synchronous, every SYNC; 0 = synchronous acyclic (on change)
 SYNC_EVERY, SYNC_ACYCLIC = 1, 0
-TPDO_TRANS = {1: SYNC_EVERY, 2: SYNC_EVERY, 3: SYNC_ACYCLIC}
+TPDO_TRANS = {1: SYNC_EVERY, 2: SYNC_EVERY, 3: SYNC_ACYCLIC, 4: SYNC_ACYCLIC}
 
 INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
 _SPAN = 1 << 32
@@ -53,7 +58,7 @@ _FLOAT_LIMIT = float(1 << 62)
 
 
 def wrap32(x: np.ndarray) -> np.ndarray:
-    """Increments (int64, or float: rounded) as the INT32 a position object (0x607A, 0x6064, 0x60BA) carries:
+    """Increments (int64, or float: rounded) as the INT32 a position object (0x607A, 0x6064, 0x60BA-0x60BD) carries:
     modulo 2^32, so an endless axis wraps around instead of stopping at the range's end (as a drive's 32-bit
     position counter does; the other side unwraps with :func:`unwrap32`)."""
     if x.dtype.kind == "f":
@@ -77,7 +82,7 @@ def rpdo_layout(csv: bool) -> dict[int, tuple[Entry, ...]]:
     return {1: RPDO1, 2: RPDO2_CSV if csv else RPDO2_CSP}
 
 
-TPDO_LAYOUT: dict[int, tuple[Entry, ...]] = {1: TPDO1, 2: TPDO2, 3: TPDO3}
+TPDO_LAYOUT: dict[int, tuple[Entry, ...]] = {1: TPDO1, 2: TPDO2, 3: TPDO3, 4: TPDO4}
 
 
 def struct_for(types: Sequence[int | None]) -> struct.Struct:

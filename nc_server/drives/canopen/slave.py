@@ -12,7 +12,7 @@ mechanical model), stepped once per SYNC for all rows:
 * on SYNC (in the slave network's notifier thread): the RPDOs received since the last SYNC are applied
   (synchronous RPDOs), the device steps one cycle, each operational node sends its synchronous TPDOs
   (type 1..240: every n-th SYNC; type 0: only when the payload changed); a changed 0x603F sends an EMCY;
-* SDO reads of the actual values (0x6041, 0x6064, 0x606C, 0x6077, 0x603F, 0x6061, 0x60B9, 0x60BA) answer
+* SDO reads of the actual values (0x6041, 0x6064, 0x606C, 0x6077, 0x603F, 0x6061, 0x60B9, 0x60BA, 0x60BC, 0x60BD) answer
   the device's values of the last SYNC; an SDO write of 0x6060 sets the mode;
 * heartbeat producer: canopen's NmtSlave (0x1017, started when the master writes it); node guarding: a remote
   frame on 0x700 + id is answered with the NMT state and the toggle bit (python-canopen's NmtSlave does not; a
@@ -64,11 +64,12 @@ _RX_FIELDS = {obj.CONTROLWORD: "controlword", obj.TARGET_POSITION: "target_posit
               obj.MODES_OF_OPERATION: "mode", obj.TARGET_VELOCITY: "target_velocity",
               obj.TOUCH_PROBE_FUNCTION: "probe_function"}
 #: TxImage field <- object (TPDO mapping and SDO reads)
-_WRAPPED = frozenset({"position_actual", "probe_position"})
+_WRAPPED = frozenset({"position_actual", "probe_position", "probe2_pos", "probe2_neg"})
 _TX_FIELDS = {obj.STATUSWORD: "statusword", obj.POSITION_ACTUAL: "position_actual",
               obj.VELOCITY_ACTUAL: "velocity_actual", obj.TORQUE_ACTUAL: "torque_actual",
               obj.ERROR_CODE: "error_code", obj.MODES_OF_OPERATION_DISPLAY: "mode_display",
-              obj.TOUCH_PROBE_STATUS: "probe_status", obj.TOUCH_PROBE_POS1_POS: "probe_position"}
+              obj.TOUCH_PROBE_STATUS: "probe_status", obj.TOUCH_PROBE_POS1_POS: "probe_position",
+              obj.TOUCH_PROBE_POS2_POS: "probe2_pos", obj.TOUCH_PROBE_POS2_NEG: "probe2_neg"}
 _SYNC, _NMT, _NMT_ERROR = 0x80, 0x000, 0x700
 _RANGES = {"b": (-(1 << 7), (1 << 7) - 1), "B": (0, (1 << 8) - 1), "h": (-(1 << 15), (1 << 15) - 1),
            "H": (0, (1 << 16) - 1), "i": (-(1 << 31), (1 << 31) - 1), "I": (0, (1 << 32) - 1)}

@@ -28,18 +28,30 @@ Decisions (where CiA 402 leaves the device free):
   motor moves linearly, so the latch is the exact pulse (the last one passed in the cycle). 0x60B9: bit 0 probe 1
   enabled, bit 1 a position stored, bit 7 toggles with each new latch (continuous mode, bit 1 of 0x60B8; in
   single mode only the first pulse after enabling is latched). Source "input 1" is not simulated.
+* Touch probe 2 (0x60B8 bits 8-15, 0x60B9 bits 8-15, 0x60BC / 0x60BD): source "touch probe 2 input" (bits
+  10-11 = 00), the input MC_TouchProbe latches (probe 1 stays on the index pulse for homing, armed all the time).
+  The input is simulated as ``SimDrive`` does it: a sensor pattern of the drive position (SimProbePeriod,
+  SimProbeOffset, SimProbeWidth in axis units, evaluated through the device's encoder chain) or, on an axis
+  without one, levels commanded with :meth:`Cia402Device.set_probe_signal` at an offset into the next device
+  cycle. Bit 12 (rising) / bit 13 (falling) latch the position of the first such edge of the cycle, interpolated
+  (the motor moves linearly within a cycle), into 0x60BC / 0x60BD and set 0x60B9 bit 9 / bit 10; in first-event
+  mode (bit 9 of 0x60B8 clear) once per enabling (enabling clears bits 9 and 10 of 0x60B9), in continuous mode
+  every cycle with an edge. 0x60B9 bit 8: probe 2 enabled; bit 14 (user defined): the input's level at the end
+  of the cycle (the NC's StateDWord3.TouchProbe1InputState).
 
 It may import: numpy, nc_server.core.params, nc_server.drives.
 """
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 
 from ...core.params import AxisParams
 from ..encoder import EncoderChain, pulse_passed
 from ..mechanics import Mechanics
+from ..probe_pattern import first_pattern_edge, pattern_level
 from . import statemachine as sm
 from .image import RxImage, TxImage
 from .objects import Mode, State
@@ -57,6 +69,10 @@ PROBE_ENABLE, PROBE_CONTINUOUS, PROBE_SOURCE_INDEX, PROBE_POSITIVE = 0x01, 0x02,
 PROBE_STATUS_ENABLED, PROBE_STATUS_STORED, PROBE_STATUS_TOGGLE = 0x01, 0x02, 0x80
 #: the probe function the NC uses for the sync pulse: enabled, continuous, source index pulse, positive edge
 PROBE_SYNC_PULSE = PROBE_ENABLE | PROBE_CONTINUOUS | PROBE_SOURCE_INDEX | PROBE_POSITIVE
+# probe 2 (the touch probe input of MC_TouchProbe): 0x60B8 bits 8-13, 0x60B9 bits 8-10 and 14
+TP2_ENABLE, TP2_CONTINUOUS, TP2_SOURCE, TP2_POSITIVE, TP2_NEGATIVE = 0x0100, 0x0200, 0x0C00, 0x1000, 0x2000
+TP2_STATUS_ENABLED, TP2_STATUS_POS_STORED, TP2_STATUS_NEG_STORED, TP2_STATUS_INPUT = 0x0100, 0x0200, 0x0400, 0x4000
+_TP2_BITS = np.uint16(0xFF00)
 
 
 class Cia402Device:
@@ -84,6 +100,8 @@ class Cia402Device:
         self.error_code = np.zeros(n, dtype=np.uint16)
         self.rx = RxImage.zeros(n)
         self.silent = 0.0
+        #: per axis, the motor stands whatever its target (a stalled stepper, ``cia402-sim``'s SimStall); None: none
+        self.stalled: np.ndarray | None = None
         self._prev_cw = np.zeros(n, dtype=np.uint16)
         self._prev_tv = np.zeros(n)
         self._alpha = np.ones(n)
@@ -101,6 +119,20 @@ class Cia402Device:
         self._probe_armed = np.zeros(n, dtype=bool)
         self._probe_armed_any = False
         self._probe_continuous = np.zeros(n, dtype=bool)
+        # probe 2: the input (sensor pattern in axis units, or commanded levels) and its latch
+        self._tp2_fn = np.zeros(n, dtype=np.uint16)  # 0x60B8 & 0xFF00 in effect
+        self._tp2_on = False  # some probe 2 enabled
+        self._tp2_pos = np.zeros(n)  # 0x60BC [inc]
+        self._tp2_neg = np.zeros(n)  # 0x60BD [inc]
+        self._tp2_period = np.zeros(n)  # SimProbePeriod [u] (0: no pattern)
+        self._tp2_offset = np.zeros(n)
+        self._tp2_width = np.zeros(n)
+        self._tp2_rows = np.zeros(0, dtype=np.intp)  # the axes with a sensor pattern
+        self._tp2_level = np.zeros(n, dtype=bool)  # the commanded input of the axes without one
+        self._tp2_input = np.zeros(n, dtype=bool)  # the input at the end of the last step
+        #: set_probe_signal events for the next step: axis -> [(offset [s], level)] (another thread may add them)
+        self._tp2_pending: dict[int, list[tuple[float, bool]]] = {}
+        self._tp2_lock = threading.Lock()
         # (the TxImage's arrays are replaced, never written: these are shared by every TxImage)
         self._no_torque = np.zeros(n)
         self._age0 = np.zeros(n, dtype=np.int64)
@@ -123,6 +155,16 @@ class Cia402Device:
         self._pulse_spacing[i] = float(getattr(params, "SimSyncPulseSpacing", 1.0)) / scale
         self._pulse_offset[i] = self._chain.increments(i, float(getattr(params, "SimSyncPulseOffset", 0.0)))
         self.mechanics.configure(i, params)
+        period = float(getattr(params, "SimProbePeriod", 0.0))
+        self._tp2_period[i] = period
+        self._tp2_offset[i] = float(getattr(params, "SimProbeOffset", 0.0))
+        self._tp2_width[i] = float(getattr(params, "SimProbeWidth", 0.0))
+        if period > 0:  # the pattern decides the level from now on: commanded signals are dropped
+            self._tp2_level[i] = False
+            with self._tp2_lock:
+                self._tp2_pending.pop(i, None)
+        self._tp2_rows = np.flatnonzero(self._tp2_period > 0)
+        self._tp2_update_input()
 
     # -- faults ---------------------------------------------------------------------------------------------
 
@@ -224,6 +266,8 @@ class Cia402Device:
         self._prev_cw = cw
         self._move(new, rx, dt)
         self._latch(rx)
+        if self._tp2_on or self._tp2_pending or len(self._tp2_rows):  # (nothing to do without probe 2 or input)
+            self._latch2()
         self._publish()
         return self.tx
 
@@ -247,6 +291,8 @@ class Cia402Device:
                 new_pos = np.where(stopping, pos + v_stop * dt, new_pos)
             else:
                 stopping = None
+        if self.stalled is not None:  # a stalled motor loses its field synchronism: it stands
+            new_pos = np.where(self.stalled, pos, new_pos)
         new_v = (new_pos - pos) / dt
         if stopping is not None:  # (exactly 0 at the end of the ramp: "stopped")
             new_v = np.where(stopping & (np.abs(new_v) < 1e-12), 0.0, new_v)
@@ -262,6 +308,9 @@ class Cia402Device:
     def _latch(self, rx: RxImage) -> None:
         fn = rx.probe_function
         if fn is not self._prev_probe_fn and not np.array_equal(fn, self._prev_probe_fn):
+            fn2 = np.asarray(fn, dtype=np.uint16) & _TP2_BITS
+            if not np.array_equal(fn2, self._tp2_fn):
+                self._tp2_changed(fn2)
             self._probe_changed(fn)
         if self._probe_armed_any:
             x = pulse_passed(self._before, self.position, self._pulse_spacing, self._pulse_offset)
@@ -279,7 +328,7 @@ class Cia402Device:
         fn = np.asarray(fn, dtype=np.uint16)
         on = (fn & PROBE_ENABLE) != 0
         started = on & ((self._prev_probe_fn & PROBE_ENABLE) == 0)
-        status = np.where(on, self._probe_status | PROBE_STATUS_ENABLED, 0).astype(np.uint16)
+        status = np.where(on, self._probe_status | PROBE_STATUS_ENABLED, self._probe_status & _TP2_BITS).astype(np.uint16)
         status = np.where(started, status & ~np.uint16(PROBE_STATUS_STORED), status).astype(np.uint16)
         self._probe_status = status
         self._probe_continuous = (fn & PROBE_CONTINUOUS) != 0
@@ -289,9 +338,117 @@ class Cia402Device:
         self._probe_armed_any = bool(self._probe_armed.any())
         self._prev_probe_fn = fn
 
+    # -- touch probe 2: the input MC_TouchProbe latches -------------------------------------------------------
+
+    def _tp2_changed(self, fn2: np.ndarray) -> None:
+        """Probe 2's bits of 0x60B8 changed: enabling clears the stored bits (first-event mode starts anew)."""
+        on = (fn2 & TP2_ENABLE) != 0
+        started = on & ((self._tp2_fn & TP2_ENABLE) == 0)
+        st = self._probe_status
+        st = np.where(on, st | TP2_STATUS_ENABLED, st & ~np.uint16(TP2_STATUS_ENABLED | TP2_STATUS_POS_STORED
+                                                                    | TP2_STATUS_NEG_STORED))
+        st = np.where(started, st & ~np.uint16(TP2_STATUS_POS_STORED | TP2_STATUS_NEG_STORED), st)
+        self._probe_status = st.astype(np.uint16)
+        self._tp2_fn = fn2
+        self._tp2_on = bool(on.any())
+
+    def set_probe_signal(self, i: int, level: bool, offset: float) -> None:
+        """Command touch probe input 2 of axis ``i`` (without a sensor pattern): ``level`` from ``offset`` s into the
+        next device cycle on (several calls before one step: several events; the same offset again replaces it).
+        Thread-safe (the device may be stepped by another thread).
+
+        Raises:
+            IndexError: no axis ``i``.
+            NotImplementedError: the axis has a sensor pattern (SimProbePeriod > 0), which alone decides its input.
+            ValueError: offset outside 0 <= offset < cycle_time [s].
+        """
+        self._check(i)
+        i = int(i)
+        if self._tp2_period[i] > 0:
+            raise NotImplementedError(
+                f"axis index {i}: its simulated probe input follows the SimProbePeriod sensor pattern")
+        offset = float(offset)
+        if not 0.0 <= offset < self.cycle_time:  # (NaN fails too)
+            raise ValueError(f"probe signal offset must be in 0 <= offset < {self.cycle_time:g} s, got {offset:g}")
+        with self._tp2_lock:
+            events = self._tp2_pending.setdefault(i, [])
+            events[:] = [e for e in events if e[0] != offset]
+            events.append((offset, bool(level)))
+
+    def _tp2_update_input(self) -> None:
+        """The input level at the end of the last step (the pattern at the position, else the commanded level)."""
+        level = self._tp2_level.copy()
+        r = self._tp2_rows
+        if len(r):
+            u = self._chain.positions(self.position[r], r)
+            level[r] = pattern_level(u, self._tp2_period[r], self._tp2_offset[r], self._tp2_width[r])
+        self._tp2_input = level
+        st = self._probe_status
+        new = np.where(level, st | TP2_STATUS_INPUT, st & ~np.uint16(TP2_STATUS_INPUT)).astype(np.uint16)
+        if not np.array_equal(new, st):
+            self._probe_status = new
+
+    def _latch2(self) -> None:
+        """This cycle's edges of input 2 (commanded events, pattern crossings) and probe 2's latch."""
+        with self._tp2_lock:
+            pending, self._tp2_pending = self._tp2_pending, {}
+        edges: dict[int, list[tuple[float, bool]]] = {}  # axis -> [(fraction, new level)], in time order
+        for i, events in pending.items():
+            level, changes = bool(self._tp2_level[i]), []
+            for offset, new in sorted(events):
+                if new != level:  # the level the input already has is no edge
+                    changes.append((offset / self.cycle_time, new))
+                    level = new
+            self._tp2_level[i] = level
+            if changes:
+                edges[i] = changes
+        if self._tp2_on:
+            fn, st = self._tp2_fn, self._probe_status
+            on = ((fn & TP2_ENABLE) != 0) & ((fn & TP2_SOURCE) == 0)
+            cont = (fn & TP2_CONTINUOUS) != 0
+            want_pos = on & ((fn & TP2_POSITIVE) != 0) & (cont | ((st & TP2_STATUS_POS_STORED) == 0))
+            want_neg = on & ((fn & TP2_NEGATIVE) != 0) & (cont | ((st & TP2_STATUS_NEG_STORED) == 0))
+            for falling, want in ((False, want_pos), (True, want_neg)):
+                rows = np.flatnonzero(want)
+                if len(rows):
+                    self._tp2_store(rows, falling, edges)
+        self._tp2_update_input()
+
+    def _tp2_store(self, rows: np.ndarray, falling: bool, edges: dict[int, list[tuple[float, bool]]]) -> None:
+        """Latch the first edge of one kind in this cycle of the armed ``rows`` (0x60BC / 0x60BD, 0x60B9 bit 9 / 10)."""
+        a, b = self._before[rows], self.position[rows]
+        x = np.full(len(rows), np.nan)  # [inc]
+        period, width = self._tp2_period[rows], self._tp2_width[rows]
+        k = np.flatnonzero((width > 0) & (width < period) & (a != b))
+        if len(k):
+            rk = rows[k]
+            ua, ub = self._chain.positions(a[k], rk), self._chain.positions(b[k], rk)
+            ux = first_pattern_edge(np.full(len(k), falling), ua, ub, period[k], self._tp2_offset[rk], width[k])
+            c = self._chain  # the chain's inverse: units -> increments
+            x[k] = (ux - c.offset[rk]) / c.scaling[rk] * c.sign[rk] - c.base[rk]
+        for j, i in enumerate(rows.tolist()):
+            for f, level in edges.get(i, ()):
+                if level != falling:  # rising: to True; falling: to False
+                    x[j] = a[j] + f * (b[j] - a[j])
+                    break
+        hit = ~np.isnan(x)
+        if not hit.any():
+            return
+        r, xs = rows[hit], x[hit]
+        if falling:
+            self._tp2_neg = self._tp2_neg.copy()  # (TxImages given out hold the old array)
+            self._tp2_neg[r] = xs
+        else:
+            self._tp2_pos = self._tp2_pos.copy()
+            self._tp2_pos[r] = xs
+        st = self._probe_status.copy()
+        st[r] |= np.uint16(TP2_STATUS_NEG_STORED if falling else TP2_STATUS_POS_STORED)
+        self._probe_status = st
+
     def _publish(self) -> None:
         m = self.mechanics
         torque = self._no_torque if m.resting else m.fields[1] * 10.0
         self.tx = TxImage(sm.statusword(self.state, follows=True), self.rx.mode, self.position, self.velocity,
-                          torque, self.error_code, self._probe_status, self._probe_position, self._age0, self._alive,
+                          torque, self.error_code, self._probe_status, self._probe_position, self._tp2_pos,
+                          self._tp2_neg, self._age0, self._alive,
                           np.full(self.n, self.rx.cycle, dtype=np.int64))  # (the outputs these inputs answer)

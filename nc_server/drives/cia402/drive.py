@@ -49,6 +49,19 @@ Decisions:
   reports a latch that arrived in the cycle just stepped, at or beyond the previous cycle's position in the
   direction of travel less ``max_age`` cycles' travel (a late latch from before the search was armed, e.g. still
   on the cam, is not taken; one within that window is).
+* Touch probe (MC_TouchProbe, input 1 of the NC): the drive's touch probe 2 (0x60B8 bits 8-13, source "touch
+  probe 2 input", first-event mode, rising bit 12 or falling bit 13; 0x60B9 bits 8-10; positions 0x60BC / 0x60BD),
+  because probe 1 is the index-pulse latch of homing, armed all the time. The NC enables probe 2 while
+  MC_TouchProbe is armed (the cycle after the core first asks :meth:`Cia402Drive.latch_probe`) and takes the
+  latch once the inputs show it enabled with the stored bit of the requested edge. Each session starts from a
+  disabled probe the NC has seen disabled in the inputs (so a stored bit of an earlier session, still in flight
+  on a link with latency, is never taken); after a latch (also one the core rejects outside its window) and on a
+  change of edge the NC disables it, waits to see it disabled and enables it again. So edges in the arming cycle
+  and for about two cycles plus twice the link's latency after a latch are missed (a real drive's arming takes
+  its time too). The position is exact (the drive interpolates); the fraction within the cycle is taken from the
+  latched position between the previous and the current actual position (1 where the axis stood). The input's
+  level is 0x60B9 bit 14 (user defined). Simulated inputs: :meth:`Cia402SimDrive.set_probe_signal` and the sensor
+  pattern (SimProbePeriod) of the device.
 * Modes: CSP (0x6060 = 8) by default: 0x607A is the set position, 0x60FF the set velocity as feed forward, the
   drive closes the position loop. CSV (9, per axis ``mode = "csv"``): the NC closes the position loop,
   0x60FF = SetVelo + kv * (SetPos - ActPos) (per axis ``kv`` [1/s], default 100), 0x607A is sent as in CSP.
@@ -75,7 +88,8 @@ from ..base import DriveABC
 from ..encoder import EncoderChain
 from ..mechanics import Mechanics
 from . import statemachine as sm
-from .device import PROBE_STATUS_TOGGLE, PROBE_SYNC_PULSE
+from .device import (PROBE_STATUS_TOGGLE, PROBE_SYNC_PULSE, TP2_ENABLE, TP2_NEGATIVE, TP2_POSITIVE,
+                     TP2_STATUS_ENABLED, TP2_STATUS_INPUT, TP2_STATUS_NEG_STORED, TP2_STATUS_POS_STORED)
 from .image import ProcessDataLink, RxImage, TxImage
 from .objects import Mode, State
 
@@ -210,6 +224,13 @@ class Cia402Drive(DriveABC):
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
         self._no_probe = np.zeros(n, dtype=bool)
         self._probe_new_any = False
+        # touch probe 2 (MC_TouchProbe): the probe 2 bits sent, those the core asked for, session bookkeeping
+        self._tp_code = np.zeros(n, dtype=np.uint16)
+        self._tp_req = np.zeros(n, dtype=np.uint16)
+        self._tp_req_cycle = -1  # the cycle whose latch_probe call set _tp_req
+        self._tp_clean = np.zeros(n, dtype=bool)  # probe 2 seen disabled since the NC last sent it off
+        self._tp_used = np.zeros(n, dtype=bool)  # a latch was taken: disable before the next one counts
+        self._tp_watch = True  # some probe 2 sent, used or not seen disabled yet (else nothing to do per cycle)
         self._any_dropped = False
         self._any_reset = False
         self._act_live = False  # ActTorque (0x6077) was not 0 in the last cycle, or its derivative
@@ -290,6 +311,8 @@ class Cia402Drive(DriveABC):
         if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
             target = np.where(self.following, target, self._pos_inc)
         velo = set_velo / c.scaling * c.sign
+        if self._tp_watch or self._tp_req_cycle == self._cycle:
+            self._probe_outputs()
         if self._any_csv:  # the NC closes the position loop: feed forward + kv * the position error [inc/s]
             velo = np.where(self._csv & self.following, velo + self._kv * (target - self._pos_inc), velo)
         self._exchange(en, target, velo)
@@ -379,6 +402,10 @@ class Cia402Drive(DriveABC):
             self._reset_left = np.where(state >= _FRA, self._reset_left, 0)  # (kept through the fault reaction)
             self._any_reset = bool(self._reset_left.any())
         ps = tx.probe_status
+        if self._tp_watch:
+            off = (self._tp_code == 0) & ((ps & TP2_STATUS_ENABLED) == 0) & (tx.age <= self.max_age)
+            self._tp_clean = self._tp_clean | off
+            self._tp_watch = bool(self._tp_code.any() or self._tp_used.any() or not self._tp_clean.all())
         if ps is not self._last_probe_status:
             self._probe_new = ((ps ^ self._last_probe_status) & PROBE_STATUS_TOGGLE) != 0
             self._last_probe_status = ps
@@ -441,6 +468,57 @@ class Cia402Drive(DriveABC):
         step = self.act_pos[rows] - np.asarray(prev_pos, dtype=float)
         ahead = (pos - prev_pos) * np.sign(step) >= -np.abs(step) * self.max_age
         return np.where(new & ahead, pos, np.nan)
+
+    # -- touch probe (MC_TouchProbe) -------------------------------------------------------------------------
+
+    def _probe_outputs(self) -> None:
+        """Probe 2's bits of 0x60B8 for this cycle (see the module docstring): off where the core no longer asks, a
+        latch was taken or the edge changed; on (first event, the requested edge) where it asks and the probe has
+        been seen disabled."""
+        req = self._tp_req if self._tp_req_cycle == self._cycle else np.zeros_like(self._tp_code)
+        code = self._tp_code
+        off = self._tp_used | ((code != 0) & (code != req))
+        new = np.where(off, 0, code)
+        self._tp_clean = self._tp_clean & ~(off & (code != 0))
+        self._tp_used = np.zeros_like(self._tp_used)
+        start = (new == 0) & (req != 0) & self._tp_clean & ~off
+        new = np.where(start, req, new).astype(np.uint16)
+        if not np.array_equal(new, code):
+            self._tp_code = new
+            self._probe_fn = (np.uint16(PROBE_SYNC_PULSE) | new).astype(np.uint16)  # (a new array: the drive compares)
+        self._tp_watch = True  # (the inputs decide: see _exchange)
+
+    def probe_input(self) -> np.ndarray:
+        """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14)."""
+        return (self.tx.probe_status & TP2_STATUS_INPUT) != 0
+
+    def latch_probe(self, rows: np.ndarray, falling: np.ndarray,
+                    prev_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The latch of probe 2 in this session, where the inputs show one (module docstring); asks for probe 2
+        on these rows from the next cycle."""
+        rows = np.asarray(rows, dtype=np.intp)
+        falling = np.asarray(falling, dtype=bool)
+        code = np.where(falling, TP2_ENABLE | TP2_NEGATIVE, TP2_ENABLE | TP2_POSITIVE).astype(np.uint16)
+        req = np.zeros_like(self._tp_code)
+        req[rows] = code
+        self._tp_req, self._tp_req_cycle = req, self._cycle
+        self._tp_watch = True
+        m = len(rows)
+        tx = self.tx
+        ps = tx.probe_status[rows]
+        stored = (ps & np.where(falling, TP2_STATUS_NEG_STORED, TP2_STATUS_POS_STORED)) != 0
+        found = ((self._tp_code[rows] == code) & self._tp_clean[rows] & ((ps & TP2_STATUS_ENABLED) != 0) & stored
+                 & (tx.age[rows] <= self.max_age))
+        if not found.any():
+            return found, np.full(m, np.nan), np.full(m, np.nan)
+        raw = np.where(falling, tx.probe2_neg[rows], tx.probe2_pos[rows])
+        pos = np.where(found, self.encoder.positions(raw, rows), np.nan)
+        self._tp_used[rows[found]] = True
+        a = np.asarray(prev_pos, dtype=float)
+        d = self.act_pos[rows] - a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            frac = np.where(d != 0, np.clip((pos - a) / np.where(d != 0, d, 1.0), 0.0, 1.0), 1.0)
+        return found, pos, np.where(found, frac, np.nan)
 
     def link_figures(self) -> dict[int, dict[str, Any]]:
         """The link's figures per axis (:meth:`.image.ProcessDataLink.figures`) with the drive's own error code

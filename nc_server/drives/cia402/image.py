@@ -54,7 +54,9 @@ class TxImage:
         torque_actual: 0x6077 [per mille of the rated torque].
         error_code: 0x603F (uint16; 0: no error).
         probe_status: 0x60B9 (uint16).
-        probe_position: 0x60BA [inc] (probe 1, the latched edge).
+        probe_position: 0x60BA [inc] (probe 1, the latched index pulse).
+        probe2_pos: 0x60BC [inc] (probe 2, touch probe input 2: the latched rising edge; MC_TouchProbe).
+        probe2_neg: 0x60BD [inc] (probe 2: the latched falling edge).
         age: NC cycles since this axis's inputs last arrived (0: fresh in this cycle; the link counts).
         alive: the node answers (CANopen heartbeat / node guarding, a remote drive's liveliness);
             False: lost communication.
@@ -72,6 +74,8 @@ class TxImage:
     error_code: np.ndarray
     probe_status: np.ndarray
     probe_position: np.ndarray
+    probe2_pos: np.ndarray
+    probe2_neg: np.ndarray
     age: np.ndarray
     alive: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     rx_cycle: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -79,7 +83,7 @@ class TxImage:
     @classmethod
     def zeros(cls, n: int) -> TxImage:
         return cls(_z(n, np.uint16), np.full(n, 8, dtype=np.int8), _z(n), _z(n), _z(n), _z(n, np.uint16),
-                   _z(n, np.uint16), _z(n), _z(n, np.int64), np.ones(n, dtype=bool), _z(n, np.int64))
+                   _z(n, np.uint16), _z(n), _z(n), _z(n), _z(n, np.int64), np.ones(n, dtype=bool), _z(n, np.int64))
 
 
 class ProcessDataLink(ABC):

@@ -22,6 +22,8 @@ QUICK_STOP_DECELERATION = 0x6085  # UINT32 [inc/s^2]
 TOUCH_PROBE_FUNCTION = 0x60B8  # UINT16
 TOUCH_PROBE_STATUS = 0x60B9    # UINT16
 TOUCH_PROBE_POS1_POS = 0x60BA  # INT32 [inc]: probe 1, positive (rising) edge
+TOUCH_PROBE_POS2_POS = 0x60BC  # INT32 [inc]: probe 2, positive (rising) edge
+TOUCH_PROBE_POS2_NEG = 0x60BD  # INT32 [inc]: probe 2, negative (falling) edge
 INTERPOLATION_TIME_PERIOD = 0x60C2  # RECORD: sub 1 value (UINT8), sub 2 index (INT8): period = value * 10^index s
 TARGET_VELOCITY = 0x60FF       # INT32 [inc/s]
 SUPPORTED_DRIVE_MODES = 0x6502  # UINT32

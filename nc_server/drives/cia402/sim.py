@@ -13,7 +13,8 @@ stops carrying the axis: its outputs do not reach the device, its inputs stay th
 :meth:`Cia402SimDrive.set_device_error` (a persistent hardware fault 0x5000 of the device: the drive stops on its
 quick-stop ramp and goes to Fault; clearing it lets the next MC_Reset acknowledge it -- unlike ``SimDrive``,
 where the error vanished by itself), plus :meth:`Cia402SimDrive.inject_fault` and :meth:`Cia402SimDrive.set_silent`
-(lost communication).
+(lost communication), and the simulated stepper terminal of ``SimStepper`` axes (:mod:`..stepper`, the same model
+as ``SimDrive``'s: SimStall makes the device's motor stand, SimTerminalError sets the status word).
 
 It may import: numpy, nc_server.core.params, nc_server.drives.
 """
@@ -25,6 +26,7 @@ import numpy as np
 
 from ...core.params import AxisParams, ConfigError
 from ..base import DriveContext
+from ..stepper import StepperTerminals
 from .device import HARDWARE_ERROR_CODE, Cia402Device
 from .drive import DEFAULT_KV, Cia402Drive, link_options, reaction_margin_option
 from .drive import axis_options as axis_options_of
@@ -75,7 +77,8 @@ class LocalLink(ProcessDataLink):
             tx = self.device.step(RxImage(cycle=rx.cycle, **keep))
         out = TxImage(**{f: np.where(bad, getattr(last_tx, f), getattr(tx, f)).astype(getattr(tx, f).dtype)
                          for f in ("statusword", "mode_display", "position_actual", "velocity_actual",
-                                   "torque_actual", "error_code", "probe_status", "probe_position", "rx_cycle")},
+                                   "torque_actual", "error_code", "probe_status", "probe_position", "probe2_pos",
+                                   "probe2_neg", "rx_cycle")},
                       age=np.where(bad, np.maximum(last_tx.age + 1, self.invalid_age), 0), alive=self.alive.copy())
         self._last_rx = RxImage(cycle=rx.cycle, **{f: np.where(bad, getattr(last_rx, f), getattr(rx, f)) for f in
                                                   ("controlword", "mode", "target_position", "target_velocity",
@@ -94,6 +97,7 @@ class Cia402SimDrive(Cia402Drive):
     def __init__(self, params: Sequence[AxisParams], cycle_time: float, *, mode: Mode | Sequence[Mode] = Mode.CSP,
                  kv: float | Sequence[float] = DEFAULT_KV, max_age: int = 3, reaction_margin: int = 0) -> None:
         self.device = Cia402Device(len(params), cycle_time)  # (configured by Cia402Drive.__init__)
+        self.terminals = StepperTerminals(len(params))  # SimStepper axes: the motor stalls in the device
         self._local = LocalLink(self.device)
         super().__init__(params, cycle_time, self._local, simulated=True, mode=mode, kv=kv, max_age=max_age,
                          reaction_margin=reaction_margin)
@@ -129,6 +133,29 @@ class Cia402SimDrive(Cia402Drive):
         super().configure(index, params)
         if hasattr(self, "device"):
             self.device.configure(index, params)
+            self.terminals.configure(index, params)
+
+    def step(self, enabled: np.ndarray, set_pos: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
+        t = self.terminals
+        if t.any:  # the stepper terminals (as SimDrive's): a stalled motor stands in the device
+            t.update(enabled, set_velo)
+            self.device.stalled = t.stalled if t.stalled.any() else None
+        super().step(enabled, set_pos, set_velo, set_acc)
+
+    # -- the simulated stepper terminal (MC_PowerStepper; :mod:`..stepper`) ------------------------------------
+
+    def terminal_status(self) -> np.ndarray | None:
+        """NCJOBS DriveStatus of every axis; None without SimStepper axes."""
+        return self.terminals.status if self.terminals.any else None
+
+    def set_stall(self, index: int, stall: bool) -> None:
+        """Stall the stepper of axis ``index`` now: the device's motor stands until the stall is lifted or the set
+        velocity is 0 (NotImplementedError: not a SimStepper, 0x4251)."""
+        self.terminals.set_stall(index, stall)
+
+    def set_terminal_error(self, index: int, status_word: int) -> None:
+        """The error bits of axis ``index``'s terminal status word (:meth:`..stepper.StepperTerminals.set_terminal_error`)."""
+        self.terminals.set_terminal_error(index, status_word)
 
     def set_io_invalid(self, index: int, invalid: bool) -> None:
         """Axis ``index``'s I/O data become invalid (``invalid`` False: valid again) from the next step, as with a bad
@@ -156,6 +183,11 @@ class Cia402SimDrive(Cia402Drive):
     def inject_fault(self, index: int, code: int, persistent: bool = False) -> None:
         """A drive fault with 0x603F ``code`` (:meth:`.device.Cia402Device.inject_fault`)."""
         self.device.inject_fault(index, code, persistent)
+
+    def set_probe_signal(self, index: int, level: bool, offset: float) -> None:
+        """Touch probe input 2 of the simulated drive (MC_TouchProbe's input 1): :meth:`.device.Cia402Device.set_probe_signal`
+        (NotImplementedError on an axis with a sensor pattern, ValueError for an offset outside the cycle)."""
+        self.device.set_probe_signal(index, level, offset)
 
     def _check_index(self, index: int) -> None:
         if not 0 <= int(index) < len(self.act_pos):

@@ -55,7 +55,7 @@ from . import wire
 log = logging.getLogger("nc_server.drives.remote")
 
 _TX_ATTRS = ("statusword", "mode_display", "position_actual", "velocity_actual", "torque_actual", "error_code",
-             "probe_status", "probe_position", "age", "alive", "rx_cycle")
+             "probe_status", "probe_position", "probe2_pos", "probe2_neg", "age", "alive", "rx_cycle")
 
 #: How often the link tries to open its session until it is open [s].
 OPEN_RETRY = 0.1

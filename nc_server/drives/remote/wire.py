@@ -35,8 +35,10 @@ import numpy as np
 
 from ..cia402.image import RxImage, TxImage
 
-#: The wire version (``v``); a message of another version is malformed.
-VERSION = 1
+#: The wire version (``v``); a message of another version is malformed. 2: tx carries touch probe 2's positions
+#: (``p2p`` 0x60BC, ``p2n`` 0x60BD) for MC_TouchProbe; a version 1 peer (without them) is refused as a whole, by
+#: its version, rather than column by column.
+VERSION = 2
 
 #: rx columns: key -> (RxImage attribute, dtype)
 RX_COLUMNS: dict[str, tuple[str, str]] = {
@@ -47,7 +49,8 @@ RX_COLUMNS: dict[str, tuple[str, str]] = {
 TX_COLUMNS: dict[str, tuple[str, str]] = {
     "sw": ("statusword", "<u2"), "md": ("mode_display", "<i1"), "pa": ("position_actual", "<f8"),
     "va": ("velocity_actual", "<f8"), "ta": ("torque_actual", "<f8"), "ec": ("error_code", "<u2"),
-    "ps": ("probe_status", "<u2"), "pp": ("probe_position", "<f8"),
+    "ps": ("probe_status", "<u2"), "pp": ("probe_position", "<f8"), "p2p": ("probe2_pos", "<f8"),
+    "p2n": ("probe2_neg", "<f8"),
 }
 
 
