@@ -114,12 +114,11 @@ class Prepared:
 
 
 def default_drive(params: Sequence[AxisParams], cycle_time: float) -> DriveABC:
-    """The drives an NcCore builds when given none: ``SimDrive`` (``sim``, the first-order lag).
-
-    The one place to make simulated CiA 402 drives (``cia402-sim``) the default (issue 20): tests/core passes with
-    them (docs/drives.md "The default simulated drive"); the server's default is ``[nc] drive``
-    (nc_server/server/config.py, default.toml)."""
-    return SimDrive(params, cycle_time)
+    """The drives an NcCore builds when given none: simulated CiA 402 drives (``cia402-sim``, issue 20; the
+    first-order lag and encoder chain of ``sim`` behind the CiA 402 layer: docs/drives.md "The default simulated
+    drive"); the server's default is ``[nc] drive`` (nc_server/server/config.py, default.toml)."""
+    from ..drives.cia402.sim import Cia402SimDrive  # (here: the drives package imports the core)
+    return Cia402SimDrive(params, cycle_time)
 
 
 class NcCore:

@@ -168,7 +168,7 @@ class ServerConfig:
     watchdog_timeout: float = 0.5
     realtime: str = "auto"
     rt_priority: int = 49
-    drive: str = "sim"
+    drive: str = "cia402-sim"
     retain_file: str | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     axes: tuple[AxisConfig, ...] = ()
@@ -327,7 +327,7 @@ def _retain_path(v: Any, key: str) -> str:
     return str(p)
 
 
-def _axes(data: Mapping[str, Any], default_drive: str = "sim", known: Sequence[str] = ("sim",)
+def _axes(data: Mapping[str, Any], default_drive: str = "cia402-sim", known: Sequence[str] = ("sim", "cia402-sim")
           ) -> tuple[tuple[AxisConfig, ...], tuple[str, ...], tuple[tuple[str, dict[str, Any]], ...]]:
     """The [[axis]] tables: the axes, their ClientLossReaction and their Drive (server keys, not AxisParams ones)."""
     tables = data.get("axis")
@@ -400,7 +400,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     rt_priority = _integer(nc.get("rt_priority", 49), "nc.rt_priority", 1, 99)
     publisher = _choice(nc.get("publisher", "process"), "nc.publisher", PUBLISHER_MODES)
     cpu_affinity = _cpus(nc.get("cpu_affinity", []), "nc.cpu_affinity")
-    drive = nc.get("drive", "sim")
+    drive = nc.get("drive", "cia402-sim")
     if drive not in (known := drive_names()):
         raise ConfigError("nc.drive", f"unknown drive {drive!r} (installed drives: {', '.join(known)}; "
                                       f"entry point group zenoh_nc.drives)")

@@ -24,7 +24,7 @@ def test_default_config() -> None:
     assert cfg.cycle_time == 0.001
     assert cfg.watchdog_timeout == 0.5
     assert cfg.realtime == "auto"
-    assert cfg.drive == "sim"
+    assert cfg.drive == "cia402-sim"
     assert cfg.zenoh.mode == "router"
     assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",)
     assert cfg.zenoh.lease_ms == 500  # a frozen NC is dropped by its peers within ~0.4 s
@@ -49,7 +49,7 @@ def test_overrides(tmp_path: Path) -> None:
     p = write(tmp_path, '[nc]\nname = "lathe"\n[[axis]]\nAxisId = 7\nName = "S"\n')
     cfg = load_config(p)
     assert cfg.name == "lathe" and [a.AxisId for a in cfg.axes] == [7]
-    assert cfg.drive == "sim"  # the default when [nc] has no drive
+    assert cfg.drive == "cia402-sim"  # the default when [nc] has no drive
     assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",)
 
 
@@ -150,7 +150,7 @@ def _install_drive(monkeypatch: pytest.MonkeyPatch, name: str, cls: type) -> Non
 def test_unknown_drive_is_refused_naming_the_key_and_the_drives(tmp_path: Path,
                                                                 capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(ConfigError) as ei:
-        load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "ethercat"')))
+        load_config(write(tmp_path, DEFAULT.replace('drive = "cia402-sim"', 'drive = "ethercat"')))
     assert ei.value.key == "nc.drive"
     assert "'ethercat'" in str(ei.value) and "sim" in str(ei.value)
     assert cli.main(["--config", str(tmp_path / "nc.toml")]) == 2
@@ -174,12 +174,12 @@ def test_drive_is_chosen_by_the_config(tmp_path: Path, monkeypatch: pytest.Monke
 
     _install_drive(monkeypatch, "refusing", RefusingDrive)
     assert {"refusing", "sim"} <= set(drive_names()) and drive_class("refusing") is RefusingDrive
-    cfg = load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "refusing"')))
+    cfg = load_config(write(tmp_path, DEFAULT.replace('drive = "cia402-sim"', 'drive = "refusing"')))
     assert cfg.drive == "refusing"
     assert cli._run(cfg) == 2 and built == [(4, 0.001)]
 
     _install_drive(monkeypatch, "missing", MissingDrive)
-    assert cli._run(load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "missing"')))) == 1
+    assert cli._run(load_config(write(tmp_path, DEFAULT.replace('drive = "cia402-sim"', 'drive = "missing"')))) == 1
 
 
 def test_client_mode_behind_a_router() -> None:
@@ -244,7 +244,7 @@ def test_a_start_failure_closes_the_drive(tmp_path: Path, monkeypatch: pytest.Mo
         busy.bind(("127.0.0.1", 0))
         busy.listen()
         port = busy.getsockname()[1]
-        cfg = load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "closing"')
+        cfg = load_config(write(tmp_path, DEFAULT.replace('drive = "cia402-sim"', 'drive = "closing"')
                                 .replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{port}")
                                 .replace('realtime = "auto"', 'realtime = "off"')))
         assert cfg.zenoh.listen == (f"tcp/127.0.0.1:{port}",)
@@ -257,5 +257,5 @@ def test_a_start_failure_closes_the_drive(tmp_path: Path, monkeypatch: pytest.Mo
         raise RuntimeError("a bug building the core")
     monkeypatch.setattr(nc_server.core, "NcCore", broken)
     with pytest.raises(RuntimeError):
-        cli._run(load_config(write(tmp_path, DEFAULT.replace('drive = "sim"', 'drive = "closing"'))))
+        cli._run(load_config(write(tmp_path, DEFAULT.replace('drive = "cia402-sim"', 'drive = "closing"'))))
     assert closed == ["closed", "closed"]

@@ -64,7 +64,7 @@ def _config(text: str, tmp_path: Path) -> Any:
 
 def test_without_drive_tables_every_axis_uses_the_nc_default() -> None:
     cfg = load_config()
-    assert cfg.axis_drives == tuple(("sim", {}) for _ in cfg.axes) and cfg.drive_options == {}
+    assert cfg.axis_drives == tuple(("cia402-sim", {}) for _ in cfg.axes) and cfg.drive_options == {}
 
 
 def test_an_axis_drive_by_name_or_table_and_backend_sections(tmp_path: Path,
