@@ -39,3 +39,19 @@ def first_pattern_edge(falling: np.ndarray, a: np.ndarray, b: np.ndarray, period
     x = np.where(neg & (x > a), x - period, x)
     x = np.where(neg & (x + period <= a), x + period, x)
     return np.where(np.where(neg, x > b, x <= b), x, np.nan)
+
+
+def check_probe_signal(index: int, pattern_period: float, offset: float, cycle_time: float) -> float:
+    """Check a simulated probe signal change (``set_probe_signal``) of axis ``index``; the offset [s] as a float.
+
+    Raises:
+        NotImplementedError: the axis has a sensor pattern (SimProbePeriod > 0), which alone decides its input.
+        ValueError: offset outside 0 <= offset < cycle_time [s].
+    """
+    if pattern_period > 0:
+        raise NotImplementedError(f"axis index {index}: its simulated probe input follows the SimProbePeriod sensor "
+                                  "pattern")
+    offset = float(offset)
+    if not 0.0 <= offset < cycle_time:  # (NaN fails too)
+        raise ValueError(f"probe signal offset must be in 0 <= offset < {cycle_time:g} s, got {offset:g}")
+    return offset

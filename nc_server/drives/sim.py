@@ -38,7 +38,7 @@ from ..core.params import AxisParams
 from .base import DriveABC
 from .encoder import EncoderChain, pulse_passed
 from .mechanics import Mechanics
-from .probe_pattern import first_pattern_edge, pattern_level
+from .probe_pattern import check_probe_signal, first_pattern_edge, pattern_level
 from .stepper import StepperTerminals
 
 
@@ -196,12 +196,7 @@ class SimDrive(DriveABC):
         index = int(index)
         if not 0 <= index < len(self.act_pos):
             raise IndexError(f"no axis index {index}")
-        if self._probe_period[index] > 0:
-            raise NotImplementedError(
-                f"axis index {index}: its simulated probe input follows the SimProbePeriod sensor pattern")
-        offset = float(offset)
-        if not 0.0 <= offset < self.cycle_time:  # (NaN fails too)
-            raise ValueError(f"probe signal offset must be in 0 <= offset < {self.cycle_time:g} s, got {offset:g}")
+        offset = check_probe_signal(index, float(self._probe_period[index]), offset, self.cycle_time)
         events = self._probe_pending.setdefault(index, [])
         events[:] = [e for e in events if e[0] != offset]
         events.append((offset, bool(level)))

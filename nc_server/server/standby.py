@@ -38,6 +38,7 @@ from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 from .config import Redundancy
 from .replication import (CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive, ReplayDrive,
                           install_handler, merge_handler, snapshot)
+from .transport import drain
 
 if TYPE_CHECKING:
     from .app import NcServer
@@ -307,13 +308,7 @@ class HotStandby:
             log.debug("log put: %s", exc)
         q = self._snap_q
         if q is not None:
-            while True:
-                try:
-                    query = q.try_recv()
-                except Exception:
-                    break
-                if query is None:
-                    break
+            for query in drain(q):
                 try:  # (sent by the I/O thread: a reply may block on a slow querier)
                     t0 = time.perf_counter()
                     data = snapshot(self.rec, self.hrec.full())
@@ -363,13 +358,7 @@ class HotStandby:
         the other nodes of the last GAP_WINDOW_S (their LossDetector's), at least ``takeover_cycles``; none: the
         detector's cap."""
         sub = self._status_sub
-        while sub is not None:
-            try:
-                s = sub.try_recv()
-            except Exception:
-                break
-            if s is None:
-                break
+        for s in drain(sub) if sub is not None else ():
             try:
                 st = msgpack.unpackb(s.payload.to_bytes(), raw=False)
                 if st.get("node") != self.node and st.get("role") == "standby" and st.get("in_step"):
@@ -384,13 +373,7 @@ class HotStandby:
     # ---- the parts ----------------------------------------------------------------------------------------------
     def _take_tokens(self) -> None:
         for sub, peers in ((self._active_sub, None), (self._standby_sub, self._peers)):
-            while True:
-                try:
-                    ev = sub.try_recv()
-                except Exception:
-                    break
-                if ev is None:
-                    break
+            for ev in drain(sub):
                 node = str(ev.key_expr).rsplit("/", 1)[-1]
                 if node == self.node:
                     continue
@@ -411,13 +394,7 @@ class HotStandby:
 
     def _take_logs(self, now: float) -> None:
         sub = self._log_sub
-        while True:
-            try:
-                s = sub.try_recv()
-            except Exception:
-                break
-            if s is None:
-                break
+        for s in drain(sub):
             try:
                 batch: list[bytes] = pickle.loads(s.payload.to_bytes())
                 logs: list[CycleLog] = [pickle.loads(b) for b in batch]

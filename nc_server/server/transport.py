@@ -222,7 +222,7 @@ def liveliness_client(keys: Keys, key: str) -> str | None:
         return None
 
 
-def _drain(sub: Any) -> Iterator[Any]:
+def drain(sub: Any) -> Iterator[Any]:
     """The samples queued on a zenoh channel handler, without blocking; ends at the first empty poll or when the
     handler is undeclared (closing)."""
     while True:
@@ -432,7 +432,7 @@ class Transport:
         queued (cycle thread; never blocks)."""
         sub = getattr(self, "liveliness_sub", None)
         if sub is not None:
-            for sample in _drain(sub):
+            for sample in drain(sub):
                 self._on_liveliness(sample)
         return bool(self.liveliness_events)
 
@@ -512,7 +512,7 @@ class Transport:
         one is counted (``remote_malformed``) and dropped."""
         out: list[MasterSample] = []
         for nc, axis, sub in self.remote_subs:
-            for sample in _drain(sub):
+            for sample in drain(sub):
                 try:
                     out.append(decode_master_sample(nc, axis, sample.payload.to_bytes(),
                                                     None if sample.attachment is None else sample.attachment.to_bytes()))

@@ -51,7 +51,7 @@ import numpy as np
 from ...core.params import AxisParams
 from ..encoder import EncoderChain, pulse_passed
 from ..mechanics import Mechanics
-from ..probe_pattern import first_pattern_edge, pattern_level
+from ..probe_pattern import check_probe_signal, first_pattern_edge, pattern_level
 from . import statemachine as sm
 from .image import RxImage, TxImage
 from .objects import Mode, State
@@ -364,12 +364,7 @@ class Cia402Device:
         """
         self._check(i)
         i = int(i)
-        if self._tp2_period[i] > 0:
-            raise NotImplementedError(
-                f"axis index {i}: its simulated probe input follows the SimProbePeriod sensor pattern")
-        offset = float(offset)
-        if not 0.0 <= offset < self.cycle_time:  # (NaN fails too)
-            raise ValueError(f"probe signal offset must be in 0 <= offset < {self.cycle_time:g} s, got {offset:g}")
+        offset = check_probe_signal(i, float(self._tp2_period[i]), offset, self.cycle_time)
         with self._tp2_lock:
             events = self._tp2_pending.setdefault(i, [])
             events[:] = [e for e in events if e[0] != offset]
