@@ -8,7 +8,7 @@ cycle costs one step per backend plus a gather per array.
 Configuration (``nc_server.server.config``)::
 
     [nc]
-    drive = "sim"                     # the backend of every axis without a Drive of its own
+    drive = "cia402-sim"              # the backend of every axis without a Drive of its own
 
     [drives.canopen]                  # a backend's shared options (bus, channel, ...): DriveContext.options
     interface = "virtual"

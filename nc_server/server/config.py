@@ -129,7 +129,7 @@ class ServerConfig:
         watchdog_timeout: maximum age of a claim holder's PLCTONC before 0x8F02 [s].
         realtime: ``"auto"``, ``"fifo"`` or ``"off"``.
         rt_priority: SCHED_FIFO priority (1..99) of the cycle thread.
-        drive: name of the default drive backend (an entry point of group ``zenoh_nc.drives``; ``"sim"``): the
+        drive: name of the default drive backend (an entry point of group ``zenoh_nc.drives``; ``"cia402-sim"``): the
             backend of every axis without a ``Drive`` of its own.
         axis_drives: per axis (configuration order), its backend and that backend's per-axis options: the
             axis's ``Drive`` (``Drive = "cia402-sim"`` or ``Drive = { backend = "canopen", node_id = 2 }``;

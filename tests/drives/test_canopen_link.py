@@ -347,3 +347,33 @@ def test_peek_reads_the_newest_inputs_and_sends_nothing(rig: Rig) -> None:
     assert link.syncs == syncs and list(rig.slaves.applied.target_position) == list(applied)
     assert list(tx.rx_cycle) == [7, 7] and list(tx.age) == [0, 0]
     assert all(int(sw) & 0x6F == 0x21 for sw in tx.statusword)
+
+
+def test_a_probe_latch_waits_for_its_positions(rig: Rig) -> None:
+    """TPDO3 (0x60B9 with a latch stored) and TPDO4 (0x60BC/0x60BD) of one SYNC may be stored one after the other
+    with an NC cycle between them: the cycle must not take the new status with the positions of the latch before
+    (review of issue 20: MC_TouchProbe's RecordedPosition wrong, Done set, nothing flagged)."""
+    link = rig.link
+    assert link is not None
+    link.exchange(_rx(2))
+    assert link.wait_answered(5.0)
+    time.sleep(0.1)  # (no SYNC is sent meanwhile: what is in flight lands)
+    cyc = link.nodes[0].cyclic
+    assert cyc is not None
+    before = link.peek()
+    s = link.syncs + 5  # (a SYNC later than every stamp: TPDO3 of it arrived, TPDO4 and the next TPDO1 not yet)
+    status = int(before.probe_status[0]) | 0x0200  # probe 2 positive edge stored
+    link._tpdo_data[3][0] = cyc.s_tpdo[3].pack(status, 0)
+    link._stamp[3][0] = s
+    tx = link.peek()
+    assert int(tx.probe_status[0]) == int(before.probe_status[0])  # held: its positions are not in yet
+    link._tpdo_data[4][0] = cyc.s_tpdo[4].pack(1234, 0)
+    link._stamp[4][0] = s
+    tx = link.peek()
+    assert int(tx.probe_status[0]) == status and float(tx.probe2_pos[0]) == 1234.0
+    # a TPDO3 change without a TPDO4 (positions unchanged: not sent) is taken once the next SYNC's TPDO1 is in
+    link._tpdo_data[3][0] = cyc.s_tpdo[3].pack(status & ~0x0200, 0)
+    link._stamp[3][0] = s + 1
+    assert int(link.peek().probe_status[0]) == status
+    link._stamp[1][0] = s + 2
+    assert int(link.peek().probe_status[0]) == status & ~0x0200

@@ -489,7 +489,8 @@ class CanopenLink(ProcessDataLink):
         return tx
 
     def peek(self) -> TxImage:
-        """The newest inputs the notifier thread stored, no RPDO or SYNC sent."""
+        """The newest inputs the notifier thread stored, no RPDO or SYNC sent (the link's figures, tpdo_late and
+        tpdo_missed, and its position unwrapping are updated as by a cycle's read)."""
         return self._inputs()
 
     def _inputs(self) -> TxImage:
@@ -497,6 +498,7 @@ class CanopenLink(ProcessDataLink):
         # the stamps before the payloads: a TPDO1 arriving in between makes the data newer than the stamp, never older
         # (a statusword is never taken to answer newer outputs than it does)
         s1 = self._stamp[1].copy()
+        s3, s4 = self._stamp[3].copy(), self._stamp[4].copy()
         d1, d2, d3, d4 = (self._tpdo_data[k] for k in (1, 2, 3, 4))
         held: list[int] = []
         for j, node in enumerate(self.nodes):
@@ -504,7 +506,14 @@ class CanopenLink(ProcessDataLink):
             if cyc is None:  # being set up (or its set-up failed): its last inputs stay, and age
                 held.append(j)
                 continue
+            # TPDO3 (0x60B9: a latch stored) and TPDO4 (0x60BC/0x60BD: its positions) go out after the same SYNC,
+            # TPDO3 first (on change only, both): a TPDO3 newer than TPDO4 and than the next SYNC's TPDO1 may be a
+            # latch whose position has not arrived yet; its previous payload stays a cycle longer (never a latch
+            # with the position of the one before)
+            hold3 = s3[j] > s4[j] and s1[j] <= s3[j]
             for k, out, d in ((1, t1, d1), (2, t2, d2), (3, t3, d3), (4, t4, d4)):
+                if k == 3 and hold3:
+                    continue
                 data = d[j]
                 s = cyc.s_tpdo[k]
                 out[:, j] = s.unpack_from(data) if len(data) >= s.size else 0
