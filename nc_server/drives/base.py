@@ -184,6 +184,18 @@ class DriveABC(ABC):
         """
         return np.zeros(len(self.act_pos), dtype=bool)
 
+    def arm_probe(self, rows: np.ndarray) -> None:
+        """A new arming of the touch probe latch (MC_TouchProbe executed) on these axes, before the next
+        :meth:`step`: a latch of an earlier arming must not be reported for it (also with the same edge, e.g. a
+        re-executed MC_TouchProbe, or MC_AbortTrigger and MC_TouchProbe in one cycle). A drive whose latch
+        hardware keeps a session across cycles (CiA 402's probe 2) closes it and opens a new one.
+
+        Args:
+            rows: axis indices (int array).
+
+        Default: nothing to do (a drive that only looks at the cycle just stepped, as SimDrive).
+        """
+
     def latch_probe(self, rows: np.ndarray, falling: np.ndarray,
                     prev_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The touch probe latch: the first edge of input 1 during the cycle just stepped.

@@ -212,6 +212,10 @@ class DriveGroup(DriveABC):
             out[r] = d.probe_input()
         return out
 
+    def arm_probe(self, rows: np.ndarray) -> None:
+        for k, _pos, local in self._split(rows):
+            self.parts[k][0].arm_probe(local)
+
     def latch_probe(self, rows: np.ndarray, falling: np.ndarray,
                     prev_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         m = len(rows)

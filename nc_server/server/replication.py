@@ -30,7 +30,7 @@ DRIVE_STATE = ("act_pos", "act_velo", "act_acc", "ready", "io_valid", "device_er
                "error_code", "input_age", "faulty")
 #: the drive methods the core calls; their results (and the drive's state after them) are noted
 DRIVE_CALLS = frozenset(("step", "configure", "reset", "set_torque_offset", "torque_fields", "latch_sync_pulse",
-                         "probe_input", "latch_probe", "set_probe_signal", "terminal_status", "set_stall",
+                         "probe_input", "arm_probe", "latch_probe", "set_probe_signal", "terminal_status", "set_stall",
                          "set_terminal_error"))
 
 

@@ -253,3 +253,41 @@ def test_sim_probe_signal_on_canopen_slaves() -> None:
         assert not int(core.nctoplc[0]["StateDWord3"]) & 1
     finally:
         rig.drive.close()
+
+
+@pytest.mark.parametrize("abort_first", [False, True])
+def test_a_re_armed_probe_with_the_same_edge_never_takes_the_latch_in_flight(abort_first: bool) -> None:
+    """MC_TouchProbe executed again while armed (or MC_AbortTrigger and MC_TouchProbe in one cycle) with the same
+    edge: the device stored the old session's latch, the NC has not seen it yet (a cycle of latency); the new
+    command must not complete with it but with the next edge (the NC closes probe 2's session first)."""
+    p = AxisParams(**PATTERN)
+    dev = Cia402Device(1, DT)
+    dev.configure(0, p)
+    link = DelayedLink(dev)
+    drive = Cia402Drive([p], DT, link, simulated=True)
+    core = NcCore([AxisConfig(1, "A1", p)], DT, drive=drive)
+    _moving(core, 100.0)
+    assert cmd(core, "TouchProbe", Edge=0)["error"] == 0
+    step_until(core.step, lambda: bool(int(link._last.probe_status[0]) & TP2_STATUS_POS_STORED), 2000)
+    # stored in the device, not yet seen by the NC
+    assert not int(drive.tx.probe_status[0]) & TP2_STATUS_POS_STORED and _probe(core)[0] == ACTIVE
+    old = float(drive.encoder.positions(link._last.probe2_pos)[0])
+    assert (old - 2.0) / 10.0 == pytest.approx(round((old - 2.0) / 10.0), abs=1e-6)  # a pattern edge (2 + 10 k)
+    if abort_first:
+        assert cmd(core, "AbortTrigger")["error"] == 0
+    assert cmd(core, "TouchProbe", Edge=0)["error"] == 0
+    step_until(core.step, lambda: _probe(core)[0] != ACTIVE, 2000)
+    st, cnt, pos = _probe(core)
+    assert (st, cnt) == (DONE, 1)
+    # the next rising edge of the pattern after the re-arming, not the old session's latch
+    assert pos == pytest.approx(old + 10.0, abs=1e-6), (pos, old)
+
+
+def test_a_drive_group_passes_the_arming_to_the_owning_part() -> None:
+    from nc_server.drives.group import DriveGroup
+    from nc_server.drives.sim import SimDrive
+
+    c = Cia402SimDrive([AxisParams()] * 2, DT)
+    g = DriveGroup(3, DT, [(SimDrive([AxisParams()], DT), np.array([1])), (c, np.array([0, 2]))])
+    g.arm_probe(np.array([2, 1]))  # (SimDrive: the default no-op)
+    assert c._tp_rearm.tolist() == [False, True]

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from nc_schema import PLCTONC_DTYPE, Keys, make_request, unpack
+from nc_schema import PLCTONC_DTYPE, CmdState, Keys, make_request, unpack
 from nc_server.core import AxisConfig, AxisParams, NcCore
 from nc_server.core.params import param_number
 from nc_server.server.claims import ClaimTable
@@ -280,3 +280,28 @@ def test_a_slave_of_a_master_on_another_nc_is_replicated() -> None:
     slave = act.core.nctoplc[1]
     assert abs(float(slave["SetPos"]) - 15.0) < 0.05 and float(slave["SetVelo"]) == 0.0  # about half the master's 30
     assert f0.diverged == 0 and not reasons and not late_reasons
+
+
+def test_a_touch_probe_armed_again_is_replayed() -> None:
+    """MC_TouchProbe tells the drive of each arming (drive.arm_probe, on the tape); a re-arming with the same edge,
+    the simulated signal and the latch are replayed cycle by cycle (default drive: cia402-sim)."""
+    act = Active()
+    act.handler.client_alive("plc", 0.0)
+    f, reasons = follower(act)
+    assert act.request("Claim", 1, 1)["error"] == 0
+    rid = 10
+    armings = 0
+    for k in range(1, 40):
+        if k in (3, 5):
+            rid += 1
+            assert act.request("TouchProbe", rid, 1, Edge=0)["error"] == 0
+        elif k == 20:
+            rid += 1
+            assert act.request("SimProbeSignal", rid, 1, Level=True, Offset=0.0002)["error"] == 0
+        log = act.cycle()
+        armings += sum(c.name == "arm_probe" for c in log.drive)
+        assert f.apply(log), reasons
+        same(act.core, f.core)
+    assert armings == 2
+    assert int(act.core.ncjobs[0]["ProbeCounter"]) == 1 and int(act.core.ncjobs[0]["ProbeState"]) == int(CmdState.DONE)
+    assert f.diverged == 0 and not reasons

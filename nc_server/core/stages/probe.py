@@ -8,6 +8,8 @@ position outside the window is rejected and the latch stays armed (TcMC: "automa
 activated"). A recorded position ends the probe cycle DONE: TouchProbeCounter counts it,
 RecordedPosition/RecordedTimeNs keep it, StateDWord.ExternalLatchValid is set until the next
 MC_TouchProbe or MC_AbortTrigger. MC_Reset while armed ends it ERROR 0x4B0C (latch disabled).
+Each MC_TouchProbe tells the drive (``DriveABC.arm_probe``): a drive whose latch keeps a session across
+cycles starts a new one, so a latch of the arming before (still in flight) never completes the new command.
 
 NCTOPLC.TouchProbeState (TcMC does not publish its bits; this NC's choice): bit 0 the latch of
 input 1 is armed, bit 1 a recorded position is valid. StateDWord3 bit 0 (TouchProbe1InputState)
@@ -116,6 +118,8 @@ def cmd_touch_probe(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[s
                           f"absolute window FirstPosition {first} > LastPosition {last} is empty")
     if st.armed[i]:
         st._end(i, CmdState.ABORTED)
+    # a new arming, also with the same edge: the drive must not report a latch of the arming before
+    core.drive.arm_probe(np.array([i], dtype=np.intp))
     q = core.queues[i]
     cmd_no = q.newest = next_cmdno(q.newest)
     st.armed[i] = True

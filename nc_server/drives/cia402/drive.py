@@ -56,9 +56,10 @@ Decisions:
   latch once the inputs show it enabled with the stored bit of the requested edge. Each session starts from a
   disabled probe the NC has seen disabled in the inputs (so a stored bit of an earlier session, still in flight
   on a link with latency, is never taken); after a latch (also one the core rejects outside its window) and on a
-  change of edge the NC disables it, waits to see it disabled and enables it again. So edges in the arming cycle
-  and for about two cycles plus twice the link's latency after a latch are missed (a real drive's arming takes
-  its time too). The position is exact (the drive interpolates); the fraction within the cycle is taken from the
+  change of edge or a new arming (``arm_probe``: MC_TouchProbe executed again, also with the same edge) the NC
+  disables it, waits to see it disabled and enables it again. So edges in the arming cycle and for about two
+  cycles plus twice the link's latency after a latch or a re-arming are missed (a real drive's arming takes its
+  time too). The position is exact (the drive interpolates); the fraction within the cycle is taken from the
   latched position between the previous and the current actual position (1 where the axis stood). The input's
   level is 0x60B9 bit 14 (user defined). Simulated inputs: :meth:`Cia402SimDrive.set_probe_signal` and the sensor
   pattern (SimProbePeriod) of the device.
@@ -230,6 +231,7 @@ class Cia402Drive(DriveABC):
         self._tp_req_cycle = -1  # the cycle whose latch_probe call set _tp_req
         self._tp_clean = np.zeros(n, dtype=bool)  # probe 2 seen disabled since the NC last sent it off
         self._tp_used = np.zeros(n, dtype=bool)  # a latch was taken: disable before the next one counts
+        self._tp_rearm = np.zeros(n, dtype=bool)  # a new arming (arm_probe): disable before a latch counts
         self._tp_watch = True  # some probe 2 sent, used or not seen disabled yet (else nothing to do per cycle)
         self._any_dropped = False
         self._any_reset = False
@@ -477,10 +479,11 @@ class Cia402Drive(DriveABC):
         been seen disabled."""
         req = self._tp_req if self._tp_req_cycle == self._cycle else np.zeros_like(self._tp_code)
         code = self._tp_code
-        off = self._tp_used | ((code != 0) & (code != req))
+        off = self._tp_used | self._tp_rearm | ((code != 0) & (code != req))
         new = np.where(off, 0, code)
         self._tp_clean = self._tp_clean & ~(off & (code != 0))
         self._tp_used = np.zeros_like(self._tp_used)
+        self._tp_rearm = np.zeros_like(self._tp_rearm)
         start = (new == 0) & (req != 0) & self._tp_clean & ~off
         new = np.where(start, req, new).astype(np.uint16)
         if not np.array_equal(new, code):
@@ -491,6 +494,12 @@ class Cia402Drive(DriveABC):
     def probe_input(self) -> np.ndarray:
         """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14)."""
         return (self.tx.probe_status & TP2_STATUS_INPUT) != 0
+
+    def arm_probe(self, rows: np.ndarray) -> None:
+        """A new MC_TouchProbe on these rows: the session of probe 2 ends (disabled next cycle, seen disabled in
+        the inputs, enabled again), so a latch stored for the arming before, still in flight, is not taken."""
+        self._tp_rearm[np.asarray(rows, dtype=np.intp)] = True
+        self._tp_watch = True
 
     def latch_probe(self, rows: np.ndarray, falling: np.ndarray,
                     prev_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -508,7 +517,7 @@ class Cia402Drive(DriveABC):
         ps = tx.probe_status[rows]
         stored = (ps & np.where(falling, TP2_STATUS_NEG_STORED, TP2_STATUS_POS_STORED)) != 0
         found = ((self._tp_code[rows] == code) & self._tp_clean[rows] & ((ps & TP2_STATUS_ENABLED) != 0) & stored
-                 & (tx.age[rows] <= self.max_age))
+                 & (tx.age[rows] <= self.max_age) & ~self._tp_rearm[rows])
         if not found.any():
             return found, np.full(m, np.nan), np.full(m, np.nan)
         raw = np.where(falling, tx.probe2_neg[rows], tx.probe2_pos[rows])
