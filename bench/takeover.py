@@ -9,11 +9,13 @@ epoch change, ms resolution) and seen by the observer (its NCTOPLC samples; zeno
 figure (last log of the lost NC to the end of the takeover,
 ha status ``takeover_cycles``); whether the move ended Done with its CmdNo; the drive host's epoch history (one
 new epoch per kill, never back) and its refused outputs (``stale_epoch``). Over the run: the largest SetPos step
-beyond the dynamics, the NC restarts the observer's nc_link saw, false takeovers (a role change without a kill).
+beyond the dynamics, the NC restarts and "NC gone" events the observer's nc_link saw, false takeovers (a role change
+without a kill).
 
 Same-run ratios with MET / NOT MET: p95 takeover time / (20 NC cycles) (the issue's goal: the first set-point
 within 20 cycles of the loss, detection included) and the largest SetPos step / (one cycle at full velocity);
-counts that must be 0: double drivers, jumps, blocks not ended Done, NC restarts seen, false takeovers.
+counts that must be 0: double drivers, jumps, blocks not ended Done, NC restarts and "NC gone" seen, false
+takeovers.
 
     .venv/bin/python bench/takeover.py [--kills 10] [--soak 100] [--freeze] [--takeover-cycles 15] [--seed S]
                                        [--realtime off|auto|fifo]
@@ -193,6 +195,7 @@ def main(argv: list[str] | None = None) -> int:
             roles = {active: "standby", standby: "active"}
         step = largest_step(tr.samples, CYCLE, A)
         restarts = list(tr.restarts)
+        gone = list(tr.gone)
     finally:
         if stopped:
             os.killpg(stopped, signal.SIGCONT)
@@ -240,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         count_line("double drivers (drive host epoch history)", sum(r["double"] for r in rows)),
         count_line("moves not ended Done with their CmdNo", sum(1 for r in rows if not r["done"])),
         count_line("NC restarts seen by nc_link", len(restarts)),
+        count_line("'NC gone' seen by nc_link (the PLC runtime's 0x4B0F)", len(gone)),
         count_line("false takeovers (no kill)", false_takeovers),
     ]
     verdict("takeover", goals, busy.text())

@@ -33,6 +33,7 @@ import msgpack
 import zenoh
 from zenoh.handlers import FifoChannel
 
+from nc_schema import Keys
 from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 
 from .config import Redundancy
@@ -219,6 +220,11 @@ class HotStandby:
         self._active_sub: Any = None
         self._standby_sub: Any = None
         self._token: Any = None
+        # (standby in step) the NC's tokens nc/<nc>/alive and nc/<nc>/alive/<instance> (the active NC's instance),
+        # held like the active NC holds them: a kill of the active NC is no "NC gone" for the clients (_nc_tokens)
+        self._nc_token: Any = None
+        self._nc_inst_token: Any = None
+        self._nc_inst = ""
         self._next_status = 0.0
         self._excused = False  # the last cycle served a snapshot
         self._current = False  # (_take_logs) the sample held a log of the highest epoch
@@ -263,6 +269,7 @@ class HotStandby:
                 lk.epoch = 0
 
     def close(self) -> None:
+        self._nc_tokens(False)
         for d in (self._token, self._snap_q, self._log_sub, self._log_pub, self._status_pub, self._active_sub,
                   self._standby_sub, self._status_sub):
             if d is not None:
@@ -524,11 +531,69 @@ class HotStandby:
         s = self._session
         if s is None:
             return
+        if self.role == "standby":
+            self._nc_tokens(on)
         if on and self._token is None and self.role == "standby":
             self._token = s.liveliness().declare_token(f"{self.keys}/standby/{self.node}")
         elif not on and self._token is not None and self.role == "standby":
             self._token.undeclare()
             self._token = None
+
+    def _nc_tokens(self, on: bool) -> None:
+        """(standby) Declare (``on``) or undeclare the NC's tokens ``nc/<nc>/alive`` and ``nc/<nc>/alive/<instance>``
+        with the active NC's instance id (the replicated handler state's). A standby in step holds them too: zenoh
+        keeps a liveliness key alive while any session holds it, so a kill of the active NC is no "NC gone" for the
+        clients (nc_link: every block ended with 0x4B0F) while this NC takes over (it hands them to the transport,
+        _hand_over). Out of step (waiting for a snapshot, demoted) it holds none: no NC could serve then."""
+        if not on:
+            for d in (self._nc_inst_token, self._nc_token):
+                if d is not None:
+                    try:
+                        d.undeclare()
+                    except Exception as exc:
+                        log.debug("NC token undeclare: %s", exc)
+            self._nc_token = self._nc_inst_token = None
+            self._nc_inst = ""
+            return
+        hs = self.follower.handler_state
+        inst = str(getattr(hs, "instance", "") or "")
+        if self._nc_token is not None and inst == self._nc_inst:
+            return  # (every log in step comes here: nothing to do)
+        s = self._session
+        if s is None:
+            return
+        try:
+            keys = Keys(self.srv.config.name)
+            if inst != self._nc_inst and self._nc_inst_token is not None:  # (another instance's snapshot)
+                self._nc_inst_token.undeclare()
+                self._nc_inst_token, self._nc_inst = None, ""
+            if self._nc_token is None:
+                self._nc_token = s.liveliness().declare_token(keys.alive)
+            if self._nc_inst_token is None and inst:
+                self._nc_inst_token = s.liveliness().declare_token(keys.alive_instance(inst))
+                self._nc_inst = inst
+        except Exception as exc:  # (tried again with the next log in step)
+            log.warning("standby %s: the NC's tokens: %s", self.node, exc)
+
+    def _hand_over(self) -> None:
+        """(takeover, before transport.serve()) The NC's tokens this standby held go to the transport, which then
+        declares only what is missing: the key is held all along (no DELETE for the clients)."""
+        t = self.srv.transport
+        if self._nc_token is not None and getattr(t, "token", "") is None:
+            t.token, self._nc_token = self._nc_token, None
+        if self._nc_inst_token is not None and getattr(t, "instance_token", "") is None \
+                and self._nc_inst == getattr(t, "instance", None):
+            t.instance_token, self._nc_inst_token, self._nc_inst = self._nc_inst_token, None, ""
+
+    def _take_back(self) -> None:
+        """(a takeover whose declarations failed: transport.unserve() follows) The NC's tokens back to this NC, held
+        until the next try hands them over again (unserve would drop them: a DELETE for the clients)."""
+        t = self.srv.transport
+        if getattr(t, "token", None) is not None and self._nc_token is None:
+            self._nc_token, t.token = t.token, None
+        if getattr(t, "instance_token", None) is not None and self._nc_inst_token is None:
+            self._nc_inst_token, t.instance_token = t.instance_token, None
+            self._nc_inst = str(getattr(t, "instance", ""))
 
     def _become_active(self, now: float, first: bool = False) -> None:
         srv = self.srv
@@ -619,11 +684,14 @@ class HotStandby:
         self._serve_tries += 1
         try:
             self._serve()
+            self._hand_over()
             srv.transport.serve()
+            self._nc_tokens(False)  # (any left: another instance id than the transport's, which declared its own)
         except Exception as exc:
             if self._serve_tries <= 3 or self._serve_tries % 1000 == 0:
                 log.error("NC %s: took over, but its declarations failed (try %d; again next cycle): %s",
                           srv.config.name, self._serve_tries, exc)
+            self._take_back()
             try:  # (what transport.serve() declared before it failed: all of it again next time)
                 unserve = getattr(srv.transport, "unserve", None)
                 if unserve is not None:
@@ -649,6 +717,7 @@ class HotStandby:
         self.role = "standby"
         self.demotions += 1
         self._serve_pending = False  # (a takeover whose declarations had not been made yet)
+        self._nc_tokens(False)  # (out of step until a snapshot: no NC token of its own; the transport's go below)
         for d in (self._snap_q, self._token):
             if d is not None:
                 try:

@@ -349,8 +349,11 @@ class Transport:
         pub: dict[str, Any] = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
         self.stats_pub = s.declare_publisher(k.stats, **pub)
         self.claims_pub = s.declare_publisher(k.claims)
-        self.token = s.liveliness().declare_token(k.alive)
-        self.instance_token = s.liveliness().declare_token(k.alive_instance(self.instance))
+        # (a standby in step already holds them: HotStandby hands them over before this call, no gap for the clients)
+        if self.token is None:
+            self.token = s.liveliness().declare_token(k.alive)
+        if self.instance_token is None:
+            self.instance_token = s.liveliness().declare_token(k.alive_instance(self.instance))
 
     def unserve(self) -> None:
         """Undeclare what :meth:`serve` declared (a replaced NC of a hot-standby pair; the tokens stay alive for the

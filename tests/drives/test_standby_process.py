@@ -5,7 +5,8 @@ runtime does (nc_link: its NC-restart detection).
 
 * kill -9 of the active NC mid-move: the standby takes over (ha status, a higher epoch on the drive host), the
   set-points go on without a step beyond what the dynamics allow, the move reaches its target and ends Done with
-  the same CmdNo, a repeated request gets the replicated reply, the observer sees no NC restart; the takeover
+  the same CmdNo, a repeated request gets the replicated reply, the observer sees no NC restart and no "NC gone"
+  (the standby in step holds the NC's tokens too); the takeover
   time is measured;
 * SIGSTOP of the active NC mid-move, then SIGCONT: the standby takes over; the old NC comes back as a standby and
   never drives again (the drive host refuses its epoch; nothing of it reaches the drives);
@@ -176,6 +177,8 @@ def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Procs]) -> None:
         again = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)
         assert again == first
         assert tr.restarts == [], tr.restarts
+        # the standby in step holds the NC's tokens too: no "NC gone" (nc_link, the PLC runtime) at the kill
+        assert tr.gone == [], tr.gone
         step = largest_step(tr.samples, CYCLE, A)
         after = [s for s in tr.samples if s[5] > t_kill]
         assert after and after[0][0] > max(s[0] for s in tr.samples if s[5] <= t_kill) - 1  # the Cycle continued
@@ -266,6 +269,8 @@ def test_kill_9_during_a_coupling(pair: Callable[..., Procs]) -> None:
         for a in (1, 2):
             assert largest_step(tr.by_axis[a], CYCLE, A) < 0.05 * V * CYCLE + 1e-6, a
         assert tr.restarts == [], tr.restarts
+        # the standby in step holds the NC's tokens too: no "NC gone" (nc_link, the PLC runtime) at the kill
+        assert tr.gone == [], tr.gone
     finally:
         tr.close()
         cl.close()
@@ -308,6 +313,8 @@ def test_kill_9_during_a_superposition(pair: Callable[..., Procs]) -> None:
         x = cl.nctoplc(1)
         assert x is not None and int(x["ErrorCode"]) == 0 and abs(float(x["SetVelo"]) - 20.0) < 1e-9  # goes on
         assert tr.restarts == [], tr.restarts
+        # the standby in step holds the NC's tokens too: no "NC gone" (nc_link, the PLC runtime) at the kill
+        assert tr.gone == [], tr.gone
         assert largest_step(tr.samples, CYCLE, A) < 0.05 * V * CYCLE + 1e-6
         cl.request("Halt", axis=1, Deceleration=A, Jerk=J)
     finally:

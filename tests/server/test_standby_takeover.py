@@ -315,3 +315,146 @@ def test_a_token_that_went_and_came_back_is_no_takeover() -> None:
     hs._active_sub = TokenSub(("a", False))
     hs._take_tokens()
     assert hs._lost(time.monotonic()) and hs._lost_why == "its token went"
+
+
+I1, I2, I3, OWN = "00000000000000a1", "00000000000000a2", "00000000000000a3", "00000000000000ff"
+
+
+class FakeDecl:
+    def __init__(self, session: FakeSession, kind: str, key: str) -> None:
+        self.session, self.kind, self.key = session, kind, key
+        session.log.append(("declare", kind, key))
+
+    def undeclare(self) -> None:
+        self.session.log.append(("undeclare", self.kind, self.key))
+
+
+class FakeSession:
+    """Records the declarations and undeclarations of a zenoh session (liveliness tokens, queryables,
+    publishers)."""
+
+    def __init__(self) -> None:
+        self.log: list[tuple[str, str, str]] = []
+        self.fail_publishers = 0
+
+    def liveliness(self) -> FakeSession:
+        return self
+
+    def declare_token(self, key: str) -> FakeDecl:
+        return FakeDecl(self, "token", key)
+
+    def declare_queryable(self, key: str, *a: Any, **k: Any) -> FakeDecl:
+        return FakeDecl(self, "queryable", key)
+
+    def declare_publisher(self, key: str, *a: Any, **k: Any) -> FakeDecl:
+        if self.fail_publishers:
+            self.fail_publishers -= 1
+            raise RuntimeError("zenoh: declare failed")
+        return FakeDecl(self, "publisher", key)
+
+    def held(self, key: str) -> list[int]:
+        """How many declarations of the token ``key`` this session held after each of its events."""
+        n, out = 0, []
+        for op, kind, k in self.log:
+            if kind == "token" and k == key:
+                n += 1 if op == "declare" else -1
+            out.append(n)
+        return out
+
+
+def served_pair() -> tuple[Active, HotStandby, FakeSession, Any]:
+    """pair() with a transport that declares like the real one (Transport.serve/unserve) on a FakeSession."""
+    from nc_schema import Keys
+    from nc_server.server.replication import HandlerState
+    from nc_server.server.transport import Transport
+
+    act, hs, drive = pair()
+    fs = FakeSession()
+    t = SimpleNamespace(session=fs, keys=Keys("nc1"), instance=OWN, queryable=None, token=None,
+                        instance_token=None, stats_pub=None, claims_pub=None, queries=[])
+    t.serve = lambda: Transport.serve(t)  # type: ignore[arg-type]
+    t.unserve = lambda: Transport.unserve(t)  # type: ignore[arg-type]
+    hs.srv.transport = t
+    hs.srv.became_standby = t.unserve  # (NcServer.became_standby: transport.unserve())
+    hs._session = fs  # type: ignore[assignment]
+    hs.follower.handler_state = HandlerState(instance=I1)  # (the active NC's instance id, from its snapshot)
+    return act, hs, fs, t
+
+
+def in_step(hs: HotStandby) -> None:
+    hs.synced_once, hs.follower.waiting = True, False
+    hs._declare_standby(True)  # (what a log applied in step does)
+
+
+def test_a_standby_in_step_holds_the_nc_tokens_through_its_takeover() -> None:
+    # issue 21 (compose scenario): at a kill -9 of the active NC, nc/<nc>/alive went until the standby's
+    # declarations: nc_link saw "NC gone" and the PLC runtime ended every block with 0x4B0F. A standby in step holds
+    # the NC's token and the active NC's instance token itself (zenoh: the key lives while any session holds it)
+    act, hs, fs, t = served_pair()
+    moving(act)
+    in_step(hs)
+    alive, inst = "nc/nc1/alive", "nc/nc1/alive/" + I1
+    assert fs.held(alive)[-1] == 1 and fs.held(inst)[-1] == 1
+    assert "nc/nc1/alive/" + OWN not in [k for _, _, k in fs.log]  # (the standby's own id is no NC the clients see)
+    for _ in range(3):  # more logs in step: nothing declared again
+        hs._declare_standby(True)
+    n = len(fs.log)
+    now = time.monotonic()
+    hs._last_log = now - 0.005
+    hs._become_active(now)
+    act.rec.step()
+    hs.after_step()
+    assert hs.role == "active" and not hs._serve_pending
+    # held all along (never 0 after the first declaration), one declaration each: the transport took them over
+    assert min(fs.held(alive)[fs.held(alive).index(1):]) == 1 and fs.held(alive)[-1] == 1
+    assert min(fs.held(inst)[fs.held(inst).index(1):]) == 1 and fs.held(inst)[-1] == 1
+    assert [e for e in fs.log[n:] if e[1] == "token" and e[2].startswith(alive)] == []
+    assert t.token is not None and t.instance_token is not None and t.instance == I1
+    assert hs._nc_token is None and hs._nc_inst_token is None
+    assert ("declare", "queryable", "nc/nc1/**/cmd/*/*") in fs.log[n:]
+    # replaced (demoted): the transport's go; out of step it holds none
+    hs._become_standby(time.monotonic(), "test")
+    assert fs.held(alive)[-1] == 0 and fs.held(inst)[-1] == 0
+    assert hs._nc_token is None and t.token is None
+
+
+def test_a_standby_out_of_step_holds_no_nc_token() -> None:
+    # waiting for a snapshot it cannot take over: clients must see "no NC" if the active NC goes then
+    act, hs, fs, t = served_pair()
+    in_step(hs)
+    assert fs.held("nc/nc1/alive")[-1] == 1
+    hs._resync("test")
+    assert fs.held("nc/nc1/alive")[-1] == 0 and fs.held("nc/nc1/alive/" + I1)[-1] == 0
+    assert fs.held("nc/nc1/ha/standby/b")[-1] == 0
+    # in step again, from a snapshot of another instance (both NCs had gone): that instance's token
+    from nc_server.server.replication import HandlerState
+    hs.follower.handler_state = HandlerState(instance=I2)
+    in_step(hs)
+    assert fs.held("nc/nc1/alive")[-1] == 1 and fs.held("nc/nc1/alive/" + I2)[-1] == 1
+    hs.follower.handler_state = HandlerState(instance=I3)
+    hs._declare_standby(True)
+    assert fs.held("nc/nc1/alive/" + I2)[-1] == 0 and fs.held("nc/nc1/alive/" + I3)[-1] == 1
+    assert fs.held("nc/nc1/alive")[-1] == 1
+    hs.close()
+    assert fs.held("nc/nc1/alive")[-1] == 0 and fs.held("nc/nc1/alive/" + I3)[-1] == 0
+
+
+def test_failed_declarations_of_a_takeover_keep_the_nc_tokens() -> None:
+    # transport.serve() fails after some declarations: unserve() undoes them, but the NC's tokens stay held
+    act, hs, fs, t = served_pair()
+    moving(act)
+    in_step(hs)
+    fs.fail_publishers = 1
+    now = time.monotonic()
+    hs._last_log = now - 0.005
+    hs._become_active(now)
+    act.rec.step()
+    hs.after_step()
+    assert hs._serve_pending and t.queryable is None
+    assert fs.held("nc/nc1/alive")[-1] == 1 and fs.held("nc/nc1/alive/" + I1)[-1] == 1
+    act.rec.step()
+    hs.after_step()
+    assert not hs._serve_pending and t.token is not None
+    for key in ("nc/nc1/alive", "nc/nc1/alive/" + I1):
+        h = fs.held(key)
+        assert min(h[h.index(1):]) == 1 and h[-1] == 1 and h.count(1) == len(h) - h.index(1)

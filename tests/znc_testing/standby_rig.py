@@ -59,8 +59,8 @@ Drive = { backend = "remote", host = "drives1" }
 
 class Trace:
     """Every NCTOPLC sample of ``axes`` (cycle, SetPos, SetVelo, CmdNo, CmdState, monotonic time; :attr:`samples` is
-    axis 1's, :attr:`by_axis` every axis's), and the NC's frames through nc_link (its NC-restart detection; the
-    newest NCJOBS record of each axis in :attr:`jobs`), gathered on the test's sessions."""
+    axis 1's, :attr:`by_axis` every axis's), and the NC's frames through nc_link (its NC-restart detection; "NC gone"
+    events in :attr:`gone`; the newest NCJOBS record of each axis in :attr:`jobs`), gathered on the test's sessions."""
 
     def __init__(self, port: int, axes: tuple[int, ...] = (1,)) -> None:
         self.by_axis: dict[int, list[tuple[int, float, float, int, int, float]]] = {a: [] for a in axes}
@@ -72,6 +72,8 @@ class Trace:
         self.link = NcLink("nc1", f"tcp/127.0.0.1:{port}", "observer-link", holder=False)
         self.link.open()
         self.restarts: list[str] = []
+        #: when nc_link saw the NC's token go ("NC gone": the PLC runtime ends every block with 0x4B0F then)
+        self.gone: list[float] = []
         self.frames = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -101,6 +103,8 @@ class Trace:
             for ev in self.link.take_events():
                 if ev.kind == "restart":
                     self.restarts.append(ev.why)
+                elif ev.kind == "gone":
+                    self.gone.append(time.monotonic())
 
     def close(self) -> None:
         self._stop.set()
