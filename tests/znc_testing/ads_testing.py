@@ -27,11 +27,20 @@ def netid_for(host: str) -> str:
     return f"5.80.201.{host.rsplit('.', 1)[1]}.1.1"
 
 
+#: the addresses handed out in this process: AdsLib (pyads) keeps one TCP connection per IP in the process, and a
+#: connection to an earlier server on that IP that was not closed (a test of a lost server, a pyads client
+#: left open) is reused for a new server there: its first request then waits the full timeout (1861, seen once
+#: in CI). A fresh address per server avoids it while fresh ones last.
+_HANDED_OUT: set[str] = set()
+
+
 def free_ads_address(port: int = AMS_TCP_PORT, tries: int = 200) -> str:
-    """A random 127.0.0.x (x in 2..250) where `port` can be bound right now (race: bind it soon)."""
+    """A random 127.0.0.x (x in 2..250) where `port` can be bound right now (race: bind it soon); one not handed
+    out before in this process while there is one."""
     rng = random.SystemRandom()
-    for _ in range(tries):
-        host = f"127.0.0.{rng.randint(2, 250)}"
+    for k in range(tries):
+        fresh = [x for x in range(2, 251) if f"127.0.0.{x}" not in _HANDED_OUT]
+        host = f"127.0.0.{rng.choice(fresh) if fresh and k < tries // 2 else rng.randint(2, 250)}"
         s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         try:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -42,6 +51,7 @@ def free_ads_address(port: int = AMS_TCP_PORT, tries: int = 200) -> str:
             continue
         finally:
             s.close()
+        _HANDED_OUT.add(host)
         return host
     raise RuntimeError(f"no 127.0.0.x with port {port} free after {tries} tries")
 
