@@ -55,3 +55,21 @@ def check_probe_signal(index: int, pattern_period: float, offset: float, cycle_t
     if not 0.0 <= offset < cycle_time:  # (NaN fails too)
         raise ValueError(f"probe signal offset must be in 0 <= offset < {cycle_time:g} s, got {offset:g}")
     return offset
+
+
+def signal_edges(pending: dict[int, list[tuple[float, bool]]], level: np.ndarray,
+                 cycle_time: float) -> dict[int, list[tuple[float, bool]]]:
+    """The edges of the simulated probe signal changes of one cycle (``set_probe_signal``): per axis index, in
+    time order, (fraction of the cycle, new level); a change to the level the input already has is no edge.
+    ``level`` (the inputs' levels, bool per axis) is updated to the level at the cycle's end."""
+    edges: dict[int, list[tuple[float, bool]]] = {}
+    for i, events in pending.items():
+        now, changes = bool(level[i]), []
+        for offset, new in sorted(events):  # (the offsets of one axis are distinct)
+            if new != now:
+                changes.append((offset / cycle_time, new))
+                now = new
+        level[i] = now
+        if changes:
+            edges[i] = changes
+    return edges

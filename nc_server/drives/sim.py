@@ -38,7 +38,7 @@ from ..core.params import AxisParams
 from .base import DriveABC
 from .encoder import EncoderChain, pulse_passed
 from .mechanics import Mechanics
-from .probe_pattern import check_probe_signal, first_pattern_edge, pattern_level
+from .probe_pattern import check_probe_signal, first_pattern_edge, pattern_level, signal_edges
 from .stepper import StepperTerminals
 
 
@@ -236,15 +236,6 @@ class SimDrive(DriveABC):
 
     def _apply_probe_signals(self) -> dict[int, list[tuple[float, bool]]]:
         """Turn the pending set_probe_signal events into this cycle's edges; update the commanded levels."""
-        edges: dict[int, list[tuple[float, bool]]] = {}
-        for i, events in self._probe_pending.items():
-            level, changes = bool(self._probe_level[i]), []
-            for offset, new in sorted(events):  # (the offsets of one axis are distinct)
-                if new != level:  # the level the input already has is no edge
-                    changes.append((offset / self.cycle_time, new))
-                    level = new
-            self._probe_level[i] = level
-            if changes:
-                edges[i] = changes
+        edges = signal_edges(self._probe_pending, self._probe_level, self.cycle_time)
         self._probe_pending = {}
         return edges

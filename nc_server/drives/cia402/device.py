@@ -51,7 +51,7 @@ import numpy as np
 from ...core.params import AxisParams
 from ..encoder import EncoderChain, pulse_passed
 from ..mechanics import Mechanics
-from ..probe_pattern import check_probe_signal, first_pattern_edge, pattern_level
+from ..probe_pattern import check_probe_signal, first_pattern_edge, pattern_level, signal_edges
 from . import statemachine as sm
 from .image import RxImage, TxImage
 from .objects import Mode, State
@@ -387,16 +387,7 @@ class Cia402Device:
         """This cycle's edges of input 2 (commanded events, pattern crossings) and probe 2's latch."""
         with self._tp2_lock:
             pending, self._tp2_pending = self._tp2_pending, {}
-        edges: dict[int, list[tuple[float, bool]]] = {}  # axis -> [(fraction, new level)], in time order
-        for i, events in pending.items():
-            level, changes = bool(self._tp2_level[i]), []
-            for offset, new in sorted(events):
-                if new != level:  # the level the input already has is no edge
-                    changes.append((offset / self.cycle_time, new))
-                    level = new
-            self._tp2_level[i] = level
-            if changes:
-                edges[i] = changes
+        edges = signal_edges(pending, self._tp2_level, self.cycle_time)  # axis -> [(fraction, new level)]
         if self._tp2_on:
             fn, st = self._tp2_fn, self._probe_status
             on = ((fn & TP2_ENABLE) != 0) & ((fn & TP2_SOURCE) == 0)
