@@ -3,8 +3,6 @@ followed, lower ones refused; outputs that do not fit the host (slot count, Axis
 counts, so a misconfigured NC with a higher epoch cannot lock out the right one (docs/standby.md)."""
 from __future__ import annotations
 
-from types import SimpleNamespace
-from typing import Any
 
 import nc_server.core  # noqa: F401  (before the drives: see nc_server/drives/__init__.py)
 import numpy as np
@@ -13,17 +11,7 @@ from nc_server.core import AxisParams
 from nc_server.drives.cia402.image import RxImage
 from nc_server.drives.remote import wire
 from nc_server.drives.remote.host import DriveHost
-
-
-class FakeSub:
-    def __init__(self) -> None:
-        self.queue: list[Any] = []
-
-    def put(self, payload: bytes) -> None:
-        self.queue.append(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
-
-    def try_recv(self) -> Any:
-        return self.queue.pop(0) if self.queue else None
+from znc_testing.fake_zenoh import FakeSub
 
 
 def host() -> tuple[DriveHost, FakeSub]:

@@ -17,7 +17,8 @@ from nc_server.server.config import Redundancy
 from nc_server.server.replication import RecordingDrive
 from nc_server.server.standby import START_GRACE_S, HotStandby
 
-from test_replication import Active
+from test_replication import Active  # noqa: E402 (tests/server on sys.path)
+from znc_testing.fake_zenoh import FakeSub
 
 DT = 0.001  # (Active's cycle)
 TAKEOVER = 15
@@ -232,17 +233,6 @@ def test_failed_declarations_of_a_takeover_are_tried_again_while_the_nc_drives()
     assert [e for e, _ in events].count("serve") == 1
     assert [e for e, _ in events][-1] == "serve" and len([e for e, _ in events if e == "out"]) == 3
     assert hs.takeover_s > 0
-
-
-class FakeSub:
-    def __init__(self) -> None:
-        self.queue: list[Any] = []
-
-    def put(self, payload: bytes) -> None:
-        self.queue.append(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
-
-    def try_recv(self) -> Any:
-        return self.queue.pop(0) if self.queue else None
 
 
 def sample(epoch: int, cycle: int) -> bytes:
