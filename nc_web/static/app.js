@@ -122,6 +122,9 @@
     const res = await fetch("/api/nc/" + encodeURIComponent(cfg.nc) + "/params/" + axis + (refresh ? "?refresh=1" : ""),
                             { credentials: "same-origin" });
     const j = await res.json();
+    // a refused or failed read (NC not connected, 0x...) shows why instead of an empty table
+    $("param-axis").textContent = "of axis " + axis + (res.ok ? "" : " (read failed: 0x" +
+      Number(j.error || 0).toString(16).toUpperCase() + " " + (j.text || res.statusText) + ")");
     const byNo = new Map((j.params || []).map((p) => [p.number, p]));
     const body = $("param-table").tBodies[0];
     body.innerHTML = "";
