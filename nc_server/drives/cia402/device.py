@@ -140,6 +140,10 @@ class Cia402Device:
         self._chain = EncoderChain(n)
         self.mechanics = Mechanics(n, cycle_time)
         self._any_fault = False
+        self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
+        self._sm_new = self.state
+        self._sw_key = b""  # the states of the last statuswords published, and those (shared by the TxImages)
+        self._sw = np.zeros(0, dtype=np.uint16)
         self.tx = TxImage.zeros(n)
         self._publish()
 
@@ -224,8 +228,12 @@ class Cia402Device:
 
     # -- the cycle ------------------------------------------------------------------------------------------
 
-    def step(self, rx: RxImage | None) -> TxImage:
+    def step(self, rx: RxImage | None, owned: bool = False) -> TxImage:
         """One device cycle with the outputs that arrived (None: none arrived, the last ones stay in effect).
+
+        Args:
+            owned: the caller never writes the arrays of ``rx`` after this call (``cia402-sim``'s drive: it makes
+                new arrays): the device keeps them instead of copies.
 
         Returns:
             the inputs of this cycle (a new :class:`TxImage`, age 0, alive; its arrays are not written later).
@@ -233,6 +241,9 @@ class Cia402Device:
         dt = self.cycle_time
         if rx is None:
             self.silent += dt
+        elif owned:
+            self.rx = rx
+            self.silent = 0.0
         else:  # (copies: a caller reusing its arrays must not change the last controlword, which edges compare)
             self.rx = RxImage(rx.controlword.copy(), rx.mode.copy(), rx.target_position.copy(),
                               rx.target_velocity.copy(), rx.probe_function.copy(), rx.cycle)
@@ -256,8 +267,10 @@ class Cia402Device:
             new = sm.device_next(state, cw, self._prev_cw, fault, stopped)
             self._event &= new < _FRA  # consumed by the reaction
             self._any_fault = bool(self._event.any() or self._cause.any())
-        else:
+        elif faulted:
             new = sm.device_next(state, cw, self._prev_cw, False, stopped)
+        else:  # (no drive in Fault reaction active or Fault: the next state depends on state and controlword only)
+            new = self._next_state(state, cw)
         if faulted:
             reset = (state == _FLT) & (new != _FLT)
             if reset.any():
@@ -270,6 +283,17 @@ class Cia402Device:
             self._latch2()
         self._publish()
         return self.tx
+
+    def _next_state(self, state: np.ndarray, cw: np.ndarray) -> np.ndarray:
+        """:func:`.statemachine.device_next` without faults (no drive in Fault reaction active or Fault): a function of
+        the states and the controlwords alone, so the same two as last time give last time's result (the steady
+        cycle: every drive stays in Operation enabled under 0x000F) without the table look-up."""
+        key = state.tobytes() + cw.tobytes()
+        if key == self._sm_key:
+            return self._sm_new
+        new = sm.device_next(state, cw, self._prev_cw, False, True)
+        self._sm_key, self._sm_new = key, new.copy()  # (a copy: a test may write a device's state in place)
+        return new
 
     def _move(self, state: np.ndarray, rx: RxImage, dt: float) -> None:
         pos, v = self.position, self.velocity
@@ -434,7 +458,10 @@ class Cia402Device:
     def _publish(self) -> None:
         m = self.mechanics
         torque = self._no_torque if m.resting else m.fields[1] * 10.0
-        self.tx = TxImage(sm.statusword(self.state, follows=True), self.rx.mode, self.position, self.velocity,
+        key = self.state.tobytes()
+        if key != self._sw_key:  # (the statuswords change with the states only: the steady cycle reuses them)
+            self._sw_key, self._sw = key, sm.statusword(self.state, follows=True)
+        self.tx = TxImage(self._sw, self.rx.mode, self.position, self.velocity,
                           torque, self.error_code, self._probe_status, self._probe_position, self._tp2_pos,
                           self._tp2_neg, self._age0, self._alive,
                           np.full(self.n, self.rx.cycle, dtype=np.int64))  # (the outputs these inputs answer)

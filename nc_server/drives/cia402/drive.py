@@ -238,6 +238,11 @@ class Cia402Drive(DriveABC):
         self._act_live = False  # ActTorque (0x6077) was not 0 in the last cycle, or its derivative
         self._act_shown = np.zeros(n)  # the ActTorque shown last [%]
         self._cycle = 0
+        # the key (states, enables) of the last controlwords computed without a reset, those (never written: sent
+        # again while the key holds) and whether one of them is not Enable operation
+        self._cw_key = b""
+        self._cw = np.zeros(0, dtype=np.uint16)
+        self._cw_off = True
         self.following = np.zeros(n, dtype=bool)
         self.tx = TxImage.zeros(n)
         self._pos_inc = np.zeros(n)
@@ -312,7 +317,7 @@ class Cia402Drive(DriveABC):
         target = c.increments_at(set_pos)
         if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
             target = np.where(self.following, target, self._pos_inc)
-        velo = set_velo / c.scaling * c.sign
+        velo = c.inc_velocities(set_velo)
         if self._tp_watch or self._tp_req_cycle == self._cycle:
             self._probe_outputs()
         if self._any_csv:  # the NC closes the position loop: feed forward + kv * the position error [inc/s]
@@ -328,13 +333,18 @@ class Cia402Drive(DriveABC):
             cw = sm.nc_controlword(self.state, up, self._reset_left > 0, self.controlword)
             # (the time limit runs once the drive is in Fault: its fault reaction (braking) may take long)
             self._reset_left = np.where(self.state == _FRA, self._reset_left, np.maximum(self._reset_left - 1, 0))
-        else:
-            cw = sm.nc_controlword(self.state, up)
+        else:  # (a function of the states and the enables alone: the steady cycle reuses the last controlwords)
+            key = self.state.tobytes() + np.asarray(up, dtype=bool).tobytes()
+            if key != self._cw_key:
+                cw = sm.nc_controlword(self.state, up)
+                self._cw_key, self._cw, self._cw_off = key, cw, bool(np.count_nonzero(cw != _ENABLE_OPERATION))
+            cw = self._cw
         self._cycle += 1
-        off = cw != _ENABLE_OPERATION
-        if np.count_nonzero(off):
-            self._last_off = np.where(off, self._cycle, self._last_off)
-            self._confirmed = self._confirmed & ~off
+        if cw is not self._cw or self._cw_off:
+            off = cw != _ENABLE_OPERATION
+            if np.count_nonzero(off):
+                self._last_off = np.where(off, self._cycle, self._last_off)
+                self._confirmed = self._confirmed & ~off
         rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
                      self._cycle)
         self.controlword = cw
@@ -349,7 +359,7 @@ class Cia402Drive(DriveABC):
             self._confirmed = self._confirmed | (pending & (self._answered(tx) - self.reaction_margin > self._last_off))
         c = self.encoder
         new_pos = c.positions(tx.position_actual)
-        new_velo = tx.velocity_actual * c.scaling * c.sign
+        new_velo = c.velocities(tx.velocity_actual)
         new_acc = (new_velo - self.act_velo) / self.cycle_time
         n = len(state)
         degraded = np.count_nonzero(tx.age > self.max_age) or np.count_nonzero(tx.alive) < n
