@@ -49,7 +49,7 @@ import threading
 import numpy as np
 
 from ...core.params import AxisParams
-from ..encoder import EncoderChain, pulse_passed
+from ..encoder import EncoderChain
 from ..mechanics import Mechanics
 from ..probe_pattern import check_probe_signal, first_pattern_edge, pattern_level, signal_edges
 from . import statemachine as sm
@@ -73,6 +73,10 @@ PROBE_SYNC_PULSE = PROBE_ENABLE | PROBE_CONTINUOUS | PROBE_SOURCE_INDEX | PROBE_
 TP2_ENABLE, TP2_CONTINUOUS, TP2_SOURCE, TP2_POSITIVE, TP2_NEGATIVE = 0x0100, 0x0200, 0x0C00, 0x1000, 0x2000
 TP2_STATUS_ENABLED, TP2_STATUS_POS_STORED, TP2_STATUS_NEG_STORED, TP2_STATUS_INPUT = 0x0100, 0x0200, 0x0400, 0x4000
 _TP2_BITS = np.uint16(0xFF00)
+
+
+_NO_ROWS = np.zeros(0, dtype=np.intp)
+_NO_PULSES = np.zeros(0)
 
 
 class Cia402Device:
@@ -107,6 +111,15 @@ class Cia402Device:
         self._alpha = np.ones(n)
         self._dec = np.full(n, 5000.0)       # quick stop / fault reaction deceleration [inc/s^2]
         self._scale = np.ones(n)             # |AxisEncoderScalingFactor| [u/inc] (the mechanics work in u)
+        self._unit_scale = True              # every scale is 1
+        self._scale_dt = self._scale / self.cycle_time
+        # the states and the modes of the last _move: their Operation enabled and CSV masks
+        self._oe_key = b""
+        self._oe = np.zeros(n, dtype=bool)
+        self._n_oe = 0
+        self._csv_of: np.ndarray | None = None
+        self._csv = np.zeros(n, dtype=bool)
+        self._any_csv = False
         self._pulse_spacing = np.ones(n)     # [inc]
         self._pulse_offset = np.zeros(n)     # [inc]
         self._event = np.zeros(n, dtype=bool)      # a transient fault waiting for its reaction
@@ -140,6 +153,9 @@ class Cia402Device:
         self._chain = EncoderChain(n)
         self.mechanics = Mechanics(n, cycle_time)
         self._any_fault = False
+        # _pulses_passed's work arrays
+        self._pp_fa, self._pp_fb, self._pp_k = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._pp_c, self._pp_c2 = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
         self._sm_new = self.state
         self._sw_key = b""  # the states of the last statuswords published, and those (shared by the TxImages)
@@ -153,6 +169,8 @@ class Cia402Device:
         self._chain.configure(i, params, self._chain.position(i, float(self.position[i])))
         scale = abs(float(params.AxisEncoderScalingFactor))
         self._scale[i] = scale
+        self._unit_scale = bool(np.all(self._scale == 1.0))
+        self._scale_dt = self._scale / self.cycle_time  # (s / dt of every step)
         t = float(params.SimTimeConstant)
         self._alpha[i] = 1.0 if t <= 0 else 1.0 - math.exp(-self.cycle_time / t)
         self._dec[i] = float(params.AxisDec) / scale
@@ -297,11 +315,17 @@ class Cia402Device:
 
     def _move(self, state: np.ndarray, rx: RxImage, dt: float) -> None:
         pos, v = self.position, self.velocity
-        oe = state == _OE
-        n_oe = np.count_nonzero(oe)
-        csv = rx.mode == _CSV
+        key = state.tobytes()
+        if key != self._oe_key:  # (the states change on events only)
+            self._oe_key, self._oe = key, state == _OE
+            self._n_oe = np.count_nonzero(self._oe)
+        oe, n_oe = self._oe, self._n_oe
+        if rx.mode is not self._csv_of:  # (an owned RxImage's mode is the same array every cycle)
+            self._csv_of, self._csv = rx.mode, rx.mode == _CSV
+            self._any_csv = bool(np.count_nonzero(self._csv))
+        csv = self._csv
         stopping: np.ndarray | None = None
-        if n_oe == self.n and not np.count_nonzero(csv):  # the steady state: every drive follows its position target
+        if n_oe == self.n and not self._any_csv:  # the steady state: every drive follows its position target
             new_pos = pos + self._alpha * (rx.target_position - pos)
         else:
             stopping = (state == _QSA) | (state == _FRA)
@@ -326,7 +350,10 @@ class Cia402Device:
         delivering = oe if stopping is None else oe | stopping
         tv = rx.target_velocity
         s = self._scale
-        self.mechanics.step(delivering, tv * s, (tv - self._prev_tv) * (s / dt), new_v * s, new_a * s)
+        if self._unit_scale:  # (x * 1.0 is x, bit for bit: the mechanics copy their inputs)
+            self.mechanics.step(delivering, tv, (tv - self._prev_tv) * self._scale_dt, new_v, new_a)
+        else:
+            self.mechanics.step(delivering, tv * s, (tv - self._prev_tv) * self._scale_dt, new_v * s, new_a * s)
         self._prev_tv = tv
 
     def _latch(self, rx: RxImage) -> None:
@@ -337,15 +364,46 @@ class Cia402Device:
                 self._tp2_changed(fn2)
             self._probe_changed(fn)
         if self._probe_armed_any:
-            x = pulse_passed(self._before, self.position, self._pulse_spacing, self._pulse_offset)
-            hit = self._probe_armed & (x == x)  # (not NaN)
-            if np.count_nonzero(hit):
-                self._probe_position = np.where(hit, x, self._probe_position)
-                st = np.where(hit, (self._probe_status | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, self._probe_status)
-                self._probe_status = st.astype(np.uint16)
+            rows, x = self._pulses_passed()
+            if len(rows):
+                pp = self._probe_position.copy()  # (new arrays: the TxImages given out hold the old ones)
+                pp[rows] = x
+                self._probe_position = pp
+                st = self._probe_status.copy()
+                st[rows] = (st[rows] | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE
+                self._probe_status = st
                 if not self._probe_continuous.all():  # single mode: latched once
+                    hit = np.zeros(self.n, dtype=bool)
+                    hit[rows] = True
                     self._probe_armed = self._probe_armed & (self._probe_continuous | ~hit)
                     self._probe_armed_any = bool(self._probe_armed.any())
+
+    def _pulses_passed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The armed axes that passed an index pulse in this step and that pulse [inc]: :func:`..encoder.pulse_passed`
+        from the position before the step to the new one, bit for bit, with its work arrays kept (the crossing
+        test for all axes; the pulse itself only where one was passed). Its rule: moving up the last pulse index
+        reached is floor(fb) and counts if > fa, moving down ceil(fb) if < fa (f = (position - offset) / spacing);
+        floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving down, so one test of both needs no
+        direction (none holds when fa == fb or either is NaN)."""
+        sp, off = self._pulse_spacing, self._pulse_offset
+        fa, fb, k, c, c2 = self._pp_fa, self._pp_fb, self._pp_k, self._pp_c, self._pp_c2
+        np.subtract(self._before, off, out=fa)
+        fa /= sp
+        np.subtract(self.position, off, out=fb)
+        fb /= sp
+        np.floor(fb, out=k)
+        np.greater(k, fa, out=c)
+        np.ceil(fb, out=k)
+        np.less(k, fa, out=c2)
+        c |= c2
+        c &= self._probe_armed
+        if not np.count_nonzero(c):
+            return _NO_ROWS, _NO_PULSES
+        rows = c.nonzero()[0]
+        fbr, far = fb[rows], fa[rows]
+        x = off[rows] + np.where(fbr > far, np.floor(fbr), np.ceil(fbr)) * sp[rows]
+        ok = x == x  # (not NaN)
+        return (rows, x) if ok.all() else (rows[ok], x[ok])
 
     def _probe_changed(self, fn: np.ndarray) -> None:
         """0x60B8 changed: probe 1 enabled (again) or off, its mode, source and edge."""
