@@ -318,7 +318,7 @@ class Cia402Device:
         key = state.tobytes()
         if key != self._oe_key:  # (the states change on events only)
             self._oe_key, self._oe = key, state == _OE
-            self._n_oe = np.count_nonzero(self._oe)
+            self._n_oe = int(np.count_nonzero(self._oe))
         oe, n_oe = self._oe, self._n_oe
         if rx.mode is not self._csv_of:  # (an owned RxImage's mode is the same array every cycle)
             self._csv_of, self._csv = rx.mode, rx.mode == _CSV

@@ -368,7 +368,7 @@ class Cia402Drive(DriveABC):
             state = sm.decode(tx.statusword)
             following = state == _OE
             pending = following & ~self._confirmed
-            pending_n = np.count_nonzero(pending)
+            pending_n = int(np.count_nonzero(pending))
             if pending_n:  # (the steady state: every following axis confirmed, nothing to do)
                 # (strictly after: a statusword stamped with the Shutdown's own cycle may not show it yet)
                 self._confirmed = self._confirmed | (pending & (self._answered(tx) - self.reaction_margin > self._last_off))
