@@ -5,8 +5,8 @@ MoveVelocity) and its coupled load (N // 3 geared pairs, the rest moving), stepp
 each step timed with the thread's CPU clock (``time.thread_time_ns``: what another process takes
 from this one does not count) and, beside it, the wall clock. Shown per point: p50, p99, max, the
 ratio p99 / p50 (what the lookahead refill adds to the tail), the median step per phase
-``core.cycle % 4`` (a heavy phase every 4th cycle shows as one high column) and the median time
-per pipeline stage.
+``core.cycle % 4`` (a heavy phase every 4th cycle shows as one high column) and the median and p99
+time per pipeline stage (the core's own stage timers: wall clock).
 
     PYTHONPATH=$PWD .venv/bin/python bench/step_tails.py [--axes 8 64 256 1024] [--coupled 384]
                                                           [--n 6000] [--rounds 3] [--groups G] [--lookahead L]
@@ -85,7 +85,8 @@ def measure(core: Any, count: int) -> dict[str, Any]:
            "p99": float(np.percentile(c, 99)), "max": float(c.max()),
            "wall_p99": float(np.percentile(wall / 1e3, 99)),
            "phase": [float(np.median(c[phase % 4 == m])) for m in range(4)],
-           "stages": [float(np.median(stages[:, j])) / 1e3 for j in range(stages.shape[1])]}
+           "stages": [float(np.median(stages[:, j])) / 1e3 for j in range(stages.shape[1])],
+           "stages99": [float(np.percentile(stages[:, j], 99)) / 1e3 for j in range(stages.shape[1])]}
     return out
 
 
@@ -108,16 +109,18 @@ def main() -> None:
     print(f"load {tuple(round(x, 2) for x in __import__('os').getloadavg())}; n={args.n} x {args.rounds} rounds; "
           f"thread CPU time of core.step [us], median over rounds")
     print(f"{'load':<8} {'axes':>5} {'L/G':>6} {'p50':>7} {'p90':>7} {'p99':>7} {'max':>7} {'p99/p50':>7} "
-          f"{'wall99':>7} | phase medians | stage medians ({', '.join(names)})")
+          f"{'wall99':>7} | phase medians | stage medians ({', '.join(names)}) | stage p99s (wall clock)")
     for p in points:
         rs = res[p]
         med = {k: float(np.median([r[k] for r in rs])) for k in ("p50", "p90", "p99", "max", "wall_p99")}
         ph = np.median([r["phase"] for r in rs], axis=0)
         st = np.median([r["stages"] for r in rs], axis=0)
+        st99 = np.median([r["stages99"] for r in rs], axis=0)
         prof = cores[p].profile
         print(f"{p[0]:<8} {p[1]:>5} {f'{prof.lookahead}/{prof.groups}':>6} {med['p50']:>7.1f} {med['p90']:>7.1f} "
               f"{med['p99']:>7.1f} {med['max']:>7.1f} {med['p99'] / med['p50']:>7.2f} {med['wall_p99']:>7.1f} | "
-              + " ".join(f"{x:5.1f}" for x in ph) + " | " + " ".join(f"{x:.1f}" for x in st))
+              + " ".join(f"{x:5.1f}" for x in ph) + " | " + " ".join(f"{x:.1f}" for x in st)
+              + " | p99 " + " ".join(f"{x:.1f}" for x in st99))
 
 
 if __name__ == "__main__":

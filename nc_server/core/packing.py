@@ -9,6 +9,7 @@ It may import: nc_schema, numpy, .jobs.base (ENDED_KEPT, types).
 """
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -85,6 +86,63 @@ class JobRecords:
             int(self.drive_status[i]))
 
 
+def _short_mantissas(period: np.ndarray) -> bool:
+    """Every period is positive, finite and has at most 22 significant bits (e.g. 360: a product with an integer of
+    magnitude below 2 ** 30 is exact)."""
+    if not (np.all(period > 0) and np.all(np.isfinite(period))):
+        return False
+    for b in period.tolist():
+        m = int(math.ldexp(math.frexp(b)[0], 53))  # the 53-bit significand as an integer
+        if (m // (m & -m)).bit_length() > 22:  # (its odd part)
+            return False
+    return True
+
+
+class _Modulo:
+    """``np.divmod(x, period)`` into the records' turns (int32) and modulo position, the same bytes, mostly without
+    the division: from each axis's turns ``q`` of the last cycle, ``r = x - q * period``; where ``0 <= r < period``,
+    ``q`` is floor(x / period) (``q * period`` is exact: short mantissas, ``|q| < 2 ** 30``; ``x - q * period`` is
+    then the correctly rounded remainder, which is what divmod's fmod-and-adjust gives: fmod is exact, and its
+    adjustment ``fmod + period`` rounds the same real number) and ``(q, r)`` is divmod's result (``r + 0.0``: its
+    zero is +0). The other axes (a turn passed, the first cycle, NaN) take ``np.divmod``. Periods that are not short
+    (or not positive and finite) take ``np.divmod`` for all axes."""
+
+    def __init__(self, n: int) -> None:
+        self.q = np.full(n, np.nan)  # the turns of the last cycle as floats (NaN: unknown or too large)
+        self._turns = np.empty(n)
+        self._r = np.empty(n)
+        self._ok = np.empty(n, dtype=bool)
+        self._ok2 = np.empty(n, dtype=bool)
+        self._key = b""
+        self._short = False
+
+    def __call__(self, x: np.ndarray, period: np.ndarray, turns: np.ndarray, pos: np.ndarray) -> None:
+        key = period.tobytes()
+        if key != self._key:
+            self._key, self._short = key, _short_mantissas(period)
+            self.q[:] = np.nan
+        if not self._short:
+            np.divmod(x, period, out=(turns, pos), casting="unsafe")
+            return
+        q, r, ok = self.q, self._r, self._ok
+        np.multiply(q, period, out=r)
+        np.subtract(x, r, out=r)
+        np.greater_equal(r, 0.0, out=ok)
+        ok &= np.less(r, period, out=self._ok2)
+        src = q
+        if np.count_nonzero(ok) < len(ok):
+            bad = (~ok).nonzero()[0]
+            qd, rd = np.divmod(x[bad], period[bad])
+            src = self._turns
+            src[:] = q
+            src[bad] = qd
+            q[bad] = np.where(np.abs(qd) < 2.0 ** 30, qd, np.nan)
+            r[bad] = rd
+        r += 0.0
+        pos[...] = r
+        np.copyto(turns, src, casting="unsafe")
+
+
 class NctoplcPacker:
     """The NCTOPLC_AXIS_REF fields the cycle writes, as views of ``nctoplc`` (a field lookup per
     write costs more than the copy)."""
@@ -104,6 +162,7 @@ class NctoplcPacker:
         self.out_torque = np.ndarray((n, 2), np.float64, nctoplc, f8["SetTorque"][1], (NCTOPLC_DTYPE.itemsize, 8))
         self.out_torque2 = np.ndarray((n, 4), np.float64, nctoplc, f8["ActTorqueDerivative"][1],
                                       (NCTOPLC_DTYPE.itemsize, 8))
+        self._act_mod, self._set_mod = _Modulo(n), _Modulo(n)
 
     def fill(self, core: Any, event_dw: np.ndarray, loop_dw: np.ndarray) -> None:
         """This cycle's values from the axis table, the drive and the set-point words of ``core``."""
@@ -117,7 +176,7 @@ class NctoplcPacker:
         o["AxisState"][...] = core.axis_state
         period = a.modulo_factor
         o["ActPos"][...] = act
-        np.divmod(act, period, out=(o["ModuloActTurns"], o["ModuloActPos"]), casting="unsafe")  # // and %
+        self._act_mod(act, period, o["ModuloActTurns"], o["ModuloActPos"])  # divmod: // and %
         o["ActVelo"][...] = d.act_velo
         torque = d.torque_fields()
         if torque is not None:  # (None: all 0 and shown so already)
@@ -130,7 +189,7 @@ class NctoplcPacker:
         if np.count_nonzero(a.continuous):
             np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
-        np.divmod(a.set_pos, period, out=(o["ModuloSetTurns"], o["ModuloSetPos"]), casting="unsafe")
+        self._set_mod(a.set_pos, period, o["ModuloSetTurns"], o["ModuloSetPos"])
         corr = core.corrections  # (ActPos less the filtered PLCTONC.PositionCorrection)
         o["ActPosWithoutPosCorrection"][...] = act - corr.pc if corr.any_pc else act
         o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState

@@ -52,6 +52,9 @@ class Mechanics:
         self._offset_on = False  # some offset is not 0 (else the offset's rows need no work)
         self._offset_dirty = False  # the offsets changed since the last step
         self._rest = 0  # steps in a row without any drive delivering torque (3: at rest, nothing to do)
+        self._v = np.zeros((2, n))  # step's work rows: velocities (set, act), torques, one term
+        self._t = np.zeros((2, n))
+        self._tmp = np.zeros((2, n))
 
     def configure(self, i: int, params: AxisParams) -> None:
         k = 100.0 / float(params.SimRatedTorque)
@@ -89,10 +92,19 @@ class Mechanics:
                     f[[0, 1, 5]] = 0.0
             return
         self._rest = 0
-        v = np.array((set_velo, act_velo))
-        t = self.inertia * np.array((set_acc, act_acc))
-        t += self.viscous * v
-        t += self.coulomb * np.sign(v)
+        # (into preallocated rows: the same operations on the same values as
+        # inertia * acc + viscous * v + coulomb * sign(v), without a new array per term)
+        v, t, tmp = self._v, self._t, self._tmp
+        v[0] = set_velo
+        v[1] = act_velo
+        t[0] = set_acc
+        t[1] = act_acc
+        t *= self.inertia
+        np.multiply(v, self.viscous, out=tmp)
+        t += tmp
+        np.sign(v, out=tmp)
+        tmp *= self.coulomb
+        t += tmp
         if self._offset_on:
             t[0] += self.offset
         if k < self._n:

@@ -49,7 +49,7 @@ import threading
 import numpy as np
 
 from ...core.params import AxisParams
-from ..encoder import EncoderChain, pulse_passed
+from ..encoder import EncoderChain
 from ..mechanics import Mechanics
 from ..probe_pattern import check_probe_signal, first_pattern_edge, pattern_level, signal_edges
 from . import statemachine as sm
@@ -73,6 +73,10 @@ PROBE_SYNC_PULSE = PROBE_ENABLE | PROBE_CONTINUOUS | PROBE_SOURCE_INDEX | PROBE_
 TP2_ENABLE, TP2_CONTINUOUS, TP2_SOURCE, TP2_POSITIVE, TP2_NEGATIVE = 0x0100, 0x0200, 0x0C00, 0x1000, 0x2000
 TP2_STATUS_ENABLED, TP2_STATUS_POS_STORED, TP2_STATUS_NEG_STORED, TP2_STATUS_INPUT = 0x0100, 0x0200, 0x0400, 0x4000
 _TP2_BITS = np.uint16(0xFF00)
+
+
+_NO_ROWS = np.zeros(0, dtype=np.intp)
+_NO_PULSES = np.zeros(0)
 
 
 class Cia402Device:
@@ -107,6 +111,15 @@ class Cia402Device:
         self._alpha = np.ones(n)
         self._dec = np.full(n, 5000.0)       # quick stop / fault reaction deceleration [inc/s^2]
         self._scale = np.ones(n)             # |AxisEncoderScalingFactor| [u/inc] (the mechanics work in u)
+        self._unit_scale = True              # every scale is 1
+        self._scale_dt = self._scale / self.cycle_time
+        # the states and the modes of the last _move: their Operation enabled and CSV masks
+        self._oe_key = b""
+        self._oe = np.zeros(n, dtype=bool)
+        self._n_oe = 0
+        self._csv_of: np.ndarray | None = None
+        self._csv = np.zeros(n, dtype=bool)
+        self._any_csv = False
         self._pulse_spacing = np.ones(n)     # [inc]
         self._pulse_offset = np.zeros(n)     # [inc]
         self._event = np.zeros(n, dtype=bool)      # a transient fault waiting for its reaction
@@ -140,6 +153,13 @@ class Cia402Device:
         self._chain = EncoderChain(n)
         self.mechanics = Mechanics(n, cycle_time)
         self._any_fault = False
+        # _pulses_passed's work arrays
+        self._pp_fa, self._pp_fb, self._pp_k = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._pp_c, self._pp_c2 = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
+        self._sm_new = self.state
+        self._sw_key = b""  # the states of the last statuswords published, and those (shared by the TxImages)
+        self._sw = np.zeros(0, dtype=np.uint16)
         self.tx = TxImage.zeros(n)
         self._publish()
 
@@ -149,6 +169,8 @@ class Cia402Device:
         self._chain.configure(i, params, self._chain.position(i, float(self.position[i])))
         scale = abs(float(params.AxisEncoderScalingFactor))
         self._scale[i] = scale
+        self._unit_scale = bool(np.all(self._scale == 1.0))
+        self._scale_dt = self._scale / self.cycle_time  # (s / dt of every step)
         t = float(params.SimTimeConstant)
         self._alpha[i] = 1.0 if t <= 0 else 1.0 - math.exp(-self.cycle_time / t)
         self._dec[i] = float(params.AxisDec) / scale
@@ -224,8 +246,12 @@ class Cia402Device:
 
     # -- the cycle ------------------------------------------------------------------------------------------
 
-    def step(self, rx: RxImage | None) -> TxImage:
+    def step(self, rx: RxImage | None, owned: bool = False) -> TxImage:
         """One device cycle with the outputs that arrived (None: none arrived, the last ones stay in effect).
+
+        Args:
+            owned: the caller never writes the arrays of ``rx`` after this call (``cia402-sim``'s drive: it makes
+                new arrays): the device keeps them instead of copies.
 
         Returns:
             the inputs of this cycle (a new :class:`TxImage`, age 0, alive; its arrays are not written later).
@@ -233,6 +259,9 @@ class Cia402Device:
         dt = self.cycle_time
         if rx is None:
             self.silent += dt
+        elif owned:
+            self.rx = rx
+            self.silent = 0.0
         else:  # (copies: a caller reusing its arrays must not change the last controlword, which edges compare)
             self.rx = RxImage(rx.controlword.copy(), rx.mode.copy(), rx.target_position.copy(),
                               rx.target_velocity.copy(), rx.probe_function.copy(), rx.cycle)
@@ -256,8 +285,10 @@ class Cia402Device:
             new = sm.device_next(state, cw, self._prev_cw, fault, stopped)
             self._event &= new < _FRA  # consumed by the reaction
             self._any_fault = bool(self._event.any() or self._cause.any())
-        else:
+        elif faulted:
             new = sm.device_next(state, cw, self._prev_cw, False, stopped)
+        else:  # (no drive in Fault reaction active or Fault: the next state depends on state and controlword only)
+            new = self._next_state(state, cw)
         if faulted:
             reset = (state == _FLT) & (new != _FLT)
             if reset.any():
@@ -271,13 +302,30 @@ class Cia402Device:
         self._publish()
         return self.tx
 
+    def _next_state(self, state: np.ndarray, cw: np.ndarray) -> np.ndarray:
+        """:func:`.statemachine.device_next` without faults (no drive in Fault reaction active or Fault): a function of
+        the states and the controlwords alone, so the same two as last time give last time's result (the steady
+        cycle: every drive stays in Operation enabled under 0x000F) without the table look-up."""
+        key = state.tobytes() + cw.tobytes()
+        if key == self._sm_key:
+            return self._sm_new
+        new = sm.device_next(state, cw, self._prev_cw, False, True)
+        self._sm_key, self._sm_new = key, new.copy()  # (a copy: a test may write a device's state in place)
+        return new
+
     def _move(self, state: np.ndarray, rx: RxImage, dt: float) -> None:
         pos, v = self.position, self.velocity
-        oe = state == _OE
-        n_oe = np.count_nonzero(oe)
-        csv = rx.mode == _CSV
+        key = state.tobytes()
+        if key != self._oe_key:  # (the states change on events only)
+            self._oe_key, self._oe = key, state == _OE
+            self._n_oe = int(np.count_nonzero(self._oe))
+        oe, n_oe = self._oe, self._n_oe
+        if rx.mode is not self._csv_of:  # (an owned RxImage's mode is the same array every cycle)
+            self._csv_of, self._csv = rx.mode, rx.mode == _CSV
+            self._any_csv = bool(np.count_nonzero(self._csv))
+        csv = self._csv
         stopping: np.ndarray | None = None
-        if n_oe == self.n and not np.count_nonzero(csv):  # the steady state: every drive follows its position target
+        if n_oe == self.n and not self._any_csv:  # the steady state: every drive follows its position target
             new_pos = pos + self._alpha * (rx.target_position - pos)
         else:
             stopping = (state == _QSA) | (state == _FRA)
@@ -302,7 +350,10 @@ class Cia402Device:
         delivering = oe if stopping is None else oe | stopping
         tv = rx.target_velocity
         s = self._scale
-        self.mechanics.step(delivering, tv * s, (tv - self._prev_tv) * (s / dt), new_v * s, new_a * s)
+        if self._unit_scale:  # (x * 1.0 is x, bit for bit: the mechanics copy their inputs)
+            self.mechanics.step(delivering, tv, (tv - self._prev_tv) * self._scale_dt, new_v, new_a)
+        else:
+            self.mechanics.step(delivering, tv * s, (tv - self._prev_tv) * self._scale_dt, new_v * s, new_a * s)
         self._prev_tv = tv
 
     def _latch(self, rx: RxImage) -> None:
@@ -313,15 +364,46 @@ class Cia402Device:
                 self._tp2_changed(fn2)
             self._probe_changed(fn)
         if self._probe_armed_any:
-            x = pulse_passed(self._before, self.position, self._pulse_spacing, self._pulse_offset)
-            hit = self._probe_armed & (x == x)  # (not NaN)
-            if np.count_nonzero(hit):
-                self._probe_position = np.where(hit, x, self._probe_position)
-                st = np.where(hit, (self._probe_status | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, self._probe_status)
-                self._probe_status = st.astype(np.uint16)
+            rows, x = self._pulses_passed()
+            if len(rows):
+                pp = self._probe_position.copy()  # (new arrays: the TxImages given out hold the old ones)
+                pp[rows] = x
+                self._probe_position = pp
+                st = self._probe_status.copy()
+                st[rows] = (st[rows] | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE
+                self._probe_status = st
                 if not self._probe_continuous.all():  # single mode: latched once
+                    hit = np.zeros(self.n, dtype=bool)
+                    hit[rows] = True
                     self._probe_armed = self._probe_armed & (self._probe_continuous | ~hit)
                     self._probe_armed_any = bool(self._probe_armed.any())
+
+    def _pulses_passed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The armed axes that passed an index pulse in this step and that pulse [inc]: :func:`..encoder.pulse_passed`
+        from the position before the step to the new one, bit for bit, with its work arrays kept (the crossing
+        test for all axes; the pulse itself only where one was passed). Its rule: moving up the last pulse index
+        reached is floor(fb) and counts if > fa, moving down ceil(fb) if < fa (f = (position - offset) / spacing);
+        floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving down, so one test of both needs no
+        direction (none holds when fa == fb or either is NaN)."""
+        sp, off = self._pulse_spacing, self._pulse_offset
+        fa, fb, k, c, c2 = self._pp_fa, self._pp_fb, self._pp_k, self._pp_c, self._pp_c2
+        np.subtract(self._before, off, out=fa)
+        fa /= sp
+        np.subtract(self.position, off, out=fb)
+        fb /= sp
+        np.floor(fb, out=k)
+        np.greater(k, fa, out=c)
+        np.ceil(fb, out=k)
+        np.less(k, fa, out=c2)
+        c |= c2
+        c &= self._probe_armed
+        if not np.count_nonzero(c):
+            return _NO_ROWS, _NO_PULSES
+        rows = c.nonzero()[0]
+        fbr, far = fb[rows], fa[rows]
+        x = off[rows] + np.where(fbr > far, np.floor(fbr), np.ceil(fbr)) * sp[rows]
+        ok = x == x  # (not NaN)
+        return (rows, x) if ok.all() else (rows[ok], x[ok])
 
     def _probe_changed(self, fn: np.ndarray) -> None:
         """0x60B8 changed: probe 1 enabled (again) or off, its mode, source and edge."""
@@ -434,7 +516,10 @@ class Cia402Device:
     def _publish(self) -> None:
         m = self.mechanics
         torque = self._no_torque if m.resting else m.fields[1] * 10.0
-        self.tx = TxImage(sm.statusword(self.state, follows=True), self.rx.mode, self.position, self.velocity,
+        key = self.state.tobytes()
+        if key != self._sw_key:  # (the statuswords change with the states only: the steady cycle reuses them)
+            self._sw_key, self._sw = key, sm.statusword(self.state, follows=True)
+        self.tx = TxImage(self._sw, self.rx.mode, self.position, self.velocity,
                           torque, self.error_code, self._probe_status, self._probe_position, self._tp2_pos,
                           self._tp2_neg, self._age0, self._alive,
                           np.full(self.n, self.rx.cycle, dtype=np.int64))  # (the outputs these inputs answer)

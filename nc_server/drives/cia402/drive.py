@@ -238,6 +238,17 @@ class Cia402Drive(DriveABC):
         self._act_live = False  # ActTorque (0x6077) was not 0 in the last cycle, or its derivative
         self._act_shown = np.zeros(n)  # the ActTorque shown last [%]
         self._cycle = 0
+        # the key (states, enables) of the last controlwords computed without a reset, those (never written: sent
+        # again while the key holds) and whether one of them is not Enable operation
+        self._cw_key = b""
+        self._cw = np.zeros(0, dtype=np.uint16)
+        self._cw_off = True
+        # the steady cycle's statuswords (bytes), their states, following and confirmed masks and the enables
+        self._st_key = b""
+        self._st_state = np.zeros(0, dtype=np.int8)
+        self._st_following: np.ndarray | None = None
+        self._st_conf: np.ndarray | None = None
+        self._st_want = b""
         self.following = np.zeros(n, dtype=bool)
         self.tx = TxImage.zeros(n)
         self._pos_inc = np.zeros(n)
@@ -312,7 +323,7 @@ class Cia402Drive(DriveABC):
         target = c.increments_at(set_pos)
         if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
             target = np.where(self.following, target, self._pos_inc)
-        velo = set_velo / c.scaling * c.sign
+        velo = c.inc_velocities(set_velo)
         if self._tp_watch or self._tp_req_cycle == self._cycle:
             self._probe_outputs()
         if self._any_csv:  # the NC closes the position loop: feed forward + kv * the position error [inc/s]
@@ -328,28 +339,43 @@ class Cia402Drive(DriveABC):
             cw = sm.nc_controlword(self.state, up, self._reset_left > 0, self.controlword)
             # (the time limit runs once the drive is in Fault: its fault reaction (braking) may take long)
             self._reset_left = np.where(self.state == _FRA, self._reset_left, np.maximum(self._reset_left - 1, 0))
-        else:
-            cw = sm.nc_controlword(self.state, up)
+        else:  # (a function of the states and the enables alone: the steady cycle reuses the last controlwords)
+            key = self.state.tobytes() + np.asarray(up, dtype=bool).tobytes()
+            if key != self._cw_key:
+                cw = sm.nc_controlword(self.state, up)
+                self._cw_key, self._cw, self._cw_off = key, cw, bool(np.count_nonzero(cw != _ENABLE_OPERATION))
+            cw = self._cw
         self._cycle += 1
-        off = cw != _ENABLE_OPERATION
-        if np.count_nonzero(off):
-            self._last_off = np.where(off, self._cycle, self._last_off)
-            self._confirmed = self._confirmed & ~off
+        if cw is not self._cw or self._cw_off:
+            off = cw != _ENABLE_OPERATION
+            if np.count_nonzero(off):
+                self._last_off = np.where(off, self._cycle, self._last_off)
+                self._confirmed = self._confirmed & ~off
         rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
                      self._cycle)
         self.controlword = cw
         tx = self.link.exchange(rx)
         self.tx = tx
-        state = sm.decode(tx.statusword)
+        skey = tx.statusword.tobytes()
+        # the steady cycle (see _remember_steady): the statuswords of the last cycle again, nothing confirmed or
+        # decoded anew since -> the same states, the same following mask, nothing pending
+        known = skey == self._st_key and self._confirmed is self._st_conf and self.following is self._st_following
+        if known:
+            state = self._st_state.copy()  # (a copy: ``state`` is handed out)
+            following = self.following
+            pending_n = 0
+        else:
+            state = sm.decode(tx.statusword)
+            following = state == _OE
+            pending = following & ~self._confirmed
+            pending_n = int(np.count_nonzero(pending))
+            if pending_n:  # (the steady state: every following axis confirmed, nothing to do)
+                # (strictly after: a statusword stamped with the Shutdown's own cycle may not show it yet)
+                self._confirmed = self._confirmed | (pending & (self._answered(tx) - self.reaction_margin > self._last_off))
         self.state = state
-        following = state == _OE
-        pending = following & ~self._confirmed
-        if np.count_nonzero(pending):  # (the steady state: every following axis confirmed, nothing to do)
-            # (strictly after: a statusword stamped with the Shutdown's own cycle may not show it yet)
-            self._confirmed = self._confirmed | (pending & (self._answered(tx) - self.reaction_margin > self._last_off))
         c = self.encoder
         new_pos = c.positions(tx.position_actual)
-        new_velo = tx.velocity_actual * c.scaling * c.sign
+        new_velo = c.velocities(tx.velocity_actual)
         new_acc = (new_velo - self.act_velo) / self.cycle_time
         n = len(state)
         degraded = np.count_nonzero(tx.age > self.max_age) or np.count_nonzero(tx.alive) < n
@@ -385,7 +411,10 @@ class Cia402Drive(DriveABC):
                                or self._any_reset)
         else:
             self._pos_inc = tx.position_actual
-            if np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
+            wkey = want.tobytes()
+            if known and wkey == self._st_want and not self._any_reset:
+                pass  # (the states, the following mask and the enables of a cycle that found no change: none)
+            elif np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
                     or np.count_nonzero(want & ~following) or self._any_reset:  # a change (then the full evaluation)
                 fault_state = state >= _FRA
                 dropped = want & ~following & self.following & self._confirmed
@@ -396,6 +425,12 @@ class Cia402Drive(DriveABC):
                 self.ready = ~fault_state & (~want | following)
                 self.faulty = bool(self.device_error.any() or np.count_nonzero(want & ~following)
                                    or self._any_reset)
+            elif not pending_n:
+                # no change, nothing pending: while the statuswords, this following mask, the confirmed mask and
+                # the enables stay, the next cycles find the same (no drive in Fault (reaction), every enabled one
+                # following, every following one confirmed)
+                self._st_key, self._st_state, self._st_following = skey, state.copy(), following
+                self._st_conf, self._st_want = self._confirmed, wkey
         self.following = following
         self.act_pos, self.act_velo, self.act_acc = new_pos, new_velo, new_acc
         self.error_code = tx.error_code

@@ -54,6 +54,9 @@ class LocalLink(ProcessDataLink):
         self._last_rx: RxImage | None = None
         self._last_tx: TxImage | None = None
         self._degraded = False
+        #: the caller never writes the arrays of an RxImage after its exchange (:class:`Cia402SimDrive`'s drive):
+        #: the device keeps them (no copies; an unchanged probe function is the same array, no comparison)
+        self.owned = False
 
     def degraded_changed(self) -> None:
         self._degraded = bool(self.invalid.any() or not self.alive.all())
@@ -64,7 +67,7 @@ class LocalLink(ProcessDataLink):
 
     def exchange(self, rx: RxImage) -> TxImage:
         if not self._degraded:
-            tx = self.device.step(rx)
+            tx = self.device.step(rx, self.owned)
             self._last_rx, self._last_tx = rx, tx
             return tx
         last_rx, last_tx = self._last_rx or rx, self._last_tx or self.device.tx
@@ -102,6 +105,7 @@ class Cia402SimDrive(Cia402Drive):
         super().__init__(params, cycle_time, self._local, simulated=True, mode=mode, kv=kv, max_age=max_age,
                          reaction_margin=reaction_margin)
         self._local.invalid_age = self.max_age + 1
+        self._local.owned = True  # (Cia402Drive makes new arrays for each RxImage, or passes ones it never writes)
 
     @classmethod
     def from_config(cls, params: Sequence[AxisParams], cycle_time: float,
