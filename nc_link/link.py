@@ -14,7 +14,7 @@ import zenoh
 from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
-    MAX_VIEW_AXES, VIEW_PERIODS_MS, ErrorCodes, Keys, NcInstance, make_request, parse_alive_instance, parse_reply, unpack,
+    IDLE_VIEW_PERIOD_MS, MAX_VIEW_AXES, VIEW_PERIODS_MS, ErrorCodes, Keys, NcInstance, make_request, parse_alive_instance, parse_reply, unpack,
 )
 from nc_schema.zenoh_config import DEFAULT_LEASE_MS
 
@@ -64,7 +64,10 @@ class NcLink:
         config: a zenoh config to open instead of the built one (tests).
         view_period: take this client's view instead of whole frames (protocol.json ``view``): the frames of
             the axes given to :meth:`select` only, once per ``view_period`` ms of NC time (0: every NC cycle;
-            one of ``nc_schema.VIEW_PERIODS_MS``); ``frame_key`` is then not used. None: whole frames.
+            one of ``nc_schema.VIEW_PERIODS_MS``); ``frame_key`` is then not used. None: whole frames. A view of
+            no axes (nothing selected yet) is declared at ``nc_schema.IDLE_VIEW_PERIOD_MS``: its frames hold no
+            record and only show the NC is there, so a client without axes is woken 10 times a second, not
+            once per period.
 
     Attributes:
         keys: the NC's key builder. ready: the session is open and declared. session: the zenoh session.
@@ -177,7 +180,8 @@ class NcLink:
         assert self.view_period is not None
         ids, n = self.view_axes, MAX_VIEW_AXES
         chunks = [ids[i:i + n] for i in range(0, len(ids), n)] or [()]
-        return [self.keys.view_select(self.client_id, self.view_period, c) for c in chunks]
+        period = self.view_period if ids else max(self.view_period, IDLE_VIEW_PERIOD_MS)
+        return [self.keys.view_select(self.client_id, period, c) for c in chunks]
 
     def _declare_view(self) -> None:
         with self._view_lock:

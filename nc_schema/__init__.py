@@ -34,6 +34,7 @@ from .messages import (
     CLASSES, COMMAND_CLASS, COMMANDS, FRAME_PERIODS_MS, MAX_VIEW_AXES, MOTION_COMMANDS, PROTOCOL, ROLE_CLASSES,
     VIEW_PERIODS_MS, Keys, check_client_id, frame_period_ms, make_reply, make_request, pack, parse_alive_instance,
     parse_reply, parse_request, parse_view_axes, parse_view_select, unpack, view_axes_chunk, view_axes_text,
+    view_period_ms, IDLE_VIEW_PERIOD_MS,
 )
 from .params import (
     PARAMETERS, ST_AXIS_COMPONENTS, ST_AXIS_PARAMETER_SET, E_DestallDetectMode, E_DestallMode, E_NcAxisType,
@@ -49,7 +50,7 @@ __all__ = [
     "E_CmdTypeNewTargPosAndVelo", "E_DecoupleMode", "E_DestallDetectMode", "E_DestallMode", "E_JogMode",
     "E_NcAxisType", "E_NcDriveType", "E_NcEncoderType", "E_ReadMode", "E_SignalEdge", "E_StartPosType",
     "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe", "E_TouchProbeState", "ErrorCodes", "FRAME_HEADER_DTYPE",
-    "FRAME_HEADER_SIZE", "FRAME_HEADER_STRUCT", "FRAME_MAGIC", "FRAME_PERIODS_MS", "FrameFlags", "FrameHeader",
+    "FRAME_HEADER_SIZE", "IDLE_VIEW_PERIOD_MS", "view_period_ms", "FRAME_HEADER_STRUCT", "FRAME_MAGIC", "FRAME_PERIODS_MS", "FrameFlags", "FrameHeader",
     "HomingState", "JOB_RECORDS", "Keys", "MAX_VIEW_AXES", "MC_AxisPara", "MC_AxisStates", "MC_BufferMode", "MC_Direction",
     "MC_HomingMode", "MOTION_COMMANDS", "Member", "NCJOBS_DTYPE", "NCJOBS_SIZE", "NCTOPLC_DTYPE", "NCTOPLC_SIZE",
     "NcError", "NcInstance", "NcJobsFlags", "NcJobsSyncFlags", "OpModeDWord", "PARAMETERS", "PLCTONC_DTYPE",

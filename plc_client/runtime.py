@@ -21,10 +21,14 @@ from live clients and drops them when the token disappears) and a publisher for
 Frames: the PLC reads one frame per cycle of its own axes only. It declares its view, the liveliness
 token ``nc/<nc>/select/<client_id>/<P>ms/<axes>`` (the AxisIds its AXIS_REFs name on that NC, updated
 when an AXIS_REF is bound later), and subscribes to ``nc/<nc>/view/<client_id>``: the NC's frame cut to
-those axes, once per P ms of NC time, P the longest of ``nc_schema.FRAME_PERIODS_MS`` of at most half
-the cycle (5 ms at 10 ms; ``frame_period`` overrides it; 0 or a cycle shorter than 4 ms: every NC
-cycle). Each cycle still sees a newer frame, and a 4-axis client of a 64-axis NC receives and decodes
-1.6 kB instead of 24.6 kB (before views, 16 such clients cost the NC's transport ~5 % of a core each).
+those axes, once per P ms of NC time, P the longest of ``nc_schema.VIEW_PERIODS_MS`` of at most one
+cycle (``nc_schema.view_period_ms``: 10 ms at 10 ms; ``frame_period`` overrides it; 0 or a cycle shorter than
+2 ms: every NC cycle). One frame per PLC cycle on average, so the data a cycle reads is at most one period
+old (plus the link's latency); at half the cycle, as before, each frame woke the client's zenoh threads
+twice as often (issue 19: ~0.5 % of a core per client at 10 ms). A 4-axis client of a 64-axis NC receives
+and decodes 1.6 kB instead of 24.6 kB (before views, 16 such clients cost the NC's transport ~5 % of a core
+each). A client without axes on an NC declares a view of none at ``nc_schema.IDLE_VIEW_PERIOD_MS`` (100 ms):
+its frames only show the NC is there (:class:`nc_link.NcLink`).
 Each view frame's attachment lists the axes it was cut for: an AXIS_REF bound later is not among them
 until the NC has seen the new token (a few ms), and meanwhile has no data and is ``pending`` (its blocks'
 calls wait, :mod:`plc_client.fb.base`), where one that is listed but absent is not on the NC (0x4012).
@@ -93,7 +97,7 @@ from nc_link import CONNECT_RETRY, CONNECT_TIMEOUT_MS, DEFAULT_LEASE_MS, client_
 from nc_link.link import BACK, GONE, RESTART
 from nc_schema import (
     ErrorCodes, Keys, check_client_id, encode_plc_records, frame_period_ms, make_reply,
-    parse_reply, parse_view_axes,
+    parse_reply, parse_view_axes, view_period_ms,
 )
 
 from .axis_ref import AXIS_REF
@@ -215,8 +219,9 @@ class PlcRuntime(PlcTask):
             certificate ``<tls_dir>/<client_id>.pem`` (its CN is the identity the router's access
             control knows); every endpoint must be ``tls/``. None: plain TCP.
         frame_period: period [ms] of the status frames taken (one of ``nc_schema.FRAME_PERIODS_MS``);
-            None: the longest of at most half ``cycle_time`` (``nc_schema.frame_period_ms``); 0: every
-            NC cycle's frame (``nc/<nc>/frame``).
+            None: for the view the longest of at most ``cycle_time`` (``nc_schema.view_period_ms``), for whole
+            frames the longest of at most half ``cycle_time`` (``nc_schema.frame_period_ms``); 0: every NC
+            cycle's frame (``nc/<nc>/frame``).
         axes: AXIS_REFs to bind at once (see :class:`~plc_client.task.PlcTask`).
         view: take this client's view (the frames of its own axes, see the module docstring); False: whole
             frames.
@@ -246,7 +251,8 @@ class PlcRuntime(PlcTask):
             check_tls(tls_dir, cid, ncs.values(), "ncs")
         self.tls_dir = tls_dir
         period = frame_period_ms(self.cycle_time) if frame_period is None else (frame_period or None)
-        self.frame_period_ms = period
+        vperiod = view_period_ms(self.cycle_time) if frame_period is None else frame_period
+        self.frame_period_ms = (vperiod or None) if view else period
         self.links: dict[str, NcLink] = {}
         #: NC -> its view frames' last attachment and its AxisIds (nc_schema.parse_view_axes)
         self._view_attachment: dict[str, tuple[bytes, frozenset[int]]] = {}
@@ -256,7 +262,7 @@ class PlcRuntime(PlcTask):
             keys = Keys(nc)  # validates the name
             link = self.links[nc] = NcLink(nc, ep, cid, lease_ms, tls_dir,
                                            keys.frame if period is None else keys.frame_every(period),
-                                           view_period=(period or 0) if view else None)
+                                           view_period=vperiod if view else None)
             # one restart rule per NC: the link's instance takes the tokens, the task's frames go to the same one
             self._instances[nc] = link.instance
         self.port = ZenohPort(cid, self.links, query_timeout or 5.0 * command_timeout)

@@ -69,16 +69,16 @@ def test_client_receives_only_its_axes_and_follows_new_ones(nc: NcServerProcess)
     plc = PlcRuntime(None, {"nc1": nc.endpoint}, client_id="viewplc",
                      axes=[AXIS_REF("nc1", 5), AXIS_REF("nc1", 2)])
     try:
-        assert plc.links["nc1"].view_period == 5
+        assert plc.links["nc1"].view_period == 10  # (the PLC's 10 ms cycle: nc_schema.view_period_ms)
         plc.start()
         wait_until(lambda: watch.last_ids() == [2, 5], T, "view frames of axes 2 and 5")
         assert watch.attachments[-1] == b"2,5"  # the axes the frame was cut for
         ax2 = plc.axes[1] if plc.axes[1].axis_id == 2 else plc.axes[0]
         wait_until(lambda: ax2.NcToPlc["AxisId"] == 2 and ax2.Status.Disabled, T, "axis 2's data in the task")
-        # once per 5 ms of NC time, not every cycle: no two frames in one 5-ms window of NcTimeNs
+        # once per 10 ms of NC time, not every cycle: no two frames in one 10-ms window of NcTimeNs
         n0 = watch.count()
         wait_until(lambda: watch.count() - n0 >= 40, T, "40 more view frames")
-        windows = [t // 5_000_000 for t in watch.times[n0:]]
+        windows = [t // 10_000_000 for t in watch.times[n0:]]
         assert all(b > a for a, b in zip(windows, windows[1:])), windows
         # an AXIS_REF bound later joins the view; the task reads it
         ax7 = plc.axis("nc1", 7)
@@ -153,3 +153,29 @@ def test_a_block_on_an_axis_bound_while_running_waits_for_its_view(nc: NcServerP
         assert got[99][:3] == (False, True, 0x4012), got
     finally:
         plc.stop()
+
+
+def test_a_client_without_axes_takes_a_view_of_none_at_the_slowest_period(nc: NcServerProcess) -> None:
+    """A client with no axis on an NC (an idle plc-run) declares a view of none at IDLE_VIEW_PERIOD_MS: its
+    frames hold no record, one per 100 ms of NC time (the NC is there: its cycle counter); an AXIS_REF bound
+    later brings the client's own period (10 ms at a 10 ms cycle)."""
+    watch = ViewWatch(nc.port, "idleplc")
+    plc = PlcRuntime(None, {"nc1": nc.endpoint}, client_id="idleplc")
+    try:
+        plc.start()
+        wait_until(lambda: watch.count() >= 4, T, "4 view frames of none")
+        assert watch.attachments[-1] == b"none" and watch.last_ids() == []
+        windows = [t // 100_000_000 for t in watch.times]
+        assert all(b > a for a, b in zip(windows, windows[1:])), windows
+        wait_until(lambda: "nc1" in plc._frames, T, "the task to take a frame of the NC")
+        ax = plc.axis("nc1", 3)
+        wait_until(lambda: watch.last_ids() == [3], T, "the view with axis 3")
+        wait_until(lambda: ax.NcToPlc["AxisId"] == 3, T, "axis 3's data in the task")
+        n0 = watch.count()
+        wait_until(lambda: watch.count() - n0 >= 20, T, "20 more view frames")
+        times = watch.times[n0:]
+        assert all(b // 10_000_000 > a // 10_000_000 for a, b in zip(times, times[1:])), times
+        assert min(b - a for a, b in zip(times, times[1:])) < 100_000_000, times  # no longer the idle period
+    finally:
+        plc.stop()
+        watch.close()

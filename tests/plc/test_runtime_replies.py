@@ -11,7 +11,7 @@ import pytest
 import zenoh
 from zenoh.handlers import Callback
 
-from nc_schema import FRAME_PERIODS_MS, MAX_VIEW_AXES, ErrorCodes, parse_view_select, Keys, encode_plc_frame, frame_period_ms, pack
+from nc_schema import FRAME_PERIODS_MS, IDLE_VIEW_PERIOD_MS, MAX_VIEW_AXES, VIEW_PERIODS_MS, view_period_ms, ErrorCodes, parse_view_select, Keys, encode_plc_frame, frame_period_ms, pack
 from plc_client import AXIS_REF
 from plc_client.runtime import PlcRuntime, ZenohPort, _NcLink, plc_frame
 
@@ -96,6 +96,21 @@ def test_a_query_ending_without_reply_is_0x745() -> None:
     assert port._inflight == []
 
 
+def test_view_period_follows_the_plc_cycle_and_a_view_of_none_is_slow() -> None:
+    assert [view_period_ms(c) for c in (0.010, 0.007, 0.004, 0.002, 0.0019, 0.001, 0.2, 5.0)] == \
+        [10, 5, 2, 2, 0, 0, 100, max(VIEW_PERIODS_MS)]
+    rt = PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1"}, cycle_time=0.01, client_id="t8")
+    link = rt.links["nc1"]
+    assert rt.frame_period_ms == 10 and link.view_period == 10
+    # no axes: a view of none at the slowest period (its frames only show the NC is there) ...
+    assert link._view_token_keys() == [f"nc/nc1/select/t8/{IDLE_VIEW_PERIOD_MS}ms/none"] == ["nc/nc1/select/t8/100ms/none"]
+    # ... an axis bound: the client's period
+    link.select([3, 1])
+    assert link._view_token_keys() == ["nc/nc1/select/t8/10ms/1,3"]
+    link.select([])
+    assert link._view_token_keys() == ["nc/nc1/select/t8/100ms/none"]
+
+
 def test_frame_key_follows_the_plc_cycle() -> None:
     k = Keys("nc1")
     assert frame_period_ms(0.010) == 5 and frame_period_ms(0.004) == 2 and frame_period_ms(0.003) is None
@@ -108,9 +123,9 @@ def test_frame_key_follows_the_plc_cycle() -> None:
     assert rt.links["nc1"].frame_key == k.frame
     with pytest.raises(ValueError):
         PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1"}, cycle_time=0.01, client_id="t5", frame_period=3)
-    # the view (issue 19) takes the same period (0: every NC cycle); whole frames only with view=False
+    # the view (issue 19) takes the longest period of at most one cycle (one frame per cycle on average) (0: every NC cycle); whole frames only with view=False
     assert [PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1"}, cycle_time=c, client_id="t6", frame_period=f)
-            .links["nc1"].view_period for c, f in ((0.01, None), (0.001, None), (0.01, 0), (0.2, 20))] == [5, 0, 0, 20]
+            .links["nc1"].view_period for c, f in ((0.01, None), (0.001, None), (0.01, 0), (0.2, 20))] == [10, 0, 0, 20]
     assert PlcRuntime(None, {"nc1": "tcp/127.0.0.1:1"}, client_id="t7", view=False).links["nc1"].view_period is None
 
 
