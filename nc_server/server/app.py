@@ -840,6 +840,8 @@ class NcServer:
                   "drive_errors": self._drive_errors(),
                   "drive_input_age": self._drive_input_age(),
                   "remote_couplings": self.core.coupling.remote_stats(self.core.axis_ids),
+                  # (protocol 5: remote masters' samples of a lower epoch than their NC's highest, dropped)
+                  "remote_stale_epoch": self.core.coupling.sources.stale_epoch,
                   "drive_link": self._drive_link(),
                   "stages": self.core.stage_times()})
         if self.ha is not None:
