@@ -192,12 +192,14 @@ def online_struct(nctoplc: bytes, override: int = 0) -> bytes:
 
 @dataclass(frozen=True)
 class Image:
-    """The newest status frame: NC cycle and time, when it arrived (monotonic), the NCTOPLC record per AxisId."""
+    """The newest status frame: NC cycle and time, when it arrived (monotonic), the NCTOPLC record per AxisId, the
+    NC's epoch (protocol 5; 0 without redundancy)."""
 
     cycle: int
     nc_time_ns: int
     received: float
     records: Mapping[int, bytes]
+    epoch: int = 0
 
 
 def parse_frame(data: bytes, received: float) -> Image:
@@ -208,7 +210,7 @@ def parse_frame(data: bytes, received: float) -> Image:
         ValueError: not a zenoh-nc status frame.
     """
     h, recs = frame_records(data)
-    return Image(h.Cycle, h.NcTimeNs, received, recs)
+    return Image(h.Cycle, h.NcTimeNs, received, recs, h.Epoch)
 
 
 class _Call:
@@ -419,6 +421,11 @@ class NcDevice(AdsDevice):
         """NC restarts seen (new NC instances: instance tokens and frames; the link's rule)."""
         return self.link.restarts
 
+    @property
+    def stale_epoch_frames(self) -> int:
+        """Frames dropped for a lower epoch than the one followed (the link's rule, ``NcLink.follow_frame``)."""
+        return self.link.stale_epoch_frames
+
     # the link's declarations and the supplies, by their former names (tests feed channels through them)
     @property
     def _session(self) -> zenoh.Session | None:
@@ -521,12 +528,14 @@ class NcDevice(AdsDevice):
                 if self.bad_frames == 1:
                     log.error("undecodable status frame ignored (%s)", exc)
                 continue
+            taken, why = self.link.follow_frame(img.cycle, img.epoch)
+            if not taken:  # a frame of a lower epoch (a hot-standby pair's old active NC): counted by the link
+                continue
             with self._lock:
                 old = self._image
                 self._image = img
                 listeners = list(self._listeners)
             self.frames_seen += 1
-            why = self.link.frame_cycle(img.cycle)
             if why is not None:
                 self._nc_restarted(why)
             if old is None or old.records.keys() != img.records.keys():

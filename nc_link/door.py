@@ -224,8 +224,9 @@ class NcDoor:
             except ValueError:
                 pass
             else:
-                self.image = AxisImage(h.Cycle, time.monotonic(), dict(recs))
-                why = self.link.frame_cycle(h.Cycle)
+                taken, why = self.link.follow_frame(h.Cycle, h.Epoch)
+                if taken:  # (not: a frame of a lower epoch, an old active NC's of a hot-standby pair)
+                    self.image = AxisImage(h.Cycle, time.monotonic(), dict(recs))
                 if why is not None:
                     self._restarted(why)
         for ev in self.link.take_events():

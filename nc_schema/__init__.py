@@ -24,8 +24,9 @@ from .codec import (
     E_SuperpositionMode, E_TargPosType, E_TouchProbe, E_TouchProbeState, FrameFlags, FrameHeader, HomingState,
     MC_AxisPara, MC_AxisStates, MC_BufferMode, MC_Direction, MC_HomingMode, Member, NcJobsFlags, NcJobsSyncFlags,
     OpModeDWord, StateDWord, StateDWord2, StateDWord3, bit_names, decode, decode_frame, decode_plc_frame,
-    decode_stamp, encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_header, frame_records,
-    frame_stamp, load_json, member_struct, members, pack_frame_header_into, struct_of, to_dict, view_frame,
+    decode_stamp, decode_stamp_epoch, encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_epoch,
+    frame_header, frame_records, frame_stamp, load_json, member_struct, members, pack_frame_header_into, struct_of,
+    to_dict, view_frame,
 )
 from .commands import COMMAND_SPECS, CommandSpec
 from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
@@ -59,9 +60,11 @@ __all__ = [
     "ParamEntry", "ROLE_CLASSES", "STAMP_DTYPE", "STAMP_SIZE", "STAMP_STRUCT", "STRUCTS", "ST_AXIS_COMPONENTS",
     "ST_AXIS_PARAMETER_SET", "StateDWord", "StateDWord2", "StateDWord3", "VIEW_PERIODS_MS", "WIRE_VERSION", "bit_names",
     "check_client_id", "cmdno_newer", "decode", "decode_ads", "decode_axis_components", "decode_frame",
-    "decode_parameter_set", "decode_plc_frame", "decode_stamp", "encode_ads", "encode_axis_components",
+    "decode_parameter_set", "decode_plc_frame", "decode_stamp", "decode_stamp_epoch", "encode_ads",
+    "encode_axis_components",
     "encode_frame", "encode_parameter_set", "encode_plc_frame", "encode_plc_records", "encode_stamp", "error_name",
-    "error_text", "frame_header", "frame_period_ms", "frame_records", "frame_stamp", "load_json", "make_reply",
+    "error_text", "frame_epoch", "frame_header", "frame_period_ms", "frame_records", "frame_stamp", "load_json",
+    "make_reply",
     "make_request", "member_struct", "members", "motion_state", "motion_state_array", "new_instance_id",
     "next_cmdno", "pack", "pack_frame_header_into", "pack_value", "parse_alive_instance", "parse_reply",
     "parse_request", "parse_view_axes", "parse_view_select", "struct_of", "to_dict", "unpack", "unpack_value", "view_axes_chunk", "view_axes_text",

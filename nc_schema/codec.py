@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from .frames import (
     FRAME_HEADER_STRUCT, FRAME_MAGIC, JOB_RECORDS, PLC_AXIS_HEAD_STRUCT, PLC_FRAME_HEADER_STRUCT, PLC_FRAME_MAGIC,
-    STAMP_STRUCT, WIRE_VERSION, FrameHeader, decode_frame, decode_plc_frame, decode_stamp, encode_frame,
-    encode_plc_frame, encode_plc_records, encode_stamp, frame_header, frame_records, frame_stamp,
-    pack_frame_header_into, view_frame,
+    STAMP_STRUCT, WIRE_VERSION, FrameHeader, decode_frame, decode_plc_frame, decode_stamp, decode_stamp_epoch,
+    encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_epoch, frame_header, frame_records,
+    frame_stamp, pack_frame_header_into, view_frame,
 )
 from .generated import (
     AxisState, CamCouplingState, CmdState, ControlDWord, CoupleState, E_CmdTypeNewTargPosAndVelo, E_DecoupleMode,
@@ -47,8 +47,9 @@ __all__ = [
     "PLCTONC_SIZE", "STAMP_SIZE", "Member", "members", "struct_of", "member_struct", "decode", "to_dict",
     "bit_names", "DEFAULT_HOME_POSITION", "FRAME_MAGIC", "PLC_FRAME_MAGIC", "WIRE_VERSION", "JOB_RECORDS",
     "FRAME_HEADER_STRUCT", "PLC_FRAME_HEADER_STRUCT", "PLC_AXIS_HEAD_STRUCT", "STAMP_STRUCT", "FrameHeader",
-    "encode_frame", "pack_frame_header_into", "frame_header", "frame_stamp", "decode_frame", "frame_records",
-    "encode_plc_frame", "encode_plc_records", "decode_plc_frame", "encode_stamp", "decode_stamp", "view_frame", "AxisState",
+    "encode_frame", "pack_frame_header_into", "frame_header", "frame_stamp", "frame_epoch", "decode_frame",
+    "frame_records", "encode_plc_frame", "encode_plc_records", "decode_plc_frame", "encode_stamp", "decode_stamp",
+    "decode_stamp_epoch", "view_frame", "AxisState",
     "CamCouplingState", "CmdState", "ControlDWord", "CoupleState", "E_CmdTypeNewTargPosAndVelo", "E_DecoupleMode",
     "E_JogMode", "E_SignalEdge", "E_StartPosType", "E_SuperpositionMode", "E_TargPosType", "E_TouchProbe",
     "E_TouchProbeState", "FrameFlags", "HomingState", "MC_AxisPara", "MC_AxisStates", "MC_BufferMode",

@@ -23,22 +23,28 @@ from .layout import (
 __all__ = [
     "FRAME_MAGIC", "PLC_FRAME_MAGIC", "WIRE_VERSION", "JOB_RECORDS", "FRAME_HEADER_STRUCT", "PLC_FRAME_HEADER_STRUCT",
     "PLC_AXIS_HEAD_STRUCT", "STAMP_STRUCT", "FrameHeader", "encode_frame", "pack_frame_header_into",
-    "frame_header", "frame_stamp", "decode_frame", "frame_records", "encode_plc_records", "encode_plc_frame",
-    "decode_plc_frame", "view_frame",
-    "encode_stamp", "decode_stamp",
+    "frame_header", "frame_stamp", "frame_epoch", "decode_frame", "frame_records", "encode_plc_records",
+    "encode_plc_frame", "decode_plc_frame", "view_frame",
+    "encode_stamp", "decode_stamp", "decode_stamp_epoch",
 ]
 
 FRAME_MAGIC = 0x314E435A  # b"ZCN1"
 PLC_FRAME_MAGIC = 0x31435050  # b"PPC1"
 WIRE_VERSION = 1
 
-#: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags
+#: FRAME_HEADER: Magic, Version, HeaderSize, Cycle, NcTimeNs, AxisCount, RecordSize, Flags, Epoch (protocol 5)
 FRAME_HEADER_STRUCT = struct_of(FRAME_HEADER_DTYPE)
+#: the header of an NC before protocol 5 (HeaderSize 32): everything before Epoch; its frames are read with Epoch 0
+_HEADER_V4_STRUCT = struct_of(FRAME_HEADER_DTYPE, stop="Epoch")
+FRAME_HEADER_V4_SIZE = _HEADER_V4_STRUCT.size
 #: PLC_FRAME_HEADER: Magic, Version, HeaderSize, PlcCycle, AxisCount, RecordSize, _reserved
 PLC_FRAME_HEADER_STRUCT = struct_of(PLC_FRAME_HEADER_DTYPE)
 #: PLC_AXIS_RECORD before its PlcToNc: AxisId, _reserved
 PLC_AXIS_HEAD_STRUCT = struct_of(PLC_AXIS_RECORD_DTYPE, stop="PlcToNc")
 STAMP_STRUCT = struct_of(STAMP_DTYPE)
+#: a STAMP before protocol 5 (Cycle, NcTimeNs: 16 bytes), read with Epoch 0
+_STAMP_V4_STRUCT = struct_of(STAMP_DTYPE, stop="Epoch")
+STAMP_V4_SIZE = _STAMP_V4_STRUCT.size
 assert PLC_AXIS_HEAD_STRUCT.size + PLCTONC_SIZE == PLC_AXIS_RECORD_SIZE
 
 #: a record's bytes: anything ``bytes.join`` takes (a one-record numpy array too)
@@ -47,6 +53,10 @@ _Buffer = Union[bytes, bytearray, memoryview, np.ndarray]
 JOB_RECORDS = int(FrameFlags.JobRecords)
 _AXIS_ID_OFFSET, _axis_id = member_struct(NCTOPLC_DTYPE, "AxisId")
 _AXIS_ID_UNPACK = _axis_id.unpack_from
+_EPOCH_OFFSET, _epoch = member_struct(FRAME_HEADER_DTYPE, "Epoch")
+_EPOCH_UNPACK = _epoch.unpack_from
+_HEADER_SIZE_OFFSET, _header_size = member_struct(FRAME_HEADER_DTYPE, "HeaderSize")
+_HEADER_SIZE_UNPACK = _header_size.unpack_from
 
 
 class FrameHeader(NamedTuple):
@@ -60,6 +70,7 @@ class FrameHeader(NamedTuple):
     AxisCount: int
     RecordSize: int
     Flags: int
+    Epoch: int
 
     @property
     def job_records(self) -> bool:
@@ -76,23 +87,24 @@ assert FrameHeader._fields == FRAME_HEADER_DTYPE.names, "FrameHeader must follow
 
 # ---- the NC's status frame --------------------------------------------------------------------------------
 def pack_frame_header_into(buf: bytearray | memoryview, offset: int, cycle: int, nc_time_ns: int, axis_count: int,
-                           flags: int = 0, job_records: bool = False) -> int:
-    """Write a FRAME_HEADER at ``buf[offset:]`` (flag JobRecords set or cleared by ``job_records``); its size."""
+                           flags: int = 0, job_records: bool = False, epoch: int = 0) -> int:
+    """Write a FRAME_HEADER at ``buf[offset:]`` (flag JobRecords set or cleared by ``job_records``; ``epoch``: the
+    NC's, 0 without redundancy); its size."""
     fl = (flags | JOB_RECORDS) if job_records else (flags & ~JOB_RECORDS)
     FRAME_HEADER_STRUCT.pack_into(buf, offset, FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_SIZE, cycle, nc_time_ns,
-                                  axis_count, NCTOPLC_SIZE, fl)
+                                  axis_count, NCTOPLC_SIZE, fl, epoch)
     return FRAME_HEADER_SIZE
 
 
 def encode_frame(cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0,
-                 jobs: np.ndarray | None = None) -> bytes:
-    """Batched NC status frame: FRAME_HEADER, the NCTOPLC records, then (with ``jobs``, flag
-    JobRecords) one NCJOBS_AXIS_REF per axis in the same order."""
+                 jobs: np.ndarray | None = None, epoch: int = 0) -> bytes:
+    """Batched NC status frame: FRAME_HEADER (``epoch``: the NC's, 0 without redundancy), the NCTOPLC records,
+    then (with ``jobs``, flag JobRecords) one NCJOBS_AXIS_REF per axis in the same order."""
     if jobs is None:
         return FRAME_HEADER_STRUCT.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_SIZE, cycle, nc_time_ns,
-                                        len(records), NCTOPLC_SIZE, flags & ~JOB_RECORDS) + records.tobytes()
+                                        len(records), NCTOPLC_SIZE, flags & ~JOB_RECORDS, epoch) + records.tobytes()
     return b"".join((FRAME_HEADER_STRUCT.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_SIZE, cycle, nc_time_ns,
-                                              len(records), NCTOPLC_SIZE, flags | JOB_RECORDS),
+                                              len(records), NCTOPLC_SIZE, flags | JOB_RECORDS, epoch),
                      records.tobytes(), jobs.tobytes()))
 
 
@@ -101,9 +113,9 @@ def view_frame(frame: bytes | memoryview, axis_count: int, rows: Sequence[int]) 
     ``axis_count`` axes written by this process (:func:`encode_frame`'s layout; unchecked): the same header
     with AxisCount = ``len(rows)``, those rows' NCTOPLC records, then their NCJOBS records if the frame has
     them. Byte slices and one join: no numpy, no decode."""
-    _, _, header_size, cycle, nc_time_ns, _, _, flags = FRAME_HEADER_STRUCT.unpack_from(frame)
+    _, _, header_size, cycle, nc_time_ns, _, _, flags, epoch = FRAME_HEADER_STRUCT.unpack_from(frame)
     parts: list[bytes | memoryview] = [FRAME_HEADER_STRUCT.pack(FRAME_MAGIC, WIRE_VERSION, FRAME_HEADER_SIZE, cycle,
-                                                                 nc_time_ns, len(rows), NCTOPLC_SIZE, flags)]
+                                                                 nc_time_ns, len(rows), NCTOPLC_SIZE, flags, epoch)]
     parts += [frame[o:o + NCTOPLC_SIZE] for o in (header_size + r * NCTOPLC_SIZE for r in rows)]
     if flags & JOB_RECORDS:
         jobs = header_size + axis_count * NCTOPLC_SIZE
@@ -113,21 +125,34 @@ def view_frame(frame: bytes | memoryview, axis_count: int, rows: Sequence[int]) 
 
 def frame_stamp(frame: bytes | bytearray | memoryview) -> tuple[int, int, int]:
     """(Cycle, NcTimeNs, Flags) of a frame's header, unchecked (for frames this process wrote itself)."""
-    _, _, _, cycle, nc_time_ns, _, _, flags = FRAME_HEADER_STRUCT.unpack_from(frame)
+    _, _, _, cycle, nc_time_ns, _, _, flags, _ = FRAME_HEADER_STRUCT.unpack_from(frame)
     return cycle, nc_time_ns, flags
 
 
-def _checked_header(data: bytes | bytearray | memoryview) -> tuple[int, int, int, int, int, int, int, int]:
+def frame_epoch(frame: bytes | bytearray | memoryview) -> int:
+    """The Epoch of a frame's header, unchecked (for frames this process wrote itself: protocol 5's layout)."""
+    return int(_EPOCH_UNPACK(frame, _EPOCH_OFFSET)[0])
+
+
+_Header = tuple[int, int, int, int, int, int, int, int, int]
+
+
+def _checked_header(data: bytes | bytearray | memoryview) -> _Header:
     """The FRAME_HEADER values of a status frame, checked (see :func:`frame_header`); a plain tuple, checked
-    on locals: this runs for every frame a client takes."""
-    if len(data) < FRAME_HEADER_SIZE:
+    on locals: this runs for every frame a client takes. A frame of an NC before protocol 5 (HeaderSize 32, no
+    Epoch) gives Epoch 0."""
+    size = len(data)
+    if size >= FRAME_HEADER_SIZE and _HEADER_SIZE_UNPACK(data, _HEADER_SIZE_OFFSET)[0] >= FRAME_HEADER_SIZE:
+        v: _Header = FRAME_HEADER_STRUCT.unpack_from(data)
+    elif size >= FRAME_HEADER_V4_SIZE:
+        v = (*_HEADER_V4_STRUCT.unpack_from(data), 0)
+    else:
         raise ValueError("status frame shorter than its header")
-    v: tuple[int, int, int, int, int, int, int, int] = FRAME_HEADER_STRUCT.unpack_from(data)
-    magic, version, header_size, _, _, n, record_size, flags = v
+    magic, version, header_size, _, _, n, record_size, flags, _ = v
     if magic != FRAME_MAGIC or version != WIRE_VERSION:
         raise ValueError(f"not a zenoh-nc v{WIRE_VERSION} status frame")
     per_axis = NCTOPLC_SIZE + NCJOBS_SIZE if flags & JOB_RECORDS else NCTOPLC_SIZE
-    if record_size != NCTOPLC_SIZE or header_size < FRAME_HEADER_SIZE or len(data) != header_size + n * per_axis:
+    if record_size != NCTOPLC_SIZE or header_size < FRAME_HEADER_V4_SIZE or size != header_size + n * per_axis:
         raise ValueError("status frame sizes do not add up")
     return v
 
@@ -147,8 +172,12 @@ def decode_frame(data: bytes) -> tuple[np.void, np.ndarray, np.ndarray | None]:
     Raises:
         ValueError: wrong magic, version or sizes (:func:`frame_header`).
     """
-    _, _, header_size, _, _, n, _, flags = _checked_header(data)
-    hdr: np.void = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
+    v = _checked_header(data)
+    _, _, header_size, _, _, n, _, flags, _ = v
+    if header_size >= FRAME_HEADER_SIZE:
+        hdr: np.void = np.frombuffer(data, dtype=FRAME_HEADER_DTYPE, count=1)[0]
+    else:  # an NC before protocol 5: its 32-byte header, Epoch 0
+        hdr = np.array([v], dtype=FRAME_HEADER_DTYPE)[0]
     recs = np.frombuffer(data, dtype=NCTOPLC_DTYPE, count=n, offset=header_size)
     if not flags & JOB_RECORDS:
         return hdr, recs, None
@@ -231,18 +260,32 @@ def decode_plc_frame(data: bytes) -> tuple[np.void, np.ndarray]:
 
 
 # ---- the per-axis samples' attachment ----------------------------------------------------------------------
-def encode_stamp(cycle: int, nc_time_ns: int) -> bytes:
-    """The 16-byte STAMP attachment of per-axis samples."""
-    return STAMP_STRUCT.pack(cycle, nc_time_ns)
+def encode_stamp(cycle: int, nc_time_ns: int, epoch: int = 0) -> bytes:
+    """The 24-byte STAMP attachment of per-axis samples (``epoch``: the NC's, 0 without redundancy)."""
+    return STAMP_STRUCT.pack(cycle, nc_time_ns, epoch)
+
+
+def decode_stamp_epoch(data: bytes | bytearray | memoryview) -> tuple[int, int, int]:
+    """(cycle, nc_time_ns, epoch) from a per-axis sample's attachment; a 16-byte STAMP of an NC before protocol 5
+    gives epoch 0.
+
+    Raises:
+        ValueError: neither 24 nor 16 bytes.
+    """
+    if len(data) == STAMP_SIZE:
+        cycle, nc_time_ns, epoch = STAMP_STRUCT.unpack(data)
+        return cycle, nc_time_ns, epoch
+    if len(data) == STAMP_V4_SIZE:
+        cycle, nc_time_ns = _STAMP_V4_STRUCT.unpack(data)
+        return cycle, nc_time_ns, 0
+    raise ValueError(f"STAMP is {STAMP_SIZE} bytes ({STAMP_V4_SIZE} before protocol 5), got {len(data)}")
 
 
 def decode_stamp(data: bytes | bytearray | memoryview) -> tuple[int, int]:
-    """(cycle, nc_time_ns) from a per-axis sample's attachment.
+    """(cycle, nc_time_ns) from a per-axis sample's attachment (:func:`decode_stamp_epoch` without the epoch).
 
     Raises:
-        ValueError: not a STAMP's 16 bytes.
+        ValueError: neither 24 nor 16 bytes.
     """
-    if len(data) != STAMP_SIZE:
-        raise ValueError(f"STAMP is {STAMP_SIZE} bytes, got {len(data)}")
-    cycle, nc_time_ns = STAMP_STRUCT.unpack(data)
+    cycle, nc_time_ns, _ = decode_stamp_epoch(data)
     return cycle, nc_time_ns

@@ -27,6 +27,24 @@ One restart is one step of ``restarts`` whichever evidence arrives first:
   the old instance after the new token (its RingChannel(1), nc-ads's frame thread holding one), so the
   old instance's frames do not end the wait; a new instance's first frame comes right after them.
 
+**The epoch** (protocol 5, :meth:`NcInstance.take`): a hot-standby pair (docs/standby.md) is one NC instance
+(the standby holds the active NC's instance token, its Cycle count continues the active one's), and every frame
+carries the epoch of the NC that sent it (0 without redundancy). After a link cut or a freeze the old active NC,
+back on the network, publishes its own frames (its own Cycle count and set-points) until it sees its successor's
+higher epoch. Hence a client follows the highest epoch seen of the instance:
+
+* a frame of a higher epoch is taken at once (a takeover: ``epoch_rises``); the restart rule above then applies
+  as to any frame: a Cycle count that continues is no restart; one that went back is (the successor did not know
+  the cycles the client saw last: the commands of those cycles are lost with them);
+* a frame of a lower epoch is dropped (``stale_frames``): no data, no restart evidence, the Cycle followed stays;
+* a lower epoch is taken (``epoch_falls``; the restart rule applies to it) only when (a) a new instance token was
+  seen since the last frame of another epoch or of a Cycle going back was taken (the whole pair, or the NC,
+  restarted: a new instance may start again at epoch 0), or (b) no frame of the epoch followed was taken for
+  :data:`EPOCH_HOLD_S` (callers that pass ``now``): the higher-epoch NC is gone for good and the lower one is all
+  there is (an old active NC demotes itself within the takeover limit, at most ~1 s, once it sees its successor; 2 s
+  of its frames were seen after a link cut: the hold is well beyond that, and short enough not to leave a client
+  blind for long).
+
 Decisions: no rule on ``NcTimeNs`` (an earlier rule 2 took "NC time ran on by > 5 s and more than the
 whole Cycle count takes" as a new instance: an NC that ran 1 s and then stood 6 s on a loaded machine
 met it while it was the same instance - a false restart stops axes nobody wanted stopped; the instance
@@ -45,6 +63,9 @@ FRAMES_OWED = 3
 #: that restart's: tokens come within milliseconds of the first frames; an NC that declares none (an older
 #: one) never sends it, and a later restart announced by its token first must still count.
 TOKEN_OWED_FRAMES = 200
+
+#: A lower epoch than the one followed is taken after this long without a frame of that one [s] (see above).
+EPOCH_HOLD_S = 5.0
 
 #: An instance id: 16 lowercase hex digits (:func:`new_instance_id`).
 INSTANCE_RE = re.compile(r"[0-9a-f]{16}")
@@ -67,9 +88,13 @@ class NcInstance:
         instance: the instance id followed (None: no instance token seen: an older NC, or not yet).
         cycle: ``Cycle`` of the newest frame (None before the first).
         restarts: how many new instances were seen.
+        epoch: the epoch followed (:meth:`take`; None before the first frame).
+        stale_frames: frames dropped for a lower epoch than the one followed.
+        epoch_rises, epoch_falls: higher epochs taken (takeovers seen), lower ones taken (see the module docstring).
     """
 
-    __slots__ = ("instance", "cycle", "restarts", "_frames_owed", "_token_owed")
+    __slots__ = ("instance", "cycle", "restarts", "_frames_owed", "_token_owed", "epoch", "stale_frames",
+                 "epoch_rises", "epoch_falls", "_epoch_seen", "_epoch_open")
 
     def __init__(self) -> None:
         self.instance: str | None = None
@@ -80,6 +105,41 @@ class NcInstance:
         #: frames during which a new instance token is the restart the frames already counted (its token
         #: comes within milliseconds; an NC without one never sends it: then the wait ends)
         self._token_owed = 0
+        self.epoch: int | None = None
+        self.stale_frames = 0
+        self.epoch_rises = 0
+        self.epoch_falls = 0
+        #: when the newest frame of the epoch followed was taken (the caller's clock; None: no time given)
+        self._epoch_seen: float | None = None
+        #: a new instance token since: the next frame of another epoch sets the epoch, even a lower one
+        self._epoch_open = False
+
+    def take(self, cycle: int, epoch: int = 0, now: float | None = None) -> tuple[bool, str | None]:
+        """Take a frame's ``Cycle`` and ``Epoch`` (the epoch rule of the module docstring, then :meth:`frame`).
+
+        Args:
+            now: the caller's monotonic clock [s], for the :data:`EPOCH_HOLD_S` rule (None: that rule is off).
+
+        Returns:
+            (taken, reason): taken False for a frame of a lower epoch that is dropped (its data must not be used;
+            reason None); else the reason of a restart as :meth:`frame` gives it, or None.
+        """
+        epoch = int(epoch)
+        followed = self.epoch
+        if followed is not None and epoch != followed:
+            if epoch > followed:
+                self.epoch_rises += 1
+            elif self._epoch_open or (now is not None and self._epoch_seen is not None
+                                      and now - self._epoch_seen >= EPOCH_HOLD_S):
+                self.epoch_falls += 1
+            else:
+                self.stale_frames += 1
+                return False, None
+            self._epoch_open = False
+        self.epoch = epoch
+        if now is not None:
+            self._epoch_seen = now
+        return True, self.frame(cycle)
 
     def frame(self, cycle: int) -> str | None:
         """Take a frame's ``Cycle``.
@@ -90,6 +150,7 @@ class NcInstance:
         cycle = int(cycle)
         why = None
         if self.cycle is not None and cycle < self.cycle:
+            self._epoch_open = False  # (a new instance's first frame: its epoch is the one to follow)
             if self._frames_owed:
                 self._frames_owed = 0  # the new instance's first frame: its token counted it
             else:
@@ -120,9 +181,10 @@ class NcInstance:
         if old is None or instance == old:
             self._token_owed = 0
             return None
-        if self._token_owed:  # the frames showed this restart first
+        if self._token_owed:  # the frames showed this restart first (its frames are taken: no epoch to open)
             self._token_owed = 0
             return None
+        self._epoch_open = True  # (a new instance: it may run at a lower epoch, see take)
         self.restarts += 1
         self._frames_owed = FRAMES_OWED
         return f"a new instance {instance} (was {old})"

@@ -50,7 +50,7 @@ from typing import Any, Callable
 import numpy as np
 import zenoh
 
-from nc_schema import NCTOPLC_DTYPE, NCTOPLC_SIZE, STAMP_SIZE, decode_stamp, frame_records, member_struct
+from nc_schema import NCTOPLC_DTYPE, NCTOPLC_SIZE, decode_stamp, frame_records, member_struct
 
 from .common import add_connection_args, open_session
 
@@ -159,14 +159,17 @@ class Recorder:
     def on_axis_sample(self, axis: int) -> Callable[[zenoh.Sample], None]:
         def cb(sample: zenoh.Sample) -> None:
             att = sample.attachment
-            if att is None or len(att) != STAMP_SIZE:
+            try:  # (a STAMP of 24 bytes, protocol 5, or 16 of an older NC)
+                cycle, t_ns = decode_stamp(att.to_bytes()) if att is not None else (-1, -1)
+            except ValueError:
+                cycle = -1
+            if cycle < 0:
                 self.unstamped += 1
                 return
             payload = sample.payload.to_bytes()
             if len(payload) != NCTOPLC_SIZE:
                 self.malformed += 1
                 return
-            cycle, t_ns = decode_stamp(att.to_bytes())
             self.add(axis, cycle, t_ns, payload)
         return cb
 

@@ -3,7 +3,8 @@
 Per NC: alive or gone, cycle, its instance id (the NC process's token ``nc/<nc>/alive/<instance>``;
 None for an older NC), the restarts seen (new NC instances: another instance id, or the cycle counter
 going back in its frames, ``nc_schema.NcInstance``; a liveliness token that goes and comes back is
-none), cycle time, timing
+none), the epoch of its status frames (protocol 5; frames of a lower epoch than the highest seen, a hot-standby
+pair's old active NC's, are dropped and counted), cycle time, timing
 mode, missed cycles / overruns, work p99, the clients (and their roles) and the claims; per axis:
 AxisId, MotionState (PLCopen), AxisState, SetPos / ActPos / SetVelo, ErrorCode with its name
 (errors.json) and the drive's own error code (CiA 402 0x603F, from the stats' drive_errors; shown as
@@ -149,15 +150,18 @@ class NcWatch:
             now = time.monotonic()
             data = sample.payload.to_bytes()
             with self._lock:
-                self.raw[(nc, what)] = _Raw(data, now)
                 self.first_seen.setdefault(nc, now)
                 if what == "status":
                     try:
-                        cycle = frame_header(data).Cycle
+                        h = frame_header(data)
                     except ValueError:  # (a bad frame: nc_view reports it)
-                        cycle = None
-                    if cycle is not None:
-                        self.instances.setdefault(nc, NcInstance()).frame(cycle)
+                        h = None
+                    # the epoch rule (protocol 5): a frame of a lower epoch than the NC's followed is an old active
+                    # NC's of a hot-standby pair (after a link cut): not shown, counted
+                    if h is not None and not self.instances.setdefault(nc, NcInstance()).take(h.Cycle, h.Epoch,
+                                                                                               now)[0]:
+                        return
+                self.raw[(nc, what)] = _Raw(data, now)
         return on_sample
 
     def _on_ha(self, sample: zenoh.Sample) -> None:
@@ -188,6 +192,7 @@ class NcWatch:
             alive = dict(self.alive)
             alive_t = dict(self.alive_t)
             restarts = {nc: (i.restarts, i.instance) for nc, i in self.instances.items()}
+            stale = {nc: i.stale_frames for nc, i in self.instances.items()}
         views = []
         for nc in names:
             newest = max([r.t for (n, _), r in raw.items() if n == nc] + [alive_t.get(nc, 0.0)])
@@ -196,7 +201,7 @@ class NcWatch:
             n_restarts, instance = restarts.get(nc, (0, None))
             nodes = [r for (n, w), r in sorted(raw.items()) if n == nc and w.startswith("ha:")]
             views.append(nc_view(nc, alive.get(nc), raw.get((nc, "status")), raw.get((nc, "stats")),
-                                 raw.get((nc, "claims")), now, n_restarts, instance, nodes))
+                                 raw.get((nc, "claims")), now, n_restarts, instance, nodes, stale.get(nc, 0)))
         return {"time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds"), "ncs": views}
 
 
@@ -216,13 +221,15 @@ def _error(code: int) -> str | None:
 
 def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None, claims: _Raw | None,
             now: float, restarts: int = 0, instance: str | None = None,
-            ha_nodes: Sequence[_Raw] = ()) -> dict[str, Any]:
+            ha_nodes: Sequence[_Raw] = (), stale_epoch: int = 0) -> dict[str, Any]:
     """One NC's row set, decoded from its newest payloads (any of them may be missing or malformed);
     ``restarts``: the new NC instances seen so far; ``instance``: the id of the NC process followed
-    (None: no instance token seen, e.g. an older NC).
+    (None: no instance token seen, e.g. an older NC); ``stale_epoch``: status frames dropped for a lower epoch.
 
     Returns:
-        ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "instance", "restarts", "cycle_time", "timing",
+        ``{"name", "alive", "state", "age_s": {status, stats, claims}, "cycle", "epoch" (the status frame's Epoch,
+        protocol 5: 0 without redundancy; None without a frame), "stale_epoch_frames", "instance", "restarts",
+        "cycle_time", "timing",
         "missed_cycles", "overruns", "work_us_p99", "clients": {id: {"alive", "role"}}, "claims": {axis: id},
         "axes": [{"AxisId", "MotionState", "AxisState", "SetPos", "ActPos", "SetVelo", "ErrorCode",
         "ErrorName", "DriveErrorCode", "DriveLink", "Holder", "LastCommand"}], "problems": [str]}``; DriveErrorCode: the
@@ -248,9 +255,9 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
         problems.append("no nc/<nc>/status yet (an NC without it is older than this tool: no axis table)")
     ages = {k: (None if r is None else round(now - r.t, 3)) for k, r in
             (("status", status), ("stats", stats), ("claims", claims))}
-    cycle = None
+    cycle = epoch = None
     if frame is not None:
-        cycle = int(frame[0]["Cycle"])
+        cycle, epoch = int(frame[0]["Cycle"]), int(frame[0]["Epoch"])
     if st is not None and isinstance(st.get("cycle"), int):
         cycle = max(cycle or 0, st["cycle"])
     shutting = frame is not None and bool(int(frame[0]["Flags"]) & int(FrameFlags.ShuttingDown))
@@ -321,8 +328,8 @@ def nc_view(nc: str, alive: bool | None, status: _Raw | None, stats: _Raw | None
             })
     get = (st or {}).get
     return {
-        "name": nc, "alive": alive, "state": state, "age_s": ages, "cycle": cycle, "instance": instance,
-        "restarts": restarts,
+        "name": nc, "alive": alive, "state": state, "age_s": ages, "cycle": cycle, "epoch": epoch,
+        "stale_epoch_frames": stale_epoch, "instance": instance, "restarts": restarts,
         "cycle_time": get("cycle_time"), "timing": get("timing"),
         "missed_cycles": get("missed_cycles"), "overruns": get("overruns"), "work_us_p99": get("work_us_p99"),
         "clients": clients, "claims": holders, "claims_source": "claims" if cl is not None else
@@ -403,7 +410,9 @@ def render(snap: dict[str, Any]) -> str:
                    f"{_num(None if ct is None else ct * 1e3, '.3f')} ms  {v['timing'] or '-'}  "
                    f"missed {_num(v['missed_cycles'], 'd')}  overruns {_num(v['overruns'], 'd')}  "
                    f"work p99 {_num(v['work_us_p99'], '.0f')} us  instance {v['instance'] or '-'}  "
-                   f"restarts {v['restarts']}")
+                   f"restarts {v['restarts']}  epoch {_num(v.get('epoch'), 'd')}"
+                   + (f" ({v['stale_epoch_frames']} frames of lower epochs dropped)" if v.get("stale_epoch_frames")
+                      else ""))
         ha = v.get("ha")
         if ha:
             out.append(f"  ha: {ha.get('role')} node {ha.get('node')} epoch {ha.get('epoch')}  standby in step "

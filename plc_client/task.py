@@ -628,13 +628,15 @@ class PlcTask:
         """Fetch the newest frame of each NC into ``self._frames`` (subclass)."""
 
     def _set_frame(self, nc: str, cycle: int, records: np.ndarray, jobs: np.ndarray | None = None,
-                   covers: frozenset[int] | None = None) -> None:
+                   covers: frozenset[int] | None = None, epoch: int = 0) -> None:
         """Take a status frame: NCTOPLC records and (same order) the NCJOBS records, if sent. A frame of a
         new NC instance (:class:`nc_schema.NcInstance`: its cycle counter went back) is a restart
-        (:meth:`nc_restarted`). ``covers``: the AxisIds a view frame was cut for (its attachment,
-        ``nc_schema.parse_view_axes``; None: every axis of the NC, a whole frame). An axis outside them is not
-        yet in the view (bound after the view was asked for): no data yet, not 0x4012."""
-        self._frame_arrived(nc, cycle, covers)
+        (:meth:`nc_restarted`); one of a lower ``epoch`` (the header's) than the NC's followed is dropped (a
+        hot-standby pair's old active NC, ``NcInstance.take``). ``covers``: the AxisIds a view frame was cut for
+        (its attachment, ``nc_schema.parse_view_axes``; None: every axis of the NC, a whole frame). An axis outside
+        them is not yet in the view (bound after the view was asked for): no data yet, not 0x4012."""
+        if not self._frame_arrived(nc, cycle, covers, epoch):
+            return
         ids = records["AxisId"]
         key = ids.tobytes()
         index = self._index_cache.get(nc)
@@ -642,12 +644,18 @@ class PlcTask:
             index = self._index_cache[nc] = (key, {int(a): i for i, a in enumerate(ids.tolist())})
         self._frames[nc] = (int(cycle), records, index[1], jobs)
 
-    def _frame_arrived(self, nc: str, cycle: int, covers: frozenset[int] | None) -> None:
-        """What every frame taken does first: keep the axes it was cut for, and apply the restart rule."""
+    def _frame_arrived(self, nc: str, cycle: int, covers: frozenset[int] | None, epoch: int = 0) -> bool:
+        """What every frame does first: the epoch and restart rule (``NcInstance.take``, the task's clock), then, if
+        it is taken, keep the axes it was cut for. False: a frame of a lower epoch, dropped (not taken: the axes
+        keep the frame held, and go stale if no other comes). (The clock, not ``self.now``: a runtime takes frames
+        before its first step too.)"""
+        taken, why = self._instances.setdefault(nc, NcInstance()).take(cycle, epoch, self.clock())
+        if not taken:
+            return False
         self._covers[nc] = covers
-        why = self._instances.setdefault(nc, NcInstance()).frame(cycle)
         if why is not None:
             self.nc_restarted(nc, why)
+        return True
 
     def _set_frame_bytes(self, nc: str, data: bytes, covers: frozenset[int] | None = None) -> None:
         """Take a status frame as received: its bytes (``sample.payload.to_bytes()``), what
@@ -660,7 +668,8 @@ class PlcTask:
         """
         h = frame_header(data)
         cycle, hs, n = h.Cycle, h.HeaderSize, h.AxisCount
-        self._frame_arrived(nc, cycle, covers)
+        if not self._frame_arrived(nc, cycle, covers, h.Epoch):
+            return
         ids = _axis_ids_struct(n).unpack_from(data, hs)
         index = self._index_cache.get(nc)
         if index is None or index[0] != ids:  # the NC's axes rarely change: keep the AxisId -> row map

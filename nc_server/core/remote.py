@@ -31,6 +31,9 @@ from nc_schema import CoupleState, ErrorCodes, NcError
 
 #: samples kept per master (for the phase measurement: covers ``HISTORY`` master cycles of delay)
 HISTORY = 256
+#: a master's samples of a lower epoch than the highest taken are taken again once their NcTimeNs is this far past
+#: the newest sample of that epoch [ns] (nc_schema.instance.EPOCH_HOLD_S: the higher-epoch NC is gone)
+EPOCH_HOLD_NS = 5_000_000_000
 _SLAVE_STATES = (int(CoupleState.SLAVE), int(CoupleState.MASTERSLAVE))
 
 
@@ -47,6 +50,7 @@ class MasterSample:
     set_acc: float
     set_jerk: float
     couple_state: int = 0
+    epoch: int = 0  # (protocol 5: the master NC's epoch, its STAMP's; 0 without redundancy)
 
 
 class RemoteMasters:
@@ -69,6 +73,10 @@ class RemoteMasters:
         self.cycle = [0] * len(self.sources)
         self.received = [0] * len(self.sources)
         self.ignored = 0  # samples out of order, non-finite or of masters not configured
+        #: per master, the highest epoch of its NC taken (a hot-standby pair's, protocol 5), and the samples dropped
+        #: for a lower one (its old active NC's after a link cut: its own plan, not the master's)
+        self.epoch = [0] * len(self.sources)
+        self.stale_epoch = 0
 
     def name(self, k: int) -> str:
         nc, ax = self.sources[k]
@@ -91,15 +99,28 @@ class RemoteMasters:
         return k
 
     def feed(self, samples: Iterable[MasterSample]) -> None:
-        """Take the samples that arrived since the last cycle (any order; older than the newest: ignored)."""
+        """Take the samples that arrived since the last cycle (any order; older than the newest: ignored). A sample of
+        a lower epoch than the master's highest taken is dropped (``stale_epoch``), unless its NcTimeNs is
+        EPOCH_HOLD_NS past the newest sample taken (the receiver rule of the clients, nc_schema.NcInstance.take,
+        in the master's time); a higher epoch is taken at once."""
         for s in samples:
             k = self._index.get((s.nc, int(s.axis_id)))
             vals = (s.set_pos, s.set_velo, s.set_acc, s.set_jerk)
             h = self.hist[k] if k is not None else None
-            if h is None or not all(math.isfinite(v) for v in vals) or (h and s.nc_time_ns <= h[-1][0]):
+            if h is None or not all(math.isfinite(v) for v in vals):
                 self.ignored += 1
                 continue
             assert k is not None
+            epoch = int(s.epoch)
+            if epoch < self.epoch[k] and h and s.nc_time_ns - h[-1][0] < EPOCH_HOLD_NS:
+                self.stale_epoch += 1
+                continue
+            if epoch > self.epoch[k]:
+                self.epoch[k] = epoch  # (at once: even a sample behind the newest, ignored below, raises it)
+            if h and s.nc_time_ns <= h[-1][0]:
+                self.ignored += 1
+                continue
+            self.epoch[k] = epoch
             h.append((int(s.nc_time_ns), float(s.set_pos), float(s.set_velo), float(s.set_acc), float(s.set_jerk)))
             self.couple_state[k] = int(s.couple_state)
             self.cycle[k] = int(s.cycle)

@@ -373,7 +373,7 @@ class NcServer:
         try:  # the last frame, flagged ShuttingDown: the publisher puts it before it ends
             if serving:
                 self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, int(FrameFlags.ShuttingDown),
-                                core.ncjobs, core.plctonc)
+                                core.ncjobs, core.plctonc, epoch=self.ha.epoch if self.ha is not None else 0)
         except Exception as exc:
             log.warning("final frame: %s", exc)
         # Queries still queued (or prepared, not activated) get no execution; finalize them so queriers do not wait.
@@ -469,8 +469,9 @@ class NcServer:
         if ha is not None:
             ha.after_step()  # the log of this cycle to the standby
         # (the job records and PLCTONC change on events: a ring slot that holds them at these counts keeps them)
+        # (the epoch in the header: the clients drop frames of a lower one, the old active NC's after a link cut)
         self.frames.put(core.cycle, core.nc_time_ns, core.nctoplc, 0, core.ncjobs, core.plctonc,
-                        (core.records.version, core.plctonc_version))
+                        (core.records.version, core.plctonc_version), ha.epoch if ha is not None else 0)
         if self._activated:  # their replies after the cycle's work (the I/O thread takes the GIL to send them)
             self.io.submit_replies(self._activated)
             self._activated = []
@@ -839,6 +840,8 @@ class NcServer:
                   "drive_errors": self._drive_errors(),
                   "drive_input_age": self._drive_input_age(),
                   "remote_couplings": self.core.coupling.remote_stats(self.core.axis_ids),
+                  # (protocol 5: remote masters' samples of a lower epoch than their NC's highest, dropped)
+                  "remote_stale_epoch": self.core.coupling.sources.stale_epoch,
                   "drive_link": self._drive_link(),
                   "stages": self.core.stage_times()})
         if self.ha is not None:

@@ -39,7 +39,7 @@ from nc_schema import (
 __all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "slot_size_for"]
 
 RING_MAGIC = 0x4E435247  # "GRCN"
-RING_VERSION = 3
+RING_VERSION = 4  # (4: the frame header of protocol 5, 40 bytes)
 #: Slots in the ring: the publisher has RING_SLOTS - 1 cycles to copy a slot out.
 RING_SLOTS = 16
 HEADER_SIZE = 128
@@ -133,10 +133,11 @@ class FrameRing:
     # ---- writer (the cycle thread) ------------------------------------------------------------
     def write(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int = 0,
               jobs: np.ndarray | None = None, plctonc: np.ndarray | None = None,
-              versions: tuple[int, int] | None = None) -> int:
+              versions: tuple[int, int] | None = None, epoch: int = 0) -> int:
         """Write one cycle's frame (``nc_schema.encode_frame`` byte for byte) and PLCTONC; its sequence number.
 
         Args:
+            epoch: the NC's epoch (its hot-standby pair's, 0 without redundancy), in the frame header.
             versions: the change counts of ``jobs`` and ``plctonc`` (``JobRecords.version``,
                 ``NcCore.plctonc_version``): a slot that holds the same array at the same count already
                 keeps those bytes (the same bytes: no copy). None: both copied.
@@ -153,7 +154,7 @@ class FrameRing:
         off = HEADER_SIZE + (seq % self.slots) * self.slot_size
         _U64.pack_into(mv, off, 0)  # being written
         p = off + _SLOT_HEAD.size
-        p += pack_frame_header_into(mv, p, cycle, nc_time_ns, n, flags, jobs is not None)
+        p += pack_frame_header_into(mv, p, cycle, nc_time_ns, n, flags, jobs is not None, epoch)
         rb = _as_bytes(records)
         mv[p:p + len(rb)] = rb
         p += len(rb)

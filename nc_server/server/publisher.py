@@ -61,8 +61,8 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from nc_schema import (
-    FRAME_HEADER_SIZE, FRAME_PERIODS_MS, NCTOPLC_SIZE, PLCTONC_SIZE, FrameFlags, Keys, encode_stamp, frame_stamp,
-    parse_view_select, view_axes_text, view_frame,
+    FRAME_HEADER_SIZE, FRAME_PERIODS_MS, NCTOPLC_SIZE, PLCTONC_SIZE, FrameFlags, Keys, encode_stamp, frame_epoch,
+    frame_stamp, parse_view_select, view_axes_text, view_frame,
 )
 
 from .frame_ring import FrameRing, RingCounters, ring_bytes
@@ -305,7 +305,7 @@ class FramePublisher:
                 self._next_status = now + STATUS_PERIOD
                 self.status_pub.put(frame)
             if self.nc_matched.any() or (plc is not None and self.pc_matched.any()):
-                stamp = encode_stamp(cycle, nc_time_ns)
+                stamp = encode_stamp(cycle, nc_time_ns, frame_epoch(frame))
                 for i in np.flatnonzero(self.nc_matched).tolist():
                     o = _HEADER + i * _NREC
                     self.nc_pubs[i].put(frame[o:o + _NREC], attachment=stamp)
@@ -554,10 +554,10 @@ class FrameOutput:
         return r
 
     def put(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int, jobs: np.ndarray | None,
-            plctonc: np.ndarray | None, versions: tuple[int, int] | None = None) -> None:
-        """Write one cycle's frame into the ring (:meth:`FrameRing.write`, ``versions`` as there) and wake the
-        publisher (cycle thread)."""
-        self.ring.write(cycle, nc_time_ns, records, flags, jobs, plctonc, versions)
+            plctonc: np.ndarray | None, versions: tuple[int, int] | None = None, epoch: int = 0) -> None:
+        """Write one cycle's frame into the ring (:meth:`FrameRing.write`, ``versions`` and ``epoch`` as there) and
+        wake the publisher (cycle thread)."""
+        self.ring.write(cycle, nc_time_ns, records, flags, jobs, plctonc, versions, epoch)
         self.signal()
 
     def signal(self) -> None:

@@ -235,7 +235,7 @@ class HotStandby:
         # the limit in force follows the loss detector (_refresh_limit, in the cycle thread)
         self.takeover_limit_ms = bound_ms = takeover_bound(settings.takeover_cycles, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
-            lk.takeover_ms = bound_ms
+            lk.takeover_limit_ms = bound_ms
         zn = getattr(server.config, "zenoh", None)
         self._lease = float(getattr(zn, "lease_ms", 500)) / 1000.0  # (a freeze this long drops this NC's tokens)
         self.detector = LossDetector(self._silence, min(LIMIT_CAP_S, self._lease))
@@ -739,7 +739,7 @@ class HotStandby:
         self._limit = limit = self._limit_cycles(now)
         self.takeover_limit_ms = takeover_bound(limit, self._dt) * 1e3
         for lk in drive_links(self.real_drive):
-            lk.takeover_ms = self.takeover_limit_ms
+            lk.takeover_limit_ms = self.takeover_limit_ms
 
     def status(self) -> dict[str, Any]:
         """The ha status (``nc/<nc>/ha/status/<node>``, the stats' ``ha``): read from the cycle thread and the I/O

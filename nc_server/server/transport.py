@@ -42,7 +42,7 @@ from zenoh.handlers import FifoChannel, RingChannel
 
 from nc_schema import (
     NCTOPLC_DTYPE, PLC_AXIS_RECORD_DTYPE, PLC_FRAME_HEADER_DTYPE, PLCTONC_DTYPE, Keys, check_client_id, decode_plc_frame,
-    decode_stamp,
+    decode_stamp_epoch,
     new_instance_id, pack,
 )
 from nc_schema.zenoh_config import CONNECT_RETRY
@@ -195,19 +195,19 @@ assert _NCTOPLC_FIELDS is not None
 
 
 def decode_master_sample(nc: str, axis: int, payload: bytes, attachment: bytes | None) -> MasterSample:
-    """A remote master's per-axis sample: its NCTOPLC (256 B) and STAMP attachment (Cycle, NcTimeNs).
+    """A remote master's per-axis sample: its NCTOPLC (256 B) and STAMP attachment (Cycle, NcTimeNs, Epoch).
 
     Raises:
         ValueError: wrong sizes, no STAMP, or the record of another axis.
     """
     if len(payload) != NCTOPLC_DTYPE.itemsize or attachment is None:
         raise ValueError("not an NCTOPLC sample with its STAMP")
-    cycle, nc_time_ns = decode_stamp(attachment)
+    cycle, nc_time_ns, epoch = decode_stamp_epoch(attachment)
     r = np.frombuffer(payload, dtype=NCTOPLC_DTYPE, count=1)[0]
     if int(r["AxisId"]) != axis:
         raise ValueError(f"the record of axis {int(r['AxisId'])} on the key of axis {axis}")
     return MasterSample(nc, axis, int(cycle), int(nc_time_ns), float(r["SetPos"]), float(r["SetVelo"]),
-                        float(r["SetAcc"]), float(r["SetJerk"]), int(r["CoupleState"]))
+                        float(r["SetAcc"]), float(r["SetJerk"]), int(r["CoupleState"]), int(epoch))
 
 
 def liveliness_client(keys: Keys, key: str) -> str | None:

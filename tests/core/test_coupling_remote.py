@@ -241,3 +241,24 @@ def test_a_master_sample_from_the_future_is_no_master() -> None:
     s = pr2.s.nctoplc[0]
     assert int(s["ErrorCode"]) == E.NC_CONSEQUENTIAL_ERROR, hex(int(s["ErrorCode"]))
     assert abs(float(s["SetPos"])) < 1.0  # it did not jump
+
+
+def test_a_remote_masters_samples_of_a_lower_epoch_are_dropped() -> None:
+    """Protocol 5: the master's NC is a hot-standby pair; after a takeover (a higher epoch in the STAMP) the old
+    active node's samples (its own plan, back after a link cut) are dropped and counted, not taken as the master's;
+    a lower epoch is taken again once its NcTimeNs is EPOCH_HOLD_NS past the newest sample taken."""
+    from nc_server.core.remote import EPOCH_HOLD_NS, RemoteMasters
+
+    e1, e2 = (1 << 16) | 3, (2 << 16) | 4
+    rm = RemoteMasters("nc2", [("nc1", 1)])
+
+    def s(t: int, pos: float, epoch: int) -> MasterSample:
+        return MasterSample("nc1", 1, t // DT_NS, t, pos, 0.0, 0.0, 0.0, 0, epoch)
+
+    rm.feed([s(T0, 1.0, e1), s(T0 + DT_NS, 1.1, e1)])
+    rm.feed([s(T0 + 2 * DT_NS, 1.2, e2)])  # the takeover: taken at once
+    rm.feed([s(T0 + 3 * DT_NS, 50.0, e1), s(T0 + 3 * DT_NS + 1, 1.3, e2)])  # the old node's sample: dropped
+    assert [p for _, p, *_ in rm.hist[0]] == [1.0, 1.1, 1.2, 1.3]
+    assert rm.stale_epoch == 1 and rm.epoch[0] == e2 and rm.ignored == 0
+    rm.feed([s(T0 + 3 * DT_NS + 1 + EPOCH_HOLD_NS, 2.0, 0)])  # the pair gone, an NC at epoch 0 in its place
+    assert rm.hist[0][-1][1] == 2.0 and rm.epoch[0] == 0 and rm.stale_epoch == 1

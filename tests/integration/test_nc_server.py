@@ -55,8 +55,9 @@ def test_raw_nctoplc_offsets_and_move_absolute(nc_server: NcServerProcess,
     payload, att = first
     assert len(payload) == 256
     assert field(payload, "I", OFF_AXIS_ID) == 1
-    assert att is not None and len(att) == 16
-    cycle0, nc_time0 = struct.unpack("<QQ", att)
+    assert att is not None and len(att) == 24  # STAMP: Cycle, NcTimeNs, Epoch (protocol 5; 0 without redundancy)
+    cycle0, nc_time0, epoch0 = struct.unpack("<QQQ", att)
+    assert epoch0 == 0
     assert cycle0 > 0 and nc_time0 > 0
     wait_until(lambda: struct.unpack_from("<Q", raw(cl, 1)[1])[0] > cycle0, T, "attachment cycle to advance")
     # The DcTimeStamp is the low 32 bits of the NC time of the same cycle.

@@ -110,3 +110,52 @@ def test_request_without_session_is_not_ready_and_a_reply_is_returned() -> None:
     assert ei.value.code == ErrorCodes.ADSERR_DEVICE_NOTREADY
     link.session = _Session([_ok(pack({"id": 1, "error": 0, "cycle": 3}))])  # type: ignore[assignment]
     assert link.request("Info", None)["cycle"] == 3
+
+
+# ---- the epoch (protocol 5): frames of a lower epoch than the highest seen are dropped and counted --------------
+E1, E2 = (1 << 16) | 0x1234, (2 << 16) | 0x0042
+
+
+def test_follow_frame_drops_a_lower_epoch_counts_it_and_sees_no_restart() -> None:
+    link, k = _link(), Keys("nc1")
+    link.instance_sub.items += [_ev(k.alive_instance(A))]
+    link.take_events()
+    assert link.follow_frame(1000, E1) == (True, None)
+    assert link.follow_frame(1001, E2) == (True, None)  # the takeover: taken at once, the Cycle continues
+    assert link.follow_frame(980, E1) == (False, None)  # the old active NC after a link cut: its Cycle behind
+    assert link.follow_frame(1002, E2) == (True, None)
+    assert link.stats() == {"restarts": 0, "epoch": E2, "stale_epoch_frames": 1, "epoch_rises": 1, "epoch_falls": 0}
+    assert link.epoch == E2 and link.stale_epoch_frames == 1
+    # the pair restarted (a new instance, epoch 0): its token opens the epoch, its first frame is taken, one restart
+    link.instance_sub.items += [_ev(k.alive_instance(B))]
+    assert [e.kind for e in link.take_events()] == [RESTART]
+    assert link.follow_frame(3, 0) == (True, None)
+    assert link.stats()["epoch"] == 0 and link.restarts == 1 and link.stats()["epoch_falls"] == 1
+
+
+def test_a_door_keeps_the_image_of_the_highest_epoch() -> None:
+    """NcDoor (nc-ads's, nc-opcua's link): a frame of a lower epoch does not replace the image and ends no
+    supplies (no restart)."""
+    import numpy as np
+
+    from nc_link.door import NcDoor
+    from nc_schema import NCTOPLC_DTYPE, encode_frame
+
+    door = NcDoor("nc1", "tcp/127.0.0.1:9", "door1")
+    restarts: list[int] = []
+    door.on_restart.append(lambda: restarts.append(1))
+    link = door.link
+    link.alive_sub, link.instance_sub, link.claims_sub = _Channel(), _Channel(), _Channel()
+
+    def frame(cycle: int, epoch: int, set_pos: float) -> SimpleNamespace:
+        recs = np.zeros(1, dtype=NCTOPLC_DTYPE)
+        recs["AxisId"], recs["SetPos"] = 1, set_pos
+        data = encode_frame(cycle, cycle, recs, epoch=epoch)
+        return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: data))
+
+    for f, cycle in ((frame(500, E1, 1.0), 500), (frame(501, E2, 2.0), 501), (frame(400, E1, 9.0), 501)):
+        link.frames = _Channel(f)
+        door._step()
+        assert door.image is not None and door.image.cycle == cycle
+    assert restarts == [] and link.stale_epoch_frames == 1
+    assert np.frombuffer(door.image.records[1], dtype=NCTOPLC_DTYPE)["SetPos"][0] == 2.0

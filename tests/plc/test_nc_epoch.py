@@ -173,3 +173,45 @@ def test_a_flapping_token_keeps_the_claim_and_the_epoch(rig: Rig) -> None:
         assert ax.nc_epoch == 0 and plc.claim_state(ax).state == "held"
         assert int(ax.NcToPlc["ErrorCode"]) == 0
     assert "Claim" not in sent
+
+
+# ---- the frames' Epoch (protocol 5, a hot-standby pair: nc_schema.NcInstance.take) ------------------------------
+E1, E2 = (1 << 16) | 0x1234, (2 << 16) | 0x0042
+
+
+def test_a_takeover_with_the_cycle_going_on_is_no_restart_and_the_old_nodes_frames_are_dropped(nc: ScriptNc) -> None:
+    """The standby takes over (a higher epoch, the Cycle count continuing): no restart. The old active node, back
+    after a link cut, publishes its own frames (its Cycle behind, its own set-points) until it sees the higher
+    epoch: dropped, the axis keeps the active node's data, no restart."""
+    nc.nc_instance_token("nc1", A)
+    nc.frame_epoch = E1
+    nc.rec["SetPos"] = 1.0
+    nc.cycle_once(3)
+    nc.frame_epoch = E2
+    nc.rec["SetPos"] = 2.0
+    nc.cycle_once(3)
+    assert nc.ax.nc_epoch == 0 and nc.ax.NcToPlc.SetPos == 2.0 and nc.ax.Status.Valid
+    good = nc.nc_cycle - 10
+    nc.frame_epoch, nc.nc_cycle = E1, nc.nc_cycle - 200  # the old node: its Cycle behind, its plan elsewhere
+    nc.rec["SetPos"] = 99.0
+    nc.cycle_once(2)
+    assert nc.ax.nc_epoch == 0 and nc.ax.NcToPlc.SetPos == 2.0 and nc.ax.Status.NcCycleCounter == good
+    inst = nc._instances["nc1"]
+    assert inst.stale_frames == 2 and inst.epoch == E2 and inst.epoch_rises == 2  # (0 -> E1 -> E2)
+    nc.frame_epoch, nc.nc_cycle = E2, good + 30  # the active node's frames again
+    nc.rec["SetPos"] = 3.0
+    nc.cycle_once(1)
+    assert nc.ax.nc_epoch == 0 and nc.ax.NcToPlc.SetPos == 3.0 and nc.ax.Status.Valid
+
+
+def test_a_restarted_pair_at_epoch_0_is_one_restart_and_followed(nc: ScriptNc) -> None:
+    nc.nc_instance_token("nc1", A)
+    nc.frame_epoch = E2
+    nc.cycle_once(3)
+    nc.nc_instance_token("nc1", B)  # the whole pair restarted: a new instance at epoch 0
+    nc.frame_epoch = 0
+    _restart_frames(nc)
+    nc.rec["SetPos"] = 5.0
+    nc.cycle_once(2)
+    assert nc.ax.nc_epoch == 1 and nc.ax.NcToPlc.SetPos == 5.0 and nc.ax.Status.Valid
+    assert nc._instances["nc1"].epoch == 0

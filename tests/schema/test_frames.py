@@ -89,12 +89,65 @@ def test_plc_frame_axis_heads_are_cached_and_bounded() -> None:
 
 def test_frame_header_refuses_a_header_size_below_the_header() -> None:
     # HeaderSize 8 and one 256-byte record: the length adds up (8 + 256), but the records would overlap the header
-    head = s.FRAME_HEADER_STRUCT.pack(s.FRAME_MAGIC, s.WIRE_VERSION, 8, 1, 2, 1, s.NCTOPLC_SIZE, 0)
+    head = s.FRAME_HEADER_STRUCT.pack(s.FRAME_MAGIC, s.WIRE_VERSION, 8, 1, 2, 1, s.NCTOPLC_SIZE, 0, 0)
     data = head + bytes(8 + s.NCTOPLC_SIZE - len(head))
     with pytest.raises(ValueError, match="sizes do not add up"):
         s.frame_header(data)
-    ok = s.FRAME_HEADER_STRUCT.pack(s.FRAME_MAGIC, s.WIRE_VERSION, 32, 1, 2, 1, s.NCTOPLC_SIZE, 0)
-    assert s.frame_header(ok + bytes(s.NCTOPLC_SIZE)).AxisCount == 1
+    ok = s.FRAME_HEADER_STRUCT.pack(s.FRAME_MAGIC, s.WIRE_VERSION, 40, 1, 2, 1, s.NCTOPLC_SIZE, 0, 7)
+    h = s.frame_header(ok + bytes(s.NCTOPLC_SIZE))
+    assert (h.AxisCount, h.Epoch) == (1, 7)
+
+
+def test_the_epoch_in_the_frame_header_and_the_stamp() -> None:
+    """Protocol 5: FRAME_HEADER is 40 bytes, Epoch a ULINT at 32; STAMP 24 bytes, Epoch a ULINT at 16. Every
+    decoder and the NC's own helpers carry it through (a view frame keeps it)."""
+    epoch_off, epoch = s.member_struct(s.FRAME_HEADER_DTYPE, "Epoch")
+    assert (s.FRAME_HEADER_SIZE, epoch_off, epoch.format) == (40, 32, "<Q")
+    assert s.member_struct(s.STAMP_DTYPE, "Epoch")[0] == 16 and s.STAMP_SIZE == 24
+    recs = _random(s.NCTOPLC_DTYPE, 3, 1)
+    recs["AxisId"] = [5, 1, 9]
+    jobs = _random(s.NCJOBS_DTYPE, 3, 2)
+    e = (7 << 16) | 0xBEEF
+    data = s.encode_frame(77, 88, recs, 0, jobs, epoch=e)
+    assert s.frame_header(data).Epoch == e and s.frame_header(data).HeaderSize == 40
+    assert int(s.decode_frame(data)[0]["Epoch"]) == e and s.frame_records(data)[0].Epoch == e
+    assert s.frame_epoch(data) == e and s.frame_epoch(s.view_frame(data, 3, [2])) == e
+    assert s.encode_frame(1, 2, recs).startswith(s.encode_frame(1, 2, recs, epoch=0)[:40])
+    assert s.frame_header(s.encode_frame(1, 2, recs)).Epoch == 0  # without redundancy: 0
+    buf = bytearray(64)
+    s.pack_frame_header_into(buf, 0, 77, 88, 3, 0, True, e)
+    assert bytes(buf[:40]) == data[:40]
+    assert s.decode_stamp_epoch(s.encode_stamp(3, 4, e)) == (3, 4, e)
+    assert s.decode_stamp(s.encode_stamp(3, 4, e)) == (3, 4)
+    assert len(s.encode_stamp(3, 4)) == 24
+
+
+@pytest.mark.parametrize("with_jobs", [False, True])
+def test_a_frame_and_a_stamp_of_protocol_4_read_with_epoch_0(with_jobs: bool) -> None:
+    """An NC before protocol 5 sends a 32-byte header (HeaderSize 32) and a 16-byte STAMP: read, Epoch 0. A
+    receiver before protocol 5 reads the new frames by their HeaderSize (records where HeaderSize says)."""
+    import struct
+    recs = _random(s.NCTOPLC_DTYPE, 2, 1)
+    recs["AxisId"] = [3, 4]
+    jobs = _random(s.NCJOBS_DTYPE, 2, 2) if with_jobs else None
+    new = s.encode_frame(9, 10, recs, 0, jobs, epoch=5)
+    old = new[:6] + struct.pack("<H", 32) + new[8:32] + new[40:]
+    h = s.frame_header(old)
+    assert (h.HeaderSize, h.Epoch, h.Cycle, h.AxisCount, h.job_records) == (32, 0, 9, 2, with_jobs)
+    hdr, back, jb = s.decode_frame(old)
+    assert int(hdr["Epoch"]) == 0 and int(hdr["Cycle"]) == 9 and back.tobytes() == recs.tobytes()
+    assert (jb is None) == (not with_jobs)
+    assert list(s.frame_records(old)[1]) == [3, 4]
+    empty = s.encode_frame(9, 10, recs[:0])
+    empty_old = empty[:6] + struct.pack("<H", 32) + empty[8:32]
+    assert s.frame_header(empty_old).AxisCount == 0
+    assert s.decode_stamp_epoch(struct.pack("<QQ", 3, 4)) == (3, 4, 0)
+    # the protocol-4 reader: the 32 bytes before Epoch, the records at HeaderSize
+    v4 = s.struct_of(s.FRAME_HEADER_DTYPE, stop="Epoch").unpack_from(new)
+    assert v4[2] == 40 and new[v4[2]:v4[2] + s.NCTOPLC_SIZE] == recs[0].tobytes()
+    for bad in (b"\0" * 15, b"\0" * 20):
+        with pytest.raises(ValueError):
+            s.decode_stamp(bad)
 
 
 @pytest.mark.parametrize("jobs", [False, True])

@@ -109,7 +109,7 @@ def test_frames_round_trip():
     recs["AxisId"] = [1, 2, 3]
     recs["SetPos"] = [1.5, -2.0, 3.25]
     data = s.encode_frame(42, 123456789, recs)
-    assert len(data) == 32 + 3 * 256
+    assert len(data) == 40 + 3 * 256  # (the header: 40 bytes since protocol 5)
     h, back, jobs = s.decode_frame(data)
     assert jobs is None
     assert int(h["Cycle"]) == 42 and int(h["NcTimeNs"]) == 123456789

@@ -133,3 +133,86 @@ def test_instance_ids_and_keys() -> None:
             k.alive_instance(bad)  # type: ignore[arg-type]
         with pytest.raises(ValueError):
             NcInstance().token(bad)  # type: ignore[arg-type]
+
+
+# ---- the epoch (protocol 5): the highest epoch of the instance is followed -------------------------------------
+E1, E2 = (1 << 16) | 0x1234, (2 << 16) | 0x0042  # two epochs of a hot-standby pair: E2 took over from E1
+
+
+def test_a_lower_epoch_frame_is_dropped_and_is_no_restart() -> None:
+    """After a link cut the old active NC (E1), back on the network, publishes its own frames (its own Cycle
+    count, behind its successor's) until it sees E2: dropped, counted, no restart, the Cycle followed stays."""
+    inst = NcInstance()
+    inst.token(A)
+    for c in range(1, 1000, 5):
+        assert inst.take(c, E1, now=c / 1000) == (True, None)
+    assert inst.take(1001, E2, now=1.001) == (True, None)  # the takeover: the Cycle count continues
+    assert (inst.epoch, inst.epoch_rises, inst.restarts) == (E2, 1, 0)
+    for k, c in enumerate(range(990, 1400, 5)):  # the old active's frames (its Cycle behind, then ahead)
+        assert inst.take(c, E1, now=1.002 + k / 1000) == (False, None)
+        assert inst.take(1002 + k, E2, now=1.002 + k / 1000) == (True, None)
+    assert inst.stale_frames == len(range(990, 1400, 5)) and inst.restarts == 0 and inst.epoch == E2
+    assert inst.cycle == 1002 + len(range(990, 1400, 5)) - 1  # only the followed epoch's Cycle counts
+
+
+def test_a_higher_epoch_is_taken_at_once_and_its_cycle_going_back_is_a_restart() -> None:
+    """A higher epoch is taken with its first frame; the Cycle rule applies to it as to any frame: a successor
+    whose Cycle is behind what the client saw did not know those cycles (their commands are lost): a restart."""
+    inst = NcInstance()
+    inst.token(A)
+    assert inst.take(500, 0) == (True, None)
+    assert inst.take(501, E1) == (True, None) and inst.epoch == E1  # no redundancy before: 0, then a pair
+    taken, why = inst.take(400, E2)
+    assert taken and why == "its cycle counter went back" and inst.restarts == 1 and inst.epoch == E2
+
+
+def test_a_restarted_pair_at_a_lower_epoch_is_followed_after_its_new_instance_token() -> None:
+    """The whole pair (or an NC without redundancy in its place) restarted: a new instance, epoch 0 again. Its
+    instance token opens the epoch: its first frame is taken (one restart, counted by the token)."""
+    inst = NcInstance()
+    inst.token(A)
+    for c in range(1, 100):
+        inst.take(c, E2)
+    assert inst.take(3, 0) == (False, None)  # before the token: a lower epoch, dropped
+    assert inst.token(B) is not None and inst.restarts == 1
+    assert inst.take(100, E2) == (True, None)  # a frame of the old instance still held: taken, epoch kept
+    assert inst.take(4, 0) == (True, None)  # the new instance's first frame: its token counted it
+    assert (inst.epoch, inst.epoch_falls, inst.restarts) == (0, 1, 1)
+    assert inst.take(101, E2) == (True, None) and inst.epoch_rises == 1  # (a higher epoch is always taken)
+    assert inst.take(5, 0) == (False, None)  # the epoch is closed again: lower ones are dropped
+
+
+def test_a_new_instance_at_the_same_epoch_closes_the_epoch_with_its_first_frame() -> None:
+    inst = NcInstance()
+    inst.token(A)
+    for c in range(1, 100):
+        inst.take(c, 0)
+    assert inst.token(B) is not None
+    assert inst.take(2, 0) == (True, None) and inst.restarts == 1  # its first frame (the Cycle went back)
+    assert inst.take(3, E1) == (True, None)  # it became a pair
+    assert inst.take(4, 0) == (False, None)  # a lower epoch afterwards: dropped
+
+
+def test_a_lower_epoch_is_taken_after_the_hold_without_the_followed_one() -> None:
+    """No frame of the epoch followed for EPOCH_HOLD_S (the higher-epoch NC gone for good, no new instance
+    token seen): the lower epoch is all there is and is taken; until then it is dropped."""
+    from nc_schema.instance import EPOCH_HOLD_S
+    inst = NcInstance()
+    inst.token(A)
+    assert inst.take(1000, E2, now=10.0) == (True, None)
+    t = 10.0
+    while t < 10.0 + EPOCH_HOLD_S - 0.05:
+        t += 0.1
+        assert inst.take(1001, E1, now=t) == (False, None)
+    assert inst.take(1002, E1, now=10.0 + EPOCH_HOLD_S) == (True, None)
+    assert (inst.epoch, inst.epoch_falls, inst.restarts) == (E1, 1, 0)
+    assert inst.take(1003, E1, now=10.0 + EPOCH_HOLD_S + 0.01) == (True, None)
+    inst2 = NcInstance()  # without a clock the hold never ends (only a new instance opens the epoch)
+    inst2.take(5, E2)
+    assert inst2.take(6, E1) == (False, None)
+
+
+def test_frame_without_epoch_keeps_the_old_rule() -> None:
+    inst = NcInstance()
+    assert inst.frame(5) is None and inst.epoch is None
+    assert inst.take(6, 0) == (True, None) and inst.epoch == 0

@@ -93,7 +93,7 @@ def test_keys():
 
 
 def test_every_command_has_a_class():
-    assert s.PROTOCOL["version"] == 4
+    assert s.PROTOCOL["version"] == 5
     assert set(s.CLASSES) == {"read", "op", "eng"} == set(s.PROTOCOL["classes"]) - {"doc"}
     assert {n for n, c in s.COMMANDS.items() if c["class"] == "read"} == {
         "Info", "ReadParameter", "ReadParameterSet", "ReadAxisComponents"}

@@ -41,9 +41,12 @@ def test_frames_are_byte_identical_to_encode_frame(n: int, flags: int) -> None:
     assert got is not None and got[1] == encode_frame(1, 2, recs, flags) and got[2] is None
     # independent reference for the header: filled field by field through the numpy dtype
     ref = np.zeros((), dtype=FRAME_HEADER_DTYPE)
-    ref["Magic"], ref["Version"], ref["HeaderSize"] = 0x314E435A, 1, 32
+    ref["Magic"], ref["Version"], ref["HeaderSize"] = 0x314E435A, 1, 40  # (40: protocol 5's header, Epoch)
     ref["Cycle"], ref["NcTimeNs"], ref["AxisCount"], ref["RecordSize"], ref["Flags"] = 1, 2, n, 256, flags
-    assert got[1][:32] == ref.tobytes()
+    assert got[1][:40] == ref.tobytes()
+    w.write(3, 4, recs, flags, epoch=(5 << 16) | 6)  # a hot-standby NC's epoch in the header
+    got = r.read_newest()
+    assert got is not None and got[1] == encode_frame(3, 4, recs, flags, epoch=(5 << 16) | 6)
     h, out, _ = decode_frame(got[1])
     assert out.tobytes() == recs.tobytes()
 

@@ -32,7 +32,7 @@ class FakeLink:
         self.host_epoch = 0
         self.input_epoch = 0
         self.received = 0
-        self.takeover_ms = 0.0
+        self.takeover_limit_ms = 0.0
         self.mute = False
 
 

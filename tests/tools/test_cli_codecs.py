@@ -112,8 +112,9 @@ def test_frame_and_plc_frame_decoders() -> None:
     recs = np.zeros(2, dtype=NCTOPLC_DTYPE)
     recs["AxisId"] = [1, 2]
     recs["SetPos"] = [1.5, -2.0]
-    out = json.loads(cli_codecs.decode_frame("nc/nc1/status", encode_frame(42, 7, recs)))
+    out = json.loads(cli_codecs.decode_frame("nc/nc1/status", encode_frame(42, 7, recs, epoch=(3 << 16) | 5)))
     assert out["header"]["Cycle"] == 42 and [a["SetPos"] for a in out["axes"]] == [1.5, -2.0]
+    assert out["header"]["Epoch"] == (3 << 16) | 5 and out["header"]["HeaderSize"] == 40  # (protocol 5)
     assert out["axes"][0]["MotionState"] == "MC_AXISSTATE_DISABLED"
     pc = np.zeros(1, dtype=PLCTONC_DTYPE)
     pc["ControlDWord"] = 0x7

@@ -294,3 +294,37 @@ def test_ha_line_shows_the_standby_and_its_replication_lag() -> None:
     assert v["ha"]["standbys"] == [{"node": "b", "role": "standby", "in_step": True, "lag_cycles": 3}]
     text = render({"time": "t", "ncs": [v]})
     assert "ha: active node a epoch 65541" in text and "standby b lag 3 cycles" in text and " c " not in text
+
+
+def test_the_status_frames_epoch_is_shown_and_a_lower_epoch_is_dropped() -> None:
+    """Protocol 5: nc-status shows the Epoch of the NC's status frames; after a takeover a status frame of the old
+    active NC (a lower epoch) is not shown (the newest of the followed epoch stays), and the drops are counted."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from nc_schema import NCTOPLC_DTYPE, encode_frame
+    from nc_tools.status import NcWatch, render
+
+    w = NcWatch(session=None)  # type: ignore[arg-type]  # (only the callbacks are used)
+    on_status = w._on_data("status")
+
+    def put(cycle: int, epoch: int, set_pos: float) -> None:
+        recs = np.zeros(1, dtype=NCTOPLC_DTYPE)
+        recs["AxisId"], recs["SetPos"] = 1, set_pos
+        data = encode_frame(cycle, cycle * 1000, recs, epoch=epoch)
+        on_status(SimpleNamespace(key_expr="nc/nc1/status", payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    e1, e2 = (1 << 16) | 7, (2 << 16) | 9
+    put(100, e1, 1.0)
+    put(160, e2, 2.0)  # the standby took over
+    put(90, e1, 99.0)  # the old active NC after a link cut: dropped
+    [v] = w.snapshot()["ncs"]
+    assert (v["epoch"], v["cycle"], v["stale_epoch_frames"], v["restarts"]) == (e2, 160, 1, 0)
+    assert v["axes"][0]["SetPos"] == 2.0
+    assert f"epoch {e2} (1 frames of lower epochs dropped)" in render({"time": "t", "ncs": [v]})
+    w2 = NcWatch(session=None)  # type: ignore[arg-type]
+    w2._on_data("status")(SimpleNamespace(key_expr="nc/nc1/status", payload=SimpleNamespace(
+        to_bytes=lambda: encode_frame(5, 5, np.zeros(0, dtype=NCTOPLC_DTYPE)))))
+    [v2] = w2.snapshot()["ncs"]
+    assert v2["epoch"] == 0 and "epoch 0" in render({"time": "t", "ncs": [v2]})

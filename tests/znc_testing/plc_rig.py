@@ -158,6 +158,7 @@ class ScriptNc(PlcTask):
         self.port: ScriptPort = ScriptPort()
         self.port.clock = lambda: self.now
         self.nc_cycle = 0
+        self.frame_epoch = 0  # the frames' Epoch (protocol 5: a hot-standby pair's; 0 without redundancy)
         ids = np.arange(1, n_axes + 1)
         self.recs = np.zeros(n_axes, dtype=NCTOPLC_DTYPE)
         self.recs["AxisId"] = ids
@@ -177,7 +178,7 @@ class ScriptNc(PlcTask):
         return self.cycle * self.cycle_time
 
     def _take_frames(self) -> None:
-        self._set_frame("nc1", self.nc_cycle, self.recs, self.jobs)
+        self._set_frame("nc1", self.nc_cycle, self.recs, self.jobs, epoch=self.frame_epoch)
 
     # -- the scripted NC ------------------------------------------------------------------
     @property

@@ -10,7 +10,7 @@ import msgpack
 import numpy as np
 
 from nc_link import NcLink
-from nc_schema import NCTOPLC_DTYPE, decode_frame, decode_stamp, frame_stamp
+from nc_schema import NCTOPLC_DTYPE, decode_frame, decode_stamp, frame_header
 from znc_testing.nc_process import NcTestClient
 
 __all__ = ["AXIS2", "CONFIG", "LEASE_MS", "Trace", "active_node", "ha_status", "largest_step"]
@@ -90,9 +90,15 @@ class Trace:
             f = self.link.take_frame()
             if f is not None:
                 self.frames += 1
-                why = self.link.frame_cycle(frame_stamp(f)[0])
+                try:
+                    h = frame_header(f)
+                except ValueError:
+                    continue
+                taken, why = self.link.follow_frame(h.Cycle, h.Epoch)  # (the clients' rule: protocol 5's epoch)
                 if why:
                     self.restarts.append(why)
+                if not taken:  # a frame of a lower epoch (the old active node's): counted by the link
+                    continue
                 try:
                     _, recs, jobs = decode_frame(bytes(f))
                     if jobs is not None:

@@ -243,15 +243,6 @@ class RemoteLink(ProcessDataLink):
         log.info("drive link of %s: connected, hosts %s", self.nc_name, ", ".join(self.hosts))
 
     @property
-    def takeover_ms(self) -> float:
-        """The former name of :attr:`takeover_limit_ms` (kept for callers that set it)."""
-        return self.takeover_limit_ms
-
-    @takeover_ms.setter
-    def takeover_ms(self, value: float) -> None:
-        self.takeover_limit_ms = float(value)
-
-    @property
     def connected(self) -> bool:
         """The session is open and declared."""
         return self._ready
