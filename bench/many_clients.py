@@ -239,9 +239,16 @@ class Pair:
                                        f"logs in {self.tmp}")
                 time.sleep(0.05)
 
-        wait(lambda: (a := ha.latest.get("a")) is not None and a["role"] == "active"
-             and (b := ha.latest.get("b")) is not None and b["role"] == "standby" and b["in_step"],
-             "a active and b a standby in step")
+        def up() -> bool:  # (either way round: b may have taken over while a started on a loaded machine)
+            a, b = ha.latest.get("a"), ha.latest.get("b")
+            if a is None or b is None:
+                return False
+            return {a["role"], b["role"]} == {"active", "standby"} and (a if a["role"] == "standby" else b)["in_step"]
+
+        wait(up, "one node active, the other a standby in step")
+        if ha.latest["a"]["role"] == "standby":  # (the CPU accounts: "nc-server" is the active NC's)
+            print("  (node b took over while the pair started: b is the active NC)", flush=True)
+            self.active, self.standby = self.standby, self.active
         wait(lambda: (h := self.drive_host()) is not None and h.get("connected") and h.get("rx_count", 0) > 0,
              "the drive host taking the NC's outputs")
         port = int(endpoint.rsplit(":", 1)[1])
@@ -488,6 +495,8 @@ def run(args: argparse.Namespace) -> int:
         if pair is not None:
             ha = HaWatch(stats.session, pair.drive_status)
             pair.ready(ha, endpoint, n_axes, args.start_timeout)
+            assert pair.active is not None
+            nc = pair.active
             ha.mark("setup")  # (the count starts with the pair up: the clients' start is part of the run)
         stats.wait()
         if args.observer:
