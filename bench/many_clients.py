@@ -178,6 +178,7 @@ class Pair:
         # the router and the drive host: infrastructure (zenohd, drives), at the niceness the NC gives its own zenoh
         # threads (-10) unless --infra-nice says otherwise (a shared machine starved a 1 ms drive host to 10 Hz)
         self.nice = ["nice", "-n", str(infra_nice)] if infra_nice else []
+        self.drive_rt: list[str] = []  # --drive-rt: ["chrt", "-f", prio]
         self.procs: list[subprocess.Popen[Any]] = []
         self.drive_status = tmp / "drives.json"
         self.router: subprocess.Popen[Any] | None = None
@@ -206,7 +207,7 @@ class Pair:
             self.procs.append(self.standby)
             # (its silence timeout: the pair's default from the TOML, longer than the longest takeover it publishes)
             self.drives = subprocess.Popen(
-                [*self.nice, sys.executable, "-m", "nc_server.drives.remote.host", "--config", str(self.cfg), "--host", "drives1",
+                [*self.nice, *self.drive_rt, sys.executable, "-m", "nc_server.drives.remote.host", "--config", str(self.cfg), "--host", "drives1",
                  "--connect", self.endpoint, "--lease-ms", str(self.lease_ms), "--status-file", str(self.drive_status)],
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "drives.err", "w"),
                 env=self.env, start_new_session=True)
@@ -478,6 +479,8 @@ def run(args: argparse.Namespace) -> int:
     pair: Pair | None = None
     if args.standby:
         pair = Pair(cfg, endpoint, tmp, env, isolate, args.lease_ms, args.infra_nice)
+        if args.drive_rt:
+            pair.drive_rt = ["chrt", "-f", str(args.drive_rt)]
         pair.start()  # (kills what it started if it fails)
         procs.extend(pair.procs)  # (killed in the finally below, process groups, whatever happens)
         nc = pair.active
@@ -914,6 +917,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="--standby: the zenoh lease of the router, both NCs and the drive host [ms] (3000, "
                          "tests/znc_testing/standby_rig.py's LEASE_MS)")
     ap.add_argument("--takeover-cycles", type=int, default=15, help="--standby: [redundancy] takeover_cycles (15)")
+    ap.add_argument("--drive-rt", type=int, default=0, metavar="PRIO",
+                    help="--standby: run the nc-drive-sim under SCHED_FIFO priority PRIO (chrt; 0: no): real drives "
+                         "are never starved by the machine's load")
     ap.add_argument("--infra-nice", type=int, default=-10,
                     help="--standby: niceness of the nc-router and the nc-drive-sim (-10, as the NC's zenoh threads; "
                          "0: as started)")
