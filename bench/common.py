@@ -155,20 +155,22 @@ def pct(xs: Iterable[float], p: float) -> float:
 
 
 def start_nc(cfg: Path, endpoint: str, tmp: Path, env: "dict[str, str] | None" = None, extra: Sequence[str] = (),
-             cwd: "Path | None" = None) -> "subprocess.Popen[Any]":
-    """``nc-server --config cfg --listen endpoint`` (own process group, stderr in ``tmp/nc.err``), started with
-    ``extra`` arguments; returns once it printed its ready line.
+             cwd: "Path | None" = None, err: str = "nc.err", connect: bool = False) -> "subprocess.Popen[Any]":
+    """``nc-server --config cfg --listen endpoint`` (own process group, stderr in ``tmp/<err>``), started with
+    ``extra`` arguments; returns once it printed its ready line. ``connect``: in client mode behind the router at
+    ``endpoint`` instead (``--mode client --connect endpoint``: a hot-standby pair's members).
 
     Raises:
         RuntimeError: it ended or printed something else first (the process is killed; the text has its stderr).
     """
-    nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), "--listen", endpoint,
-                           "--log-level", "WARNING", *extra], stdout=subprocess.PIPE, stderr=open(tmp / "nc.err", "w"),
+    where = ["--mode", "client", "--connect", endpoint] if connect else ["--listen", endpoint]
+    nc = subprocess.Popen([sys.executable, "-m", "nc_server.server.cli", "--config", str(cfg), *where,
+                           "--log-level", "WARNING", *extra], stdout=subprocess.PIPE, stderr=open(tmp / err, "w"),
                           text=True, env=env, start_new_session=True, cwd=cwd)
     line = nc.stdout.readline() if nc.stdout else ""
     if " ready: " not in line:
         kill_group(nc)
-        raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / 'nc.err').read_text()[-2000:]}")
+        raise RuntimeError(f"nc-server did not start: {line!r} {(tmp / err).read_text()[-2000:]}")
     return nc
 
 

@@ -29,6 +29,22 @@ each program writes its final report, and the processes are stopped.
     .venv/bin/python bench/many_clients.py --seconds 60          # the 1-minute run of issue 8 (~2.5 min)
     .venv/bin/python bench/many_clients.py --clients 8 --seconds 60 --floor 10 --observer
     .venv/bin/python bench/many_clients.py --seconds 60 --isolate-cpu 1   # the NC's cycle alone on CPU 1
+    .venv/bin/python bench/many_clients.py --standby --seconds 600       # issue 21: no false takeover in 10 min
+
+``--standby`` (issue 21, docs/standby.md): the NC is a hot-standby pair, configured as
+tests/drives/test_standby_process.py does: an ``nc-router`` on the free port (the clients connect there), nc-server
+nodes ``a`` (``redundancy.start=active``) and ``b`` (standby) in client mode behind it with ``[redundancy] enabled``,
+every axis a remote drive of one ``nc-drive-sim`` (its silence timeout the pair's default from the TOML), the rig's
+zenoh lease (``--lease-ms``, 3000) and ``[drives.remote] max_age`` 200; the router and the drive host at nice -10
+(``--infra-nice``: infrastructure, as the NC's own zenoh threads; at nice 0 a shared machine starved the 1 ms drive
+host to 10 cycles/s); the bench's own NC settings otherwise (1 ms,
+realtime "auto", frame publisher process). Once a is active, b in step and the drive host takes a's outputs, every
+axis gets MC_Reset (a remote axis starts in 0x4651) before the clients start. Counted from there to the clients'
+final reports (and over the window alone), from every node's ha status (``nc/<nc>/ha/status/<node>``) and the drive
+host's status file: takeovers, demotions, role changes, the drive host's epoch changes, resyncs; printed with the
+pair's log lines about role changes. The verdict gets "no false takeover: takeovers 0 (goal 0)" (and no demotion, no
+epoch change at the drives); ``--json`` has ``takeovers`` and ``demotions``. The pair's other processes' CPU is
+printed apart (``pair-*``) and counts in the machine's busy share.
 
 On a shared machine the NC's cycle work takes 3-4 times its quiet cost (16 clients evict its caches
 while it sleeps, although SCHED_FIFO keeps them from preempting it); ``--isolate-cpu`` shows the
@@ -68,6 +84,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -84,7 +101,8 @@ BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
 sys.path.insert(0, str(REPO))
 from bench.common import (  # noqa: E402,F401
-    Busy, children, cpu_ticks, elapsed, goal_line, machine_ticks, mark, start_nc, stop_processes, use_this_tree,
+    Busy, children, cpu_ticks, elapsed, goal_line, kill_group, machine_ticks, mark, start_nc, stop_processes,
+    use_this_tree,
 )
 
 use_this_tree()
@@ -128,6 +146,247 @@ with zenoh.open(c) as s:
     sys.stdin.readline()
     print(json.dumps(st), flush=True)
 """
+
+
+#: --standby: the pair's sections (as tests/znc_testing/standby_rig.py's CONFIG: client mode behind a router, the
+#: rig's lease, max_age 200), the NC's [nc] settings the bench's own (realtime "auto", publisher "process")
+STANDBY_TOML = """[zenoh]
+mode = "client"
+connect = ["{endpoint}"]
+lease = {lease}
+
+[redundancy]
+enabled = true
+takeover_cycles = {takeover}
+
+[drives.remote]
+max_age = 200
+"""
+REMOTE_DRIVE = 'Drive = {{ backend = "remote", host = "drives1" }}\n'
+#: what the pair's NCs log at a role change (nc_server/server/standby.py)
+HA_LINES = ("took over", "standby from now on", "drives again", "out of step")
+
+
+class Pair:
+    """--standby: an ``nc-router``, nc-server nodes ``a`` (started active) and ``b`` (standby) in client mode behind
+    it, and one ``nc-drive-sim`` hosting every axis (``python -m`` forms: this tree's code), as
+    tests/drives/test_standby_process.py starts them; every process in its own process group."""
+
+    def __init__(self, cfg: Path, endpoint: str, tmp: Path, env: dict[str, str], extra: list[str],
+                 lease_ms: int, infra_nice: int = 0) -> None:
+        self.cfg, self.endpoint, self.tmp, self.env, self.extra, self.lease_ms = cfg, endpoint, tmp, env, extra, lease_ms
+        # the router and the drive host: infrastructure (zenohd, drives), at the niceness the NC gives its own zenoh
+        # threads (-10) unless --infra-nice says otherwise (a shared machine starved a 1 ms drive host to 10 Hz)
+        self.nice = ["nice", "-n", str(infra_nice)] if infra_nice else []
+        self.drive_rt: list[str] = []  # --drive-rt: ["chrt", "-f", prio]
+        self.procs: list[subprocess.Popen[Any]] = []
+        self.drive_status = tmp / "drives.json"
+        self.router: subprocess.Popen[Any] | None = None
+        self.active: subprocess.Popen[Any] | None = None
+        self.standby: subprocess.Popen[Any] | None = None
+        self.drives: subprocess.Popen[Any] | None = None
+
+    def start(self) -> None:
+        try:
+            self.router = subprocess.Popen(
+                [*self.nice, sys.executable, "-m", "nc_server.router", "--listen", self.endpoint, "--lease-ms", str(self.lease_ms)],
+                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=open(self.tmp / "router.err", "w"),
+                text=True, env=self.env, start_new_session=True)
+            self.procs.append(self.router)
+            line = self.router.stdout.readline() if self.router.stdout else ""
+            if "ready" not in line:
+                raise RuntimeError(f"nc-router did not start: {line!r} {(self.tmp / 'router.err').read_text()[-2000:]}")
+            # INFO: the pair's role changes and their reasons ("took over ... ms after the last log") in the logs
+            self.active = start_nc(self.cfg, self.endpoint, self.tmp, self.env,
+                                   [*self.extra, "--set", "redundancy.node=a", "--set", "redundancy.start=active",
+                                    "--log-level", "INFO"], err="nc-a.err", connect=True)
+            self.procs.append(self.active)
+            self.standby = start_nc(self.cfg, self.endpoint, self.tmp, self.env,
+                                    [*self.extra, "--set", "redundancy.node=b", "--log-level", "INFO"],
+                                    err="nc-b.err", connect=True)
+            self.procs.append(self.standby)
+            # (its silence timeout: the pair's default from the TOML, longer than the longest takeover it publishes)
+            self.drives = subprocess.Popen(
+                [*self.nice, *self.drive_rt, sys.executable, "-m", "nc_server.drives.remote.host", "--config", str(self.cfg), "--host", "drives1",
+                 "--connect", self.endpoint, "--lease-ms", str(self.lease_ms), "--status-file", str(self.drive_status)],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "drives.err", "w"),
+                env=self.env, start_new_session=True)
+            self.procs.append(self.drives)
+        except BaseException:
+            self.kill()
+            raise
+
+    def drive_host(self) -> dict[str, Any] | None:
+        try:
+            return json.loads(self.drive_status.read_text())
+        except (OSError, ValueError):
+            return None
+
+    def ready(self, ha: "HaWatch", endpoint: str, n_axes: int, timeout: float) -> None:
+        """Wait until node a is active, b a standby in step and the drive host takes a's outputs; then MC_Reset every
+        axis (a remote axis starts in 0x4651 until its host was heard: docs/drives.md) until none shows an error."""
+        from znc_testing.nc_process import NcTestClient
+        deadline = time.monotonic() + timeout
+
+        def wait(cond: Any, what: str) -> None:
+            while not cond():
+                for name, p in (("router", self.router), ("a", self.active), ("b", self.standby),
+                                ("drive host", self.drives)):
+                    if p is not None and p.poll() is not None:
+                        raise RuntimeError(f"{name} exited with {p.returncode} ({what}); logs in {self.tmp}")
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"--standby: not {what} after {timeout:g} s: ha {ha.latest}, drive host "
+                                       f"{ {k: v for k, v in (self.drive_host() or {}).items() if k != 'axes'} }; "
+                                       f"logs in {self.tmp}")
+                time.sleep(0.05)
+
+        def up() -> bool:  # (either way round: b may have taken over while a started on a loaded machine)
+            a, b = ha.latest.get("a"), ha.latest.get("b")
+            if a is None or b is None:
+                return False
+            return {a["role"], b["role"]} == {"active", "standby"} and (a if a["role"] == "standby" else b)["in_step"]
+
+        wait(up, "one node active, the other a standby in step")
+        if ha.latest["a"]["role"] == "standby":  # (the CPU accounts: "nc-server" is the active NC's)
+            print("  (node b took over while the pair started: b is the active NC)", flush=True)
+            self.active, self.standby = self.standby, self.active
+        wait(lambda: (h := self.drive_host()) is not None and h.get("connected") and h.get("rx_count", 0) > 0,
+             "the drive host taking the NC's outputs")
+        port = int(endpoint.rsplit(":", 1)[1])
+        cl = NcTestClient(port, client_id="", token=False, lease_ms=self.lease_ms)
+        try:
+            axes = range(1, n_axes + 1)
+            next_reset = 0.0
+
+            def clear() -> bool:
+                nonlocal next_reset
+                rows = {a: cl.nctoplc(a) for a in axes}
+                bad = [a for a, r in rows.items() if r is None or int(r["ErrorCode"])]
+                if bad and time.monotonic() >= next_reset:
+                    for a in bad:
+                        if rows[a] is not None:
+                            try:
+                                cl.request("Reset", axis=a, timeout=2.0)
+                            except AssertionError:  # (no reply: a role change meanwhile; tried again)
+                                pass
+                    next_reset = time.monotonic() + 0.5
+                return not bad
+
+            wait(clear, "every axis without an error (MC_Reset)")
+        finally:
+            cl.close()
+
+    def pids(self) -> dict[str, int]:
+        """The CPU accounts of the pair's other processes (the active NC's are the bench's "nc-" ones)."""
+        out: dict[str, int] = {}
+        for name, p in (("pair-standby", self.standby), ("pair-drive-host", self.drives), ("pair-router", self.router)):
+            if p is not None:
+                out[name] = p.pid
+                for k, c in enumerate(children(p.pid)):
+                    out[f"{name}-child{k}"] = c
+        return out
+
+    def logs(self) -> list[str]:
+        """The pair's log lines about role changes (both NCs, the drive host's epoch changes)."""
+        out = []
+        for name in ("nc-a.err", "nc-b.err", "drives.err"):
+            try:
+                text = (self.tmp / name).read_text(errors="replace")
+            except OSError:
+                continue
+            out += [f"{name}: {ln}" for ln in text.splitlines()
+                    if any(h in ln for h in HA_LINES) or "takes over" in ln]
+        return out
+
+    def stop_standby(self, ha: "HaWatch | None") -> None:
+        """Stop the node that is the standby now (node b unless roles changed), before the active one."""
+        p = self.standby
+        if ha is not None and (ha.latest.get("a") or {}).get("role") == "standby":
+            p = self.active
+        if p is not None and p.returncode is None:
+            kill_group(p, signal.SIGTERM)
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                kill_group(p)
+
+    def kill(self) -> None:
+        for p in reversed(self.procs):
+            if p.returncode is None:
+                kill_group(p)
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                pass
+
+
+class HaWatch:
+    """--standby: every node's ha status (``nc/<nc>/ha/status/<node>``, ~100 ms) and the drive host's epoch (its
+    status file, polled), with marks: the takeovers, demotions and epoch changes between two marks."""
+
+    def __init__(self, session: Any, drive_status: Path) -> None:
+        self.latest: dict[str, dict[str, Any]] = {}
+        self.role_changes: list[tuple[float, str, str, str, int]] = []  # (wall time, node, from, to, epoch)
+        self.drive_epochs: list[tuple[float, int]] = []
+        self.max_limit = 0   # the largest takeover_limit_cycles a standby in step published
+        self.max_lag = 0     # the largest lag_cycles of a standby in step
+        self.marks: dict[str, dict[str, Any]] = {}
+        self._drive_status = drive_status
+        self._stop = threading.Event()
+        self.sub = session.declare_subscriber(f"nc/{NC_NAME}/ha/status/*", self._on)
+        self._thread = threading.Thread(target=self._poll, daemon=True)
+        self._thread.start()
+
+    def _on(self, sample: Any) -> None:
+        try:
+            st = msgpack.unpackb(sample.payload.to_bytes(), raw=False, strict_map_key=False)
+            node = str(st["node"])
+        except Exception:
+            return
+        prev = self.latest.get(node)
+        if prev is not None and prev["role"] != st["role"]:
+            self.role_changes.append((time.time(), node, prev["role"], st["role"], int(st["epoch"])))
+        if st["role"] == "standby" and st.get("in_step"):
+            self.max_limit = max(self.max_limit, int(st.get("takeover_limit_cycles", 0)))
+            self.max_lag = max(self.max_lag, int(st.get("lag_cycles", 0)))
+        self.latest[node] = st
+
+    def _poll(self) -> None:
+        while not self._stop.wait(0.1):
+            try:
+                e = int(json.loads(self._drive_status.read_text())["epoch"])
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
+            if not self.drive_epochs or self.drive_epochs[-1][1] != e:
+                self.drive_epochs.append((time.time(), e))
+
+    def mark(self, name: str) -> None:
+        self.marks[name] = {"nodes": {n: {k: st.get(k) for k in ("role", "epoch", "takeovers", "demotions", "resyncs",
+                                                                 "diverged")} for n, st in self.latest.items()},
+                            "role_changes": len(self.role_changes), "drive_epochs": len(self.drive_epochs)}
+
+    def count(self, a: str, b: str) -> dict[str, int]:
+        """Takeovers, demotions, resyncs, role changes and drive-host epoch changes between marks ``a`` and ``b``."""
+        m0, m1 = self.marks[a], self.marks[b]
+        out = {}
+        for key in ("takeovers", "demotions", "resyncs"):
+            out[key] = sum(int(st.get(key) or 0) - int((m0["nodes"].get(n) or {}).get(key) or 0)
+                           for n, st in m1["nodes"].items())
+        out["role_changes"] = m1["role_changes"] - m0["role_changes"]
+        out["drive_epoch_changes"] = m1["drive_epochs"] - m0["drive_epochs"]
+        return out
+
+    def summary(self, logs: list[str]) -> dict[str, Any]:
+        return {"window": self.count("window", "window_end"), "run": self.count("setup", "end"),
+                "latest": self.latest, "role_changes": self.role_changes, "drive_epochs": self.drive_epochs,
+                "max_limit_cycles": self.max_limit, "max_lag_cycles": self.max_lag, "logs": logs[-40:]}
+
+    def close(self) -> None:
+        self._stop.set()
+        try:
+            self.sub.undeclare()
+        except Exception:
+            pass
 
 
 def free_port() -> int:
@@ -186,17 +445,24 @@ def run(args: argparse.Namespace) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="many-clients-"))
     cfg = tmp / "nc.toml"
     n_axes = n * AXES_PER_CLIENT + (1 if args.fb_trials else 0)  # the last one: the fb trials' (--fb-trials)
-    cfg.write_text(f'[nc]\nname = "{NC_NAME}"\ncycle_time = 0.001\n\n[zenoh]\nmode = "router"\n'
-                   + "".join(AXIS_TOML.format(id=i + 1) for i in range(n_axes)))
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
+    if args.standby:  # the pair's config (as tests/drives/test_standby_process.py's), the bench's NC settings
+        cfg.write_text(f'[nc]\nname = "{NC_NAME}"\ncycle_time = 0.001\n\n'
+                       + STANDBY_TOML.format(endpoint=endpoint, lease=args.lease_ms, takeover=args.takeover_cycles)
+                       + "".join((AXIS_TOML + REMOTE_DRIVE).format(id=i + 1) for i in range(n_axes)))
+    else:
+        cfg.write_text(f'[nc]\nname = "{NC_NAME}"\ncycle_time = 0.001\n\n[zenoh]\nmode = "router"\n'
+                       + "".join(AXIS_TOML.format(id=i + 1) for i in range(n_axes)))
     tree = Path(args.tree).resolve() if args.tree else REPO
     env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=str(tree))
     stop_file = tmp / "stop"
     print(f"many_clients: {n} plc-run x {AXES_PER_CLIENT} axes, NC {n_axes} axes at 1 ms, "
           f"PLC {args.plc_cycle * 1e3:g} ms, window {args.seconds:g} s"
           f"{'' if args.isolate_cpu is None else f'; NC cycle thread alone on CPU {args.isolate_cpu}, clients on the others'}"
-          f"; code under test {tree}; logs in {tmp}", flush=True)
+          + (f"; hot-standby pair (nodes a, b) behind an nc-router, axes on one nc-drive-sim, lease {args.lease_ms} ms, "
+             f"takeover_cycles {args.takeover_cycles}" if args.standby else "")
+          + f"; code under test {tree}; logs in {tmp}", flush=True)
 
     cal = calibrate()
     fl = [floor(args.floor, args.isolate_cpu)]
@@ -210,15 +476,31 @@ def run(args: argparse.Namespace) -> int:
         isolate = ["--set", f"nc.cpu_affinity=[{args.isolate_cpu}]"]
         rest = sorted(os.sched_getaffinity(0) - {args.isolate_cpu})
         pin_clients = ["taskset", "-c", ",".join(map(str, rest))]
-    nc = start_nc(cfg, endpoint, tmp, env, isolate)
-    procs.append(nc)
+    pair: Pair | None = None
+    if args.standby:
+        pair = Pair(cfg, endpoint, tmp, env, isolate, args.lease_ms, args.infra_nice)
+        if args.drive_rt:
+            pair.drive_rt = ["chrt", "-f", str(args.drive_rt)]
+        pair.start()  # (kills what it started if it fails)
+        procs.extend(pair.procs)  # (killed in the finally below, process groups, whatever happens)
+        nc = pair.active
+    else:
+        nc = start_nc(cfg, endpoint, tmp, env, isolate)
+        procs.append(nc)
     observer = None
     stats = None
+    ha: HaWatch | None = None
     clients: list[subprocess.Popen[Any]] = []
     idle: list[subprocess.Popen[Any]] = []
     result: dict[str, Any] = {}
     try:
         stats = Stats(endpoint)
+        if pair is not None:
+            ha = HaWatch(stats.session, pair.drive_status)
+            pair.ready(ha, endpoint, n_axes, args.start_timeout)
+            assert pair.active is not None
+            nc = pair.active
+            ha.mark("setup")  # (the count starts with the pair up: the clients' start is part of the run)
         stats.wait()
         if args.observer:
             observer = subprocess.Popen([sys.executable, "-c", OBSERVER, endpoint, f"nc/{NC_NAME}/frame"],
@@ -295,6 +577,10 @@ def run(args: argparse.Namespace) -> int:
                 **{f"idle{k}": p.pid for k, p in enumerate(idle)}}
         for k, c in enumerate(children(nc.pid)):  # its frame publisher ([nc] publisher = "process")
             pids[f"nc-child{k}"] = c
+        if pair is not None:  # (the standby's, the drive host's and the router's CPU: "pair-" keys, not the NC's)
+            pids.update(pair.pids())
+        if ha is not None:
+            ha.mark("window")
         c0 = {k: cpu_ticks(p) for k, p in pids.items()}
         m0 = machine_ticks()
         t0 = time.monotonic()
@@ -306,6 +592,8 @@ def run(args: argparse.Namespace) -> int:
             late_p99.append(float(stats.wait()["lateness_us_p99"]))
         s1 = stats.wait()
         dt = time.monotonic() - t0
+        if ha is not None:
+            ha.mark("window_end")
         c1 = {k: cpu_ticks(p) for k, p in pids.items()}
         m1 = machine_ticks()
         obs = None
@@ -330,6 +618,8 @@ def run(args: argparse.Namespace) -> int:
                 break
             time.sleep(0.2)
         s2 = stats.wait()
+        if ha is not None:
+            ha.mark("end")
 
         hz = os.sysconf("SC_CLK_TCK")
         cpu = {k: 100.0 * (c1[k] - c0[k]) / hz / dt for k in pids}
@@ -341,9 +631,15 @@ def run(args: argparse.Namespace) -> int:
         nc_over = int(s1["overruns"]) - int(s0["overruns"])
         result = {"stats0": s0, "stats1": s1, "stats2": s2, "cpu": cpu, "cycles": cycles, "missed": nc_missed,
                   "overruns": nc_over, "machine_busy": machine, "late_p99": late_p99, "dt": dt, "window_ns": [t0_ns, t0_ns + int(dt * 1e9)], "reports": reps, "observer": obs, "fb": fb}
+        if ha is not None and pair is not None:
+            result["ha"] = ha.summary(pair.logs())
     finally:
+        if ha is not None:
+            ha.close()
         if stats is not None:
             stats.close()
+        if pair is not None:
+            pair.stop_standby(ha)  # (first: a SIGTERM of the active NC would be a takeover by an in-step standby)
         stop_processes(clients + idle, nc, procs)
 
     # the NC never restarts during the run: every "NC ... restarted" a client logged is a false one (issue 18)
@@ -440,6 +736,11 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     print(f"CPU per plc-run {pl_mean:.2f} % of a core at a {args.plc_cycle * 1e3:g} ms cycle; {n_cl} of them "
           f"{sum(pl):.0f} %, the NC {nc_cpu:.0f} %: {sum(cpu.values()):.0f} % of the machine's "
           f"{100 * (os.cpu_count() or 1)} %")
+    pair_cpu = {k: v for k, v in cpu.items() if k.startswith("pair-")}
+    if pair_cpu:
+        print("CPU of the rest of the pair [% of one core]: " + ", ".join(
+            f"{name} {sum(v for k, v in pair_cpu.items() if k.startswith('pair-' + name)):.1f}"
+            for name in ("standby", "drive-host", "router")) + " (children included)")
     busy = float(r.get("machine_busy", 0.0))
     ours = sum(cpu.values())
     busy_load = busy - sum(il)  # the idle reference plc-runs are the bench's instruments, not the load
@@ -451,6 +752,33 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     if unfinished:
         print(f"clients without a final report: {unfinished}")
     faults = int(s2["faults"]) - int(s0["faults"])
+    ha_checks: list[tuple[str, bool]] = []
+    if r.get("ha"):  # --standby
+        h = r["ha"]
+        w, run_ = h["window"], h["run"]
+        print(f"hot-standby pair: over the window takeovers {w['takeovers']}, demotions {w['demotions']}, role changes "
+              f"{w['role_changes']}, drive host epoch changes {w['drive_epoch_changes']}, resyncs {w['resyncs']}; "
+              f"over the whole run (pair up -> final reports) takeovers {run_['takeovers']}, demotions "
+              f"{run_['demotions']}, role changes {run_['role_changes']}, drive host epoch changes "
+              f"{run_['drive_epoch_changes']}, resyncs {run_['resyncs']}")
+        print(f"  the standby's published limit (takeover_limit_cycles) max {h['max_limit_cycles']} cycles, its "
+              f"replication lag max {h['max_lag_cycles']} cycles")
+        for node, st in sorted(h["latest"].items()):
+            print(f"  node {node}: {st['role']}, epoch {st['epoch']}, takeovers {st['takeovers']}, demotions "
+                  f"{st['demotions']}, in_step {st['in_step']}, lag {st['lag_cycles']}, resyncs {st['resyncs']}, "
+                  f"diverged {st['diverged']}, limit {st['takeover_limit_cycles']} cycles, late-log judgements "
+                  f"overruled by the drives {st.get('witness_driven', '-')} (driven) / {st.get('witness_deaf', '-')} "
+                  f"(none heard)"
+                  + (f"; last takeover {st['takeover_ms']} ms (detection {st.get('takeover_detect_ms')} ms, "
+                     f"{st['takeover_cycles']} cycles)" if st["takeovers"] else ""))
+        for t, node, a, b, e in h["role_changes"]:
+            print(f"  role change {time.strftime('%H:%M:%S', time.gmtime(t))}Z: {node} {a} -> {b} (epoch {e})")
+        for ln in h["logs"]:
+            print(f"  log {ln}")
+        n_to = run_["takeovers"]
+        ha_checks = [(f"no false takeover (issue 21; no fault injected): takeovers {n_to} (goal 0), demotions "
+                      f"{run_['demotions']}, drive host epoch changes {run_['drive_epoch_changes']} over the whole run",
+                      n_to == 0 and run_["demotions"] == 0 and run_["drive_epoch_changes"] == 0)]
     # ---- the verdict against issue 8's and 19's criteria ------------------------------------------------------
     z_missed = _excess_z(missed, due, fl_missed, fl_due)
     z_over = _excess_z(over, cycles, fl_over, fl_due)
@@ -473,6 +801,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
          f"{'' if not r.get('false_restarts') else ': ' + str(r['false_restarts'])}", not r.get("false_restarts")),
         (f"the machine at most {BUSY_MAX:g} % busy over the window: {busy_load:.0f} % (without the idle reference "
          f"plc-runs; {busy:.0f} % with them)", busy_load <= BUSY_MAX),
+        *ha_checks,
     ]
     for text, good in checks:
         print(f"  [{'ok' if good else 'FAIL'}] {text}")
@@ -499,13 +828,18 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     if args.json:
         Path(args.json).write_text(json.dumps({"result": {k: v for k, v in r.items() if k not in ("reports", "fb")},
                                                "floor": fl, "errors": errors, "lost": lost,
+                                               "takeovers": (r.get("ha") or {}).get("run", {}).get("takeovers"),
+                                               "demotions": (r.get("ha") or {}).get("run", {}).get("demotions"),
                                                "checks": [[t, g] for t, g in checks], "met": ok,
                                                "cpu_goals": [[t, g] for t, g in cpu_goals],
                                                "fb_goals": [[t, g] for t, g in fb_goals]}, default=str))
     where = "" if args.isolate_cpu is None else f", NC cycle on isolated CPU {args.isolate_cpu}"
+    where += ", hot-standby pair on remote drives" if args.standby else ""
     what = f"{n_cl} clients x {AXES_PER_CLIENT} axes, PLC {args.plc_cycle * 1e3:g} ms, {r['dt']:.0f} s{where}"
     print(f"many_clients: functional criteria (no lost or doubled command, every block consistent, every client "
           f"finished; {what}) {mark(func_ok)}")
+    for text, good in ha_checks:
+        print(f"many_clients: hot-standby pair, takeovers {r['ha']['run']['takeovers']} (goal 0) ({what}) {mark(good)}")
     print(f"many_clients: issue 8/19 load criteria ({what}; machine {busy:.0f} % busy) {mark(ok)}")
     print(f"many_clients: CPU per plc-run goals (<= 2x idle, <= {PLC_CPU_MAX:g} % of a core) "
           f"{mark(all(g for _, g in cpu_goals))}")
@@ -576,12 +910,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--isolate-cpu", type=int, default=None, metavar="N",
                     help="the NC's cycle thread on CPU N ([nc] cpu_affinity) and the PLC clients on the other CPUs "
                          "(taskset), the floor on CPU N too: the deployment of a real-time NC (isolated core)")
+    ap.add_argument("--standby", action="store_true",
+                    help="the NC as a hot-standby pair (issue 21): nodes a (active) and b (standby) behind an nc-router, "
+                         "every axis on one nc-drive-sim; counts takeovers and demotions (goal 0: no fault injected)")
+    ap.add_argument("--lease-ms", type=int, default=3000,
+                    help="--standby: the zenoh lease of the router, both NCs and the drive host [ms] (3000, "
+                         "tests/znc_testing/standby_rig.py's LEASE_MS)")
+    ap.add_argument("--takeover-cycles", type=int, default=15, help="--standby: [redundancy] takeover_cycles (15)")
+    ap.add_argument("--drive-rt", type=int, default=0, metavar="PRIO",
+                    help="--standby: run the nc-drive-sim under SCHED_FIFO priority PRIO (chrt; 0: no): real drives "
+                         "are never starved by the machine's load")
+    ap.add_argument("--infra-nice", type=int, default=-10,
+                    help="--standby: niceness of the nc-router and the nc-drive-sim (-10, as the NC's zenoh threads; "
+                         "0: as started)")
     ap.add_argument("--json", help="write the figures to this file")
     ap.add_argument("--strict", action="store_true", help="exit 1 when the goal is not met")
     ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run (default: this one; e.g. a "
                                    "worktree of main for a before/after); the floor always runs this one's loop")
     ap.add_argument("--plc-args", nargs=argparse.REMAINDER, default=[], help="more plc-run arguments (last)")
-    return run(ap.parse_args(argv))
+    args = ap.parse_args(argv)
+    # SIGTERM (timeout(1), a CI's cancel) as an exception: the finally of run() kills every process group it started
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    return run(args)
 
 
 if __name__ == "__main__":
