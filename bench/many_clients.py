@@ -766,9 +766,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
         for node, st in sorted(h["latest"].items()):
             print(f"  node {node}: {st['role']}, epoch {st['epoch']}, takeovers {st['takeovers']}, demotions "
                   f"{st['demotions']}, in_step {st['in_step']}, lag {st['lag_cycles']}, resyncs {st['resyncs']}, "
-                  f"diverged {st['diverged']}, limit {st['takeover_limit_cycles']} cycles, late-log judgements "
-                  f"overruled by the drives {st.get('witness_driven', '-')} (driven) / {st.get('witness_deaf', '-')} "
-                  f"(none heard)"
+                  f"diverged {st['diverged']}, limit {st['takeover_limit_cycles']} cycles"
                   + (f"; last takeover {st['takeover_ms']} ms (detection {st.get('takeover_detect_ms')} ms, "
                      f"{st['takeover_cycles']} cycles)" if st["takeovers"] else ""))
         for t, node, a, b, e in h["role_changes"]:

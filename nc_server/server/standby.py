@@ -69,10 +69,6 @@ STALL_MARGIN = 0.75
 #: HOLD_S [s] for a log of a higher epoch before its cycle goes on
 HOLD_SHARE = 0.5
 HOLD_S = 0.01
-#: the drive witness (DriveWitness): a standby looks at the drive hosts' inputs once the active NC's logs are late by
-#: this share of takeover_cycles, and defers a judgement while it heard no drive host for DEAF_SHARE of it
-WITNESS_SHARE = 0.25
-DEAF_SHARE = 0.5
 
 
 class LossDetector:
@@ -134,70 +130,6 @@ class LossDetector:
             return False
         self._deferred = False
         return now - self.last > self.limit(now)
-
-
-class DriveWitness:
-    """The drive hosts' word on the active NC while its logs are late (LossDetector judges the logs alone).
-
-    Every drive host's inputs carry the NC cycle whose outputs it applied last (``rx_cycle``, RemoteLink's
-    ``applied_cycle``), from the NC of the epoch it follows. The NC's cycle count follows the wall clock (a late cycle
-    steps the missed ones), so outputs of cycle ``c`` beyond the newest log's cycle ``L`` show the active NC alive
-    and driving about ``(c - L)`` cycles after that log came: a silence of its logs while the drives still apply its
-    outputs is a late log, not a loss (the log's way through zenoh's threads and the router is the late part: on this
-    2-core machine a gap of 219-235 ms, twice the largest of the last 10 s, took over from a live NC). And a standby
-    that hears no drive host either (its own session or the router starved) cannot tell a lost NC from its own
-    deafness, and its outputs would not reach the drives: it defers the judgement until it hears them (a kill is
-    seen from the active NC's token at once; a freeze longer than the lease drops the token too).
-
-    Looked at only while the logs are late (from WITNESS_SHARE of ``base_s`` on): the first look after logs on time
-    takes what the inputs' ring held, whose arrival is unknown (counted as at the last log).
-
-    Args:
-        base_s: ``takeover_cycles`` x the cycle time [s].
-        dt: the NC's cycle time [s].
-    """
-
-    def __init__(self, base_s: float, dt: float) -> None:
-        self.base = base_s
-        self.dt = dt
-        self.life = -math.inf    # the latest time the drives show the active NC driving at
-        self.heard = -math.inf   # when a drive host's inputs last came
-        self.watching = False    # looking (the logs are late)
-        self.applied = 0         # the newest applied cycle of the active NC's epoch seen
-        self.driven = 0          # judgements of a silence overruled: the drives apply the active NC's outputs
-        self.deaf = 0            # judgements deferred: no drive host heard either
-        self.said = ""           # what the current silence's judgements were overruled by (logged once)
-
-    def idle(self) -> None:
-        """The logs are on time: no look."""
-        self.watching = False
-        self.said = ""
-
-    def see(self, now: float, new_inputs: bool, applied: int | None, log_cycle: int, log_at: float) -> None:
-        """A look at a drive host's newest inputs: ``new_inputs`` (any since the last look), ``applied`` the NC cycle
-        of the outputs it applied last if it follows the active NC's epoch (else None), ``log_cycle`` / ``log_at``
-        the newest log's cycle and when it was taken."""
-        first = not self.watching
-        self.watching = True
-        if first:
-            self.life = self.heard = -math.inf
-        if new_inputs:
-            self.heard = log_at if first else now
-        if applied is not None and applied > log_cycle:
-            self.applied = max(self.applied, applied)
-            self.life = max(self.life, min(now, log_at + (applied - log_cycle) * self.dt))
-
-    def overrules(self, now: float, limit: float) -> str:
-        """Why a silence of the logs longer than ``limit`` is no loss ("": it is one, or no drive host looked at)."""
-        if not self.watching:
-            return ""
-        if now - self.life <= limit:
-            self.driven += 1
-            return "driven"
-        if now - self.heard > DEAF_SHARE * self.base:
-            self.deaf += 1
-            return "deaf"
-        return ""
 
 
 def node_name(configured: str) -> str:
@@ -307,7 +239,6 @@ class HotStandby:
         zn = getattr(server.config, "zenoh", None)
         self._lease = float(getattr(zn, "lease_ms", 500)) / 1000.0  # (a freeze this long drops this NC's tokens)
         self.detector = LossDetector(self._silence, min(LIMIT_CAP_S, self._lease))
-        self.witness = DriveWitness(self._silence, self._dt)
         self._peer_limits: dict[str, tuple[float, float]] = {}  # (active) node -> (its limit [s], when seen)
         self._status_sub: Any = None
         self._limit = settings.takeover_cycles  # the published limit [cycles] (_refresh_limit)
@@ -565,35 +496,11 @@ class HotStandby:
         if self._token_gone:
             self._lost_why = "its token went"
             return True
-        self._watch_drives(now)
         if self.detector.silent(now):
-            silence, limit = now - self.detector.last, self.detector.limit(now)
-            w = self.witness
-            why = w.overrules(now, limit)
-            if why:
-                if why != w.said:  # (once per silence and reason)
-                    w.said = why
-                    log.warning("standby %s: no log for %.0f ms (limit %.0f ms), %s: no takeover", self.node,
-                                silence * 1e3, limit * 1e3,
-                                f"but the drives applied the active NC's cycle {w.applied} (newest log's "
-                                f"{int(self.core.cycle)})" if why == "driven" else
-                                f"and no drive host heard for {(now - w.heard) * 1e3:.0f} ms either")
-                return False
-            self._lost_why = f"no log for {silence * 1e3:.0f} ms, limit {limit * 1e3:.0f}"
+            self._lost_why = (f"no log for {(now - self.detector.last) * 1e3:.0f} ms, limit "
+                              f"{self.detector.limit(now) * 1e3:.0f}")
             return True
         return False
-
-    def _watch_drives(self, now: float) -> None:
-        """(standby in step) While the active NC's logs are late, the drive hosts' newest inputs (DriveWitness)."""
-        w = self.witness
-        if now - self.detector.last <= WITNESS_SHARE * self._silence:
-            w.idle()
-            return
-        for lk in drive_links(self.real_drive):
-            before = lk.received
-            lk.peek()  # (the newest inputs: kept as they would be by the exchange of a takeover)
-            w.see(now, lk.received != before, lk.applied_cycle if lk.input_epoch == self.highest else None,
-                  int(self.core.cycle), self.detector.last)
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -737,7 +644,7 @@ class HotStandby:
         # steps send nothing to the drives (their set-points are behind the drives' targets: a step back, then
         # forward); the cycle's own step after them sends the first outputs
         quiet = max(0.0, now - lost_at) if lost_at > 0 else 0.0
-        k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt + 1e-6)  # (0.01 / 0.001 may be 9.999...)
+        k = int(min(quiet, self.settings.catch_up_ms / 1000.0) / self._dt + 1e-6)  # (a quiet time of 10 ms measured as 9.99999... ms)
         self.catch_up = k
         self.takeovers += 1
         links = drive_links(self.real_drive)
@@ -851,8 +758,7 @@ class HotStandby:
                 "takeover_serve_ms": round(self.serve_s * 1e3, 3),
                 "catch_up_cycles": self.catch_up, "takeover_limit_cycles": limit,
                 "takeover_limit_ms": round(self.takeover_limit_ms, 3),
-                "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(),
-                "witness_driven": self.witness.driven, "witness_deaf": self.witness.deaf, "time": time.time()}
+                "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
 
     def _limit_cycles(self, now: float | None = None) -> int:
         """The published bound of a takeover after a freeze or link cut [cycles]: the standby's loss detector's

@@ -208,10 +208,6 @@ class RemoteLink(ProcessDataLink):
         self.mute = False
         #: the epoch of the newest drive host inputs taken (host_epoch is the highest ever seen)
         self.input_epoch = 0
-        #: the NC cycle whose outputs the newest inputs taken answer (their ``rx_cycle``: the host applied that NC
-        #: cycle's outputs last, from an NC of epoch input_epoch): a standby's sign that the active NC still drives
-        #: while its logs are late (nc_server.server.standby.DriveWitness)
-        self.applied_cycle = 0
         self._seen_rows = np.zeros(n, dtype=np.int64)  # 1 on the rows of hosts that sent inputs
         self.malformed = 0
         self.received = 0
@@ -336,7 +332,6 @@ class RemoteLink(ProcessDataLink):
             if host_epoch > self.host_epoch:
                 self.host_epoch = host_epoch
             self.input_epoch = host_epoch
-            self.applied_cycle = rx_cycle
             self.received += 1
             if not self._host_seen[i]:
                 self._host_seen[i] = True
