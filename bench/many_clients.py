@@ -184,6 +184,7 @@ class Pair:
         self.router: subprocess.Popen[Any] | None = None
         self.active: subprocess.Popen[Any] | None = None
         self.standby: subprocess.Popen[Any] | None = None
+        self.nodes: dict[str, subprocess.Popen[Any] | None] = {}
         self.drives: subprocess.Popen[Any] | None = None
 
     def start(self) -> None:
@@ -205,6 +206,7 @@ class Pair:
                                     [*self.extra, "--set", "redundancy.node=b", "--log-level", "INFO"],
                                     err="nc-b.err", connect=True)
             self.procs.append(self.standby)
+            self.nodes = {"a": self.active, "b": self.standby}  # (by name: the roles may change)
             # (its silence timeout: the pair's default from the TOML, longer than the longest takeover it publishes)
             self.drives = subprocess.Popen(
                 [*self.nice, *self.drive_rt, sys.executable, "-m", "nc_server.drives.remote.host", "--config", str(self.cfg), "--host", "drives1",
@@ -300,9 +302,9 @@ class Pair:
 
     def stop_standby(self, ha: "HaWatch | None") -> None:
         """Stop the node that is the standby now (node b unless roles changed), before the active one."""
-        p = self.standby
+        p = self.nodes.get("b")
         if ha is not None and (ha.latest.get("a") or {}).get("role") == "standby":
-            p = self.active
+            p = self.nodes.get("a")
         if p is not None and p.returncode is None:
             kill_group(p, signal.SIGTERM)
             try:
