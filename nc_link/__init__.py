@@ -11,7 +11,7 @@ Public API (everything else is private to the package):
   the NC's liveliness (``nc/<nc>/alive``) and instance tokens (``nc/<nc>/alive/*``), optionally the claims
   map (``nc/<nc>/claims``), and - for a client that may hold axes - its liveliness token
   ``nc/<nc>/client/<client_id>`` and the PLCTONC publisher. It follows the NC instance
-  (:class:`nc_schema.NcInstance`): :meth:`NcLink.frame_cycle` and :meth:`NcLink.take_events` report a
+  (:class:`nc_schema.NcInstance`): :meth:`NcLink.follow_frame` and :meth:`NcLink.take_events` report a
   restart whichever evidence (frames, instance token) comes first, once. :meth:`NcLink.request` is the
   blocking command of a door (raises :class:`CommandError` with the NC's or the transport's code); a door
   that acts for its users sends as ``<door>.<user>`` (``request(..., sender=...)``) and declares that id's

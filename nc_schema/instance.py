@@ -39,8 +39,9 @@ higher epoch. Hence a client follows the highest epoch seen of the instance:
 * a frame of a lower epoch is dropped (``stale_frames``): no data, no restart evidence, the Cycle followed stays;
 * a lower epoch is taken (``epoch_falls``; the restart rule applies to it) only when (a) a new instance token was
   seen since the last frame of another epoch or of a Cycle going back was taken (the whole pair, or the NC,
-  restarted: a new instance may start again at epoch 0), or (b) no frame of the epoch followed was taken for
-  :data:`EPOCH_HOLD_S` (callers that pass ``now``): the higher-epoch NC is gone for good and the lower one is all
+  restarted: a new instance may start again at epoch 0), or (b) for :data:`EPOCH_HOLD_S` only frames of lower epochs
+  came (the first one dropped and the last one taken both that long ago; callers that pass ``now``; a client that
+  stalled itself for that long does not take the old NC's next frame): the higher-epoch NC is gone for good and the lower one is all
   there is (an old active NC demotes itself within the takeover limit, at most ~1 s, once it sees its successor; 2 s
   of its frames were seen after a link cut: the hold is well beyond that, and short enough not to leave a client
   blind for long).
@@ -94,7 +95,7 @@ class NcInstance:
     """
 
     __slots__ = ("instance", "cycle", "restarts", "_frames_owed", "_token_owed", "epoch", "stale_frames",
-                 "epoch_rises", "epoch_falls", "_epoch_seen", "_epoch_open")
+                 "epoch_rises", "epoch_falls", "_epoch_seen", "_epoch_open", "_stale_since")
 
     def __init__(self) -> None:
         self.instance: str | None = None
@@ -113,6 +114,11 @@ class NcInstance:
         self._epoch_seen: float | None = None
         #: a new instance token since: the next frame of another epoch sets the epoch, even a lower one
         self._epoch_open = False
+        #: when the first frame of a lower epoch was dropped since the last frame taken (None: none since): the
+        #: EPOCH_HOLD_S rule needs that long of lower-epoch frames only, not merely a silence of the followed
+        #: epoch (a client that stalled for 5 s must not take the old node's next frame and then see the real
+        #: active NC's Cycle count as gone back)
+        self._stale_since: float | None = None
 
     def take(self, cycle: int, epoch: int = 0, now: float | None = None) -> tuple[bool, str | None]:
         """Take a frame's ``Cycle`` and ``Epoch`` (the epoch rule of the module docstring, then :meth:`frame`).
@@ -130,13 +136,17 @@ class NcInstance:
             if epoch > followed:
                 self.epoch_rises += 1
             elif self._epoch_open or (now is not None and self._epoch_seen is not None
-                                      and now - self._epoch_seen >= EPOCH_HOLD_S):
+                                      and self._stale_since is not None
+                                      and now - max(self._epoch_seen, self._stale_since) >= EPOCH_HOLD_S):
                 self.epoch_falls += 1
             else:
                 self.stale_frames += 1
+                if now is not None and self._stale_since is None:
+                    self._stale_since = now
                 return False, None
             self._epoch_open = False
         self.epoch = epoch
+        self._stale_since = None
         if now is not None:
             self._epoch_seen = now
         return True, self.frame(cycle)

@@ -85,7 +85,7 @@ def test_raw_nctoplc_offsets_and_move_absolute(nc_server: NcServerProcess,
         # The PLCTONC the NC applies is published too (128 B, same stamp attachment).
         applied = wait_until(lambda: (v := cl.latest("nc/nc1/axis/1/plctonc")) and field(v[0], "I", 0) == 0x7 and v,
                              T, "applied PLCTONC sample")
-        assert len(applied[0]) == 128 and field(applied[0], "I", 4) == 1_000_000 and len(applied[1]) == 16
+        assert len(applied[0]) == 128 and field(applied[0], "I", 4) == 1_000_000 and len(applied[1]) == 24  # (protocol 5: Cycle, NcTimeNs, Epoch)
         r = cl.request("MoveAbsolute", axis=1, Position=25.0, Velocity=200.0)
         assert r["error"] == 0, r
         cmd_no = r["CmdNo"]

@@ -204,12 +204,30 @@ def test_a_lower_epoch_is_taken_after_the_hold_without_the_followed_one() -> Non
     while t < 10.0 + EPOCH_HOLD_S - 0.05:
         t += 0.1
         assert inst.take(1001, E1, now=t) == (False, None)
-    assert inst.take(1002, E1, now=10.0 + EPOCH_HOLD_S) == (True, None)
+    # (the first lower-epoch frame came at 10.1: the hold counts from there)
+    assert inst.take(1002, E1, now=10.1 + EPOCH_HOLD_S) == (True, None)
     assert (inst.epoch, inst.epoch_falls, inst.restarts) == (E1, 1, 0)
-    assert inst.take(1003, E1, now=10.0 + EPOCH_HOLD_S + 0.01) == (True, None)
+    assert inst.take(1003, E1, now=10.1 + EPOCH_HOLD_S + 0.01) == (True, None)
     inst2 = NcInstance()  # without a clock the hold never ends (only a new instance opens the epoch)
     inst2.take(5, E2)
     assert inst2.take(6, E1) == (False, None)
+
+
+def test_a_client_that_stalled_for_the_hold_does_not_take_the_old_nodes_next_frame() -> None:
+    """The hold needs EPOCH_HOLD_S of lower-epoch frames, not merely that long since the last frame taken: a
+    client that stood still for 10 s and then gets one frame of the old active node (epoch E1) drops it, and the
+    active NC's next frame (epoch E2, its Cycle count going on) is no restart."""
+    from nc_schema.instance import EPOCH_HOLD_S
+    inst = NcInstance()
+    inst.token(A)
+    assert inst.take(100, E2, now=0.0) == (True, None)
+    assert inst.take(200, E1, now=10.0) == (False, None)  # the old node's, after the client's own stall
+    assert inst.take(101, E2, now=10.001) == (True, None)
+    assert (inst.epoch, inst.restarts, inst.epoch_falls) == (E2, 0, 0)
+    # the hold starts again with the next lower-epoch frame after a frame taken
+    assert inst.take(201, E1, now=10.002) == (False, None)
+    assert inst.take(202, E1, now=10.002 + EPOCH_HOLD_S - 0.01) == (False, None)
+    assert inst.take(203, E1, now=10.002 + EPOCH_HOLD_S) == (True, None) and inst.epoch == E1
 
 
 def test_frame_without_epoch_keeps_the_old_rule() -> None:

@@ -308,9 +308,10 @@ class Cia402Device:
         cycle: every drive stays in Operation enabled under 0x000F) without the table look-up."""
         key = state.tobytes() + cw.tobytes()
         if key == self._sm_key:
-            return self._sm_new
+            return self._sm_new.copy()  # (a copy each time: what is returned becomes device.state, which a test may
+            #  write in place; the cached one must stay last time's result)
         new = sm.device_next(state, cw, self._prev_cw, False, True)
-        self._sm_key, self._sm_new = key, new.copy()  # (a copy: a test may write a device's state in place)
+        self._sm_key, self._sm_new = key, new.copy()
         return new
 
     def _move(self, state: np.ndarray, rx: RxImage, dt: float) -> None:
