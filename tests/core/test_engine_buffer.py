@@ -229,6 +229,21 @@ def test_buffered_halt_behind_move_velocity():
     assert state(core) == S.MC_AXISSTATE_STANDSTILL
 
 
+def test_buffered_halt_behind_a_move_ends_at_rest_one_cycle_later():
+    """The Halt takes over in the cycle the move reaches its target (the move is Done then), finds nothing to stop
+    and is Done in the next cycle, at the target (an Aborting Halt would have stopped short)."""
+    core = powered()
+    tr = Trace(core, vmax=100.0)
+    n1 = cmd(core, "MoveAbsolute", Position=150.0, Velocity=100.0)["CmdNo"]
+    tr.step(10)
+    n2 = cmd(core, "Halt", BufferMode=BUFFERED)["CmdNo"]
+    tr.settle()
+    k = tr.first(lambda r, j: int(j["ActiveCmdNo"]) == n2)
+    assert ended(tr.jobs[k]) == (n1, DONE, 0) and float(tr.rows[k]["SetPos"]) == 150.0
+    assert ended(tr.jobs[k + 1]) == (n2, DONE, 0) and float(tr.rows[k + 1]["SetPos"]) == 150.0
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+
+
 def test_buffered_after_a_finished_job_starts_at_once():
     """Nothing active any more: a buffered command is simply the next job."""
     core = powered()

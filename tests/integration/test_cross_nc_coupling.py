@@ -21,7 +21,7 @@ import pytest
 
 from nc_schema import AxisState, ErrorCodes as E
 from znc_testing import wait_until
-from znc_testing.cross_nc import RATIO, Pair, gear_in, moves, phase_errors
+from znc_testing.cross_nc import RATIO, Pair, gear_in, moves, phase_errors, recorded_around
 
 
 @pytest.fixture
@@ -52,6 +52,7 @@ def test_phase_error_within_the_jerk_bound(pair: Pair) -> None:
                "slave at ratio x 40")
     m, s = p.r1.array(), p.r2.array()
     s = s[(s[:, 6] == int(AxisState.SLAVE_SYNCHRON)) & (s[:, 1] > m[0, 1] + 20e6) & (s[:, 1] < m[-1, 1])]
+    s = s[recorded_around(m, s)]  # (where a master frame did not reach the recorder the reference is not exact)
     err, bound, held = phase_errors(m, s, RATIO)  # (both axes stood at 0 when coupled)
     moving = bound > 0  # (at rest the master's samples are exact: error 0, as checked below)
     assert moving.sum() > 300, moving.sum()

@@ -193,9 +193,11 @@ def test_halt_buffered_behind_a_move_and_behind_a_velocity(plc: PlcProcess) -> N
     halt = done_at(plc, "halt", 150.0, "SetPos")  # an Aborting Halt would have stopped short of 150
     done_at(plc, "mv", 150.0, "SetPos")
     h1, h2 = plc.history("mv"), plc.history("halt")
-    # the Halt takes over at the move's logical end, at rest: nothing left to stop, it ends in its
-    # first cycle (so Active may never show) - Done in the cycle the move is Done, Busy until then
-    assert first_cycle(h1, "Done") == halt.c
+    # the Halt takes over at the move's logical end, at rest: nothing left to stop. The NC activates it in the
+    # cycle the move ends and ends it in the next NC cycle (tests/core: one frame apart), so the PLC sees its Done
+    # in the PLC cycle of the move's Done or, when its view of the NC fell on the frame between, the next one
+    # (Active may never show); Busy until then
+    assert first_cycle(h1, "Done") <= halt.c <= first_cycle(h1, "Done") + 1, (h1[-3:], h2[-3:])
     assert all(r.o["Busy"] and not r.o["Active"] for r in h2 if r.c < halt.c), h2
     clean(h1)
     clean(h2)
