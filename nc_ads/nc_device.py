@@ -424,7 +424,7 @@ class NcDevice(AdsDevice):
     @property
     def stale_epoch_frames(self) -> int:
         """Frames dropped for a lower epoch than the one followed (the link's rule, ``NcLink.follow_frame``)."""
-        return self.link.stale_epoch_frames
+        return int(self.link.stats()["stale_epoch_frames"] or 0)
 
     # the link's declarations and the supplies, by their former names (tests feed channels through them)
     @property

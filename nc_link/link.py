@@ -121,17 +121,6 @@ class NcLink:
         """NC restarts seen (new NC instances: instance tokens and frames)."""
         return self.instance.restarts
 
-    @property
-    def epoch(self) -> int | None:
-        """The NC's epoch followed (protocol 5, the frames' ``Epoch``: the highest of the instance; None before the
-        first frame taken by :meth:`follow_frame`)."""
-        return self.instance.epoch
-
-    @property
-    def stale_epoch_frames(self) -> int:
-        """Frames dropped for a lower epoch than the one followed (an old active NC of a hot-standby pair)."""
-        return self.instance.stale_frames
-
     def stats(self) -> dict[str, int | None]:
         """The link's diagnostics: ``restarts``, ``epoch`` (followed), ``stale_epoch_frames``, ``epoch_rises``
         (takeovers seen), ``epoch_falls`` (lower epochs taken: a new instance, or the hold ran out)."""
@@ -255,17 +244,11 @@ class NcLink:
         sample = self.frames.try_recv()
         return None if sample is None else sample.payload.to_bytes()
 
-    def frame_cycle(self, cycle: int) -> str | None:
-        """Take a frame's ``Cycle`` without the epoch rule (:meth:`follow_frame` has it): the reason if it shows a new
-        NC instance (once per restart), else None."""
-        with self._instance_lock:
-            return self.instance.frame(cycle)
-
     def follow_frame(self, cycle: int, epoch: int) -> tuple[bool, str | None]:
         """Take a frame's ``Cycle`` and ``Epoch`` (``nc_schema.NcInstance.take``, clock: ``time.monotonic``):
         (taken, reason). Not taken: a frame of a lower epoch than the one followed (a hot-standby pair's old active
-        NC after a link cut): its data must not be used, counted in :attr:`stale_epoch_frames`. Taken: the reason
-        if it shows a new NC instance (once per restart), else None."""
+        NC after a link cut): its data must not be used, counted in :meth:`stats` (``stale_epoch_frames``). Taken: the
+        reason if it shows a new NC instance (once per restart), else None."""
         with self._instance_lock:
             return self.instance.take(cycle, epoch, time.monotonic())
 

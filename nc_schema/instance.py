@@ -65,7 +65,8 @@ FRAMES_OWED = 3
 #: one) never sends it, and a later restart announced by its token first must still count.
 TOKEN_OWED_FRAMES = 200
 
-#: A lower epoch than the one followed is taken after this long without a frame of that one [s] (see above).
+#: A lower epoch than the one followed is taken after this long of lower-epoch frames only, none of the epoch
+#: followed in between [s] (see above: a client that stalled sees no silence, only the old node's frames).
 EPOCH_HOLD_S = 5.0
 
 #: An instance id: 16 lowercase hex digits (:func:`new_instance_id`).
