@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
-from zenoh.handlers import FifoChannel
+from zenoh.handlers import FifoChannel, RingChannel
 
-from nc_schema import Keys
+from nc_schema import Keys, frame_header
 from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 
 from .config import Redundancy
@@ -69,6 +69,9 @@ STALL_MARGIN = 0.75
 #: HOLD_S [s] for a log of a higher epoch before its cycle goes on
 HOLD_SHARE = 0.5
 HOLD_S = 0.01
+#: the decimated status frame key (``nc/<nc>/frame/<P>ms``) a standby watches as a second sign of life of the active
+#: NC: its Cycle going on while its logs are late (docs/standby.md, "Loss detection")
+SIGN_FRAME_MS = 10
 
 
 class LossDetector:
@@ -203,6 +206,14 @@ class HotStandby:
         self.snapshots_served = 0
         self.snapshot_s = 0.0  # the longest snapshot built in the cycle thread (it makes that cycle late)
         self.stale_logs = 0
+        #: silences of the logs forgiven because the active NC's frames showed its Cycle going on (a takeover then
+        #: would have started from a state behind what the clients saw: their Cycle would go back, an NC restart)
+        self.frames_alive = 0
+        self._frame_sub: Any = None
+        self._frame_epoch = -1       # the epoch and Cycle of the newest frame of the active NC taken
+        self._frame_cycle = -1
+        self._frame_alive = -1e9     # when a frame of the followed epoch last showed its Cycle going on [monotonic]
+        self._forgiving = False      # (the silence of the logs is forgiven now: counted once per silence)
         self.synced_once = False
         self.active_token_seen = False
         self.peer_in_step = False  # (active) a standby in step is there
@@ -260,6 +271,8 @@ class HotStandby:
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
         self._status_sub = s.declare_subscriber(f"{k}/status/*", FifoChannel(64))
+        # (the newest only; decimated: one frame per SIGN_FRAME_MS of NC time, not the cycle's full rate)
+        self._frame_sub = s.declare_subscriber(Keys(self.srv.config.name).frame_every(SIGN_FRAME_MS), RingChannel(1))
         self._started = self._last_log = time.monotonic()
         if self.settings.start == "active":
             self._become_active(time.monotonic(), first=True)
@@ -271,13 +284,13 @@ class HotStandby:
     def close(self) -> None:
         self._nc_tokens(False)
         for d in (self._token, self._snap_q, self._log_sub, self._log_pub, self._status_pub, self._active_sub,
-                  self._standby_sub, self._status_sub):
+                  self._standby_sub, self._status_sub, self._frame_sub):
             if d is not None:
                 try:
                     d.undeclare()
                 except Exception:
                     pass
-        self._token = self._snap_q = None
+        self._token = self._snap_q = self._frame_sub = None
 
     # ---- per cycle (cycle thread) -------------------------------------------------------------------------------
     def before_cycle(self, now: float) -> bool:
@@ -292,6 +305,7 @@ class HotStandby:
                                           f"{self._unconfirmed} inputs of others")
         else:
             self._take_snapshot(now)
+            self._take_frame(now)
             if self._lost(now):
                 self._become_active(now)
         # (a takeover's figures come after its first step: no status before, unless its declarations failed)
@@ -416,6 +430,7 @@ class HotStandby:
                 # (a sign of life of the NC followed: only logs of the highest epoch; a zombie of a lower one must
                 # not keep the standby from judging the silence of the active NC)
                 self.detector.log(now)
+                self._forgiving = False
 
     def _take_log(self, lg: CycleLog, now: float) -> bool:
         """One log of a sample; True: this NC stopped being active (the rest of the sample is not its)."""
@@ -497,10 +512,48 @@ class HotStandby:
             self._lost_why = "its token went"
             return True
         if self.detector.silent(now):
+            if now - self._frame_alive <= self.detector.limit(now):
+                # the active NC's frames show its Cycle going on: it lives, only its logs are late (the heavy ones:
+                # 8 cycles' logs a sample, every cycle, through zenoh and the router). Taking over now would start
+                # from its state of the last log, behind what the clients saw (their Cycle would go back: an NC
+                # restart for them; the commands of the cycles in between lost). The logs come later (or a gap asks
+                # for a snapshot); when the frames stop too, the limit runs out and it takes over
+                if not self._forgiving:
+                    self._forgiving = True
+                    self.frames_alive += 1
+                    log.info("standby %s: no log for %.0f ms (limit %.0f) but the active NC's frames go on (cycle %d, "
+                             "this standby at %d): no takeover", self.node, (now - self.detector.last) * 1e3,
+                             self.detector.limit(now) * 1e3, self._frame_cycle, self.core.cycle)
+                return False
             self._lost_why = (f"no log for {(now - self.detector.last) * 1e3:.0f} ms, limit "
                               f"{self.detector.limit(now) * 1e3:.0f}")
             return True
         return False
+
+    def _take_frame(self, now: float) -> None:
+        """(standby) The newest decimated status frame: one of the followed epoch whose Cycle went on since the last
+        one taken is a sign of life of the active NC (:meth:`_lost`). The first frame of an epoch is none (no
+        progress seen yet)."""
+        sub = self._frame_sub
+        if sub is None:
+            return
+        try:
+            s = sub.try_recv()
+        except Exception:  # (the session closing)
+            return
+        if s is None:
+            return
+        try:
+            h = frame_header(s.payload.to_bytes())
+        except ValueError:
+            return
+        if h.Epoch != self._frame_epoch:
+            self._frame_epoch, self._frame_cycle = int(h.Epoch), int(h.Cycle)
+            return
+        if h.Cycle > self._frame_cycle:
+            self._frame_cycle = int(h.Cycle)
+            if h.Epoch == self.highest and self.highest:
+                self._frame_alive = now
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -756,7 +809,7 @@ class HotStandby:
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
                 "takeover_detect_ms": round(self.detect_s * 1e3, 3), "takeover_work_ms": round(self.work_s * 1e3, 3),
                 "takeover_serve_ms": round(self.serve_s * 1e3, 3),
-                "catch_up_cycles": self.catch_up, "takeover_limit_cycles": limit,
+                "catch_up_cycles": self.catch_up, "frames_alive": self.frames_alive, "takeover_limit_cycles": limit,
                 "takeover_limit_ms": round(self.takeover_limit_ms, 3),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
 

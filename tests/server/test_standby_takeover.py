@@ -448,3 +448,46 @@ def test_failed_declarations_of_a_takeover_keep_the_nc_tokens() -> None:
     for key in ("nc/nc1/alive", "nc/nc1/alive/" + I1):
         h = fs.held(key)
         assert min(h[h.index(1):]) == 1 and h[-1] == 1 and h.count(1) == len(h) - h.index(1)
+
+
+def frame(epoch: int, cycle: int) -> bytes:
+    from nc_schema import NCTOPLC_DTYPE, encode_frame
+    rec = np.zeros(1, dtype=NCTOPLC_DTYPE)
+    rec["AxisId"] = 1
+    return encode_frame(cycle, cycle * 1_000_000, rec, epoch=epoch)
+
+
+def test_late_logs_of_an_active_nc_whose_frames_go_on_are_no_loss() -> None:
+    # bench/many_clients.py --standby: the logs (8 cycles a sample, every cycle) were 155-395 ms late through zenoh and
+    # the router while the active NC ran on; the standby took over from its last log, behind the frames the clients
+    # had seen: their Cycle went back (an NC restart for them). The active NC's frames going on are a sign of life
+    act, hs, drive = pair()
+    e = 6 << 16
+    hs.highest = e
+    hs.synced_once, hs.follower.waiting = True, False
+    frames = FakeSub()
+    hs._frame_sub = frames
+    hs.detector.restart(-10.0)  # (no warm-up)
+    hs.detector.log(0.0)
+    lim = hs.detector.limit(0.0)
+    frames.put(frame(e, 100))  # (the first frame of an epoch: no progress seen yet)
+    hs._take_frame(0.0)
+    t = 0.0
+    for k in range(1, 200):  # the logs stop; the frames go on (every 10 ms)
+        t = k * 0.01
+        frames.put(frame(e, 100 + 10 * k))
+        hs._take_frame(t)
+        hs.detector.silent(t - 0.001)  # (the standby's own cycles on time)
+        assert not hs._lost(t), (t, lim)
+    assert t > 3 * lim and hs.frames_alive == 1
+    # frames of a lower epoch (a zombie) or a Cycle that stands still are no sign of life: the limit runs out
+    for k in range(1, 100):
+        t2 = t + k * 0.01
+        frames.put(frame(e - 1, 5000 + k) if k % 2 else frame(e, 100 + 10 * 199))
+        hs._take_frame(t2)
+        hs.detector.silent(t2 - 0.001)
+        if hs._lost(t2):
+            assert t2 - t > lim - 0.011, (t2 - t, lim)
+            break
+    else:
+        raise AssertionError("the frames stopped going on, the logs too: no takeover")
