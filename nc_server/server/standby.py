@@ -69,8 +69,8 @@ STALL_MARGIN = 0.75
 #: HOLD_S [s] for a log of a higher epoch before its cycle goes on
 HOLD_SHARE = 0.5
 HOLD_S = 0.01
-#: the decimated status frame key (``nc/<nc>/frame/<P>ms``) a standby watches as a second sign of life of the active
-#: NC: its Cycle going on while its logs are late (docs/standby.md, "Loss detection")
+#: the period [ms] of the frames (a view of no axis: their header) a standby watches as a second sign of life of the
+#: active NC: its Cycle going on while its logs are late (docs/standby.md, "Loss detection")
 SIGN_FRAME_MS = 10
 
 
@@ -210,6 +210,7 @@ class HotStandby:
         #: would have started from a state behind what the clients saw: their Cycle would go back, an NC restart)
         self.frames_alive = 0
         self._frame_sub: Any = None
+        self._view_token: Any = None
         self._frame_epoch = -1       # the epoch and Cycle of the newest frame of the active NC taken
         self._frame_cycle = -1
         self._frame_alive = -1e9     # when a frame of the followed epoch last showed its Cycle going on [monotonic]
@@ -271,8 +272,15 @@ class HotStandby:
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
         self._status_sub = s.declare_subscriber(f"{k}/status/*", FifoChannel(64))
-        # (the newest only; decimated: one frame per SIGN_FRAME_MS of NC time, not the cycle's full rate)
-        self._frame_sub = s.declare_subscriber(Keys(self.srv.config.name).frame_every(SIGN_FRAME_MS), RingChannel(1))
+        # (the newest only, one frame per SIGN_FRAME_MS of NC time: a view of no axis, i.e. the frame header alone,
+        # asked for as a client "ha-<node>" does; a node name that is no client id: the decimated whole frames)
+        ks = Keys(self.srv.config.name)
+        try:
+            sel, key = ks.view_select(f"ha-{self.node}", SIGN_FRAME_MS, ()), ks.view(f"ha-{self.node}")
+        except ValueError:
+            sel, key = None, ks.frame_every(SIGN_FRAME_MS)
+        self._frame_sub = s.declare_subscriber(key, RingChannel(1))
+        self._view_token = s.liveliness().declare_token(sel) if sel is not None else None
         self._started = self._last_log = time.monotonic()
         if self.settings.start == "active":
             self._become_active(time.monotonic(), first=True)
@@ -284,13 +292,13 @@ class HotStandby:
     def close(self) -> None:
         self._nc_tokens(False)
         for d in (self._token, self._snap_q, self._log_sub, self._log_pub, self._status_pub, self._active_sub,
-                  self._standby_sub, self._status_sub, self._frame_sub):
+                  self._standby_sub, self._status_sub, self._frame_sub, self._view_token):
             if d is not None:
                 try:
                     d.undeclare()
                 except Exception:
                     pass
-        self._token = self._snap_q = self._frame_sub = None
+        self._token = self._snap_q = self._frame_sub = self._view_token = None
 
     # ---- per cycle (cycle thread) -------------------------------------------------------------------------------
     def before_cycle(self, now: float) -> bool:
