@@ -491,6 +491,7 @@ class HotStandby:
                     # built the snapshot was late too: the detector's warm-up)
                     self._last_log = time.monotonic()
                     self.detector.restart(self._last_log)
+                    self._forget_frames()
                     return
                 except Exception as exc:
                     log.warning("unusable snapshot: %s", exc)
@@ -499,6 +500,7 @@ class HotStandby:
 
     def _resync(self, reason: str) -> None:
         log.warning("standby %s: out of step (%s): asking for a snapshot", self.node, reason)
+        self._forget_frames()
         self._declare_standby(False)
         self._ask_snapshot(time.monotonic())
 
@@ -521,6 +523,17 @@ class HotStandby:
             return True
         if self.detector.silent(now):
             if now - self._frame_alive <= self.detector.limit(now):
+                # (bounded: the logs go CongestionControl.DROP and are heavy, under load all of them may drop while
+                # the frames get through; a standby forgiving that for ever stays "in step" on a state seconds old,
+                # and a later kill, its token gone, would take over from it: a SetPos jump, the Cycle going back)
+                quiet = now - self._last_log
+                behind = (self._frame_cycle - int(self.core.cycle)) * self._dt \
+                    if self._frame_epoch == self.highest else 0.0
+                if max(quiet, behind) > self.detector.cap:
+                    self.follower._lost(f"no log for {quiet * 1e3:.0f} ms while the frames go on (frame cycle "
+                                        f"{self._frame_cycle}, this standby at {self.core.cycle}; cap "
+                                        f"{self.detector.cap * 1e3:.0f} ms)", False)
+                    return False
                 # the active NC's frames show its Cycle going on: it lives, only its logs are late (the heavy ones:
                 # 8 cycles' logs a sample, every cycle, through zenoh and the router). Taking over now would start
                 # from its state of the last log, behind what the clients saw (their Cycle would go back: an NC
@@ -560,8 +573,16 @@ class HotStandby:
             return
         if h.Cycle > self._frame_cycle:
             self._frame_cycle = int(h.Cycle)
-            if h.Epoch == self.highest and self.highest:
+            # (life beyond what the logs show only: a frame of a cycle the logs already brought, e.g. of a burst
+            # queued in a stall, would put the takeover off past the published limit)
+            if h.Epoch == self.highest and self.highest and h.Cycle > self.core.cycle:
                 self._frame_alive = now
+
+    def _forget_frames(self) -> None:
+        """The frames' sign of life starts over (in step from a snapshot, a resync, a role change)."""
+        self._frame_epoch = self._frame_cycle = -1
+        self._frame_alive = -1e9
+        self._forgiving = False
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -659,6 +680,10 @@ class HotStandby:
     def _become_active(self, now: float, first: bool = False) -> None:
         srv = self.srv
         lost_at = self._last_log
+        # (the takeover's figures count from the last sign of life, a log or a frame beyond the logs; the catch-up
+        # from the last log: the state the core continues from)
+        alive_at = max(lost_at, self._frame_alive)
+        self._forget_frames()
         self._token_gone = False
         self._grace = START_GRACE_S
         if self.epoch and not self.synced_once and not first:
@@ -699,7 +724,7 @@ class HotStandby:
             log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
             return
         srv.became_active(now, serve=False)
-        self._lost_at, self._detected_at = lost_at, now
+        self._lost_at, self._detected_at = alive_at, now
         # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
         # steps over that time at once, so its first set-point is where the drives' targets are now. The catch-up
         # steps send nothing to the drives (their set-points are behind the drives' targets: a step back, then
@@ -789,6 +814,7 @@ class HotStandby:
         srv.became_standby()
         self.follower.waiting = True
         self.synced_once = False
+        self._forget_frames()
         self._last_log = now
         self._started = now
         self._ask_snapshot(now)
@@ -809,7 +835,7 @@ class HotStandby:
         limit = self._limit
         return {"node": self.node, "role": self.role, "epoch": self.epoch, "highest_epoch": self.highest,
                 "in_step": self.role == "active" or (not f.waiting and self.synced_once),
-                "cycle": int(self.core.cycle), "lag_cycles": int(f.lag), "logs_in": self.logs_in,
+                "cycle": int(self.core.cycle), "lag_cycles": self._lag(), "logs_in": self.logs_in,
                 "logs_out": self.logs_out, "resyncs": f.resyncs, "diverged": f.diverged,
                 "snapshots_served": self.snapshots_served,
                 "snapshot_max_ms": round(self.snapshot_s * 1e3, 3), "takeovers": self.takeovers,
@@ -820,6 +846,15 @@ class HotStandby:
                 "catch_up_cycles": self.catch_up, "frames_alive": self.frames_alive, "takeover_limit_cycles": limit,
                 "takeover_limit_ms": round(self.takeover_limit_ms, 3),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
+
+    def _lag(self) -> int:
+        """The replication lag [cycles]: the newest log's cycle less the core's, or (a standby) the newest frame's of
+        the highest epoch less the core's when more (the logs late or cut while the frames come)."""
+        lag = int(self.follower.lag)
+        fe, fc = self._frame_epoch, self._frame_cycle  # (another thread's read: plain ints)
+        if self.role == "standby" and self.highest and fe == self.highest:
+            lag = max(lag, fc - int(self.core.cycle))
+        return lag
 
     def _limit_cycles(self, now: float | None = None) -> int:
         """The published bound of a takeover after a freeze or link cut [cycles]: the standby's loss detector's
