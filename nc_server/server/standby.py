@@ -36,7 +36,7 @@ from zenoh.handlers import FifoChannel, RingChannel
 from nc_schema import Keys, frame_header
 from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 
-from .config import Redundancy
+from .config import NODE_MAX, Redundancy
 from .replication import (CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive, ReplayDrive,
                           install_handler, merge_handler, snapshot)
 from .transport import drain
@@ -211,6 +211,7 @@ class HotStandby:
         self.frames_alive = 0
         self._frame_sub: Any = None
         self._view_token: Any = None
+        self._view_sel = ""
         self._frame_epoch = -1       # the epoch and Cycle of the newest frame of the active NC taken
         self._frame_cycle = -1
         self._frame_alive = -1e9     # when a frame of the followed epoch last showed its Cycle going on [monotonic]
@@ -273,21 +274,36 @@ class HotStandby:
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
         self._status_sub = s.declare_subscriber(f"{k}/status/*", FifoChannel(64))
         # (the newest only, one frame per SIGN_FRAME_MS of NC time: a view of no axis, i.e. the frame header alone,
-        # asked for as a client "ha-<node>" does; a node name that is no client id: the decimated whole frames)
+        # asked for as a client "ha-<node>" does, by the view token, held while this NC is a standby: _view; the
+        # config caps the node name so that ha-<node> is a client id, and the roles file reserves the prefix)
         ks = Keys(self.srv.config.name)
+        client = f"ha-{self.node}"
         try:
-            sel, key = ks.view_select(f"ha-{self.node}", SIGN_FRAME_MS, ()), ks.view(f"ha-{self.node}")
-        except ValueError:
-            sel, key = None, ks.frame_every(SIGN_FRAME_MS)
+            self._view_sel, key = ks.view_select(client, SIGN_FRAME_MS, ()), ks.view(client)
+        except ValueError as exc:
+            raise ValueError(f"redundancy node {self.node!r}: {exc} (at most {NODE_MAX} characters)") from None
         self._frame_sub = s.declare_subscriber(key, RingChannel(1))
-        self._view_token = s.liveliness().declare_token(sel) if sel is not None else None
         self._started = self._last_log = time.monotonic()
         if self.settings.start == "active":
             self._become_active(time.monotonic(), first=True)
         else:
+            self._view(True)
             self._ask_snapshot(time.monotonic())
             for lk in drive_links(self.real_drive):
                 lk.epoch = 0
+
+    def _view(self, on: bool) -> None:
+        """Declare (``on``, a standby) or undeclare (the active NC: its own publisher would send the view back to it
+        every SIGN_FRAME_MS) the view token of the frames' sign of life."""
+        s = self._session
+        try:
+            if on and self._view_token is None and s is not None and self._view_sel:
+                self._view_token = s.liveliness().declare_token(self._view_sel)
+            elif not on and self._view_token is not None:
+                self._view_token, tok = None, self._view_token
+                tok.undeclare()
+        except Exception as exc:  # (no sign of life from the frames then: the logs alone, as before)
+            log.warning("standby %s: the frames' view token: %s", self.node, exc)
 
     def close(self) -> None:
         self._nc_tokens(False)
@@ -773,6 +789,7 @@ class HotStandby:
             self._hand_over()
             srv.transport.serve()
             self._nc_tokens(False)  # (any left: another instance id than the transport's, which declared its own)
+            self._view(False)  # (after the first set-point, like the other declarations)
         except Exception as exc:
             if self._serve_tries <= 3 or self._serve_tries % 1000 == 0:
                 log.error("NC %s: took over, but its declarations failed (try %d; again next cycle): %s",
@@ -811,6 +828,7 @@ class HotStandby:
                 except Exception:
                     pass
         self._snap_q = self._token = None
+        self._view(True)
         srv.became_standby()
         self.follower.waiting = True
         self.synced_once = False

@@ -590,3 +590,46 @@ def test_the_takeover_figures_count_from_the_last_sign_of_life_the_catch_up_from
     act.rec.step()
     hs.after_step()
     assert 0.020 <= hs.takeover_s < 0.5 and abs(hs.detect_s - 0.020) < 1e-9
+
+
+class OpenSession(FakeSession):
+    """A FakeSession open() can declare everything on."""
+
+    def declare_subscriber(self, key: str, *a: Any, **k: Any) -> Any:
+        FakeDecl(self, "subscriber", key)
+        return FakeSub()
+
+    def get(self, *a: Any, **k: Any) -> Any:
+        return None
+
+
+def test_the_frames_view_token_is_held_only_while_standby() -> None:
+    # (review) the active NC held it too: its own publisher sent it the header view every 10 ms for nothing
+    view = "nc/nc1/select/ha-b/10ms/none"
+    for start in ("active", "standby"):
+        act, hs, fs, t = served_pair()
+        s2 = OpenSession()
+        hs.settings = Redundancy(True, start, TAKEOVER, 10.0, "b")
+        hs.open(s2)  # type: ignore[arg-type]
+        assert ("subscriber" , "nc/nc1/view/ha-b") in [(k, key) for _, k, key in s2.log]
+        assert s2.held(view)[-1:] == ([0] if start == "active" else [1]), (start, s2.log)
+        if start == "active":
+            continue
+        # a takeover: the token goes with the declarations after the first set-point; a demotion declares it again
+        in_step(hs)
+        hs._become_active(time.monotonic())
+        assert s2.held(view)[-1] == 1
+        act.rec.step()
+        hs.after_step()
+        assert hs.role == "active" and not hs._serve_pending and s2.held(view)[-1] == 0
+        hs._become_standby(time.monotonic(), "test")
+        assert s2.held(view)[-1] == 1
+        hs.close()
+        assert s2.held(view)[-1] == 0
+
+
+def test_a_node_name_too_long_for_the_frames_view_is_a_config_error() -> None:
+    from nc_server.server.config import NODE_MAX, ConfigError, _redundancy
+    assert _redundancy({"redundancy": {"node": "n" * NODE_MAX}}, None).node == "n" * NODE_MAX
+    with pytest.raises(ConfigError, match="ha-<node>"):
+        _redundancy({"redundancy": {"node": "n" * (NODE_MAX + 1)}}, None)
