@@ -65,6 +65,7 @@ def pair(tmp_path: Path) -> Iterator[Callable[..., Procs]]:
         started.append(router)
         text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=TAKEOVER_CYCLES) + (AXIS2 if axes > 1 else "")
         if max_age is not None:  # ([drives.remote] max_age: how old the drive inputs may be, in cycles)
+            assert "max_age = 200" in text, "the rig's config changed: [drives.remote] max_age not replaced"
             text = text.replace("max_age = 200", f"max_age = {max_age}")
         cfg = tmp_path / "nc.toml"
         cfg.write_text(text)
