@@ -10,7 +10,8 @@ with ``"final": true`` (then it idles until plc-run is stopped).
 Counted per axis: ``started`` (rising edges of Execute), ``sent`` (moves whose request went to the NC), ``accepted`` / ``refused`` (their
 replies: error 0 / an error or none), ``done``,
 ``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``, axis errors under ``axis:<id>``: the
-program resets them with MC_Reset, at most once a second, counted in ``resets``), the job records'
+program resets them with MC_Reset, at most once a second, counted in ``resets``; one not ended after
+RESET_TIMEOUT_S under ``axis:reset-timeout``), the job records'
 ``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
 ``accepted`` + ``task_accepted`` must equal the difference, ``sent`` = ``accepted`` + ``refused``),
 ``task_sent`` / ``task_accepted`` (motion commands the PLC task sent on its own, not this program: the
@@ -38,6 +39,8 @@ from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power, MC_Reset
 
 NC = os.environ.get("MANY_NC", "nc1")
 AXES = [int(a) for a in os.environ["MANY_AXES"].split(",")]
+#: an MC_Reset not Done nor Error after this long [s] is given up (counted under ``axis:reset-timeout``)
+RESET_TIMEOUT_S = 5.0
 REPORT = os.environ["MANY_REPORT"]
 STOP = os.environ["MANY_STOP"]
 TARGETS = [float(x) for x in os.environ.get("MANY_TARGETS", "0,40").split(",")]
@@ -55,6 +58,7 @@ class _Axis:
         self.resetting = False
         self.resets = 0
         self.next_reset = 0.0
+        self.reset_deadline = 0.0
         self.k = 0
         self.execute = False
         self.busy = False
@@ -99,7 +103,10 @@ class _Axis:
         # axis:<code>, reset as a PLC program does
         if self.resetting:
             r = self.reset(Axis=ax, Execute=True)
-            if r.Done or r.Error:
+            timed_out = not (r.Done or r.Error) and time.monotonic() >= self.reset_deadline
+            if timed_out:  # (an MC_Reset that never ends: Execute off, tried again a second later at the earliest)
+                self.errors["axis:reset-timeout"] = self.errors.get("axis:reset-timeout", 0) + 1
+            if r.Done or r.Error or timed_out:
                 self.reset(Axis=ax, Execute=False)
                 self.resetting = False
         elif p.Active and st.Valid and st.Error and not stopping and time.monotonic() >= self.next_reset:
@@ -108,6 +115,7 @@ class _Axis:
             self.errors[key] = self.errors.get(key, 0) + 1
             self.resets += 1
             self.resetting = True
+            self.reset_deadline = time.monotonic() + RESET_TIMEOUT_S
             self.reset(Axis=ax, Execute=True)
         if p.Error and not self._power_err:
             key = f"power:0x{int(p.ErrorID):04X}"
