@@ -611,7 +611,7 @@ def test_the_frames_view_token_is_held_only_while_standby() -> None:
         s2 = OpenSession()
         hs.settings = Redundancy(True, start, TAKEOVER, 10.0, "b")
         hs.open(s2)  # type: ignore[arg-type]
-        assert ("subscriber" , "nc/nc1/view/ha-b") in [(k, key) for _, k, key in s2.log]
+        assert ("subscriber", "nc/nc1/view/ha-b") in [(k, key) for _, k, key in s2.log]
         assert s2.held(view)[-1:] == ([0] if start == "active" else [1]), (start, s2.log)
         if start == "active":
             continue
