@@ -699,7 +699,8 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
                 errors[code] = errors.get(code, 0) + c
             worst_unchanged = max(worst_unchanged, a["max_unchanged"])
             if rep.get("final") and "started" in a:
-                ended = a["done"] + a["aborted"] + sum(c for code, c in a["errors"].items() if not code.startswith("power:"))
+                ended = a["done"] + a["aborted"] + sum(c for code, c in a["errors"].items()
+                                                             if not code.startswith(("power:", "axis:")))
                 if ended != a["started"]:
                     inconsistent.append(f"axis {ax} (started {a['started']}, ended {ended})")
             invalid += a["invalid"]

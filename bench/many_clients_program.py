@@ -9,7 +9,9 @@ with ``"final": true`` (then it idles until plc-run is stopped).
 
 Counted per axis: ``started`` (rising edges of Execute), ``sent`` (moves whose request went to the NC), ``accepted`` / ``refused`` (their
 replies: error 0 / an error or none), ``done``,
-``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``), the job records'
+``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``, axis errors under ``axis:<id>``: the
+program resets them with MC_Reset, at most once a second, counted in ``resets``; one not ended after
+RESET_TIMEOUT_S under ``axis:reset-timeout``), the job records'
 ``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
 ``accepted`` + ``task_accepted`` must equal the difference, ``sent`` = ``accepted`` + ``refused``),
 ``task_sent`` / ``task_accepted`` (motion commands the PLC task sent on its own, not this program: the
@@ -33,10 +35,12 @@ import os
 import time
 
 from nc_schema import MOTION_COMMANDS
-from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power
+from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power, MC_Reset
 
 NC = os.environ.get("MANY_NC", "nc1")
 AXES = [int(a) for a in os.environ["MANY_AXES"].split(",")]
+#: an MC_Reset not Done nor Error after this long [s] is given up (counted under ``axis:reset-timeout``)
+RESET_TIMEOUT_S = 5.0
 REPORT = os.environ["MANY_REPORT"]
 STOP = os.environ["MANY_STOP"]
 TARGETS = [float(x) for x in os.environ.get("MANY_TARGETS", "0,40").split(",")]
@@ -50,6 +54,11 @@ class _Axis:
         self.ax = AXIS_REF(nc=NC, axis_id=axis_id)
         self.power = MC_Power()
         self.move = MC_MoveAbsolute()
+        self.reset = MC_Reset()
+        self.resetting = False
+        self.resets = 0
+        self.next_reset = 0.0
+        self.reset_deadline = 0.0
         self.k = 0
         self.execute = False
         self.busy = False
@@ -89,6 +98,25 @@ class _Axis:
                 self.last_nc_cycle = st.NcCycleCounter
         elif self.seen_valid:
             self.invalid += 1
+        # an axis error (ErrorStop: MC_Power stays Active without Status and without an error of its own, the NC
+        # needs MC_Reset; e.g. 0x4655 after a hot-standby takeover on a starved machine): counted under
+        # axis:<code>, reset as a PLC program does
+        if self.resetting:
+            r = self.reset(Axis=ax, Execute=True)
+            timed_out = not (r.Done or r.Error) and time.monotonic() >= self.reset_deadline
+            if timed_out:  # (an MC_Reset that never ends: Execute off, tried again a second later at the earliest)
+                self.errors["axis:reset-timeout"] = self.errors.get("axis:reset-timeout", 0) + 1
+            if r.Done or r.Error or timed_out:
+                self.reset(Axis=ax, Execute=False)
+                self.resetting = False
+        elif p.Active and st.Valid and st.Error and not stopping and time.monotonic() >= self.next_reset:
+            self.next_reset = time.monotonic() + 1.0  # (a cause that persists: one MC_Reset a second)
+            key = f"axis:0x{int(st.ErrorId):04X}"
+            self.errors[key] = self.errors.get(key, 0) + 1
+            self.resets += 1
+            self.resetting = True
+            self.reset_deadline = time.monotonic() + RESET_TIMEOUT_S
+            self.reset(Axis=ax, Execute=True)
         if p.Error and not self._power_err:
             key = f"power:0x{int(p.ErrorID):04X}"
             self.errors[key] = self.errors.get(key, 0) + 1
@@ -134,7 +162,12 @@ class _Axis:
                 "pending": len(self.reqs), "powered": bool(self.power.Status),
                 "done": self.done, "aborted": self.aborted, "errors": self.errors,
                 "cmdno0": self.cmdno0, "cmdno": cmdno, "invalid": self.invalid,
-                "max_unchanged": self.max_unchanged, "idle": not self.execute}
+                "max_unchanged": self.max_unchanged, "idle": not self.execute,
+                # (why MC_Power has no Status: the claim as the task has it, MC_Power Active, the axis's error)
+                "power_active": bool(self.power.Active), "valid": bool(self.ax.Status.Valid),
+                "axis_error": f"0x{int(self.ax.NcToPlc.ErrorCode):04X}" if self.ax.Status.Valid else None,
+                "claim": repr(self.ax._task.claim_state(self.ax)) if self.ax._task is not None else None,
+                "nc_epoch": int(self.ax.nc_epoch), "resets": self.resets}
 
 
 class Program:

@@ -45,6 +45,10 @@ __all__ = ["Roles", "RolesError", "ClientRoles", "load_roles", "parse_roles", "d
 ROLES: tuple[str, ...] = tuple(ROLE_CLASSES)
 
 
+#: client ids a roles file may not list: a hot-standby node's view of the active NC's frames is ``ha-<node>``
+HA_CLIENT_PREFIX = "ha-"
+
+
 class RolesError(ValueError):
     """A roles file that cannot be used.
 
@@ -156,6 +160,11 @@ def parse_roles(data: Mapping[str, Any], source: str = "<roles>") -> Roles:
                 Keys(ident)
         except ValueError as exc:
             raise RolesError(source, key, str(exc)) from None
+        if section == "client" and ident.startswith(HA_CLIENT_PREFIX):
+            # (a hot-standby node watches the active NC's frames as the client ha-<node>: docs/standby.md; a client
+            # of that name would take its view, or answer for it)
+            raise RolesError(source, key, f"the client id prefix {HA_CLIENT_PREFIX!r} is reserved for the hot-standby "
+                                          "nodes' view of the frames (docs/standby.md)")
         if ident in owner:
             raise RolesError(source, key, f"{ident!r} is also [{owner[ident]}]: one certificate CN, one identity")
         owner[ident] = key

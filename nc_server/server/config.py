@@ -91,6 +91,9 @@ class ZenohSettings:
 
 #: how an NC of a redundant pair starts (docs/standby.md)
 REDUNDANCY_ROLES = ("standby", "active")
+#: the longest ``[redundancy] node``: a standby watches the active NC's frames as the client ``ha-<node>``
+#: (docs/standby.md, "Loss detection"), a client id of at most 64 characters
+NODE_MAX = 61
 
 
 @dataclass(frozen=True)
@@ -193,8 +196,10 @@ def _redundancy(data: Mapping[str, Any], retain_file: str | None) -> Redundancy:
     cycles = _integer(r.get("takeover_cycles", 15), "redundancy.takeover_cycles", 2, 100_000)
     catch_up = _number(r.get("catch_up_ms", 10.0), "redundancy.catch_up_ms", 0.0, 1000.0)
     node = r.get("node", "")
-    if not isinstance(node, str) or len(node) > 64 or not all(c.isascii() and (c.isalnum() or c in "-_") for c in node):
-        raise ConfigError("redundancy.node", f"0..64 characters of letters, digits, '-' and '_', got {node!r}")
+    if not isinstance(node, str) or len(node) > NODE_MAX \
+            or not all(c.isascii() and (c.isalnum() or c in "-_") for c in node):
+        raise ConfigError("redundancy.node", f"0..{NODE_MAX} characters of letters, digits, '-' and '_' (the standby "
+                                             f"watches the frames as the client 'ha-<node>', at most 64), got {node!r}")
     if enabled and retain_file is not None:
         raise ConfigError("redundancy.enabled", "a redundant NC pair with nc.retain_file is not supported yet "
                                                 "(docs/standby.md: retain files)")

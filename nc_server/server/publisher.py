@@ -971,7 +971,11 @@ class PublisherProcess:
                 return
             c = self.output.ring.counters()
             seq = self.output.ring.seq
-            if c.sent != self._seen[1]:  # it published since: progress
+            if c.sent != self._seen[1] or seq == self._seen[0]:
+                # it published since (progress), or the cycle wrote no frame since the last look (nothing to publish:
+                # no stall either; a hot-standby NC writes none while it is the standby, for minutes: that time
+                # counted as the child's silence made the first STALL_FRAMES frames after its takeover a "stall",
+                # and a healthy child was killed right then, its frames gone until the failover, docs/standby.md)
                 self._seen = (seq, c.sent, now)
             # (quiet since it published, was promoted or got ready, whichever came last: a fresh child that took
             # longer than STALL_TIMEOUT to start is not stalled; one not ready yet is READY_TIMEOUT's case)

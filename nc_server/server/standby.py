@@ -31,12 +31,12 @@ from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
-from zenoh.handlers import FifoChannel
+from zenoh.handlers import FifoChannel, RingChannel
 
-from nc_schema import Keys
+from nc_schema import Keys, frame_header
 from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 
-from .config import Redundancy
+from .config import NODE_MAX, Redundancy
 from .replication import (CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive, ReplayDrive,
                           install_handler, merge_handler, snapshot)
 from .transport import drain
@@ -69,6 +69,9 @@ STALL_MARGIN = 0.75
 #: HOLD_S [s] for a log of a higher epoch before its cycle goes on
 HOLD_SHARE = 0.5
 HOLD_S = 0.01
+#: the period [ms] of the frames (a view of no axis: their header) a standby watches as a second sign of life of the
+#: active NC: its Cycle going on while its logs are late (docs/standby.md, "Loss detection")
+SIGN_FRAME_MS = 10
 
 
 class LossDetector:
@@ -203,6 +206,16 @@ class HotStandby:
         self.snapshots_served = 0
         self.snapshot_s = 0.0  # the longest snapshot built in the cycle thread (it makes that cycle late)
         self.stale_logs = 0
+        #: silences of the logs forgiven because the active NC's frames showed its Cycle going on (a takeover then
+        #: would have started from a state behind what the clients saw: their Cycle would go back, an NC restart)
+        self.frames_alive = 0
+        self._frame_sub: Any = None
+        self._view_token: Any = None
+        self._view_sel = ""
+        self._frame_epoch = -1       # the epoch and Cycle of the newest frame of the active NC taken
+        self._frame_cycle = -1
+        self._frame_alive = -1e9     # when a frame of the followed epoch last showed its Cycle going on [monotonic]
+        self._forgiving = False      # (the silence of the logs is forgiven now: counted once per silence)
         self.synced_once = False
         self.active_token_seen = False
         self.peer_in_step = False  # (active) a standby in step is there
@@ -260,24 +273,48 @@ class HotStandby:
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
         self._status_sub = s.declare_subscriber(f"{k}/status/*", FifoChannel(64))
+        # (the newest only, one frame per SIGN_FRAME_MS of NC time: a view of no axis, i.e. the frame header alone,
+        # asked for as a client "ha-<node>" does, by the view token, held while this NC is a standby: _view; the
+        # config caps the node name so that ha-<node> is a client id, and the roles file reserves the prefix)
+        ks = Keys(self.srv.config.name)
+        client = f"ha-{self.node}"
+        try:
+            self._view_sel, key = ks.view_select(client, SIGN_FRAME_MS, ()), ks.view(client)
+        except ValueError as exc:
+            raise ValueError(f"redundancy node {self.node!r}: {exc} (at most {NODE_MAX} characters)") from None
+        self._frame_sub = s.declare_subscriber(key, RingChannel(1))
         self._started = self._last_log = time.monotonic()
         if self.settings.start == "active":
             self._become_active(time.monotonic(), first=True)
         else:
+            self._view(True)
             self._ask_snapshot(time.monotonic())
             for lk in drive_links(self.real_drive):
                 lk.epoch = 0
 
+    def _view(self, on: bool) -> None:
+        """Declare (``on``, a standby) or undeclare (the active NC: its own publisher would send the view back to it
+        every SIGN_FRAME_MS) the view token of the frames' sign of life."""
+        s = self._session
+        try:
+            if on and self._view_token is None and s is not None and self._view_sel:
+                self._view_token = s.liveliness().declare_token(self._view_sel)
+            elif not on and self._view_token is not None:
+                self._view_token, tok = None, self._view_token
+                tok.undeclare()
+        except Exception as exc:  # (no sign of life from the frames then: the logs alone, as before)
+            log.warning("standby %s: the frames' view token: %s", self.node, exc)
+
     def close(self) -> None:
         self._nc_tokens(False)
         for d in (self._token, self._snap_q, self._log_sub, self._log_pub, self._status_pub, self._active_sub,
-                  self._standby_sub, self._status_sub):
+                  self._standby_sub, self._status_sub, self._frame_sub, self._view_token):
             if d is not None:
                 try:
                     d.undeclare()
                 except Exception:
                     pass
-        self._token = self._snap_q = None
+        self._token = self._snap_q = self._frame_sub = self._view_token = None
 
     # ---- per cycle (cycle thread) -------------------------------------------------------------------------------
     def before_cycle(self, now: float) -> bool:
@@ -292,6 +329,7 @@ class HotStandby:
                                           f"{self._unconfirmed} inputs of others")
         else:
             self._take_snapshot(now)
+            self._take_frame(now)
             if self._lost(now):
                 self._become_active(now)
         # (a takeover's figures come after its first step: no status before, unless its declarations failed)
@@ -416,6 +454,7 @@ class HotStandby:
                 # (a sign of life of the NC followed: only logs of the highest epoch; a zombie of a lower one must
                 # not keep the standby from judging the silence of the active NC)
                 self.detector.log(now)
+                self._forgiving = False
 
     def _take_log(self, lg: CycleLog, now: float) -> bool:
         """One log of a sample; True: this NC stopped being active (the rest of the sample is not its)."""
@@ -468,6 +507,7 @@ class HotStandby:
                     # built the snapshot was late too: the detector's warm-up)
                     self._last_log = time.monotonic()
                     self.detector.restart(self._last_log)
+                    self._forget_frames()
                     return
                 except Exception as exc:
                     log.warning("unusable snapshot: %s", exc)
@@ -476,6 +516,7 @@ class HotStandby:
 
     def _resync(self, reason: str) -> None:
         log.warning("standby %s: out of step (%s): asking for a snapshot", self.node, reason)
+        self._forget_frames()
         self._declare_standby(False)
         self._ask_snapshot(time.monotonic())
 
@@ -497,10 +538,67 @@ class HotStandby:
             self._lost_why = "its token went"
             return True
         if self.detector.silent(now):
+            if now - self._frame_alive <= self.detector.limit(now):
+                # (bounded: the logs go CongestionControl.DROP and are heavy, under load all of them may drop while
+                # the frames get through; a standby forgiving that for ever stays "in step" on a state seconds old,
+                # and a later kill, its token gone, would take over from it: a SetPos jump, the Cycle going back)
+                quiet = now - self._last_log
+                behind = (self._frame_cycle - int(self.core.cycle)) * self._dt \
+                    if self._frame_epoch == self.highest else 0.0
+                if max(quiet, behind) > self.detector.cap:
+                    self.follower._lost(f"no log for {quiet * 1e3:.0f} ms while the frames go on (frame cycle "
+                                        f"{self._frame_cycle}, this standby at {self.core.cycle}; cap "
+                                        f"{self.detector.cap * 1e3:.0f} ms)", False)
+                    return False
+                # the active NC's frames show its Cycle going on: it lives, only its logs are late (the heavy ones:
+                # 8 cycles' logs a sample, every cycle, through zenoh and the router). Taking over now would start
+                # from its state of the last log, behind what the clients saw (their Cycle would go back: an NC
+                # restart for them; the commands of the cycles in between lost). The logs come later (or a gap asks
+                # for a snapshot); when the frames stop too, the limit runs out and it takes over
+                if not self._forgiving:
+                    self._forgiving = True
+                    self.frames_alive += 1
+                    log.info("standby %s: no log for %.0f ms (limit %.0f) but the active NC's frames go on (cycle %d, "
+                             "this standby at %d): no takeover", self.node, (now - self.detector.last) * 1e3,
+                             self.detector.limit(now) * 1e3, self._frame_cycle, self.core.cycle)
+                return False
             self._lost_why = (f"no log for {(now - self.detector.last) * 1e3:.0f} ms, limit "
                               f"{self.detector.limit(now) * 1e3:.0f}")
             return True
         return False
+
+    def _take_frame(self, now: float) -> None:
+        """(standby) The newest decimated status frame: one of the followed epoch whose Cycle went on since the last
+        one taken is a sign of life of the active NC (:meth:`_lost`). The first frame of an epoch is none (no
+        progress seen yet)."""
+        sub = self._frame_sub
+        if sub is None:
+            return
+        try:
+            s = sub.try_recv()
+        except Exception:  # (the session closing)
+            return
+        if s is None:
+            return
+        try:
+            h = frame_header(s.payload.to_bytes())
+        except ValueError:
+            return
+        if h.Epoch != self._frame_epoch:
+            self._frame_epoch, self._frame_cycle = int(h.Epoch), int(h.Cycle)
+            return
+        if h.Cycle > self._frame_cycle:
+            self._frame_cycle = int(h.Cycle)
+            # (life beyond what the logs show only: a frame of a cycle the logs already brought, e.g. of a burst
+            # queued in a stall, would put the takeover off past the published limit)
+            if h.Epoch == self.highest and self.highest and h.Cycle > self.core.cycle:
+                self._frame_alive = now
+
+    def _forget_frames(self) -> None:
+        """The frames' sign of life starts over (in step from a snapshot, a resync, a role change)."""
+        self._frame_epoch = self._frame_cycle = -1
+        self._frame_alive = -1e9
+        self._forgiving = False
 
     def _replaced(self) -> bool:
         return any(lk.host_epoch > self.epoch for lk in drive_links(self.real_drive))
@@ -598,6 +696,10 @@ class HotStandby:
     def _become_active(self, now: float, first: bool = False) -> None:
         srv = self.srv
         lost_at = self._last_log
+        # (the takeover's figures count from the last sign of life, a log or a frame beyond the logs; the catch-up
+        # from the last log: the state the core continues from)
+        alive_at = max(lost_at, self._frame_alive)
+        self._forget_frames()
         self._token_gone = False
         self._grace = START_GRACE_S
         if self.epoch and not self.synced_once and not first:
@@ -638,7 +740,7 @@ class HotStandby:
             log.info("NC %s active (epoch %d, node %s)", srv.config.name, self.epoch, self.node)
             return
         srv.became_active(now, serve=False)
-        self._lost_at, self._detected_at = lost_at, now
+        self._lost_at, self._detected_at = alive_at, now
         # the drives extrapolated their targets while the lost NC was silent (at most catch_up_ms): the core
         # steps over that time at once, so its first set-point is where the drives' targets are now. The catch-up
         # steps send nothing to the drives (their set-points are behind the drives' targets: a step back, then
@@ -687,6 +789,7 @@ class HotStandby:
             self._hand_over()
             srv.transport.serve()
             self._nc_tokens(False)  # (any left: another instance id than the transport's, which declared its own)
+            self._view(False)  # (after the first set-point, like the other declarations)
         except Exception as exc:
             if self._serve_tries <= 3 or self._serve_tries % 1000 == 0:
                 log.error("NC %s: took over, but its declarations failed (try %d; again next cycle): %s",
@@ -725,9 +828,11 @@ class HotStandby:
                 except Exception:
                     pass
         self._snap_q = self._token = None
+        self._view(True)
         srv.became_standby()
         self.follower.waiting = True
         self.synced_once = False
+        self._forget_frames()
         self._last_log = now
         self._started = now
         self._ask_snapshot(now)
@@ -748,7 +853,7 @@ class HotStandby:
         limit = self._limit
         return {"node": self.node, "role": self.role, "epoch": self.epoch, "highest_epoch": self.highest,
                 "in_step": self.role == "active" or (not f.waiting and self.synced_once),
-                "cycle": int(self.core.cycle), "lag_cycles": int(f.lag), "logs_in": self.logs_in,
+                "cycle": int(self.core.cycle), "lag_cycles": self._lag(), "logs_in": self.logs_in,
                 "logs_out": self.logs_out, "resyncs": f.resyncs, "diverged": f.diverged,
                 "snapshots_served": self.snapshots_served,
                 "snapshot_max_ms": round(self.snapshot_s * 1e3, 3), "takeovers": self.takeovers,
@@ -756,9 +861,18 @@ class HotStandby:
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
                 "takeover_detect_ms": round(self.detect_s * 1e3, 3), "takeover_work_ms": round(self.work_s * 1e3, 3),
                 "takeover_serve_ms": round(self.serve_s * 1e3, 3),
-                "catch_up_cycles": self.catch_up, "takeover_limit_cycles": limit,
+                "catch_up_cycles": self.catch_up, "frames_alive": self.frames_alive, "takeover_limit_cycles": limit,
                 "takeover_limit_ms": round(self.takeover_limit_ms, 3),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
+
+    def _lag(self) -> int:
+        """The replication lag [cycles]: the newest log's cycle less the core's, or (a standby) the newest frame's of
+        the highest epoch less the core's when more (the logs late or cut while the frames come)."""
+        lag = int(self.follower.lag)
+        fe, fc = self._frame_epoch, self._frame_cycle  # (another thread's read: plain ints)
+        if self.role == "standby" and self.highest and fe == self.highest:
+            lag = max(lag, fc - int(self.core.cycle))
+        return lag
 
     def _limit_cycles(self, now: float | None = None) -> int:
         """The published bound of a takeover after a freeze or link cut [cycles]: the standby's loss detector's

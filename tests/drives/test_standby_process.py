@@ -60,10 +60,13 @@ def wait_logged(pred: Callable[[], Any], what: str, procs: Procs, timeout: float
 def pair(tmp_path: Path) -> Iterator[Callable[..., Procs]]:
     started: list[Any] = []
 
-    def make(axes: int = 1) -> Procs:
+    def make(axes: int = 1, max_age: int | None = None) -> Procs:
         router = start_nc_router(tmp_path / "router", ["--lease-ms", str(LEASE_MS)])
         started.append(router)
         text = CONFIG.format(cycle=CYCLE, port=router.port, takeover=TAKEOVER_CYCLES) + (AXIS2 if axes > 1 else "")
+        if max_age is not None:  # ([drives.remote] max_age: how old the drive inputs may be, in cycles)
+            assert "max_age = 200" in text, "the rig's config changed: [drives.remote] max_age not replaced"
+            text = text.replace("max_age = 200", f"max_age = {max_age}")
         cfg = tmp_path / "nc.toml"
         cfg.write_text(text)
         a = start_nc_server(tmp_path / "a", text, name="nc1", connect=router.endpoint,
@@ -75,7 +78,7 @@ def pair(tmp_path: Path) -> Iterator[Callable[..., Procs]]:
         sim = DriveSim(tmp_path, ["--config", str(cfg), "--host", "drives1", "--connect", router.endpoint,
                                   "--timeout", str(DRIVE_TIMEOUT), "--lease-ms", str(LEASE_MS)])
         started.append(sim)
-        return {"a": a, "b": b, "drives": sim, "port": router.port}
+        return {"a": a, "b": b, "drives": sim, "port": router.port, "router": router}
 
     try:
         yield make

@@ -83,3 +83,31 @@ def test_a_late_answer_of_a_move_whose_block_gave_up_is_counted(program_module: 
     rep = a.report()
     assert rep["accepted"] == 2, rep
     assert rep["sent"] == rep["accepted"] + rep["refused"] + rep["pending"], rep
+
+
+def test_an_mc_reset_that_never_ends_is_given_up(program_module: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """(review) An axis error is reset with MC_Reset; one that is never Done nor Error left ``resetting`` true for
+    ever: no further reset, ever. After RESET_TIMEOUT_S it is given up (Execute off, counted) and tried again."""
+    from types import SimpleNamespace as NS
+    now = [100.0]
+    monkeypatch.setattr(program_module, "time", NS(monotonic=lambda: now[0]))
+    a = program_module._Axis(1)
+    calls: list[bool] = []
+    a.ax = NS(Status=NS(Valid=True, Error=True, ErrorId=0x4655, NcCycleCounter=1))
+    a.power = lambda **k: NS(Active=True, Error=False, ErrorID=0, Status=False)
+    a.reset = lambda Axis, Execute: calls.append(Execute) or NS(Done=False, Error=False)
+    a.move = lambda **k: NS(Done=False, Error=False, CommandAborted=False)
+    a.cycle(False)
+    assert a.resetting and a.resets == 1 and calls == [True]
+    t0 = now[0]
+    for _ in range(20):  # (not ended: held until the deadline)
+        now[0] += 0.4
+        a.cycle(False)
+        if not a.resetting:
+            break
+    assert now[0] - t0 >= program_module.RESET_TIMEOUT_S
+    assert not a.resetting and a.errors.get("axis:reset-timeout") == 1, a.errors
+    assert calls[-1] is False
+    now[0] += 1.0
+    a.cycle(False)
+    assert a.resetting and a.resets == 2  # (tried again)

@@ -41,6 +41,8 @@ def test_the_example_roles_file() -> None:
     ("[nc.nc2]\nmasters = ['nc2']\n", "nc.nc2.masters", "its own axes"),
     ("[nc.nc2]\nmasters = 'nc1'\n", "nc.nc2.masters", "list of NC names"),
     ("[router.r]\n", "", "lists no"),
+    # a hot-standby node watches the active NC's frames as the client ha-<node> (docs/standby.md)
+    ("[client.ha-b]\nrole = 'observer'\n", "client.ha-b", "reserved"),
     ("client = 3\n", "client", "must be a table"),
     ("[client]\na = 1\n", "client.a", "must be a table"),
     ("[nc.'n/1']\n", "nc.n/1", "invalid"),

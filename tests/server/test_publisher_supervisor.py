@@ -95,3 +95,56 @@ def test_the_back_off_resets_only_with_a_standby_that_got_ready_and_lived() -> N
     assert not PublisherProcess._settled(_FakeChild(None), now)  # launched, never ready (dies at its start)
     assert not PublisherProcess._settled(_FakeChild(now - 1.0), now)  # ready, not for long yet
     assert PublisherProcess._settled(_FakeChild(now - RESTART_RESET_AFTER - 1.0), now)
+
+
+class _ReadyChild:
+    """An active child as the supervisor sees it: ready, alive (its publishing is the ring's sent counter)."""
+
+    def __init__(self, at: float) -> None:
+        self.proc = type("P", (), {"poll": lambda self: None, "pid": 4242})()
+        self.ready_at = self.since = self.started = at
+
+    def poll_ready(self) -> bool:
+        return True
+
+
+def test_a_hot_standby_ncs_quiet_time_is_no_stall_of_its_publisher(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A hot-standby NC writes no frame while it is the standby (minutes); at its takeover the cycle writes frames
+    again. The supervisor counted the standby time as the active child's silence: once STALL_FRAMES frames were
+    written before the child's first put was seen (100 ms at 1 ms cycles), it killed the healthy child ("published
+    nothing for 29.5 s (544 frames written)", bench/many_clients.py --standby), and the clients had no frame until the
+    failover. Only frames written and not published count: a child that publishes nothing for STALL_TIMEOUT while
+    frames are written is still killed."""
+    from nc_server.server import publisher as pubmod
+    now = [1000.0]
+    monkeypatch.setattr(pubmod, "time", type("T", (), {"monotonic": staticmethod(lambda: now[0])}))
+    out = FrameOutput("nc1", 1)
+    pp = PublisherProcess(out, "nc1", [1], settings=None)
+    killed: list[str] = []
+    pp._kill = lambda child, why: killed.append(why)  # type: ignore[method-assign]
+    pp._first_standby = False
+    child = _ReadyChild(now[0])
+    pp.active = child  # type: ignore[assignment]
+    pp.standby = _ReadyChild(now[0])  # type: ignore[assignment]
+    pp._seen = (out.ring.seq, 0, now[0])
+    rec = np.zeros(1, dtype=NCTOPLC_DTYPE)
+    rec["AxisId"] = 1
+    try:
+        for _ in range(300):  # 30 s as the standby: no frame written
+            now[0] += 0.1
+            pp._step()
+        for k in range(150):  # the takeover: 150 frames at 1 ms, the child has not put one yet
+            out.put(k + 1, int(now[0] * 1e9), rec, 0, None, None)
+        now[0] += 0.15
+        pp._step()
+        assert killed == []
+        # a child that really publishes nothing while frames are written is still killed after STALL_TIMEOUT
+        for k in range(30):
+            for j in range(100):
+                out.put(1000 + 100 * k + j, int(now[0] * 1e9), rec, 0, None, None)
+            now[0] += 0.1
+            pp._step()
+        assert killed and killed[0].startswith("published nothing for 2."), killed  # (the fake kill ends nothing)
+    finally:
+        pp.active = pp.standby = None
+        out.close()
