@@ -76,6 +76,9 @@ def _script(core: NcCore, k: int) -> None:
     if k == 200:
         _plc(core, 1, ExtTorque=12.5)  # (rows: axes 2 and 3)
         _plc(core, 2, PositionCorrection=0.25)
+    if k in (300, 350, 1700) and not core.params[0].SimProbePeriod:  # touch probe input 1 (StateDWord3)
+        core.drive.set_probe_signal(0, k != 350, 0.0004)
+        core.drive.set_probe_signal(2, k == 350, 0.0)
     if k == 400:
         cmd(core, "MoveAbsolute", 1, Position=-50.0, Velocity=300.0, Acceleration=1000.0, Deceleration=1000.0,
             Jerk=20000.0, BufferMode=0)
@@ -126,6 +129,7 @@ def test_nctoplc_bytes_match_reference_packer() -> None:
 
 
 def test_nctoplc_bytes_match_reference_packer_long_period() -> None:
-    """A period with a long mantissa (the modulo fields by np.divmod throughout) and no modulo display."""
-    core = powered(8, AxisEncoderModuloValue=0.1 + 0.2)
+    """A period with a long mantissa (the modulo fields by np.divmod throughout), no modulo display, a probe
+    sensor pattern on every axis (StateDWord3 follows the positions)."""
+    core = powered(8, AxisEncoderModuloValue=0.1 + 0.2, SimProbePeriod=50.0, SimProbeWidth=10.0)
     _run(core, 2500)

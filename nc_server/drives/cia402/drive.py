@@ -224,6 +224,8 @@ class Cia402Drive(DriveABC):
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
         self._no_probe = np.zeros(n, dtype=bool)
+        self._pi_key = b""  # (probe_input: the probe status words of its last array)
+        self._pi = self._no_probe
         self._probe_new_any = False
         # touch probe 2 (MC_TouchProbe): the probe 2 bits sent, those the core asked for, session bookkeeping
         self._tp_code = np.zeros(n, dtype=np.uint16)
@@ -527,8 +529,16 @@ class Cia402Drive(DriveABC):
         self._tp_watch = True  # (the inputs decide: see _exchange)
 
     def probe_input(self) -> np.ndarray:
-        """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14)."""
-        return (self.tx.probe_status & TP2_STATUS_INPUT) != 0
+        """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14). While the probe status
+        words stay (compared by their bytes), the array of the last call again (read-only): the NC's packer then
+        skips writing StateDWord3."""
+        ps = self.tx.probe_status
+        key = ps.tobytes()
+        if key != self._pi_key:
+            pi = (ps & TP2_STATUS_INPUT) != 0
+            pi.flags.writeable = False
+            self._pi_key, self._pi = key, pi
+        return self._pi
 
     def arm_probe(self, rows: np.ndarray) -> None:
         """A new MC_TouchProbe on these rows: the session of probe 2 ends (disabled next cycle, seen disabled in
