@@ -55,6 +55,10 @@ class Mechanics:
         self._v = np.zeros((2, n))  # step's work rows: velocities (set, act), torques, one term
         self._t = np.zeros((2, n))
         self._tmp = np.zeros((2, n))
+        # (the views step uses, made once: a slice per use costs more than the operation on a few axes)
+        f, t = self.fields, self._t
+        self._f01, self._f10, self._f23, self._t_rev = f[0:2], f[1::-1], f[2:4], t[::-1]
+        self._v0, self._v1, self._t0, self._t1, self._f5 = self._v[0], self._v[1], t[0], t[1], f[5]
 
     def configure(self, i: int, params: AxisParams) -> None:
         k = 100.0 / float(params.SimRatedTorque)
@@ -95,24 +99,25 @@ class Mechanics:
         # (into preallocated rows: the same operations on the same values as
         # inertia * acc + viscous * v + coulomb * sign(v), without a new array per term)
         v, t, tmp = self._v, self._t, self._tmp
-        v[0] = set_velo
-        v[1] = act_velo
-        t[0] = set_acc
-        t[1] = act_acc
-        t *= self.inertia
+        np.copyto(self._v0, set_velo)
+        np.copyto(self._v1, act_velo)
+        inertia = self.inertia
+        np.multiply(set_acc, inertia, out=self._t0)  # (the same products as a copy multiplied in place)
+        np.multiply(act_acc, inertia, out=self._t1)
         np.multiply(v, self.viscous, out=tmp)
         t += tmp
         np.sign(v, out=tmp)
         tmp *= self.coulomb
         t += tmp
         if self._offset_on:
-            t[0] += self.offset
+            self._t0 += self.offset
         if k < self._n:
             t *= delivering
         # derivatives from the values shown last cycle (rows 0, 1), in NCTOPLC's order (act, set)
-        np.subtract(t[::-1], f[1::-1], out=f[2:4])
-        f[2:4] *= self.inv_dt
-        f[0:2] = t
+        f23 = self._f23
+        np.subtract(self._t_rev, self._f10, out=f23)
+        f23 *= self.inv_dt
+        np.copyto(self._f01, t)
         if self._offset_on or self._offset_dirty:
-            np.multiply(self.offset, delivering, out=f[5])
+            np.multiply(self.offset, delivering, out=self._f5)
             self._offset_dirty = False
