@@ -106,7 +106,8 @@ class _Modulo:
     ``x - q * period`` is then the correctly rounded remainder, which is what divmod's fmod-and-adjust gives: fmod
     is exact, and its adjustment ``fmod + period`` rounds the same real number) and ``(q, r)`` is divmod's result
     (``r + 0.0``: its zero is +0). The other entries (a turn passed, the first cycle, NaN) take ``np.divmod``.
-    Periods that are not short (or not positive and finite) take ``np.divmod`` for all axes."""
+    Periods that are not short (or not positive and finite) take ``np.divmod`` for all axes. The turns change only
+    where ``np.divmod`` ran: a cycle without such an entry leaves the turns fields as the last call wrote them."""
 
     def __init__(self, n: int) -> None:
         self.q = np.full((2, n), np.nan)  # the turns of the last cycle as floats (NaN: unknown or too large)
@@ -117,6 +118,7 @@ class _Modulo:
         self._ok2 = np.empty((2, n), dtype=bool)
         self._key = b""
         self._short = False
+        self._turns_shown = False  # the turns fields hold ``q`` (written by the last call, from this ``q``)
 
     def __call__(self, act: np.ndarray, set_pos: np.ndarray, period: np.ndarray, act_turns: np.ndarray,
                  act_mod: np.ndarray, set_turns: np.ndarray, set_mod: np.ndarray) -> None:
@@ -127,6 +129,7 @@ class _Modulo:
         if not self._short:
             np.divmod(act, period, out=(act_turns, act_mod), casting="unsafe")
             np.divmod(set_pos, period, out=(set_turns, set_mod), casting="unsafe")
+            self._turns_shown = False
             return
         q, r, ok, x = self.q, self._r, self._ok, self._x
         x[0] = act
@@ -135,7 +138,6 @@ class _Modulo:
         np.subtract(x, r, out=r)
         np.greater_equal(r, 0.0, out=ok)
         ok &= np.less(r, period, out=self._ok2)
-        src = q
         if np.count_nonzero(ok) < ok.size:
             bad = (~ok).nonzero()
             qd, rd = np.divmod(x[bad], period[bad[1]])
@@ -144,11 +146,18 @@ class _Modulo:
             src[bad] = qd
             q[bad] = np.where(np.abs(qd) < 2.0 ** 30, qd, np.nan)
             r[bad] = rd
+            self._turns_shown = False  # (written below; shown as ``q`` where |turns| < 2 ** 30 only)
+        elif not self._turns_shown:
+            src = q
+            self._turns_shown = True
+        else:
+            src = None  # (no turn passed: the turns fields stay)
         r += 0.0
         act_mod[...] = r[0]
         set_mod[...] = r[1]
-        np.copyto(act_turns, src[0], casting="unsafe")
-        np.copyto(set_turns, src[1], casting="unsafe")
+        if src is not None:
+            np.copyto(act_turns, src[0], casting="unsafe")
+            np.copyto(set_turns, src[1], casting="unsafe")
 
 
 class NctoplcPacker:

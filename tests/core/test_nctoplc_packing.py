@@ -133,3 +133,10 @@ def test_nctoplc_bytes_match_reference_packer_long_period() -> None:
     sensor pattern on every axis (StateDWord3 follows the positions)."""
     core = powered(8, AxisEncoderModuloValue=0.1 + 0.2, SimProbePeriod=50.0, SimProbeWidth=10.0)
     _run(core, 2500)
+
+
+def test_nctoplc_bytes_match_reference_packer_huge_turns() -> None:
+    """A short period so small that the turns pass 2 ** 30 (and int32) on the longer moves: those entries by
+    np.divmod every cycle, the others from the turns of the last cycle."""
+    core = powered(8, AxisEncoderModuloValue=2.0 ** -20)
+    _run(core, 2500)
