@@ -59,6 +59,7 @@ class Mechanics:
         f, t = self.fields, self._t
         self._f01, self._f10, self._f23, self._t_rev = f[0:2], f[1::-1], f[2:4], t[::-1]
         self._v0, self._v1, self._t0, self._t1, self._f5 = self._v[0], self._v[1], t[0], t[1], f[5]
+        self._f1, self._tmp1 = f[1], self._tmp[1]
 
     def configure(self, i: int, params: AxisParams) -> None:
         k = 100.0 / float(params.SimRatedTorque)
@@ -77,6 +78,29 @@ class Mechanics:
     def resting(self) -> bool:
         """No drive delivers torque and every field was 0 in the last step already (nothing to copy)."""
         return self._rest >= 3
+
+    def step_actual(self, delivering: np.ndarray, act_velo: np.ndarray, act_acc: np.ndarray) -> None:
+        """:meth:`step` for a user of ActTorque alone (the simulated CiA 402 drive's 0x6077): row 1 of
+        :attr:`fields` as :meth:`step` computes it, bit for bit, and :attr:`resting`; the other rows are not kept
+        (at 0, or what an earlier :meth:`step` left)."""
+        f1 = self._f1
+        k = np.count_nonzero(delivering)
+        if not k:
+            if self._rest < 3:
+                self._rest += 1
+                if self._rest < 3:
+                    f1[...] = 0.0
+            return
+        self._rest = 0
+        tmp = self._tmp1
+        np.multiply(act_acc, self.inertia, out=f1)  # (the operations of step's row 1, in its order)
+        np.multiply(act_velo, self.viscous, out=tmp)
+        f1 += tmp
+        np.sign(act_velo, out=tmp)
+        tmp *= self.coulomb
+        f1 += tmp
+        if k < self._n:
+            f1 *= delivering
 
     def step(self, delivering: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray,
              act_velo: np.ndarray, act_acc: np.ndarray) -> None:

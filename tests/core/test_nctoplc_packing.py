@@ -1,12 +1,14 @@
 """The NCTOPLC fields the cycle writes (packing.NctoplcPacker) byte for byte against a slow reference packer kept
 here (one field at a time from the core's state after the step, the modulo fields by ``np.divmod``): several
 thousand cycles with moves, velocity moves, gearing, stops, axis errors and resets, modulo axes, torque offsets,
-position corrections and disabled axes."""
+position corrections and disabled axes; and all records against sha256 digests recorded at 6cc55ca."""
 from __future__ import annotations
 
 import hashlib
+from typing import Any
 
 import numpy as np
+import pytest
 
 import nc_server.core  # noqa: F401  (before nc_server.drives)
 from nc_server.core import NcCore
@@ -123,20 +125,27 @@ def _run(core: NcCore, cycles: int) -> str:
     return h.hexdigest()
 
 
-def test_nctoplc_bytes_match_reference_packer() -> None:
-    core = powered(8, Modulo=True, AxisEncoderModuloValue=360.0, SimLoadInertia=2e-4)
-    _run(core, 3000)
+#: sha256 of every cycle's NCTOPLC and NCJOBS bytes of _run's script, recorded at 6cc55ca (the packing and the
+#: cia402-sim drive before the output stage was made cheaper). A deliberate change of the core's or the simulated
+#: drive's behaviour changes these: record them anew at the commit that makes it (and say so in its message).
+RECORDED = [
+    (dict(Modulo=True, AxisEncoderModuloValue=360.0, SimLoadInertia=2e-4), 3000,
+     "9517f0d3345c3a9c588ed0c8d79815cab312b9396600e70f94c55b25dbc8452f"),
+    (dict(AxisEncoderModuloValue=0.1 + 0.2, SimProbePeriod=50.0, SimProbeWidth=10.0), 2500,
+     "e8302b5bb4691151dfa66f5afd8c667a806a34148bcfd56fe4d1c6179eeaba4a"),
+    (dict(AxisEncoderModuloValue=2.0 ** -20), 2500,
+     "6748475f8431d86370dfcf51f786bcb6d3182327c8cdb7b0ffd242fc381940db"),
+    (dict(AxisEncoderScalingFactor=0.5, SimLoadInertia=3e-4, SimViscousFriction=2e-4), 2500,
+     "1359a8e9c0ec40e8b9196428041bef463f41e60ff74ed969845c40e1ece1317a"),
+]
 
 
-def test_nctoplc_bytes_match_reference_packer_long_period() -> None:
-    """A period with a long mantissa (the modulo fields by np.divmod throughout), no modulo display, a probe
-    sensor pattern on every axis (StateDWord3 follows the positions)."""
-    core = powered(8, AxisEncoderModuloValue=0.1 + 0.2, SimProbePeriod=50.0, SimProbeWidth=10.0)
-    _run(core, 2500)
-
-
-def test_nctoplc_bytes_match_reference_packer_huge_turns() -> None:
-    """A short period so small that the turns pass 2 ** 30 (and int32) on the longer moves: those entries by
-    np.divmod every cycle, the others from the turns of the last cycle."""
-    core = powered(8, AxisEncoderModuloValue=2.0 ** -20)
-    _run(core, 2500)
+@pytest.mark.parametrize("params,cycles,digest", RECORDED, ids=["modulo", "pattern", "huge-turns", "scaled"])
+def test_records_match_reference_packer_and_base(params: dict[str, Any], cycles: int, digest: str) -> None:
+    """Every cycle's NCTOPLC as the reference packer fills it from the core's state, and all records the same bytes
+    as 6cc55ca gave (the drive's torque model included, which the reference takes from the drive as it is).
+    modulo: short period, modulo display; pattern: a period with a long mantissa (np.divmod throughout) and a probe
+    sensor pattern on every axis (StateDWord3 follows the positions); huge-turns: turns beyond 2 ** 30 and int32
+    on the longer moves (those entries by np.divmod every cycle); scaled: an encoder scaling (the device's torque
+    of scaled velocities)."""
+    assert _run(powered(8, **params), cycles) == digest

@@ -351,10 +351,11 @@ class Cia402Device:
         delivering = oe if stopping is None else oe | stopping
         tv = rx.target_velocity
         s = self._scale
+        # (0x6077 shows the mechanics' ActTorque alone: the set-point's row is not computed)
         if self._unit_scale:  # (x * 1.0 is x, bit for bit: the mechanics copy their inputs)
-            self.mechanics.step(delivering, tv, (tv - self._prev_tv) * self._scale_dt, new_v, new_a)
+            self.mechanics.step_actual(delivering, new_v, new_a)
         else:
-            self.mechanics.step(delivering, tv * s, (tv - self._prev_tv) * self._scale_dt, new_v * s, new_a * s)
+            self.mechanics.step_actual(delivering, new_v * s, new_a * s)
         self._prev_tv = tv
 
     def _latch(self, rx: RxImage) -> None:
