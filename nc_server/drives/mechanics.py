@@ -60,6 +60,7 @@ class Mechanics:
         self._f01, self._f10, self._f23, self._t_rev = f[0:2], f[1::-1], f[2:4], t[::-1]
         self._v0, self._v1, self._t0, self._t1, self._f5 = self._v[0], self._v[1], t[0], t[1], f[5]
         self._f1, self._tmp1 = f[1], self._tmp[1]
+        self._f0, self._f3, self._tmp0 = f[0], f[3], self._tmp[0]
 
     def configure(self, i: int, params: AxisParams) -> None:
         k = 100.0 / float(params.SimRatedTorque)
@@ -78,6 +79,35 @@ class Mechanics:
     def resting(self) -> bool:
         """No drive delivers torque and every field was 0 in the last step already (nothing to copy)."""
         return self._rest >= 3
+
+    def step_set(self, delivering: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
+        """:meth:`step` for a caller that writes ActTorque and ActTorqueDerivative (rows 1 and 2) itself after every
+        step that did work (the CiA 402 drive: ActTorque is the drive's 0x6077): the other rows and
+        :attr:`resting` as :meth:`step` leaves them, bit for bit; rows 1 and 2 as the caller wrote them (at rest as
+        :meth:`step` leaves them)."""
+        k = np.count_nonzero(delivering)
+        if not k:
+            self.step(delivering, set_velo, set_acc, set_velo, set_acc)  # (the rest: no model rows needed)
+            return
+        self._rest = 0
+        f0, t0, tmp = self._f0, self._t0, self._tmp0
+        np.multiply(set_acc, self.inertia, out=t0)  # (the operations of step's row 0, in its order)
+        np.multiply(set_velo, self.viscous, out=tmp)
+        t0 += tmp
+        np.sign(set_velo, out=tmp)
+        tmp *= self.coulomb
+        t0 += tmp
+        if self._offset_on:
+            t0 += self.offset
+        if k < self._n:
+            t0 *= delivering
+        f3 = self._f3
+        np.subtract(t0, f0, out=f3)
+        f3 *= self.inv_dt
+        np.copyto(f0, t0)
+        if self._offset_on or self._offset_dirty:
+            np.multiply(self.offset, delivering, out=self._f5)
+            self._offset_dirty = False
 
     def step_actual(self, delivering: np.ndarray, act_velo: np.ndarray, act_acc: np.ndarray) -> None:
         """:meth:`step` for a user of ActTorque alone (the simulated CiA 402 drive's 0x6077): row 1 of

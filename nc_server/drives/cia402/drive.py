@@ -464,7 +464,7 @@ class Cia402Drive(DriveABC):
     def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         m = self.mechanics
         delivering = self.following if not self.faulty else self.following & self.io_valid
-        m.step(delivering, set_velo, set_acc, self.act_velo, self.act_acc)
+        m.step_set(delivering, set_velo, set_acc)  # (ActTorque and its derivative: the drive's, below)
         act = self.tx.torque_actual
         if self.faulty:  # invalid I/O data: no torque shown (the motor gets no set-points)
             act = np.where(self.io_valid, act, 0.0)
