@@ -122,21 +122,24 @@ def _run(core: NcCore, cycles: int) -> str:
             raise AssertionError(f"cycle {k}: NCTOPLC fields differ from the reference: {bad}")
         h.update(got.tobytes())
         h.update(core.ncjobs.tobytes())
+        tx = core.drive.tx  # (the simulated drives' index pulse latches: what homing takes)
+        h.update(tx.probe_status.tobytes())
+        h.update(tx.probe_position.tobytes())
     return h.hexdigest()
 
 
-#: sha256 of every cycle's NCTOPLC and NCJOBS bytes of _run's script, recorded at 6cc55ca (the packing and the
+#: sha256 of every cycle's NCTOPLC and NCJOBS bytes and the drives' probe latches of _run's script, recorded at 6cc55ca (the packing and the
 #: cia402-sim drive before the output stage was made cheaper). A deliberate change of the core's or the simulated
 #: drive's behaviour changes these: record them anew at the commit that makes it (and say so in its message).
 RECORDED = [
     (dict(Modulo=True, AxisEncoderModuloValue=360.0, SimLoadInertia=2e-4), 3000,
-     "9517f0d3345c3a9c588ed0c8d79815cab312b9396600e70f94c55b25dbc8452f"),
+     "f47651a2ea7da5d5d3fb31a9d5cd8472e0ffcc3809f02482ea022f472a83e02e"),
     (dict(AxisEncoderModuloValue=0.1 + 0.2, SimProbePeriod=50.0, SimProbeWidth=10.0), 2500,
-     "e8302b5bb4691151dfa66f5afd8c667a806a34148bcfd56fe4d1c6179eeaba4a"),
+     "a599a62dbfe844ed5b5d59eecd0c651aac5e67b9a1f99fdc38d1cb2e58866160"),
     (dict(AxisEncoderModuloValue=2.0 ** -20), 2500,
-     "6748475f8431d86370dfcf51f786bcb6d3182327c8cdb7b0ffd242fc381940db"),
+     "b1e5e1101a1d8ef2c1654521d9b15739780da44e3adab237e69b88a19b5a5f3f"),
     (dict(AxisEncoderScalingFactor=0.5, SimLoadInertia=3e-4, SimViscousFriction=2e-4), 2500,
-     "1359a8e9c0ec40e8b9196428041bef463f41e60ff74ed969845c40e1ece1317a"),
+     "86969ef4ff2df606dc65c3f2259e6e735aee66f095ec81b76823b550be11ea58"),
 ]
 
 

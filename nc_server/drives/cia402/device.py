@@ -156,6 +156,7 @@ class Cia402Device:
         # _pulses_passed's work arrays
         self._pp_fa, self._pp_fb, self._pp_k = np.zeros(n), np.zeros(n), np.zeros(n)
         self._pp_c, self._pp_c2 = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        self._pp_plain = True  # every pulse offset +0.0 and spacing 1.0: (x - 0.0) / 1.0 is x, bit for bit
         self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
         self._sm_new = self.state
         self._sw_key = b""  # the states of the last statuswords published, and those (shared by the TxImages)
@@ -176,6 +177,8 @@ class Cia402Device:
         self._dec[i] = float(params.AxisDec) / scale
         self._pulse_spacing[i] = float(getattr(params, "SimSyncPulseSpacing", 1.0)) / scale
         self._pulse_offset[i] = self._chain.increments(i, float(getattr(params, "SimSyncPulseOffset", 0.0)))
+        self._pp_plain = (self._pulse_offset.tobytes() == bytes(self._pulse_offset.nbytes)
+                          and bool(np.all(self._pulse_spacing == 1.0)))
         self.mechanics.configure(i, params)
         period = float(getattr(params, "SimProbePeriod", 0.0))
         self._tp2_period[i] = period
@@ -388,11 +391,15 @@ class Cia402Device:
         floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving down, so one test of both needs no
         direction (none holds when fa == fb or either is NaN)."""
         sp, off = self._pulse_spacing, self._pulse_offset
-        fa, fb, k, c, c2 = self._pp_fa, self._pp_fb, self._pp_k, self._pp_c, self._pp_c2
-        np.subtract(self._before, off, out=fa)
-        fa /= sp
-        np.subtract(self.position, off, out=fb)
-        fb /= sp
+        k, c, c2 = self._pp_k, self._pp_c, self._pp_c2
+        if self._pp_plain:  # (the positions themselves are f, bit for bit)
+            fa, fb = self._before, self.position
+        else:
+            fa, fb = self._pp_fa, self._pp_fb
+            np.subtract(self._before, off, out=fa)
+            fa /= sp
+            np.subtract(self.position, off, out=fb)
+            fb /= sp
         np.floor(fb, out=k)
         np.greater(k, fa, out=c)
         np.ceil(fb, out=k)
