@@ -150,6 +150,7 @@ class Cia402Device:
         self._no_torque = np.zeros(n)
         self._age0 = np.zeros(n, dtype=np.int64)
         self._alive = np.ones(n, dtype=bool)
+        self._age0.flags.writeable = self._alive.flags.writeable = False  # (never written: the drive trusts them)
         self._chain = EncoderChain(n)
         self.mechanics = Mechanics(n, cycle_time)
         self._any_fault = False

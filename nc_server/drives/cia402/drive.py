@@ -153,6 +153,11 @@ def reaction_margin_option(opts: Mapping[str, Any], where: str, default: int) ->
     return m, rest
 
 
+def _immutable(a: np.ndarray) -> bool:
+    """``a`` cannot change: read-only and the owner of its data (no writeable base behind it)."""
+    return not a.flags.writeable and a.base is None
+
+
 class Cia402Drive(DriveABC):
     """CiA 402 drives behind a process data link (one column per axis).
 
@@ -225,6 +230,9 @@ class Cia402Drive(DriveABC):
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
         self._no_probe = np.zeros(n, dtype=bool)
         self._pi_key = b""  # (probe_input: the probe status words of its last array)
+        #: the age and alive arrays of inputs last found all fresh and alive, and max_age then (immutable arrays:
+        #: the same ones again need no look)
+        self._fresh: tuple[np.ndarray | None, np.ndarray | None, int] = (None, None, 0)
         self._pi = self._no_probe
         self._probe_new_any = False
         # touch probe 2 (MC_TouchProbe): the probe 2 bits sent, those the core asked for, session bookkeeping
@@ -380,7 +388,13 @@ class Cia402Drive(DriveABC):
         new_velo = c.velocities(tx.velocity_actual)
         new_acc = (new_velo - self.act_velo) / self.cycle_time
         n = len(state)
-        degraded = np.count_nonzero(tx.age > self.max_age) or np.count_nonzero(tx.alive) < n
+        age, alive = tx.age, tx.alive
+        if age is self._fresh[0] and alive is self._fresh[1] and self.max_age == self._fresh[2]:
+            degraded = 0  # (the same immutable arrays found fresh and alive before)
+        else:
+            degraded = np.count_nonzero(age > self.max_age) or np.count_nonzero(alive) < n
+            if not degraded and _immutable(age) and _immutable(alive):
+                self._fresh = (age, alive, self.max_age)
         if degraded or self.faulty:  # (the steady state skips all of this)
             valid = tx.age <= self.max_age
             alive = tx.alive
