@@ -390,7 +390,7 @@ class Cia402Drive(DriveABC):
         n = len(state)
         age, alive = tx.age, tx.alive
         if age is self._fresh[0] and alive is self._fresh[1] and self.max_age == self._fresh[2]:
-            degraded = 0  # (the same immutable arrays found fresh and alive before)
+            degraded: Any = 0  # (the same immutable arrays found fresh and alive before)
         else:
             degraded = np.count_nonzero(age > self.max_age) or np.count_nonzero(alive) < n
             if not degraded and _immutable(age) and _immutable(alive):
