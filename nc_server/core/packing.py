@@ -99,48 +99,65 @@ def _short_mantissas(period: np.ndarray) -> bool:
 
 
 class _Modulo:
-    """``np.divmod(x, period)`` into the records' turns (int32) and modulo position, the same bytes, mostly without
-    the division: from each axis's turns ``q`` of the last cycle, ``r = x - q * period``; where ``0 <= r < period``,
-    ``q`` is floor(x / period) (``q * period`` is exact: short mantissas, ``|q| < 2 ** 30``; ``x - q * period`` is
-    then the correctly rounded remainder, which is what divmod's fmod-and-adjust gives: fmod is exact, and its
-    adjustment ``fmod + period`` rounds the same real number) and ``(q, r)`` is divmod's result (``r + 0.0``: its
-    zero is +0). The other axes (a turn passed, the first cycle, NaN) take ``np.divmod``. Periods that are not short
-    (or not positive and finite) take ``np.divmod`` for all axes."""
+    """``np.divmod(x, period)`` of the actual and the set positions (rows 0 and 1 of one (2, n) block: one pass of
+    vector operations for both) into the records' turns (int32) and modulo positions, the same bytes, mostly
+    without the division: from each position's turns ``q`` of the last cycle, ``r = x - q * period``; where
+    ``0 <= r < period``, ``q`` is floor(x / period) (``q * period`` is exact: short mantissas, ``|q| < 2 ** 30``;
+    ``x - q * period`` is then the correctly rounded remainder, which is what divmod's fmod-and-adjust gives: fmod
+    is exact, and its adjustment ``fmod + period`` rounds the same real number) and ``(q, r)`` is divmod's result
+    (``r + 0.0``: its zero is +0). The other entries (a turn passed, the first cycle, NaN) take ``np.divmod``.
+    Periods that are not short (or not positive and finite) take ``np.divmod`` for all axes. The turns change only
+    where ``np.divmod`` ran: a cycle without such an entry leaves the turns fields as the last call wrote them."""
 
     def __init__(self, n: int) -> None:
-        self.q = np.full(n, np.nan)  # the turns of the last cycle as floats (NaN: unknown or too large)
-        self._turns = np.empty(n)
-        self._r = np.empty(n)
-        self._ok = np.empty(n, dtype=bool)
-        self._ok2 = np.empty(n, dtype=bool)
+        self.q = np.full((2, n), np.nan)  # the turns of the last cycle as floats (NaN: unknown or too large)
+        self._x = np.empty((2, n))
+        self._turns = np.empty((2, n))
+        self._r = np.empty((2, n))
+        self._ok = np.empty((2, n), dtype=bool)
+        self._ok2 = np.empty((2, n), dtype=bool)
         self._key = b""
         self._short = False
+        self._turns_shown = False  # the turns fields hold ``q`` (written by the last call, from this ``q``)
 
-    def __call__(self, x: np.ndarray, period: np.ndarray, turns: np.ndarray, pos: np.ndarray) -> None:
+    def __call__(self, act: np.ndarray, set_pos: np.ndarray, period: np.ndarray, act_turns: np.ndarray,
+                 act_mod: np.ndarray, set_turns: np.ndarray, set_mod: np.ndarray) -> None:
         key = period.tobytes()
         if key != self._key:
             self._key, self._short = key, _short_mantissas(period)
-            self.q[:] = np.nan
+            self.q[...] = np.nan
         if not self._short:
-            np.divmod(x, period, out=(turns, pos), casting="unsafe")
+            np.divmod(act, period, out=(act_turns, act_mod), casting="unsafe")
+            np.divmod(set_pos, period, out=(set_turns, set_mod), casting="unsafe")
+            self._turns_shown = False
             return
-        q, r, ok = self.q, self._r, self._ok
+        q, r, ok, x = self.q, self._r, self._ok, self._x
+        x[0] = act
+        x[1] = set_pos
         np.multiply(q, period, out=r)
         np.subtract(x, r, out=r)
         np.greater_equal(r, 0.0, out=ok)
         ok &= np.less(r, period, out=self._ok2)
-        src = q
-        if np.count_nonzero(ok) < len(ok):
-            bad = (~ok).nonzero()[0]
-            qd, rd = np.divmod(x[bad], period[bad])
+        if np.count_nonzero(ok) < ok.size:
+            bad = (~ok).nonzero()
+            qd, rd = np.divmod(x[bad], period[bad[1]])
             src = self._turns
-            src[:] = q
+            src[...] = q
             src[bad] = qd
             q[bad] = np.where(np.abs(qd) < 2.0 ** 30, qd, np.nan)
             r[bad] = rd
+            self._turns_shown = False  # (written below; shown as ``q`` where |turns| < 2 ** 30 only)
+        elif not self._turns_shown:
+            src = q
+            self._turns_shown = True
+        else:
+            src = None  # (no turn passed: the turns fields stay)
         r += 0.0
-        pos[...] = r
-        np.copyto(turns, src, casting="unsafe")
+        act_mod[...] = r[0]
+        set_mod[...] = r[1]
+        if src is not None:
+            np.copyto(act_turns, src[0], casting="unsafe")
+            np.copyto(set_turns, src[1], casting="unsafe")
 
 
 class NctoplcPacker:
@@ -162,7 +179,9 @@ class NctoplcPacker:
         self.out_torque = np.ndarray((n, 2), np.float64, nctoplc, f8["SetTorque"][1], (NCTOPLC_DTYPE.itemsize, 8))
         self.out_torque2 = np.ndarray((n, 4), np.float64, nctoplc, f8["ActTorqueDerivative"][1],
                                       (NCTOPLC_DTYPE.itemsize, 8))
-        self._act_mod, self._set_mod = _Modulo(n), _Modulo(n)
+        self._mod = _Modulo(n)
+        self._axis_state_key = b""  # (AxisState changes on events only: written when its bytes changed)
+        self._sdw3_src: np.ndarray | None = None  # (the drive's probe input array written last)
 
     def fill(self, core: Any, event_dw: np.ndarray, loop_dw: np.ndarray) -> None:
         """This cycle's values from the axis table, the drive and the set-point words of ``core``."""
@@ -173,10 +192,11 @@ class NctoplcPacker:
             sd |= a.mon_dw
         sd |= (a.enabled & d.ready & d.following) * loop_dw  # (MC_Power.Status: the drive follows)
         o["StateDWord"][...] = sd
-        o["AxisState"][...] = core.axis_state
-        period = a.modulo_factor
+        key = core.axis_state.tobytes()
+        if key != self._axis_state_key:
+            o["AxisState"][...] = core.axis_state
+            self._axis_state_key = key
         o["ActPos"][...] = act
-        self._act_mod(act, period, o["ModuloActTurns"], o["ModuloActPos"])  # divmod: // and %
         o["ActVelo"][...] = d.act_velo
         torque = d.torque_fields()
         if torque is not None:  # (None: all 0 and shown so already)
@@ -189,8 +209,12 @@ class NctoplcPacker:
         if np.count_nonzero(a.continuous):
             np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
-        self._set_mod(a.set_pos, period, o["ModuloSetTurns"], o["ModuloSetPos"])
+        self._mod(act, a.set_pos, a.modulo_factor, o["ModuloActTurns"], o["ModuloActPos"], o["ModuloSetTurns"],
+                  o["ModuloSetPos"])  # divmod: // and %
         corr = core.corrections  # (ActPos less the filtered PLCTONC.PositionCorrection)
         o["ActPosWithoutPosCorrection"][...] = act - corr.pc if corr.any_pc else act
-        o["StateDWord3"][...] = d.probe_input()  # bit 0: TouchProbe1InputState
+        pi = d.probe_input()
+        if pi is not self._sdw3_src:  # (a drive that found its input unchanged hands out the same array)
+            o["StateDWord3"][...] = pi  # bit 0: TouchProbe1InputState
+            self._sdw3_src = pi
         o["DcTimeStamp"][...] = core.nc_time_ns & 0xFFFFFFFF

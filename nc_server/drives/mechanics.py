@@ -55,6 +55,12 @@ class Mechanics:
         self._v = np.zeros((2, n))  # step's work rows: velocities (set, act), torques, one term
         self._t = np.zeros((2, n))
         self._tmp = np.zeros((2, n))
+        # (the views step uses, made once: a slice per use costs more than the operation on a few axes)
+        f, t = self.fields, self._t
+        self._f01, self._f10, self._f23, self._t_rev = f[0:2], f[1::-1], f[2:4], t[::-1]
+        self._v0, self._v1, self._t0, self._t1, self._f5 = self._v[0], self._v[1], t[0], t[1], f[5]
+        self._f1, self._tmp1 = f[1], self._tmp[1]
+        self._f0, self._f3, self._tmp0 = f[0], f[3], self._tmp[0]
 
     def configure(self, i: int, params: AxisParams) -> None:
         k = 100.0 / float(params.SimRatedTorque)
@@ -73,6 +79,58 @@ class Mechanics:
     def resting(self) -> bool:
         """No drive delivers torque and every field was 0 in the last step already (nothing to copy)."""
         return self._rest >= 3
+
+    def step_set(self, delivering: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
+        """:meth:`step` for a caller that writes ActTorque and ActTorqueDerivative (rows 1 and 2) itself after every
+        step that did work (the CiA 402 drive: ActTorque is the drive's 0x6077): the other rows and
+        :attr:`resting` as :meth:`step` leaves them, bit for bit; rows 1 and 2 as the caller wrote them (at rest as
+        :meth:`step` leaves them)."""
+        k = np.count_nonzero(delivering)
+        if not k:
+            self.step(delivering, set_velo, set_acc, set_velo, set_acc)  # (the rest: no model rows needed)
+            return
+        self._rest = 0
+        f0, t0, tmp = self._f0, self._t0, self._tmp0
+        np.multiply(set_acc, self.inertia, out=t0)  # (the operations of step's row 0, in its order)
+        np.multiply(set_velo, self.viscous, out=tmp)
+        t0 += tmp
+        np.sign(set_velo, out=tmp)
+        tmp *= self.coulomb
+        t0 += tmp
+        if self._offset_on:
+            t0 += self.offset
+        if k < self._n:
+            t0 *= delivering
+        f3 = self._f3
+        np.subtract(t0, f0, out=f3)
+        f3 *= self.inv_dt
+        np.copyto(f0, t0)
+        if self._offset_on or self._offset_dirty:
+            np.multiply(self.offset, delivering, out=self._f5)
+            self._offset_dirty = False
+
+    def step_actual(self, delivering: np.ndarray, act_velo: np.ndarray, act_acc: np.ndarray) -> None:
+        """:meth:`step` for a user of ActTorque alone (the simulated CiA 402 drive's 0x6077): row 1 of
+        :attr:`fields` as :meth:`step` computes it, bit for bit, and :attr:`resting`; the other rows are not kept
+        (at 0, or what an earlier :meth:`step` left)."""
+        f1 = self._f1
+        k = np.count_nonzero(delivering)
+        if not k:
+            if self._rest < 3:
+                self._rest += 1
+                if self._rest < 3:
+                    f1[...] = 0.0
+            return
+        self._rest = 0
+        tmp = self._tmp1
+        np.multiply(act_acc, self.inertia, out=f1)  # (the operations of step's row 1, in its order)
+        np.multiply(act_velo, self.viscous, out=tmp)
+        f1 += tmp
+        np.sign(act_velo, out=tmp)
+        tmp *= self.coulomb
+        f1 += tmp
+        if k < self._n:
+            f1 *= delivering
 
     def step(self, delivering: np.ndarray, set_velo: np.ndarray, set_acc: np.ndarray,
              act_velo: np.ndarray, act_acc: np.ndarray) -> None:
@@ -95,24 +153,25 @@ class Mechanics:
         # (into preallocated rows: the same operations on the same values as
         # inertia * acc + viscous * v + coulomb * sign(v), without a new array per term)
         v, t, tmp = self._v, self._t, self._tmp
-        v[0] = set_velo
-        v[1] = act_velo
-        t[0] = set_acc
-        t[1] = act_acc
-        t *= self.inertia
+        np.copyto(self._v0, set_velo)
+        np.copyto(self._v1, act_velo)
+        inertia = self.inertia
+        np.multiply(set_acc, inertia, out=self._t0)  # (the same products as a copy multiplied in place)
+        np.multiply(act_acc, inertia, out=self._t1)
         np.multiply(v, self.viscous, out=tmp)
         t += tmp
         np.sign(v, out=tmp)
         tmp *= self.coulomb
         t += tmp
         if self._offset_on:
-            t[0] += self.offset
+            self._t0 += self.offset
         if k < self._n:
             t *= delivering
         # derivatives from the values shown last cycle (rows 0, 1), in NCTOPLC's order (act, set)
-        np.subtract(t[::-1], f[1::-1], out=f[2:4])
-        f[2:4] *= self.inv_dt
-        f[0:2] = t
+        f23 = self._f23
+        np.subtract(self._t_rev, self._f10, out=f23)
+        f23 *= self.inv_dt
+        np.copyto(self._f01, t)
         if self._offset_on or self._offset_dirty:
-            np.multiply(self.offset, delivering, out=f[5])
+            np.multiply(self.offset, delivering, out=self._f5)
             self._offset_dirty = False

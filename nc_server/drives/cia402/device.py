@@ -150,12 +150,14 @@ class Cia402Device:
         self._no_torque = np.zeros(n)
         self._age0 = np.zeros(n, dtype=np.int64)
         self._alive = np.ones(n, dtype=bool)
+        self._age0.flags.writeable = self._alive.flags.writeable = False  # (never written: the drive trusts them)
         self._chain = EncoderChain(n)
         self.mechanics = Mechanics(n, cycle_time)
         self._any_fault = False
         # _pulses_passed's work arrays
         self._pp_fa, self._pp_fb, self._pp_k = np.zeros(n), np.zeros(n), np.zeros(n)
         self._pp_c, self._pp_c2 = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        self._pp_plain = True  # every pulse offset +0.0 and spacing 1.0: (x - 0.0) / 1.0 is x, bit for bit
         self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
         self._sm_new = self.state
         self._sw_key = b""  # the states of the last statuswords published, and those (shared by the TxImages)
@@ -176,6 +178,8 @@ class Cia402Device:
         self._dec[i] = float(params.AxisDec) / scale
         self._pulse_spacing[i] = float(getattr(params, "SimSyncPulseSpacing", 1.0)) / scale
         self._pulse_offset[i] = self._chain.increments(i, float(getattr(params, "SimSyncPulseOffset", 0.0)))
+        self._pp_plain = (self._pulse_offset.tobytes() == bytes(self._pulse_offset.nbytes)
+                          and bool(np.all(self._pulse_spacing == 1.0)))
         self.mechanics.configure(i, params)
         period = float(getattr(params, "SimProbePeriod", 0.0))
         self._tp2_period[i] = period
@@ -351,10 +355,11 @@ class Cia402Device:
         delivering = oe if stopping is None else oe | stopping
         tv = rx.target_velocity
         s = self._scale
+        # (0x6077 shows the mechanics' ActTorque alone: the set-point's row is not computed)
         if self._unit_scale:  # (x * 1.0 is x, bit for bit: the mechanics copy their inputs)
-            self.mechanics.step(delivering, tv, (tv - self._prev_tv) * self._scale_dt, new_v, new_a)
+            self.mechanics.step_actual(delivering, new_v, new_a)
         else:
-            self.mechanics.step(delivering, tv * s, (tv - self._prev_tv) * self._scale_dt, new_v * s, new_a * s)
+            self.mechanics.step_actual(delivering, new_v * s, new_a * s)
         self._prev_tv = tv
 
     def _latch(self, rx: RxImage) -> None:
@@ -387,11 +392,15 @@ class Cia402Device:
         floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving down, so one test of both needs no
         direction (none holds when fa == fb or either is NaN)."""
         sp, off = self._pulse_spacing, self._pulse_offset
-        fa, fb, k, c, c2 = self._pp_fa, self._pp_fb, self._pp_k, self._pp_c, self._pp_c2
-        np.subtract(self._before, off, out=fa)
-        fa /= sp
-        np.subtract(self.position, off, out=fb)
-        fb /= sp
+        k, c, c2 = self._pp_k, self._pp_c, self._pp_c2
+        if self._pp_plain:  # (the positions themselves are f, bit for bit)
+            fa, fb = self._before, self.position
+        else:
+            fa, fb = self._pp_fa, self._pp_fb
+            np.subtract(self._before, off, out=fa)
+            fa /= sp
+            np.subtract(self.position, off, out=fb)
+            fb /= sp
         np.floor(fb, out=k)
         np.greater(k, fa, out=c)
         np.ceil(fb, out=k)

@@ -153,6 +153,11 @@ def reaction_margin_option(opts: Mapping[str, Any], where: str, default: int) ->
     return m, rest
 
 
+def _immutable(a: np.ndarray) -> bool:
+    """``a`` cannot change: read-only and the owner of its data (no writeable base behind it)."""
+    return not a.flags.writeable and a.base is None
+
+
 class Cia402Drive(DriveABC):
     """CiA 402 drives behind a process data link (one column per axis).
 
@@ -224,6 +229,11 @@ class Cia402Drive(DriveABC):
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
         self._no_probe = np.zeros(n, dtype=bool)
+        self._pi_key = b""  # (probe_input: the probe status words of its last array)
+        #: the age and alive arrays of inputs last found all fresh and alive, and max_age then (immutable arrays:
+        #: the same ones again need no look)
+        self._fresh: tuple[np.ndarray | None, np.ndarray | None, int] = (None, None, 0)
+        self._pi = self._no_probe
         self._probe_new_any = False
         # touch probe 2 (MC_TouchProbe): the probe 2 bits sent, those the core asked for, session bookkeeping
         self._tp_code = np.zeros(n, dtype=np.uint16)
@@ -378,7 +388,13 @@ class Cia402Drive(DriveABC):
         new_velo = c.velocities(tx.velocity_actual)
         new_acc = (new_velo - self.act_velo) / self.cycle_time
         n = len(state)
-        degraded = np.count_nonzero(tx.age > self.max_age) or np.count_nonzero(tx.alive) < n
+        age, alive = tx.age, tx.alive
+        if age is self._fresh[0] and alive is self._fresh[1] and self.max_age == self._fresh[2]:
+            degraded: Any = 0  # (the same immutable arrays found fresh and alive before)
+        else:
+            degraded = np.count_nonzero(age > self.max_age) or np.count_nonzero(alive) < n
+            if not degraded and _immutable(age) and _immutable(alive):
+                self._fresh = (age, alive, self.max_age)
         if degraded or self.faulty:  # (the steady state skips all of this)
             valid = tx.age <= self.max_age
             alive = tx.alive
@@ -462,7 +478,7 @@ class Cia402Drive(DriveABC):
     def _torque(self, set_velo: np.ndarray, set_acc: np.ndarray) -> None:
         m = self.mechanics
         delivering = self.following if not self.faulty else self.following & self.io_valid
-        m.step(delivering, set_velo, set_acc, self.act_velo, self.act_acc)
+        m.step_set(delivering, set_velo, set_acc)  # (ActTorque and its derivative: the drive's, below)
         act = self.tx.torque_actual
         if self.faulty:  # invalid I/O data: no torque shown (the motor gets no set-points)
             act = np.where(self.io_valid, act, 0.0)
@@ -527,8 +543,16 @@ class Cia402Drive(DriveABC):
         self._tp_watch = True  # (the inputs decide: see _exchange)
 
     def probe_input(self) -> np.ndarray:
-        """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14)."""
-        return (self.tx.probe_status & TP2_STATUS_INPUT) != 0
+        """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14). While the probe status
+        words stay (compared by their bytes), the array of the last call again (read-only): the NC's packer then
+        skips writing StateDWord3."""
+        ps = self.tx.probe_status
+        key = ps.tobytes()
+        if key != self._pi_key:
+            pi = (ps & TP2_STATUS_INPUT) != 0
+            pi.flags.writeable = False
+            self._pi_key, self._pi = key, pi
+        return self._pi
 
     def arm_probe(self, rows: np.ndarray) -> None:
         """A new MC_TouchProbe on these rows: the session of probe 2 ends (disabled next cycle, seen disabled in
