@@ -99,6 +99,7 @@ class LossDetector:
         self.last = 0.0       # when the newest log was taken
         self.since = -1e9     # when the standby came in step (the warm-up's start)
         self.gaps: collections.deque[tuple[float, float]] = collections.deque(maxlen=256)
+        self._max_gap = 0.0  # the largest gap in :attr:`gaps` (-1: to be found again)
         self._prev_cycle = 0.0
         self._deferred = False
 
@@ -106,6 +107,7 @@ class LossDetector:
         """In step from a snapshot (or a new role): no gap history, the warm-up starts."""
         self.last = self.since = now
         self.gaps.clear()
+        self._max_gap = 0.0
         self._deferred = False
 
     def log(self, now: float) -> None:
@@ -113,14 +115,21 @@ class LossDetector:
         gap = now - self.last
         self.last = now
         if gap > self.base / 4:  # (gaps within a quarter of the base never raise the limit)
+            if len(self.gaps) == self.gaps.maxlen and self.gaps[0][1] >= self._max_gap:
+                self._max_gap = -1.0  # (the largest is pushed out)
             self.gaps.append((now, gap))
+            if self._max_gap >= 0.0:
+                self._max_gap = max(self._max_gap, gap)
 
     def limit(self, now: float) -> float:
         """The silence [s] that is a loss now."""
         g = self.gaps
         while g and now - g[0][0] > GAP_WINDOW_S:
-            g.popleft()
-        lim = max(self.base, GAP_FACTOR * max((x for _, x in g), default=0.0))
+            if g.popleft()[1] >= self._max_gap:
+                self._max_gap = -1.0  # (the largest went: found again below)
+        if self._max_gap < 0.0 or not g:  # (called every standby cycle: the max of up to 256 gaps only when it changed)
+            self._max_gap = max((x for _, x in g), default=0.0)
+        lim = max(self.base, GAP_FACTOR * self._max_gap)
         if now - self.since < WARMUP_S:
             lim = max(lim, WARMUP_FLOOR_S)
         return max(self.base, min(lim, self.cap))
