@@ -19,6 +19,7 @@ import copy
 import ctypes
 import hashlib
 import io
+import operator
 import pickle
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -28,6 +29,8 @@ import numpy as np
 #: the drive attributes the core reads (DriveABC's); noted after every recorded drive call
 DRIVE_STATE = ("act_pos", "act_velo", "act_acc", "ready", "io_valid", "device_error", "following", "comm_error",
                "error_code", "input_age", "faulty")
+#: the drive's DRIVE_STATE values, as a tuple
+_drive_state = operator.attrgetter(*DRIVE_STATE)
 #: the drive methods the core calls; their results (and the drive's state after them) are noted
 DRIVE_CALLS = frozenset(("step", "configure", "reset", "set_torque_offset", "torque_fields", "latch_sync_pulse",
                          "probe_input", "arm_probe", "latch_probe", "set_probe_signal", "terminal_status", "set_stall",
@@ -99,12 +102,11 @@ class RecordingDrive:
         if name in DRIVE_CALLS:
             def call(*args: Any, **kwargs: Any) -> Any:
                 result = value(*args, **kwargs)
-                inner = self.inner
+                now = _drive_state(self.inner)
                 if self.tape:  # (the values the call before left unchanged: the same objects, pickled once)
-                    prev = self.tape[-1].state
-                    state = tuple(_copy_or(getattr(inner, s), p) for s, p in zip(DRIVE_STATE, prev))
+                    state = tuple(map(_copy_or, now, self.tape[-1].state))
                 else:
-                    state = tuple(_copy(getattr(inner, s)) for s in DRIVE_STATE)
+                    state = tuple(map(_copy, now))
                 self.tape.append(DriveCall(name, _copy(result), state))
                 return result
             return call

@@ -282,7 +282,8 @@ class HotStandby:
         k = self.keys
         self._log_pub = s.declare_publisher(f"{k}/log", congestion_control=zenoh.CongestionControl.DROP,
                                             priority=zenoh.Priority.DATA_HIGH)
-        self._log_sub = s.declare_subscriber(f"{k}/log", FifoChannel(LOG_CHANNEL))
+        # (the peer NC's logs only: the active NC's own samples, every cycle, came back to it to be ignored)
+        self._log_sub = s.declare_subscriber(f"{k}/log", FifoChannel(LOG_CHANNEL), allowed_origin=zenoh.Locality.REMOTE)
         self._status_pub = s.declare_publisher(f"{k}/status/{self.node}")
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
