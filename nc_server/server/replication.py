@@ -144,10 +144,14 @@ class ReplayDrive:
     def simulated_axes(self) -> np.ndarray:
         return self._simulated
 
-    def _set(self, state: tuple[Any, ...]) -> None:
-        for name, v in zip(DRIVE_STATE, state):
-            # (new objects: the core keeps the previous act_pos array as its prev_act_pos)
-            setattr(self, name, _copy(v))
+    def _set(self, state: tuple[Any, ...], prev: tuple[Any, ...] | None = None) -> None:
+        """The drive's state after a call; ``prev``: the state of the call before on the same tape (set then): its
+        objects that the log shares with ``state`` (the values that call left unchanged, :func:`_copy_or`) are
+        set already (the core only reads the drive's arrays)."""
+        for name, v, p in zip(DRIVE_STATE, state, prev or state):
+            if prev is None or v is not p:
+                # (new objects: the core keeps the previous act_pos array as its prev_act_pos)
+                setattr(self, name, _copy(v))
 
     def feed(self, calls: list[DriveCall]) -> None:
         """The drive calls of the next cycle's log."""
@@ -167,8 +171,8 @@ class ReplayDrive:
                 got = self._tape[self._at].name if self._at < len(self._tape) else "nothing"
                 raise ReplicationError(f"the core called drive.{name}, the log has {got} next")
             c = self._tape[self._at]
+            self._set(c.state, self._tape[self._at - 1].state if self._at else None)
             self._at += 1
-            self._set(c.state)
             return _copy(c.result)
         return call
 

@@ -347,3 +347,28 @@ def test_a_drive_state_unchanged_by_a_call_is_logged_once() -> None:
     for a, b in zip(t, back):
         for x, y in zip(a.state, b.state):
             assert np.array_equal(x, y, equal_nan=True) if isinstance(x, np.ndarray) else x == y
+
+
+def test_a_replay_drive_sets_only_what_a_call_changed_and_never_the_logs_objects() -> None:
+    # the log shares the unchanged values of consecutive calls (one object): the replay drive sets those once per
+    # tape; what it sets are copies (the log's objects never become the drive's); a new tape sets everything
+    from nc_server.server.replication import DRIVE_STATE, DriveCall
+
+    base = tuple(np.full(3, float(k)) if s != "faulty" else False for k, s in enumerate(DRIVE_STATE))
+    pos = DRIVE_STATE.index("act_pos")
+    moved = tuple(np.array([9.0, 9.0, 9.0]) if k == pos else v for k, v in enumerate(base))
+    rd = ReplayDrive(base, np.zeros(3, dtype=bool), 0.001)
+    rd.feed([DriveCall("step", None, base), DriveCall("terminal_status", None, base),
+             DriveCall("torque_fields", None, moved)])
+    rd.step()
+    first = {s: getattr(rd, s) for s in DRIVE_STATE}
+    assert all(first[s] is not v for s, v in zip(DRIVE_STATE, base) if isinstance(v, np.ndarray))
+    rd.terminal_status()
+    assert all(getattr(rd, s) is first[s] for s in DRIVE_STATE)  # (the same values: not set again)
+    rd.torque_fields()
+    assert rd.act_pos is not first["act_pos"] and rd.act_pos is not moved[pos] and rd.act_pos[0] == 9.0
+    assert first["act_pos"][0] == 0.0  # (the earlier object, kept by the core as prev_act_pos, untouched)
+    assert rd.pending() == 0
+    rd.feed([DriveCall("step", None, base)])
+    rd.step()
+    assert all(getattr(rd, s) is not first[s] for s, v in zip(DRIVE_STATE, base) if isinstance(v, np.ndarray))
