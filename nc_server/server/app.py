@@ -431,9 +431,11 @@ class NcServer:
             if self._prev_tick and ha.after_stall(now - self._prev_tick):
                 pass  # (replaced while it stalled: a standby now, nothing of the stall is its to handle)
             if ha.before_cycle(now):  # a standby: it follows the active NC, drives and serves nothing
+                self.loop.relaxed = True  # (no spin before its cycles: it drives nothing; CycleLoop)
                 self._prev_tick = now
                 self._take_liveliness(now)  # (its channel drained: the events of the clients are kept current)
                 return
+            self.loop.relaxed = False
         self._tick(now)
 
         self._take_liveliness(now)

@@ -271,6 +271,11 @@ class CycleLoop:
             Isolation, not speed: on a loaded machine the cycle's work takes 3-4 times its quiet cost
             because other processes evict its caches while it sleeps; on a CPU that nothing else uses
             (``isolcpus``, a cpuset, or every other process pinned elsewhere) it keeps them.
+
+    Attributes:
+        relaxed: no spin before the deadlines, a sleep up to them (set by the owner at any time; a hot-standby NC
+            sets it while it is a standby: its cycle drives nothing, and the spin, up to SPIN_NS of every period
+            on a loaded machine, cost it a fifth of a core).
     """
 
     def __init__(self, period_s: float, work: Callable[[int], None], realtime: str = "auto",
@@ -284,6 +289,7 @@ class CycleLoop:
         self.realtime = realtime
         self.rt_priority = rt_priority
         self.stats = CycleStats()
+        self.relaxed = False
         self.stop_event = threading.Event()
         self.started = threading.Event()
         self.error: BaseException | None = None
@@ -358,14 +364,15 @@ class CycleLoop:
         deadline = clock() + period
         while not stop.is_set():
             # Wait: sleep most of it (in slices with idle() between them), spin the end
-            # (yielding the GIL while there is time).
+            # (yielding the GIL while there is time); relaxed: sleep all of it.
+            spun = 0 if self.relaxed else spin
             remaining = deadline - clock()
             if idle is not None:
-                if IDLE_AFTER_WORK and remaining > spin + IDLE_SLICE_NS // 2:
-                    idle(deadline - spin, True)  # what arrived during the work: answered now, not a slice later
+                if IDLE_AFTER_WORK and remaining > spun + IDLE_SLICE_NS // 2:
+                    idle(deadline - spun, True)  # what arrived during the work: answered now, not a slice later
                     remaining = deadline - clock()
-                while remaining > spin + IDLE_SLICE_NS // 2:
-                    t = min(IDLE_SLICE_NS, remaining - spin)
+                while remaining > spun + IDLE_SLICE_NS // 2:
+                    t = min(IDLE_SLICE_NS, remaining - spun)
                     target = deadline - remaining + t
                     if wake is not None:
                         woke = wake.wait(t * 1e-9)
@@ -374,10 +381,10 @@ class CycleLoop:
                         woke = sleep(t * 1e-9)
                     if not woke:  # timed out: how late it returned counts (woken by a request: not)
                         n_err = _record(errors, n_err, clock() - target)
-                    idle(deadline - spin, False)
+                    idle(deadline - spun, False)
                     remaining = deadline - clock()
-            if remaining > spin:
-                target = deadline - spin
+            if remaining > spun:
+                target = deadline - spun
                 sleep(max(0, target - clock()) * 1e-9)
                 n_err = _record(errors, n_err, clock() - target)
             if n_err - n_adapted >= SPIN_EVERY:

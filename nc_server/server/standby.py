@@ -6,7 +6,8 @@ rest of the cycle) and :meth:`HotStandby.after_step` after the active NC's step 
 
 Keys (``nc/<nc>/ha/...``):
 
-* ``log``: every cycle, the active NC's :class:`~.replication.CycleLog` of its last LOG_REPEAT cycles (pickled);
+* ``log``: every cycle, the active NC's :class:`~.replication.CycleLog` of its last LOG_REPEAT cycles (pickled; each as
+  (epoch, cycle, pickled log): the receiver unpickles only what it replays);
 * ``snapshot``: queryable of the active NC: a snapshot to (re)start a follower from;
 * ``active/<node>``: liveliness token of the active NC (its loss is a takeover at once);
 * ``standby/<node>``: liveliness token of a standby in step (the active NC knows a peer can take over);
@@ -98,6 +99,7 @@ class LossDetector:
         self.last = 0.0       # when the newest log was taken
         self.since = -1e9     # when the standby came in step (the warm-up's start)
         self.gaps: collections.deque[tuple[float, float]] = collections.deque(maxlen=256)
+        self._max_gap = 0.0  # the largest gap in :attr:`gaps` (-1: to be found again)
         self._prev_cycle = 0.0
         self._deferred = False
 
@@ -105,6 +107,7 @@ class LossDetector:
         """In step from a snapshot (or a new role): no gap history, the warm-up starts."""
         self.last = self.since = now
         self.gaps.clear()
+        self._max_gap = 0.0
         self._deferred = False
 
     def log(self, now: float) -> None:
@@ -112,14 +115,21 @@ class LossDetector:
         gap = now - self.last
         self.last = now
         if gap > self.base / 4:  # (gaps within a quarter of the base never raise the limit)
+            if len(self.gaps) == self.gaps.maxlen and self.gaps[0][1] >= self._max_gap:
+                self._max_gap = -1.0  # (the largest is pushed out)
             self.gaps.append((now, gap))
+            if self._max_gap >= 0.0:
+                self._max_gap = max(self._max_gap, gap)
 
     def limit(self, now: float) -> float:
         """The silence [s] that is a loss now."""
         g = self.gaps
         while g and now - g[0][0] > GAP_WINDOW_S:
-            g.popleft()
-        lim = max(self.base, GAP_FACTOR * max((x for _, x in g), default=0.0))
+            if g.popleft()[1] >= self._max_gap:
+                self._max_gap = -1.0  # (the largest went: found again below)
+        if self._max_gap < 0.0 or not g:  # (called every standby cycle: the max of up to 256 gaps only when it changed)
+            self._max_gap = max((x for _, x in g), default=0.0)
+        lim = max(self.base, GAP_FACTOR * self._max_gap)
         if now - self.since < WARMUP_S:
             lim = max(lim, WARMUP_FLOOR_S)
         return max(self.base, min(lim, self.cap))
@@ -158,6 +168,10 @@ def drive_links(drive: Any) -> list[Any]:
     inner = getattr(drive, "inner", drive)
     parts = [d for d, _ in getattr(inner, "parts", [])] or [inner]
     return [p.link for p in parts if hasattr(getattr(p, "link", None), "host_epoch")]
+
+
+class _Unusable(Exception):
+    """A log of an ha log sample that cannot be replayed (it did not unpickle, or is not what its header says)."""
 
 
 class HotStandby:
@@ -241,7 +255,7 @@ class HotStandby:
         self._next_status = 0.0
         self._excused = False  # the last cycle served a snapshot
         self._current = False  # (_take_logs) the sample held a log of the highest epoch
-        self._recent: collections.deque[bytes] = collections.deque(maxlen=LOG_REPEAT)
+        self._recent: collections.deque[tuple[int, int, bytes]] = collections.deque(maxlen=LOG_REPEAT)
         self._dt = server.config.cycle_time
         self._silence = settings.takeover_cycles * self._dt
         # the drive hosts learn the pair's takeover bound with the outputs (they warn if their timeout is shorter);
@@ -268,7 +282,8 @@ class HotStandby:
         k = self.keys
         self._log_pub = s.declare_publisher(f"{k}/log", congestion_control=zenoh.CongestionControl.DROP,
                                             priority=zenoh.Priority.DATA_HIGH)
-        self._log_sub = s.declare_subscriber(f"{k}/log", FifoChannel(LOG_CHANNEL))
+        # (the peer NC's logs only: the active NC's own samples, every cycle, came back to it to be ignored)
+        self._log_sub = s.declare_subscriber(f"{k}/log", FifoChannel(LOG_CHANNEL), allowed_origin=zenoh.Locality.REMOTE)
         self._status_pub = s.declare_publisher(f"{k}/status/{self.node}")
         self._active_sub = s.liveliness().declare_subscriber(f"{k}/active/*", FifoChannel(256), history=True)
         self._standby_sub = s.liveliness().declare_subscriber(f"{k}/standby/*", FifoChannel(256), history=True)
@@ -345,7 +360,8 @@ class HotStandby:
         if self._serve_pending:
             self._finish_takeover()
         lg = self.rec.take(self.hrec.take(), self.epoch)
-        self._recent.append(pickle.dumps(lg, protocol=pickle.HIGHEST_PROTOCOL))
+        # (epoch and cycle beside the pickled log: a receiver skips its own logs and the repeats without unpickling)
+        self._recent.append((lg.epoch, lg.cycle, pickle.dumps(lg, protocol=pickle.HIGHEST_PROTOCOL)))
         try:  # (the last LOG_REPEAT logs in each sample: a sample dropped on the way costs no re-sync)
             self._log_pub.put(pickle.dumps(list(self._recent), protocol=pickle.HIGHEST_PROTOCOL))
             self.logs_out += 1
@@ -441,38 +457,54 @@ class HotStandby:
         sub = self._log_sub
         for s in drain(sub):
             try:
-                batch: list[bytes] = pickle.loads(s.payload.to_bytes())
-                logs: list[CycleLog] = [pickle.loads(b) for b in batch]
+                batch: list[tuple[int, int, bytes]] = pickle.loads(s.payload.to_bytes())
+                logs = [(int(e), int(c), bytes(b)) for e, c, b in batch]
             except Exception as exc:
                 log.warning("unusable ha log: %s", exc)
                 continue
             self._current = False
-            for lg in logs:
-                if self._take_log(lg, now):
-                    return
+            for epoch, cycle, data in logs:
+                try:
+                    if self._take_log(epoch, cycle, data, now):
+                        return
+                except _Unusable as exc:
+                    log.warning("unusable ha log: %s", exc)
+                    break
             if self._current and self.role == "standby":
                 # (a sign of life of the NC followed: only logs of the highest epoch; a zombie of a lower one must
                 # not keep the standby from judging the silence of the active NC)
                 self.detector.log(now)
                 self._forgiving = False
 
-    def _take_log(self, lg: CycleLog, now: float) -> bool:
-        """One log of a sample; True: this NC stopped being active (the rest of the sample is not its)."""
+    def _take_log(self, epoch: int, cycle: int, data: bytes, now: float) -> bool:
+        """One log of a sample (its epoch, its cycle and the pickled :class:`CycleLog`, unpickled only when it is
+        replayed or held: the active NC's own logs and the repeats are not); True: this NC stopped being active (the
+        rest of the sample is not its).
+
+        Raises:
+            _Unusable: the log did not unpickle, or its epoch and cycle are not the sample's.
+        """
         if True:
-            if lg.epoch > self.highest:
-                self.highest = lg.epoch
+            if epoch > self.highest:
+                self.highest = epoch
             if self.role == "active":
-                if lg.epoch > self.epoch:
-                    self._become_standby(now, f"an NC of epoch {lg.epoch} is active")
+                if epoch > self.epoch:
+                    self._become_standby(now, f"an NC of epoch {epoch} is active")
                     return True
                 return False  # (its own, or an older NC's: ignored)
-            if lg.epoch < self.highest:
+            if epoch < self.highest:
                 self.stale_logs += 1
                 return False
             self._current = True
             core = self.follower.core
-            if core is not None and not self.follower.waiting and lg.cycle <= core.cycle:
+            if core is not None and not self.follower.waiting and cycle <= core.cycle:
                 return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
+            try:
+                lg: CycleLog = pickle.loads(data)
+            except Exception as exc:
+                raise _Unusable(f"cycle {cycle}: {exc}") from None
+            if lg.epoch != epoch or lg.cycle != cycle:
+                raise _Unusable(f"a log of epoch {lg.epoch} cycle {lg.cycle} sent as epoch {epoch} cycle {cycle}")
             self.logs_in += 1
             self._last_log = now
             if self.follower.apply(lg):

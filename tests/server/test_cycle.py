@@ -152,3 +152,40 @@ def test_impossible_cpus_refuse_to_start() -> None:
     loop = CycleLoop(0.001, lambda d: None, realtime="off", cpus=frozenset({4096}))
     with pytest.raises(cycle_mod.AffinityError, match="cpu_affinity"):
         loop.start()
+
+
+def test_a_relaxed_loop_sleeps_up_to_its_deadlines_without_spinning(monkeypatch: pytest.MonkeyPatch) -> None:
+    # a hot-standby NC's cycle while it is a standby (NcServer.cycle sets relaxed): no spin, no yield loop; the
+    # deadlines stay on the grid; set back to False, the loop spins again
+    yields = [0]
+    real = os.sched_yield
+
+    def counted() -> None:
+        yields[0] += 1
+        real()
+
+    monkeypatch.setattr(os, "sched_yield", counted)
+    deadlines: list[int] = []
+    woke: list[int] = []
+    loop: CycleLoop
+
+    def work(deadline_ns: int) -> None:
+        woke.append(time.monotonic_ns() - deadline_ns)
+        deadlines.append(deadline_ns)
+        if len(deadlines) == 30:
+            assert yields[0] == 0  # (relaxed: never spun)
+            loop.relaxed = False
+        if len(deadlines) >= 60:
+            loop.stop_event.set()
+
+    loop = CycleLoop(0.002, work, realtime="off")
+    loop.relaxed = True
+    loop.start()
+    end = time.monotonic() + 60
+    while loop.alive and time.monotonic() < end:
+        time.sleep(0.01)
+    loop.stop()
+    assert loop.error is None and len(deadlines) >= 60
+    assert all(w >= 0 for w in woke)  # (never before a deadline)
+    assert {(b - a) % loop.period_ns for a, b in zip(deadlines, deadlines[1:])} == {0}
+    assert yields[0] > 0  # (spinning again once not relaxed)

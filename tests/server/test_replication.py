@@ -2,6 +2,7 @@
 behind a CoreRecorder, followers replaying its logs; digests, snapshot joins, re-syncs, the handler's state."""
 from __future__ import annotations
 
+import pickle
 from types import SimpleNamespace
 from typing import Any
 
@@ -305,3 +306,69 @@ def test_a_touch_probe_armed_again_is_replayed() -> None:
     assert armings == 2
     assert int(act.core.ncjobs[0]["ProbeCounter"]) == 1 and int(act.core.ncjobs[0]["ProbeState"]) == int(CmdState.DONE)
     assert f.diverged == 0 and not reasons
+
+
+def test_a_drive_state_unchanged_by_a_call_is_logged_once() -> None:
+    # the state after each drive call of a cycle: an array the call left as it was is the object of the call before
+    # (pickled once); one it changed, in place or not, is a copy of its new values; none is the drive's own object
+    from nc_server.server.replication import DRIVE_STATE, RecordingDrive
+
+    class Drive:
+        def __init__(self) -> None:
+            for k, s in enumerate(DRIVE_STATE):
+                setattr(self, s, np.full(4, float(k)) if s != "faulty" else False)
+            self.act_pos[:] = [1.0, np.nan, -0.0, 2.0]
+
+        def step(self) -> None:
+            pass
+
+        def terminal_status(self) -> None:
+            self.act_pos[1] = 5.0  # (in place)
+
+        def torque_fields(self) -> None:
+            self.act_velo = self.act_velo + 1.0  # (a new array)
+
+        def probe_input(self) -> np.ndarray:
+            return np.zeros(4, dtype=bool)
+
+    inner = Drive()
+    rd = RecordingDrive(inner)
+    rd.step()
+    rd.probe_input()
+    rd.terminal_status()
+    rd.torque_fields()
+    t = rd.tape
+    assert all(a is b for a, b in zip(t[0].state, t[1].state))  # (NaN and -0.0 compared by their bytes)
+    pos, velo = DRIVE_STATE.index("act_pos"), DRIVE_STATE.index("act_velo")
+    assert t[2].state[pos] is not t[1].state[pos] and t[2].state[pos][1] == 5.0 and np.isnan(t[1].state[pos][1])
+    assert t[3].state[velo] is not t[2].state[velo] and t[3].state[velo][0] == 2.0 and t[2].state[velo][0] == 1.0
+    assert all(x is not getattr(inner, s) for c in t for s, x in zip(DRIVE_STATE, c.state) if isinstance(x, np.ndarray))
+    back = pickle.loads(pickle.dumps(t))
+    for a, b in zip(t, back):
+        for x, y in zip(a.state, b.state):
+            assert np.array_equal(x, y, equal_nan=True) if isinstance(x, np.ndarray) else x == y
+
+
+def test_a_replay_drive_sets_only_what_a_call_changed_and_never_the_logs_objects() -> None:
+    # the log shares the unchanged values of consecutive calls (one object): the replay drive sets those once per
+    # tape; what it sets are copies (the log's objects never become the drive's); a new tape sets everything
+    from nc_server.server.replication import DRIVE_STATE, DriveCall
+
+    base = tuple(np.full(3, float(k)) if s != "faulty" else False for k, s in enumerate(DRIVE_STATE))
+    pos = DRIVE_STATE.index("act_pos")
+    moved = tuple(np.array([9.0, 9.0, 9.0]) if k == pos else v for k, v in enumerate(base))
+    rd = ReplayDrive(base, np.zeros(3, dtype=bool), 0.001)
+    rd.feed([DriveCall("step", None, base), DriveCall("terminal_status", None, base),
+             DriveCall("torque_fields", None, moved)])
+    rd.step()
+    first = {s: getattr(rd, s) for s in DRIVE_STATE}
+    assert all(first[s] is not v for s, v in zip(DRIVE_STATE, base) if isinstance(v, np.ndarray))
+    rd.terminal_status()
+    assert all(getattr(rd, s) is first[s] for s in DRIVE_STATE)  # (the same values: not set again)
+    rd.torque_fields()
+    assert rd.act_pos is not first["act_pos"] and rd.act_pos is not moved[pos] and rd.act_pos[0] == 9.0
+    assert first["act_pos"][0] == 0.0  # (the earlier object, kept by the core as prev_act_pos, untouched)
+    assert rd.pending() == 0
+    rd.feed([DriveCall("step", None, base)])
+    rd.step()
+    assert all(getattr(rd, s) is not first[s] for s, v in zip(DRIVE_STATE, base) if isinstance(v, np.ndarray))

@@ -124,3 +124,26 @@ def test_the_active_nc_demotes_itself_for_a_stall_near_its_standbys_limit() -> N
     assert hs.role == "active"
     assert hs.after_stall(0.240)  # > 0.75 x 0.3: the standby may have taken over (its last log came late)
     assert hs.role == "standby" and hs._grace == pytest.approx(max(2.0, 2 * 0.225 + 0.1))
+
+
+def test_the_limit_follows_the_largest_gap_as_gaps_come_and_go() -> None:
+    # limit() keeps the largest gap instead of scanning up to 256 gaps every standby cycle: the same limits as a scan
+    import random
+    from nc_server.server.standby import GAP_WINDOW_S
+    rnd = random.Random(5)
+    d = LossDetector(0.015, 10.0)
+    d.restart(0.0)
+    now, full = 0.0, False
+    for k in range(20000):
+        now += rnd.choice((0.001, 0.004, 0.004, 0.005, 0.006, 0.02, 0.004 + 0.05 * rnd.random(), 0.4 * rnd.random()))
+        d.log(now)
+        if k == 10000:
+            d.gaps.clear()
+        lim = d.limit(now)
+        scan = max((x for t, x in d.gaps if now - t <= GAP_WINDOW_S), default=0.0)
+        full = full or len(d.gaps) == d.gaps.maxlen
+        want = max(d.base, GAP_FACTOR * scan)
+        if now - d.since < WARMUP_S:
+            want = max(want, WARMUP_FLOOR_S)
+        assert lim == max(d.base, min(want, d.cap))
+    assert full  # (the deque's maxlen pushed gaps out too)

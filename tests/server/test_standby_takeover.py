@@ -237,7 +237,7 @@ def test_failed_declarations_of_a_takeover_are_tried_again_while_the_nc_drives()
 
 def sample(epoch: int, cycle: int) -> bytes:
     lg = SimpleNamespace(epoch=epoch, cycle=cycle)
-    return pickle.dumps([pickle.dumps(lg)])
+    return pickle.dumps([(epoch, cycle, pickle.dumps(lg))])
 
 
 def test_logs_of_a_lower_epoch_do_not_reset_the_silence() -> None:
@@ -633,3 +633,36 @@ def test_a_node_name_too_long_for_the_frames_view_is_a_config_error() -> None:
     assert _redundancy({"redundancy": {"node": "n" * NODE_MAX}}, None).node == "n" * NODE_MAX
     with pytest.raises(ConfigError, match="ha-<node>"):
         _redundancy({"redundancy": {"node": "n" * (NODE_MAX + 1)}}, None)
+
+
+def test_only_the_logs_replayed_are_unpickled() -> None:
+    # the active NC receives its own log samples (8 logs each, every cycle) and a standby in step the repeats: both are
+    # judged by the (epoch, cycle) beside each pickled log; unpickling them all cost most of a 1 ms cycle
+    act, hs, drive = pair()
+    junk = b"not a pickle"
+    hs.role, hs.epoch, hs.highest = "active", 6 << 16, 6 << 16
+    sub = FakeSub()
+    hs._log_sub = sub
+    sub.put(pickle.dumps([(6 << 16, c, junk) for c in range(10, 18)]))  # its own: never unpickled
+    hs._take_logs(1.0)
+    assert hs.role == "active"
+    demoted: list[str] = []
+    hs._become_standby = lambda now, why: demoted.append(why)  # type: ignore[method-assign]
+    sub.put(pickle.dumps([(7 << 16, 20, junk)]))  # a higher epoch's: demotes on its header alone
+    hs._take_logs(1.1)
+    assert demoted and hs.highest == 7 << 16
+    # a standby in step at cycle 100: the repeats (cycle <= 100) are not unpickled, the next log is, and applied
+    hs.role, hs.epoch = "standby", 0
+    hs.synced_once, hs.follower.waiting = True, False
+    hs.follower.core = SimpleNamespace(cycle=100)  # type: ignore[assignment]
+    applied: list[int] = []
+    hs.follower.apply = lambda lg: applied.append(lg.cycle) or False  # type: ignore[method-assign]
+    sub.put(pickle.dumps([(7 << 16, c, junk) for c in range(94, 101)]
+                         + [(7 << 16, 101, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=101)))]))
+    hs._take_logs(1.2)
+    assert applied == [101] and hs.logs_in == 1
+    # a log that is not what its header says is unusable (the rest of the sample too), nothing applied
+    sub.put(pickle.dumps([(7 << 16, 102, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=105))),
+                          (7 << 16, 103, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=103)))]))
+    hs._take_logs(1.3)
+    assert applied == [101]
