@@ -220,6 +220,8 @@ class HotStandby:
         self.snapshots_served = 0
         self.snapshot_s = 0.0  # the longest snapshot built in the cycle thread (it makes that cycle late)
         self.stale_logs = 0
+        self.unusable_logs = 0  # ha logs that did not unpickle (a peer of another release)
+        self._unusable_warned = -1e9
         #: silences of the logs forgiven because the active NC's frames showed its Cycle going on (a takeover then
         #: would have started from a state behind what the clients saw: their Cycle would go back, an NC restart)
         self.frames_alive = 0
@@ -460,7 +462,7 @@ class HotStandby:
                 batch: list[tuple[int, int, bytes]] = pickle.loads(s.payload.to_bytes())
                 logs = [(int(e), int(c), bytes(b)) for e, c, b in batch]
             except Exception as exc:
-                log.warning("unusable ha log: %s", exc)
+                self._warn_unusable(now, exc)
                 continue
             self._current = False
             for epoch, cycle, data in logs:
@@ -468,13 +470,22 @@ class HotStandby:
                     if self._take_log(epoch, cycle, data, now):
                         return
                 except _Unusable as exc:
-                    log.warning("unusable ha log: %s", exc)
+                    self._warn_unusable(now, exc)
                     break
             if self._current and self.role == "standby":
                 # (a sign of life of the NC followed: only logs of the highest epoch; a zombie of a lower one must
                 # not keep the standby from judging the silence of the active NC)
                 self.detector.log(now)
                 self._forgiving = False
+
+    def _warn_unusable(self, now: float, exc: Exception) -> None:
+        """Log an unusable ha log at most every 5 s (a peer of another release sends 1000 a second: both NCs of a
+        pair must run the same release, the logs are pickles of its classes)."""
+        self.unusable_logs += 1
+        if now - self._unusable_warned >= 5.0:
+            self._unusable_warned = now
+            log.warning("unusable ha log (%d so far; both NCs of a pair must run the same release): %s",
+                        self.unusable_logs, exc)
 
     def _take_log(self, epoch: int, cycle: int, data: bytes, now: float) -> bool:
         """One log of a sample (its epoch, its cycle and the pickled :class:`CycleLog`, unpickled only when it is
@@ -484,32 +495,31 @@ class HotStandby:
         Raises:
             _Unusable: the log did not unpickle, or its epoch and cycle are not the sample's.
         """
-        if True:
-            if epoch > self.highest:
-                self.highest = epoch
-            if self.role == "active":
-                if epoch > self.epoch:
-                    self._become_standby(now, f"an NC of epoch {epoch} is active")
-                    return True
-                return False  # (its own, or an older NC's: ignored)
-            if epoch < self.highest:
-                self.stale_logs += 1
-                return False
-            self._current = True
-            core = self.follower.core
-            if core is not None and not self.follower.waiting and cycle <= core.cycle:
-                return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
-            try:
-                lg: CycleLog = pickle.loads(data)
-            except Exception as exc:
-                raise _Unusable(f"cycle {cycle}: {exc}") from None
-            if lg.epoch != epoch or lg.cycle != cycle:
-                raise _Unusable(f"a log of epoch {lg.epoch} cycle {lg.cycle} sent as epoch {epoch} cycle {cycle}")
-            self.logs_in += 1
-            self._last_log = now
-            if self.follower.apply(lg):
-                self.synced_once = True
-                self._declare_standby(True)
+        if epoch > self.highest:
+            self.highest = epoch
+        if self.role == "active":
+            if epoch > self.epoch:
+                self._become_standby(now, f"an NC of epoch {epoch} is active")
+                return True
+            return False  # (its own, or an older NC's: ignored)
+        if epoch < self.highest:
+            self.stale_logs += 1
+            return False
+        self._current = True  # (the sample came from the NC followed: a sign of life even if a log of it is unusable)
+        core = self.follower.core
+        if core is not None and not self.follower.waiting and cycle <= core.cycle:
+            return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
+        try:
+            lg: CycleLog = pickle.loads(data)
+        except Exception as exc:
+            raise _Unusable(f"cycle {cycle}: {exc}") from None
+        if lg.epoch != epoch or lg.cycle != cycle:
+            raise _Unusable(f"a log of epoch {lg.epoch} cycle {lg.cycle} sent as epoch {epoch} cycle {cycle}")
+        self.logs_in += 1
+        self._last_log = now
+        if self.follower.apply(lg):
+            self.synced_once = True
+            self._declare_standby(True)
         return False
 
     def _ask_snapshot(self, now: float) -> None:
@@ -893,7 +903,8 @@ class HotStandby:
                 "takeover_ms": round(self.takeover_s * 1e3, 3), "takeover_cycles": self.takeover_cycles,
                 "takeover_detect_ms": round(self.detect_s * 1e3, 3), "takeover_work_ms": round(self.work_s * 1e3, 3),
                 "takeover_serve_ms": round(self.serve_s * 1e3, 3),
-                "catch_up_cycles": self.catch_up, "frames_alive": self.frames_alive, "takeover_limit_cycles": limit,
+                "catch_up_cycles": self.catch_up, "frames_alive": self.frames_alive, "stale_logs": self.stale_logs,
+                "unusable_logs": self.unusable_logs, "takeover_limit_cycles": limit,
                 "takeover_limit_ms": round(self.takeover_limit_ms, 3),
                 "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
 

@@ -3,6 +3,7 @@ at a takeover, the epoch of a retake after a demotion, the confirmation of a new
 declarations' failures, the status read from another thread, the logs of a lower epoch."""
 from __future__ import annotations
 
+import logging
 import pickle
 import time
 from types import SimpleNamespace
@@ -666,3 +667,24 @@ def test_only_the_logs_replayed_are_unpickled() -> None:
                           (7 << 16, 103, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=103)))]))
     hs._take_logs(1.3)
     assert applied == [101]
+
+
+def test_unusable_logs_are_counted_and_warned_at_most_every_5_s(caplog: pytest.LogCaptureFixture) -> None:
+    # a peer of another release sends logs this release cannot read, 1000 a second: counted (ha status), nothing
+    # applied, a warning every 5 s rather than one per sample
+    act, hs, drive = pair()
+    hs.role, hs.epoch, hs.highest = "standby", 0, 7 << 16
+    hs.synced_once, hs.follower.waiting = True, False
+    hs.follower.core = SimpleNamespace(cycle=100)  # type: ignore[assignment]
+    applied: list[int] = []
+    hs.follower.apply = lambda lg: applied.append(lg.cycle) or False  # type: ignore[method-assign]
+    sub = FakeSub()
+    hs._log_sub = sub
+    with caplog.at_level(logging.WARNING, logger="nc_server"):
+        for k in range(50):
+            sub.put(b"\x80\x05 an older release's payload" if k % 2 else pickle.dumps([(7 << 16, 101 + k, b"junk")]))
+            hs._take_logs(1.0 + k * 0.001)
+        sub.put(pickle.dumps([(7 << 16, 200, b"junk")]))
+        hs._take_logs(6.5)
+    assert applied == [] and hs.unusable_logs == 51 and hs.status()["unusable_logs"] == 51
+    assert len([r for r in caplog.records if "unusable ha log" in r.getMessage()]) == 2
