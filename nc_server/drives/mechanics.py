@@ -32,6 +32,16 @@ from ..core.params import AxisParams
 OFFSET_LIMIT = 1000.0
 
 
+
+def _add_friction(t: np.ndarray, v: np.ndarray, tmp: np.ndarray, viscous: np.ndarray, coulomb: np.ndarray) -> None:
+    """``t += viscous * v`` then ``t += coulomb * sign(v)``, in place through ``tmp`` (the model's friction terms:
+    the same operations in the same order wherever a row is computed, so rows agree bit for bit)."""
+    np.multiply(v, viscous, out=tmp)
+    t += tmp
+    np.sign(v, out=tmp)
+    tmp *= coulomb
+    t += tmp
+
 class Mechanics:
     """Torques of all axes (columns indexed like the drive's axes).
 
@@ -92,11 +102,7 @@ class Mechanics:
         self._rest = 0
         f0, t0, tmp = self._f0, self._t0, self._tmp0
         np.multiply(set_acc, self.inertia, out=t0)  # (the operations of step's row 0, in its order)
-        np.multiply(set_velo, self.viscous, out=tmp)
-        t0 += tmp
-        np.sign(set_velo, out=tmp)
-        tmp *= self.coulomb
-        t0 += tmp
+        _add_friction(t0, set_velo, tmp, self.viscous, self.coulomb)
         if self._offset_on:
             t0 += self.offset
         if k < self._n:
@@ -124,11 +130,7 @@ class Mechanics:
         self._rest = 0
         tmp = self._tmp1
         np.multiply(act_acc, self.inertia, out=f1)  # (the operations of step's row 1, in its order)
-        np.multiply(act_velo, self.viscous, out=tmp)
-        f1 += tmp
-        np.sign(act_velo, out=tmp)
-        tmp *= self.coulomb
-        f1 += tmp
+        _add_friction(f1, act_velo, tmp, self.viscous, self.coulomb)
         if k < self._n:
             f1 *= delivering
 
@@ -158,11 +160,7 @@ class Mechanics:
         inertia = self.inertia
         np.multiply(set_acc, inertia, out=self._t0)  # (the same products as a copy multiplied in place)
         np.multiply(act_acc, inertia, out=self._t1)
-        np.multiply(v, self.viscous, out=tmp)
-        t += tmp
-        np.sign(v, out=tmp)
-        tmp *= self.coulomb
-        t += tmp
+        _add_friction(t, v, tmp, self.viscous, self.coulomb)
         if self._offset_on:
             self._t0 += self.offset
         if k < self._n:
