@@ -82,6 +82,13 @@ def log_in(drv: Any, web: NcWebProcess, user: str, password: str) -> None:
     drv.find_element(By.ID, "login-submit").click()
 
 
+def cmd_result(drv: Any) -> Any:
+    """The page's command result once there is one (a str is "not yet" to wait_until: the text comes in a list);
+    an empty one is not yet (a list holding "" was truthy: the wait returned before the reply came)."""
+    text = drv.find_element(By.ID, "cmd-result").text
+    return [text] if text else "no result yet"
+
+
 def on_nc_page(drv: Any, web: NcWebProcess, user: str) -> None:
     """Logged in as ``user`` and the page shows the NC's 4 axes with live data."""
     log_in(drv, web, user, f"{user}-pw")
@@ -121,8 +128,7 @@ def test_values_move_and_the_jog_moves_only_while_held(browser: Any, web: NcWebP
     wait_until(lambda: "selected" in str(browser.find_element(By.ID, "axis-1").get_attribute("class")), 30,
                "axis 1 selected", interval=0.1)
     browser.find_element(By.ID, "enable").click()
-    result = wait_until(lambda: [browser.find_element(By.ID, "cmd-result").text] * 2, 60, "Power's result",
-                        interval=0.1)[0]  # (a list: until.done takes a str for "not yet")
+    result = wait_until(lambda: cmd_result(browser), 60, "Power's result", interval=0.1)[0]
     assert result == "accepted"
     wait_until(lambda: claims(watch).get(1) == "web.alice", 30, "axis 1 held by web.alice", interval=0.1)
     wait_until(lambda: cell(browser, 1, 6).startswith("STANDSTILL"), 60, "axis 1 enabled on the page", interval=0.1)
@@ -133,8 +139,7 @@ def test_values_move_and_the_jog_moves_only_while_held(browser: Any, web: NcWebP
         el.send_keys(value)
     browser.execute_script("document.getElementById('cmd-result').textContent = ''")
     browser.find_element(By.ID, "moveabs").click()
-    result = wait_until(lambda: [browser.find_element(By.ID, "cmd-result").text] * 2, 60, "MoveAbsolute's result",
-                        interval=0.1)[0]
+    result = wait_until(lambda: cmd_result(browser), 60, "MoveAbsolute's result", interval=0.1)[0]
     assert result == "accepted"
     seen = {act_pos(browser, 1)}
     wait_until(lambda: seen.add(act_pos(browser, 1)) or len(seen) >= 3, 30, "ActPos moving on the page",
