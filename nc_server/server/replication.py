@@ -528,10 +528,10 @@ class Follower:
         try:
             replay(self.core, log)
         except ReplicationError as exc:
-            self._lost(str(exc), diverged="digest" in str(exc))
+            self.lose(str(exc), diverged="digest" in str(exc))
             return False
         except Exception as exc:  # the replay met a bug: the core is unknown now
-            self._lost(f"replay failed: {exc.__class__.__name__}: {exc}", diverged=True)
+            self.lose(f"replay failed: {exc.__class__.__name__}: {exc}", diverged=True)
             return False
         self.lag = 0
         self.applied += 1
@@ -539,7 +539,9 @@ class Follower:
             self.on_handler(self.handler_state, log.handler)
         return True
 
-    def _lost(self, reason: str, diverged: bool) -> None:
+    def lose(self, reason: str, diverged: bool) -> None:
+        """Out of step: wait for a snapshot (``on_resync(reason)``); ``diverged``: the replay disagreed with the
+        active NC (a digest, a bug), counted in :attr:`diverged`."""
         self.waiting = True
         if diverged:
             self.diverged += 1

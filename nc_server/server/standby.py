@@ -580,7 +580,8 @@ class HotStandby:
             self._lost_why = "its token went"
             return True
         if self.detector.silent(now):
-            if now - self._frame_alive <= self.detector.limit(now):
+            limit = self.detector.limit(now)
+            if now - self._frame_alive <= limit:
                 # (bounded: the logs go CongestionControl.DROP and are heavy, under load all of them may drop while
                 # the frames get through; a standby forgiving that for ever stays "in step" on a state seconds old,
                 # and a later kill, its token gone, would take over from it: a SetPos jump, the Cycle going back)
@@ -588,9 +589,9 @@ class HotStandby:
                 behind = (self._frame_cycle - int(self.core.cycle)) * self._dt \
                     if self._frame_epoch == self.highest else 0.0
                 if max(quiet, behind) > self.detector.cap:
-                    self.follower._lost(f"no log for {quiet * 1e3:.0f} ms while the frames go on (frame cycle "
-                                        f"{self._frame_cycle}, this standby at {self.core.cycle}; cap "
-                                        f"{self.detector.cap * 1e3:.0f} ms)", False)
+                    self.follower.lose(f"no log for {quiet * 1e3:.0f} ms while the frames go on (frame cycle "
+                                       f"{self._frame_cycle}, this standby at {self.core.cycle}; cap "
+                                       f"{self.detector.cap * 1e3:.0f} ms)", False)
                     return False
                 # the active NC's frames show its Cycle going on: it lives, only its logs are late (the heavy ones:
                 # 8 cycles' logs a sample, every cycle, through zenoh and the router). Taking over now would start
@@ -602,10 +603,9 @@ class HotStandby:
                     self.frames_alive += 1
                     log.info("standby %s: no log for %.0f ms (limit %.0f) but the active NC's frames go on (cycle %d, "
                              "this standby at %d): no takeover", self.node, (now - self.detector.last) * 1e3,
-                             self.detector.limit(now) * 1e3, self._frame_cycle, self.core.cycle)
+                             limit * 1e3, self._frame_cycle, self.core.cycle)
                 return False
-            self._lost_why = (f"no log for {(now - self.detector.last) * 1e3:.0f} ms, limit "
-                              f"{self.detector.limit(now) * 1e3:.0f}")
+            self._lost_why = f"no log for {(now - self.detector.last) * 1e3:.0f} ms, limit {limit * 1e3:.0f}"
             return True
         return False
 
