@@ -196,7 +196,8 @@ class NcServer:
                            watch=lambda: self.publisher.watch() if self.publisher is not None else None,
                            rt_priority=None if config.realtime == "off" or config.rt_priority < 2 else config.rt_priority - 1,
                            durability=None if retain is None else lambda: (retain.settled, retain.durable),
-                           not_kept=self.handler.not_kept)
+                           not_kept=self.handler.not_kept,
+                           others_nice=None if config.realtime == "off" else IO_NICE)
         if retain is not None:
             retain.on_settled = self.io.wake  # held replies go out once their commit is in the file
         if config.redundancy.enabled:

@@ -179,6 +179,32 @@ def demote_other_threads(keep: set[int]) -> list[int]:
     return out
 
 
+def raise_other_threads(keep: set[int], nice: int) -> list[int]:
+    """Give every normal-policy thread of this process not in ``keep`` (native thread ids) at a nice value above
+    ``nice`` that value; the ids it changed (Linux; elsewhere nothing).
+
+    :func:`raise_io_priority` gives it to the threads created from the thread that called it; zenoh creates its
+    runtimes' threads (tx, rx, app, net) lazily, at their first use, and one created from a SCHED_FIFO thread runs
+    at nice 0 (SCHED_RESET_ON_FORK resets a negative nice too): seen in a hot-standby pair, its zenoh threads at
+    nice 0 behind the clients' processes while the logs they carry were late.
+    """
+    out: list[int] = []
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except (OSError, ValueError):
+        return out
+    for tid in tids:
+        if tid in keep:
+            continue
+        try:
+            if not is_realtime(tid) and os.getpriority(os.PRIO_PROCESS, tid) > nice:
+                os.setpriority(os.PRIO_PROCESS, tid, nice)
+                out.append(tid)
+        except OSError:  # the thread ended meanwhile, or not permitted
+            pass
+    return out
+
+
 def _reduce_timer_slack() -> None:
     """Ask for 1 us timer slack (default 50 us) so normal-priority sleeps end closer to the deadline."""
     try:

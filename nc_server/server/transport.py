@@ -52,7 +52,7 @@ from nc_schema.tls import apply_tls
 from nc_server.core.remote import MasterSample
 
 from .config import ZenohSettings
-from .cycle import demote_other_threads, set_realtime
+from .cycle import demote_other_threads, raise_other_threads, set_realtime
 
 log = logging.getLogger("nc_server.server")
 
@@ -554,6 +554,8 @@ class IoThread:
         cycle_source: returns the NC's current cycle.
         rt_threads: see :attr:`rt_threads`.
         nice: the thread's nice value (``cycle.IO_THREAD_NICE``), set when it starts; None: inherited.
+        others_nice: the nice value the process's other normal-policy threads get (``cycle.IO_NICE``: zenoh's
+            threads, made lazily, some from the SCHED_FIFO cycle thread), every DEMOTE_PERIOD; None: left alone.
         watch: called every STATS_PERIOD (None: nothing).
         rt_priority: if given, the thread runs SCHED_FIFO at this priority (below the cycle thread's; with
             SCHED_RESET_ON_FORK, so the threads and processes it makes do not), else with ``nice``.
@@ -580,7 +582,7 @@ class IoThread:
                  rt_threads: Callable[[], set[int]] | None = None, nice: int | None = None,
                  watch: Callable[[], None] | None = None, rt_priority: int | None = None,
                  durability: Callable[[], tuple[int, int]] | None = None,
-                 not_kept: Callable[[bytes, bool], bytes] | None = None) -> None:
+                 not_kept: Callable[[bytes, bool], bytes] | None = None, others_nice: int | None = None) -> None:
         self.t = transport
         self.durability = durability
         self.not_kept = not_kept or (lambda reply, late: reply)
@@ -606,6 +608,10 @@ class IoThread:
         #: it is set back to normal every DEMOTE_PERIOD (see cycle.demote_other_threads)
         self.rt_threads = rt_threads
         self.demoted: list[int] = []
+        #: the nice value every other normal-policy thread of the process gets every DEMOTE_PERIOD (None: left
+        #: alone; see cycle.raise_other_threads), and how many times one was given it
+        self.others_nice = others_nice
+        self.raised = 0
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.put_errors = 0
         self.errors = 0  # exceptions caught in its loop (a bug)
@@ -710,6 +716,8 @@ class IoThread:
                     keep = self.rt_threads() if self.rt_threads is not None else set()
                     if keep:
                         self.demoted += demote_other_threads(keep)
+                    if self.others_nice is not None:
+                        self.raised += len(raise_other_threads(keep | {threading.get_native_id()}, self.others_nice))
                 if self.watch is not None and running:
                     self.watch()
             except Exception:  # never let anything end the I/O thread (the replies would pile up)

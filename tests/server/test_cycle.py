@@ -222,3 +222,39 @@ def test_a_relaxed_fifo_loop_runs_sched_other_until_it_drives_again() -> None:
     fifo = os.SCHED_FIFO
     assert all(p == fifo for n, p, _ in seen if n < 5 or n >= 15)
     assert all(p == os.SCHED_OTHER and nice == cycle_mod.RELAXED_NICE for n, p, nice in seen if 5 <= n < 15)
+
+
+def test_other_threads_are_given_the_io_nice_value_unless_kept_or_already_higher() -> None:
+    # zenoh's threads made lazily from the SCHED_FIFO cycle thread start at nice 0 (SCHED_RESET_ON_FORK): the I/O
+    # thread's pass gives them IO_NICE; a kept thread and one already at a lower nice value keep theirs
+    import threading
+    ready = threading.Barrier(4)
+    done = threading.Event()
+    ids: dict[str, int] = {}
+
+    def worker(name: str, nice: int) -> None:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+        ids[name] = threading.get_native_id()
+        ready.wait()
+        done.wait(30)
+
+    if os.getpriority(os.PRIO_PROCESS, 0) > 2:
+        pytest.skip("this process runs above nice 2")
+    threads = [threading.Thread(target=worker, args=a) for a in (("zenoh", 4), ("kept", 5), ("higher", 1))]
+    for t in threads:
+        t.start()
+    try:
+        ready.wait(10)
+        try:
+            changed = cycle_mod.raise_other_threads({ids["kept"]}, 2)
+        except PermissionError:
+            pytest.skip("raising a thread's priority is not permitted here")
+        prio = {k: os.getpriority(os.PRIO_PROCESS, v) for k, v in ids.items()}
+        if prio["zenoh"] == 4:
+            pytest.skip("raising a thread's priority is not permitted here")
+        assert prio == {"zenoh": 2, "kept": 5, "higher": 1}
+        assert ids["zenoh"] in changed and ids["kept"] not in changed and ids["higher"] not in changed
+    finally:
+        done.set()
+        for t in threads:
+            t.join(10)
