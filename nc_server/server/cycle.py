@@ -137,9 +137,6 @@ IO_NICE = -10
 #: (~100-200 us each for 16 clients, now the publisher child's job), for milliseconds on a loaded 2-core
 #: machine (bench/many_clients.py).
 IO_THREAD_NICE = -15
-#: nice value of a SCHED_FIFO cycle thread while its loop is relaxed (CycleLoop.relaxed: a hot-standby NC following
-#: its active NC): as zenoh's threads, which bring it the logs it replays
-RELAXED_NICE = IO_NICE
 
 
 def raise_io_priority(mode: str, nice: int = IO_NICE) -> str:
@@ -302,13 +299,9 @@ class CycleLoop:
             (``isolcpus``, a cpuset, or every other process pinned elsewhere) it keeps them.
 
     Attributes:
-        relaxed: no spin before the deadlines, a sleep up to them, and a SCHED_FIFO loop runs SCHED_OTHER at
-            :data:`RELAXED_NICE` meanwhile (set by the owner at any time, applied at once from the loop's own thread,
-            else before the next cycle; a hot-standby NC sets it while it is a standby: its cycle drives nothing. The
-            spin, up to SPIN_NS of every period on a loaded machine, cost it a fifth of a core; and its replay at
-            real-time priority kept the transport threads that carry the active NC's logs to it (zenoh's, the
-            router's) from a CPU: on 2 cores two SCHED_FIFO cycle threads left them the rest, and the logs' silences
-            grew past the loss limit: takeovers of a live NC, docs/standby.md).
+        relaxed: no spin before the deadlines, a sleep up to them (set by the owner at any time; a hot-standby NC
+            sets it while it is a standby: its cycle drives nothing, and the spin, up to SPIN_NS of every period
+            on a loaded machine, cost it a fifth of a core).
     """
 
     def __init__(self, period_s: float, work: Callable[[int], None], realtime: str = "auto",
@@ -322,41 +315,11 @@ class CycleLoop:
         self.realtime = realtime
         self.rt_priority = rt_priority
         self.stats = CycleStats()
-        self._relaxed = False
-        self._relaxed_applied = False  # the policy the loop's thread has: relaxed (SCHED_OTHER) or not
+        self.relaxed = False
         self.stop_event = threading.Event()
         self.started = threading.Event()
         self.error: BaseException | None = None
         self._thread: threading.Thread | None = None
-
-    @property
-    def relaxed(self) -> bool:
-        return self._relaxed
-
-    @relaxed.setter
-    def relaxed(self, on: bool) -> None:
-        self._relaxed = on
-        t = self._thread
-        if on != self._relaxed_applied and t is not None and t.native_id == threading.get_native_id():
-            self._apply_relaxed()
-
-    def _apply_relaxed(self) -> None:
-        """(the loop's thread) Its policy as :attr:`relaxed` says: SCHED_OTHER at RELAXED_NICE while relaxed, back
-        to SCHED_FIFO after (only a loop that got SCHED_FIFO at its start changes anything)."""
-        on = self._relaxed
-        self._relaxed_applied = on
-        if self.stats.timing != "SCHED_FIFO":
-            return
-        try:
-            if on:
-                os.sched_setscheduler(0, os.SCHED_OTHER | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(0))
-                os.setpriority(os.PRIO_PROCESS, 0, RELAXED_NICE)  # pid 0: this thread (Linux: nice is per thread)
-            else:
-                set_realtime("auto", self.rt_priority)
-            log.info("cycle thread: %s", f"SCHED_OTHER nice {RELAXED_NICE} (relaxed)" if on
-                     else f"SCHED_FIFO priority {self.rt_priority} again")
-        except OSError as exc:  # (not permitted any more: it keeps what it has)
-            log.warning("cycle thread: changing its policy (relaxed %s): %s", on, exc)
 
     # ---- thread control ---------------------------------------------------------------------
     def start(self, name: str = "nc-cycle", timeout: float = 10.0) -> None:
@@ -428,9 +391,7 @@ class CycleLoop:
         while not stop.is_set():
             # Wait: sleep most of it (in slices with idle() between them), spin the end
             # (yielding the GIL while there is time); relaxed: sleep all of it.
-            if self._relaxed != self._relaxed_applied:  # (set from another thread)
-                self._apply_relaxed()
-            spun = 0 if self._relaxed else spin
+            spun = 0 if self.relaxed else spin
             remaining = deadline - clock()
             if idle is not None:
                 if IDLE_AFTER_WORK and remaining > spun + IDLE_SLICE_NS // 2:

@@ -191,39 +191,6 @@ def test_a_relaxed_loop_sleeps_up_to_its_deadlines_without_spinning(monkeypatch:
     assert yields[0] > 0  # (spinning again once not relaxed)
 
 
-def test_a_relaxed_fifo_loop_runs_sched_other_until_it_drives_again() -> None:
-    # a hot standby's cycle thread: SCHED_OTHER at RELAXED_NICE while relaxed (the transport threads that bring it
-    # the active NC's logs get a CPU), SCHED_FIFO again, at once, when the owner sets relaxed False in a cycle (a
-    # takeover: the first cycle that drives runs at real-time priority)
-    seen: list[tuple[int, int, int]] = []  # (cycle, policy, nice) as the work saw them
-    loop: CycleLoop
-
-    def work(deadline_ns: int) -> None:
-        n = len(seen)
-        if n == 5:
-            loop.relaxed = True
-        elif n == 15:
-            loop.relaxed = False
-        pol = os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
-        seen.append((n, pol, os.getpriority(os.PRIO_PROCESS, 0)))
-        if len(seen) >= 25:
-            loop.stop_event.set()
-
-    loop = CycleLoop(0.002, work, realtime="auto", rt_priority=10)
-    loop.start()
-    if loop.stats.timing != "SCHED_FIFO":
-        loop.stop()
-        pytest.skip(f"SCHED_FIFO not permitted here ({loop.stats.timing_detail}): nothing to relax")
-    end = time.monotonic() + 60
-    while loop.alive and time.monotonic() < end:
-        time.sleep(0.01)
-    loop.stop()
-    assert loop.error is None and len(seen) >= 25
-    fifo = os.SCHED_FIFO
-    assert all(p == fifo for n, p, _ in seen if n < 5 or n >= 15)
-    assert all(p == os.SCHED_OTHER and nice == cycle_mod.RELAXED_NICE for n, p, nice in seen if 5 <= n < 15)
-
-
 def test_other_threads_are_given_the_io_nice_value_unless_kept_or_already_higher() -> None:
     # zenoh's threads made lazily from the SCHED_FIFO cycle thread start at nice 0 (SCHED_RESET_ON_FORK): the I/O
     # thread's pass gives them IO_NICE; a kept thread and one already at a lower nice value keep theirs
