@@ -57,12 +57,18 @@ SNAPSHOT_RETRY_S = 1.0
 START_GRACE_S = 2.0
 #: ha status period [s]
 STATUS_PERIOD_S = 0.1
-#: the loss detector (LossDetector): how long the gaps between the active NC's logs are remembered [s], the factor
-#: on the largest one, the warm-up after a standby comes in step and its floor, and the cap of the limit [s]
-GAP_WINDOW_S = 10.0
-GAP_FACTOR = 2.0
+#: the loss detector (LossDetector): how long the gaps between the active NC's logs are remembered [s] (in bins of
+#: GAP_BIN_S, the largest gap of each), the factor on the largest one, the warm-up after a standby comes in step and its
+#: floor, and the cap of the limit [s]. 10 s and 2x were too little on 2 cores with the pair, a drive host, a router
+#: and clients: every 1-2 minutes a silence of 20-90 ms just above 2x the largest gap of the 10 s before, a takeover
+#: of a live NC (bench/many_clients.py --standby, docs/standby.md)
+GAP_WINDOW_S = 60.0
+GAP_BIN_S = 1.0
+GAP_FACTOR = 3.0
 WARMUP_S = 3.0
 WARMUP_FLOOR_S = 0.5
+#: how long an active NC counts a standby's published limit (its ha status) [s]
+PEER_STATUS_S = 10.0
 # (LIMIT_CAP_S: nc_server.drives.remote.config, whose timeout checks count with it)
 #: an active NC that stalled longer than this share of its standby's limit (or of its lease) demotes itself
 STALL_MARGIN = 0.75
@@ -82,10 +88,12 @@ class LossDetector:
     The limit is ``takeover_cycles`` while the logs come on time; a loaded machine makes them late (the active NC's
     cycle thread, zenoh's threads or the standby's own cycle thread descheduled: 150 ms seen at load average 20 with
     realtime off), so the limit follows GAP_FACTOR x the largest gap between logs of the last GAP_WINDOW_S, capped
-    at LIMIT_CAP_S: a late log is no loss, a missing one is. For WARMUP_S after the standby came in step (no gap
-    history yet; the active NC has just built a snapshot) it is at least WARMUP_FLOOR_S. And a silence is judged
-    only in a cycle of the standby that is itself on time, or the second in a row: after its own stall the logs may
-    still be on their way through zenoh's threads.
+    at LIMIT_CAP_S: a late log is no loss, a missing one is. The gaps are kept per GAP_BIN_S bin (the largest of
+    each), so the window is GAP_WINDOW_S however many gaps the load makes, and they outlive a re-sync and a role
+    change (how late logs come is the machine's, not the role's: with a fresh history after each takeover of a live
+    NC, the next one came sooner). For WARMUP_S after the standby came in step (the active NC has just built a
+    snapshot) it is at least WARMUP_FLOOR_S. And a silence is judged only in a cycle of the standby that is itself
+    on time, or the second in a row: after its own stall the logs may still be on their way through zenoh's threads.
 
     Args:
         base_s: ``takeover_cycles`` x the cycle time [s].
@@ -98,16 +106,18 @@ class LossDetector:
         self.cap = cap_s
         self.last = 0.0       # when the newest log was taken
         self.since = -1e9     # when the standby came in step (the warm-up's start)
-        self.gaps: collections.deque[tuple[float, float]] = collections.deque(maxlen=256)
+        #: (bin start [s], the largest gap that ended in that bin [s]), oldest first
+        self.gaps: collections.deque[tuple[float, float]] = collections.deque()
         self._max_gap = 0.0  # the largest gap in :attr:`gaps` (-1: to be found again)
         self._prev_cycle = 0.0
         self._deferred = False
 
-    def restart(self, now: float) -> None:
-        """In step from a snapshot (or a new role): no gap history, the warm-up starts."""
+    def restart(self, now: float, forget: bool = False) -> None:
+        """In step from a snapshot (or a new role): the warm-up starts; ``forget``: the gap history too."""
         self.last = self.since = now
-        self.gaps.clear()
-        self._max_gap = 0.0
+        if forget:
+            self.gaps.clear()
+            self._max_gap = 0.0
         self._deferred = False
 
     def log(self, now: float) -> None:
@@ -115,20 +125,26 @@ class LossDetector:
         gap = now - self.last
         self.last = now
         if gap > self.base / 4:  # (gaps within a quarter of the base never raise the limit)
-            if len(self.gaps) == self.gaps.maxlen and self.gaps[0][1] >= self._max_gap:
-                self._max_gap = -1.0  # (the largest is pushed out)
-            self.gaps.append((now, gap))
+            start = now - now % GAP_BIN_S
+            g = self.gaps
+            if g and g[-1][0] == start:
+                if gap > g[-1][1]:
+                    g[-1] = (start, gap)
+            else:
+                g.append((start, gap))
             if self._max_gap >= 0.0:
                 self._max_gap = max(self._max_gap, gap)
 
     def limit(self, now: float) -> float:
         """The silence [s] that is a loss now."""
         g = self.gaps
-        while g and now - g[0][0] > GAP_WINDOW_S:
+        while g and now - g[0][0] > GAP_WINDOW_S + GAP_BIN_S:
             if g.popleft()[1] >= self._max_gap:
                 self._max_gap = -1.0  # (the largest went: found again below)
-        if self._max_gap < 0.0 or not g:  # (called every standby cycle: the max of up to 256 gaps only when it changed)
-            self._max_gap = max((x for _, x in g), default=0.0)
+        if not g:
+            self._max_gap = 0.0
+        elif self._max_gap < 0.0:  # (called every standby cycle: the max of up to 61 bins only when it changed)
+            self._max_gap = max(x for _, x in g)
         lim = max(self.base, GAP_FACTOR * self._max_gap)
         if now - self.since < WARMUP_S:
             lim = max(lim, WARMUP_FLOOR_S)
@@ -418,7 +434,7 @@ class HotStandby:
 
     def peer_limit(self, now: float) -> float:
         """(active) The silence a standby in step takes for a loss now [s]: the largest limit of the ha statuses of
-        the other nodes of the last GAP_WINDOW_S (their LossDetector's), at least ``takeover_cycles``; none: the
+        the other nodes of the last PEER_STATUS_S (their LossDetector's), at least ``takeover_cycles``; none: the
         detector's cap."""
         sub = self._status_sub
         for s in drain(sub) if sub is not None else ():
@@ -430,7 +446,7 @@ class HotStandby:
                 continue
         # (a status some seconds old still holds: a loaded machine delays them too; none yet: the cap, the most a
         # standby ever waits)
-        fresh = [lim for lim, t in self._peer_limits.values() if now - t < GAP_WINDOW_S]
+        fresh = [lim for lim, t in self._peer_limits.values() if now - t < PEER_STATUS_S]
         return max([self._silence, *fresh]) if fresh else max(self._silence, LIMIT_CAP_S)
 
     # ---- the parts ----------------------------------------------------------------------------------------------
@@ -876,6 +892,7 @@ class HotStandby:
         self.synced_once = False
         self._forget_frames()
         self._last_log = now
+        self.detector.restart(now)  # (its last log as a standby may be minutes old: no gap of it)
         self._started = now
         self._ask_snapshot(now)
 

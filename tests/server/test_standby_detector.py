@@ -10,7 +10,8 @@ import pytest
 
 import nc_server.core  # noqa: F401  (before nc_server.drives: circular import otherwise)
 from nc_server.server.config import Redundancy
-from nc_server.server.standby import GAP_FACTOR, LIMIT_CAP_S, WARMUP_FLOOR_S, WARMUP_S, HotStandby, LossDetector
+from nc_server.server.standby import (GAP_BIN_S, GAP_FACTOR, GAP_WINDOW_S, LIMIT_CAP_S, WARMUP_FLOOR_S, WARMUP_S,
+                                     HotStandby, LossDetector)
 
 from test_replication import Active
 
@@ -86,7 +87,26 @@ def test_the_limit_is_capped_and_forgets_old_gaps() -> None:
     d.log(5.0)  # a 5 s gap
     assert d.limit(5.0) == LIMIT_CAP_S
     d.log(5.002)
-    assert d.limit(20.0) == TAKEOVER * DT  # 10 s later: forgotten, warm-up over
+    assert d.limit(5.0 + GAP_WINDOW_S - 1) == LIMIT_CAP_S  # (kept for the window)
+    assert d.limit(5.0 + GAP_WINDOW_S + GAP_BIN_S + 0.01) == TAKEOVER * DT  # then forgotten, warm-up over
+
+
+def test_the_gaps_outlive_a_resync_and_the_window_holds_however_many_gaps_come() -> None:
+    # how late logs come is the machine's: a re-sync (restart) keeps the history, and 1000 small gaps a second do
+    # not push a large one out before GAP_WINDOW_S
+    d = LossDetector(TAKEOVER * DT)
+    t = 10.0
+    d.restart(t - 0.031)
+    d.log(t - 0.030)
+    d.log(t)  # a 30 ms gap
+    d.restart(t + 1.0)  # (in step again from a snapshot)
+    t += 1.0
+    for _ in range(8_000):  # 40 s of 5 ms gaps, each above base/4
+        t += 0.005
+        d.log(t)
+    assert abs(d.limit(t) - GAP_FACTOR * 0.030) < 1e-9
+    d.restart(t, forget=True)
+    assert d.limit(t + WARMUP_S + 0.1) == max(TAKEOVER * DT, GAP_FACTOR * 0.0)
 
 
 def test_the_standbys_own_late_cycle_defers_the_judgement_once() -> None:
@@ -127,23 +147,30 @@ def test_the_active_nc_demotes_itself_for_a_stall_near_its_standbys_limit() -> N
 
 
 def test_the_limit_follows_the_largest_gap_as_gaps_come_and_go() -> None:
-    # limit() keeps the largest gap instead of scanning up to 256 gaps every standby cycle: the same limits as a scan
+    # limit() keeps the largest gap of its bins instead of scanning them every standby cycle: the same limits as a
+    # scan of every gap whose bin is in the window
     import random
-    from nc_server.server.standby import GAP_WINDOW_S
     rnd = random.Random(5)
     d = LossDetector(0.015, 10.0)
     d.restart(0.0)
-    now, full = 0.0, False
-    for k in range(20000):
+    import collections
+    every: collections.deque[tuple[float, float]] = collections.deque()  # (bin start, gap) of every gap above base/4
+    now, prev = 0.0, 0.0
+    for k in range(40000):
         now += rnd.choice((0.001, 0.004, 0.004, 0.005, 0.006, 0.02, 0.004 + 0.05 * rnd.random(), 0.4 * rnd.random()))
         d.log(now)
-        if k == 10000:
+        if now - prev > d.base / 4:
+            every.append((now - now % GAP_BIN_S, now - prev))
+        prev = now
+        if k == 20000:
             d.gaps.clear()
+            every.clear()
         lim = d.limit(now)
-        scan = max((x for t, x in d.gaps if now - t <= GAP_WINDOW_S), default=0.0)
-        full = full or len(d.gaps) == d.gaps.maxlen
+        while every and now - every[0][0] > GAP_WINDOW_S + GAP_BIN_S:
+            every.popleft()
+        scan = max((x for _, x in every), default=0.0)
         want = max(d.base, GAP_FACTOR * scan)
         if now - d.since < WARMUP_S:
             want = max(want, WARMUP_FLOOR_S)
-        assert lim == max(d.base, min(want, d.cap))
-    assert full  # (the deque's maxlen pushed gaps out too)
+        assert lim == max(d.base, min(want, d.cap)), (k, lim, want)
+    assert now > 3 * GAP_WINDOW_S  # (bins went out of the window)
