@@ -13,7 +13,8 @@ Three faults of the active node's container, in sequence on the same project, ea
 
 Each time (checked hard): the standby takes over (its ha status: role active, a higher epoch), the drive host
 follows the new epoch (it never goes back), the NC's Cycle count continues (no restart seen: the per-axis samples'
-cycle stamps never go back), no SetPos step between consecutive samples beyond what the dynamics and the takeover's
+cycle stamps never go back, as a client takes them: with the epoch rule every client applies, which drops the samples
+the old node still puts after a link cut until it hears of its successor; their number is printed), no SetPos step between consecutive samples beyond what the dynamics and the takeover's
 catch-up allow, the block running at the cut ends Done (after a kill -9 also: 0x4B0F, the NC's token gone meanwhile:
 docs/standby.md), axis 2 keeps moving (two more moves Done), after the restore the old node is a standby in step
 and one node is active. With ZNC_STANDBY_STRICT=1 also: exactly one takeover and one epoch change per fault, no
@@ -80,8 +81,15 @@ class Watch:
         import zenoh
 
         self._lock = threading.Lock()
-        #: (arrival wall time, cycle, SetPos, SetVelo, CmdNo, CmdState)
+        #: (arrival wall time, cycle, SetPos, SetVelo, CmdNo, CmdState) of the samples a client takes: the epoch rule
+        #: of every client (nc_schema.NcInstance.take: a sample of a lower epoch than one taken is dropped; docs/
+        #: standby.md, "The frames' epoch"); an old node back after a link cut still puts its samples until it hears
+        #: of its successor, and those are on the wire, not in a client's data
         self.samples: deque[tuple[float, int, float, float, int, int]] = deque(maxlen=400_000)
+        #: (arrival wall time) of each sample of a lower epoch dropped by that rule
+        self.dropped: deque[float] = deque(maxlen=400_000)
+        from nc_schema import NcInstance
+        self._inst = NcInstance()
         self.ha: dict[str, tuple[float, dict[str, Any]]] = {}
         self.drive: deque[tuple[float, dict[str, Any]]] = deque(maxlen=20_000)
         self.session = wait_until(lambda: zenoh.open(client_config(endpoint, tls_dir, "status")), 60,
@@ -92,15 +100,19 @@ class Watch:
                       s.declare_subscriber("nc/nc1/drive/drives1/status", self._on_drive)]
 
     def _on_sample(self, sample: Any) -> None:
-        from nc_schema import NCTOPLC_DTYPE, decode_stamp
+        from nc_schema import NCTOPLC_DTYPE, decode_stamp_epoch
 
         t = time.time()
         try:
             r = np.frombuffer(sample.payload.to_bytes(), dtype=NCTOPLC_DTYPE, count=1)[0]
-            cycle = decode_stamp(sample.attachment.to_bytes())[0] if sample.attachment is not None else -1
+            cycle, _, epoch = decode_stamp_epoch(sample.attachment.to_bytes()) if sample.attachment is not None \
+                else (-1, 0, 0)
         except (ValueError, TypeError):
             return
         with self._lock:
+            if not self._inst.take(int(cycle), int(epoch), time.monotonic())[0]:
+                self.dropped.append(t)
+                return
             self.samples.append((t, int(cycle), float(r["SetPos"]), float(r["SetVelo"]), int(r["CmdNo"]),
                                  int(r["CmdState"])))
 
@@ -134,6 +146,11 @@ class Watch:
     def since(self, t: float) -> list[tuple[float, int, float, float, int, int]]:
         with self._lock:
             return [s for s in self.samples if s[0] >= t]
+
+    def dropped_since(self, t: float) -> int:
+        """Samples of a lower epoch dropped since ``t`` (the old node's, on the wire until it demoted itself)."""
+        with self._lock:
+            return sum(1 for x in self.dropped if x >= t)
 
     def latest(self) -> tuple[float, int, float, float, int, int] | None:
         with self._lock:
@@ -344,6 +361,7 @@ def run_fault(system: StandbySystem, name: str, cut: Sequence[Sequence[str]], re
     gap, c_last, c_first, v_first = takeover_gap(samples, t_cut, t_took)
     raw, beyond = largest_step(samples)
     back = cycles_back(samples)
+    dropped = w.dropped_since(t_from)
     ev = plc_events(system, t_from)
 
     def bad(e: Any) -> bool:
@@ -368,7 +386,8 @@ def run_fault(system: StandbySystem, name: str, cut: Sequence[Sequence[str]], re
             f"{c_first} at {v_first:.1f} u/s; cut command {(t_cut_done - t_cut) * 1e3:.0f} ms, role change seen {(t_took - t_cut) * 1e3:.0f} "
             f"ms after it was issued), the NC's own {new.get('takeover_ms')} ms / {new.get('takeover_cycles')} "
             f"cycles (limit {new.get('takeover_limit_cycles')}), caught up {new.get('catch_up_cycles')}; "
-            f"largest SetPos step {raw:.4f} u (beyond the dynamics {beyond:.6f}), cycle went back {back}x; "
+            f"largest SetPos step {raw:.4f} u (beyond the dynamics {beyond:.6f}), cycle went back {back}x (samples of a lower epoch "
+            f"dropped by the clients' epoch rule: {dropped}); "
             f"drive epoch {drive0['epoch']} -> {epoch} ({rises} change(s), refused {drive1.get('stale_epoch')}); "
             f"moving at the cut {moving_at_cut and round(moving_at_cut[3], 1)} u/s; 0x4B0F at the NC's token loss: "
             f"{gone_errors}; the block at the cut: {first_end!r}; plc2 errors during the takeover {during}, after "
