@@ -106,6 +106,7 @@ class LossDetector:
         self.cap = cap_s
         self.last = 0.0       # when the newest log was taken
         self.since = -1e9     # when the standby came in step (the warm-up's start)
+        self.restarted = False  # restart() was called: before, no gap is kept (the first log's "gap" is the clock)
         #: (bin start [s], the largest gap that ended in that bin [s]), oldest first
         self.gaps: collections.deque[tuple[float, float]] = collections.deque()
         self._max_gap = 0.0  # the largest gap in :attr:`gaps` (-1: to be found again)
@@ -115,16 +116,29 @@ class LossDetector:
     def restart(self, now: float, forget: bool = False) -> None:
         """In step from a snapshot (or a new role): the warm-up starts; ``forget``: the gap history too."""
         self.last = self.since = now
+        self.restarted = True
         if forget:
             self.gaps.clear()
             self._max_gap = 0.0
         self._deferred = False
 
-    def log(self, now: float) -> None:
-        """A log of the active NC was taken at ``now``."""
+    def seed(self, now: float, gap: float) -> None:
+        """Keep ``gap`` [s] as if seen now (a demoted active NC: the gaps its standby saw, from the limit it published;
+        its own detector saw none while it was active)."""
+        start = now - now % GAP_BIN_S
+        g = self.gaps
+        if g and g[-1][0] == start:
+            g[-1] = (start, max(gap, g[-1][1]))
+        else:
+            g.append((start, gap))
+        self._max_gap = -1.0
+
+    def log(self, now: float, record: bool = True) -> None:
+        """A log of the active NC was taken at ``now``; ``record`` False: the gap before it is not kept (a standby
+        not in step: waiting for a snapshot, its gaps are the cut or the snapshot's cost, not the machine's)."""
         gap = now - self.last
         self.last = now
-        if gap > self.base / 4:  # (gaps within a quarter of the base never raise the limit)
+        if record and self.restarted and gap > self.base / 4:  # (within a quarter of the base: never raises it)
             start = now - now % GAP_BIN_S
             g = self.gaps
             if g and g[-1][0] == start:
@@ -491,7 +505,7 @@ class HotStandby:
             if self._current and self.role == "standby":
                 # (a sign of life of the NC followed: only logs of the highest epoch; a zombie of a lower one must
                 # not keep the standby from judging the silence of the active NC)
-                self.detector.log(now)
+                self.detector.log(now, record=self.synced_once and not self.follower.waiting)
                 self._forgiving = False
 
     def _warn_unusable(self, now: float, exc: Exception) -> None:
@@ -893,6 +907,11 @@ class HotStandby:
         self._forget_frames()
         self._last_log = now
         self.detector.restart(now)  # (its last log as a standby may be minutes old: no gap of it)
+        # (its detector saw no gap while it was active: its standby's published limit, fresh, is what the machine
+        # showed; the first minute as the standby judges by it, not by a fresh history)
+        fresh = [lim for lim, t in self._peer_limits.values() if now - t < PEER_STATUS_S]
+        if fresh:
+            self.detector.seed(now, max(fresh) / GAP_FACTOR)
         self._started = now
         self._ask_snapshot(now)
 

@@ -174,3 +174,31 @@ def test_the_limit_follows_the_largest_gap_as_gaps_come_and_go() -> None:
             want = max(want, WARMUP_FLOOR_S)
         assert lim == max(d.base, min(want, d.cap)), (k, lim, want)
     assert now > 3 * GAP_WINDOW_S  # (bins went out of the window)
+
+
+def test_no_gap_before_the_first_restart_nor_while_not_in_step() -> None:
+    # a standby's first log (waiting for its first snapshot) comes a whole clock after the detector was made, and a
+    # standby waiting for a snapshot measures the cut or the snapshot's cost: neither is kept as the machine's gap
+    d = LossDetector(TAKEOVER * DT, 1.0)
+    d.log(5000.0)
+    d.restart(5000.2)
+    assert d.limit(5000.2 + WARMUP_S + 0.1) == TAKEOVER * DT
+    d.log(5010.0, record=False)  # (a 9.8 s silence while out of step)
+    assert d.limit(5010.0) == TAKEOVER * DT
+    d.log(5010.1)  # (in step: kept)
+    assert abs(d.limit(5010.1) - GAP_FACTOR * 0.1) < 1e-9
+
+
+def test_a_demoted_active_nc_starts_with_its_standbys_limit() -> None:
+    # the old active NC's detector saw no gap while it was active: _become_standby seeds it with what its standby
+    # published (fresh statuses only)
+    hs = standby()
+    hs.srv.became_standby = lambda: None  # type: ignore[attr-defined]
+    hs.role, hs.peer_in_step, hs.epoch = "active", True, 1 << 16
+    now = time.monotonic()
+    hs._peer_limits["b"] = (0.240, now - 1.0)
+    hs._peer_limits["c"] = (0.900, now - 30.0)  # (not fresh: not counted)
+    hs._become_standby(now, "test")
+    assert hs.role == "standby"
+    assert abs(hs.detector.limit(now + WARMUP_S + 0.1) - 0.240) < 1e-9
+    assert hs.detector.limit(now + GAP_WINDOW_S + 2 * GAP_BIN_S) == hs.detector.base
