@@ -61,8 +61,10 @@ The verdict against issue 8's and issue 19's criteria is printed check by check,
   reference plc-runs' own CPU taken out: they are the bench's, not the load's);
 * no lost or doubled command (per axis: the NC's NewestCmdNo progress = the program's accepted moves
   + the Halts the PLC task sent on its own and the NC accepted (it stops a move whose block gave up
-  when the NC's data was lost, or that was accepted after its block timed out: plc_client/task.py),
-  sent = accepted + refused);
+  when the NC's data was lost, or that was accepted after its block timed out: plc_client/task.py)
+  + the program's MC_Resets the NC answered with a CmdNo (an axis error during a move, e.g. 0x4655,
+  reset while its error stop ramp still runs: the ramp goes on as a numbered stop job, the reset's);
+  every number in that progress carried by exactly one accepted reply; sent = accepted + refused);
 * every block's outputs consistent: no block error, and every move started ended exactly once
   (Done, CommandAborted or Error);
 * every client finished (wrote its final report).
@@ -675,7 +677,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     if r.get("observer"):
         o = r["observer"]
         print(f"observer: {o['frames']} frames in the window ({cycles} NC cycles), longest gap {o['max_gap_ms']:.1f} ms")
-    sent = done = aborted = accepted = refused = task_sent = task_accepted = 0
+    sent = done = aborted = accepted = refused = task_sent = task_accepted = reset_numbered = 0
     errors: dict[str, int] = {}
     lost = []
     worst_unchanged = 0
@@ -693,6 +695,7 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
             refused += a.get("refused", 0)
             task_sent += a.get("task_sent", 0)
             task_accepted += a.get("task_accepted", 0)
+            reset_numbered += a.get("reset_numbered", 0)
             done += a["done"]
             aborted += a["aborted"]
             for code, c in a["errors"].items():
@@ -711,14 +714,23 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
                 # the NC also numbers the task's own Halts (a move whose block gave up on lost NC data
                 # or was accepted after its block timed out, and still ran: plc_client/task.py)
                 task_acc = a.get("task_accepted", 0)
-                if delta != acc + task_acc or a["sent"] != acc + a.get("refused", 0):
+                # and the stop job an MC_Reset makes of an error stop ramp that still runs (its reply has the CmdNo)
+                reset_acc = a.get("reset_numbered", 0)
+                # (the numbers: in the final report, once every reply is in)
+                unexplained, doubled = (a.get("unexplained", []), a.get("doubled", [])) if rep.get("final") else ([], [])
+                if (delta != acc + task_acc + reset_acc or a["sent"] != acc + a.get("refused", 0)
+                        or unexplained or doubled):
                     lost.append(f"axis {ax}: sent {a['sent']}, accepted {acc}, refused {a.get('refused', 0)}, "
                                 f"unanswered {int(a.get('pending', 0))}, task's Halts accepted {task_acc} "
-                                f"(sent {a.get('task_sent', 0)}), NC CmdNo progress {delta}")
+                                f"(sent {a.get('task_sent', 0)}), resets numbered {reset_acc} (of "
+                                f"{a.get('resets', 0)}), NC CmdNo progress {delta}"
+                                + (f", numbers no accepted reply carried {unexplained}" if unexplained else "")
+                                + (f", numbers two replies carried {doubled}" if doubled else ""))
             else:
                 lost.append(f"axis {ax}: no job records ({a['cmdno0']}, {a['cmdno']})")
     print(f"clients: {sent} moves sent, {accepted} accepted, {refused} refused; the task's own Halts {task_sent} sent, "
-          f"{task_accepted} accepted; NC CmdNo progress = accepted + Halts accepted "
+          f"{task_accepted} accepted; MC_Resets numbered (during an error stop ramp) {reset_numbered}; "
+          f"NC CmdNo progress = accepted + Halts accepted + resets numbered, every number one accepted reply's "
           f"{'on every axis' if not lost else 'NOT on every axis: ' + '; '.join(lost[:6])}; "
           f"done {done}, aborted {aborted}, block errors {sum(errors.values())} {errors or ''}")
     print(f"frames: most consecutive PLC cycles without a newer frame {worst_unchanged}, PLC cycles with stale data {invalid}; "
@@ -784,7 +796,8 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
     z_missed = _excess_z(missed, due, fl_missed, fl_due)
     z_over = _excess_z(over, cycles, fl_over, fl_due)
     functional = [
-        (f"no lost or doubled command (NC CmdNo progress = accepted + the task's Halts accepted, sent = accepted + refused on every axis)"
+        (f"no lost or doubled command (NC CmdNo progress = accepted + the task's Halts accepted + the resets numbered, "
+         f"every number one accepted reply's, sent = accepted + refused on every axis)"
          f"{'' if not lost else ': ' + str(len(lost)) + ' axes differ'}", not lost),
         (f"every block's outputs consistent: no block error{'' if not errors else ' (' + str(sum(errors.values())) + ')'}, "
          f"every move started ended once (Done, CommandAborted or Error){'' if not inconsistent else ': not on ' + ', '.join(inconsistent[:6])}",

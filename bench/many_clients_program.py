@@ -11,12 +11,16 @@ Counted per axis: ``started`` (rising edges of Execute), ``sent`` (moves whose r
 replies: error 0 / an error or none), ``done``,
 ``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``, axis errors under ``axis:<id>``: the
 program resets them with MC_Reset, at most once a second, counted in ``resets``; one not ended after
-RESET_TIMEOUT_S under ``axis:reset-timeout``), the job records'
-``NewestCmdNo`` when the first move was sent and now (the NC's count of accepted motion commands:
-``accepted`` + ``task_accepted`` must equal the difference, ``sent`` = ``accepted`` + ``refused``),
-``task_sent`` / ``task_accepted`` (motion commands the PLC task sent on its own, not this program: the
+RESET_TIMEOUT_S under ``axis:reset-timeout``), ``reset_numbered`` (the resets the NC answered with a
+CmdNo: the axis was still in its error stop ramp, which goes on as a numbered stop job, the reset's own:
+nc_server/core/nc.py ``_cmd_reset``), the job records'
+``NewestCmdNo`` when the first move was sent and now (the NC's count of the numbers it handed out:
+``accepted`` + ``task_accepted`` + ``reset_numbered`` must equal the difference, ``sent`` = ``accepted`` +
+``refused``), ``task_sent`` / ``task_accepted`` (motion commands the PLC task sent on its own, not this program: the
 Halt that stops a move whose block gave up when the NC's data was lost or that was accepted after its
-block timed out, plc_client/task.py "orphans"; the NC numbers them too), and frame reception: ``invalid`` (cycles with stale data
+block timed out, plc_client/task.py "orphans"; the NC numbers them too), ``unexplained`` (the numbers from
+``cmdno0`` + 1 to ``cmdno`` that no accepted reply of ours carried, at most 20) and ``doubled`` (numbers
+two accepted replies carried), and frame reception: ``invalid`` (cycles with stale data
 after the first valid one), ``max_unchanged`` (most consecutive PLC cycles without a newer NC
 frame).
 
@@ -57,6 +61,9 @@ class _Axis:
         self.reset = MC_Reset()
         self.resetting = False
         self.resets = 0
+        self.reset_reqs: list = []  # PendingCommands of our resets not answered yet
+        self.reset_numbered = 0
+        self.cmdnos: list[int] = []  # the CmdNo of every accepted reply (ours and the task's own commands)
         self.next_reset = 0.0
         self.reset_deadline = 0.0
         self.k = 0
@@ -83,9 +90,19 @@ class _Axis:
                     open_.append(req)
                 elif req.reply is not None and int(req.reply.get("error", 0)) == 0:
                     self.accepted += 1
+                    self.cmdnos.append(int(req.reply.get("CmdNo", 0)))
                 else:
                     self.refused += 1
             self.reqs = open_
+        if self.reset_reqs:
+            open_ = []
+            for req in self.reset_reqs:  # a reset during the error stop ramp: the stop job's CmdNo
+                if not req.done:
+                    open_.append(req)
+                elif req.reply is not None and int(req.reply.get("error", 0)) == 0 and int(req.reply.get("CmdNo", 0)):
+                    self.reset_numbered += 1
+                    self.cmdnos.append(int(req.reply["CmdNo"]))
+            self.reset_reqs = open_
         p = self.power(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True)
         st = ax.Status
         if st.Valid:
@@ -117,6 +134,8 @@ class _Axis:
             self.resetting = True
             self.reset_deadline = time.monotonic() + RESET_TIMEOUT_S
             self.reset(Axis=ax, Execute=True)
+            if self.reset._pending is not None:
+                self.reset_reqs.append(self.reset._pending)
         if p.Error and not self._power_err:
             key = f"power:0x{int(p.ErrorID):04X}"
             self.errors[key] = self.errors.get(key, 0) + 1
@@ -155,10 +174,12 @@ class _Axis:
 
     def report(self) -> dict:
         cmdno = int(self.ax.NcJobs["NewestCmdNo"]) if self.ax.Status.Valid else None
-        task_acc = sum(1 for p in self.task_cmds if p.reply is not None and int(p.reply.get("error", 0)) == 0
-                       and int(p.reply.get("CmdNo", 0)))
-        return {"task_sent": len(self.task_cmds), "task_accepted": task_acc, "task_pending": self.task_pending(),
+        task_nos = [int(p.reply.get("CmdNo", 0)) for p in self.task_cmds
+                    if p.reply is not None and int(p.reply.get("error", 0)) == 0 and int(p.reply.get("CmdNo", 0))]
+        unexplained, doubled = _unexplained(self.cmdno0, cmdno, self.cmdnos + task_nos)
+        return {"task_sent": len(self.task_cmds), "task_accepted": len(task_nos), "task_pending": self.task_pending(),
                 "started": self.k, "sent": self.sent, "accepted": self.accepted, "refused": self.refused,
+                "reset_numbered": self.reset_numbered, "unexplained": unexplained, "doubled": doubled,
                 "pending": len(self.reqs), "powered": bool(self.power.Status),
                 "done": self.done, "aborted": self.aborted, "errors": self.errors,
                 "cmdno0": self.cmdno0, "cmdno": cmdno, "invalid": self.invalid,
@@ -168,6 +189,23 @@ class _Axis:
                 "axis_error": f"0x{int(self.ax.NcToPlc.ErrorCode):04X}" if self.ax.Status.Valid else None,
                 "claim": repr(self.ax._task.claim_state(self.ax)) if self.ax._task is not None else None,
                 "nc_epoch": int(self.ax.nc_epoch), "resets": self.resets}
+
+
+def _unexplained(first: int | None, last: int | None, seen: list[int]) -> tuple[list[int], list[int]]:
+    """The CmdNo values after ``first`` up to ``last`` (NewestCmdNo: 1..65535, wrapping to 1) that ``seen``
+    (the accepted replies' numbers) lacks, and those it holds twice; at most 20 each. ``seen`` numbers
+    outside the range (a reply newer than ``last``'s frame) are not counted."""
+    if first is None or last is None:
+        return [], []
+    span = (last - first) % 65535
+    want = {(first + k - 1) % 65535 + 1 for k in range(1, span + 1)}
+    counts: dict[int, int] = {}
+    for n in seen:
+        if n in want:
+            counts[n] = counts.get(n, 0) + 1
+    missing = sorted((n for n in want if n not in counts), key=lambda n: (n - first) % 65535)
+    twice = sorted(n for n, c in counts.items() if c > 1)
+    return missing[:20], twice[:20]
 
 
 class Program:
@@ -205,7 +243,8 @@ class Program:
             self._all_powered = True
             self.next_report = 0.0  # report it now (bench/subscribers.py waits for it)
         now = time.monotonic()
-        done = not HOLD and stopping and all(not a.execute and not a.reqs and not a.task_pending() for a in self.axes)
+        done = not HOLD and stopping and all(not a.execute and not a.reqs and not a.reset_reqs and not a.task_pending()
+                                                 for a in self.axes)
         if (now >= self.next_report and not self.final) or (done and not self.final):
             self.next_report = now + REPORT_PERIOD
             self.final = done

@@ -1068,6 +1068,9 @@ def _cmd_stop_release(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, An
 
 @core_command("Reset")
 def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
+    """MC_Reset. On an axis still braking after an error (its NC stop ramp), the ramp goes on as a
+    numbered stop job: that job's number is in the reply (``cmd_no``), so every CmdNo the NC hands
+    out is one accepted command's (this reset's); otherwise the reply has none."""
     a, q = core.axes, core.queues[i]
     core.probe.disarm_on_reset(i)
     core.drive.reset(np.array([i]))  # the drive's fault reset (CiA 402: a rising edge of controlword bit 7)
@@ -1086,6 +1089,7 @@ def _cmd_reset(core: NcCore, i: int, req: dict[str, Any]) -> dict[str, Any]:
                 q.newest = job.cmd_no
                 q.active = q.shown = job
                 a.stopped[i] = True
+                return {"cmd_no": job.cmd_no}
         return {}  # a moving axis without an error: nothing to reset
     a.error[i] = 0
     a.locked[i] = False

@@ -163,9 +163,11 @@ def test_reset_during_a_fault_ramp_keeps_stopping_until_standstill():
     core.step()
     rep = cmd(core, "Reset")
     assert rep["error"] == 0
+    assert rep["CmdNo"] == 2  # the stop job's number: the reset's own (NewestCmdNo counts it)
     core.step()
     r = core.nctoplc[0]
     assert r["ErrorCode"] == 0 and r["CmdNo"] == 2 and r["CmdState"] == CmdState.ACTIVE
+    assert core.ncjobs[0]["NewestCmdNo"] == 2
     assert state(core) == S.MC_AXISSTATE_STOPPING  # never StandStill while still braking
     v_prev = abs(float(r["SetVelo"]))
     while core.axes.traj_on[0]:
@@ -175,6 +177,47 @@ def test_reset_during_a_fault_ramp_keeps_stopping_until_standstill():
         assert core.axes.traj_on[0] or state(core) == S.MC_AXISSTATE_STANDSTILL
         v_prev = v
     assert core.nctoplc[0]["CmdState"] == CmdState.DONE and state(core) == S.MC_AXISSTATE_STANDSTILL
+
+
+def test_every_cmdno_is_an_accepted_replys_moves_faults_and_resets():
+    """bench/many_clients.py's program on one axis: MC_MoveAbsolute back and forth, axis errors 0x4655 (drive
+    inputs too old) at any time, MC_Reset 1..150 cycles after the error shows (sometimes during the ~90-cycle fault ramp,
+    sometimes at rest). NewestCmdNo hands out exactly the numbers of the accepted replies: the moves' and
+    those of the resets that made the ramp a numbered stop job (no other number, none twice)."""
+    rng = np.random.default_rng(7)
+    core = powered()
+    newest0 = int(core.ncjobs[0]["NewestCmdNo"])
+    seen: list[int] = []  # the CmdNo of every accepted reply
+    moves = resets = resets_numbered = 0
+    reset_in: int | None = None
+    k = 0
+    for _ in range(30_000):
+        a = core.axes
+        if a.error[0] and reset_in is None:
+            reset_in = int(rng.integers(1, 150))
+        if reset_in is not None:
+            reset_in -= 1
+            if reset_in <= 0:
+                reset_in = None
+                rep = cmd(core, "Reset")
+                assert rep["error"] == 0
+                resets += 1
+                if "CmdNo" in rep:
+                    resets_numbered += 1
+                    seen.append(int(rep["CmdNo"]))
+        elif not (a.error[0] or a.traj_on[0] or a.has_job[0] or a.locked[0]):
+            k += 1
+            rep = cmd(core, "MoveAbsolute", Position=(0.0, 40.0)[k % 2], Velocity=100.0)
+            assert rep["error"] == 0
+            moves += 1
+            seen.append(int(rep["CmdNo"]))
+        if not a.error[0] and rng.random() < 0.001:
+            core.fault(0, E.NC_DRIVE_IO_DATA_INVALID)
+        core.step()
+    progress = int(core.ncjobs[0]["NewestCmdNo"]) - newest0
+    assert 0 < resets_numbered < resets  # both cases happened
+    assert progress == moves + resets_numbered
+    assert seen == list(range(newest0 + 1, newest0 + 1 + progress))
 
 
 def test_enable_off_during_stop_releases_the_lock():

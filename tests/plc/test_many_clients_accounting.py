@@ -95,7 +95,14 @@ def test_an_mc_reset_that_never_ends_is_given_up(program_module: Any, monkeypatc
     calls: list[bool] = []
     a.ax = NS(Status=NS(Valid=True, Error=True, ErrorId=0x4655, NcCycleCounter=1))
     a.power = lambda **k: NS(Active=True, Error=False, ErrorID=0, Status=False)
-    a.reset = lambda Axis, Execute: calls.append(Execute) or NS(Done=False, Error=False)
+
+    class Reset:  # (an MC_Reset whose request never gets an answer)
+        _pending = None
+
+        def __call__(self, Axis: Any, Execute: bool) -> Any:
+            calls.append(Execute)
+            return NS(Done=False, Error=False)
+    a.reset = Reset()
     a.move = lambda **k: NS(Done=False, Error=False, CommandAborted=False)
     a.cycle(False)
     assert a.resetting and a.resets == 1 and calls == [True]
@@ -111,3 +118,34 @@ def test_an_mc_reset_that_never_ends_is_given_up(program_module: Any, monkeypatc
     now[0] += 1.0
     a.cycle(False)
     assert a.resetting and a.resets == 2  # (tried again)
+
+
+def test_a_reset_during_the_error_stop_ramp_is_counted(program_module: Any, tmp_path: Path) -> None:
+    """An axis error during a move (0x4655: the drive inputs too old, bench/many_clients.py --standby on a starved
+    machine) starts the NC's error stop ramp; the program's MC_Reset comes while it still runs, and the ramp goes
+    on as a numbered stop job (the axis shows Stopping, not StandStill, while it brakes). That number is the
+    reset's: its reply carries it, the program counts it (``reset_numbered``), and every number of the
+    NewestCmdNo progress is one accepted reply's (the old check saw progress = accepted + 1)."""
+    rig = Rig(n_axes=1)
+    prog = program_module.Program()
+    rig.plc("plc1", prog.cycle)
+    a = prog.axes[0]
+    rig.run_until(lambda: a.accepted >= 2 and a.execute and abs(rig.core.axes.set_velo[0]) > 50.0, 500)
+    rig.core.fault(0, ErrorCodes.NC_DRIVE_IO_DATA_INVALID)
+    rig.run_until(lambda: a.reset_numbered == 1, 20)  # (the ramp lasts ~90 ms: the reset comes within it)
+    assert a.resets == 1 and a.errors.get("axis:0x4655") == 1, a.errors
+    rig.run_until(lambda: a.accepted >= 4, 500)  # it moves on
+    (tmp_path / "stop").touch()
+    rig.run_until(lambda: prog.final, 500)
+    rep = a.report()
+    delta = rep["cmdno"] - rep["cmdno0"]
+    assert rep["task_accepted"] == 0 and rep["refused"] == 0 and rep["sent"] == rep["accepted"], rep
+    assert delta == rep["accepted"] + rep["reset_numbered"], rep
+    assert rep["unexplained"] == [] and rep["doubled"] == [], rep
+
+
+def test_unexplained_numbers_wrap_like_newest_cmdno(program_module: Any) -> None:
+    f = program_module._unexplained
+    assert f(65533, 2, [65534, 1, 2]) == ([65535], [])  # 65535 wraps to 1 (0 is never a number)
+    assert f(10, 13, [11, 12, 12, 13, 14]) == ([], [12])  # (14: newer than the frame, not counted)
+    assert f(None, 5, [1]) == ([], [])
