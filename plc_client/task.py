@@ -72,6 +72,8 @@ _AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 #: plain stops: a late one is left as it is (it only stops): ``stop``
 _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
+from nc_schema.frames import _checked_header  # noqa: E402  (frame_header's values as a plain tuple)
+
 from .axis_ref import AXIS_REF
 from .plcframe import PlcFrameBuffer
 from .port import CommandPort, PendingCommand, reply_cycle
@@ -649,7 +651,10 @@ class PlcTask:
         it is taken, keep the axes it was cut for. False: a frame of a lower epoch, dropped (not taken: the axes
         keep the frame held, and go stale if no other comes). (The clock, not ``self.now``: a runtime takes frames
         before its first step too.)"""
-        taken, why = self._instances.setdefault(nc, NcInstance()).take(cycle, epoch, self.clock())
+        inst = self._instances.get(nc)
+        if inst is None:  # (not setdefault: that built an NcInstance for every frame)
+            inst = self._instances[nc] = NcInstance()
+        taken, why = inst.take(cycle, epoch, self.clock())
         if not taken:
             return False
         self._covers[nc] = covers
@@ -666,9 +671,9 @@ class PlcTask:
         Raises:
             ValueError: not a status frame (wrong magic, version or sizes), as ``decode_frame``.
         """
-        h = frame_header(data)
-        cycle, hs, n = h.Cycle, h.HeaderSize, h.AxisCount
-        if not self._frame_arrived(nc, cycle, covers, h.Epoch):
+        # (frame_header's checks and values, as the plain tuple: no FrameHeader per frame)
+        _, _, hs, cycle, _, n, _, flags, epoch = _checked_header(data)
+        if not self._frame_arrived(nc, cycle, covers, epoch):
             return
         ids = _axis_ids_struct(n).unpack_from(data, hs)
         index = self._index_cache.get(nc)
@@ -676,7 +681,7 @@ class PlcTask:
             index = self._index_cache[nc] = (ids, {a: i for i, a in enumerate(ids)})
         frame: _FrameEntry = (cycle, None, index[1], None)
         self._frames[nc] = frame
-        self._frame_bytes[nc] = (frame, data, hs, data if h.Flags & JOB_RECORDS else None, hs + n * NCTOPLC_SIZE)
+        self._frame_bytes[nc] = (frame, data, hs, data if flags & JOB_RECORDS else None, hs + n * NCTOPLC_SIZE)
 
     def _bytes_of(self, nc: str, frame: _FrameEntry) -> tuple[_FrameEntry, bytes, int, bytes | None, int]:
         """(frame, the bytes its NCTOPLC records start in, where they start, the same of its NCJOBS records or

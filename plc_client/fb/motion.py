@@ -77,7 +77,7 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, MC_Direction, OpModeDWord, StateDWord, cmdno_newer
 
-from ..records import NCTOPLC_AXIS_REF, NcJobsValues
+from ..records import _JOBS_INDEX, _NC_INDEX, NCTOPLC_AXIS_REF, NcJobsValues
 from .base import ExecuteBlock
 
 _ERR = int(StateDWord.Error)
@@ -90,6 +90,12 @@ _INAREA = int(StateDWord.InPositionArea)
 _TGT_MON = int(OpModeDWord.OpModeTargetPosMonitoring)
 _AREA_MON = int(OpModeDWord.OpModePosAreaMonitoring)
 
+#: where _follow_job finds its members in the unpacked NCJOBS / NCTOPLC values (scalars: index, 0, 0)
+_J_ACTIVE_NO, _J_ACTIVE_STATE, _J_BUFFERED_NO = (_JOBS_INDEX[n][0] for n in ("ActiveCmdNo", "ActiveState",
+                                                                            "BufferedCmdNo"))
+assert all(_JOBS_INDEX[n][1:] == (0, 0) for n in ("ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
+_N_SDW = _NC_INDEX["StateDWord"][0]
+assert _NC_INDEX["StateDWord"][1] == 0
 _ACTIVE, _DONE_S, _ABORTED, _ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),
                                       int(CmdState.ERROR))
 
@@ -148,7 +154,7 @@ class MotionBlock(ExecuteBlock):
             self._prev_execute = True
             self._restart()
             return
-        super()._cycle()
+        ExecuteBlock._cycle(self)  # (super()'s, without building the super object every cycle)
 
     def _restart(self) -> None:
         """A rising edge while Busy (``_RETRIGGER`` blocks): send a new command, follow its CmdNo.
@@ -188,11 +194,13 @@ class MotionBlock(ExecuteBlock):
             self.Active = active
 
     def _follow(self) -> None:
-        if self._lost_axis():
-            return
         ax = self.Axis
+        # (_lost_axis's usual answer, False, without its call; then AXIS_REF.shows_cycle inline)
+        if (ax is None or ax._task is None or ax.missing or not ax.Status.Valid or ax.nc_epoch != self._epoch) \
+                and self._lost_axis():
+            return
         assert ax is not None
-        if not ax.shows_cycle(self._cmd_cycle):
+        if not (ax._has_data and ax.Status.NcCycleCounter >= self._cmd_cycle):
             return  # the frame does not show the command's effect yet
         jobs = ax._jobs  # (plain values, unpacked once a cycle)
         if jobs.AxisId:
@@ -203,14 +211,15 @@ class MotionBlock(ExecuteBlock):
     def _follow_job(self, rec: NCTOPLC_AXIS_REF, jobs: NcJobsValues) -> None:
         """The table of schema/README.md: find our CmdNo in the axis's job records."""
         me = self._cmdno
-        if jobs.BufferedCmdNo == me:
+        v = jobs._v or jobs._unpack()  # (the members by index: a property call each less)
+        if v[_J_BUFFERED_NO] == me:
             self._set_active(False)  # waiting behind the active job
             return
-        if jobs.ActiveCmdNo == me:
-            state = jobs.ActiveState
+        if v[_J_ACTIVE_NO] == me:
+            state = v[_J_ACTIVE_STATE]
             if state in (_ACTIVE, _DONE_S, _ABORTED, _ERROR):
                 # the error code matters only for ERROR or an axis error (_on_state): looked up only then
-                err = (self._ended_error(jobs, me, rec) if state == _ERROR or rec.StateDWord & _ERR
+                err = (self._ended_error(jobs, me, rec) if state == _ERROR or (rec._v or rec._unpack())[_N_SDW] & _ERR
                        else ErrorCodes.MC_BUFFERED_CMD_ERROR)
                 self._on_state(state, rec, err)
             else:
