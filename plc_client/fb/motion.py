@@ -149,7 +149,19 @@ class MotionBlock(ExecuteBlock):
             a["BufferMode"] = bm
         return a
 
+    #: the class keeps MotionBlock._progress (built per class): the busy path of ``_cycle`` may call ``_follow``
+    _PLAIN_PROGRESS: ClassVar[bool] = True
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls._PLAIN_PROGRESS = cls._progress is MotionBlock._progress
+
     def _cycle(self) -> None:
+        if self.Busy and self._prev_execute and self._cmdno and self._PLAIN_PROGRESS and self.Execute:
+            # (every cycle of a move: Busy, Execute held, the command accepted; ExecuteBlock._cycle would only
+            # call _progress, and that only _follow)
+            self._follow()
+            return
         if self._RETRIGGER and self.Busy and self.Execute and not self._prev_execute:
             self._prev_execute = True
             self._restart()
