@@ -91,9 +91,9 @@ _TGT_MON = int(OpModeDWord.OpModeTargetPosMonitoring)
 _AREA_MON = int(OpModeDWord.OpModePosAreaMonitoring)
 
 #: where _follow_job finds its members in the unpacked NCJOBS / NCTOPLC values (scalars: index, 0, 0)
-_J_ACTIVE_NO, _J_ACTIVE_STATE, _J_BUFFERED_NO = (_JOBS_INDEX[n][0] for n in ("ActiveCmdNo", "ActiveState",
-                                                                            "BufferedCmdNo"))
-assert all(_JOBS_INDEX[n][1:] == (0, 0) for n in ("ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
+_J_AXIS_ID, _J_ACTIVE_NO, _J_ACTIVE_STATE, _J_BUFFERED_NO = (
+    _JOBS_INDEX[n][0] for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
+assert all(_JOBS_INDEX[n][1:] == (0, 0) for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
 _N_SDW = _NC_INDEX["StateDWord"][0]
 assert _NC_INDEX["StateDWord"][1] == 0
 _ACTIVE, _DONE_S, _ABORTED, _ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),
@@ -215,7 +215,7 @@ class MotionBlock(ExecuteBlock):
         if not (ax._has_data and ax.Status.NcCycleCounter >= self._cmd_cycle):
             return  # the frame does not show the command's effect yet
         jobs = ax._jobs  # (plain values, unpacked once a cycle)
-        if jobs.AxisId:
+        if (jobs._v or jobs._unpack())[_J_AXIS_ID]:  # (jobs.AxisId without the property's call)
             self._follow_job(ax.NcToPlc, jobs)
         else:
             self._follow_cmdno(ax.NcToPlc)
@@ -275,7 +275,7 @@ class MotionBlock(ExecuteBlock):
     def _on_state(self, state: int, rec: NCTOPLC_AXIS_REF, error_code: int) -> None:
         """Our command is the axis's active (or last) one, in ``state``; ``error_code`` is used only for
         ERROR or an axis error."""
-        sdw = rec.StateDWord
+        sdw = (rec._v or rec._unpack())[_N_SDW]  # (rec.StateDWord without the property's call)
         if state == _ERROR:
             self._finish("Error", error_code)
         elif sdw & _ERR:
