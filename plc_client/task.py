@@ -62,7 +62,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from nc_schema import (COMMAND_SPECS, JOB_RECORDS, MOTION_COMMANDS, NCJOBS_SIZE, NCTOPLC_DTYPE, NCTOPLC_SIZE, CmdState,
-                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, frame_header, member_struct)
+                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, member_struct)
 
 # The command sets come from the contract's command properties (protocol.json, nc_schema.COMMAND_SPECS).
 #: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): ``slot``
@@ -72,7 +72,7 @@ _AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 #: plain stops: a late one is left as it is (it only stops): ``stop``
 _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
-from nc_schema.frames import _checked_header  # noqa: E402  (frame_header's values as a plain tuple)
+from nc_schema.frames import _checked_header  # (frame_header's checks, its values as a plain tuple)
 
 from .axis_ref import AXIS_REF
 from .plcframe import PlcFrameBuffer
