@@ -43,7 +43,7 @@ import numpy as np
 
 from nc_schema import MC_AxisStates, StateDWord, motion_state
 
-from .records import _NC_INDEX, NCTOPLC_AXIS_REF, NO_JOBS, PLCTONC_AXIS_REF, NcJobsValues
+from .records import _NC_INDEX, _NC_STRUCT, NCTOPLC_AXIS_REF, NO_JOBS, PLCTONC_AXIS_REF, NcJobsValues
 
 if TYPE_CHECKING:  # pragma: no cover
     from .task import PlcTask
@@ -81,6 +81,9 @@ _STATE_FLAGS: dict[int, str] = {
 #: where ST_AxisStatus.update finds its members in an unpacked NCTOPLC record (scalars)
 _I_SDW, _I_CS, _I_ERR, _I_ACC, _I_VEL = (_NC_INDEX[n][0] for n in
                                          ("StateDWord", "CoupleState", "ErrorCode", "SetAcc", "SetVelo"))
+
+_NC_UNPACK = _NC_STRUCT.unpack
+_new = object.__new__
 
 #: |SetAcc| below this [u/s^2] counts as "not accelerating" (numerical noise of the profile).
 _ACC_EPS = 1e-9
@@ -321,22 +324,44 @@ class AXIS_REF:
         program keeps its values).
         """
         self.pending = False
+        st = self.Status
         if rec is not None and nc_cycle is not None:
-            if not self._has_data or nc_cycle != self.Status.NcCycleCounter:
-                self._unchanged = 0  # a newer frame (or a restarted NC's: the task bumps nc_epoch)
-            else:
+            if self._has_data and nc_cycle == st.NcCycleCounter:
                 self._unchanged += 1
-            self.NcToPlc = NCTOPLC_AXIS_REF._of(rec)  # this cycle's copy, unpacked when read
+            else:
+                self._unchanged = 0  # a newer frame (or a restarted NC's: the task bumps nc_epoch)
+            # this cycle's copy, unpacked at once (ST_AxisStatus.update reads it: NCTOPLC_AXIS_REF._of + _unpack
+            # without their calls)
+            nc = self.NcToPlc = _new(NCTOPLC_AXIS_REF)
+            nc._raw, nc._v, nc._rec = rec, (v := _NC_UNPACK(rec)), None
             if jobs is not None:
-                self._jobs = NcJobsValues._of(jobs)
+                j = self._jobs = _new(NcJobsValues)
+                j._raw, j._v, j._rec = jobs, None, None
             self._has_data = True
             self.missing = False
+            if self._unchanged < stale_cycles:  # valid (the usual case): ST_AxisStatus.update inline
+                s, cs = v[_I_SDW], v[_I_CS]
+                flags = _FLAGS.get((s, cs))
+                if flags is None:
+                    flags = _flags(s, cs)
+                st.__dict__.update(flags)
+                acc, vel = v[_I_ACC], v[_I_VEL]
+                if abs(acc) <= _ACC_EPS:
+                    accel = decel = False
+                elif vel == 0.0:
+                    accel, decel = True, False  # starting from rest: any acceleration increases |v|
+                else:
+                    accel = (acc > 0) == (vel > 0)
+                    decel = not accel
+                st.CycleCounter, st.NcCycleCounter, st.UpdateCycleTime, st.Valid = plc_cycle, nc_cycle, cycle_time, True
+                st.ErrorId, st.Accelerating, st.Decelerating = v[_I_ERR], accel, decel
+                return
         else:
             self._unchanged += 1
             self.missing = nc_cycle is not None  # frames arrive, but without this axis
-            nc_cycle = self.Status.NcCycleCounter
+            nc_cycle = st.NcCycleCounter
         valid = self._has_data and not self.missing and self._unchanged < stale_cycles
-        self.Status.update(self.NcToPlc, nc_cycle, plc_cycle, cycle_time, valid)
+        st.update(self.NcToPlc, nc_cycle, plc_cycle, cycle_time, valid)
 
     @property
     def valid(self) -> bool:

@@ -62,7 +62,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from nc_schema import (COMMAND_SPECS, JOB_RECORDS, MOTION_COMMANDS, NCJOBS_SIZE, NCTOPLC_DTYPE, NCTOPLC_SIZE, CmdState,
-                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, frame_header, member_struct)
+                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, member_struct)
 
 # The command sets come from the contract's command properties (protocol.json, nc_schema.COMMAND_SPECS).
 #: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): ``slot``
@@ -72,8 +72,11 @@ _AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 #: plain stops: a late one is left as it is (it only stops): ``stop``
 _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
+from nc_schema.frames import _checked_header  # (frame_header's checks, its values as a plain tuple)
+
 from .axis_ref import AXIS_REF
 from .plcframe import PlcFrameBuffer
+from .records import _NC_INDEX
 from .port import CommandPort, PendingCommand, reply_cycle
 
 log = logging.getLogger(__name__)
@@ -83,6 +86,7 @@ _local = threading.local()
 _ENABLE = int(ControlDWord.Enable)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERROR = int(StateDWord.Error)
+_N_SDW = _NC_INDEX["StateDWord"][0]  # (where the unpacked NCTOPLC values keep it)
 #: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
 _CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)})
 
@@ -338,7 +342,8 @@ class PlcTask:
         if c is not None and c.state == "held" and not retry and self._controlled.get(key) is ax:
             # the usual call (MC_Power every cycle of an axis held): what the rest below does for it, the
             # cheap tests first (a closed loop or an axis error shows the claim is not lost)
-            if (not ax.NcToPlc.StateDWord & (_CLC | _ERROR) and ax.Status.Valid
+            rec = ax.NcToPlc
+            if (not (rec._v or rec._unpack())[_N_SDW] & (_CLC | _ERROR) and ax.Status.Valid
                     and self.now - c.since >= self.claim_retry and self.reachable(ax.nc)
                     and self._claim_looks_lost(ax, c)):
                 self._send_claim(ax, c)
@@ -649,7 +654,10 @@ class PlcTask:
         it is taken, keep the axes it was cut for. False: a frame of a lower epoch, dropped (not taken: the axes
         keep the frame held, and go stale if no other comes). (The clock, not ``self.now``: a runtime takes frames
         before its first step too.)"""
-        taken, why = self._instances.setdefault(nc, NcInstance()).take(cycle, epoch, self.clock())
+        inst = self._instances.get(nc)
+        if inst is None:  # (not setdefault: that built an NcInstance for every frame)
+            inst = self._instances[nc] = NcInstance()
+        taken, why = inst.take(cycle, epoch, self.clock())
         if not taken:
             return False
         self._covers[nc] = covers
@@ -666,9 +674,9 @@ class PlcTask:
         Raises:
             ValueError: not a status frame (wrong magic, version or sizes), as ``decode_frame``.
         """
-        h = frame_header(data)
-        cycle, hs, n = h.Cycle, h.HeaderSize, h.AxisCount
-        if not self._frame_arrived(nc, cycle, covers, h.Epoch):
+        # (frame_header's checks and values, as the plain tuple: no FrameHeader per frame)
+        _, _, hs, cycle, _, n, _, flags, epoch = _checked_header(data)
+        if not self._frame_arrived(nc, cycle, covers, epoch):
             return
         ids = _axis_ids_struct(n).unpack_from(data, hs)
         index = self._index_cache.get(nc)
@@ -676,7 +684,7 @@ class PlcTask:
             index = self._index_cache[nc] = (ids, {a: i for i, a in enumerate(ids)})
         frame: _FrameEntry = (cycle, None, index[1], None)
         self._frames[nc] = frame
-        self._frame_bytes[nc] = (frame, data, hs, data if h.Flags & JOB_RECORDS else None, hs + n * NCTOPLC_SIZE)
+        self._frame_bytes[nc] = (frame, data, hs, data if flags & JOB_RECORDS else None, hs + n * NCTOPLC_SIZE)
 
     def _bytes_of(self, nc: str, frame: _FrameEntry) -> tuple[_FrameEntry, bytes, int, bytes | None, int]:
         """(frame, the bytes its NCTOPLC records start in, where they start, the same of its NCJOBS records or

@@ -41,6 +41,7 @@ from typing import Any, ClassVar
 from nc_schema import ControlDWord, ErrorCodes, StateDWord
 
 from ..axis_ref import AXIS_REF, ST_AxisStatus
+from ..records import _NC_INDEX
 from .base import EnableBlock, ExecuteBlock, FunctionBlock
 
 _EN = int(ControlDWord.Enable)
@@ -48,6 +49,7 @@ _FP = int(ControlDWord.FeedEnablePlus)
 _FM = int(ControlDWord.FeedEnableMinus)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERR = int(StateDWord.Error)
+_N_SDW = _NC_INDEX["StateDWord"][0]  # (where the unpacked NCTOPLC values keep it)
 
 
 def override_to_plctonc(percent: float) -> int:
@@ -152,7 +154,8 @@ class MC_Power(FunctionBlock):
                 isinstance(bm, bool) or not isinstance(bm, int) or bm != 0):
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
         self.Error, self.ErrorID = bool(code), int(code)
-        sdw = ax.NcToPlc.StateDWord
+        rec = ax.NcToPlc
+        sdw = (rec._v or rec._unpack())[_N_SDW]  # (rec.StateDWord without the property's call)
         self.Status = held and ax.Status.Valid and bool(sdw & _CLC) and not sdw & _ERR
 
 

@@ -77,7 +77,7 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, MC_Direction, OpModeDWord, StateDWord, cmdno_newer
 
-from ..records import NCTOPLC_AXIS_REF, NcJobsValues
+from ..records import _JOBS_INDEX, _NC_INDEX, NCTOPLC_AXIS_REF, NcJobsValues
 from .base import ExecuteBlock
 
 _ERR = int(StateDWord.Error)
@@ -90,6 +90,12 @@ _INAREA = int(StateDWord.InPositionArea)
 _TGT_MON = int(OpModeDWord.OpModeTargetPosMonitoring)
 _AREA_MON = int(OpModeDWord.OpModePosAreaMonitoring)
 
+#: where _follow_job finds its members in the unpacked NCJOBS / NCTOPLC values (scalars: index, 0, 0)
+_J_AXIS_ID, _J_ACTIVE_NO, _J_ACTIVE_STATE, _J_BUFFERED_NO = (
+    _JOBS_INDEX[n][0] for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
+assert all(_JOBS_INDEX[n][1:] == (0, 0) for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
+_N_SDW = _NC_INDEX["StateDWord"][0]
+assert _NC_INDEX["StateDWord"][1] == 0
 _ACTIVE, _DONE_S, _ABORTED, _ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),
                                       int(CmdState.ERROR))
 
@@ -143,12 +149,24 @@ class MotionBlock(ExecuteBlock):
             a["BufferMode"] = bm
         return a
 
+    #: the class keeps MotionBlock._progress (built per class): the busy path of ``_cycle`` may call ``_follow``
+    _PLAIN_PROGRESS: ClassVar[bool] = True
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls._PLAIN_PROGRESS = cls._progress is MotionBlock._progress
+
     def _cycle(self) -> None:
+        if self.Busy and self._prev_execute and self._cmdno and self._PLAIN_PROGRESS and self.Execute:
+            # (every cycle of a move: Busy, Execute held, the command accepted; ExecuteBlock._cycle would only
+            # call _progress, and that only _follow)
+            self._follow()
+            return
         if self._RETRIGGER and self.Busy and self.Execute and not self._prev_execute:
             self._prev_execute = True
             self._restart()
             return
-        super()._cycle()
+        ExecuteBlock._cycle(self)  # (super()'s, without building the super object every cycle)
 
     def _restart(self) -> None:
         """A rising edge while Busy (``_RETRIGGER`` blocks): send a new command, follow its CmdNo.
@@ -188,14 +206,16 @@ class MotionBlock(ExecuteBlock):
             self.Active = active
 
     def _follow(self) -> None:
-        if self._lost_axis():
-            return
         ax = self.Axis
+        # (_lost_axis's usual answer, False, without its call; then AXIS_REF.shows_cycle inline)
+        if (ax is None or ax._task is None or ax.missing or not ax.Status.Valid or ax.nc_epoch != self._epoch) \
+                and self._lost_axis():
+            return
         assert ax is not None
-        if not ax.shows_cycle(self._cmd_cycle):
+        if not (ax._has_data and ax.Status.NcCycleCounter >= self._cmd_cycle):
             return  # the frame does not show the command's effect yet
         jobs = ax._jobs  # (plain values, unpacked once a cycle)
-        if jobs.AxisId:
+        if (jobs._v or jobs._unpack())[_J_AXIS_ID]:  # (jobs.AxisId without the property's call)
             self._follow_job(ax.NcToPlc, jobs)
         else:
             self._follow_cmdno(ax.NcToPlc)
@@ -203,14 +223,15 @@ class MotionBlock(ExecuteBlock):
     def _follow_job(self, rec: NCTOPLC_AXIS_REF, jobs: NcJobsValues) -> None:
         """The table of schema/README.md: find our CmdNo in the axis's job records."""
         me = self._cmdno
-        if jobs.BufferedCmdNo == me:
+        v = jobs._v or jobs._unpack()  # (the members by index: a property call each less)
+        if v[_J_BUFFERED_NO] == me:
             self._set_active(False)  # waiting behind the active job
             return
-        if jobs.ActiveCmdNo == me:
-            state = jobs.ActiveState
+        if v[_J_ACTIVE_NO] == me:
+            state = v[_J_ACTIVE_STATE]
             if state in (_ACTIVE, _DONE_S, _ABORTED, _ERROR):
                 # the error code matters only for ERROR or an axis error (_on_state): looked up only then
-                err = (self._ended_error(jobs, me, rec) if state == _ERROR or rec.StateDWord & _ERR
+                err = (self._ended_error(jobs, me, rec) if state == _ERROR or (rec._v or rec._unpack())[_N_SDW] & _ERR
                        else ErrorCodes.MC_BUFFERED_CMD_ERROR)
                 self._on_state(state, rec, err)
             else:
@@ -254,7 +275,7 @@ class MotionBlock(ExecuteBlock):
     def _on_state(self, state: int, rec: NCTOPLC_AXIS_REF, error_code: int) -> None:
         """Our command is the axis's active (or last) one, in ``state``; ``error_code`` is used only for
         ERROR or an axis error."""
-        sdw = rec.StateDWord
+        sdw = (rec._v or rec._unpack())[_N_SDW]  # (rec.StateDWord without the property's call)
         if state == _ERROR:
             self._finish("Error", error_code)
         elif sdw & _ERR:
