@@ -197,15 +197,9 @@ def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Procs]) -> None:
         cl.close()
 
 
-# Opt-in (ZNC_STANDBY_TESTS=1): green in every run at load average 3-10 (9 runs), but under bench/cpu_burner.py 3 of 6
-# runs failed: with realtime off the NCs' cycle threads stall 0.25-1.5 s there, so after the takeover the pair may
-# change roles again (a stall beyond the standby's limit: legitimate, but not what this test asserts), and once the
-# resumed NC put a frame before the new NC's log reached it (the clients' Cycle went back; docs/standby.md, "Not
-# there yet"). The kill -9 tests above and below are reliable under the burner.
-@pytest.mark.skipif(not os.environ.get("ZNC_STANDBY_TESTS"),
-                    reason="SIGSTOP of the active NC: unreliable with every core busy (role changes after stalls of "
-                           "0.25-1.5 s, a frame of the resumed NC after the new one's); set ZNC_STANDBY_TESTS=1 "
-                           "(docs/standby.md)")
+# Opt-in until 2026-12-06 (under bench/cpu_burner.py 3 of 6 runs had failed: the pair changing roles again after
+# the NCs' stalls, a frame of the resumed NC after the new one's); since the loss detector's window of 60 s at 3x and
+# the frames' epoch: 8 of 8 runs under the burner and 3 of 3 on the quiet machine passed: in make test.
 def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Procs]) -> None:
     p = pair()
     cl, tr = setup(p, [1])
