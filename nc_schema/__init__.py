@@ -25,8 +25,8 @@ from .codec import (
     MC_AxisPara, MC_AxisStates, MC_BufferMode, MC_Direction, MC_HomingMode, Member, NcJobsFlags, NcJobsSyncFlags,
     OpModeDWord, StateDWord, StateDWord2, StateDWord3, bit_names, decode, decode_frame, decode_plc_frame,
     decode_stamp, decode_stamp_epoch, encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_epoch,
-    frame_header, frame_records, frame_stamp, load_json, member_struct, members, pack_frame_header_into, struct_of,
-    to_dict, view_frame,
+    frame_header, frame_header_values, frame_records, frame_stamp, load_json, member_struct, members,
+    pack_frame_header_into, struct_of, to_dict, view_frame,
 )
 from .commands import COMMAND_SPECS, CommandSpec
 from .errors import ERRORS, ErrorCodes, NcError, error_name, error_text
@@ -63,7 +63,7 @@ __all__ = [
     "decode_parameter_set", "decode_plc_frame", "decode_stamp", "decode_stamp_epoch", "encode_ads",
     "encode_axis_components",
     "encode_frame", "encode_parameter_set", "encode_plc_frame", "encode_plc_records", "encode_stamp", "error_name",
-    "error_text", "frame_epoch", "frame_header", "frame_period_ms", "frame_records", "frame_stamp", "load_json",
+    "error_text", "frame_epoch", "frame_header", "frame_header_values", "frame_period_ms", "frame_records", "frame_stamp", "load_json",
     "make_reply",
     "make_request", "member_struct", "members", "motion_state", "motion_state_array", "new_instance_id",
     "next_cmdno", "pack", "pack_frame_header_into", "pack_value", "parse_alive_instance", "parse_reply",

@@ -15,7 +15,7 @@ from __future__ import annotations
 from .frames import (
     FRAME_HEADER_STRUCT, FRAME_MAGIC, JOB_RECORDS, PLC_AXIS_HEAD_STRUCT, PLC_FRAME_HEADER_STRUCT, PLC_FRAME_MAGIC,
     STAMP_STRUCT, WIRE_VERSION, FrameHeader, decode_frame, decode_plc_frame, decode_stamp, decode_stamp_epoch,
-    encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_epoch, frame_header, frame_records,
+    encode_frame, encode_plc_frame, encode_plc_records, encode_stamp, frame_epoch, frame_header, frame_header_values, frame_records,
     frame_stamp, pack_frame_header_into, view_frame,
 )
 from .generated import (
@@ -47,7 +47,7 @@ __all__ = [
     "PLCTONC_SIZE", "STAMP_SIZE", "Member", "members", "struct_of", "member_struct", "decode", "to_dict",
     "bit_names", "DEFAULT_HOME_POSITION", "FRAME_MAGIC", "PLC_FRAME_MAGIC", "WIRE_VERSION", "JOB_RECORDS",
     "FRAME_HEADER_STRUCT", "PLC_FRAME_HEADER_STRUCT", "PLC_AXIS_HEAD_STRUCT", "STAMP_STRUCT", "FrameHeader",
-    "encode_frame", "pack_frame_header_into", "frame_header", "frame_stamp", "frame_epoch", "decode_frame",
+    "encode_frame", "pack_frame_header_into", "frame_header", "frame_header_values", "frame_stamp", "frame_epoch", "decode_frame",
     "frame_records", "encode_plc_frame", "encode_plc_records", "decode_plc_frame", "encode_stamp", "decode_stamp",
     "decode_stamp_epoch", "view_frame", "AxisState",
     "CamCouplingState", "CmdState", "ControlDWord", "CoupleState", "E_CmdTypeNewTargPosAndVelo", "E_DecoupleMode",

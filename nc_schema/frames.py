@@ -137,10 +137,14 @@ def frame_epoch(frame: bytes | bytearray | memoryview) -> int:
 _Header = tuple[int, int, int, int, int, int, int, int, int]
 
 
-def _checked_header(data: bytes | bytearray | memoryview) -> _Header:
-    """The FRAME_HEADER values of a status frame, checked (see :func:`frame_header`); a plain tuple, checked
-    on locals: this runs for every frame a client takes. A frame of an NC before protocol 5 (HeaderSize 32, no
-    Epoch) gives Epoch 0."""
+def frame_header_values(data: bytes | bytearray | memoryview) -> _Header:
+    """The FRAME_HEADER values of a status frame, checked as :func:`frame_header` does, as a plain tuple in the
+    order of ``FrameHeader._fields`` (no namedtuple made: this runs for every frame a client takes). A frame of an
+    NC before protocol 5 (HeaderSize 32, no Epoch) gives Epoch 0.
+
+    Raises:
+        ValueError: not a status frame of this protocol, or its sizes do not add up.
+    """
     size = len(data)
     if size >= FRAME_HEADER_SIZE and _HEADER_SIZE_UNPACK(data, _HEADER_SIZE_OFFSET)[0] >= FRAME_HEADER_SIZE:
         v: _Header = FRAME_HEADER_STRUCT.unpack_from(data)
@@ -155,6 +159,9 @@ def _checked_header(data: bytes | bytearray | memoryview) -> _Header:
     if record_size != NCTOPLC_SIZE or header_size < FRAME_HEADER_V4_SIZE or size != header_size + n * per_axis:
         raise ValueError("status frame sizes do not add up")
     return v
+
+
+_checked_header = frame_header_values
 
 
 def frame_header(data: bytes | bytearray | memoryview) -> FrameHeader:

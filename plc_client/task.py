@@ -62,7 +62,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from nc_schema import (COMMAND_SPECS, JOB_RECORDS, MOTION_COMMANDS, NCJOBS_SIZE, NCTOPLC_DTYPE, NCTOPLC_SIZE, CmdState,
-                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, member_struct)
+                       ControlDWord, ErrorCodes, NcInstance, StateDWord, error_text, frame_header_values, member_struct)
 
 # The command sets come from the contract's command properties (protocol.json, nc_schema.COMMAND_SPECS).
 #: motion commands whose CmdNo numbers a slot of their own (not NCTOPLC.CmdNo): ``slot``
@@ -71,8 +71,6 @@ _SLOT_COMMANDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.motion and s
 _AMENDS = frozenset(n for n, s in COMMAND_SPECS.items() if s.amends)
 #: plain stops: a late one is left as it is (it only stops): ``stop``
 _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
-
-from nc_schema.frames import _checked_header  # (frame_header's checks, its values as a plain tuple)
 
 from .axis_ref import AXIS_REF
 from .plcframe import PlcFrameBuffer
@@ -675,7 +673,7 @@ class PlcTask:
             ValueError: not a status frame (wrong magic, version or sizes), as ``decode_frame``.
         """
         # (frame_header's checks and values, as the plain tuple: no FrameHeader per frame)
-        _, _, hs, cycle, _, n, _, flags, epoch = _checked_header(data)
+        _, _, hs, cycle, _, n, _, flags, epoch = frame_header_values(data)
         if not self._frame_arrived(nc, cycle, covers, epoch):
             return
         ids = _axis_ids_struct(n).unpack_from(data, hs)

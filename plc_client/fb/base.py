@@ -368,7 +368,8 @@ class ExecuteBlock(FunctionBlock):
         ax = self.Axis
         if ax is not None and ax._task is not None and not ax.missing and ax.Status.Valid \
                 and ax.nc_epoch == self._epoch:
-            return False  # (the usual answer, every cycle of a busy block: without the _axis_problem call)
+            return False  # (the usual answer, every cycle of a busy block: without the _axis_problem call; the same
+            # test is inlined in MotionBlock._follow: change both)
         code = self._axis_problem()
         if not code and ax is not None and ax.nc_epoch != self._epoch:
             code = ErrorCodes.MC_NO_NC_CYCLE_UPDATE

@@ -149,7 +149,8 @@ class MotionBlock(ExecuteBlock):
             a["BufferMode"] = bm
         return a
 
-    #: the class keeps MotionBlock._progress (built per class): the busy path of ``_cycle`` may call ``_follow``
+    #: the class keeps MotionBlock._progress (set when the class is defined: a ``_progress`` assigned to the class
+    #: later is not seen): the busy path of ``_cycle`` may call ``_follow``
     _PLAIN_PROGRESS: ClassVar[bool] = True
 
     def __init_subclass__(cls, **kwargs: Any) -> None:

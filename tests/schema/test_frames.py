@@ -141,6 +141,11 @@ def test_a_frame_and_a_stamp_of_protocol_4_read_with_epoch_0(with_jobs: bool) ->
     empty = s.encode_frame(9, 10, recs[:0])
     empty_old = empty[:6] + struct.pack("<H", 32) + empty[8:32]
     assert s.frame_header(empty_old).AxisCount == 0
+    # the plain tuple a client's hot path reads (plc_client): the same values, in FrameHeader's order
+    for d in (new, old, empty, empty_old):
+        assert s.frame_header_values(d) == tuple(s.frame_header(d))
+    with pytest.raises(ValueError):
+        s.frame_header_values(old[:-1])
     assert s.decode_stamp_epoch(struct.pack("<QQ", 3, 4)) == (3, 4, 0)
     # the protocol-4 reader: the 32 bytes before Epoch, the records at HeaderSize
     v4 = s.struct_of(s.FRAME_HEADER_DTYPE, stop="Epoch").unpack_from(new)
