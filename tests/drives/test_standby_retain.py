@@ -1,5 +1,6 @@
 """A hot-standby pair with retain files, real processes over real zenoh on 127.0.0.1 (docs/standby.md, "Retain
-files"): node ``a`` starts active with ``a.retain``, ``b`` standby with ``b.retain`` (two hosts: two files).
+files"): node ``a`` starts active with ``a.retain``, ``b`` standby with ``b.retain`` (two hosts: two files), or both
+with ``a.retain`` (one host, one path: the lock decides who writes).
 
 Only the active NC writes its file; kill -9 of the active NC during a standstill: the new active NC's file then
 holds the axis position (its first snapshot at once after the takeover), and moves on it are kept there; the old
@@ -9,6 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Any, Callable
+
+import pytest
 
 from nc_server.server.retain import RetainData, RetainError, parse_retain
 from znc_testing import start_nc_router, start_nc_server
@@ -35,12 +38,14 @@ def holds(path: Path, pos: float) -> Callable[[], Any]:
     return pred
 
 
+@pytest.mark.parametrize("shared", [False, True], ids=["two-files", "one-path"])
 def test_kill_9_at_standstill_the_new_active_keeps_the_position_the_old_node_comes_back_standby(
-        tmp_path: Path) -> None:
+        tmp_path: Path, shared: bool) -> None:
     started: list[Any] = []
     text = CONFIG.format(cycle=CYCLE, port="{port}", takeover=TAKEOVER_CYCLES)
     text = text.replace('Name = "X"\n', 'Name = "X"\nAxisEnDataPersistence = true\n')
-    fa, fb = tmp_path / "a.retain", tmp_path / "b.retain"
+    # (one-path: both nodes on one host name the same file; its lock decides who writes)
+    fa, fb = tmp_path / "a.retain", tmp_path / ("a.retain" if shared else "b.retain")
     cl = tr = None
     try:
         router = start_nc_router(tmp_path / "router", ["--lease-ms", str(LEASE_MS)])
@@ -69,7 +74,7 @@ def test_kill_9_at_standstill_the_new_active_keeps_the_position_the_old_node_com
         old, new, epoch = kill_active(p, cl, ready=lambda: wait_logged(
             lambda: all(holds(files[n], 30.0)() for n in ("a", "b") if (ha_status(cl, n) or {}).get("role") == "active"),
             "the active NC's file holds 30 at standstill", servers(p)))
-        if old == "a":  # (no role change before: the standby never wrote its file)
+        if old == "a" and not shared:  # (no role change before: the standby never wrote its file)
             assert not fb.exists()
         took_over(p, cl, new, epoch)
         wait_logged(holds(files[new], 30.0), f"{new}'s file holds 30 (its first snapshot after the takeover)",
@@ -88,9 +93,12 @@ def test_kill_9_at_standstill_the_new_active_keeps_the_position_the_old_node_com
         assert st is not None and st["role"] == "active", st
         err = p[old].stderr()
         assert "loaded (saved" not in err and "does not exist yet" not in err, err[-3000:]
-        assert files[old].read_bytes() == stale and "locked by this NC" not in err
+        assert "locked by this NC" not in err
+        if not shared:
+            assert files[old].read_bytes() == stale
         assert "locked by this NC" in p[new].stderr()  # (the takeover took the lock: the retain thread's line)
-        print(f"{old} killed, {new} took over; {new}'s file holds 12.5; {old} back as a standby, its file untouched")
+        print(f"{old} killed, {new} took over; {new}'s file holds 12.5; {old} back as a standby"
+              + ("" if shared else ", its own file untouched"))
         assert holds(files[new], 12.5)()
     finally:
         if tr is not None:
