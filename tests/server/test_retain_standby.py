@@ -209,3 +209,31 @@ def test_a_start_as_active_applies_the_file_in_its_first_cycle(tmp_path: Path) -
         assert server.steps == [1] and retain.applied and core.act_pos[0] == pytest.approx(130.0)
     finally:
         retain.stop()
+
+
+def test_a_cold_takeover_whose_file_is_locked_drives_without_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                caplog: pytest.LogCaptureFixture) -> None:
+    monkeypatch.setattr(R, "LOCK_RETRY_S", 0.05)
+    path = tmp_path / "nc1.retain"
+    save(path, RetainData("nc1", {1: AxisRetain("A1", 130.0, True, True, 0.0)}))
+    other = RetainKeeper(path, "nc1", make_core())  # (another process's NC on the same path, frozen)
+    other._lock()
+    server = pair_server(tmp_path, "standby")
+    retain, ha, core = server.retain, server.ha, server.core
+    retain.start()
+    try:
+        ha.role = "active"
+        server.became_active(time.monotonic(), serve=False)  # (never followed: a cold start)
+        assert not server._retain_pending and retain.status == "new" and retain.applied
+        assert any("this NC drives without applying it" in r.getMessage() for r in caplog.records)
+        server.cycle(time.monotonic_ns())
+        assert core.act_pos[0] == pytest.approx(5000.0)  # (the file is not applied)
+        wait_until(lambda: retain.lock_waits >= 2, T, "tries of the lock")
+        other.close()
+        wait_until(lambda: retain.owner, T, "the lock once released")
+        # (the next snapshot, within SNAPSHOT_PERIOD of cycles, is written at once: the file held another state)
+        wait_until(lambda: (server.cycle(time.monotonic_ns()), stored(path).axes[1].position)[1]
+                   == pytest.approx(5000.0), T, "its state in the file", interval=0.001)
+    finally:
+        retain.stop()
+        other.close()
