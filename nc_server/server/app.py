@@ -41,7 +41,7 @@ from .cycle import IO_NICE, IO_THREAD_NICE, CycleLoop, configure_interpreter, ra
 from .handler import MAX_REQUEST_BYTES, NO_NC_CYCLE, CycleInputs, PendingReply, RequestHandler
 from .replication import CoreRecorder
 from .standby import HotStandby
-from .retain import RetainKeeper
+from .retain import RetainKeeper, RetainLockError
 from .frame_ring import RingCounters
 from .publisher import READY_TIMEOUT, FrameOutput, PublisherProcess, PublisherThread, internal_endpoint, remove_internal_socket
 from .transport import IoThread, Transport
@@ -202,6 +202,8 @@ class NcServer:
             retain.on_settled = self.io.wake  # held replies go out once their commit is in the file
         if config.redundancy.enabled:
             self.ha = HotStandby(self, config.redundancy)
+            if retain is not None:  # only the active NC of the pair keeps its file (docs/standby.md)
+                retain.follow()
         #: the cycle's frames (shared memory), and what puts them on zenoh (made by start(): a child
         #: process or a thread, ``[nc] publisher``)
         self.frames = FrameOutput(config.name, len(self.axis_ids))
@@ -261,7 +263,9 @@ class NcServer:
         """
         configure_interpreter()
         try:
-            self.load_retain()
+            # (a pair's standby: not before it becomes active, and then only after a cold start: became_active)
+            if self.ha is None or self.config.redundancy.start == "active":
+                self.load_retain()
         except BaseException:
             self._close_drive()  # (the drive is open since NcCore: CANopen nodes operational, remote threads)
             raise
@@ -422,12 +426,12 @@ class NcServer:
         """One NC cycle scheduled at ``deadline_ns`` (CLOCK_MONOTONIC)."""
         t = self.transport
         core = self.core
-        if self._retain_pending:
+        ha = self.ha
+        if self._retain_pending and ha is None:
             self._retain_cycle(deadline_ns)
             return
         claims = self.claims
         now = time.monotonic()
-        ha = self.ha
         if ha is not None:
             if self._prev_tick and ha.after_stall(now - self._prev_tick):
                 pass  # (replaced while it stalled: a standby now, nothing of the stall is its to handle)
@@ -437,6 +441,10 @@ class NcServer:
                 self._take_liveliness(now)  # (its channel drained: the events of the clients are kept current)
                 return
             self.loop.relaxed = False
+            if self._retain_pending:  # a cold start of the pair: its file is applied in its first active cycle
+                self._retain_cycle(deadline_ns)
+                ha.after_step()  # (the log of that cycle, the file's commands in it, to the standby)
+                return
         self._tick(now)
 
         self._take_liveliness(now)
@@ -493,13 +501,36 @@ class NcServer:
         self._prev_tick = now
         self._claims_version = -1
         self._claims_changed()  # (the holders whose PLCTONC frames count)
+        self._retain_active()
         if serve:
             self.transport.serve()
+
+    def _retain_active(self) -> None:
+        """(a pair: this NC became active) Keep the retain file from now on (docs/standby.md): after a cold start
+        (no NC followed: its own state is the configuration's) the file is loaded and applied in the next cycle,
+        as a single NC does; else (a takeover in step, a retake from its own core: its state is newer than its
+        file) the retain thread takes the lock and writes that state."""
+        retain, ha = self.retain, self.ha
+        if retain is None or self._retain_pending:  # (a start as active: start() loaded it, the first cycle applies it)
+            return
+        if retain.status == "new" and ha is not None and not ha.followed:
+            try:
+                retain.load()  # (the lock, then one read: what start() does for a single NC)
+            except RetainLockError as exc:
+                log.warning("%s: this NC drives without applying it", exc)
+                retain.resume()
+                return
+            self._retain_pending = True
+            return
+        retain.resume()
 
     def became_standby(self) -> None:
         """This NC was replaced (HotStandby): it serves nothing; its prepared commands are dropped unanswered (a
         client's retry reaches the active NC, whose reply cache has them if they ran)."""
         self.transport.unserve()
+        if self.retain is not None:  # only the active NC keeps the file: released after the write in progress
+            self.retain.suspend()
+            self._retain_pending = False
         for _, pending, _ in self._pending:
             self.core.set_preparing(pending.axis_id, False)
         self._pending.clear()

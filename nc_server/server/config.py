@@ -142,7 +142,9 @@ class ServerConfig:
         retain_file: the retain file (positions of persistent axes, homed flags, parameters written at
             run time: :mod:`nc_server.server.retain`), an absolute path (a relative one is resolved
             against the working directory when the configuration is loaded, also in a config file),
-            None: nothing is kept across a restart.
+            None: nothing is kept across a restart. In a hot-standby pair each node has its own (on one
+            host they may name the same file: its lock decides who writes); only the active NC locks and
+            writes it, and only a cold start applies it (docs/standby.md, "Retain files").
         zenoh: the session settings.
         axes: the axes in configuration order.
         roles: the roles file (``zenoh.roles`` / ``--roles``): the NC refuses commands a client's role
@@ -186,7 +188,7 @@ class ServerConfig:
     redundancy: Redundancy = field(default_factory=Redundancy)
 
 
-def _redundancy(data: Mapping[str, Any], retain_file: str | None) -> Redundancy:
+def _redundancy(data: Mapping[str, Any]) -> Redundancy:
     """The ``[redundancy]`` section (docs/standby.md)."""
     r = _table(data, "redundancy", {"enabled", "start", "takeover_cycles", "catch_up_ms", "node"})
     enabled = r.get("enabled", False)
@@ -200,9 +202,6 @@ def _redundancy(data: Mapping[str, Any], retain_file: str | None) -> Redundancy:
             or not all(c.isascii() and (c.isalnum() or c in "-_") for c in node):
         raise ConfigError("redundancy.node", f"0..{NODE_MAX} characters of letters, digits, '-' and '_' (the standby "
                                              f"watches the frames as the client 'ha-<node>', at most 64), got {node!r}")
-    if enabled and retain_file is not None:
-        raise ConfigError("redundancy.enabled", "a redundant NC pair with nc.retain_file is not supported yet "
-                                                "(docs/standby.md: retain files)")
     return Redundancy(enabled, start, cycles, catch_up, node)
 
 
@@ -440,7 +439,7 @@ def parse_config(data: Mapping[str, Any]) -> ServerConfig:
     axes, reactions, axis_drives = _axes(data, drive, known)
     drive_options = _drive_sections(data, known)
     remote_masters, remote_max_age = _remote(data, name)
-    redundancy = _redundancy(data, retain_file)
+    redundancy = _redundancy(data)
     _check_drive_timeout(redundancy, cycle_time, axis_drives, drive_options, lease)
     return ServerConfig(name=name, cycle_time=cycle_time, watchdog_timeout=watchdog, realtime=realtime,
                         rt_priority=rt_priority, drive=drive, retain_file=retain_file,

@@ -75,6 +75,17 @@ the NC starts with its configuration; the next write creates a fresh file. If it
 renamed, the NC does not write the retain file during this run (it would overwrite what may still
 be rescued) and says so.
 
+In a hot-standby pair (``[redundancy] enabled``, docs/standby.md), only the active NC keeps its file:
+:meth:`RetainKeeper.follow` makes the keeper one that holds no lock and writes nothing until
+:meth:`RetainKeeper.resume` (a takeover in step, or a retake: the retain thread takes the lock, at once, and
+writes the current state with the next snapshot; the file is not applied, the NC's state is newer) and
+again nothing after :meth:`RetainKeeper.suspend` (a demotion: the retain thread finishes a write in progress,
+then releases the lock; the file stays the last complete snapshot). While the lock is held by another
+process (the old active NC frozen on the same host, same path) the NC drives without its file: warned once,
+the lock tried again every :data:`LOCK_RETRY_S`, and the replies of durable commands go out as 0x4002 (not
+kept), as with ``writing_disabled``. Only a cold start (``start = "active"``, or a standby that takes over
+without having followed anyone) loads and applies the file, as a single NC does.
+
 Homed flags of persistent axes come from the file only: once a retain file exists, a persistent
 axis for which the file holds no usable position taken at standstill (refused or unreadable file,
 axis missing, another ``Name``, another modulo setting, a position out of range, SetActualPosition
@@ -151,6 +162,8 @@ RETAIN_ERROR_CODE = 0x4002
 DURABLE_COMMANDS = frozenset({"WriteParameter", "SetActualPosition", "SetActualPositionOnTheFly", "SetReferenceFlag"})
 #: Those of DURABLE_COMMANDS that change what is kept of persistent axes only (AxisEnDataPersistence).
 POSITION_COMMANDS = frozenset({"SetActualPosition", "SetActualPositionOnTheFly", "SetReferenceFlag"})
+#: (a hot-standby pair) An active NC whose retain file's lock is held by another process tries again this often [s].
+LOCK_RETRY_S = 1.0
 #: Set velocities up to this count as zero (the core's own threshold) [u/s].
 _EPS_V = 1e-9
 
@@ -566,6 +579,11 @@ class RetainKeeper:
         #: called by the retain thread after ``settled`` rose (the I/O thread's wake-up; never blocks)
         self.on_settled: Callable[[], None] | None = None
         self.rejected: Path | None = None  # where load() put a refused file
+        #: (a hot-standby pair: :meth:`follow`) the lock is the retain thread's to take and release, as the role says
+        self.managed = False
+        self._want = True  # (managed) this NC is active: hold the lock and write; False: release it, write nothing
+        self._lock_warned = False  # (managed) the lock held by another process was said (once per takeover)
+        self.lock_waits = 0  # (managed) tries of the lock that found it held by another process
 
     # -- startup: read (before the cycle starts) -------------------------------------------------
     def load(self) -> RetainData | None:
@@ -583,6 +601,7 @@ class RetainKeeper:
         if self.status != "new":  # (loaded once per process)
             return self.loaded
         self._lock()
+        self._want = True  # (a pair's cold start: this NC keeps the file from now on)
         self._remove_stale_temporaries()
         path = self.path
         try:
@@ -803,6 +822,62 @@ class RetainKeeper:
                                        f"rejects it): 0x{int(r['error']):04X} {r.get('text', '')}")
         return n_params
 
+    # -- a hot-standby pair (docs/standby.md) ------------------------------------------------------
+    def follow(self) -> None:
+        """This NC is one of a hot-standby pair, a standby for now: no lock, no write until :meth:`resume`
+        (before :meth:`start`; a cold start's :meth:`load` makes it the owner at once)."""
+        self.managed = True
+        self._want = False
+
+    @property
+    def owner(self) -> bool:
+        """This process holds the file's lock (it may write the file)."""
+        return self._lock_fd is not None
+
+    def resume(self) -> None:
+        """(cycle thread, a takeover in step or a retake: no I/O here) Keep the file from now on, with this NC's
+        state (the file is not applied): the retain thread takes the lock at once (held by another process: said
+        once, tried every LOCK_RETRY_S; replies of durable commands are not kept meanwhile) and the next cycle hands
+        a snapshot over, written at once."""
+        self.managed = True
+        self._want = True
+        self._lock_warned = False
+        self.applied = True  # (snapshots from now on: tick)
+        self._due = self._check_due = 0
+        self._last_standing = None
+        self._wake.set()
+
+    def suspend(self) -> None:
+        """(cycle thread, a demotion: no I/O here) Stop keeping the file: the retain thread writes nothing more
+        (a write in progress ends first: the file stays the last complete snapshot) and releases the lock."""
+        self.managed = True
+        self._want = False
+        self.applied = False
+        self._pending.clear()
+        self._wake.set()
+
+    def _own(self) -> None:
+        """(retain thread, managed) Take or release the lock as the role says."""
+        if self._want and self._lock_fd is None:
+            with self._write_lock:
+                try:
+                    self._lock()
+                except RetainLockError as exc:
+                    self.lock_waits += 1
+                    if not self._lock_warned:
+                        self._lock_warned = True
+                        log.warning("%s: this NC drives without its retain file (replies of durable commands: 0x%04X, "
+                                    "not kept) and tries the lock every %g s", exc, RETAIN_ERROR_CODE, LOCK_RETRY_S)
+                    return
+                self._remove_stale_temporaries()
+                self._written = None  # (the file holds another state: the next snapshot is written at once)
+            log.info("retain file %s: locked by this NC (active): it keeps the file from now on", self.path)
+        elif not self._want and self._lock_fd is not None:
+            with self._write_lock:  # (after a write in progress)
+                self.close()
+            self._settle(self.committed, False)  # (commits of the active NC not written: not kept)
+            log.info("retain file %s: released (this NC is a standby)", self.path)
+
     # -- running ---------------------------------------------------------------------------------
     def start(self) -> None:
         """Start the retain thread (it writes the file when a snapshot differs from the file)."""
@@ -883,8 +958,10 @@ class RetainKeeper:
 
     def _run(self) -> None:
         while True:
-            self._wake.wait()
+            self._wake.wait(LOCK_RETRY_S if self.managed and self._want and self._lock_fd is None else None)
             self._wake.clear()
+            if self.managed:
+                self._own()
             snap = self.take_pending()
             if snap is not None:
                 try:
@@ -974,8 +1051,8 @@ class RetainKeeper:
     def _write_locked(self, snap: _Snapshot, force: bool) -> bool:
         """Write the snapshot's content if it changed (``force``: at once, else when its kind of change
         is due); whether the file holds it now."""
-        if self.writing_disabled:
-            return False
+        if self.writing_disabled or (self.managed and (self._lock_fd is None or not self._want)):
+            return False  # (a standby, or an active NC without the lock: not kept)
         try:
             data = self.data_of(snap)
             if data == self._written and self.path.exists():

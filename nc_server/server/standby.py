@@ -263,6 +263,7 @@ class HotStandby:
         self._frame_alive = -1e9     # when a frame of the followed epoch last showed its Cycle going on [monotonic]
         self._forgiving = False      # (the silence of the logs is forgiven now: counted once per silence)
         self.synced_once = False
+        self.followed = False  # in step with an active NC once (a takeover since is no cold start: docs/standby.md)
         self.active_token_seen = False
         self.peer_in_step = False  # (active) a standby in step is there
         self._peers: set[str] = set()
@@ -548,7 +549,7 @@ class HotStandby:
         self.logs_in += 1
         self._last_log = now
         if self.follower.apply(lg):
-            self.synced_once = True
+            self.synced_once = self.followed = True
             self._declare_standby(True)
         return False
 

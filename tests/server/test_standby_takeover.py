@@ -631,9 +631,9 @@ def test_the_frames_view_token_is_held_only_while_standby() -> None:
 
 def test_a_node_name_too_long_for_the_frames_view_is_a_config_error() -> None:
     from nc_server.server.config import NODE_MAX, ConfigError, _redundancy
-    assert _redundancy({"redundancy": {"node": "n" * NODE_MAX}}, None).node == "n" * NODE_MAX
+    assert _redundancy({"redundancy": {"node": "n" * NODE_MAX}}).node == "n" * NODE_MAX
     with pytest.raises(ConfigError, match="ha-<node>"):
-        _redundancy({"redundancy": {"node": "n" * (NODE_MAX + 1)}}, None)
+        _redundancy({"redundancy": {"node": "n" * (NODE_MAX + 1)}})
 
 
 def test_only_the_logs_replayed_are_unpickled() -> None:
