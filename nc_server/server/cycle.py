@@ -152,13 +152,9 @@ def raise_io_priority(mode: str, nice: int = IO_NICE) -> str:
     return f"nice {nice}"
 
 
-def demote_other_threads(keep: set[int]) -> list[int]:
-    """Set every SCHED_FIFO/SCHED_RR thread of this process not in ``keep`` (native thread ids) back to
-    SCHED_OTHER; the ids it demoted (Linux; elsewhere nothing).
-
-    A thread inherits its creator's policy: zenoh creates some threads lazily (e.g. its SHM watchdog
-    threads on first use), and one created from a SCHED_FIFO thread would run at real-time priority.
-    """
+def _change_other_threads(keep: set[int], change: Callable[[int], bool]) -> list[int]:
+    """``change(tid)`` for every thread of this process not in ``keep`` (native thread ids); the ids for which it
+    returned True (Linux; elsewhere nothing). A thread that ended meanwhile, or a change not permitted, is skipped."""
     out: list[int] = []
     try:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
@@ -168,12 +164,26 @@ def demote_other_threads(keep: set[int]) -> list[int]:
         if tid in keep:
             continue
         try:
-            if is_realtime(tid):
-                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+            if change(tid):
                 out.append(tid)
-        except OSError:  # the thread ended meanwhile, or not permitted
+        except OSError:
             pass
     return out
+
+
+def demote_other_threads(keep: set[int]) -> list[int]:
+    """Set every SCHED_FIFO/SCHED_RR thread of this process not in ``keep`` (native thread ids) back to
+    SCHED_OTHER; the ids it demoted (Linux; elsewhere nothing).
+
+    A thread inherits its creator's policy: zenoh creates some threads lazily (e.g. its SHM watchdog
+    threads on first use), and one created from a SCHED_FIFO thread would run at real-time priority.
+    """
+    def demote(tid: int) -> bool:
+        if not is_realtime(tid):
+            return False
+        os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+        return True
+    return _change_other_threads(keep, demote)
 
 
 def raise_other_threads(keep: set[int], nice: int) -> list[int]:
@@ -185,21 +195,12 @@ def raise_other_threads(keep: set[int], nice: int) -> list[int]:
     at nice 0 (SCHED_RESET_ON_FORK resets a negative nice too): seen in a hot-standby pair, its zenoh threads at
     nice 0 behind the clients' processes while the logs they carry were late.
     """
-    out: list[int] = []
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except (OSError, ValueError):
-        return out
-    for tid in tids:
-        if tid in keep:
-            continue
-        try:
-            if not is_realtime(tid) and os.getpriority(os.PRIO_PROCESS, tid) > nice:
-                os.setpriority(os.PRIO_PROCESS, tid, nice)
-                out.append(tid)
-        except OSError:  # the thread ended meanwhile, or not permitted
-            pass
-    return out
+    def give(tid: int) -> bool:
+        if is_realtime(tid) or os.getpriority(os.PRIO_PROCESS, tid) <= nice:
+            return False
+        os.setpriority(os.PRIO_PROCESS, tid, nice)
+        return True
+    return _change_other_threads(keep, give)
 
 
 def _reduce_timer_slack() -> None:
