@@ -43,7 +43,7 @@ use_this_tree()
 
 from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server  # noqa: E402
 from znc_testing.remote_drives import DriveSim, enabled, power  # noqa: E402
-from znc_testing.standby_rig import CONFIG, LEASE_MS, Trace, ha_status, largest_step  # noqa: E402
+from znc_testing.standby_rig import CONFIG, LEASE_MS, Trace, close_all, ha_status, largest_step  # noqa: E402
 from znc_testing.until import wait_until  # noqa: E402
 from nc_server.server.standby import WARMUP_S  # noqa: E402
 
@@ -199,12 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if stopped:
             os.killpg(stopped, signal.SIGCONT)
-        if tr is not None:
-            tr.close()
-        if cl is not None:
-            cl.close()
-        for h in reversed(started):
-            h.kill()
+        close_all(tr, cl, started)
     busy.stop()
     ms = [r["ms"] for r in rows if r["ms"] == r["ms"]]
     cyc = [m / (CYCLE * 1e3) for m in ms]

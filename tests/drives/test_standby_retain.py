@@ -19,7 +19,7 @@ from znc_testing.remote_drives import DriveSim
 
 from test_standby_process import (CONFIG, CYCLE, DRIVE_TIMEOUT, LEASE_MS, TAKEOVER_CYCLES, Procs, done, kill_active,
                                   move, servers, setup, took_over, wait_logged)
-from znc_testing.standby_rig import ha_status
+from znc_testing.standby_rig import close_all, ha_status
 
 
 def retained(path: Path) -> RetainData | None:
@@ -101,9 +101,4 @@ def test_kill_9_at_standstill_the_new_active_keeps_the_position_the_old_node_com
               + ("" if shared else ", its own file untouched"))
         assert holds(files[new], 12.5)()
     finally:
-        if tr is not None:
-            tr.close()
-        if cl is not None:
-            cl.close()
-        for h in reversed(started):
-            h.kill()
+        close_all(tr, cl, started)

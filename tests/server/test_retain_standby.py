@@ -43,14 +43,20 @@ def locked_by_other(path: Path) -> bool:
     return False
 
 
+
+def following_keeper(path: Path, core: Any) -> RetainKeeper:
+    """A standby's keeper, started: it follows (no lock, no write) until resume()."""
+    k = RetainKeeper(path, "nc1", core)
+    k.follow()
+    k.start()
+    return k
+
 def test_a_standby_keeper_holds_no_lock_and_writes_nothing(tmp_path: Path) -> None:
     path = tmp_path / "nc1.retain"
     save(path, RetainData("nc1", {1: AxisRetain("A1", 130.0, True, True, 0.0)}))
     before = path.read_bytes()
     core = make_core()
-    k = RetainKeeper(path, "nc1", core)
-    k.follow()
-    k.start()
+    k = following_keeper(path, core)
     try:
         k.tick(core)  # (not applied: no snapshot)
         c = k.commit(core)
@@ -68,9 +74,7 @@ def test_a_takeover_in_step_keeps_its_own_state_at_once(tmp_path: Path) -> None:
     core = make_core()
     ok(cmd(core, "SetActualPosition", 1, Position=42.0))
     core.step()
-    k = RetainKeeper(path, "nc1", core)
-    k.follow()
-    k.start()
+    k = following_keeper(path, core)
     try:
         k.resume()
         wait_until(lambda: k.owner, T, "the lock")
@@ -97,9 +101,7 @@ def test_a_held_lock_is_retried_and_durable_replies_are_not_kept_meanwhile(
     core = make_core()
     ok(cmd(core, "SetActualPosition", 1, Position=7.0))
     core.step()
-    k = RetainKeeper(path, "nc1", core)
-    k.follow()
-    k.start()
+    k = following_keeper(path, core)
     caplog.set_level(logging.INFO, logger="nc_server.server")
     try:
         k.resume()
@@ -123,9 +125,7 @@ def test_a_held_lock_is_retried_and_durable_replies_are_not_kept_meanwhile(
 def test_a_demotion_releases_the_lock_and_stops_writing(tmp_path: Path) -> None:
     path = tmp_path / "nc1.retain"
     core = make_core()
-    k = RetainKeeper(path, "nc1", core)
-    k.follow()
-    k.start()
+    k = following_keeper(path, core)
     try:
         k.resume()
         k.tick(core)

@@ -145,3 +145,13 @@ def largest_step(samples: list[tuple[int, float, float, int, int, float]], cycle
         t = (c1 - c0) * cycle
         worst = max(worst, abs(p1 - p0) - max(abs(v0), abs(v1)) * t - 0.5 * accel * t * t)
     return worst
+
+
+def close_all(tr: Any, cl: Any, started: list[Any]) -> None:
+    """A rig's teardown: the trace and the client closed (None: not made), the processes killed newest first."""
+    if tr is not None:
+        tr.close()
+    if cl is not None:
+        cl.close()
+    for h in reversed(started):
+        h.kill()
