@@ -247,6 +247,7 @@ class NcServer:
         self._drive_closed = False
         self._shutdown = threading.Event()  # set by stop(): the cycle stops every moving axis
         self._retain_pending = False  # the first cycle has not applied the retain file yet
+        self._retain_cold_tried = False  # (a pair) a cold start's load of the retain file was tried: never again
 
     # ---- lifecycle --------------------------------------------------------------------------
     def start(self, cancel: threading.Event | None = None) -> None:
@@ -513,7 +514,10 @@ class NcServer:
         retain, ha = self.retain, self.ha
         if retain is None or self._retain_pending:  # (a start as active: start() loaded it, the first cycle applies it)
             return
-        if retain.status == "new" and ha is not None and not ha.followed:
+        if retain.status == "new" and ha is not None and not ha.followed and not self._retain_cold_tried:
+            # (once per process: a node that found its lock taken and drove without its file, then was demoted and
+            # retakes from its own core, must not apply the file in the middle of a run)
+            self._retain_cold_tried = True
             try:
                 retain.load()  # (the lock, then one read: what start() does for a single NC)
             except RetainLockError as exc:

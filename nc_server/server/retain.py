@@ -600,8 +600,9 @@ class RetainKeeper:
         """
         if self.status != "new":  # (loaded once per process)
             return self.loaded
-        self._lock()
-        self._want = True  # (a pair's cold start: this NC keeps the file from now on)
+        with self._write_lock:  # (a pair's cold takeover: the retain thread runs; its _own must not see the lock
+            self._lock()        # held with _want still False and close it)
+            self._want = True  # (a pair's cold start: this NC keeps the file from now on)
         self._remove_stale_temporaries()
         path = self.path
         try:
@@ -877,6 +878,8 @@ class RetainKeeper:
                 self.close()
             self._settle(self.committed, False)  # (commits of the active NC not written: not kept)
             log.info("retain file %s: released (this NC is a standby)", self.path)
+        elif not self._want:
+            self._settle(self.committed, False)  # (demoted while it waited for the lock: its commits, not kept)
 
     # -- running ---------------------------------------------------------------------------------
     def start(self) -> None:

@@ -33,7 +33,7 @@ import pytest
 
 from znc_testing import NcServerProcess, NcTestClient, kill_process_group, start_nc_router, start_nc_server, wait_until
 from znc_testing.remote_drives import DriveSim, drive_axis, power
-from znc_testing.standby_rig import AXIS2, CONFIG, LEASE_MS, Trace, active_node, ha_status, largest_step
+from znc_testing.standby_rig import AXIS2, CONFIG, LEASE_MS, Trace, active_node, close_all, ha_status, largest_step
 
 T = 60.0  # generous deadlines: a loaded 2-core machine
 CYCLE = 0.002
@@ -94,17 +94,23 @@ def servers(p: Procs) -> Procs:
 def setup(p: Procs, axes: list[int]) -> tuple[NcTestClient, Trace]:
     """The client (axes powered) and the observer, once the pair is up: one node active, the other in step."""
     cl = NcTestClient(p["port"], client_id="plc1", lease_ms=LEASE_MS)
-    tr = Trace(p["port"], tuple(axes))
-    sim = p["drives"]
-    wait_logged(lambda: active_node(cl) is not None, "one node active, the other a standby in step", servers(p))
-    wait_logged(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0,
-                "the drive host receiving outputs", servers(p))
-    # the pair's takeover limit reaches the drive host with the outputs: at least (15 + 1) cycles of 2 ms, at most
-    # the loss detection's cap (1 s) + 1 cycle, below the host's 3 s
-    st = wait_logged(lambda: (s := sim.status()) is not None and s["takeover_limit_ms"] > 0 and s, "takeover_limit_ms", servers(p))
-    assert (TAKEOVER_CYCLES + 1) * CYCLE * 1e3 - 1e-6 <= st["takeover_limit_ms"] <= 1e3 + 2 * CYCLE * 1e3, st
-    assert not st["timeout_short"], st
-    power(cl, axes)
+    tr: Trace | None = None
+    try:
+        tr = Trace(p["port"], tuple(axes))
+        sim = p["drives"]
+        wait_logged(lambda: active_node(cl) is not None, "one node active, the other a standby in step", servers(p))
+        wait_logged(lambda: (s := sim.status()) is not None and s["connected"] and s["rx_count"] > 0,
+                    "the drive host receiving outputs", servers(p))
+        # the pair's takeover limit reaches the drive host with the outputs: at least (15 + 1) cycles of 2 ms, at
+        # most the loss detection's cap (1 s) + 1 cycle, below the host's 3 s
+        st = wait_logged(lambda: (s := sim.status()) is not None and s["takeover_limit_ms"] > 0 and s,
+                         "takeover_limit_ms", servers(p))
+        assert (TAKEOVER_CYCLES + 1) * CYCLE * 1e3 - 1e-6 <= st["takeover_limit_ms"] <= 1e3 + 2 * CYCLE * 1e3, st
+        assert not st["timeout_short"], st
+        power(cl, axes)
+    except BaseException:  # (the caller gets neither: their sessions closed here, or pytest waits on their threads)
+        close_all(tr, cl, [])
+        raise
     return cl, tr
 
 

@@ -143,10 +143,14 @@ def test_killing_the_nc_leaves_the_drives_stopped_in_place(drives_system: Compos
                    "ten drive statuses over 1.5 s", interval=0.1)
         held = [_axis(d)["position"] for d in drives.since(t_hold)]
         assert all(p == stop_pos for p in held), f"the stopped drive moved: {held}"
-        # stopped on its way (its quick stop, not at the shuttle's end) near where the NC last saw it: no run-away
-        assert 1.0 < stop_pos < 199.0, stop_pos
-        assert abs(stop_pos - last_nc.act_pos) <= STOP_TRAVEL + abs(last_nc.set_velo) * (t_cut - last_nc.t), \
-            (stop_pos, last_nc)
+        # stopped near where the NC last saw it: no run-away. On its way (its quick stop, not at the shuttle's end)
+        # when the NC's last frame (after the kill: a loaded docker kill took ~0.6 s once, the axis reached its target
+        # meanwhile) still showed it moving between the ends
+        final_nc = st.latest("nc1", 2) or last_nc
+        if abs(final_nc.set_velo) > 0 and 1.0 < final_nc.act_pos < 199.0:
+            assert 1.0 < stop_pos < 199.0, (stop_pos, final_nc)
+        assert abs(stop_pos - final_nc.act_pos) <= STOP_TRAVEL + abs(final_nc.set_velo) * (t_cut - last_nc.t), \
+            (stop_pos, last_nc, final_nc)
         assert system.docker("inspect", "-f", "{{.State.Running}}", system.cid("nc-drives")) == "true"
         assert system.started("nc-drives") == drive_started, "the drive container was restarted"
         assert "communication fault 0x8130, quick stop" in system.logs("nc-drives")

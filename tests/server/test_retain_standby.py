@@ -237,3 +237,35 @@ def test_a_cold_takeover_whose_file_is_locked_drives_without_it(tmp_path: Path, 
     finally:
         retain.stop()
         other.close()
+
+
+def test_a_retake_after_a_cold_takeover_without_the_lock_never_applies_the_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # (review of h3) a cold takeover found its lock taken and drove without its file; demoted before it ever
+    # followed, it retakes from its own core: the file (possibly stale) must not be applied in the middle of a run
+    monkeypatch.setattr(R, "LOCK_RETRY_S", 0.05)
+    path = tmp_path / "nc1.retain"
+    save(path, RetainData("nc1", {1: AxisRetain("A1", 130.0, True, True, 0.0)}))
+    other = RetainKeeper(path, "nc1", make_core())
+    other._lock()
+    server = pair_server(tmp_path, "standby")
+    retain, ha, core = server.retain, server.ha, server.core
+    assert retain is not None and ha is not None
+    retain.start()
+    try:
+        ha.role = "active"
+        server.became_active(time.monotonic(), serve=False)
+        server.cycle(time.monotonic_ns())
+        assert core.act_pos[0] == pytest.approx(5000.0)  # (driving without its file)
+        other.close()
+        ha.role = "standby"
+        server.became_standby()  # demoted, never followed
+        wait_until(lambda: not retain.owner, T, "the lock released")
+        ha.role = "active"
+        server.became_active(time.monotonic(), serve=False)  # a retake from its own core
+        server.cycle(time.monotonic_ns())
+        assert core.act_pos[0] == pytest.approx(5000.0), "a retake applied the file in the middle of a run"
+        assert not bool(core.axes.homed[0])
+    finally:
+        retain.stop()
+        other.close()
