@@ -125,13 +125,7 @@ class LossDetector:
     def seed(self, now: float, gap: float) -> None:
         """Keep ``gap`` [s] as if seen now (a demoted active NC: the gaps its standby saw, from the limit it published;
         its own detector saw none while it was active)."""
-        start = now - now % GAP_BIN_S
-        g = self.gaps
-        if g and g[-1][0] == start:
-            g[-1] = (start, max(gap, g[-1][1]))
-        else:
-            g.append((start, gap))
-        self._max_gap = -1.0
+        self._keep(now, gap)
 
     def log(self, now: float, record: bool = True) -> None:
         """A log of the active NC was taken at ``now``; ``record`` False: the gap before it is not kept (a standby
@@ -139,15 +133,19 @@ class LossDetector:
         gap = now - self.last
         self.last = now
         if record and self.restarted and gap > self.base / 4:  # (within a quarter of the base: never raises it)
-            start = now - now % GAP_BIN_S
-            g = self.gaps
-            if g and g[-1][0] == start:
-                if gap > g[-1][1]:
-                    g[-1] = (start, gap)
-            else:
-                g.append((start, gap))
-            if self._max_gap >= 0.0:
-                self._max_gap = max(self._max_gap, gap)
+            self._keep(now, gap)
+
+    def _keep(self, now: float, gap: float) -> None:
+        """Keep ``gap`` [s] in the bin of ``now`` (the largest of a bin stays)."""
+        start = now - now % GAP_BIN_S
+        g = self.gaps
+        if g and g[-1][0] == start:
+            if gap > g[-1][1]:
+                g[-1] = (start, gap)
+        else:
+            g.append((start, gap))
+        if self._max_gap >= 0.0:
+            self._max_gap = max(self._max_gap, gap)
 
     def limit(self, now: float) -> float:
         """The silence [s] that is a loss now."""
