@@ -873,13 +873,13 @@ class RetainKeeper:
                 self._remove_stale_temporaries()
                 self._written = None  # (the file holds another state: the next snapshot is written at once)
             log.info("retain file %s: locked by this NC (active): it keeps the file from now on", self.path)
-        elif not self._want and self._lock_fd is not None:
-            with self._write_lock:  # (after a write in progress)
-                self.close()
-            self._settle(self.committed, False)  # (commits of the active NC not written: not kept)
-            log.info("retain file %s: released (this NC is a standby)", self.path)
         elif not self._want:
-            self._settle(self.committed, False)  # (demoted while it waited for the lock: its commits, not kept)
+            if self._lock_fd is not None:
+                with self._write_lock:  # (after a write in progress)
+                    self.close()
+                log.info("retain file %s: released (this NC is a standby)", self.path)
+            # commits of the active NC not written (or made while it waited for the lock): not kept
+            self._settle(self.committed, False)
 
     # -- running ---------------------------------------------------------------------------------
     def start(self) -> None:
