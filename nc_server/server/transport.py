@@ -609,9 +609,8 @@ class IoThread:
         self.rt_threads = rt_threads
         self.demoted: list[int] = []
         #: the nice value every other normal-policy thread of the process gets every DEMOTE_PERIOD (None: left
-        #: alone; see cycle.raise_other_threads), and how many times one was given it
+        #: alone; see cycle.raise_other_threads)
         self.others_nice = others_nice
-        self.raised = 0
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.put_errors = 0
         self.errors = 0  # exceptions caught in its loop (a bug)
@@ -717,7 +716,7 @@ class IoThread:
                     if keep:
                         self.demoted += demote_other_threads(keep)
                     if self.others_nice is not None:
-                        self.raised += len(raise_other_threads(keep | {threading.get_native_id()}, self.others_nice))
+                        raise_other_threads(keep | {threading.get_native_id()}, self.others_nice)
                 if self.watch is not None and running:
                     self.watch()
             except Exception:  # never let anything end the I/O thread (the replies would pile up)
