@@ -280,6 +280,7 @@ def test_touch_probe_latches_the_sensor_pattern_of_the_remote_drive(rig: Callabl
             assert first - 1e-9 <= pos <= first + 10.0 + 1e-9, (pos, start)
             # (no ErrorCode check: on a loaded machine the host's inputs may age past max_age, 0x4655, which says
             # nothing about the probe; the latch above is what this test is about)
-            assert int(cl.nctoplc(1)["TouchProbeState"]) & 2
+            # (the NCTOPLC sample may be older than the NCJOBS record above: wait for the one that shows it)
+            wait_until(lambda: int(cl.nctoplc(1)["TouchProbeState"]) & 2, T, f"probe {k} latched in NCTOPLC")
     finally:
         cl.close()
