@@ -74,7 +74,6 @@ _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 
 from .axis_ref import AXIS_REF
 from .plcframe import PlcFrameBuffer
-from .records import _NC_INDEX
 from .port import CommandPort, PendingCommand, reply_cycle
 
 log = logging.getLogger(__name__)
@@ -84,7 +83,6 @@ _local = threading.local()
 _ENABLE = int(ControlDWord.Enable)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERROR = int(StateDWord.Error)
-_N_SDW = _NC_INDEX["StateDWord"][0]  # (where the unpacked NCTOPLC values keep it)
 #: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
 _CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)})
 
@@ -341,7 +339,7 @@ class PlcTask:
             # the usual call (MC_Power every cycle of an axis held): what the rest below does for it, the
             # cheap tests first (a closed loop or an axis error shows the claim is not lost)
             rec = ax.NcToPlc
-            if (not (rec._v or rec._unpack())[_N_SDW] & (_CLC | _ERROR) and ax.Status.Valid
+            if (not rec.StateDWord & (_CLC | _ERROR) and ax.Status.Valid
                     and self.now - c.since >= self.claim_retry and self.reachable(ax.nc)
                     and self._claim_looks_lost(ax, c)):
                 self._send_claim(ax, c)

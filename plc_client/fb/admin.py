@@ -41,7 +41,6 @@ from typing import Any, ClassVar
 from nc_schema import ControlDWord, ErrorCodes, StateDWord
 
 from ..axis_ref import AXIS_REF, ST_AxisStatus
-from ..records import _NC_INDEX
 from .base import EnableBlock, ExecuteBlock, FunctionBlock
 
 _EN = int(ControlDWord.Enable)
@@ -49,7 +48,6 @@ _FP = int(ControlDWord.FeedEnablePlus)
 _FM = int(ControlDWord.FeedEnableMinus)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERR = int(StateDWord.Error)
-_N_SDW = _NC_INDEX["StateDWord"][0]  # (where the unpacked NCTOPLC values keep it)
 
 
 def override_to_plctonc(percent: float) -> int:
@@ -155,7 +153,7 @@ class MC_Power(FunctionBlock):
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
         self.Error, self.ErrorID = bool(code), int(code)
         rec = ax.NcToPlc
-        sdw = (rec._v or rec._unpack())[_N_SDW]  # (rec.StateDWord without the property's call)
+        sdw = rec.StateDWord
         self.Status = held and ax.Status.Valid and bool(sdw & _CLC) and not sdw & _ERR
 
 

@@ -77,7 +77,7 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, MC_Direction, OpModeDWord, StateDWord, cmdno_newer
 
-from ..records import _JOBS_INDEX, _NC_INDEX, NCTOPLC_AXIS_REF, NcJobsValues
+from ..records import _JOBS_INDEX, NCTOPLC_AXIS_REF, NcJobsValues
 from .base import ExecuteBlock
 
 _ERR = int(StateDWord.Error)
@@ -94,8 +94,6 @@ _AREA_MON = int(OpModeDWord.OpModePosAreaMonitoring)
 _J_AXIS_ID, _J_ACTIVE_NO, _J_ACTIVE_STATE, _J_BUFFERED_NO = (
     _JOBS_INDEX[n][0] for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
 assert all(_JOBS_INDEX[n][1:] == (0, 0) for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
-_N_SDW = _NC_INDEX["StateDWord"][0]
-assert _NC_INDEX["StateDWord"][1] == 0
 _ACTIVE, _DONE_S, _ABORTED, _ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),
                                       int(CmdState.ERROR))
 
@@ -232,7 +230,7 @@ class MotionBlock(ExecuteBlock):
             state = v[_J_ACTIVE_STATE]
             if state in (_ACTIVE, _DONE_S, _ABORTED, _ERROR):
                 # the error code matters only for ERROR or an axis error (_on_state): looked up only then
-                err = (self._ended_error(jobs, me, rec) if state == _ERROR or (rec._v or rec._unpack())[_N_SDW] & _ERR
+                err = (self._ended_error(jobs, me, rec) if state == _ERROR or rec.StateDWord & _ERR
                        else ErrorCodes.MC_BUFFERED_CMD_ERROR)
                 self._on_state(state, rec, err)
             else:
@@ -276,7 +274,7 @@ class MotionBlock(ExecuteBlock):
     def _on_state(self, state: int, rec: NCTOPLC_AXIS_REF, error_code: int) -> None:
         """Our command is the axis's active (or last) one, in ``state``; ``error_code`` is used only for
         ERROR or an axis error."""
-        sdw = (rec._v or rec._unpack())[_N_SDW]  # (rec.StateDWord without the property's call)
+        sdw = rec.StateDWord
         if state == _ERROR:
             self._finish("Error", error_code)
         elif sdw & _ERR:
