@@ -134,8 +134,8 @@ class _Axis:
             self.resetting = True
             self.reset_deadline = time.monotonic() + RESET_TIMEOUT_S
             self.reset(Axis=ax, Execute=True)
-            if self.reset._pending is not None:
-                self.reset_reqs.append(self.reset._pending)
+            if self.reset.request is not None:
+                self.reset_reqs.append(self.reset.request)
         if p.Error and not self._power_err:
             key = f"power:0x{int(p.ErrorID):04X}"
             self.errors[key] = self.errors.get(key, 0) + 1
@@ -153,9 +153,9 @@ class _Axis:
             self.execute = True
             self.k += 1
             m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
-            if m._pending is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
+            if m.request is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
                 self.sent += 1
-                self.reqs.append(m._pending)
+                self.reqs.append(m.request)
         else:
             m = self.move(Axis=ax, Execute=True)
         if m.Done or m.Error or m.CommandAborted:

@@ -293,6 +293,12 @@ class ExecuteBlock(FunctionBlock):
         self._epoch = 0
         self._cycle_no = 0  # the reply's NC cycle (blocks that wait for their effect to show)
 
+    @property
+    def request(self) -> PendingCommand | None:
+        """The NC request of the block's current command (None: none out; a refusal by the block itself sends
+        none). Diagnostics and benches: its ``reply`` once ``done``."""
+        return self._pending
+
     def _cycle(self) -> None:
         ex = bool(self.Execute)
         rising = ex and not self._prev_execute

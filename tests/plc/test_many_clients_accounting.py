@@ -97,7 +97,7 @@ def test_an_mc_reset_that_never_ends_is_given_up(program_module: Any, monkeypatc
     a.power = lambda **k: NS(Active=True, Error=False, ErrorID=0, Status=False)
 
     class Reset:  # (an MC_Reset whose request never gets an answer)
-        _pending = None
+        request = None
 
         def __call__(self, Axis: Any, Execute: bool) -> Any:
             calls.append(Execute)
