@@ -157,6 +157,7 @@ class Cia402Device:
         # _pulses_passed's work arrays
         self._pp_fa, self._pp_fb, self._pp_k = np.zeros(n), np.zeros(n), np.zeros(n)
         self._pp_c, self._pp_c2 = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        self._pp_kc = np.zeros(n)
         self._pp_plain = True  # every pulse offset +0.0 and spacing 1.0: (x - 0.0) / 1.0 is x, bit for bit
         self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
         self._sm_new = self.state
@@ -364,11 +365,14 @@ class Cia402Device:
 
     def _latch(self, rx: RxImage) -> None:
         fn = rx.probe_function
-        if fn is not self._prev_probe_fn and not np.array_equal(fn, self._prev_probe_fn):
-            fn2 = np.asarray(fn, dtype=np.uint16) & _TP2_BITS
-            if not np.array_equal(fn2, self._tp2_fn):
-                self._tp2_changed(fn2)
-            self._probe_changed(fn)
+        if fn is not self._prev_probe_fn:
+            if not np.array_equal(fn, self._prev_probe_fn):
+                fn2 = np.asarray(fn, dtype=np.uint16) & _TP2_BITS
+                if not np.array_equal(fn2, self._tp2_fn):
+                    self._tp2_changed(fn2)
+                self._probe_changed(fn)
+            elif fn.dtype == np.uint16:  # (the same values in another array: compared by identity from now on)
+                self._prev_probe_fn = fn
         if self._probe_armed_any:
             rows, x = self._pulses_passed()
             if len(rows):
@@ -378,7 +382,7 @@ class Cia402Device:
                 st = self._probe_status.copy()
                 st[rows] = (st[rows] | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE
                 self._probe_status = st
-                if not self._probe_continuous.all():  # single mode: latched once
+                if np.count_nonzero(self._probe_continuous) < self.n:  # single mode: latched once
                     hit = np.zeros(self.n, dtype=bool)
                     hit[rows] = True
                     self._probe_armed = self._probe_armed & (self._probe_continuous | ~hit)
@@ -401,19 +405,25 @@ class Cia402Device:
             fa /= sp
             np.subtract(self.position, off, out=fb)
             fb /= sp
+        kc = self._pp_kc
         np.floor(fb, out=k)
         np.greater(k, fa, out=c)
-        np.ceil(fb, out=k)
-        np.less(k, fa, out=c2)
+        np.ceil(fb, out=kc)
+        np.less(kc, fa, out=c2)
         c |= c2
         c &= self._probe_armed
         if not np.count_nonzero(c):
             return _NO_ROWS, _NO_PULSES
         rows = c.nonzero()[0]
-        fbr, far = fb[rows], fa[rows]
-        x = off[rows] + np.where(fbr > far, np.floor(fbr), np.ceil(fbr)) * sp[rows]
+        # off + (floor(fb) if fb > fa else ceil(fb)) * spacing for all axes, then the rows' (fewer calls than
+        # gathering the rows first; the same operations on each row's values)
+        np.greater(fb, fa, out=c2)
+        np.copyto(kc, k, where=c2)
+        kc *= sp
+        np.add(off, kc, out=kc)
+        x = kc[rows]
         ok = x == x  # (not NaN)
-        return (rows, x) if ok.all() else (rows[ok], x[ok])
+        return (rows, x) if np.count_nonzero(ok) == len(ok) else (rows[ok], x[ok])
 
     def _probe_changed(self, fn: np.ndarray) -> None:
         """0x60B8 changed: probe 1 enabled (again) or off, its mode, source and edge."""
@@ -523,6 +533,12 @@ class Cia402Device:
         st[r] |= np.uint16(TP2_STATUS_NEG_STORED if falling else TP2_STATUS_POS_STORED)
         self._probe_status = st
 
+    def _cycle_stamp(self, cycle: int) -> np.ndarray:
+        """A new array of ``cycle`` per axis (np.full's values; empty + fill: fewer calls)."""
+        out = np.empty(self.n, dtype=np.int64)
+        out.fill(cycle)
+        return out
+
     def _publish(self) -> None:
         m = self.mechanics
         torque = self._no_torque if m.resting else m.fields[1] * 10.0
@@ -532,4 +548,4 @@ class Cia402Device:
         self.tx = TxImage(self._sw, self.rx.mode, self.position, self.velocity,
                           torque, self.error_code, self._probe_status, self._probe_position, self._tp2_pos,
                           self._tp2_neg, self._age0, self._alive,
-                          np.full(self.n, self.rx.cycle, dtype=np.int64))  # (the outputs these inputs answer)
+                          self._cycle_stamp(self.rx.cycle))  # (the outputs these inputs answer)
