@@ -75,10 +75,6 @@ TP2_STATUS_ENABLED, TP2_STATUS_POS_STORED, TP2_STATUS_NEG_STORED, TP2_STATUS_INP
 _TP2_BITS = np.uint16(0xFF00)
 
 
-_NO_ROWS = np.zeros(0, dtype=np.intp)
-_NO_PULSES = np.zeros(0)
-
-
 class Cia402Device:
     """``n`` simulated CiA 402 drives (columns), stepped once per device cycle.
 
@@ -374,22 +370,19 @@ class Cia402Device:
             elif fn.dtype == np.uint16:  # (the same values in another array: compared by identity from now on)
                 self._prev_probe_fn = fn
         if self._probe_armed_any:
-            rows, x = self._pulses_passed()
-            if len(rows):
-                pp = self._probe_position.copy()  # (new arrays: the TxImages given out hold the old ones)
-                pp[rows] = x
-                self._probe_position = pp
-                st = self._probe_status.copy()
-                st[rows] = (st[rows] | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE
-                self._probe_status = st
+            hit, x = self._pulses_passed()
+            if hit is not None:  # (new arrays: the TxImages given out hold the old ones)
+                self._probe_position = np.where(hit, x, self._probe_position)
+                st = self._probe_status
+                self._probe_status = np.where(hit, (st | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, st)
                 if np.count_nonzero(self._probe_continuous) < self.n:  # single mode: latched once
-                    hit = np.zeros(self.n, dtype=bool)
-                    hit[rows] = True
                     self._probe_armed = self._probe_armed & (self._probe_continuous | ~hit)
                     self._probe_armed_any = bool(self._probe_armed.any())
 
-    def _pulses_passed(self) -> tuple[np.ndarray, np.ndarray]:
-        """The armed axes that passed an index pulse in this step and that pulse [inc]: :func:`..encoder.pulse_passed`
+    def _pulses_passed(self) -> tuple[np.ndarray | None, np.ndarray]:
+        """The armed axes that passed an index pulse in this step (a mask; None: none) and the pulses [inc] (an
+        array of every axis, valid where the mask is; both work arrays, valid until the next call):
+        :func:`..encoder.pulse_passed`
         from the position before the step to the new one, bit for bit, with its work arrays kept (the crossing
         test for all axes; the pulse itself only where one was passed). Its rule: moving up the last pulse index
         reached is floor(fb) and counts if > fa, moving down ceil(fb) if < fa (f = (position - offset) / spacing);
@@ -413,17 +406,16 @@ class Cia402Device:
         c |= c2
         c &= self._probe_armed
         if not np.count_nonzero(c):
-            return _NO_ROWS, _NO_PULSES
-        rows = c.nonzero()[0]
-        # off + (floor(fb) if fb > fa else ceil(fb)) * spacing for all axes, then the rows' (fewer calls than
-        # gathering the rows first; the same operations on each row's values)
+            return None, kc
+        # off + (floor(fb) if fb > fa else ceil(fb)) * spacing for all axes (fewer calls than gathering the rows
+        # first; the same operations on each row's values); a NaN pulse is none
         np.greater(fb, fa, out=c2)
         np.copyto(kc, k, where=c2)
         kc *= sp
         np.add(off, kc, out=kc)
-        x = kc[rows]
-        ok = x == x  # (not NaN)
-        return (rows, x) if np.count_nonzero(ok) == len(ok) else (rows[ok], x[ok])
+        np.equal(kc, kc, out=c2)
+        c &= c2
+        return (c if np.count_nonzero(c) else None), kc
 
     def _probe_changed(self, fn: np.ndarray) -> None:
         """0x60B8 changed: probe 1 enabled (again) or off, its mode, source and edge."""
