@@ -119,6 +119,7 @@ class _Modulo:
         self._ok2 = np.empty((2, n), dtype=bool)
         self._key = b""
         self._short = False
+        self._period2 = np.ones((2, n))  # the periods of the key, twice
         self._turns_shown = False  # the turns fields hold ``q`` (written by the last call, from this ``q``)
 
     def __call__(self, act: np.ndarray, set_pos: np.ndarray, period: np.ndarray, act_turns: np.ndarray,
@@ -127,6 +128,7 @@ class _Modulo:
         if key != self._key:
             self._key, self._short = key, _short_mantissas(period)
             self.q[...] = np.nan
+            self._period2 = np.stack((period, period))  # (same shape as q: no broadcasting per cycle)
         if not self._short:
             np.divmod(act, period, out=(act_turns, act_mod), casting="unsafe")
             np.divmod(set_pos, period, out=(set_turns, set_mod), casting="unsafe")
@@ -134,11 +136,12 @@ class _Modulo:
             return
         q, r, ok, x = self.q, self._r, self._ok, self._x
         r0, r1 = self._r01
-        np.multiply(q, period, out=r)
+        period2 = self._period2
+        np.multiply(q, period2, out=r)
         np.subtract(act, r0, out=r0)  # (x - q * period, row by row: no stacked copy of the positions)
         np.subtract(set_pos, r1, out=r1)
         np.greater_equal(r, 0.0, out=ok)
-        ok &= np.less(r, period, out=self._ok2)
+        ok &= np.less(r, period2, out=self._ok2)
         if np.count_nonzero(ok) < ok.size:
             x[0] = act
             x[1] = set_pos
