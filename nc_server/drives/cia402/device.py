@@ -382,12 +382,11 @@ class Cia402Device:
     def _pulses_passed(self) -> tuple[np.ndarray | None, np.ndarray]:
         """The armed axes that passed an index pulse in this step (a mask; None: none) and the pulses [inc] (an
         array of every axis, valid where the mask is; both work arrays, valid until the next call):
-        :func:`..encoder.pulse_passed`
-        from the position before the step to the new one, bit for bit, with its work arrays kept (the crossing
-        test for all axes; the pulse itself only where one was passed). Its rule: moving up the last pulse index
-        reached is floor(fb) and counts if > fa, moving down ceil(fb) if < fa (f = (position - offset) / spacing);
-        floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving down, so one test of both needs no
-        direction (none holds when fa == fb or either is NaN)."""
+        :func:`..encoder.pulse_passed` from the position before the step to the new one, bit for bit, with its work
+        arrays kept (the crossing test for all axes; the pulses, for all axes too, only in a step that passed one).
+        Its rule: moving up the last pulse index reached is floor(fb) and counts if > fa, moving down ceil(fb) if
+        < fa (f = (position - offset) / spacing); floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving
+        down, so one test of both needs no direction (none holds when fa == fb or either is NaN)."""
         sp, off = self._pulse_spacing, self._pulse_offset
         k, c, c2 = self._pp_k, self._pp_c, self._pp_c2
         if self._pp_plain:  # (the positions themselves are f, bit for bit)
