@@ -114,10 +114,12 @@ class _Modulo:
         self._x = np.empty((2, n))
         self._turns = np.empty((2, n))
         self._r = np.empty((2, n))
+        self._r01 = (self._r[0], self._r[1])
         self._ok = np.empty((2, n), dtype=bool)
         self._ok2 = np.empty((2, n), dtype=bool)
         self._key = b""
         self._short = False
+        self._period2 = np.ones((2, n))  # the periods of the key, twice
         self._turns_shown = False  # the turns fields hold ``q`` (written by the last call, from this ``q``)
 
     def __call__(self, act: np.ndarray, set_pos: np.ndarray, period: np.ndarray, act_turns: np.ndarray,
@@ -126,19 +128,23 @@ class _Modulo:
         if key != self._key:
             self._key, self._short = key, _short_mantissas(period)
             self.q[...] = np.nan
+            self._period2 = np.stack((period, period))  # (same shape as q: no broadcasting per cycle)
         if not self._short:
             np.divmod(act, period, out=(act_turns, act_mod), casting="unsafe")
             np.divmod(set_pos, period, out=(set_turns, set_mod), casting="unsafe")
             self._turns_shown = False
             return
         q, r, ok, x = self.q, self._r, self._ok, self._x
-        x[0] = act
-        x[1] = set_pos
-        np.multiply(q, period, out=r)
-        np.subtract(x, r, out=r)
+        r0, r1 = self._r01
+        period2 = self._period2
+        np.multiply(q, period2, out=r)
+        np.subtract(act, r0, out=r0)  # (x - q * period, row by row: no stacked copy of the positions)
+        np.subtract(set_pos, r1, out=r1)
         np.greater_equal(r, 0.0, out=ok)
-        ok &= np.less(r, period, out=self._ok2)
+        ok &= np.less(r, period2, out=self._ok2)
         if np.count_nonzero(ok) < ok.size:
+            x[0] = act
+            x[1] = set_pos
             bad = (~ok).nonzero()
             qd, rd = np.divmod(x[bad], period[bad[1]])
             src = self._turns
@@ -152,9 +158,8 @@ class _Modulo:
             self._turns_shown = True
         else:
             src = None  # (no turn passed: the turns fields stay)
-        r += 0.0
-        act_mod[...] = r[0]
-        set_mod[...] = r[1]
+        np.add(r0, 0.0, out=act_mod)  # (r + 0.0: divmod's zero is +0)
+        np.add(r1, 0.0, out=set_mod)
         if src is not None:
             np.copyto(act_turns, src[0], casting="unsafe")
             np.copyto(set_turns, src[1], casting="unsafe")
@@ -169,16 +174,12 @@ class NctoplcPacker:
         self.nctoplc = nctoplc
         assert NCTOPLC_DTYPE.names is not None and NCTOPLC_DTYPE.fields is not None  # (a structured dtype)
         self.out = {name: nctoplc[name] for name in NCTOPLC_DTYPE.names}
-        f8 = NCTOPLC_DTYPE.fields
-        assert f8["SetVelo"][1] == f8["SetPos"][1] + 8 and f8["SetAcc"][1] == f8["SetPos"][1] + 16
-        self.out_sp = np.ndarray((n, 3), np.float64, nctoplc, f8["SetPos"][1], (NCTOPLC_DTYPE.itemsize, 8))
-        # the torque fields: SetTorque, ActTorque (136, 144) and ActTorqueDerivative .. TorqueOffset (192..216)
-        assert f8["ActTorque"][1] == f8["SetTorque"][1] + 8
-        assert [f8[k][1] - f8["ActTorqueDerivative"][1] for k in (
-            "SetTorqueDerivative", "AbsPhasingPos", "TorqueOffset")] == [8, 16, 24]
-        self.out_torque = np.ndarray((n, 2), np.float64, nctoplc, f8["SetTorque"][1], (NCTOPLC_DTYPE.itemsize, 8))
-        self.out_torque2 = np.ndarray((n, 4), np.float64, nctoplc, f8["ActTorqueDerivative"][1],
-                                      (NCTOPLC_DTYPE.itemsize, 8))
+        # (one 1-D copy per field: a transposed copy into several adjacent fields costs more than the copies apart)
+        self._sp_out = (self.out["SetPos"], self.out["SetVelo"], self.out["SetAcc"], self.out["SetJerk"])
+        self._torque_out = tuple(self.out[k] for k in ("SetTorque", "ActTorque", "ActTorqueDerivative",
+                                                       "SetTorqueDerivative", "AbsPhasingPos", "TorqueOffset"))
+        self._torque_src: np.ndarray | None = None  # the drive's torque fields (6, n) whose rows are in _torque_rows
+        self._torque_rows: tuple[np.ndarray, ...] = ()
         self._mod = _Modulo(n)
         self._axis_state_key = b""  # (AxisState changes on events only: written when its bytes changed)
         self._sdw3_src: np.ndarray | None = None  # (the drive's probe input array written last)
@@ -200,12 +201,17 @@ class NctoplcPacker:
         o["ActVelo"][...] = d.act_velo
         torque = d.torque_fields()
         if torque is not None:  # (None: all 0 and shown so already)
-            self.out_torque[...] = torque[:2].T
-            self.out_torque2[...] = torque[2:].T
+            if torque is not self._torque_src:
+                self._torque_src, self._torque_rows = torque, tuple(torque)
+            for dst, src in zip(self._torque_out, self._torque_rows):
+                dst[...] = src
         o["ActAcc"][...] = d.act_acc
         np.subtract(core.pos_ref, act, out=o["PosDiff"])  # (with a dead time: the delayed set position)
-        self.out_sp[...] = a.S[:3].T  # SetPos, SetVelo, SetAcc: adjacent fields, one copy
-        o["SetJerk"][...] = a.set_jerk
+        sp_pos, sp_velo, sp_acc, sp_jerk = self._sp_out
+        sp_pos[...] = a.set_pos
+        sp_velo[...] = a.set_velo
+        sp_acc[...] = a.set_acc
+        sp_jerk[...] = a.set_jerk
         if np.count_nonzero(a.continuous):
             np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos

@@ -176,6 +176,7 @@ class ProfileStage:
         self._on_groups: list[np.ndarray] = []
         self._on_seen = np.zeros(0, dtype=np.intp)  # the rows following a plan the steady groups were made for
         self._on_mask = np.zeros(n, dtype=bool)  # and as a mask
+        self._on_mask4 = np.zeros((4, n), dtype=bool)  # and that 4 times (rows)
         self._ends_from = 0.0  # the stage cycle from which running plans may end (looked for every cycle)
         # steady rows: their positions come from p0 + v0 * (traj_t - t0) every cycle
         self._st_mask = np.zeros(n, dtype=bool)
@@ -273,8 +274,9 @@ class ProfileStage:
         else:
             mask = self._on_mask  # (the rows of ``on``: whole rows under a mask cost less than gathers)
             np.add(a.traj_t, dt, out=a.traj_t, where=mask)
-            np.copyto(a.S, self.buf[:, col], where=mask)
-            np.copyto(core.sp_words, self.buf_words[:, col], where=mask)
+            mask4 = self._on_mask4
+            np.copyto(a.S, self.buf[:, col], where=mask4)
+            np.copyto(core.sp_words, self.buf_words[:, col], where=mask4[:2])
             if self.n_steady:
                 self._steady_positions(core)
             if self._ends_dirty:
@@ -300,6 +302,8 @@ class ProfileStage:
             self._until = [-math.inf] * self.groups  # (each group leaves steady at its next refill)
             self._on_mask = np.zeros(self.n, dtype=bool)
             self._on_mask[on] = True
+            # (as rows of the set-point tables: a mask of their shape costs less than one broadcast every cycle)
+            self._on_mask4 = np.repeat(self._on_mask[None, :], 4, axis=0)
         self._on_seen = on
 
     def _next_ends(self, c: int, left: float) -> None:

@@ -75,10 +75,6 @@ TP2_STATUS_ENABLED, TP2_STATUS_POS_STORED, TP2_STATUS_NEG_STORED, TP2_STATUS_INP
 _TP2_BITS = np.uint16(0xFF00)
 
 
-_NO_ROWS = np.zeros(0, dtype=np.intp)
-_NO_PULSES = np.zeros(0)
-
-
 class Cia402Device:
     """``n`` simulated CiA 402 drives (columns), stepped once per device cycle.
 
@@ -157,6 +153,7 @@ class Cia402Device:
         # _pulses_passed's work arrays
         self._pp_fa, self._pp_fb, self._pp_k = np.zeros(n), np.zeros(n), np.zeros(n)
         self._pp_c, self._pp_c2 = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        self._pp_kc = np.zeros(n)
         self._pp_plain = True  # every pulse offset +0.0 and spacing 1.0: (x - 0.0) / 1.0 is x, bit for bit
         self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
         self._sm_new = self.state
@@ -364,33 +361,32 @@ class Cia402Device:
 
     def _latch(self, rx: RxImage) -> None:
         fn = rx.probe_function
-        if fn is not self._prev_probe_fn and not np.array_equal(fn, self._prev_probe_fn):
-            fn2 = np.asarray(fn, dtype=np.uint16) & _TP2_BITS
-            if not np.array_equal(fn2, self._tp2_fn):
-                self._tp2_changed(fn2)
-            self._probe_changed(fn)
+        if fn is not self._prev_probe_fn:
+            if not np.array_equal(fn, self._prev_probe_fn):
+                fn2 = np.asarray(fn, dtype=np.uint16) & _TP2_BITS
+                if not np.array_equal(fn2, self._tp2_fn):
+                    self._tp2_changed(fn2)
+                self._probe_changed(fn)
+            elif fn.dtype == np.uint16:  # (the same values in another array: compared by identity from now on)
+                self._prev_probe_fn = fn
         if self._probe_armed_any:
-            rows, x = self._pulses_passed()
-            if len(rows):
-                pp = self._probe_position.copy()  # (new arrays: the TxImages given out hold the old ones)
-                pp[rows] = x
-                self._probe_position = pp
-                st = self._probe_status.copy()
-                st[rows] = (st[rows] | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE
-                self._probe_status = st
-                if not self._probe_continuous.all():  # single mode: latched once
-                    hit = np.zeros(self.n, dtype=bool)
-                    hit[rows] = True
+            hit, x = self._pulses_passed()
+            if hit is not None:  # (new arrays: the TxImages given out hold the old ones)
+                self._probe_position = np.where(hit, x, self._probe_position)
+                st = self._probe_status
+                self._probe_status = np.where(hit, (st | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, st)
+                if np.count_nonzero(self._probe_continuous) < self.n:  # single mode: latched once
                     self._probe_armed = self._probe_armed & (self._probe_continuous | ~hit)
                     self._probe_armed_any = bool(self._probe_armed.any())
 
-    def _pulses_passed(self) -> tuple[np.ndarray, np.ndarray]:
-        """The armed axes that passed an index pulse in this step and that pulse [inc]: :func:`..encoder.pulse_passed`
-        from the position before the step to the new one, bit for bit, with its work arrays kept (the crossing
-        test for all axes; the pulse itself only where one was passed). Its rule: moving up the last pulse index
-        reached is floor(fb) and counts if > fa, moving down ceil(fb) if < fa (f = (position - offset) / spacing);
-        floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving down, so one test of both needs no
-        direction (none holds when fa == fb or either is NaN)."""
+    def _pulses_passed(self) -> tuple[np.ndarray | None, np.ndarray]:
+        """The armed axes that passed an index pulse in this step (a mask; None: none) and the pulses [inc] (an
+        array of every axis, valid where the mask is; both work arrays, valid until the next call):
+        :func:`..encoder.pulse_passed` from the position before the step to the new one, bit for bit, with its work
+        arrays kept (the crossing test for all axes; the pulses, for all axes too, only in a step that passed one).
+        Its rule: moving up the last pulse index reached is floor(fb) and counts if > fa, moving down ceil(fb) if
+        < fa (f = (position - offset) / spacing); floor(fb) > fa can only hold moving up and ceil(fb) < fa only moving
+        down, so one test of both needs no direction (none holds when fa == fb or either is NaN)."""
         sp, off = self._pulse_spacing, self._pulse_offset
         k, c, c2 = self._pp_k, self._pp_c, self._pp_c2
         if self._pp_plain:  # (the positions themselves are f, bit for bit)
@@ -401,19 +397,24 @@ class Cia402Device:
             fa /= sp
             np.subtract(self.position, off, out=fb)
             fb /= sp
+        kc = self._pp_kc
         np.floor(fb, out=k)
         np.greater(k, fa, out=c)
-        np.ceil(fb, out=k)
-        np.less(k, fa, out=c2)
+        np.ceil(fb, out=kc)
+        np.less(kc, fa, out=c2)
         c |= c2
         c &= self._probe_armed
         if not np.count_nonzero(c):
-            return _NO_ROWS, _NO_PULSES
-        rows = c.nonzero()[0]
-        fbr, far = fb[rows], fa[rows]
-        x = off[rows] + np.where(fbr > far, np.floor(fbr), np.ceil(fbr)) * sp[rows]
-        ok = x == x  # (not NaN)
-        return (rows, x) if ok.all() else (rows[ok], x[ok])
+            return None, kc
+        # off + (floor(fb) if fb > fa else ceil(fb)) * spacing for all axes (fewer calls than gathering the rows
+        # first; the same operations on each row's values); a NaN pulse is none
+        np.greater(fb, fa, out=c2)
+        np.copyto(kc, k, where=c2)
+        kc *= sp
+        np.add(off, kc, out=kc)
+        np.equal(kc, kc, out=c2)
+        c &= c2
+        return (c if np.count_nonzero(c) else None), kc
 
     def _probe_changed(self, fn: np.ndarray) -> None:
         """0x60B8 changed: probe 1 enabled (again) or off, its mode, source and edge."""
@@ -523,6 +524,12 @@ class Cia402Device:
         st[r] |= np.uint16(TP2_STATUS_NEG_STORED if falling else TP2_STATUS_POS_STORED)
         self._probe_status = st
 
+    def _cycle_stamp(self, cycle: int) -> np.ndarray:
+        """A new array of ``cycle`` per axis (np.full's values; empty + fill: fewer calls)."""
+        out = np.empty(self.n, dtype=np.int64)
+        out.fill(cycle)
+        return out
+
     def _publish(self) -> None:
         m = self.mechanics
         torque = self._no_torque if m.resting else m.fields[1] * 10.0
@@ -532,4 +539,4 @@ class Cia402Device:
         self.tx = TxImage(self._sw, self.rx.mode, self.position, self.velocity,
                           torque, self.error_code, self._probe_status, self._probe_position, self._tp2_pos,
                           self._tp2_neg, self._age0, self._alive,
-                          np.full(self.n, self.rx.cycle, dtype=np.int64))  # (the outputs these inputs answer)
+                          self._cycle_stamp(self.rx.cycle))  # (the outputs these inputs answer)
