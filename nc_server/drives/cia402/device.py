@@ -252,7 +252,8 @@ class Cia402Device:
 
         Args:
             owned: the caller never writes the arrays of ``rx`` after this call (``cia402-sim``'s drive: it makes
-                new arrays): the device keeps them instead of copies.
+                new arrays): the device keeps them instead of copies, and compares the probe function by identity
+                once its values were equal (an array written in place after the call would go unseen).
 
         Returns:
             the inputs of this cycle (a new :class:`TxImage`, age 0, alive; its arrays are not written later).
