@@ -289,30 +289,43 @@ def _plan(start: StartState, dyn: Dynamics, sense: float, one_way: bool = False)
     except PlanningError:
         if one_way:  # not possible one way with these dynamics: the caller plans it two ways
             raise
-        # new dynamics may be below the current acceleration; ruckig can fail on such states,
-        # so retry with limits widened to cover it
-        wide = max(up, down, abs(start.a) * 1.01)
-        _inp.max_acceleration = [wide]
-        _inp.min_acceleration = [-wide]
-        try:
-            traj = _run()
-        except PlanningError:
-            # ruckig 0.19 fails ("error in step 1") on some states that lie exactly on a profile's
-            # braking curve (a stop from them ends exactly on a target): a nudge of the acceleration
-            # within rounding plans them
-            _inp.max_acceleration, _inp.min_acceleration = [hi], [-lo]
-            for nudge in (1e-12, -1e-12, 1e-9, -1e-9):
-                _inp.current_acceleration = [start.a * (1 + nudge) + nudge]
-                try:
-                    traj = _run()
-                    break
-                except PlanningError:
-                    continue
-            else:
-                _inp.current_acceleration = [start.a]
-                raise
+        traj = _retry(start, hi, lo, max(up, down))
     seg, end = _segments(traj)
     return _make_plan(seg, float(traj.duration), end)
+
+
+def _retry(start: StartState, hi: float, lo: float, widest: float) -> Trajectory:
+    """ruckig 0.19 fails ("error in step 1") on some valid inputs: the limits and the current
+    acceleration of :func:`_plan`'s input (``hi``/``lo`` [u/s^2]) are varied within what the motion
+    allows until it plans; the first candidate that plans wins (the same input, the same plan).
+
+    Raises:
+        PlanningError: no candidate plans.
+    """
+    a0 = start.a
+    # new dynamics may be below the current acceleration (ruckig's brake pre-profile must first
+    # reduce it, and fails on some such states): limits widened to cover it
+    wide = max(widest, abs(a0) * 1.01)
+    # states exactly on a profile's braking curve (a stop from them ends exactly on a target): a
+    # nudge of the acceleration within rounding plans them
+    nudged = [a0 * (1 + n) + n for n in (1e-12, -1e-12, 1e-9, -1e-9)]
+    # neither helps on some states whose acceleration is beyond the new limit on its side (an axis
+    # accelerating at AxisAcc re-targeted behind it, AxisDec < AxisAcc): that side's limit raised to
+    # it exactly (then at the limit: no brake pre-profile), then both limits at the widest
+    at = max(widest, abs(a0))
+    raised = (max(hi, a0), max(lo, -a0))
+    candidates = [((wide, wide), a0)] + [((hi, lo), a) for a in nudged] + [(raised, a0), ((at, at), a0)]
+    candidates += [((at, at), a) for a in nudged]
+    error = PlanningError("ruckig: no plan")
+    for (up, down), a in candidates:
+        _inp.max_acceleration, _inp.min_acceleration = [up], [-down]
+        _inp.current_acceleration = [a]
+        try:
+            return _run()
+        except PlanningError as exc:
+            error = exc
+    _inp.current_acceleration = [a0]
+    raise error
 
 
 def _make_plan(seg: np.ndarray, duration: float, end: StartState) -> Plan:
