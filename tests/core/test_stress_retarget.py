@@ -14,7 +14,7 @@ import pytest
 from nc_server.core import Dynamics, StartState, plan_position
 from nc_server.core.planning import position_at
 from nc_server.core.profile import velocity_extrema
-from znc_testing.nc_core import cmd, powered
+from znc_testing.nc_core import cmd, powered, run_until
 
 # bench/nc_cycle.py BENCH_PARAMS
 BENCH = dict(AxisVeloMax=1000.0, AxisAcc=5000.0, AxisDec=5000.0, AxisJerk=50000.0,
@@ -82,3 +82,25 @@ def test_retarget_behind_an_axis_accelerating_at_its_limit_is_planned(
     used = plan.seg[0] < math.inf
     # never harder than the running acceleration (the limits are raised to it, not beyond)
     assert float(abs(plan.seg[3][used]).max()) <= abs(a)
+
+
+@pytest.mark.parametrize("acc,dec,jerk,cycles,target,velo", [
+    (6395.4, 6137.2, 369264.0, 31, -87.414, 245.3),
+    (6338.4, 6131.5, 376393.0, 35, -285.172, 845.9),
+])
+def test_retarget_behind_while_accelerating_at_axis_acc_is_accepted(
+        acc: float, dec: float, jerk: float, cycles: int, target: float, velo: float) -> None:
+    """The same in the core (seeded random search): MoveAbsolute(5000, 1000) from rest, re-targeted
+    behind while it accelerates at AxisAcc (> AxisDec); it was refused 0x427E."""
+    core = powered(1, AxisVeloMax=1000.0, AxisAcc=acc, AxisDec=dec, AxisJerk=jerk, AxisEnPositionLagMonitoring=False)
+    assert cmd(core, "MoveAbsolute", Position=5000.0, Velocity=1000.0)["error"] == 0
+    for _ in range(cycles):
+        core.step()
+    assert float(core.nctoplc[0]["SetAcc"]) == acc
+    rep = cmd(core, "MoveAbsolute", Position=target, Velocity=velo)
+    assert rep["error"] == 0, rep
+    run_until(core, lambda: not core.moving.any(), 20_000)
+    for _ in range(2):
+        core.step()
+    r = core.nctoplc[0]
+    assert int(r["ErrorCode"]) == 0 and float(r["SetPos"]) == pytest.approx(target, abs=1e-9)
