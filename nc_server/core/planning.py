@@ -275,44 +275,106 @@ def _plan(start: StartState, dyn: Dynamics, sense: float, one_way: bool = False)
     # Directional limits: towards the goal ('sense') 'acceleration' speeds up and 'deceleration'
     # slows down. A reversal first brakes the current motion and then speeds up the other way
     # with the same sign of acceleration, so that side gets the smaller of the two.
-    up, down = dyn.acceleration, dyn.deceleration
+    acc, dec = dyn.acceleration, dyn.deceleration
     reversing = start.v * sense < 0
     if sense >= 0:
-        hi, lo = (min(up, down) if reversing else up), down
+        hi, lo = (min(acc, dec) if reversing else acc), dec
     else:
-        hi, lo = down, (min(up, down) if reversing else up)
+        hi, lo = dec, (min(acc, dec) if reversing else acc)
     _inp.max_acceleration = [hi]
     _inp.min_acceleration = [-lo]
     _inp.max_jerk = [dyn.jerk]
     try:
         traj = _run()
-    except PlanningError:
+    except PlanningError as exc:
         if one_way:  # not possible one way with these dynamics: the caller plans it two ways
             raise
-        # new dynamics may be below the current acceleration; ruckig can fail on such states,
-        # so retry with limits widened to cover it
-        wide = max(up, down, abs(start.a) * 1.01)
-        _inp.max_acceleration = [wide]
-        _inp.min_acceleration = [-wide]
-        try:
-            traj = _run()
-        except PlanningError:
-            # ruckig 0.19 fails ("error in step 1") on some states that lie exactly on a profile's
-            # braking curve (a stop from them ends exactly on a target): a nudge of the acceleration
-            # within rounding plans them
-            _inp.max_acceleration, _inp.min_acceleration = [hi], [-lo]
-            for nudge in (1e-12, -1e-12, 1e-9, -1e-9):
-                _inp.current_acceleration = [start.a * (1 + nudge) + nudge]
-                try:
-                    traj = _run()
-                    break
-                except PlanningError:
-                    continue
-            else:
-                _inp.current_acceleration = [start.a]
-                raise
+        retried = _retry(start.a, hi, lo, max(acc, dec))
+        if retried is None:
+            reduced = _plan_from_limit(start, dyn.jerk, hi, lo)
+            if reduced is not None:
+                return reduced
+            _inp.current_acceleration = [start.a]
+            raise exc
+        traj = retried
     seg, end = _segments(traj)
     return _make_plan(seg, float(traj.duration), end)
+
+
+def _nudged(a: float) -> list[float]:
+    """Accelerations within rounding of ``a`` [u/s^2]: ruckig 0.19 fails ("error in step 1") on some
+    states that lie exactly on a profile's braking curve (a stop from them ends exactly on a target)."""
+    return [a * (1 + n) + n for n in (1e-12, -1e-12, 1e-9, -1e-9)]
+
+
+def _attempt(hi: float, lo: float, a: float) -> Trajectory | None:
+    """ruckig with :func:`_plan`'s input but the limits ``hi``/``lo`` [u/s^2] and the current
+    acceleration ``a``; None where it fails."""
+    _inp.max_acceleration, _inp.min_acceleration = [hi], [-lo]
+    _inp.current_acceleration = [a]
+    try:
+        return _run()
+    except PlanningError:
+        return None
+
+
+def _retry(a0: float, hi: float, lo: float, widest: float) -> Trajectory | None:
+    """ruckig 0.19 fails ("error in step 1") on some valid inputs; first retries of :func:`_plan`'s
+    input (limits ``hi``/``lo`` [u/s^2], current acceleration ``a0``), the first that plans wins
+    (the same input, the same plan). None: none plans.
+
+    1. Both limits widened to ``max(widest, 1.01 |a0|)`` (``widest`` = max(Acceleration,
+       Deceleration)): new dynamics may be below the current acceleration and ruckig's brake
+       pre-profile, which must first reduce it, fails on some such states. This goes past the
+       command's limits on purpose: such a plan may brake at up to that widened limit (beyond the
+       Deceleration where Acceleration > Deceleration or |a0| > both) rather than refuse a
+       legitimate command 0x427E.
+    2. The limits as given, the acceleration nudged within rounding (:func:`_nudged`).
+
+    The order is the one before :func:`_plan_from_limit` existed: what planned then plans the same.
+    """
+    wide = max(widest, abs(a0) * 1.01)
+    for (hi_try, lo_try), a in [((wide, wide), a0)] + [((hi, lo), a) for a in _nudged(a0)]:
+        traj = _attempt(hi_try, lo_try, a)
+        if traj is not None:
+            return traj
+    return None
+
+
+def _plan_from_limit(start: StartState, jerk: float, hi: float, lo: float) -> Plan | None:
+    """The fallback after :func:`_retry` for a start acceleration beyond the limit on its side (an
+    axis accelerating at AxisAcc re-targeted behind it, AxisDec < AxisAcc: ruckig's brake
+    pre-profile fails on some such states): first the acceleration brought to that limit at full
+    ``jerk`` [u/s^3] (closed form), then ruckig from there with the unchanged limits ``hi``/``lo``
+    [u/s^2] (nudges allowed), so the plan stays within them after that first segment. None: the
+    start is within the limits, ruckig fails from there too, or no room for the extra segment."""
+    a0 = start.a
+    lim = hi if a0 > 0 else -lo
+    if abs(a0) <= abs(lim):
+        return None
+    jk = -math.copysign(jerk, a0)
+    t_red = (abs(a0) - abs(lim)) / jerk
+    p1, v1, _ = integrate_segment(t_red, start.p, start.v, a0, jk)
+    _inp.current_position, _inp.current_velocity = [p1], [v1]
+    try:
+        for a in [lim] + _nudged(lim):
+            traj = _attempt(hi, lo, a)
+            if traj is not None:
+                break
+        else:
+            return None
+    finally:
+        _inp.current_position, _inp.current_velocity = [start.p], [start.v]
+    m, end = _segments(traj)
+    used = int(np.count_nonzero(np.isfinite(m[0])))
+    if used + 1 >= N_SEGMENTS:  # (room for the sentinel)
+        return None
+    cols = [[0.0, start.p, start.v, a0, jk]] + [[m[0, k] + t_red, m[1, k], m[2, k], m[3, k], m[4, k]]
+                                                for k in range(used)]
+    cols += [[math.inf, 0.0, 0.0, 0.0, 0.0]] * (N_SEGMENTS - len(cols))
+    seg = np.array(cols).T
+    seg.flags.writeable = False
+    return _make_plan(seg, t_red + float(traj.duration), end)
 
 
 def _make_plan(seg: np.ndarray, duration: float, end: StartState) -> Plan:
