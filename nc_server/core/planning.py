@@ -289,11 +289,13 @@ def _plan(start: StartState, dyn: Dynamics, sense: float, one_way: bool = False)
     except PlanningError as exc:
         if one_way:  # not possible one way with these dynamics: the caller plans it two ways
             raise
+        # an acceleration beyond the limit on its side: brought to it first, the plan within the limits
+        # after that (the widened retry would brake at up to 1.01 |a0|, beyond both limits)
+        reduced = _plan_from_limit(start, dyn.jerk, hi, lo)
+        if reduced is not None:
+            return reduced
         retried = _retry(start.a, hi, lo, max(acc, dec))
         if retried is None:
-            reduced = _plan_from_limit(start, dyn.jerk, hi, lo)
-            if reduced is not None:
-                return reduced
             _inp.current_acceleration = [start.a]
             raise exc
         traj = retried
@@ -319,9 +321,9 @@ def _attempt(hi: float, lo: float, a: float) -> Trajectory | None:
 
 
 def _retry(a0: float, hi: float, lo: float, widest: float) -> Trajectory | None:
-    """ruckig 0.19 fails ("error in step 1") on some valid inputs; first retries of :func:`_plan`'s
-    input (limits ``hi``/``lo`` [u/s^2], current acceleration ``a0``), the first that plans wins
-    (the same input, the same plan). None: none plans.
+    """ruckig 0.19 fails ("error in step 1") on some valid inputs; retries of :func:`_plan`'s
+    input (limits ``hi``/``lo`` [u/s^2], current acceleration ``a0``) after :func:`_plan_from_limit`,
+    the first that plans wins (the same input, the same plan). None: none plans.
 
     1. Both limits widened to ``max(widest, 1.01 |a0|)`` (``widest`` = max(Acceleration,
        Deceleration)): new dynamics may be below the current acceleration and ruckig's brake
@@ -331,7 +333,9 @@ def _retry(a0: float, hi: float, lo: float, widest: float) -> Trajectory | None:
        legitimate command 0x427E.
     2. The limits as given, the acceleration nudged within rounding (:func:`_nudged`).
 
-    The order is the one before :func:`_plan_from_limit` existed: what planned then plans the same.
+    The order is the one before :func:`_plan_from_limit` existed: what planned then plans the same,
+    except a start beyond the limit on its side that :func:`_plan_from_limit` plans (within the
+    limits now, where 1. went past them).
     """
     wide = max(widest, abs(a0) * 1.01)
     for (hi_try, lo_try), a in [((wide, wide), a0)] + [((hi, lo), a) for a in _nudged(a0)]:
@@ -342,7 +346,7 @@ def _retry(a0: float, hi: float, lo: float, widest: float) -> Trajectory | None:
 
 
 def _plan_from_limit(start: StartState, jerk: float, hi: float, lo: float) -> Plan | None:
-    """The fallback after :func:`_retry` for a start acceleration beyond the limit on its side (an
+    """The first fallback, before :func:`_retry`, for a start acceleration beyond the limit on its side (an
     axis accelerating at AxisAcc re-targeted behind it, AxisDec < AxisAcc: ruckig's brake
     pre-profile fails on some such states): first the acceleration brought to that limit at full
     ``jerk`` [u/s^3] (closed form), then ruckig from there with the unchanged limits ``hi``/``lo``
@@ -357,7 +361,7 @@ def _plan_from_limit(start: StartState, jerk: float, hi: float, lo: float) -> Pl
     p1, v1, _ = integrate_segment(t_red, start.p, start.v, a0, jk)
     _inp.current_position, _inp.current_velocity = [p1], [v1]
     try:
-        for a in [lim] + _nudged(lim):
+        for a in [lim] + [x for x in _nudged(lim) if abs(x) < abs(lim)]:  # (inwards: within the limits)
             traj = _attempt(hi, lo, a)
             if traj is not None:
                 break

@@ -13,7 +13,7 @@ import math
 import pytest
 
 from nc_server.core import Dynamics, StartState, plan_position
-from nc_server.core.planning import position_at
+from nc_server.core.planning import plan_velocity, position_at
 from nc_server.core.profile import velocity_extrema
 from znc_testing.nc_core import cmd, powered
 
@@ -72,6 +72,12 @@ AT_ACCELERATION_LIMIT_STATES = [
     # a widening of both limits to the running acceleration planned this one (review of h3)
     (13.79072163776767, 432.9099293882821, 6957.746106750051, -390.6928013960263,
      918.207865723572, 6957.746106750051, 6661.138593940371, 208471.08030694674),
+    # ruckig fails with the plan's limits, the widened retry plans them: it braked at up to 1.01 x the
+    # acceleration, beyond AxisAcc too (6440.7 > 6376.9, 6604.4 > 6539.0; review of h5: the fallback first)
+    (-9.965211653544868, -349.9941604241923, -6376.932672127107, 656.3256879020621,
+     976.8599492182406, 6376.932672127106, 5511.009749307884, 173100.6617330793),
+    (-9.249570745612417, -306.29523007198907, -6539.032541040016, 556.4597173557983,
+     709.8634603998553, 6539.032541040016, 5834.1799904354075, 74912.39722310689),
 ]
 
 
@@ -87,6 +93,29 @@ def test_retarget_behind_an_axis_accelerating_at_its_limit_is_planned(
     used = int((t0 < math.inf).sum())
     # first the acceleration down to the Deceleration (a reversal: both limits are the Deceleration)
     # at full jerk, against its sign; then the whole motion, the braking into the target too, within it
+    assert jerk_[0] == -math.copysign(jerk, a) and t0[1] == pytest.approx((abs(a) - dec) / jerk, rel=1e-12)
+    assert float(abs(acc_[1:used]).max()) <= dec * (1 + 1e-12)
+
+
+@pytest.mark.parametrize("p,v,a,target,velo,acc,dec,jerk", AT_ACCELERATION_LIMIT_STATES)
+@pytest.mark.parametrize("end", ["end velocity -50", "end velocity +50", "velocity"])
+def test_end_velocities_from_an_acceleration_beyond_the_limit_brake_within_the_deceleration(
+        p: float, v: float, a: float, target: float, velo: float, acc: float, dec: float, jerk: float,
+        end: str) -> None:
+    """The same states through the same fallback with an end velocity (BlendingNext) and as a velocity
+    change (MoveVelocity reversing the running motion): the acceleration brought to the limit first
+    (review of h5: not pinned), then the whole plan within it, ending exactly in the requested state."""
+    dyn = Dynamics(velo, acc, dec, jerk)
+    if end == "velocity":
+        want = -math.copysign(100.0, v)
+        plan = plan_velocity(StartState(p, v, a), want, dyn)
+    else:
+        want = -50.0 if "-" in end else 50.0
+        plan = plan_position(StartState(p, v, a), target, dyn, end_velocity=want)
+        assert plan.end.p == pytest.approx(target, abs=1e-9)
+    assert plan.end.v == pytest.approx(want, abs=1e-9) and plan.end.a == 0.0
+    t0, _, _, acc_, jerk_ = plan.seg
+    used = int((t0 < math.inf).sum())
     assert jerk_[0] == -math.copysign(jerk, a) and t0[1] == pytest.approx((abs(a) - dec) / jerk, rel=1e-12)
     assert float(abs(acc_[1:used]).max()) <= dec * (1 + 1e-12)
 
