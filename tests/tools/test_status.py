@@ -174,11 +174,17 @@ def test_every_nc_on_a_router_and_one_going_away(tmp_path) -> None:
         procs.append(start_nc_server(tmp_path / "nc1", connect=router.endpoint))
         nc2 = start_nc_server(tmp_path / "nc2", extra_args=("--name", "nc2"), name="nc2", connect=router.endpoint)
         procs.append(nc2)
-        p = run_tool("status", "--connect", router.endpoint, "--once", "--json", "--nc", "nc1", "--nc", "nc2")
-        assert p.returncode == 0, p.stderr
-        snap = json.loads(p.stdout)
-        assert [v["name"] for v in snap["ncs"]] == ["nc1", "nc2"]
-        assert all(v["state"] == "ALIVE" and len(v["axes"]) == 4 for v in snap["ncs"])
+        # (a snapshot is one moment: on a loaded machine an NC's data may be a moment STALE; asked again until
+        # the deadline, the last one's states shown on failure)
+        def both_alive() -> bool:
+            p = run_tool("status", "--connect", router.endpoint, "--once", "--json", "--nc", "nc1", "--nc", "nc2")
+            assert p.returncode == 0, p.stderr
+            snap = json.loads(p.stdout)
+            assert [v["name"] for v in snap["ncs"]] == ["nc1", "nc2"]
+            got = [(v["state"], len(v["axes"]), v.get("problems")) for v in snap["ncs"]]
+            assert all(state == "ALIVE" and axes == 4 for state, axes, _ in got), got
+            return True
+        wait_until(both_alive, T, "both NCs ALIVE with 4 axes in a --once snapshot")
         # live: nc2 stops, the table shows it GONE (its last frame said ShuttingDown, its token went)
         live = subprocess.Popen(tool_command("status", "--connect", router.endpoint, "--json", "--interval", "0.2"),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
