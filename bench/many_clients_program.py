@@ -37,6 +37,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from typing import Any
 
 from nc_schema import MOTION_COMMANDS
 from plc_client import AXIS_REF, MC_MoveAbsolute, MC_Power, MC_Reset
@@ -134,8 +135,8 @@ class _Axis:
             self.resetting = True
             self.reset_deadline = time.monotonic() + RESET_TIMEOUT_S
             self.reset(Axis=ax, Execute=True)
-            if self.reset.request is not None:
-                self.reset_reqs.append(self.reset.request)
+            if _request(self.reset) is not None:
+                self.reset_reqs.append(_request(self.reset))
         if p.Error and not self._power_err:
             key = f"power:0x{int(p.ErrorID):04X}"
             self.errors[key] = self.errors.get(key, 0) + 1
@@ -153,9 +154,9 @@ class _Axis:
             self.execute = True
             self.k += 1
             m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
-            if m.request is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
+            if _request(m) is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
                 self.sent += 1
-                self.reqs.append(m.request)
+                self.reqs.append(_request(m))
         else:
             m = self.move(Axis=ax, Execute=True)
         if m.Done or m.Error or m.CommandAborted:
@@ -189,6 +190,12 @@ class _Axis:
                 "axis_error": f"0x{int(self.ax.NcToPlc.ErrorCode):04X}" if self.ax.Status.Valid else None,
                 "claim": repr(self.ax._task.claim_state(self.ax)) if self.ax._task is not None else None,
                 "nc_epoch": int(self.ax.nc_epoch), "resets": self.resets}
+
+
+def _request(block: Any) -> Any:
+    """The block's NC request (ExecuteBlock.request; a tree before it, compared by bench/plc_cpu.py --tree,
+    keeps it in the private ``_pending``)."""
+    return block.request if hasattr(type(block), "request") else block._pending
 
 
 def _unexplained(first: int | None, last: int | None, seen: list[int]) -> tuple[list[int], list[int]]:
