@@ -91,10 +91,8 @@ def parse_ncs(items: Sequence[str] | None) -> dict[str, str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``plc-run``; returns the exit code."""
     args = _parser().parse_args(argv)
-    # the plc-run process (not a caller's, e.g. a test's: zenoh reads it once per process, at a session's open)
-    own_runtime = argv is None and "ZENOH_RUNTIME" not in os.environ
-    if own_runtime:
-        os.environ["ZENOH_RUNTIME"] = ZENOH_RUNTIME
+    if argv is None:  # the plc-run process (not a caller's, e.g. a test's: zenoh reads it once per process)
+        os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     logging.basicConfig(level=args.log_level, format="plc-run: %(levelname)s %(name)s: %(message)s")
     logging.getLogger("zenoh").setLevel(logging.WARNING)
     try:
@@ -124,9 +122,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         rt.stop()
         return 0
-    finally:
-        if own_runtime:  # (read by now: processes the program starts, e.g. an nc-server, get zenoh's defaults)
-            os.environ.pop("ZENOH_RUNTIME", None)
     print(f"plc-run {rt.client_id} running {args.program}: cycle {rt.cycle_time * 1000:.1f} ms, "
           f"NCs {', '.join(f'{k}={v}' for k, v in ncs.items())}", flush=True)
     rc = rt.run(args.duration)
