@@ -34,14 +34,6 @@ from .program import ProgramArgsError, load, load_program, parse_program_args
 
 __all__ = ["main", "parse_ncs", "load_program"]
 
-#: zenoh's runtimes of a plc-run process (``ZENOH_RUNTIME``, zenoh's RON syntax), unless the environment sets its
-#: own: rx, tx, net and acceptor handed over to the app runtime, one worker thread for all of the session's tasks.
-#: A PLC client's traffic (one frame in and one PLCTONC out per cycle, a few queries) needs no more, and each
-#: frame or put no longer wakes threads of several pools (issue 19: about 0.6 % of a core less for a 4-axis client
-#: at 10 ms; rx-0, rx-1, tx-0, net-0 and app-0 woke ~500 times a second). No Python runs on zenoh's threads in
-#: plc-run (channels only, plc_client.runtime), so nothing there waits for the GIL.
-ZENOH_RUNTIME = "(rx: (handover: app), tx: (handover: app), net: (handover: app), acc: (handover: app))"
-
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="plc-run", description="Run a zenoh-nc PLC program (TcMC function blocks).")
@@ -91,8 +83,6 @@ def parse_ncs(items: Sequence[str] | None) -> dict[str, str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``plc-run``; returns the exit code."""
     args = _parser().parse_args(argv)
-    if argv is None:  # the plc-run process (not a caller's, e.g. a test's: zenoh reads it once per process)
-        os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     logging.basicConfig(level=args.log_level, format="plc-run: %(levelname)s %(name)s: %(message)s")
     logging.getLogger("zenoh").setLevel(logging.WARNING)
     try:
