@@ -56,7 +56,16 @@ def test_phase_error_within_the_jerk_bound(pair: Pair) -> None:
     err, bound, held = phase_errors(m, s, RATIO)  # (both axes stood at 0 when coupled)
     moving = bound > 0  # (at rest the master's samples are exact: error 0, as checked below)
     assert moving.sum() > 300, moving.sum()
-    assert np.abs(err[~moving]).max(initial=0.0) <= 1e-9
+    # at rest the master's samples are exact; a jerk phase shorter than a cycle can fall between two master frames
+    # (no frame shows its jerk: bound 0 while the master moves, error 9.6e-9 seen once in CI): there the bound
+    # takes the master's largest jerk
+    rest = np.array([not np.any(m[(m[:, 1] >= t - age * 1e3 - 1e6) & (m[:, 1] <= t + 1e6), 3])
+                     for t, age in zip(s[:, 1], s[:, 10])], dtype=bool)
+    assert np.abs(err[~moving & rest]).max(initial=0.0) <= 1e-9
+    unseen = ~moving & ~rest
+    jall = float(np.abs(m[:, 5]).max())
+    assert (np.abs(err[unseen]) <= abs(RATIO) * jall * (s[unseen, 10] * 1e-6) ** 3 / 6 * 1.01 + 1e-9).all(), (
+        err[unseen], s[unseen, 10])
     # where the master's jerk stays on over the span the error IS the bound; MasterAgeUs is whole us: 1 % slack
     within = np.abs(err) <= bound * 1.01 + 1e-9
     share = float(within[moving].mean())
