@@ -155,18 +155,27 @@ def _plan_reduction(start: StartState, target: float, dyn: Dynamics, end_velocit
             main = _plan(StartState(p1, sense * vlim, 0.0), dyn, sense, one_way=True)
         except PlanningError:
             main = None
-        used = int(np.count_nonzero(np.isfinite(main.seg[0]))) if main is not None else 0
-        if main is not None and len(rows) + used < N_SEGMENTS:  # (room for the sentinel)
-            t_red = sum(d for d, _ in change)
-            cols = [[t, start.p + sense * rp, sense * rv, sense * ra, sense * rj]
-                    for t, (_, rp, rv, ra, rj) in zip(_starts(change), rows)]
-            m = main.seg
-            cols += [[m[0, k] + t_red, m[1, k], m[2, k], m[3, k], m[4, k]] for k in range(used)]
-            cols += [[math.inf, 0.0, 0.0, 0.0, 0.0]] * (N_SEGMENTS - len(cols))
-            seg = np.array(cols).T
-            seg.flags.writeable = False
-            return _make_plan(seg, t_red + main.duration, main.end)
+        if main is not None:
+            first = [[t, start.p + sense * rp, sense * rv, sense * ra, sense * rj]
+                     for t, (_, rp, rv, ra, rj) in zip(_starts(change), rows)]
+            joined = _joined(first, sum(d for d, _ in change), main.seg, main.duration, main.end)
+            if joined is not None:
+                return joined
     return _plan_even_deceleration(start, target, dyn, end_velocity, sense)
+
+
+def _joined(first: list[list[float]], t_shift: float, m: np.ndarray, duration: float, end: StartState) -> Plan | None:
+    """A plan of the segment rows ``first`` ([t, p, v, a, j] each, from t = 0) followed by the segment table ``m``
+    (5, N_SEGMENTS) shifted by ``t_shift`` [s], whose own ``duration`` [s] ends in ``end``. None: no room for
+    the sentinel row."""
+    used = int(np.count_nonzero(np.isfinite(m[0])))
+    if len(first) + used >= N_SEGMENTS:
+        return None
+    cols = first + [[m[0, k] + t_shift, m[1, k], m[2, k], m[3, k], m[4, k]] for k in range(used)]
+    cols += [[math.inf, 0.0, 0.0, 0.0, 0.0]] * (N_SEGMENTS - len(cols))
+    seg = np.array(cols).T
+    seg.flags.writeable = False
+    return _make_plan(seg, t_shift + duration, end)
 
 
 def _starts(change: list[tuple[float, float]]) -> list[float]:
@@ -370,15 +379,7 @@ def _plan_from_limit(start: StartState, jerk: float, hi: float, lo: float) -> Pl
     finally:
         _inp.current_position, _inp.current_velocity = [start.p], [start.v]
     m, end = _segments(traj)
-    used = int(np.count_nonzero(np.isfinite(m[0])))
-    if used + 1 >= N_SEGMENTS:  # (room for the sentinel)
-        return None
-    cols = [[0.0, start.p, start.v, a0, jk]] + [[m[0, k] + t_red, m[1, k], m[2, k], m[3, k], m[4, k]]
-                                                for k in range(used)]
-    cols += [[math.inf, 0.0, 0.0, 0.0, 0.0]] * (N_SEGMENTS - len(cols))
-    seg = np.array(cols).T
-    seg.flags.writeable = False
-    return _make_plan(seg, t_red + float(traj.duration), end)
+    return _joined([[0.0, start.p, start.v, a0, jk]], t_red, m, float(traj.duration), end)
 
 
 def _make_plan(seg: np.ndarray, duration: float, end: StartState) -> Plan:
