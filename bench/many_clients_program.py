@@ -135,8 +135,8 @@ class _Axis:
             self.resetting = True
             self.reset_deadline = time.monotonic() + RESET_TIMEOUT_S
             self.reset(Axis=ax, Execute=True)
-            if _request(self.reset) is not None:
-                self.reset_reqs.append(_request(self.reset))
+            if (req := _request(self.reset)) is not None:
+                self.reset_reqs.append(req)
         if p.Error and not self._power_err:
             key = f"power:0x{int(p.ErrorID):04X}"
             self.errors[key] = self.errors.get(key, 0) + 1
@@ -154,9 +154,9 @@ class _Axis:
             self.execute = True
             self.k += 1
             m = self.move(Axis=ax, Execute=True, Position=TARGETS[self.k % len(TARGETS)], Velocity=VELOCITY)
-            if _request(m) is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
+            if (req := _request(m)) is not None:  # the request went out (else the block refused at once, e.g. 0x4B0F)
                 self.sent += 1
-                self.reqs.append(_request(m))
+                self.reqs.append(req)
         else:
             m = self.move(Axis=ax, Execute=True)
         if m.Done or m.Error or m.CommandAborted:
