@@ -52,7 +52,7 @@ from nc_schema.tls import apply_tls
 from nc_server.core.remote import MasterSample
 
 from .config import ZenohSettings
-from .cycle import demote_other_threads, raise_other_threads, set_realtime
+from .cycle import demote_other_threads, raise_other_threads, set_realtime, set_thread_name
 
 log = logging.getLogger("nc_server.server")
 
@@ -674,6 +674,7 @@ class IoThread:
         return self._thread.native_id
 
     def _main(self) -> None:
+        set_thread_name("nc-io")
         if self.rt_priority is not None:
             if set_realtime("auto", self.rt_priority)[0] == "SCHED_FIFO":  # (else not permitted: nice below)
                 self.realtime = True
