@@ -182,6 +182,7 @@ class Pair:
         self.nice = ["nice", "-n", str(infra_nice)] if infra_nice else []
         self.drive_rt: list[str] = []  # --drive-rt: ["chrt", "-f", prio]
         self.procs: list[subprocess.Popen[Any]] = []
+        self.cwd: Path | None = None  # the tree under test (python -m imports from the working directory first)
         self.drive_status = tmp / "drives.json"
         self.router: subprocess.Popen[Any] | None = None
         self.active: subprocess.Popen[Any] | None = None
@@ -194,7 +195,7 @@ class Pair:
             self.router = subprocess.Popen(
                 [*self.nice, sys.executable, "-m", "nc_server.router", "--listen", self.endpoint, "--lease-ms", str(self.lease_ms)],
                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=open(self.tmp / "router.err", "w"),
-                text=True, env=self.env, start_new_session=True)
+                text=True, env=self.env, start_new_session=True, cwd=self.cwd)
             self.procs.append(self.router)
             line = self.router.stdout.readline() if self.router.stdout else ""
             if "ready" not in line:
@@ -202,11 +203,11 @@ class Pair:
             # INFO: the pair's role changes and their reasons ("took over ... ms after the last log") in the logs
             self.active = start_nc(self.cfg, self.endpoint, self.tmp, self.env,
                                    [*self.extra, "--set", "redundancy.node=a", "--set", "redundancy.start=active",
-                                    "--log-level", "INFO"], err="nc-a.err", connect=True)
+                                    "--log-level", "INFO"], err="nc-a.err", connect=True, cwd=self.cwd)
             self.procs.append(self.active)
             self.standby = start_nc(self.cfg, self.endpoint, self.tmp, self.env,
                                     [*self.extra, "--set", "redundancy.node=b", "--log-level", "INFO"],
-                                    err="nc-b.err", connect=True)
+                                    err="nc-b.err", connect=True, cwd=self.cwd)
             self.procs.append(self.standby)
             self.nodes = {"a": self.active, "b": self.standby}  # (by name: the roles may change)
             # (its silence timeout: the pair's default from the TOML, longer than the longest takeover it publishes)
@@ -214,7 +215,7 @@ class Pair:
                 [*self.nice, *self.drive_rt, sys.executable, "-m", "nc_server.drives.remote.host", "--config", str(self.cfg), "--host", "drives1",
                  "--connect", self.endpoint, "--lease-ms", str(self.lease_ms), "--status-file", str(self.drive_status)],
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "drives.err", "w"),
-                env=self.env, start_new_session=True)
+                env=self.env, start_new_session=True, cwd=self.cwd)
             self.procs.append(self.drives)
         except BaseException:
             self.kill()
@@ -510,13 +511,14 @@ def run(args: argparse.Namespace) -> int:
     pair: Pair | None = None
     if args.standby:
         pair = Pair(cfg, endpoint, tmp, env, isolate, args.lease_ms, args.infra_nice)
+        pair.cwd = tree
         if args.drive_rt:
             pair.drive_rt = ["chrt", "-f", str(args.drive_rt)]
         pair.start()  # (kills what it started if it fails)
         procs.extend(pair.procs)  # (killed in the finally below, process groups, whatever happens)
         nc = pair.active
     else:
-        nc = start_nc(cfg, endpoint, tmp, env, isolate)
+        nc = start_nc(cfg, endpoint, tmp, env, isolate, cwd=tree)
         procs.append(nc)
     observer = None
     stats = None
@@ -545,7 +547,7 @@ def run(args: argparse.Namespace) -> int:
                                   f"{NC_NAME}={endpoint}", "--client-id", f"idle{k}", "--cycle-time", str(args.plc_cycle),
                                   "--log-level", "WARNING", *args.plc_args],
                                  stdout=open(out, "w"), stderr=open(tmp / f"idle{k}.err", "w"), env=env,
-                                 start_new_session=True)
+                                 start_new_session=True, cwd=tree)
             idle.append(p)
             procs.append(p)
             t_start = time.monotonic()
@@ -563,7 +565,7 @@ def run(args: argparse.Namespace) -> int:
                                   "--client-id", f"plc{k}", "--cycle-time", str(args.plc_cycle), "--log-level", "WARNING",
                                   *args.plc_args],
                                  stdout=subprocess.DEVNULL, stderr=open(tmp / f"plc{k}.err", "w"), env=cenv,
-                                 start_new_session=True)
+                                 start_new_session=True, cwd=tree)
             clients.append(p)
             procs.append(p)
             # one at a time: 16 interpreters importing numpy and zenoh at once would stall the running ones
@@ -990,7 +992,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--perf", metavar="FILE", help="perf record -g the NC process over the window into FILE")
     ap.add_argument("--json", help="write the figures to this file")
     ap.add_argument("--strict", action="store_true", help="exit 1 when the goal is not met")
-    ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run (default: this one; e.g. a "
+    ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run, from its directory (default: this one; e.g. a "
                                    "worktree of main for a before/after); the floor always runs this one's loop")
     ap.add_argument("--plc-args", nargs=argparse.REMAINDER, default=[], help="more plc-run arguments (last)")
     args = ap.parse_args(argv)
