@@ -182,6 +182,7 @@ class Pair:
         self.nice = ["nice", "-n", str(infra_nice)] if infra_nice else []
         self.drive_rt: list[str] = []  # --drive-rt: ["chrt", "-f", prio]
         self.procs: list[subprocess.Popen[Any]] = []
+        self.cwd: Path | None = None  # the tree under test (python -m imports from the working directory first)
         self.drive_status = tmp / "drives.json"
         self.router: subprocess.Popen[Any] | None = None
         self.active: subprocess.Popen[Any] | None = None
@@ -194,7 +195,7 @@ class Pair:
             self.router = subprocess.Popen(
                 [*self.nice, sys.executable, "-m", "nc_server.router", "--listen", self.endpoint, "--lease-ms", str(self.lease_ms)],
                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=open(self.tmp / "router.err", "w"),
-                text=True, env=self.env, start_new_session=True)
+                text=True, env=self.env, start_new_session=True, cwd=self.cwd)
             self.procs.append(self.router)
             line = self.router.stdout.readline() if self.router.stdout else ""
             if "ready" not in line:
@@ -202,11 +203,11 @@ class Pair:
             # INFO: the pair's role changes and their reasons ("took over ... ms after the last log") in the logs
             self.active = start_nc(self.cfg, self.endpoint, self.tmp, self.env,
                                    [*self.extra, "--set", "redundancy.node=a", "--set", "redundancy.start=active",
-                                    "--log-level", "INFO"], err="nc-a.err", connect=True)
+                                    "--log-level", "INFO"], err="nc-a.err", connect=True, cwd=self.cwd)
             self.procs.append(self.active)
             self.standby = start_nc(self.cfg, self.endpoint, self.tmp, self.env,
                                     [*self.extra, "--set", "redundancy.node=b", "--log-level", "INFO"],
-                                    err="nc-b.err", connect=True)
+                                    err="nc-b.err", connect=True, cwd=self.cwd)
             self.procs.append(self.standby)
             self.nodes = {"a": self.active, "b": self.standby}  # (by name: the roles may change)
             # (its silence timeout: the pair's default from the TOML, longer than the longest takeover it publishes)
@@ -214,7 +215,7 @@ class Pair:
                 [*self.nice, *self.drive_rt, sys.executable, "-m", "nc_server.drives.remote.host", "--config", str(self.cfg), "--host", "drives1",
                  "--connect", self.endpoint, "--lease-ms", str(self.lease_ms), "--status-file", str(self.drive_status)],
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(self.tmp / "drives.err", "w"),
-                env=self.env, start_new_session=True)
+                env=self.env, start_new_session=True, cwd=self.cwd)
             self.procs.append(self.drives)
         except BaseException:
             self.kill()
@@ -393,6 +394,33 @@ class HaWatch:
             pass
 
 
+def thread_times(pids: dict[str, int]) -> dict[tuple[str, int], tuple[str, int]]:
+    """{(process key, tid): (thread name, CPU time [ns])} of every thread of these processes (/proc/<pid>/task/<tid>:
+    comm, and schedstat's run time, exact where utime + stime are 10 ms ticks)."""
+    out: dict[tuple[str, int], tuple[str, int]] = {}
+    for key, pid in pids.items():
+        try:
+            tids = os.listdir(f"/proc/{pid}/task")
+        except OSError:
+            continue
+        for t in tids:
+            try:
+                comm = Path(f"/proc/{pid}/task/{t}/comm").read_text().strip()
+                ns = int(Path(f"/proc/{pid}/task/{t}/schedstat").read_text().split()[0])
+            except (OSError, ValueError, IndexError):
+                continue
+            out[(key, int(t))] = (comm, ns)
+    return out
+
+
+def thread_report(t0: dict[tuple[str, int], tuple[str, int]], t1: dict[tuple[str, int], tuple[str, int]],
+                  dt: float) -> list[tuple[str, str, int, float]]:
+    """(process key, thread name, tid, % of one core over dt) of the threads alive at both ends, largest first."""
+    rows = [(key, comm, tid, 100.0 * (ns - t0[(key, tid)][1]) / (dt * 1e9))
+            for (key, tid), (comm, ns) in t1.items() if (key, tid) in t0]
+    return sorted(rows, key=lambda r: -r[3])
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -483,13 +511,14 @@ def run(args: argparse.Namespace) -> int:
     pair: Pair | None = None
     if args.standby:
         pair = Pair(cfg, endpoint, tmp, env, isolate, args.lease_ms, args.infra_nice)
+        pair.cwd = tree
         if args.drive_rt:
             pair.drive_rt = ["chrt", "-f", str(args.drive_rt)]
         pair.start()  # (kills what it started if it fails)
         procs.extend(pair.procs)  # (killed in the finally below, process groups, whatever happens)
         nc = pair.active
     else:
-        nc = start_nc(cfg, endpoint, tmp, env, isolate)
+        nc = start_nc(cfg, endpoint, tmp, env, isolate, cwd=tree)
         procs.append(nc)
     observer = None
     stats = None
@@ -518,7 +547,7 @@ def run(args: argparse.Namespace) -> int:
                                   f"{NC_NAME}={endpoint}", "--client-id", f"idle{k}", "--cycle-time", str(args.plc_cycle),
                                   "--log-level", "WARNING", *args.plc_args],
                                  stdout=open(out, "w"), stderr=open(tmp / f"idle{k}.err", "w"), env=env,
-                                 start_new_session=True)
+                                 start_new_session=True, cwd=tree)
             idle.append(p)
             procs.append(p)
             t_start = time.monotonic()
@@ -536,7 +565,7 @@ def run(args: argparse.Namespace) -> int:
                                   "--client-id", f"plc{k}", "--cycle-time", str(args.plc_cycle), "--log-level", "WARNING",
                                   *args.plc_args],
                                  stdout=subprocess.DEVNULL, stderr=open(tmp / f"plc{k}.err", "w"), env=cenv,
-                                 start_new_session=True)
+                                 start_new_session=True, cwd=tree)
             clients.append(p)
             procs.append(p)
             # one at a time: 16 interpreters importing numpy and zenoh at once would stall the running ones
@@ -585,6 +614,14 @@ def run(args: argparse.Namespace) -> int:
             pids.update(pair.pids())
         if ha is not None:
             ha.mark("window")
+        nc_pids = {k: p for k, p in pids.items() if k.startswith("nc-")}
+        perf = None
+        if args.perf:  # a call-graph profile of the NC process over the window (perf record, every thread)
+            perf = subprocess.Popen(["perf", "record", "-q", "-g", "-F", "997", "-p", str(nc.pid), "-o", args.perf],
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                    start_new_session=True)
+            procs.append(perf)
+        th0 = thread_times(nc_pids) if args.threads else {}
         c0 = {k: cpu_ticks(p) for k, p in pids.items()}
         m0 = machine_ticks()
         t0 = time.monotonic()
@@ -600,6 +637,13 @@ def run(args: argparse.Namespace) -> int:
             ha.mark("window_end")
         c1 = {k: cpu_ticks(p) for k, p in pids.items()}
         m1 = machine_ticks()
+        th1 = thread_times(nc_pids) if args.threads else {}
+        if perf is not None:
+            perf.send_signal(signal.SIGINT)  # (perf writes its file on SIGINT)
+            try:
+                perf.wait(30)
+            except subprocess.TimeoutExpired:
+                kill_group(perf)
         obs = None
         if observer is not None:
             assert observer.stdin is not None and observer.stdout is not None
@@ -634,7 +678,8 @@ def run(args: argparse.Namespace) -> int:
         nc_missed = int(s1["missed_cycles"]) - int(s0["missed_cycles"])
         nc_over = int(s1["overruns"]) - int(s0["overruns"])
         result = {"stats0": s0, "stats1": s1, "stats2": s2, "cpu": cpu, "cycles": cycles, "missed": nc_missed,
-                  "overruns": nc_over, "machine_busy": machine, "late_p99": late_p99, "dt": dt, "window_ns": [t0_ns, t0_ns + int(dt * 1e9)], "reports": reps, "observer": obs, "fb": fb}
+                  "overruns": nc_over, "machine_busy": machine, "late_p99": late_p99, "dt": dt, "window_ns": [t0_ns, t0_ns + int(dt * 1e9)], "reports": reps,
+                  "threads": thread_report(th0, th1, dt) if args.threads else None, "observer": obs, "fb": fb}
         if ha is not None and pair is not None:
             result["ha"] = ha.summary(pair.logs())
     finally:
@@ -756,6 +801,11 @@ def report(args: argparse.Namespace, r: dict[str, Any], fl: list[dict[str, Any]]
         print("CPU of the rest of the pair [% of one core]: " + ", ".join(
             f"{name} {sum(v for k, v in pair_cpu.items() if k.startswith('pair-' + name)):.1f}"
             for name in ("standby", "drive-host", "router")) + " (children included)")
+    if r.get("threads"):
+        print("CPU per thread of the NC process and its publisher children [% of one core] (--threads; schedstat):")
+        for key, comm, tid, pct in r["threads"]:
+            if pct >= 0.1:
+                print(f"  {key:10} {comm:16} {tid:>8} {pct:6.1f}")
     busy = float(r.get("machine_busy", 0.0))
     ours = sum(cpu.values())
     busy_load = busy - sum(il)  # the idle reference plc-runs are the bench's instruments, not the load
@@ -937,9 +987,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--infra-nice", type=int, default=-10,
                     help="--standby: niceness of the nc-router and the nc-drive-sim (-10, as the NC's zenoh threads; "
                          "0: as started)")
+    ap.add_argument("--threads", action="store_true",
+                    help="also the CPU of each thread of the NC process and its publisher children over the window")
+    ap.add_argument("--perf", metavar="FILE", help="perf record -g the NC process over the window into FILE")
     ap.add_argument("--json", help="write the figures to this file")
     ap.add_argument("--strict", action="store_true", help="exit 1 when the goal is not met")
-    ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run (default: this one; e.g. a "
+    ap.add_argument("--tree", help="the checkout whose nc-server and plc-run run, from its directory (default: this one; e.g. a "
                                    "worktree of main for a before/after); the floor always runs this one's loop")
     ap.add_argument("--plc-args", nargs=argparse.REMAINDER, default=[], help="more plc-run arguments (last)")
     args = ap.parse_args(argv)

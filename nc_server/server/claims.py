@@ -111,6 +111,11 @@ class ClaimTable:
         self._masks_version = -1
         self._by_client_cache: tuple[dict[str, list[int]], dict[str, float]] = ({}, {})
         self._by_client_version = -1
+        #: changes of the clients' state other than a newer PLCTONC arrival (tokens, an NC stall, a takeover)
+        self._clients_changes = 0
+        #: (version, _clients_changes, oldest PLCTONC arrival) of the last check that found every client quiet:
+        #: alive, heard from within the timeout after its newest claim, or holding nothing (see check())
+        self._quiet: tuple[int, int, float] = (-1, -1, math.inf)
 
     # ---- liveliness -------------------------------------------------------------------------
     def client_alive(self, client: str, now: float | None = None) -> None:
@@ -122,6 +127,7 @@ class ClaimTable:
         the NC while its link was down, and that was the NC's stall.
         """
         c = self._clients.setdefault(client, _Client())
+        self._clients_changes += 1
         if not c.alive and c.gone_at is not None and now is not None and self._excused(c.gone_at, float(now)):
             for cl in self._claims.values():
                 if cl.client == client and self._watched_since(cl, c) is not None:
@@ -135,6 +141,7 @@ class ClaimTable:
         c = self._clients.get(client)
         if c is None or not c.alive:
             return
+        self._clients_changes += 1
         c.alive, c.gone_at = False, float(now)
 
     def is_alive(self, client: str) -> bool:
@@ -163,6 +170,7 @@ class ClaimTable:
         :meth:`client_alive`). ``window`` is ``reconnect_grace``, or ``lease_stall_grace`` if the
         stall lasted at least half of ``lease`` (the NC's session could not keep its links meanwhile).
         """
+        self._clients_changes += 1
         for c in self._clients.values():
             if c.last_plctonc is not None and c.last_plctonc < now:
                 c.last_plctonc = now
@@ -187,6 +195,7 @@ class ClaimTable:
             if c.gone_at is not None:
                 c.gone_at = float(now)
         self._stall = (float(now), float(now), self.reconnect_grace)
+        self._clients_changes += 1
         self.version += 1
 
     def _excused(self, gone_at: float, now: float) -> bool:
@@ -297,16 +306,27 @@ class ClaimTable:
         """The clients lost at ``now`` [s] (each reported once); their claims are released.
 
         Also forgets clients that are gone and hold nothing.
+
+        Runs every NC cycle: when the last check found every client quiet (alive, and heard from within the
+        timeout after its newest claim or holding nothing) and neither the claims nor a client's token changed
+        since, only the oldest of those clients' newest PLCTONC arrivals is looked at: arrivals only move
+        forward, so they all stay quiet until that one is older than the timeout (the same test as below).
         """
-        by_client, newest_since = self._by_client()
         timeout = self.watchdog_timeout
+        version, changes, oldest = self._quiet
+        if now - oldest <= timeout and version == self.version and changes == self._clients_changes:
+            return []
+        by_client, newest_since = self._by_client()
         out: list[Loss] = []
         gone = False
+        quiet = True  # every client alive and heard from in time after its newest claim, or holding nothing
+        oldest = math.inf
         for name, c in list(self._clients.items()):
-            # (runs every NC cycle) a live client heard from within the timeout, after its newest claim,
-            # cannot be late on any claim: each one's watchdog counts from that frame or later
+            # a live client heard from within the timeout, after its newest claim, cannot be late on any claim:
+            # each one's watchdog counts from that frame or later
             last = c.last_plctonc
             if c.alive and last is not None and now - last <= timeout and last >= newest_since.get(name, -math.inf):
+                oldest = min(oldest, last)
                 continue
             axes = by_client.get(name, [])
             if not c.alive:
@@ -316,6 +336,8 @@ class ClaimTable:
                 c.gone_at = None
                 out.append(Loss(name, ZNC_CLIENT_LOST, tuple(sorted(axes))))
                 continue
+            if axes:  # (a claim whose watchdog is not armed yet may be armed by a frame that arrived earlier)
+                quiet = False
             late = []
             for a in axes:
                 ref = self._watched_since(self._claims[a], c)
@@ -329,6 +351,8 @@ class ClaimTable:
                 self._drop(a)
         if gone:
             self.forget_gone()
+        self._quiet = (self.version, self._clients_changes, oldest) if quiet and not out and not gone else \
+            (-1, -1, math.inf)
         return out
 
     def _by_client(self) -> tuple[dict[str, list[int]], dict[str, float]]:

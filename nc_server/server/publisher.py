@@ -65,6 +65,7 @@ from nc_schema import (
     frame_stamp, parse_view_select, view_axes_text, view_frame,
 )
 
+from .cycle import set_thread_name
 from .frame_ring import FrameRing, RingCounters, ring_bytes
 
 log = logging.getLogger("nc_server.server")
@@ -909,6 +910,7 @@ class PublisherProcess:
     def _supervise(self) -> None:
         """Thread, normal priority: block on the children's pidfds (and the wake pipe), handle an exit the
         moment it happens, and every SUPERVISE_PERIOD do :meth:`_step` (see the class docstring)."""
+        set_thread_name("nc-pub-watch")
         _run_normal(self.nice)
         next_step = 0.0
         while True:

@@ -346,3 +346,72 @@ def test_hand_over_refusals(table: ClaimTable) -> None:
         table.hand_over(1, "a", "no spaces", 0.1)
     assert ei.value.code == 0x706
     assert table.hand_over(1, "a", "a", 0.1) is False and table.holder(1) == "a"
+
+
+def test_a_quiet_table_loses_a_silent_client_in_the_same_check_as_a_full_one() -> None:
+    """check() skips the clients while every one was quiet at the last check and nothing but PLCTONC arrivals
+    changed since: a client that goes silent is lost at the same check, to the same float, as when every check
+    looks at every client."""
+    t = ClaimTable([1, 2, 3], watchdog_timeout=0.5)
+    for c in ("a", "b"):
+        t.client_alive(c, 0.0)
+    t.claim(1, "a", 0.0)
+    t.claim(2, "b", 0.0)
+    t.plctonc_arrived("a", 0.1)
+    t.plctonc_arrived("b", 0.3)
+    assert t.check(0.35) == []  # (quiet from here: the oldest arrival is a's, 0.1)
+    t.plctonc_arrived("b", 0.55)  # b goes on, a is silent
+    assert t.check(0.6) == []  # 0.6 - 0.1 = 0.5: not late yet
+    assert [(x.client, x.code, x.faulted) for x in t.check(0.6 + 1e-9)] == [("a", ZNC_PLCTONC_TIMEOUT, (1,))]
+
+
+def test_a_claim_armed_by_an_earlier_frame_after_a_quiet_check_still_times_out() -> None:
+    """A claim whose watchdog is not armed yet (no frame since the claim) keeps check() looking at every client:
+    a frame processed later with an earlier arrival time arms it, and the loss comes on time."""
+    t = ClaimTable([1], watchdog_timeout=0.5)
+    t.client_alive("a", 0.0)
+    t.plctonc_arrived("a", 0.0)
+    t.claim(1, "a", 1.0)
+    assert t.check(1.2) == []
+    t.plctonc_arrived("a", 1.1)  # arrived before the check, processed after it
+    assert t.check(1.6) == []
+    assert faults(t.check(1.65)) == [(1, ZNC_PLCTONC_TIMEOUT)]
+
+
+def test_the_quiet_watchdog_matches_the_full_one_on_random_histories() -> None:
+    """Random tokens, claims, releases, hand-overs, PLCTONC arrivals (some processed late), NC stalls and checks on
+    two tables: one as it runs, one that looks at every client in every check. Same losses, same claims."""
+    import math
+    import random
+
+    rng = random.Random(8)
+    for _ in range(60):
+        fast, full = ClaimTable([1, 2, 3, 4], 0.5), ClaimTable([1, 2, 3, 4], 0.5)
+        now = 0.0
+        for _ in range(300):
+            now += rng.choice([0.0, 0.01, 0.05, 0.1, 0.2, 0.3])
+            op = rng.random()
+            client = rng.choice("abc")
+            axis, to, age = rng.choice([1, 2, 3, 4]), rng.choice("abc"), rng.choice([0.0, 0.0, 0.05, 0.3])
+            for t in (fast, full):
+                try:
+                    if op < 0.05:
+                        t.client_alive(client, now)
+                    elif op < 0.08:
+                        t.client_gone(client, now)
+                    elif op < 0.16:
+                        t.claim(axis, client, now)
+                    elif op < 0.19:
+                        t.release(axis, client)
+                    elif op < 0.21:
+                        t.hand_over(axis, client, to, now)
+                    elif op < 0.55:
+                        t.plctonc_arrived(client, now - age)
+                    elif op < 0.56:
+                        t.grace(now, now - 0.2)
+                except NcError:
+                    pass
+            full._quiet = (-1, -1, math.inf)  # (every client looked at)
+            a, b = fast.check(now), full.check(now)
+            assert a == b, (now, a, b)
+            assert fast.claims() == full.claims() and fast.clients() == full.clients()

@@ -57,3 +57,41 @@ def test_a_blocked_reply_closes_a_congested_link_after_half_a_second() -> None:
     assert json.loads(c.get_json("transport/link/tx/queue/congestion_control/block/wait_before_close")) == 500_000
     r = router_config(["tcp/127.0.0.1:17448"])
     assert json.loads(r.get_json("transport/link/tx/queue/congestion_control/block/wait_before_close")) == 500_000
+
+
+def test_decode_plctonc_accepts_and_refuses_what_decode_plc_frame_does() -> None:
+    """The NC's PLCTONC decoder checks the frame itself (no structured arrays): the same frames as
+    nc_schema.decode_plc_frame, and the same AxisIds and records, for valid frames and for every single-byte
+    change of a header field, truncations and extensions."""
+    import random
+
+    import numpy as np
+
+    from nc_schema import PLC_FRAME_HEADER_SIZE, PLCTONC_DTYPE, decode_plc_frame, encode_plc_frame
+    from nc_server.server.transport import decode_plctonc
+
+    rng = random.Random(5)
+    recs = np.frombuffer(bytes(rng.randrange(256) for _ in range(3 * PLCTONC_DTYPE.itemsize)), dtype=PLCTONC_DTYPE)
+    good = encode_plc_frame(9, [7, 3, 12], recs)
+    cases = [good, good[:-1], good + b"\0", good[:PLC_FRAME_HEADER_SIZE], good[:PLC_FRAME_HEADER_SIZE - 1], b""]
+    for k in range(PLC_FRAME_HEADER_SIZE):
+        for v in (0, 1, 0xFF, good[k] ^ 0x40):
+            cases.append(good[:k] + bytes([v]) + good[k + 1:])
+    refused = 0
+    for data in cases:
+        try:
+            _, expect = decode_plc_frame(data)
+        except ValueError:
+            refused += 1
+            try:
+                decode_plctonc(data, 1.0, 1 << 20)
+            except ValueError:
+                continue
+            raise AssertionError(f"accepted a frame decode_plc_frame refuses: {data!r}")
+        f = decode_plctonc(data, 1.0, 1 << 20)
+        assert f.axis_ids.dtype == expect["AxisId"].dtype and f.axis_ids.tolist() == expect["AxisId"].tolist()
+        assert f.plctonc.dtype == PLCTONC_DTYPE and f.plctonc.flags.c_contiguous
+        assert f.plctonc.tobytes() == expect["PlcToNc"].tobytes()
+    assert 0 < refused < len(cases)  # (both kinds were tried)
+    f = decode_plctonc(good, 1.0, 1 << 20)
+    assert f.axis_ids.tolist() == [7, 3, 12] and f.plctonc.tobytes() == recs.tobytes()
