@@ -81,6 +81,21 @@ def program(plc):
         a.cycle(plc)
 
 
+if mode == "many":  # plc-run's program of bench/plc_cpu.py (MC_Power + MC_MoveAbsolute on 4 axes)
+    import importlib.util, tempfile
+    _tmp = tempfile.mkdtemp(prefix="plc-cost-")
+    os.environ.update(MANY_AXES="1,2,3,4", MANY_REPORT=os.path.join(_tmp, "r.json"),
+                      MANY_STOP=os.path.join(_tmp, "stop"))
+    _spec = importlib.util.spec_from_file_location("many_prog", os.path.join(os.getcwd(), "bench",
+                                                                             "many_clients_program.py"))
+    _mod = importlib.util.module_from_spec(_spec)
+    _spec.loader.exec_module(_mod)
+    _prog = _mod.Program()
+    axes = _prog.axes
+    program = _prog.cycle
+    mode = "prog"
+
+
 class Bench(InProcessPlc):
     def _take_frames(self):  # as PlcRuntime._take_frames: a frame's bytes decoded
         if BYTES_PATH:  # (--frame-path bytes: the task takes the bytes itself, no numpy)
@@ -144,7 +159,7 @@ if profile < 0:  # under callgrind (--instructions): the steps run inside operat
         wire()
         operator.call(plc.step)
         nc_side()
-    print(json.dumps({"cycles": -profile, "moves": sum(a.n for a in axes)}))
+    print(json.dumps({"cycles": -profile, "moves": sum(getattr(a, "n", 0) or getattr(a, "k", 0) for a in axes)}))
     sys.exit(0)
 if profile:
     pr = cProfile.Profile(time.thread_time_ns, 1e-9)
@@ -164,7 +179,7 @@ wall, cpu = run(cycles, True)
 wall.sort(); cpu.sort()
 q = lambda v, f: v[min(len(v) - 1, int(f * len(v)))] / 1000
 print(json.dumps({"p50": q(wall, 0.5), "p99": q(wall, 0.99), "cpu_mean": sum(cpu) / len(cpu) / 1000,
-                  "cpu_p50": q(cpu, 0.5), "moves": sum(a.n for a in axes)}))
+                  "cpu_p50": q(cpu, 0.5), "moves": sum(getattr(a, "n", 0) or getattr(a, "k", 0) for a in axes)}))
 """
 
 
@@ -194,7 +209,8 @@ def main() -> None:
     ap.add_argument("--frame-axes", default="64,4", help="records per status frame (comma list)")
     ap.add_argument("--cycles", type=int, default=3000)
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--modes", default="prog,idle", help="prog (the 4-axis program), idle (no program, no axes), bound (the 4 axes bound, no program)")
+    ap.add_argument("--modes", default="prog,idle", help="prog (the 4-axis program), idle (no program, no axes), bound "
+                    "(the 4 axes bound, no program), many (bench/many_clients_program.py, plc_cpu.py's program)")
     ap.add_argument("--profile", type=int, default=0, help="cProfile this many cycles (program, first frame size)")
     ap.add_argument("--frame-path", choices=("decode", "bytes"), default="decode",
                     help="decode: decode_frame + _set_frame (what PlcRuntime does); bytes: PlcTask._set_frame_bytes "
@@ -215,7 +231,7 @@ def main() -> None:
                           flush=True)
         return
     if a.profile:
-        print(run(here, "prog", sizes[0], 0, a.profile))
+        print(run(here, a.modes.split(",")[0], sizes[0], 0, a.profile))
         return
     trees = [("this", here)] + ([("other", a.tree)] if a.tree else [])
     best: dict[tuple[str, str, int], dict[str, float]] = {}

@@ -75,6 +75,7 @@ _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 from .axis_ref import AXIS_REF
 from .plcframe import PlcFrameBuffer
 from .port import CommandPort, PendingCommand, reply_cycle
+from .records import _NC_INDEX
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +84,8 @@ _local = threading.local()
 _ENABLE = int(ControlDWord.Enable)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERROR = int(StateDWord.Error)
+#: where the unpacked NCTOPLC values keep StateDWord (control()'s test every cycle, without the property)
+_I_SDW = _NC_INDEX["StateDWord"][0]
 #: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
 _CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)})
 
@@ -339,7 +342,7 @@ class PlcTask:
             # the usual call (MC_Power every cycle of an axis held): what the rest below does for it, the
             # cheap tests first (a closed loop or an axis error shows the claim is not lost)
             rec = ax.NcToPlc
-            if (not rec.StateDWord & (_CLC | _ERROR) and ax.Status.Valid
+            if (not (rec._v or rec._unpack())[_I_SDW] & (_CLC | _ERROR) and ax.Status.Valid
                     and self.now - c.since >= self.claim_retry and self.reachable(ax.nc)
                     and self._claim_looks_lost(ax, c)):
                 self._send_claim(ax, c)
@@ -396,7 +399,9 @@ class PlcTask:
         c: ClaimState | None  # (the loops below also look claims up)
         for key, c in self._claims.items():
             p = c.pending
-            if c.state == "awaiting" and p is not None:
+            if p is None:  # (a held claim, the usual case: nothing on its way)
+                continue
+            if c.state == "awaiting":
                 if p.done:  # held once the hand-over happened; a refusal is no error here
                     c.pending, c.since = None, self.now
                     if (p.error or 0) == 0:
@@ -406,7 +411,7 @@ class PlcTask:
                     p.abandon()
                     c.pending, c.since = None, self.now
                 continue
-            if c.state != "pending" or p is None:
+            if c.state != "pending":
                 continue
             if p.done:
                 err = p.error or 0
@@ -417,12 +422,16 @@ class PlcTask:
                 p.abandon()
                 c.state, c.error, c.since = "refused", ErrorCodes.ADSERR_CLIENT_SYNCTIMEOUT, self.now
         # the NC drops a claim when it faults the axis for a lost client / PLCTONC timeout
+        claims = self._claims
         for key, ax in self._controlled.items():
-            c = self._claims.get(key)
+            c = claims.get(key)
             if c is None:
                 continue
             st = ax.Status
-            code = ax.NcToPlc.ErrorCode if st.Valid and st.Error else 0
+            if not (st.Valid and st.Error):  # (the usual case: no axis error, no fault)
+                c.fault_seen = False
+                continue
+            code = ax.NcToPlc.ErrorCode
             lost = code in _CLAIM_FAULTS
             if lost and not c.fault_seen and c.state == "held":
                 log.warning("%r: the NC dropped our claim (0x%X %s); claiming again", ax, code, error_text(code))
@@ -723,15 +732,27 @@ class PlcTask:
                 self._snapshot_refs(refs, axis_id, frame, recs, rbase, jobs, jbase, covers, stale)
                 continue
             # (the usual case, as _snapshot_refs does it, without its call)
-            o = rbase + i * NCTOPLC_SIZE
-            rec = recs[o:o + NCTOPLC_SIZE]
-            if jobs is None:
-                job = None
-            else:
-                j = jbase + i * NCJOBS_SIZE
-                job = jobs[j:j + NCJOBS_SIZE]
+            rec = None
             for ax in refs:
+                if ax._src is frame and ax._unchanged + 1 < stale:
+                    # no newer frame since this axis's last snapshot, which was valid and of this very frame: its
+                    # NcToPlc, NcJobs and Status hold what a new snapshot would (the bytes are the same), only the
+                    # counters move on (AXIS_REF._snapshot's path for an unchanged NC cycle, without the decoding)
+                    ax._unchanged += 1
+                    ax.pending = False
+                    ax.Status.CycleCounter = cycle
+                    continue
+                if rec is None:
+                    o = rbase + i * NCTOPLC_SIZE
+                    rec = recs[o:o + NCTOPLC_SIZE]
+                    if jobs is None:
+                        job = None
+                    else:
+                        j = jbase + i * NCJOBS_SIZE
+                        job = jobs[j:j + NCJOBS_SIZE]
                 ax._snapshot(rec, fcycle, cycle, cycle_time, stale, job)
+                if ax.Status.Valid:
+                    ax._src = frame  # (valid: _snapshot took this frame's record; any other call of it clears this)
 
     def _snapshot_refs(self, refs: list[AXIS_REF], axis_id: int, frame: _FrameEntry | None, recs: bytes, rbase: int,
                        jobs: bytes | None, jbase: int, covers: frozenset[int] | None, stale: int) -> None:

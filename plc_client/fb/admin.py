@@ -38,9 +38,10 @@ from __future__ import annotations
 import operator
 from typing import Any, ClassVar
 
-from nc_schema import ControlDWord, ErrorCodes, StateDWord
+from nc_schema import PLCTONC_DTYPE, ControlDWord, ErrorCodes, StateDWord, member_struct
 
 from ..axis_ref import AXIS_REF, ST_AxisStatus
+from ..records import _NC_INDEX
 from .base import EnableBlock, ExecuteBlock, FunctionBlock
 
 _EN = int(ControlDWord.Enable)
@@ -48,6 +49,12 @@ _FP = int(ControlDWord.FeedEnablePlus)
 _FM = int(ControlDWord.FeedEnableMinus)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERR = int(StateDWord.Error)
+_NOT_ENABLES = ~(_EN | _FP | _FM)
+#: where PLCTONC keeps ControlDWord, and its struct (MC_Power reads and writes it every cycle)
+_CDW_OFF, _CDW_STRUCT = member_struct(PLCTONC_DTYPE, "ControlDWord")
+_CDW_UNPACK, _CDW_PACK = _CDW_STRUCT.unpack_from, _CDW_STRUCT.pack_into
+#: where the unpacked NCTOPLC values keep StateDWord
+_I_SDW = _NC_INDEX["StateDWord"][0]
 
 
 def override_to_plctonc(percent: float) -> int:
@@ -116,10 +123,11 @@ class MC_Power(FunctionBlock):
                 self.Error, self.ErrorID = True, ErrorCodes.MC_NO_NC_CYCLE_UPDATE
             return
         claim = task.control(ax, retry=rising)
-        # control word: written every cycle (the PLC owns these bits)
-        plctonc = ax.PlcToNc
-        old = plctonc.ControlDWord
-        cdw = old & ~(_EN | _FP | _FM)
+        # control word: written every cycle (the PLC owns these bits); read and written in the PlcToNc bytes
+        # directly (the property's value check: cdw is the UDINT read with some bits changed)
+        buf = ax._plctonc_buf
+        old = _CDW_UNPACK(buf, _CDW_OFF)[0]
+        cdw = old & _NOT_ENABLES
         if en:
             cdw |= _EN
             if self.Enable_Positive:
@@ -127,34 +135,43 @@ class MC_Power(FunctionBlock):
             if self.Enable_Negative:
                 cdw |= _FM
         if cdw != old:  # (the same value every cycle but when the enables change)
-            plctonc.ControlDWord = cdw
+            _CDW_PACK(buf, _CDW_OFF, cdw)
         ov = self.Override
         # (the very object written last was checked then: a float or an int does not change)
         ov_ok = (ov is self._written_override and type(ov) in (float, int)) or _valid_override(ov)
         if ov_ok and ov != self._written_override:
-            plctonc.Override = override_to_plctonc(self.Override)
+            ax.PlcToNc.Override = override_to_plctonc(self.Override)
             self._written_override = self.Override
         if not en:
             self._reset_outputs()
             return
-        self.Busy = True
-        held = claim.state == "held"
-        self.Active = held
+        state = claim.state
+        held = state == "held"
+        valid = ax.Status.Valid
         # (_axis_problem's answer for a bound axis with valid data, without the call)
-        code = 0 if ax._task is not None and not ax.missing and ax.Status.Valid else self._axis_problem()
+        code = 0 if valid and not ax.missing and ax._task is not None else self._axis_problem()
         if code:
             pass
-        elif claim.state == "refused":
+        elif state == "refused":
             code = claim.error
         elif not ov_ok:
             code = ErrorCodes.MC_PARAMETER_NOT_CORRECT
         elif (type(bm := self.BufferMode) is not int or bm != 0) and (  # (a plain int 0: no isinstance calls)
                 isinstance(bm, bool) or not isinstance(bm, int) or bm != 0):
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
+        if held and valid:
+            rec = ax.NcToPlc
+            sdw = (rec._v or rec._unpack())[_I_SDW]  # (rec.StateDWord without the property)
+            status = bool(sdw & _CLC) and not sdw & _ERR
+        else:
+            status = False
+        if self._PLAIN_IO:  # (the five outputs with one update)
+            self.__dict__.update(Busy=True, Active=held, Error=bool(code), ErrorID=int(code), Status=status)
+            return
+        self.Busy = True
+        self.Active = held
         self.Error, self.ErrorID = bool(code), int(code)
-        rec = ax.NcToPlc
-        sdw = rec.StateDWord
-        self.Status = held and ax.Status.Valid and bool(sdw & _CLC) and not sdw & _ERR
+        self.Status = status
 
 
 class MC_Reset(ExecuteBlock):

@@ -77,7 +77,7 @@ import numpy as np
 
 from nc_schema import CmdState, ErrorCodes, MC_Direction, OpModeDWord, StateDWord, cmdno_newer
 
-from ..records import _JOBS_INDEX, NCTOPLC_AXIS_REF, NcJobsValues
+from ..records import _JOBS_INDEX, _NC_INDEX, NCTOPLC_AXIS_REF, NcJobsValues
 from .base import ExecuteBlock
 
 _ERR = int(StateDWord.Error)
@@ -94,6 +94,8 @@ _AREA_MON = int(OpModeDWord.OpModePosAreaMonitoring)
 _J_AXIS_ID, _J_ACTIVE_NO, _J_ACTIVE_STATE, _J_BUFFERED_NO = (
     _JOBS_INDEX[n][0] for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
 assert all(_JOBS_INDEX[n][1:] == (0, 0) for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
+#: where the unpacked NCTOPLC values keep StateDWord
+_N_SDW = _NC_INDEX["StateDWord"][0]
 _ACTIVE, _DONE_S, _ABORTED, _ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),
                                       int(CmdState.ERROR))
 
@@ -151,9 +153,20 @@ class MotionBlock(ExecuteBlock):
     #: later is not seen): the busy path of ``_cycle`` may call ``_follow``
     _PLAIN_PROGRESS: ClassVar[bool] = True
 
+    #: the class keeps MotionBlock's _on_state and _set_active (set when the class is defined): _follow_job may
+    #: take an ACTIVE command without an axis error inline
+    _PLAIN_STATE: ClassVar[bool] = True
+    #: the class keeps MotionBlock._on_active (which does nothing): the inline path skips its call
+    _PLAIN_ON_ACTIVE: ClassVar[bool] = True
+    #: "Active" is one of the class's outputs (what _set_active tests, once per class)
+    _HAS_ACTIVE: ClassVar[bool] = True
+
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         cls._PLAIN_PROGRESS = cls._progress is MotionBlock._progress
+        cls._PLAIN_STATE = cls._on_state is MotionBlock._on_state and cls._set_active is MotionBlock._set_active
+        cls._PLAIN_ON_ACTIVE = cls._on_active is MotionBlock._on_active
+        cls._HAS_ACTIVE = "Active" in cls._OUTPUTS
 
     def _cycle(self) -> None:
         if self.Busy and self._prev_execute and self._cmdno and self._PLAIN_PROGRESS and self.Execute:
@@ -228,6 +241,16 @@ class MotionBlock(ExecuteBlock):
             return
         if v[_J_ACTIVE_NO] == me:
             state = v[_J_ACTIVE_STATE]
+            if state == _ACTIVE and self._PLAIN_STATE:
+                # (every cycle of a running move: what _on_state does for ACTIVE without an axis error, without
+                # its calls; an axis error takes the path below)
+                sdw = (rec._v or rec._unpack())[_N_SDW]
+                if not sdw & _ERR:
+                    if self._HAS_ACTIVE:
+                        self.Active = True
+                    if not self._PLAIN_ON_ACTIVE:
+                        self._on_active(sdw)
+                    return
             if state in (_ACTIVE, _DONE_S, _ABORTED, _ERROR):
                 # the error code matters only for ERROR or an axis error (_on_state): looked up only then
                 err = (self._ended_error(jobs, me, rec) if state == _ERROR or rec.StateDWord & _ERR

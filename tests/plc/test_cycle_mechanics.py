@@ -216,3 +216,48 @@ def test_a_frame_taken_as_bytes_gives_what_decode_frame_gives() -> None:
     assert axes_b[7].Status.Valid and axes_b[7].nc_epoch == 1  # (the restart at cycle 5)
     with pytest.raises(ValueError):
         b._set_frame_bytes("nc1", b"\0" * 40)
+
+
+def _snap_state(ax: AXIS_REF) -> tuple[Any, ...]:
+    return (dict(ax.Status.__dict__), ax.NcToPlc.tobytes(), ax._jobs.tobytes(), ax.missing, ax.pending,
+            ax._unchanged)
+
+
+def test_cycles_without_a_new_frame_give_what_decoding_the_same_frame_again_gives() -> None:
+    """A cycle that finds no newer frame skips the decoding (PlcTask._snapshot_all, AXIS_REF._src): every axis
+    then has what it had when the frame was taken again as new bytes each cycle (the decoding path), its
+    Status, NcToPlc, NcJobs and counters, through the frames stopping (stale after stale_cycles: 0x4B0F),
+    an NC reported down, a changed StateDWord and an axis the next frame lacks."""
+    rng = np.random.default_rng(5)
+    ids = (3, 1, 4)
+    skip, axes_s = _task_with(ids)  # takes a frame only when a new one comes (the runtime's way)
+    dec, axes_d = _task_with(ids)  # takes the frame held again every cycle (a new entry: decoded again)
+    blocks = {t: {a: (MC_ReadStatus(), MC_Power()) for a in ids} for t in (skip, dec)}
+    assert skip.stale_cycles == dec.stale_cycles
+    stale = skip.stale_cycles
+    # per cycle: a new frame (its ids) or None (no newer frame); "down"/"up": the NC's liveliness
+    plan: list[Any] = [list(ids)] + [None] * 3 + [list(ids)] + [None] * (stale + 3) + [list(ids), None, "down", None,
+                                                                                       "up", list(ids), None,
+                                                                                       [3, 4], None, None]
+    held: bytes | None = None
+    for k, what in enumerate(plan):
+        if what == "down":
+            skip.nc_down("nc1"), dec.nc_down("nc1")
+        elif what == "up":
+            skip.nc_up("nc1"), dec.nc_up("nc1")
+        elif what is not None:
+            held = _frame(100 + k, what, rng)[0]
+            skip._set_frame_bytes("nc1", held)
+        assert held is not None
+        dec._set_frame_bytes("nc1", bytes(held))  # (the same cycle again: taken, a new frame entry)
+        for t, axes in ((skip, axes_s), (dec, axes_d)):
+            t.step()
+            for a, ax in axes.items():
+                rs, pw = blocks[t][a]
+                rs(Axis=ax, Enable=True)
+        for a in ids:
+            assert _snap_state(axes_s[a]) == _snap_state(axes_d[a]), (k, a)
+            rs_s, rs_d = blocks[skip][a][0], blocks[dec][a][0]
+            assert (rs_s.Valid, rs_s.Error, rs_s.ErrorID) == (rs_d.Valid, rs_d.Error, rs_d.ErrorID), (k, a)
+    # the path was taken (the frames held for some cycles), and the data went stale on it as on the other
+    assert any(ax._src is not None for ax in axes_s.values())
