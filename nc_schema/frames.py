@@ -260,8 +260,8 @@ def decode_plc_frame(data: bytes) -> tuple[np.void, np.ndarray]:
     magic, version, hsize, _, n, rs, _ = PLC_FRAME_HEADER_STRUCT.unpack_from(data)
     if magic != PLC_FRAME_MAGIC or version != WIRE_VERSION:
         raise ValueError(f"not a zenoh-nc v{WIRE_VERSION} PLC frame")
-    if rs != PLC_AXIS_RECORD_SIZE or len(data) != hsize + n * rs:
-        raise ValueError("PLC frame sizes do not add up")
+    if rs != PLC_AXIS_RECORD_SIZE or hsize < PLC_FRAME_HEADER_SIZE or len(data) != hsize + n * rs:
+        raise ValueError("PLC frame sizes do not add up")  # (a HeaderSize below the header: records over it)
     hdr: np.void = np.frombuffer(data, dtype=PLC_FRAME_HEADER_DTYPE, count=1)[0]
     return hdr, np.frombuffer(data, dtype=PLC_AXIS_RECORD_DTYPE, count=n, offset=hsize)
 

@@ -289,8 +289,6 @@ class AXIS_REF:
             refs.append(weakref.ref(self))
         self._has_data = False
         self._unchanged = 0  # PLC cycles without a newer NC cycle
-        #: (StateDWord, CoupleState) whose derived members Status holds (None: set them at the next snapshot)
-        self._flags_key: tuple[int, int] | None = None
         #: the task's frame entry this axis's last snapshot was taken from and valid with (None: none such); the
         #: task skips the decoding while no newer frame came (PlcTask._snapshot_all)
         self._src: Any = None
@@ -346,13 +344,13 @@ class AXIS_REF:
             self._has_data = True
             self.missing = False
             if self._unchanged < stale_cycles:  # valid (the usual case): ST_AxisStatus.update inline
-                key = (v[_I_SDW], v[_I_CS])
-                if key != self._flags_key:  # (the same StateDWord and CoupleState: the ~40 members are set)
-                    flags = _FLAGS.get(key)
-                    if flags is None:
-                        flags = _flags(*key)
-                    st.__dict__.update(flags)
-                    self._flags_key = key
+                # every valid snapshot sets the ~40 members again (~1 us), as TwinCAT's ReadStatus does: a program's
+                # write into Status does not outlive the next snapshot
+                s, cs = v[_I_SDW], v[_I_CS]
+                flags = _FLAGS.get((s, cs))
+                if flags is None:
+                    flags = _flags(s, cs)
+                st.__dict__.update(flags)
                 acc, vel = v[_I_ACC], v[_I_VEL]
                 if abs(acc) <= _ACC_EPS:
                     accel = decel = False
@@ -370,7 +368,6 @@ class AXIS_REF:
             nc_cycle = st.NcCycleCounter
         valid = self._has_data and not self.missing and self._unchanged < stale_cycles
         st.update(self.NcToPlc, nc_cycle, plc_cycle, cycle_time, valid)
-        self._flags_key = None  # (set by update from whatever record NcToPlc holds: the next valid one sets them)
 
     @property
     def valid(self) -> bool:

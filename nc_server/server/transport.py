@@ -185,7 +185,7 @@ def decode_plctonc(payload: bytes | bytearray | memoryview, arrival: float, max_
     magic, version, hsize, _, n, rs, _ = _PHDR.unpack_from(data)
     if magic != PLC_FRAME_MAGIC or version != WIRE_VERSION:
         raise ValueError(f"not a zenoh-nc v{WIRE_VERSION} PLC frame")
-    if rs != _PAREC or len(data) != hsize + n * rs:
+    if rs != _PAREC or hsize < _PHDR.size or len(data) != hsize + n * rs:
         raise ValueError("PLC frame sizes do not add up")
     # (the header's PlcCycle is not used by the NC: the watchdog goes by arrival time)
     # AxisIds and PLCTONC records: strided views of the records, copied out as raw bytes (a structured

@@ -261,3 +261,16 @@ def test_cycles_without_a_new_frame_give_what_decoding_the_same_frame_again_give
             assert (rs_s.Valid, rs_s.Error, rs_s.ErrorID) == (rs_d.Valid, rs_d.Error, rs_d.ErrorID), (k, a)
     # the path was taken (the frames held for some cycles), and the data went stale on it as on the other
     assert any(ax._src is not None for ax in axes_s.values())
+
+
+def test_a_programs_write_into_status_lasts_until_the_next_new_frame() -> None:
+    """AXIS_REF.Status is derived from the NC's record at every snapshot of a new frame (TwinCAT's ReadStatus
+    rewrites it each call): a member the program wrote is set again from StateDWord even when StateDWord did not
+    change."""
+    nc = ScriptNc()
+    nc.cycle_once(2)
+    homed, error = nc.ax.Status.Homed, nc.ax.Status.Error
+    nc.ax.Status.Homed = not homed
+    nc.ax.Status.Error = not error
+    nc.cycle_once(2)  # new frames, the same StateDWord
+    assert nc.ax.Status.Homed == homed and nc.ax.Status.Error == error

@@ -95,3 +95,27 @@ def test_decode_plctonc_accepts_and_refuses_what_decode_plc_frame_does() -> None
     assert 0 < refused < len(cases)  # (both kinds were tried)
     f = decode_plctonc(good, 1.0, 1 << 20)
     assert f.axis_ids.tolist() == [7, 3, 12] and f.plctonc.tobytes() == recs.tobytes()
+
+
+def test_a_plc_frame_whose_header_size_is_below_the_header_is_refused() -> None:
+    """A HeaderSize below the header's own size would put the first records over the header (HeaderSize 0: the
+    first AxisId read from the Magic): both decoders refuse it, even when the sizes add up."""
+    import struct
+
+    import numpy as np
+    import pytest
+
+    from nc_schema import PLC_FRAME_HEADER_SIZE, PLCTONC_DTYPE, decode_plc_frame, encode_plc_frame
+    from nc_server.server.transport import decode_plctonc
+
+    recs = np.zeros(2, dtype=PLCTONC_DTYPE)
+    good = encode_plc_frame(9, [1, 2], recs)
+    rs = (len(good) - PLC_FRAME_HEADER_SIZE) // 2
+    hdr = bytearray(good[:PLC_FRAME_HEADER_SIZE])
+    struct.pack_into("<H", hdr, 6, PLC_FRAME_HEADER_SIZE - 8)  # HeaderSize (offset 6, after Magic and Version)
+    bad = bytes(hdr) + good[PLC_FRAME_HEADER_SIZE:][8:]  # 8 bytes shorter: the sizes add up
+    assert len(bad) == PLC_FRAME_HEADER_SIZE - 8 + 2 * rs
+    with pytest.raises(ValueError):
+        decode_plc_frame(bad)
+    with pytest.raises(ValueError):
+        decode_plctonc(bad, 1.0, 1 << 20)
