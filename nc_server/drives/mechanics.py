@@ -18,15 +18,18 @@ TorqueOffset included; defaults 1e-4 N*m*s^2/u, 1e-4 N*m*s/u, 0.02 N*m, 1 N*m (a
 takes 12 % of its rated torque against friction).
 
 Cost: a few vector operations per cycle for all axes at once; while no drive delivers torque the model rests
-after two steps (the fields fall to 0, then their derivatives) and does no numpy work at all.
+after two steps (the fields fall to 0, then their derivatives) and does no numpy work at all. The CiA 402 drive's
+set-point rows (:meth:`Mechanics.step_set`) are not computed again while their inputs stay (e.g. every axis at a
+constant velocity): they would come out the same.
 
-It may import: numpy, nc_server.core.params.
+It may import: numpy, nc_server.core.params, nc_server.drives.npcount.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..core.params import AxisParams
+from .npcount import count_nonzero
 
 #: |TorqueOffset| at most this [%] (a PLC value beyond is clipped, as a drive limits its additive torque)
 OFFSET_LIMIT = 1000.0
@@ -36,9 +39,9 @@ OFFSET_LIMIT = 1000.0
 def _add_friction(t: np.ndarray, v: np.ndarray, tmp: np.ndarray, viscous: np.ndarray, coulomb: np.ndarray) -> None:
     """``t += viscous * v`` then ``t += coulomb * sign(v)``, in place through ``tmp`` (the model's friction terms:
     the same operations in the same order wherever a row is computed, so rows agree bit for bit)."""
-    np.multiply(v, viscous, out=tmp)
+    np.multiply(v, viscous, tmp)
     t += tmp
-    np.sign(v, out=tmp)
+    np.sign(v, tmp)
     tmp *= coulomb
     t += tmp
 
@@ -53,6 +56,7 @@ class Mechanics:
 
     def __init__(self, n: int, cycle_time: float) -> None:
         self.inv_dt = 1.0 / float(cycle_time)
+        self._inv_dt0 = np.array(self.inv_dt)  # (0-d: an operation with a Python float converts it each call)
         self.inertia = np.zeros(n)   # [% s^2/u]: already scaled by 100 / SimRatedTorque
         self.viscous = np.zeros(n)   # [% s/u]
         self.coulomb = np.zeros(n)   # [%]
@@ -71,8 +75,13 @@ class Mechanics:
         self._v0, self._v1, self._t0, self._t1, self._f5 = self._v[0], self._v[1], t[0], t[1], f[5]
         self._f1, self._tmp1 = f[1], self._tmp[1]
         self._f0, self._f3, self._tmp0 = f[0], f[3], self._tmp[0]
+        # step_set's inputs (bytes of the set velocities, accelerations, delivering masks) of its last computation,
+        # and whether that one had the same inputs as the one before (then rows 0, 3 and 5 hold their steady values)
+        self._set_key: tuple[bytes, bytes, bytes] = (b"", b"", b"")
+        self._set_same = False
 
     def configure(self, i: int, params: AxisParams) -> None:
+        self._set_key = (b"", b"", b"")  # (step_set computes anew)
         k = 100.0 / float(params.SimRatedTorque)
         self.inertia[i] = float(params.SimLoadInertia) * k
         self.viscous[i] = float(params.SimViscousFriction) * k
@@ -82,7 +91,7 @@ class Mechanics:
         """The additive torque [%] per axis: non-finite values keep the last value, |value| clipped to 1000 %."""
         ok = np.isfinite(values)
         self.offset[ok] = np.clip(values[ok], -OFFSET_LIMIT, OFFSET_LIMIT)
-        self._offset_on = bool(np.count_nonzero(self.offset))
+        self._offset_on = bool(count_nonzero(self.offset))
         self._offset_dirty = True
 
     @property
@@ -94,33 +103,50 @@ class Mechanics:
         """:meth:`step` for a caller that writes ActTorque and ActTorqueDerivative (rows 1 and 2) itself after every
         step that did work (the CiA 402 drive: ActTorque is the drive's 0x6077): the other rows and
         :attr:`resting` as :meth:`step` leaves them, bit for bit; rows 1 and 2 as the caller wrote them (at rest as
-        :meth:`step` leaves them)."""
-        k = np.count_nonzero(delivering)
+        :meth:`step` leaves them).
+
+        A step with the same inputs (compared by their bytes: float64 set-points, a bool mask) as the two before it
+        does nothing: rows 0, 3 and 5 already hold what it would write (the torque computed anew bit for bit the
+        same, its derivative ``(t - t) * inv_dt`` the same as last time, the offset's row too). So the model's
+        parameters change through :meth:`configure` and :meth:`set_offset` only, which make the next step compute."""
+        k = count_nonzero(delivering)
         if not k:
+            self._set_key = (b"", b"", b"")
             self.step(delivering, set_velo, set_acc, set_velo, set_acc)  # (the rest: no model rows needed)
             return
+        key = (set_velo.tobytes(), set_acc.tobytes(), delivering.tobytes())
+        if self._offset_dirty:
+            same = False
+        else:
+            last = self._set_key
+            same = key[0] == last[0] and key[1] == last[1] and key[2] == last[2]
+            if same and self._set_same:  # (the steady cycle, e.g. a constant velocity: nothing changes)
+                return
+        self._set_key, self._set_same = key, same
         self._rest = 0
         f0, t0, tmp = self._f0, self._t0, self._tmp0
-        np.multiply(set_acc, self.inertia, out=t0)  # (the operations of step's row 0, in its order)
+        np.multiply(set_acc, self.inertia, t0)  # (the operations of step's row 0, in its order)
         _add_friction(t0, set_velo, tmp, self.viscous, self.coulomb)
         if self._offset_on:
             t0 += self.offset
         if k < self._n:
             t0 *= delivering
         f3 = self._f3
-        np.subtract(t0, f0, out=f3)
-        f3 *= self.inv_dt
-        np.copyto(f0, t0)
+        np.subtract(t0, f0, f3)
+        f3 *= self._inv_dt0
+        f0[...] = t0
         if self._offset_on or self._offset_dirty:
             np.multiply(self.offset, delivering, out=self._f5)
             self._offset_dirty = False
 
-    def step_actual(self, delivering: np.ndarray, act_velo: np.ndarray, act_acc: np.ndarray) -> None:
+    def step_actual(self, delivering: np.ndarray, act_velo: np.ndarray, act_acc: np.ndarray,
+                    k: int | None = None) -> None:
         """:meth:`step` for a user of ActTorque alone (the simulated CiA 402 drive's 0x6077): row 1 of
         :attr:`fields` as :meth:`step` computes it, bit for bit, and :attr:`resting`; the other rows are not kept
-        (at 0, or what an earlier :meth:`step` left)."""
+        (at 0, or what an earlier :meth:`step` left). ``k``: the number of delivering axes, if the caller knows it."""
         f1 = self._f1
-        k = np.count_nonzero(delivering)
+        if k is None:
+            k = count_nonzero(delivering)
         if not k:
             if self._rest < 3:
                 self._rest += 1
@@ -129,7 +155,7 @@ class Mechanics:
             return
         self._rest = 0
         tmp = self._tmp1
-        np.multiply(act_acc, self.inertia, out=f1)  # (the operations of step's row 1, in its order)
+        np.multiply(act_acc, self.inertia, f1)  # (the operations of step's row 1, in its order)
         _add_friction(f1, act_velo, tmp, self.viscous, self.coulomb)
         if k < self._n:
             f1 *= delivering
@@ -143,7 +169,7 @@ class Mechanics:
             set_velo, set_acc: the set-point [u/s, u/s^2]; act_velo, act_acc: the measured motion.
         """
         f = self.fields
-        k = np.count_nonzero(delivering)  # (far cheaper than ndarray.any here)
+        k = count_nonzero(delivering)  # (far cheaper than ndarray.any here)
         if not k:
             if self._rest < 3:
                 self._rest += 1
@@ -168,7 +194,7 @@ class Mechanics:
         # derivatives from the values shown last cycle (rows 0, 1), in NCTOPLC's order (act, set)
         f23 = self._f23
         np.subtract(self._t_rev, self._f10, out=f23)
-        f23 *= self.inv_dt
+        f23 *= self._inv_dt0
         np.copyto(self._f01, t)
         if self._offset_on or self._offset_dirty:
             np.multiply(self.offset, delivering, out=self._f5)

@@ -51,6 +51,7 @@ import numpy as np
 from ...core.params import AxisParams
 from ..encoder import EncoderChain
 from ..mechanics import Mechanics
+from ..npcount import count_nonzero
 from ..probe_pattern import check_probe_signal, first_pattern_edge, pattern_level, signal_edges
 from . import statemachine as sm
 from .image import RxImage, TxImage
@@ -73,13 +74,15 @@ PROBE_SYNC_PULSE = PROBE_ENABLE | PROBE_CONTINUOUS | PROBE_SOURCE_INDEX | PROBE_
 TP2_ENABLE, TP2_CONTINUOUS, TP2_SOURCE, TP2_POSITIVE, TP2_NEGATIVE = 0x0100, 0x0200, 0x0C00, 0x1000, 0x2000
 TP2_STATUS_ENABLED, TP2_STATUS_POS_STORED, TP2_STATUS_NEG_STORED, TP2_STATUS_INPUT = 0x0100, 0x0200, 0x0400, 0x4000
 _TP2_BITS = np.uint16(0xFF00)
+# (0-d arrays of the bits a latch sets: an operation with a Python int converts it on every call)
+_STORED, _TOGGLE = np.array(PROBE_STATUS_STORED, dtype=np.uint16), np.array(PROBE_STATUS_TOGGLE, dtype=np.uint16)
 
 
 class Cia402Device:
     """``n`` simulated CiA 402 drives (columns), stepped once per device cycle.
 
     Attributes:
-        cycle_time: the device cycle [s].
+        cycle_time: the device cycle [s] (set at construction; what it derives is kept).
         timeout: seconds without outputs before the communication fault (None: never).
         state: power state per axis (int8 :class:`.objects.State`).
         position, velocity, acceleration: the motor [inc, inc/s, inc/s^2].
@@ -109,6 +112,10 @@ class Cia402Device:
         self._scale = np.ones(n)             # |AxisEncoderScalingFactor| [u/inc] (the mechanics work in u)
         self._unit_scale = True              # every scale is 1
         self._scale_dt = self._scale / self.cycle_time
+        # (0-d arrays of the cycle's scalars: an operation with a Python float converts it on every call, one with a
+        # 0-d float64 array does not -- the same IEEE operation, bit for bit)
+        self._dt0 = np.array(self.cycle_time)
+        self._ten = np.array(10.0)
         # the states and the modes of the last _move: their Operation enabled and CSV masks
         self._oe_key = b""
         self._oe = np.zeros(n, dtype=bool)
@@ -128,6 +135,7 @@ class Cia402Device:
         self._probe_armed = np.zeros(n, dtype=bool)
         self._probe_armed_any = False
         self._probe_continuous = np.zeros(n, dtype=bool)
+        self._all_continuous = n == 0  # every probe 1 in continuous mode (a latch never disarms it)
         # probe 2: the input (sensor pattern in axis units, or commanded levels) and its latch
         self._tp2_fn = np.zeros(n, dtype=np.uint16)  # 0x60B8 & 0xFF00 in effect
         self._tp2_on = False  # some probe 2 enabled
@@ -155,8 +163,9 @@ class Cia402Device:
         self._pp_c, self._pp_c2 = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         self._pp_kc = np.zeros(n)
         self._pp_plain = True  # every pulse offset +0.0 and spacing 1.0: (x - 0.0) / 1.0 is x, bit for bit
-        self._sm_key = b""  # the states and controlwords of the last _next_state, and its result
+        self._sm_key = b""  # the states and controlwords of the last fault-free transition, its result and its bytes
         self._sm_new = self.state
+        self._sm_new_key = b""
         self._sw_key = b""  # the states of the last statuswords published, and those (shared by the TxImages)
         self._sw = np.zeros(0, dtype=np.uint16)
         self.tx = TxImage.zeros(n)
@@ -272,7 +281,25 @@ class Cia402Device:
         comm_lost = self.timeout is not None and self.silent >= self.timeout
         state = self.state
         cw = rx.controlword
-        faulted = np.count_nonzero(state >= _FRA)  # some drive in Fault reaction active or Fault
+        key = state.tobytes() + cw.tobytes()
+        if key == self._sm_key and not (self._any_fault or comm_lost):
+            # the steady cycle: the states and controlwords of the last fault-free transition again (its states had no
+            # drive in Fault (reaction): none now either), so its result (a copy: see _transition)
+            new, new_key = self._sm_new.copy(), self._sm_new_key
+        else:
+            new, new_key = self._transition(state, cw, key, comm_lost)
+        self.state = new
+        self._prev_cw = cw
+        self._move(new, rx, dt, new_key)
+        self._latch(rx)
+        if self._tp2_on or self._tp2_pending or len(self._tp2_rows):  # (nothing to do without probe 2 or input)
+            self._latch2()
+        self._publish(new_key)
+        return self.tx
+
+    def _transition(self, state: np.ndarray, cw: np.ndarray, key: bytes, comm_lost: bool) -> tuple[np.ndarray, bytes]:
+        """The power states after this cycle's controlwords and faults, and their bytes (the fault codes with them)."""
+        faulted = count_nonzero(state >= _FRA)  # some drive in Fault reaction active or Fault
         stopped: np.ndarray | bool = self.velocity == 0.0 if faulted else True
         if self._any_fault or comm_lost:
             fault = self._event | self._cause
@@ -289,43 +316,30 @@ class Cia402Device:
             self._any_fault = bool(self._event.any() or self._cause.any())
         elif faulted:
             new = sm.device_next(state, cw, self._prev_cw, False, stopped)
-        else:  # (no drive in Fault reaction active or Fault: the next state depends on state and controlword only)
-            new = self._next_state(state, cw)
+        else:
+            # no drive in Fault reaction active or Fault: the next states are a function of the states and the
+            # controlwords alone, so while both stay (the steady cycle: every drive stays in Operation enabled under
+            # 0x000F) step takes this result again without the table look-up (a copy each time: what it returns
+            # becomes device.state, which a test may write in place; the one kept must stay this result)
+            new = sm.device_next(state, cw, self._prev_cw, False, True)
+            self._sm_key, self._sm_new, self._sm_new_key = key, new.copy(), new.tobytes()
+            return new, self._sm_new_key
         if faulted:
             reset = (state == _FLT) & (new != _FLT)
             if reset.any():
                 self.error_code = np.where(reset, 0, self.error_code).astype(np.uint16)
-        self.state = new
-        self._prev_cw = cw
-        self._move(new, rx, dt)
-        self._latch(rx)
-        if self._tp2_on or self._tp2_pending or len(self._tp2_rows):  # (nothing to do without probe 2 or input)
-            self._latch2()
-        self._publish()
-        return self.tx
+        return new, new.tobytes()
 
-    def _next_state(self, state: np.ndarray, cw: np.ndarray) -> np.ndarray:
-        """:func:`.statemachine.device_next` without faults (no drive in Fault reaction active or Fault): a function of
-        the states and the controlwords alone, so the same two as last time give last time's result (the steady
-        cycle: every drive stays in Operation enabled under 0x000F) without the table look-up."""
-        key = state.tobytes() + cw.tobytes()
-        if key == self._sm_key:
-            return self._sm_new.copy()  # (a copy each time: what is returned becomes device.state, which a test may
-            #  write in place; the cached one must stay last time's result)
-        new = sm.device_next(state, cw, self._prev_cw, False, True)
-        self._sm_key, self._sm_new = key, new.copy()
-        return new
-
-    def _move(self, state: np.ndarray, rx: RxImage, dt: float) -> None:
+    def _move(self, state: np.ndarray, rx: RxImage, dt: float, key: bytes) -> None:
+        """The motor's motion in this cycle (``key``: the bytes of ``state``)."""
         pos, v = self.position, self.velocity
-        key = state.tobytes()
         if key != self._oe_key:  # (the states change on events only)
             self._oe_key, self._oe = key, state == _OE
-            self._n_oe = int(np.count_nonzero(self._oe))
+            self._n_oe = int(count_nonzero(self._oe))
         oe, n_oe = self._oe, self._n_oe
         if rx.mode is not self._csv_of:  # (an owned RxImage's mode is the same array every cycle)
             self._csv_of, self._csv = rx.mode, rx.mode == _CSV
-            self._any_csv = bool(np.count_nonzero(self._csv))
+            self._any_csv = bool(count_nonzero(self._csv))
         csv = self._csv
         stopping: np.ndarray | None = None
         if n_oe == self.n and not self._any_csv:  # the steady state: every drive follows its position target
@@ -344,20 +358,20 @@ class Cia402Device:
                 stopping = None
         if self.stalled is not None:  # a stalled motor loses its field synchronism: it stands
             new_pos = np.where(self.stalled, pos, new_pos)
-        new_v = (new_pos - pos) / dt
+        new_v = (new_pos - pos) / self._dt0  # (dt as a 0-d array)
         if stopping is not None:  # (exactly 0 at the end of the ramp: "stopped")
             new_v = np.where(stopping & (np.abs(new_v) < 1e-12), 0.0, new_v)
-        new_a = (new_v - v) / dt
+        new_a = (new_v - v) / self._dt0
         self._before = pos
         self.position, self.velocity, self.acceleration = new_pos, new_v, new_a
-        delivering = oe if stopping is None else oe | stopping
+        delivering, k = (oe, n_oe) if stopping is None else (oe | stopping, None)
         tv = rx.target_velocity
         s = self._scale
         # (0x6077 shows the mechanics' ActTorque alone: the set-point's row is not computed)
         if self._unit_scale:  # (x * 1.0 is x, bit for bit: the mechanics copy their inputs)
-            self.mechanics.step_actual(delivering, new_v, new_a)
+            self.mechanics.step_actual(delivering, new_v, new_a, k)
         else:
-            self.mechanics.step_actual(delivering, new_v * s, new_a * s)
+            self.mechanics.step_actual(delivering, new_v * s, new_a * s, k)
         self._prev_tv = tv
 
     def _latch(self, rx: RxImage) -> None:
@@ -375,8 +389,8 @@ class Cia402Device:
             if hit is not None:  # (new arrays: the TxImages given out hold the old ones)
                 self._probe_position = np.where(hit, x, self._probe_position)
                 st = self._probe_status
-                self._probe_status = np.where(hit, (st | PROBE_STATUS_STORED) ^ PROBE_STATUS_TOGGLE, st)
-                if np.count_nonzero(self._probe_continuous) < self.n:  # single mode: latched once
+                self._probe_status = np.where(hit, (st | _STORED) ^ _TOGGLE, st)
+                if not self._all_continuous:  # single mode: latched once
                     self._probe_armed = self._probe_armed & (self._probe_continuous | ~hit)
                     self._probe_armed_any = bool(self._probe_armed.any())
 
@@ -399,23 +413,28 @@ class Cia402Device:
             np.subtract(self.position, off, out=fb)
             fb /= sp
         kc = self._pp_kc
-        np.floor(fb, out=k)
-        np.greater(k, fa, out=c)
-        np.ceil(fb, out=kc)
-        np.less(kc, fa, out=c2)
+        np.floor(fb, k)
+        np.greater(k, fa, c)
+        np.ceil(fb, kc)
+        np.less(kc, fa, c2)
         c |= c2
         c &= self._probe_armed
-        if not np.count_nonzero(c):
+        if not count_nonzero(c):
             return None, kc
         # off + (floor(fb) if fb > fa else ceil(fb)) * spacing for all axes (fewer calls than gathering the rows
         # first; the same operations on each row's values); a NaN pulse is none
-        np.greater(fb, fa, out=c2)
+        np.greater(fb, fa, c2)
         np.copyto(kc, k, where=c2)
+        if self._pp_plain:
+            # (x * 1.0 is x; + 0.0 stays: it makes -0.0 +0.0. No NaN pulse: a crossing needs finite fa and fb,
+            # and floor/ceil of a finite fb are finite, so c stands as it is)
+            np.add(off, kc, kc)
+            return c, kc
         kc *= sp
-        np.add(off, kc, out=kc)
-        np.equal(kc, kc, out=c2)
+        np.add(off, kc, kc)
+        np.equal(kc, kc, c2)
         c &= c2
-        return (c if np.count_nonzero(c) else None), kc
+        return (c if count_nonzero(c) else None), kc
 
     def _probe_changed(self, fn: np.ndarray) -> None:
         """0x60B8 changed: probe 1 enabled (again) or off, its mode, source and edge."""
@@ -426,6 +445,7 @@ class Cia402Device:
         status = np.where(started, status & ~np.uint16(PROBE_STATUS_STORED), status).astype(np.uint16)
         self._probe_status = status
         self._probe_continuous = (fn & PROBE_CONTINUOUS) != 0
+        self._all_continuous = count_nonzero(self._probe_continuous) >= self.n
         armed = on & ((fn & 0x0C) == PROBE_SOURCE_INDEX) & ((fn & PROBE_POSITIVE) != 0)
         # single mode: armed until a position is stored (a new enable edge arms it again)
         self._probe_armed = armed & (self._probe_continuous | ((status & PROBE_STATUS_STORED) == 0))
@@ -531,10 +551,12 @@ class Cia402Device:
         out.fill(cycle)
         return out
 
-    def _publish(self) -> None:
+    def _publish(self, key: bytes | None = None) -> None:
+        """This cycle's inputs (``key``: the bytes of :attr:`state`, where the caller has them)."""
         m = self.mechanics
-        torque = self._no_torque if m.resting else m.fields[1] * 10.0
-        key = self.state.tobytes()
+        torque = self._no_torque if m.resting else m.fields[1] * self._ten
+        if key is None:
+            key = self.state.tobytes()
         if key != self._sw_key:  # (the statuswords change with the states only: the steady cycle reuses them)
             self._sw_key, self._sw = key, sm.statusword(self.state, follows=True)
         self.tx = TxImage(self._sw, self.rx.mode, self.position, self.velocity,

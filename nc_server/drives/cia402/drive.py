@@ -88,6 +88,7 @@ from ...core.params import AxisParams, ConfigError
 from ..base import DriveABC
 from ..encoder import EncoderChain
 from ..mechanics import Mechanics
+from ..npcount import count_nonzero
 from . import statemachine as sm
 from .device import (PROBE_STATUS_TOGGLE, PROBE_SYNC_PULSE, TP2_ENABLE, TP2_NEGATIVE, TP2_POSITIVE,
                      TP2_STATUS_ENABLED, TP2_STATUS_INPUT, TP2_STATUS_NEG_STORED, TP2_STATUS_POS_STORED)
@@ -96,6 +97,9 @@ from .objects import Mode, State
 
 _OE, _FRA = int(State.OPERATION_ENABLED), int(State.FAULT_REACTION_ACTIVE)
 _ENABLE_OPERATION = 0x000F
+# (0-d arrays of the status bits tested each cycle: an operation with a Python int converts it on every call; the
+# same bits of any integer status word. And ``x.astype(bool)`` for ``x != 0``: the same, without the 0 to convert)
+_TOGGLE, _TP2_INPUT = np.array(PROBE_STATUS_TOGGLE, dtype=np.uint16), np.array(TP2_STATUS_INPUT, dtype=np.uint16)
 #: the NC's position loop gain in CSV [1/s] unless an axis sets ``kv``
 DEFAULT_KV = 100.0
 
@@ -229,7 +233,7 @@ class Cia402Drive(DriveABC):
         self._probe_new = np.zeros(n, dtype=bool)
         self._last_probe_status = np.zeros(n, dtype=np.uint16)
         self._no_probe = np.zeros(n, dtype=bool)
-        self._pi_key = b""  # (probe_input: the probe status words of its last array)
+        self._pi_key = b""  # (probe_input: the input bits of the probe status words of its last array)
         #: the age and alive arrays of inputs last found all fresh and alive, and max_age then (immutable arrays:
         #: the same ones again need no look)
         self._fresh: tuple[np.ndarray | None, np.ndarray | None, int] = (None, None, 0)
@@ -247,6 +251,9 @@ class Cia402Drive(DriveABC):
         self._any_reset = False
         self._act_live = False  # ActTorque (0x6077) was not 0 in the last cycle, or its derivative
         self._act_shown = np.zeros(n)  # the ActTorque shown last [%]
+        # (0-d arrays of the cycle's scalars: an operation with a Python float converts it on every call, one with a
+        # 0-d float64 array does not -- the same IEEE operation, bit for bit)
+        self._dt0, self._inv_dt0 = np.array(self.cycle_time), np.array(self.mechanics.inv_dt)
         self._cycle = 0
         # the key (states, enables) of the last controlwords computed without a reset, those (never written: sent
         # again while the key holds) and whether one of them is not Enable operation
@@ -331,7 +338,7 @@ class Cia402Drive(DriveABC):
         en = np.asarray(enabled, dtype=bool)
         c = self.encoder
         target = c.increments_at(set_pos)
-        if np.count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
+        if count_nonzero(self.following) < len(target):  # not following: the target is where the motor is
             target = np.where(self.following, target, self._pos_inc)
         velo = c.inc_velocities(set_velo)
         if self._tp_watch or self._tp_req_cycle == self._cycle:
@@ -350,15 +357,15 @@ class Cia402Drive(DriveABC):
             # (the time limit runs once the drive is in Fault: its fault reaction (braking) may take long)
             self._reset_left = np.where(self.state == _FRA, self._reset_left, np.maximum(self._reset_left - 1, 0))
         else:  # (a function of the states and the enables alone: the steady cycle reuses the last controlwords)
-            key = self.state.tobytes() + np.asarray(up, dtype=bool).tobytes()
+            key = self.state.tobytes() + up.tobytes()  # (``want``, ``up``: bool arrays)
             if key != self._cw_key:
                 cw = sm.nc_controlword(self.state, up)
-                self._cw_key, self._cw, self._cw_off = key, cw, bool(np.count_nonzero(cw != _ENABLE_OPERATION))
+                self._cw_key, self._cw, self._cw_off = key, cw, bool(count_nonzero(cw != _ENABLE_OPERATION))
             cw = self._cw
         self._cycle += 1
         if cw is not self._cw or self._cw_off:
             off = cw != _ENABLE_OPERATION
-            if np.count_nonzero(off):
+            if count_nonzero(off):
                 self._last_off = np.where(off, self._cycle, self._last_off)
                 self._confirmed = self._confirmed & ~off
         rx = RxImage(cw, self._mode, self._pos_inc if target is None else target, target_velo, self._probe_fn,
@@ -378,7 +385,7 @@ class Cia402Drive(DriveABC):
             state = sm.decode(tx.statusword)
             following = state == _OE
             pending = following & ~self._confirmed
-            pending_n = int(np.count_nonzero(pending))
+            pending_n = int(count_nonzero(pending))
             if pending_n:  # (the steady state: every following axis confirmed, nothing to do)
                 # (strictly after: a statusword stamped with the Shutdown's own cycle may not show it yet)
                 self._confirmed = self._confirmed | (pending & (self._answered(tx) - self.reaction_margin > self._last_off))
@@ -386,13 +393,13 @@ class Cia402Drive(DriveABC):
         c = self.encoder
         new_pos = c.positions(tx.position_actual)
         new_velo = c.velocities(tx.velocity_actual)
-        new_acc = (new_velo - self.act_velo) / self.cycle_time
+        new_acc = (new_velo - self.act_velo) / self._dt0
         n = len(state)
         age, alive = tx.age, tx.alive
         if age is self._fresh[0] and alive is self._fresh[1] and self.max_age == self._fresh[2]:
             degraded: Any = 0  # (the same immutable arrays found fresh and alive before)
         else:
-            degraded = np.count_nonzero(age > self.max_age) or np.count_nonzero(alive) < n
+            degraded = count_nonzero(age > self.max_age) or count_nonzero(alive) < n
             if not degraded and _immutable(age) and _immutable(alive):
                 self._fresh = (age, alive, self.max_age)
         if degraded or self.faulty:  # (the steady state skips all of this)
@@ -407,12 +414,12 @@ class Cia402Drive(DriveABC):
                 self._pos_inc = tx.position_actual
             following = following & alive
             lost = want & self.following & ~alive
-            if np.count_nonzero(lost):  # (it may come back rebooted, in Switch on disabled: never re-enabled unasked)
+            if count_nonzero(lost):  # (it may come back rebooted, in Switch on disabled: never re-enabled unasked)
                 self._lost = self._lost | lost
                 self._any_dropped = True
             fault_state = state >= _FRA
             dropped = self._dropped
-            if self._any_dropped or np.count_nonzero(self.following & ~following):
+            if self._any_dropped or count_nonzero(self.following & ~following):
                 dropped = want & alive & ~following & (dropped | (self.following & self._confirmed))  # (silent: 0x4651)
                 self._dropped = dropped
                 self._any_dropped = bool(dropped.any() or self._lost.any())
@@ -423,15 +430,15 @@ class Cia402Drive(DriveABC):
             shown = fault_state & ~(self._reset_left > 0) if self._any_reset else fault_state
             self.device_error = shown | dropped
             self.ready = ~fault_state & alive & (~want | following)
-            self.faulty = bool(degraded or self.device_error.any() or np.count_nonzero(want & ~following)
+            self.faulty = bool(degraded or self.device_error.any() or count_nonzero(want & ~following)
                                or self._any_reset)
         else:
             self._pos_inc = tx.position_actual
             wkey = want.tobytes()
             if known and wkey == self._st_want and not self._any_reset:
                 pass  # (the states, the following mask and the enables of a cycle that found no change: none)
-            elif np.count_nonzero(self.following & ~following) or np.count_nonzero(state >= _FRA) \
-                    or np.count_nonzero(want & ~following) or self._any_reset:  # a change (then the full evaluation)
+            elif count_nonzero(self.following & ~following) or count_nonzero(state >= _FRA) \
+                    or count_nonzero(want & ~following) or self._any_reset:  # a change (then the full evaluation)
                 fault_state = state >= _FRA
                 dropped = want & ~following & self.following & self._confirmed
                 self._dropped = dropped
@@ -439,7 +446,7 @@ class Cia402Drive(DriveABC):
                 shown = fault_state & ~(self._reset_left > 0) if self._any_reset else fault_state
                 self.device_error = shown | dropped
                 self.ready = ~fault_state & (~want | following)
-                self.faulty = bool(self.device_error.any() or np.count_nonzero(want & ~following)
+                self.faulty = bool(self.device_error.any() or count_nonzero(want & ~following)
                                    or self._any_reset)
             elif not pending_n:
                 # no change, nothing pending: while the statuswords, this following mask, the confirmed mask and
@@ -460,11 +467,11 @@ class Cia402Drive(DriveABC):
             self._tp_clean = self._tp_clean | off
             self._tp_watch = bool(self._tp_code.any() or self._tp_used.any() or not self._tp_clean.all())
         if ps is not self._last_probe_status:
-            self._probe_new = ((ps ^ self._last_probe_status) & PROBE_STATUS_TOGGLE) != 0
+            self._probe_new = ((ps ^ self._last_probe_status) & _TOGGLE).astype(bool)  # (!= 0 of integers)
             self._last_probe_status = ps
         elif self._probe_new_any:
             self._probe_new = self._no_probe
-        self._probe_new_any = bool(np.count_nonzero(self._probe_new))  # (far cheaper than ndarray.any)
+        self._probe_new_any = bool(count_nonzero(self._probe_new))  # (far cheaper than ndarray.any)
 
     def _answered(self, tx: TxImage) -> np.ndarray:
         """Per axis the NC cycle whose outputs the statusword in ``tx`` answers: the link's stamp; a stamp from the
@@ -482,16 +489,17 @@ class Cia402Drive(DriveABC):
         act = self.tx.torque_actual
         if self.faulty:  # invalid I/O data: no torque shown (the motor gets no set-points)
             act = np.where(self.io_valid, act, 0.0)
-        live = bool(np.count_nonzero(act))
+        live = bool(count_nonzero(act))
         # ActTorque is the drive's (also while it brakes itself, the model resting), and so is its fall to 0
         if live or self._act_live or not m.resting:
-            a = act * 0.1
+            a = act * 0.1  # (a Python float: a link's float32 torque stays float32 here, as it did)
             f = m.fields
-            np.subtract(a, self._act_shown, out=f[2])
-            f[2] *= m.inv_dt
+            f2 = f[2]
+            np.subtract(a, self._act_shown, f2)
+            f2 *= self._inv_dt0
             f[1] = a
             self._act_shown = a
-            self._act_live = live or bool(np.count_nonzero(f[2]))  # (one more cycle: the derivative to 0)
+            self._act_live = live or bool(count_nonzero(f2))  # (one more cycle: the derivative to 0)
 
     def encoder_count(self, index: int) -> float:
         """The hardware counter of axis ``index``'s encoder as the NC's chain reads it: increments & mask [inc]."""
@@ -543,13 +551,13 @@ class Cia402Drive(DriveABC):
         self._tp_watch = True  # (the inputs decide: see _exchange)
 
     def probe_input(self) -> np.ndarray:
-        """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14). While the probe status
-        words stay (compared by their bytes), the array of the last call again (read-only): the NC's packer then
-        skips writing StateDWord3."""
-        ps = self.tx.probe_status
-        key = ps.tobytes()
+        """Touch probe input 1 of the NC per axis: the drive's probe 2 input (0x60B9 bit 14). While those bits of the
+        probe status words stay (compared by their bytes; the other bits change with each index pulse latched),
+        the array of the last call again (read-only): the NC's packer then skips writing StateDWord3."""
+        bits = self.tx.probe_status & _TP2_INPUT
+        key = bits.tobytes()
         if key != self._pi_key:
-            pi = (ps & TP2_STATUS_INPUT) != 0
+            pi = bits.astype(bool)  # (!= 0 of integers)
             pi.flags.writeable = False
             self._pi_key, self._pi = key, pi
         return self._pi
