@@ -149,7 +149,8 @@ class DriveABC(ABC):
     def torque_fields(self) -> np.ndarray | None:
         """The torque fields of every axis: a (6, n) array, rows SetTorque, ActTorque [%], ActTorqueDerivative,
         SetTorqueDerivative [%/s], AbsPhasingPos (0), TorqueOffset [%] (NCTOPLC order); None: nothing changed
-        since the last call that gave all zeros (default: a drive that reports no torque, always None)."""
+        since the last call that gave all zeros (default: a drive that reports no torque, always None). Read-only
+        to callers: a drive may hand out the same array in steady cycles without writing it again."""
         return None
 
     def link_figures(self) -> dict[int, dict[str, Any]]:
