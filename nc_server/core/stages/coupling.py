@@ -72,16 +72,29 @@ def _as_index(rows: np.ndarray) -> np.ndarray | slice:
 
 
 class _Memo:
-    """What a fixed-ratio level computed from its slaves' velocities and accelerations last cycle (both pure
-    functions of their bytes): their set-point StateDWord bits and whether they were within the limits. A master
-    at constant velocity gives its slaves the same values every cycle."""
+    """What a fixed-ratio level computed from its slaves' velocities and accelerations (both pure functions of
+    their bytes): their set-point StateDWord bits and whether they are within the limits, kept while the values
+    repeat (a master at constant velocity gives its slaves the same values every cycle)."""
 
     __slots__ = ("key", "dwords", "within")
 
     def __init__(self) -> None:
         self.key = b""  # the bytes of (SetVelo, SetAcc) of the level's slaves
         self.dwords: np.ndarray | None = None  # motion_dwords of them
-        self.within = False  # (single level only) no slave beyond its limits at them
+        self.within = False  # no slave beyond its limits at them (found so; False: not known)
+
+    def dwords_of(self, sv: np.ndarray) -> np.ndarray:
+        """motion_dwords of the level's set-points ``sv`` (4, rows) of this cycle (first call of the cycle)."""
+        key = sv[1:3].tobytes()
+        if key != self.key or self.dwords is None:
+            self.key, self.dwords, self.within = key, motion_dwords(sv[1], sv[2]), False
+        return self.dwords
+
+    def is_within(self, sv: np.ndarray, lim: np.ndarray) -> bool:
+        """No slave of ``sv`` (as given to :meth:`dwords_of` this cycle) beyond its limits ``lim`` (2, rows)."""
+        if not self.within:
+            self.within = not np.count_nonzero(np.abs(sv[1:3]) > lim)
+        return self.within
 
 
 class CouplingStage:
@@ -301,7 +314,7 @@ class CouplingStage:
         S = core.axes.S
         levels, s, lim = self._levels(core)
         sv: np.ndarray | None = None  # the slaves' set-points, (4, s.size), if they are still in hand
-        memo: _Memo | None = None  # and their level's memo, with ``key`` this cycle's
+        memo: _Memo | None = None  # and their level's memo (given sv this cycle)
         lost: list[tuple[int, int]] = []
         if self.remote_rows:
             lost = self._run_remote(core, after_level)
@@ -318,10 +331,7 @@ class CouplingStage:
                 sv[1:] *= r
                 S[:, rows_ix] = sv
                 memo = level_memo
-                key = sv[1:3].tobytes()
-                if key != memo.key or memo.dwords is None:
-                    memo.key, memo.dwords, memo.within = key, motion_dwords(sv[1], sv[2]), False
-                core.sp_dw[rows_ix] = memo.dwords
+                core.sp_dw[rows_ix] = memo.dwords_of(sv)
                 core.axis_state[rows_ix] = state
                 if after_level is not None:
                     after_level(core, rows)
@@ -356,10 +366,7 @@ class CouplingStage:
         # (JobEngine.start_ramp)
         if sv is not None and len(levels) == 1 and not self.remote_rows:  # (one level: its rows are the slaves, in order)
             assert memo is not None  # (set with sv)
-            if memo.within:  # (the same velocities and accelerations as a cycle that was within)
-                return []
-            if not np.count_nonzero(np.abs(sv[1:3]) > lim):
-                memo.within = True
+            if memo.is_within(sv, lim):
                 return []
         v, acc = S[1, s], S[2, s]
         fast = np.abs(v) > lim[0]
