@@ -105,21 +105,30 @@ class _Modulo:
     ``0 <= r < period``, ``q`` is floor(x / period) (``q * period`` is exact: short mantissas, ``|q| < 2 ** 30``;
     ``x - q * period`` is then the correctly rounded remainder, which is what divmod's fmod-and-adjust gives: fmod
     is exact, and its adjustment ``fmod + period`` rounds the same real number) and ``(q, r)`` is divmod's result
-    (``r + 0.0``: its zero is +0). The other entries (a turn passed, the first cycle, NaN) take ``np.divmod``.
-    Periods that are not short (or not positive and finite) take ``np.divmod`` for all axes. The turns change only
-    where ``np.divmod`` ran: a cycle without such an entry leaves the turns fields as the last call wrote them."""
+    (``r + 0.0``: its zero is +0). The other entries (a turn passed, the first cycle, NaN, -0.0) take
+    ``np.divmod``. Periods that are not short (or not positive and finite) take ``np.divmod`` for all axes. The
+    turns change only where ``np.divmod`` ran: a cycle without such an entry leaves the turns fields as the last
+    call wrote them.
+
+    Per cycle (no turn passed) this is six calls: ``q * period`` is kept (``base``, made again where ``np.divmod``
+    ran), and ``0 <= r < period`` is one unsigned comparison of the bit patterns (for a positive finite period: a
+    sign bit set (-0.0, negative, -NaN) or a NaN compares above it; the -0.0 that ``r >= 0`` let through goes to
+    ``np.divmod``, whose result is the same). No remainder shown is then -0.0 (those of ``np.divmod`` never are
+    for a positive period: its zero is +0), so ``r`` is copied as it is (``r + 0.0`` gives the same bytes)."""
 
     def __init__(self, n: int) -> None:
         self.q = np.full((2, n), np.nan)  # the turns of the last cycle as floats (NaN: unknown or too large)
+        self._base = np.full((2, n), np.nan)  # q * period (NaN where q is)
         self._x = np.empty((2, n))
         self._turns = np.empty((2, n))
         self._r = np.empty((2, n))
         self._r01 = (self._r[0], self._r[1])
+        self._r_bits = self._r.view(np.uint64)
         self._ok = np.empty((2, n), dtype=bool)
-        self._ok2 = np.empty((2, n), dtype=bool)
         self._key = b""
         self._short = False
         self._period2 = np.ones((2, n))  # the periods of the key, twice
+        self._period_bits = self._period2.view(np.uint64)
         self._turns_shown = False  # the turns fields hold ``q`` (written by the last call, from this ``q``)
 
     def __call__(self, act: np.ndarray, set_pos: np.ndarray, period: np.ndarray, act_turns: np.ndarray,
@@ -128,20 +137,19 @@ class _Modulo:
         if key != self._key:
             self._key, self._short = key, _short_mantissas(period)
             self.q[...] = np.nan
+            self._base[...] = np.nan
             self._period2 = np.stack((period, period))  # (same shape as q: no broadcasting per cycle)
+            self._period_bits = self._period2.view(np.uint64)
         if not self._short:
             np.divmod(act, period, out=(act_turns, act_mod), casting="unsafe")
             np.divmod(set_pos, period, out=(set_turns, set_mod), casting="unsafe")
             self._turns_shown = False
             return
-        q, r, ok, x = self.q, self._r, self._ok, self._x
+        q, r, ok, x, base = self.q, self._r, self._ok, self._x, self._base
         r0, r1 = self._r01
-        period2 = self._period2
-        np.multiply(q, period2, out=r)
-        np.subtract(act, r0, out=r0)  # (x - q * period, row by row: no stacked copy of the positions)
-        np.subtract(set_pos, r1, out=r1)
-        np.greater_equal(r, 0.0, out=ok)
-        ok &= np.less(r, period2, out=self._ok2)
+        np.subtract(act, base[0], out=r0)  # (x - q * period, row by row: no stacked copy of the positions)
+        np.subtract(set_pos, base[1], out=r1)
+        np.less(self._r_bits, self._period_bits, out=ok)  # 0 <= r < period, -0.0 excluded
         if np.count_nonzero(ok) < ok.size:
             x[0] = act
             x[1] = set_pos
@@ -151,6 +159,7 @@ class _Modulo:
             src[...] = q
             src[bad] = qd
             q[bad] = np.where(np.abs(qd) < 2.0 ** 30, qd, np.nan)
+            np.multiply(q, self._period2, out=base)
             r[bad] = rd
             self._turns_shown = False  # (written below; shown as ``q`` where |turns| < 2 ** 30 only)
         elif not self._turns_shown:
@@ -158,8 +167,8 @@ class _Modulo:
             self._turns_shown = True
         else:
             src = None  # (no turn passed: the turns fields stay)
-        np.add(r0, 0.0, out=act_mod)  # (r + 0.0: divmod's zero is +0)
-        np.add(r1, 0.0, out=set_mod)
+        act_mod[...] = r0  # (= r + 0.0: no r is -0.0, see the class docstring)
+        set_mod[...] = r1
         if src is not None:
             np.copyto(act_turns, src[0], casting="unsafe")
             np.copyto(set_turns, src[1], casting="unsafe")
@@ -183,16 +192,27 @@ class NctoplcPacker:
         self._mod = _Modulo(n)
         self._axis_state_key = b""  # (AxisState changes on events only: written when its bytes changed)
         self._sdw3_src: np.ndarray | None = None  # (the drive's probe input array written last)
+        # StateDWord from its inputs, SetVelo/SetAcc/SetJerk from theirs (the same while the axes move steadily):
+        # written when an input changed (the event words: other arrays after every derive; the rest: their bytes)
+        self._sd_words: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+        self._sd_key: tuple[bytes, ...] = ()
+        self._dyn_key = b""
 
     def fill(self, core: Any, event_dw: np.ndarray, loop_dw: np.ndarray) -> None:
-        """This cycle's values from the axis table, the drive and the set-point words of ``core``."""
+        """This cycle's values from the axis table, the drive and the set-point words of ``core``
+        (``event_dw``, ``loop_dw``: NcCore's words of its last derive, new arrays on every derive)."""
         a, d, o = core.axes, core.drive, self.out
         act = core.act_pos
-        sd = event_dw | core.sp_dw
-        if not a.mon_clear:  # (all 0 otherwise)
-            sd |= a.mon_dw
-        sd |= (a.enabled & d.ready & d.following) * loop_dw  # (MC_Power.Status: the drive follows)
-        o["StateDWord"][...] = sd
+        sd_key = (core.sp_dw.tobytes(), a.enabled.tobytes(), d.ready.tobytes(), d.following.tobytes(),
+                  b"" if a.mon_clear else a.mon_dw.tobytes())
+        words = self._sd_words
+        if sd_key != self._sd_key or event_dw is not words[0] or loop_dw is not words[1]:
+            sd = event_dw | core.sp_dw
+            if not a.mon_clear:  # (all 0 otherwise)
+                sd |= a.mon_dw
+            sd |= (a.enabled & d.ready & d.following) * loop_dw  # (MC_Power.Status: the drive follows)
+            o["StateDWord"][...] = sd
+            self._sd_key, self._sd_words = sd_key, (event_dw, loop_dw)
         key = core.axis_state.tobytes()
         if key != self._axis_state_key:
             o["AxisState"][...] = core.axis_state
@@ -209,9 +229,12 @@ class NctoplcPacker:
         np.subtract(core.pos_ref, act, out=o["PosDiff"])  # (with a dead time: the delayed set position)
         sp_pos, sp_velo, sp_acc, sp_jerk = self._sp_out
         sp_pos[...] = a.set_pos
-        sp_velo[...] = a.set_velo
-        sp_acc[...] = a.set_acc
-        sp_jerk[...] = a.set_jerk
+        key = a.S[1:].tobytes()  # (SetVelo, SetAcc, SetJerk)
+        if key != self._dyn_key:
+            sp_velo[...] = a.set_velo
+            sp_acc[...] = a.set_acc
+            sp_jerk[...] = a.set_jerk
+            self._dyn_key = key
         if np.count_nonzero(a.continuous):
             np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
@@ -223,4 +246,4 @@ class NctoplcPacker:
         if pi is not self._sdw3_src:  # (a drive that found its input unchanged hands out the same array)
             o["StateDWord3"][...] = pi  # bit 0: TouchProbe1InputState
             self._sdw3_src = pi
-        o["DcTimeStamp"][...] = core.nc_time_ns & 0xFFFFFFFF
+        o["DcTimeStamp"].fill(core.nc_time_ns & 0xFFFFFFFF)  # (a scalar: fill costs less than a broadcast)

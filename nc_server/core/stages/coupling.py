@@ -54,8 +54,47 @@ _EPS_V = 1e-9
 SYNCHRONIZING = int(AxisState.SLAVE_SYNCHRONIZING)
 SYNCHRON = int(AxisState.SLAVE_SYNCHRON)
 #: one level's copies (CouplingStage._levels): rows, masters, ratio, s_base, m_base, any dyn, any synchronizing,
-#: AxisState
-_Level = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool, bool, np.ndarray]
+#: AxisState, rows and masters as indices (a slice where they are evenly spaced: basic indexing), the level's memo
+_Level = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool, bool, np.ndarray,
+               "np.ndarray | slice", "np.ndarray | slice", "_Memo"]
+
+
+def _as_index(rows: np.ndarray) -> np.ndarray | slice:
+    """``rows`` (ascending or not) as a slice where they are evenly spaced and ascending (a view instead of a
+    gather, a strided copy instead of a scatter: the same elements), else the array itself."""
+    if rows.size == 1:
+        return slice(int(rows[0]), int(rows[0]) + 1)
+    if rows.size > 1:
+        step = int(rows[1] - rows[0])
+        if step > 0 and np.array_equal(np.diff(rows), np.full(rows.size - 1, step)):
+            return slice(int(rows[0]), int(rows[-1]) + 1, step)
+    return rows
+
+
+class _Memo:
+    """What a fixed-ratio level computed from its slaves' velocities and accelerations (both pure functions of
+    their bytes): their set-point StateDWord bits and whether they are within the limits, kept while the values
+    repeat (a master at constant velocity gives its slaves the same values every cycle)."""
+
+    __slots__ = ("key", "dwords", "within")
+
+    def __init__(self) -> None:
+        self.key = b""  # the bytes of (SetVelo, SetAcc) of the level's slaves
+        self.dwords: np.ndarray | None = None  # motion_dwords of them
+        self.within = False  # no slave beyond its limits at them (found so; False: not known)
+
+    def dwords_of(self, sv: np.ndarray) -> np.ndarray:
+        """motion_dwords of the level's set-points ``sv`` (4, rows) of this cycle (first call of the cycle)."""
+        key = sv[1:3].tobytes()
+        if key != self.key or self.dwords is None:
+            self.key, self.dwords, self.within = key, motion_dwords(sv[1], sv[2]), False
+        return self.dwords
+
+    def is_within(self, sv: np.ndarray, lim: np.ndarray) -> bool:
+        """No slave of ``sv`` (as given to :meth:`dwords_of` this cycle) beyond its limits ``lim`` (2, rows)."""
+        if not self.within:
+            self.within = not np.count_nonzero(np.abs(sv[1:3]) > lim)
+        return self.within
 
 
 class CouplingStage:
@@ -259,7 +298,8 @@ class CouplingStage:
             lv = []
             for rows, masters in self.levels:
                 lv.append((rows, masters, self.ratio[rows], self.s_base[rows], self.m_base[rows],
-                           bool(self.dyn[rows].any()), bool((self.state[rows] == SYNCHRONIZING).any()), self.state[rows]))
+                           bool(self.dyn[rows].any()), bool((self.state[rows] == SYNCHRONIZING).any()), self.state[rows],
+                           _as_index(rows), _as_index(masters), _Memo()))
             s = self.slaves
             lim = np.stack((a.vmax[s], np.maximum(a.acc[s], a.dec[s]))) * (1 + 1e-6)
             lim += np.array([[_EPS_V], [1e-6]])
@@ -274,20 +314,25 @@ class CouplingStage:
         S = core.axes.S
         levels, s, lim = self._levels(core)
         sv: np.ndarray | None = None  # the slaves' set-points, (4, s.size), if they are still in hand
+        memo: _Memo | None = None  # and their level's memo (given sv this cycle)
         lost: list[tuple[int, int]] = []
         if self.remote_rows:
             lost = self._run_remote(core, after_level)
-        for rows, masters, r, sb, mb, dyn, syncing, state in levels:
+        for rows, masters, r, sb, mb, dyn, syncing, state, rows_ix, masters_ix, level_memo in levels:
             if not (dyn or syncing):  # (fixed ratios, all locked: one gather and one scatter, the same values)
-                sv = S.take(masters, axis=1)  # (C order: S[:, masters] gives F order, slower to compute on)
+                if type(masters_ix) is slice:  # (C order: S[:, masters] gives F order, slower to compute on)
+                    sv = S[:, masters_ix].copy()
+                else:
+                    sv = S.take(masters, axis=1)
                 pos = sv[0]
                 pos -= mb
                 pos *= r
                 pos += sb  # sb + r * (pm - mb)
                 sv[1:] *= r
-                S[:, rows] = sv
-                core.sp_dw[rows] = motion_dwords(sv[1], sv[2])
-                core.axis_state[rows] = state
+                S[:, rows_ix] = sv
+                memo = level_memo
+                core.sp_dw[rows_ix] = memo.dwords_of(sv)
+                core.axis_state[rows_ix] = state
                 if after_level is not None:
                     after_level(core, rows)
                     sv = None
@@ -320,7 +365,8 @@ class CouplingStage:
         # beyond AxisVeloMax: the fault ramp then takes the acceleration down with up to 4 x AxisJerk
         # (JobEngine.start_ramp)
         if sv is not None and len(levels) == 1 and not self.remote_rows:  # (one level: its rows are the slaves, in order)
-            if not np.count_nonzero(np.abs(sv[1:3]) > lim):
+            assert memo is not None  # (set with sv)
+            if memo.is_within(sv, lim):
                 return []
         v, acc = S[1, s], S[2, s]
         fast = np.abs(v) > lim[0]

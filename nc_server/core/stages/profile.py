@@ -115,6 +115,36 @@ def default_groups(n: int, lookahead: int) -> int:
     return lookahead
 
 
+#: up to this many evenly spaced runs of rows follow a plan: the stage copies their set-points slice by slice,
+#: else under a mask of all rows
+_MAX_RUNS = 4
+
+
+def _runs(rows: np.ndarray, most: int) -> list[slice] | None:
+    """Ascending ``rows`` as at most ``most`` slices of evenly spaced rows (the same rows, in order); None: more."""
+    m = rows.size
+    if not m:
+        return []
+    d = np.diff(rows)
+    changes = np.flatnonzero(d[1:] != d[:-1]) + 1  # where the spacing changes (indices into d)
+    if changes.size > 2 * most:
+        return None
+    ends = changes.tolist() + [m - 1]
+    out: list[slice] = []
+    i = 0
+    while i < m:
+        if i == m - 1:
+            j, step = i, 1
+        else:
+            step = int(d[i])
+            j = next(e for e in ends if e > i)  # (the run's last row: the spacing changes after it)
+        out.append(slice(int(rows[i]), int(rows[j]) + 1, step))
+        if len(out) > most:
+            return None
+        i = j + 1
+    return out
+
+
 class ProfileStage:
     """The profile generator: set-points of the axes that follow a plan (``axes.traj_on``).
 
@@ -177,6 +207,7 @@ class ProfileStage:
         self._on_seen = np.zeros(0, dtype=np.intp)  # the rows following a plan the steady groups were made for
         self._on_mask = np.zeros(n, dtype=bool)  # and as a mask
         self._on_mask4 = np.zeros((4, n), dtype=bool)  # and that 4 times (rows)
+        self._on_runs: list[slice] | None = None  # and as a few evenly spaced runs (None: more than _MAX_RUNS)
         self._ends_from = 0.0  # the stage cycle from which running plans may end (looked for every cycle)
         # steady rows: their positions come from p0 + v0 * (traj_t - t0) every cycle
         self._st_mask = np.zeros(n, dtype=bool)
@@ -273,10 +304,19 @@ class ProfileStage:
             ended: np.ndarray = (a.traj_t >= a.traj_dur).nonzero()[0]
         else:
             mask = self._on_mask  # (the rows of ``on``: whole rows under a mask cost less than gathers)
-            np.add(a.traj_t, dt, out=a.traj_t, where=mask)
-            mask4 = self._on_mask4
-            np.copyto(a.S, self.buf[:, col], where=mask4)
-            np.copyto(core.sp_words, self.buf_words[:, col], where=mask4[:2])
+            runs = self._on_runs
+            if runs is not None:  # (a few runs of rows, e.g. a coupling's masters: slices cost less than the masks)
+                traj_t, S, sp_words, buf, buf_words = a.traj_t, a.S, core.sp_words, self.buf, self.buf_words
+                for sl in runs:
+                    t = traj_t[sl]
+                    np.add(t, dt, out=t)
+                    S[:, sl] = buf[:, col, sl]
+                    sp_words[:, sl] = buf_words[:, col, sl]
+            else:
+                np.add(a.traj_t, dt, out=a.traj_t, where=mask)
+                mask4 = self._on_mask4
+                np.copyto(a.S, self.buf[:, col], where=mask4)
+                np.copyto(core.sp_words, self.buf_words[:, col], where=mask4[:2])
             if self.n_steady:
                 self._steady_positions(core)
             if self._ends_dirty:
@@ -304,6 +344,7 @@ class ProfileStage:
             self._on_mask[on] = True
             # (as rows of the set-point tables: a mask of their shape costs less than one broadcast every cycle)
             self._on_mask4 = np.repeat(self._on_mask[None, :], 4, axis=0)
+            self._on_runs = _runs(on, _MAX_RUNS)
         self._on_seen = on
 
     def _next_ends(self, c: int, left: float) -> None:
