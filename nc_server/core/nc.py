@@ -994,6 +994,8 @@ class NcCore:
             self.sp_dw[idle] = self._not_moving[(np.abs(a.set_velo[idle]) > _EPS_V).view(np.uint8)]
             self.axis_state[idle] = 0
         err = a.error != 0
+        # a new array at every derive (edited in place only here, before the packer reads it): NctoplcPacker.fill
+        # skips StateDWord while this and _loop_dw are the same objects as at its last fill
         self._event_dw = a.event_dwords(err)
         if np.count_nonzero(staged) or np.count_nonzero(pr.valid):
             # a slave is in protected mode and no PTP axis; Compensating, ExtSetPointGenEnabled,
