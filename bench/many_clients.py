@@ -86,6 +86,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -996,6 +997,8 @@ def main(argv: list[str] | None = None) -> int:
                                    "worktree of main for a before/after); the floor always runs this one's loop")
     ap.add_argument("--plc-args", nargs=argparse.REMAINDER, default=[], help="more plc-run arguments (last)")
     args = ap.parse_args(argv)
+    if args.perf and shutil.which("perf") is None:  # (before the set-up, not in the middle of the window)
+        ap.error("--perf needs the perf tool (linux-perf), which is not on PATH")
     # SIGTERM (timeout(1), a CI's cancel) as an exception: the finally of run() kills every process group it started
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     return run(args)
