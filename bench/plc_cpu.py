@@ -11,7 +11,7 @@ nothing, no axis). Every client is started, the program clients move, then CPU i
     .venv/bin/python bench/plc_cpu.py                          # this tree, 20 s
     .venv/bin/python bench/plc_cpu.py --tree /work/main        # and another checkout's clients, same NC, same run
     .venv/bin/python bench/plc_cpu.py --seconds 30 --rounds 3  # three windows in a row
-    .venv/bin/python bench/plc_cpu.py --threads                # and per client thread: CPU and wakeups per second
+    .venv/bin/python bench/plc_cpu.py --threads                # and per client thread: CPU, wakeups+preemptions /s
 
 Prints per client its CPU, the program/idle ratio per tree and MET / NOT MET against the goal (<= 2x idle and
 <= 1.5 % of a core). A window in which a program client ran fewer than MIN_CYCLES of its PLC cycles (a starved
@@ -53,10 +53,13 @@ def program_cycle(tmp: Path, name: str) -> tuple[float, int]:
     raise RuntimeError(f"no report of {name}-program")
 
 
-def thread_stats(pid: int) -> dict[str, tuple[int, int]]:
+def thread_stats(pid: int) -> dict[str, tuple[int, int, int]]:
     """Per thread name of process ``pid`` (threads of one name summed: zenoh's rx-0, rx-1 ...): (utime + stime
-    clock ticks, context switches: voluntary + involuntary, i.e. about the times it was woken)."""
-    out: dict[str, tuple[int, int]] = {}
+    clock ticks, voluntary context switches, involuntary ones). Voluntary: the thread blocked and was woken
+    (its sleep, a futex such as the GIL, a channel); involuntary: it was preempted while runnable (another
+    thread of higher priority or earlier deadline woke on its CPU: the NC's SCHED_FIFO cycle thread, the
+    zenoh tx thread a put() wakes, other processes) - no wake-up of its own, its Python code does not run again."""
+    out: dict[str, tuple[int, int, int]] = {}
     try:
         tids = os.listdir(f"/proc/{pid}/task")
     except OSError:
@@ -69,9 +72,10 @@ def thread_stats(pid: int) -> dict[str, tuple[int, int]]:
             continue
         name = stat[stat.index("(") + 1:stat.rindex(")")]
         f = stat.rsplit(")", 1)[1].split()
-        sw = sum(int(line.split()[1]) for line in status.splitlines() if "ctxt_switches:" in line)
-        t, n = out.get(name, (0, 0))
-        out[name] = (t + int(f[11]) + int(f[12]), n + sw)
+        sw = {k: int(v) for k, v in (line.split(":") for line in status.splitlines() if "ctxt_switches:" in line)}
+        t, v, n = out.get(name, (0, 0, 0))
+        out[name] = (t + int(f[11]) + int(f[12]), v + sw.get("voluntary_ctxt_switches", 0),
+                     n + sw.get("nonvoluntary_ctxt_switches", 0))
     return out
 
 
@@ -83,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--nc-axes", type=int, default=64)
     ap.add_argument("--plc-cycle", type=float, default=0.010)
     ap.add_argument("--threads", action="store_true",
-                    help="also per client thread (by name): CPU [% of a core] and context switches per second")
+                    help="also per client thread (by name): CPU [%% of a core] and context switches per second, "
+                         "voluntary+involuntary (woken after blocking + preempted)")
     a = ap.parse_args(argv)
     trees = [("this", REPO)] + ([("other", Path(a.tree).resolve())] if a.tree else [])
     assert a.nc_axes >= 4 * len(trees)
@@ -164,9 +169,10 @@ def main(argv: list[str] | None = None) -> int:
                       f"{ran:.0%} of its PLC cycles ran")
             for cid in th1:
                 rows = []
-                for tname, (t, n) in sorted(th1[cid].items()):
-                    t0_, n0_ = th0[cid].get(tname, (0, 0))
-                    rows.append(f"{tname} {(t - t0_) / hz / dt * 100.0:.2f} % {(n - n0_) / dt:.0f}/s")
+                for tname, (t, v, n) in sorted(th1[cid].items()):
+                    t0_, v0_, n0_ = th0[cid].get(tname, (0, 0, 0))
+                    rows.append(f"{tname} {(t - t0_) / hz / dt * 100.0:.2f} % "
+                                f"{(v - v0_) / dt:.0f}+{(n - n0_) / dt:.0f}/s")  # (woken + preempted)
                 print(f"    {cid:14} threads: " + ", ".join(rows))
         for cid, p in clients.items():
             if p.poll() is not None:
