@@ -169,3 +169,44 @@ def test_the_stress_sequence_refuses_no_command():
         core.step()
         assert not core.nctoplc["ErrorCode"].any()
     assert refused == []
+
+
+def braking_since(k: int) -> NcCore:
+    """MoveAbsolute(+1000) at 400 u/s, then MoveAbsolute(-1000) Aborting and k cycles of its braking (jerk
+    AxisJerk up to -AxisDec): from k = 92 on the running move turns the axis (a^2 / 2j > v), before not."""
+    core = powered(1, **BENCH)
+    cmd(core, "MoveAbsolute", Position=1000.0, Velocity=400.0)
+    while core.nctoplc[0]["SetVelo"] < 400.0 - 1e-9:
+        core.step()
+    assert cmd(core, "MoveAbsolute", Position=-1000.0, Velocity=400.0)["error"] == 0
+    for _ in range(k):
+        core.step()
+    assert float(core.nctoplc[0]["SetVelo"]) > 0
+    return core
+
+
+@pytest.mark.parametrize("k", [84, 88, 92, 100, 108])
+def test_a_weaker_jerk_is_refused_before_and_after_the_running_move_starts_turning(k):
+    """MoveAbsolute(+1000, Jerk 30000) Aborting during that braking turns the axis: before k = 92 the weaker
+    jerk alone causes the turn; after, the running move turns it anyway, but the weaker jerk 72..167 u/s
+    deeper (-(a^2 / 2j) + v with 30000 against 50000): that part is the new dynamics' turn. Refused 0x4289,
+    the move unchanged (bc642d3 accepted it from k = 92 on and let the axis turn to -164..-307 u/s)."""
+    core = braking_since(k)
+    assert (committed_dip(core) > 0) == (k >= 92)
+    twin_unchanged(lambda: braking_since(k), "MoveAbsolute", E.NC_ILLEGAL_REVERSAL,
+                   Position=1000.0, Velocity=100.0, Jerk=30000.0)
+
+
+@pytest.mark.parametrize("k", [92, 100, 108])
+@pytest.mark.parametrize("jerk", [0.0, 2 * JERK])
+def test_the_same_or_a_stronger_jerk_re_target_while_the_move_turns_is_accepted(k, jerk):
+    """The same state with the running jerk (0: AxisJerk) or a stronger one: the plan turns no deeper than
+    the running move has to; accepted, Done at +1000."""
+    core = braking_since(k)
+    dip = committed_dip(core)
+    tr = Trace(core, jerk=max(JERK, jerk))
+    rep = cmd(core, "MoveAbsolute", Position=1000.0, Velocity=100.0, Jerk=jerk)
+    assert rep["error"] == 0, rep
+    tr.settle()
+    assert tr.rows[-1]["SetPos"] == 1000.0 and int(tr.rows[-1]["CmdState"]) == DONE
+    assert -tr.col("SetVelo").min() <= dip * (1 + 1e-6) + 1e-6

@@ -578,7 +578,9 @@ def arm_switch(core: CoreContext, i: int, job: Job, mode: int, at: float, new_po
 
 def _switch_reached(core: CoreContext, rows: np.ndarray) -> None:
     """Apply NewPosAndVelo changes armed at a switching position (the watch of positionings and of
-    MoveVelocity: :func:`arm_switch`)."""
+    MoveVelocity: :func:`arm_switch`). The change runs the checks of a start when it fires
+    (``apply_change``: 0x4289, 0x423A, ...); the command was acknowledged at arming, so a failed
+    check faults the axis with its code (ErrorStop) instead of a refusal."""
     a = core.axes
     for i in rows.tolist():
         job = core.queues[i].active
