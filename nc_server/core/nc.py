@@ -600,10 +600,12 @@ class NcCore:
         """Refuse (0x423A) a plan beyond the new and the running velocity (:func:`.checks.check_overshoot`)."""
         checks.check_overshoot(self.axes, i, self.queues[i].active, plan, v_new)
 
-    @staticmethod
-    def check_reversal(plan: Plan, start: StartState, sense: float, target: float | None = None) -> None:
-        """Refuse (0x4289) a plan that turns back on its way (:func:`.checks.check_reversal`)."""
-        checks.check_reversal(plan, start, sense, target)
+    def check_reversal(self, i: int, plan: Plan, start: StartState, sense: float, target: float | None = None,
+                       running: Job | None = None) -> None:
+        """Refuse (0x4289) a plan that turns back on its way unless the motion running now (``running``,
+        default the active job) turns the axis already (:func:`.checks.check_reversal`)."""
+        job = self.queues[i].active if running is None else running
+        checks.check_reversal(plan, start, sense, target, checks.running_jerk(self.axes, i, job))
 
     def plan(self, fn: Callable[..., Plan], *args: Any) -> Plan:
         """Call a planning function; ruckig failures become NcError 0x427E (the motion cannot be

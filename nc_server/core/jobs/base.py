@@ -23,7 +23,7 @@ import numpy as np
 from nc_schema import CmdState, ErrorCodes, MC_BufferMode, NcError
 
 from ..planning import Dynamics, Plan, StartState
-from ..profile import stopping_distance, velocity_extrema
+from ..profile import stopping_distance
 
 if TYPE_CHECKING:
     from ..context import CoreContext
@@ -185,7 +185,9 @@ class JobKind:
     def change_dynamics(self, core: CoreContext, i: int, job: Job, req: Mapping[str, Any]) -> Plan:
         """MC_ChangeDynParam (TcMC 4.20): new dynamics for the running job, or a refusal that keeps
         the current ones: 0x425D a stop runs, 0x427F the target would be passed, 0x423A the
-        velocity would overshoot, 0x4289 the direction would reverse. Generic: re-plans with
+        velocity would overshoot, 0x4289 the direction would reverse (both only where the new dynamics
+        cause it, not the running move's own turn or peak: :func:`.checks.check_reversal`,
+        :func:`.checks.check_overshoot`). Generic: re-plans with
         :meth:`replan` on a trial copy and adopts it only when every check passed.
 
         Raises:
@@ -207,14 +209,12 @@ class JobKind:
             beyond = plan.p_max - goal if sense > 0 else goal - plan.p_min
             if beyond > 1e-9:
                 raise NcError(ErrorCodes.NC_NEW_TARGET_OVERRUN, "the target would be passed with these dynamics")
-            back = start.p - plan.p_min if sense > 0 else plan.p_max - start.p
-            if back > 1e-9:
-                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
-        elif start.v:
-            # a velocity job: braking towards a lower velocity of the same direction must not cross 0
-            lo, hi = velocity_extrema(plan.seg)
-            if (lo < -1e-9 if start.v > 0 else hi > 1e-9) and job.velocity * start.v > 0:
-                raise NcError(ErrorCodes.NC_ILLEGAL_REVERSAL, "the direction would reverse with these dynamics")
+        else:  # a velocity job (0: no direction of its own, nothing to keep)
+            sense = (1.0 if job.velocity > 0 else -1.0) if job.velocity else 0.0
+        if sense:
+            # the direction would reverse: the check of a start (against the running jerk: a positioning
+            # that turns the axis towards its goal already may get new dynamics)
+            core.check_reversal(i, plan, start, sense, None, job)
         core.check_overshoot(i, plan, old.velocity * core.override(i))
         job.dyn = new
         job.data = trial.data  # with the plan's own state (the ramp to the end velocity)

@@ -152,7 +152,7 @@ class PositionKind(JobKind):
         plan = self._plan(core, i, job, start, core.override(i))
         core.check_target(i, start.p, job.target, plan)
         if sense:
-            core.check_reversal(plan, start, 1.0 if sense > 0 else -1.0, job.target)
+            core.check_reversal(i, plan, start, 1.0 if sense > 0 else -1.0, job.target)
         core.check_overshoot(i, plan, max(job.dyn.velocity, abs(job.end_velocity)) * core.override(i))
         job.held = core.override(i) <= 0
         job.data["start"] = start.p
@@ -299,7 +299,13 @@ class PositionKind(JobKind):
         self.prepare(core, i, trial, start)  # a new profile: the loop and the reduced velocity decided again
         plan = self._plan(core, i, trial, start, core.override(i))
         core.check_target(i, start.p, trial.target, plan)
-        core.check_feed(i, trial.target - start.p)
+        sense = trial.target - start.p
+        core.check_feed(i, sense)
+        # the checks of a start (:meth:`activate`), before anything of the job changes
+        if sense:
+            core.check_reversal(i, plan, start, 1.0 if sense > 0 else -1.0, trial.target)
+        assert trial.dyn is not None
+        core.check_overshoot(i, plan, max(trial.dyn.velocity, abs(trial.end_velocity)) * core.override(i))
         job.target, job.dyn, job.end_velocity = trial.target, trial.dyn, trial.end_velocity
         job.data = trial.data  # with the plan's own state (the ramp to the end velocity)
         job.continuous = False
@@ -438,7 +444,9 @@ class ContinuousKind(PositionKind):
             assert job.dyn is not None
             sense = 1.0 if job.end_velocity > 0 else -1.0
             core.check_feed(i, sense)
-            plan = core.plan(plan_velocity, core.start_state(i), sense * new_velo * core.override(i), job.dyn)
+            start = core.start_state(i)
+            plan = core.plan(plan_velocity, start, sense * new_velo * core.override(i), job.dyn)
+            core.check_reversal(i, plan, start, sense)
             core.check_overshoot(i, plan, new_velo * core.override(i))
             job.end_velocity = sense * new_velo
             return plan
@@ -570,7 +578,9 @@ def arm_switch(core: CoreContext, i: int, job: Job, mode: int, at: float, new_po
 
 def _switch_reached(core: CoreContext, rows: np.ndarray) -> None:
     """Apply NewPosAndVelo changes armed at a switching position (the watch of positionings and of
-    MoveVelocity: :func:`arm_switch`)."""
+    MoveVelocity: :func:`arm_switch`). The change runs the checks of a start when it fires
+    (``apply_change``: 0x4289, 0x423A, ...); the command was acknowledged at arming, so a failed
+    check faults the axis with its code (ErrorStop) instead of a refusal."""
     a = core.axes
     for i in rows.tolist():
         job = core.queues[i].active

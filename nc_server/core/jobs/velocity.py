@@ -158,6 +158,7 @@ def apply_velocity_change(core: CoreContext, i: int, job: Job, base: int, new_po
         dyn = job.dyn.with_(velocity=float(new_velo))
         start = core.start_state(i)
         plan = core.plan(plan_velocity, start, sense * new_velo * core.override(i), dyn)
+        core.check_reversal(i, plan, start, sense)
         core.check_overshoot(i, plan, new_velo * core.override(i))
         job.velocity, job.dyn = sense * float(new_velo), dyn
         job.data["steady"] = False
@@ -193,7 +194,7 @@ def activate_velocity(core: CoreContext, i: int, job: Job, start: StartState) ->
             raise NcError(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED,
                           f"with Deceleration {job.dyn.deceleration:g} the axis could not stop before the software limit")
     plan = core.plan(plan_velocity, start, job.velocity * ov, job.dyn)
-    core.check_reversal(plan, start, sense)
+    core.check_reversal(i, plan, start, sense)
     core.check_overshoot(i, plan, abs(job.velocity) * ov)
     job.held = ov <= 0
     job.phase = 0
