@@ -22,6 +22,7 @@ import io
 import operator
 import pickle
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -44,6 +45,91 @@ HELD_LOGS = 2048
 class ReplicationError(Exception):
     """A log that does not fit the follower's core (a gap, another call order, a different digest): re-sync
     from a snapshot."""
+
+
+# ---- the software fingerprint: a pair runs one NC software (docs/standby.md, "One software version") ----------
+
+#: bumped when the wire format of snapshots and logs changes in a way the sources alone would not show
+REPLICATION_FORMAT = 1
+
+
+def _fingerprint_files() -> list[tuple[str, Path]]:
+    """The sources whose objects (or whose layouts) snapshots and logs carry: the core, the drives, the replication
+    itself, the handler state it pickles (claims, reply cache) and the contract (nc_schema: the records' dtypes)."""
+    import nc_schema.layout  # (nc_schema imports nothing of nc_server: no cycle)
+
+    pkg = Path(__file__).resolve().parents[1]  # nc_server
+    schema = Path(nc_schema.layout.__file__).resolve().parent
+    files = [("nc_server", pkg, p) for sub in ("core", "drives") for p in (pkg / sub).rglob("*.py")]
+    files += [("nc_server", pkg, pkg / "server" / n) for n in ("replication.py", "claims.py", "handler.py")]
+    files += [("nc_schema", schema, p) for p in schema.rglob("*.py")]
+    contract = Path(str(nc_schema.layout.CONTRACT_DIR))
+    files += [("contract", contract, p) for p in contract.glob("*.json")]
+    # (named relative to their package: the same software installed elsewhere has the same fingerprint)
+    return sorted((f"{top}/{p.relative_to(base).as_posix()}", p) for top, base, p in files)
+
+
+def _fingerprint() -> str:
+    h = hashlib.sha256(f"zenoh-nc replication format {REPLICATION_FORMAT}\n".encode())
+    for name, p in _fingerprint_files():
+        data = p.read_bytes()
+        h.update(f"{name}\0{len(data)}\0".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+#: sha256 (hex) of REPLICATION_FORMAT and the sources of :func:`_fingerprint_files`, computed once at import: a
+#: snapshot or log sample stamped with another one comes from other NC software and is never unpickled
+FINGERPRINT = _fingerprint()
+#: the stamp before every snapshot and log sample: a tag and the fingerprint's 32 bytes
+_TAG = b"zncR"
+STAMP = _TAG + bytes.fromhex(FINGERPRINT)
+
+
+class SoftwareMismatch(ReplicationError):
+    """The peer NC runs other NC software (another fingerprint, or none: a release before the stamp).
+
+    Attributes:
+        theirs: the peer's fingerprint (hex; "" when its data carries none).
+    """
+
+    def __init__(self, theirs: str, what: str = "snapshot") -> None:
+        self.theirs = theirs
+        super().__init__(f"a {what} of NC software {theirs[:12] or 'unknown (unstamped)'}, this NC runs "
+                         f"{FINGERPRINT[:12]}: a pair must run the same NC software, it is not loaded")
+
+
+def stamp(data: bytes) -> bytes:
+    """``data`` (a pickle) behind this NC's :data:`STAMP`."""
+    return STAMP + data
+
+
+def peer_fingerprint(data: bytes) -> str:
+    """The fingerprint (hex) a stamped ``data`` carries; "" when it has no stamp."""
+    n = len(STAMP)
+    return data[len(_TAG):n].hex() if len(data) >= n and data.startswith(_TAG) else ""
+
+
+def unstamp(data: bytes, what: str = "snapshot") -> bytes:
+    """The pickle behind the stamp of ``data``, checked before anything of it is unpickled.
+
+    Raises:
+        SoftwareMismatch: ``data`` is not stamped with this NC's fingerprint.
+    """
+    if not data.startswith(STAMP):
+        raise SoftwareMismatch(peer_fingerprint(data), what)
+    return data[len(STAMP):]
+
+
+class _PlainUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        raise pickle.UnpicklingError(f"{module}.{name} in plain data")
+
+
+def loads_plain(data: bytes) -> Any:
+    """Unpickle builtins only (no class, no function: nothing of any release's code), e.g. a log sample's
+    (epoch, cycle, bytes) headers of a peer of other software."""
+    return _PlainUnpickler(io.BytesIO(data)).load()
 
 
 def state_digest(core: Any) -> int:
@@ -450,16 +536,20 @@ def snapshot(core: Any, handler_state: Any = None) -> bytes:
     drive = inner.drive
     inner.drive = ReplayDrive.of(drive)
     try:
-        return pickle.dumps((type(inner), dumps((dict(inner.__dict__), handler_state), root=inner)),
-                            protocol=pickle.HIGHEST_PROTOCOL)
+        return stamp(pickle.dumps((type(inner), dumps((dict(inner.__dict__), handler_state), root=inner)),
+                                  protocol=pickle.HIGHEST_PROTOCOL))
     finally:
         inner.drive = drive
 
 
 def load_snapshot(data: bytes, into: Any = None) -> tuple[Any, Any]:
     """(core, handler state) of a :func:`snapshot`; the core's state goes into ``into`` (the same object stays the
-    core: whatever holds it, holds the snapshot's), else into a new core of the snapshot's class."""
-    cls, body = pickle.loads(data)
+    core: whatever holds it, holds the snapshot's), else into a new core of the snapshot's class.
+
+    Raises:
+        SoftwareMismatch: the snapshot is of other NC software (checked before anything is unpickled).
+    """
+    cls, body = pickle.loads(unstamp(data))
     if into is not None and type(into) is not cls:
         raise ReplicationError(f"a snapshot of a {cls.__name__}, the follower has a {type(into).__name__}")
     core = into if into is not None else cls.__new__(cls)

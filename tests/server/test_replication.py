@@ -14,8 +14,9 @@ from nc_server.core import AxisConfig, AxisParams, NcCore
 from nc_server.core.params import param_number
 from nc_server.server.claims import ClaimTable
 from nc_server.server.handler import CycleInputs, PendingReply, RequestHandler
-from nc_server.server.replication import (CycleLog, Follower, HandlerRecorder, HandlerState, ReplayDrive,
-                                          CoreRecorder, install_handler, merge_handler, snapshot, state_digest)
+from nc_server.server.replication import (FINGERPRINT, STAMP, CycleLog, Follower, HandlerRecorder, HandlerState,
+                                          ReplayDrive, CoreRecorder, SoftwareMismatch, install_handler,
+                                          merge_handler, snapshot, state_digest)
 
 KEYS = Keys("nc1")
 
@@ -372,3 +373,35 @@ def test_a_replay_drive_sets_only_what_a_call_changed_and_never_the_logs_objects
     rd.feed([DriveCall("step", None, base)])
     rd.step()
     assert all(getattr(rd, s) is not first[s] for s, v in zip(DRIVE_STATE, base) if isinstance(v, np.ndarray))
+
+
+def _unpickled() -> None:
+    raise AssertionError("a snapshot of other NC software was unpickled")
+
+
+class _Trap:
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (_unpickled, ())
+
+
+@pytest.mark.parametrize("peer", ["ab" * 32, ""])
+def test_a_snapshot_of_other_nc_software_is_refused_before_it_is_unpickled(peer: str) -> None:
+    """A pair runs one NC software: a snapshot stamped with another fingerprint (or none: a release before the
+    stamp) is refused with both fingerprints, and nothing of it is unpickled (its pickle would raise)."""
+    act = Active()
+    good = act.snapshot()
+    assert good.startswith(STAMP) and len(FINGERPRINT) == 64
+    trap = pickle.dumps((NcCore, pickle.dumps(_Trap())))
+    with pytest.raises(AssertionError):  # (the trap works when it is loaded)
+        pickle.loads(pickle.loads(trap)[1])
+    data = (b"zncR" + bytes.fromhex(peer) if peer else b"") + trap
+    f = Follower()
+    with pytest.raises(SoftwareMismatch) as exc:
+        f.load(data)
+    assert FINGERPRINT[:12] in str(exc.value) and (peer[:12] or "unstamped") in str(exc.value)
+    assert exc.value.theirs == peer and f.waiting and f.core is None and f.resyncs == 0
+    # the same snapshot body behind this software's stamp is loaded (and this one springs the trap)
+    f.load(good)
+    assert not f.waiting and f.core.cycle == act.core.cycle
+    with pytest.raises(AssertionError):
+        Follower().load(STAMP + data[len(data) - len(trap):])
