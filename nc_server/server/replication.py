@@ -21,6 +21,7 @@ import hashlib
 import io
 import operator
 import pickle
+import pickletools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -53,6 +54,14 @@ class ReplicationError(Exception):
 REPLICATION_FORMAT = 1
 
 
+def _modules(base: Path) -> list[Path]:
+    """The modules under ``base``: each one's .py, or where an install has no source (bytecode only) its .pyc beside
+    it (never __pycache__'s: those are of each interpreter, the .py is there)."""
+    py = {p.with_suffix("") for p in base.rglob("*.py")}
+    return sorted([p.with_suffix(".py") for p in py]
+                  + [p for p in base.rglob("*.pyc") if p.parent.name != "__pycache__" and p.with_suffix("") not in py])
+
+
 def _fingerprint_files() -> list[tuple[str, Path]]:
     """The sources whose objects (or whose layouts) snapshots and logs carry: the core, the drives, the replication
     itself, the handler state it pickles (claims, reply cache) and the contract (nc_schema: the records' dtypes)."""
@@ -60,9 +69,12 @@ def _fingerprint_files() -> list[tuple[str, Path]]:
 
     pkg = Path(__file__).resolve().parents[1]  # nc_server
     schema = Path(nc_schema.layout.__file__).resolve().parent
-    files = [("nc_server", pkg, p) for sub in ("core", "drives") for p in (pkg / sub).rglob("*.py")]
-    files += [("nc_server", pkg, pkg / "server" / n) for n in ("replication.py", "claims.py", "handler.py")]
-    files += [("nc_schema", schema, p) for p in schema.rglob("*.py")]
+    files = [("nc_server", pkg, p) for sub in ("core", "drives") for p in _modules(pkg / sub)]
+    for n in ("replication", "claims", "handler"):
+        py = pkg / "server" / f"{n}.py"
+        files.append(("nc_server", pkg, py if py.exists() or not py.with_suffix(".pyc").exists()
+                      else py.with_suffix(".pyc")))
+    files += [("nc_schema", schema, p) for p in _modules(schema)]
     contract = Path(str(nc_schema.layout.CONTRACT_DIR))
     files += [("contract", contract, p) for p in contract.glob("*.json")]
     # (named relative to their package: the same software installed elsewhere has the same fingerprint)
@@ -70,12 +82,32 @@ def _fingerprint_files() -> list[tuple[str, Path]]:
 
 
 def _fingerprint() -> str:
+    """Sources hashed with CRLF as LF (a Windows checkout pairs with a Linux one); a bytecode-only install's .pyc
+    without its 16-byte header (its timestamp); a file that cannot be read, or a failure of the whole, falls back to
+    the package version (never a failure at import: the pair then pairs up on the version, not the code)."""
     h = hashlib.sha256(f"zenoh-nc replication format {REPLICATION_FORMAT}\n".encode())
-    for name, p in _fingerprint_files():
-        data = p.read_bytes()
+    try:
+        files = _fingerprint_files()
+    except Exception as exc:
+        files = []
+        h.update(f"no sources ({exc.__class__.__name__}): version {_version()}\n".encode())
+    for name, p in files:
+        try:
+            data = p.read_bytes()
+            data = data[16:] if p.suffix == ".pyc" else data.replace(b"\r\n", b"\n")
+        except OSError:
+            data = f"missing: version {_version()}".encode()
         h.update(f"{name}\0{len(data)}\0".encode())
         h.update(data)
     return h.hexdigest()
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+        return version("zenoh-nc")
+    except Exception:
+        return "unknown"
 
 
 #: sha256 (hex) of REPLICATION_FORMAT and the sources of :func:`_fingerprint_files`, computed once at import: a
@@ -126,9 +158,14 @@ class _PlainUnpickler(pickle.Unpickler):
         raise pickle.UnpicklingError(f"{module}.{name} in plain data")
 
 
-def loads_plain(data: bytes) -> Any:
+def loads_plain(data: bytes, bounded: bool = False) -> Any:
     """Unpickle builtins only (no class, no function: nothing of any release's code), e.g. a log sample's
-    (epoch, cycle, bytes) headers of a peer of other software."""
+    (epoch, cycle, bytes) headers of a peer of other software. ``bounded``: first walk the opcodes (pickletools reads
+    a counted argument only as far as ``data`` goes): a size beyond ``data`` raises instead of the unpickler
+    allocating it first (BINBYTES8 of 8 GiB in a 12-byte pickle)."""
+    if bounded:
+        for _ in pickletools.genops(data):
+            pass
     return _PlainUnpickler(io.BytesIO(data)).load()
 
 

@@ -203,6 +203,29 @@ class _Unusable(Exception):
     """A log of an ha log sample that cannot be replayed (it did not unpickle, or is not what its header says)."""
 
 
+#: the most logs a sample may carry (a sender sends LOG_REPEAT; more: not a sample of any release)
+SAMPLE_LOGS_MAX = 64
+
+
+def _headers(batch: Any, foreign: bool) -> list[tuple[int, int, bytes]]:
+    """The (epoch, cycle, pickled log) entries of a builtins-only unpickled ha log sample, checked: a list of at most
+    SAMPLE_LOGS_MAX 3-tuples of int (not bool), int, bytes, taken as they are (nothing converted: ``bytes(n)`` of an
+    int would allocate n bytes); a foreign sample's logs are never read, they are dropped (b"").
+
+    Raises:
+        ValueError: the sample is not one (it is unusable).
+    """
+    if type(batch) is not list or len(batch) > SAMPLE_LOGS_MAX:
+        raise ValueError(f"not an ha log sample: {type(batch).__name__}")
+    out = []
+    for h in batch:
+        if type(h) is not tuple or len(h) != 3 or type(h[0]) is not int or type(h[1]) is not int \
+                or type(h[2]) is not bytes:
+            raise ValueError("not an ha log sample: an entry is not (int, int, bytes)")
+        out.append((h[0], h[1], b"" if foreign else h[2]))
+    return out
+
+
 class HotStandby:
     """This process's part of the pair (see the module docstring).
 
@@ -497,8 +520,8 @@ class HotStandby:
             # their epochs still count, an active NC of a higher epoch is one whatever it runs)
             foreign = "" if payload.startswith(STAMP) else peer_fingerprint(payload) or "-"
             try:
-                batch: list[tuple[int, int, bytes]] = loads_plain(payload[len(STAMP):] if foreign != "-" else payload)
-                logs = [(int(e), int(c), bytes(b)) for e, c, b in batch]
+                body = payload[len(STAMP):] if foreign != "-" else payload
+                logs = _headers(loads_plain(body, bounded=bool(foreign)), bool(foreign))
             except Exception as exc:
                 self._warn_unusable(now, exc)
                 continue
@@ -545,16 +568,18 @@ class HotStandby:
             self.stale_logs += 1
             return False
         self._current = True  # (the sample came from the NC followed: a sign of life even if a log of it is unusable)
-        core = self.follower.core
-        if core is not None and not self.follower.waiting and cycle <= core.cycle:
-            return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
         self._foreign = foreign
         if foreign:
+            # (before the repeat filter: a peer restarted with other software that took over, a higher epoch from a
+            # low cycle, sends only cycles <= this core's; dropped as repeats they would keep this standby in step)
             # out of step for good (no snapshot asked for); a sign of life as an unusable log was: a standby that
             # never got in step takes over only START_GRACE_S after the last one, with its own state (_lost)
             self._last_log = now
             self._refuse(SoftwareMismatch("" if foreign == "-" else foreign, "log"))
             return False
+        core = self.follower.core
+        if core is not None and not self.follower.waiting and cycle <= core.cycle:
+            return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
         try:
             lg: CycleLog = pickle.loads(data)
         except Exception as exc:
@@ -618,7 +643,9 @@ class HotStandby:
             log.warning("standby %s: %s", self.node, why)
 
     def _resync(self, reason: str) -> None:
-        log.warning("standby %s: out of step (%s): asking for a snapshot", self.node, reason)
+        # (refused: the active NC runs other software, _ask_snapshot asks for none)
+        log.warning("standby %s: out of step (%s): %s", self.node, reason,
+                    "no snapshot asked for (other NC software)" if self._foreign else "asking for a snapshot")
         self._forget_frames()
         self._declare_standby(False)
         self._ask_snapshot(time.monotonic())
@@ -805,6 +832,7 @@ class HotStandby:
         self._forget_frames()
         self._token_gone = False
         self._grace = START_GRACE_S
+        self.refused = self._foreign = ""  # (a refusal is a standby's: the active NC is refused by nobody)
         if self.epoch and not self.synced_once and not first:
             # an NC that drove and demoted itself, in step with nobody since: it takes over again with the epoch it
             # drove with (a new one could win the tie against a successor it does not see, its state older than the

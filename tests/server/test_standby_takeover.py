@@ -15,7 +15,7 @@ import pytest
 import nc_server.core  # noqa: F401  (before nc_server.drives: circular import otherwise)
 from nc_server.drives.sim import SimDrive
 from nc_server.server.config import Redundancy
-from nc_server.server.replication import FINGERPRINT, RecordingDrive, stamp
+from nc_server.server.replication import FINGERPRINT, STAMP, RecordingDrive, stamp
 from nc_server.server.standby import START_GRACE_S, HotStandby
 
 from test_replication import Active  # noqa: E402 (tests/server on sys.path)
@@ -746,3 +746,50 @@ def test_a_standby_in_step_goes_out_of_step_on_logs_of_other_software() -> None:
     hs._take_logs(1.0)
     assert hs.follower.waiting and lost and "000000000000" in lost[0] and hs.logs_in == 0
     assert not hs._lost(100.0)  # (out of step: never a takeover from its replicated state)
+
+
+def test_a_foreign_active_of_a_higher_epoch_from_a_low_cycle_is_refused_not_taken_for_repeats(
+        caplog: pytest.LogCaptureFixture) -> None:
+    # the peer restarted with other software and took over (a higher epoch, its cycles from 10): all its cycles are
+    # <= this in-step standby's 100; the stamp is checked before the repeat filter: out of step, refused, no token
+    act, hs, drive = pair()
+    hs.role, hs.epoch, hs.highest = "standby", 0, 6 << 16
+    hs.synced_once, hs.follower.waiting = True, False
+    hs.follower.core = SimpleNamespace(cycle=100)  # type: ignore[assignment]
+    asked: list[float] = []
+    hs._session = object()  # type: ignore[assignment]
+    hs._ask_snapshot = asked.append  # type: ignore[method-assign]
+    sub = FakeSub()
+    hs._log_sub = sub
+    with caplog.at_level(logging.WARNING, logger="nc_server"):
+        for k in range(50):
+            sub.put(b"zncR" + bytes.fromhex("ab" * 32) + pickle.dumps([(7 << 16, 10 + k, b"x")]))
+            hs._take_logs(1.0 + k * 0.001)
+    assert hs.follower.waiting and "abababababab" in hs.refused and hs.highest == 7 << 16
+    assert not hs.status()["in_step"] and hs.logs_in == 0
+    assert not hs._lost(1000.0)  # (a formerly in-step standby refused: never a takeover from its stale state)
+    out = [r.getMessage() for r in caplog.records if "out of step" in r.getMessage()]
+    assert len(out) == 1 and "no snapshot asked for" in out[0] and "asking" not in out[0]
+
+
+def test_a_refusing_standby_that_takes_over_is_refused_no_more() -> None:
+    act, hs, drive = pair()
+    hs._log_sub = sub = FakeSub()
+    sub.put(b"zncR" + bytes.fromhex("cd" * 32) + pickle.dumps([(7 << 16, 10, b"x")]))
+    hs._take_logs(1.0)
+    assert hs.refused and hs.status()["refused"]
+    hs._become_active(time.monotonic())
+    assert hs.role == "active" and hs.status()["refused"] == "" and hs._foreign == ""
+
+
+@pytest.mark.parametrize("batch", [[(1, 1, 8 << 30)], [(True, 1, b"x")], [(1, 1.5, b"x")], [(1, 1, "x")],
+                                   [(1, 1)], {"a": 1}, [(1, 1, b"")] * 65])
+@pytest.mark.parametrize("foreign", [False, True])
+def test_a_sample_whose_headers_are_not_int_int_bytes_is_unusable(batch: Any, foreign: bool) -> None:
+    # (bytes(8 << 30) of a 30-byte sample allocated 8 GiB: nothing is converted)
+    act, hs, drive = pair()
+    hs.role, hs.highest = "standby", 1
+    hs._log_sub = sub = FakeSub()
+    sub.put((b"zncR" + bytes(32) if foreign else STAMP) + pickle.dumps(batch))
+    hs._take_logs(1.0)
+    assert hs.unusable_logs == 1 and hs.highest == 1 and not hs.refused
