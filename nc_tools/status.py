@@ -368,6 +368,8 @@ def _ha(st: dict[str, Any] | None, nodes: Sequence[_Raw] = (), now: float = 0.0)
         if d is None or d.get("node") == out["node"] or now - r.t > STALE_AFTER:
             continue
         peers.append({k: d.get(k) for k in ("node", "role", "in_step", "lag_cycles")})
+        if d.get("refused"):  # (a standby that will not get in step: other NC software, docs/standby.md)
+            peers[-1]["refused"] = d["refused"]
     out["standbys"] = peers
     return out
 
@@ -419,7 +421,9 @@ def render(snap: dict[str, Any]) -> str:
                        f"{'yes' if ha.get('peer_in_step') else 'no'}  takeovers {ha.get('takeovers')} (last "
                        f"{ha.get('takeover_ms')} ms)  demotions {ha.get('demotions')}"
                        + "".join(f"  {p.get('role')} {p.get('node')} lag {p.get('lag_cycles')} cycles"
-                                 f"{'' if p.get('in_step') else ' (not in step)'}" for p in ha.get("standbys") or []))
+                                 f"{'' if p.get('in_step') else ' (not in step)'}"
+                                 + (f" REFUSED: {p['refused']}" if p.get("refused") else "")
+                                 for p in ha.get("standbys") or []))
         if v["clients"]:
             parts = []
             for c, info in sorted(v["clients"].items()):

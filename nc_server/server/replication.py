@@ -21,7 +21,9 @@ import hashlib
 import io
 import operator
 import pickle
+import pickletools
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -44,6 +46,127 @@ HELD_LOGS = 2048
 class ReplicationError(Exception):
     """A log that does not fit the follower's core (a gap, another call order, a different digest): re-sync
     from a snapshot."""
+
+
+# ---- the software fingerprint: a pair runs one NC software (docs/standby.md, "One software version") ----------
+
+#: bumped when the wire format of snapshots and logs changes in a way the sources alone would not show
+REPLICATION_FORMAT = 1
+
+
+def _modules(base: Path) -> list[Path]:
+    """The modules under ``base``: each one's .py, or where an install has no source (bytecode only) its .pyc beside
+    it (never __pycache__'s: those are of each interpreter, the .py is there)."""
+    py = {p.with_suffix("") for p in base.rglob("*.py")}
+    return sorted([p.with_suffix(".py") for p in py]
+                  + [p for p in base.rglob("*.pyc") if p.parent.name != "__pycache__" and p.with_suffix("") not in py])
+
+
+def _fingerprint_files() -> list[tuple[str, Path]]:
+    """The sources whose objects (or whose layouts) snapshots and logs carry: the core, the drives, the replication
+    itself, the handler state it pickles (claims, reply cache) and the contract (nc_schema: the records' dtypes)."""
+    import nc_schema.layout  # (nc_schema imports nothing of nc_server: no cycle)
+
+    pkg = Path(__file__).resolve().parents[1]  # nc_server
+    schema = Path(nc_schema.layout.__file__).resolve().parent
+    files = [("nc_server", pkg, p) for sub in ("core", "drives") for p in _modules(pkg / sub)]
+    for n in ("replication", "claims", "handler"):
+        py = pkg / "server" / f"{n}.py"
+        files.append(("nc_server", pkg, py if py.exists() or not py.with_suffix(".pyc").exists()
+                      else py.with_suffix(".pyc")))
+    files += [("nc_schema", schema, p) for p in _modules(schema)]
+    contract = Path(str(nc_schema.layout.CONTRACT_DIR))
+    files += [("contract", contract, p) for p in contract.glob("*.json")]
+    # (named relative to their package: the same software installed elsewhere has the same fingerprint)
+    return sorted((f"{top}/{p.relative_to(base).as_posix()}", p) for top, base, p in files)
+
+
+def _fingerprint() -> str:
+    """Sources hashed with CRLF as LF (a Windows checkout pairs with a Linux one); a bytecode-only install's .pyc
+    without its 16-byte header (its timestamp); a file that cannot be read, or a failure of the whole, falls back to
+    the package version (never a failure at import: the pair then pairs up on the version, not the code)."""
+    h = hashlib.sha256(f"zenoh-nc replication format {REPLICATION_FORMAT}\n".encode())
+    try:
+        files = _fingerprint_files()
+    except Exception as exc:
+        files = []
+        h.update(f"no sources ({exc.__class__.__name__}): version {_version()}\n".encode())
+    for name, p in files:
+        try:
+            data = p.read_bytes()
+            data = data[16:] if p.suffix == ".pyc" else data.replace(b"\r\n", b"\n")
+        except OSError:
+            data = f"missing: version {_version()}".encode()
+        h.update(f"{name}\0{len(data)}\0".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+        return version("zenoh-nc")
+    except Exception:
+        return "unknown"
+
+
+#: sha256 (hex) of REPLICATION_FORMAT and the sources of :func:`_fingerprint_files`, computed once at import: a
+#: snapshot or log sample stamped with another one comes from other NC software and is never unpickled
+FINGERPRINT = _fingerprint()
+#: the stamp before every snapshot and log sample: a tag and the fingerprint's 32 bytes
+_TAG = b"zncR"
+STAMP = _TAG + bytes.fromhex(FINGERPRINT)
+
+
+class SoftwareMismatch(ReplicationError):
+    """The peer NC runs other NC software (another fingerprint, or none: a release before the stamp).
+
+    Attributes:
+        theirs: the peer's fingerprint (hex; "" when its data carries none).
+    """
+
+    def __init__(self, theirs: str, what: str = "snapshot") -> None:
+        self.theirs = theirs
+        super().__init__(f"a {what} of NC software {theirs[:12] or 'unknown (unstamped)'}, this NC runs "
+                         f"{FINGERPRINT[:12]}: a pair must run the same NC software, it is not loaded")
+
+
+def stamp(data: bytes) -> bytes:
+    """``data`` (a pickle) behind this NC's :data:`STAMP`."""
+    return STAMP + data
+
+
+def peer_fingerprint(data: bytes) -> str:
+    """The fingerprint (hex) a stamped ``data`` carries; "" when it has no stamp."""
+    n = len(STAMP)
+    return data[len(_TAG):n].hex() if len(data) >= n and data.startswith(_TAG) else ""
+
+
+def unstamp(data: bytes, what: str = "snapshot") -> bytes:
+    """The pickle behind the stamp of ``data``, checked before anything of it is unpickled.
+
+    Raises:
+        SoftwareMismatch: ``data`` is not stamped with this NC's fingerprint.
+    """
+    if not data.startswith(STAMP):
+        raise SoftwareMismatch(peer_fingerprint(data), what)
+    return data[len(STAMP):]
+
+
+class _PlainUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        raise pickle.UnpicklingError(f"{module}.{name} in plain data")
+
+
+def loads_plain(data: bytes, bounded: bool = False) -> Any:
+    """Unpickle builtins only (no class, no function: nothing of any release's code), e.g. a log sample's
+    (epoch, cycle, bytes) headers of a peer of other software. ``bounded``: first walk the opcodes (pickletools reads
+    a counted argument only as far as ``data`` goes): a size beyond ``data`` raises instead of the unpickler
+    allocating it first (BINBYTES8 of 8 GiB in a 12-byte pickle)."""
+    if bounded:
+        for _ in pickletools.genops(data):
+            pass
+    return _PlainUnpickler(io.BytesIO(data)).load()
 
 
 def state_digest(core: Any) -> int:
@@ -450,16 +573,20 @@ def snapshot(core: Any, handler_state: Any = None) -> bytes:
     drive = inner.drive
     inner.drive = ReplayDrive.of(drive)
     try:
-        return pickle.dumps((type(inner), dumps((dict(inner.__dict__), handler_state), root=inner)),
-                            protocol=pickle.HIGHEST_PROTOCOL)
+        return stamp(pickle.dumps((type(inner), dumps((dict(inner.__dict__), handler_state), root=inner)),
+                                  protocol=pickle.HIGHEST_PROTOCOL))
     finally:
         inner.drive = drive
 
 
 def load_snapshot(data: bytes, into: Any = None) -> tuple[Any, Any]:
     """(core, handler state) of a :func:`snapshot`; the core's state goes into ``into`` (the same object stays the
-    core: whatever holds it, holds the snapshot's), else into a new core of the snapshot's class."""
-    cls, body = pickle.loads(data)
+    core: whatever holds it, holds the snapshot's), else into a new core of the snapshot's class.
+
+    Raises:
+        SoftwareMismatch: the snapshot is of other NC software (checked before anything is unpickled).
+    """
+    cls, body = pickle.loads(unstamp(data))
     if into is not None and type(into) is not cls:
         raise ReplicationError(f"a snapshot of a {cls.__name__}, the follower has a {type(into).__name__}")
     core = into if into is not None else cls.__new__(cls)

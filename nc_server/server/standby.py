@@ -38,8 +38,9 @@ from nc_schema import Keys, frame_header
 from nc_server.drives.remote.config import LIMIT_CAP_S, takeover_bound
 
 from .config import NODE_MAX, Redundancy
-from .replication import (CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive, ReplayDrive,
-                          install_handler, merge_handler, snapshot)
+from .replication import (FINGERPRINT, STAMP, CoreRecorder, CycleLog, Follower, HandlerRecorder, RecordingDrive,
+                          ReplayDrive, SoftwareMismatch, install_handler, loads_plain, merge_handler,
+                          peer_fingerprint, snapshot, stamp)
 from .transport import drain
 
 if TYPE_CHECKING:
@@ -202,6 +203,29 @@ class _Unusable(Exception):
     """A log of an ha log sample that cannot be replayed (it did not unpickle, or is not what its header says)."""
 
 
+#: the most logs a sample may carry (a sender sends LOG_REPEAT; more: not a sample of any release)
+SAMPLE_LOGS_MAX = 64
+
+
+def _headers(batch: Any, foreign: bool) -> list[tuple[int, int, bytes]]:
+    """The (epoch, cycle, pickled log) entries of a builtins-only unpickled ha log sample, checked: a list of at most
+    SAMPLE_LOGS_MAX 3-tuples of int (not bool), int, bytes, taken as they are (nothing converted: ``bytes(n)`` of an
+    int would allocate n bytes); a foreign sample's logs are never read, they are dropped (b"").
+
+    Raises:
+        ValueError: the sample is not one (it is unusable).
+    """
+    if type(batch) is not list or len(batch) > SAMPLE_LOGS_MAX:
+        raise ValueError(f"not an ha log sample: {type(batch).__name__}")
+    out = []
+    for h in batch:
+        if type(h) is not tuple or len(h) != 3 or type(h[0]) is not int or type(h[1]) is not int \
+                or type(h[2]) is not bytes:
+            raise ValueError("not an ha log sample: an entry is not (int, int, bytes)")
+        out.append((h[0], h[1], b"" if foreign else h[2]))
+    return out
+
+
 class HotStandby:
     """This process's part of the pair (see the module docstring).
 
@@ -250,6 +274,10 @@ class HotStandby:
         self.stale_logs = 0
         self.unusable_logs = 0  # ha logs that did not unpickle (a peer of another release)
         self._unusable_warned = -1e9
+        #: (standby) why it refuses to get in step: the active NC runs other NC software ("" if not); the fingerprint
+        #: of the newest log sample's NC when it differs from this NC's (no snapshot is asked for then)
+        self.refused = ""
+        self._foreign = ""
         #: silences of the logs forgiven because the active NC's frames showed its Cycle going on (a takeover then
         #: would have started from a state behind what the clients saw: their Cycle would go back, an NC restart)
         self.frames_alive = 0
@@ -394,7 +422,7 @@ class HotStandby:
         # (epoch and cycle beside the pickled log: a receiver skips its own logs and the repeats without unpickling)
         self._recent.append((lg.epoch, lg.cycle, pickle.dumps(lg, protocol=pickle.HIGHEST_PROTOCOL)))
         try:  # (the last LOG_REPEAT logs in each sample: a sample dropped on the way costs no re-sync)
-            self._log_pub.put(pickle.dumps(list(self._recent), protocol=pickle.HIGHEST_PROTOCOL))
+            self._log_pub.put(stamp(pickle.dumps(list(self._recent), protocol=pickle.HIGHEST_PROTOCOL)))
             self.logs_out += 1
         except Exception as exc:
             log.debug("log put: %s", exc)
@@ -487,16 +515,20 @@ class HotStandby:
     def _take_logs(self, now: float) -> None:
         sub = self._log_sub
         for s in drain(sub):
+            payload = s.payload.to_bytes()
+            # (another NC software's logs are never unpickled; their headers are builtins only, read by loads_plain:
+            # their epochs still count, an active NC of a higher epoch is one whatever it runs)
+            foreign = "" if payload.startswith(STAMP) else peer_fingerprint(payload) or "-"
             try:
-                batch: list[tuple[int, int, bytes]] = pickle.loads(s.payload.to_bytes())
-                logs = [(int(e), int(c), bytes(b)) for e, c, b in batch]
+                body = payload[len(STAMP):] if foreign != "-" else payload
+                logs = _headers(loads_plain(body, bounded=bool(foreign)), bool(foreign))
             except Exception as exc:
                 self._warn_unusable(now, exc)
                 continue
             self._current = False
             for epoch, cycle, data in logs:
                 try:
-                    if self._take_log(epoch, cycle, data, now):
+                    if self._take_log(epoch, cycle, data, now, foreign):
                         return
                 except _Unusable as exc:
                     self._warn_unusable(now, exc)
@@ -516,10 +548,11 @@ class HotStandby:
             log.warning("unusable ha log (%d so far; both NCs of a pair must run the same release): %s",
                         self.unusable_logs, exc)
 
-    def _take_log(self, epoch: int, cycle: int, data: bytes, now: float) -> bool:
+    def _take_log(self, epoch: int, cycle: int, data: bytes, now: float, foreign: str = "") -> bool:
         """One log of a sample (its epoch, its cycle and the pickled :class:`CycleLog`, unpickled only when it is
         replayed or held: the active NC's own logs and the repeats are not); True: this NC stopped being active (the
-        rest of the sample is not its).
+        rest of the sample is not its). ``foreign``: the sample's fingerprint when it is not this NC's ("-": none):
+        the log is refused unread (:meth:`_refuse`).
 
         Raises:
             _Unusable: the log did not unpickle, or its epoch and cycle are not the sample's.
@@ -535,6 +568,15 @@ class HotStandby:
             self.stale_logs += 1
             return False
         self._current = True  # (the sample came from the NC followed: a sign of life even if a log of it is unusable)
+        self._foreign = foreign
+        if foreign:
+            # (before the repeat filter: a peer restarted with other software that took over, a higher epoch from a
+            # low cycle, sends only cycles <= this core's; dropped as repeats they would keep this standby in step)
+            # out of step for good (no snapshot asked for); a sign of life as an unusable log was: a standby that
+            # never got in step takes over only START_GRACE_S after the last one, with its own state (_lost)
+            self._last_log = now
+            self._refuse(SoftwareMismatch("" if foreign == "-" else foreign, "log"))
+            return False
         core = self.follower.core
         if core is not None and not self.follower.waiting and cycle <= core.cycle:
             return False  # (a repeat: the samples carry the last LOG_REPEAT logs)
@@ -552,7 +594,7 @@ class HotStandby:
         return False
 
     def _ask_snapshot(self, now: float) -> None:
-        if self._session is None:
+        if self._session is None or self._foreign:  # (another software's snapshot would be refused: none built)
             return
         self._asked = now
         try:
@@ -579,14 +621,31 @@ class HotStandby:
                     self._last_log = time.monotonic()
                     self.detector.restart(self._last_log)
                     self._forget_frames()
+                    self.refused = ""
                     return
+                except SoftwareMismatch as exc:
+                    self._foreign = exc.theirs or "-"
+                    self._refuse(exc)
                 except Exception as exc:
                     log.warning("unusable snapshot: %s", exc)
-        if now - self._asked > SNAPSHOT_RETRY_S:
+        if now - self._asked > SNAPSHOT_RETRY_S and not self._foreign:
             self._ask_snapshot(now)
 
+    def _refuse(self, exc: SoftwareMismatch) -> None:
+        """The active NC runs other NC software: this standby does not get in step (one warning per peer software;
+        the ha status ``refused`` says why); in step before (with an NC of this software), it is out of step now."""
+        if not self.follower.waiting:
+            self.follower.lose(str(exc), False)
+        why = (f"the active NC runs NC software {exc.theirs[:12] or 'unknown (unstamped)'}, this standby "
+               f"{FINGERPRINT[:12]}: not in step (a pair must run the same NC software)")
+        if why != self.refused:
+            self.refused = why
+            log.warning("standby %s: %s", self.node, why)
+
     def _resync(self, reason: str) -> None:
-        log.warning("standby %s: out of step (%s): asking for a snapshot", self.node, reason)
+        # (refused: the active NC runs other software, _ask_snapshot asks for none)
+        log.warning("standby %s: out of step (%s): %s", self.node, reason,
+                    "no snapshot asked for (other NC software)" if self._foreign else "asking for a snapshot")
         self._forget_frames()
         self._declare_standby(False)
         self._ask_snapshot(time.monotonic())
@@ -773,6 +832,7 @@ class HotStandby:
         self._forget_frames()
         self._token_gone = False
         self._grace = START_GRACE_S
+        self.refused = self._foreign = ""  # (a refusal is a standby's: the active NC is refused by nobody)
         if self.epoch and not self.synced_once and not first:
             # an NC that drove and demoted itself, in step with nobody since: it takes over again with the epoch it
             # drove with (a new one could win the tie against a successor it does not see, its state older than the
@@ -941,7 +1001,8 @@ class HotStandby:
                 "catch_up_cycles": self.catch_up, "frames_alive": self.frames_alive, "stale_logs": self.stale_logs,
                 "unusable_logs": self.unusable_logs, "takeover_limit_cycles": limit,
                 "takeover_limit_ms": round(self.takeover_limit_ms, 3),
-                "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(), "time": time.time()}
+                "peer_in_step": self.peer_in_step, "frames_fenced": self._fenced(),
+                "software": FINGERPRINT[:12], "refused": self.refused, "time": time.time()}
 
     def _lag(self) -> int:
         """The replication lag [cycles]: the newest log's cycle less the core's, or (a standby) the newest frame's of

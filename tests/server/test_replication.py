@@ -3,6 +3,7 @@ behind a CoreRecorder, followers replaying its logs; digests, snapshot joins, re
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -14,8 +15,10 @@ from nc_server.core import AxisConfig, AxisParams, NcCore
 from nc_server.core.params import param_number
 from nc_server.server.claims import ClaimTable
 from nc_server.server.handler import CycleInputs, PendingReply, RequestHandler
-from nc_server.server.replication import (CycleLog, Follower, HandlerRecorder, HandlerState, ReplayDrive,
-                                          CoreRecorder, install_handler, merge_handler, snapshot, state_digest)
+from nc_server.server.replication import (FINGERPRINT, STAMP, CycleLog, Follower, HandlerRecorder, HandlerState,
+                                          ReplayDrive, CoreRecorder, SoftwareMismatch, install_handler,
+                                          loads_plain, merge_handler, snapshot, state_digest)
+from nc_server.server import replication
 
 KEYS = Keys("nc1")
 
@@ -372,3 +375,69 @@ def test_a_replay_drive_sets_only_what_a_call_changed_and_never_the_logs_objects
     rd.feed([DriveCall("step", None, base)])
     rd.step()
     assert all(getattr(rd, s) is not first[s] for s, v in zip(DRIVE_STATE, base) if isinstance(v, np.ndarray))
+
+
+def _unpickled() -> None:
+    raise AssertionError("a snapshot of other NC software was unpickled")
+
+
+class _Trap:
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (_unpickled, ())
+
+
+@pytest.mark.parametrize("peer", ["ab" * 32, ""])
+def test_a_snapshot_of_other_nc_software_is_refused_before_it_is_unpickled(peer: str) -> None:
+    """A pair runs one NC software: a snapshot stamped with another fingerprint (or none: a release before the
+    stamp) is refused with both fingerprints, and nothing of it is unpickled (its pickle would raise)."""
+    act = Active()
+    good = act.snapshot()
+    assert good.startswith(STAMP) and len(FINGERPRINT) == 64
+    trap = pickle.dumps((NcCore, pickle.dumps(_Trap())))
+    with pytest.raises(AssertionError):  # (the trap works when it is loaded)
+        pickle.loads(pickle.loads(trap)[1])
+    data = (b"zncR" + bytes.fromhex(peer) if peer else b"") + trap
+    f = Follower()
+    with pytest.raises(SoftwareMismatch) as exc:
+        f.load(data)
+    assert FINGERPRINT[:12] in str(exc.value) and (peer[:12] or "unstamped") in str(exc.value)
+    assert exc.value.theirs == peer and f.waiting and f.core is None and f.resyncs == 0
+    # the same snapshot body behind this software's stamp is loaded (and this one springs the trap)
+    f.load(good)
+    assert not f.waiting and f.core.cycle == act.core.cycle
+    with pytest.raises(AssertionError):
+        Follower().load(STAMP + data[len(data) - len(trap):])
+
+
+def test_the_fingerprint_reads_crlf_as_lf_and_never_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Windows checkout (CRLF) pairs with a Linux one; an install without sources gets a fingerprint, no crash at
+    import: a module's .pyc beside it stands for its missing .py (never __pycache__'s), unreadable files and a listing
+    that fails fall back to the version."""
+    lf, crlf = tmp_path / "lf.py", tmp_path / "crlf.py"
+    lf.write_bytes(b"a = 1\nb = 2\n")
+    crlf.write_bytes(b"a = 1\r\nb = 2\r\n")
+    fps = []
+    for p in (lf, crlf, tmp_path / "missing.py"):
+        monkeypatch.setattr(replication, "_fingerprint_files", lambda p=p: [("x/m.py", p)])
+        fps.append(replication._fingerprint())
+    assert fps[0] == fps[1] != fps[2]
+
+    def broken() -> list[tuple[str, Path]]:
+        raise FileNotFoundError("no sources")
+    monkeypatch.setattr(replication, "_fingerprint_files", broken)
+    assert len(replication._fingerprint()) == 64
+    pkg = tmp_path / "pkg"
+    (pkg / "__pycache__").mkdir(parents=True)
+    for n in ("a.py", "b.pyc", "a.pyc", "__pycache__/a.cpython-311.pyc", "__pycache__/c.cpython-311.pyc"):
+        (pkg / n).write_bytes(b"")
+    assert [p.name for p in replication._modules(pkg)] == ["a.py", "b.pyc"]
+
+
+def test_a_bounded_plain_unpickle_does_not_allocate_what_a_pickle_claims() -> None:
+    """A 12-byte pickle of a BINBYTES8 claiming 8 GiB: refused before anything is allocated; builtins only."""
+    bomb = b"\x80\x05\x8e" + (8 << 30).to_bytes(8, "little") + b"x"
+    with pytest.raises(ValueError, match="bytes8"):
+        loads_plain(bomb, bounded=True)
+    assert loads_plain(pickle.dumps([(1, 2, b"x")]), bounded=True) == [(1, 2, b"x")]
+    with pytest.raises(pickle.UnpicklingError):
+        loads_plain(pickle.dumps(_Trap()), bounded=True)

@@ -15,7 +15,7 @@ import pytest
 import nc_server.core  # noqa: F401  (before nc_server.drives: circular import otherwise)
 from nc_server.drives.sim import SimDrive
 from nc_server.server.config import Redundancy
-from nc_server.server.replication import RecordingDrive
+from nc_server.server.replication import FINGERPRINT, STAMP, RecordingDrive, stamp
 from nc_server.server.standby import START_GRACE_S, HotStandby
 
 from test_replication import Active  # noqa: E402 (tests/server on sys.path)
@@ -644,12 +644,12 @@ def test_only_the_logs_replayed_are_unpickled() -> None:
     hs.role, hs.epoch, hs.highest = "active", 6 << 16, 6 << 16
     sub = FakeSub()
     hs._log_sub = sub
-    sub.put(pickle.dumps([(6 << 16, c, junk) for c in range(10, 18)]))  # its own: never unpickled
+    sub.put(stamp(pickle.dumps([(6 << 16, c, junk) for c in range(10, 18)])))  # its own: never unpickled
     hs._take_logs(1.0)
     assert hs.role == "active"
     demoted: list[str] = []
     hs._become_standby = lambda now, why: demoted.append(why)  # type: ignore[method-assign]
-    sub.put(pickle.dumps([(7 << 16, 20, junk)]))  # a higher epoch's: demotes on its header alone
+    sub.put(stamp(pickle.dumps([(7 << 16, 20, junk)])))  # a higher epoch's: demotes on its header alone
     hs._take_logs(1.1)
     assert demoted and hs.highest == 7 << 16
     # a standby in step at cycle 100: the repeats (cycle <= 100) are not unpickled, the next log is, and applied
@@ -658,13 +658,13 @@ def test_only_the_logs_replayed_are_unpickled() -> None:
     hs.follower.core = SimpleNamespace(cycle=100)  # type: ignore[assignment]
     applied: list[int] = []
     hs.follower.apply = lambda lg: applied.append(lg.cycle) or False  # type: ignore[method-assign]
-    sub.put(pickle.dumps([(7 << 16, c, junk) for c in range(94, 101)]
-                         + [(7 << 16, 101, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=101)))]))
+    sub.put(stamp(pickle.dumps([(7 << 16, c, junk) for c in range(94, 101)]
+                               + [(7 << 16, 101, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=101)))])))
     hs._take_logs(1.2)
     assert applied == [101] and hs.logs_in == 1
     # a log that is not what its header says is unusable (the rest of the sample too), nothing applied
-    sub.put(pickle.dumps([(7 << 16, 102, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=105))),
-                          (7 << 16, 103, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=103)))]))
+    sub.put(stamp(pickle.dumps([(7 << 16, 102, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=105))),
+                                (7 << 16, 103, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=103)))])))
     hs._take_logs(1.3)
     assert applied == [101]
 
@@ -682,9 +682,114 @@ def test_unusable_logs_are_counted_and_warned_at_most_every_5_s(caplog: pytest.L
     hs._log_sub = sub
     with caplog.at_level(logging.WARNING, logger="nc_server"):
         for k in range(50):
-            sub.put(b"\x80\x05 an older release's payload" if k % 2 else pickle.dumps([(7 << 16, 101 + k, b"junk")]))
+            # (this software's stamp: a sample that is not a pickle, a log that is not one)
+            sub.put(stamp(b"\x80\x05 a broken payload" if k % 2 else pickle.dumps([(7 << 16, 101 + k, b"junk")])))
             hs._take_logs(1.0 + k * 0.001)
-        sub.put(pickle.dumps([(7 << 16, 200, b"junk")]))
+        sub.put(stamp(pickle.dumps([(7 << 16, 200, b"junk")])))
         hs._take_logs(6.5)
     assert applied == [] and hs.unusable_logs == 51 and hs.status()["unusable_logs"] == 51
     assert len([r for r in caplog.records if "unusable ha log" in r.getMessage()]) == 2
+
+
+def test_logs_of_other_nc_software_are_refused_unread_and_no_snapshot_is_asked(
+        caplog: pytest.LogCaptureFixture) -> None:
+    # a rolling upgrade: the active NC runs other NC software; its logs are never unpickled (their layout may differ:
+    # a crash or a wrong state), their epochs still count, the refusal is one warning with both fingerprints and the
+    # ha status says it; the standby never gets in step, so without an active NC it behaves as one that never did
+    act, hs, drive = pair()
+    other = "ab" * 32
+    asked: list[float] = []
+    hs._session = object()  # type: ignore[assignment]
+    hs._ask_snapshot = asked.append  # type: ignore[method-assign]
+    sub = FakeSub()
+    hs._log_sub = sub
+    boom = pickle.dumps(SimpleNamespace())[:-1] + b"\xff"  # (would raise if unpickled)
+    t = time.monotonic()
+    hs._started = hs._last_log = t
+    hs.active_token_seen = True
+    with caplog.at_level(logging.WARNING, logger="nc_server"):
+        for k in range(40):
+            body = pickle.dumps([(7 << 16, 100 + k, boom)])
+            sub.put(b"zncR" + bytes.fromhex(other) + body if k >= 20 else body)  # (unstamped: a release before it)
+            hs._take_logs(t + k * 0.001)
+            hs._take_snapshot(t + 5.0 + k)  # (long past SNAPSHOT_RETRY_S: no snapshot of it is asked for)
+    assert hs.highest == 7 << 16 and hs.logs_in == 0 and hs.unusable_logs == 0 and asked == []
+    assert hs.follower.waiting and hs.follower.core is None and not hs.synced_once
+    st = hs.status()
+    assert not st["in_step"] and st["software"] == FINGERPRINT[:12]
+    assert FINGERPRINT[:12] in st["refused"] and other[:12] in st["refused"]
+    warned = [r.getMessage() for r in caplog.records if "same NC software" in r.getMessage()]
+    assert len(warned) == 2 and other[:12] in warned[-1] and FINGERPRINT[:12] in warned[-1]  # (one per peer software)
+    # the active NC's token goes: no takeover before START_GRACE_S after its last log, then one with its own state
+    hs.active_token_seen = False
+    last = t + 0.039
+    assert not hs._lost(last + START_GRACE_S - 0.01)
+    assert hs._lost(last + START_GRACE_S + 0.01)
+    assert hs.follower.handler_state is None  # (nothing replicated to install)
+    # an active NC of this software again (the peer upgraded): its logs are taken, a snapshot is asked for again
+    sub.put(stamp(pickle.dumps([(7 << 16, 300, pickle.dumps(SimpleNamespace(epoch=7 << 16, cycle=300)))])))
+    hs._take_logs(t + 60.0)
+    hs._take_snapshot(t + 60.0)
+    assert hs.logs_in == 1 and asked == [t + 60.0]
+
+
+def test_a_standby_in_step_goes_out_of_step_on_logs_of_other_software() -> None:
+    act, hs, drive = pair()
+    hs.role, hs.epoch, hs.highest = "standby", 0, 7 << 16
+    hs.synced_once, hs.follower.waiting = True, False
+    hs.follower.core = SimpleNamespace(cycle=100)  # type: ignore[assignment]
+    lost: list[str] = []
+    hs.follower.on_resync = lost.append
+    sub = FakeSub()
+    hs._log_sub = sub
+    sub.put(b"zncR" + bytes(32) + pickle.dumps([(7 << 16, 101, b"junk")]))
+    hs._take_logs(1.0)
+    assert hs.follower.waiting and lost and "000000000000" in lost[0] and hs.logs_in == 0
+    assert not hs._lost(100.0)  # (out of step: never a takeover from its replicated state)
+
+
+def test_a_foreign_active_of_a_higher_epoch_from_a_low_cycle_is_refused_not_taken_for_repeats(
+        caplog: pytest.LogCaptureFixture) -> None:
+    # the peer restarted with other software and took over (a higher epoch, its cycles from 10): all its cycles are
+    # <= this in-step standby's 100; the stamp is checked before the repeat filter: out of step, refused, no token
+    act, hs, drive = pair()
+    hs.role, hs.epoch, hs.highest = "standby", 0, 6 << 16
+    hs.synced_once, hs.follower.waiting = True, False
+    hs.follower.core = SimpleNamespace(cycle=100)  # type: ignore[assignment]
+    asked: list[float] = []
+    hs._session = object()  # type: ignore[assignment]
+    hs._ask_snapshot = asked.append  # type: ignore[method-assign]
+    sub = FakeSub()
+    hs._log_sub = sub
+    with caplog.at_level(logging.WARNING, logger="nc_server"):
+        for k in range(50):
+            sub.put(b"zncR" + bytes.fromhex("ab" * 32) + pickle.dumps([(7 << 16, 10 + k, b"x")]))
+            hs._take_logs(1.0 + k * 0.001)
+    assert hs.follower.waiting and "abababababab" in hs.refused and hs.highest == 7 << 16
+    assert not hs.status()["in_step"] and hs.logs_in == 0
+    assert not hs._lost(1000.0)  # (a formerly in-step standby refused: never a takeover from its stale state)
+    out = [r.getMessage() for r in caplog.records if "out of step" in r.getMessage()]
+    assert len(out) == 1 and "no snapshot asked for" in out[0] and "asking" not in out[0]
+
+
+def test_a_refusing_standby_that_takes_over_is_refused_no_more() -> None:
+    act, hs, drive = pair()
+    hs._log_sub = sub = FakeSub()
+    sub.put(b"zncR" + bytes.fromhex("cd" * 32) + pickle.dumps([(7 << 16, 10, b"x")]))
+    hs._take_logs(1.0)
+    assert hs.refused and hs.status()["refused"]
+    hs._become_active(time.monotonic())
+    assert hs.role == "active" and hs.status()["refused"] == "" and hs._foreign == ""
+
+
+@pytest.mark.parametrize("batch", [[(1, 1, 8 << 30)], [(True, 1, b"x")], [(1, 1.5, b"x")], [(1, 1, "x")],
+                                   [(1, 1)], {"a": 1}, [(1, 1, b"")] * 65])
+@pytest.mark.parametrize("foreign", [False, True])
+def test_a_sample_whose_headers_are_not_int_int_bytes_is_unusable(batch: Any, foreign: bool) -> None:
+    # (bytes(8 << 30) of a 30-byte sample allocated 8 GiB: nothing is converted)
+    act, hs, drive = pair()
+    hs.role, hs.highest = "standby", 1
+    hs._log_sub = sub = FakeSub()
+    sub.put((b"zncR" + bytes(32) if foreign else STAMP) + pickle.dumps(batch))
+    hs._take_logs(1.0)
+    assert hs.unusable_logs == 1 and hs.highest == 1 and not hs.refused

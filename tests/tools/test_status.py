@@ -300,6 +300,12 @@ def test_ha_line_shows_the_standby_and_its_replication_lag() -> None:
     assert v["ha"]["standbys"] == [{"node": "b", "role": "standby", "in_step": True, "lag_cycles": 3}]
     text = render({"time": "t", "ncs": [v]})
     assert "ha: active node a epoch 65541" in text and "standby b lag 3 cycles" in text and " c " not in text
+    # a standby of other NC software says why it will not get in step (docs/standby.md, One software version)
+    why = "the active NC runs NC software 111111111111, this standby 222222222222: not in step"
+    nodes[1] = _Raw(msgpack.packb({"node": "b", "role": "standby", "in_step": False, "lag_cycles": 0,
+                                   "refused": why}), now)
+    v = nc_view("nc1", True, None, _Raw(msgpack.packb(st), now), None, now, ha_nodes=nodes)
+    assert f"standby b lag 0 cycles (not in step) REFUSED: {why}" in render({"time": "t", "ncs": [v]})
 
 
 def test_the_status_frames_epoch_is_shown_and_a_lower_epoch_is_dropped() -> None:
