@@ -70,10 +70,7 @@ def _fingerprint_files() -> list[tuple[str, Path]]:
     pkg = Path(__file__).resolve().parents[1]  # nc_server
     schema = Path(nc_schema.layout.__file__).resolve().parent
     files = [("nc_server", pkg, p) for sub in ("core", "drives") for p in _modules(pkg / sub)]
-    for n in ("replication", "claims", "handler"):
-        py = pkg / "server" / f"{n}.py"
-        files.append(("nc_server", pkg, py if py.exists() or not py.with_suffix(".pyc").exists()
-                      else py.with_suffix(".pyc")))
+    files += [("nc_server", pkg, p) for p in _modules(pkg / "server") if p.stem in ("replication", "claims", "handler")]
     files += [("nc_schema", schema, p) for p in _modules(schema)]
     contract = Path(str(nc_schema.layout.CONTRACT_DIR))
     files += [("contract", contract, p) for p in contract.glob("*.json")]
