@@ -16,6 +16,7 @@ import math
 import os
 import signal
 import threading
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -175,7 +176,7 @@ if state in ("run", "end") and not stop:
     Feed(p0 + p, v, a, 1 if v > 0 else 0, ax(AX))
     r = ax(AX).NcToPlc
     emit(st=state, p0=p0, p=p0 + p, v=v, sp=float(r["SetPos"]), sv=float(r["SetVelo"]),
-         nc=int(ax(AX).Status.NcCycleCounter), en=fb(EN).Enabled)
+         nc=int(ax(AX).Status.NcCycleCounter), en=fb(EN).Enabled, t=now())
 """
 NOT_MOVING, EXT_ENABLED = 1 << 2, 1 << 14  # StateDWord
 #: axis 1 with a large AxisVeloMax: the NC's "no jump" reach per NC cycle (AxisVeloMax x 1.5 cycles)
@@ -183,14 +184,74 @@ NOT_MOVING, EXT_ENABLED = 1 << 2, 1 << 14  # StateDWord
 EXT_CONFIG = axis_config(default_config_text(), 1, AxisVeloMax=5000.0)
 
 
-def enable_ext(p: ExtPlc, d: float, v: float = 20.0, a: float = 200.0, name: str = "gen") -> Rec:
-    """MC_ExtSetPointGenEnable on axis 1 (Done, Enabled), then the ramp hook ``name``; returns the Done record."""
-    p.set("en", "MC_ExtSetPointGenEnable", Execute=True, Position=0.0, PositionType=1)
-    en = p.wait("en", ended, T)
+#: a stall of the loaded machine [s] (the PLC's cycle, or the NC's clock against the PLC's) long enough to
+#: turn the ramp's feeds into a jump the NC refuses: the fed acceleration carries the NC's set-point on
+#: while no feed comes (at the end of the acceleration phase a pause of 0.25 s is 0x4359)
+STALL = 0.1
+
+
+@dataclass
+class Fed:
+    """A ramp run by :func:`feed_ramp`: the MC_ExtSetPointGenEnable block ``en`` and its Done record
+    ``enabled``, the hook ``gen`` and its record that met the condition, ``reached``."""
+    en: str
+    enabled: Rec
+    gen: str
+    reached: Rec
+
+
+def enable_ext(p: ExtPlc, name: str = "en") -> Rec:
+    """MC_ExtSetPointGenEnable ``name`` on axis 1 (Done, Enabled); returns the Done record."""
+    p.set(name, "MC_ExtSetPointGenEnable", Execute=True, Position=0.0, PositionType=1)
+    en = p.wait(name, ended, T)
     assert en.o["Done"] and en.o["Enabled"], en
     assert en.a["StateDWord"] & EXT_ENABLED, f"ExtSetPointGenEnabled in the StateDWord: {en}"
-    p.hook(name, RAMP, AX=1, EN="en", D=d, V=v, A=a, state="wait", go=True, stop=False, t0=0.0, p0=0.0)
     return en
+
+
+def stall_of(recs: list[Rec]) -> float:
+    """The longest stall the ramp's records show [s]: a PLC cycle late (the PLC's clock between two
+    records), or the NC's clock falling behind the PLC's (their difference's spread)."""
+    if len(recs) < 2:
+        return 0.0
+    ts = [r.o["t"] for r in recs]
+    lag = [r.o["t"] - r.o["nc"] * DT for r in recs]
+    return max(max(b - a for a, b in zip(ts, ts[1:])), max(lag) - min(lag))
+
+
+def feed_ramp(p: ExtPlc, d: float, until: Callable[[Rec], bool], name: str = "gen", en: str | None = None,
+              tries: int = 3) -> Fed:
+    """Enable the generator (unless block ``en`` has), run the ramp of ``d`` [u] as hook ``name`` and wait
+    for a record that meets ``until``. The ramp is a function of the PLC's clock: a loaded machine that
+    stalls the PLC (or the NC) long enough makes it a jump, which the NC rightly refuses (0x4359, the
+    generator disabled); such a loss, proven by the records' clocks, is reset and run again (at most
+    ``tries`` times). Any other loss fails. Traces axis 1."""
+    p.trace(1)
+    for k in range(tries):
+        gen = f"{name}{k}" if k else name
+        if en is None:
+            en = f"en_{gen}"
+            enabled = enable_ext(p, en)
+        else:
+            last = p.last(en)
+            assert last is not None and last.o["Enabled"], last
+            enabled = last
+        p.hook(gen, RAMP, AX=1, EN=en, D=d, V=20.0, A=200.0, state="wait", go=True, stop=False, t0=0.0, p0=0.0)
+        r = p.wait(gen, lambda r: not r.o["en"] or until(r), T)
+        if r.o["en"]:
+            return Fed(en, enabled, gen, r)
+        p.unhook(gen)
+        recs = p.hook_records(gen)
+        stall = stall_of(recs)
+        errs = [s.a["ErrorId"] for s in trace_between(p, 1, recs[0].c) if s.a["ErrorId"]]
+        assert errs and errs[0] == 0x4359 and stall > STALL, \
+            f"generator {gen} lost (axis errors {errs}, longest stall {stall:.3f} s): {r}"
+        p.set(f"rst{k}", "MC_Reset", Execute=True)
+        rst = p.wait(f"rst{k}", ended, T)
+        assert rst.o["Done"], rst
+        p.wait_trace(1, lambda s: s.c > rst.c and s.a["State"] == "STANDSTILL", T)  # (it brakes on)
+        en = None
+    raise AssertionError(f"the ramp lost to a stall {tries} times in a row")
 
 
 def test_ext_set_point_generator_follows_a_fed_ramp_and_disable_stops(start_nc: Callable[..., NcServerProcess],
@@ -198,10 +259,10 @@ def test_ext_set_point_generator_follows_a_fed_ramp_and_disable_stops(start_nc: 
     p = xplc(start_nc(config_text=EXT_CONFIG, extra_args=NC_ARGS))
     power_both(p, 1)
     p.trace(1)
-    en = enable_ext(p, d=30.0)
     # the axis follows the ramp and ends exactly at its end
-    end = p.wait("gen", lambda r: r.o["st"] == "end" and r.o["sv"] == 0.0 and abs(r.o["sp"] - r.o["p"]) < 1e-9, T)
-    recs = p.hook_records("gen")
+    ramp = feed_ramp(p, 30.0, lambda r: r.o["st"] == "end" and r.o["sv"] == 0.0 and abs(r.o["sp"] - r.o["p"]) < 1e-9)
+    end, en = ramp.reached, ramp.enabled
+    recs = p.hook_records(ramp.gen)
     p0 = recs[0].o["p0"]
     assert math.isclose(p0, en.a["SetPos"], abs_tol=1e-9), "started where the axis stood"
     assert math.isclose(end.o["sp"], p0 + 30.0, abs_tol=1e-9), end
@@ -210,19 +271,19 @@ def test_ext_set_point_generator_follows_a_fed_ramp_and_disable_stops(start_nc: 
     assert len(cruising) >= 10, "the NC took the fed velocity"
     for r in recs:  # never outside what the generator produced (plus a PLC stall's extrapolation)
         assert p0 - 1e-9 <= r.o["sp"] <= p0 + 30.0 + 0.5, r
-    assert not any(s.a["ErrorId"] for s in p.trace_of(1)), p.trace_of(1)[-1]
+    assert not any(s.a["ErrorId"] for s in trace_between(p, 1, en.c)), p.trace_of(1)[-1]
     # a second ramp, long: MC_ExtSetPointGenDisable while it cruises
-    p.unhook("gen")
-    p.hook("gen2", RAMP, AX=1, EN="en", D=1000.0, V=20.0, A=200.0, state="wait", go=True, stop=False, t0=0.0, p0=0.0)
-    cr = p.wait("gen2", lambda r: r.o["sv"] == 20.0, T)
+    p.unhook(ramp.gen)
+    ramp2 = feed_ramp(p, 1000.0, lambda r: r.o["sv"] == 20.0, name="gen2", en=ramp.en)
+    cr = ramp2.reached
     p.set("dis", "MC_ExtSetPointGenDisable", Execute=True)
     dis = p.wait("dis", ended, T)
     assert dis.o["Done"] and not dis.o["Enabled"], dis
-    p.var("gen2", stop=True)
+    p.var(ramp2.gen, stop=True)
     s = p.wait_trace(1, lambda s: s.c > dis.c and s.a["SetVelo"] == 0.0 and s.a["StateDWord"] & NOT_MOVING, T)
     assert s.a["State"] == "STANDSTILL" and not s.a["ErrorId"] and not s.a["StateDWord"] & EXT_ENABLED, s
     clean(p.history("dis"))
-    assert not p.last("en").o["Enabled"], p.last("en")
+    assert not p.last(ramp2.en).o["Enabled"], p.last(ramp2.en)
     # no jump: between two PLC samples no more than the fed velocity allows (while fed, plus the
     # difference of the PLC's and the NC's clocks a new feed makes up for), never backwards; the
     # braking after the disable strictly, its velocity falling
@@ -243,12 +304,11 @@ def test_ext_set_point_disable_brake_is_not_standstill(start_nc: Callable[..., N
     p = xplc(start_nc(config_text=axis_config(EXT_CONFIG, 1, AxisDec=100.0), extra_args=NC_ARGS))
     power_both(p, 1)
     p.trace(1)
-    enable_ext(p, d=1000.0)
-    p.wait("gen", lambda r: r.o["sv"] == 20.0, T)
+    ramp = feed_ramp(p, 1000.0, lambda r: r.o["sv"] == 20.0)
     p.set("dis", "MC_ExtSetPointGenDisable", Execute=True)
     dis = p.wait("dis", ended, T)
     assert dis.o["Done"], dis
-    p.var("gen", stop=True)
+    p.var(ramp.gen, stop=True)
     s = p.wait_trace(1, lambda s: s.c > dis.c and s.a["SetVelo"] == 0.0 and s.a["StateDWord"] & NOT_MOVING, T)
     braking = [x for x in trace_between(p, 1, dis.c, s.c) if x.a["SetVelo"] > 0.0]
     assert len(braking) >= 3, braking
@@ -272,8 +332,7 @@ def test_killed_feeding_plc_the_axis_stops(start_nc: Callable[..., NcServerProce
 
     sub = obs.session.declare_subscriber("nc/nc1/axis/1/nctoplc", on_sample)  # (closed with the session)
     power_both(p, 1)
-    enable_ext(p, d=1000.0)
-    p.wait("gen", lambda r: r.o["sv"] == 20.0, T)
+    feed_ramp(p, 1000.0, lambda r: r.o["sv"] == 20.0)
     wait_until(lambda: seen and seen[-1][1] == 20.0, T, "the observer sees the axis move")
     with lock:
         k = len(seen)
