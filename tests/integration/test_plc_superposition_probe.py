@@ -437,7 +437,9 @@ def test_touch_probe_plc_event_records_act_pos(xp: ExtPlc) -> None:
     assert r.c == first.c and r.o["RecordedPosition"] == first.o["rise"], (r, first)
     assert r.a["ActPos"] == r.o["RecordedPosition"], "the ActPos of the cycle's snapshot"
     # WindowOnly: edges before FirstPosition are rejected, the first one inside is recorded
-    lo = r.a["ActPos"] + 15.0
+    # (FirstPosition 100 u = 2 s ahead: re-arming and the first rejected rise, every 0.1 s, fit in it
+    # however late a loaded machine runs the PLC's cycles)
+    lo = r.a["ActPos"] + 100.0
     c = xp.edge("tp", WindowOnly=True, FirstPosition=lo, LastPosition=lo + 1000.0)
     r = xp.wait("tp", lambda r: r.c > c and ended(r), T)
     assert r.o["Done"], r
