@@ -381,7 +381,9 @@ def test_touch_probe_on_a_simulated_sensor_pattern(start_nc: Callable[..., NcSer
     p.iref("r")  # TouchProbe1, RisingEdge
     p.set("tp", "MC_TouchProbe", refs={"TriggerInput": "r"}, Execute=True)
     p.wait_trace(1, lambda s: s.a["TouchProbeState"] & ARMED, T)
-    p.set("mv", "MC_MoveVelocity", Execute=True, Velocity=100.0, Acceleration=1000.0, Deceleration=1000.0)
+    # slow enough (25 u/s) that re-arming after the edge at 12.5 lands well before the one at 62.5: 2 s
+    # of travel, however late a loaded machine runs the PLC's cycles
+    p.set("mv", "MC_MoveVelocity", Execute=True, Velocity=25.0, Acceleration=1000.0, Deceleration=1000.0)
     r = p.wait("tp", ended, T)
     assert r.o["Done"] and abs(r.o["RecordedPosition"] - 12.5) <= 1e-9, r
     assert r.a["ActPos"] >= 12.5 and r.a["TouchProbeState"] & 2, f"a valid recorded position: {r}"
