@@ -7,11 +7,21 @@ import time
 
 import msgpack
 import numpy as np
+import pytest
 
 from nc_schema import PLCTONC_DTYPE, encode_plc_frame
-from znc_testing import BIT_CONTROL_LOOP_CLOSED, ENABLE_ALL, NcTestClient, wait_until
+
+from znc_testing import BIT_CONTROL_LOOP_CLOSED, ENABLE_ALL, NcServerProcess, NcTestClient, wait_until
+from znc_testing.plc_harness import NC_ARGS
 
 BIT_ERROR = 1 << 31
+
+
+@pytest.fixture
+def nc_server(start_nc) -> NcServerProcess:
+    """A 3 s PLCTONC watchdog (NC_ARGS), not the default 0.5 s: a loaded machine can stall pytest (its
+    frames, its requests) for 0.5 s. The watchdog test still sees 0x8F02, 3 s into the silence."""
+    return start_nc(extra_args=NC_ARGS)
 
 
 def _frame(ids: list[int], control: int = ENABLE_ALL) -> bytes:
