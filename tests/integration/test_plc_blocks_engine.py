@@ -56,7 +56,9 @@ def test_change_dyn_param_applies_to_the_running_move_and_is_done_with_it(plc: P
     plc.set("cd", "MC_ChangeDynParam", Execute=True, Acceleration=5000.0, Deceleration=5000.0)
     busy = plc.wait("cd", lambda r: r.o["Busy"], T)
     assert busy.a["ActPos"] < 850.0, f"issued too late to matter: {busy}"
-    brake = plc.wait("rs", lambda r: r.o["Decelerating"] and r.c > cruise.c, T)
+    # (the hard braking takes ~0.13 s: a stalled PLC may see none of it, only the standstill at 940, which
+    # passes the check below; the old deceleration's 1 s of braking it would see)
+    brake = plc.wait("rs", lambda r: (r.o["Decelerating"] or r.o["StandStill"]) and r.c > cruise.c, T)
     done = done_at(plc, "mv", 940.0)
     cd = plc.wait("cd", ended, T)
     assert cd.o["Done"], cd
