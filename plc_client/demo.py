@@ -1,7 +1,7 @@
 """``zenoh-nc-demo`` (``make demo``): the NC server plus a PLC program moving all axes.
 
 Starts ``nc-server`` with its embedded default configuration (NC ``nc1``, axes 1-4,
-router on tcp/127.0.0.1:7447, ``--port`` for another), then ``plc-run plc_client/demo_program.py``
+router on tcp/127.0.0.1:7447, ``--port`` for another; a 2 s PLCTONC watchdog), then ``plc-run plc_client/demo_program.py``
 in another process, and shows a live table of the axes from ``nc/nc1/frame`` until Ctrl-C,
 SIGTERM or the time limit. On a terminal the table is redrawn in place; without one (CI) it
 prints plain lines. At the end it checks that every axis moved without an error and the modulo
@@ -114,7 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     duration = args.duration if args.duration is not None else (None if tty else 20.0)
     endpoint = f"tcp/127.0.0.1:{args.port or 7447}"
     out = sys.stdout
-    server_argv = _bin("nc-server") + (["--listen", endpoint] if args.port else [])
+    # a lenient PLCTONC watchdog (2 s, nc-server's default 0.5 s), as examples/09_coupled_conveyor.toml: the demo
+    # also runs on a loaded machine (CI), where a plc-run stall of 0.5 s would fault an axis and fail its check
+    server_argv = _bin("nc-server") + ["--watchdog-timeout", "2"] + (["--listen", endpoint] if args.port else [])
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     nc = Proc("nc-server", server_argv, out)

@@ -24,6 +24,7 @@ from nc_schema import COMMAND_CLASS
 from znc_testing import (
     BIT_CONTROL_LOOP_CLOSED, BIT_ERROR, NcServerProcess, NcTestClient, wait_until,
 )
+from znc_testing.plc_harness import NC_ARGS
 
 HERE = Path(__file__).resolve().parent
 T = 30.0  # default deadline [s] for conditions on a loaded 2-core machine
@@ -32,6 +33,14 @@ T = 30.0  # default deadline [s] for conditions on a loaded 2-core machine
 OFF_STATE, OFF_ERROR, OFF_AXIS_ID = 0, 4, 32
 OFF_ACT_POS, OFF_ACT_VELO, OFF_SET_POS, OFF_SET_VELO = 40, 64, 80, 88
 OFF_CMD_NO, OFF_CMD_STATE, OFF_DC_TIME = 124, 126, 240
+
+
+@pytest.fixture
+def nc_server(start_nc: Callable[..., NcServerProcess]) -> NcServerProcess:
+    """The default configuration with a 3 s PLCTONC watchdog (NC_ARGS): the tests feed PLCTONC from a
+    thread of pytest, which a loaded machine can stall for 0.5 s (the default timeout, a 0x8F02 that no
+    test here but the frozen client's is about; that one still sees it, 3 s after the SIGSTOP)."""
+    return start_nc(extra_args=NC_ARGS)
 
 
 def raw(cl: NcTestClient, axis: int) -> tuple[bytes, bytes | None] | None:

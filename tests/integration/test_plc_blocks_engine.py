@@ -47,23 +47,26 @@ def moving_records(p: PlcProcess, axis: int, c0: int, c1: int) -> list[Rec]:
 def test_change_dyn_param_applies_to_the_running_move_and_is_done_with_it(plc: PlcProcess) -> None:
     power_on(plc)
     plc.set("rs", "MC_ReadStatus", Enable=True)
-    # soft ramps (500 u/s^2: 40 u of braking from 200 u/s) ...
-    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=300.0, Velocity=200.0, Acceleration=500.0,
-            Deceleration=500.0)
+    # soft ramps (120 u/s^2: 60 u of braking from 120 u/s, starting at 880) ...
+    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=940.0, Velocity=120.0, Acceleration=120.0,
+            Deceleration=120.0)
     cruise = plc.wait("rs", lambda r: r.o["ConstantVelocity"] and r.a["ActPos"] > 1.0, T)
-    # ... replaced at constant velocity by hard ones (5000 u/s^2 with the axis jerk: ~13 u)
+    # ... replaced at constant velocity by hard ones (5000 u/s^2 with the axis jerk: ~7.5 u); the axis
+    # cruises from 60 to 880: the amendment has more than 6 s to land before 850, however loaded the machine
     plc.set("cd", "MC_ChangeDynParam", Execute=True, Acceleration=5000.0, Deceleration=5000.0)
     busy = plc.wait("cd", lambda r: r.o["Busy"], T)
-    assert busy.a["ActPos"] < 250.0, f"issued too late to matter: {busy}"
-    brake = plc.wait("rs", lambda r: r.o["Decelerating"] and r.c > cruise.c, T)
-    done = done_at(plc, "mv", 300.0)
+    assert busy.a["ActPos"] < 850.0, f"issued too late to matter: {busy}"
+    # (the hard braking takes ~0.13 s: a stalled PLC may see none of it, only the standstill at 940, which
+    # passes the check below; the old deceleration's 1 s of braking it would see)
+    brake = plc.wait("rs", lambda r: (r.o["Decelerating"] or r.o["StandStill"]) and r.c > cruise.c, T)
+    done = done_at(plc, "mv", 940.0)
     cd = plc.wait("cd", ended, T)
     assert cd.o["Done"], cd
     # Done "when the axis is at its destination": with the move's block, not on the reply
     assert first_cycle(plc.history("cd"), "Done") == first_cycle(plc.history("mv"), "Done") == done.c
     # the first sample showing the braking is at or after its start: the distance left is at most
-    # the real braking distance, ~13 u with the new deceleration (40 u with the old one)
-    assert 300.0 - brake.a["SetPos"] < 25.0, f"braked with the old deceleration: {brake}"
+    # the real braking distance, ~7.5 u with the new deceleration (60 u with the old one)
+    assert 940.0 - brake.a["SetPos"] < 25.0, f"braked with the old deceleration: {brake}"
     clean(plc.history("cd"))
     clean(plc.history("mv"))
 
@@ -72,8 +75,9 @@ def test_change_dyn_param_applies_to_the_running_move_and_is_done_with_it(plc: P
 def test_new_pos_and_velo(plc: PlcProcess, mode: int, activation: float | None) -> None:
     power_on(plc)
     plc.trace(1)
-    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=100.0, Velocity=50.0)
-    plc.wait_trace(1, lambda s: s.a["SetPos"] > 10.0, T)
+    # slow (10 u/s): the amendment has 5.5 s to land before the switching position
+    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=100.0, Velocity=10.0)
+    plc.wait_trace(1, lambda s: s.a["SetPos"] > 5.0, T)
     plc.set("npv", "MC_NewPosAndVelo", Execute=True, Mode=mode, NewPos=150.0, NewVelo=150.0,
             ActivationPos=activation or 0.0)
     npv = plc.wait("npv", ended, T)
@@ -88,16 +92,17 @@ def test_new_pos_and_velo(plc: PlcProcess, mode: int, activation: float | None) 
     assert max(abs(s.a["SetVelo"]) for s in samples) <= 150.0 + 1e-6
     if activation is not None:  # before the switching position: the old velocity
         before = [s for s in samples if s.a["SetPos"] < activation - 0.5]
-        assert before and max(abs(s.a["SetVelo"]) for s in before) <= 50.0 + 1e-6, before[-3:]
+        assert before and max(abs(s.a["SetVelo"]) for s in before) <= 10.0 + 1e-6, before[-3:]
 
 
 def test_move_additive_adds_to_the_aborted_target(plc: PlcProcess) -> None:
     power_on(plc)
     plc.trace(1)
-    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=100.0, Velocity=100.0)
-    plc.wait_trace(1, lambda s: s.a["SetPos"] > 20.0, T)
+    # slow (15 u/s): the additive move has 6 s to land while this one runs, and so has add2 below
+    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=100.0, Velocity=15.0)
+    plc.wait_trace(1, lambda s: s.a["SetPos"] > 5.0, T)
     plc.set("add", "MC_MoveAdditive", Execute=True, Distance=30.0, Velocity=100.0)
-    add = done_at(plc, "add", 130.0)  # 100 + 30, not where the axis was (~20) + 30
+    add = done_at(plc, "add", 130.0)  # 100 + 30, not where the axis was (~5) + 30
     mv = plc.wait("mv", ended, T)
     assert mv.o["CommandAborted"] and mv.c <= add.c, mv
     # aborted when the additive move starts (seen no later than the new block sees its reply)
@@ -146,8 +151,9 @@ def test_move_continuous_in_end_velocity(plc: PlcProcess, fb: str, inputs: dict)
 def test_move_absolute_or_restart_retriggered_while_moving(plc: PlcProcess) -> None:
     power_on(plc)
     plc.trace(1)
-    plc.set("mv", "MC_MoveAbsoluteOrRestart", Execute=True, Position=200.0, Velocity=100.0)
-    plc.wait_trace(1, lambda s: s.a["SetPos"] > 30.0, T)
+    # slow (20 u/s): the restart has 3.5 s to land before 80, 7 s before 150
+    plc.set("mv", "MC_MoveAbsoluteOrRestart", Execute=True, Position=200.0, Velocity=20.0)
+    plc.wait_trace(1, lambda s: s.a["SetPos"] > 10.0, T)
     c = plc.edge("mv", Position=80.0)  # a rising edge while Busy: not ignored, a new target
     done = done_at(plc, "mv", 80.0)
     hist = plc.history("mv")
@@ -185,7 +191,8 @@ def test_oriented_stop_on_the_modulo_axis(plc: PlcProcess) -> None:
 
 def test_halt_buffered_behind_a_move_and_behind_a_velocity(plc: PlcProcess) -> None:
     power_on(plc)
-    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=150.0, Velocity=100.0)
+    # slow (25 u/s): the Halt has 6 s to land while the move runs
+    plc.set("mv", "MC_MoveAbsolute", Execute=True, Position=150.0, Velocity=25.0)
     plc.wait("mv", lambda r: r.o["Active"], T)
     plc.set("halt", "MC_Halt", Execute=True, BufferMode=1)  # MC_Buffered: after the move, not now
     w = plc.wait("halt", lambda r: r.o["Busy"], T)
@@ -210,7 +217,9 @@ def test_halt_buffered_behind_a_move_and_behind_a_velocity(plc: PlcProcess) -> N
     h = plc.wait("halt2", ended, T)
     assert h.o["Done"] and h.a["State"] == "STANDSTILL" and h.a["ActPos"] > 150.0 + 1.0, h
     v1, v2 = plc.history("vel"), plc.history("halt2")
-    assert first_cycle(v1, "InVelocity") <= first_cycle(v2, "Active"), (v1, v2)
+    # (its Active, ~0.1 s of braking, may never show in a PLC cycle of a loaded machine: then its Done)
+    started = next(r.c for r in v2 if r.o["Active"] or r.o["Done"])
+    assert first_cycle(v1, "InVelocity") <= started, (v1, v2)
     clean(v1)
     clean(v2)
 
@@ -235,7 +244,8 @@ def test_set_actual_position_at_standstill_and_on_the_fly(plc: PlcProcess) -> No
     assert r.o["Done"] and math.isclose(r.a["ActPos"], 50.0, abs_tol=1e-9), f"visible when Done is: {r}"
     assert math.isclose(r.a["SetPos"], 50.0, abs_tol=1e-9), r
     plc.trace(1)
-    plc.set("mv", "MC_MoveRelative", Execute=True, Distance=60.0, Velocity=30.0)  # to 110 in 2 s
+    # to 350 in 10 s: the refusal and the shift below have 9.8 s to land while it moves
+    plc.set("mv", "MC_MoveRelative", Execute=True, Distance=300.0, Velocity=30.0)
     plc.wait_trace(1, lambda s: s.a["SetPos"] > 55.0, T)
     c = plc.edge("sp", Position=0.0)
     r = plc.wait("sp", lambda r: r.c > c and ended(r), T)
@@ -243,7 +253,7 @@ def test_set_actual_position_at_standstill_and_on_the_fly(plc: PlcProcess) -> No
     plc.set("fly", "MC_SetActualPositionOnTheFly", Execute=True, ActualPosition=200.0, PreviousPosition=100.0)
     f = plc.wait("fly", ended, T)
     assert f.o["Done"], f
-    done = done_at(plc, "mv", 210.0)  # shifted by +100 while moving: the same distance, 100 further
+    done = done_at(plc, "mv", 450.0)  # shifted by +100 while moving: the same distance, 100 further
     assert f.c <= done.c and f.a["ActPos"] > 150.0, (f, done)
     clean(plc.history("mv"))
     clean(plc.history("fly"))

@@ -448,8 +448,9 @@ def test_gear_out_ext_newpos_ends_at_position(xp: ExtPlc) -> None:
     power_both(xp, 1, 2)
     gear_in(xp, "gi", "MC_GearIn", 1, 2, RatioNumerator=1, RatioDenominator=2)
     xp.trace(2)
-    xp.set("mv", "MC_MoveVelocity", axis=1, Execute=True, Velocity=100.0, **DYN)
-    xp.wait_trace(2, lambda s: s.a["SetPos"] > 5.0 and abs(s.a["SetVelo"] - 50.0) < 1e-9, T)
+    # slow (the slave at 10 u/s): the decoupling has 5.5 s to land before the slave passes 60
+    xp.set("mv", "MC_MoveVelocity", axis=1, Execute=True, Velocity=20.0, **DYN)
+    xp.wait_trace(2, lambda s: s.a["SetPos"] > 5.0 and abs(s.a["SetVelo"] - 10.0) < 1e-9, T)
     xp.set("goe", "MC_GearOutExt", refs={"Slave": 2}, Execute=True, Mode=4, Position=90.0)  # NEWPOS
     busy = xp.wait("goe", lambda r: r.o["Busy"] or ended(r), T)
     assert busy.a["SetPos"] < 60.0, f"issued too late for the test: {busy}"

@@ -381,7 +381,9 @@ def test_touch_probe_on_a_simulated_sensor_pattern(start_nc: Callable[..., NcSer
     p.iref("r")  # TouchProbe1, RisingEdge
     p.set("tp", "MC_TouchProbe", refs={"TriggerInput": "r"}, Execute=True)
     p.wait_trace(1, lambda s: s.a["TouchProbeState"] & ARMED, T)
-    p.set("mv", "MC_MoveVelocity", Execute=True, Velocity=100.0, Acceleration=1000.0, Deceleration=1000.0)
+    # slow enough (25 u/s) that re-arming after the edge at 12.5 lands well before the one at 62.5: 2 s
+    # of travel, however late a loaded machine runs the PLC's cycles
+    p.set("mv", "MC_MoveVelocity", Execute=True, Velocity=25.0, Acceleration=1000.0, Deceleration=1000.0)
     r = p.wait("tp", ended, T)
     assert r.o["Done"] and abs(r.o["RecordedPosition"] - 12.5) <= 1e-9, r
     assert r.a["ActPos"] >= 12.5 and r.a["TouchProbeState"] & 2, f"a valid recorded position: {r}"
@@ -437,7 +439,9 @@ def test_touch_probe_plc_event_records_act_pos(xp: ExtPlc) -> None:
     assert r.c == first.c and r.o["RecordedPosition"] == first.o["rise"], (r, first)
     assert r.a["ActPos"] == r.o["RecordedPosition"], "the ActPos of the cycle's snapshot"
     # WindowOnly: edges before FirstPosition are rejected, the first one inside is recorded
-    lo = r.a["ActPos"] + 15.0
+    # (FirstPosition 100 u = 2 s ahead: re-arming and the first rejected rise, every 0.1 s, fit in it
+    # however late a loaded machine runs the PLC's cycles)
+    lo = r.a["ActPos"] + 100.0
     c = xp.edge("tp", WindowOnly=True, FirstPosition=lo, LastPosition=lo + 1000.0)
     r = xp.wait("tp", lambda r: r.c > c and ended(r), T)
     assert r.o["Done"], r

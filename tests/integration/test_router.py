@@ -11,6 +11,7 @@ import pytest
 
 from znc_testing import (BIT_CONTROL_LOOP_CLOSED, NcTestClient, start_nc_router, start_nc_server,
                          wait_until)
+from znc_testing.plc_harness import NC_ARGS
 
 
 @pytest.fixture
@@ -19,7 +20,7 @@ def router_and_ncs(tmp_path: Path):
     ncs = []
     try:
         for name in ("nc1", "nc2"):
-            ncs.append(start_nc_server(tmp_path / name, name=name, extra_args=["--name", name],
+            ncs.append(start_nc_server(tmp_path / name, name=name, extra_args=["--name", name, *NC_ARGS],
                                        connect=router.endpoint))
         yield router, ncs
     finally:
@@ -39,7 +40,7 @@ def test_clients_reach_two_ncs_through_the_router(router_and_ncs) -> None:
             assert info["error"] == 0 and info["Value"]["name"] == name
         # one NC's axis moves, commanded through the router; the other's stays put
         c1.claim(1)
-        c1.feed_plctonc([1])
+        c1.feed_plctonc([1])  # (from a thread of pytest: NC_ARGS' 3 s watchdog tolerates its stalls)
         wait_until(lambda: c1.nctoplc(1) is not None and c1.nctoplc(1)["StateDWord"] & BIT_CONTROL_LOOP_CLOSED,
                    30, "nc1 axis 1 enabled")
         r = c1.request("MoveAbsolute", axis=1, Position=5.0, Velocity=100.0)

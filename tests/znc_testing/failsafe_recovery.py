@@ -32,7 +32,8 @@ from typing import Any, Callable
 from znc_testing.failsafe_support import TcpProxy, failsafe_config
 from plc_client.runtime import client_config
 from znc_testing.plc_harness import PlcProcess
-from znc_testing import NcServerProcess, NcTestClient, ReplyError, free_port, start_nc_router, start_nc_server
+from znc_testing import (NcServerProcess, NcTestClient, ReplyError, free_port, start_nc_router, start_nc_server,
+                         wait_until)
 
 SCENARIOS = ("router", "cut", "blackhole")
 T = 60.0
@@ -131,7 +132,8 @@ def measure(tmp: Path, scenario: str, log: Callable[[str], None] = print) -> dic
         else:
             t_out = proxy.blackhole()  # type: ignore[union-attr]
         lost = plc.wait("pos", lambda r: r.t >= t_out and r.o["Error"] and r.o["ErrorID"] == 0x4B0F, T)
-        time.sleep(2.0)  # long enough for the NC to drop the PLC (its lease) and react
+        # the NC drops the PLC (its lease) and reacts (0x8F01, checked below) before the way back opens
+        wait_until(lambda: "client plc-a lost" in nc.stderr(), T, "the NC to drop plc-a (its log)", interval=0.05)
 
         # back; op-m asks from now on (in a thread), so its figure does not wait for nc-router's ready line
         accepted: list[float] = []
