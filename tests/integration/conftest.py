@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import pytest
 
-from znc_testing.plc_harness import NC_ARGS, PlcProcess
+from znc_testing.plc_harness import NC_ARGS, STALE_ARGS, PlcProcess
 from znc_testing import NcServerProcess
 
 
@@ -23,7 +23,7 @@ def nc(start_nc: Callable[..., NcServerProcess]) -> NcServerProcess:
 
 @pytest.fixture
 def plc(nc: NcServerProcess) -> Iterator[PlcProcess]:
-    p = PlcProcess(nc.endpoint, "plc-a")
+    p = PlcProcess(nc.endpoint, "plc-a", extra=list(STALE_ARGS))
     try:
         p.wait_started()
         yield p

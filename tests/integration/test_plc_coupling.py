@@ -26,7 +26,7 @@ from typing import Any, Callable, Iterator
 import pytest
 
 from znc_testing import plc_harness
-from znc_testing.plc_harness import T, PlcProcess, Rec, ended, exclusive
+from znc_testing.plc_harness import STALE_ARGS, T, PlcProcess, Rec, ended, exclusive
 from znc_testing import NcServerProcess
 
 # ---- the PLC program --------------------------------------------------------------------------
@@ -266,7 +266,7 @@ def xplc(tmp_path: Path) -> Iterator[Callable[..., ExtPlc]]:
     started: list[ExtPlc] = []
 
     def make(nc: NcServerProcess, client_id: str = "plc-x") -> ExtPlc:
-        p = ExtPlc(nc.endpoint, client_id, tmp_path / f"ext_agent_{len(started)}.py")
+        p = ExtPlc(nc.endpoint, client_id, tmp_path / f"ext_agent_{len(started)}.py", extra=list(STALE_ARGS))
         started.append(p)
         p.wait_started()
         return p
