@@ -444,6 +444,34 @@ def test_a_move_is_prepared_between_cycles_and_answered_after_the_cycle_that_act
     assert server.stats()["requests_prepared"] == 1
 
 
+def test_a_move_whose_activation_fits_in_the_gap_of_its_plan_is_activated_and_answered_there(server: NcServer) -> None:
+    """The same effect as at the cycle's start (the next step is the one it was planned for; that cycle's PLCTONC and
+    watchdog apply to it as to any command run between cycles), the reply a cycle sooner."""
+    _enable(server, 0)
+    _move(server, 1)
+    c = server.core.cycle
+    server.idle(time.monotonic_ns() + 10**9)  # a gap with time enough for the plan and the activation
+    (r,), = [_replies_of(server)]
+    assert r["error"] == 0 and r["cycle"] == c + 1 and server.core.axes.has_job[0] and server.activated_at_once == 1
+    assert server.prepared == 1 and not server._pending and not server._pending_axes
+    server.cycle(time.monotonic_ns())
+    assert _replies_of(server) == [] and server.core.cycle == r["cycle"]  # the frame of that cycle shows it
+    assert int(server.core.nctoplc[0]["CmdNo"]) == r["CmdNo"] and int(server.core.nctoplc[0]["SvbEntries"]) == 0
+    assert server._class_costs["activate"]
+
+
+def test_a_move_whose_activation_does_not_fit_in_the_gap_waits_for_the_cycle_start(server: NcServer) -> None:
+    _enable(server, 0)
+    _move(server, 1)
+    server._class_reserve["activate"] = 10**9  # (its recent cost: more than any gap)
+    server.idle(time.monotonic_ns() + 10**8)
+    assert _replies_of(server) == [] and server.prepared == 1 and server.activated_at_once == 0
+    assert not server.core.axes.has_job[0]
+    server.cycle(time.monotonic_ns())
+    (r,), = [_replies_of(server)]
+    assert r["error"] == 0 and r["cycle"] == server.core.cycle and server.core.axes.has_job[0]
+
+
 def test_a_later_request_on_the_same_axis_waits_for_the_activation_others_do_not(server: NcServer) -> None:
     _enable(server, 0, 1)
     _move(server, 1)                     # axis 1
@@ -621,5 +649,5 @@ def test_odd_key_classes_share_one_cost_class(server: NcServer) -> None:
     assert A.key_class("nc/nc1/axis/1/cmd/op/t") == "op" and A.key_class("nc/nc1/cmd/zz/t") == "?"
     for k in range(A.QUERY_COST_EVERY * 20):
         server._cost(A.key_class(f"nc/nc1/axis/1/cmd/junk{k}/t"), 1_000_000)
-    assert set(server._class_costs) == {"read", "op", "eng", "plan", "?"}
+    assert set(server._class_costs) == {"read", "op", "eng", "plan", "activate", "?"}
     assert set(server._class_reserve) == {"?"}
