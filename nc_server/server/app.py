@@ -632,7 +632,9 @@ class NcServer:
         soon as its class ``plan`` fits (first of all in each call, in order); the activation right after the plan
         when the class ``activate`` fits too (its reply with this call's), else at that cycle's start
         (:meth:`_activate_pending`), its reply after that cycle's work. A request on an axis with a
-        command in steps waits for its activation (each axis's commands run in order).
+        command in steps waits for its activation (each axis's commands run in order), and so does, for the
+        rest of this call, every later one on an axis with a request waiting (``later``) in this call: a
+        command activated in a gap of this call must not let a later request overtake the waiting one.
         """
         t = self.transport
         h = self.handler
@@ -645,6 +647,7 @@ class NcServer:
         if self._pending:  # the core's part of the commands in steps first (they came first)
             n = self._plan_pending(replies, until_ns if at_least == 0 else None, budget_end, limit)
         later: list[Any] = []  # requests on axes with a command in steps: after its activation, in order
+        deferred: set[int] = set()  # the axes of the requests in ``later``
         taken = 0
         while n < limit and taken < QUERY_CHANNEL_TAKE and (n == 0 or clock() <= budget_end):
             q = t.try_recv_query()
@@ -656,9 +659,12 @@ class NcServer:
             c0 = cpu()
             first_seen.setdefault(id(q), t0)
             key = str(q.key_expr)
-            axis = key_axis(key) if self._pending_axes else None
-            if axis is not None and axis in self._pending_axes:
+            axis = key_axis(key) if self._pending_axes or deferred else None
+            if axis is not None and (axis in self._pending_axes or axis in deferred):
+                # (an axis with a request deferred in this call stays blocked for this call even once its command
+                # in steps is answered, e.g. activated in the gap: its later requests never overtake that one)
                 later.append(q)
+                deferred.add(axis)
                 continue
             cls = key_class(key)
             if until_ns is not None and t0 + self._reserve(cls) > until_ns:
@@ -707,7 +713,9 @@ class NcServer:
         class ``plan`` fits before ``until_ns`` (None: whatever it costs; none after ``budget_end`` but the
         first); a refused one (or one that ran at once: a buffered move) goes to ``replies``, and so does one
         activated at once: with ``until_ns`` given, when the class ``activate`` fits too (not for a hot-standby
-        pair, whose replies follow the cycle's log). Returns how many were planned or answered."""
+        pair, whose replies follow the cycle's log). One whose prediction failed already there is counted as at
+        a cycle start (:meth:`_activate_pending`: planned again, at most MAX_REPREPARE times in all, then refused
+        0x4220). Returns how many were planned or answered."""
         h = self.handler
         clock = time.monotonic_ns
         cpu = time.thread_time_ns
@@ -742,14 +750,23 @@ class NcServer:
                 c0 = cpu()
                 reply = h.activate(got)
                 self._cost("activate", cpu() - c0)
-                if reply is not None:  # (None: its prediction failed already: at the cycle's start, as any other)
-                    self._prepared_again.pop(id(q), None)
-                    self._pending_axes.discard(got.axis_id)
-                    self.core.set_preparing(got.axis_id, False)
-                    self._first_seen[id(q)] = seen
+                if reply is None:  # its prediction failed already: counted as at the cycle's start (_activate_pending)
+                    k = self._prepared_again.get(id(q), 0) + 1
+                    if k <= MAX_REPREPARE:  # (h.activate cleared its plan: planned again in a later gap)
+                        self.prepared_again += 1
+                        self._prepared_again[id(q)] = k
+                        keep.append((q, got, seen))
+                        continue
+                    reply = h.refuse_stale(got)  # (0x4220: never planned again without limit, never unanswered)
+                    self.not_activated += 1
+                else:
                     self.activated_at_once += 1
-                    replies.append((q, reply, False))
-                    continue
+                self._prepared_again.pop(id(q), None)
+                self._pending_axes.discard(got.axis_id)
+                self.core.set_preparing(got.axis_id, False)
+                self._first_seen[id(q)] = seen
+                replies.append((q, reply, False))
+                continue
             if isinstance(got, PendingReply):
                 keep.append((q, got, seen))
             else:  # refused, or ran at once (a buffered move): answered now
@@ -777,8 +794,9 @@ class NcServer:
     def _activate_pending(self, now: float) -> None:
         """At the start of a cycle, before its PLCTONC, watchdog and step: activate the commands planned since
         the last one and not activated in the gap of their plan, in order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
-        holds is planned again (at most MAX_REPREPARE times, then refused 0x4220); after a long NC stall
-        every command in steps is refused (0x4B0F), as the queued ones are. The replies go out after the
+        holds is planned again (at most MAX_REPREPARE times, failures in the gap included, then refused 0x4220);
+        after a long NC stall every command in steps still here (not activated) is refused (0x4B0F), as the
+        queued ones are. The replies go out after the
         cycle's work, with ``cycle`` = this cycle. Those not planned yet wait (their axis stays busy)."""
         h = self.handler
         clock = time.monotonic_ns
