@@ -233,7 +233,7 @@ class NcServer:
         self._waits: collections.deque[int] = collections.deque(maxlen=WAIT_WINDOW)  # [ns]
         self.prepared = 0  # motion commands prepared (SVB) for activation at a cycle start
         self.prepared_again = 0  # preparations repeated because the axis changed before the activation
-        self.activated_at_once = 0  # prepared commands activated in the gap of their plan (not at the cycle's start)
+        self.activated_at_once = 0  # prepared commands activated (or refused by their activation) in the gap of their plan
         self.not_activated = 0  # refused after MAX_REPREPARE failed predictions (0x4220) or a long NC stall
         self.forced = 0  # requests run right after a cycle's work although their reserve did not fit (waited too long)
         self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
@@ -712,8 +712,10 @@ class NcServer:
         """The core's part of the commands in steps not planned yet, in order, at most ``most``, each only if the
         class ``plan`` fits before ``until_ns`` (None: whatever it costs; none after ``budget_end`` but the
         first); a refused one (or one that ran at once: a buffered move) goes to ``replies``, and so does one
-        activated at once: with ``until_ns`` given, when the class ``activate`` fits too (not for a hot-standby
-        pair, whose replies follow the cycle's log). One whose prediction failed already there is counted as at
+        activated at once: with ``until_ns`` given, when the class ``activate`` fits too and no earlier command
+        waits for the cycle's start (activations keep the arrival order, also across axes: a GearIn planned
+        against its master's state must not see a later move of the master activated before it), not for a
+        hot-standby pair, whose replies follow the cycle's log. One whose prediction failed already there is counted as at
         a cycle start (:meth:`_activate_pending`: planned again, at most MAX_REPREPARE times in all, then refused
         0x4220). Returns how many were planned or answered."""
         h = self.handler
@@ -739,7 +741,7 @@ class NcServer:
             got = h.plan(pending)
             self._cost("plan", cpu() - c0)
             done += 1
-            if isinstance(got, PendingReply) and until_ns is not None and self.ha is None \
+            if isinstance(got, PendingReply) and until_ns is not None and self.ha is None and not keep \
                     and clock() + self._reserve("activate") <= until_ns and time.monotonic() >= self._refuse_until:
                 # its activation fits in this gap too: at once, not at the next cycle's start (SAF), and its reply
                 # with the others of this gap: the same effect (the next step is the one it was planned for, whose
@@ -751,10 +753,10 @@ class NcServer:
                 reply = h.activate(got)
                 self._cost("activate", cpu() - c0)
                 if reply is None:  # its prediction failed already: counted as at the cycle's start (_activate_pending)
-                    k = self._prepared_again.get(id(q), 0) + 1
-                    if k <= MAX_REPREPARE:  # (h.activate cleared its plan: planned again in a later gap)
+                    tries = self._prepared_again.get(id(q), 0) + 1
+                    if tries <= MAX_REPREPARE:  # (h.activate cleared its plan: planned again in a later gap)
                         self.prepared_again += 1
-                        self._prepared_again[id(q)] = k
+                        self._prepared_again[id(q)] = tries
                         keep.append((q, got, seen))
                         continue
                     reply = h.refuse_stale(got)  # (0x4220: never planned again without limit, never unanswered)

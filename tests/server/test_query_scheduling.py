@@ -518,6 +518,36 @@ def test_a_request_waiting_for_its_axis_is_not_overtaken_when_the_axis_is_freed_
     assert [r["id"] for r in got if r["id"] != 3] == [1, 2, 4] and 3 in [r["id"] for r in got]
 
 
+def test_an_activation_in_the_gap_does_not_overtake_an_earlier_command_waiting_for_the_cycle_start(
+        server: NcServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A GearIn (slave 2, master 1) planned but left for the cycle start (its activation did not fit), then a move of
+    its master whose activation would fit: nothing is activated in the gap while an earlier command waits, so both
+    take effect in the same step, in the order sent, and the GearIn is not planned again (its prediction of the
+    master would have failed after the move's activation)."""
+    monkeypatch.setattr(A, "QUERY_BUDGET_NS", 10**12)
+    _enable(server, 0, 1)
+    server._class_reserve["activate"] = 10**12  # (the first plan's activation does not fit)
+    plan = server.handler.plan
+    plans: list[object] = []
+
+    def cheap_from_the_second(pending):  # type: ignore[no-untyped-def]
+        plans.append(pending)
+        if len(plans) == 2:
+            server._class_reserve["activate"] = 0  # (from the second plan on, an activation would fit)
+        return plan(pending)
+
+    monkeypatch.setattr(server.handler, "plan", cheap_from_the_second)
+    _move(server, 1, axis=2, cmd="GearIn", Master=1, RatioNumerator=1, RatioDenominator=2)
+    _move(server, 2)  # the master moves
+    c = server.core.cycle
+    server.idle(time.monotonic_ns() + 10**9, after_work=False)
+    assert _replies_of(server) == [] and server.activated_at_once == 0 and server.prepared == 2
+    server.cycle(time.monotonic_ns())
+    got = _replies_of(server)
+    assert [(r["id"], r["error"], r["cycle"]) for r in got] == [(1, 0, c + 1), (2, 0, c + 1)], got
+    assert server.prepared_again == 0
+
+
 def test_a_hot_standby_pairs_active_nc_never_activates_in_the_gap(tmp_path: Path) -> None:
     """Its replies follow the cycle's log to the standby: a command prepared in a gap is activated at the cycle's
     start, however much time the gap has."""
@@ -713,9 +743,13 @@ def test_a_new_override_between_preparation_and_activation_does_not_refuse_the_c
     assert server.prepared_again == 0 and server.not_activated == 0
 
 
-def test_a_move_of_a_client_lost_before_its_activation_is_stopped_by_the_loss_reaction(server: NcServer) -> None:
+def test_a_move_of_a_client_lost_before_its_activation_is_stopped_by_the_loss_reaction(
+        server: NcServer, monkeypatch: pytest.MonkeyPatch) -> None:
     """Client c commands a move on axis 1 (held by plc) and goes away before the activating cycle: the move is
     activated and the watchdog of the same cycle reacts to c's loss as to any running command of a lost client."""
+    # (a loaded machine may pause this test longer than STALL_GRACE between its calls: an NC stall, after which
+    # nobody is blamed; not the case here)
+    monkeypatch.setattr(A, "STALL_GRACE", 60.0)
     _hold(server, "plc", 0)
     server.handler.client_alive("c", time.monotonic())
     _move(server, 1, client="c", cmd="MoveVelocity", Velocity=50.0)
