@@ -380,8 +380,9 @@ class NcCore:
                 and self._inputs_of(p.i) == p.inputs)
 
     def activate(self, p: Prepared) -> dict[str, Any] | None:
-        """Start a prepared command at the start of its cycle (TwinCAT's SAF: the plan row swapped in, the
-        running job aborted, the records synced). Returns its reply (``cycle`` = the step in which it
+        """Start a prepared command before the step of its cycle (TwinCAT's SAF: the plan row swapped in, the
+        running job aborted, the records synced): between the previous step and that cycle's PLCTONC
+        (the server: in the gap of its plan, or at that cycle's start). Returns its reply (``cycle`` = the step in which it
         takes effect), or None when its prediction no longer holds (:meth:`holds`): nothing changed;
         prepare it again or refuse it, never activate it stale."""
         if not self.holds(p):

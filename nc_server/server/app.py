@@ -6,8 +6,9 @@ port); ``core.step()``; the frame and the applied PLCTONC into the frame ring (:
 the frame publisher (:mod:`.publisher`, a child process by default) puts on zenoh. Between cycles
 (:meth:`NcServer.idle`): the requests, as many as fit before the next cycle; their replies go to the
 I/O thread. A motion command that starts now is only prepared there (TwinCAT's SVB: checks and plan,
-nothing changed) and activated at the start of the next cycle (SAF: ``NcServer._activate_pending``), its
-reply sent after that cycle's work with ``cycle`` = that cycle.
+nothing changed) and activated (SAF) in the same gap when that fits too, its reply with the gap's others, else
+at the start of the next cycle (``NcServer._activate_pending``), its reply sent after that cycle's work; either
+way with ``cycle`` = the step in which it takes effect.
 With a retain file (:mod:`.retain`): locked and read before the cycle starts; the first cycle only
 steps the core once (the drive is read) and applies the file through the commands, before any
 command or PLCTONC is taken and without publishing a frame; then a snapshot every 100 ms (and on
@@ -219,9 +220,9 @@ class NcServer:
         self._query_costs: collections.deque[int] = collections.deque(maxlen=QUERY_COST_WINDOW)  # [ns]
         self._reserve_ns = QUERY_RESERVE_MIN_NS * 4  # until costs are known
         #: per cost class (key_class): the recent costs [ns] and the reserve made of them (none yet: _reserve_ns)
-        # the cost classes (key_class's, and "plan": the core's part of a command in steps)
+        # the cost classes (key_class's, "plan": the core's part of a command in steps, "activate": its activation)
         self._class_costs: dict[str, collections.deque[int]] = {
-            c: collections.deque(maxlen=QUERY_COST_WINDOW) for c in (*CLASSES, "plan", "?")}
+            c: collections.deque(maxlen=QUERY_COST_WINDOW) for c in (*CLASSES, "plan", "activate", "?")}
         self._class_reserve: dict[str, int] = {}
         #: prepared requests (SVB), activated at the next cycle's start (SAF): (query, pending, first seen [ns])
         self._pending: list[tuple[Any, PendingReply, int]] = []
@@ -232,6 +233,7 @@ class NcServer:
         self._waits: collections.deque[int] = collections.deque(maxlen=WAIT_WINDOW)  # [ns]
         self.prepared = 0  # motion commands prepared (SVB) for activation at a cycle start
         self.prepared_again = 0  # preparations repeated because the axis changed before the activation
+        self.activated_at_once = 0  # prepared commands activated (or refused by their activation) in the gap of their plan
         self.not_activated = 0  # refused after MAX_REPREPARE failed predictions (0x4220) or a long NC stall
         self.forced = 0  # requests run right after a cycle's work although their reserve did not fit (waited too long)
         self._waiting_since: int | None = None  # since when a request waits for time to run [ns]
@@ -627,9 +629,12 @@ class NcServer:
         A motion command that starts a job runs in steps (TwinCAT's SVB, then SAF): the handler's part
         (parse, key, dedup) when it is taken; the core's part (checks, record, plan from the state the next
         cycle starts from: :meth:`RequestHandler.plan`) in the gap before the cycle that activates it, as
-        soon as its class ``plan`` fits (first of all in each call, in order); the activation at that cycle's
-        start (:meth:`_activate_pending`), its reply after that cycle's work. A request on an axis with a
-        command in steps waits for its activation (each axis's commands run in order).
+        soon as its class ``plan`` fits (first of all in each call, in order); the activation right after the plan
+        when the class ``activate`` fits too (its reply with this call's), else at that cycle's start
+        (:meth:`_activate_pending`), its reply after that cycle's work. A request on an axis with a
+        command in steps waits for its activation (each axis's commands run in order), and so does, for the
+        rest of this call, every later one on an axis with a request waiting (``later``) in this call: a
+        command activated in a gap of this call must not let a later request overtake the waiting one.
         """
         t = self.transport
         h = self.handler
@@ -642,6 +647,7 @@ class NcServer:
         if self._pending:  # the core's part of the commands in steps first (they came first)
             n = self._plan_pending(replies, until_ns if at_least == 0 else None, budget_end, limit)
         later: list[Any] = []  # requests on axes with a command in steps: after its activation, in order
+        deferred: set[int] = set()  # the axes of the requests in ``later``
         taken = 0
         while n < limit and taken < QUERY_CHANNEL_TAKE and (n == 0 or clock() <= budget_end):
             q = t.try_recv_query()
@@ -653,9 +659,12 @@ class NcServer:
             c0 = cpu()
             first_seen.setdefault(id(q), t0)
             key = str(q.key_expr)
-            axis = key_axis(key) if self._pending_axes else None
-            if axis is not None and axis in self._pending_axes:
+            axis = key_axis(key) if self._pending_axes or deferred else None
+            if axis is not None and (axis in self._pending_axes or axis in deferred):
+                # (an axis with a request deferred in this call stays blocked for this call even once its command
+                # in steps is answered, e.g. activated in the gap: its later requests never overtake that one)
                 later.append(q)
+                deferred.add(axis)
                 continue
             cls = key_class(key)
             if until_ns is not None and t0 + self._reserve(cls) > until_ns:
@@ -702,8 +711,13 @@ class NcServer:
                       most: int = MAX_QUERIES_PER_CYCLE) -> int:
         """The core's part of the commands in steps not planned yet, in order, at most ``most``, each only if the
         class ``plan`` fits before ``until_ns`` (None: whatever it costs; none after ``budget_end`` but the
-        first); a refused one (or one that ran at once: a buffered move) goes to ``replies``. Returns how many
-        were planned or answered."""
+        first); a refused one (or one that ran at once: a buffered move) goes to ``replies``, and so does one
+        activated at once: with ``until_ns`` given, when the class ``activate`` fits too and no earlier command
+        waits for the cycle's start (activations keep the arrival order, also across axes: a GearIn planned
+        against its master's state must not see a later move of the master activated before it), not for a
+        hot-standby pair, whose replies follow the cycle's log. One whose prediction failed already there is counted as at
+        a cycle start (:meth:`_activate_pending`: planned again, at most MAX_REPREPARE times in all, then refused
+        0x4220). Returns how many were planned or answered."""
         h = self.handler
         clock = time.monotonic_ns
         cpu = time.thread_time_ns
@@ -727,6 +741,34 @@ class NcServer:
             got = h.plan(pending)
             self._cost("plan", cpu() - c0)
             done += 1
+            if isinstance(got, PendingReply) and until_ns is not None and self.ha is None and not keep \
+                    and clock() + self._reserve("activate") <= until_ns and time.monotonic() >= self._refuse_until:
+                # its activation fits in this gap too: at once, not at the next cycle's start (SAF), and its reply
+                # with the others of this gap: the same effect (the next step is the one it was planned for, whose
+                # PLCTONC and watchdog then apply to it as to any command run between cycles), the reply a cycle
+                # sooner (bench/fb_latency.py: the wait for the cycle start and that cycle's step were ~1 ms of
+                # the ~2 ms the NC held a command on the loaded VM). (A pair's active NC: at the cycle's start, its
+                # reply after the cycle's log to the standby.)
+                c0 = cpu()
+                reply = h.activate(got)
+                self._cost("activate", cpu() - c0)
+                if reply is None:  # its prediction failed already: counted as at the cycle's start (_activate_pending)
+                    tries = self._prepared_again.get(id(q), 0) + 1
+                    if tries <= MAX_REPREPARE:  # (h.activate cleared its plan: planned again in a later gap)
+                        self.prepared_again += 1
+                        self._prepared_again[id(q)] = tries
+                        keep.append((q, got, seen))
+                        continue
+                    reply = h.refuse_stale(got)  # (0x4220: never planned again without limit, never unanswered)
+                    self.not_activated += 1
+                else:
+                    self.activated_at_once += 1
+                self._prepared_again.pop(id(q), None)
+                self._pending_axes.discard(got.axis_id)
+                self.core.set_preparing(got.axis_id, False)
+                self._first_seen[id(q)] = seen
+                replies.append((q, reply, False))
+                continue
             if isinstance(got, PendingReply):
                 keep.append((q, got, seen))
             else:  # refused, or ran at once (a buffered move): answered now
@@ -753,9 +795,10 @@ class NcServer:
 
     def _activate_pending(self, now: float) -> None:
         """At the start of a cycle, before its PLCTONC, watchdog and step: activate the commands planned since
-        the last one, in order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
-        holds is planned again (at most MAX_REPREPARE times, then refused 0x4220); after a long NC stall
-        every command in steps is refused (0x4B0F), as the queued ones are. The replies go out after the
+        the last one and not activated in the gap of their plan, in order (TwinCAT's SAF: a swap of plan rows, the records synced). One whose prediction no longer
+        holds is planned again (at most MAX_REPREPARE times, failures in the gap included, then refused 0x4220);
+        after a long NC stall every command in steps still here (not activated) is refused (0x4B0F), as the
+        queued ones are. The replies go out after the
         cycle's work, with ``cycle`` = this cycle. Those not planned yet wait (their axis stays busy)."""
         h = self.handler
         clock = time.monotonic_ns
@@ -771,7 +814,9 @@ class NcServer:
                 keep.append((q, pending, seen))
                 continue
             else:
+                c0 = time.thread_time_ns()
                 reply = h.activate(pending)
+                self._cost("activate", time.thread_time_ns() - c0)
                 if reply is None:
                     k = self._prepared_again.get(id(q), 0) + 1
                     if k <= MAX_REPREPARE:

@@ -188,7 +188,8 @@ class PendingReply:
     """A motion command in preparation (TwinCAT's SVB) and activation (SAF), in three steps of the cycle
     thread: :meth:`RequestHandler.prepare` (parse, key, dedup: the handler's part, valid until it ends),
     :meth:`RequestHandler.plan` (the core's checks, record and plan from the state the next cycle starts
-    from: in the gap before that cycle) and :meth:`RequestHandler.activate` (at that cycle's start).
+    from: in the gap before that cycle) and :meth:`RequestHandler.activate` (right after the plan in the same gap
+    when it fits there, else at that cycle's start: either way before that cycle's step).
 
     Attributes:
         req: the parsed request.
@@ -384,9 +385,10 @@ class RequestHandler:
         return pending
 
     def activate(self, pending: PendingReply) -> bytes | None:
-        """Activate a planned request at the start of its cycle (``core.activate``); its packed reply
-        (cached for a retry, with ``cycle`` = the step in which it takes effect), or None when its
-        prediction no longer holds (nothing changed: plan it again, or :meth:`refuse_stale`)."""
+        """Activate a planned request before the step of its cycle (``core.activate``: in the gap of its plan or
+        at that cycle's start); its packed reply (cached for a retry, with ``cycle`` = the step in which it takes
+        effect), or None when its prediction no longer holds (nothing changed, ``pending.prepared`` cleared:
+        plan it again, or :meth:`refuse_stale`)."""
         try:
             reply = self.core.activate(pending.prepared)
         except Exception as exc:  # a bug: answer it, keep cycling
