@@ -330,7 +330,8 @@ class FramePublisher:
         if not skipped or not self._wake_at or last_seq <= 0 or seq <= last_seq or nc_time_ns <= last_t:
             return skipped
         per_slot = (nc_time_ns - last_t) / (seq - last_seq)
-        late = -(-(nc_time_ns - self._wake_at) // per_slot) if nc_time_ns > self._wake_at else 0
+        # (the skipped frames at or after WakeAtNs: those at nc_time_ns - k * per_slot >= WakeAtNs, k >= 1)
+        late = (nc_time_ns - self._wake_at) // per_slot if nc_time_ns > self._wake_at else 0
         return int(min(skipped, max(0, late)))
 
     def publish(self, frame: bytes, plc: bytes | None) -> None:

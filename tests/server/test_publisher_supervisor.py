@@ -222,14 +222,22 @@ def test_frames_skipped_before_the_due_one_are_not_dropped_ones_after_it_are() -
     p._next_status = __import__("time").monotonic() + 3600.0
     p.every_matched[FRAME_PERIODS_MS.index(10)] = True
     rec = np.zeros(n, dtype=NCTOPLC_DTYPE)
+    off = 300_000  # (NC time is no multiple of the cycle: frames at 1.3, 2.3, ... ms)
     try:
-        out.put(1, 1_000_000, rec, 0, None, None)
+        out.put(1, 1_000_000 + off, rec, 0, None, None)
         assert p.publish_newest() and out.ring.wake_at == 10_000_000 and p.dropped == 0
-        for c in range(2, 11):  # up to the due frame (NC time 10 ms): read at once
-            out.put(c, c * 1_000_000, rec, 0, None, None)
+        for c in range(2, 11):  # up to the due frame (the first at or after 10 ms: 10.3 ms): read at once
+            out.put(c, c * 1_000_000 + off, rec, 0, None, None)
         assert p.publish_newest() and p.dropped == 0
-        for c in range(11, 24):  # woke 3 frames late (due: 20 ms, read: 23 ms)
-            out.put(c, c * 1_000_000, rec, 0, None, None)
+        for c in range(11, 24):  # woke 3 frames late (due: 20.3 ms, read: 23.3 ms)
+            out.put(c, c * 1_000_000 + off, rec, 0, None, None)
         assert p.publish_newest() and p.dropped == 3
+        p.frame_matched[0] = True  # every frame due: every skipped one counts, as before
+        p.wake_now()
+        out.put(24, 24_000_000 + off, rec, 0, None, None)
+        assert p.publish_newest() and out.ring.wake_at == 0 and p.dropped == 3
+        for c in range(25, 28):
+            out.put(c, c * 1_000_000 + off, rec, 0, None, None)
+        assert p.publish_newest() and p.dropped == 5
     finally:
         out.close()
