@@ -3,7 +3,10 @@
 The cycle thread writes each cycle's status frame (the bytes of ``nc/<nc>/frame``) and the applied
 PLCTONC records into the next slot and bumps the ring's sequence number; the publisher
 (:mod:`.publisher`, by default a child process with its own interpreter and GIL) wakes on an
-eventfd, copies the newest slot out and publishes it. The cycle never waits for the publisher: a
+eventfd, copies the newest slot out and publishes it. The cycle signals that eventfd only for a frame
+the publisher has work for: one whose NcTimeNs reached the header's WakeAtNs (which the publisher sets
+to its next due put: 0 while something is put every frame), the NC's last frame, or one whose NC time
+went back. The cycle never waits for the publisher: a
 publisher that falls behind skips to the newest slot (counted), one that is gone costs the cycle
 nothing.
 
@@ -17,7 +20,9 @@ memfd in the server):
   number of the last slot the active publisher put: a standby publisher promoted after it died goes
   on with the newest slot after it, skipping, and counting as dropped, the ones in between), MaxAgeNs u64
   (written by the NC: the fence of a hot-standby NC, 0 = none; the publisher drops a frame whose NcTimeNs is
-  older than that, docs/standby.md), Fenced u64 (frames so dropped, by the publisher), then padding;
+  older than that, docs/standby.md), Fenced u64 (frames so dropped, by the publisher), WakeAtNs u64 (written by
+the publisher: the NC time of its next due put, 0 = every frame; the cycle signals the eventfd only for a frame at
+or after it), then padding;
 * ``Slots`` slots of ``SlotSize`` bytes: Seq u64 (0 while being written), FrameLen u32,
   PlcLen u32, then the frame bytes, then the PLCTONC bytes.
 
@@ -39,7 +44,7 @@ from nc_schema import (
 __all__ = ["FrameRing", "RingCounters", "RING_SLOTS", "HEADER_SIZE", "slot_size_for"]
 
 RING_MAGIC = 0x4E435247  # "GRCN"
-RING_VERSION = 4  # (4: the frame header of protocol 5, 40 bytes)
+RING_VERSION = 5  # (4: the frame header of protocol 5, 40 bytes; 5: WakeAtNs)
 #: Slots in the ring: the publisher has RING_SLOTS - 1 cycles to copy a slot out.
 RING_SLOTS = 16
 HEADER_SIZE = 128
@@ -56,6 +61,7 @@ _OFF_READY = 56
 _OFF_PUBLISHED = 64
 _OFF_MAX_AGE = 72
 _OFF_FENCED = 80
+_OFF_WAKE_AT = 88
 def slot_size_for(n_axes: int) -> int:
     """Bytes of one slot for ``n_axes`` axes (frame with job records + PLCTONC), 64-byte aligned."""
     frame = FRAME_HEADER_SIZE + n_axes * (NCTOPLC_SIZE + NCJOBS_SIZE)
@@ -187,6 +193,15 @@ class FrameRing:
             self.mv[p:end] = data
             held[k] = (arr, version) if version is not None else None
         return end
+
+    @property
+    def wake_at(self) -> int:
+        """WakeAtNs: the NC time [ns] from which on the publisher wants to be signalled (0: every frame)."""
+        return _U64.unpack_from(self.mv, _OFF_WAKE_AT)[0]
+
+    def set_wake_at(self, ns: int) -> None:
+        """Set WakeAtNs (the publisher only): the NC time of its next due put; 0: signal every frame."""
+        _U64.pack_into(self.mv, _OFF_WAKE_AT, min(max(0, int(ns)), (1 << 64) - 1))
 
     def request_stop(self) -> None:
         """Ask the publisher to publish what is there and end."""

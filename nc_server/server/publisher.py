@@ -33,6 +33,14 @@ on a supervisor thread at normal priority. ``[nc] publisher = "thread"`` runs th
 in a thread of the NC process instead (one interpreter: simpler to debug, but its puts hold the cycle
 thread's GIL).
 
+The publisher wakes only when it has a put due: after each wake it writes the NC time of its next due put into
+the ring (WakeAtNs: the next ``frame/<P>ms`` window of a subscribed P, the next window of a view, the next
+``status``; 0 while anything goes out every frame: ``frame``, a per-axis key, a view of period 0), and the cycle
+signals the eventfd only for a frame at or after that time (:meth:`FrameOutput.put`; always for the NC's last
+frame). A subscriber that comes or goes (matching listener) or a view token sets WakeAtNs to 0 at once (zenoh
+thread), so the next frame wakes the publisher, as before. With 16 PLC clients' views at 10 ms and no frame
+subscriber the publisher wakes 100 times a second, not 1000, and the cycle makes one eventfd write per 10 cycles.
+
 The ring relies on the eventfd's write/read pair to order the cycle's stores before the publisher's
 loads (a system call on both sides); the seqlock check only guards against a slot being rewritten while
 it is copied, RING_SLOTS - 1 cycles later.
@@ -143,12 +151,18 @@ class FramePublisher:
         self._windows = [-1] * len(FRAME_PERIODS_MS)
         self._next_status = 0.0
         self._decl: list[Any] = []
+        # the wake plan (WakeAtNs in the ring): written after each frame under _wake_lock, set to 0 by the zenoh
+        # threads' callbacks (a subscriber or a view token came or went) under it too, so none is lost
+        self._wake_lock = threading.Lock()
+        self._wake_at = 0  # the WakeAtNs this publisher wrote last (0: every frame)
+        self._last_frame = (0, 0)  # (ring seq, NcTimeNs) of the last frame read
         opts = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
         s = session
 
         def matcher(arr: np.ndarray, i: int) -> Callable[[Any], None]:
             def on_matching(status: Any) -> None:  # on a zenoh thread: keep it tiny
                 arr[i] = bool(status.matching)
+                self.wake_now()
             return on_matching
 
         def declare(key: str, arr: np.ndarray | None = None, i: int = 0) -> Any:
@@ -183,10 +197,40 @@ class FramePublisher:
                     self._token_events.pop(key, None)
                 else:
                     self._token_events[key] = alive
+            self.wake_now()  # (after the event is recorded: a plan made after this sees it)
 
         self.view_sub = s.liveliness().declare_subscriber(keys.view_select_any, Callback(on_token, indirect=False),
                                                           history=True)
         self._decl.append(self.view_sub)
+
+    def wake_now(self) -> None:
+        """Be signalled for the next frame (a zenoh thread: a subscriber or a view token came or went)."""
+        with self._wake_lock:
+            self.ring.set_wake_at(0)
+
+    def _plan_wake(self, nc_time_ns: int) -> None:
+        """Write WakeAtNs for the frame at ``nc_time_ns`` just handled: the NC time of the next due put."""
+        with self._wake_lock:
+            at = self._due_ns(nc_time_ns)
+            self.ring.set_wake_at(at)
+            self._wake_at = at
+
+    def _due_ns(self, nc_time_ns: int) -> int:
+        """The NC time of the next put due after the frame at ``nc_time_ns`` (0: the next frame, and every one)."""
+        if self._token_events or self.frame_matched[0] or self.nc_matched.any() or self.pc_matched.any():
+            return 0
+        # status: in wall time; its NC time is as far from this frame's (about: the NC's time runs with the clock; a
+        # frame signalled early costs one wake, the next plan is from it)
+        due = nc_time_ns + max(0, int((self._next_status - time.monotonic()) * 1e9))
+        if self.every_matched.any():
+            for i, (period_ns, _) in enumerate(self.every_pubs):
+                if self.every_matched[i]:
+                    due = min(due, (self._windows[i] + 1) * period_ns)
+        for view in self.views.values():
+            if not view.period_ns:
+                return 0
+            due = min(due, (view.window + 1) * view.period_ns)
+        return max(1, due)
 
     def take_view_tokens(self) -> bool:
         """Apply the view tokens that came or went since the last call; whether any did. A client's view is the
@@ -265,17 +309,30 @@ class FramePublisher:
         if got is None:
             return False
         seq, frame, plc, skipped = got
-        self.dropped += skipped
+        nc_time_ns = frame_stamp(frame)[1]
+        self.dropped += self._skipped_due(seq, nc_time_ns, skipped)
+        self._last_frame = (seq, nc_time_ns)
         if self.ring.stale(frame, time.time_ns()):
             self.dropped += 1
             self.ring.count_fenced()
-            self.ring.set_published(seq)
-            self.ring.set_counters(self.sent, self.dropped, self.put_errors, True)
-            return True
-        self.publish(frame, plc)
+        else:
+            self.publish(frame, plc)
         self.ring.set_published(seq)
         self.ring.set_counters(self.sent, self.dropped, self.put_errors, True)
+        self._plan_wake(nc_time_ns)
         return True
+
+    def _skipped_due(self, seq: int, nc_time_ns: int, skipped: int) -> int:
+        """How many of the ``skipped`` frames before the one read (slot ``seq``, at ``nc_time_ns``) were due: every one
+        while every frame is (WakeAtNs 0; and after a takeover: the ring's Published), else those at or after the
+        planned WakeAtNs (a late wake: the NC time per slot from the last frame read)."""
+        last_seq, last_t = self._last_frame
+        if not skipped or not self._wake_at or last_seq <= 0 or seq <= last_seq or nc_time_ns <= last_t:
+            return skipped
+        per_slot = (nc_time_ns - last_t) / (seq - last_seq)
+        # (the skipped frames at or after WakeAtNs: those at nc_time_ns - k * per_slot >= WakeAtNs, k >= 1)
+        late = (nc_time_ns - self._wake_at) // per_slot if nc_time_ns > self._wake_at else 0
+        return int(min(skipped, max(0, late)))
 
     def publish(self, frame: bytes, plc: bytes | None) -> None:
         """Put one frame (and its PLCTONC) on every key that has a subscriber; the NC's last frame (flag
@@ -327,6 +384,10 @@ class FramePublisher:
         """
         ring = self.ring
         ring.set_counters(self.sent, self.dropped, self.put_errors, True)  # (ready: the counters are this publisher's)
+        # (the plan of an earlier publisher is not this one's: the next frame wakes it; the frames written since the
+        # last one put count as dropped)
+        self._wake_at, self._last_frame = 0, (0, 0)
+        ring.set_wake_at(0)
         while True:
             wait(PARENT_CHECK)
             self.publish_newest()
@@ -544,6 +605,8 @@ class FrameOutput:
         self._mm = mmap.mmap(self.memfd, size)
         self.ring = FrameRing(memoryview(self._mm), self.n_axes, create=True)
         self.eventfd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self._last_time = 0  # NcTimeNs of the last frame put into the ring
+        self.signals = 0  # eventfd writes for frames (a diagnostic)
         self._readers: list[FrameRing] = []
         self._finalizer = weakref.finalize(self, FrameOutput._release, self._mm, self.memfd, self.eventfd,
                                            [self.ring], self._readers)
@@ -557,9 +620,14 @@ class FrameOutput:
     def put(self, cycle: int, nc_time_ns: int, records: np.ndarray, flags: int, jobs: np.ndarray | None,
             plctonc: np.ndarray | None, versions: tuple[int, int] | None = None, epoch: int = 0) -> None:
         """Write one cycle's frame into the ring (:meth:`FrameRing.write`, ``versions`` and ``epoch`` as there) and
-        wake the publisher (cycle thread)."""
-        self.ring.write(cycle, nc_time_ns, records, flags, jobs, plctonc, versions, epoch)
-        self.signal()
+        wake the publisher if it has a put due for it (cycle thread): the frame reached the publisher's WakeAtNs
+        (0: every frame), is the NC's last one (ShuttingDown), or the NC time went back (a plan made for other times)."""
+        ring = self.ring
+        ring.write(cycle, nc_time_ns, records, flags, jobs, plctonc, versions, epoch)
+        if nc_time_ns >= ring.wake_at or flags & _SHUTTING_DOWN or nc_time_ns < self._last_time:
+            self.signals += 1
+            self.signal()
+        self._last_time = nc_time_ns
 
     def signal(self) -> None:
         """Wake the publisher (cycle thread; one syscall, never blocks)."""

@@ -7,7 +7,7 @@ import threading
 import numpy as np
 import pytest
 
-from nc_schema import FRAME_PERIODS_MS, NCTOPLC_DTYPE, encode_frame
+from nc_schema import FRAME_PERIODS_MS, NCTOPLC_DTYPE, FrameFlags, encode_frame
 from nc_server.server.publisher import FrameOutput, FramePublisher, PublisherProcess
 from znc_testing import wait_until
 
@@ -147,4 +147,97 @@ def test_a_hot_standby_ncs_quiet_time_is_no_stall_of_its_publisher(monkeypatch: 
         assert killed and killed[0].startswith("published nothing for 2."), killed  # (the fake kill ends nothing)
     finally:
         pp.active = pp.standby = None
+        out.close()
+
+
+def _waking_publisher(out: FrameOutput, n: int) -> FramePublisher:
+    """A FramePublisher on ``out``'s ring without a session: nothing subscribed, no view yet."""
+    p, _ = _publisher()
+    p.every_matched = np.zeros(len(FRAME_PERIODS_MS), dtype=bool)
+    p.nc_matched, p.pc_matched = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    p.ring, p.axis_ids, p._next_status = out.reader(), list(range(1, n + 1)), 0.0
+    p._wake_lock, p._wake_at, p._last_frame = threading.Lock(), 0, (0, 0)
+    p.frame_pub = _Pub()
+    return p
+
+
+def test_the_publisher_is_signalled_only_for_the_frames_it_has_a_put_due_for() -> None:
+    """Issue 19: the cycle signalled the publisher every frame (1 ms) although the clients' views go out every 10 ms:
+    ~10 % of a core for wakes with nothing to put. The publisher plans its next due put (WakeAtNs) and the cycle
+    signals only for it; a subscriber of every frame (or a view of period 0) gets every frame as before, and a
+    matching listener or view token that comes makes the next frame signal."""
+    import os
+    from nc_server.server.publisher import _View
+    n = 4
+    out = FrameOutput("nc1", n)
+    p = _waking_publisher(out, n)
+    view = _View(_Pub())
+    view.rows, view.selected, view.period_ns = [0, 2], b"1,3", 10_000_000
+    p.views["plc1"] = view
+    rec = np.zeros(n, dtype=NCTOPLC_DTYPE)
+    rec["AxisId"] = np.arange(1, n + 1)
+    woken: list[int] = []
+    cycle = [0]
+
+    def run(frames: int) -> None:
+        for _ in range(frames):
+            cycle[0] += 1
+            out.put(cycle[0], cycle[0] * 1_000_000, rec, 0, None, None)  # 1 ms cycles, NC time = cycle ms
+            try:
+                os.eventfd_read(out.eventfd)
+            except BlockingIOError:
+                continue
+            woken.append(cycle[0])
+            assert p.publish_newest()
+
+    try:
+        p._next_status = __import__("time").monotonic() + 3600.0  # (no status due in this test)
+        run(100)
+        assert woken == [1] + list(range(10, 101, 10))  # the first frame (no plan yet), then each 10 ms window
+        assert len(view.pub.puts) == len(woken) and p.dropped == 0
+        p.frame_matched[0] = True
+        p.wake_now()  # (the matching listener: nc-scope subscribed nc/<nc>/frame)
+        woken.clear()
+        run(20)
+        assert woken == list(range(101, 121)) and len(p.frame_pub.puts) == 20
+        p.frame_matched[0] = False
+        p.wake_now()
+        woken.clear()
+        run(30)
+        assert woken == [121, 130, 140, 150]
+        final = len(woken)
+        cycle[0] += 1
+        out.put(cycle[0], cycle[0] * 1_000_000, rec, int(FrameFlags.ShuttingDown), None, None)
+        assert os.eventfd_read(out.eventfd) == 1 and final == 4  # the last frame always wakes it
+    finally:
+        out.close()
+
+
+def test_frames_skipped_before_the_due_one_are_not_dropped_ones_after_it_are() -> None:
+    """A publisher that wakes only for its due frames skips the others by design (not counted in frames_dropped); one
+    that woke late skipped due frames (counted); with every frame due, every skipped frame counts, as before."""
+    n = 1
+    out = FrameOutput("nc1", n)
+    p = _waking_publisher(out, n)
+    p._next_status = __import__("time").monotonic() + 3600.0
+    p.every_matched[FRAME_PERIODS_MS.index(10)] = True
+    rec = np.zeros(n, dtype=NCTOPLC_DTYPE)
+    off = 300_000  # (NC time is no multiple of the cycle: frames at 1.3, 2.3, ... ms)
+    try:
+        out.put(1, 1_000_000 + off, rec, 0, None, None)
+        assert p.publish_newest() and out.ring.wake_at == 10_000_000 and p.dropped == 0
+        for c in range(2, 11):  # up to the due frame (the first at or after 10 ms: 10.3 ms): read at once
+            out.put(c, c * 1_000_000 + off, rec, 0, None, None)
+        assert p.publish_newest() and p.dropped == 0
+        for c in range(11, 24):  # woke 3 frames late (due: 20.3 ms, read: 23.3 ms)
+            out.put(c, c * 1_000_000 + off, rec, 0, None, None)
+        assert p.publish_newest() and p.dropped == 3
+        p.frame_matched[0] = True  # every frame due: every skipped one counts, as before
+        p.wake_now()
+        out.put(24, 24_000_000 + off, rec, 0, None, None)
+        assert p.publish_newest() and out.ring.wake_at == 0 and p.dropped == 3
+        for c in range(25, 28):
+            out.put(c, c * 1_000_000 + off, rec, 0, None, None)
+        assert p.publish_newest() and p.dropped == 5
+    finally:
         out.close()
