@@ -21,8 +21,8 @@ memfd in the server):
   on with the newest slot after it, skipping, and counting as dropped, the ones in between), MaxAgeNs u64
   (written by the NC: the fence of a hot-standby NC, 0 = none; the publisher drops a frame whose NcTimeNs is
   older than that, docs/standby.md), Fenced u64 (frames so dropped, by the publisher), WakeAtNs u64 (written by
-the publisher: the NC time of its next due put, 0 = every frame; the cycle signals the eventfd only for a frame at
-or after it), then padding;
+  the publisher: the NC time of its next due put, 0 = every frame; the cycle signals the eventfd only for a frame
+  at or after it), then padding;
 * ``Slots`` slots of ``SlotSize`` bytes: Seq u64 (0 while being written), FrameLen u32,
   PlcLen u32, then the frame bytes, then the PLCTONC bytes.
 

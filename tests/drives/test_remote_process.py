@@ -44,7 +44,7 @@ publisher = "thread"
 listen = ["tcp/127.0.0.1:{port}"]
 
 [drives.remote]
-max_age = 200   # (generous: a loaded 2-core machine stalls processes for tens of ms; the default is 50)
+max_age = 1000  # (generous: a loaded 2-core machine stalls processes for up to ~1 s; the default is 50)
 
 [[axis]]
 AxisId = 1
@@ -224,7 +224,7 @@ def test_bad_remote_options_are_configuration_errors(tmp_path: Path) -> None:
         assert "axis[0].Drive.hots: unknown key" in h.stderr(), h.stderr()
     finally:
         h.kill()
-    bad = CONFIG.format(port=port).replace("max_age = 200", "max_age = 0")
+    bad = CONFIG.format(port=port).replace("max_age = 1000", "max_age = 0")
     h = start_nc_server(tmp_path / "b", bad, extra_args=["--listen", f"tcp/127.0.0.1:{port}"], wait=False)
     try:
         assert h.proc.wait(60) == 2

@@ -21,8 +21,9 @@ from znc_testing.plc_harness import NC_ARGS, T, PlcProcess, power_on
 from znc_testing import NcServerProcess
 
 #: what a clean shutdown may take here: 3 cycles, <= 1 s for the Release replies, <= 2 s for the
-#: sessions to close, the process exit; generous for a loaded machine, far below the old ~11 s
-EXIT_WITHIN = 6.0
+#: sessions to close, the process exit; generous for a loaded machine (a plc-run stalled ~3 s), below the old
+#: 9.4-10.9 s hang and the 10 s SIGKILL
+EXIT_WITHIN = 8.5
 
 
 def _moving(p: PlcProcess) -> None:
