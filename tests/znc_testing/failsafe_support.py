@@ -78,13 +78,14 @@ class AxisWatch:
             self._subs.append(self.session.declare_subscriber(f"nc/{nc}/plctonc/{c}",
                                                               lambda s, c=c: self.frames[c].append(time.monotonic())))
 
-    def frame_gaps(self, client: str, longer_than: float, outside: tuple[float, float] = (0.0, 0.0)) -> list[float]:
-        """Gaps between ``client``'s PLCTONC frames longer than ``longer_than`` [s] that do not
-        overlap the window ``outside`` (e.g. while the NC was frozen) [s]."""
+    def frame_gaps(self, client: str, longer_than: float,
+                   *outside: tuple[float, float]) -> list[float]:
+        """Gaps between ``client``'s PLCTONC frames longer than ``longer_than`` [s] that overlap none of
+        the windows ``outside`` (e.g. while the NC was frozen) [s]."""
         ts = list(self.frames[client])
         out = []
         for a, b in zip(ts, ts[1:]):
-            if b - a > longer_than and (b < outside[0] or a > outside[1]):
+            if b - a > longer_than and all(b < w0 or a > w1 for w0, w1 in outside):
                 out.append(b - a)
         return out
 
