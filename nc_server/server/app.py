@@ -749,35 +749,53 @@ class NcServer:
                 # sooner (bench/fb_latency.py: the wait for the cycle start and that cycle's step were ~1 ms of
                 # the ~2 ms the NC held a command on the loaded VM). (A pair's active NC: at the cycle's start, its
                 # reply after the cycle's log to the standby.)
-                c0 = cpu()
-                reply = h.activate(got)
-                self._cost("activate", cpu() - c0)
-                if reply is None:  # its prediction failed already: counted as at the cycle's start (_activate_pending)
-                    tries = self._prepared_again.get(id(q), 0) + 1
-                    if tries <= MAX_REPREPARE:  # (h.activate cleared its plan: planned again in a later gap)
-                        self.prepared_again += 1
-                        self._prepared_again[id(q)] = tries
+                reply = self._activate(got)
+                if reply is None:  # its prediction failed already: counted as at the cycle's start
+                    reply = self._plan_again_or_refuse(q, got)
+                    if reply is None:  # (h.activate cleared its plan: planned again in a later gap)
                         keep.append((q, got, seen))
                         continue
-                    reply = h.refuse_stale(got)  # (0x4220: never planned again without limit, never unanswered)
-                    self.not_activated += 1
                 else:
                     self.activated_at_once += 1
-                self._prepared_again.pop(id(q), None)
-                self._pending_axes.discard(got.axis_id)
-                self.core.set_preparing(got.axis_id, False)
+                self._answered(q, got.axis_id)
                 self._first_seen[id(q)] = seen
                 replies.append((q, reply, False))
                 continue
             if isinstance(got, PendingReply):
                 keep.append((q, got, seen))
             else:  # refused, or ran at once (a buffered move): answered now
-                self._pending_axes.discard(pending.axis_id)
-                self.core.set_preparing(pending.axis_id, False)
+                self._answered(q, pending.axis_id)
                 self._first_seen[id(q)] = seen
                 replies.append((q, got, False))
         self._pending = keep
         return done
+
+    def _activate(self, pending: PendingReply) -> bytes | None:
+        """Activate a planned command (SAF: :meth:`Handler.activate`), its cost recorded in the class ``activate``;
+        None: its prediction no longer holds (its plan is cleared)."""
+        c0 = time.thread_time_ns()
+        reply = self.handler.activate(pending)
+        self._cost("activate", time.thread_time_ns() - c0)
+        return reply
+
+    def _plan_again_or_refuse(self, q: Any, pending: PendingReply) -> bytes | None:
+        """A command whose prediction failed at its activation (in a gap or at a cycle start, counted alike):
+        None while it may be planned again (at most MAX_REPREPARE times in all), else its refusal (0x4220: never
+        planned again without limit, never unanswered)."""
+        tries = self._prepared_again.get(id(q), 0) + 1
+        if tries <= MAX_REPREPARE:
+            self.prepared_again += 1
+            self._prepared_again[id(q)] = tries
+            return None
+        self.not_activated += 1
+        return self.handler.refuse_stale(pending)
+
+    def _answered(self, q: Any, axis_id: int) -> None:
+        """A command in steps got its answer (activated or refused): its axis takes the next one, its re-plan count
+        goes (keyed by id(q): a later query with the same id must not inherit it)."""
+        self._prepared_again.pop(id(q), None)
+        self._pending_axes.discard(axis_id)
+        self.core.set_preparing(axis_id, False)
 
     def _reserve(self, cls: str) -> int:
         """The time [ns] to keep free for one more request of cost class ``cls`` (:func:`key_class`)."""
@@ -814,21 +832,13 @@ class NcServer:
                 keep.append((q, pending, seen))
                 continue
             else:
-                c0 = time.thread_time_ns()
-                reply = h.activate(pending)
-                self._cost("activate", time.thread_time_ns() - c0)
+                reply = self._activate(pending)
                 if reply is None:
-                    k = self._prepared_again.get(id(q), 0) + 1
-                    if k <= MAX_REPREPARE:
-                        self.prepared_again += 1
-                        self._prepared_again[id(q)] = k
+                    reply = self._plan_again_or_refuse(q, pending)
+                    if reply is None:
                         keep.append((q, pending, seen))
                         continue
-                    reply = h.refuse_stale(pending)
-                    self.not_activated += 1
-            self._prepared_again.pop(id(q), None)
-            self._pending_axes.discard(pending.axis_id)
-            self.core.set_preparing(pending.axis_id, False)
+            self._answered(q, pending.axis_id)
             self._waits.append(clock() - seen)
             self._activated.append((q, reply, 0))
         self._pending = keep

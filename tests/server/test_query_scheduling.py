@@ -636,6 +636,8 @@ def test_a_prediction_broken_at_the_cycle_start_is_prepared_again_and_refused_wi
     server.idle(None)  # prepared again: the axis is in error now
     (r,) = _replies_of(server)
     assert r["error"] != 0 and not server.core.axes.has_job[0] and server.not_activated == 0
+    # answered: its re-plan count goes with it (keyed by id(query): a later query with that id must not inherit it)
+    assert not server._prepared_again and not server._pending and not server._pending_axes
 
 
 def test_a_command_whose_prediction_keeps_failing_is_refused_after_a_bounded_number_of_preparations(
