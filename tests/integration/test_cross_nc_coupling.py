@@ -47,14 +47,19 @@ def test_phase_error_within_the_jerk_bound(pair: Pair) -> None:
                30, "slave SYNCHRON")
     p.r1.clear()
     p.r2.clear()
-    moves(p)
-    wait_until(lambda: (r := p.c2.nctoplc(1)) is not None and abs(float(r["SetPos"]) - 20.0) < 1e-6, 60,
-               "slave at ratio x 40")
-    m, s = p.r1.array(), p.r2.array()
-    s = s[(s[:, 6] == int(AxisState.SLAVE_SYNCHRON)) & (s[:, 1] > m[0, 1] + 20e6) & (s[:, 1] < m[-1, 1])]
-    s = s[recorded_around(m, s)]  # (where a master frame did not reach the recorder the reference is not exact)
-    err, bound, held = phase_errors(m, s, RATIO)  # (both axes stood at 0 when coupled)
-    moving = bound > 0  # (at rest the master's samples are exact: error 0, as checked below)
+    # a loaded machine's publisher skips frames (and a slave sample counts only with every master frame around it):
+    # the master moves on (0 -> 40 again, at most twice more) until 300 moving samples are usable
+    for targets in ((40.0, 0.0, 40.0), (0.0, 40.0), (0.0, 40.0)):
+        moves(p, targets)
+        wait_until(lambda: (r := p.c2.nctoplc(1)) is not None and abs(float(r["SetPos"]) - 20.0) < 1e-6, 60,
+                   "slave at ratio x 40")
+        m, s = p.r1.array(), p.r2.array()
+        s = s[(s[:, 6] == int(AxisState.SLAVE_SYNCHRON)) & (s[:, 1] > m[0, 1] + 20e6) & (s[:, 1] < m[-1, 1])]
+        s = s[recorded_around(m, s)]  # (where a master frame did not reach the recorder the reference is not exact)
+        err, bound, held = phase_errors(m, s, RATIO)  # (both axes stood at 0 when coupled)
+        moving = bound > 0  # (at rest the master's samples are exact: error 0, as checked below)
+        if moving.sum() > 300:
+            break
     assert moving.sum() > 300, moving.sum()
     # at rest the master's samples are exact; a jerk phase shorter than a cycle can fall between two master frames
     # (no frame shows its jerk: bound 0 while the master moves, error 9.6e-9 seen once in CI): there the bound
