@@ -461,7 +461,7 @@ def test_a_move_whose_activation_fits_in_the_gap_of_its_plan_is_activated_and_an
     server.cycle(time.monotonic_ns())
     assert _replies_of(server) == [] and server.core.cycle == r["cycle"]  # the frame of that cycle shows it
     assert int(server.core.nctoplc[0]["CmdNo"]) == r["CmdNo"] and int(server.core.nctoplc[0]["SvbEntries"]) == 0
-    assert server._class_costs["activate"]
+    assert server._class_costs["activate"] and server.stats()["requests_activated_at_once"] == 1
 
 
 def test_a_move_whose_prediction_fails_in_the_gap_of_its_plan_is_refused_after_a_bounded_number_of_plans(
