@@ -543,6 +543,8 @@ class NcServer:
             self.core.set_preparing(pending.axis_id, False)
         self._pending.clear()
         self._pending_axes.clear()
+        self._prepared_again.clear()  # (keyed by id(query): the dropped queries' ids are free again)
+        self._first_seen.clear()
         self._activated = []
 
     def _claims_changed(self) -> None:
