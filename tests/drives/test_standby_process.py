@@ -18,8 +18,12 @@ runtime does (nc_link: its NC-restart detection).
 Reliable on a loaded 2-core machine (checked 3 runs in a row and under bench/cpu_burner.py; the SIGSTOP test is
 opt-in, see its reason): every wait is a condition with a generous deadline; the node killed is the one active at
 that moment (a false takeover before it, which the loss detection should prevent, is not what these tests check);
-the motion (the move, the coupling, the superposition) is asserted still running just before the kill; no speed is
-asserted.
+the motion (the move, the coupling, the superposition) is asserted still running just before the kill, and it still
+has RUN_AFTER_READY s to go when the kill is due: a stall of the test process between the two (0.2-1 s on a loaded
+machine) leaves it running (with 0.4-0.6 s a 0.8 s stall ended it first); the kill tests then check that the new
+active NC's own samples (its epoch in their stamp) show the same motion going on: the kill was mid-motion. The
+observer's sessions announce the rig's lease (a 0.5 s stall of the test process dropped its nc_link session before:
+a false "NC gone"). No speed is asserted.
 """
 from __future__ import annotations
 
@@ -43,6 +47,9 @@ TAKEOVER_CYCLES = 15
 DRIVE_TIMEOUT = 3.0  # above the loss detection's cap (1 s)
 V, A, J = 50.0, 500.0, 5000.0  # the moves' dynamics
 DONE, ABORTED, ERROR = 2, 3, 4
+#: how long the motion still runs once the test decided to kill (its ``ready``) at the earliest [s]: longer than a
+#: stall of the test process on a loaded machine (0.2-1 s)
+RUN_AFTER_READY = 1.8
 
 Procs = dict[str, Any]
 
@@ -151,6 +158,16 @@ def moving(cl: NcTestClient, axis: int, cmd_no: int, target: float | None) -> No
         assert abs(target - float(x["SetPos"])) > 1.0, (float(x["SetPos"]), target)
 
 
+def went_on(samples: list[tuple[int, float, float, int, int, float, int]], epoch: int, cmd_no: int,
+            velo: float = 1.0) -> None:
+    """The new active NC (``epoch``: its samples' stamp) published block ``cmd_no`` still running (not ended,
+    |SetVelo| > ``velo``): the kill came mid-motion, whenever the test process ran."""
+    run = [s for s in samples if s[6] == epoch and s[3] == cmd_no and s[4] not in (DONE, ABORTED, ERROR)
+           and abs(s[2]) > velo]
+    assert run, f"no sample of the new active NC (epoch {epoch}) with block {cmd_no} still running: " \
+                f"{[s for s in samples if s[6] == epoch][:3]}"
+
+
 def took_over(p: Procs, cl: NcTestClient, node: str, epoch: int) -> dict[str, Any]:
     st = wait_logged(lambda: (s := ha_status(cl, node)) is not None and s["role"] == "active" and s["epoch"] > epoch
                      and s, f"{node} took over", servers(p))
@@ -173,15 +190,16 @@ def test_kill_9_of_the_active_nc_mid_move(pair: Callable[..., Procs]) -> None:
     p = pair()
     cl, tr = setup(p, [1])
     try:
-        first, req = move(cl, 1, 40.0, request_id=4242)
+        first, req = move(cl, 1, 10.0 + V * RUN_AFTER_READY, request_id=4242)  # (2 s at V)
         _, new, epoch = kill_active(
             p, cl, ready=lambda: wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 10.0,
                                              "axis 1 past 10", servers(p)),
-            still=lambda: moving(cl, 1, first["CmdNo"], 40.0))
+            still=lambda: moving(cl, 1, first["CmdNo"], req["Position"]))
         t_kill = time.monotonic()
         st = took_over(p, cl, new, epoch)
         assert st["takeovers"] >= 1
-        done(p, cl, 1, first["CmdNo"], 40.0)
+        done(p, cl, 1, first["CmdNo"], req["Position"])
+        went_on(tr.samples, st["epoch"], first["CmdNo"])
         # a repeated request (same client and id) gets the replicated reply: not executed twice
         again = cl.request("MoveAbsolute", axis=1, request_id=4242, **req)
         assert again == first
@@ -210,12 +228,12 @@ def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Procs]) -> No
     p = pair()
     cl, tr = setup(p, [1])
     try:
-        first, _ = move(cl, 1, 30.0)
+        first, req = move(cl, 1, 8.0 + V * RUN_AFTER_READY)
         old, new, epoch = kill_active(
             p, cl, signal.SIGSTOP,
             ready=lambda: wait_logged(lambda: (r := cl.nctoplc(1)) is not None and float(r["SetPos"]) > 8.0,
                                       "axis 1 past 8", servers(p)),
-            still=lambda: moving(cl, 1, first["CmdNo"], 30.0))
+            still=lambda: moving(cl, 1, first["CmdNo"], req["Position"]))
         try:
             st = took_over(p, cl, new, epoch)
         finally:
@@ -223,7 +241,7 @@ def test_sigstop_of_the_active_nc_then_sigcont(pair: Callable[..., Procs]) -> No
         # the old NC comes back as a standby (it stalled with a standby in step, or it sees the higher epoch)
         wait_logged(lambda: (s := ha_status(cl, old)) is not None and s["role"] == "standby" and s["demotions"] >= 1,
                     f"{old} is a standby", servers(p))
-        done(p, cl, 1, first["CmdNo"], 30.0)
+        done(p, cl, 1, first["CmdNo"], req["Position"])
         stt = p["drives"].status()
         assert stt is not None and stt["epoch"] == st["epoch"]
         # the old NC never drives again: the host's epoch stays the new one's, and it is back in step as a standby
@@ -248,7 +266,8 @@ def test_kill_9_during_a_coupling(pair: Callable[..., Procs]) -> None:
         gear = cl.request("GearIn", axis=2, Master=1, RatioNumerator=1, RatioDenominator=2)
         assert gear["error"] == 0, gear
         wait_logged(lambda: (j := tr.jobs.get(2)) is not None and int(j["MasterId"]) == 1, "axis 2 coupled", servers(p))
-        first, _ = move(cl, 1, m0 + 40.0)
+        dist = 10.0 + V * RUN_AFTER_READY
+        first, _ = move(cl, 1, m0 + dist)
 
         def coupled_moving() -> None:  # (the GearIn block may show Done once InGear: not ended, not aborted)
             x = cl.nctoplc(2)
@@ -258,10 +277,11 @@ def test_kill_9_during_a_coupling(pair: Callable[..., Procs]) -> None:
         _, new, epoch = kill_active(
             p, cl, ready=lambda: wait_logged(lambda: (r := cl.nctoplc(1)) is not None
                                              and float(r["SetPos"]) > m0 + 10.0, "master past 10", servers(p)),
-            still=lambda: (moving(cl, 1, first["CmdNo"], m0 + 40.0), coupled_moving()))
-        took_over(p, cl, new, epoch)
-        done(p, cl, 1, first["CmdNo"], m0 + 40.0)
-        r2 = wait_logged(lambda: (x := cl.nctoplc(2)) is not None and abs(float(x["SetPos"]) - s0 - 20.0) < 1e-6
+            still=lambda: (moving(cl, 1, first["CmdNo"], m0 + dist), coupled_moving()))
+        st = took_over(p, cl, new, epoch)
+        done(p, cl, 1, first["CmdNo"], m0 + dist)
+        went_on(tr.by_axis[1], st["epoch"], first["CmdNo"])
+        r2 = wait_logged(lambda: (x := cl.nctoplc(2)) is not None and abs(float(x["SetPos"]) - s0 - 0.5 * dist) < 1e-6
                          and x, "the slave at its ratio's end position", servers(p))
         # the GearIn block goes on: its CmdNo, no error, still coupled to axis 1 (TwinCAT: InGear until decoupled)
         assert int(r2["CmdNo"]) == gear["CmdNo"] and int(r2["ErrorCode"]) == 0
@@ -291,8 +311,9 @@ def test_kill_9_during_a_superposition(pair: Callable[..., Procs]) -> None:
         assert r["error"] == 0, r
         wait_logged(lambda: (x := cl.nctoplc(1)) is not None and abs(float(x["SetVelo"]) - 20.0) < 1e-9,
                     "axis 1 at 20 u/s", servers(p))
-        # mode 1 (VELOREDUCTION_ADDITIVE): 5 u more over 20 u of process travel, i.e. over 1 s
-        sup = cl.request("MoveSuperImposed", axis=1, Mode=1, Distance=5.0, VelocityDiff=20.0, Length=20.0,
+        # mode 1 (VELOREDUCTION_ADDITIVE): 5 u more over 60 u of process travel, i.e. over 3 s (1 to 4.5 u of it:
+        # about RUN_AFTER_READY s or more)
+        sup = cl.request("MoveSuperImposed", axis=1, Mode=1, Distance=5.0, VelocityDiff=20.0, Length=60.0,
                          VelocityProcess=20.0)
         assert sup["error"] == 0 and sup["Value"]["ActualDistance"] == 5.0, sup
         wait_logged(lambda: (j := tr.jobs.get(1)) is not None and int(j["SuperCmdNo"]) == sup["CmdNo"]
@@ -313,7 +334,9 @@ def test_kill_9_during_a_superposition(pair: Callable[..., Procs]) -> None:
             p, cl, ready=lambda: wait_logged(lambda: superposed() > 1.0, "the superposition well under way (1 of 5 u)",
                                              servers(p)),
             still=super_running)
-        took_over(p, cl, new, epoch)
+        st = took_over(p, cl, new, epoch)
+        # the new active NC's samples show the superposition still adding velocity: the kill came during it
+        assert any(s[6] == st["epoch"] and s[2] > 20.0 + 1e-6 for s in tr.samples), "no superposition after the kill"
         j = wait_logged(lambda: (j := tr.jobs.get(1)) is not None and int(j["SuperCmdNo"]) == sup["CmdNo"]
                         and int(j["SuperState"]) in (DONE, ABORTED, ERROR) and j, "the superposition ended", servers(p))
         assert int(j["SuperState"]) == DONE and int(j["SuperErrorId"]) == 0

@@ -10,7 +10,7 @@ import msgpack
 import numpy as np
 
 from nc_link import NcLink
-from nc_schema import NCTOPLC_DTYPE, decode_frame, decode_stamp, frame_header
+from nc_schema import NCTOPLC_DTYPE, decode_frame, decode_stamp_epoch, frame_header
 from znc_testing.nc_process import NcTestClient
 
 __all__ = ["AXIS2", "CONFIG", "LEASE_MS", "Trace", "active_node", "ha_status", "largest_step"]
@@ -58,18 +58,23 @@ Drive = { backend = "remote", host = "drives1" }
 
 
 class Trace:
-    """Every NCTOPLC sample of ``axes`` (cycle, SetPos, SetVelo, CmdNo, CmdState, monotonic time; :attr:`samples` is
-    axis 1's, :attr:`by_axis` every axis's), and the NC's frames through nc_link (its NC-restart detection; "NC gone"
-    events in :attr:`gone`; the newest NCJOBS record of each axis in :attr:`jobs`), gathered on the test's sessions."""
+    """Every NCTOPLC sample of ``axes`` (cycle, SetPos, SetVelo, CmdNo, CmdState, monotonic time, the NC's epoch from
+    the sample's stamp; :attr:`samples` is axis 1's, :attr:`by_axis` every axis's), and the NC's frames through
+    nc_link (its NC-restart detection; "NC gone" events in :attr:`gone`; the newest NCJOBS record of each axis in
+    :attr:`jobs`), gathered on the test's sessions.
+
+    Both sessions announce the rig's lease (LEASE_MS): with nc_link's default (0.5 s) a stall of the test process
+    itself (0.5 s seen on a loaded machine) let the router drop the observer's session, and the NC's tokens it had
+    seen went with it: an "NC gone" that no NC caused."""
 
     def __init__(self, port: int, axes: tuple[int, ...] = (1,)) -> None:
-        self.by_axis: dict[int, list[tuple[int, float, float, int, int, float]]] = {a: [] for a in axes}
+        self.by_axis: dict[int, list[tuple[int, float, float, int, int, float, int]]] = {a: [] for a in axes}
         self.samples = self.by_axis.setdefault(1, [])
         self.jobs: dict[int, Any] = {}
-        self.cl = NcTestClient(port, client_id="observer", token=False)
+        self.cl = NcTestClient(port, client_id="observer", token=False, lease_ms=LEASE_MS)
         self.subs = [self.cl.session.declare_subscriber(f"nc/nc1/axis/{a}/nctoplc",
                                                         lambda s, a=a: self._on(s, a)) for a in axes]
-        self.link = NcLink("nc1", f"tcp/127.0.0.1:{port}", "observer-link", holder=False)
+        self.link = NcLink("nc1", f"tcp/127.0.0.1:{port}", "observer-link", lease_ms=LEASE_MS, holder=False)
         self.link.open()
         self.restarts: list[str] = []
         #: when nc_link saw the NC's token go ("NC gone": the PLC runtime ends every block with 0x4B0F then)
@@ -81,9 +86,9 @@ class Trace:
 
     def _on(self, s: Any, axis: int) -> None:
         r = np.frombuffer(s.payload.to_bytes(), dtype=NCTOPLC_DTYPE, count=1)[0]
-        cycle = decode_stamp(s.attachment.to_bytes())[0] if s.attachment is not None else -1
+        cycle, _, epoch = decode_stamp_epoch(s.attachment.to_bytes()) if s.attachment is not None else (-1, 0, -1)
         self.by_axis[axis].append((cycle, float(r["SetPos"]), float(r["SetVelo"]), int(r["CmdNo"]), int(r["CmdState"]),
-                             time.monotonic()))
+                                   time.monotonic(), epoch))
 
     def _run(self) -> None:
         while not self._stop.wait(0.002):
@@ -135,7 +140,7 @@ def active_node(cl: NcTestClient, nodes: tuple[str, ...] = ("a", "b")) -> str | 
     return act[0]
 
 
-def largest_step(samples: list[tuple[int, float, float, int, int, float]], cycle: float, accel: float) -> float:
+def largest_step(samples: list[tuple[int, float, float, int, int, float, int]], cycle: float, accel: float) -> float:
     """The largest |SetPos change| beyond what ``v`` (the larger of the two samples' SetVelo) and ``accel`` allow over
     the cycles between two samples (``cycle`` [s] each): a jump, not motion."""
     worst = 0.0
