@@ -9,10 +9,17 @@ channel per query that the cycle polls: nothing of ours runs on zenoh's threads.
 
 Reproduced deterministically, without timing: the reply delivery is made to block whenever it runs
 on a thread other than the PLC cycle's (as a callback waiting for the GIL does), for as long as an
-independent subscriber takes to see 400 frames and the PLC to run 40 cycles (twice its stale time).
+independent subscriber takes to see 3000 frames and the PLC to run 300 cycles (twice its stale time).
 With the old runtime the reply of the move blocks zenoh's receive thread, frames stop, and the move
 ends with 0x4B0F; now the reply is taken by the cycle, frames keep coming, every cycle's data is
 valid and the move goes on.
+
+Stalls of the NC or of this process (the PLC) of 0.5-1 s, common on a loaded 2-core machine, made cycles invalid
+without any defect (shown with SIGSTOP/SIGCONT): plc-run's 0.2 s stale time passed (0x4B0F), and the 0.5 s leases
+expired (the PLC dropped the frozen NC: 0x4B0F at once; the NC dropped the frozen PLC: 0x8F01). Here the PLC's stale
+time is STALE_S (1.5 s) and both leases LEASE_MS (3 s). The defect stops the frames for the whole blocked window
+(twice the stale time), so it still shows as invalid cycles, and as the few distinct NC frames the PLC saw (at
+least MIN_SEEN asserted).
 """
 from __future__ import annotations
 
@@ -30,6 +37,16 @@ from plc_client.port import CommandPort
 from plc_client.runtime import PlcRuntime
 from znc_testing.plc_harness import NC_ARGS, T
 from znc_testing import NcServerProcess, wait_until
+
+PLC_CYCLE = 0.01
+#: the PLC's stale time in this test [s]: longer than a stall of the NC or of the PLC on a loaded machine (0.2-1 s)
+STALE_S = 1.5
+STALE_CYCLES = round(STALE_S / PLC_CYCLE)
+#: the distinct NC frames the PLC must see over the blocked window (2 x STALE_S: up to 300 at one per PLC cycle;
+#: with the defect about 1, the frames stop)
+MIN_SEEN = 50
+#: the zenoh lease the NC and the PLC announce [ms]: a frozen peer is dropped after ~0.75 x lease
+LEASE_MS = 3000
 
 #: counts the frames of nc/nc1/frame (every NC cycle): "go" on stdin starts, each 100 frames a line
 WITNESS = r"""
@@ -100,7 +117,7 @@ class Program:
 
 @pytest.fixture
 def nc(start_nc: Callable[..., NcServerProcess]) -> NcServerProcess:
-    return start_nc(extra_args=NC_ARGS)
+    return start_nc(extra_args=[*NC_ARGS, "--lease-ms", str(LEASE_MS)])
 
 
 @pytest.fixture
@@ -127,7 +144,8 @@ def blocked_delivery(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, Any]
 def test_frames_keep_flowing_while_a_reply_handler_is_blocked(nc: NcServerProcess,
                                                               blocked_delivery: dict[str, Any]) -> None:
     prog = Program()
-    rt = PlcRuntime(prog, {"nc1": nc.endpoint}, cycle_time=0.01, client_id="plc-starve")
+    rt = PlcRuntime(prog, {"nc1": nc.endpoint}, cycle_time=PLC_CYCLE, client_id="plc-starve",
+                    stale_cycles=STALE_CYCLES, lease_ms=LEASE_MS)
     witness = Witness(nc.endpoint)
     try:
         assert rt.open(wait=T)
@@ -138,15 +156,16 @@ def test_frames_keep_flowing_while_a_reply_handler_is_blocked(nc: NcServerProces
         blocked_delivery["armed"].set()
         witness.go()
         prog.execute = True  # the move's reply comes while delivery off the PLC thread blocks
-        wait_until(lambda: witness.frames >= 400 and len(prog.log) - n0 >= 40, 3 * T,
-                   "400 frames at the witness and 40 PLC cycles")
+        # (twice the stale time: 1 NC frame a ms, 1 PLC cycle every 10 ms)
+        wait_until(lambda: witness.frames >= 2 * STALE_S * 1000 and len(prog.log) - n0 >= 2 * STALE_CYCLES, 3 * T,
+                   f"{2 * STALE_S * 1000:.0f} frames at the witness and {2 * STALE_CYCLES} PLC cycles")
         window = prog.log[n0:]
         blocked_delivery["armed"].clear()
         wait_until(lambda: prog.move.Busy or prog.move.Error, T, "the move to start")
         bad = [r for r in window if not r[1] or r[3]]
         assert not bad, f"stale data / block errors while a reply handler was blocked: {bad[:5]}"
         seen = sorted({r[5] for r in window})
-        assert len(seen) >= 20, f"the PLC saw only {len(seen)} distinct NC frames in {len(window)} cycles"
+        assert len(seen) >= MIN_SEEN, f"the PLC saw only {len(seen)} distinct NC frames in {len(window)} cycles"
         assert prog.move.Busy and not prog.move.Error
     finally:
         blocked_delivery["armed"].clear()
