@@ -43,8 +43,8 @@ PLC_CYCLE = 0.01
 STALE_S = 1.5
 STALE_CYCLES = round(STALE_S / PLC_CYCLE)
 #: the distinct NC frames the PLC must see over the blocked window (2 x STALE_S: up to 300 at one per PLC cycle;
-#: with the defect about 1, the frames stop)
-MIN_SEEN = 50
+#: with the defect about 1, the frames stop; half: room for a 1 s stall, and a delivery of every 3rd frame fails)
+MIN_SEEN = 150
 #: the zenoh lease the NC and the PLC announce [ms]: a frozen peer is dropped after ~0.75 x lease
 LEASE_MS = 3000
 
