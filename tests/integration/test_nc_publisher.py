@@ -282,12 +282,16 @@ def test_a_killed_publisher_is_replaced_within_10_nc_cycles_and_every_move_goes_
     in the middle of a move of two axes, the second one hitting the standby started after the first)."""
     import math
 
-    from znc_testing.plc_harness import NC_ARGS, PlcProcess, power_on
-    nc = start_nc(extra_args=NC_ARGS)
-    cl = nc_client(nc.port)
+    from znc_testing.plc_harness import NC_ARGS, STALE_ARGS, PlcProcess, power_on
+    # a loaded machine: a 0.5 s stall of this process (the subscriber) let its 0.5 s lease expire (~500 frames lost,
+    # a 517-cycle "pause"); a 0.3 s stall of the new publisher made plc-run's data stale at its 0.2 s (0x4B0F):
+    # 3 s leases for the NC, plc-run and the subscriber, plc-run with STALE_ARGS (1 s)
+    lease = ["--lease-ms", "3000"]
+    nc = start_nc(extra_args=[*NC_ARGS, *lease])
+    cl = nc_client(nc.port, lease_ms=3000)
     frames = FrameCycles(cl)
     kills: list[tuple[int, float, float]] = []
-    with PlcProcess(nc.endpoint, "plc-a") as plc:
+    with PlcProcess(nc.endpoint, "plc-a", extra=[*STALE_ARGS, *lease]) as plc:
         plc.wait_started(T)
         for axis in (1, 2):
             power_on(plc, axis, f"pw{axis}")

@@ -20,11 +20,16 @@ from nc_schema import (FRAME_HEADER_DTYPE, FRAME_HEADER_SIZE, NCJOBS_DTYPE, NCTO
 from znc_testing.nc_process import NcServerProcess, NcTestClient, start_nc_server
 from znc_testing.until import wait_until
 
+#: both NCs announce a 3 s lease (the default 0.5 s: a 0.5 s stall of either NC or of the test's clients on a loaded
+#: machine made the other side drop its session: nc2 lost nc1's samples, 0x42A0; the NC lost a client's token, 0x8F01)
 NC1 = """
 [nc]
 name = "nc1"
 watchdog_timeout = 10.0
 publisher = "thread"
+
+[zenoh]
+lease = 3000
 
 [[axis]]
 AxisId = 1
@@ -50,6 +55,7 @@ publisher = "thread"
 
 [zenoh]
 connect = ["tcp/127.0.0.1:{port}"]
+lease = 3000
 
 [remote]
 masters = ["nc1/1"]
