@@ -26,7 +26,9 @@ links meanwhile: every link may be dropped and re-established (a client behind a
 every 100-250 ms, a loaded machine takes longer), so the window is ``lease_stall_grace``
 (:data:`LEASE_STALL_GRACE`, 2 s) instead. A token that comes back within its window restarts the
 watchdog of the claims it holds (:meth:`ClaimTable.client_alive`): its frames could not arrive
-while it was disconnected, which is the NC's stall, not the client's silence.
+while it was disconnected, which is the NC's stall, not the client's silence. A stall within the
+window of the one before counts with it as one (the larger window, from the later end): a token
+lost across the first could not come back while the second lasted.
 """
 from __future__ import annotations
 
@@ -102,8 +104,8 @@ class ClaimTable:
         self.lease_stall_grace = float(lease_stall_grace)
         self._clients: dict[str, _Client] = {}
         self._claims: dict[int, _Claim] = {}
-        #: the last NC stall, (start, end, window) [s]: a token gone between start and end + window
-        #: has window to come back (see grace())
+        #: the last NC stall, (start, end, window) [s] (stalls within each other's window merged): a token gone
+        #: between start and end + window has window (from when it went, or the stall's end) to come back (grace())
         self._stall = (-math.inf, -math.inf, 0.0)
         #: Incremented on every change of the claims (lets callers cache derived data).
         self.version = 0
@@ -178,6 +180,9 @@ class ClaimTable:
         window = self.reconnect_grace
         if self.lease is not None and now - start >= self.lease / 2:
             window = max(window, self.lease_stall_grace)
+        s0, e0, w0 = self._stall
+        if start <= e0 + w0:  # within the window of the previous stall: one stall as far as an excuse goes (a token
+            start, window = min(start, s0), max(window, w0)  # lost across the first one is not blamed for the second)
         self._stall = (start, float(now), window)
 
     def rebase(self, now: float) -> None:
@@ -201,7 +206,9 @@ class ClaimTable:
     def _excused(self, gone_at: float, now: float) -> bool:
         """A token gone at ``gone_at`` is not a loss yet at ``now`` (an NC stall explains it)."""
         start, end, window = self._stall
-        return start <= gone_at <= end + window and now < gone_at + window
+        # (its window counts from the stall's end at the earliest: a token lost in the first of two stalls could not
+        # come back while the second one lasted)
+        return start <= gone_at <= end + window and now < max(gone_at, end) + window
 
     # ---- claims -----------------------------------------------------------------------------
     def holder(self, axis_id: int) -> str | None:

@@ -211,6 +211,30 @@ def test_token_lost_across_an_nc_stall_gets_time_to_come_back(table: ClaimTable)
     assert table.holder(1) == "a"
 
 
+def test_token_lost_across_a_stall_is_not_blamed_for_a_second_stall_right_after() -> None:
+    """The NC stopped twice in a row (a router test stopped it again right after its resume): the token lost across
+    the first stall could not come back while the second one lasted; the second stall must not take the first one's
+    excuse away (it replaced it: the holder was blamed with 0x8F01)."""
+    t = held_by_a()
+    t.plctonc_arrived("a", 9.99)
+    t.grace(11.0, since=10.0)            # a lease stall: 2 s to come back
+    t.client_gone("a", 11.01)            # its link dropped across it
+    t.grace(12.9, since=11.2)            # stopped again right after
+    assert t.check(12.91) == [] and t.holder(1) == "a"
+    assert t.check(14.89) == []          # 2 s from the second stall's end
+    t.client_alive("a", 14.0)
+    assert t.check(14.01) == [] and t.holder(1) == "a"
+
+
+def test_a_token_lost_across_two_stalls_that_does_not_come_back_is_a_loss() -> None:
+    t = held_by_a()
+    t.grace(11.0, since=10.0)
+    t.client_gone("a", 11.01)
+    t.grace(11.3, since=11.2)            # a short one within the first one's window (0.1 s: its own window 0.5 s)
+    assert t.check(13.29) == []          # the first one's 2 s, from the second one's end (it could not come back then)
+    assert t.check(13.31) == [Loss("a", ZNC_CLIENT_LOST, (1,))]
+
+
 def test_token_lost_long_after_a_stall_is_a_loss_at_once(table: ClaimTable) -> None:
     table.client_alive("a")
     table.claim(1, "a", 0.0)
