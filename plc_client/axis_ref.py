@@ -41,9 +41,9 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
-from nc_schema import MC_AxisStates, StateDWord, motion_state
+from nc_schema import NCTOPLC_DTYPE, MC_AxisStates, StateDWord, motion_state
 
-from .records import _NC_INDEX, _NC_STRUCT, NCTOPLC_AXIS_REF, NO_JOBS, PLCTONC_AXIS_REF, NcJobsValues
+from .records import _NC_INDEX, NCTOPLC_AXIS_REF, NO_JOBS, PLCTONC_AXIS_REF, NcJobsValues, pick_struct
 
 if TYPE_CHECKING:  # pragma: no cover
     from .task import PlcTask
@@ -82,7 +82,9 @@ _STATE_FLAGS: dict[int, str] = {
 _I_SDW, _I_CS, _I_ERR, _I_ACC, _I_VEL = (_NC_INDEX[n][0] for n in
                                          ("StateDWord", "CoupleState", "ErrorCode", "SetAcc", "SetVelo"))
 
-_NC_UNPACK = _NC_STRUCT.unpack
+#: the NCTOPLC members a snapshot reads every cycle (the Status refresh, and StateDWord for the blocks: ``_sdw``),
+#: without unpacking the other ~55 values (NcToPlc unpacks them at its first read, if any)
+_NC_PICK = pick_struct(NCTOPLC_DTYPE, "StateDWord", "ErrorCode", "CoupleState", "SetVelo", "SetAcc").unpack
 _new = object.__new__
 
 #: |SetAcc| below this [u/s^2] counts as "not accelerating" (numerical noise of the profile).
@@ -269,6 +271,8 @@ class AXIS_REF:
         self.axis_id = axis_id
         self.name = name or f"{nc}/{axis_id}"
         self.NcToPlc = NCTOPLC_AXIS_REF()
+        #: NcToPlc.StateDWord (the blocks and the task test its bits every cycle: without unpacking NcToPlc)
+        self._sdw = 0
         #: this cycle's NCJOBS as plain values (the blocks read these; ``NcJobs`` is its numpy record)
         self._jobs: NcJobsValues = NO_JOBS
         self.PlcToNc = PLCTONC_AXIS_REF()
@@ -334,10 +338,12 @@ class AXIS_REF:
                 self._unchanged += 1
             else:
                 self._unchanged = 0  # a newer frame (or a restarted NC's: the task bumps nc_epoch)
-            # this cycle's copy, unpacked at once (ST_AxisStatus.update reads it: NCTOPLC_AXIS_REF._of + _unpack
-            # without their calls)
+            # this cycle's copy (NCTOPLC_AXIS_REF._of without its call), unpacked at its first read; the five
+            # members the Status refresh needs are read now
             nc = self.NcToPlc = _new(NCTOPLC_AXIS_REF)
-            nc._raw, nc._v, nc._rec = rec, (v := _NC_UNPACK(rec)), None
+            nc._raw, nc._v, nc._rec = rec, None, None
+            s, err, cs, vel, acc = _NC_PICK(rec)
+            self._sdw = s
             if jobs is not None:
                 j = self._jobs = _new(NcJobsValues)
                 j._raw, j._v, j._rec = jobs, None, None
@@ -346,12 +352,10 @@ class AXIS_REF:
             if self._unchanged < stale_cycles:  # valid (the usual case): ST_AxisStatus.update inline
                 # every valid snapshot sets the ~40 members again (~1 us), as TwinCAT's ReadStatus does: a program's
                 # write into Status does not outlive the next snapshot
-                s, cs = v[_I_SDW], v[_I_CS]
                 flags = _FLAGS.get((s, cs))
                 if flags is None:
                     flags = _flags(s, cs)
                 st.__dict__.update(flags)
-                acc, vel = v[_I_ACC], v[_I_VEL]
                 if abs(acc) <= _ACC_EPS:
                     accel = decel = False
                 elif vel == 0.0:
@@ -360,7 +364,7 @@ class AXIS_REF:
                     accel = (acc > 0) == (vel > 0)
                     decel = not accel
                 st.CycleCounter, st.NcCycleCounter, st.UpdateCycleTime, st.Valid = plc_cycle, nc_cycle, cycle_time, True
-                st.ErrorId, st.Accelerating, st.Decelerating = v[_I_ERR], accel, decel
+                st.ErrorId, st.Accelerating, st.Decelerating = err, accel, decel
                 return
         else:
             self._unchanged += 1

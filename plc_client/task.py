@@ -75,7 +75,6 @@ _STOPS = frozenset(n for n, s in COMMAND_SPECS.items() if s.stop)
 from .axis_ref import AXIS_REF
 from .plcframe import PlcFrameBuffer
 from .port import CommandPort, PendingCommand, reply_cycle
-from .records import _NC_INDEX
 
 log = logging.getLogger(__name__)
 
@@ -84,8 +83,6 @@ _local = threading.local()
 _ENABLE = int(ControlDWord.Enable)
 _CLC = int(StateDWord.ControlLoopClosed)
 _ERROR = int(StateDWord.Error)
-#: where the unpacked NCTOPLC values keep StateDWord (control()'s test every cycle, without the property)
-_I_SDW = _NC_INDEX["StateDWord"][0]
 #: Axis errors with which the NC drops a claim (zenoh-nc server watchdog).
 _CLAIM_FAULTS = frozenset({int(ErrorCodes.ZNC_CLIENT_LOST), int(ErrorCodes.ZNC_PLCTONC_TIMEOUT)})
 
@@ -341,8 +338,7 @@ class PlcTask:
         if c is not None and c.state == "held" and not retry and self._controlled.get(key) is ax:
             # the usual call (MC_Power every cycle of an axis held): what the rest below does for it, the
             # cheap tests first (a closed loop or an axis error shows the claim is not lost)
-            rec = ax.NcToPlc
-            if (not (rec._v or rec._unpack())[_I_SDW] & (_CLC | _ERROR) and ax.Status.Valid
+            if (not ax._sdw & (_CLC | _ERROR) and ax.Status.Valid
                     and self.now - c.since >= self.claim_retry and self.reachable(ax.nc)
                     and self._claim_looks_lost(ax, c)):
                 self._send_claim(ax, c)

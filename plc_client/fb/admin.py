@@ -41,7 +41,6 @@ from typing import Any, ClassVar
 from nc_schema import PLCTONC_DTYPE, ControlDWord, ErrorCodes, StateDWord, member_struct
 
 from ..axis_ref import AXIS_REF, ST_AxisStatus
-from ..records import _NC_INDEX
 from .base import EnableBlock, ExecuteBlock, FunctionBlock
 
 _EN = int(ControlDWord.Enable)
@@ -53,8 +52,6 @@ _NOT_ENABLES = ~(_EN | _FP | _FM)
 #: where PLCTONC keeps ControlDWord, and its struct (MC_Power reads and writes it every cycle)
 _CDW_OFF, _CDW_STRUCT = member_struct(PLCTONC_DTYPE, "ControlDWord")
 _CDW_UNPACK, _CDW_PACK = _CDW_STRUCT.unpack_from, _CDW_STRUCT.pack_into
-#: where the unpacked NCTOPLC values keep StateDWord
-_I_SDW = _NC_INDEX["StateDWord"][0]
 
 
 def override_to_plctonc(percent: float) -> int:
@@ -160,8 +157,7 @@ class MC_Power(FunctionBlock):
                 isinstance(bm, bool) or not isinstance(bm, int) or bm != 0):
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
         if held and valid:
-            rec = ax.NcToPlc
-            sdw = (rec._v or rec._unpack())[_I_SDW]  # (rec.StateDWord without the property)
+            sdw = ax._sdw  # (ax.NcToPlc.StateDWord, without unpacking the record)
             status = bool(sdw & _CLC) and not sdw & _ERR
         else:
             status = False

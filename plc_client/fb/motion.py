@@ -75,9 +75,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from nc_schema import CmdState, ErrorCodes, MC_Direction, OpModeDWord, StateDWord, cmdno_newer
+from nc_schema import NCJOBS_DTYPE, CmdState, ErrorCodes, MC_Direction, OpModeDWord, StateDWord, cmdno_newer
 
-from ..records import _JOBS_INDEX, _NC_INDEX, NCTOPLC_AXIS_REF, NcJobsValues
+from ..records import NCTOPLC_AXIS_REF, NcJobsValues, pick_struct
 from .base import ExecuteBlock
 
 _ERR = int(StateDWord.Error)
@@ -90,12 +90,9 @@ _INAREA = int(StateDWord.InPositionArea)
 _TGT_MON = int(OpModeDWord.OpModeTargetPosMonitoring)
 _AREA_MON = int(OpModeDWord.OpModePosAreaMonitoring)
 
-#: where _follow_job finds its members in the unpacked NCJOBS / NCTOPLC values (scalars: index, 0, 0)
-_J_AXIS_ID, _J_ACTIVE_NO, _J_ACTIVE_STATE, _J_BUFFERED_NO = (
-    _JOBS_INDEX[n][0] for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
-assert all(_JOBS_INDEX[n][1:] == (0, 0) for n in ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo"))
-#: where the unpacked NCTOPLC values keep StateDWord
-_N_SDW = _NC_INDEX["StateDWord"][0]
+#: the NCJOBS members _follow / _follow_job read every cycle, picked from the record's bytes (no full unpack)
+_JOBS_AXIS_ID = pick_struct(NCJOBS_DTYPE, "AxisId").unpack
+_JOBS_HEAD = pick_struct(NCJOBS_DTYPE, "ActiveCmdNo", "ActiveState", "BufferedCmdNo").unpack
 _ACTIVE, _DONE_S, _ABORTED, _ERROR = (int(CmdState.ACTIVE), int(CmdState.DONE), int(CmdState.ABORTED),
                                       int(CmdState.ERROR))
 
@@ -226,8 +223,8 @@ class MotionBlock(ExecuteBlock):
         assert ax is not None
         if not (ax._has_data and ax.Status.NcCycleCounter >= self._cmd_cycle):
             return  # the frame does not show the command's effect yet
-        jobs = ax._jobs  # (plain values, unpacked once a cycle)
-        if (jobs._v or jobs._unpack())[_J_AXIS_ID]:  # (jobs.AxisId without the property's call)
+        jobs = ax._jobs  # (plain values: the few members read here picked from its bytes, not unpacked)
+        if _JOBS_AXIS_ID(jobs._raw)[0]:  # (jobs.AxisId without unpacking the record)
             self._follow_job(ax.NcToPlc, jobs)
         else:
             self._follow_cmdno(ax.NcToPlc)
@@ -235,16 +232,16 @@ class MotionBlock(ExecuteBlock):
     def _follow_job(self, rec: NCTOPLC_AXIS_REF, jobs: NcJobsValues) -> None:
         """The table of schema/README.md: find our CmdNo in the axis's job records."""
         me = self._cmdno
-        v = jobs._v or jobs._unpack()  # (the members by index: a property call each less)
-        if v[_J_BUFFERED_NO] == me:
+        active_no, state, buffered_no = _JOBS_HEAD(jobs._raw)  # (those members without unpacking the record)
+        if buffered_no == me:
             self._set_active(False)  # waiting behind the active job
             return
-        if v[_J_ACTIVE_NO] == me:
-            state = v[_J_ACTIVE_STATE]
+        if active_no == me:
             if state == _ACTIVE and self._PLAIN_STATE:
                 # (every cycle of a running move: what _on_state does for ACTIVE without an axis error, without
                 # its calls; an axis error takes the path below)
-                sdw = (rec._v or rec._unpack())[_N_SDW]
+                ax = self.Axis
+                sdw = ax._sdw if ax is not None and rec is ax.NcToPlc else rec.StateDWord  # (no unpacking)
                 if not sdw & _ERR:
                     if self._HAS_ACTIVE:
                         self.Active = True

@@ -146,3 +146,44 @@ def test_plctonc_bool_members_take_bools_and_a_real_gets_a_hint() -> None:
     with pytest.raises(TypeError, match=r"round\(\)"):
         ax.PlcToNc.Override = 0.5 * 1e6
     assert ax.PlcToNc.Override == 1_000_000
+
+
+def test_pick_struct_reads_the_members_the_full_unpack_reads() -> None:
+    from nc_schema import NCJOBS_DTYPE
+    from plc_client.records import NcJobsValues, pick_struct
+    rng = np.random.default_rng(7)
+    names = ("StateDWord", "ErrorCode", "CoupleState", "SetVelo", "SetAcc")
+    pick = pick_struct(NCTOPLC_DTYPE, *names)
+    jnames = ("AxisId", "ActiveCmdNo", "ActiveState", "BufferedCmdNo", "NewestCmdNo")
+    jpick = pick_struct(NCJOBS_DTYPE, *jnames)
+    for _ in range(50):
+        raw = _record(StateDWord=int(rng.integers(0, 2**32)), ErrorCode=int(rng.integers(0, 2**32)),
+                      CoupleState=int(rng.integers(0, 2**16)), SetVelo=float(rng.normal()),
+                      SetAcc=float(rng.normal()), SetPos=float(rng.normal())).tobytes()
+        full = NCTOPLC_AXIS_REF(raw)
+        assert pick.unpack(raw) == tuple(getattr(full, n) for n in names)
+        jraw = rng.integers(0, 256, NCJOBS_DTYPE.itemsize, dtype=np.uint8).tobytes()
+        jobs = NcJobsValues(jraw)
+        assert jpick.unpack(jraw) == tuple(getattr(jobs, n) for n in jnames)
+    with pytest.raises(ValueError):
+        pick_struct(NCTOPLC_DTYPE, "ErrorCode", "StateDWord")  # not in the record's order
+    with pytest.raises(ValueError):
+        pick_struct(NCTOPLC_DTYPE, "CamCouplingState")  # an array
+
+
+def test_snapshot_keeps_statedword_and_unpacks_nctoplc_only_when_read() -> None:
+    core = NcCore([AxisConfig(AxisId=1)], cycle_time=0.001)
+    X = AXIS_REF(nc="nc1", axis_id=1)
+    power = MC_Power()
+    seen: list[tuple[int, int, bool]] = []  # (StateDWord kept, first byte, NcToPlc not unpacked yet)
+
+    def cycle(plc: InProcessPlc) -> None:
+        seen.append((X._sdw, X.NcToPlc._raw[0], X.NcToPlc._v is None))
+        power(Axis=X, Enable=True, Enable_Positive=True, Enable_Negative=True)
+
+    plc = InProcessPlc(core, cycle)
+    run_cycles(core, plc, 200, nc_steps=10, until=lambda: power.Status)
+    assert power.Status and X.Status.ControlLoopClosed
+    assert seen and all(lazy for *_, lazy in seen[1:])  # MC_Power and the task read StateDWord without unpacking
+    assert X._sdw == X.NcToPlc.StateDWord and X._sdw & (1 << 20)  # (ControlLoopClosed; the read unpacked it)
+    assert X.Status.ErrorId == X.NcToPlc.ErrorCode
