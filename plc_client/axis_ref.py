@@ -271,8 +271,6 @@ class AXIS_REF:
         self.axis_id = axis_id
         self.name = name or f"{nc}/{axis_id}"
         self.NcToPlc = NCTOPLC_AXIS_REF()
-        #: NcToPlc.StateDWord (the blocks and the task test its bits every cycle: without unpacking NcToPlc)
-        self._sdw = 0
         #: this cycle's NCJOBS as plain values (the blocks read these; ``NcJobs`` is its numpy record)
         self._jobs: NcJobsValues = NO_JOBS
         self.PlcToNc = PLCTONC_AXIS_REF()
@@ -341,9 +339,8 @@ class AXIS_REF:
             # this cycle's copy (NCTOPLC_AXIS_REF._of without its call), unpacked at its first read; the five
             # members the Status refresh needs are read now
             nc = self.NcToPlc = _new(NCTOPLC_AXIS_REF)
-            nc._raw, nc._v, nc._rec = rec, None, None
             s, err, cs, vel, acc = _NC_PICK(rec)
-            self._sdw = s
+            nc._raw, nc._v, nc._rec, nc._sdw = rec, None, None, s
             if jobs is not None:
                 j = self._jobs = _new(NcJobsValues)
                 j._raw, j._v, j._rec = jobs, None, None

@@ -92,6 +92,10 @@ NCTOPLC_FIELDS: tuple[str, ...] = tuple(n for n, *_ in _NC_MEMBERS if not n.star
 _ZERO_NCTOPLC = bytes(NCTOPLC_DTYPE.itemsize)
 
 
+#: StateDWord from an NCTOPLC record's bytes (NCTOPLC_AXIS_REF._sdw)
+_SDW_OFF, _SDW = member_struct(NCTOPLC_DTYPE, "StateDWord")
+
+
 class NCTOPLC_AXIS_REF:
     """The read-only NCTOPLC snapshot of one axis (TwinCAT ``AXIS_REF.NcToPlc``).
 
@@ -103,7 +107,7 @@ class NCTOPLC_AXIS_REF:
     read-only, made on first use), ``keys()``, ``in``.
     """
 
-    __slots__ = ("_raw", "_v", "_rec")
+    __slots__ = ("_raw", "_v", "_rec", "_sdw")
     dtype = NCTOPLC_DTYPE
     # the members: read-only properties set from the layout below, declared here for the type checker
     # (tests/plc/test_declarations.py checks them against the layout)
@@ -156,12 +160,14 @@ class NCTOPLC_AXIS_REF:
         self._raw = bytes(raw)
         self._v: tuple[Any, ...] | None = None
         self._rec: np.void | None = None
+        #: StateDWord, kept apart: the blocks and the task test its bits every cycle without unpacking the record
+        self._sdw: int = _SDW.unpack_from(self._raw, _SDW_OFF)[0]
 
     @classmethod
     def _of(cls, raw: bytes) -> NCTOPLC_AXIS_REF:
         """A snapshot of ``raw`` (the runtime's per-cycle path: exactly 256 bytes, not copied again)."""
         self = object.__new__(cls)
-        self._raw, self._v, self._rec = raw, None, None
+        self._raw, self._v, self._rec, self._sdw = raw, None, None, _SDW.unpack_from(raw, _SDW_OFF)[0]
         return self
 
     def _unpack(self) -> tuple[Any, ...]:

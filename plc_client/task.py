@@ -338,7 +338,7 @@ class PlcTask:
         if c is not None and c.state == "held" and not retry and self._controlled.get(key) is ax:
             # the usual call (MC_Power every cycle of an axis held): what the rest below does for it, the
             # cheap tests first (a closed loop or an axis error shows the claim is not lost)
-            if (not ax._sdw & (_CLC | _ERROR) and ax.Status.Valid
+            if (not ax.NcToPlc._sdw & (_CLC | _ERROR) and ax.Status.Valid
                     and self.now - c.since >= self.claim_retry and self.reachable(ax.nc)
                     and self._claim_looks_lost(ax, c)):
                 self._send_claim(ax, c)

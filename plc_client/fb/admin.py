@@ -157,7 +157,7 @@ class MC_Power(FunctionBlock):
                 isinstance(bm, bool) or not isinstance(bm, int) or bm != 0):
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
         if held and valid:
-            sdw = ax._sdw  # (ax.NcToPlc.StateDWord, without unpacking the record)
+            sdw = ax.NcToPlc._sdw  # (its StateDWord, without unpacking the record)
             status = bool(sdw & _CLC) and not sdw & _ERR
         else:
             status = False

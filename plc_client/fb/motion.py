@@ -240,8 +240,7 @@ class MotionBlock(ExecuteBlock):
             if state == _ACTIVE and self._PLAIN_STATE:
                 # (every cycle of a running move: what _on_state does for ACTIVE without an axis error, without
                 # its calls; an axis error takes the path below)
-                ax = self.Axis
-                sdw = ax._sdw if ax is not None and rec is ax.NcToPlc else rec.StateDWord  # (no unpacking)
+                sdw = rec._sdw  # (its StateDWord, without unpacking the record)
                 if not sdw & _ERR:
                     if self._HAS_ACTIVE:
                         self.Active = True

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, to_dict
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, StateDWord, to_dict
 from nc_schema.codec import load_json
 from nc_server.core import NcCore
 from nc_server.core.params import AxisConfig
@@ -175,15 +175,42 @@ def test_snapshot_keeps_statedword_and_unpacks_nctoplc_only_when_read() -> None:
     core = NcCore([AxisConfig(AxisId=1)], cycle_time=0.001)
     X = AXIS_REF(nc="nc1", axis_id=1)
     power = MC_Power()
-    seen: list[tuple[int, int, bool]] = []  # (StateDWord kept, first byte, NcToPlc not unpacked yet)
+    seen: list[tuple[bool, bool]] = []  # per cycle after MC_Power: (NcToPlc not unpacked yet, _sdw = its StateDWord)
 
     def cycle(plc: InProcessPlc) -> None:
-        seen.append((X._sdw, X.NcToPlc._raw[0], X.NcToPlc._v is None))
         power(Axis=X, Enable=True, Enable_Positive=True, Enable_Negative=True)
+        rec = X.NcToPlc
+        lazy = rec._v is None
+        seen.append((lazy, rec._sdw == rec.StateDWord))  # (the read unpacks it, after the laziness was noted)
 
     plc = InProcessPlc(core, cycle)
     run_cycles(core, plc, 200, nc_steps=10, until=lambda: power.Status)
     assert power.Status and X.Status.ControlLoopClosed
-    assert seen and all(lazy for *_, lazy in seen[1:])  # MC_Power and the task read StateDWord without unpacking
-    assert X._sdw == X.NcToPlc.StateDWord and X._sdw & (1 << 20)  # (ControlLoopClosed; the read unpacked it)
-    assert X.Status.ErrorId == X.NcToPlc.ErrorCode
+    assert len(seen) > 1 and all(lazy for lazy, _ in seen[1:])  # MC_Power and the task read it without unpacking
+    assert all(same for _, same in seen)
+    assert X.NcToPlc._sdw & int(StateDWord.ControlLoopClosed) and X.Status.ErrorId == X.NcToPlc.ErrorCode
+
+
+def test_a_record_assigned_by_hand_is_what_the_blocks_see() -> None:
+    """A program (or a test) that puts its own NcToPlc in place: MC_Power judges that record's StateDWord, not the
+    one of the cycle's snapshot it replaced."""
+    core = NcCore([AxisConfig(AxisId=1)], cycle_time=0.001)
+    X = AXIS_REF(nc="nc1", axis_id=1)
+    power = MC_Power()
+    inject = [False]
+
+    def cycle(plc: InProcessPlc) -> None:
+        if inject[0]:
+            raw = bytearray(X.NcToPlc.tobytes())
+            sdw = X.NcToPlc.StateDWord | int(StateDWord.Error)
+            raw[0:4] = sdw.to_bytes(4, "little")
+            X.NcToPlc = NCTOPLC_AXIS_REF(bytes(raw))
+        power(Axis=X, Enable=True, Enable_Positive=True, Enable_Negative=True)
+
+    plc = InProcessPlc(core, cycle)
+    run_cycles(core, plc, 200, nc_steps=10, until=lambda: power.Status)
+    assert power.Status
+    inject[0] = True
+    run_cycles(core, plc, 1, nc_steps=10)
+    assert X.NcToPlc.StateDWord & int(StateDWord.Error) and X.NcToPlc._sdw == X.NcToPlc.StateDWord
+    assert not power.Status
