@@ -188,6 +188,11 @@ EXT_CONFIG = axis_config(default_config_text(), 1, AxisVeloMax=5000.0)
 #: turn the ramp's feeds into a jump the NC refuses: the fed acceleration carries the NC's set-point on
 #: while no feed comes (at the end of the acceleration phase a pause of 0.25 s is 0x4359)
 STALL = 0.1
+#: the ramps' acceleration [u/s^2]: the NC carries the last fed acceleration while no feed arrives, and refuses
+#: the next feed as a jump beyond amax T^2 / 2 (amax 5000, T <= 50 ms: 6.5 u); at the end of an acceleration
+#: of A a gap g in the feeds' delivery is 0.5 A g^2 off: at 200 a 0.25 s gap of the PLCTONC path alone (no
+#: clock of the records showed it: CI saw 0x4359 with the records' longest stall 0.044 s), at 20 one of 0.8 s
+RAMP_ACC = 20.0
 
 
 @dataclass
@@ -236,7 +241,7 @@ def feed_ramp(p: ExtPlc, d: float, until: Callable[[Rec], bool], name: str = "ge
             last = p.last(en)
             assert last is not None and last.o["Enabled"], last
             enabled = last
-        p.hook(gen, RAMP, AX=1, EN=en, D=d, V=20.0, A=200.0, state="wait", go=True, stop=False, t0=0.0, p0=0.0)
+        p.hook(gen, RAMP, AX=1, EN=en, D=d, V=20.0, A=RAMP_ACC, state="wait", go=True, stop=False, t0=0.0, p0=0.0)
         r = p.wait(gen, lambda r: not r.o["en"] or until(r), T)
         if r.o["en"]:
             return Fed(en, enabled, gen, r)
