@@ -189,6 +189,8 @@ class NctoplcPacker:
                                                        "SetTorqueDerivative", "AbsPhasingPos", "TorqueOffset"))
         self._torque_src: np.ndarray | None = None  # the drive's torque fields (6, n) whose rows are in _torque_rows
         self._torque_rows: tuple[np.ndarray, ...] = ()
+        self._torque_out12 = self._torque_out[1:3]  # (ActTorque, ActTorqueDerivative)
+        self._torque_ver: int | None = None  # the Mechanics.set_version of the rows copied last (None: unknown)
         self._mod = _Modulo(n)
         self._axis_state_key = b""  # (AxisState changes on events only: written when its bytes changed)
         self._sdw3_src: np.ndarray | None = None  # (the drive's probe input array written last)
@@ -221,10 +223,19 @@ class NctoplcPacker:
         o["ActVelo"][...] = d.act_velo
         torque = d.torque_fields()
         if torque is not None:  # (None: all 0 and shown so already)
-            if torque is not self._torque_src:
-                self._torque_src, self._torque_rows = torque, tuple(torque)
-            for dst, src in zip(self._torque_out, self._torque_rows):
-                dst[...] = src
+            m = getattr(d, "mechanics", None)  # (a drive's Mechanics counts its writes of rows 0, 3, 4, 5)
+            ver = m.set_version if m is not None and m.fields is torque else None
+            if torque is not self._torque_src or ver is None or ver != self._torque_ver:
+                if torque is not self._torque_src:
+                    self._torque_src, self._torque_rows = torque, tuple(torque)
+                for dst, src in zip(self._torque_out, self._torque_rows):
+                    dst[...] = src
+                self._torque_ver = ver
+            else:  # (rows 0, 3, 4, 5 as copied last: unchanged since)
+                o1, o2 = self._torque_out12
+                rows = self._torque_rows
+                o1[...] = rows[1]
+                o2[...] = rows[2]
         o["ActAcc"][...] = d.act_acc
         np.subtract(core.pos_ref, act, out=o["PosDiff"])  # (with a dead time: the delayed set position)
         sp_pos, sp_velo, sp_acc, sp_jerk = self._sp_out
