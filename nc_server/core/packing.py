@@ -5,7 +5,7 @@ copies into views of the record array).
 It owns the record layouts' packed forms (checked against ``nc_schema``'s dtypes at import) and
 nothing else: what goes in comes from the caller.
 
-It may import: nc_schema, numpy, .jobs.base (ENDED_KEPT, types).
+It may import: nc_schema, numpy, .jobs.base (ENDED_KEPT, types), .npcount.
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE
 from nc_schema.layout import flat_struct
 
 from .jobs.base import ENDED_KEPT
+from .npcount import count_nonzero
 
 if TYPE_CHECKING:
     from .jobs.base import JobQueue
@@ -150,7 +151,7 @@ class _Modulo:
         np.subtract(act, base[0], out=r0)  # (x - q * period, row by row: no stacked copy of the positions)
         np.subtract(set_pos, base[1], out=r1)
         np.less(self._r_bits, self._period_bits, out=ok)  # 0 <= r < period, -0.0 excluded
-        if np.count_nonzero(ok) < ok.size:
+        if count_nonzero(ok) < ok.size:
             x[0] = act
             x[1] = set_pos
             bad = (~ok).nonzero()
@@ -246,7 +247,7 @@ class NctoplcPacker:
             sp_acc[...] = a.set_acc
             sp_jerk[...] = a.set_jerk
             self._dyn_key = key
-        if np.count_nonzero(a.continuous):
+        if count_nonzero(a.continuous):
             np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
         self._mod(act, a.set_pos, a.modulo_factor, o["ModuloActTurns"], o["ModuloActPos"], o["ModuloSetTurns"],
