@@ -11,7 +11,7 @@ It may import: numpy.
 from __future__ import annotations
 
 import importlib
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 
@@ -23,7 +23,7 @@ def _find() -> Callable[[Any], int]:
         except ImportError:
             continue
         if callable(f):
-            return f
+            return cast(Callable[[Any], int], f)
     return np.count_nonzero  # pragma: no cover
 
 
