@@ -31,6 +31,7 @@ import numpy as np
 from nc_schema import ErrorCodes, StateDWord
 
 from .axes import AxisTable
+from .npcount import count_nonzero
 
 
 _IN_AREA = np.uint32(int(StateDWord.InPositionArea))
@@ -52,8 +53,10 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
     """
     lag_on, standstill, limits, any_standing = watch
     faults: list[tuple[int, int]] = []
-    if np.count_nonzero(lag_on):
-        over = np.abs((a.set_pos if ref is None else ref) - act_pos) > a.lag_max
+    if count_nonzero(lag_on):
+        lag = np.subtract(a.set_pos if ref is None else ref, act_pos)  # |SetPos - ActPos| > AxisMaxPosLagValue
+        np.abs(lag, out=lag)
+        over = np.greater(lag, a.lag_max)
         over &= lag_on
         a.lag_timer += dt
         a.lag_timer *= over  # reset where the lag is inside the window
@@ -62,7 +65,7 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
             if not a.error[i]:
                 faults.append((int(i), ErrorCodes.NC_POSITION_LAG))
     elif not a.lag_clear:  # (no axis watched: the timers as the full check leaves them; then known 0)
-        if np.count_nonzero(a.lag_timer):
+        if count_nonzero(a.lag_timer):
             a.lag_timer[:] = 0.0
         a.lag_clear = True
 
@@ -98,7 +101,7 @@ def monitor(a: AxisTable, act_pos: np.ndarray, dt: float,
         mon |= a.in_target * _IN_TARGET
         a.windows_clear = False
     elif not a.windows_clear:  # (then known False until some axis stands again)
-        if np.count_nonzero(a.in_target) or np.count_nonzero(a.in_area):  # (far cheaper than ndarray.any)
+        if count_nonzero(a.in_target) or count_nonzero(a.in_area):  # (far cheaper than ndarray.any)
             a.in_target[:] = False
             a.in_area[:] = False
             a.window_timer[:] = 0.0

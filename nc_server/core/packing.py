@@ -5,7 +5,7 @@ copies into views of the record array).
 It owns the record layouts' packed forms (checked against ``nc_schema``'s dtypes at import) and
 nothing else: what goes in comes from the caller.
 
-It may import: nc_schema, numpy, .jobs.base (ENDED_KEPT, types).
+It may import: nc_schema, numpy, .jobs.base (ENDED_KEPT, types), .npcount.
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from nc_schema import NCJOBS_DTYPE, NCTOPLC_DTYPE
 from nc_schema.layout import flat_struct
 
 from .jobs.base import ENDED_KEPT
+from .npcount import count_nonzero
 
 if TYPE_CHECKING:
     from .jobs.base import JobQueue
@@ -150,7 +151,7 @@ class _Modulo:
         np.subtract(act, base[0], out=r0)  # (x - q * period, row by row: no stacked copy of the positions)
         np.subtract(set_pos, base[1], out=r1)
         np.less(self._r_bits, self._period_bits, out=ok)  # 0 <= r < period, -0.0 excluded
-        if np.count_nonzero(ok) < ok.size:
+        if count_nonzero(ok) < ok.size:
             x[0] = act
             x[1] = set_pos
             bad = (~ok).nonzero()
@@ -189,6 +190,8 @@ class NctoplcPacker:
                                                        "SetTorqueDerivative", "AbsPhasingPos", "TorqueOffset"))
         self._torque_src: np.ndarray | None = None  # the drive's torque fields (6, n) whose rows are in _torque_rows
         self._torque_rows: tuple[np.ndarray, ...] = ()
+        self._torque_out12 = self._torque_out[1:3]  # (ActTorque, ActTorqueDerivative)
+        self._torque_ver: int | None = None  # the Mechanics.set_version of the rows copied last (None: unknown)
         self._mod = _Modulo(n)
         self._axis_state_key = b""  # (AxisState changes on events only: written when its bytes changed)
         self._sdw3_src: np.ndarray | None = None  # (the drive's probe input array written last)
@@ -221,10 +224,19 @@ class NctoplcPacker:
         o["ActVelo"][...] = d.act_velo
         torque = d.torque_fields()
         if torque is not None:  # (None: all 0 and shown so already)
-            if torque is not self._torque_src:
-                self._torque_src, self._torque_rows = torque, tuple(torque)
-            for dst, src in zip(self._torque_out, self._torque_rows):
-                dst[...] = src
+            m = getattr(d, "mechanics", None)  # (a drive's Mechanics counts its writes of rows 0, 3, 4, 5)
+            ver = m.set_version if m is not None and m.fields is torque else None
+            if torque is not self._torque_src or ver is None or ver != self._torque_ver:
+                if torque is not self._torque_src:
+                    self._torque_src, self._torque_rows = torque, tuple(torque)
+                for dst, src in zip(self._torque_out, self._torque_rows):
+                    dst[...] = src
+                self._torque_ver = ver
+            else:  # (rows 0, 3, 4, 5 as copied last: unchanged since)
+                o1, o2 = self._torque_out12
+                rows = self._torque_rows
+                o1[...] = rows[1]
+                o2[...] = rows[2]
         o["ActAcc"][...] = d.act_acc
         np.subtract(core.pos_ref, act, out=o["PosDiff"])  # (with a dead time: the delayed set position)
         sp_pos, sp_velo, sp_acc, sp_jerk = self._sp_out
@@ -235,7 +247,7 @@ class NctoplcPacker:
             sp_acc[...] = a.set_acc
             sp_jerk[...] = a.set_jerk
             self._dyn_key = key
-        if np.count_nonzero(a.continuous):
+        if count_nonzero(a.continuous):
             np.copyto(a.target_pos, a.set_pos, where=a.continuous)  # endless motion: the target moves with the axis
             o["TargetPos"][...] = a.target_pos
         self._mod(act, a.set_pos, a.modulo_factor, o["ModuloActTurns"], o["ModuloActPos"], o["ModuloSetTurns"],

@@ -79,6 +79,10 @@ class Mechanics:
         # and whether that one had the same inputs as the one before (then rows 0, 3 and 5 hold their steady values)
         self._set_key: tuple[bytes, bytes, bytes] = (b"", b"", b"")
         self._set_same = False
+        #: counts the steps that (may have) written rows 0, 3, 4 or 5 of :attr:`fields` (SetTorque, its derivative,
+        #: AbsPhasingPos, TorqueOffset): while it stays, those rows hold the values a reader copied last (the
+        #: output packer copies rows 1 and 2 alone then)
+        self.set_version = 0
 
     def configure(self, i: int, params: AxisParams) -> None:
         self._set_key = (b"", b"", b"")  # (step_set computes anew)
@@ -124,6 +128,7 @@ class Mechanics:
                 return
         self._set_key, self._set_same = key, same
         self._rest = 0
+        self.set_version += 1
         f0, t0, tmp = self._f0, self._t0, self._tmp0
         np.multiply(set_acc, self.inertia, t0)  # (the operations of step's row 0, in its order)
         _add_friction(t0, set_velo, tmp, self.viscous, self.coulomb)
@@ -173,11 +178,13 @@ class Mechanics:
         if not k:
             if self._rest < 3:
                 self._rest += 1
+                self.set_version += 1
                 if self._rest < 3:  # 1: the fields fall to 0 within this cycle, 2: their derivatives
                     f[2:4] = f[1::-1] * -self.inv_dt
                     f[[0, 1, 5]] = 0.0
             return
         self._rest = 0
+        self.set_version += 1
         # (into preallocated rows: the same operations on the same values as
         # inertia * acc + viscous * v + coulomb * sign(v), without a new array per term)
         v, t, tmp = self._v, self._t, self._tmp

@@ -38,6 +38,7 @@ from ..core.params import AxisParams
 from .base import DriveABC
 from .encoder import EncoderChain, pulse_passed
 from .mechanics import Mechanics
+from .npcount import count_nonzero
 from .probe_pattern import check_probe_signal, first_pattern_edge, pattern_level, signal_edges
 from .stepper import StepperTerminals
 
@@ -100,14 +101,21 @@ class SimDrive(DriveABC):
         delivering = enabled
         if self.faulty:  # a drive not ready or without valid I/O data holds (no set-point reaches it)
             delivering = enabled & self.ready & self.io_valid
-        new_pos = self.act_pos + (self._alpha * delivering) * (set_pos - self.act_pos)  # disabled: hold
+        act = self.act_pos
+        # act + (alpha * delivering) * (set_pos - act) (disabled: hold) in one new array: the same operations (+ and *
+        # commute bit for bit); every axis delivering: alpha * 1.0 is alpha
+        new_pos = np.subtract(set_pos, act, dtype=float)
+        new_pos *= self._alpha if count_nonzero(delivering) == len(act) else self._alpha * delivering
+        new_pos += act
         if self.terminals.any:
             t = self.terminals
             t.update(enabled, set_velo)  # (at rest the motor latches in again)
             if t.stalled.any():
                 new_pos = np.where(t.stalled, self.act_pos, new_pos)  # a stalled motor stands
-        new_velo = (new_pos - self.act_pos) / dt
-        new_acc = (new_velo - self.act_velo) / dt
+        new_velo = np.subtract(new_pos, act)
+        new_velo /= dt
+        new_acc = np.subtract(new_velo, self.act_velo)
+        new_acc /= dt
         if self.faulty:  # invalid I/O data: the NC reads the last valid values
             stale = ~self.io_valid
             new_velo[stale] = self.act_velo[stale]

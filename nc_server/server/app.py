@@ -656,6 +656,8 @@ class NcServer:
             if q is None:
                 self._waiting_since = None
                 break
+            if not taken:  # the liveliness events that arrived before the request, applied before it (idle)
+                self._take_liveliness(now)
             taken += 1
             t0 = clock()
             c0 = cpu()
@@ -866,7 +868,9 @@ class NcServer:
         none could run for QUERY_MAX_WAIT_NS, so requests always progress.
 
         They take effect at the next ``core.step()``, as their reply's ``cycle`` says. Liveliness
-        first: a client declares its token before it claims, and the NC must see them in that order.
+        first: a client declares its token before it claims, and the NC must see them in that order
+        (:meth:`_drain_queries` takes the liveliness events once it has a request, before it runs it; a
+        slice without requests leaves them to the next cycle's start or request: no poll per slice).
         Nothing before the retain file was applied (the first cycle).
         """
         if self._retain_pending:
@@ -874,7 +878,7 @@ class NcServer:
         self._idle_ran = True
         now = time.monotonic()
         self._tick(now)
-        self._take_liveliness(now)
+        # (liveliness: taken by _drain_queries before the first request it takes, not on every slice)
         waiting = min((w for w in (self._waiting_since, self._plan_waiting_since) if w is not None), default=None)
         waited = 0 if waiting is None else time.monotonic_ns() - waiting
         force = after_work and waited > QUERY_MAX_WAIT_NS

@@ -343,7 +343,10 @@ class Cia402Device:
         csv = self._csv
         stopping: np.ndarray | None = None
         if n_oe == self.n and not self._any_csv:  # the steady state: every drive follows its position target
-            new_pos = pos + self._alpha * (rx.target_position - pos)
+            # (pos + alpha * (target - pos) in one new array: the same operations, + and * commute bit for bit)
+            new_pos = np.subtract(rx.target_position, pos)
+            new_pos *= self._alpha
+            new_pos += pos
         else:
             stopping = (state == _QSA) | (state == _FRA)
             new_pos = pos.copy()
@@ -358,10 +361,12 @@ class Cia402Device:
                 stopping = None
         if self.stalled is not None:  # a stalled motor loses its field synchronism: it stands
             new_pos = np.where(self.stalled, pos, new_pos)
-        new_v = (new_pos - pos) / self._dt0  # (dt as a 0-d array)
+        new_v = np.subtract(new_pos, pos)  # ((new_pos - pos) / dt, dt as a 0-d array: one new array)
+        new_v /= self._dt0
         if stopping is not None:  # (exactly 0 at the end of the ramp: "stopped")
             new_v = np.where(stopping & (np.abs(new_v) < 1e-12), 0.0, new_v)
-        new_a = (new_v - v) / self._dt0
+        new_a = np.subtract(new_v, v)
+        new_a /= self._dt0
         self._before = pos
         self.position, self.velocity, self.acceleration = new_pos, new_v, new_a
         delivering, k = (oe, n_oe) if stopping is None else (oe | stopping, None)

@@ -393,7 +393,8 @@ class Cia402Drive(DriveABC):
         c = self.encoder
         new_pos = c.positions(tx.position_actual)
         new_velo = c.velocities(tx.velocity_actual)
-        new_acc = (new_velo - self.act_velo) / self._dt0
+        new_acc = np.subtract(new_velo, self.act_velo)  # ((new_velo - act_velo) / dt: one new array)
+        new_acc /= self._dt0
         n = len(state)
         age, alive = tx.age, tx.alive
         if age is self._fresh[0] and alive is self._fresh[1] and self.max_age == self._fresh[2]:
