@@ -191,6 +191,23 @@ def test_a_claims_holder_is_accepted_before_its_reply_goes_out(server: NcServer)
     assert msgpack.unpackb(payload, strict_map_key=False)["error"] == 0
 
 
+def test_liveliness_events_come_with_the_first_request_or_at_the_cycle_start(server: NcServer) -> None:
+    """A slice without requests leaves the liveliness events queued (no poll per slice); a request takes them before
+    it runs (a token declared before a Claim is seen first); the cycle start takes them in any case."""
+    server.transport.liveliness_events.append(("t", True))
+    server.idle(None)  # nothing to run
+    assert list(server.transport.liveliness_events) == [("t", True)] and not server.claims.is_alive("t")
+    _send(server, "t", 1, "Claim", cls="op")
+    server.idle(None)
+    assert [(r["cmd"], r["error"]) for r in _replies_of(server)] == [("Claim", 0)]
+    assert server.claims.is_alive("t") and server.claims.holder(1) == "t"
+    server.transport.liveliness_events.append(("t", False))  # its token goes: the next cycle reacts
+    server.idle(None)
+    assert server.claims.is_alive("t")
+    server.cycle(time.monotonic_ns())
+    assert not server.claims.is_alive("t") and server.claims.holder(1) is None
+
+
 # ---- acknowledged means kept: replies held until the retain file holds their effect ------------------
 @pytest.fixture
 def retain_server(tmp_path: Path):  # type: ignore[no-untyped-def]
