@@ -237,7 +237,9 @@ def check_attack(ads: NcAdsProcess, victim: Victim, watcher: NcTestClient, attac
     print("figures:", fig)
     lines = freed_after_close(ads, socks, freed_within) if socks else []
     after, _ = victim.measure(WINDOW_S)   # served as before once the attackers are gone (nc-ads stayed wedged once)
-    if p99(after) > limit:  # (the same second look: a wedged nc-ads stays slow, a stall of the machine passes)
+    for _ in range(4):  # (more looks: a wedged nc-ads stays slow in every one, a stall of the machine passes;
+        if p99(after) <= limit:  # CI under a heavy load saw two windows in a row at 184 ms, quiet 40 ms)
+            break
         after = min(after, victim.measure(WINDOW_S)[0], key=p99)
     fig.update(freed=sum(x[2] for x in lines), dropped=sum(x[3] for x in lines), after_p99_ms=p99(after) * 1e3,
                limit_ms=limit * 1e3)
