@@ -3,9 +3,9 @@ dtype -> ``struct.Struct`` conversion every fast path uses.
 
 Owns: locating and loading the contract's JSON (:data:`CONTRACT_DIR`, :func:`load_json`), the dtypes
 (:data:`DTYPES`, ``NCTOPLC_DTYPE`` ...), their sizes, :func:`members` / :func:`struct_of` /
-:func:`member_struct` (the only place a layout becomes a struct format), :func:`decode` and :func:`to_dict`
-of one record. Imports only the standard library and numpy (the generated enums, the frame codec and the
-rest of ``nc_schema`` build on it).
+:func:`member_struct` / :func:`pick_struct` (the only place a layout becomes a struct format),
+:func:`decode` and :func:`to_dict` of one record. Imports only the standard library and numpy (the generated
+enums, the frame codec and the rest of ``nc_schema`` build on it).
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ __all__ = [
     "CONTRACT_DIR", "load_json", "STRUCTS", "BITSETS", "ENUMS", "DTYPES", "NCTOPLC_DTYPE", "PLCTONC_DTYPE",
     "FRAME_HEADER_DTYPE", "PLC_FRAME_HEADER_DTYPE", "PLC_AXIS_RECORD_DTYPE", "STAMP_DTYPE", "NCJOBS_DTYPE",
     "NCTOPLC_SIZE", "PLCTONC_SIZE", "NCJOBS_SIZE", "FRAME_HEADER_SIZE", "PLC_FRAME_HEADER_SIZE",
-    "PLC_AXIS_RECORD_SIZE", "STAMP_SIZE", "Member", "members", "struct_of", "member_struct", "decode", "to_dict",
+    "PLC_AXIS_RECORD_SIZE", "STAMP_SIZE", "Member", "members", "struct_of", "member_struct", "pick_struct", "decode", "to_dict",
 ]
 
 #: IEC 61131 type of structs.json -> numpy type string
@@ -175,6 +175,27 @@ def member_struct(dtype: np.dtype, name: str) -> tuple[int, struct.Struct]:
         if m.name == name:
             return m.offset, struct.Struct("<" + m.fmt)
     raise KeyError(name)
+
+
+def pick_struct(dtype: np.dtype, *names: str) -> struct.Struct:
+    """A struct that reads only the scalar members ``names`` of one ``dtype`` record (``unpack(raw)``: their values
+    in this order, the bytes between and after them skipped): the per-cycle paths read a few members without
+    unpacking the whole record.
+
+    Raises:
+        KeyError: a name is not a member of ``dtype``.
+        ValueError: ``names`` not in the record's order (or overlapping), or one is not a scalar.
+    """
+    assert dtype.fields is not None
+    fmt, pos = "<", 0
+    for name in names:
+        fdt, off = dtype.fields[name][:2]
+        code = _CODES.get((fdt.kind, fdt.itemsize)) if fdt.names is None and fdt.subdtype is None else None
+        if code is None or off < pos:
+            raise ValueError(f"pick_struct: {name!r} is out of order or not a scalar")
+        fmt += (f"{off - pos}x" if off > pos else "") + code
+        pos = off + fdt.itemsize
+    return struct.Struct(fmt + (f"{dtype.itemsize - pos}x" if dtype.itemsize > pos else ""))
 
 
 def _flat_codes(dt: np.dtype) -> str:

@@ -31,7 +31,7 @@ import numpy as np
 
 from nc_schema import (NCJOBS_DTYPE, NCTOPLC_DTYPE, PLCTONC_DTYPE, Member, load_json, member_struct, members,
                        struct_of)
-from nc_schema.layout import _CODES, flat_struct
+from nc_schema.layout import flat_struct, pick_struct
 
 __all__ = ["NCTOPLC_AXIS_REF", "PLCTONC_AXIS_REF"]
 
@@ -65,26 +65,6 @@ _i = 0
 for _name, _off, _code, _n in _NC_MEMBERS:
     _NC_INDEX[_name] = (_i, _n)
     _i += max(_n, 1)
-
-
-def pick_struct(dtype: np.dtype, *names: str) -> struct.Struct:
-    """A struct that reads only the scalar members ``names`` of one ``dtype`` record (``unpack(raw)``: their values
-    in this order, the bytes between and after them skipped): the per-cycle paths read a few members without
-    unpacking the whole record.
-
-    Raises:
-        ValueError: ``names`` not in the record's order (or overlapping), or one is not a scalar.
-    """
-    assert dtype.fields is not None
-    fmt, pos = "<", 0
-    for name in names:
-        fdt, off = dtype.fields[name][:2]
-        code = _CODES.get((fdt.kind, fdt.itemsize)) if fdt.names is None and fdt.subdtype is None else None
-        if code is None or off < pos:
-            raise ValueError(f"pick_struct: {name!r} is out of order or not a scalar")
-        fmt += (f"{off - pos}x" if off > pos else "") + code
-        pos = off + fdt.itemsize
-    return struct.Struct(fmt + (f"{dtype.itemsize - pos}x" if dtype.itemsize > pos else ""))
 
 
 #: the members a program sees (reserved bytes left out)

@@ -150,7 +150,8 @@ def test_plctonc_bool_members_take_bools_and_a_real_gets_a_hint() -> None:
 
 def test_pick_struct_reads_the_members_the_full_unpack_reads() -> None:
     from nc_schema import NCJOBS_DTYPE
-    from plc_client.records import NcJobsValues, pick_struct
+    from nc_schema.layout import pick_struct
+    from plc_client.records import NcJobsValues
     rng = np.random.default_rng(7)
     names = ("StateDWord", "ErrorCode", "CoupleState", "SetVelo", "SetAcc")
     pick = pick_struct(NCTOPLC_DTYPE, *names)
@@ -169,6 +170,8 @@ def test_pick_struct_reads_the_members_the_full_unpack_reads() -> None:
         pick_struct(NCTOPLC_DTYPE, "ErrorCode", "StateDWord")  # not in the record's order
     with pytest.raises(ValueError):
         pick_struct(NCTOPLC_DTYPE, "CamCouplingState")  # an array
+    with pytest.raises(KeyError):
+        pick_struct(NCTOPLC_DTYPE, "NoSuchMember")
 
 
 def test_snapshot_keeps_statedword_and_unpacks_nctoplc_only_when_read() -> None:
