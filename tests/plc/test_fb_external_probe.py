@@ -409,6 +409,20 @@ def test_touch_probe_non_finite_window(nc: ScriptNc, bad: dict) -> None:
     assert tp.Error and tp.ErrorID == 0x4B06
 
 
+@pytest.mark.parametrize("source", [E_TouchProbe.PlcEvent, E_TouchProbe.TouchProbe1])
+def test_touch_probe_window_inputs_unused_without_window_only(nc: ScriptNc, source: int) -> None:
+    """TcMC 4.21: FirstPosition/LastPosition bound the window "if WindowOnly is TRUE"; without it their
+    values (NaN here: an unset LREAL from a failed computation) do not stop the probe cycle."""
+    ref = MC_InputRef(TouchProbe=source)
+    tp = MC_TouchProbe()
+    drive(nc, tp, TriggerInput=ref, Execute=True, WindowOnly=False, FirstPosition=math.nan, LastPosition="x")
+    nc.cycle_once()
+    assert tp.Busy and not tp.Error, f"0x{tp.ErrorID:X}"
+    if source == E_TouchProbe.TouchProbe1:
+        p = nc.last_sent("TouchProbe")
+        assert p.args["WindowOnly"] is False and (p.args["FirstPosition"], p.args["LastPosition"]) == (0.0, 0.0)
+
+
 def test_touch_probe_without_trigger_input(nc: ScriptNc) -> None:
     tp, ab = MC_TouchProbe(), MC_AbortTrigger()
     drive(nc, tp, Execute=True)
