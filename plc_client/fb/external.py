@@ -12,7 +12,8 @@ MC_ExtSetPointGenEnable, at the rising edge of Execute, first writes ExtSetPos :
 current NCTOPLC SetPos and ExtSetVelo := ExtSetAcc := ExtSetDirection := 0, then sends
 ``ExtSetPointGenEnable`` {Position, PositionType}: the first set-point the NC takes from the
 interface is where the axis already is (no jump, even if the program feeds its first value a
-cycle later). Position is the target of the NC's target position monitoring (InTargetPosition),
+cycle later). On an axis whose generator is already enabled (StateDWord ExtSetPointGenEnabled) it
+writes nothing: the values there are the PLC generator's feed (the NC answers the command). Position is the target of the NC's target position monitoring (InTargetPosition),
 not a motion target; PositionType is E_TargPosType (1 absolute, 2 relative, 5 modulo).
 
 Both blocks: Done once the NC accepted the command and a frame of the reply's cycle (or a later
@@ -88,12 +89,15 @@ class MC_ExtSetPointGenEnable(_ExtSetPointBlock):
         ax = self._usable_axis()
         if ax is None:
             return
-        # the first set-point the NC takes is where the axis is: no jump
-        out = ax.PlcToNc
-        out["ExtSetPos"] = float(ax.NcToPlc["SetPos"])
-        out["ExtSetVelo"] = 0.0
-        out["ExtSetAcc"] = 0.0
-        out["ExtSetDirection"] = 0
+        # the first set-point the NC takes is where the axis is: no jump. Not on an axis whose generator is
+        # already enabled: the PLC's generator feeds it, and a seed at velocity 0 would be a velocity step
+        # of a moving axis (0x4359)
+        if not int(ax.NcToPlc["StateDWord"]) & _EXT:
+            out = ax.PlcToNc
+            out["ExtSetPos"] = float(ax.NcToPlc["SetPos"])
+            out["ExtSetVelo"] = 0.0
+            out["ExtSetAcc"] = 0.0
+            out["ExtSetDirection"] = 0
         self._send("ExtSetPointGenEnable", Position=float(self.Position), PositionType=pt)
 
 

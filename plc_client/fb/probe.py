@@ -34,7 +34,8 @@ CommandAborted - Execute falling does not end it (the end output is then TRUE fo
 the general output rule). ``TriggerInput.ProbeState``: TouchProbeActivated while the block is
 Busy, TouchProbeAborted after CommandAborted, TouchProbeInactive after Done or Error.
 RecordedPosition keeps its value until the next rising edge (it is a value, not a result flag).
-Non-finite FirstPosition/LastPosition: Error 0x4B06, nothing armed. TriggerInput not given:
+Non-finite FirstPosition/LastPosition with WindowOnly: Error 0x4B06, nothing armed (without WindowOnly
+they are not used, TcMC: "if WindowOnly is TRUE"; the NC source then gets 0.0 for them). TriggerInput not given:
 0x4B0B.
 
 MC_AbortTrigger: NC sources - sends ``AbortTrigger`` and is Done once the NC accepted it and a
@@ -171,11 +172,13 @@ class MC_TouchProbe(_TriggerBlock):
         if ref is None:
             self._finish("Error", ErrorCodes.MC_TRIGGER_INPUT_INVALID)
             return
-        if not (self._is_real(self.FirstPosition) and self._is_real(self.LastPosition)):
+        window_only = bool(self.WindowOnly)
+        reals = self._is_real(self.FirstPosition) and self._is_real(self.LastPosition)
+        if window_only and not reals:
             self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
             return
-        first, last = float(self.FirstPosition), float(self.LastPosition)
-        window_only = bool(self.WindowOnly)
+        # (without WindowOnly the window is not used, TcMC 4.21: whatever the inputs hold, 0 goes out)
+        first, last = (float(self.FirstPosition), float(self.LastPosition)) if reals else (0.0, 0.0)
         self._plc_event = _is_plc_event(ref)
         if self._plc_event:
             self._start_plc_event(ref, window_only, first, last)

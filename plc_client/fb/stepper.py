@@ -21,7 +21,8 @@ What it does (the manual's rules; zenoh-nc's choices where it is silent):
   covers its remaining distance. UseOverride needs the Lagging detection (the manual's table: "not
   suitable" with Encoderless): that combination is refused with Error 0x4B04 while DestallEnable is TRUE
   (the enables still work), as is an unknown mode number;
-* **status monitoring** (``StatusMonEnable``): each error bit of the status word (KL_Status2) that the
+* **status monitoring** (``StatusMonEnable``, independent of the stall settings: it runs also while those
+  are refused): each error bit of the status word (KL_Status2) that the
   parameter table maps (schema/params.json ``stepper_terminal``: 0x4630 overtemperature .. 0x4635
   overcurrent B) is reported to the NC as that axis error, the lowest bit first;
 * a reported error is reported once: again only after the axis error was cleared (MC_Reset) and the
@@ -169,8 +170,9 @@ class MC_PowerStepper(FunctionBlock):
             enable, mon = bool(dp.DestallEnable), bool(dp.StatusMonEnable)
         except AttributeError:
             return None
-        if detect not in {int(m) for m in E_DestallDetectMode} or mode not in {int(m) for m in E_DestallMode}:
-            return None
+        # (an unknown mode number: -1, refused by _supervise after the status monitoring, which does not use it)
+        detect = detect if detect in {int(m) for m in E_DestallDetectMode} else -1
+        mode = mode if mode in {int(m) for m in E_DestallMode} else -1
         return detect, mode, enable, mon
 
     def _terminal_inputs(self, ax: AXIS_REF) -> tuple[int, int]:
@@ -193,6 +195,9 @@ class MC_PowerStepper(FunctionBlock):
                 if sw >> bit & 1:
                     self._raise(ax, err, f"terminal: {name}", unreference=False)
                     break
+        if detect < 0 or mode < 0:
+            self._holding = False
+            return ErrorCodes.MC_INVALID_MODE
         if not enable or detect == E_DestallDetectMode.PwStDetectMode_None:
             self._holding, self.stalled, self._lag_since = False, False, None
             return 0

@@ -377,6 +377,19 @@ def test_target_position_is_shown(ptype, pos, want):
     assert float(core.nctoplc[0]["TargetPos"]) == pytest.approx(want, abs=1e-9)
 
 
+@pytest.mark.parametrize("x0, want", [(-10.0, -5.0), (-370.0, -365.0), (-360.0, -5.0), (350.0, 355.0)])
+def test_modulo_target_in_the_current_turn_also_below_zero(x0, want):
+    """PositionType 5 (modulo, period 360): Position 355 in the turn the axis is in. TcMC 4.16: "the flag In target
+    position becomes TRUE, as soon as this position is reached" - at -10 (modulo 350) that is -5, not +355."""
+    core = powered(1, SimTimeConstant=0.0, **STEPS)
+    assert cmd(core, "SetActualPosition", Position=x0)["error"] == 0
+    core.step()
+    feed(core, x0)
+    assert cmd(core, "ExtSetPointGenEnable", Position=355.0, PositionType=5)["error"] == 0
+    core.step()
+    assert float(core.nctoplc[0]["TargetPos"]) == pytest.approx(want, abs=1e-9)
+
+
 def test_in_target_position_when_the_fed_motion_reaches_position():
     core = powered(1, SimTimeConstant=0.0, **STEPS)
     feed(core, 0.0)

@@ -15,7 +15,7 @@ from plc_client import (
     AXIS_REF, E_SignalEdge, E_TargPosType, E_TouchProbe, E_TouchProbeState, MC_AbortTrigger,
     MC_ExtSetPointGenDisable, MC_ExtSetPointGenEnable, MC_ExtSetPointGenFeed, MC_InputRef, MC_TouchProbe,
 )
-from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, S, ScriptNc
+from znc_testing.plc_rig import ABORTED, ACTIVE, DONE, ERROR, IDLE, S, Rig, ScriptNc, powered
 
 EXT = int(S.ExtSetPointGenEnabled)
 
@@ -67,6 +67,49 @@ def test_enable_writes_the_set_position_before_the_command(nc: ScriptNc) -> None
     st["Execute"] = False
     nc.cycle_once()
     assert not fb.Done and fb.Enabled, "Enabled is independent of Execute"
+
+
+def test_enable_on_an_enabled_generator_leaves_the_feed(nc: ScriptNc) -> None:
+    """TcMC 4.16: Position is for target position monitoring only, "the external set value generator is
+    responsible" for the motion: a second enable must not replace the generator's fed set-point by a seed
+    at velocity 0 (over the real NC: a velocity step, axis error 0x4359, test below)."""
+    nc.state(IDLE | EXT, SetPos=12.5, ActPos=12.49)
+    nc.cycle_once()
+    out = nc.ax.PlcToNc
+    out["ExtSetPos"], out["ExtSetVelo"], out["ExtSetAcc"], out["ExtSetDirection"] = 13.0, 200.0, 0.0, 1
+    fb = MC_ExtSetPointGenEnable()
+    drive(nc, fb, Execute=True, Position=50.0)
+    nc.cycle_once()
+    assert (float(out["ExtSetPos"]), float(out["ExtSetVelo"]), int(out["ExtSetDirection"])) == (13.0, 200.0, 1)
+    assert nc.last_sent("ExtSetPointGenEnable").args == {"Position": 50.0, "PositionType": 1}, "the NC answers"
+
+
+def test_enable_again_while_feeding_at_speed_keeps_the_axis_running() -> None:
+    rig = Rig()
+    ax, _, calls = powered(rig)
+    en = rig.watch(MC_ExtSetPointGenEnable())
+    st: dict[str, Any] = {"ex": True, "p": 0.0, "v": 0.0, "feed": False}
+
+    def body(p: Any) -> None:
+        if st["feed"]:  # the generator runs first in the program, the block after it
+            MC_ExtSetPointGenFeed(st["p"], st["v"], 0.0, 1 if st["v"] > 0 else 0, ax)
+        en(Axis=ax, Execute=st["ex"], Position=100.0)
+
+    calls["body"] = body
+    rig.run_until(lambda: en.Done, 10)
+    st.update(feed=True, p=float(ax.NcToPlc["SetPos"]))
+    for k in range(20):  # up to 300 u/s at 2000 u/s^2
+        st["v"] = min(300.0, st["v"] + 20.0)
+        st["p"] += st["v"] * 0.01
+        rig.run(1)
+    assert math.isclose(float(ax.NcToPlc["SetVelo"]), 300.0) and not ax.Status.Error
+    for ex in (False, True, True, True):
+        st["ex"] = ex
+        st["p"] += st["v"] * 0.01
+        rig.run(1)
+    assert en.Error and en.ErrorID == ErrorCodes.MC_AXIS_PROTECTED, "the NC refuses it"
+    assert not ax.Status.Error, f"axis error 0x{ax.Status.ErrorId:X}"
+    assert math.isclose(float(ax.NcToPlc["SetVelo"]), 300.0) and en.Enabled
 
 
 def test_enabled_shows_the_axis_state_without_execute(nc: ScriptNc) -> None:
@@ -364,6 +407,20 @@ def test_touch_probe_non_finite_window(nc: ScriptNc, bad: dict) -> None:
     tp, _, _ = plc_probe(nc, WindowOnly=True, **bad)
     nc.cycle_once()
     assert tp.Error and tp.ErrorID == 0x4B06
+
+
+@pytest.mark.parametrize("source", [E_TouchProbe.PlcEvent, E_TouchProbe.TouchProbe1])
+def test_touch_probe_window_inputs_unused_without_window_only(nc: ScriptNc, source: int) -> None:
+    """TcMC 4.21: FirstPosition/LastPosition bound the window "if WindowOnly is TRUE"; without it their
+    values (NaN here: an unset LREAL from a failed computation) do not stop the probe cycle."""
+    ref = MC_InputRef(TouchProbe=source)
+    tp = MC_TouchProbe()
+    drive(nc, tp, TriggerInput=ref, Execute=True, WindowOnly=False, FirstPosition=math.nan, LastPosition="x")
+    nc.cycle_once()
+    assert tp.Busy and not tp.Error, f"0x{tp.ErrorID:X}"
+    if source == E_TouchProbe.TouchProbe1:
+        p = nc.last_sent("TouchProbe")
+        assert p.args["WindowOnly"] is False and (p.args["FirstPosition"], p.args["LastPosition"]) == (0.0, 0.0)
 
 
 def test_touch_probe_without_trigger_input(nc: ScriptNc) -> None:

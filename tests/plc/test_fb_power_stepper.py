@@ -172,6 +172,26 @@ def test_status_monitoring_reports_terminal_errors(word, code) -> None:
     assert not ps.Error and not int(ax.NcToPlc["ErrorCode"])
 
 
+@pytest.mark.parametrize("params", [
+    ST_PowerStepperStruct(7, M.PwStMode_SetError, True, True),
+    ST_PowerStepperStruct(D.PwStDetectMode_Lagging, 9, False, True),
+    ST_PowerStepperStruct(D.PwStDetectMode_Encoderless, M.PwStMode_UseOverride, True, True),
+])
+def test_status_monitoring_with_refused_stall_settings(params) -> None:
+    """TcMC 6.6: StatusMonEnable "specifies whether the status bits of the I/O terminal are monitored and
+    whether errors that occur are to be reported" - a stall setting the block refuses does not switch that off."""
+    rig = stepper_rig()
+    plc = rig.plc()
+    ax = plc.axis("nc1", 1)
+    ps = MC_PowerStepper()
+    plc.program = lambda p: ps(Axis=ax, Enable=True, Enable_Positive=True, Enable_Negative=True, DestallParams=params)
+    rig.run(5)
+    assert ps.Error and ps.ErrorID == E.MC_INVALID_MODE
+    assert nc_cmd(rig, "SimTerminalError", StatusWord=1 << 3)["error"] == 0
+    rig.run_until(lambda: int(ax.NcToPlc["ErrorCode"]) == 0x4630, 20)
+    assert ps.Error and ps.ErrorID == 0x4630
+
+
 def test_status_monitoring_off_and_explicit_inputs() -> None:
     rig = stepper_rig()
     prm = ST_PowerStepperStruct(D.PwStDetectMode_None, M.PwStMode_None, False, False)

@@ -19,6 +19,7 @@ from nc_schema import CmdState, E_TargPosType, ErrorCodes, NcError
 
 from ..commands import core_command
 from ..planning import Plan, StartState
+from ..probe import modulo_position
 from .base import Job, JobKind
 from .stop import HALT_RAMP
 
@@ -52,7 +53,9 @@ class ExternalKind(JobKind):
             pos += start.p
         elif ptype == int(E_TargPosType.POS_MODULO):
             period = float(core.params[i].AxisEncoderModuloValue)
-            pos = start.p - math.fmod(start.p, period) + pos
+            # in the axis's current modulo turn (floored: at -10 of a 360 period that is -360..0, as the
+            # modulo position 350 says; fmod's truncation put it one turn ahead)
+            pos = start.p - modulo_position(start.p, period) + pos
         job.target = pos
         return None
 
