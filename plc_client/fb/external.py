@@ -13,8 +13,9 @@ current NCTOPLC SetPos and ExtSetVelo := ExtSetAcc := ExtSetDirection := 0, then
 ``ExtSetPointGenEnable`` {Position, PositionType}: the first set-point the NC takes from the
 interface is where the axis already is (no jump, even if the program feeds its first value a
 cycle later). On an axis whose generator is already enabled (StateDWord ExtSetPointGenEnabled) it
-writes nothing: the values there are the PLC generator's feed (the NC answers the command). Position is the target of the NC's target position monitoring (InTargetPosition),
-not a motion target; PositionType is E_TargPosType (1 absolute, 2 relative, 5 modulo).
+writes nothing: the values there are the PLC generator's feed (the NC answers the command: its
+0x4B08 refusal of a second enable is zenoh-nc's choice). Position is the target of the NC's
+target position monitoring (InTargetPosition), not a motion target; PositionType is E_TargPosType (1 absolute, 2 relative, 5 modulo).
 
 Both blocks: Done once the NC accepted the command and a frame of the reply's cycle (or a later
 one) arrived, so ``Enabled`` already shows the new state in the cycle Done comes; Error with

@@ -34,9 +34,9 @@ CommandAborted - Execute falling does not end it (the end output is then TRUE fo
 the general output rule). ``TriggerInput.ProbeState``: TouchProbeActivated while the block is
 Busy, TouchProbeAborted after CommandAborted, TouchProbeInactive after Done or Error.
 RecordedPosition keeps its value until the next rising edge (it is a value, not a result flag).
-Non-finite FirstPosition/LastPosition with WindowOnly: Error 0x4B06, nothing armed (without WindowOnly
-they are not used, TcMC: "if WindowOnly is TRUE"; the NC source then gets 0.0 for them). TriggerInput not given:
-0x4B0B.
+Non-finite FirstPosition/LastPosition with WindowOnly: Error 0x4B06, nothing armed (without
+WindowOnly they are not used, TcMC: "if WindowOnly is TRUE"; non-finite values then go out as
+0.0). TriggerInput not given: 0x4B0B.
 
 MC_AbortTrigger: NC sources - sends ``AbortTrigger`` and is Done once the NC accepted it and a
 frame of the reply's cycle arrived (the MC_TouchProbe then sees its cycle ABORTED). PlcEvent -
@@ -177,7 +177,7 @@ class MC_TouchProbe(_TriggerBlock):
         if window_only and not reals:
             self._finish("Error", ErrorCodes.MC_PARAMETER_NOT_CORRECT)
             return
-        # (without WindowOnly the window is not used, TcMC 4.21: whatever the inputs hold, 0 goes out)
+        # (without WindowOnly the window is not used, TcMC 4.21: non-finite bounds go out as 0.0)
         first, last = (float(self.FirstPosition), float(self.LastPosition)) if reals else (0.0, 0.0)
         self._plc_event = _is_plc_event(ref)
         if self._plc_event:
