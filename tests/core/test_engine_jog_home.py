@@ -318,14 +318,24 @@ def test_oriented_stop_refusals():
     assert snapshot(core) == before
 
 
-def test_oriented_stop_beyond_a_soft_limit_is_refused():
+def test_oriented_stop_beyond_a_soft_limit_stops_the_axis_and_ends_with_the_error():
+    """TcMC 3.16: "an oriented stop would cause an active software limit switch to be exceeded. For all
+    fault conditions, the axis is stopped safely, but it may subsequently not be at the required
+    oriented position": the standard stop, then the job ends ERROR 0x4222."""
     core = powered(Modulo=True, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=200.0)
+    tr = Trace(core)
     cmd(core, "MoveVelocity", Velocity=360.0, Direction=1)
-    while core.nctoplc[0]["SetPos"] < 100.0:
-        core.step()
-    before = snapshot(core)
-    assert cmd(core, "OrientedStop", Position=350.0)["error"] == E.NC_TARGET_POSITION_NOT_ALLOWED
-    assert snapshot(core) == before
+    tr.until(lambda r: r["SetPos"] >= 100.0)
+    p = float(tr.rows[-1]["SetPos"])
+    r = cmd(core, "OrientedStop", Position=350.0)
+    assert r["error"] == 0
+    n = r["CmdNo"]
+    tr.settle()
+    e = float(tr.rows[-1]["SetPos"])
+    assert e == pytest.approx(p + stop_distance(360.0), abs=0.5), "the standard stop (not the oriented one)"
+    assert e < 200.0 and (tr.col("SetVelo") >= 0).all()
+    assert tr.fate(n) == (ERROR, E.NC_TARGET_POSITION_NOT_ALLOWED)
+    assert not core.nctoplc[0]["StateDWord"] & StateDWord.Error, "a command error, not an axis error"
 
 
 # -- Override -------------------------------------------------------------------------------------
