@@ -36,6 +36,11 @@ if TYPE_CHECKING:
     from ..context import CoreContext
 
 _EPS_V = 1e-9
+#: check_target's software-limit refusals: for MC_OrientedStop fault conditions (TcMC 3.16), the
+#: standard stop, then ERROR with the code: the target beyond the limit (0x4222), the axis already
+#: beyond it and moving further out (0x4460 / 0x4461, e.g. after MC_SetActualPositionOnTheFly)
+_LIMIT_FAULTS = frozenset({int(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED), int(ErrorCodes.NC_SOFT_LIMIT_MIN_START),
+                           int(ErrorCodes.NC_SOFT_LIMIT_MAX_START)})
 
 
 def stopped_dynamics(core: CoreContext, i: int, followed: Job | None, dec: float, jerk: float) -> tuple[float, float]:
@@ -134,7 +139,9 @@ class OrientedStopKind(JobKind):
     use MC_MoveModulo). A target beyond an enabled software limit: TcMC 3.16 "for all fault
     conditions, the axis is stopped safely, but it may subsequently not be at the required oriented
     position": the command is accepted, the axis makes the standard stop (to its natural standstill)
-    and the job ends ERROR 0x4222 there (the block's Error must be analysed). The refusals above
+    and the job ends ERROR 0x4222 there (the block's Error must be analysed); likewise an axis that is
+    already beyond the limit and moves further out (0x4460 / 0x4461). A job waiting behind it
+    then never starts: it ends ABORTED (errors clear the queue, ``JobEngine.finish``). The refusals above
     (bad Position, axis at rest) change nothing: a parameter error is refused before any motion
     (zenoh-nc choice; the manual's examples of fault conditions are run-time ones)."""
 
@@ -168,7 +175,7 @@ class OrientedStopKind(JobKind):
         try:
             core.check_target(i, start.p, target, plan)
         except NcError as err:
-            if err.code != ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED:
+            if err.code not in _LIMIT_FAULTS:
                 raise
             # TcMC 3.16: the axis is stopped safely all the same (the standard stop), the job ends with the error
             stop = core.plan(plan_velocity, start, 0.0, sd)
