@@ -344,9 +344,14 @@ class JobEngine:
         self.sync(i)
 
     def finish(self, i: int, job: Job, state: CmdState = CmdState.DONE, error_id: int = 0) -> None:
-        """End the running ``job``; a waiting job takes over (or the generator stops)."""
+        """End the running ``job``; a waiting job takes over (or the generator stops). A job that ends
+        ERROR (it could not do its task: MC_OrientedStop beyond a software limit, after its standard
+        stop) clears the queue as an axis error does: the waiting job ends ABORTED, it never starts
+        (a buffered successor waits for its predecessor's Done)."""
         core = self.core
         q = core.queues[i]
+        if state == CmdState.ERROR and q.waiting is not None:
+            q.end(q.waiting, CmdState.ABORTED)
         q.end(job, state, error_id)
         if q.waiting is not None:
             self.advance(i)

@@ -394,7 +394,9 @@ class MC_GearOutExt(_SlaveCall, MotionBlock):
     Inputs: Execute, Mode (E_DecoupleMode 0..6), Position [u] (NEWPOS/NEWPOSANDVELO: absolute
     target; ORIENTEDSTOP: modulo position), Velocity [u/s] (ENDLESS_NEWVELO/NEWPOSANDVELO),
     Acceleration, Deceleration, Jerk (0 = axis default). Outputs: Done, Busy, CommandAborted,
-    Error, ErrorID. VAR_IN_OUT: Slave. See the module docstring for when it is Done.
+    Error, ErrorID. VAR_IN_OUT: Slave. See the module docstring for when it is Done. ORIENTEDSTOP
+    with the oriented position beyond an enabled software limit: the slave is decoupled and makes
+    the standard stop, then Error 0x4222 (as MC_OrientedStop, TcMC 3.16).
     """
 
     CMD = "GearOutExt"

@@ -600,7 +600,8 @@ class MC_OrientedStop(MotionBlock):
     Outputs: Done, Busy (manual), Active, CommandAborted (Tc2_MC2 outputs added), Error,
     ErrorID. A motion command with its own CmdNo: Done once the job ended and the axis stands
     still at the logical end (as MC_Halt; no target window is awaited), CommandAborted if
-    another command took over, Error if the NC ended it with an error (e.g. a software limit).
+    another command took over, Error if the NC ended it with an error (e.g. Position beyond an
+    enabled software limit: Busy during the standard stop, then Error 0x4222, TcMC 3.16).
     No BufferMode (neither the manual nor the contract has one).
     """
 

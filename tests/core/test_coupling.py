@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
-from nc_schema import (AxisState, CmdState, CoupleState, ErrorCodes as E, MC_AxisStates, NcError, NcJobsSyncFlags,
-                       StateDWord, make_request, parse_request)
+from nc_schema import (AxisState, CmdState, CoupleState, E_DecoupleMode, ErrorCodes as E, MC_AxisStates, NcError,
+                       NcJobsSyncFlags, StateDWord, make_request, parse_request)
 from nc_server.core import AxisConfig, AxisParams, NcCore
 from znc_testing.engine_check import Trace
 from znc_testing.nc_core import cmd, power, snapshot, state
@@ -888,6 +888,32 @@ def test_gear_out_ext_at_standstill_just_decouples(mode):
     assert val(core, 1, "SetPos") == p
     assert_single(core, 1)
     assert_single(core, 0)
+
+
+def test_gear_out_ext_orientedstop_beyond_a_soft_limit_decouples_stops_and_ends_with_the_error():
+    """GearOutExt Mode ORIENTEDSTOP whose oriented position lies beyond the enabled AxisMaxSoftPosLimit: as
+    MC_OrientedStop (TcMC 3.16 "for all fault conditions, the axis is stopped safely"): accepted, the slave
+    is decoupled (the coupling DONE) and makes the standard stop; the follow-on job ends ERROR 0x4222."""
+    core, n = moving_pair(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=100.0,
+                          AxisEnMinSoftPosLimit=True, AxisMinSoftPosLimit=-100.0)
+    p0, v0, a0 = sp(core, 1)
+    assert a0 == 0.0 and 0.0 < p0 < 80.0 and v0 == pytest.approx(100.0)
+    tr = Trace(core, 1)
+    rep = do(core, 1, "GearOutExt", Mode=int(E_DecoupleMode.MC_DECOUPLEMODE_ORIENTEDSTOP), Position=350.0)
+    assert rep["error"] == 0, rep
+    no = rep["CmdNo"]
+    assert ended(core, 1)[n] == (DONE, 0)
+    run(core, until=standing(core, 1), traces=(tr,), max_cycles=500)
+    run(core, 5, traces=(tr,))
+    p = val(core, 1, "SetPos")
+    # the standard stop from 100 u/s with AxisJerk 50000 (AxisDec 5000 not reached): v sqrt(v / jerk)
+    assert p == pytest.approx(p0 + 100.0 * math.sqrt(100.0 / 50000.0), abs=0.2) and p < 100.0 and tr.col("SetVelo").min() >= 0
+    assert ended(core, 1)[no] == (ERROR, int(E.NC_TARGET_POSITION_NOT_ALLOWED))
+    assert int(core.nctoplc[1]["CmdNo"]) == no and int(core.nctoplc[1]["CmdState"]) == ERROR
+    assert not dw(core, 1) & StateDWord.Error and not dw(core, 1) & StateDWord.HasJob
+    assert_single(core, 1)
+    assert_single(core, 0)
+    assert val(core, 0, "SetVelo") == pytest.approx(200.0)  # (the master goes on)
 
 
 @pytest.mark.parametrize("args,code", [

@@ -318,14 +318,73 @@ def test_oriented_stop_refusals():
     assert snapshot(core) == before
 
 
-def test_oriented_stop_beyond_a_soft_limit_is_refused():
+def test_oriented_stop_beyond_a_soft_limit_stops_the_axis_and_ends_with_the_error():
+    """TcMC 3.16: "an oriented stop would cause an active software limit switch to be exceeded. For all
+    fault conditions, the axis is stopped safely, but it may subsequently not be at the required
+    oriented position": the standard stop, then the job ends ERROR 0x4222."""
     core = powered(Modulo=True, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=200.0)
+    tr = Trace(core)
     cmd(core, "MoveVelocity", Velocity=360.0, Direction=1)
-    while core.nctoplc[0]["SetPos"] < 100.0:
-        core.step()
-    before = snapshot(core)
-    assert cmd(core, "OrientedStop", Position=350.0)["error"] == E.NC_TARGET_POSITION_NOT_ALLOWED
-    assert snapshot(core) == before
+    tr.until(lambda r: r["SetPos"] >= 100.0)
+    p = float(tr.rows[-1]["SetPos"])
+    r = cmd(core, "OrientedStop", Position=350.0)
+    assert r["error"] == 0
+    n = r["CmdNo"]
+    tr.settle()
+    e = float(tr.rows[-1]["SetPos"])
+    assert e == pytest.approx(p + stop_distance(360.0), abs=0.5), "the standard stop (not the oriented one)"
+    assert e < 200.0 and (tr.col("SetVelo") >= 0).all()
+    assert tr.fate(n) == (ERROR, E.NC_TARGET_POSITION_NOT_ALLOWED)
+    assert not core.nctoplc[0]["StateDWord"] & StateDWord.Error, "a command error, not an axis error"
+
+
+def test_oriented_stop_ending_in_error_aborts_the_job_buffered_behind_it():
+    """Errors clear the queue (schema/README.md; PLCopen Buffered waits for Done): a job buffered behind
+    an oriented stop that ends ERROR 0x4222 (beyond the software limit) never starts, it ends ABORTED."""
+    core = powered(Modulo=True, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=200.0)
+    tr = Trace(core)
+    cmd(core, "MoveVelocity", Velocity=360.0, Direction=1)
+    tr.until(lambda r: r["SetPos"] >= 100.0)
+    n = cmd(core, "OrientedStop", Position=350.0)["CmdNo"]
+    tr.step(3)
+    r = cmd(core, "MoveRelative", Distance=30.0, Velocity=100.0, BufferMode=1)  # MC_Buffered
+    assert r["error"] == 0
+    m = r["CmdNo"]
+    tr.settle()
+    e = float(tr.rows[-1]["SetPos"])
+    tr.step(50)
+    assert tr.fate(n) == (ERROR, E.NC_TARGET_POSITION_NOT_ALLOWED) and tr.fate(m) == (ABORTED, 0)
+    assert float(tr.rows[-1]["SetPos"]) == e and float(tr.rows[-1]["SetVelo"]) == 0.0, "the axis stands"
+    assert not tr.rows[-1]["StateDWord"] & StateDWord.HasJob
+    assert state(core) == S.MC_AXISSTATE_STANDSTILL
+    assert cmd(core, "MoveRelative", Distance=-30.0, Velocity=100.0)["error"] == 0  # (the axis takes commands)
+
+
+@pytest.mark.parametrize("sense", [1, -1])
+def test_oriented_stop_of_an_axis_already_beyond_its_soft_limit_stops_it_and_ends_with_the_error(sense):
+    """TcMC 3.16's fault condition also when the axis already stands beyond the limit and moves further
+    out (MC_SetActualPositionOnTheFly just shifted it there): 0x4461 / 0x4460, the standard stop, the job
+    ends ERROR with that code (before: refused, the velocity move went on)."""
+    lim = dict(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=200.0) if sense > 0 else dict(
+        AxisEnMinSoftPosLimit=True, AxisMinSoftPosLimit=-200.0)
+    core = powered(Modulo=True, **lim)
+    tr = Trace(core)
+    cmd(core, "MoveVelocity", Velocity=20.0, Direction=POS if sense > 0 else NEG)
+    tr.until(lambda r: sense * r["SetPos"] >= 10.0)
+    p = float(core.axes.set_pos[0])
+    # 1 u beyond the limit: within AxisMaxPosLagValue (5), so the monitoring takes no axis error
+    assert cmd(core, "SetActualPositionOnTheFly", PreviousPosition=p, ActualPosition=sense * 201.0)["error"] == 0
+    r = cmd(core, "OrientedStop", Position=90.0)  # (before the next cycle: the axis now stands at 201)
+    assert r["error"] == 0, r
+    n = r["CmdNo"]
+    core.step()
+    tr = Trace(core)  # (a new trace from the shifted position: the shift is a jump of SetPos)
+    tr.settle()
+    code = E.NC_SOFT_LIMIT_MAX_START if sense > 0 else E.NC_SOFT_LIMIT_MIN_START
+    assert tr.fate(n) == (ERROR, code)
+    assert (sense * tr.col("SetVelo") >= 0).all() and float(tr.rows[-1]["SetVelo"]) == 0.0
+    assert sense * float(tr.rows[-1]["SetPos"]) < 205.0
+    assert not core.nctoplc[0]["StateDWord"] & StateDWord.Error, "a command error, not an axis error"
 
 
 # -- Override -------------------------------------------------------------------------------------

@@ -294,6 +294,56 @@ def test_oriented_stop() -> None:
     assert ax.Status.StandStill
 
 
+def test_oriented_stop_beyond_a_soft_limit_stops_the_axis_with_error() -> None:
+    """TcMC 3.16: an oriented stop that would exceed an active software limit is a fault condition;
+    "for all fault conditions, the axis is stopped safely": Busy during the standard stop, then Error 0x4222."""
+    rig = Rig(n_axes=1, params=AxisParams(Modulo=True, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=200.0))
+    ax, _, calls = powered(rig)
+    mv, os_ = rig.watch(MC_MoveVelocity(), MC_OrientedStop())
+    st = {"stop": False}
+
+    def body(p):
+        mv(Axis=ax, Execute=True, Velocity=100.0)
+        os_(Axis=ax, Execute=st["stop"], Position=350.0)
+
+    calls["body"] = body
+    rig.run_until(lambda: ax.ActPos > 100.0, 300)
+    st["stop"] = True
+    rig.run_until(lambda: os_.Active, 5)
+    rig.run_until(lambda: not os_.Busy, 300)
+    assert os_.Error and os_.ErrorID == ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED
+    assert ax.Status.StandStill and ax.ActPos < 200.0
+
+
+def test_oriented_stop_ending_in_error_aborts_the_buffered_command_behind_it() -> None:
+    """Errors clear the queue: MC_MoveRelative (MC_Buffered) waiting behind an MC_OrientedStop that ends
+    in Error 0x4222 (beyond the software limit) never starts: CommandAborted, the axis stands."""
+    rig = Rig(n_axes=1, params=AxisParams(Modulo=True, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=200.0))
+    ax, _, calls = powered(rig)
+    mv, os_, mr = rig.watch(MC_MoveVelocity(), MC_OrientedStop(), MC_MoveRelative())
+    st = {"stop": False, "rel": False}
+
+    def body(p):
+        mv(Axis=ax, Execute=True, Velocity=100.0)
+        os_(Axis=ax, Execute=st["stop"], Position=350.0)
+        mr(Axis=ax, Execute=st["rel"], Distance=30.0, Velocity=50.0, BufferMode=1)
+
+    calls["body"] = body
+    rig.run_until(lambda: ax.ActPos > 100.0, 300)
+    st["stop"] = True
+    rig.run_until(lambda: os_.Active, 5)
+    st["rel"] = True
+    rig.run_until(lambda: ax.Status.CmdBuffered, 10)
+    assert os_.Busy and mr.Busy and not mr.Active, "queued behind the oriented stop"
+    rig.run_until(lambda: not os_.Busy and not mr.Busy, 300)
+    assert os_.Error and os_.ErrorID == ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED
+    assert mr.CommandAborted and not mr.Error and not mr.Done
+    p = float(ax.NcToPlc["SetPos"])
+    rig.run(50)
+    assert float(ax.NcToPlc["SetPos"]) == p and float(ax.NcToPlc["SetVelo"]) == 0.0, "the axis stands"
+    assert ax.Status.StandStill and not ax.Status.Error and p < 200.0
+
+
 def test_waiting_command_that_can_no_longer_start_is_an_error() -> None:
     """Checked again when it becomes active: its target is now beyond the software limit."""
     from nc_schema import MC_AxisPara

@@ -149,8 +149,11 @@ def _coupling_job(core: CoreContext, i: int) -> Job:
 @core_command("GearOut", "GearOutExt", motion=True)
 def gear_out(core: CoreContext, i: int, req: Mapping[str, Any]) -> dict[str, Any]:
     """MC_GearOut and MC_GearOutExt (see the module docstring). Returns the follow-on command's
-    CmdNo (none at standstill). A follow-on command that cannot start (e.g. a target beyond a
-    software limit, a missing feed enable) refuses the request: the slave stays coupled."""
+    CmdNo (none at standstill). A follow-on command that cannot start (e.g. a NEWPOS target beyond
+    a software limit, a missing feed enable) refuses the request: the slave stays coupled. Not so
+    Mode ORIENTEDSTOP with its oriented position beyond an enabled software limit: as MC_OrientedStop
+    (TcMC 3.16 fault condition) it is accepted, the slave is decoupled and makes the standard stop,
+    and the follow-on job ends ERROR 0x4222 (``OrientedStopKind``)."""
     job = _coupling_job(core, i)
     a = core.axes
     start = core.start_state(i, total=True)  # (a superposition of the slave ends with the coupling)

@@ -36,6 +36,11 @@ if TYPE_CHECKING:
     from ..context import CoreContext
 
 _EPS_V = 1e-9
+#: check_target's software-limit refusals: for MC_OrientedStop fault conditions (TcMC 3.16), the
+#: standard stop, then ERROR with the code: the target beyond the limit (0x4222), the axis already
+#: beyond it and moving further out (0x4460 / 0x4461, e.g. after MC_SetActualPositionOnTheFly)
+_LIMIT_FAULTS = frozenset({int(ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED), int(ErrorCodes.NC_SOFT_LIMIT_MIN_START),
+                           int(ErrorCodes.NC_SOFT_LIMIT_MAX_START)})
 
 
 def stopped_dynamics(core: CoreContext, i: int, followed: Job | None, dec: float, jerk: float) -> tuple[float, float]:
@@ -131,7 +136,14 @@ class OrientedStopKind(JobKind):
     """MC_OrientedStop (TcMC 3.16): stop at the next position with modulo value Position that can
     be reached with the running motion's deceleration (Deceleration/Jerk inputs are not supported,
     as in TwinCAT). Position outside [0, period): 0x4281. An axis at rest: 0x4B03 (nothing to stop;
-    use MC_MoveModulo). A target beyond a software limit: 0x4222, the command is refused."""
+    use MC_MoveModulo). A target beyond an enabled software limit: TcMC 3.16 "for all fault
+    conditions, the axis is stopped safely, but it may subsequently not be at the required oriented
+    position": the command is accepted, the axis makes the standard stop (to its natural standstill)
+    and the job ends ERROR 0x4222 there (the block's Error must be analysed); likewise an axis that is
+    already beyond the limit and moves further out (0x4460 / 0x4461). A job waiting behind it
+    then never starts: it ends ABORTED (errors clear the queue, ``JobEngine.finish``). The refusals above
+    (bad Position, axis at rest) change nothing: a parameter error is refused before any motion
+    (zenoh-nc choice; the manual's examples of fault conditions are run-time ones)."""
 
     name = "OrientedStop"
     commands = ("OrientedStop",)
@@ -160,9 +172,26 @@ class OrientedStopKind(JobKind):
         target = pos + (math.ceil(k - 1e-12) if sense > 0 else math.floor(k + 1e-12)) * period
         dyn = Dynamics(abs(start.v), sd.acceleration, sd.deceleration, sd.jerk)
         plan = core.plan(plan_position, start, target, dyn)
-        core.check_target(i, start.p, target, plan)
+        try:
+            core.check_target(i, start.p, target, plan)
+        except NcError as err:
+            if err.code not in _LIMIT_FAULTS:
+                raise
+            # TcMC 3.16: the axis is stopped safely all the same (the standard stop), the job ends with the error
+            stop = core.plan(plan_velocity, start, 0.0, sd)
+            job.target, job.dyn = stop.end.p, dyn
+            job.data["end_error"] = int(err.code)
+            return stop
         job.target, job.dyn = target, dyn
         return plan
+
+    def on_end(self, core: CoreContext, i: int, job: Job) -> str:
+        code = int(job.data.get("end_error", 0))
+        if not code:
+            return "done"
+        core.axes.target_pos[i] = core.axes.set_pos[i]
+        core.finish(i, job, CmdState.ERROR, code)
+        return "continue"
 
 
 class RampKind(JobKind):
