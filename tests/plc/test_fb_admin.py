@@ -372,7 +372,13 @@ def test_power_error_is_the_axis_error_code_of_the_frame(nc: ScriptNc) -> None:
     nc.state(IDLE, ErrorCode=0x4550)  # (nor this: a code without the bit) the bit decides
     nc.cycle_once()
     assert not pw.Error and pw.ErrorID == 0
-    st["Enable"] = True
+    st["Enable"] = True  # the same two with Enable TRUE (the rising edge claims again: answered in the next cycle)
+    nc.state(IDLE | int(StateDWord.Error), ErrorCode=0)
+    nc.cycle_once(2)
+    assert (pw.Error, pw.ErrorID, pw.Status, pw.Active) == (True, ErrorCodes.MC_AXIS_NOT_READY, False, True)
+    nc.state(IDLE, ErrorCode=0x4550)
+    nc.cycle_once()
+    assert (pw.Error, pw.ErrorID, pw.Status, pw.Active) == (False, 0, True, True)
     nc.state(IDLE | int(StateDWord.Error), ErrorCode=0x4650)
     nc.cycle_once()
     assert pw.Error and pw.ErrorID == 0x4650 and not pw.Status
@@ -420,3 +426,4 @@ def test_power_own_errors_take_precedence_over_the_axis_error(nc: ScriptNc) -> N
     st["Enable"] = False  # a refused claim is no error while disabled: the axis's shows
     nc.cycle_once()
     assert pw.Error and pw.ErrorID == 0x4550
+
