@@ -230,3 +230,30 @@ def test_a_record_assigned_by_hand_is_what_the_blocks_see() -> None:
     run_cycles(core, plc, 1, nc_steps=10)
     assert not power.Error and power.ErrorID == 0
 
+
+def test_a_record_assigned_by_hand_stays_until_the_next_frame() -> None:
+    """The snapshot is renewed when a frame arrived (AXIS_REF docstring): while none did, a record the program
+    assigned to NcToPlc stays in the cycles after (and MC_Power judges it); the next frame replaces it."""
+    from znc_testing.plc_rig import ScriptNc
+
+    nc = ScriptNc()
+    X = nc.ax
+    power = MC_Power()
+    nc.calls.append(lambda: power(Axis=X, Enable=True))
+    nc.cycle_once(2)
+    assert nc.stale_cycles >= 4
+    take = nc._take_frames
+    nc._take_frames = lambda: None  # type: ignore[method-assign]  # no frame arrives
+    raw = bytearray(X.NcToPlc.tobytes())
+    sdw_off, sdw_struct = member_struct(NCTOPLC_DTYPE, "StateDWord")
+    ec_off, ec_struct = member_struct(NCTOPLC_DTYPE, "ErrorCode")
+    sdw_struct.pack_into(raw, sdw_off, X.NcToPlc.StateDWord | int(StateDWord.Error))
+    ec_struct.pack_into(raw, ec_off, 0x4550)
+    mine = X.NcToPlc = NCTOPLC_AXIS_REF(bytes(raw))
+    nc.cycle_once(2)
+    assert X.NcToPlc is mine and X.Status.Valid
+    assert power.Error and power.ErrorID == 0x4550
+    nc._take_frames = take  # type: ignore[method-assign]
+    nc.cycle_once()
+    assert X.NcToPlc is not mine and not X.NcToPlc.StateDWord & int(StateDWord.Error)
+    assert not power.Error and power.ErrorID == 0
