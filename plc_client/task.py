@@ -123,7 +123,9 @@ def current_task() -> PlcTask | None:
 class ClaimState:
     """Claim of one axis by this task: ``state`` is 'none', 'pending', 'held', 'refused',
     'awaiting' (expecting a hand-over: Claim is polled, a refusal is no error) or 'handed'
-    (given to another client with HandOver)."""
+    (given to another client with HandOver). ``error``: the refusal's code while 'refused', and while
+    'pending' the retry of a refused claim (kept until the NC's answer replaces it: MC_Power's Error
+    does not drop for every retry's round trip); 0 otherwise."""
 
     __slots__ = ("state", "error", "pending", "since", "fault_seen")
 
@@ -387,7 +389,8 @@ class PlcTask:
         return self._claims.get((ax.nc, ax.axis_id))
 
     def _send_claim(self, ax: AXIS_REF, c: ClaimState) -> None:
-        c.state, c.error, c.since = "pending", 0, self.now
+        # (a retried refusal keeps its code until the answer: see ClaimState.error)
+        c.state, c.error, c.since = "pending", c.error if c.state == "refused" else 0, self.now
         c.pending = self.port.send(ax.nc, ax.axis_id, "Claim")
         c.pending.owner = ax
 

@@ -6,7 +6,8 @@ Choices where the manuals are silent (zenoh-nc):
 * MC_Power claims the axis for this PLC client on its first call (the NC applies only the
   claim holder's PLCTONC); a refusal shows as Error with the NC's code (0x723 while another
   client holds the axis) while Enable is TRUE, and is retried on Enable's rising edge and
-  every ``claim_retry`` seconds (task parameter, 1 s) while Enable stays TRUE.
+  every ``claim_retry`` seconds (task parameter, 1 s) while Enable stays TRUE; the refusal's code
+  stays while a retry is on its way, until the NC's answer (no drop for each retry's round trip).
 * MC_Power outputs: Busy = Enable; Active = Enable and the claim is held (the enables are in
   effect); Status = Active and the NC reports ControlLoopClosed with no axis error on valid
   data. Error/ErrorID report the block's own failures (claim refused, stale data 0x4B0F,
@@ -176,7 +177,7 @@ class MC_Power(FunctionBlock):
         code = 0 if ok else self._axis_problem()
         if code:
             pass
-        elif state == "refused":
+        elif claim.error:  # refused (or the retry of a refusal on its way: ClaimState.error)
             code = claim.error
         elif not ov_ok:
             code = ErrorCodes.MC_PARAMETER_NOT_CORRECT

@@ -427,3 +427,39 @@ def test_power_own_errors_take_precedence_over_the_axis_error(nc: ScriptNc) -> N
     nc.cycle_once()
     assert pw.Error and pw.ErrorID == 0x4550
 
+
+def test_a_refused_claim_stays_an_error_while_it_is_retried(nc: ScriptNc) -> None:
+    """A refused claim is retried every claim_retry s while Enable stays TRUE; the refusal (0x723) stays on Error/
+    ErrorID while each retry is on its way, until the NC's answer changes it: no drop to no error (or to the axis's
+    error) for every retry's round trip. Once a retry is granted: Active, and the axis's error shows."""
+    pw, st, claim = _claimed_power(nc)
+    claim["error"] = ErrorCodes.ADSERR_DEVICE_ACCESSDENIED  # another client took the axis
+    st["Enable"] = False
+    nc.cycle_once()
+    st["Enable"] = True  # (the rising edge claims again: refused)
+    nc.cycle_once(2)
+    assert pw.Error and pw.ErrorID == 0x723 and not pw.Active
+
+    def watch(cycles: int) -> tuple[set[tuple[bool, int, bool]], int]:
+        """The (Error, ErrorID, Active) seen after each of ``cycles`` cycles, and the Claims sent meanwhile."""
+        sent = sum(p.cmd == "Claim" for p in nc.port.sent)
+        seen = set()
+        for _ in range(cycles):
+            nc.cycle_once()
+            seen.add((pw.Error, pw.ErrorID, pw.Active))
+        return seen, sum(p.cmd == "Claim" for p in nc.port.sent) - sent
+
+    retries = round(2.5 * nc.claim_retry / nc.cycle_time)
+    seen, claims = watch(retries)
+    assert claims >= 2, "retried every claim_retry"
+    assert seen == {(True, 0x723, False)}, "no error for a retry's round trip"
+    nc.state(IDLE | int(StateDWord.Error), ErrorCode=0x4550)  # with an axis error: 0x723 every cycle still
+    seen, claims = watch(retries)
+    assert claims >= 2 and seen == {(True, 0x723, False)}, "not 0x723 <-> 0x4550"
+    claim["error"] = 0  # the other client let go: the next retry is granted
+    for _ in range(retries):  # (a deadline: 2.5 retry periods)
+        nc.cycle_once()
+        if pw.Active:
+            break
+        assert pw.Error and pw.ErrorID == 0x723
+    assert pw.Active and pw.Error and pw.ErrorID == 0x4550 and not pw.Status
