@@ -9,7 +9,8 @@ with ``"final": true`` (then it idles until plc-run is stopped).
 
 Counted per axis: ``started`` (rising edges of Execute), ``sent`` (moves whose request went to the NC), ``accepted`` / ``refused`` (their
 replies: error 0 / an error or none), ``done``,
-``aborted``, ``errors`` (ErrorID -> count, MC_Power's under ``power:<id>``, axis errors under ``axis:<id>``: the
+``aborted``, ``errors`` (ErrorID -> count, MC_Power's own under ``power:<id>`` (not the axis error its ErrorID also
+shows), axis errors under ``axis:<id>``: the
 program resets them with MC_Reset, at most once a second, counted in ``resets``; one not ended after
 RESET_TIMEOUT_S under ``axis:reset-timeout``), ``reset_numbered`` (the resets the NC answered with a
 CmdNo: the axis was still in its error stop ramp, which goes on as a numbered stop job, the reset's own:
@@ -116,9 +117,9 @@ class _Axis:
                 self.last_nc_cycle = st.NcCycleCounter
         elif self.seen_valid:
             self.invalid += 1
-        # an axis error (ErrorStop: MC_Power stays Active without Status and without an error of its own, the NC
-        # needs MC_Reset; e.g. 0x4655 after a hot-standby takeover on a starved machine): counted under
-        # axis:<code>, reset as a PLC program does
+        # an axis error (ErrorStop: MC_Power stays Active without Status, its Error/ErrorID show the axis's error,
+        # the NC needs MC_Reset; e.g. 0x4655 after a hot-standby takeover on a starved machine): counted under
+        # axis:<code> (once per reset, not again under power:), reset as a PLC program does
         if self.resetting:
             r = self.reset(Axis=ax, Execute=True)
             timed_out = not (r.Done or r.Error) and time.monotonic() >= self.reset_deadline
@@ -137,10 +138,13 @@ class _Axis:
             self.reset(Axis=ax, Execute=True)
             if (req := _request(self.reset)) is not None:
                 self.reset_reqs.append(req)
-        if p.Error and not self._power_err:
+        # MC_Power's own errors (claim refused, 0x4B0F, ...; they take precedence over the axis's): an ErrorID that
+        # is the axis's error of this cycle is the axis error counted above, not MC_Power's
+        own = bool(p.Error) and not (st.Valid and st.Error and int(p.ErrorID) == int(st.ErrorId))
+        if own and not self._power_err:
             key = f"power:0x{int(p.ErrorID):04X}"
             self.errors[key] = self.errors.get(key, 0) + 1
-        self._power_err = bool(p.Error)
+        self._power_err = own
         if not self.execute:
             if self.busy:
                 self.move(Axis=ax, Execute=False)  # one cycle with Execute FALSE between two moves

@@ -3,8 +3,8 @@
     plc-run examples/04_error_and_reset.py --duration 3
 
 A move beyond the software limit is rejected by the NC (0x4222); withdrawing the feed enable
-while moving makes an axis error (ErrorStop, 0x4358) that MC_ReadAxisError shows and
-MC_Reset clears.
+while moving makes an axis error (ErrorStop, 0x4358) that MC_ReadAxisError shows (MC_Power's
+Error/ErrorID show it too) and MC_Reset clears.
 
 A step sequence (see example 1) runs it once: MC_Power.Status is the condition of the first
 step only (it is FALSE in ErrorStop and while the NC's data is stale, and its return must not

@@ -3,16 +3,20 @@
 An :class:`AXIS_REF` holds
 
 * ``NcToPlc``: a **read-only** snapshot (:class:`~plc_client.records.NCTOPLC_AXIS_REF`) of the
-  axis's record in the newest NC status frame, taken once at the start of every PLC
-  cycle, so every function block in one cycle sees the same data; every member is an
-  attribute with a plain Python value (``X.NcToPlc.SetPos``, ``X.NcToPlc.StateDWord``);
+  axis's record in the newest NC status frame, renewed at the start of a PLC cycle when a frame
+  arrived since the last snapshot (and when the data turns stale), so every function block in one
+  cycle sees the same data; every member is an attribute with a plain Python value
+  (``X.NcToPlc.SetPos``, ``X.NcToPlc.StateDWord``). While no frame arrived the snapshot is left as it
+  is (it would hold the same bytes: a saving, not a rule to rely on), so a program that assigns its
+  own record to ``X.NcToPlc`` keeps it until the next frame (or until the data turns stale), and the
+  blocks judge that record;
 * ``PlcToNc``: a **writable** record (:class:`~plc_client.records.PLCTONC_AXIS_REF`) that the
   runtime publishes at the end of every PLC cycle for the axes it controls
   (``Override`` starts at 1000000 = 100 %; ``X.PlcToNc.Override = 500000``);
-* ``Status``: :class:`ST_AxisStatus`, refreshed from ``NcToPlc`` every PLC cycle (what
-  ``MC_ReadStatus`` / ``Axis.ReadStatus()`` do in TwinCAT), plus ``NcCycleCounter``
-  (the NC cycle that produced the snapshot), ``CycleCounter`` (the PLC cycle) and
-  ``Valid`` (False while the data is stale or missing).
+* ``Status``: :class:`ST_AxisStatus`, refreshed from the frame with every new snapshot (what
+  ``MC_ReadStatus`` / ``Axis.ReadStatus()`` do in TwinCAT; not from a record the program assigned),
+  plus ``NcCycleCounter`` (the NC cycle that produced the snapshot), ``CycleCounter`` (the PLC
+  cycle, counted every cycle) and ``Valid`` (False while the data is stale or missing).
 
 Binding: ``AXIS_REF(nc="nc1", axis_id=1)`` names the axis; it is bound to a PLC task
 (:class:`plc_client.task.PlcTask`) when the program is loaded (``plc-run`` binds every AXIS_REF
@@ -20,7 +24,7 @@ the program file declares: :func:`plc_client.cli.load_program`; embedding: ``Plc
 axes=[...])``), when it is created inside a running PLC cycle (to the task running it),
 explicitly (``task.axis(...)`` / ``task.register(ax)``) or implicitly the first time a function
 block is called with it inside a running PLC cycle. A bound axis's NcToPlc and Status are
-refreshed every cycle, whether or not a block uses it; a bound AXIS_REF stays bound for the task's
+kept up to date every cycle (as above), whether or not a block uses it; a bound AXIS_REF stays bound for the task's
 life, so create each once (at load or on first use), not anew every cycle.
 
 Staleness (zenoh-nc choice; Tc2_MC2 raises 0x4B0F when its NC cycle counter stops):

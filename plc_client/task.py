@@ -31,14 +31,14 @@ A late ``Claim`` makes the claim held.
 
 Claim loss: when an axis this task holds shows the NC's claim faults (0x8F01 client lost,
 0x8F02 PLCTONC timeout: the NC dropped the claim), the claim is requested again by MC_Power;
-the axis stays in ErrorStop until MC_Reset.
+the axis stays in ErrorStop until MC_Reset (MC_Power's Error/ErrorID show 0x8F01/0x8F02 meanwhile).
 
 Hand-over (:meth:`PlcTask.hand_over`, :meth:`PlcTask.expect_hand_over`; docs/arbitration.md): the
 holder gives an axis to another live client without disabling it. The receiver first expects it:
-its MC_Power publishes PLCTONC for the axis (Enable TRUE) while its claim waits without an error,
+its MC_Power publishes PLCTONC for the axis (Enable TRUE) while its claim waits without an error of its own,
 polling ``Claim`` every :data:`HANDOVER_POLL` s; the NC applies the receiver's frames from the
 hand-over on (until then the giver's last one), so the axis is never disabled. The giver's claim
-becomes 'handed' (MC_Power: no error, not Active; it claims again only on an Enable rising edge).
+becomes 'handed' (MC_Power: no error of its own, not Active; it claims again only on an Enable rising edge).
 
 Losing the NC (killed, frozen, the link cut): the axes' data turns invalid at once when the NC's
 liveliness token disappears (else after ``stale_cycles``), so blocks end with 0x4B0F instead of
@@ -123,7 +123,9 @@ def current_task() -> PlcTask | None:
 class ClaimState:
     """Claim of one axis by this task: ``state`` is 'none', 'pending', 'held', 'refused',
     'awaiting' (expecting a hand-over: Claim is polled, a refusal is no error) or 'handed'
-    (given to another client with HandOver)."""
+    (given to another client with HandOver). ``error``: the refusal's code while 'refused', and while
+    'pending' the retry of a refused claim (kept until the NC's answer replaces it: MC_Power's Error
+    does not drop for every retry's round trip); 0 otherwise."""
 
     __slots__ = ("state", "error", "pending", "since", "fault_seen")
 
@@ -387,7 +389,8 @@ class PlcTask:
         return self._claims.get((ax.nc, ax.axis_id))
 
     def _send_claim(self, ax: AXIS_REF, c: ClaimState) -> None:
-        c.state, c.error, c.since = "pending", 0, self.now
+        # (a retried refusal keeps its code until the answer: see ClaimState.error)
+        c.state, c.error, c.since = "pending", c.error if c.state == "refused" else 0, self.now
         c.pending = self.port.send(ax.nc, ax.axis_id, "Claim")
         c.pending.owner = ax
 
@@ -460,8 +463,8 @@ class PlcTask:
     def expect_hand_over(self, nc: str, axis_id: int) -> None:
         """Accept a hand-over of ``nc``/``axis_id`` (thread-safe; applied at the next cycle start).
 
-        MC_Power on the axis then publishes PLCTONC while its claim waits ('awaiting': no error,
-        not Active), polling Claim until the holder hands it over; then the claim is 'held'.
+        MC_Power on the axis then publishes PLCTONC while its claim waits ('awaiting': no error of
+        its own, not Active), polling Claim until the holder hands it over; then the claim is 'held'.
         """
         def apply() -> None:
             c = self._claims.setdefault((nc, int(axis_id)), ClaimState())

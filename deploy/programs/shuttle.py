@@ -11,7 +11,8 @@ public block API (``MC_Power``, ``MC_MoveAbsolute``, ``MC_Reset``) and the axis'
 * CommandAborted (another client's newer command took the axis) -> dwell, then a new move.
 * An error of the move (0x4B0F NC data stale, 0x745 no reply, an axis error, ...), or an axis
   error while idle (e.g. 0x8F02 after a lost link; only the holder resets) -> the program waits
-  ``rearm`` seconds, runs ``MC_Reset``, and only then moves again.
+  ``rearm`` seconds, runs ``MC_Reset``, and only then moves again. MC_Power's Error/ErrorID show
+  its own errors and the axis's (TcMC 4.1): both are logged as ``error 0x... (MC_Power)``.
 
 Every event is one line on stdout (``docker logs``): ``<client> <unix time> <nc>:<axis> <event> ...``;
 tests across hosts read ``move ->`` (a command issued), ``error 0x....`` and ``power on/off``.

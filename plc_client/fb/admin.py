@@ -6,13 +6,26 @@ Choices where the manuals are silent (zenoh-nc):
 * MC_Power claims the axis for this PLC client on its first call (the NC applies only the
   claim holder's PLCTONC); a refusal shows as Error with the NC's code (0x723 while another
   client holds the axis) while Enable is TRUE, and is retried on Enable's rising edge and
-  every ``claim_retry`` seconds (task parameter, 1 s) while Enable stays TRUE.
+  every ``claim_retry`` seconds (task parameter, 1 s) while Enable stays TRUE; the refusal's code
+  stays while a retry is on its way, until the NC's answer (no drop for each retry's round trip).
 * MC_Power outputs: Busy = Enable; Active = Enable and the claim is held (the enables are in
   effect); Status = Active and the NC reports ControlLoopClosed with no axis error on valid
-  data. Axis errors are not MC_Power errors (PLCopen: they are the axis's ErrorStop state;
-  read them with MC_ReadAxisError); MC_Power.Error is for its own failures: claim refused,
-  stale data (0x4B0F), Override outside 0..100 % (0x4B06), BufferMode other than
-  MC_Aborting (0x4B64; the block still acts as MC_Aborting).
+  data. Error/ErrorID report the block's own failures (claim refused, stale data 0x4B0F,
+  Override outside 0..100 % 0x4B06, BufferMode other than MC_Aborting 0x4B64 (the block
+  still acts as MC_Aborting); only while Enable is TRUE) and also the axis's error (TcMC 4.1
+  "Error: Becomes TRUE, as soon as an error occurs"; MC3 MC_Power: "Error occurred within
+  function block or axis already signaling an error"): while the block's axis is bound and its
+  data valid (not stale) and the NC reports an axis error (NCTOPLC StateDWord Error bit; the NC
+  sets it exactly while ErrorCode != 0), Error = TRUE and ErrorID = NCTOPLC.ErrorCode (0x4B09
+  if a frame had the bit without a code), whatever Enable is and whoever holds the axis: the
+  program finds a following error or a drive fault where TwinCAT shows it, and an axis that
+  faulted while switched off shows its error before it is enabled. The block's own failure
+  takes precedence while both are there (its cause must be fixed first; the axis error shows
+  once it is gone). Error falls with the first frame that shows no axis error (after
+  MC_Reset); Status stays FALSE while the axis error is there. With Enable FALSE on stale
+  data: no error at all (the block's 0x4B0F is reported only while Enable, the axis's error
+  is not known). MC_ReadAxisError still reads the axis error alone. The ErrorCode is read only
+  when the StateDWord bit is set (MC_Power runs on every axis every cycle: no unpacking).
 * Override: PlcToNc.Override = round(Override * 10000) (100 % = 1000000). MC_Power writes it
   when its Override input changes (and on its first call), MC_SetOverride writes it on its
   Execute edge: the last writer wins, so the two can be combined. An out-of-range Override
@@ -38,7 +51,7 @@ from __future__ import annotations
 import operator
 from typing import Any, ClassVar
 
-from nc_schema import PLCTONC_DTYPE, ControlDWord, ErrorCodes, StateDWord, member_struct
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, ControlDWord, ErrorCodes, StateDWord, member_struct
 
 from ..axis_ref import AXIS_REF, ST_AxisStatus
 from .base import EnableBlock, ExecuteBlock, FunctionBlock
@@ -52,6 +65,14 @@ _NOT_ENABLES = ~(_EN | _FP | _FM)
 #: where PLCTONC keeps ControlDWord, and its struct (MC_Power reads and writes it every cycle)
 _CDW_OFF, _CDW_STRUCT = member_struct(PLCTONC_DTYPE, "ControlDWord")
 _CDW_UNPACK, _CDW_PACK = _CDW_STRUCT.unpack_from, _CDW_STRUCT.pack_into
+#: where NCTOPLC keeps ErrorCode (MC_Power reads it only while StateDWord has the Error bit: no record unpacking)
+_EC_OFF, _EC_STRUCT = member_struct(NCTOPLC_DTYPE, "ErrorCode")
+_EC_UNPACK = _EC_STRUCT.unpack_from
+
+
+def _axis_error(ax: AXIS_REF) -> int:
+    """The axis's error code from this cycle's NCTOPLC (its StateDWord has the Error bit)."""
+    return int(_EC_UNPACK(ax.NcToPlc._raw, _EC_OFF)[0]) or ErrorCodes.MC_AXIS_NOT_READY
 
 
 def override_to_plctonc(percent: float) -> int:
@@ -83,6 +104,9 @@ class MC_Power(FunctionBlock):
     program doing anything (also after an NC restart or a claim the NC dropped): never wire it to
     a motion block's Execute (a new rising edge, a second move); start motion from a latched step
     sequence that reads Status as the condition of its first step (README, examples/).
+    Error/ErrorID also show the axis's error (following error, drive fault, ...: the NCTOPLC
+    ErrorCode) while the axis data is valid, with Enable TRUE or FALSE; the block's own failure
+    (claim refused, 0x4B0F, 0x4B06, 0x4B64) takes precedence (module docstring).
     """
 
     _INPUTS = {"Enable": False, "Enable_Positive": False, "Enable_Negative": False, "Override": 100.0,
@@ -141,26 +165,28 @@ class MC_Power(FunctionBlock):
             self._written_override = self.Override
         if not en:
             self._reset_outputs()
+            # the axis's error shows with Enable FALSE too (on valid data; the bit first: the usual case has none)
+            if ax.NcToPlc._sdw & _ERR and ax.Status.Valid and not ax.missing and ax._task is not None:
+                self.Error, self.ErrorID = True, _axis_error(ax)
             return
+        # (_axis_problem's answer for a bound axis with valid data, without the call)
+        ok = ax.Status.Valid and not ax.missing and ax._task is not None
+        sdw = ax.NcToPlc._sdw if ok else 0  # (its StateDWord, without unpacking the record)
         state = claim.state
         held = state == "held"
-        valid = ax.Status.Valid
-        # (_axis_problem's answer for a bound axis with valid data, without the call)
-        code = 0 if valid and not ax.missing and ax._task is not None else self._axis_problem()
+        code = 0 if ok else self._axis_problem()
         if code:
             pass
-        elif state == "refused":
+        elif claim.error:  # refused (or the retry of a refusal on its way: ClaimState.error)
             code = claim.error
         elif not ov_ok:
             code = ErrorCodes.MC_PARAMETER_NOT_CORRECT
         elif (type(bm := self.BufferMode) is not int or bm != 0) and (  # (a plain int 0: no isinstance calls)
                 isinstance(bm, bool) or not isinstance(bm, int) or bm != 0):
             code = ErrorCodes.MC_BUFFERMODE_NOT_SUPPORTED
-        if held and valid:
-            sdw = ax.NcToPlc._sdw  # (its StateDWord, without unpacking the record)
-            status = bool(sdw & _CLC) and not sdw & _ERR
-        else:
-            status = False
+        elif sdw & _ERR:  # the axis's error, when the block has none of its own
+            code = _axis_error(ax)
+        status = held and bool(sdw & _CLC) and not sdw & _ERR
         if self._PLAIN_IO:  # (the five outputs with one update)
             self.__dict__.update(Busy=True, Active=held, Error=bool(code), ErrorID=int(code), Status=status)
             return

@@ -5,7 +5,14 @@ E_DestallMode (6.7), E_DestallDetectMode (6.8).
 What it does (the manual's rules; zenoh-nc's choices where it is silent):
 
 * the enables and the override go through an internal MC_Power (its claim, its Status, its errors: 0x723 a
-  refused claim, 0x4B0F stale data, 0x4B06 an Override outside 0..100 %);
+  refused claim, 0x4B0F stale data, 0x4B06 an Override outside 0..100 %, and the axis's error: NCTOPLC
+  ErrorCode, 0x4B09 for the StateDWord Error bit without a code);
+* Error/ErrorID (zenoh-nc choice; TcMC 4.23 says only "Error: Becomes TRUE, as soon as an error occurs", and
+  that MC_Power is used internally): with Enable TRUE the block's own error (the NC's refusal of a report,
+  0x4B04 invalid DestallParams, a failed parameter read) first, then MC_Power's (its own, then the axis's);
+  with Enable FALSE MC_Power's, i.e. the axis's error on valid data (a following error, a drive or terminal
+  fault of a switched-off stepper shows as it does on MC_Power), no error otherwise (the block's own errors
+  are reported only while Enable, as MC_Power's are). Status is FALSE with Enable FALSE;
 * **stall detection** (``DestallParams.DestallEnable`` and a DestallDetectMode):
   ``PwStDetectMode_Encoderless``: bits 1-3 of the status byte (KL_Status, the terminal's LoadAngle) at 7,
   the largest load angle; ``PwStDetectMode_Lagging``: the following error |NcToPlc.PosDiff| above the NC's
@@ -144,6 +151,8 @@ class MC_PowerStepper(FunctionBlock):
         if not en:
             self._reset_outputs()
             self._holding = False
+            # MC_Power's error with Enable FALSE: the axis's (module docstring)
+            self.Error, self.ErrorID = bool(self._power.Error), int(self._power.ErrorID)
             return
         own = self._own_error(ax)
         self.Error, self.ErrorID = (True, own) if own else (bool(self._power.Error), int(self._power.ErrorID))

@@ -236,3 +236,38 @@ def test_power_off() -> None:
     st["en"] = False
     rig.run(3)
     assert not ps.Status and not ps.Error and not int(ax.PlcToNc["ControlDWord"]) & 1
+
+
+def test_the_axis_error_shows_with_enable_true_and_false() -> None:
+    """MC_PowerStepper is MC_Power for a stepper axis (TcMC 4.23: "An MC_Power block is used internally"): an
+    axis error it did not report itself (another client's SetExternalError) shows on Error/ErrorID with Enable
+    TRUE and FALSE, Status FALSE; after MC_Reset Error falls with Enable FALSE, and Status comes back with
+    Enable TRUE."""
+    rig = stepper_rig()
+    plc = rig.plc()
+    ax = plc.axis("nc1", 1)
+    ps, rs = MC_PowerStepper(), MC_Reset()
+    st = {"en": True, "rst": False}
+
+    def program(p) -> None:
+        ps(Axis=ax, Enable=st["en"], Enable_Positive=True, Enable_Negative=True)
+        rs(Axis=ax, Execute=st["rst"])
+
+    plc.program = program
+    rig.run_until(lambda: ps.Status, 20)
+    assert not ps.Error
+    assert nc_cmd(rig, "SetExternalError", ErrorCode=0x4260)["error"] == 0
+    rig.run_until(lambda: ax.Status.Error, 20)
+    rig.run(1)
+    assert (ps.Error, ps.ErrorID, ps.Status) == (True, 0x4260, False), "Enable TRUE: MC_Power's axis error"
+    st["en"] = False
+    rig.run(3)
+    assert not int(ax.PlcToNc["ControlDWord"]) & 1
+    assert (ps.Error, ps.ErrorID, ps.Status) == (True, 0x4260, False), "Enable FALSE: the axis error still shows"
+    st["rst"] = True
+    rig.run_until(lambda: rs.Done, 50)
+    rig.run(1)
+    assert (ps.Error, ps.ErrorID, ps.Status) == (False, 0, False)
+    st["en"] = True
+    rig.run_until(lambda: ps.Status, 20)
+    assert not ps.Error

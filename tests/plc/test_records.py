@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, StateDWord, to_dict
+from nc_schema import NCTOPLC_DTYPE, PLCTONC_DTYPE, ErrorCodes, StateDWord, member_struct, to_dict
 from nc_schema.codec import load_json
 from nc_server.core import NcCore
 from nc_server.core.params import AxisConfig
@@ -195,20 +195,24 @@ def test_snapshot_keeps_statedword_and_unpacks_nctoplc_only_when_read() -> None:
 
 
 def test_a_record_assigned_by_hand_is_what_the_blocks_see() -> None:
-    """A program (or a test) that puts its own NcToPlc in place: MC_Power judges that record's StateDWord, not the
-    one of the cycle's snapshot it replaced."""
+    """A program (or a test) that puts its own NcToPlc in place: MC_Power judges that record's StateDWord and
+    ErrorCode (Error/ErrorID, Enable TRUE and FALSE), not those of the cycle's snapshot it replaced (nor
+    Status.ErrorId, refreshed from that snapshot)."""
     core = NcCore([AxisConfig(AxisId=1)], cycle_time=0.001)
     X = AXIS_REF(nc="nc1", axis_id=1)
     power = MC_Power()
     inject = [False]
+    enable = [True]
+    sdw_off, sdw_struct = member_struct(NCTOPLC_DTYPE, "StateDWord")
+    ec_off, ec_struct = member_struct(NCTOPLC_DTYPE, "ErrorCode")
 
     def cycle(plc: InProcessPlc) -> None:
         if inject[0]:
             raw = bytearray(X.NcToPlc.tobytes())
-            sdw = X.NcToPlc.StateDWord | int(StateDWord.Error)
-            raw[0:4] = sdw.to_bytes(4, "little")
+            sdw_struct.pack_into(raw, sdw_off, X.NcToPlc.StateDWord | int(StateDWord.Error))
+            ec_struct.pack_into(raw, ec_off, ErrorCodes.NC_POSITION_LAG)
             X.NcToPlc = NCTOPLC_AXIS_REF(bytes(raw))
-        power(Axis=X, Enable=True, Enable_Positive=True, Enable_Negative=True)
+        power(Axis=X, Enable=enable[0], Enable_Positive=True, Enable_Negative=True)
 
     plc = InProcessPlc(core, cycle)
     run_cycles(core, plc, 200, nc_steps=10, until=lambda: power.Status)
@@ -216,4 +220,40 @@ def test_a_record_assigned_by_hand_is_what_the_blocks_see() -> None:
     inject[0] = True
     run_cycles(core, plc, 1, nc_steps=10)
     assert X.NcToPlc.StateDWord & int(StateDWord.Error) and X.NcToPlc._sdw == X.NcToPlc.StateDWord
+    assert X.Status.ErrorId == 0, "the snapshot's (the NC has no error): the record's code is only in its bytes"
     assert not power.Status
+    assert power.Error and power.ErrorID == ErrorCodes.NC_POSITION_LAG == 0x4550
+    enable[0] = False
+    run_cycles(core, plc, 1, nc_steps=10)
+    assert power.Error and power.ErrorID == 0x4550, "Enable FALSE: the record's code too"
+    inject[0] = False
+    run_cycles(core, plc, 1, nc_steps=10)
+    assert not power.Error and power.ErrorID == 0
+
+
+def test_a_record_assigned_by_hand_stays_until_the_next_frame() -> None:
+    """The snapshot is renewed when a frame arrived (AXIS_REF docstring): while none did, a record the program
+    assigned to NcToPlc stays in the cycles after (and MC_Power judges it); the next frame replaces it."""
+    from znc_testing.plc_rig import ScriptNc
+
+    nc = ScriptNc()
+    X = nc.ax
+    power = MC_Power()
+    nc.calls.append(lambda: power(Axis=X, Enable=True))
+    nc.cycle_once(2)
+    assert nc.stale_cycles >= 4
+    take = nc._take_frames
+    nc._take_frames = lambda: None  # type: ignore[method-assign]  # no frame arrives
+    raw = bytearray(X.NcToPlc.tobytes())
+    sdw_off, sdw_struct = member_struct(NCTOPLC_DTYPE, "StateDWord")
+    ec_off, ec_struct = member_struct(NCTOPLC_DTYPE, "ErrorCode")
+    sdw_struct.pack_into(raw, sdw_off, X.NcToPlc.StateDWord | int(StateDWord.Error))
+    ec_struct.pack_into(raw, ec_off, 0x4550)
+    mine = X.NcToPlc = NCTOPLC_AXIS_REF(bytes(raw))
+    nc.cycle_once(2)
+    assert X.NcToPlc is mine and X.Status.Valid
+    assert power.Error and power.ErrorID == 0x4550
+    nc._take_frames = take  # type: ignore[method-assign]
+    nc.cycle_once()
+    assert X.NcToPlc is not mine and not X.NcToPlc.StateDWord & int(StateDWord.Error)
+    assert not power.Error and power.ErrorID == 0
