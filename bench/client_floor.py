@@ -29,9 +29,14 @@ Measured: each process's CPU over each window [% of one core] from /proc/<pid>/s
 /proc/<pid>/task/*/schedstat (threads alive at both ends). Variants are interleaved in rounds (A B C D ... A B C D ...),
 each window with only that variant's client processes started (fresh, ``--settle`` s before the window); the NC side
 and the real NC run through all of them. The whole bench runs at nice 19 (it renices itself; children inherit).
-Printed per variant: the median over every process-window, min and max, the ratio to A and to the 1.5 % goal, each
-step's cost per cycle [us] (1 % of a core at 100 cycles/s = 100 us per cycle), D - A per cycle, F - E; and the
-load average and the machine's busy share per window.
+Each process also tells how many cycles it ran in the window (A-E print their count at SIGUSR1; F's are its PLCTONC
+puts, counted by a probe subscriber on the real NC, which also records the real frame sizes): a process-window counts
+only if it ran >= ``--min-rate`` (95) cycles/s, since a starved process's CPU is low for it (on a saturated machine
+nice 19 gets little). Printed per variant: how many process-windows counted, their median CPU, min and max, the exact
+figure, the ratio to A, to E and to the 1.5 % goal, each step's cost per cycle [us] (1 % of a core at 100 cycles/s =
+100 us per cycle), the CPU per cycle run, D - A per cycle, F - E; and the load average and the machine's busy share
+over the windows. The rows are saved (``rows.json`` in the run's temporary directory; ``--report-from`` prints the
+table again, e.g. with another ``--min-rate``).
 
     .venv/bin/python bench/client_floor.py --seconds 30            # 3 rounds of 10 s per variant (~8 min)
     .venv/bin/python bench/client_floor.py --seconds 60 --rounds 6 --variants A B C D
@@ -384,52 +389,51 @@ def median(xs: list[float]) -> float:
     return statistics.median(xs) if xs else float("nan")
 
 
-def report(rows: list[dict[str, Any]], variants: list[str], b: Bench) -> None:
-    args = b.args
+def report(rows: list[dict[str, Any]], variants: list[str], args: argparse.Namespace,
+           real_sizes: dict[str, list[int]] | None = None) -> None:
+    """The table. A process-window counts if the process ran >= ``--min-rate`` cycles/s in it (a starved one's CPU is
+    low for it, and its rx work per cycle high): the figures are medians over those; a variant without any shows all
+    its windows, marked ``*``."""
     print(f"\nclient_floor: {args.clients} processes per variant, {args.rounds} rounds x {args.seconds / args.rounds:g} s "
           f"per variant, PLC cycle {CYCLE * 1e3:g} ms; view frame {VIEW_SIZE} B, PLCTONC {PLCTONC_SIZE} B (nc_schema)")
-    if any(b.real_sizes.values()):
-        print("  real sizes seen (nc-server -> plc-run, F): " + ", ".join(f"{k} {sorted(s)} B" for k, s in b.real_sizes.items()))
-    print(f"{'variant':<13} {'what':<46} {'% core median':>13} {'min':>6} {'max':>6} {'exact':>6} {'/A':>6} "
-          f"{'/E':>5} {'/goal':>6} {'step us/cyc':>11} {'cyc/s min':>9} {'us/cyc':>6} {'frames/s':>8} {'puts/s':>7}")
-    med: dict[str, float] = {}
-    med_e = median([x for r in rows if r["v"] == "E" for x in r["cpu"]])
-    prev: float | None = None
+    if real_sizes and any(real_sizes.values()):
+        print("  real sizes seen (nc-server -> plc-run, F): " + ", ".join(f"{k} {s} B" for k, s in real_sizes.items()))
+    print(f"{'variant':<13} {'what':<46} {'n ok':>5} {'% core':>6} {'min':>5} {'max':>5} {'exact':>5} {'/A':>5} {'/E':>5} "
+          f"{'/goal':>5} {'step us/cyc':>12} {'us/cyc':>6} {'cyc/s':>5} {'frames/s':>8} {'puts/s':>6}")
+    cols: dict[str, dict[str, Any]] = {}
     for v in variants:
         rs = [r for r in rows if r["v"] == v]
-        cpu = [x for r in rs for x in r["cpu"]]
-        exact = [x for r in rs for x in r["exact"]]
-        med[v] = m = median(cpu)
-        me = median(exact)
-        frames = [rep["frames"] / rep["seconds"] for r in rs for rep in r["reports"] if "frames" in rep and rep.get("seconds")]
-        step = "" if prev is None or v in ("E", "D-express", "D-block", "D-besteffort") else f"{(me - prev) * 100:+.0f}"
-        if v == "F" and "E" in med:
-            step = f"{(me - median([x for r in rows if r['v'] == 'E' for x in r['exact']])) * 100:+.0f} vs E"
-        if v in ("D-express", "D-block", "D-besteffort") and "D" in med:
-            step = f"{(me - median([x for r in rows if r['v'] == 'D' for x in r['exact']])) * 100:+.0f} vs D"
-        if v in ("A", "B", "C", "D"):
-            prev = me
-        puts = median([r["puts_per_s"] for r in rs]) if v.startswith("D") else float("nan")
-        cps = [x for r in rs for x in r["cyc_per_s"]]
-        upc = median([x for r in rs for x in r["us_per_cycle"] if x == x])
-        to_e = m / med_e if med_e == med_e and med_e > 0 else float("nan")
-        print(f"{v:<13} {VARIANTS[v]:<46} {m:13.2f} {min(cpu):6.2f} {max(cpu):6.2f} {me:6.2f} "
-              f"{m / med['A'] if 'A' in med else float('nan'):6.2f} {to_e:5.2f} {m / GOAL:6.2f} {step:>11} "
-              f"{min(cps):9.1f} {upc:6.0f} {median(frames) if frames else float('nan'):8.1f} {puts:7.1f}")
-    ex = {v: median([x for r in rows if r["v"] == v for x in r["exact"]]) for v in variants}
+        samples = [(c, e, n, u) for r in rs for c, e, n, u in zip(r["cpu"], r["exact"], r["cyc_per_s"], r["us_per_cycle"])]
+        ok = [x for x in samples if x[2] >= args.min_rate]
+        use = ok or samples
+        cols[v] = {"cpu": [x[0] for x in use], "exact": median([x[1] for x in use]), "n": f"{len(ok)}/{len(samples)}",
+                   "us": median([x[3] for x in use if x[3] == x[3]]), "rate": median([x[2] for x in use]),
+                   "mark": "" if ok else "*",
+                   "frames": median([p["frames"] / p["seconds"] for r in rs for p in r.get("reports", [])
+                                     if "frames" in p and p.get("seconds")]),
+                   "puts": median([r["puts_per_s"] for r in rs if "puts_per_s" in r]) if v.startswith("D") else float("nan")}
+    med = {v: median(c["cpu"]) for v, c in cols.items()}
+    base = {"B": "A", "C": "B", "D": "C", "D-express": "D", "D-block": "D", "D-besteffort": "D", "F": "E"}
+    for v, c in cols.items():
+        m, b = med[v], base.get(v)
+        step = f"{(c['exact'] - cols[b]['exact']) * 100:+.0f} vs {b}" if b in cols else ""
+        print(f"{v + c['mark']:<13} {VARIANTS[v]:<46} {c['n']:>5} {m:6.2f} {min(c['cpu']):5.2f} {max(c['cpu']):5.2f} "
+              f"{c['exact']:5.2f} {m / med.get('A', float('nan')):5.2f} {m / med.get('E', float('nan')):5.2f} {m / GOAL:5.2f} "
+              f"{step:>12} {c['us']:6.0f} {c['rate']:5.0f} {c['frames']:8.1f} {c['puts']:6.1f}")
+    ex = {v: c["exact"] for v, c in cols.items()}
     if "A" in ex and "D" in ex:
-        print(f"D - A: {(ex['D'] - ex['A']) * 100:.0f} us per 10 ms cycle ({ex['D'] - ex['A']:.2f} % of a core; "
+        print(f"D - A: {(ex['D'] - ex['A']) * 100:.0f} us per 10 ms cycle ({ex['D'] - ex['A']:.2f} % of a core, "
               f"{(ex['D'] - ex['A']) / GOAL * 100:.0f} % of the 1.5 % goal); D itself {ex['D']:.2f} % "
               f"({ex['D'] / GOAL * 100:.0f} % of the goal)")
     if "E" in ex and "F" in ex:
         print(f"F - E: {(ex['F'] - ex['E']) * 100:.0f} us per cycle; F - D: {(ex['F'] - ex.get('D', float('nan'))) * 100:.0f} us "
-              f"per cycle (our code above the transport's floor)")
+              f"per cycle (what the working plc-run costs above the transport's floor)")
     loads = [r["load"] for r in rows]
     print(f"machine: load average (1 min) {min(loads):.2f}-{max(loads):.2f} over the windows, busy "
-          f"{min(r['busy'] for r in rows):.0f}-{max(r['busy'] for r in rows):.0f} % of {100 * (os.cpu_count() or 1)} %. "
-          f"'% core' from /proc/<pid>/stat (10 ms ticks), 'exact' from schedstat, 'step' from exact; 'cyc/s min': the "
-          f"fewest cycles/s a process ran in a window (100: none lost; fewer: starved, and its CPU low for it), 'us/cyc': "
-          f"exact CPU per cycle run; other processes of the machine share it (shared VM)")
+          f"{min(r['busy'] for r in rows):.0f}-{max(r['busy'] for r in rows):.0f} % of {100 * (os.cpu_count() or 1)} %, "
+          f"other processes of this shared VM included. 'n ok': process-windows with >= {args.min_rate:g} cycles/s (the "
+          f"figures are medians over those); '% core' from /proc/<pid>/stat (10 ms ticks), 'exact' (and 'step', "
+          f"'us/cyc': exact CPU per cycle run) from schedstat")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -441,6 +445,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--no-real", action="store_true", help="skip E and F (no nc-server, no plc-run)")
     ap.add_argument("--start-timeout", type=float, default=60.0, help="seconds a client may take to start (60)")
+    ap.add_argument("--min-rate", type=float, default=95.0,
+                    help="cycles/s a process must run in a window for it to count (95; fewer: starved)")
+    ap.add_argument("--report-from", metavar="JSON", help="print the table of a saved run (its rows.json) and exit")
     ap.add_argument("--role", choices=["bench", "nc", "client"], default="bench", help=argparse.SUPPRESS)
     ap.add_argument("--variant", help=argparse.SUPPRESS)
     ap.add_argument("--client-id", help=argparse.SUPPRESS)
@@ -452,6 +459,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.role == "client":
         client_main(args.variant, args.client_id, args.endpoint)
+        return 0
+    if args.report_from:
+        saved = json.loads(Path(args.report_from).read_text())
+        report(saved["rows"], saved["variants"], argparse.Namespace(**{**saved["args"], "min_rate": args.min_rate}),
+               saved["real_sizes"])
         return 0
     os.nice(19 - os.nice(0))  # the bench and every process it starts at nice 19
     variants = [v for v in args.variants if not (args.no_real and v in ("E", "F"))]
@@ -481,7 +493,10 @@ def main(argv: list[str] | None = None) -> int:
             except subprocess.TimeoutExpired:
                 kill_group(p)
                 p.wait(5)
-    report(rows, variants, b)
+    (b.tmp / "rows.json").write_text(json.dumps({"rows": rows, "variants": variants, "args": vars(args),
+                                                 "real_sizes": {k: sorted(x) for k, x in b.real_sizes.items()}}))
+    report(rows, variants, args, {k: sorted(x) for k, x in b.real_sizes.items()})
+    print(f"(rows in {b.tmp / 'rows.json'}; --report-from it prints this table again)")
     return 0
 
 
