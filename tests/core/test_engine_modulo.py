@@ -50,6 +50,21 @@ def test_inside_the_tolerance_window_a_small_move_against_the_direction(directio
     assert pos[-1] == pytest.approx(end, abs=1e-9) and abs(pos - start).max() <= 1.0 + 1e-9
 
 
+@pytest.mark.parametrize("direction,start,target,end", [
+    (NEG, 359.5, 0.0, 360.0), (NEG, 359.5, 360.0, 0.0), (POS, 360.5, 359.8, 359.8),
+])
+def test_the_tolerance_window_reaches_across_the_period_boundary(direction, start, target, end):
+    """TcMC 3.5: the window is "set position +/- tolerance value": at 359.5 with a window of 1, a target
+    of 0 is 0.5 ahead (a small move against a negative direction), not a turn back to 0."""
+    core, tr = at(start, 1.0)
+    cmd(core, "MoveModulo", Position=target, Velocity=720.0, Direction=direction)
+    tr.settle()
+    pos = tr.col("SetPos")
+    assert pos[-1] == pytest.approx(end, abs=1e-9)
+    if abs(end - start) <= 1.0:
+        assert abs(pos - start).max() <= 1.0 + 1e-9
+
+
 @pytest.mark.parametrize("velocity_direction,end", [(POS, 720.0 + 45.0), (NEG, -720.0 + 45.0)])
 def test_current_direction_while_moving(velocity_direction, end):
     core, tr = at(0.0)

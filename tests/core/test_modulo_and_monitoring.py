@@ -36,6 +36,23 @@ def test_modulo_table_with_tolerance_window(direction, start, target, travel):
     assert modulo_target(start, target, 360.0, 1.0, direction) - start == pytest.approx(travel, abs=1e-9)
 
 
+# TcMC 3.5: "The modulo tolerance window defines a position window around the current modulo set position
+# of the axis ... (set position +/- tolerance value)"; "If the set position exceeds 90 deg by less than 1 deg,
+# the axis is re-positioned ... In both cases, a target position of 90 deg therefore leads to minimum movement".
+# The same window around a set position next to the period's end reaches into the next period.
+TABLE_TW1_WRAP = [
+    (NEG, 359.5, 0.0, 0.5), (NEG, -0.5, 0.0, 0.5), (NEG, 359.5, 360.0, -359.5), (NEG, 359.5, 720.0, -719.5),
+    (POS, 0.5, 359.8, -0.7), (POS, 360.3, 359.9, -0.4), (POS, 0.5, 719.8, 359.3),
+    # outside the window: unchanged
+    (NEG, 358.5 - 1e-6, 0.0, -358.5 + 1e-6), (POS, 0.5, 359.0, 358.5), (POS, 359.5, 0.0, 0.5), (NEG, 0.5, 0.0, -0.5),
+]
+
+
+@pytest.mark.parametrize("direction,start,target,travel", TABLE_TW1_WRAP)
+def test_modulo_tolerance_window_across_the_period_boundary(direction, start, target, travel):
+    assert modulo_target(start, target, 360.0, 1.0, direction) - start == pytest.approx(travel, abs=1e-9)
+
+
 def test_move_modulo_on_a_modulo_axis_turns():
     core = powered(Modulo=True, AxisVeloMax=720.0, AxisAcc=3600.0, AxisDec=3600.0, AxisJerk=36000.0)
     assert core.nctoplc[0]["OpModeDWord"] & (1 << 7)  # OpModeModulo

@@ -98,12 +98,19 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
     turns = math.floor(target / period)
     rest = target - turns * period
     end = base + rest
+    # the first position with the modulo value ``rest`` at or beyond the window's far side (set position
+    # -/+ tolerance): the window is around the set position, so it may reach into the neighbouring period
+    # (set position 359.5, window 1: a target of 0 is 0.5 ahead, not 359.5 behind)
     if direction == _POS:
         if end < set_pos - tolerance:
             end += period
+        elif end - period >= set_pos - tolerance:
+            end -= period
         return end + turns * period
     if end > set_pos + tolerance:
         end -= period
+    elif end + period <= set_pos + tolerance:
+        end += period
     return end - turns * period
 
 
