@@ -65,6 +65,21 @@ def test_the_tolerance_window_reaches_across_the_period_boundary(direction, star
         assert abs(pos - start).max() <= 1.0 + 1e-9
 
 
+@pytest.mark.parametrize("direction", [POS, NEG])
+@pytest.mark.parametrize("start,target", [(-912.736, 54.4), (4109.878, 4.86), (382.601, 231.8), (480.505, 201.3)])
+def test_the_same_modulo_target_again_does_not_move(direction, start, target):
+    """TcMC 3.5: "No motion occurs if target position and starting position are identical", also when the
+    set position holds the target's modulo value as another sum of floats than the new target's."""
+    core, tr = at(start)
+    cmd(core, "MoveModulo", Position=target, Velocity=720.0, Direction=direction)
+    tr.settle()
+    reached = float(tr.rows[-1]["SetPos"])
+    n = cmd(core, "MoveModulo", Position=target, Velocity=720.0, Direction=direction)["CmdNo"]
+    tr.settle()
+    assert float(tr.rows[-1]["SetPos"]) == pytest.approx(reached, abs=1e-9)
+    assert int(tr.rows[-1]["CmdNo"]) == n and int(tr.rows[-1]["CmdState"]) == DONE
+
+
 @pytest.mark.parametrize("velocity_direction,end", [(POS, 720.0 + 45.0), (NEG, -720.0 + 45.0)])
 def test_current_direction_while_moving(velocity_direction, end):
     core, tr = at(0.0)

@@ -98,6 +98,10 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
     turns = math.floor(target / period)
     rest = target - turns * period
     end = base + rest
+    # "No motion occurs if target position and starting position are identical" (TcMC 3.5): a set position
+    # with the target's modulo value reached by another sum of floats (-1080 + 54.4 + 360 is not -720 + 54.4)
+    # is identical; a rounding margin keeps it from being a full turn
+    tolerance += 1e-12 * max(abs(set_pos), period)
     # the first position with the modulo value ``rest`` at or beyond the window's far side (set position
     # -/+ tolerance): the window is around the set position, so it may reach into the neighbouring period
     # (set position 359.5, window 1: a target of 0 is 0.5 ahead, not 359.5 behind)
