@@ -64,6 +64,7 @@ _POS = int(MC_Direction.MC_Positive_Direction)
 _SHORT = int(MC_Direction.MC_Shortest_Way)
 _NEG = int(MC_Direction.MC_Negative_Direction)
 _CURRENT = int(MC_Direction.MC_Current_Direction)
+_EPS_V = 1e-9  # [u/s] a set velocity above this is a motion (as the engine's)
 
 
 def modulo_target(set_pos: float, target: float, period: float, tolerance: float, direction: int,
@@ -118,6 +119,26 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
     return end - turns * period
 
 
+def modulo_beyond_stop(core: CoreContext, i: int, start: StartState, position: float, dyn: Dynamics) -> float:
+    """The first position with the modulo value ``position`` [u, in [0, period)] in the direction of
+    travel of ``start`` (|v| > 0) at or beyond the point where the axis comes to rest from ``start`` with
+    the deceleration and jerk of ``dyn`` (its plan to rest): the nearest end at ``position`` the axis can
+    reach without turning back. MC_OrientedStop (with its stop dynamics) and MC_MoveModulo started during
+    motion (with its own dynamics) end there. (Dynamics too weak to stop a hard braking without turning:
+    the farthest point of that plan in the direction of travel; the plan to the end then turns, which
+    the start's checks refuse, 0x4289.)
+
+    Raises:
+        NcError: 0x427E no plan to rest from ``start`` with ``dyn``.
+    """
+    rest = core.plan(plan_velocity, start, 0.0, dyn)
+    natural = rest.p_max if start.v > 0 else rest.p_min
+    period = core.params[i].AxisEncoderModuloValue
+    k = (natural - position) / period
+    # (a rounding margin: a rest point on a position with that modulo value is that position)
+    return position + (math.ceil(k - 1e-12) if start.v > 0 else math.floor(k + 1e-12)) * period
+
+
 class PositionKind(JobKind):
     """Move to a target and end there at rest (or with the blending velocity of its successor)."""
 
@@ -152,11 +173,17 @@ class PositionKind(JobKind):
     def end_velocity_of(self, core: CoreContext, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
         return 0.0
 
-    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
-        assert job.target is not None and job.dyn is not None
+    def start_target(self, core: CoreContext, i: int, job: Job, start: StartState) -> None:
+        """Fix the parts of the target that depend on the state the job starts from (``start``, at its
+        activation): a job queued behind one without a target refers to the set position there."""
         if job.data.get("from_start"):
             job.target = self.target_of(core, i, job.args, start.p, None)
             job.end_velocity = self.end_velocity_of(core, i, job.args, job.target, start.p)
+
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
+        assert job.target is not None and job.dyn is not None
+        self.start_target(core, i, job, start)
+        assert job.target is not None
         sense = job.target - start.p
         core.check_feed(i, sense if sense else job.end_velocity)
         self.prepare(core, i, job, start)  # loop point, reduced velocity (AxisEnLoopingDistance, AxisOverrideType)
@@ -411,8 +438,39 @@ class AdditiveKind(PositionKind):
 
 
 class ModuloKind(PositionKind):
-    """MC_MoveModulo. MC_Current_Direction: the direction of the current motion -- of a job queued
-    behind another, the direction that job travels in (a blend then passes its target moving on)."""
+    """MC_MoveModulo (TcMC 3.4, 3.5).
+
+    From standstill, and queued behind a job with a target (Buffered: at rest there), the TcMC 3.5 rules
+    (:func:`modulo_target`): Direction, the modulo tolerance window, Position >= period adds full turns
+    (not with MC_Shortest_Way: 0x4282). MC_Current_Direction: the direction of the current motion -- of
+    a job queued behind another, the direction that job travels in (a blend then passes its target
+    moving on). A queued target refers to the previous job's target (PLCopen) and is fixed when accepted.
+
+    Started during motion (|set velocity| > 0 when it takes over: Aborting a motion, or queued behind a
+    job without a target such as MC_MoveVelocity): TcMC 3.4/3.5 speak only of starts from standstill.
+    This NC follows Beckhoff's later libraries (Tc2_MC2 MC_MoveModulo: "If an axis is already in
+    motion ... The direction of movement cannot be reversed by MC_MoveModulo, i.e. the target can only
+    be reached in the current direction. The user is not able to specify the number of additional
+    turns. The system automatically calculates how the axis can be moved to the target position on the
+    shortest possible path."): the end position is the first position with the modulo value of
+    Position (Position mod period: Position >= period adds no turns) in the current direction of motion
+    at or beyond the point where the axis can come to rest with the move's own Deceleration and Jerk
+    (0 = AxisDec/AxisJerk) (:func:`modulo_beyond_stop`, as MC_OrientedStop). Decisions: the current
+    direction wins over every Direction, an explicit opposite one and MC_Shortest_Way included (turning
+    back may be shorter, but reverses the motion); Direction and Position are still checked as at
+    standstill (0x4B04, 0x4282 also for Position >= period with MC_Shortest_Way), so a command is valid
+    or not whatever the axis does. The modulo tolerance window plays no role (it is for a set position
+    after a reset, at rest). The end position is computed at the activation, from the state the job
+    starts from (:meth:`start_target`; a command that starts now is prepared from its activation cycle's
+    state and prepared again where that no longer holds). A software limit before it: 0x4222, refused as
+    every move.
+
+    Blending modes: the predecessor passes its target with a velocity from which this job can come to
+    rest within its distance (``JobKind.blend_velocity``), so the queued target stays (extra turns
+    included) and the axis does not turn. Only where the axis moves when the job takes over and that
+    target lies before its rest point (e.g. behind MC_MoveContinuousAbsolute, which moves on past its
+    target) the moving rule replaces it.
+    """
 
     def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         p = core.params[i]
@@ -423,6 +481,26 @@ class ModuloKind(PositionKind):
             velo = float(core.axes.set_velo[i])
         return modulo_target(base, float(req["Position"]), p.AxisEncoderModuloValue, p.AxisModuloToleranceWindow,
                              int(req["Direction"]), velo)
+
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        job = super().accept(core, i, req, prev)
+        if prev is not None and req.get("BufferMode", 0) != 0 and not job.data.get("from_start"):
+            job.data["queued"] = True  # the target refers to prev's target
+        return job
+
+    def start_target(self, core: CoreContext, i: int, job: Job, start: StartState) -> None:
+        super().start_target(core, i, job, start)
+        if abs(start.v) <= _EPS_V:
+            return  # from standstill: as accepted
+        assert job.target is not None and job.dyn is not None
+        period = core.params[i].AxisEncoderModuloValue
+        position = float(job.args["Position"])
+        position -= math.floor(position / period) * period
+        end = modulo_beyond_stop(core, i, start, position, job.dyn)
+        sense = 1.0 if start.v > 0 else -1.0
+        if job.data.get("queued") and (job.target - end) * sense > -period / 2:
+            return  # the queued target lies at or beyond the rest point: it stays (module docstring)
+        job.target = end
 
 
 class ContinuousKind(PositionKind):

@@ -24,13 +24,13 @@ On an axis at rest it ends DONE in its first cycle (and locks).
 """
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any, Mapping
 
 from nc_schema import CmdState, ErrorCodes, NcError
 
 from ..planning import Dynamics, Plan, StartState, hold, plan_position, plan_velocity
 from .base import ALL_MODES, Job, JobKind
+from .position import modulo_beyond_stop
 
 if TYPE_CHECKING:
     from ..context import CoreContext
@@ -152,12 +152,7 @@ class OrientedStopKind(JobKind):
         # the running motion's effective dynamics (a coupling, external set-points: AxisDec/AxisJerk)
         dec, jerk = stopped_dynamics(core, i, core.queues[i].active, 0.0, 0.0)
         sd = core.stop_dynamics(i, dec, jerk)
-        natural = core.plan(plan_velocity, start, 0.0, sd).end.p
-        period = core.params[i].AxisEncoderModuloValue
-        sense = 1.0 if start.v > 0 else -1.0
-        pos = float(job.args["Position"])
-        k = (natural - pos) / period
-        target = pos + (math.ceil(k - 1e-12) if sense > 0 else math.floor(k + 1e-12)) * period
+        target = modulo_beyond_stop(core, i, start, float(job.args["Position"]), sd)
         dyn = Dynamics(abs(start.v), sd.acceleration, sd.deceleration, sd.jerk)
         plan = core.plan(plan_position, start, target, dyn)
         core.check_target(i, start.p, target, plan)
