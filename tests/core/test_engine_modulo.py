@@ -3,6 +3,8 @@ direction, except inside the modulo tolerance window, TcMC 3.5), full turns, MC_
 while moving and behind another job, a buffered modulo move refers to the previous target; a start during
 motion never reverses it (the first position with the modulo value at or beyond the rest point, in the current
 direction, whatever Direction says, without extra turns)."""
+import math
+
 import pytest
 
 from nc_schema import CmdState, ErrorCodes as E
@@ -80,6 +82,38 @@ def test_the_same_modulo_target_again_does_not_move(direction, start, target):
     tr.settle()
     assert float(tr.rows[-1]["SetPos"]) == pytest.approx(reached, abs=1e-9)
     assert int(tr.rows[-1]["CmdNo"]) == n and int(tr.rows[-1]["CmdState"]) == DONE
+
+
+@pytest.mark.parametrize("direction", [POS, NEG])
+@pytest.mark.parametrize("period,target,tol", [
+    (0.1, 0.3, 0.0), (3.6, 46.8, 0.0), (2 * math.pi, 22 * math.pi, 0.0), (2 * math.pi, 22 * math.pi, 0.01),
+    (100.1, 300.3, 0.0), (0.1, 0.3, 0.01),
+])
+def test_a_whole_number_of_periods_makes_as_many_turns(direction, period, target, tol):
+    """TcMC 3.5: "Target positions of more than 360 degrees lead to one or more full turns": from 0 a
+    target of k periods makes k turns also where target / period rounds to k - 0.000...1 (0.3 / 0.1)."""
+    core = powered(Modulo=True, AxisEncoderModuloValue=period, AxisModuloToleranceWindow=tol, **FAST)
+    tr = Trace(core)
+    n = cmd(core, "MoveModulo", Position=target, Velocity=720.0, Direction=direction)["CmdNo"]
+    tr.settle()
+    sense = 1.0 if direction == POS else -1.0
+    assert float(tr.rows[-1]["SetPos"]) / period == pytest.approx(sense * round(target / period), abs=1e-9)
+    assert int(tr.rows[-1]["CmdNo"]) == n and int(tr.rows[-1]["CmdState"]) == DONE
+    assert (sense * tr.col("SetVelo") >= 0).all()
+
+
+@pytest.mark.parametrize("direction,offset", [(POS, 1e-7), (POS, 1e-10), (NEG, -1e-7), (NEG, -1e-10)])
+def test_slightly_past_the_target_without_a_window_is_a_full_turn(direction, offset):
+    """TcMC 3.5: "if the set position ... is slightly more than 90 deg, the same travel command leads to a
+    full turn" (the mirror in the negative direction): with window 0 no hidden window but a rounding
+    margin of a few LSBs (1e-10 at 90 deg is some 900 LSBs)."""
+    core, tr = at(90.0 + offset)
+    assert float(core.axes.set_pos[0]) == 90.0 + offset
+    cmd(core, "MoveModulo", Position=90.0, Velocity=720.0, Direction=direction)
+    tr.settle()
+    sense = 1.0 if direction == POS else -1.0
+    assert float(tr.rows[-1]["SetPos"]) == pytest.approx(90.0 + sense * 360.0, abs=1e-9)
+    assert (sense * tr.col("SetVelo") >= 0).all()
 
 
 @pytest.mark.parametrize("velocity_direction,end", [(POS, 720.0 + 45.0), (NEG, -720.0 + 45.0)])

@@ -79,6 +79,11 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
         direction: MC_Direction value.
         current_velo: current set velocity, for MC_Current_Direction.
 
+    Rounding (a choice; 3.5 reasons in exact degrees): Position within 16 LSBs of a whole number of periods
+    is that many turns (0.3 at a period of 0.1 is 3 turns, though 0.3 / 0.1 < 3 in floats); a set position
+    within 16 LSBs of max(|set position|, Position, period) of the target's modulo value is identical to it
+    (no motion); beyond that the window is the configured one alone.
+
     Raises:
         NcError: 0x4282 invalid modulo target, 0x4B04 invalid direction.
     """
@@ -98,11 +103,23 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
         return set_pos + diff
     turns = math.floor(target / period)
     rest = target - turns * period
+    # floor(target / period) may round a whole number of periods down (0.3 / 0.1 = 2.999...): a rest of
+    # period - tiny is the next whole turn with rest ~0, not a turn less. (A rest tiny below 0, the
+    # quotient rounded up, is that turn with rest ~0 as it is.) The rest errs by an LSB of the target.
+    tiny = 16.0 * math.ulp(max(target, period))
+    if rest >= period - tiny:
+        rest -= period
+        turns += 1
+    elif rest < -tiny:
+        rest += period
+        turns -= 1
     end = base + rest
     # "No motion occurs if target position and starting position are identical" (TcMC 3.5): a set position
     # with the target's modulo value reached by another sum of floats (-1080 + 54.4 + 360 is not -720 + 54.4)
-    # is identical; a rounding margin keeps it from being a full turn
-    tolerance += 1e-12 * max(abs(set_pos), period)
+    # is identical. A margin of a few LSBs of the magnitudes involved (these sums err by 0.3-2 LSBs) keeps
+    # such rounding from being a full turn and hides no window: with window 0 a set position clearly past
+    # the target ("slightly more than 90 deg", 3.5) makes a full turn.
+    tolerance += 16.0 * math.ulp(max(abs(set_pos), target, period))
     # the first position with the modulo value ``rest`` at or beyond the window's far side (set position
     # -/+ tolerance): the window is around the set position, so it may reach into the neighbouring period
     # (set position 359.5, window 1: a target of 0 is 0.5 ahead, not 359.5 behind)
