@@ -43,6 +43,8 @@ def test_modulo_table_with_tolerance_window(direction, start, target, travel):
 # of the axis ... (set position +/- tolerance value)"; "If the set position exceeds 90 deg by less than 1 deg,
 # the axis is re-positioned ... In both cases, a target position of 90 deg therefore leads to minimum movement".
 # The same window around a set position next to the period's end reaches into the next period.
+# These rows are not the manual's: they are this NC's reading of the window rule above (3.5 gives rows
+# only around 90 deg), the window taken literally as set position +/- tolerance across the boundary.
 TABLE_TW1_WRAP = [
     (NEG, 359.5, 0.0, 0.5), (NEG, -0.5, 0.0, 0.5), (NEG, 359.5, 360.0, -359.5), (NEG, 359.5, 720.0, -719.5),
     (POS, 0.5, 359.8, -0.7), (POS, 360.3, 359.9, -0.4), (POS, 0.5, 719.8, 359.3),

@@ -1,5 +1,11 @@
 """Conformance scenarios of the TcMC manual (3.1-3.6, 3.13, 3.15, appendix 7.1) seen from a PLC program:
-the blocks against a real NcCore, cycle by cycle (the checks a TwinCAT or CODESYS user would try first)."""
+the blocks against a real NcCore, cycle by cycle (the checks a TwinCAT or CODESYS user would try first).
+
+Not the manual's words but zenoh-nc's documented choices (plc_client/fb/motion.py, the NC reference):
+Busy and Active of the move blocks and of MC_Stop (Tc2_MC2/PLCopen outputs; TcMC's move blocks and MC_Stop
+have only Done, CommandAborted, Error, ErrorID); the error codes (TwinCAT NC error table: the manual names
+none), NaN/INF inputs as MC_ERROR_PARAMETER_NOT_CORRECT, Error reset by Execute falling; the MC_Stop lock
+(0x42EF until Execute falls, from Beckhoff's state diagram, not TcMC 3.15)."""
 from __future__ import annotations
 
 import math
@@ -145,8 +151,9 @@ def test_two_moves_in_one_cycle_the_later_aborts_the_earlier() -> None:
     (MC_Jog, dict(JogForward=True, Mode=2, Velocity=10.0)),
 ])
 def test_a_held_stop_locks_every_move_until_execute_falls(block: type, inputs: dict) -> None:
-    """TcMC 3.15 / Tc2_MC2 state diagram: "After the complete stop the state does not change to 'Standstill'
-    until MC_Stop is called with Execute = FALSE. Otherwise the axis remains locked" (0x42EF)."""
+    """Not in TcMC 3.15: Beckhoff's state diagram (Tc2_MC2 / Tc3 motion libraries), followed as a zenoh-nc
+    choice: "After the complete stop the state does not change to 'Standstill' until MC_Stop is called with
+    Execute = FALSE. Otherwise the axis remains locked" (0x42EF)."""
     rig, ax, calls = started()
     st, fb = rig.watch(MC_Stop(), block())
     calls["body"] = lambda p: st(Axis=ax, Execute=True)
@@ -250,23 +257,28 @@ def test_modulo_application_example_of_3_5() -> None:
 
 def test_or_restart_keeps_the_running_dynamics_and_takes_the_new_target_and_velocity() -> None:
     """TcMC 3.6: "target position and velocity are changed, if the building block during a movement is
-    triggered"; Acceleration "will only be used with a start from standstill"."""
+    triggered"; Acceleration "will only be used with a start from standstill". The new target lies far
+    enough behind for the new Velocity 300 to be reached with the running 200 u/s^2."""
     rig, ax, calls = started(AxisParams(AxisAcc=1000.0, AxisDec=1000.0))
     mr = rig.watch(MC_MoveAbsoluteOrRestart())
     acc_seen: list[float] = []
+    velo_seen: list[float] = []
 
     def body(p: Any, **kw: Any) -> None:
         mr(Axis=ax, **kw)
         acc_seen.append(float(ax.NcToPlc["SetAcc"]))
+        velo_seen.append(float(ax.NcToPlc["SetVelo"]))
 
     calls["body"] = lambda p: body(p, Execute=True, Position=500.0, Velocity=100.0, Acceleration=200.0,
                                    Deceleration=200.0)
     rig.run(20)
     calls["body"] = lambda p: body(p, Execute=False)
     rig.run(1)
-    calls["body"] = lambda p: body(p, Execute=True, Position=0.0, Velocity=300.0, Acceleration=1000.0,
+    assert 0.0 < max(velo_seen) < 100.0
+    calls["body"] = lambda p: body(p, Execute=True, Position=-500.0, Velocity=300.0, Acceleration=1000.0,
                                    Deceleration=1000.0)
-    rig.run_until(lambda: mr.Done, 500)
+    rig.run_until(lambda: mr.Done, 1000)
     assert max(abs(a) for a in acc_seen) == pytest.approx(200.0)
-    assert float(ax.NcToPlc["SetPos"]) == pytest.approx(0.0)
+    assert min(velo_seen) == pytest.approx(-300.0)  # the new velocity
+    assert float(ax.NcToPlc["SetPos"]) == pytest.approx(-500.0)
     assert not any(o["CommandAborted"] for o in rig.outputs(mr))
