@@ -8,6 +8,7 @@ import math
 import pytest
 
 from nc_schema import CmdState, ErrorCodes as E
+from nc_server.core.planning import Dynamics, plan_velocity
 from znc_testing.engine_check import Trace
 from znc_testing.nc_core import cmd, powered, snapshot
 
@@ -253,36 +254,70 @@ def test_a_moving_start_behind_a_move_velocity_does_not_reverse():
     ends_moving_on(core, tr, n, 1.0, p0 + 380.0)
 
 
-def test_a_queued_target_behind_the_rest_point_of_a_continuous_move():
-    """Behind MC_MoveContinuousAbsolute (passes 100 at 720 u/s and goes on): the queued target 110 (from
-    the previous target, positive direction) lies within the way to rest: the moving rule, 470."""
+@pytest.mark.parametrize("sense", [1.0, -1.0])
+def test_a_queued_target_behind_the_rest_point_of_a_continuous_move(sense):
+    """Behind MC_MoveContinuousAbsolute (passes +-100 at 720 u/s and goes on): the queued target +-110 (from
+    the previous target, in its direction) lies within the way to rest: the moving rule, +-470."""
     core, tr = at(0.0)
-    cmd(core, "MoveContinuousAbsolute", Position=100.0, Velocity=720.0, EndVelocity=720.0)
-    n = cmd(core, "MoveModulo", Position=110.0, Velocity=720.0, Direction=POS, BufferMode=1, **OWN)["CmdNo"]
-    ends_moving_on(core, tr, n, 1.0, 470.0)
+    cmd(core, "MoveContinuousAbsolute", Position=sense * 100.0, Velocity=720.0, EndVelocity=720.0)
+    n = cmd(core, "MoveModulo", Position=modulo_of(sense * 110.0), Velocity=720.0,
+            Direction=POS if sense > 0 else NEG, BufferMode=1, **OWN)["CmdNo"]
+    ends_moving_on(core, tr, n, sense, sense * 470.0)
 
 
-def test_a_blending_successor_keeps_its_queued_target_and_turns():
-    """BlendingNext behind a positive move: the target refers to the previous one with the standstill
-    rules (Position 390 from 100: 390 and the turn asked for, 750), the blend passes 100 moving on (the
-    moving rule would end at 390)."""
+@pytest.mark.parametrize("sense,position,end", [
+    (1.0, 390.0, 750.0),     # Position 390 from 100: 390 and the turn asked for
+    (-1.0, 690.0, -750.0),   # 690 = 330 + a turn, negative from -100: -390 and the turn
+    (-1.0, 250.0, -110.0),   # no turn asked for
+])
+def test_a_blending_successor_keeps_its_queued_target_and_turns(sense, position, end):
+    """BlendingNext behind a move to +-100: the target refers to the previous one with the standstill
+    rules, the blend passes +-100 moving on (the moving rule would end within the first period)."""
     core, tr = at(0.0)
-    cmd(core, "MoveAbsolute", Position=100.0, Velocity=720.0)
-    n = cmd(core, "MoveModulo", Position=390.0, Velocity=720.0, Direction=POS, BufferMode=20, **OWN)["CmdNo"]
-    ends_moving_on(core, tr, n, 1.0, 750.0)
-    assert tr.col("SetVelo")[tr.first(lambda r, j: float(r["SetPos"]) >= 100.0)] > 100.0
+    cmd(core, "MoveAbsolute", Position=sense * 100.0, Velocity=720.0)
+    n = cmd(core, "MoveModulo", Position=position, Velocity=720.0, Direction=POS if sense > 0 else NEG,
+            BufferMode=20, **OWN)["CmdNo"]
+    ends_moving_on(core, tr, n, sense, end)
+    assert sense * tr.col("SetVelo")[tr.first(lambda r, j: sense * float(r["SetPos"]) >= 100.0)] > 100.0
 
 
-def test_a_software_limit_before_the_moving_target_refuses_the_start():
-    """The computed end (one period on) beyond AxisMaxSoftPosLimit 750 (the axis passes 500 when the
-    command comes): refused as a MoveAbsolute there, nothing changes; p0 + 130 below it starts."""
-    core, tr, p0 = moving(1.0, AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=750.0)
+@pytest.mark.parametrize("kind", ["MoveModulo", "MoveAbsolute"])
+@pytest.mark.parametrize("sense", [1.0, -1.0])
+@pytest.mark.parametrize("d", [108.01, 108.3, 108.5])
+def test_a_blending_successor_can_stop_from_where_it_takes_over(kind, sense, d):
+    """The successor needs 108 u to rest from 720 u/s and its target lies d (a little more) beyond the
+    predecessor's: it takes over at the cycle boundary after that target, up to 0.72 u (a cycle at 720 u/s)
+    on, so the blend velocity leaves room for that cycle (``JobKind.blend_velocity``). Otherwise the rest
+    point lies beyond the target: a MoveModulo counted as moving made a full turn more, a MoveAbsolute
+    passed its target and came back."""
+    core, tr = at(0.0)
+    cmd(core, "MoveAbsolute", Position=sense * 100.3, Velocity=720.0)
+    end = sense * (100.3 + d)
+    if kind == "MoveModulo":
+        args = dict(Position=modulo_of(end), Direction=POS if sense > 0 else NEG)
+    else:
+        args = dict(Position=end)
+    n = cmd(core, kind, Velocity=720.0, BufferMode=20, **args, **OWN)["CmdNo"]
+    ends_moving_on(core, tr, n, sense, end)
+    assert sense * tr.col("SetVelo")[tr.first(lambda r, j: sense * float(r["SetPos"]) >= 100.3)] > 100.0
+
+
+@pytest.mark.parametrize("sense", [1.0, -1.0])
+def test_a_software_limit_before_the_moving_target_refuses_the_start(sense):
+    """The computed end (one period on) beyond the software limit +-750 (the axis passes +-500 when the
+    command comes): refused as a MoveAbsolute there, nothing changes; p0 +- 130 inside it starts."""
+    limit = dict(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=750.0) if sense > 0 else \
+        dict(AxisEnMinSoftPosLimit=True, AxisMinSoftPosLimit=-750.0)
+    core, tr, p0 = moving(sense, **limit)
+    direction = POS if sense > 0 else NEG
     before = snapshot(core)
-    got = cmd(core, "MoveModulo", Position=modulo_of(p0 + 20.0), Velocity=720.0, Direction=POS, **OWN)["error"]
-    assert got and got == cmd(core, "MoveAbsolute", Position=p0 + 380.0, Velocity=720.0, **OWN)["error"]
+    got = cmd(core, "MoveModulo", Position=modulo_of(p0 + sense * 20.0), Velocity=720.0, Direction=direction,
+              **OWN)["error"]
+    assert got and got == cmd(core, "MoveAbsolute", Position=p0 + sense * 380.0, Velocity=720.0, **OWN)["error"]
     assert snapshot(core) == before
-    n = cmd(core, "MoveModulo", Position=modulo_of(p0 + 130.0), Velocity=720.0, Direction=POS, **OWN)["CmdNo"]
-    ends_moving_on(core, tr, n, 1.0, p0 + 130.0)
+    n = cmd(core, "MoveModulo", Position=modulo_of(p0 + sense * 130.0), Velocity=720.0, Direction=direction,
+            **OWN)["CmdNo"]
+    ends_moving_on(core, tr, n, sense, p0 + sense * 130.0)
 
 
 def test_a_start_at_rest_after_a_motion_keeps_the_direction():
@@ -321,3 +356,150 @@ def test_a_moving_start_prepared_is_computed_from_its_activation_state():
         tb.step()
         assert snapshot(a) == snapshot(b)
     ends_moving_on(a, ta, int(ta.rows[-1]["CmdNo"]), 1.0, p0 + 480.0)
+
+
+# -- a motion committed to a turn: a positioning to 50 u behind an axis at 720 u/s (AxisDec 36000, AxisJerk
+# 360000) brakes so hard that, in its last cycles before the velocity crosses 0, no plan with that jerk can
+# stop the axis without turning (a^2 / 2j > v). MC_MoveModulo (moving rule) and MC_OrientedStop then end in
+# the direction after the turn, at or beyond the rest point of that plan (modulo_beyond_stop): one reversal,
+# the one the axis must make, none back.
+AXIS_DYN = Dynamics(3600.0, 36000.0, 36000.0, 360000.0)
+
+
+def reversing(cycles_before_crossing, committed=True):
+    """(core, trace from now on, start state) ``cycles_before_crossing`` cycles before the set velocity of a
+    reversing MoveAbsolute crosses 0."""
+    def setup():
+        core = powered(Modulo=True, AxisModuloToleranceWindow=0.0, **FAST)
+        cmd(core, "MoveVelocity", Velocity=720.0, Direction=POS)
+        while float(core.axes.set_pos[0]) < 500.0:
+            core.step()
+        cmd(core, "MoveAbsolute", Position=float(core.axes.set_pos[0]) - 50.0, Velocity=720.0,
+            Deceleration=36000.0, Jerk=360000.0)
+        return core
+    twin, n = setup(), 0
+    while float(twin.axes.set_velo[0]) > 0.0:
+        twin.step()
+        n += 1
+    core = setup()
+    for _ in range(n - cycles_before_crossing):
+        core.step()
+    st = core.start_state(0)
+    assert st.v > 0.0 and (st.a * st.a / (2 * 360000.0) > st.v) == committed  # (committed to the turn)
+    return core, Trace(core), st
+
+
+def turns_once_to(tr, st, position, max_cycles):
+    """Ends at rest at the first position with the modulo value ``position`` at or below the end of the plan
+    to rest from ``st`` (axis dynamics), with one reversal (positive, then negative), within ``max_cycles``
+    (settle raises beyond)."""
+    tr.settle(max_cycles)
+    rest_end = plan_velocity(st, 0.0, AXIS_DYN).end.p
+    end = float(tr.rows[-1]["SetPos"])
+    assert rest_end - 360.0 < end <= rest_end + 1e-9
+    assert modulo_of(end) == pytest.approx(position, abs=1e-6) or modulo_of(end) == pytest.approx(position + 360.0, abs=1e-6)
+    v = tr.col("SetVelo")
+    assert (v < -1e-9).any()
+    first_back = int((v < -1e-9).argmax())  # (the first traced cycle may be past the crossing already)
+    assert (v[:first_back] >= -1e-9).all() and (v[first_back:] <= 1e-9).all(), "turned back again"
+    return end
+
+
+@pytest.mark.parametrize("k,offset,direction,travel", [
+    (3, -0.5, NEG, -360.5),   # (before: -0.5, past it and back; h2b at bad5e91: +359.5, two reversals)
+    (3, 0.5, POS, -359.5),    # the direction after the turn wins over POS
+    (10, -30.0, NEG, -30.0),  # the rest point lies above p0 - 30: reached in this period
+    (10, -0.5, SHORT, -360.5),
+])
+def test_a_moving_start_committed_to_a_turn_goes_on_after_it(k, offset, direction, travel):
+    core, tr, st = reversing(k)
+    position = modulo_of(st.p + offset)
+    n = cmd(core, "MoveModulo", Position=position, Velocity=720.0, Direction=direction)["CmdNo"]
+    end = turns_once_to(tr, st, position, 5000)
+    assert end == pytest.approx(st.p + travel, abs=1e-6)
+    assert int(tr.rows[-1]["CmdNo"]) == n and int(tr.rows[-1]["CmdState"]) == DONE
+
+
+@pytest.mark.parametrize("k", [1, 3, 10])
+@pytest.mark.parametrize("offset,travel", [(0.5, -359.5), (-0.5, -360.5), (5.0, -355.0)])
+def test_an_oriented_stop_committed_to_a_turn_goes_on_after_it(k, offset, travel):
+    """MC_OrientedStop of the braking positioning (its dynamics): the next position with the modulo value
+    after the turn, with the speed of the turn (no crawl at the start's speed: 5.6 u/s one cycle before the
+    crossing). Before: forward to p0 + 0.5 after the turn (two reversals); h2b at bad5e91 even + 360.5."""
+    core, tr, st = reversing(k)
+    position = modulo_of(st.p + offset)
+    n = cmd(core, "OrientedStop", Position=position)["CmdNo"]
+    end = turns_once_to(tr, st, position, 1500)
+    assert end == pytest.approx(st.p + travel, abs=1e-6)
+    assert tr.fate(n) == (DONE, 0) or (int(tr.rows[-1]["CmdNo"]) == n and int(tr.rows[-1]["CmdState"]) == DONE)
+
+
+def test_an_oriented_stop_not_committed_to_a_turn_keeps_its_direction():
+    """30 cycles before the crossing (a^2 / 2j < v): the plan to rest does not turn, the stop goes on in
+    the positive direction to the first position at or beyond its end (as before bad5e91)."""
+    core, tr, st = reversing(30, committed=False)
+    rest_end = plan_velocity(st, 0.0, AXIS_DYN).end.p
+    cmd(core, "OrientedStop", Position=modulo_of(rest_end + 0.5))
+    tr.settle()
+    assert float(tr.rows[-1]["SetPos"]) == pytest.approx(rest_end + 0.5, abs=1e-6)
+    assert (tr.col("SetVelo") >= 0.0).all()
+
+
+# -- near rest: moving is the NC's own notion (set velocity not 0), no threshold of MoveModulo's own
+def halted(abort_before_end=None):
+    """An axis at 720 u/s past 500 stopped by MC_Halt (Deceleration 3600, Jerk 36000): (core, trace from the
+    Halt on, the Halt's end position, its cycles). ``abort_before_end``: stepped to that many cycles
+    before the Halt's end."""
+    def setup():
+        core = powered(Modulo=True, AxisModuloToleranceWindow=0.0, **FAST)
+        cmd(core, "MoveVelocity", Velocity=720.0, Direction=POS)
+        while float(core.axes.set_pos[0]) < 500.0:
+            core.step()
+        cmd(core, "Halt", Deceleration=3600.0, Jerk=36000.0)
+        return core
+    twin, n = setup(), 0
+    while twin.moving.any():
+        twin.step()
+        n += 1
+    core = setup()
+    if abort_before_end is not None:
+        for _ in range(n - abort_before_end):
+            core.step()
+    return core, Trace(core), float(twin.axes.set_pos[0]), n
+
+
+def test_a_start_in_the_last_cycle_of_a_halt_counts_as_moving():
+    """Aborting one cycle before the Halt's end (0.018 u/s, 1e-5 u to rest): the moving rule, NEG to 20
+    behind the Halt's end goes on to + 340 (ModuloKind, schema: start it after standstill or buffered)."""
+    core, tr, p_end, _ = halted(abort_before_end=1)
+    assert 0.0 < float(core.axes.set_velo[0]) < 0.1 and 0.0 < p_end - float(core.axes.set_pos[0]) < 1e-4
+    n = cmd(core, "MoveModulo", Position=modulo_of(p_end - 20.0), Velocity=720.0, Direction=NEG)["CmdNo"]
+    ends_moving_on(core, tr, n, 1.0, p_end + 340.0)
+
+
+def test_a_start_buffered_behind_a_halt_takes_the_standstill_rule():
+    """Buffered behind the Halt it starts at rest where the Halt ends: NEG to 20 behind it is - 20."""
+    core, tr, p_end, cycles = halted()
+    n = cmd(core, "MoveModulo", Position=modulo_of(p_end - 20.0), Velocity=720.0, Direction=NEG,
+            BufferMode=1)["CmdNo"]
+    tr.settle()
+    v = tr.col("SetVelo")
+    assert (v[:cycles - 1] >= 0.0).all() and (v[cycles:] <= 0.0).all()
+    assert float(tr.rows[-1]["SetPos"]) == pytest.approx(p_end - 20.0, abs=1e-9)
+    assert int(tr.rows[-1]["CmdNo"]) == n and int(tr.rows[-1]["CmdState"]) == DONE
+
+
+def test_a_turn_only_the_moves_own_weaker_jerk_causes_is_refused():
+    """Braking hard in a Halt (AxisDec 36000, AxisJerk 360000), 20 cycles in (648 u/s, -7200 u/s^2): a
+    MoveModulo with Jerk 3600 could not stop without turning, the running jerk could: not a committed
+    turn, refused 0x4289 (the check of every start), nothing changes."""
+    core, _, _ = moving(1.0)
+    cmd(core, "Halt")
+    for _ in range(20):
+        core.step()
+    before = snapshot(core)
+    p = float(core.axes.set_pos[0])
+    got = cmd(core, "MoveModulo", Position=modulo_of(p + 0.5), Velocity=720.0, Direction=POS, Deceleration=36000.0,
+              Jerk=3600.0)["error"]
+    assert got == E.NC_ILLEGAL_REVERSAL == 0x4289
+    assert snapshot(core) == before

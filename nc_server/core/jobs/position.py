@@ -136,24 +136,42 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
     return end - turns * period
 
 
-def modulo_beyond_stop(core: CoreContext, i: int, start: StartState, position: float, dyn: Dynamics) -> float:
-    """The first position with the modulo value ``position`` [u, in [0, period)] in the direction of
-    travel of ``start`` (|v| > 0) at or beyond the point where the axis comes to rest from ``start`` with
-    the deceleration and jerk of ``dyn`` (its plan to rest): the nearest end at ``position`` the axis can
-    reach without turning back. MC_OrientedStop (with its stop dynamics) and MC_MoveModulo started during
-    motion (with its own dynamics) end there. (Dynamics too weak to stop a hard braking without turning:
-    the farthest point of that plan in the direction of travel; the plan to the end then turns, which
-    the start's checks refuse, 0x4289.)
+def modulo_beyond_stop(core: CoreContext, i: int, start: StartState, position: float, dyn: Dynamics,
+                       running_jerk: float | None = None) -> tuple[float, float, Plan]:
+    """Where a moving axis (``start``, |v| > 0) can come to rest at the modulo value ``position`` [u, in
+    [0, period)] without turning back: (end position, direction of travel there +-1, the plan to rest from
+    ``start`` with the deceleration and jerk of ``dyn``). MC_OrientedStop (with its stop dynamics) and
+    MC_MoveModulo started during motion (with its own dynamics) end there.
+
+    The end is the first position with that modulo value, in the direction of travel, at or beyond the
+    point where the plan to rest ends. Where that plan turns (a hard braking whose acceleration the jerk
+    cannot bring to 0 before the velocity crosses 0: the motion is committed to the turn), the direction
+    of travel is the one after the turn, and the end lies at or beyond the plan's end in that direction
+    (no second reversal back to a position the axis left). ``running_jerk``: the jerk of the motion
+    running now; given, a turn counts only where that jerk could not avoid it either (MC_MoveModulo with
+    a weaker Jerk than the running motion's: the turn is its own dynamics' doing, not committed; the end
+    is then the first position at or beyond the plan's farthest point in the current direction, and the
+    plan to it turns, which the start's checks refuse, 0x4289). None: every turn of the plan counts
+    (MC_OrientedStop: its dynamics are the running motion's, never weaker).
 
     Raises:
         NcError: 0x427E no plan to rest from ``start`` with ``dyn``.
     """
     rest = core.plan(plan_velocity, start, 0.0, dyn)
-    natural = rest.p_max if start.v > 0 else rest.p_min
+    sense = 1.0 if start.v > 0 else -1.0
+    natural = rest.end.p
+    if _turns(rest, sense):
+        a_ahead = start.a * sense
+        committed = running_jerk is None or (
+            a_ahead < 0 and a_ahead * a_ahead / (2 * running_jerk) - abs(start.v) > 1e-9 * (1.0 + abs(start.v)))
+        if committed:
+            sense = -sense
+        else:
+            natural = rest.p_max if sense > 0 else rest.p_min
     period = core.params[i].AxisEncoderModuloValue
     k = (natural - position) / period
     # (a rounding margin: a rest point on a position with that modulo value is that position)
-    return position + (math.ceil(k - 1e-12) if start.v > 0 else math.floor(k + 1e-12)) * period
+    return position + (math.ceil(k - 1e-12) if sense > 0 else math.floor(k + 1e-12)) * period, sense, rest
 
 
 class PositionKind(JobKind):
@@ -463,8 +481,12 @@ class ModuloKind(PositionKind):
     a job queued behind another, the direction that job travels in (a blend then passes its target
     moving on). A queued target refers to the previous job's target (PLCopen) and is fixed when accepted.
 
-    Started during motion (|set velocity| > 0 when it takes over: Aborting a motion, or queued behind a
-    job without a target such as MC_MoveVelocity): TcMC 3.4/3.5 speak only of starts from standstill.
+    Started during motion (|set velocity| > 1e-9 u/s when it takes over: Aborting a motion, or queued
+    behind a job without a target such as MC_MoveVelocity): TcMC 3.4/3.5 speak only of starts from
+    standstill. Moving is the NC's own notion (the set velocity is not 0, as TwinCAT's logical
+    standstill), not a threshold of its own: a start in the last cycles of a stop counts as moving (e.g.
+    in a MC_Halt's last cycle, at 0.02 u/s with 1e-5 u to go: a Direction against it costs a turn);
+    to get the standstill rule, start it after standstill or buffered (MC_Buffered) behind the stop.
     This NC follows Beckhoff's later libraries (Tc2_MC2 MC_MoveModulo: "If an axis is already in
     motion ... The direction of movement cannot be reversed by MC_MoveModulo, i.e. the target can only
     be reached in the current direction. The user is not able to specify the number of additional
@@ -472,7 +494,12 @@ class ModuloKind(PositionKind):
     shortest possible path."): the end position is the first position with the modulo value of
     Position (Position mod period: Position >= period adds no turns) in the current direction of motion
     at or beyond the point where the axis can come to rest with the move's own Deceleration and Jerk
-    (0 = AxisDec/AxisJerk) (:func:`modulo_beyond_stop`, as MC_OrientedStop). Decisions: the current
+    (0 = AxisDec/AxisJerk) (:func:`modulo_beyond_stop`, as MC_OrientedStop). Where that way to rest
+    turns (a braking motion, e.g. a reversing positioning just before its velocity crosses 0, whose
+    acceleration the running motion's jerk cannot bring to 0 in time: the axis is committed to the turn),
+    the current direction is the one after the turn and the end lies at or beyond the rest point in it
+    (the axis turns once, as it must, and not back again). A turn that only the move's own weaker Jerk
+    causes is not committed: refused, 0x4289 (as any start). Decisions: the current
     direction wins over every Direction, an explicit opposite one and MC_Shortest_Way included (turning
     back may be shorter, but reverses the motion); Direction and Position are still checked as at
     standstill (0x4B04, 0x4282 also for Position >= period with MC_Shortest_Way), so a command is valid
@@ -483,8 +510,9 @@ class ModuloKind(PositionKind):
     every move.
 
     Blending modes: the predecessor passes its target with a velocity from which this job can come to
-    rest within its distance (``JobKind.blend_velocity``), so the queued target stays (extra turns
-    included) and the axis does not turn. Only where the axis moves when the job takes over and that
+    rest within its distance from where it takes over, at the cycle boundary after that target
+    (``JobKind.blend_velocity``), so the queued target stays (extra turns included) and the axis does not
+    turn. Only where the axis moves when the job takes over and that
     target lies before its rest point (e.g. behind MC_MoveContinuousAbsolute, which moves on past its
     target) the moving rule replaces it.
     """
@@ -513,8 +541,10 @@ class ModuloKind(PositionKind):
         period = core.params[i].AxisEncoderModuloValue
         position = float(job.args["Position"])
         position -= math.floor(position / period) * period
-        end = modulo_beyond_stop(core, i, start, position, job.dyn)
-        sense = 1.0 if start.v > 0 else -1.0
+        running = core.queues[i].active
+        jerk = (running.dyn.jerk if running is not None and running.dyn is not None and core.axes.traj_on[i]
+                else float(core.axes.jerk[i]))  # (the running motion's, as the reversal check's)
+        end, sense, _ = modulo_beyond_stop(core, i, start, position, job.dyn, jerk)
         if job.data.get("queued") and (job.target - end) * sense > -period / 2:
             return  # the queued target lies at or beyond the rest point: it stays (module docstring)
         job.target = end

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from nc_schema import CmdState, ErrorCodes, NcError
 
 from ..planning import Dynamics, Plan, StartState, hold, plan_position, plan_velocity
+from ..profile import velocity_extrema
 from .base import ALL_MODES, Job, JobKind
 from .position import modulo_beyond_stop
 
@@ -152,8 +153,14 @@ class OrientedStopKind(JobKind):
         # the running motion's effective dynamics (a coupling, external set-points: AxisDec/AxisJerk)
         dec, jerk = stopped_dynamics(core, i, core.queues[i].active, 0.0, 0.0)
         sd = core.stop_dynamics(i, dec, jerk)
-        target = modulo_beyond_stop(core, i, start, float(job.args["Position"]), sd)
-        dyn = Dynamics(abs(start.v), sd.acceleration, sd.deceleration, sd.jerk)
+        target, sense, rest = modulo_beyond_stop(core, i, start, float(job.args["Position"]), sd)
+        v_max = abs(start.v)
+        if sense * start.v < 0:
+            # the braking turns the axis already: it reaches the speed of the turn anyway, and goes on to
+            # the target with it (not at the start's speed, which may be all but 0 just before the turn)
+            lo, hi = velocity_extrema(rest.seg)
+            v_max = max(v_max, -lo if sense < 0 else hi)
+        dyn = Dynamics(v_max, sd.acceleration, sd.deceleration, sd.jerk)
         plan = core.plan(plan_position, start, target, dyn)
         core.check_target(i, start.p, target, plan)
         job.target, job.dyn = target, dyn
