@@ -503,3 +503,31 @@ def test_a_turn_only_the_moves_own_weaker_jerk_causes_is_refused():
               Jerk=3600.0)["error"]
     assert got == E.NC_ILLEGAL_REVERSAL == 0x4289
     assert snapshot(core) == before
+
+
+@pytest.mark.parametrize("sense", [1, -1])
+def test_oriented_stop_after_a_committed_turn_is_never_faster_than_the_running_motion(sense):
+    """MC_OrientedStop while a positioning already turns the axis (MoveVelocity 1500, then MoveAbsolute 100 u
+    behind at 200 u/s): after the turn it goes on to the oriented position at the running motion's 200 u/s,
+    not at the start's speed in the old direction (~500 u/s)."""
+    fast = dict(AxisVeloMax=3600.0, AxisAcc=36000.0, AxisDec=36000.0, AxisJerk=360000.0)
+    core = powered(Modulo=True, AxisModuloToleranceWindow=0.0, **fast)
+    cmd(core, "MoveVelocity", Velocity=1500.0, Direction=1 if sense > 0 else 3)
+    for _ in range(300):
+        core.step()
+    cmd(core, "MoveAbsolute", Position=float(core.axes.set_pos[0]) - sense * 100.0, Velocity=200.0)
+    for _ in range(75):
+        core.step()
+    assert sense * float(core.axes.set_velo[0]) > 400.0  # (still fast in the old direction: a committed turn)
+    assert cmd(core, "OrientedStop", Position=100.0)["error"] == 0
+    after = []
+    for _ in range(100_000):
+        core.step()
+        v = float(core.axes.set_velo[0])
+        if sense * v < 0:
+            after.append(abs(v))
+        if not core.moving.any():
+            break
+    assert not core.moving.any() and after
+    assert max(after) <= 200.0 * (1 + 1e-6)
+    assert abs(math.remainder(float(core.axes.set_pos[0]) - 100.0, 360.0)) < 1e-6

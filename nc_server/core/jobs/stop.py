@@ -157,9 +157,14 @@ class OrientedStopKind(JobKind):
         v_max = abs(start.v)
         if sense * start.v < 0:
             # the braking turns the axis already: it reaches the speed of the turn anyway, and goes on to
-            # the target with it (not at the start's speed, which may be all but 0 just before the turn)
+            # the target with it (not at the start's speed, which may be all but 0 just before the turn),
+            # or with the start's speed where that is higher, but never faster than the running motion
+            # (its velocity at the override): |start.v| is a speed in the old direction
             lo, hi = velocity_extrema(rest.seg)
-            v_max = max(v_max, -lo if sense < 0 else hi)
+            active = core.queues[i].active
+            running = (active.dyn.velocity * float(core.axes.override[i])
+                       if active is not None and active.dyn is not None and not active.kind.braking else v_max)
+            v_max = max(-lo if sense < 0 else hi, min(v_max, running))
         dyn = Dynamics(v_max, sd.acceleration, sd.deceleration, sd.jerk)
         plan = core.plan(plan_position, start, target, dyn)
         core.check_target(i, start.p, target, plan)
