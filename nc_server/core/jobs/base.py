@@ -224,7 +224,10 @@ class JobKind:
         """The velocity [u/s, >= 0, at 100 % override] with which ``job`` passes its target when
         ``nxt`` waits behind it with a Blending BufferMode (PLCopen Part 1: Low = the lower,
         Previous = this job's, High = the higher of both, Next = the waiting job's velocity).
-        Opposite directions: 0. Lowered until ``nxt`` can still stop within its own distance.
+        Opposite directions: 0. Lowered until ``nxt`` can still stop within its own distance from where
+        it takes over: the next cycle boundary, up to one cycle's travel (|v| x cycle time) past this
+        job's target (else ``nxt`` would overshoot its target and come back, a reversal; a MC_MoveModulo
+        started so would count as moving with its rest point beyond its queued target, a full turn more).
         Only called for jobs with a :meth:`blend_point`."""
         bp = self.blend_point(job)
         if bp is None:
@@ -250,8 +253,12 @@ class JobKind:
         v = min(v, float(core.axes.vmax[i]))  # at 100 %: the plan scales it with the override
         if math.isfinite(d_next) and nxt.dyn is not None and v > 0:
             dec, jerk = np.array([nxt.dyn.deceleration]), np.array([nxt.dyn.jerk])
+            dt = core.cycle_time
             for _ in range(30):  # the waiting job must be able to stop within its distance
-                if float(stopping_distance(np.array([v]), np.zeros(1), dec, jerk)[0]) <= d_next:
+                # (from where it takes over: at the first cycle boundary at or after this job's end, up to
+                # one cycle's travel past the target; a margin of 1e-9 relative for the rounding)
+                d_stop = float(stopping_distance(np.array([v]), np.zeros(1), dec, jerk)[0])
+                if (d_stop + v * dt) * (1 + 1e-9) <= d_next:
                     break
                 v *= 0.8
             else:

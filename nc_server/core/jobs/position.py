@@ -64,6 +64,7 @@ _POS = int(MC_Direction.MC_Positive_Direction)
 _SHORT = int(MC_Direction.MC_Shortest_Way)
 _NEG = int(MC_Direction.MC_Negative_Direction)
 _CURRENT = int(MC_Direction.MC_Current_Direction)
+_EPS_V = 1e-9  # [u/s] a set velocity above this is a motion (as the engine's)
 
 
 def modulo_target(set_pos: float, target: float, period: float, tolerance: float, direction: int,
@@ -77,6 +78,11 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
         tolerance: modulo tolerance window (AxisModuloToleranceWindow) [u].
         direction: MC_Direction value.
         current_velo: current set velocity, for MC_Current_Direction.
+
+    Rounding (a choice; 3.5 reasons in exact degrees): Position within 16 LSBs of a whole number of periods
+    is that many turns (0.3 at a period of 0.1 is 3 turns, though 0.3 / 0.1 < 3 in floats); a set position
+    within 16 LSBs of max(|set position|, Position, period) of the target's modulo value is identical to it
+    (no motion); beyond that the window is the configured one alone.
 
     Raises:
         NcError: 0x4282 invalid modulo target, 0x4B04 invalid direction.
@@ -97,14 +103,75 @@ def modulo_target(set_pos: float, target: float, period: float, tolerance: float
         return set_pos + diff
     turns = math.floor(target / period)
     rest = target - turns * period
+    # floor(target / period) may round a whole number of periods down (0.3 / 0.1 = 2.999...): a rest of
+    # period - tiny is the next whole turn with rest ~0, not a turn less. (A rest tiny below 0, the
+    # quotient rounded up, is that turn with rest ~0 as it is.) The rest errs by an LSB of the target.
+    tiny = 16.0 * math.ulp(max(target, period))
+    if rest >= period - tiny:
+        rest -= period
+        turns += 1
+    elif rest < -tiny:
+        rest += period
+        turns -= 1
     end = base + rest
+    # "No motion occurs if target position and starting position are identical" (TcMC 3.5): a set position
+    # with the target's modulo value reached by another sum of floats (-1080 + 54.4 + 360 is not -720 + 54.4)
+    # is identical. A margin of a few LSBs of the magnitudes involved (these sums err by 0.3-2 LSBs) keeps
+    # such rounding from being a full turn and hides no window: with window 0 a set position clearly past
+    # the target ("slightly more than 90 deg", 3.5) makes a full turn.
+    tolerance += 16.0 * math.ulp(max(abs(set_pos), target, period))
+    # the first position with the modulo value ``rest`` at or beyond the window's far side (set position
+    # -/+ tolerance): the window is around the set position, so it may reach into the neighbouring period
+    # (set position 359.5, window 1: a target of 0 is 0.5 ahead, not 359.5 behind)
     if direction == _POS:
         if end < set_pos - tolerance:
             end += period
+        elif end - period >= set_pos - tolerance:
+            end -= period
         return end + turns * period
     if end > set_pos + tolerance:
         end -= period
+    elif end + period <= set_pos + tolerance:
+        end += period
     return end - turns * period
+
+
+def modulo_beyond_stop(core: CoreContext, i: int, start: StartState, position: float, dyn: Dynamics,
+                       running_jerk: float | None = None) -> tuple[float, float, Plan]:
+    """Where a moving axis (``start``, |v| > 0) can come to rest at the modulo value ``position`` [u, in
+    [0, period)] without turning back: (end position, direction of travel there +-1, the plan to rest from
+    ``start`` with the deceleration and jerk of ``dyn``). MC_OrientedStop (with its stop dynamics) and
+    MC_MoveModulo started during motion (with its own dynamics) end there.
+
+    The end is the first position with that modulo value, in the direction of travel, at or beyond the
+    point where the plan to rest ends. Where that plan turns (a hard braking whose acceleration the jerk
+    cannot bring to 0 before the velocity crosses 0: the motion is committed to the turn), the direction
+    of travel is the one after the turn, and the end lies at or beyond the plan's end in that direction
+    (no second reversal back to a position the axis left). ``running_jerk``: the jerk of the motion
+    running now; given, a turn counts only where that jerk could not avoid it either (MC_MoveModulo with
+    a weaker Jerk than the running motion's: the turn is its own dynamics' doing, not committed; the end
+    is then the first position at or beyond the plan's farthest point in the current direction, and the
+    plan to it turns, which the start's checks refuse, 0x4289). None: every turn of the plan counts
+    (MC_OrientedStop: its dynamics are the running motion's, never weaker).
+
+    Raises:
+        NcError: 0x427E no plan to rest from ``start`` with ``dyn``.
+    """
+    rest = core.plan(plan_velocity, start, 0.0, dyn)
+    sense = 1.0 if start.v > 0 else -1.0
+    natural = rest.end.p
+    if _turns(rest, sense):
+        a_ahead = start.a * sense
+        committed = running_jerk is None or (
+            a_ahead < 0 and a_ahead * a_ahead / (2 * running_jerk) - abs(start.v) > 1e-9 * (1.0 + abs(start.v)))
+        if committed:
+            sense = -sense
+        else:
+            natural = rest.p_max if sense > 0 else rest.p_min
+    period = core.params[i].AxisEncoderModuloValue
+    k = (natural - position) / period
+    # (a rounding margin: a rest point on a position with that modulo value is that position)
+    return position + (math.ceil(k - 1e-12) if sense > 0 else math.floor(k + 1e-12)) * period, sense, rest
 
 
 class PositionKind(JobKind):
@@ -141,11 +208,17 @@ class PositionKind(JobKind):
     def end_velocity_of(self, core: CoreContext, i: int, req: Mapping[str, Any], target: float, base: float) -> float:
         return 0.0
 
-    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
-        assert job.target is not None and job.dyn is not None
+    def start_target(self, core: CoreContext, i: int, job: Job, start: StartState) -> None:
+        """Fix the parts of the target that depend on the state the job starts from (``start``, at its
+        activation): a job queued behind one without a target refers to the set position there."""
         if job.data.get("from_start"):
             job.target = self.target_of(core, i, job.args, start.p, None)
             job.end_velocity = self.end_velocity_of(core, i, job.args, job.target, start.p)
+
+    def activate(self, core: CoreContext, i: int, job: Job, start: StartState) -> Plan:
+        assert job.target is not None and job.dyn is not None
+        self.start_target(core, i, job, start)
+        assert job.target is not None
         sense = job.target - start.p
         core.check_feed(i, sense if sense else job.end_velocity)
         self.prepare(core, i, job, start)  # loop point, reduced velocity (AxisEnLoopingDistance, AxisOverrideType)
@@ -400,8 +473,49 @@ class AdditiveKind(PositionKind):
 
 
 class ModuloKind(PositionKind):
-    """MC_MoveModulo. MC_Current_Direction: the direction of the current motion -- of a job queued
-    behind another, the direction that job travels in (a blend then passes its target moving on)."""
+    """MC_MoveModulo (TcMC 3.4, 3.5).
+
+    From standstill, and queued behind a job with a target (Buffered: at rest there), the TcMC 3.5 rules
+    (:func:`modulo_target`): Direction, the modulo tolerance window, Position >= period adds full turns
+    (not with MC_Shortest_Way: 0x4282). MC_Current_Direction: the direction of the current motion -- of
+    a job queued behind another, the direction that job travels in (a blend then passes its target
+    moving on). A queued target refers to the previous job's target (PLCopen) and is fixed when accepted.
+
+    Started during motion (|set velocity| > 1e-9 u/s when it takes over: Aborting a motion, or queued
+    behind a job without a target such as MC_MoveVelocity): TcMC 3.4/3.5 speak only of starts from
+    standstill. Moving is the NC's own notion (the set velocity is not 0, as TwinCAT's logical
+    standstill), not a threshold of its own: a start in the last cycles of a stop counts as moving (e.g.
+    in a MC_Halt's last cycle, at 0.02 u/s with 1e-5 u to go: a Direction against it costs a turn);
+    to get the standstill rule, start it after standstill or buffered (MC_Buffered) behind the stop.
+    This NC follows Beckhoff's later libraries (Tc2_MC2 MC_MoveModulo: "If an axis is already in
+    motion ... The direction of movement cannot be reversed by MC_MoveModulo, i.e. the target can only
+    be reached in the current direction. The user is not able to specify the number of additional
+    turns. The system automatically calculates how the axis can be moved to the target position on the
+    shortest possible path."): the end position is the first position with the modulo value of
+    Position (Position mod period: Position >= period adds no turns) in the current direction of motion
+    at or beyond the point where the axis can come to rest with the move's own Deceleration and Jerk
+    (0 = AxisDec/AxisJerk) (:func:`modulo_beyond_stop`, as MC_OrientedStop). Where that way to rest
+    turns (a braking motion, e.g. a reversing positioning just before its velocity crosses 0, whose
+    acceleration the running motion's jerk cannot bring to 0 in time: the axis is committed to the turn),
+    the current direction is the one after the turn and the end lies at or beyond the rest point in it
+    (the axis turns once, as it must, and not back again). A turn that only the move's own weaker Jerk
+    causes is not committed: refused, 0x4289 (as any start). Decisions: the current
+    direction wins over every Direction, an explicit opposite one and MC_Shortest_Way included (turning
+    back may be shorter, but reverses the motion); Direction and Position are still checked as at
+    standstill (0x4B04, 0x4282 also for Position >= period with MC_Shortest_Way), so a command is valid
+    or not whatever the axis does. The modulo tolerance window plays no role (it is for a set position
+    after a reset, at rest). The end position is computed at the activation, from the state the job
+    starts from (:meth:`start_target`; a command that starts now is prepared from its activation cycle's
+    state and prepared again where that no longer holds). A software limit before it: 0x4222, refused as
+    every move.
+
+    Blending modes: the predecessor passes its target with a velocity from which this job can come to
+    rest within its distance from where it takes over, at the cycle boundary after that target
+    (``JobKind.blend_velocity``), so the queued target stays (extra turns included) and the axis does not
+    turn. Only where the axis moves when the job takes over and that
+    target lies before its rest point (e.g. behind MC_MoveContinuousAbsolute, which moves on past its
+    target) the moving rule replaces it.
+    """
 
     def target_of(self, core: CoreContext, i: int, req: Mapping[str, Any], base: float, prev: Job | None) -> float:
         p = core.params[i]
@@ -412,6 +526,28 @@ class ModuloKind(PositionKind):
             velo = float(core.axes.set_velo[i])
         return modulo_target(base, float(req["Position"]), p.AxisEncoderModuloValue, p.AxisModuloToleranceWindow,
                              int(req["Direction"]), velo)
+
+    def accept(self, core: CoreContext, i: int, req: Mapping[str, Any], prev: Job | None) -> Job:
+        job = super().accept(core, i, req, prev)
+        if prev is not None and req.get("BufferMode", 0) != 0 and not job.data.get("from_start"):
+            job.data["queued"] = True  # the target refers to prev's target
+        return job
+
+    def start_target(self, core: CoreContext, i: int, job: Job, start: StartState) -> None:
+        super().start_target(core, i, job, start)
+        if abs(start.v) <= _EPS_V:
+            return  # from standstill: as accepted
+        assert job.target is not None and job.dyn is not None
+        period = core.params[i].AxisEncoderModuloValue
+        position = float(job.args["Position"])
+        position -= math.floor(position / period) * period
+        running = core.queues[i].active
+        jerk = (running.dyn.jerk if running is not None and running.dyn is not None and core.axes.traj_on[i]
+                else float(core.axes.jerk[i]))  # (the running motion's, as the reversal check's)
+        end, sense, _ = modulo_beyond_stop(core, i, start, position, job.dyn, jerk)
+        if job.data.get("queued") and (job.target - end) * sense > -period / 2:
+            return  # the queued target lies at or beyond the rest point: it stays (module docstring)
+        job.target = end
 
 
 class ContinuousKind(PositionKind):

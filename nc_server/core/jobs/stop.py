@@ -24,13 +24,14 @@ On an axis at rest it ends DONE in its first cycle (and locks).
 """
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any, Mapping
 
 from nc_schema import CmdState, ErrorCodes, NcError
 
 from ..planning import Dynamics, Plan, StartState, hold, plan_position, plan_velocity
+from ..profile import velocity_extrema
 from .base import ALL_MODES, Job, JobKind
+from .position import modulo_beyond_stop
 
 if TYPE_CHECKING:
     from ..context import CoreContext
@@ -164,13 +165,19 @@ class OrientedStopKind(JobKind):
         # the running motion's effective dynamics (a coupling, external set-points: AxisDec/AxisJerk)
         dec, jerk = stopped_dynamics(core, i, core.queues[i].active, 0.0, 0.0)
         sd = core.stop_dynamics(i, dec, jerk)
-        natural = core.plan(plan_velocity, start, 0.0, sd).end.p
-        period = core.params[i].AxisEncoderModuloValue
-        sense = 1.0 if start.v > 0 else -1.0
-        pos = float(job.args["Position"])
-        k = (natural - pos) / period
-        target = pos + (math.ceil(k - 1e-12) if sense > 0 else math.floor(k + 1e-12)) * period
-        dyn = Dynamics(abs(start.v), sd.acceleration, sd.deceleration, sd.jerk)
+        target, sense, rest = modulo_beyond_stop(core, i, start, float(job.args["Position"]), sd)
+        v_max = abs(start.v)
+        if sense * start.v < 0:
+            # the braking turns the axis already: it reaches the speed of the turn anyway, and goes on to
+            # the target with it (not at the start's speed, which may be all but 0 just before the turn),
+            # or with the start's speed where that is higher, but never faster than the running motion
+            # (its velocity at the override): |start.v| is a speed in the old direction
+            lo, hi = velocity_extrema(rest.seg)
+            active = core.queues[i].active
+            running = (active.dyn.velocity * float(core.axes.override[i])
+                       if active is not None and active.dyn is not None and not active.kind.braking else v_max)
+            v_max = max(-lo if sense < 0 else hi, min(v_max, running))
+        dyn = Dynamics(v_max, sd.acceleration, sd.deceleration, sd.jerk)
         plan = core.plan(plan_position, start, target, dyn)
         try:
             core.check_target(i, start.p, target, plan)
