@@ -70,6 +70,25 @@ def crossing_velocity(log: list[tuple[float, float]], pos: float) -> float:
     raise AssertionError(f"{pos} never crossed")
 
 
+@pytest.mark.parametrize("mode", [NEXT, HIGH])
+@pytest.mark.parametrize("v1, acc, reachable", [(100.0, 500.0, 125.0), (100.0, 0.0, 240.0)])
+def test_unreachable_blending_velocity_is_approached_as_well_as_possible(rig: Rig, mode: int, v1: float,
+                                                                         acc: float, reachable: float) -> None:
+    """P0 -> P1 = 20, then to 300 at 400 u/s (Next/High: 400 at P1, not reachable within 20 u).
+    Tc2_MC2 MC_BufferMode: "Otherwise, blending is implemented as best as possible"; BkPlcMc: "If possible,
+    the transition point is passed with the higher velocity". The axis passes P1 close to the highest
+    velocity it can reach there (a = 500: ~135 u/s; axis defaults a = 5000, j = 50000: ~260 u/s),
+    never beyond P1 before the second command, never reversing. (The old plan halved the end velocity
+    until one fitted: 100 and 200 u/s.)"""
+    log: list[tuple[float, float]] = []
+    ax, mv1, mv2 = pair(rig, 20.0, v1, 300.0, 400.0, mode, log, acc=acc)
+    assert mv1.Done and mv2.Done
+    v = crossing_velocity(log, 20.0)
+    assert reachable <= v < 400.0, v
+    assert all(s[1] >= -1e-9 for s in log), "no reversal"
+    assert math.isclose(ax.ActPos, 300.0, abs_tol=0.02)
+
+
 @pytest.mark.parametrize("mode", [LOW, PREVIOUS, NEXT, HIGH])
 def test_second_too_short_to_stop_from_the_blending_velocity(rig: Rig, mode: int) -> None:
     """P1 = 100 at 200, P2 = 101 at 200: the blending velocity is lowered so that P2 is not overrun."""
