@@ -254,3 +254,29 @@ def test_buffered_move_behind_halt_starts_at_its_done(rig: Rig) -> None:
     rig.run_until(lambda: mv2.Done, 1000)
     assert first(rig.outputs(halt), "Done") == first(rig.outputs(mv2), "Active")
     assert mv1.CommandAborted and math.isclose(ax.ActPos, 0.0, abs_tol=0.02)
+
+
+def test_refused_aborting_command_leaves_the_active_and_the_buffered_one() -> None:
+    """An Aborting command the NC refuses (target beyond the software limit, 0x4222) aborts nothing."""
+    from nc_server.core import AxisParams
+
+    rig = Rig(n_axes=1, params=AxisParams(AxisEnMaxSoftPosLimit=True, AxisMaxSoftPosLimit=500.0))
+    ax, _, calls = powered(rig)
+    mv1, mv2, mv3 = rig.watch(MC_MoveAbsolute(), MC_MoveAbsolute(), MC_MoveAbsolute())
+    st = {"go2": False, "go3": False}
+
+    def body(p: Any) -> None:
+        mv1(Axis=ax, Execute=True, Position=100.0, Velocity=100.0)
+        mv2(Axis=ax, Execute=st["go2"], Position=150.0, Velocity=100.0, BufferMode=NEXT)
+        mv3(Axis=ax, Execute=st["go3"], Position=900.0, Velocity=100.0)
+
+    calls["body"] = body
+    rig.run_until(lambda: mv1.Active, 5)
+    st["go2"] = True
+    rig.run_until(lambda: ax.Status.CmdBuffered, 5)
+    st["go3"] = True
+    rig.run_until(lambda: not mv3.Busy, 10)
+    assert mv3.Error and mv3.ErrorID == ErrorCodes.NC_TARGET_POSITION_NOT_ALLOWED
+    assert mv1.Active and mv2.Busy and not mv2.Active and ax.Status.CmdBuffered
+    rig.run_until(lambda: mv2.Done, 1000)
+    assert mv1.Done and not ax.Status.CmdBuffered and math.isclose(ax.ActPos, 150.0, abs_tol=0.02)
