@@ -77,14 +77,17 @@ def test_unreachable_blending_velocity_is_approached_as_well_as_possible(rig: Ri
     """P0 -> P1 = 20, then to 300 at 400 u/s (Next/High: 400 at P1, not reachable within 20 u).
     Tc2_MC2 MC_BufferMode: "Otherwise, blending is implemented as best as possible"; BkPlcMc: "If possible,
     the transition point is passed with the higher velocity". The axis passes P1 close to the highest
-    velocity it can reach there (a = 500: ~135 u/s; axis defaults a = 5000, j = 50000: ~260 u/s),
-    never beyond P1 before the second command, never reversing. (The old plan halved the end velocity
-    until one fitted: 100 and 200 u/s.)"""
+    velocity it can reach there (a = 500: ~138 u/s; axis defaults a = 5000, j = 50000: ~271 u/s),
+    never beyond P1 while the first command is Active, never reversing. (The old plan halved the end
+    velocity until one fitted: 100 and 200 u/s.)"""
     log: list[tuple[float, float]] = []
     ax, mv1, mv2 = pair(rig, 20.0, v1, 300.0, 400.0, mode, log, acc=acc)
     assert mv1.Done and mv2.Done
     v = crossing_velocity(log, 20.0)
     assert reachable <= v < 400.0, v
+    # (log and the recorded outputs: one sample per PLC cycle, taken from the same NcToPlc)
+    first_active = [p for (p, _), o in zip(log, rig.outputs(mv1)[-len(log):]) if o["Active"]]
+    assert len(first_active) > 5 and max(first_active) <= 20.0 + 1e-9, max(first_active)
     assert all(s[1] >= -1e-9 for s in log), "no reversal"
     assert math.isclose(ax.ActPos, 300.0, abs_tol=0.02)
 
