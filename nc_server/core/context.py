@@ -53,6 +53,10 @@ class CoreContext(Protocol):
     has_origin: bool
     #: derived state and records are recomputed before their next use (set on events)
     state_dirty: bool
+    #: a command runs now, between cycles (``NcCore.execute`` / ``NcCore.prepare``): planning may spend
+    #: more there (a blending end velocity searched by bisection); False in the cycle (an override
+    #: change, a buffered job taking over), which keeps its cost bounded
+    refine_plans: bool
 
     # -- the set-point stages ---------------------------------------------------------------
     superposition: SuperpositionStage

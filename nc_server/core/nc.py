@@ -208,6 +208,7 @@ class NcCore:
         #: call inputs_changed to be applied); the frame ring copies PLCTONC into a slot only when it changed
         self.plctonc_version = 0
         self.state_dirty = True  # derived state and records to recompute before their next use
+        self.refine_plans = False  # True only while a command runs (execute, prepare): CoreContext
         self.profile_idle = np.zeros(0, dtype=np.intp)
         self.plan_ended = self.profile_idle  # the profile stage's rows whose plan ended this cycle
         self._pipeline = Pipeline(default_pipeline())
@@ -314,7 +315,11 @@ class NcCore:
             if axis_id is None:
                 raise NcError(ErrorCodes.ADSERR_DEVICE_SRVNOTSUPP, f"{cmd} needs an axis key (nc/<nc>/axis/<id>/cmd/<class>/<client>)")
             i = self.index(axis_id)
-            out = self._dispatch(i, request)
+            self.refine_plans = True  # (the command path, between cycles: CoreContext.refine_plans)
+            try:
+                out = self._dispatch(i, request)
+            finally:
+                self.refine_plans = False
         except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
             return self._refused(rid, cmd, exc, cycle)
         # the engine's rule: records true after every command. Row i is synced unless its engine path
@@ -348,7 +353,11 @@ class NcCore:
         self.engine.touched.clear()
         try:
             i = self.index(axis_id)
-            got = self.engine.prepare(i, kind, request)
+            self.refine_plans = True  # (the command path, between cycles: CoreContext.refine_plans)
+            try:
+                got = self.engine.prepare(i, kind, request)
+            finally:
+                self.refine_plans = False
         except Exception as exc:  # NcError: its code; a bug must cost one command, never the NC cycle
             return self._refused(rid, cmd, exc, cycle)
         if got is None:  # queued behind the running job: one step, now

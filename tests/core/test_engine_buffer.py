@@ -299,6 +299,49 @@ def test_override_dip_before_a_blend_does_not_lower_it_for_good(mode):
     assert tr.rows[-1]["SetPos"] == 400.0
 
 
+
+def _counting_plans(core):
+    """Wrap ``core.plan``: returns the list of (planning function, end velocity of a plan_position)."""
+    calls = []
+    orig = core.plan
+
+    def counting(fn, *args):
+        calls.append((fn.__name__, args[-1] if fn.__name__ == "plan_position" else None))
+        return orig(fn, *args)
+
+    core.plan = counting
+    return calls
+
+
+def test_override_replan_of_an_unreachable_blend_makes_no_more_plans_than_halving():
+    """P0 -> P1 = 20 at 100, then 400 BlendingNext: 400 at P1 is not reachable. On the command path (the
+    buffered command, between cycles) the highest end velocity that fits is searched (~271 u/s); an
+    override change re-plans in the cycle with the halving only: 360 (90 %) does not fit, 180 does --
+    the 4 plans (2 velocity ramps of the end-velocity check, 2 positionings) of the code before the
+    search (03e5cb4), never the 8 bisections more (12 plans)."""
+    core = powered()
+    r1 = cmd(core, "MoveAbsolute", Position=20.0, Velocity=100.0)
+    for _ in range(5):
+        core.step()
+    on_command = _counting_plans(core)
+    r2 = cmd(core, "MoveAbsolute", Position=300.0, Velocity=400.0, BufferMode=NEXT)
+    assert r1["error"] == 0 and r2["error"] == 0
+    ends = [v for f, v in on_command if f == "plan_position"]
+    assert any(200.0 < v < 400.0 for v in ends), ends  # the command path searched (the scenario needs it)
+    del core.plan
+    for _ in range(5):
+        core.step()
+    assert core.nctoplc[0]["SetPos"] < 20.0 and int(core.ncjobs[0]["BufferedCmdNo"]) == r2["CmdNo"]
+    in_cycle = _counting_plans(core)
+    power(core, override=900_000)
+    core.step()
+    assert in_cycle == [("plan_velocity", None), ("plan_velocity", None),
+                        ("plan_position", 360.0), ("plan_position", 180.0)], in_cycle
+    del core.plan
+    tr = Trace(core, vmax=400.0)
+    tr.settle()
+    assert tr.rows[-1]["SetPos"] == 300.0 and tr.fate(r2["CmdNo"]) == (DONE, 0)
+
 def test_blending_into_move_velocity():
     """A velocity job behind a position job with BlendingNext: reached at the first target."""
     core = powered()

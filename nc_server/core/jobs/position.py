@@ -278,8 +278,11 @@ class PositionKind(JobKind):
         """The first acceptable of: the plan with the end velocity ``ve``; the same without ruckig's
         brake pre-profile (a travel velocity below the current one: an override cut or a slower new
         velocity close to the target, where braking first to the new velocity leaves too little way and
-        ruckig turns back); lower end velocities; at rest. Acceptable: heading for the target it never
-        turns back on the way, and (with an end velocity) it does not pass the target."""
+        ruckig turns back); lower end velocities (halved; on the command path, ``core.refine_plans``, then
+        the highest that fits searched between the last two: 8 bisections); at rest. Acceptable: heading
+        for the target it never turns back on the way, and (with an end velocity) it does not pass the
+        target. In the cycle the first halved one that fits is taken: a plan made on the command path and
+        re-planned there (an override change) may pass the target more slowly than it could."""
         target = job.target
         assert target is not None
         sense = 1.0 if target > start.p else (-1.0 if target < start.p else (1.0 if ve >= 0 else -1.0))
@@ -297,10 +300,27 @@ class PositionKind(JobKind):
             dyns.append(dyn.with_(velocity=v_peak * (1 + 1e-9)))
         ends = [ve] + ([ve * 0.5 ** k for k in range(1, 9)] + [0.0] if ve and not job.continuous else [])
         fallback = None
-        for v_end in ends:
+        for k, v_end in enumerate(ends):
             for d in dyns:
                 plan = core.plan(plan_position, start, target, d, v_end)
                 if acceptable(plan, v_end):
+                    if k and v_end and core.refine_plans:
+                        # halving overshot the highest end velocity that fits: search between this one
+                        # and the previous (Tc2_MC2 MC_BufferMode: blending "as best as possible").
+                        # Only on the command path: in the cycle (an override change, a buffered job
+                        # taking over) the search would multiply the step's cost on many axes
+                        lo, hi = v_end, ends[k - 1]
+                        for _ in range(8):
+                            mid = 0.5 * (lo + hi)
+                            try:
+                                trial = core.plan(plan_position, start, target, d, mid)
+                            except NcError:
+                                hi = mid
+                                continue
+                            if acceptable(trial, mid):
+                                lo, plan = mid, trial
+                            else:
+                                hi = mid
                     return plan
                 if d is dyn and not v_end:
                     fallback = plan
