@@ -428,3 +428,35 @@ def test_set_actual_position_on_the_fly_before_the_homing_sets_the_position_chan
         tr.settle()
         ends.append(float(tr.rows[-1]["SetPos"]))
     assert ends[1] == pytest.approx(ends[0], abs=1e-9)
+
+
+def test_homing_waits_for_the_falling_cam_edge_after_braking_beyond_a_narrow_cam():
+    """Reference §1.6 HomingState: '4 wait for falling cam edge'. The search stops ~6 u beyond a
+    1 u wide cam, i.e. off it: the latch is armed only after the cam has been passed again on the
+    way towards the sync pulse (rising, then falling edge), not at once because the cam is FALSE."""
+    cam = (-11.0, -10.0)
+    core, tr, _ = homing_core(cam=cam)
+    cmd(core, "Home", Position=500.0)
+    tr.settle()
+    hs = [int(x) for x in tr.col("HomingState")]
+    assert changes(hs) == [1, 2, 3, 4, 5, 6, 0]
+    act = tr.col("ActPos")
+    k4, k5, k6 = (hs.index(s) for s in (4, 5, 6))
+    assert act[k4] < cam[0], "braked beyond the cam (the scenario)"
+    assert act[k5 - 2] <= cam[1] < act[k5 - 1], "latch armed after the falling edge on the way back"
+    pulse = -10.0 + PULSE_OFFSET
+    assert act[k6 - 2] < pulse <= act[k6 - 1]
+    assert tr.rows[-1]["StateDWord"] & StateDWord.Homed
+    assert 0 < float(tr.rows[-1]["SetPos"]) - 500.0 < stop_distance(20.0) + 3 * 20.0 * tr.dt + 0.05
+
+
+def test_homing_on_in_the_search_direction_beyond_a_narrow_cam_does_not_wait_for_it():
+    """Sync direction = search direction (both negative): the falling edge of a cam narrower than
+    the braking distance lay in the braking (state 3), so state 4 does not wait for another one;
+    the latch takes the next pulse on the way (zenoh-nc choice; the reference is silent)."""
+    core, tr, _ = homing_core(cam=(-11.0, -10.0), AxisInvertSyncPulseSearchDirection=True)
+    cmd(core, "Home", Position=500.0)
+    tr.settle()
+    hs = [int(x) for x in tr.col("HomingState")]
+    assert changes(hs)[-3:] == [5, 6, 0] and tr.rows[-1]["StateDWord"] & StateDWord.Homed
+    assert (tr.col("SetVelo") <= 0).all()

@@ -11,7 +11,9 @@ drive's sync pulse latch (``DriveABC.latch_sync_pulse``):
 3 WAIT_STOP_THEN_SYNC when stopped, start off the cam towards the sync pulse
                       (AxisCalibrationVelocityBackward; positive unless
                       AxisInvertSyncPulseSearchDirection)
-4 WAIT_CAM_FALLING    wait for the falling cam edge
+4 WAIT_CAM_FALLING    wait for the falling cam edge (an edge: braked beyond a narrow cam and
+                      going back, the cam is passed again first; going on in the search
+                      direction, the edge was passed while braking)
 5 WAIT_LATCH          latch armed: wait for the sync pulse, then stop
 6 SET_POSITION        when stopped, set the actual position: the latched position becomes the
                       reference position (MC_Home.Position, or AxisCalibrationValue for
@@ -143,7 +145,9 @@ class HomeKind(JobKind):
                 continue
             if job.phase == S2 and cam[n]:
                 self._stop(core, i, job, S3)
-            elif ph == S4 and not cam[n]:
+            elif ph == S4 and cam[n]:
+                job.data["cam_was"] = True
+            elif ph == S4 and job.data["cam_was"]:  # the falling edge (not the cam's mere absence)
                 job.phase = S5
                 job.data["armed_at"] = float(core.act_pos[i])
                 core.touch(i)  # (HomingState shows the phase)
@@ -170,6 +174,11 @@ class HomeKind(JobKind):
             core.fault(i, err.code)
             return
         job.phase = S4
+        # S4 waits for the falling cam edge. Braked beyond a narrow cam, the axis is off it: going
+        # back (sync direction opposite to the search) it passes the cam again and the edge is
+        # the one at its far side; going on in the search direction the edge lay in the braking.
+        search = -1.0 if p.AxisInvertCalibrationCamSearchDirection else 1.0
+        job.data["cam_was"] = bool(core.cam(np.array([i]))[0]) or sense == search
         v = p.AxisCalibrationVelocityBackward
         # (the ignore: a homing job's dyn is set on accept)
         core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
