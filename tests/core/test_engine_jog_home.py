@@ -196,14 +196,17 @@ def test_homing_with_the_cam_occupied_at_start_leaves_it_first():
     assert tr.rows[-1]["StateDWord"] & StateDWord.Homed
 
 
-def test_homing_without_cam_recipe():
-    """TcMC 3.14: the PLC sets the cam first and clears it once HomingState >= 4."""
+@pytest.mark.parametrize("clear_at", [4, 3])
+def test_homing_without_cam_recipe(clear_at):
+    """TcMC 3.14: the PLC sets the cam first and clears it once HomingState >= 4. A PLC clearing it
+    already at state 3 (the axis at rest on the cam): the cam FALSE at rest when state 4 starts is
+    the falling edge, the latch is armed at once (no endless wait for a cam that never comes)."""
     core = powered(AxisCalibrationVelocityBackward=20.0, SimSyncPulseOffset=PULSE_OFFSET)
     tr = Trace(core, shift_ok=lambda p, r: int(p["HomingState"]) == 6 and int(r["HomingState"]) == 0)
     power(core, ctrl=ALL_ENABLES | int(ControlDWord.HomingSensor))
     tr.step()
     cmd(core, "Home", Position=100.0)
-    tr.until(lambda r: int(r["HomingState"]) >= 4)
+    tr.until(lambda r: int(r["HomingState"]) >= clear_at)
     power(core)
     tr.settle()
     assert tr.rows[-1]["StateDWord"] & StateDWord.Homed and 100.0 < float(tr.rows[-1]["ActPos"]) < 101.0
@@ -428,3 +431,62 @@ def test_set_actual_position_on_the_fly_before_the_homing_sets_the_position_chan
         tr.settle()
         ends.append(float(tr.rows[-1]["SetPos"]))
     assert ends[1] == pytest.approx(ends[0], abs=1e-9)
+
+
+def test_homing_waits_for_the_falling_cam_edge_after_braking_beyond_a_narrow_cam():
+    """Reference §1.6 HomingState: '4 wait for falling cam edge'. The search stops ~6 u beyond a
+    1 u wide cam, i.e. off it: the latch is armed only after the cam has been passed again on the
+    way towards the sync pulse (rising, then falling edge), not at once because the cam is FALSE."""
+    cam = (-11.0, -10.0)
+    core, tr, _ = homing_core(cam=cam)
+    cmd(core, "Home", Position=500.0)
+    tr.settle()
+    hs = [int(x) for x in tr.col("HomingState")]
+    assert changes(hs) == [1, 2, 3, 4, 5, 6, 0]
+    act = tr.col("ActPos")
+    k4, k5, k6 = (hs.index(s) for s in (4, 5, 6))
+    assert act[k4] < cam[0], "braked beyond the cam (the scenario)"
+    assert act[k5 - 2] <= cam[1] < act[k5 - 1], "latch armed after the falling edge on the way back"
+    pulse = -10.0 + PULSE_OFFSET
+    assert act[k6 - 2] < pulse <= act[k6 - 1]
+    assert tr.rows[-1]["StateDWord"] & StateDWord.Homed
+    assert 0 < float(tr.rows[-1]["SetPos"]) - 500.0 < stop_distance(20.0) + 3 * 20.0 * tr.dt + 0.05
+
+
+def test_homing_on_in_the_search_direction_beyond_a_narrow_cam_does_not_wait_for_it():
+    """Sync direction = search direction (both negative): the falling edge of a cam narrower than
+    the braking distance lay in the braking (state 3), so state 4 does not wait for another one;
+    the latch takes the next pulse on the way (zenoh-nc choice; the reference is silent)."""
+    core, tr, _ = homing_core(cam=(-11.0, -10.0), AxisInvertSyncPulseSearchDirection=True)
+    cmd(core, "Home", Position=500.0)
+    tr.settle()
+    hs = [int(x) for x in tr.col("HomingState")]
+    assert changes(hs)[-3:] == [5, 6, 0] and tr.rows[-1]["StateDWord"] & StateDWord.Homed
+    assert (tr.col("SetVelo") <= 0).all()
+
+
+@pytest.mark.parametrize("search", [-1.0, 1.0])
+def test_homing_judges_the_falling_cam_edge_by_the_actual_motion(search):
+    """Reference §1.6 HomingState '4 wait for falling cam edge', with a lagging drive
+    (SimTimeConstant 0.01): the set position stops still on the cam, the actual position overshoots
+    beyond its far edge and the PLC's cam falls in state 4 while the axis still moves in the search
+    direction. That fall is the far side, not the edge: the cam is crossed again on the way to the
+    sync pulse (search opposite) and the latch takes the first pulse past the near edge (-9.75 /
+    +9.25), not -14.75 / +14.25 beyond the cam. Both cam search directions (mirrored)."""
+    far, near = -15.56 * -search, -10.0 * -search
+    cam = (min(far, near), max(far, near))
+    core, tr, _ = homing_core(cam=cam, SimTimeConstant=0.01,
+                              AxisInvertCalibrationCamSearchDirection=search < 0,
+                              AxisInvertSyncPulseSearchDirection=search > 0)
+    cmd(core, "Home", Position=500.0)
+    tr.settle()
+    hs = [int(x) for x in tr.col("HomingState")]
+    assert changes(hs) == [1, 2, 3, 4, 5, 6, 0]
+    act = tr.col("ActPos") * -search  # mirrored to the negative search: the cam at [-15.56, -10]
+    k4, k5, k6 = (hs.index(s) for s in (4, 5, 6))
+    assert act[k4] >= -15.56 > act[k4:k5].min(), "the far edge was left in state 4 (the scenario)"
+    assert act[k5 - 2] <= -10.0 < act[k5 - 1], "latch armed after the falling edge at the near side"
+    pulse = -10.0 + PULSE_OFFSET if search < 0 else -(10.0 - (1.0 - PULSE_OFFSET))  # -9.75 (mirrored 9.25)
+    assert act[k6 - 2] < pulse <= act[k6 - 1]
+    assert tr.rows[-1]["StateDWord"] & StateDWord.Homed
+

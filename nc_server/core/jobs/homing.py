@@ -11,7 +11,21 @@ drive's sync pulse latch (``DriveABC.latch_sync_pulse``):
 3 WAIT_STOP_THEN_SYNC when stopped, start off the cam towards the sync pulse
                       (AxisCalibrationVelocityBackward; positive unless
                       AxisInvertSyncPulseSearchDirection)
-4 WAIT_CAM_FALLING    wait for the falling cam edge
+4 WAIT_CAM_FALLING    wait for the falling cam edge, judged by the ACTUAL motion, not by the cam
+                      level when state 4 starts (the level is a cycle or two old and the actual
+                      position overshoots after the set position stops): a cam fall (TRUE ->
+                      FALSE, or FALSE seen) while the actual position moves in the cam-search
+                      direction, the sync search being opposite, is the axis leaving the far side
+                      of a narrow cam while braking (in state 3 or 4): the cam must be crossed
+                      again, rise and fall; a fall or FALSE level at rest or while moving in the
+                      sync-search direction is the edge: the latch is armed (5). So going on in
+                      the search direction beyond a narrow cam, the edge lay in the braking, and
+                      a cam FALSE at rest when state 4 starts (a PLC clearing its cam at
+                      HomingState >= 3) is the edge: armed at once.
+                      "Moving" = the actual position moved more than 1e-6 u in that direction in
+                      this or the previous cycle (the cam level lags the position it was read
+                      at); a cam that disappears for good while the axis goes back for it is not
+                      detected (the axis goes on at AxisCalibrationVelocityBackward)
 5 WAIT_LATCH          latch armed: wait for the sync pulse, then stop
 6 SET_POSITION        when stopped, set the actual position: the latched position becomes the
                       reference position (MC_Home.Position, or AxisCalibrationValue for
@@ -45,6 +59,8 @@ _RESET = int(MC_HomingMode.MC_ResetCalibration)
 S1, S2, S3, S4, S5, S6 = (int(HomingState.START_TOWARDS_CAM), int(HomingState.WAIT_CAM_EDGE),
                           int(HomingState.WAIT_STOP_THEN_SYNC), int(HomingState.WAIT_CAM_FALLING),
                           int(HomingState.WAIT_LATCH), int(HomingState.SET_POSITION))
+#: an actual-position step per cycle up to this counts as rest (judging the cam edge in S3/S4)
+_AT_REST = 1e-6
 
 
 class HomeKind(JobKind):
@@ -143,10 +159,23 @@ class HomeKind(JobKind):
                 continue
             if job.phase == S2 and cam[n]:
                 self._stop(core, i, job, S3)
-            elif ph == S4 and not cam[n]:
-                job.phase = S5
-                job.data["armed_at"] = float(core.act_pos[i])
-                core.touch(i)  # (HomingState shows the phase)
+            elif ph in (S3, S4):
+                # the edge by the actual motion (module doc): leaving the cam's far side while
+                # braking in the search direction means it must be crossed again
+                step = float(core.act_pos[i] - core.prev_act_pos[i])
+                moved = (step, job.data.get("last_step", 0.0))
+                job.data["last_step"] = step
+                p = core.params[i]
+                search = -1.0 if p.AxisInvertCalibrationCamSearchDirection else 1.0
+                sync = -1.0 if p.AxisInvertSyncPulseSearchDirection else 1.0
+                if cam[n]:
+                    job.data["cross_again"] = False
+                elif sync != search and any(d * search > _AT_REST for d in moved):
+                    job.data["cross_again"] = True
+                elif ph == S4 and not job.data.get("cross_again"):  # the falling edge
+                    job.phase = S5
+                    job.data["armed_at"] = float(core.act_pos[i])
+                    core.touch(i)  # (HomingState shows the phase)
             elif ph == S5:
                 # the latch reports drive positions: compare in the drive's frame
                 off = float(a.offset[i])
@@ -169,7 +198,7 @@ class HomeKind(JobKind):
         except NcError as err:
             core.fault(i, err.code)
             return
-        job.phase = S4
+        job.phase = S4  # waits for the falling cam edge (watch; module doc)
         v = p.AxisCalibrationVelocityBackward
         # (the ignore: a homing job's dyn is set on accept)
         core.set_plan(i, core.plan(plan_velocity, core.start_state(i), sense * v, job.dyn.with_(velocity=v)))  # type: ignore[union-attr]
