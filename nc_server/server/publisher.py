@@ -154,6 +154,7 @@ class FramePublisher:
         # the wake plan (WakeAtNs in the ring): written after each frame under _wake_lock, set to 0 by the zenoh
         # threads' callbacks (a subscriber or a view token came or went) under it too, so none is lost
         self._wake_lock = threading.Lock()
+        self._closed = False  # (under _wake_lock) close() ran: the ring may be released, callbacks write nothing
         self._wake_at = 0  # the WakeAtNs this publisher wrote last (0: every frame)
         self._last_frame = (0, 0)  # (ring seq, NcTimeNs) of the last frame read
         opts = dict(congestion_control=zenoh.CongestionControl.DROP, express=False)
@@ -204,9 +205,11 @@ class FramePublisher:
         self._decl.append(self.view_sub)
 
     def wake_now(self) -> None:
-        """Be signalled for the next frame (a zenoh thread: a subscriber or a view token came or went)."""
+        """Be signalled for the next frame (a zenoh thread: a subscriber or a view token came or went); after
+        :meth:`close` nothing (the ring's view may be released: a write raised TypeError in the callback)."""
         with self._wake_lock:
-            self.ring.set_wake_at(0)
+            if not self._closed:
+                self.ring.set_wake_at(0)
 
     def _plan_wake(self, nc_time_ns: int) -> None:
         """Write WakeAtNs for the frame at ``nc_time_ns`` just handled: the NC time of the next due put."""
@@ -278,6 +281,10 @@ class FramePublisher:
         log.debug("view of %s: axes %s every %d ms", client, view.selected.decode(), view.period_ns // 1_000_000)
 
     def close(self) -> None:
+        """Undeclare everything. A zenoh thread's callback that still comes (a matching listener firing while the
+        session closes) then writes nothing: the ring is released after this."""
+        with self._wake_lock:
+            self._closed = True
         for v in self.views.values():
             try:
                 v.pub.undeclare()

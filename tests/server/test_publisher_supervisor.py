@@ -156,9 +156,25 @@ def _waking_publisher(out: FrameOutput, n: int) -> FramePublisher:
     p.every_matched = np.zeros(len(FRAME_PERIODS_MS), dtype=bool)
     p.nc_matched, p.pc_matched = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     p.ring, p.axis_ids, p._next_status = out.reader(), list(range(1, n + 1)), 0.0
-    p._wake_lock, p._wake_at, p._last_frame = threading.Lock(), 0, (0, 0)
+    p._wake_lock, p._wake_at, p._last_frame, p._closed = threading.Lock(), 0, (0, 0), False
     p.frame_pub = _Pub()
     return p
+
+
+def test_a_callback_after_close_writes_nothing_to_the_released_ring() -> None:
+    """A matching listener may still fire on a zenoh thread while the child's session closes, after close() and
+    ring.release(): it raised TypeError (a released memoryview) into zenoh's log, a Traceback at every clean exit
+    where it happened. After close() wake_now writes nothing."""
+    out = FrameOutput("nc1", 2)
+    try:
+        p = _waking_publisher(out, 2)
+        p._decl, p.views = [], {}
+        p.wake_now()  # (before close: it writes)
+        p.close()
+        p.ring.release()
+        p.wake_now()  # raised TypeError: argument must be read-write bytes-like object, not memoryview
+    finally:
+        out.close()
 
 
 def test_the_publisher_is_signalled_only_for_the_frames_it_has_a_put_due_for() -> None:
