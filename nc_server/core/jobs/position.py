@@ -53,7 +53,9 @@ import numpy as np
 from nc_schema import E_CmdTypeNewTargPosAndVelo as NPV
 from nc_schema import ErrorCodes, MC_Direction, NcError
 
+from ..checks import running_jerk
 from ..planning import Dynamics, Plan, StartState, plan_position, plan_velocity
+from ..probe import modulo_position
 from ..profile import velocity_extrema
 from .base import ALL_MODES, Job, JobKind
 
@@ -559,11 +561,8 @@ class ModuloKind(PositionKind):
             return  # from standstill: as accepted
         assert job.target is not None and job.dyn is not None
         period = core.params[i].AxisEncoderModuloValue
-        position = float(job.args["Position"])
-        position -= math.floor(position / period) * period
-        running = core.queues[i].active
-        jerk = (running.dyn.jerk if running is not None and running.dyn is not None and core.axes.traj_on[i]
-                else float(core.axes.jerk[i]))  # (the running motion's, as the reversal check's)
+        position = modulo_position(float(job.args["Position"]), period)
+        jerk = running_jerk(core.axes, i, core.queues[i].active)  # (the running motion's, as the reversal check's)
         end, sense, _ = modulo_beyond_stop(core, i, start, position, job.dyn, jerk)
         if job.data.get("queued") and (job.target - end) * sense > -period / 2:
             return  # the queued target lies at or beyond the rest point: it stays (module docstring)
