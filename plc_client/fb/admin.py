@@ -163,15 +163,14 @@ class MC_Power(FunctionBlock):
         if ov_ok and ov != self._written_override:
             ax.PlcToNc.Override = override_to_plctonc(self.Override)
             self._written_override = self.Override
-        if not en:
-            self._reset_outputs()
-            # the axis's error shows with Enable FALSE too (on valid data; the bit first: the usual case has none)
-            if ax.NcToPlc._sdw & _ERR and ax.Status.Valid and not ax.missing and ax._task is not None:
-                self.Error, self.ErrorID = True, _axis_error(ax)
-            return
         # (_axis_problem's answer for a bound axis with valid data, without the call)
         ok = ax.Status.Valid and not ax.missing and ax._task is not None
         sdw = ax.NcToPlc._sdw if ok else 0  # (its StateDWord, without unpacking the record)
+        if not en:
+            self._reset_outputs()
+            if sdw & _ERR:  # the axis's error shows with Enable FALSE too (on valid data)
+                self.Error, self.ErrorID = True, _axis_error(ax)
+            return
         state = claim.state
         held = state == "held"
         code = 0 if ok else self._axis_problem()
