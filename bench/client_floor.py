@@ -71,6 +71,7 @@ from nc_schema import Keys, view_axes_text  # noqa: E402
 from nc_schema.layout import (  # noqa: E402
     FRAME_HEADER_SIZE, NCJOBS_SIZE, NCTOPLC_SIZE, PLC_AXIS_RECORD_SIZE, PLC_FRAME_HEADER_SIZE,
 )
+from nc_server.router import router_config  # noqa: E402
 
 NC = "nc1"
 CYCLE = 0.010
@@ -172,12 +173,7 @@ def nc_main(endpoint: str, ids: list[str]) -> None:
 
     import zenoh
 
-    c = zenoh.Config()
-    c.insert_json5("mode", '"router"')
-    c.insert_json5("listen/endpoints", js.dumps([endpoint]))
-    c.insert_json5("connect/endpoints", "[]")
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("scouting/gossip/enabled", "false")
+    c = router_config([endpoint])  # (nc-router's: explicit endpoints, no scouting, its lease)
     keys = Keys(NC)
     counts: dict[str, int] = {}
     sizes: set[int] = set()
